@@ -1,0 +1,163 @@
+"""Packet loss and latency models, shared by the simulated channel and by vehicles.
+
+The simulator's channel applies them to every (sender, receiver) link; on a vehicle
+`deploy --per` applies them to received (or sent) BSMs, as the OpenConvoy paper did to
+emulate a crowded network. Randomness is injected: every model draws from the
+``numpy.random.Generator`` given to ``reset``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+
+class LossModel(Protocol):
+    """Decides, packet by packet, whether a message is lost."""
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Start over with a new random source."""
+
+    def lost(self, t: float) -> bool:
+        """True when a packet offered at time ``t`` (seconds, non-decreasing) is dropped."""
+
+
+class NoLoss:
+    """A perfect link."""
+
+    def reset(self, rng: np.random.Generator) -> None:
+        pass
+
+    def lost(self, t: float) -> bool:
+        return False
+
+
+class Bernoulli:
+    """Independent loss with packet error rate ``per`` (0..1)."""
+
+    def __init__(self, per: float) -> None:
+        if not 0.0 <= per <= 1.0:
+            raise ValueError(f"packet error rate must be in [0, 1], got {per}")
+        self.per = per
+        self._rng = np.random.default_rng(0)
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self._rng = rng
+
+    def lost(self, t: float) -> bool:
+        return self.per > 0.0 and self._rng.random() < self.per
+
+
+class GilbertElliott:
+    """Bursty loss: a two-state (good/bad) Markov chain evolving in continuous time.
+
+    The link spends exponentially distributed sojourns in each state, with means
+    ``mean_good_s`` and ``mean_bad_s``; a packet is lost with probability ``loss_good``
+    in the good state and ``loss_bad`` in the bad state. Time-based (not packet-based)
+    so the burst length in seconds does not depend on the message rate.
+    """
+
+    def __init__(
+        self,
+        mean_good_s: float,
+        mean_bad_s: float,
+        loss_good: float = 0.0,
+        loss_bad: float = 1.0,
+    ) -> None:
+        if mean_good_s <= 0 or mean_bad_s <= 0:
+            raise ValueError("Gilbert-Elliott sojourn times must be positive")
+        self.mean_good_s = mean_good_s
+        self.mean_bad_s = mean_bad_s
+        self.loss_good = loss_good
+        self.loss_bad = loss_bad
+        self.reset(np.random.default_rng(0))
+
+    @classmethod
+    def from_per(cls, per: float, mean_burst_s: float) -> GilbertElliott:
+        """The chain whose long-run loss rate is ``per`` with bursts of ``mean_burst_s``."""
+        if not 0.0 < per < 1.0:
+            if per == 0.0:
+                return cls(mean_good_s=1e12, mean_bad_s=mean_burst_s)
+            raise ValueError(f"packet error rate must be in [0, 1), got {per}")
+        return cls(mean_good_s=mean_burst_s * (1.0 - per) / per, mean_bad_s=mean_burst_s)
+
+    @property
+    def per(self) -> float:
+        """Long-run packet error rate."""
+        p_bad = self.mean_bad_s / (self.mean_good_s + self.mean_bad_s)
+        return p_bad * self.loss_bad + (1.0 - p_bad) * self.loss_good
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self._rng = rng
+        p_bad = self.mean_bad_s / (self.mean_good_s + self.mean_bad_s)
+        self._bad = bool(rng.random() < p_bad)
+        self._t: float | None = None
+
+    def lost(self, t: float) -> bool:
+        if self._t is not None and t > self._t:
+            self._advance(t - self._t)
+        self._t = t if self._t is None else max(self._t, t)
+        p = self.loss_bad if self._bad else self.loss_good
+        return p > 0.0 and self._rng.random() < p
+
+    def _advance(self, dt: float) -> None:
+        # Exact two-state transition over dt: relaxes towards the stationary law.
+        a = 1.0 / self.mean_good_s  # good -> bad rate
+        b = 1.0 / self.mean_bad_s  # bad -> good rate
+        p_bad_inf = a / (a + b)
+        decay = math.exp(-(a + b) * dt)
+        start = 1.0 if self._bad else 0.0
+        p_bad = p_bad_inf + (start - p_bad_inf) * decay
+        self._bad = bool(self._rng.random() < p_bad)
+
+
+@dataclass(frozen=True)
+class Latency:
+    """Delivery delay: ``base_s`` plus a uniform jitter in [0, ``jitter_s``], seconds."""
+
+    base_s: float = 0.0
+    jitter_s: float = 0.0
+
+    def delay(self, rng: np.random.Generator) -> float:
+        """Draw one packet's delay, seconds."""
+        if self.jitter_s <= 0.0:
+            return self.base_s
+        return self.base_s + float(rng.random()) * self.jitter_s
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Typed description of a link's loss and latency, as written in configs.
+
+    ``model`` is ``"bernoulli"`` or ``"gilbert-elliott"``; ``mean_burst_s`` applies to
+    the latter.
+    """
+
+    per: float = 0.0
+    model: str = "bernoulli"
+    mean_burst_s: float = 1.0
+    latency_s: float = 0.0
+    jitter_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.model not in ("bernoulli", "gilbert-elliott"):
+            raise ValueError(
+                f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
+            )
+        if not 0.0 <= self.per <= 1.0:
+            raise ValueError(f"per must be in [0, 1], got {self.per}")
+
+    def make(self) -> LossModel:
+        """A fresh loss model for one link."""
+        if self.per == 0.0:
+            return NoLoss()
+        if self.model == "bernoulli":
+            return Bernoulli(self.per)
+        return GilbertElliott.from_per(self.per, self.mean_burst_s)
+
+    @property
+    def latency(self) -> Latency:
+        return Latency(self.latency_s, self.jitter_s)

@@ -1,0 +1,59 @@
+"""R^i: for every vehicle heard, the last ``k`` states received (paper eq. 1), with trails.
+
+Ages are measured on the receiver's clock against each message's own time stamp (the
+sender's measurement time), as DESIGN.md defines message age.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from openconvoy.core.state import VehicleState
+from openconvoy.core.trail import Trail
+
+
+class StateBuffer:
+    """Last ``k`` states per sender id, newest first, plus each sender's trail."""
+
+    def __init__(self, k: int, trail_spacing_m: float = 0.2) -> None:
+        if k < 1:
+            raise ValueError(f"buffer depth k must be at least 1, got {k}")
+        self.k = k
+        self.trail_spacing_m = trail_spacing_m
+        self._states: dict[int, deque[VehicleState]] = {}
+        self._trails: dict[int, Trail] = {}
+
+    def clear(self) -> None:
+        self._states.clear()
+        self._trails.clear()
+
+    def push(self, state: VehicleState) -> None:
+        """Store a received state. Out-of-order (older than the newest) states are ignored."""
+        q = self._states.get(state.vehicle_id)
+        if q is None:
+            q = self._states[state.vehicle_id] = deque(maxlen=self.k)
+            self._trails[state.vehicle_id] = Trail(self.trail_spacing_m)
+        elif q and state.t <= q[0].t:
+            return
+        q.appendleft(state)
+        self._trails[state.vehicle_id].add(state.x, state.y, state.heading)
+
+    def heard(self) -> list[int]:
+        """Ids of every vehicle with at least one stored state."""
+        return list(self._states)
+
+    def latest(self, vehicle_id: int) -> VehicleState | None:
+        q = self._states.get(vehicle_id)
+        return q[0] if q else None
+
+    def history(self, vehicle_id: int) -> list[VehicleState]:
+        """Stored states of a vehicle, newest first (at most ``k``)."""
+        return list(self._states.get(vehicle_id, ()))
+
+    def trail(self, vehicle_id: int) -> Trail | None:
+        return self._trails.get(vehicle_id)
+
+    def age(self, vehicle_id: int, now: float) -> float:
+        """Seconds since the newest stored state was measured (inf if never heard)."""
+        s = self.latest(vehicle_id)
+        return float("inf") if s is None else max(0.0, now - s.t)

@@ -1,0 +1,96 @@
+"""Controllers χ_v (speed) and χ_θ (heading).
+
+Speed controllers turn a spacing error (m, positive = too far behind) and a reference
+speed (m/s, the predecessors' speed) into a speed setpoint. Heading controllers turn path
+geometry in the ego frame into a heading change (rad, CCW positive). All are stateful
+only through what ``reset`` clears; the time step is fixed at construction.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SpeedControlConfig:
+    """χ_v: ``kind`` ``pd`` or ``pid``; gains on the spacing error (1/s, 1/s², -)."""
+
+    kind: str = "pd"
+    kp: float = 0.3
+    ki: float = 0.0
+    kd: float = 1.1
+    integral_limit: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("pd", "pid"):
+            raise ValueError(f"unknown speed controller {self.kind!r}; expected 'pd' or 'pid'")
+
+
+class PIDSpeed:
+    """v_cmd = v_ref + kp·e + ki·∫e + kd·ė, with ė from successive errors.
+
+    The paper's PD is the ``ki = 0`` case. The derivative of the spacing error is the
+    relative speed, so kd damps closing speed; the first step after reset has no
+    derivative kick.
+    """
+
+    def __init__(self, config: SpeedControlConfig, dt: float) -> None:
+        self.config = config
+        self.dt = dt
+        self.reset()
+
+    def reset(self) -> None:
+        self._prev: float | None = None
+        self._integral = 0.0
+
+    def __call__(self, error: float, v_ref: float, error_rate: float | None = None) -> float:
+        """Speed setpoint (m/s) for spacing ``error`` (m) and reference speed ``v_ref``.
+
+        ``error_rate`` (m/s), when the caller knows it (relative speed), replaces the
+        finite difference, which amplifies the jumps of message-driven errors.
+        """
+        c = self.config
+        if error_rate is not None:
+            de = error_rate
+        else:
+            de = 0.0 if self._prev is None else (error - self._prev) / self.dt
+        self._prev = error
+        if c.kind == "pid":
+            lim = c.integral_limit
+            self._integral = min(max(self._integral + error * self.dt, -lim), lim)
+        return v_ref + c.kp * error + c.ki * self._integral + c.kd * de
+
+
+@dataclass(frozen=True)
+class HeadingControlConfig:
+    """χ_θ: ``stanley`` (gain, 1/s... dimensionless on cross-track/speed) or
+    ``pure-pursuit`` (lookahead time, s, with a minimum distance, m)."""
+
+    kind: str = "stanley"
+    gain: float = 0.2
+    softening_mps: float = 0.5
+    lookahead_s: float = 1.0
+    min_lookahead_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("stanley", "pure-pursuit"):
+            raise ValueError(
+                f"unknown heading controller {self.kind!r}; expected 'stanley' or 'pure-pursuit'"
+            )
+
+
+def stanley(heading_error: float, cross_track: float, speed: float, gain: float, soft: float) -> float:
+    """Stanley steering law as a heading change (rad).
+
+    ``heading_error``: path heading − ego heading (rad); ``cross_track``: path's lateral
+    offset from the ego, positive when the path lies to the ego's left (m).
+    """
+    return heading_error + math.atan2(gain * cross_track, soft + abs(speed))
+
+
+def pure_pursuit(target_x: float, target_y: float) -> float:
+    """Heading change (rad) pointing at a lookahead point given in the ego frame (m)."""
+    if target_x == 0.0 and target_y == 0.0:
+        return 0.0
+    return math.atan2(target_y, target_x)

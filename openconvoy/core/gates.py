@@ -1,0 +1,140 @@
+"""Rx gates ρ(i, j) (topologies) and Tx gates τ(R^i) (when to broadcast).
+
+Topology names are DESIGN.md's: ``predecessor``, ``all-predecessors``, ``lookahead:K``
+(``lookahead:N`` = every predecessor), ``leader``, ``leader-predecessor``,
+``bidirectional``, ``all``. Vehicle 0 leads; a predecessor has a smaller id.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from openconvoy.core.state import VehicleState
+
+TOPOLOGIES = (
+    "predecessor",
+    "all-predecessors",
+    "lookahead:K",
+    "leader",
+    "leader-predecessor",
+    "bidirectional",
+    "all",
+)
+
+
+@dataclass(frozen=True)
+class RxGate:
+    """ρ: which senders' messages vehicle ``ego`` keeps, for a named topology."""
+
+    topology: str
+    ego: int
+    n_vehicles: int
+
+    def __post_init__(self) -> None:
+        _ = self.lookahead  # validates the name
+
+    @property
+    def lookahead(self) -> int | None:
+        """K for ``lookahead:K`` (``N`` = all predecessors), else None."""
+        name = self.topology
+        if name.startswith("lookahead:"):
+            k = name.split(":", 1)[1]
+            if k == "N":
+                return max(self.n_vehicles - 1, 1)
+            if not k.isdigit() or int(k) < 1:
+                raise ValueError(f"bad topology {name!r}: lookahead needs a positive K or N")
+            return int(k)
+        if name not in TOPOLOGIES:
+            raise ValueError(f"unknown topology {name!r}; expected one of {', '.join(TOPOLOGIES)}")
+        return None
+
+    def keeps(self, sender: int) -> bool:
+        """ρ(ego, sender) = 1."""
+        i, j = self.ego, sender
+        if j == i:
+            return False
+        t = self.topology
+        if t == "all":
+            return True
+        if t == "predecessor":
+            return j == i - 1
+        if t == "all-predecessors":
+            return j < i
+        if t == "leader":
+            return j == 0
+        if t == "leader-predecessor":
+            return j == 0 or j == i - 1
+        if t == "bidirectional":
+            return j == i - 1 or j == i + 1
+        k = self.lookahead
+        return k is not None and i - k <= j < i
+
+    def needed(self) -> list[int]:
+        """Vehicles whose messages the ego needs to cooperate (the staleness ladder watches
+        them): the nearest kept predecessor, else the leader. Empty for the leader."""
+        if self.ego == 0:
+            return []
+        if self.keeps(self.ego - 1):
+            return [self.ego - 1]
+        return [0] if self.keeps(0) else []
+
+
+@dataclass(frozen=True)
+class TriggerConfig:
+    """τ's configuration.
+
+    ``kind``: ``periodic`` (send every ``period_s``) or ``event`` (checked every
+    ``period_s``; send when the own position deviates from what the others extrapolate
+    from the last message by more than ``threshold_m``, or the speed by more than
+    ``speed_threshold_mps``, or after ``max_silence_s`` without sending).
+    """
+
+    kind: str = "periodic"
+    period_s: float = 0.1
+    threshold_m: float = 0.5
+    speed_threshold_mps: float = 0.5
+    max_silence_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("periodic", "event"):
+            raise ValueError(f"unknown trigger {self.kind!r}; expected 'periodic' or 'event'")
+        if self.period_s <= 0:
+            raise ValueError(f"trigger period_s must be positive, got {self.period_s}")
+
+
+class TxGate:
+    """τ: decides whether to broadcast the own state now."""
+
+    def __init__(self, config: TriggerConfig) -> None:
+        self.config = config
+        self.reset()
+
+    def reset(self) -> None:
+        self._next_check = -math.inf
+        self._last_sent: VehicleState | None = None
+
+    def should_send(self, own: VehicleState, now: float) -> bool:
+        """True when the own state should be broadcast at ``now``; records it as sent."""
+        c = self.config
+        if now + 1e-9 < self._next_check:
+            return False
+        # Keep the check grid fixed so periodic sending does not drift with tick jitter.
+        if self._next_check == -math.inf:
+            self._next_check = now
+        while self._next_check <= now + 1e-9:
+            self._next_check += c.period_s
+        send = c.kind == "periodic" or self._deviates(own, now)
+        if send:
+            self._last_sent = own
+        return send
+
+    def _deviates(self, own: VehicleState, now: float) -> bool:
+        last = self._last_sent
+        if last is None or now - last.t >= self.config.max_silence_s - 1e-9:
+            return True
+        predicted = last.extrapolate(own.t)
+        return (
+            own.distance_to(predicted) > self.config.threshold_m
+            or abs(own.speed - last.speed) > self.config.speed_threshold_mps
+        )

@@ -1,0 +1,54 @@
+"""The staleness ladder: cooperate, degrade, stop, by the age of the messages needed.
+
+Messages older than ``degrade_after_s`` switch the vehicle to degraded mode, ACC-like
+following on the range to the vehicle ahead with a wider time gap; older than
+``stop_after_s`` command a stop; fresh messages bring it back. The same in both worlds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+COOP, DEGRADED, STOP = "coop", "degraded", "stop"
+
+
+@dataclass(frozen=True)
+class LadderConfig:
+    """``enabled``; ages in seconds; ``extra_headway_s`` widens the desired gap by that
+    many seconds of ego speed in degraded mode; ``gap_gain`` (1/s) of the ACC law."""
+
+    enabled: bool = False
+    degrade_after_s: float = 0.5
+    stop_after_s: float = 2.0
+    extra_headway_s: float = 1.0
+    gap_gain: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0 < self.degrade_after_s < self.stop_after_s:
+            raise ValueError(
+                "staleness ladder needs 0 < degrade_after_s < stop_after_s, got "
+                f"{self.degrade_after_s} and {self.stop_after_s}"
+            )
+
+
+def rung(age_s: float, config: LadderConfig) -> str:
+    """The mode for messages of age ``age_s`` (inf = never heard)."""
+    if not config.enabled or age_s <= config.degrade_after_s:
+        return COOP
+    if age_s <= config.stop_after_s:
+        return DEGRADED
+    return STOP
+
+
+def acc_speed(
+    range_m: float,
+    range_rate_mps: float,
+    ego_speed_mps: float,
+    desired_gap_m: float,
+    config: LadderConfig,
+) -> float:
+    """Degraded-mode speed setpoint (m/s): match the vehicle ahead and close the gap error
+    to ``desired_gap_m`` widened by ``extra_headway_s``; never negative."""
+    target_gap = desired_gap_m + config.extra_headway_s * max(ego_speed_mps, 0.0)
+    v_ahead = ego_speed_mps + range_rate_mps
+    return max(0.0, v_ahead + config.gap_gain * (range_m - target_gap))

@@ -1,0 +1,248 @@
+"""The convoy member: R^i + ρ + τ + the staleness ladder + the observation builder.
+
+The unit that makes sim2real "unchanged" (DESIGN.md, One member, two worlds): the
+simulator and the vehicle bridge drive the same object through the same calls each tick::
+
+    member.observe_own(own_state)
+    if member.wants_to_send(now): broadcast(own_state)
+    for msg in inbox: member.receive(msg, now)
+    obs = member.observation(now)
+    action, mode = member.supervise(policy.act(obs), now, ranging)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from openconvoy.core import ladder as ladder_mod
+from openconvoy.core.buffer import StateBuffer
+from openconvoy.core.gates import RxGate, TriggerConfig, TxGate
+from openconvoy.core.ladder import LadderConfig
+from openconvoy.core.observation import (
+    DERIVED_FEATURES,
+    LOOKAHEAD_S,
+    MAX_AGE_S,
+    STATE_FEATURES,
+    ObservationLayout,
+)
+from openconvoy.core.policy import make_action
+from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
+from openconvoy.core.state import VehicleState, wrap_angle
+from openconvoy.core.trail import point_at_arc, project
+
+_NF = len(STATE_FEATURES)
+_ND = len(DERIVED_FEATURES)
+
+
+@dataclass(frozen=True)
+class MemberConfig:
+    """The member side of an implementation: ρ (``topology``), τ (``trigger``), σ's
+    desired gaps (``spacing``), the staleness ``ladder``, and the observation's ``M``, ``k``."""
+
+    topology: str = "all-predecessors"
+    trigger: TriggerConfig = field(default_factory=TriggerConfig)
+    spacing: SpacingConfig = field(default_factory=SpacingConfig)
+    ladder: LadderConfig = field(default_factory=LadderConfig)
+    M: int = 2
+    k: int = 3
+    trail_spacing_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        RxGate(self.topology, 1, 2)  # validates the topology name
+
+    @property
+    def layout(self) -> ObservationLayout:
+        return ObservationLayout(M=self.M, k=self.k)
+
+
+class ConvoyMember:
+    """One vehicle's cooperative state and gates. ``lengths[i]`` is vehicle i's length (m)."""
+
+    def __init__(
+        self,
+        vehicle_id: int,
+        n_vehicles: int,
+        config: MemberConfig,
+        lengths: Sequence[float] | None = None,
+    ) -> None:
+        self.vehicle_id = vehicle_id
+        self.n_vehicles = n_vehicles
+        self.config = config
+        self.layout = config.layout
+        self.lengths = list(lengths) if lengths is not None else [0.0] * n_vehicles
+        self.rx = RxGate(config.topology, vehicle_id, n_vehicles)
+        self.tx = TxGate(config.trigger)
+        self.spacing = SpacingPolicy(config.spacing)
+        self.buffer = StateBuffer(config.k, config.trail_spacing_m)
+        self._max_desired = self.spacing.gap_to(
+            vehicle_id, 0, 40.0, self.lengths
+        ) if vehicle_id > 0 else 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything heard; counters to zero."""
+        self.buffer.clear()
+        self.tx.reset()
+        self.own: VehicleState | None = None
+        self.msgs_sent = 0
+        self.msgs_received = 0
+        self.msgs_filtered = 0
+        self.mode = ladder_mod.COOP
+        self.desired_gap_m = math.nan
+        self.spacing_error_m = math.nan
+        self.pred_msg_age_s = math.nan
+        self._pred_estimate: tuple[float, float] | None = None
+
+    # --- the tick --------------------------------------------------------------------
+
+    def observe_own(self, state: VehicleState) -> None:
+        """Take the own state (from the plant or the autopilot's telemetry)."""
+        self.own = state
+
+    def wants_to_send(self, now: float) -> bool:
+        """τ: True when the own state should be broadcast now (counted as sent)."""
+        if self.own is None:
+            return False
+        send = self.tx.should_send(self.own, now)
+        self.msgs_sent += send
+        return send
+
+    def receive(self, msg: VehicleState, now: float) -> bool:
+        """ρ: keep ``msg`` in R^i if the topology wants its sender. Returns True if kept."""
+        if msg.vehicle_id == self.vehicle_id or not self.rx.keeps(msg.vehicle_id):
+            self.msgs_filtered += 1
+            return False
+        self.buffer.push(msg)
+        self.msgs_received += 1
+        return True
+
+    def observation(self, now: float) -> np.ndarray:
+        """Build the observation array at ``now`` (layout in ``openconvoy.core.observation``)."""
+        if self.own is None:
+            raise RuntimeError("observe_own() must be called before observation()")
+        lay = self.layout
+        obs = lay.zeros()
+        ego = self.own
+        c, s = math.cos(ego.heading), math.sin(ego.heading)
+        slot_ids = self._slot_ids()
+        for slot, vid in zip(lay.slots, slot_ids):
+            if vid is None:
+                continue
+            base = lay.slot_offset(slot)
+            for j, st in enumerate(self.buffer.history(vid)):
+                dx, dy = st.x - ego.x, st.y - ego.y
+                o = base + j * _NF
+                obs[o] = c * dx + s * dy
+                obs[o + 1] = -s * dx + c * dy
+                obs[o + 2] = wrap_angle(st.heading - ego.heading)
+                obs[o + 3] = st.speed
+                obs[o + 4] = st.accel
+                obs[o + 5] = min(max(now - st.t, 0.0), MAX_AGE_S)
+                obs[o + 6] = 1.0
+        o = lay.own_offset
+        obs[o : o + 3] = (ego.speed, ego.accel, ego.yaw_rate)
+        self._fill_targets(obs, slot_ids, now)
+        return obs
+
+    def supervise(
+        self,
+        action: np.ndarray,
+        now: float,
+        ranging: tuple[float, float] | None = None,
+    ) -> tuple[np.ndarray, str]:
+        """Apply the staleness ladder to the policy's action.
+
+        ``ranging`` is ``(range_m, range_rate_mps)`` to the vehicle ahead, centre to
+        centre, from a ranging sensor when the vehicle has one. Returns the action to
+        apply and the mode (``coop``, ``degraded``, ``stop``).
+        """
+        needed = self.rx.needed()
+        age = max((self.buffer.age(v, now) for v in needed), default=0.0)
+        self.mode = ladder_mod.rung(age, self.config.ladder)
+        if self.mode == ladder_mod.COOP:
+            return np.asarray(action, dtype=np.float32), self.mode
+        if self.mode == ladder_mod.DEGRADED:
+            estimate = ranging if ranging is not None else self._pred_estimate
+            if estimate is not None and self.own is not None:
+                desired = self.spacing.pair_gap(
+                    self.own.speed, self._length(self.vehicle_id), self._length(self.vehicle_id - 1)
+                )
+                v = ladder_mod.acc_speed(
+                    estimate[0], estimate[1], self.own.speed, desired, self.config.ladder
+                )
+                return make_action(min(float(action[0]), v), float(action[1])), self.mode
+            self.mode = ladder_mod.STOP
+        return make_action(0.0, 0.0), self.mode
+
+    # --- helpers ---------------------------------------------------------------------
+
+    def _length(self, vid: int) -> float:
+        return self.lengths[vid] if 0 <= vid < len(self.lengths) else 0.0
+
+    def _slot_ids(self) -> list[int | None]:
+        """Vehicle id in each state slot (None when the slot has no vehicle)."""
+        i, n = self.vehicle_id, self.n_vehicles
+        preds: list[int | None] = [i - m if i - m >= 0 else None for m in range(1, self.layout.M + 1)]
+        return [0 if i > 0 else None, *preds, i + 1 if i + 1 < n else None]
+
+    def _fill_targets(self, obs: np.ndarray, slot_ids: list[int | None], now: float) -> None:
+        """Derived and path features; also the logged desired gap, spacing error, age."""
+        lay = self.layout
+        ego = self.own
+        assert ego is not None
+        i = self.vehicle_id
+        self.desired_gap_m = (
+            self.spacing.pair_gap(ego.speed, self._length(i), self._length(i - 1)) if i > 0 else math.nan
+        )
+        self.pred_msg_age_s = self.buffer.age(i - 1, now) if i > 0 else math.nan
+        if math.isinf(self.pred_msg_age_s):
+            self.pred_msg_age_s = math.nan
+        self.spacing_error_m = math.nan
+        self._pred_estimate = None
+        targets = slot_ids[: len(lay.targets)]
+        preds_in_slots = set(targets[1:])
+        found: dict[str, tuple[np.ndarray, float, float]] = {}
+        for name, vid in zip(lay.targets, targets):
+            if vid is None or (name == "leader" and vid in preds_in_slots):
+                continue
+            latest = self.buffer.latest(vid)
+            if latest is None:
+                continue
+            head = latest.extrapolate(now) if now > latest.t else latest
+            desired = self.spacing.gap_to(i, vid, ego.speed, self.lengths)
+            pts = self.buffer.trail(vid).polyline((head.x, head.y), head.heading, desired + 10.0)
+            arc, _, _ = project(pts, ego.x, ego.y)
+            o = lay.target_offset(name)
+            obs[o : o + _ND] = (arc, desired, arc - desired, head.speed, 1.0)
+            found[name] = (pts, arc - desired, head.speed - ego.speed)
+        # The nearest heard predecessor gives the path to steer on and the logged error.
+        for name in (*lay.targets[1:], "leader"):
+            if name in found:
+                pts, error, closing = found[name]
+                self.spacing_error_m = error
+                if name == "pred_1":
+                    self._pred_estimate = (error + self.desired_gap_m, closing)
+                self._fill_path(obs, pts)
+                break
+
+    def _fill_path(self, obs: np.ndarray, pts: np.ndarray) -> None:
+        ego = self.own
+        assert ego is not None
+        arc, cross, path_heading = project(pts, ego.x, ego.y)
+        c, s = math.cos(ego.heading), math.sin(ego.heading)
+        o = self.layout.path_offset
+        # project() gives the ego's offset from the path; the path's offset from the ego
+        # (what a steering law corrects) is its negative.
+        obs[o] = -cross
+        obs[o + 1] = wrap_angle(path_heading - ego.heading)
+        for j, t in enumerate(LOOKAHEAD_S):
+            ahead = max(t, t * abs(ego.speed))
+            px, py, _ = point_at_arc(pts, arc - ahead)
+            dx, dy = px - ego.x, py - ego.y
+            obs[o + 2 + 2 * j] = c * dx + s * dy
+            obs[o + 3 + 2 * j] = -s * dx + c * dy
+        obs[o + 8] = 1.0

@@ -1,0 +1,59 @@
+"""Spacing policies σ: the desired following distance, measured along the path.
+
+Every policy gives the desired *centre-to-centre* gap (the log's ``desired_gap_m``) to the
+immediate predecessor at the ego's speed; to a vehicle ``m`` places ahead the desired
+arc-length gap is the sum over the ``m`` pairs between. ``constant-distance`` is the
+paper's (15 m centre to centre); ``constant-time-headway`` (CACC) and ``quadratic``
+(M-CACC) add a bumper-to-bumper standstill distance plus a speed term to the two half
+lengths, so a standstill of 2 m means 2 m between bumpers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
+
+
+@dataclass(frozen=True)
+class SpacingConfig:
+    """σ's parameters (SI): ``distance_m`` for constant-distance; ``standstill_m``,
+    ``headway_s`` (and ``quadratic_s2_per_m`` for quadratic) for the others."""
+
+    kind: str = "constant-distance"
+    distance_m: float = 15.0
+    standstill_m: float = 2.0
+    headway_s: float = 0.6
+    quadratic_s2_per_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.kind not in SPACING_KINDS:
+            raise ValueError(
+                f"unknown spacing policy {self.kind!r}; expected one of {', '.join(SPACING_KINDS)}"
+            )
+
+
+class SpacingPolicy:
+    """Desired gaps from a SpacingConfig."""
+
+    def __init__(self, config: SpacingConfig) -> None:
+        self.config = config
+
+    def pair_gap(self, speed: float, ego_length: float, pred_length: float) -> float:
+        """Desired centre-to-centre gap (m) to the immediate predecessor at ``speed`` (m/s)."""
+        c = self.config
+        if c.kind == "constant-distance":
+            return c.distance_m
+        v = max(speed, 0.0)
+        gap = c.standstill_m + c.headway_s * v
+        if c.kind == "quadratic":
+            gap += c.quadratic_s2_per_m * v * v
+        return gap + 0.5 * (ego_length + pred_length)
+
+    def gap_to(self, ego: int, target: int, speed: float, lengths: Sequence[float]) -> float:
+        """Desired arc-length gap (m) from vehicle ``ego`` to vehicle ``target`` ahead of it
+        (``target`` < ``ego``): the sum of the pair gaps between them at ``speed``."""
+        return sum(
+            self.pair_gap(speed, lengths[j + 1], lengths[j]) for j in range(target, ego)
+        )

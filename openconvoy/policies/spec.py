@@ -1,0 +1,95 @@
+"""Policy specs: one grammar everywhere (``sim``, ``experiment``, ``deploy``, ``train``).
+
+``--policy X`` where X is
+
+- a preset name (``openconvoy presets`` lists them), optionally with ``+ladder`` to switch
+  the staleness ladder on (``paper+ladder``);
+- a TOML file describing a classical policy (what ``openconvoy tune`` writes; see
+  ``classical_from_toml``);
+- a stable-baselines3 ``.zip`` or an exported ``.npz`` (learned policies).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.policy import Policy
+from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
+from openconvoy.policies.presets import PRESETS, with_ladder
+
+LADDER_SUFFIX = "+ladder"
+
+
+def load_policy(spec: str, **learned_kwargs: Any) -> Policy:
+    """The policy a spec names. Learned-policy keyword arguments pass to their loader."""
+    path = Path(spec)
+    if path.suffix in (".zip", ".npz"):
+        if not path.is_file():
+            raise FileNotFoundError(f"policy file not found: {spec}")
+        from openconvoy.policies import learned
+
+        return learned.load_learned(path, **learned_kwargs)
+    return ClassicalPolicy(classical_config(spec))
+
+
+def classical_config(spec: str) -> ClassicalConfig:
+    """The ClassicalConfig of a preset name (with optional ``+ladder``) or TOML file."""
+    ladder = spec.endswith(LADDER_SUFFIX)
+    base = spec[: -len(LADDER_SUFFIX)] if ladder else spec
+    if base.endswith(".toml"):
+        config = classical_from_toml(base)
+    elif base in PRESETS:
+        config = PRESETS[base]
+    else:
+        raise ValueError(
+            f"unknown policy {spec!r}: not a preset ({', '.join(PRESETS)}), "
+            "nor a .toml, .zip or .npz file"
+        )
+    return with_ladder(config) if ladder else config
+
+
+def classical_from_toml(path: str | Path) -> ClassicalConfig:
+    """Load a classical policy file: a ``[policy]`` table with ClassicalConfig's keys, and
+    optionally ``base = "<preset>"`` whose values the file's override, table by table."""
+    data = load_toml(path)
+    table = data.get("policy")
+    if table is None or set(data) - {"policy"}:
+        raise ValueError(f"{path}: a policy file has exactly one top-level table, [policy]")
+    table = dict(table)
+    base_name = table.pop("base", None)
+    if base_name is not None:
+        if base_name not in PRESETS:
+            raise ValueError(f"{path}: unknown base preset {base_name!r}")
+        table = _merge(to_dict(PRESETS[base_name]), table)
+    table.setdefault("name", Path(path).stem)
+    return from_dict(ClassicalConfig, table, f"{path}: [policy]")
+
+
+def classical_to_toml(config: ClassicalConfig) -> str:
+    """A policy file that ``classical_from_toml`` reads back to ``config``."""
+    return dumps_toml({"policy": to_dict(config)})
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def describe(config: ClassicalConfig) -> str:
+    """One line: name, topology, trigger, spacing, controllers."""
+    m = config.member
+    return (
+        f"{config.name}: {m.topology}, {m.trigger.kind}, {m.spacing.kind}, "
+        f"{config.speed.kind} + {config.heading.kind}"
+        + (", ladder" if m.ladder.enabled else "")
+    )
+
+
+__all__ = ["load_policy", "classical_config", "classical_from_toml", "classical_to_toml", "describe"]

@@ -1,0 +1,139 @@
+"""The vehicle link: what the real-time runner needs from an autopilot connection.
+
+A small protocol so that the runner (``deploy``) does not care whether it talks MAVLink
+through pymavlink (``bridge.mavlink.MavlinkLink``) or, later, ROS/MAVROS. Everything here is
+in the internal conventions (DESIGN.md): SI units, ENU around the convoy origin, heading
+0 = east counter-clockwise in radians. MAVLink's NED and its integer encodings never leave
+the implementation.
+
+The runner calls ``poll`` and ``send_setpoint`` every control tick (20-50 Hz): both must be
+non-blocking and fast. ``connect``, ``prepare_and_arm``, ``hold`` and ``reconnect`` may
+block for up to their timeout and are meant for start-up, stops and link recovery.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal, Protocol, runtime_checkable
+
+from openconvoy.core.state import VehicleState
+
+Autopilot = Literal["ardupilot", "px4"]
+"""Which firmware family a link talks to."""
+
+StatusCallback = Callable[[str], None]
+"""Receives one human-readable status line (waiting for arming, refused rates, ...)."""
+
+
+class VehicleLinkError(RuntimeError):
+    """A link failure the runner cannot work around by waiting (base class)."""
+
+
+class LinkTimeout(VehicleLinkError):
+    """Nothing (or not the expected answer) arrived from the vehicle in time."""
+
+
+class LinkLost(VehicleLinkError):
+    """The connection is gone (TCP closed by the peer, serial device vanished)."""
+
+
+class CommandRefused(VehicleLinkError):
+    """The autopilot answered a command with a refusal.
+
+    Attributes:
+        command: the command's name, e.g. ``"MAV_CMD_COMPONENT_ARM_DISARM"``.
+        result: the autopilot's result name, e.g. ``"MAV_RESULT_FAILED"``.
+        reason: the autopilot's latest status text explaining it ("" if none arrived).
+    """
+
+    def __init__(self, command: str, result: str, reason: str = "") -> None:
+        self.command = command
+        self.result = result
+        self.reason = reason
+        why = f": {reason}" if reason else ""
+        super().__init__(f"{command} refused by the autopilot ({result}){why}")
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """The latest picture of the vehicle, in internal units.
+
+    Attributes:
+        state: position (ENU, m), forward speed (m/s), heading (rad, 0 = east, CCW),
+            acceleration (m/s², differentiated from speed), yaw rate (rad/s, CCW).
+            ``state.t`` is the wall-clock time (s) the newest telemetry message arrived.
+        lat_deg, lon_deg: the vehicle's geodetic position, degrees.
+        mode: the autopilot's mode name, e.g. ``"GUIDED"``, ``"HOLD"``, ``"OFFBOARD"``.
+        armed: motors armed.
+        t_telemetry: link clock (s) when the newest position/attitude message arrived.
+        t_heartbeat: link clock (s) when the newest vehicle heartbeat arrived.
+    """
+
+    state: VehicleState
+    lat_deg: float
+    lon_deg: float
+    mode: str
+    armed: bool
+    t_telemetry: float
+    t_heartbeat: float
+
+
+@runtime_checkable
+class VehicleLink(Protocol):
+    """What the runner uses to read and drive one vehicle."""
+
+    @property
+    def autopilot(self) -> Autopilot:
+        """``"ardupilot"`` or ``"px4"``; valid after ``connect``."""
+        ...
+
+    @property
+    def pilot_took_over(self) -> bool:
+        """True (latched) once the mode left GUIDED/OFFBOARD without this link asking.
+
+        The runner must then stop commanding and never switch back by itself."""
+        ...
+
+    def connect(self, timeout_s: float) -> None:
+        """Open the link, wait for the vehicle's heartbeat, identify it, request telemetry.
+
+        Raises ``LinkTimeout`` when no heartbeat arrives within ``timeout_s`` seconds."""
+        ...
+
+    def poll(self) -> Telemetry | None:
+        """Handle every message pending (non-blocking); the new telemetry, or None if none."""
+        ...
+
+    def prepare_and_arm(self, timeout_s: float, on_status: StatusCallback | None = None) -> None:
+        """Bring the vehicle into the externally guided mode and arm it, standing still.
+
+        Waits (with status lines) while the autopilot refuses arming, up to ``timeout_s``;
+        then raises ``CommandRefused`` naming the command and the autopilot's reason."""
+        ...
+
+    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+        """Command a forward speed (m/s) and an absolute ENU heading (rad); non-blocking.
+
+        Returns False (and sends nothing) once a pilot took over."""
+        ...
+
+    def stop_motion(self) -> bool:
+        """Command speed 0 while keeping the current heading (never a zero velocity vector)."""
+        ...
+
+    def hold(self, timeout_s: float = 2.0) -> None:
+        """Switch the autopilot to its hold mode (stops the vehicle); 0 = do not wait."""
+        ...
+
+    def link_ok(self, now: float) -> bool:
+        """Telemetry and heartbeat are fresh at link-clock time ``now`` and the link is open."""
+        ...
+
+    def reconnect(self, timeout_s: float) -> None:
+        """Close and reopen the link, then wait for a heartbeat and re-request telemetry."""
+        ...
+
+    def close(self) -> None:
+        """Release the connection (idempotent)."""
+        ...

@@ -1,0 +1,390 @@
+"""SAE J2735 Basic Safety Message codec: MessageFrame (messageId 20) <-> ``BsmCore``.
+
+The wire format is UPER (X.691 unaligned PER) of a J2735 ``MessageFrame`` whose value is a
+``BasicSafetyMessage``; a bare BSM is never sent. The ASN.1 module is ``j2735.asn`` next to
+this file (the project's own restatement of the types the core needs), compiled once per
+process by ``asn1tools``. Part II contents, regional extensions and later-edition extension
+additions are open types there, so they are skipped on decode, never rejected.
+
+``BsmCore`` holds the core (Part I) in J2735 integer units; ``to_physical`` turns it into SI
+and degrees. This module knows nothing of the convoy's local frame: ``mapping`` does that.
+"""
+
+from __future__ import annotations
+
+import functools
+import operator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+#: messageId of a BasicSafetyMessage in a MessageFrame.
+BSM_MESSAGE_ID = 20
+#: Every BSM MessageFrame starts with these two octets (extension bit 0, messageId 20).
+BSM_FRAME_PREFIX = b"\x00\x14"
+
+# J2735 ranges and special values (the DE_* definitions; units in the comments).
+MSG_CNT_MAX = 127  # MsgCount, wraps 127 -> 0
+SEC_MARK_MAX = 65535  # DSecond, ms within the minute
+SEC_MARK_UNAVAILABLE = 65535
+LAT_MIN, LAT_MAX = -900000000, 900000000  # Latitude, 1e-7 degree
+LAT_UNAVAILABLE = 900000001
+LON_MIN, LON_MAX = -1799999999, 1800000000  # Longitude, 1e-7 degree
+LON_UNAVAILABLE = 1800000001
+ELEV_MIN, ELEV_MAX = -4095, 61439  # Elevation, 0.1 m (saturating at both ends)
+ELEV_UNAVAILABLE = -4096
+ACCURACY_MAX = 254  # Semi{Major,Minor}AxisAccuracy, 0.05 m; 254 = >= 12.7 m
+ACCURACY_UNAVAILABLE = 255
+ORIENTATION_MAX = 65534  # SemiMajorAxisOrientation, 360/65535 degree
+ORIENTATION_UNAVAILABLE = 65535
+SPEED_MAX = 8190  # Speed, 0.02 m/s; 8190 = >= 163.8 m/s
+SPEED_UNAVAILABLE = 8191
+HEADING_MAX = 28799  # Heading, 0.0125 degree clockwise from north
+HEADING_UNAVAILABLE = 28800
+ANGLE_MIN, ANGLE_MAX = -126, 126  # SteeringWheelAngle, 1.5 degree, clockwise positive
+ANGLE_UNAVAILABLE = 127
+ACCEL_MIN, ACCEL_MAX = -2000, 2000  # Acceleration, 0.01 m/s²
+ACCEL_UNAVAILABLE = 2001
+VERT_MIN, VERT_MAX = -126, 127  # VerticalAcceleration, 0.02 G
+VERT_UNAVAILABLE = -127
+YAW_RATE_MIN, YAW_RATE_MAX = -32767, 32767  # YawRate, 0.01 degree/s, clockwise positive
+WIDTH_MAX = 1023  # VehicleWidth, cm
+LENGTH_MAX = 4095  # VehicleLength, cm
+
+SPEED_UNIT = 0.02  # m/s
+HEADING_UNIT = 0.0125  # degree
+LATLON_UNIT = 1e-7  # degree
+ELEV_UNIT = 0.1  # m
+ACCURACY_UNIT = 0.05  # m
+ORIENTATION_UNIT = 360.0 / 65535.0  # degree
+ANGLE_UNIT = 1.5  # degree
+ACCEL_UNIT = 0.01  # m/s²
+VERT_UNIT = 0.02  # G
+YAW_RATE_UNIT = 0.01  # degree/s
+SIZE_UNIT = 0.01  # m
+
+TRANSMISSION_STATES = (
+    "neutral",
+    "park",
+    "forwardGears",
+    "reverseGears",
+    "reserved1",
+    "reserved2",
+    "reserved3",
+    "unavailable",
+)
+CONTROL_STATES = ("unavailable", "off", "on", "engaged")  # traction, abs, scs
+BRAKE_BOOST_STATES = ("unavailable", "off", "on")
+AUX_BRAKE_STATES = ("unavailable", "off", "on", "reserved")
+#: BrakeAppliedStatus named bits, in wire order (bit 0 first = most significant of 5).
+WHEEL_BRAKE_BITS = ("unavailable", "leftFront", "leftRear", "rightFront", "rightRear")
+WHEEL_BRAKES_UNAVAILABLE = 0b10000
+
+ASN_PATH = Path(__file__).with_name("j2735.asn")
+
+
+class BsmDecodeError(ValueError):
+    """The bytes are not a valid J2735 BSM MessageFrame (message says why)."""
+
+
+@dataclass(frozen=True, slots=True)
+class BsmCore:
+    """BSM Part I (``BSMcoreData``) in J2735 integer units, field by field.
+
+    Names follow the ASN.1 (``long`` -> ``lon``, nested sequences flattened). Defaults are
+    the standard's "unavailable" codes, so a sender fills only what it knows.
+
+    Attributes:
+        msg_cnt: MsgCount 0..127, +1 per message from one sender, wrapping.
+        temp_id: TemporaryID, 4 bytes.
+        sec_mark: DSecond, milliseconds within the UTC minute (65535 unavailable).
+        lat, lon: 1e-7 degree (900000001 / 1800000001 unavailable).
+        elev: 0.1 m above the WGS-84 ellipsoid (-4096 unavailable).
+        semi_major, semi_minor: position error ellipse axes, 0.05 m (255 unavailable).
+        orientation: ellipse orientation, 360/65535 degree from north (65535 unavailable).
+        transmission: TransmissionState name.
+        speed: 0.02 m/s (8191 unavailable).
+        heading: 0.0125 degree, clockwise from north (28800 unavailable).
+        angle: steering wheel angle, 1.5 degree, clockwise positive (127 unavailable).
+        accel_long, accel_lat: 0.01 m/s² (2001 unavailable).
+        accel_vert: 0.02 G (-127 unavailable).
+        yaw_rate: 0.01 degree/s, clockwise positive.
+        wheel_brakes: BrakeAppliedStatus as a 5-bit integer, bit 4 = named bit 0
+            ("unavailable"), bit 0 = named bit 4 ("rightRear"); 0b10000 = unavailable.
+        traction, abs, scs, brake_boost, aux_brakes: enumeration names.
+        width, length: vehicle size, cm (0 when unknown).
+    """
+
+    msg_cnt: int
+    temp_id: bytes
+    sec_mark: int
+    lat: int
+    lon: int
+    elev: int = ELEV_UNAVAILABLE
+    semi_major: int = ACCURACY_UNAVAILABLE
+    semi_minor: int = ACCURACY_UNAVAILABLE
+    orientation: int = ORIENTATION_UNAVAILABLE
+    transmission: str = "unavailable"
+    speed: int = SPEED_UNAVAILABLE
+    heading: int = HEADING_UNAVAILABLE
+    angle: int = ANGLE_UNAVAILABLE
+    accel_long: int = ACCEL_UNAVAILABLE
+    accel_lat: int = ACCEL_UNAVAILABLE
+    accel_vert: int = VERT_UNAVAILABLE
+    yaw_rate: int = 0
+    wheel_brakes: int = WHEEL_BRAKES_UNAVAILABLE
+    traction: str = "unavailable"
+    abs: str = "unavailable"
+    scs: str = "unavailable"
+    brake_boost: str = "unavailable"
+    aux_brakes: str = "unavailable"
+    width: int = 0
+    length: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Bsm:
+    """A decoded BSM: the core plus what else the frame carried (kept opaque).
+
+    Attributes:
+        core: Part I.
+        part_ii_ids: PartII-Id of each Part II element (0 vehicle safety, 1 special
+            vehicle, 2 supplemental vehicle extensions), in frame order.
+        regional_ids: RegionId of each regional extension, in frame order.
+    """
+
+    core: BsmCore
+    part_ii_ids: tuple[int, ...] = field(default=())
+    regional_ids: tuple[int, ...] = field(default=())
+
+
+# Integer fields and their valid ASN.1 ranges, checked on both encode and decode.
+# asn1tools does not check constraints on decode by default (and checking them there
+# is slower), while UPER can carry out-of-range values in the spare bit patterns of a
+# constrained integer's field (Latitude's 31 bits hold up to 2^31 - 1 offsets).
+_INT_RANGES: dict[str, tuple[int, int]] = {
+    "msg_cnt": (0, MSG_CNT_MAX),
+    "sec_mark": (0, SEC_MARK_MAX),
+    "lat": (LAT_MIN, LAT_UNAVAILABLE),
+    "lon": (LON_MIN, LON_UNAVAILABLE),
+    "elev": (ELEV_UNAVAILABLE, ELEV_MAX),
+    "semi_major": (0, ACCURACY_UNAVAILABLE),
+    "semi_minor": (0, ACCURACY_UNAVAILABLE),
+    "orientation": (0, ORIENTATION_UNAVAILABLE),
+    "speed": (0, SPEED_UNAVAILABLE),
+    "heading": (0, HEADING_UNAVAILABLE),
+    "angle": (ANGLE_MIN, ANGLE_UNAVAILABLE),
+    "accel_long": (ACCEL_MIN, ACCEL_UNAVAILABLE),
+    "accel_lat": (ACCEL_MIN, ACCEL_UNAVAILABLE),
+    "accel_vert": (VERT_UNAVAILABLE, VERT_MAX),
+    "yaw_rate": (YAW_RATE_MIN, YAW_RATE_MAX),
+    "wheel_brakes": (0, 0b11111),
+    "width": (0, WIDTH_MAX),
+    "length": (0, LENGTH_MAX),
+}
+_ENUMS: dict[str, tuple[str, ...]] = {
+    "transmission": TRANSMISSION_STATES,
+    "traction": CONTROL_STATES,
+    "abs": CONTROL_STATES,
+    "scs": CONTROL_STATES,
+    "brake_boost": BRAKE_BOOST_STATES,
+    "aux_brakes": AUX_BRAKE_STATES,
+}
+
+
+_INT_NAMES = tuple(_INT_RANGES)
+_INT_LO = tuple(lo for lo, _ in _INT_RANGES.values())
+_INT_HI = tuple(hi for _, hi in _INT_RANGES.values())
+_get_ints = operator.attrgetter(*_INT_NAMES)
+_ENUM_NAMES = tuple(_ENUMS)
+_ENUM_SETS = tuple(frozenset(v) for v in _ENUMS.values())
+_get_enums = operator.attrgetter(*_ENUM_NAMES)
+
+
+def check_core(core: BsmCore) -> None:
+    """Raise ``ValueError`` naming the first field outside its J2735 range."""
+    # One pass over tuples: this runs for every message sent and received.
+    for name, v, lo, hi in zip(_INT_NAMES, _get_ints(core), _INT_LO, _INT_HI):
+        if v.__class__ is not int or not lo <= v <= hi:
+            raise ValueError(f"BSM field {name}={v!r} outside J2735 range [{lo}, {hi}]")
+    for name, v, allowed in zip(_ENUM_NAMES, _get_enums(core), _ENUM_SETS):
+        if v not in allowed:
+            raise ValueError(f"BSM field {name}={v!r} not one of {sorted(allowed)}")
+    if core.temp_id.__class__ is not bytes or len(core.temp_id) != 4:
+        raise ValueError(f"BSM temp_id must be 4 bytes, got {core.temp_id!r}")
+
+
+@functools.cache
+def _spec() -> tuple[Any, Any]:
+    """The compiled (MessageFrame, BasicSafetyMessage) UPER types, once per process."""
+    import asn1tools  # imported here: only processes that speak J2735 pay for it
+
+    spec = asn1tools.compile_files(str(ASN_PATH), "uper")
+    return spec.types["MessageFrame"], spec.types["BasicSafetyMessage"]
+
+
+def _to_asn(core: BsmCore) -> dict[str, Any]:
+    return {
+        "coreData": {
+            "msgCnt": core.msg_cnt,
+            "id": core.temp_id,
+            "secMark": core.sec_mark,
+            "lat": core.lat,
+            "long": core.lon,
+            "elev": core.elev,
+            "accuracy": {
+                "semiMajor": core.semi_major,
+                "semiMinor": core.semi_minor,
+                "orientation": core.orientation,
+            },
+            "transmission": core.transmission,
+            "speed": core.speed,
+            "heading": core.heading,
+            "angle": core.angle,
+            "accelSet": {
+                "long": core.accel_long,
+                "lat": core.accel_lat,
+                "vert": core.accel_vert,
+                "yaw": core.yaw_rate,
+            },
+            "brakes": {
+                # BIT STRING values are (bytes, bit count), bits from the most significant.
+                "wheelBrakes": (bytes([core.wheel_brakes << 3]), 5),
+                "traction": core.traction,
+                "abs": core.abs,
+                "scs": core.scs,
+                "brakeBoost": core.brake_boost,
+                "auxBrakes": core.aux_brakes,
+            },
+            "size": {"width": core.width, "length": core.length},
+        }
+    }
+
+
+def _from_asn(c: dict[str, Any]) -> BsmCore:
+    acc, accel, brakes, size = c["accuracy"], c["accelSet"], c["brakes"], c["size"]
+    wb_bytes, wb_len = brakes["wheelBrakes"]
+    if wb_len != 5 or len(wb_bytes) != 1:
+        raise BsmDecodeError(f"wheelBrakes has {wb_len} bits, expected 5")
+    return BsmCore(
+        msg_cnt=c["msgCnt"],
+        temp_id=bytes(c["id"]),
+        sec_mark=c["secMark"],
+        lat=c["lat"],
+        lon=c["long"],
+        elev=c["elev"],
+        semi_major=acc["semiMajor"],
+        semi_minor=acc["semiMinor"],
+        orientation=acc["orientation"],
+        transmission=c["transmission"],
+        speed=c["speed"],
+        heading=c["heading"],
+        angle=c["angle"],
+        accel_long=accel["long"],
+        accel_lat=accel["lat"],
+        accel_vert=accel["vert"],
+        yaw_rate=accel["yaw"],
+        wheel_brakes=wb_bytes[0] >> 3,
+        traction=brakes["traction"],
+        abs=brakes["abs"],
+        scs=brakes["scs"],
+        brake_boost=brakes["brakeBoost"],
+        aux_brakes=brakes["auxBrakes"],
+        width=size["width"],
+        length=size["length"],
+    )
+
+
+def encode_frame(core: BsmCore, *, check: bool = True) -> bytes:
+    """UPER-encode ``core`` as a J2735 MessageFrame carrying a core-only BSM.
+
+    With ``check`` (default) every field is range-checked first (``ValueError`` if not);
+    callers that built the core with the clamping mapping may skip it.
+    """
+    if check:
+        check_core(core)
+    frame_t, bsm_t = _spec()
+    value = bsm_t.encode(_to_asn(core))
+    return frame_t.encode({"messageId": BSM_MESSAGE_ID, "value": value})
+
+
+def decode_frame(data: bytes) -> Bsm:
+    """Decode one UPER MessageFrame; raise ``BsmDecodeError`` unless it is a valid BSM.
+
+    Trailing octets after the frame are ignored (some stacks pad datagrams); Part II and
+    regional contents are skipped, only their ids are reported.
+    """
+    if len(data) < 3 or data[:2] != BSM_FRAME_PREFIX:
+        # Cheap early exit for most foreign traffic; another messageId is named below.
+        if len(data) >= 2 and data[0] & 0x80 == 0:
+            msg_id = ((data[0] << 8) | data[1]) & 0x7FFF
+            if msg_id != BSM_MESSAGE_ID:
+                raise BsmDecodeError(f"not a BSM: MessageFrame messageId {msg_id}")
+        raise BsmDecodeError("not a J2735 BSM MessageFrame (too short or bad header)")
+    frame_t, bsm_t = _spec()
+    try:
+        frame = frame_t.decode(data)
+        bsm = bsm_t.decode(frame["value"])
+        core = _from_asn(bsm["coreData"])
+        part_ii = tuple(p["partII-Id"] for p in bsm.get("partII", ()))
+        regional = tuple(r["regionId"] for r in bsm.get("regional", ()))
+    except BsmDecodeError:
+        raise
+    except Exception as exc:  # asn1tools raises many types on garbage; all mean "invalid"
+        raise BsmDecodeError(f"invalid UPER: {type(exc).__name__}: {exc}") from None
+    try:
+        check_core(core)
+    except ValueError as exc:
+        raise BsmDecodeError(str(exc)) from None
+    return Bsm(core, part_ii, regional)
+
+
+def _avail(v: int, unavailable: int, unit: float) -> float | None:
+    return None if v == unavailable else v * unit
+
+
+def to_physical(core: BsmCore) -> dict[str, Any]:
+    """Core fields in physical units (None where the sender said "unavailable").
+
+    Keys: msg_cnt, temp_id (hex), sec_mark_s, lat_deg, lon_deg, elev_m, semi_major_m,
+    semi_minor_m, orientation_deg, transmission, speed_mps, heading_deg (compass,
+    clockwise from north), steering_angle_deg, accel_long_mps2, accel_lat_mps2,
+    accel_vert_g, yaw_rate_dps (clockwise positive), wheel_brakes (names of set bits),
+    traction, abs, scs, brake_boost, aux_brakes, width_m, length_m.
+    """
+    return {
+        "msg_cnt": core.msg_cnt,
+        "temp_id": core.temp_id.hex().upper(),
+        "sec_mark_s": None if core.sec_mark == SEC_MARK_UNAVAILABLE else core.sec_mark / 1000,
+        "lat_deg": _avail(core.lat, LAT_UNAVAILABLE, LATLON_UNIT),
+        "lon_deg": _avail(core.lon, LON_UNAVAILABLE, LATLON_UNIT),
+        "elev_m": _avail(core.elev, ELEV_UNAVAILABLE, ELEV_UNIT),
+        "semi_major_m": _avail(core.semi_major, ACCURACY_UNAVAILABLE, ACCURACY_UNIT),
+        "semi_minor_m": _avail(core.semi_minor, ACCURACY_UNAVAILABLE, ACCURACY_UNIT),
+        "orientation_deg": _avail(core.orientation, ORIENTATION_UNAVAILABLE, ORIENTATION_UNIT),
+        "transmission": core.transmission,
+        "speed_mps": _avail(core.speed, SPEED_UNAVAILABLE, SPEED_UNIT),
+        "heading_deg": _avail(core.heading, HEADING_UNAVAILABLE, HEADING_UNIT),
+        "steering_angle_deg": _avail(core.angle, ANGLE_UNAVAILABLE, ANGLE_UNIT),
+        "accel_long_mps2": _avail(core.accel_long, ACCEL_UNAVAILABLE, ACCEL_UNIT),
+        "accel_lat_mps2": _avail(core.accel_lat, ACCEL_UNAVAILABLE, ACCEL_UNIT),
+        "accel_vert_g": _avail(core.accel_vert, VERT_UNAVAILABLE, VERT_UNIT),
+        "yaw_rate_dps": core.yaw_rate * YAW_RATE_UNIT,
+        "wheel_brakes": [
+            name for i, name in enumerate(WHEEL_BRAKE_BITS) if core.wheel_brakes & (0b10000 >> i)
+        ],
+        "traction": core.traction,
+        "abs": core.abs,
+        "scs": core.scs,
+        "brake_boost": core.brake_boost,
+        "aux_brakes": core.aux_brakes,
+        "width_m": core.width * SIZE_UNIT,
+        "length_m": core.length * SIZE_UNIT,
+    }
+
+
+def core_as_dict(core: BsmCore) -> dict[str, Any]:
+    """The core's raw J2735 integers as a plain dict (temp_id as upper-case hex)."""
+    d = asdict(core)
+    d["temp_id"] = core.temp_id.hex().upper()
+    return d

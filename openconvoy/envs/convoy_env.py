@@ -1,0 +1,442 @@
+"""ConvoyEnv: the convoy as a PettingZoo ``ParallelEnv``; followers are the agents.
+
+One tick (``dt = 1 / control_rate_hz``), the same sequence a vehicle runs (DESIGN.md, One
+member, two worlds):
+
+1. each follower's action ``[speed_mps, heading_change_rad]`` goes through its member's
+   staleness ladder (``supervise``, with the ranging sensor's reading when the vehicle has
+   one); the leader's setpoints come from the scenario's driver;
+2. the plant steps with speed and absolute heading setpoints (current heading + change);
+3. every member takes its own state (with optional GPS noise on the position), its Tx gate
+   decides whether to broadcast (the gate keeps its own check period), the channel applies
+   loss and latency per link and delivers what is due, members keep what their Rx gate
+   wants, and followers build their observations.
+
+Termination: a collision (a follower closer to its predecessor than the sum of their half
+lengths, centre to centre) ends the episode for everybody. Truncation: the scenario's
+duration (or ``max_time_s``). Reward: ``openconvoy.envs.reward``. Infos, per agent per step:
+``INFO_KEYS``. ``log_rows()`` gives the DESIGN.md log rows of the current tick.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec
+
+from openconvoy.comms.geodesy import enu_to_geodetic
+from openconvoy.comms.loss import LossConfig
+from openconvoy.core.member import ConvoyMember, MemberConfig
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
+from openconvoy.core.state import VehicleState
+from openconvoy.envs.channel import Channel
+from openconvoy.envs.plant import BicyclePlant
+from openconvoy.envs.render import draw_convoy
+from openconvoy.envs.reward import RewardConfig, reward
+from openconvoy.envs.scenarios import Scenario, make_scenario
+from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
+from openconvoy.logs import COLUMNS
+
+AGENT_PREFIX = "follower_"
+
+INFO_KEYS: tuple[str, ...] = (
+    "t_s",
+    "gap_m",
+    "desired_gap_m",
+    "platooning_error_m",
+    "spacing_error_m",
+    "speed_mps",
+    "accel_mps2",
+    "leader_speed_mps",
+    "cmd_speed_mps",
+    "cmd_heading_change_rad",
+    "mode",
+    "collision",
+    "msgs_sent",
+    "msgs_received",
+    "msgs_kept",
+    "msgs_lost",
+    "pred_msg_age_s",
+)
+"""Per-agent info keys. ``gap_m``: ground-truth centre-to-centre distance to the immediate
+predecessor; ``desired_gap_m``, ``spacing_error_m`` (path-based, from R^i) and
+``pred_msg_age_s`` from the member; ``platooning_error_m`` = |gap - desired gap| (the
+metric); ``msgs_received``/``msgs_lost``: messages the channel delivered to / dropped on
+the way to this vehicle (cumulative); ``msgs_kept``: those its Rx gate kept; ``cmd_*``: the
+action applied this tick (after the ladder)."""
+
+
+def agent_name(vehicle_id: int) -> str:
+    """The agent name of follower ``vehicle_id`` (1 = first follower)."""
+    return f"{AGENT_PREFIX}{vehicle_id}"
+
+
+class ConvoyEnv(ParallelEnv):
+    """A convoy of a scenario-driven leader and ``n`` learning (or scripted) followers.
+
+    Args:
+        scenario: a spec (``paper``, ``track``, ``emergency-braking``,
+            ``track-file:PATH``) or a ``Scenario`` object.
+        n_followers: convoy size for spec scenarios (default: the scenario's, 2).
+        member_config: the member side of the followers' implementation (topology,
+            trigger, spacing, ladder, layout M and k); default: ``MemberConfig`` with the
+            scenario's spacing. Pass a classical policy's ``member_config`` to run it.
+        loss: packet loss and latency of every link (default: perfect links).
+        control_rate_hz: control and plant rate; ``dt = 1 / control_rate_hz`` seconds.
+        gps_noise_m: standard deviation of white Gaussian noise on the positions members
+            observe and broadcast (metres, per axis); 0 = exact.
+        max_time_s: episode length (default: the scenario's duration).
+        render_mode: None or ``"rgb_array"``.
+        vehicle_presets: replace the scenario's vehicles (names, TOML paths or presets,
+            leader first); sets the convoy size.
+        reward_config: weights of the reward (``openconvoy.envs.reward``).
+    """
+
+    metadata = {
+        "name": "openconvoy_v0",
+        "render_modes": ["rgb_array"],
+        "render_fps": 20,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        scenario: str | Scenario = "paper",
+        n_followers: int | None = None,
+        member_config: MemberConfig | None = None,
+        loss: LossConfig | None = None,
+        control_rate_hz: float = 20.0,
+        gps_noise_m: float = 0.0,
+        max_time_s: float | None = None,
+        render_mode: str | None = None,
+        vehicle_presets: Sequence[VehiclePreset | str] | None = None,
+        reward_config: RewardConfig | None = None,
+    ) -> None:
+        if control_rate_hz <= 0:
+            raise ValueError(f"control_rate_hz must be positive, got {control_rate_hz}")
+        if gps_noise_m < 0:
+            raise ValueError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        presets = None
+        if vehicle_presets is not None:
+            presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
+        if isinstance(scenario, str):
+            scenario = make_scenario(scenario, n_followers, presets)
+        elif presets is not None or n_followers is not None:
+            raise ValueError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+        if scenario.n_vehicles < 2:
+            raise ValueError("a convoy needs a leader and at least one follower")
+        self.scenario = scenario
+        self.presets = tuple(scenario.presets)
+        self.n_vehicles = n = scenario.n_vehicles
+        self.control_rate_hz = float(control_rate_hz)
+        self.dt = 1.0 / self.control_rate_hz
+        self.max_time_s = float(scenario.duration_s if max_time_s is None else max_time_s)
+        self.max_steps = max(1, int(round(self.max_time_s / self.dt)))
+        self.gps_noise_m = float(gps_noise_m)
+        self.render_mode = render_mode
+        self.reward_config = reward_config or RewardConfig()
+        self.loss = loss or LossConfig()
+        self.member_config = member_config or MemberConfig(spacing=scenario.spacing)
+
+        self._lengths = [p.length_m for p in self.presets]
+        self._widths = [p.width_m for p in self.presets]
+        self._half_sum = 0.5 * (np.array(self._lengths[1:]) + np.array(self._lengths[:-1]))
+        self.members = [ConvoyMember(i, n, self.member_config, self._lengths) for i in range(n)]
+        self.plant = BicyclePlant(self.presets, self.dt)
+        self.channel: Channel[VehicleState] = Channel(n, self.loss)
+        self._ranging = [(i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging]
+
+        self.possible_agents = [agent_name(i) for i in range(1, n)]
+        self.agents: list[str] = []
+        self._agent_index = {a: i for i, a in enumerate(self.possible_agents, start=1)}
+        size = self.member_config.layout.size
+        self._observation_spaces = {
+            a: gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
+            for a in self.possible_agents
+        }
+        self._action_spaces = {
+            a: gymnasium.spaces.Box(
+                low=np.array([0.0, -MAX_HEADING_CHANGE_RAD], dtype=np.float32),
+                high=np.array([self.presets[i].max_speed_mps, MAX_HEADING_CHANGE_RAD], dtype=np.float32),
+                dtype=np.float32,
+            )
+            for a, i in self._agent_index.items()
+        }
+        self._action_low = np.array([s.low for s in self._action_spaces.values()], dtype=float)
+        self._action_high = np.array([s.high for s in self._action_spaces.values()], dtype=float)
+        self._road: np.ndarray | None = None
+        self._seed_seq: np.random.SeedSequence | None = None
+        self.t = 0.0
+        self.step_count = 0
+        self._reset_arrays()
+
+    # --- PettingZoo API ------------------------------------------------------------------
+
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self._observation_spaces[agent]
+
+    def action_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self._action_spaces[agent]
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        """Start an episode. The same ``seed`` gives the same episode for the same actions;
+        ``seed=None`` continues the previous seed's sequence (fresh entropy the first time)."""
+        if seed is not None:
+            self._seed_seq = np.random.SeedSequence(seed)
+        elif self._seed_seq is None:
+            self._seed_seq = np.random.SeedSequence()
+        ss_channel, ss_gps, ss_ranging, ss_scenario = self._seed_seq.spawn(4)
+        self._gps_rng = np.random.default_rng(ss_gps)
+        self._ranging_rng = np.random.default_rng(ss_ranging)
+        self.scenario.reset(np.random.default_rng(ss_scenario))
+        self.channel.reset(np.random.default_rng(ss_channel))
+        init = self.scenario.initial_state()
+        self.plant.reset(init.x, init.y, init.heading, init.speed)
+        for m in self.members:
+            m.reset()
+        self.t = 0.0
+        self.step_count = 0
+        self._reset_arrays()
+        self.agents = self.possible_agents[:]
+        obs = self._tick()
+        self._measure()
+        return obs, self._infos()
+
+    def step(
+        self, actions: dict[str, np.ndarray]
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        """Advance one tick with every live agent's action (SI units, clipped to the space)."""
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode; call reset()")
+        plant = self.plant
+        t = self.t
+        cmd_v, cmd_dh = self._cmd_speed, self._cmd_dh
+        ranging = self._ranging_readings()
+        low, high = self._action_low, self._action_high
+        for i in range(1, self.n_vehicles):
+            try:
+                a = actions[self.possible_agents[i - 1]]
+            except KeyError:
+                raise KeyError(f"no action for {self.possible_agents[i - 1]}") from None
+            a0 = min(max(float(a[0]), low[i - 1, 0]), high[i - 1, 0])
+            a1 = min(max(float(a[1]), low[i - 1, 1]), high[i - 1, 1])
+            applied, mode = self.members[i].supervise(
+                np.array((a0, a1), dtype=np.float32), t, ranging.get(i)
+            )
+            cmd_v[i] = applied[0]
+            cmd_dh[i] = applied[1]
+            self._modes[i] = mode
+        v0, h0 = self.scenario.leader_command(
+            t, float(plant.x[0]), float(plant.y[0]), float(plant.heading[0]), float(plant.speed[0])
+        )
+        cmd_v[0] = v0
+        cmd_dh[0] = (h0 - plant.heading[0] + math.pi) % (2 * math.pi) - math.pi
+        prev_accel = plant.accel
+        plant.step(cmd_v, plant.heading + cmd_dh)
+        self.step_count += 1
+        self.t = self.step_count * self.dt
+        self._jerk = (plant.accel - prev_accel) / self.dt
+        obs = self._tick()
+        self._measure()
+
+        rewards_arr = reward(
+            self.reward_config, self._gap - self._desired, plant.accel[1:], self._jerk[1:],
+            plant.yaw_rate[1:], self._collided,
+        )
+        done = bool(self._collided.any())
+        trunc = self.step_count >= self.max_steps and not done
+        agents = self.agents
+        rewards = {a: float(rewards_arr[i]) for i, a in enumerate(agents)}
+        terminations = dict.fromkeys(agents, done)
+        truncations = dict.fromkeys(agents, trunc)
+        infos = self._infos()
+        if done or trunc:
+            self.agents = []
+        return obs, rewards, terminations, truncations, infos
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: an H x W x 3 uint8 picture of the convoy (None without a mode)."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without render_mode; nothing drawn")
+            return None
+        if self._road is None and self.scenario.path is not None:
+            path = self.scenario.path
+            self._road = path.points if len(path.points) == 2 and not path.closed else path.sample(0.5)
+        modes = ["leader", *self._modes[1:]]
+        return draw_convoy(
+            self.plant.x, self.plant.y, self.plant.heading, np.array(self._lengths),
+            np.array(self._widths), modes, self._road,
+        )
+
+    def close(self) -> None:
+        pass
+
+    @classmethod
+    def aec(cls, **kwargs: Any):
+        """The AEC version (PettingZoo's ``parallel_to_aec``) of ``ConvoyEnv(**kwargs)``."""
+        return parallel_to_aec(cls(**kwargs))
+
+    # --- sim runner helpers ---------------------------------------------------------------
+
+    @property
+    def delivery_ratio(self) -> float:
+        """Messages delivered / (delivered + lost) over all links so far (NaN before any)."""
+        return self.channel.delivery_ratio()
+
+    def log_rows(self) -> list[dict[str, Any]]:
+        """DESIGN.md log rows for every vehicle (leader first) at the current tick.
+
+        The state is the plant's (ground truth) at ``t_s``; ``cmd_*`` are the setpoints
+        applied during the tick that led here (empty right after ``reset``); lat/lon come
+        from the scenario's origin. ``msgs_received``/``msgs_lost`` count what the channel
+        delivered to / dropped for the vehicle (the member's Rx gate may discard some of
+        the received ones; infos carry ``msgs_kept``).
+        """
+        p = self.plant
+        lat, lon, _ = enu_to_geodetic(self.scenario.origin, p.x, p.y)
+        gap = [math.nan, *self._gap.tolist()]
+        rows = []
+        for i, m in enumerate(self.members):
+            rows.append({
+                "t_s": round(self.t, 9),
+                "vehicle_id": i,
+                "x_m": float(p.x[i]),
+                "y_m": float(p.y[i]),
+                "lat_deg": float(lat[i]),
+                "lon_deg": float(lon[i]),
+                "speed_mps": float(p.speed[i]),
+                "heading_rad": float(p.heading[i]),
+                "accel_mps2": float(p.accel[i]),
+                "cmd_speed_mps": float(self._log_cmd_v[i]),
+                "cmd_heading_change_rad": float(self._log_cmd_dh[i]),
+                "mode": self._modes[i],
+                "gap_m": gap[i],
+                "desired_gap_m": m.desired_gap_m if i else math.nan,
+                "spacing_error_m": m.spacing_error_m if i else math.nan,
+                "msgs_sent": m.msgs_sent,
+                "msgs_received": int(self._rx[i]),
+                "msgs_lost": int(self._lost[i]),
+                "pred_msg_age_s": m.pred_msg_age_s if i else math.nan,
+            })
+        assert all(tuple(r) == COLUMNS for r in rows[:1])
+        return rows
+
+    # --- internals ---------------------------------------------------------------------
+
+    def _reset_arrays(self) -> None:
+        n = self.n_vehicles
+        self._cmd_speed = np.zeros(n)
+        self._cmd_dh = np.zeros(n)
+        self._log_cmd_v = np.full(n, math.nan)
+        self._log_cmd_dh = np.full(n, math.nan)
+        self._modes = ["coop"] * n
+        self._jerk = np.zeros(n)
+        self._gap = np.zeros(n - 1)
+        self._desired = np.zeros(n - 1)
+        self._collided = np.zeros(n - 1, dtype=bool)
+        self._rx = np.zeros(n, dtype=np.int64)
+        self._lost = np.zeros(n, dtype=np.int64)
+
+    def _tick(self) -> dict[str, np.ndarray]:
+        """Own states -> Tx -> channel -> Rx -> observations, at ``self.t``."""
+        p = self.plant
+        t = self.t
+        x, y = p.x, p.y
+        if self.gps_noise_m > 0.0:
+            noise = self._gps_rng.normal(0.0, self.gps_noise_m, size=(2, self.n_vehicles))
+            x, y = x + noise[0], y + noise[1]
+        xs, ys = x.tolist(), y.tolist()
+        vs, hs, acs, yrs = p.speed.tolist(), p.heading.tolist(), p.accel.tolist(), p.yaw_rate.tolist()
+        members = self.members
+        channel = self.channel
+        lengths, widths = self._lengths, self._widths
+        for i, m in enumerate(members):
+            st = VehicleState(i, t, xs[i], ys[i], vs[i], hs[i], acs[i], yrs[i], lengths[i], widths[i])
+            m.observe_own(st)
+            if m.wants_to_send(t):
+                channel.send(i, st, t)
+        for r, _, msg in channel.deliver(t):
+            members[r].receive(msg, t)
+        if self.step_count:
+            self._log_cmd_v = self._cmd_speed.copy()
+            self._log_cmd_dh = self._cmd_dh.copy()
+        return {a: members[i].observation(t) for i, a in enumerate(self.agents, start=1)}
+
+    def _measure(self) -> None:
+        """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""
+        p = self.plant
+        self._gap = np.hypot(np.diff(p.x), np.diff(p.y))
+        self._desired = np.array([m.desired_gap_m for m in self.members[1:]])
+        self._collided = self._gap < self._half_sum
+        self._rx = self.channel.delivered.sum(axis=0)
+        self._lost = self.channel.lost.sum(axis=0)
+
+    def _ranging_readings(self) -> dict[int, tuple[float, float]]:
+        """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor."""
+        out: dict[int, tuple[float, float]] = {}
+        if not self._ranging:
+            return out
+        p = self.plant
+        for i, sensor in self._ranging:
+            dx, dy = p.x[i - 1] - p.x[i], p.y[i - 1] - p.y[i]
+            rng_m = math.hypot(dx, dy)
+            if rng_m > sensor.max_range_m or rng_m <= 0.0:
+                continue
+            dvx = p.speed[i - 1] * math.cos(p.heading[i - 1]) - p.speed[i] * math.cos(p.heading[i])
+            dvy = p.speed[i - 1] * math.sin(p.heading[i - 1]) - p.speed[i] * math.sin(p.heading[i])
+            rate = (dx * dvx + dy * dvy) / rng_m
+            n1, n2 = self._ranging_rng.normal(size=2)
+            out[i] = (rng_m + sensor.range_noise_m * n1, rate + sensor.range_rate_noise_mps * n2)
+        return out
+
+    def _infos(self) -> dict[str, dict[str, Any]]:
+        p = self.plant
+        leader_speed = float(p.speed[0])
+        gap, desired = self._gap.tolist(), self._desired.tolist()
+        speed, accel = p.speed.tolist(), p.accel.tolist()
+        cmd_v, cmd_dh = self._log_cmd_v.tolist(), self._log_cmd_dh.tolist()
+        rx, lost = self._rx.tolist(), self._lost.tolist()
+        collided = self._collided.tolist()
+        out = {}
+        for i, a in enumerate(self.agents, start=1):
+            m = self.members[i]
+            out[a] = {
+                "t_s": self.t,
+                "gap_m": gap[i - 1],
+                "desired_gap_m": desired[i - 1],
+                "platooning_error_m": abs(gap[i - 1] - desired[i - 1]),
+                "spacing_error_m": m.spacing_error_m,
+                "speed_mps": speed[i],
+                "accel_mps2": accel[i],
+                "leader_speed_mps": leader_speed,
+                "cmd_speed_mps": cmd_v[i],
+                "cmd_heading_change_rad": cmd_dh[i],
+                "mode": self._modes[i],
+                "collision": collided[i - 1],
+                "msgs_sent": m.msgs_sent,
+                "msgs_received": rx[i],
+                "msgs_kept": m.msgs_received,
+                "msgs_lost": lost[i],
+                "pred_msg_age_s": m.pred_msg_age_s,
+            }
+        return out
+
+
+def convoy_aec_env(**kwargs: Any):
+    """The AEC version of ``ConvoyEnv(**kwargs)`` via PettingZoo's ``parallel_to_aec``."""
+    return parallel_to_aec(ConvoyEnv(**kwargs))

@@ -1,0 +1,195 @@
+"""Track files in the original OpenConvoy JSON format, so existing lab tracks load unchanged.
+
+The format (as the original implementation's beacon reads it)::
+
+    {
+      "name": "garage_loop",
+      "center": {"lat": 28.6023, "lon": -81.1953},
+      "straights": [{"start": {"lat": .., "lon": ..}, "end": {"lat": .., "lon": ..},
+                     "speed": 1.0}, ...],
+      "turns":     [{"start": {..}, "end": {..}, "speed": 1.0, "direction": "left"}, ...],
+      "closed_loop": true                      # optional, our extension (default true)
+    }
+
+Semantics, following the original: the track is ``straights[0], turns[0], straights[1],
+turns[1], ...``; turn ``i`` starts at its ``start`` point heading along straight ``i`` and
+turns (``direction`` ``left`` = counter-clockwise, ``right`` = clockwise) until it heads
+along straight ``i + 1`` (straight 0 again on a closed loop), on a circular arc whose
+radius follows from the chord between its start and end and the turn angle
+(``chord / (2 sin(angle / 2))``). Extra straights after the last turn are appended; turns
+without a following straight are ignored, as in the original. ``speed`` (m/s) is the
+leader's speed along that segment. ``center`` is the local ENU origin. Unknown keys are
+an error naming the key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path as FilePath
+from typing import Any
+
+import numpy as np
+
+from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.envs.path import Path
+
+_TOP_KEYS = {"name", "center", "straights", "turns", "closed_loop"}
+_STRAIGHT_KEYS = {"start", "end", "speed"}
+_TURN_KEYS = {"start", "end", "speed", "direction"}
+_POINT_KEYS = {"lat", "lon"}
+
+
+@dataclass(frozen=True)
+class Track:
+    """A loaded track: its path in ENU around ``origin`` and the speed along it.
+
+    Attributes:
+        name: the file's ``name``.
+        origin: the file's ``center`` (altitude 0).
+        path: the driven line, metres ENU.
+        speed_s: arc lengths (m, increasing from 0) where each segment starts.
+        speed_mps: the speed of each segment, m/s.
+    """
+
+    name: str
+    origin: Origin
+    path: Path
+    speed_s: np.ndarray
+    speed_mps: np.ndarray
+
+    def speed_at(self, s: float) -> float:
+        """The track's speed (m/s) at arc length ``s`` (m)."""
+        if self.path.closed:
+            s = s % self.path.length
+        i = int(np.searchsorted(self.speed_s, s, side="right")) - 1
+        return float(self.speed_mps[max(i, 0)])
+
+
+def _check_keys(obj: Any, allowed: set[str], required: set[str], where: str) -> None:
+    if not isinstance(obj, dict):
+        raise ValueError(f"{where}: expected an object, got {type(obj).__name__}")
+    unknown = set(obj) - allowed
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s): {', '.join(sorted(unknown))}")
+    missing = required - set(obj)
+    if missing:
+        raise ValueError(f"{where}: missing key(s): {', '.join(sorted(missing))}")
+
+
+def _point(obj: Any, origin: Origin, where: str) -> np.ndarray:
+    _check_keys(obj, _POINT_KEYS, _POINT_KEYS, where)
+    x, y, _ = geodetic_to_enu(origin, float(obj["lat"]), float(obj["lon"]))
+    return np.array([x, y])
+
+
+def _arc(
+    start: np.ndarray, h0: float, h1: float, end: np.ndarray, left: bool, step_m: float
+) -> list[tuple[float, float]]:
+    """Points of the arc leaving ``start`` at heading ``h0`` and turning to ``h1``."""
+    turn = (h1 - h0) % (2 * math.pi) if left else (h0 - h1) % (2 * math.pi)
+    if turn < 1e-6:
+        return [tuple(end)]
+    chord = float(np.hypot(*(end - start)))
+    radius = chord / (2.0 * math.sin(turn / 2.0)) if turn < 2 * math.pi - 1e-6 else chord
+    sign = 1.0 if left else -1.0
+    # Centre is a radius away on the turning side of the start heading.
+    cx = start[0] - sign * radius * math.sin(h0)
+    cy = start[1] + sign * radius * math.cos(h0)
+    k = max(4, int(math.ceil(radius * turn / step_m)))
+    pts = []
+    for j in range(1, k + 1):
+        h = h0 + sign * turn * j / k
+        pts.append((cx + sign * radius * math.sin(h), cy - sign * radius * math.cos(h)))
+    return pts
+
+
+def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: float = 0.25,
+                source: str = "track") -> Track:
+    """Build a ``Track`` from the decoded JSON of a track file.
+
+    ``closed_loop`` overrides the file's optional ``closed_loop`` (default true, as the
+    original beacon's default). ``step_m`` is the arc sampling step, metres.
+    """
+    _check_keys(data, _TOP_KEYS, {"name", "center", "straights", "turns"}, source)
+    c = data["center"]
+    _check_keys(c, _POINT_KEYS, _POINT_KEYS, f"{source}: center")
+    origin = Origin(float(c["lat"]), float(c["lon"]))
+    closed = bool(data.get("closed_loop", True)) if closed_loop is None else closed_loop
+    straights = data["straights"]
+    turns = data["turns"]
+    if not straights:
+        raise ValueError(f"{source}: a track needs at least one straight")
+    segs = []
+    for i, st in enumerate(straights):
+        where = f"{source}: straights[{i}]"
+        _check_keys(st, _STRAIGHT_KEYS, _STRAIGHT_KEYS, where)
+        a = _point(st["start"], origin, f"{where}.start")
+        b = _point(st["end"], origin, f"{where}.end")
+        if np.hypot(*(b - a)) < 1e-6:
+            raise ValueError(f"{where}: start and end coincide")
+        segs.append((a, b, float(st["speed"])))
+    headings = [math.atan2(b[1] - a[1], b[0] - a[0]) for a, b, _ in segs]
+    if closed and len(segs) > 1:
+        pairs = [(headings[i], headings[(i + 1) % len(segs)]) for i in range(len(segs))]
+    else:
+        pairs = [(headings[i], headings[i + 1]) for i in range(len(segs) - 1)]
+    n_turns = min(len(turns), len(pairs))
+
+    points: list[tuple[float, float]] = []
+    starts: list[float] = []
+    speeds: list[float] = []
+
+    def arc_length() -> float:
+        if len(points) < 2:
+            return 0.0
+        p = np.asarray(points)
+        return float(np.hypot(*np.diff(p, axis=0).T).sum())
+
+    def add(pt: tuple[float, float]) -> None:
+        if not points or math.hypot(pt[0] - points[-1][0], pt[1] - points[-1][1]) > 1e-6:
+            points.append((float(pt[0]), float(pt[1])))
+
+    for i, (a, b, v) in enumerate(segs):
+        starts.append(arc_length() if points else 0.0)
+        speeds.append(v)
+        add(tuple(a))
+        add(tuple(b))
+        if i < n_turns:
+            tn = turns[i]
+            where = f"{source}: turns[{i}]"
+            _check_keys(tn, _TURN_KEYS, _TURN_KEYS, where)
+            direction = tn["direction"]
+            if direction not in ("left", "right"):
+                raise ValueError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
+            ta = _point(tn["start"], origin, f"{where}.start")
+            tb = _point(tn["end"], origin, f"{where}.end")
+            starts.append(arc_length())
+            speeds.append(float(tn["speed"]))
+            add(tuple(ta))
+            h0, h1 = pairs[i]
+            for p in _arc(ta, h0, h1, tb, direction == "left", step_m):
+                add(p)
+    path = Path(np.array(points), closed=closed)
+    return Track(
+        name=str(data["name"]), origin=origin, path=path,
+        speed_s=np.array(starts), speed_mps=np.array(speeds),
+    )
+
+
+def load_track(path: str | FilePath, closed_loop: bool | None = None) -> Track:
+    """Load a track file (original OpenConvoy JSON format, see the module docstring)."""
+    p = FilePath(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no such track file: {p}") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{p}: not valid JSON ({e})") from None
+    return parse_track(data, closed_loop=closed_loop, source=str(p))
+
+
+def example_track_path() -> FilePath:
+    """The example track shipped with the package (a small lab oval)."""
+    return FilePath(__file__).with_name("tracks") / "example_oval.json"

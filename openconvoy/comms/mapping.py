@@ -107,6 +107,10 @@ def state_to_core(
     steering angle and lateral/vertical acceleration are sent as unavailable.
     """
     lat, lon, alt = enu_to_geodetic(origin, state.x, state.y, 0.0)
+    # J2735 longitude spans (-180, 180]: -180 degrees is the same meridian as +180, which
+    # is representable; values past ±180 (an origin near the antimeridian) are normalized
+    # to that span too. This is the angle's periodicity, not wrapping an out-of-range value.
+    lon = 180.0 - (180.0 - lon) % 360.0
     if alt_m is not None:
         alt = alt_m
     reversing = state.speed < 0.0

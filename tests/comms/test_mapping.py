@@ -176,3 +176,12 @@ def test_state_to_bytes_to_state_exact_to_resolution(
     # secMark has 1 ms resolution and truncates: t - 1 ms < t' <= t (float slack for 2e9 s)
     assert t - 1e-3 - 1e-6 <= back.t <= t + 1e-6
     assert back.vehicle_id == 3
+
+
+@pytest.mark.parametrize("lon0", [-180.0, 180.0, 179.99999])
+def test_antimeridian_longitude_is_normalized_not_clamped(lon0):
+    origin = Origin(10.0, lon0, 0.0)
+    for x in (-3.0, 0.0, 3.0):
+        core = state_to_core(VehicleState(0, 0.0, x, 1.0, 0.0, 0.0), origin, TID, 0)
+        back = core_to_state(decode_frame(encode_frame(core)).core, origin, 0, 0.0)
+        assert back.x == pytest.approx(x, abs=6e-3) and back.y == pytest.approx(1.0, abs=6e-3)

@@ -62,7 +62,10 @@ def classical_from_toml(path: str | Path) -> ClassicalConfig:
     if base_name is not None:
         if base_name not in PRESETS:
             raise ValueError(f"{path}: unknown base preset {base_name!r}")
-        table = _merge(to_dict(PRESETS[base_name]), table)
+        inherited = to_dict(PRESETS[base_name])
+        inherited["name"] = Path(path).stem
+        inherited["description"] = f"{base_name} with changes from {Path(path).name}"
+        table = _merge(inherited, table)
     table.setdefault("name", Path(path).stem)
     return from_dict(ClassicalConfig, table, f"{path}: [policy]")
 

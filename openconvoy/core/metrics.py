@@ -1,0 +1,290 @@
+"""Run metrics as pure functions on arrays (DESIGN.md, Logs and metrics).
+
+The inputs are a log's columns (``openconvoy.logs.Log``: column name -> numpy array), the
+same for a simulator run and for merged per-vehicle logs of a vehicle run. Vehicles of a
+vehicle run do not tick together, so time series that combine vehicles (speed difference,
+gaps computed from positions) are taken on the union of all ticks, each vehicle's column
+linearly interpolated inside its own time span (NaN outside it); on a simulator log, where
+all vehicles share the ticks, this is exact.
+
+Key names of ``compute_metrics`` are those of ``metrics.json``:
+``p95_platooning_error_m``, ``mean_speed_difference_mps``, ``min_gap_m``, ``collisions``,
+``string_stability``, ``delivery_ratio``; plus ``per_follower`` (vehicle id -> its own
+values) and ``duration_s``. Missing values are NaN (``None`` in JSON).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+METRIC_KEYS: tuple[str, ...] = (
+    "p95_platooning_error_m",
+    "mean_speed_difference_mps",
+    "min_gap_m",
+    "collisions",
+    "string_stability",
+    "delivery_ratio",
+)
+"""The scalar metrics of ``metrics.json``, in DESIGN.md's order."""
+
+Columns = Mapping[str, np.ndarray]
+
+
+def vehicle_ids(log: Columns) -> list[int]:
+    """Vehicle ids present in the log, ascending (0 = leader)."""
+    return sorted(int(v) for v in np.unique(np.asarray(log["vehicle_id"])))
+
+
+def _rows(log: Columns, vid: int) -> np.ndarray:
+    """Row indices of vehicle ``vid``, in time order."""
+    idx = np.flatnonzero(np.asarray(log["vehicle_id"]) == vid)
+    return idx[np.argsort(np.asarray(log["t_s"], dtype=float)[idx], kind="stable")]
+
+
+def time_grid(log: Columns) -> np.ndarray:
+    """The union of all ticks (s), ascending."""
+    return np.unique(np.asarray(log["t_s"], dtype=float))
+
+
+def aligned(log: Columns, column: str, grid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``column`` per vehicle on a common time grid.
+
+    Returns ``(t, values)`` where ``values[k, j]`` is vehicle ``vehicle_ids(log)[j]``'s
+    value at ``t[k]``: its own sample when it has one at ``t[k]``, else linearly
+    interpolated between its neighbouring samples, NaN outside its time span.
+    """
+    t = time_grid(log) if grid is None else np.asarray(grid, dtype=float)
+    ids = vehicle_ids(log)
+    out = np.full((len(t), len(ids)), np.nan)
+    times = np.asarray(log["t_s"], dtype=float)
+    col = np.asarray(log[column], dtype=float)
+    for j, vid in enumerate(ids):
+        r = _rows(log, vid)
+        tv, yv = times[r], col[r]
+        ok = np.isfinite(yv)
+        tv, yv = tv[ok], yv[ok]
+        if len(tv) == 0:
+            continue
+        inside = (t >= tv[0]) & (t <= tv[-1])
+        out[inside, j] = np.interp(t[inside], tv, yv)
+    return t, out
+
+
+def follower_gaps(log: Columns) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Each follower's gap to its immediate predecessor (m), centre to centre.
+
+    Returns ``{vehicle_id: (t_s, gap_m)}`` at the follower's own ticks. The ``gap_m``
+    column is used where it is finite; elsewhere (a vehicle log written without it) the gap
+    is the distance to the predecessor's position interpolated at the follower's tick.
+    """
+    ids = vehicle_ids(log)
+    times = np.asarray(log["t_s"], dtype=float)
+    x, y = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
+    logged = np.asarray(log["gap_m"], dtype=float) if "gap_m" in log else np.full(len(times), np.nan)
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for vid in ids:
+        if vid == 0 or vid - 1 not in ids:
+            continue
+        r, p = _rows(log, vid), _rows(log, vid - 1)
+        t = times[r]
+        gap = logged[r].copy()
+        missing = ~np.isfinite(gap)
+        if missing.any():
+            tp = times[p]
+            inside = missing & (t >= tp[0]) & (t <= tp[-1])
+            px = np.interp(t[inside], tp, x[p])
+            py = np.interp(t[inside], tp, y[p])
+            gap[inside] = np.hypot(x[r][inside] - px, y[r][inside] - py)
+        out[vid] = (t, gap)
+    return out
+
+
+def platooning_errors(log: Columns) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Each follower's platooning error |gap − desired gap| (m): ``{id: (t_s, error)}``."""
+    desired_col = np.asarray(log["desired_gap_m"], dtype=float)
+    out = {}
+    for vid, (t, gap) in follower_gaps(log).items():
+        desired = desired_col[_rows(log, vid)]
+        out[vid] = (t, np.abs(gap - desired))
+    return out
+
+
+def _nanpercentile(values: np.ndarray, q: float) -> float:
+    v = values[np.isfinite(values)]
+    return float(np.percentile(v, q)) if len(v) else math.nan
+
+
+def p95_platooning_error(log: Columns) -> tuple[float, dict[int, float]]:
+    """95th percentile of the platooning error (m): pooled over all followers and ticks,
+    and per follower."""
+    errors = platooning_errors(log)
+    per = {vid: _nanpercentile(e, 95.0) for vid, (_, e) in errors.items()}
+    pooled = np.concatenate([e for _, e in errors.values()]) if errors else np.array([])
+    return _nanpercentile(pooled, 95.0), per
+
+
+def max_platooning_error_series(log: Columns) -> tuple[np.ndarray, np.ndarray]:
+    """Largest platooning error over the followers at each tick (m): ``(t_s, error)``."""
+    t = time_grid(log)
+    errors = platooning_errors(log)
+    if not errors:
+        return t, np.full(len(t), np.nan)
+    stack = np.full((len(t), len(errors)), np.nan)
+    for j, (te, e) in enumerate(errors.values()):
+        stack[np.searchsorted(t, te), j] = e
+    with np.errstate(all="ignore"):
+        return t, _nanmax_rows(stack)
+
+
+def _nanmax_rows(a: np.ndarray) -> np.ndarray:
+    out = np.full(a.shape[0], np.nan)
+    ok = np.isfinite(a).any(axis=1)
+    out[ok] = np.nanmax(a[ok], axis=1)
+    return out
+
+
+def speed_difference_series(log: Columns) -> tuple[np.ndarray, np.ndarray]:
+    """Max − min speed over all vehicles at each tick (m/s): ``(t_s, difference)``.
+    Ticks where fewer than two vehicles have a speed are NaN."""
+    t, v = aligned(log, "speed_mps")
+    n = np.isfinite(v).sum(axis=1)
+    diff = np.full(len(t), np.nan)
+    ok = n >= 2
+    diff[ok] = np.nanmax(v[ok], axis=1) - np.nanmin(v[ok], axis=1)
+    return t, diff
+
+
+def mean_speed_difference(log: Columns) -> float:
+    """Mean over the run of the max − min speed over all vehicles (m/s)."""
+    _, d = speed_difference_series(log)
+    d = d[np.isfinite(d)]
+    return float(d.mean()) if len(d) else math.nan
+
+
+def min_gaps(log: Columns) -> dict[int, float]:
+    """Smallest gap of each follower to its predecessor over the run (m)."""
+    out = {}
+    for vid, (_, gap) in follower_gaps(log).items():
+        g = gap[np.isfinite(gap)]
+        out[vid] = float(g.min()) if len(g) else math.nan
+    return out
+
+
+def collisions(log: Columns, lengths: Mapping[int, float]) -> tuple[int, dict[int, bool]]:
+    """Follower–predecessor pairs whose gap fell below the sum of their half lengths.
+
+    ``lengths`` maps vehicle id to length (m). Returns the count of such pairs and, per
+    follower, whether its pair collided.
+    """
+    per: dict[int, bool] = {}
+    for vid, (_, gap) in follower_gaps(log).items():
+        limit = 0.5 * (lengths.get(vid, 0.0) + lengths.get(vid - 1, 0.0))
+        g = gap[np.isfinite(gap)]
+        per[vid] = bool(len(g) and g.min() < limit)
+    return sum(per.values()), per
+
+
+def string_stability(log: Columns) -> tuple[float, dict[int, float]]:
+    """Ratio of each follower's peak platooning error to its predecessor's (< 1: errors
+    shrink along the string). Per follower from the second on; the scalar is the largest
+    ratio (the string is stable when every ratio is below 1). NaN with one follower."""
+    errors = platooning_errors(log)
+    peaks = {vid: float(np.nanmax(e)) if np.isfinite(e).any() else math.nan for vid, (_, e) in errors.items()}
+    ratios: dict[int, float] = {}
+    for vid, peak in peaks.items():
+        prev = peaks.get(vid - 1)
+        if prev is None:
+            continue
+        ratios[vid] = peak / prev if prev > 0 else math.nan
+    finite = [r for r in ratios.values() if math.isfinite(r)]
+    return (max(finite) if finite else math.nan), ratios
+
+
+def delivery_ratio(log: Columns) -> float:
+    """Messages received / (received + lost), over all followers' final counters.
+
+    ``msgs_received`` and ``msgs_lost`` are cumulative per vehicle (the last row of each
+    vehicle holds its totals). NaN when nothing was offered.
+    """
+    ids = vehicle_ids(log)
+    received = lost = 0
+    rec_col = np.asarray(log["msgs_received"])
+    lost_col = np.asarray(log["msgs_lost"])
+    for vid in ids:
+        r = _rows(log, vid)
+        rec, los = rec_col[r], lost_col[r]
+        rec, los = rec[rec >= 0], los[los >= 0]  # -1 = not logged
+        received += int(rec.max()) if len(rec) else 0
+        lost += int(los.max()) if len(los) else 0
+    total = received + lost
+    return received / total if total else math.nan
+
+
+def compute_metrics(log: Columns, lengths: Mapping[int, float] | None = None) -> dict[str, Any]:
+    """All metrics of a run, with ``metrics.json``'s key names.
+
+    ``lengths`` (vehicle id -> length, m) sets the collision thresholds; when omitted, a
+    ``length_m`` log column is used if present, else lengths count as 0 (a collision is then
+    only a gap of zero or less: pass the lengths whenever they are known).
+    """
+    if lengths is None:
+        lengths = lengths_from_log(log)
+    p95, p95_per = p95_platooning_error(log)
+    n_coll, coll_per = collisions(log, lengths)
+    ss, ss_per = string_stability(log)
+    gaps = min_gaps(log)
+    t = np.asarray(log["t_s"], dtype=float)
+    per_follower: dict[str, dict[str, Any]] = {}
+    for vid in sorted(p95_per):
+        per_follower[str(vid)] = {
+            "p95_platooning_error_m": p95_per[vid],
+            "min_gap_m": gaps.get(vid, math.nan),
+            "collided": coll_per.get(vid, False),
+            "string_stability": ss_per.get(vid, math.nan),
+        }
+    finite_gaps = [g for g in gaps.values() if math.isfinite(g)]
+    return {
+        "p95_platooning_error_m": p95,
+        "mean_speed_difference_mps": mean_speed_difference(log),
+        "min_gap_m": min(finite_gaps) if finite_gaps else math.nan,
+        "collisions": n_coll,
+        "string_stability": ss,
+        "delivery_ratio": delivery_ratio(log),
+        "duration_s": float(t.max() - t.min()) if len(t) else 0.0,
+        "per_follower": per_follower,
+    }
+
+
+def lengths_from_log(log: Columns) -> dict[int, float]:
+    """Vehicle lengths (m) from a ``length_m`` column, if the log has one; else empty."""
+    if "length_m" not in log:
+        return {}
+    out = {}
+    col = np.asarray(log["length_m"], dtype=float)
+    for vid in vehicle_ids(log):
+        v = col[_rows(log, vid)]
+        v = v[np.isfinite(v)]
+        if len(v):
+            out[vid] = float(v[0])
+    return out
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN/inf floats replaced by ``None`` (JSON has no NaN), recursively;
+    numpy scalars become Python numbers."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        f = float(value)
+        return f if math.isfinite(f) else None
+    return value

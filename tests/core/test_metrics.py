@@ -96,10 +96,14 @@ def test_string_stability_ratio_of_peak_errors():
     f1 = lead - 15.0 - np.where(T == 3.0, 2.0, 0.0)
     f2 = f1 - 15.0 - np.where(T == 4.0, 1.0, 0.0)
     log = make_log(T, [lead, f1, f2], [np.ones_like(T)] * 3)
-    # f2's platooning error peaks at 1 + ... : at T=3 its gap is 13 (error 2); at T=4, 16.
+    # f1's error peaks at 2 m (T = 3 s); f2 moves with f1 then, and its own error peaks
+    # at 1 m (T = 4 s): errors halve along the string.
     ratio, per = m.string_stability(log)
-    assert per[2] == pytest.approx(2.0 / 2.0)
-    assert ratio == pytest.approx(1.0)
+    assert per == {2: pytest.approx(0.5)}
+    assert ratio == pytest.approx(0.5)
+    f2_amplified = lead - 30.0 - np.where(T == 4.0, 3.0, 0.0)
+    log = make_log(T, [lead, f1, f2_amplified], [np.ones_like(T)] * 3)
+    assert m.string_stability(log)[0] == pytest.approx(1.5)
     one = make_log(T, [lead, lead - 15.0], [np.ones_like(T)] * 2)
     assert math.isnan(m.string_stability(one)[0])
 

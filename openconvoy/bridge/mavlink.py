@@ -622,6 +622,17 @@ class MavlinkLink:
             return
         self._set_mode(mode, self._clock() + timeout_s, self._status)
 
+    def set_mode(self, mode: str, timeout_s: float = 3.0) -> None:
+        """Request a mode by name (``"GUIDED"``, ``"HOLD"``, ``"MANUAL"``; PX4 ``"OFFBOARD"``,
+        ``"LOITER"``, ...) until the heartbeat confirms it; refusals are retried until
+        ``timeout_s`` s, then ``CommandRefused``. Entering the guided mode this way does not
+        arm, and does not clear ``pilot_took_over``."""
+        known = mp.PX4_MODE_NUMBERS if self.autopilot == "px4" else mp.ROVER_MODE_NUMBERS
+        if mode not in known:
+            raise ValueError(f"unknown {self.autopilot} mode {mode!r}; one of {', '.join(known)}")
+        self._engaged_mode = None
+        self._set_mode(mode, self._clock() + timeout_s, self._status)
+
     def disarm(self, timeout_s: float = 2.0) -> None:
         """Disarm (standing still); raises ``CommandRefused`` if refused."""
         result, reason = self._command(mp.CMD_COMPONENT_ARM_DISARM, (0.0,), timeout_s)

@@ -1,0 +1,72 @@
+"""Helpers for the bridge tests: free localhost ports, a simulated vehicle with a link."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A localhost port nobody uses right now (UDP by default)."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_for(link: MavlinkLink, seconds: float, speed: float | None = None,
+            heading: float | None = None, period: float = 0.05) -> None:
+    """Poll the link (and send a setpoint when given) every ``period`` s for ``seconds``."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        link.poll()
+        if speed is not None and heading is not None:
+            link.send_setpoint(speed, heading)
+        time.sleep(period)
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, link: MavlinkLink | None = None) -> bool:
+    """Poll ``link`` until ``predicate`` holds or ``timeout`` s pass."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if link is not None:
+            link.poll()
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+@pytest.fixture
+def vehicle_and_link() -> Iterator[Callable[..., tuple[SimVehicle, MavlinkLink, list[str]]]]:
+    """Factory: ``make(autopilot=..., link_kwargs={...}, **config)`` -> (vehicle, link,
+    status lines); the link is connected over localhost UDP with real MAVLink bytes."""
+    made: list[tuple[SimVehicle, MavlinkLink]] = []
+
+    def make(link_kwargs: dict[str, Any] | None = None, connect: bool = True,
+             **config: Any) -> tuple[SimVehicle, MavlinkLink, list[str]]:
+        port = free_port()
+        config.setdefault("ready_after_s", 0.0)
+        vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(**config)).start()
+        lines: list[str] = []
+        kwargs = dict(on_status=lines.append)
+        kwargs.update(link_kwargs or {})
+        origin = kwargs.pop("origin", DEFAULT_HOME)
+        link = MavlinkLink(f"udpout:127.0.0.1:{port}", origin, **kwargs)
+        made.append((vehicle, link))
+        if connect:
+            link.connect(timeout_s=5.0)
+        return vehicle, link, lines
+
+    yield make
+    for vehicle, link in made:
+        with contextlib.suppress(Exception):
+            link.close()
+        vehicle.stop()

@@ -32,8 +32,9 @@ from openconvoy.core.observation import (
 from openconvoy.core.policy import make_action
 from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
 from openconvoy.core.state import VehicleState, wrap_angle
-from openconvoy.core.trail import point_at_arc, project
+from openconvoy.core.trail import points_at, project
 
+_LOOKAHEAD = np.array(LOOKAHEAD_S)
 _NF = len(STATE_FEATURES)
 _ND = len(DERIVED_FEATURES)
 
@@ -205,44 +206,49 @@ class ConvoyMember:
         self._pred_estimate = None
         targets = slot_ids[: len(lay.targets)]
         preds_in_slots = set(targets[1:])
-        found: dict[str, tuple[np.ndarray, float, float]] = {}
+        found: dict[str, tuple[np.ndarray, float, float, tuple[float, float, float]]] = {}
         for name, vid in zip(lay.targets, targets):
             if vid is None or (name == "leader" and vid in preds_in_slots):
                 continue
             latest = self.buffer.latest(vid)
             if latest is None:
                 continue
-            head = latest.extrapolate(now) if now > latest.t else latest
+            # Dead-reckon the sender to now along its heading.
+            dt = max(now - latest.t, 0.0)
+            hx = latest.x + latest.speed * math.cos(latest.heading) * dt
+            hy = latest.y + latest.speed * math.sin(latest.heading) * dt
             desired = self.spacing.gap_to(i, vid, ego.speed, self.lengths)
-            pts = self.buffer.trail(vid).polyline((head.x, head.y), head.heading, desired + 10.0)
-            arc, _, _ = project(pts, ego.x, ego.y)
+            pts = self.buffer.trail(vid).polyline((hx, hy), latest.heading, desired + 10.0)
+            projection = project(pts, ego.x, ego.y)
+            arc = projection[0]
             o = lay.target_offset(name)
-            obs[o : o + _ND] = (arc, desired, arc - desired, head.speed, 1.0)
-            found[name] = (pts, arc - desired, head.speed - ego.speed)
+            obs[o : o + _ND] = (arc, desired, arc - desired, latest.speed, 1.0)
+            found[name] = (pts, arc - desired, latest.speed - ego.speed, projection)
         # The nearest heard predecessor gives the path to steer on and the logged error.
         for name in (*lay.targets[1:], "leader"):
             if name in found:
-                pts, error, closing = found[name]
+                pts, error, closing, projection = found[name]
                 self.spacing_error_m = error
                 if name == "pred_1":
                     self._pred_estimate = (error + self.desired_gap_m, closing)
-                self._fill_path(obs, pts)
+                self._fill_path(obs, pts, projection)
                 break
 
-    def _fill_path(self, obs: np.ndarray, pts: np.ndarray) -> None:
+    def _fill_path(
+        self, obs: np.ndarray, pts: np.ndarray, projection: tuple[float, float, float]
+    ) -> None:
         ego = self.own
         assert ego is not None
-        arc, cross, path_heading = project(pts, ego.x, ego.y)
+        arc, cross, path_heading = projection
         c, s = math.cos(ego.heading), math.sin(ego.heading)
         o = self.layout.path_offset
         # project() gives the ego's offset from the path; the path's offset from the ego
         # (what a steering law corrects) is its negative.
         obs[o] = -cross
         obs[o + 1] = wrap_angle(path_heading - ego.heading)
-        for j, t in enumerate(LOOKAHEAD_S):
-            ahead = max(t, t * abs(ego.speed))
-            px, py, _ = point_at_arc(pts, arc - ahead)
-            dx, dy = px - ego.x, py - ego.y
-            obs[o + 2 + 2 * j] = c * dx + s * dy
-            obs[o + 3 + 2 * j] = -s * dx + c * dy
+        ahead = _LOOKAHEAD * max(1.0, abs(ego.speed))
+        xs, ys = points_at(pts, arc - ahead)
+        dx, dy = xs - ego.x, ys - ego.y
+        obs[o + 2 : o + 8 : 2] = c * dx + s * dy
+        obs[o + 3 : o + 8 : 2] = -s * dx + c * dy
         obs[o + 8] = 1.0

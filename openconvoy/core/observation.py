@@ -53,33 +53,29 @@ class ObservationLayout:
     version: int = LAYOUT_VERSION
     slots: tuple[str, ...] = field(init=False)
     targets: tuple[str, ...] = field(init=False)
+    slot_size: int = field(init=False)
+    own_offset: int = field(init=False)
+    derived_offset: int = field(init=False)
+    path_offset: int = field(init=False)
+    size: int = field(init=False)
 
     def __post_init__(self) -> None:
         if self.M < 1 or self.k < 1:
             raise ValueError(f"observation layout needs M >= 1 and k >= 1, got M={self.M}, k={self.k}")
         preds = tuple(f"pred_{m}" for m in range(1, self.M + 1))
-        object.__setattr__(self, "slots", ("leader", *preds, "follower"))
-        object.__setattr__(self, "targets", ("leader", *preds))
-
-    @property
-    def slot_size(self) -> int:
-        return self.k * len(STATE_FEATURES)
-
-    @property
-    def own_offset(self) -> int:
-        return len(self.slots) * self.slot_size
-
-    @property
-    def derived_offset(self) -> int:
-        return self.own_offset + len(OWN_FEATURES)
-
-    @property
-    def path_offset(self) -> int:
-        return self.derived_offset + len(self.targets) * len(DERIVED_FEATURES)
-
-    @property
-    def size(self) -> int:
-        return self.path_offset + len(PATH_FEATURES)
+        # Offsets are computed once: the member reads them on every tick.
+        slots = ("leader", *preds, "follower")
+        targets = ("leader", *preds)
+        slot_size = self.k * len(STATE_FEATURES)
+        own = len(slots) * slot_size
+        derived = own + len(OWN_FEATURES)
+        path = derived + len(targets) * len(DERIVED_FEATURES)
+        for name, value in (
+            ("slots", slots), ("targets", targets), ("slot_size", slot_size),
+            ("own_offset", own), ("derived_offset", derived), ("path_offset", path),
+            ("size", path + len(PATH_FEATURES)),
+        ):
+            object.__setattr__(self, name, value)
 
     def slot_offset(self, slot: str) -> int:
         return self.slots.index(slot) * self.slot_size

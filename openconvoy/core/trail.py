@@ -20,12 +20,12 @@ class Trail:
     not moved yet is assumed to have come straight along its current heading).
     """
 
-    def __init__(self, spacing_m: float = 0.2, capacity: int = 512) -> None:
+    def __init__(self, spacing_m: float = 0.2, capacity: int = 1024) -> None:
         self.spacing_m = spacing_m
         self.capacity = capacity
         self._xy = np.zeros((capacity, 2))
+        self._cum = np.zeros(capacity)  # arc length from the oldest breadcrumb, m
         self._n = 0
-        self._heading = 0.0  # heading of the newest sample, rad
 
     def __len__(self) -> int:
         return self._n
@@ -35,78 +35,90 @@ class Trail:
 
     def add(self, x: float, y: float, heading: float) -> None:
         """Record a position; kept only when ``spacing_m`` from the last breadcrumb."""
-        self._heading = heading
-        if self._n:
-            lx, ly = self._xy[self._n - 1]
-            if math.hypot(x - lx, y - ly) < self.spacing_m:
+        n = self._n
+        step = 0.0
+        if n:
+            lx, ly = self._xy[n - 1]
+            step = math.hypot(x - lx, y - ly)
+            if step < self.spacing_m:
                 return
-        if self._n == self.capacity:
+        if n == self.capacity:
             # Drop the oldest half at once: amortized O(1) per add.
             keep = self.capacity // 2
-            self._xy[:keep] = self._xy[self._n - keep : self._n]
-            self._n = keep
-        self._xy[self._n] = (x, y)
-        self._n += 1
+            self._xy[:keep] = self._xy[n - keep : n]
+            self._cum[:keep] = self._cum[n - keep : n] - self._cum[n - keep]
+            n = self._n = keep
+        self._xy[n] = (x, y)
+        self._cum[n] = self._cum[n - 1] + step if n else 0.0
+        self._n = n + 1
 
     def polyline(self, head: tuple[float, float], heading: float, back_m: float) -> np.ndarray:
-        """Points from the oldest to ``head`` (the vehicle's present position), extended
-        backwards so the polyline is at least ``back_m`` long. Shape (n, 2)."""
-        pts = self._xy[: self._n]
+        """Points from about ``back_m`` behind ``head`` (the vehicle's present position) to
+        ``head``, oldest first, extended backwards when the trail is shorter. Shape (n, 2)."""
+        n = self._n
         hx, hy = head
-        if self._n == 0 or math.hypot(pts[-1, 0] - hx, pts[-1, 1] - hy) > 1e-9:
-            pts = np.vstack([pts, (hx, hy)]) if self._n else np.array([[hx, hy]])
-        seg = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
-        length = float(seg.sum())
+        if n == 0:
+            pts, length = np.array([[hx, hy]]), 0.0
+        else:
+            # Only the part of the trail within back_m of its newest breadcrumb matters.
+            cum = self._cum[:n]
+            i0 = max(int(np.searchsorted(cum, cum[-1] - back_m, side="right")) - 1, 0)
+            pts, length = self._xy[i0:n], float(cum[-1] - cum[i0])
+            tail = math.hypot(hx - pts[-1, 0], hy - pts[-1, 1])
+            if tail > 1e-9:
+                pts, length = np.concatenate([pts, ((hx, hy),)]), length + tail
+        d0 = pts[1] - pts[0] if len(pts) >= 2 else None
         if length < back_m:
-            if len(pts) >= 2:
-                d = pts[1] - pts[0]
-                h0 = math.atan2(d[1], d[0]) if np.hypot(*d) > 1e-9 else heading
+            if d0 is not None and abs(d0[0]) + abs(d0[1]) > 1e-9:
+                h0 = math.atan2(d0[1], d0[0])
             else:
                 h0 = heading
             extra = back_m - length + 1.0
-            start = pts[0] - extra * np.array([math.cos(h0), math.sin(h0)])
-            pts = np.vstack([start, pts])
+            start = (pts[0, 0] - extra * math.cos(h0), pts[0, 1] - extra * math.sin(h0))
+            pts = np.concatenate([(start,), pts])
         return pts
 
 
 def project(pts: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
-    """Project ``(x, y)`` on the polyline ``pts`` (oldest → newest).
+    """Project ``(x, y)`` on the polyline ``pts`` (oldest → newest, at least 2 points).
 
     Returns ``(arc_to_head_m, cross_track_m, path_heading_rad)``: arc length from the
     projection to the newest point, signed lateral offset (positive = point left of the
     path), and the path's heading at the projection.
     """
-    a = pts[:-1]
-    d = pts[1:] - a
-    seg_len2 = np.maximum((d * d).sum(axis=1), 1e-12)
-    rel = np.array([x, y]) - a
-    s = np.clip((rel * d).sum(axis=1) / seg_len2, 0.0, 1.0)
-    proj = a + d * s[:, None]
-    dist2 = ((np.array([x, y]) - proj) ** 2).sum(axis=1)
-    i = int(np.argmin(dist2))
+    ax, ay = pts[:-1, 0], pts[:-1, 1]
+    dx, dy = pts[1:, 0] - ax, pts[1:, 1] - ay
+    seg_len2 = np.maximum(dx * dx + dy * dy, 1e-12)
+    rx, ry = x - ax, y - ay
+    s = np.clip((rx * dx + ry * dy) / seg_len2, 0.0, 1.0)
+    ex, ey = rx - dx * s, ry - dy * s
+    i = int(np.argmin(ex * ex + ey * ey))
     seg_len = np.sqrt(seg_len2)
     arc_to_head = float(seg_len[i] * (1.0 - s[i]) + seg_len[i + 1 :].sum())
-    heading = math.atan2(d[i, 1], d[i, 0])
-    cross = float(d[i, 0] * rel[i, 1] - d[i, 1] * rel[i, 0]) / float(seg_len[i])
+    heading = math.atan2(dy[i], dx[i])
+    cross = float(dx[i] * ry[i] - dy[i] * rx[i]) / float(seg_len[i])
     return arc_to_head, cross, heading
 
 
-def point_at_arc(pts: np.ndarray, arc_from_head: float) -> tuple[float, float, float]:
-    """The point ``arc_from_head`` metres back along the polyline from its newest point
-    (negative: beyond the head, extrapolated). Returns ``(x, y, path_heading_rad)``."""
+def points_at(pts: np.ndarray, arcs_from_head: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``arcs_from_head`` metres back along the polyline from its newest point
+    (negative: beyond the head, extrapolated along the last segment). Returns ``(xs, ys)``."""
     d = np.diff(pts, axis=0)
     seg = np.hypot(d[:, 0], d[:, 1])
-    if arc_from_head <= 0.0 or len(seg) == 0:
+    cum = np.concatenate(([0.0], np.cumsum(seg)))
+    s = cum[-1] - np.asarray(arcs_from_head, dtype=float)
+    xs = np.interp(s, cum, pts[:, 0])
+    ys = np.interp(s, cum, pts[:, 1])
+    beyond = s > cum[-1]
+    if beyond.any():
         h = math.atan2(d[-1, 1], d[-1, 0]) if len(seg) else 0.0
-        ex = -arc_from_head
-        return float(pts[-1, 0] + ex * math.cos(h)), float(pts[-1, 1] + ex * math.sin(h)), h
-    back = np.cumsum(seg[::-1])  # arc from head to each older vertex
-    j = int(np.searchsorted(back, arc_from_head))
-    if j >= len(seg):
-        j = len(seg) - 1
-    i = len(seg) - 1 - j  # segment index (pts[i] -> pts[i+1])
-    before = back[j - 1] if j > 0 else 0.0
-    frac = 1.0 - (arc_from_head - before) / max(seg[i], 1e-12)
-    frac = min(max(frac, 0.0), 1.0)
-    p = pts[i] + d[i] * frac
-    return float(p[0]), float(p[1]), math.atan2(d[i, 1], d[i, 0])
+        ex = s[beyond] - cum[-1]
+        xs[beyond] = pts[-1, 0] + ex * math.cos(h)
+        ys[beyond] = pts[-1, 1] + ex * math.sin(h)
+    return xs, ys
+
+
+def point_at_arc(pts: np.ndarray, arc_from_head: float) -> tuple[float, float]:
+    """One point of ``points_at``: ``(x, y)``."""
+    xs, ys = points_at(pts, np.array([arc_from_head]))
+    return float(xs[0]), float(ys[0])

@@ -45,7 +45,36 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_bridge(sub: argparse._SubParsersAction) -> None:
-    pass  # filled by the bridge work
+    p = sub.add_parser(
+        "vehicle",
+        help="run a simulated MAVLink vehicle (ArduPilot Rover or PX4)",
+        description="A simulated vehicle speaking MAVLink like ArduPilot Rover (GUIDED) or PX4 "
+        "(OFFBOARD), driven by the simulator's plant. SIGUSR1: a person switches to MANUAL; "
+        "SIGUSR2: toggle a telemetry freeze; SIGTERM/SIGINT: exit.",
+    )
+    p.add_argument("--sim", action="store_true", help="simulated vehicle (required)")
+    p.add_argument("--id", type=int, required=True, help="MAVLink system id (1..254)")
+    p.add_argument("--mavlink", required=True, metavar="URL", help="e.g. udpin:127.0.0.1:14551")
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    p.add_argument("--preset", default="1/10", help="vehicle preset name or .toml (default 1/10)")
+    p.add_argument("--home", default="52.0,4.37,0", metavar="LAT,LON,ALT")
+    p.add_argument("--start", default="0,0,0", metavar="X,Y,HEADING_DEG",
+                   help="ENU metres around home; heading degrees, 0 = east, counter-clockwise")
+    p.add_argument("--ready-after", type=float, default=5.0, metavar="S",
+                   help="seconds until arming is possible (default 5)")
+    p.add_argument("--setpoint-timeout", type=float, default=3.0, metavar="S",
+                   help="ArduPilot GUIDED stops after this long without setpoints (default 3)")
+    p.add_argument("--max-rate", type=float, default=40.0, metavar="HZ",
+                   help="fastest telemetry rate accepted (default 40)")
+    p.add_argument("--gps-noise", type=float, default=0.0, metavar="M", help="position noise std")
+    p.add_argument("--seed", type=int, default=0)
+
+    def _vehicle(args: argparse.Namespace) -> int:
+        from openconvoy.bridge.simvehicle import run_vehicle_cli
+
+        return run_vehicle_cli(args)
+
+    p.set_defaults(handler=_vehicle)
 
 
 # --- learning (issue 6): train, tune, export ----------------------------------------------

@@ -236,6 +236,11 @@ class MavlinkLink:
         return "ardupilot"
 
     @property
+    def system_id(self) -> int | None:
+        """The vehicle's MAVLink system id (None before its first heartbeat)."""
+        return None if self._target is None else self._target[0]
+
+    @property
     def mode(self) -> str:
         """The vehicle's mode name from its latest heartbeat (``"UNKNOWN"`` before one)."""
         return self._mode

@@ -177,6 +177,10 @@ class SimVehicle:
                 pass
             self._conn = None
 
+    def request_stop(self) -> None:
+        """Ask the thread to end (safe from signal handlers); ``stop`` then cleans up."""
+        self._stop_evt.set()
+
     def __enter__(self) -> SimVehicle:
         return self.start()
 
@@ -478,3 +482,74 @@ class SimVehicle:
             mav.vfr_hud_send(abs(v), abs(v), int(math.degrees(yaw)) % 360, 0, 0.0, 0.0)
         elif msg_id == mp.MSG_LOCAL_POSITION_NED and self._ekf_origin():
             mav.local_position_ned_send(t_ms, y, x, 0.0, vn, ve, 0.0)
+
+
+# --------------------------------------------------------------------- process form (CLI)
+
+
+def _floats(text: str, n: int, what: str, example: str) -> list[float]:
+    parts = text.split(",")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != n:
+        raise ValueError(f"{what} must be {n} comma-separated numbers like {example}, got {text!r}")
+    return values
+
+
+def parse_home(text: str) -> Origin:
+    """``LAT,LON,ALT`` (degrees, degrees, metres) -> Origin; ``LAT,LON`` means altitude 0."""
+    if text.count(",") == 1:
+        text += ",0"
+    lat, lon, alt = _floats(text, 3, "--home", "52.0,4.37,0")
+    return Origin(lat, lon, alt)
+
+
+def parse_start(text: str) -> tuple[float, float, float]:
+    """``X,Y,HEADING_DEG`` (ENU metres around home; heading degrees, 0 = east, CCW) ->
+    (x_m, y_m, heading_rad)."""
+    x, y, heading_deg = _floats(text, 3, "--start", "0,0,90")
+    return x, y, math.radians(heading_deg)
+
+
+def run_vehicle_cli(args: Any) -> int:
+    """``openconvoy vehicle --sim``: run one simulated vehicle until SIGINT/SIGTERM.
+
+    Prints one ready line to stdout. SIGUSR1: a person switches to MANUAL; SIGUSR2:
+    toggle the telemetry freeze."""
+    import signal
+
+    from openconvoy.bridge.mavlink import check_url
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    if not args.sim:
+        raise ValueError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
+    check_url(args.mavlink)
+    x, y, heading = parse_start(args.start)
+    config = SimVehicleConfig(
+        system_id=args.id, autopilot=args.autopilot, preset=vehicle_preset(args.preset),
+        home=parse_home(args.home), start_x_m=x, start_y_m=y, start_heading_rad=heading,
+        ready_after_s=args.ready_after, setpoint_timeout_s=args.setpoint_timeout,
+        max_message_hz=args.max_rate, gps_noise_m=args.gps_noise, seed=args.seed,
+    )
+    vehicle = SimVehicle(args.mavlink, config)
+    try:
+        vehicle.start()
+    except OSError as exc:
+        raise ValueError(f"cannot open {args.mavlink}: {exc}") from exc
+
+    signal.signal(signal.SIGTERM, lambda s, f: vehicle.request_stop())
+    signal.signal(signal.SIGINT, lambda s, f: vehicle.request_stop())
+    signal.signal(signal.SIGUSR1, lambda s, f: vehicle.pilot_set_mode("MANUAL"))
+    signal.signal(signal.SIGUSR2, lambda s, f: vehicle.freeze(not vehicle.frozen))
+    h = config.home
+    print(
+        f"vehicle {config.system_id}: simulated {config.autopilot} {config.preset.name} on "
+        f"{args.mavlink}, home {h.lat_deg:.7f},{h.lon_deg:.7f},{h.alt_m:g}, "
+        f"arming possible after {config.ready_after_s:g} s",
+        flush=True,
+    )
+    vehicle.run_forever()
+    vehicle.stop()
+    return 0

@@ -54,6 +54,9 @@ class Channel(Generic[M]):
         self.sent = np.zeros((n_vehicles, n_vehicles), dtype=np.int64)
         self.delivered = np.zeros((n_vehicles, n_vehicles), dtype=np.int64)
         self.lost = np.zeros((n_vehicles, n_vehicles), dtype=np.int64)
+        # Per-receiver totals kept alongside the matrices (cheap to read every tick).
+        self.delivered_to = [0] * n_vehicles
+        self.lost_to = [0] * n_vehicles
         self._queue: list[tuple[float, int, int, int, M]] = []
         self._ready: list[tuple[int, int, M]] = []
         self._seq = 0
@@ -71,6 +74,8 @@ class Channel(Generic[M]):
         self.sent[:] = 0
         self.delivered[:] = 0
         self.lost[:] = 0
+        self.delivered_to = [0] * self.n
+        self.lost_to = [0] * self.n
         self._queue.clear()
         self._ready.clear()
         self._seq = 0
@@ -84,7 +89,12 @@ class Channel(Generic[M]):
             if per > 0.0:
                 keep = self._rng.random(len(others)) >= per
                 receivers = others[keep]
-                self.lost[sender, others[~keep]] += 1
+                dropped = others[~keep]
+                if len(dropped):
+                    self.lost[sender, dropped] += 1
+                    lost_to = self.lost_to
+                    for r in dropped.tolist():
+                        lost_to[r] += 1
             else:
                 receivers = others
         else:
@@ -93,6 +103,7 @@ class Channel(Generic[M]):
             for r in others:
                 if row[r].lost(t):
                     self.lost[sender, r] += 1
+                    self.lost_to[r] += 1
                 else:
                     kept.append(r)
             receivers = np.array(kept, dtype=int)
@@ -108,8 +119,7 @@ class Channel(Generic[M]):
     def deliver(self, now: float) -> list[tuple[int, int, M]]:
         """Messages due by ``now`` (s), as ``(receiver, sender, msg)`` in arrival order."""
         out = self._ready
-        if out:
-            self._ready = []
+        self._ready = []
         q = self._queue
         if q:
             # A small epsilon so a delay of exactly k control periods lands on tick k.
@@ -117,8 +127,13 @@ class Channel(Generic[M]):
             while q and q[0][0] <= due:
                 _, _, r, s, msg = heapq.heappop(q)
                 out.append((r, s, msg))
-        for r, s, _ in out:
-            self.delivered[s, r] += 1
+        if out:
+            delivered_to = self.delivered_to
+            for r, _s, _ in out:
+                delivered_to[r] += 1
+            senders = np.fromiter((s for _, s, _ in out), dtype=np.intp, count=len(out))
+            receivers = np.fromiter((r for r, _, _ in out), dtype=np.intp, count=len(out))
+            np.add.at(self.delivered, (senders, receivers), 1)
         return out
 
     @property

@@ -68,7 +68,13 @@ predecessor; ``desired_gap_m``, ``spacing_error_m`` (path-based, from R^i) and
 ``pred_msg_age_s`` from the member; ``platooning_error_m`` = |gap - desired gap| (the
 metric); ``msgs_received``/``msgs_lost``: messages the channel delivered to / dropped on
 the way to this vehicle (cumulative); ``msgs_kept``: those its Rx gate kept; ``cmd_*``: the
-action applied this tick (after the ladder)."""
+action applied this tick (after the ladder). A value that does not exist yet (no message
+heard, so no spacing error or message age; no command before the first step) is ``None``,
+never NaN, so infos compare equal between identical runs."""
+
+
+def _opt(v: float) -> float | None:
+    return None if v != v else v  # NaN -> None
 
 
 def agent_name(vehicle_id: int) -> str:
@@ -147,7 +153,7 @@ class ConvoyEnv(ParallelEnv):
 
         self._lengths = [p.length_m for p in self.presets]
         self._widths = [p.width_m for p in self.presets]
-        self._half_sum = 0.5 * (np.array(self._lengths[1:]) + np.array(self._lengths[:-1]))
+        self._half_sum = [0.5 * (a + b) for a, b in zip(self._lengths[1:], self._lengths[:-1])]
         self.members = [ConvoyMember(i, n, self.member_config, self._lengths) for i in range(n)]
         self.plant = BicyclePlant(self.presets, self.dt)
         self.channel: Channel[VehicleState] = Channel(n, self.loss)
@@ -254,14 +260,16 @@ class ConvoyEnv(ParallelEnv):
         obs = self._tick()
         self._measure()
 
-        rewards_arr = reward(
-            self.reward_config, self._gap - self._desired, plant.accel[1:], self._jerk[1:],
-            plant.yaw_rate[1:], self._collided,
+        rewards_list = reward(
+            self.reward_config,
+            [g - d for g, d in zip(self._gap, self._desired)],
+            plant.accel[1:].tolist(), self._jerk[1:].tolist(), plant.yaw_rate[1:].tolist(),
+            self._collided,
         )
-        done = bool(self._collided.any())
+        done = any(self._collided)
         trunc = self.step_count >= self.max_steps and not done
         agents = self.agents
-        rewards = {a: float(rewards_arr[i]) for i, a in enumerate(agents)}
+        rewards = dict(zip(agents, rewards_list))
         terminations = dict.fromkeys(agents, done)
         truncations = dict.fromkeys(agents, trunc)
         infos = self._infos()
@@ -309,7 +317,7 @@ class ConvoyEnv(ParallelEnv):
         """
         p = self.plant
         lat, lon, _ = enu_to_geodetic(self.scenario.origin, p.x, p.y)
-        gap = [math.nan, *self._gap.tolist()]
+        gap = [math.nan, *self._gap]
         rows = []
         for i, m in enumerate(self.members):
             rows.append({
@@ -346,11 +354,11 @@ class ConvoyEnv(ParallelEnv):
         self._log_cmd_dh = np.full(n, math.nan)
         self._modes = ["coop"] * n
         self._jerk = np.zeros(n)
-        self._gap = np.zeros(n - 1)
-        self._desired = np.zeros(n - 1)
-        self._collided = np.zeros(n - 1, dtype=bool)
-        self._rx = np.zeros(n, dtype=np.int64)
-        self._lost = np.zeros(n, dtype=np.int64)
+        self._gap: list[float] = [0.0] * (n - 1)
+        self._desired: list[float] = [0.0] * (n - 1)
+        self._collided: list[bool] = [False] * (n - 1)
+        self._rx: list[int] = [0] * n
+        self._lost: list[int] = [0] * n
 
     def _tick(self) -> dict[str, np.ndarray]:
         """Own states -> Tx -> channel -> Rx -> observations, at ``self.t``."""
@@ -380,11 +388,12 @@ class ConvoyEnv(ParallelEnv):
     def _measure(self) -> None:
         """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""
         p = self.plant
-        self._gap = np.hypot(np.diff(p.x), np.diff(p.y))
-        self._desired = np.array([m.desired_gap_m for m in self.members[1:]])
-        self._collided = self._gap < self._half_sum
-        self._rx = self.channel.delivered.sum(axis=0)
-        self._lost = self.channel.lost.sum(axis=0)
+        x, y = p.x, p.y
+        self._gap = np.hypot(x[:-1] - x[1:], y[:-1] - y[1:]).tolist()
+        self._desired = [m.desired_gap_m for m in self.members[1:]]
+        self._collided = [g < h for g, h in zip(self._gap, self._half_sum)]
+        self._rx = self.channel.delivered_to
+        self._lost = self.channel.lost_to
 
     def _ranging_readings(self) -> dict[int, tuple[float, float]]:
         """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor."""
@@ -407,32 +416,32 @@ class ConvoyEnv(ParallelEnv):
     def _infos(self) -> dict[str, dict[str, Any]]:
         p = self.plant
         leader_speed = float(p.speed[0])
-        gap, desired = self._gap.tolist(), self._desired.tolist()
+        gap, desired = self._gap, self._desired
         speed, accel = p.speed.tolist(), p.accel.tolist()
         cmd_v, cmd_dh = self._log_cmd_v.tolist(), self._log_cmd_dh.tolist()
-        rx, lost = self._rx.tolist(), self._lost.tolist()
-        collided = self._collided.tolist()
+        rx, lost = self._rx, self._lost
+        collided = self._collided
         out = {}
         for i, a in enumerate(self.agents, start=1):
             m = self.members[i]
             out[a] = {
                 "t_s": self.t,
                 "gap_m": gap[i - 1],
-                "desired_gap_m": desired[i - 1],
-                "platooning_error_m": abs(gap[i - 1] - desired[i - 1]),
-                "spacing_error_m": m.spacing_error_m,
+                "desired_gap_m": _opt(desired[i - 1]),
+                "platooning_error_m": _opt(abs(gap[i - 1] - desired[i - 1])),
+                "spacing_error_m": _opt(m.spacing_error_m),
                 "speed_mps": speed[i],
                 "accel_mps2": accel[i],
                 "leader_speed_mps": leader_speed,
-                "cmd_speed_mps": cmd_v[i],
-                "cmd_heading_change_rad": cmd_dh[i],
+                "cmd_speed_mps": _opt(cmd_v[i]),
+                "cmd_heading_change_rad": _opt(cmd_dh[i]),
                 "mode": self._modes[i],
                 "collision": collided[i - 1],
                 "msgs_sent": m.msgs_sent,
                 "msgs_received": rx[i],
                 "msgs_kept": m.msgs_received,
                 "msgs_lost": lost[i],
-                "pred_msg_age_s": m.pred_msg_age_s,
+                "pred_msg_age_s": _opt(m.pred_msg_age_s),
             }
         return out
 

@@ -7,6 +7,7 @@ perimeter).
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -43,6 +44,7 @@ class Path:
         self.length = float(self._s[-1])
         # Python lists for the scalar fast path (numpy scalar indexing is slow per step).
         self._a_list = self._a.tolist()
+        self._heading_list = self._seg_heading.tolist()
         self._dir_list = self._seg_dir.tolist()
         self._s_list = self._s.tolist()
 
@@ -52,7 +54,7 @@ class Path:
         return min(max(s, 0.0), self.length)
 
     def _segment(self, s: float) -> int:
-        i = int(np.searchsorted(self._s, s, side="right")) - 1
+        i = bisect.bisect_right(self._s_list, s) - 1
         return min(max(i, 0), len(self._seg_len) - 1)
 
     def point_at(self, s: float) -> tuple[float, float]:
@@ -67,7 +69,7 @@ class Path:
 
     def heading_at(self, s: float) -> float:
         """The path's direction at arc length ``s``, radians (ENU, CCW from east)."""
-        return float(self._seg_heading[self._segment(self._wrap(s))])
+        return self._heading_list[self._segment(self._wrap(s))]
 
     def project(self, x: float, y: float, s_hint: float | None = None, window_m: float = 20.0) -> float:
         """Arc length of the path point nearest to (x, y), metres.
@@ -77,6 +79,12 @@ class Path:
         the opposite straight).
         """
         n = len(self._seg_len)
+        if n == 1:
+            # A straight road: scalar arithmetic (this runs every tick for the leader).
+            ax, ay = self._a_list[0]
+            dx, dy = self._dir_list[0]
+            u = min(max((x - ax) * dx + (y - ay) * dy, 0.0), self.length)
+            return u
         if s_hint is None or n <= 2:
             idx = np.arange(n)
         else:

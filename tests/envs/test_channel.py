@@ -1,0 +1,154 @@
+"""The simulated channel: loss per link, bursts, latency and its counters."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from openconvoy.comms.loss import LossConfig
+from openconvoy.envs.channel import Channel
+
+
+def _binomial_band(n: int, p: float, z: float = 2.576) -> tuple[float, float]:
+    """99 % normal-approximation band of a binomial proportion."""
+    half = z * math.sqrt(p * (1 - p) / n)
+    return p - half, p + half
+
+
+def test_perfect_links_deliver_everything_to_everyone_else() -> None:
+    ch: Channel[str] = Channel(4)
+    ch.reset(np.random.default_rng(0))
+    ch.send(1, "hello", 0.0)
+    got = ch.deliver(0.0)
+    assert sorted((r, s) for r, s, _ in got) == [(0, 1), (2, 1), (3, 1)]
+    assert ch.deliver(0.1) == []
+    assert ch.sent[1].tolist() == [1, 0, 1, 1]
+    assert ch.delivered[1].tolist() == [1, 0, 1, 1]
+    assert ch.lost.sum() == 0
+    assert ch.delivery_ratio() == 1.0
+    assert ch.delivered_to == [1, 0, 1, 1]
+
+
+def test_bernoulli_delivery_ratio_in_binomial_band() -> None:
+    per = 0.3
+    ch: Channel[int] = Channel(3, LossConfig(per=per))
+    ch.reset(np.random.default_rng(1))
+    for k in range(5000):
+        ch.send(k % 3, k, k * 0.01)
+        ch.deliver(k * 0.01)
+    n = int(ch.sent.sum())
+    assert n == 10000
+    lo, hi = _binomial_band(n, 1 - per)
+    assert lo <= ch.delivery_ratio() <= hi
+    # Every link loses independently at the same rate.
+    for s in range(3):
+        for r in range(3):
+            if s != r:
+                ratio = ch.delivered[s, r] / ch.sent[s, r]
+                lo, hi = _binomial_band(int(ch.sent[s, r]), 1 - per)
+                assert lo <= ratio <= hi
+    assert ch.delivered_to == ch.delivered.sum(axis=0).tolist()
+    assert ch.lost_to == ch.lost.sum(axis=0).tolist()
+
+
+def test_links_to_different_receivers_are_independent() -> None:
+    ch: Channel[int] = Channel(3, LossConfig(per=0.5))
+    ch.reset(np.random.default_rng(2))
+    got_1, got_2 = [], []
+    for k in range(4000):
+        ch.send(0, k, k * 0.1)
+        arrived = {r for r, _, _ in ch.deliver(k * 0.1)}
+        got_1.append(1 in arrived)
+        got_2.append(2 in arrived)
+    a, b = np.array(got_1, float), np.array(got_2, float)
+    # Independent: the correlation is near 0 (it would be 1 for one shared draw).
+    assert abs(np.corrcoef(a, b)[0, 1]) < 0.06
+
+
+def _run_lengths(lost: list[bool]) -> list[int]:
+    runs, k = [], 0
+    for x in lost:
+        if x:
+            k += 1
+        elif k:
+            runs.append(k)
+            k = 0
+    return runs
+
+
+def test_gilbert_elliott_loses_in_bursts_at_the_configured_rate() -> None:
+    per, burst_s, period = 0.3, 1.0, 0.1
+    ch: Channel[int] = Channel(2, LossConfig(per=per, model="gilbert-elliott", mean_burst_s=burst_s))
+    ch.reset(np.random.default_rng(3))
+    lost = []
+    for k in range(30000):
+        t = k * period
+        ch.send(0, k, t)
+        lost.append(not ch.deliver(t))
+    rate = float(np.mean(lost))
+    assert rate == pytest.approx(per, abs=0.04)
+    runs = _run_lengths(lost)
+    # Mean burst of 1 s at 10 Hz: about 10 packets per burst (independent loss: 1 / (1 - per)).
+    assert np.mean(runs) > 6.0
+    bern: Channel[int] = Channel(2, LossConfig(per=per))
+    bern.reset(np.random.default_rng(3))
+    lost_b = []
+    for k in range(30000):
+        bern.send(0, k, k * period)
+        lost_b.append(not bern.deliver(k * period))
+    assert np.mean(_run_lengths(lost_b)) == pytest.approx(1 / (1 - per), rel=0.1)
+
+
+def test_latency_delays_delivery_and_keeps_arrival_order() -> None:
+    ch: Channel[int] = Channel(2, LossConfig(latency_s=0.1))
+    ch.reset(np.random.default_rng(0))
+    for k in range(5):
+        ch.send(0, k, k * 0.05)
+    assert ch.deliver(0.05) == []
+    assert ch.in_flight == 5
+    assert [m for _, _, m in ch.deliver(0.1)] == [0]  # sent at 0, due at 0.1
+    assert [m for _, _, m in ch.deliver(0.2)] == [1, 2]
+    assert [m for _, _, m in ch.deliver(1.0)] == [3, 4]
+    assert ch.in_flight == 0
+
+
+def test_jitter_delivers_in_arrival_time_order_within_bounds() -> None:
+    base, jitter = 0.05, 0.2
+    ch: Channel[float] = Channel(2, LossConfig(latency_s=base, jitter_s=jitter))
+    ch.reset(np.random.default_rng(5))
+    sent_at = [k * 0.01 for k in range(200)]
+    for t in sent_at:
+        ch.send(0, t, t)
+    arrivals = []
+    now = 0.0
+    while now < 3.0:
+        for _, _, t_sent in ch.deliver(now):
+            arrivals.append((now, t_sent))
+        now += 0.01
+    assert len(arrivals) == 200
+    delays = [a - s for a, s in arrivals]
+    assert min(delays) >= base - 1e-9
+    assert max(delays) <= base + jitter + 0.01 + 1e-9
+    # Jitter reorders some messages (sent later, arrived earlier).
+    order = [s for _, s in arrivals]
+    assert order != sorted(order)
+
+
+def test_reset_clears_queue_and_counters_and_same_rng_repeats() -> None:
+    ch: Channel[int] = Channel(3, LossConfig(per=0.5, latency_s=0.5))
+    ch.reset(np.random.default_rng(9))
+    for k in range(50):
+        ch.send(k % 3, k, 0.0)
+    first = ch.lost.copy()
+    ch.reset(np.random.default_rng(9))
+    assert ch.in_flight == 0 and ch.sent.sum() == 0
+    for k in range(50):
+        ch.send(k % 3, k, 0.0)
+    assert np.array_equal(first, ch.lost)
+
+
+def test_rejects_empty_channel() -> None:
+    with pytest.raises(ValueError, match="at least one vehicle"):
+        Channel(0)

@@ -1,0 +1,123 @@
+"""The bicycle + autopilot plant: delay, speed lag, acceleration and turn-rate limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from openconvoy.envs.plant import BicyclePlant
+from openconvoy.envs.vehicles import VEHICLE_PRESETS
+
+DT = 0.05
+SMALL = VEHICLE_PRESETS["1/10"]
+
+
+def _plant(preset=SMALL, speed: float = 0.0, heading: float = 0.0) -> BicyclePlant:
+    p = BicyclePlant([preset], DT)
+    p.reset(np.zeros(1), np.zeros(1), np.array([heading]), np.array([speed]))
+    return p
+
+
+def _run(p: BicyclePlant, cmd_speed: float, cmd_heading: float, steps: int) -> list[tuple[float, float, float]]:
+    out = []
+    for _ in range(steps):
+        p.step(np.array([cmd_speed]), np.array([cmd_heading]))
+        out.append((float(p.speed[0]), float(p.heading[0]), float(p.yaw_rate[0])))
+    return out
+
+
+def test_actuation_delay_holds_the_old_setpoint() -> None:
+    # 0.1 s at 20 Hz = 2 ticks during which the vehicle still sees the old setpoint.
+    p = _plant()
+    trace = _run(p, 1.0, 0.0, 3)
+    assert trace[0][0] == 0.0 and trace[1][0] == 0.0
+    assert trace[2][0] > 0.0
+
+
+def test_acceleration_limit_bounds_speed_rise() -> None:
+    p = _plant()
+    trace = _run(p, 2.0, 0.0, 60)
+    speeds = np.array([s for s, _, _ in trace])
+    accel = np.diff(np.concatenate([[0.0], speeds])) / DT
+    assert accel.max() == pytest.approx(SMALL.accel_max_mps2, rel=1e-9)
+    # Rate-limited ramp: ~1 m/s² until the lag takes over near the setpoint.
+    t_reach = (np.argmax(speeds >= 1.5) + 1) * DT
+    assert t_reach == pytest.approx(0.1 + 1.5 / SMALL.accel_max_mps2, abs=0.06)
+    assert speeds[-1] == pytest.approx(2.0, abs=0.02)
+    assert speeds.max() <= 2.0 + 1e-12  # never overshoots
+
+
+def test_first_order_speed_lag_for_small_steps() -> None:
+    p = _plant()
+    step = 0.1  # small enough that the lag, not the accel limit, shapes the response
+    trace = _run(p, step, 0.0, 2 + 6)
+    tau = SMALL.speed_lag_s
+    expected = step * (1 - (1 - DT / tau) ** 6)  # one time constant after the delay
+    assert trace[-1][0] == pytest.approx(expected, rel=1e-6)
+    assert trace[-1][0] / step == pytest.approx(1 - math.exp(-1), abs=0.05)
+
+
+def test_deceleration_limit_of_a_full_size_car() -> None:
+    car = VEHICLE_PRESETS["full-size"]
+    p = _plant(car, speed=25.0)
+    trace = _run(p, 0.0, 0.0, 120)
+    speeds = np.array([25.0] + [s for s, _, _ in trace])
+    decel = -np.diff(speeds) / DT
+    assert decel.max() == pytest.approx(car.decel_max_mps2, rel=1e-9)
+    # Rate-limited until the lag takes over (below decel * tau = 3.2 m/s), then exponential.
+    t_32 = (np.argmax(speeds <= car.decel_max_mps2 * car.speed_lag_s)) * DT
+    assert t_32 == pytest.approx(car.actuation_delay_s + (25.0 - 3.2) / car.decel_max_mps2, abs=0.06)
+    assert speeds[-1] < 0.01 and speeds.min() >= 0.0
+
+
+def test_turn_rate_limit_at_2_mps() -> None:
+    p = _plant(speed=2.0)
+    trace = _run(p, 2.0, math.pi / 2, 60)
+    rates = np.array([r for _, _, r in trace])
+    assert np.abs(rates).max() == pytest.approx(math.radians(45.0), rel=1e-9)
+    heading = np.array([h for _, h, _ in trace])
+    # Delay 2 ticks, then 45°/s: after 1 s the vehicle has turned at most 45° * 0.9 s.
+    assert heading[19] == pytest.approx(math.radians(45.0) * 0.9, abs=1e-6)
+    assert heading[-1] == pytest.approx(math.pi / 2, abs=1e-3)
+
+
+def test_no_turning_on_the_spot() -> None:
+    p = _plant(speed=0.0)
+    trace = _run(p, 0.0, 1.0, 20)
+    assert all(h == 0.0 for _, h, _ in trace)
+
+
+def test_curvature_limits_turn_rate_at_low_speed() -> None:
+    p = _plant(speed=0.2)
+    trace = _run(p, 0.2, math.pi / 2, 10)
+    kappa = math.tan(SMALL.max_steer_rad) / SMALL.wheelbase_m
+    assert max(abs(r) for _, _, r in trace) == pytest.approx(0.2 * kappa, rel=1e-9)
+
+
+def test_heading_turns_the_short_way_across_pi() -> None:
+    p = _plant(speed=1.0, heading=math.radians(170))
+    _run(p, 1.0, math.radians(-170), 40)
+    assert abs(abs(float(p.heading[0])) - math.pi) < 0.05 or float(p.heading[0]) < 0
+    # Ended near -170° going through ±180°, not back through 0.
+    assert float(p.heading[0]) == pytest.approx(math.radians(-170), abs=1e-3)
+
+
+def test_straight_line_kinematics() -> None:
+    p = _plant(speed=1.0, heading=math.pi / 2)
+    _run(p, 1.0, math.pi / 2, 20)
+    assert float(p.x[0]) == pytest.approx(0.0, abs=1e-12)
+    assert float(p.y[0]) == pytest.approx(1.0, rel=1e-9)
+
+
+def test_vectorized_vehicles_are_independent() -> None:
+    p = BicyclePlant([SMALL, VEHICLE_PRESETS["1/6"], VEHICLE_PRESETS["full-size"]], DT)
+    p.reset(np.zeros(3), np.array([0.0, 5.0, 10.0]), np.zeros(3), np.array([0.0, 1.0, 20.0]))
+    for _ in range(40):
+        p.step(np.array([1.0, 1.0, 20.0]), np.zeros(3))
+    assert p.speed[1] == pytest.approx(1.0) and p.speed[2] == pytest.approx(20.0)
+    assert p.speed[0] == pytest.approx(1.0, abs=0.01)
+    st = p.state(2, 2.0)
+    assert st.vehicle_id == 2 and st.length == VEHICLE_PRESETS["full-size"].length_m
+    assert st.y == 10.0 and st.x == pytest.approx(40.0)

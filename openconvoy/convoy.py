@@ -18,6 +18,7 @@ temp_ids = ["4f430000", ...]      # optional explicit 4-byte BSM ids, leader fir
 speed_cap_mps = 5.0
 geofence_radius_m = 200.0         # around the origin
 min_gap_m = 1.0                   # emergency stop below this measured gap
+max_msg_age_s = 3.0               # stop while needed messages are older than this
 ```
 
 Strict: an unknown key is an error naming it.
@@ -51,6 +52,9 @@ class SafetyConfig:
     speed_cap_mps: float = 5.0
     geofence_radius_m: float = 200.0
     min_gap_m: float = 1.0
+    max_msg_age_s: float = 3.0
+    """Stop while the messages a follower needs are older than this (s): a backstop for
+    policies running without the staleness ladder."""
 
 
 @dataclass(frozen=True)

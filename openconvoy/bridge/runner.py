@@ -1,0 +1,585 @@
+"""The real-time runner behind ``openconvoy deploy``: the simulator's tick, on a vehicle.
+
+Each tick, at a fixed rate (20 Hz by default; clock and sleep injected):
+
+1. read telemetry (``VehicleLink.poll``) and give it to the convoy member (``observe_own``);
+2. τ: broadcast the own state when the Tx gate says so (``v2v.send``);
+3. drain received messages (the loss model is applied inside ``v2v``) through ρ
+   (``member.receive``); an abort message ends the run;
+4. build the observation, ``policy.act`` (the same policy object type as in simulation —
+   nothing here or there asks which world it runs in), ``member.supervise`` (the staleness
+   ladder); the leader instead follows its scenario or track (speed profile and the same
+   heading controller as the simulated leader), or commands nothing when ``passive``;
+5. the failsafes and safety envelope (``bridge.failsafes``) decide what is sent;
+6. send the setpoint: speed and absolute yaw = current heading + heading change;
+7. write the log row (``openconvoy.logs``, the simulator's columns).
+
+Followers wait, armed and still (speed 0, yaw = current heading), until they hear the leader
+and the predecessors their topology keeps; a scenario-driven leader waits until it has heard
+every member, so the convoy starts moving together as it does in simulation.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from openconvoy.bridge.failsafes import (
+    DRIVE,
+    SILENT,
+    STOP,
+    Envelope,
+    Failsafes,
+    LinkWatchdog,
+    LoopTimer,
+    TickInputs,
+)
+from openconvoy.bridge.link import Telemetry, VehicleLink
+from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.convoy import ConvoyConfig
+from openconvoy.core.member import ConvoyMember, MemberConfig
+from openconvoy.core.policy import Policy
+from openconvoy.core.state import VehicleState, wrap_angle
+from openconvoy.logs import LogWriter
+
+log = logging.getLogger(__name__)
+
+EXTRA_COLUMNS = ("reason", "autopilot_mode", "loop_overruns")
+"""Log columns after DESIGN.md's: why a failsafe/stop holds, the autopilot's mode, overruns."""
+
+HOLD_MODES = ("HOLD", "LOITER")
+
+
+class V2VEndpoint(Protocol):
+    """What the runner needs from V2V (``comms.v2v.V2V``, or ``bridge.localv2v.LocalV2V``)."""
+
+    sent: int
+    received: int
+    lost: int
+
+    def send(self, state: VehicleState, now: float) -> None: ...
+
+    def poll(self, now: float) -> list[Any]:
+        """Messages heard since the last poll: objects with ``state`` (VehicleState with
+        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``."""
+        ...
+
+    def metadata(self) -> dict[str, Any]: ...
+
+    def close(self) -> None: ...
+
+
+class LeaderDriver(Protocol):
+    """The leader's driver (``envs.scenarios.Scenario`` has this method)."""
+
+    duration_s: float
+
+    def leader_command(self, t: float, x: float, y: float, heading: float, speed: float) -> tuple[float, float]: ...
+
+
+@dataclass(frozen=True)
+class RunnerOptions:
+    """How one vehicle runs.
+
+    Attributes:
+        vehicle_id: convoy index, 0 = leader.
+        rate_hz: control loop rate, Hz.
+        dry_run: everything but arming and sending setpoints.
+        passive: leader only: a person drives; broadcast and log, command nothing.
+        duration_s: end the run this long after the convoy started moving (s); None = the
+            leader's scenario duration for a scenario-driven leader, else until stopped.
+        connect_timeout_s: wait this long for the autopilot's heartbeat and telemetry (s).
+        arm_timeout_s: wait this long for arming to become possible (s).
+        leader_waits_for_convoy: a scenario-driven leader starts only once it heard every
+            member (or after ``convoy_wait_s``).
+        convoy_wait_s: the longest such wait (s).
+        status_period_s: status line period (s); 0 = none.
+        record_timing: keep per-tick timings (benchmarks).
+        seed: seeds the leader scenario's randomness.
+    """
+
+    vehicle_id: int
+    rate_hz: float = 20.0
+    dry_run: bool = False
+    passive: bool = False
+    duration_s: float | None = None
+    connect_timeout_s: float = 30.0
+    arm_timeout_s: float = 60.0
+    leader_waits_for_convoy: bool = True
+    convoy_wait_s: float = 120.0
+    status_period_s: float = 1.0
+    record_timing: bool = False
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.rate_hz <= 0:
+            raise ValueError(f"control rate must be positive, got {self.rate_hz}")
+        if self.passive and self.vehicle_id != 0:
+            raise ValueError("--passive is for the leader (vehicle 0): followers are driven by the policy")
+
+
+@dataclass
+class RunResult:
+    """How a run ended."""
+
+    exit_code: int
+    reason: str
+    ticks: int
+    overruns: int
+    policy_errors: int
+    t_start_s: float | None
+    events: list[tuple[float, str]] = field(default_factory=list)
+
+
+@dataclass
+class TickTiming:
+    """Monotonic times (s) of one tick: start, telemetry read, setpoint sent (NaN if none),
+    and when the newest telemetry used had been read (``Telemetry.t_telemetry``)."""
+
+    t_tick: float
+    t_polled: float
+    t_sent: float
+    t_telemetry: float
+
+
+def envelope_from(convoy: ConvoyConfig) -> Envelope:
+    """The safety envelope a convoy config asks for."""
+    s = convoy.safety
+    return Envelope(
+        speed_cap_mps=s.speed_cap_mps,
+        geofence_radius_m=s.geofence_radius_m,
+        min_gap_m=s.min_gap_m,
+        max_msg_age_s=s.max_msg_age_s,
+    )
+
+
+class DeployRunner:
+    """One vehicle's real-time loop. ``run()`` connects, arms, loops and returns a
+    ``RunResult``; ``request_stop(name)`` (signal handlers) ends it cleanly.
+
+    Args:
+        options: see ``RunnerOptions``.
+        convoy: the convoy (size, origin, safety).
+        policy: any ``core.policy.Policy`` (``policies.load_policy``); its ``member_config``
+            configures the member.
+        link: the vehicle (``VehicleLink``).
+        v2v: the V2V endpoint (``V2VEndpoint``).
+        leader: the leader's driver (a scenario), required for a non-passive leader.
+        lengths: vehicle lengths (m), leader first, for the member's desired gaps.
+        log_dir: directory for ``vehicle_N.csv`` and ``vehicle_N.json``; None = no log.
+        clock: monotonic clock (s) for the schedule and failsafes.
+        sleep: sleeps that many seconds.
+        wall_clock: the shared (GPS/NTP) clock (s) stamped in logs and messages.
+        on_status: receives status lines.
+        leader_origin: the geodetic origin of the leader driver's frame when it differs
+            from the convoy's (track files carry their own); None = the convoy's.
+        metadata: extra entries for the run metadata JSON.
+    """
+
+    def __init__(
+        self,
+        options: RunnerOptions,
+        convoy: ConvoyConfig,
+        policy: Policy,
+        link: VehicleLink,
+        v2v: V2VEndpoint,
+        *,
+        leader: LeaderDriver | None = None,
+        lengths: list[float] | None = None,
+        log_dir: str | Path | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+        wall_clock: Callable[[], float] = time.time,
+        on_status: Callable[[str], None] | None = None,
+        leader_origin: Origin | None = None,
+        envelope: Envelope | None = None,
+        metadata: dict[str, Any] | None = None,
+    ) -> None:
+        n = convoy.n_vehicles
+        if not 0 <= options.vehicle_id < n:
+            raise ValueError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
+        self.is_leader = options.vehicle_id == 0
+        if self.is_leader and not options.passive and leader is None:
+            raise ValueError("the leader needs a scenario or track to follow, or --passive")
+        self.options = options
+        self.convoy = convoy
+        self.policy = policy
+        self.link = link
+        self.v2v = v2v
+        self.leader = leader
+        self.clock = clock
+        self.sleep = sleep
+        self.wall = wall_clock
+        self.on_status = on_status or (lambda line: log.warning("%s", line))
+        self.origin = Origin(*convoy.origin)
+        self.leader_origin = leader_origin
+        member_config: MemberConfig = getattr(policy, "member_config", None) or MemberConfig()
+        self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths)
+        self.failsafes = Failsafes(
+            envelope=envelope or envelope_from(convoy),
+            watchdog=LinkWatchdog(
+                getattr(link, "telemetry_timeout_s", 0.5), getattr(link, "heartbeat_timeout_s", 3.0)
+            ),
+        )
+        self.log_dir = Path(log_dir) if log_dir is not None else None
+        self.metadata_extra = dict(metadata or {})
+        self.timings: list[TickTiming] = []
+        self._stop_requested = ""
+        self._abort = False
+        self._tel: Telemetry | None = None
+        self._t_start: float | None = None  # monotonic time the convoy started moving
+        self._t_start_wall: float | None = None
+        self._heard_raw: set[int] = set()
+        self._writer: LogWriter | None = None
+        self._timer: LoopTimer | None = None
+        self._t_hold_sent = -math.inf
+        self._t_status = -math.inf
+        self._t_reconnect = -math.inf
+        self._last_reason = ""
+        self._armed_by_us = False
+        self._t_begin_wall = self.wall()
+
+    # ------------------------------------------------------------------ control
+
+    def request_stop(self, reason: str = "stop requested") -> None:
+        """Ask the loop to stop, HOLD, flush the log and return (safe from signal handlers)."""
+        self._stop_requested = reason
+
+    @property
+    def commanding(self) -> bool:
+        """Whether this run sends setpoints at all (not dry-run, not passive)."""
+        return not (self.options.dry_run or self.options.passive)
+
+    # ------------------------------------------------------------------ run
+
+    def start(self) -> None:
+        """Connect, wait for telemetry, arm (unless dry-run/passive), open the log."""
+        o = self.options
+        self.link.connect(o.connect_timeout_s)
+        deadline = self.clock() + o.connect_timeout_s
+        while self._tel is None:
+            self._tel = self.link.poll()
+            if self._tel is None:
+                if self.clock() > deadline:
+                    raise TimeoutError(f"no position telemetry from the vehicle within {o.connect_timeout_s:g} s")
+                self.sleep(0.01)
+        if self.commanding and not self._stop_requested:
+            self.on_status(f"vehicle {o.vehicle_id}: arming ({self.link.autopilot})")
+            self.link.prepare_and_arm(o.arm_timeout_s, self.on_status)
+            self._armed_by_us = True
+            # Stand still with the yaw at the current heading from the first moment.
+            self.link.stop_motion()
+        if self.log_dir is not None:
+            self._writer = LogWriter(self.log_dir / f"vehicle_{o.vehicle_id}.csv", extra_columns=EXTRA_COLUMNS)
+        self.policy.reset(o.seed)
+        if self.leader is not None and hasattr(self.leader, "reset"):
+            self.leader.reset(np.random.default_rng(o.seed))
+        self.on_status(
+            f"vehicle {o.vehicle_id}: ready"
+            + (" (dry run: no setpoints)" if o.dry_run else "")
+            + (" (passive: broadcasting only)" if o.passive else "")
+        )
+
+    def run(self) -> RunResult:
+        """Start, loop until the run ends, stop safely. Never leaves the vehicle moving."""
+        reason = "ended"
+        code = 0
+        try:
+            self.start()
+            period = 1.0 / self.options.rate_hz
+            self._timer = timer = LoopTimer(period, self.clock())
+            while True:
+                wait = timer.wait_time(self.clock())
+                if wait > 0:
+                    self.sleep(wait)
+                t_tick = self.clock()
+                timer.begin(t_tick)
+                done = self.tick(t_tick)
+                if done:
+                    reason = done
+                    break
+        except KeyboardInterrupt:
+            reason = "SIGINT"
+        except Exception as exc:  # a runner bug must not leave the vehicle moving
+            reason = f"error: {exc}"
+            code = 1
+            log.error("deploy loop failed:\n%s", traceback.format_exc())
+        finally:
+            self._finish(reason)
+        return RunResult(
+            exit_code=code,
+            reason=reason,
+            ticks=self._timer.ticks if self._timer else 0,
+            overruns=self._timer.overruns if self._timer else 0,
+            policy_errors=self.failsafes.policy_errors,
+            t_start_s=self._t_start_wall,
+            events=list(self.failsafes.events),
+        )
+
+    # ------------------------------------------------------------------ one tick
+
+    def tick(self, now: float) -> str:
+        """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
+        o = self.options
+        member = self.member
+        # 1. telemetry
+        tel = self.link.poll()
+        if tel is not None:
+            self._tel = tel
+        tel = self._tel
+        assert tel is not None
+        t_polled = self.clock()
+        self._maybe_reconnect(now)
+        wall = self.wall()
+        own = replace(tel.state, vehicle_id=o.vehicle_id)
+        member.observe_own(own)
+        # 2. τ
+        if member.wants_to_send(wall):
+            self.v2v.send(own, wall)
+        # 3. ρ
+        for msg in self.v2v.poll(wall):
+            if getattr(msg, "abort", False):
+                self._abort = True
+                continue
+            if msg.state is None:
+                continue
+            self._heard_raw.add(msg.state.vehicle_id)
+            member.receive(msg.state, wall)
+        # Waiting to start?
+        waiting = self._waiting_for()
+        if not waiting and self._t_start is None:
+            self._t_start, self._t_start_wall = now, wall
+            self.on_status(f"vehicle {o.vehicle_id}: convoy complete, starting")
+        # 4. what the controller wants
+        obs = member.observation(wall)
+        policy_error = ""
+        mode = "stop"
+        if waiting:
+            speed, change = 0.0, 0.0
+            reason = f"waiting for vehicle(s) {', '.join(map(str, waiting))}"
+        elif self.is_leader:
+            speed, change, mode = self._leader_command(tel, own, now)
+            reason = ""
+        else:
+            try:
+                action = self.policy.act(obs)
+                action, mode = member.supervise(action, wall)
+                speed, change = float(action[0]), float(action[1])
+                if not (math.isfinite(speed) and math.isfinite(change)):
+                    raise ValueError(f"non-finite action {speed}, {change}")
+            except Exception as exc:  # the policy is foreign code: stop, log, keep looping
+                policy_error = f"{type(exc).__name__}: {exc}"
+                if not self.failsafes.policy_errors:
+                    log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
+                speed, change, mode = 0.0, 0.0, "stop"
+            reason = ""
+        if mode == "stop" and not reason:
+            reason = "staleness ladder" if member.mode == "stop" else ""
+        gap = self._gap(own, wall)
+        needed_age = 0.0
+        if not self.is_leader and not waiting:
+            needed_age = max((member.buffer.age(v, wall) for v in member.rx.needed()), default=0.0)
+        # 5. failsafes and envelope
+        heading_cmd = wrap_angle(own.heading + change)
+        verdict = self.failsafes.decide(
+            TickInputs(
+                now=now, t_telemetry=tel.t_telemetry, t_heartbeat=tel.t_heartbeat,
+                link_open=not getattr(self.link, "lost", False),
+                pilot_took_over=self.commanding and self.link.pilot_took_over,
+                stop_requested=self._stop_requested, abort=self._abort,
+                x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
+                gap_m=gap, needed_age_s=needed_age, policy_error=policy_error,
+                held=tel.mode in HOLD_MODES,
+            )
+        )
+        if verdict.command == DRIVE:
+            speed = self.failsafes.envelope.cap(speed)
+        else:
+            speed, heading_cmd = 0.0, own.heading
+            mode = "failsafe" if verdict.failsafe else "stop"
+            reason = verdict.reason
+        if verdict.reason and verdict.reason != self._last_reason:
+            self.on_status(f"vehicle {o.vehicle_id}: {verdict.reason}")
+        self._last_reason = verdict.reason
+        # 6. actuate
+        t_sent = math.nan
+        if self.commanding:
+            if verdict.command in (DRIVE, STOP):
+                if self.link.send_setpoint(speed, heading_cmd):
+                    t_sent = self.clock()
+            if verdict.hold and now - self._t_hold_sent >= 1.0 and tel.mode not in HOLD_MODES:
+                self._t_hold_sent = now
+                try:
+                    self.link.hold(0.0)
+                except Exception as exc:  # noqa: BLE001 - a hold that cannot be sent is retried
+                    log.warning("HOLD not sent: %s", exc)
+        if o.record_timing:
+            self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
+        # 7. log
+        self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap, reason,
+                      sent=verdict.command != SILENT and self.commanding)
+        self._status_line(now, own, mode, gap)
+        if verdict.exit:
+            return verdict.reason
+        if self._t_start is not None:
+            limit = self._duration()
+            if limit is not None and now - self._t_start >= limit:
+                return "duration reached"
+        return ""
+
+    # ------------------------------------------------------------------ helpers
+
+    def _duration(self) -> float | None:
+        if self.options.duration_s is not None:
+            return self.options.duration_s
+        if self.is_leader and self.leader is not None and not self.options.passive:
+            return float(self.leader.duration_s)
+        return None
+
+    def _waiting_for(self) -> list[int]:
+        """Vehicles still unheard before this one may start (empty = go)."""
+        if self._t_start is not None:
+            return []
+        i, n = self.options.vehicle_id, self.convoy.n_vehicles
+        if i == 0:
+            if self.options.passive or not self.options.leader_waits_for_convoy:
+                return []
+            if self.clock() - (self._timer.start if self._timer else self.clock()) > self.options.convoy_wait_s:
+                return []
+            return [j for j in range(1, n) if j not in self._heard_raw]
+        need = {j for j in range(i) if self.member.rx.keeps(j)}
+        need.add(0)
+        return sorted(j for j in need if j not in self._heard_raw)
+
+    def _leader_command(self, tel: Telemetry, own: VehicleState, now: float) -> tuple[float, float, str]:
+        if self.options.passive or self.leader is None:
+            return 0.0, 0.0, "coop"
+        assert self._t_start is not None
+        x, y = own.x, own.y
+        if self.leader_origin is not None:
+            x, y, _ = geodetic_to_enu(self.leader_origin, tel.lat_deg, tel.lon_deg)
+        speed, heading = self.leader.leader_command(now - self._t_start, float(x), float(y), own.heading, own.speed)
+        return float(speed), wrap_angle(float(heading) - own.heading), "coop"
+
+    def _gap(self, own: VehicleState, wall: float) -> float:
+        """Measured gap to the immediate predecessor (m): its newest broadcast position
+        dead-reckoned to now, centre to centre; NaN for the leader or when unheard."""
+        if self.is_leader:
+            return math.nan
+        pred = self.member.buffer.latest(self.options.vehicle_id - 1)
+        if pred is None:
+            return math.nan
+        if wall > pred.t:
+            pred = pred.extrapolate(wall)
+        return own.distance_to(pred)
+
+    def _maybe_reconnect(self, now: float) -> None:
+        """A lost connection (TCP EOF, serial error) is reopened every 2 s, briefly."""
+        if not getattr(self.link, "lost", False) or now - self._t_reconnect < 2.0:
+            return
+        self._t_reconnect = now
+        try:
+            self.link.reconnect(0.2)
+            self.on_status(f"vehicle {self.options.vehicle_id}: autopilot link reconnected")
+        except Exception as exc:  # noqa: BLE001 - keep trying
+            log.info("reconnect failed: %s", exc)
+
+    def _log_row(self, wall: float, own: VehicleState, tel: Telemetry, speed: float, change: float,
+                 mode: str, gap: float, reason: str, sent: bool) -> None:
+        if self._writer is None:
+            return
+        m = self.member
+        self._writer.write({
+            "t_s": wall, "vehicle_id": self.options.vehicle_id, "x_m": own.x, "y_m": own.y,
+            "lat_deg": tel.lat_deg, "lon_deg": tel.lon_deg, "speed_mps": own.speed,
+            "heading_rad": own.heading, "accel_mps2": own.accel,
+            "cmd_speed_mps": speed if sent else math.nan,
+            "cmd_heading_change_rad": change if sent else math.nan,
+            "mode": mode, "gap_m": gap, "desired_gap_m": m.desired_gap_m,
+            "spacing_error_m": m.spacing_error_m, "msgs_sent": m.msgs_sent,
+            "msgs_received": m.msgs_received, "msgs_lost": int(getattr(self.v2v, "lost", 0)),
+            "pred_msg_age_s": m.pred_msg_age_s, "reason": reason, "autopilot_mode": tel.mode,
+            "loop_overruns": self._timer.overruns if self._timer else 0,
+        })
+
+    def _status_line(self, now: float, own: VehicleState, mode: str, gap: float) -> None:
+        p = self.options.status_period_s
+        if p <= 0 or now - self._t_status < p:
+            return
+        self._t_status = now
+        m = self.member
+        parts = [f"vehicle {self.options.vehicle_id}", mode, f"v {own.speed:4.2f} m/s"]
+        if not self.is_leader:
+            parts.append(f"gap {gap:5.2f} m (want {m.desired_gap_m:4.1f})")
+            parts.append(f"age {m.pred_msg_age_s:4.2f} s")
+        parts.append(f"tx {m.msgs_sent} rx {m.msgs_received}")
+        self.on_status(" | ".join(parts))
+
+    def _finish(self, reason: str) -> None:
+        """Stop, HOLD, flush and close the log, write metadata. Never raises."""
+        o = self.options
+        took_over = self.failsafes.took_over or getattr(self.link, "pilot_took_over", False)
+        if self.commanding and self._armed_by_us and not took_over:
+            try:
+                self.link.stop_motion()
+                self.link.hold(2.0)
+            except Exception as exc:  # noqa: BLE001 - the log must still be saved
+                log.warning("vehicle %d: HOLD at exit failed: %s", o.vehicle_id, exc)
+        if self._writer is not None:
+            self._writer.close()
+            self._write_metadata(reason)
+        for closer in (self.v2v.close, self.link.close):
+            try:
+                closer()
+            except Exception:  # noqa: BLE001
+                pass
+        self.on_status(f"vehicle {o.vehicle_id}: stopped ({reason})")
+
+    def _write_metadata(self, reason: str) -> None:
+        assert self.log_dir is not None
+        o = self.options
+        wall0 = self.wall() - self.clock()  # maps monotonic event times to the shared clock
+        meta = {
+            "kind": "deploy",
+            "vehicle_id": o.vehicle_id,
+            "n_vehicles": self.convoy.n_vehicles,
+            "convoy": self.convoy.name,
+            "scenario": self.convoy.scenario,
+            "policy": getattr(self.policy, "name", type(self.policy).__name__),
+            "rate_hz": o.rate_hz,
+            "dry_run": o.dry_run,
+            "passive": o.passive,
+            "autopilot": _safe(lambda: self.link.autopilot),
+            "telemetry_rates_hz": getattr(self.link, "telemetry_rates", {}),
+            "v2v": _safe(self.v2v.metadata) or {},
+            "t_begin_s": self._t_begin_wall,
+            "t_start_s": self._t_start_wall,
+            "t_end_s": self.wall(),
+            "exit_reason": reason,
+            "ticks": self._timer.ticks if self._timer else 0,
+            "overruns": self._timer.overruns if self._timer else 0,
+            "policy_errors": self.failsafes.policy_errors,
+            "failsafe_events": [{"t_s": wall0 + t, "reason": r} for t, r in self.failsafes.events],
+            "msgs_sent": self.member.msgs_sent,
+            "msgs_received": self.member.msgs_received,
+            "msgs_lost": int(getattr(self.v2v, "lost", 0)),
+            **self.metadata_extra,
+        }
+        path = self.log_dir / f"vehicle_{o.vehicle_id}.json"
+        path.write_text(json.dumps(meta, indent=2, default=str) + "\n", encoding="utf-8")
+
+
+def _safe(fn: Callable[[], Any]) -> Any:
+    try:
+        return fn()
+    except Exception:  # noqa: BLE001
+        return None

@@ -1,0 +1,361 @@
+"""Learned policies: load a trained stable-baselines3 ``.zip`` or an exported ``.npz``.
+
+Both artifacts carry the same metadata (``LearnedMeta``): the observation layout the policy
+was trained on (version, M, k, size), the member configuration (ρ, τ, σ, ladder), the
+control rate, the observation normalization (VecNormalize's running mean and variance,
+when training used it) and the action scaling. The network works in a normalized action
+space ``[-1, 1]^2``; ``act`` maps it to SI units ``[speed_mps, heading_change_rad]``
+(DESIGN.md, Action), so a learned policy is a ``Policy`` like any classical one.
+
+- ``.npz``: written by ``openconvoy export``; the actor's layers as plain arrays and a numpy
+  forward pass. Never imports torch, so vehicles deploy it without the training stack.
+- ``.zip``: written by ``openconvoy train`` (SB3's own file with an ``openconvoy.json``
+  member holding the metadata); loading it imports stable-baselines3 (and torch) lazily.
+
+A policy whose recorded layout differs from the convoy's (``layout=`` or
+``member_config=`` given to the loader) is refused with a ValueError naming the difference.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.member import MemberConfig
+from openconvoy.core.observation import ObservationLayout
+from openconvoy.core.policy import make_action
+
+META_MEMBER = "openconvoy.json"
+"""Name of the metadata member inside a trained ``.zip``."""
+NPZ_FORMAT = "openconvoy-learned-npz-1"
+ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "tanh": np.tanh,
+    "relu": lambda x: np.maximum(x, 0.0),
+    "elu": lambda x: np.where(x > 0.0, x, np.expm1(np.minimum(x, 0.0))),
+    "leaky_relu": lambda x: np.where(x > 0.0, x, 0.01 * x),
+    "identity": lambda x: x,
+}
+"""Hidden-layer activations the numpy forward pass knows (SB3's usual ``activation_fn``s)."""
+OUTPUTS = ("clip", "tanh")
+"""How the network's last layer becomes a normalized action: ``clip`` to [-1, 1] (PPO's
+Gaussian mean, as SB3's ``predict`` clips it) or ``tanh`` (SAC's squashed mean)."""
+
+
+@dataclass(frozen=True)
+class LearnedMeta:
+    """What a learned policy records at training time.
+
+    Attributes:
+        algo: ``ppo`` or ``sac``.
+        layout: ``ObservationLayout.describe()`` of the training observations.
+        member_config: the member side the policy was trained with (its layout included).
+        control_rate_hz: the rate it was trained at (Hz); deploy and sim tick at it.
+        action_low, action_high: SI values of the normalized actions -1 and +1
+            (``[speed_mps, heading_change_rad]``).
+        obs_mean, obs_var: VecNormalize's observation statistics, or None (no normalization).
+        obs_clip: normalized observations are clipped to ±obs_clip.
+        obs_epsilon: added to the variance before the square root.
+        name: a label for logs and reports.
+    """
+
+    algo: str
+    layout: dict[str, int]
+    member_config: MemberConfig
+    control_rate_hz: float
+    action_low: tuple[float, float]
+    action_high: tuple[float, float]
+    obs_mean: np.ndarray | None = None
+    obs_var: np.ndarray | None = None
+    obs_clip: float = 10.0
+    obs_epsilon: float = 1e-8
+    name: str = "learned"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.control_rate_hz <= 0:
+            raise ValueError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
+        size = int(self.layout["size"])
+        for name in ("obs_mean", "obs_var"):
+            arr = getattr(self, name)
+            if arr is not None and np.shape(arr) != (size,):
+                raise ValueError(f"{name} has shape {np.shape(arr)}, the layout has size {size}")
+        # The member config must describe the layout the policy records.
+        self.member_config.layout.check_compatible(self.layout)
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-able dict (floats round-trip exactly through Python's json)."""
+        return {
+            "algo": self.algo,
+            "layout": dict(self.layout),
+            "member_config": to_dict(self.member_config),
+            "control_rate_hz": self.control_rate_hz,
+            "action_low": list(self.action_low),
+            "action_high": list(self.action_high),
+            "obs_mean": None if self.obs_mean is None else np.asarray(self.obs_mean, float).tolist(),
+            "obs_var": None if self.obs_var is None else np.asarray(self.obs_var, float).tolist(),
+            "obs_clip": self.obs_clip,
+            "obs_epsilon": self.obs_epsilon,
+            "name": self.name,
+            "extra": self.extra,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: str = "policy metadata") -> LearnedMeta:
+        try:
+            member = from_dict(MemberConfig, data["member_config"], f"{where}: member_config")
+            mean, var = data.get("obs_mean"), data.get("obs_var")
+            return cls(
+                algo=str(data["algo"]),
+                layout={k: int(v) for k, v in data["layout"].items()},
+                member_config=member,
+                control_rate_hz=float(data["control_rate_hz"]),
+                action_low=tuple(float(v) for v in data["action_low"]),  # type: ignore[arg-type]
+                action_high=tuple(float(v) for v in data["action_high"]),  # type: ignore[arg-type]
+                obs_mean=None if mean is None else np.asarray(mean, dtype=np.float64),
+                obs_var=None if var is None else np.asarray(var, dtype=np.float64),
+                obs_clip=float(data.get("obs_clip", 10.0)),
+                obs_epsilon=float(data.get("obs_epsilon", 1e-8)),
+                name=str(data.get("name", "learned")),
+                extra=dict(data.get("extra", {})),
+            )
+        except KeyError as exc:
+            raise ValueError(f"{where}: missing key {exc.args[0]!r}") from None
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        """The observation as the network saw it in training (VecNormalize's formula)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        if self.obs_mean is None or self.obs_var is None:
+            return obs
+        z = (obs - self.obs_mean) / np.sqrt(self.obs_var + self.obs_epsilon)
+        return np.clip(z, -self.obs_clip, self.obs_clip)
+
+    def to_si(self, normalized_action: np.ndarray) -> np.ndarray:
+        """Normalized action in [-1, 1]^2 -> ``[speed_mps, heading_change_rad]``."""
+        return scale_action(normalized_action, self.action_low, self.action_high)
+
+
+def scale_action(
+    normalized_action: np.ndarray, low: tuple[float, float], high: tuple[float, float]
+) -> np.ndarray:
+    """Map a normalized action in [-1, 1]^2 (clipped) affinely onto ``[low, high]`` (SI:
+    ``[speed_mps, heading_change_rad]``); the heading change is then clipped to ±π/2."""
+    a = np.clip(np.asarray(normalized_action, dtype=np.float64), -1.0, 1.0)
+    lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    si = lo + 0.5 * (a + 1.0) * (hi - lo)
+    return make_action(float(si[0]), float(si[1]))
+
+
+class LearnedPolicy:
+    """A trained network behind the ``Policy`` protocol.
+
+    ``forward(normalized_obs) -> normalized_action`` is the network (numpy or SB3);
+    ``act`` normalizes the observation, runs it, and scales the action to SI units.
+    Stateless (an MLP), so one object can serve every follower.
+    """
+
+    def __init__(self, meta: LearnedMeta, forward: Callable[[np.ndarray], np.ndarray], source: str) -> None:
+        self.meta = meta
+        self.layout = meta.member_config.layout
+        self._forward = forward
+        self.source = source
+
+    @property
+    def member_config(self) -> MemberConfig:
+        return self.meta.member_config
+
+    @property
+    def control_rate_hz(self) -> float:
+        return self.meta.control_rate_hz
+
+    @property
+    def name(self) -> str:
+        return self.meta.name
+
+    def reset(self, seed: int | None = None) -> None:
+        """Nothing to forget: the network has no memory."""
+
+    def normalized_action(self, observation: np.ndarray) -> np.ndarray:
+        """The network's deterministic action in [-1, 1]^2 (before SI scaling)."""
+        obs = np.asarray(observation)
+        if obs.shape != (self.layout.size,):
+            raise ValueError(f"observation has shape {obs.shape}, layout expects ({self.layout.size},)")
+        return np.asarray(self._forward(self.meta.normalize(obs)), dtype=np.float64).reshape(-1)
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        return self.meta.to_si(self.normalized_action(observation))
+
+    def check_layout(self, layout: ObservationLayout) -> None:
+        """Raise ValueError if this policy was trained for another layout than ``layout``."""
+        layout.check_compatible(self.meta.layout)
+
+
+class NumpyMLP:
+    """The actor's forward pass in numpy: hidden layers with one activation, a linear
+    output, then ``clip`` or ``tanh`` (see ``OUTPUTS``). Computes in float64."""
+
+    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], activation: str, output: str) -> None:
+        if activation not in ACTIVATIONS:
+            raise ValueError(f"unknown activation {activation!r}; expected one of {', '.join(ACTIVATIONS)}")
+        if output not in OUTPUTS:
+            raise ValueError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
+        if len(weights) != len(biases) or not weights:
+            raise ValueError("an MLP needs as many bias vectors as weight matrices, at least one")
+        self.weights = [np.asarray(w, dtype=np.float64) for w in weights]
+        self.biases = [np.asarray(b, dtype=np.float64) for b in biases]
+        for i in range(1, len(self.weights)):
+            if self.weights[i].shape[1] != self.weights[i - 1].shape[0]:
+                raise ValueError(f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}")
+        self.activation = activation
+        self.output = output
+        self._act = ACTIVATIONS[activation]
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.weights[0].shape[1])
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        h = np.asarray(x, dtype=np.float64)
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+            h = w @ h + b if h.ndim == 1 else h @ w.T + b
+            if i < last:
+                h = self._act(h)
+        return np.tanh(h) if self.output == "tanh" else np.clip(h, -1.0, 1.0)
+
+
+def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
+    """Write the numpy-only artifact (no pickles: ``np.load(allow_pickle=False)`` reads it)."""
+    arrays: dict[str, np.ndarray] = {
+        "format": np.array(NPZ_FORMAT),
+        "meta": np.array(json.dumps(meta.to_json())),
+        "activation": np.array(mlp.activation),
+        "output": np.array(mlp.output),
+        "n_layers": np.array(len(mlp.weights)),
+    }
+    for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases)):
+        arrays[f"W{i}"] = w
+        arrays[f"b{i}"] = b
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+    return path
+
+
+def load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
+    """Read an exported artifact: its metadata and its network."""
+    with np.load(Path(path), allow_pickle=False) as data:
+        if "format" not in data or str(data["format"]) != NPZ_FORMAT:
+            raise ValueError(f"{path}: not an OpenConvoy policy export (expected format {NPZ_FORMAT})")
+        meta = LearnedMeta.from_json(json.loads(str(data["meta"])), f"{path}")
+        n = int(data["n_layers"])
+        mlp = NumpyMLP(
+            [data[f"W{i}"] for i in range(n)],
+            [data[f"b{i}"] for i in range(n)],
+            str(data["activation"]),
+            str(data["output"]),
+        )
+    if mlp.n_inputs != meta.layout["size"]:
+        raise ValueError(f"{path}: the network takes {mlp.n_inputs} inputs, the layout has {meta.layout['size']}")
+    return meta, mlp
+
+
+def read_zip_meta(path: str | Path) -> LearnedMeta:
+    """The metadata member of a trained SB3 ``.zip`` (no torch needed)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            if META_MEMBER not in zf.namelist():
+                raise ValueError(
+                    f"{path}: an SB3 model without OpenConvoy metadata ({META_MEMBER}); "
+                    "train it with `openconvoy train`"
+                )
+            data = json.loads(zf.read(META_MEMBER).decode("utf-8"))
+    except zipfile.BadZipFile:
+        raise ValueError(f"{path}: not a zip file") from None
+    return LearnedMeta.from_json(data, str(path))
+
+
+def write_zip_meta(path: str | Path, meta: LearnedMeta) -> None:
+    """Add (or replace) the metadata member of an SB3 ``.zip``."""
+    path = Path(path)
+    with zipfile.ZipFile(path) as zf:
+        members = {n: zf.read(n) for n in zf.namelist() if n != META_MEMBER}
+    tmp = path.with_suffix(".zip.tmp")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, blob in members.items():
+            zf.writestr(name, blob)
+        zf.writestr(META_MEMBER, json.dumps(meta.to_json()))
+    tmp.replace(path)
+
+
+def load_sb3_model(path: str | Path, algo: str):
+    """The SB3 model of a trained ``.zip`` on the CPU (imports stable-baselines3 lazily)."""
+    try:
+        import stable_baselines3 as sb3
+    except ImportError as exc:
+        raise ValueError(
+            f"{path}: loading an SB3 .zip needs the train extra (pip install 'openconvoy[train]'); "
+            "export it to .npz with `openconvoy export` to run without torch"
+        ) from exc
+    classes = {"ppo": sb3.PPO, "sac": sb3.SAC}
+    if algo not in classes:
+        raise ValueError(f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}")
+    # Schedules are pickled closures; inference never needs them, and replacing them avoids
+    # unpickling failures across Python/SB3 versions.
+    custom = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
+    return classes[algo].load(str(path), device="cpu", custom_objects=custom)
+
+
+def load_learned(
+    path: str | Path,
+    layout: ObservationLayout | None = None,
+    member_config: MemberConfig | None = None,
+) -> LearnedPolicy:
+    """A learned policy from a ``.zip`` (SB3, needs torch) or ``.npz`` (numpy only).
+
+    ``layout`` or ``member_config``: the convoy's observation layout; a policy trained for
+    another layout is refused with a ValueError naming the difference.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"policy file not found: {path}")
+    if path.suffix == ".npz":
+        meta, forward = load_npz(path)
+    elif path.suffix == ".zip":
+        meta = read_zip_meta(path)
+        model = load_sb3_model(path, meta.algo)
+
+        def forward(obs: np.ndarray) -> np.ndarray:
+            action, _ = model.predict(obs.astype(np.float32), deterministic=True)
+            return action
+
+    else:
+        raise ValueError(f"{path}: a learned policy is a .zip (SB3) or .npz (export) file")
+    for expected in (layout, None if member_config is None else member_config.layout):
+        if expected is not None:
+            try:
+                expected.check_compatible(meta.layout)
+            except ValueError as exc:
+                raise ValueError(f"{path}: {exc}") from None
+    return LearnedPolicy(meta, forward, str(path))
+
+
+__all__ = [
+    "LearnedMeta",
+    "LearnedPolicy",
+    "NumpyMLP",
+    "scale_action",
+    "load_learned",
+    "load_npz",
+    "save_npz",
+    "read_zip_meta",
+    "write_zip_meta",
+    "META_MEMBER",
+]

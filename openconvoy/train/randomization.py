@@ -1,0 +1,246 @@
+"""Domain randomization: a ConvoyEnv whose world is redrawn at every episode.
+
+What the real world varies and a policy must survive (issue 6): packet error rate
+(uniform in ``per_range``), bursty loss (Gilbert-Elliott with a drawn mean burst length,
+with probability ``burst_prob``), latency and jitter, GPS noise, the vehicles (drawn from a
+pool of presets, fitted ``.toml`` presets included, with their autopilot response jittered)
+and the scenario. ``RandomizedConvoyEnv`` is a PettingZoo ``ParallelEnv`` with a fixed set of
+agents (``n_followers``), so SuperSuit can turn it into a parameter-sharing VecEnv.
+
+Actions are normalized: each agent sends ``[-1, 1]^2``, mapped affinely to
+``[speed_mps, heading_change_rad]`` between ``action_low`` and ``action_high`` (the
+mapping ``openconvoy.policies.learned.scale_action`` applies at deployment, so a trained
+network sees the same action semantics in both places).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+
+from openconvoy.comms.loss import LossConfig
+from openconvoy.core.member import MemberConfig
+from openconvoy.envs.convoy_env import ConvoyEnv
+from openconvoy.envs.reward import RewardConfig
+from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
+from openconvoy.policies.learned import scale_action
+
+PLANT_JITTER_FIELDS = (
+    "speed_lag_s",
+    "accel_max_mps2",
+    "decel_max_mps2",
+    "turn_rate_max_radps",
+    "heading_lag_s",
+    "actuation_delay_s",
+)
+"""Autopilot-response fields of a vehicle preset scaled by ``1 + U(-plant_jitter, +plant_jitter)``."""
+
+
+@dataclass(frozen=True)
+class Randomization:
+    """Ranges drawn at every episode start (SI units; a range ``(a, a)`` is fixed).
+
+    Attributes:
+        scenarios: scenario specs drawn uniformly (all must fit ``n_followers``).
+        per_range: packet error rate, uniform.
+        burst_prob: probability that an episode's links lose packets in Gilbert-Elliott
+            bursts instead of independently (same long-run PER).
+        mean_burst_s_range: mean burst length when bursty, seconds, uniform.
+        latency_s_range: base delivery delay, seconds, uniform.
+        jitter_s_range: extra uniform delay jitter bound, seconds, uniform.
+        gps_noise_m_range: position noise standard deviation per axis, metres, uniform.
+        vehicles: preset names or fitted-preset ``.toml`` paths; each vehicle (leader
+            included) is drawn from them. Empty: the scenario's own vehicles.
+        plant_jitter: relative jitter of each drawn vehicle's autopilot response
+            (``PLANT_JITTER_FIELDS``); 0.2 = ±20 %.
+    """
+
+    scenarios: tuple[str, ...] = ("paper", "track")
+    per_range: tuple[float, float] = (0.0, 0.6)
+    burst_prob: float = 0.3
+    mean_burst_s_range: tuple[float, float] = (0.2, 1.0)
+    latency_s_range: tuple[float, float] = (0.0, 0.05)
+    jitter_s_range: tuple[float, float] = (0.0, 0.05)
+    gps_noise_m_range: tuple[float, float] = (0.0, 0.05)
+    vehicles: tuple[str, ...] = ("1/10", "1/6")
+    plant_jitter: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("scenarios", "vehicles", "per_range", "mean_burst_s_range", "latency_s_range",
+                     "jitter_s_range", "gps_noise_m_range"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+        if not self.scenarios:
+            raise ValueError("randomization.scenarios: give at least one scenario")
+        for name in ("per_range", "mean_burst_s_range", "latency_s_range", "jitter_s_range", "gps_noise_m_range"):
+            lo, hi = _pair(getattr(self, name), f"randomization.{name}")
+            if lo < 0 or hi < lo:
+                raise ValueError(f"randomization.{name}: need 0 <= low <= high, got ({lo}, {hi})")
+        if self.per_range[1] > 0.95:
+            raise ValueError(f"randomization.per_range: PER above 0.95 leaves nothing to learn from, got {self.per_range[1]}")
+        if self.mean_burst_s_range[0] <= 0:
+            raise ValueError("randomization.mean_burst_s_range: bursts must be longer than 0 s")
+        if not 0.0 <= self.burst_prob <= 1.0:
+            raise ValueError(f"randomization.burst_prob must be in [0, 1], got {self.burst_prob}")
+        if not 0.0 <= self.plant_jitter < 1.0:
+            raise ValueError(f"randomization.plant_jitter must be in [0, 1), got {self.plant_jitter}")
+        for v in self.vehicles:
+            vehicle_preset(v)  # an unknown preset or missing file fails now, not mid-training
+
+
+def _pair(value: tuple[float, ...], where: str) -> tuple[float, float]:
+    if len(value) != 2:
+        raise ValueError(f"{where}: expected [low, high], got {list(value)}")
+    return float(value[0]), float(value[1])
+
+
+@dataclass(frozen=True)
+class EpisodeWorld:
+    """One draw of ``Randomization``: what an episode runs in."""
+
+    scenario: str
+    loss: LossConfig
+    gps_noise_m: float
+    vehicles: tuple[VehiclePreset, ...] | None
+
+
+def draw_world(r: Randomization, n_followers: int, rng: np.random.Generator) -> EpisodeWorld:
+    """Draw one episode's world from ``r`` with ``rng``."""
+    scenario = r.scenarios[int(rng.integers(len(r.scenarios)))]
+    per = float(rng.uniform(*r.per_range))
+    bursty = per > 0.0 and rng.random() < r.burst_prob
+    loss = LossConfig(
+        per=per,
+        model="gilbert-elliott" if bursty else "bernoulli",
+        mean_burst_s=float(rng.uniform(*r.mean_burst_s_range)),
+        latency_s=float(rng.uniform(*r.latency_s_range)),
+        jitter_s=float(rng.uniform(*r.jitter_s_range)),
+    )
+    vehicles = None
+    if r.vehicles:
+        pool = [vehicle_preset(v) for v in r.vehicles]
+        vehicles = tuple(
+            _jitter(pool[int(rng.integers(len(pool)))], r.plant_jitter, rng)
+            for _ in range(n_followers + 1)
+        )
+    return EpisodeWorld(scenario, loss, float(rng.uniform(*r.gps_noise_m_range)), vehicles)
+
+
+def _jitter(preset: VehiclePreset, amount: float, rng: np.random.Generator) -> VehiclePreset:
+    if amount <= 0.0:
+        return preset
+    scale = 1.0 + rng.uniform(-amount, amount, size=len(PLANT_JITTER_FIELDS))
+    return dataclasses.replace(
+        preset, **{f: getattr(preset, f) * float(s) for f, s in zip(PLANT_JITTER_FIELDS, scale)}
+    )
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """The fixed part of the training environments.
+
+    Attributes:
+        n_followers: agents per environment (parameter sharing: all run one policy).
+        member: the followers' member configuration (its layout is the policy's).
+        control_rate_hz: control and plant rate, Hz.
+        action_low, action_high: SI values of the normalized actions -1 and +1
+            (``[speed_mps, heading_change_rad]``).
+        max_time_s: episode length cap, seconds (None: the scenario's duration).
+        reward: the reward's weights (``openconvoy.envs.reward``).
+    """
+
+    n_followers: int = 2
+    member: MemberConfig = field(default_factory=MemberConfig)
+    control_rate_hz: float = 20.0
+    action_low: tuple[float, float] = (0.0, -0.5)
+    action_high: tuple[float, float] = (5.0, 0.5)
+    max_time_s: float | None = None
+    reward: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "action_low", tuple(float(v) for v in self.action_low))
+        object.__setattr__(self, "action_high", tuple(float(v) for v in self.action_high))
+        if self.n_followers < 1:
+            raise ValueError(f"n_followers must be at least 1, got {self.n_followers}")
+        if len(self.action_low) != 2 or len(self.action_high) != 2:
+            raise ValueError("action_low and action_high are [speed_mps, heading_change_rad]")
+        if not all(lo < hi for lo, hi in zip(self.action_low, self.action_high)):
+            raise ValueError(f"action_low {self.action_low} must lie below action_high {self.action_high}")
+        if max(abs(self.action_low[1]), abs(self.action_high[1])) > math.pi / 2:
+            raise ValueError("the heading-change range must lie within ±π/2")
+        if self.control_rate_hz <= 0:
+            raise ValueError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
+
+
+class RandomizedConvoyEnv(ParallelEnv):
+    """``ConvoyEnv`` with a world redrawn at every ``reset`` and normalized actions.
+
+    ``reset(seed=s)`` reseeds the draws (the same seed gives the same worlds and episodes
+    for the same actions); ``reset()`` continues the sequence. ``world`` is the current
+    episode's draw, ``env`` the ConvoyEnv running it.
+    """
+
+    metadata = {"name": "openconvoy_randomized_v0", "render_modes": ["rgb_array"], "is_parallelizable": True}
+
+    def __init__(self, spec: EnvSpec, randomization: Randomization, render_mode: str | None = None) -> None:
+        self.spec_ = spec
+        self.randomization = randomization
+        self.render_mode = render_mode
+        self.possible_agents = [f"follower_{i}" for i in range(1, spec.n_followers + 1)]
+        self.agents: list[str] = []
+        size = spec.member.layout.size
+        self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
+        self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self._rng = np.random.default_rng()
+        self.world: EpisodeWorld | None = None
+        self.env: ConvoyEnv | None = None
+
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self._obs_space
+
+    def action_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self._act_space
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        s = self.spec_
+        self.world = w = draw_world(self.randomization, s.n_followers, self._rng)
+        self.env = ConvoyEnv(
+            w.scenario,
+            n_followers=None if w.vehicles is not None else s.n_followers,
+            member_config=s.member,
+            loss=w.loss,
+            control_rate_hz=s.control_rate_hz,
+            gps_noise_m=w.gps_noise_m,
+            max_time_s=s.max_time_s,
+            render_mode=self.render_mode,
+            vehicle_presets=w.vehicles,
+            reward_config=s.reward,
+        )
+        obs, infos = self.env.reset(seed=int(self._rng.integers(2**31 - 1)), options=options)
+        self.agents = list(self.env.agents)
+        return obs, infos
+
+    def step(self, actions: dict[str, np.ndarray]):
+        if self.env is None:
+            raise RuntimeError("step() before reset()")
+        s = self.spec_
+        si = {a: scale_action(act, s.action_low, s.action_high) for a, act in actions.items()}
+        out = self.env.step(si)
+        self.agents = list(self.env.agents)
+        return out
+
+    def render(self) -> np.ndarray | None:
+        return None if self.env is None else self.env.render()
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()

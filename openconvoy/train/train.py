@@ -1,0 +1,249 @@
+"""``openconvoy train``: PPO or SAC with one policy shared by all followers.
+
+A run directory holds::
+
+    config.toml        the resolved TrainConfig (``openconvoy train --config`` reads it)
+    policy.zip         the final SB3 model, with OpenConvoy metadata inside (layout,
+                       member config, control rate, observation normalization, action
+                       scaling): ``--policy RUN/policy.zip`` works everywhere
+    policy.json        the same metadata, readable
+    vecnormalize.pkl   SB3's VecNormalize (to resume training)
+    checkpoints/       policy_<steps>_steps.zip, each loadable like policy.zip
+    tb/                TensorBoard event files (rollout/ep_rew_mean, rollout/platooning_error_m, ...)
+    train.json         steps, wall time, steps per second
+
+``openconvoy export RUN_DIR --out policy.npz`` turns it into the numpy-only artifact.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
+
+from openconvoy.policies.learned import LearnedMeta, write_zip_meta
+from openconvoy.train.config import TrainConfig, dumps_train_config
+from openconvoy.train.randomization import RandomizedConvoyEnv
+from openconvoy.train.vec import shared_policy_vec_env
+
+POLICY_FILE = "policy.zip"
+VECNORM_FILE = "vecnormalize.pkl"
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a finished run reports."""
+
+    run_dir: Path
+    policy_path: Path
+    steps: int
+    wall_s: float
+
+    @property
+    def steps_per_s(self) -> float:
+        return self.steps / self.wall_s if self.wall_s > 0 else math.nan
+
+
+def make_vec_env(config: TrainConfig) -> VecEnv:
+    """The training VecEnv: parameter-sharing slots, episode statistics, VecNormalize."""
+    venv: VecEnv = shared_policy_vec_env(
+        lambda: RandomizedConvoyEnv(config.env, config.randomization), config.n_envs
+    )
+    venv = VecMonitor(venv)
+    if config.normalize_obs or config.normalize_reward:
+        gamma = config.ppo.gamma if config.algo == "ppo" else config.sac.gamma
+        venv = VecNormalize(
+            venv, norm_obs=config.normalize_obs, norm_reward=config.normalize_reward, gamma=gamma
+        )
+    return venv
+
+
+def _activation(name: str):
+    import torch.nn as nn
+
+    return {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[name]
+
+
+def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) -> BaseAlgorithm:
+    """The SB3 model for ``config`` on ``venv`` (CPU)."""
+    tb = None if tensorboard_dir is None else str(tensorboard_dir)
+    if config.algo == "ppo":
+        p = config.ppo
+        # Keep a minibatch within one rollout: SB3 warns (and wastes data) otherwise.
+        batch = min(p.batch_size, p.n_steps * venv.num_envs)
+        return PPO(
+            "MlpPolicy", venv, n_steps=p.n_steps, batch_size=batch, n_epochs=p.n_epochs,
+            learning_rate=p.learning_rate, gamma=p.gamma, gae_lambda=p.gae_lambda,
+            clip_range=p.clip_range, ent_coef=p.ent_coef, max_grad_norm=p.max_grad_norm,
+            policy_kwargs={
+                "net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
+                "activation_fn": _activation(p.activation),
+                "log_std_init": p.log_std_init,
+            },
+            seed=config.seed, device="cpu", tensorboard_log=tb, verbose=0,
+        )
+    s = config.sac
+    return SAC(
+        "MlpPolicy", venv, learning_rate=s.learning_rate, buffer_size=s.buffer_size,
+        learning_starts=s.learning_starts, batch_size=s.batch_size, tau=s.tau, gamma=s.gamma,
+        train_freq=s.train_freq, gradient_steps=s.gradient_steps,
+        policy_kwargs={"net_arch": list(s.net_arch), "activation_fn": _activation(s.activation)},
+        seed=config.seed, device="cpu", tensorboard_log=tb, verbose=0,
+    )
+
+
+def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
+    """The metadata recorded with the policy: layout, member config, rate, normalization."""
+    mean = var = None
+    clip, eps = 10.0, 1e-8
+    if isinstance(venv, VecNormalize) and venv.norm_obs:
+        mean, var = np.array(venv.obs_rms.mean, dtype=np.float64), np.array(venv.obs_rms.var, dtype=np.float64)
+        clip, eps = float(venv.clip_obs), float(venv.epsilon)
+    spec = config.env
+    return LearnedMeta(
+        algo=config.algo,
+        layout=spec.member.layout.describe(),
+        member_config=spec.member,
+        control_rate_hz=spec.control_rate_hz,
+        action_low=spec.action_low,
+        action_high=spec.action_high,
+        obs_mean=mean,
+        obs_var=var,
+        obs_clip=clip,
+        obs_epsilon=eps,
+        name=config.name,
+        extra={"steps": int(steps), "seed": config.seed},
+    )
+
+
+def save_policy(model: BaseAlgorithm, config: TrainConfig, path: Path) -> Path:
+    """Save ``model`` to ``path`` (.zip) with OpenConvoy's metadata inside."""
+    model.save(str(path))
+    venv = model.get_env()
+    assert venv is not None
+    write_zip_meta(path, policy_meta(config, venv, model.num_timesteps))
+    return path
+
+
+class _Progress(BaseCallback):
+    """A tqdm progress bar over agent steps (SB3's own needs ``rich``, which we don't)."""
+
+    def __init__(self, total: int, enabled: bool) -> None:
+        super().__init__()
+        self.total = total
+        self.enabled = enabled
+        self._bar = None
+
+    def _on_training_start(self) -> None:
+        if self.enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=self.total, unit="step", unit_scale=True, desc="train")
+
+    def _on_step(self) -> bool:
+        if self._bar is not None:
+            self._bar.update(self.training_env.num_envs)
+        return True
+
+    def _on_training_end(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+class _ConvoyStats(BaseCallback):
+    """Logs what matters for a follower to TensorBoard: mean platooning error (m) and
+    collisions per rollout (from the environments' infos)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._err_sum = 0.0
+        self._n = 0
+        self._collisions = 0
+
+    def _on_step(self) -> bool:
+        for info in self.locals.get("infos", ()):
+            err = info.get("platooning_error_m")
+            if err is not None and math.isfinite(err):
+                self._err_sum += err
+                self._n += 1
+            self._collisions += bool(info.get("collision", False))
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self._n:
+            self.logger.record("rollout/platooning_error_m", self._err_sum / self._n)
+        self.logger.record("rollout/collisions", self._collisions)
+        self._err_sum, self._n, self._collisions = 0.0, 0, 0
+
+
+class _Checkpoint(BaseCallback):
+    """Every ``every`` agent steps, a loadable ``policy_<steps>_steps.zip``."""
+
+    def __init__(self, config: TrainConfig, directory: Path, every: int) -> None:
+        super().__init__()
+        self.config = config
+        self.directory = directory
+        self.every = every
+        self._next = every
+
+    def _on_step(self) -> bool:
+        if self.every and self.num_timesteps >= self._next:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            save_policy(self.model, self.config, self.directory / f"policy_{self.num_timesteps}_steps.zip")
+            self._next += self.every
+        return True
+
+
+def train(
+    config: TrainConfig,
+    run_dir: str | Path,
+    progress_bar: bool = True,
+    overwrite: bool = False,
+) -> TrainResult:
+    """Train ``config`` into ``run_dir`` (see the module docstring for its files)."""
+    import torch
+
+    run_dir = Path(run_dir)
+    if (run_dir / POLICY_FILE).exists() and not overwrite:
+        raise ValueError(f"{run_dir} already holds a trained policy; choose another --out")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.toml").write_text(dumps_train_config(config), encoding="utf-8")
+    torch.set_num_threads(config.torch_threads)
+
+    venv = make_vec_env(config)
+    model = make_model(config, venv, run_dir / "tb")
+    callbacks = CallbackList([
+        _Progress(config.total_steps, progress_bar),
+        _ConvoyStats(),
+        _Checkpoint(config, run_dir / "checkpoints", config.checkpoint_every),
+    ])
+    start = time.perf_counter()
+    model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
+    wall = time.perf_counter() - start
+
+    policy = save_policy(model, config, run_dir / POLICY_FILE)
+    if isinstance(venv, VecNormalize):
+        venv.save(str(run_dir / VECNORM_FILE))
+    meta = policy_meta(config, venv, model.num_timesteps)
+    (run_dir / "policy.json").write_text(json.dumps(meta.to_json(), indent=1), encoding="utf-8")
+    result = TrainResult(run_dir, policy, int(model.num_timesteps), wall)
+    summary: dict[str, Any] = {
+        "algo": config.algo,
+        "steps": result.steps,
+        "wall_s": round(wall, 3),
+        "steps_per_s": round(result.steps_per_s, 1),
+        "torch_threads": config.torch_threads,
+        "n_slots": config.n_slots,
+    }
+    (run_dir / "train.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
+    venv.close()
+    return result

@@ -1,0 +1,10 @@
+"""Experiments: single runs, PER sweeps, experiment files, figures and comparisons.
+
+``runs`` (one seeded simulated run, shared by ``openconvoy sim`` and sweeps), ``sweep``
+(experiment files and ``experiment per-sweep``), ``figures`` (the paper's figures),
+``compare`` (two runs or sweeps side by side).
+"""
+
+from openconvoy.experiments.runs import RunConfig, RunResult, run_sim
+
+__all__ = ["RunConfig", "RunResult", "run_sim"]

@@ -1,0 +1,429 @@
+"""Experiment files and the packet-error-rate sweep (``openconvoy experiment per-sweep``).
+
+One TOML file fully describes an experiment::
+
+    [experiment]
+    name = "paper-per-sweep"
+    kind = "per-sweep"
+    scenario = "paper"
+    policies = ["paper", "paper+ladder"]     # specs; names of [policy.*] tables too
+    pers = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    seeds = [0, 1, 2]
+    duration_s = 60.0                        # optional: default the scenario's
+
+    [convoy]                                 # optional
+    vehicles = ["1/10", "1/6", "1/10"]       # presets or preset files, leader first
+    n_followers = 2
+    ranging = false                          # followers carry a ranging sensor
+    ranging_max_range_m = 20.0               # its range (m)
+    gps_noise_m = 0.0
+
+    [loss]                                   # optional
+    model = "bernoulli"                      # or "gilbert-elliott"
+    mean_burst_s = 1.0
+    latency_s = 0.0
+    jitter_s = 0.0
+
+    [policy.cacc-highway]                    # optional inline policy files
+    base = "cacc-allpred"                    # a preset; the keys below override it
+    speed_limit_mps = 40.0
+
+An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
+name it (with ``+ladder`` too). The run directory keeps ``experiment.toml`` (the complete
+resolved experiment, every default written out), ``manifest.json`` (package version), the
+inline policies as files, ``summary.json`` (DESIGN.md's shape, one row per policy and PER),
+``summary.csv``, every run's ``log.csv`` and ``metrics.json`` under
+``runs/<policy>/per_<PER>/seed_<seed>/``, and the figures. Rerunning from the copy gives a
+byte-identical ``summary.csv``: every run is seeded, results are ordered by (policy, PER,
+seed) whatever order the processes finish in, and numbers are written with fixed format.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import multiprocessing
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from openconvoy.core import metrics as mt
+from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.experiments.runs import RunConfig, run_sim, write_json
+
+DEFAULT_PERS: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
+LADDER_SUFFIX = "+ladder"
+STATS = ("mean", "std", "min", "max")
+
+
+@dataclass(frozen=True)
+class ConvoySection:
+    """The convoy of an experiment: presets (leader first), size, ranging, GPS noise (m)."""
+
+    vehicles: tuple[str, ...] = ()
+    n_followers: int | None = None
+    ranging: bool = False
+    ranging_max_range_m: float = 20.0
+    gps_noise_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "vehicles", tuple(self.vehicles))
+
+
+@dataclass(frozen=True)
+class LossSection:
+    """The link model of every run; the PER comes from the sweep (s for times)."""
+
+    model: str = "bernoulli"
+    mean_burst_s: float = 1.0
+    latency_s: float = 0.0
+    jitter_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.model not in ("bernoulli", "gilbert-elliott"):
+            raise ValueError(f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')")
+        if self.mean_burst_s <= 0:
+            raise ValueError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A whole experiment (see the module docstring for its TOML form)."""
+
+    name: str = "per-sweep"
+    kind: str = "per-sweep"
+    scenario: str = "paper"
+    policies: tuple[str, ...] = ("paper",)
+    pers: tuple[float, ...] = DEFAULT_PERS
+    seeds: tuple[int, ...] = (0, 1, 2)
+    duration_s: float | None = None
+    convoy: ConvoySection = field(default_factory=ConvoySection)
+    loss: LossSection = field(default_factory=LossSection)
+    policy: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Inline policy tables by name (each a policy file's ``[policy]`` table)."""
+
+    def __post_init__(self) -> None:
+        if self.kind != "per-sweep":
+            raise ValueError(f"unknown experiment kind {self.kind!r}; expected 'per-sweep'")
+        object.__setattr__(self, "policies", tuple(self.policies))
+        object.__setattr__(self, "pers", tuple(float(p) for p in self.pers))
+        seeds = self.seeds
+        if isinstance(seeds, int):  # ``seeds = 3`` means seeds 0, 1, 2
+            seeds = tuple(range(seeds))
+        object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
+        if not self.policies:
+            raise ValueError("an experiment needs at least one policy")
+        if len(set(self.policies)) != len(self.policies):
+            raise ValueError(f"policies repeat: {', '.join(self.policies)}")
+        if not self.pers or not self.seeds:
+            raise ValueError("an experiment needs at least one PER and one seed")
+        for p in self.pers:
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"PER must be in [0, 1], got {p}")
+        if len(set(self.pers)) != len(self.pers) or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("PERs and seeds must not repeat")
+        if self.duration_s is not None and self.duration_s <= 0:
+            raise ValueError(f"duration_s must be positive, got {self.duration_s}")
+        for name, table in self.policy.items():
+            if not isinstance(table, dict):
+                raise ValueError(f"[policy.{name}] must be a table")
+
+    # --- TOML ----------------------------------------------------------------------------
+
+    def to_toml(self) -> str:
+        """The experiment file for this config, every value written out."""
+        data = to_dict(self)
+        top = {k: v for k, v in data.items() if k not in ("convoy", "loss", "policy")}
+        out: dict[str, Any] = {"experiment": top, "convoy": data["convoy"], "loss": data["loss"]}
+        if self.policy:
+            out["policy"] = {name: dict(table) for name, table in self.policy.items()}
+        return dumps_toml(out)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> ExperimentConfig:
+        """Load an experiment file, strictly (unknown tables or keys are errors)."""
+        data = load_toml(path)
+        return cls.from_tables(data, str(path))
+
+    @classmethod
+    def from_tables(cls, data: dict[str, Any], where: str = "experiment") -> ExperimentConfig:
+        unknown = set(data) - {"experiment", "convoy", "loss", "policy"}
+        if unknown:
+            raise ValueError(f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy")
+        if "experiment" not in data:
+            raise ValueError(f"{where}: missing the [experiment] table")
+        table = dict(data["experiment"])
+        for key in ("convoy", "loss", "policy"):
+            if key in table:
+                raise ValueError(f"{where}: {key} belongs in its own [{key}] table")
+            if key in data:
+                table[key] = data[key]
+        return from_dict(cls, table, where)
+
+    # --- runs ----------------------------------------------------------------------------
+
+    def run_configs(self, policy_specs: dict[str, str] | None = None) -> list[tuple[str, RunConfig]]:
+        """Every run as ``(policy label, RunConfig)``, ordered by policy, PER, seed.
+
+        ``policy_specs`` maps a label to the spec to load (inline policies become files).
+        """
+        specs = policy_specs or {p: p for p in self.policies}
+        out = []
+        for label in self.policies:
+            for per in self.pers:
+                for seed in self.seeds:
+                    out.append((label, RunConfig(
+                        scenario=self.scenario, policy=specs[label], per=per,
+                        loss_model=self.loss.model, mean_burst_s=self.loss.mean_burst_s,
+                        latency_s=self.loss.latency_s, jitter_s=self.loss.jitter_s,
+                        seed=seed, duration_s=self.duration_s,
+                        n_followers=self.convoy.n_followers, vehicles=self.convoy.vehicles,
+                        ranging=self.convoy.ranging,
+                        ranging_max_range_m=self.convoy.ranging_max_range_m, gps_noise_m=self.convoy.gps_noise_m,
+                    )))
+        return out
+
+
+def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, str]:
+    """Write ``[policy.NAME]`` tables as policy files under ``out_dir/policies`` and map each
+    policy label to the spec to load; check every spec loads (one clear error if not)."""
+    from openconvoy.policies.spec import classical_config
+
+    files: dict[str, str] = {}
+    for name, table in config.policy.items():
+        if "/" in name or name.endswith(".toml"):
+            raise ValueError(f"[policy.{name}]: an inline policy name is a plain word")
+        path = out_dir / "policies" / f"{name}.toml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(dumps_toml({"policy": {"name": name, **table}}), encoding="utf-8")
+        files[name] = str(path)
+    specs: dict[str, str] = {}
+    for label in config.policies:
+        base = label.removesuffix(LADDER_SUFFIX)
+        spec = files[base] + label[len(base):] if base in files else label
+        if not spec.endswith((".zip", ".npz")):
+            classical_config(spec)  # fail before any process starts
+        specs[label] = spec
+    return specs
+
+
+def policy_dirname(label: str) -> str:
+    """A directory name for a policy label (file specs: the file's stem)."""
+    base = label.removesuffix(LADDER_SUFFIX)
+    suffix = label[len(base):]
+    return Path(base).stem.replace(" ", "_") + suffix if ("/" in base or "." in base) else label
+
+
+# --- running -----------------------------------------------------------------------------
+
+
+def _run_one(args: tuple[RunConfig, str, bool]) -> dict[str, Any]:
+    """Worker: one run, writing its log and metrics; returns metrics (and figure series)."""
+    config, out_dir, keep_series = args
+    result = run_sim(config, out_dir)
+    return {"metrics": result.metrics, "series": run_series(result.log, result.lengths) if keep_series else None}
+
+
+def run_series(log: mt.Columns, lengths: dict[int, float], max_points: int = 800) -> dict[str, Any]:
+    """The time series the sweep figures draw, thinned to at most ``max_points`` ticks."""
+    t, speed_diff = mt.speed_difference_series(log)
+    _, max_err = mt.max_platooning_error_series(log)
+    _, x = mt.aligned(log, "x_m", t)
+    _, y = mt.aligned(log, "y_m", t)
+    gaps = mt.follower_gaps(log)
+    closest = np.full(len(t), np.nan)
+    limit = math.inf
+    for vid, (tg, g) in gaps.items():
+        closest[np.searchsorted(t, tg)] = np.fmin(closest[np.searchsorted(t, tg)], g)
+        limit = min(limit, 0.5 * (lengths.get(vid, 0.0) + lengths.get(vid - 1, 0.0)))
+    step = max(1, int(math.ceil(len(t) / max_points)))
+    sl = slice(None, None, step)
+    return {
+        "t": t[sl], "speed_diff": speed_diff[sl], "max_error": max_err[sl],
+        "x": x[sl].T, "y": y[sl].T, "closest_gap": closest[sl],
+        "collision_gap": limit if math.isfinite(limit) else 0.0,
+    }
+
+
+@dataclass
+class SweepResult:
+    """A finished sweep: its config, summary rows, per-run metrics and figure series."""
+
+    config: ExperimentConfig
+    rows: list[dict[str, Any]]
+    runs: list[tuple[str, RunConfig, dict[str, Any]]]
+    series: dict[tuple[str, float], dict[str, Any]]
+    out_dir: Path
+
+
+def run_experiment(
+    config: ExperimentConfig,
+    out_dir: str | Path,
+    jobs: int | None = None,
+    progress: bool = True,
+    figures: bool = True,
+) -> SweepResult:
+    """Run every (policy, PER, seed) of ``config`` on ``jobs`` processes (default: the
+    cores available) and write the run directory (see the module docstring)."""
+    from openconvoy import __version__
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "experiment.toml").write_text(config.to_toml(), encoding="utf-8")
+    write_json(out / "manifest.json", {
+        "openconvoy_version": __version__, "experiment": "experiment.toml",
+        "rerun": f"openconvoy experiment per-sweep --config {out / 'experiment.toml'} --out NEW_DIR",
+    })
+    specs = write_inline_policies(config, out)
+    planned = config.run_configs(specs)
+    first_seed = config.seeds[0]
+    tasks = [
+        (rc, str(out / "runs" / policy_dirname(label) / f"per_{rc.per:.2f}" / f"seed_{rc.seed}"), rc.seed == first_seed)
+        for label, rc in planned
+    ]
+    results = _map(tasks, jobs, progress, desc=f"{config.name}")
+    runs = [(label, rc, res["metrics"]) for (label, rc), res in zip(planned, results)]
+    series = {
+        (label, rc.per): res["series"]
+        for (label, rc), res in zip(planned, results) if res["series"] is not None
+    }
+    rows = summarize(runs, config.policies, config.pers)
+    write_json(out / "summary.json", {"rows": rows})
+    (out / "summary.csv").write_text(summary_csv(rows), encoding="utf-8")
+    result = SweepResult(config, rows, runs, series, out)
+    if figures:
+        from openconvoy.experiments import figures as figs
+
+        figs.sweep_figures(result, out)
+    return result
+
+
+def _map(tasks: Sequence[Any], jobs: int | None, progress: bool, desc: str) -> list[dict[str, Any]]:
+    """``_run_one`` over ``tasks`` in processes; results in task order."""
+    jobs = max(1, min(jobs or available_cores(), len(tasks)))
+    bar = _bar(len(tasks), progress, desc)
+    results: list[dict[str, Any] | None] = [None] * len(tasks)
+    try:
+        if jobs == 1:
+            for i, task in enumerate(tasks):
+                results[i] = _run_one(task)
+                bar(1)
+        else:
+            # spawn: workers start clean (no inherited threads or open files).
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+                futures = {pool.submit(_run_one, task): i for i, task in enumerate(tasks)}
+                for fut in as_completed(futures):
+                    results[futures[fut]] = fut.result()
+                    bar(1)
+    finally:
+        bar(0, close=True)
+    return [r for r in results if r is not None]
+
+
+def _bar(total: int, enabled: bool, desc: str) -> Callable[..., None]:
+    if not enabled:
+        return lambda n, close=False: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, unit="run", desc=desc)
+
+    def update(n: int, close: bool = False) -> None:
+        if n:
+            bar.update(n)
+        if close:
+            bar.close()
+
+    return update
+
+
+def available_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+# --- summaries ---------------------------------------------------------------------------
+
+
+def stats(values: Sequence[float]) -> dict[str, float]:
+    """Mean, population standard deviation, min and max of the finite values (NaN if none)."""
+    v = np.array([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    if not len(v):
+        return dict.fromkeys(STATS, math.nan)
+    return {"mean": float(v.mean()), "std": float(v.std()), "min": float(v.min()), "max": float(v.max())}
+
+
+def summarize(
+    runs: Sequence[tuple[str, RunConfig, dict[str, Any]]],
+    policies: Sequence[str],
+    pers: Sequence[float],
+) -> list[dict[str, Any]]:
+    """One row per (policy, PER): ``{"per", "policy", "runs", <metric>: {mean, std, min, max}}``."""
+    rows = []
+    for label in policies:
+        for per in pers:
+            group = [m for lab, rc, m in runs if lab == label and rc.per == per]
+            row: dict[str, Any] = {"per": float(per), "policy": label, "runs": len(group)}
+            for key in mt.METRIC_KEYS:
+                row[key] = stats([float(m[key]) if m[key] is not None else math.nan for m in group])
+            rows.append(row)
+    return rows
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else format(v, ".10g")
+    return str(v)
+
+
+def summary_csv(rows: Sequence[dict[str, Any]]) -> str:
+    """The summary as CSV: policy, per, runs, then ``<metric>_<stat>`` columns."""
+    header = ["policy", "per", "runs"] + [f"{k}_{s}" for k in mt.METRIC_KEYS for s in STATS]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for r in rows:
+        w.writerow([r["policy"], _fmt(r["per"]), r["runs"]] + [_fmt(r[k][s]) for k in mt.METRIC_KEYS for s in STATS])
+    return buf.getvalue()
+
+
+def read_summary(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of a sweep's ``summary.json`` (a file or its run directory); NaN for null."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "summary.json"
+    data = json.loads(p.read_text(encoding="utf-8"))
+    rows = data.get("rows") if isinstance(data, dict) else None
+    if not isinstance(rows, list):
+        raise ValueError(f"{p}: not a sweep summary (no 'rows' list)")
+    for r in rows:
+        for k in mt.METRIC_KEYS:
+            if isinstance(r.get(k), dict):
+                r[k] = {s: (math.nan if r[k].get(s) is None else float(r[k][s])) for s in STATS}
+        r.setdefault("policy", "")
+    return rows
+
+
+def with_overrides(config: ExperimentConfig, **changes: Any) -> ExperimentConfig:
+    """``config`` with top-level fields changed (``convoy``/``loss`` fields by name too)."""
+    convoy_keys = {f.name for f in dataclasses.fields(ConvoySection)}
+    loss_keys = {f.name for f in dataclasses.fields(LossSection)}
+    convoy = {k: v for k, v in changes.items() if k in convoy_keys}
+    loss = {k: v for k, v in changes.items() if k in loss_keys}
+    top = {k: v for k, v in changes.items() if k not in convoy_keys | loss_keys}
+    return dataclasses.replace(
+        config, **top,
+        convoy=dataclasses.replace(config.convoy, **convoy),
+        loss=dataclasses.replace(config.loss, **loss),
+    )

@@ -51,15 +51,24 @@ def test_single_agent_view_passes_check_env_and_is_registered() -> None:
 
 
 def test_single_agent_learner_drives_follower_1_only() -> None:
-    env = SingleAgentConvoyEnv(max_time_s=5.0)
+    env = SingleAgentConvoyEnv(max_time_s=10.0)
     env.reset(seed=0)
-    done = False
+    done, steps, rewards = False, 0, []
     while not done:
-        # The learner stands still while the paper policy drives follower_2 after the leader.
+        # The learner stands still while the leader drives off at 1 m/s.
         _, reward, term, trunc, info = env.step(np.array([0.0, 0.0], dtype=np.float32))
         done = term or trunc
-    assert term  # follower_2 closes the gap to the stopped follower_1 ... or time runs out
+        steps += 1
+        rewards.append(reward)
+    assert trunc and not term and steps == 200
     assert info["speed_mps"] == pytest.approx(0.0, abs=1e-6)
+    assert info["gap_m"] > 15.0 + 8.0  # the leader went on without it
+    assert rewards[-1] < rewards[0] <= 0.0
+    # follower_2 ran the paper policy (all predecessors: it weighs the leader driving off
+    # against the stopped follower_1), so it moved up, without reaching follower_1.
+    plant = env.env.plant
+    assert plant.x[2] > -30.0 + 0.5
+    assert 1.0 < plant.x[1] - plant.x[2] < 15.0
 
 
 def _rollout(env: ConvoyEnv, seed: int, actions_seed: int) -> list:

@@ -1,0 +1,209 @@
+"""ConvoyEnv behaviour: spaces, infos, log rows, termination, truncation, noise, ranging."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from openconvoy.comms.geodesy import geodetic_to_enu
+from openconvoy.comms.loss import LossConfig
+from openconvoy.core.member import MemberConfig
+from openconvoy.envs import ConvoyEnv
+from openconvoy.envs.convoy_env import INFO_KEYS
+from openconvoy.envs.reward import RewardConfig, reward
+from openconvoy.envs.vehicles import VEHICLE_PRESETS
+from openconvoy.logs import COLUMNS, LogWriter, read_log
+
+
+def _hold(env: ConvoyEnv, speed: float = 0.0) -> dict[str, np.ndarray]:
+    return {a: np.array([speed, 0.0], dtype=np.float32) for a in env.agents}
+
+
+def test_default_is_the_paper_scenario() -> None:
+    env = ConvoyEnv()
+    assert env.scenario.name == "paper"
+    assert env.possible_agents == ["follower_1", "follower_2"]
+    assert env.dt == pytest.approx(0.05) and env.max_steps == 1200
+    space = env.action_space("follower_1")
+    assert space.low.tolist() == [0.0, pytest.approx(-math.pi / 2)]
+    assert space.high.tolist() == [5.0, pytest.approx(math.pi / 2)]
+    assert env.observation_space("follower_2").shape == (env.member_config.layout.size,)
+    obs, infos = env.reset(seed=0)
+    assert set(obs) == set(infos) == {"follower_1", "follower_2"}
+    assert tuple(infos["follower_1"]) == INFO_KEYS
+    assert infos["follower_1"]["gap_m"] == pytest.approx(15.0)
+    assert infos["follower_1"]["desired_gap_m"] == pytest.approx(15.0)
+    assert infos["follower_2"]["cmd_speed_mps"] is None  # nothing commanded yet
+
+
+def test_infos_count_messages_and_ages() -> None:
+    env = ConvoyEnv(max_time_s=2.0)
+    env.reset(seed=0)
+    while env.agents:
+        _, _, _, _, infos = env.step(_hold(env, 0.0))
+    info = infos["follower_2"]
+    # 2 s of periodic 0.1 s broadcasts at t = 0, 0.1, ..., 2.0: 21 per vehicle.
+    assert info["msgs_sent"] == 21
+    assert info["msgs_received"] == 2 * 21  # from the leader and follower_1
+    assert info["msgs_kept"] == 2 * 21  # all-predecessors keeps both
+    assert infos["follower_1"]["msgs_kept"] == 21  # ... but not its follower's
+    assert infos["follower_1"]["msgs_received"] == 42
+    assert info["msgs_lost"] == 0
+    assert info["pred_msg_age_s"] == pytest.approx(0.0)
+    assert env.delivery_ratio == 1.0
+
+
+def test_standing_followers_and_moving_leader_give_growing_errors_and_rewards() -> None:
+    env = ConvoyEnv(max_time_s=5.0)
+    env.reset(seed=0)
+    first = None
+    while env.agents:
+        _, rewards, _, _, infos = env.step(_hold(env))
+        first = first or rewards
+    err = infos["follower_1"]["platooning_error_m"]
+    assert err == pytest.approx(infos["follower_1"]["gap_m"] - 15.0)
+    assert err > 3.0
+    assert rewards["follower_1"] < first["follower_1"]
+    assert infos["follower_2"]["platooning_error_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_reward_formula() -> None:
+    c = RewardConfig()
+    r = reward(c, [2.5, float("nan"), 100.0], [0.5, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 0.785, 0.0],
+               [False, False, True])
+    assert r[0] == pytest.approx(-(0.5 + 0.05 * 0.25 + 0.01 * 1.0))
+    assert r[1] == pytest.approx(-0.02)
+    assert r[2] == pytest.approx(-(1.0 + 100.0))  # the spacing term saturates
+
+
+def test_collision_terminates_everybody() -> None:
+    env = ConvoyEnv(max_time_s=60.0)
+    env.reset(seed=0)
+    steps = 0
+    while env.agents:
+        # follower_1 stands; follower_2 drives into it at 3 m/s.
+        actions = {"follower_1": np.array([0.0, 0.0], np.float32), "follower_2": np.array([3.0, 0.0], np.float32)}
+        _, rewards, terms, truncs, infos = env.step(actions)
+        steps += 1
+    assert terms == {"follower_1": True, "follower_2": True}
+    assert truncs == {"follower_1": False, "follower_2": False}
+    assert infos["follower_2"]["collision"] and not infos["follower_1"]["collision"]
+    half_lengths = 0.5 * (VEHICLE_PRESETS["1/6"].length_m + VEHICLE_PRESETS["1/10"].length_m)
+    assert infos["follower_2"]["gap_m"] < half_lengths
+    assert rewards["follower_2"] < -100.0
+    assert steps < 200
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step({})
+
+
+def test_truncation_at_max_time() -> None:
+    env = ConvoyEnv(max_time_s=1.0)
+    env.reset(seed=0)
+    steps = 0
+    while env.agents:
+        _, _, terms, truncs, _ = env.step(_hold(env))
+        steps += 1
+    assert steps == 20 and all(truncs.values()) and not any(terms.values())
+    assert env.t == pytest.approx(1.0)
+
+
+def test_actions_are_clipped_to_the_space_and_heading_change_is_relative() -> None:
+    env = ConvoyEnv(max_time_s=3.0)
+    env.reset(seed=0)
+    while env.agents:
+        _, _, _, _, infos = env.step({a: np.array([99.0, 0.3], np.float32) for a in env.agents})
+    assert infos["follower_1"]["cmd_speed_mps"] == pytest.approx(5.0)
+    # Turned left: heading grows while moving, y grows.
+    assert env.plant.heading[1] > 0.3 and env.plant.y[1] > 0.0
+
+
+def test_log_rows_have_the_design_columns_and_geodesy(tmp_path) -> None:
+    env = ConvoyEnv(loss=LossConfig(per=0.5), max_time_s=2.0)
+    env.reset(seed=1)
+    rows = env.log_rows()
+    assert [tuple(r) for r in rows] == [COLUMNS] * 3
+    assert math.isnan(rows[0]["gap_m"]) and math.isnan(rows[1]["cmd_speed_mps"])
+    with LogWriter(tmp_path / "log.csv") as log:
+        log.write_many(rows)
+        while env.agents:
+            env.step(_hold(env, 1.0))
+            log.write_many(env.log_rows())
+    data = read_log(tmp_path / "log.csv")
+    assert len(data["t_s"]) == 3 * 41
+    last = env.log_rows()
+    assert [r["vehicle_id"] for r in last] == [0, 1, 2]
+    assert last[1]["cmd_speed_mps"] == pytest.approx(1.0)
+    assert last[1]["gap_m"] == pytest.approx(math.hypot(env.plant.x[0] - env.plant.x[1], env.plant.y[0] - env.plant.y[1]))
+    assert last[2]["mode"] == "coop" and last[0]["mode"] == "coop"
+    # lat/lon round-trip to the ENU position around the scenario's origin.
+    x, y, _ = geodetic_to_enu(env.scenario.origin, last[2]["lat_deg"], last[2]["lon_deg"])
+    assert (x, y) == (pytest.approx(last[2]["x_m"], abs=1e-6), pytest.approx(last[2]["y_m"], abs=1e-6))
+    # Loss shows in the counters: received + lost = what the others sent to this vehicle.
+    sent_by_others = sum(r["msgs_sent"] for r in last if r["vehicle_id"] != 1)
+    assert last[1]["msgs_received"] + last[1]["msgs_lost"] == sent_by_others
+    assert last[1]["msgs_lost"] > 0
+
+
+def test_gps_noise_moves_what_members_see_not_the_truth() -> None:
+    exact = ConvoyEnv(max_time_s=1.0)
+    noisy = ConvoyEnv(max_time_s=1.0, gps_noise_m=0.5)
+    o_exact, _ = exact.reset(seed=0)
+    o_noisy, i_noisy = noisy.reset(seed=0)
+    assert i_noisy["follower_1"]["gap_m"] == pytest.approx(15.0)  # ground truth
+    lay = exact.member_config.layout
+    pred = lay.view(o_exact["follower_1"]).states("pred_1")[0]
+    pred_noisy = lay.view(o_noisy["follower_1"]).states("pred_1")[0]
+    assert pred[0] == pytest.approx(15.0)
+    assert pred_noisy[0] != pytest.approx(15.0, abs=1e-3)
+    assert abs(pred_noisy[0] - 15.0) < 5 * 0.5 * math.sqrt(2)
+
+
+def _degraded_run(presets) -> tuple[set, list[float]]:
+    ladder_cfg = MemberConfig().ladder.__class__(enabled=True, degrade_after_s=0.3, stop_after_s=30.0)
+    cfg = MemberConfig(ladder=ladder_cfg)
+    # Every message arrives 1 s late: older than degrade_after_s, so the ladder degrades.
+    env = ConvoyEnv(member_config=cfg, vehicle_presets=presets, loss=LossConfig(latency_s=1.0), max_time_s=4.0)
+    env.reset(seed=0)
+    modes, cmds = set(), []
+    while env.agents:
+        _, _, _, _, infos = env.step(_hold(env, 1.0))
+        modes.add(infos["follower_1"]["mode"])
+        cmds.append(infos["follower_1"]["cmd_speed_mps"])
+    return modes, cmds
+
+
+def test_ranging_sensor_reading_reaches_the_ladder() -> None:
+    with_sensor, cmd_sensor = _degraded_run(["1/10", VEHICLE_PRESETS["1/6"].with_ranging(), "1/10"])
+    without, cmd_plain = _degraded_run(["1/10", "1/6", "1/10"])
+    # Nothing heard for the first second (stop), then degraded on 1 s old messages.
+    assert with_sensor == without == {"stop", "degraded"}
+    # In degraded mode the ACC law uses the sensor's fresh, noisy range instead of the
+    # estimate from stale messages: the commands differ.
+    late = slice(30, None)
+    assert not np.allclose(cmd_sensor[late], cmd_plain[late])
+    assert all(c >= 0.0 for c in cmd_sensor)
+
+
+def test_vehicle_presets_override_sets_the_convoy() -> None:
+    env = ConvoyEnv("emergency-braking", vehicle_presets=["full-size"] * 5)
+    assert env.possible_agents == [f"follower_{i}" for i in range(1, 5)]
+    assert env.action_space("follower_4").high[0] == pytest.approx(40.0)
+    with pytest.raises(ValueError, match="n_followers=2 but 5 vehicle presets"):
+        ConvoyEnv("paper", n_followers=2, vehicle_presets=["1/10"] * 5)
+
+
+def test_long_convoy_runs() -> None:
+    env = ConvoyEnv(n_followers=100, loss=LossConfig(per=0.2), max_time_s=0.5)
+    obs, _ = env.reset(seed=0)
+    assert len(obs) == 100
+    while env.agents:
+        env.step(_hold(env, 0.5))
+    assert 0.7 < env.delivery_ratio < 0.9
+
+
+@pytest.mark.parametrize("bad", [{"control_rate_hz": 0.0}, {"gps_noise_m": -1.0}, {"render_mode": "human"}])
+def test_bad_arguments_are_named(bad) -> None:
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        ConvoyEnv(**bad)

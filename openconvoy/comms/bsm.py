@@ -223,6 +223,11 @@ def _spec() -> tuple[Any, Any]:
     return spec.types["MessageFrame"], spec.types["BasicSafetyMessage"]
 
 
+def warm_up() -> None:
+    """Compile the ASN.1 module now (done lazily otherwise, on the first message)."""
+    _spec()
+
+
 def _to_asn(core: BsmCore) -> dict[str, Any]:
     return {
         "coreData": {

@@ -1,0 +1,250 @@
+"""UDP multicast sockets for V2V: IPv6 for J2735 BSMs, IPv4 for the compatibility format.
+
+Both are non-blocking: ``recv_all()`` returns every datagram waiting and never blocks, so
+a control loop can poll them once per tick. Multicast loop is on, so several processes on
+one host (or one network namespace) hear each other; the receiver filters its own echoes
+by content (temporary ID / convoy position), not here.
+
+Never point these at a real interface in tests: see ``netns`` for private namespaces.
+``MemoryBus`` is an in-process stand-in with the same interface, for unit tests.
+"""
+
+from __future__ import annotations
+
+import errno
+import ipaddress
+import socket
+import struct
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Protocol
+
+#: Default IPv6 group: ff15:: is a transient (flag 1), site-local (scope 5) group, so
+#: routers keep it inside the site even if the hop limit were raised.
+DEFAULT_GROUP = "ff15::4f43"
+DEFAULT_PORT = 4200
+DEFAULT_HOP_LIMIT = 1
+
+#: Enough socket buffer for a roadside unit hearing ~1000 vehicles at 10 Hz between polls.
+RCVBUF_BYTES = 4 * 1024 * 1024
+#: Upper bound on datagrams returned by one ``recv_all`` (a flood cannot stall a tick).
+MAX_BATCH = 10_000
+MAX_DATAGRAM = 65_535
+
+
+@dataclass(frozen=True, slots=True)
+class Datagram:
+    """One received datagram: payload and sender address (text)."""
+
+    data: bytes
+    source: str
+
+
+class Transport(Protocol):
+    """What ``V2V`` needs from a socket."""
+
+    def send(self, data: bytes) -> None:
+        """Send one datagram to the group (errors raise ``OSError``)."""
+
+    def recv_all(self) -> list[Datagram]:
+        """Every datagram waiting, oldest first; empty when none. Never blocks."""
+
+    def close(self) -> None:
+        """Release the socket."""
+
+
+def interface_index(iface: str) -> int:
+    """Kernel index of network interface ``iface`` (``ValueError`` naming it if unknown)."""
+    try:
+        return socket.if_nametoindex(iface)
+    except OSError:
+        raise ValueError(f"no network interface named {iface!r}") from None
+
+
+def _drain(sock: socket.socket, max_batch: int) -> list[Datagram]:
+    out: list[Datagram] = []
+    while len(out) < max_batch:
+        try:
+            data, addr = sock.recvfrom(MAX_DATAGRAM)
+        except BlockingIOError:
+            break
+        except OSError as exc:
+            # An ICMP error queued on the socket surfaces once on a later call; skip it.
+            if exc.errno in (errno.ECONNREFUSED, errno.EHOSTUNREACH, errno.ENETUNREACH):
+                continue
+            raise
+        out.append(Datagram(data, str(addr[0])))
+    return out
+
+
+class Ipv6Multicast:
+    """A UDP/IPv6 multicast socket joined to ``group`` on interface ``iface``.
+
+    Args:
+        iface: interface name (e.g. ``wlan0``); sending and joining both use it.
+        group: IPv6 multicast group (default ``ff15::4f43``).
+        port: UDP port (default 4200).
+        hop_limit: IPv6 multicast hop limit (default 1: one link).
+        loop: deliver our own datagrams to sockets on this host (default on).
+    """
+
+    def __init__(
+        self,
+        iface: str,
+        group: str = DEFAULT_GROUP,
+        port: int = DEFAULT_PORT,
+        hop_limit: int = DEFAULT_HOP_LIMIT,
+        loop: bool = True,
+    ) -> None:
+        addr = ipaddress.ip_address(group)
+        if addr.version != 6 or not addr.is_multicast:
+            raise ValueError(f"{group!r} is not an IPv6 multicast group")
+        if not 0 <= port <= 65535:
+            raise ValueError(f"port must be in 0..65535, got {port}")
+        if not 0 <= hop_limit <= 255:
+            raise ValueError(f"hop limit must be in 0..255, got {hop_limit}")
+        self.iface, self.group, self.port, self.hop_limit = iface, str(addr), port, hop_limit
+        self.ifindex = interface_index(iface)
+        sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+        try:
+            # Several members on one host share the group and port.
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            # Bound to the group, not ::, so datagrams for other groups on this port that
+            # another socket joined are not delivered here.
+            scope = self.ifindex if addr.is_link_local else 0
+            sock.bind((self.group, port, 0, scope))
+            mreq = addr.packed + struct.pack("@I", self.ifindex)
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_JOIN_GROUP, mreq)
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF, self.ifindex)
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, hop_limit)
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_LOOP, int(loop))
+            sock.setblocking(False)
+        except OSError:
+            sock.close()
+            raise
+        self._sock = sock
+        self._dest = (self.group, port, 0, self.ifindex)
+
+    @property
+    def port_bound(self) -> int:
+        """The local port (useful with ``port=0``)."""
+        return self._sock.getsockname()[1]
+
+    def send(self, data: bytes) -> None:
+        self._sock.sendto(data, self._dest)
+
+    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
+        return _drain(self._sock, max_batch)
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self) -> Ipv6Multicast:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Ipv4Multicast:
+    """A UDP/IPv4 multicast socket (the compatibility format: 224.0.0.1:5004, TTL 1)."""
+
+    def __init__(
+        self,
+        iface: str,
+        group: str = "224.0.0.1",
+        port: int = 5004,
+        ttl: int = 1,
+        loop: bool = True,
+    ) -> None:
+        addr = ipaddress.ip_address(group)
+        if addr.version != 4 or not addr.is_multicast:
+            raise ValueError(f"{group!r} is not an IPv4 multicast group")
+        if not 0 <= ttl <= 255:
+            raise ValueError(f"TTL must be in 0..255, got {ttl}")
+        self.iface, self.group, self.port, self.ttl = iface, str(addr), port, ttl
+        self.ifindex = interface_index(iface)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            sock.bind((self.group, port))
+            # struct ip_mreqn {group, local address (any), ifindex}: selects the interface
+            # by index, so it works whatever IPv4 address the interface has.
+            mreqn = addr.packed + bytes(4) + struct.pack("@i", self.ifindex)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreqn)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, mreqn)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, ttl)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, int(loop))
+            sock.setblocking(False)
+        except OSError:
+            sock.close()
+            raise
+        self._sock = sock
+        self._dest = (self.group, port)
+
+    def send(self, data: bytes) -> None:
+        self._sock.sendto(data, self._dest)
+
+    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
+        return _drain(self._sock, max_batch)
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self) -> Ipv4Multicast:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class MemoryBus:
+    """An in-process multicast "link" for unit tests: every endpoint hears every send,
+    its own included (like multicast loop)."""
+
+    def __init__(self) -> None:
+        self._queues: list[list[Datagram]] = []
+
+    def endpoint(self, name: str = "mem") -> MemoryEndpoint:
+        """A new endpoint (a ``Transport``) attached to this bus."""
+        q: list[Datagram] = []
+        self._queues.append(q)
+        return MemoryEndpoint(self, q, name)
+
+    def inject(self, data: bytes, source: str = "injected") -> None:
+        """Deliver ``data`` to every endpoint, as if a foreign station had sent it."""
+        for q in self._queues:
+            q.append(Datagram(bytes(data), source))
+
+    def inject_many(self, items: Iterable[bytes], source: str = "injected") -> None:
+        for data in items:
+            self.inject(data, source)
+
+    def _detach(self, q: list[Datagram]) -> None:
+        self._queues = [x for x in self._queues if x is not q]
+
+
+class MemoryEndpoint:
+    """One endpoint of a ``MemoryBus`` (see there)."""
+
+    def __init__(self, bus: MemoryBus, queue: list[Datagram], name: str) -> None:
+        self._bus, self._queue, self.name = bus, queue, name
+
+    def send(self, data: bytes) -> None:
+        self._bus.inject(data, self.name)
+
+    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
+        out, self._queue[:] = self._queue[:max_batch], self._queue[max_batch:]
+        return out
+
+    def close(self) -> None:
+        self._bus._detach(self._queue)

@@ -76,6 +76,103 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_vehicle)
 
+    p = sub.add_parser(
+        "fit-plant",
+        help="fit a vehicle preset (lag, accel limits, turn rate, delay) from a vehicle run's logs",
+        description="Replays the logged commands through the simulator's plant model and fits "
+        "speed lag, acceleration/deceleration limits, turn-rate limit, heading lag and "
+        "actuation delay; writes a preset TOML that sim and experiment accept.",
+    )
+    p.add_argument("log", metavar="LOG_DIR", help="a run directory of per-vehicle logs, or one log")
+    p.add_argument("--out", metavar="PRESET.toml", help="output file (default NAME.toml)")
+    p.add_argument("--name", default="fitted", help="preset name (default fitted)")
+    p.add_argument("--base", default="1/10",
+                   help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)")
+    p.add_argument("--vehicle-id", type=int, help="which vehicle, when the logs hold several")
+
+    def _fit_plant(args: argparse.Namespace) -> int:
+        from openconvoy.bridge.fitplant import run_fit_plant_cli
+
+        return run_fit_plant_cli(args)
+
+    p.set_defaults(handler=_fit_plant)
+    _add_deploy_commands(sub)
+
+
+def _add_deploy_commands(sub: argparse._SubParsersAction) -> None:
+    """``deploy``, ``abort``, ``demo`` (bridge.deploy, bridge.demo)."""
+    p = sub.add_parser(
+        "deploy",
+        help="drive a vehicle with a policy over MAVLink, talking V2V over IPv6 multicast",
+        description="The real-time loop on a vehicle: telemetry -> convoy member -> policy -> "
+        "setpoints, with BSMs over IPv6 multicast, failsafes and a safety envelope. "
+        "SIGINT/SIGTERM: stop, HOLD, save the log, exit 0.",
+    )
+    p.add_argument("--policy", required=True, help="preset name, policy .toml, .zip or .npz")
+    p.add_argument("--vehicle-id", type=int, required=True, help="convoy index, 0 = leader")
+    p.add_argument("--convoy", required=True, metavar="CONVOY.toml", help="the convoy config")
+    p.add_argument("--mavlink", required=True, metavar="URL",
+                   help="autopilot link: /dev/ttyX (with --baud), udp:, udpin:, udpout:, tcp:")
+    p.add_argument("--iface", required=True, help="network interface for V2V multicast")
+    p.add_argument("--per", type=float, default=0.0, help="emulated packet error rate 0..1")
+    p.add_argument("--drop-at", choices=("receiver", "sender"), default="receiver",
+                   help="where the emulated loss drops messages (default receiver)")
+    p.add_argument("--log", metavar="DIR", help="write DIR/vehicle_N.csv and DIR/vehicle_N.json")
+    p.add_argument("--rate", type=float, metavar="HZ", help="control rate (default: the policy's)")
+    p.add_argument("--dry-run", action="store_true", help="everything but arming and setpoints")
+    p.add_argument("--passive", action="store_true",
+                   help="leader driven by a person: broadcast and log only")
+    p.add_argument("--track", metavar="FILE", help="leader follows this OpenConvoy JSON track")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="end after S seconds of driving (default: the leader's scenario)")
+    p.add_argument("--baud", type=int, default=57600, help="serial baud rate")
+    p.add_argument("--seed", type=int, default=0, help="seeds the emulated loss")
+    p.add_argument("--arm-timeout", type=float, default=60.0, metavar="S")
+    p.add_argument("--connect-timeout", type=float, default=30.0, metavar="S")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+    def _deploy(args: argparse.Namespace) -> int:
+        from openconvoy.bridge.deploy import deploy_from_namespace
+
+        return deploy_from_namespace(args)
+
+    p.set_defaults(handler=_deploy)
+
+    p = sub.add_parser("abort", help="broadcast a convoy-wide stop that every deploy obeys")
+    p.add_argument("--iface", required=True, help="network interface of the convoy's V2V")
+    p.add_argument("--convoy", metavar="CONVOY.toml", help="take group/port/compat from it")
+    p.add_argument("--compat", action="store_true", help="also on the IPv4 compatibility group")
+    p.add_argument("--repeat", type=int, default=3, help="send this many times (default 3)")
+
+    def _abort(args: argparse.Namespace) -> int:
+        from openconvoy.bridge.deploy import abort_from_namespace
+
+        return abort_from_namespace(args)
+
+    p.set_defaults(handler=_abort)
+
+    p = sub.add_parser(
+        "demo",
+        help="three simulated vehicles driven by three deploy processes over MAVLink + multicast",
+        description="Runs the paper scenario with three simulated MAVLink vehicles and three "
+        "`openconvoy deploy` processes inside a private network namespace (BSMs over real IPv6 "
+        "multicast that never leaves the machine), then compares with the pure simulation.",
+    )
+    p.add_argument("--policy", default="paper", help="policy spec (default paper)")
+    p.add_argument("--per", type=float, default=0.0, help="emulated packet error rate")
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="shorten the scenario to S seconds (default: all 60 s)")
+    p.add_argument("--out", metavar="DIR", help="keep the run here (default a temporary dir)")
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
+
+    def _demo(args: argparse.Namespace) -> int:
+        from openconvoy.bridge.demo import demo_from_namespace
+
+        return demo_from_namespace(args)
+
+    p.set_defaults(handler=_demo)
+
 
 # --- learning (issue 6): train, tune, export ----------------------------------------------
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.comms.loss import LossConfig
+from openconvoy.comms.v2v import Counters
 from openconvoy.core.state import VehicleState
 
 
@@ -57,8 +58,8 @@ class LocalBus:
 class LocalV2V:
     """One vehicle's endpoint on a ``LocalBus``.
 
-    Counters (``sent``, ``received``, ``lost``, ``malformed``, ``filtered``) mean what they
-    mean for ``comms.v2v.V2V``.
+    ``counters`` (``comms.v2v.Counters``) and ``metadata`` mean what they mean for
+    ``comms.v2v.V2V``.
     """
 
     def __init__(
@@ -76,29 +77,33 @@ class LocalV2V:
         self._loss = self.loss_config.make()
         self._loss.reset(np.random.default_rng(seed))
         self._q = bus.attach()
-        self.sent = self.received = self.lost = self.malformed = self.filtered = 0
+        self.counters = Counters()
 
-    def send(self, state: VehicleState, now: float) -> None:
+    def send(self, state: VehicleState, now: float) -> bool:
         if self.drop_at == "sender" and self._loss.lost(now):
-            self.lost += 1
-            return
-        self.sent += 1
+            self.counters.lost += 1
+            return False
+        self.counters.sent += 1
         self.bus.publish(self._q, state)
+        return True
 
     def poll(self, now: float) -> list[Received]:
         out: list[Received] = []
         while self._q:
             state, abort = self._q.popleft()
             if abort:
+                self.counters.received += 1
+                self.counters.aborts += 1
                 out.append(Received(None, now, abort=True))
                 continue
             if self.drop_at == "receiver" and self._loss.lost(now):
-                self.lost += 1
+                self.counters.lost += 1
                 continue
-            self.received += 1
+            self.counters.received += 1
             out.append(Received(state, now))
         return out
 
+    @property
     def metadata(self) -> dict[str, Any]:
         return {
             "transport": "local",

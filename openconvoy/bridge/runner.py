@@ -60,19 +60,19 @@ HOLD_MODES = ("HOLD", "LOITER")
 
 
 class V2VEndpoint(Protocol):
-    """What the runner needs from V2V (``comms.v2v.V2V``, or ``bridge.localv2v.LocalV2V``)."""
+    """What the runner needs from V2V (``comms.v2v.V2V``, or ``bridge.localv2v.LocalV2V``):
+    ``counters`` with ``sent``, ``received``, ``lost``; ``metadata`` (a dict property)."""
 
-    sent: int
-    received: int
-    lost: int
+    counters: Any
 
-    def send(self, state: VehicleState, now: float) -> None: ...
+    def send(self, state: VehicleState, now: float) -> bool: ...
 
     def poll(self, now: float) -> list[Any]:
         """Messages heard since the last poll: objects with ``state`` (VehicleState with
         ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``."""
         ...
 
+    @property
     def metadata(self) -> dict[str, Any]: ...
 
     def close(self) -> None: ...
@@ -506,7 +506,7 @@ class DeployRunner:
             "cmd_heading_change_rad": change if sent else math.nan,
             "mode": mode, "gap_m": gap, "desired_gap_m": m.desired_gap_m,
             "spacing_error_m": m.spacing_error_m, "msgs_sent": m.msgs_sent,
-            "msgs_received": m.msgs_received, "msgs_lost": int(getattr(self.v2v, "lost", 0)),
+            "msgs_received": m.msgs_received, "msgs_lost": self.v2v.counters.lost,
             "pred_msg_age_s": m.pred_msg_age_s, "reason": reason, "autopilot_mode": tel.mode,
             "loop_overruns": self._timer.overruns if self._timer else 0,
         })
@@ -560,7 +560,7 @@ class DeployRunner:
             "passive": o.passive,
             "autopilot": _safe(lambda: self.link.autopilot),
             "telemetry_rates_hz": getattr(self.link, "telemetry_rates", {}),
-            "v2v": _safe(self.v2v.metadata) or {},
+            "v2v": _safe(lambda: self.v2v.metadata) or {},
             "t_begin_s": self._t_begin_wall,
             "t_start_s": self._t_start_wall,
             "t_end_s": self.wall(),
@@ -571,7 +571,7 @@ class DeployRunner:
             "failsafe_events": [{"t_s": wall0 + t, "reason": r} for t, r in self.failsafes.events],
             "msgs_sent": self.member.msgs_sent,
             "msgs_received": self.member.msgs_received,
-            "msgs_lost": int(getattr(self.v2v, "lost", 0)),
+            "msgs_lost": self.v2v.counters.lost,
             **self.metadata_extra,
         }
         path = self.log_dir / f"vehicle_{o.vehicle_id}.json"

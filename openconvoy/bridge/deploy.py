@@ -1,0 +1,156 @@
+"""``openconvoy deploy`` and ``openconvoy abort``: assemble a runner from the command line.
+
+``deploy`` builds, from a convoy config and a policy spec, the pieces ``bridge.runner``
+plugs together — the MAVLink link to the vehicle, the V2V link (J2735 BSMs over IPv6
+multicast on ``--iface``, loss emulated with ``--per``), the leader's scenario or track —
+installs SIGINT/SIGTERM handlers (stop, HOLD, flush the log, exit 0) and runs.
+``abort`` broadcasts the convoy-wide stop every ``deploy`` obeys.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
+from openconvoy.comms.geodesy import Origin
+from openconvoy.comms.loss import LossConfig
+from openconvoy.convoy import ConvoyConfig, load_convoy
+
+
+@dataclass(frozen=True)
+class DeployArgs:
+    """``openconvoy deploy``'s arguments (see the CLI help for each)."""
+
+    policy: str
+    vehicle_id: int
+    convoy: str
+    mavlink: str
+    iface: str
+    per: float = 0.0
+    drop_at: str = "receiver"
+    log: str | None = None
+    rate: float | None = None
+    dry_run: bool = False
+    passive: bool = False
+    track: str | None = None
+    duration: float | None = None
+    baud: int = 57600
+    seed: int = 0
+    arm_timeout: float = 60.0
+    connect_timeout: float = 30.0
+    telemetry_hz: float | None = None
+    quiet: bool = False
+
+
+def _status(quiet: bool):
+    def emit(line: str) -> None:
+        if not quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    return emit
+
+
+def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRunner:
+    """Everything ``deploy`` runs, not yet connected (sockets opened, no message sent)."""
+    from openconvoy.bridge.mavlink import MavlinkLink
+    from openconvoy.comms.tempids import TempIds
+    from openconvoy.comms.v2v import V2V, LinkConfig
+    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.vehicles import vehicle_preset
+    from openconvoy.policies import load_policy
+
+    convoy = convoy or load_convoy(a.convoy)
+    n = convoy.n_vehicles
+    if not 0 <= a.vehicle_id < n:
+        raise ValueError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
+    policy = load_policy(a.policy)
+    presets = [vehicle_preset(v) for v in convoy.vehicles]
+    origin = Origin(*convoy.origin)
+    rate = a.rate if a.rate is not None else float(getattr(policy, "control_rate_hz", 20.0))
+    status = _status(a.quiet)
+    leader = None
+    leader_origin = None
+    spec = f"track-file:{a.track}" if a.track else convoy.scenario
+    if a.vehicle_id == 0 and not a.passive:
+        leader = make_scenario(spec, presets=presets)
+        if spec.startswith("track-file:"):
+            leader_origin = leader.origin  # the track's own frame, reached through lat/lon
+    me = presets[a.vehicle_id]
+    link = MavlinkLink(
+        a.mavlink, origin, a.baud, vehicle_id=a.vehicle_id,
+        telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
+        length_m=me.length_m, width_m=me.width_m, on_status=status,
+    )
+    temp_ids = TempIds(convoy.name, n, dict(enumerate(convoy.v2v.temp_ids)) or None)
+    loss = LossConfig(per=a.per) if a.per > 0 else None
+    v2v = V2V(
+        LinkConfig.from_v2v(convoy.v2v, a.iface), temp_ids, origin, a.vehicle_id,
+        loss=loss, drop_at=a.drop_at, rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
+    )
+    options = RunnerOptions(
+        vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
+        duration_s=a.duration, connect_timeout_s=a.connect_timeout, arm_timeout_s=a.arm_timeout,
+        seed=a.seed,
+    )
+    return DeployRunner(
+        options, convoy, policy, link, v2v, leader=leader,
+        lengths=[p.length_m for p in presets], log_dir=a.log, on_status=status,
+        leader_origin=leader_origin,
+        metadata={"per": a.per, "drop_at": a.drop_at, "policy_spec": a.policy,
+                  "scenario_spec": spec, "mavlink": a.mavlink, "iface": a.iface},
+    )
+
+
+def run_deploy(a: DeployArgs) -> int:
+    """Build, install signal handlers, run; the exit status (0 after a clean stop)."""
+    runner = build_runner(a)
+    previous: dict[int, Any] = {}
+
+    def on_signal(signum: int, frame: Any) -> None:
+        runner.request_stop(signal.Signals(signum).name)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, on_signal)
+    try:
+        result: RunResult = runner.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    summary = (
+        f"vehicle {a.vehicle_id}: {result.reason}; {result.ticks} ticks, "
+        f"{result.overruns} overruns, {result.policy_errors} policy errors"
+    )
+    if a.log:
+        summary += f"; log in {Path(a.log) / f'vehicle_{a.vehicle_id}.csv'}"
+    print(summary, file=sys.stderr, flush=True)
+    return result.exit_code
+
+
+def deploy_from_namespace(args: argparse.Namespace) -> int:
+    """The CLI handler: argparse namespace -> ``run_deploy``."""
+    fields = DeployArgs.__dataclass_fields__
+    return run_deploy(DeployArgs(**{k: v for k, v in vars(args).items() if k in fields}))
+
+
+def abort_from_namespace(args: argparse.Namespace) -> int:
+    """``openconvoy abort``: the convoy-wide stop on ``--iface`` (IPv6 group, and the IPv4
+    compatibility group when the convoy speaks it or ``--compat`` is given)."""
+    from openconvoy.comms.v2v import send_abort
+
+    kwargs: dict[str, Any] = {}
+    compat = bool(args.compat)
+    if args.convoy:
+        v = load_convoy(args.convoy).v2v
+        kwargs.update(group=v.group, port=v.port, hop_limit=v.hop_limit)
+        compat = compat or v.compat
+    n = send_abort(args.iface, compat_enabled=compat, now=time.time(), repeat=args.repeat, **kwargs)
+    print(f"abort sent on {args.iface} ({n} datagrams)", file=sys.stderr)
+    return 0

@@ -23,15 +23,115 @@ Handler = Callable[[argparse.Namespace], int | None]
 # --- simulation (issue 2): sim, report, presets ------------------------------------------
 
 
+def _run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
+    """Arguments shared by ``sim`` and ``experiment per-sweep`` (None = not given)."""
+    p.add_argument("--scenario", default=None, metavar="SPEC",
+                   help="paper (default), track, emergency-braking or track-file:PATH")
+    p.add_argument("--loss", choices=("bernoulli", "gilbert-elliott"), default=None if sweep else "bernoulli",
+                   help="loss model of every link (default bernoulli)")
+    p.add_argument("--burst", type=float, default=None, metavar="S",
+                   help="mean loss burst of gilbert-elliott, seconds (default 1)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="run length (default: the scenario's)")
+    p.add_argument("--followers", type=int, default=None, metavar="N", help="number of followers")
+    p.add_argument("--vehicle-preset", action="append", metavar="PRESET",
+                   help="vehicle preset name or .toml, repeated leader first (default: the scenario's)")
+    p.add_argument("--ranging", action="store_true",
+                   help="give followers a ranging sensor (used by the staleness ladder's degraded mode)")
+    p.add_argument("--ranging-range", type=float, default=None if sweep else 20.0, metavar="M",
+                   help="that sensor's range in metres (default 20)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+
+
 def _add_sim(sub: argparse._SubParsersAction) -> None:
-    pass  # filled by the simulation work
+    p = sub.add_parser("sim", help="simulate one run: log, metrics and plots",
+                       description="Simulate a convoy and write DIR/log.csv, DIR/metrics.json, "
+                       "DIR/run.toml and plots (trajectories, gaps, speeds).")
+    p.add_argument("--policy", default="paper", metavar="SPEC",
+                   help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz")
+    p.add_argument("--per", type=float, default=0.0, help="packet error rate 0..1 (default 0)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="runs/sim", metavar="DIR", help="output directory (default runs/sim)")
+    p.add_argument("--convoy", metavar="CONVOY.toml", help="convoy file: scenario, vehicles, origin")
+    p.add_argument("--latency", type=float, default=0.0, metavar="S", help="delivery delay, seconds")
+    p.add_argument("--jitter", type=float, default=0.0, metavar="S", help="uniform delay jitter, seconds")
+    p.add_argument("--gps-noise", type=float, default=0.0, metavar="M", help="position noise std, metres")
+    _run_args(p, sweep=False)
+
+    def _sim(args: argparse.Namespace) -> int:
+        from openconvoy.experiments.commands import sim
+
+        return sim(args)
+
+    p.set_defaults(handler=_sim)
+
+    p = sub.add_parser("report", help="recompute metrics from a log or run directory",
+                       description="Recompute the metrics from a log file or a directory of "
+                       "(per-vehicle) logs, print them and write metrics.json.")
+    p.add_argument("path", metavar="DIR_OR_LOG")
+    p.add_argument("--convoy", metavar="CONVOY.toml",
+                   help="vehicle lengths for logs without a length_m column (vehicle runs)")
+    p.add_argument("--out", metavar="FILE", help="metrics file (default: metrics.json beside the log)")
+    p.add_argument("--plots", action="store_true", help="also draw trajectories, gaps and speeds")
+
+    def _report(args: argparse.Namespace) -> int:
+        from openconvoy.experiments.commands import report
+
+        return report(args)
+
+    p.set_defaults(handler=_report)
+
+    p = sub.add_parser("presets", help="list policy and vehicle presets")
+
+    def _presets(args: argparse.Namespace) -> int:
+        from openconvoy.experiments.commands import presets
+
+        return presets(args)
+
+    p.set_defaults(handler=_presets)
 
 
 # --- experiments (issue 3): experiment per-sweep, compare ---------------------------------
 
 
 def _add_experiments(sub: argparse._SubParsersAction) -> None:
-    pass  # filled by the experiments work
+    p = sub.add_parser("experiment", help="run experiments (per-sweep)")
+    esub = p.add_subparsers(dest="experiment_command", metavar="EXPERIMENT", required=True)
+    p = esub.add_parser("per-sweep", help="sweep packet error rates over seeds and policies",
+                        description="Run a scenario for each PER and seed (and policy), in parallel; "
+                        "write summary.json, summary.csv, every run's log and the paper's figures. "
+                        "--config EXPERIMENT.toml describes it all; flags given override it.")
+    p.add_argument("--config", metavar="EXPERIMENT.toml", help="experiment file (a run directory's copy reruns it)")
+    p.add_argument("--policy", action="append", metavar="SPEC",
+                   help="policy spec; repeat to draw several (e.g. --policy paper --policy paper+ladder)")
+    p.add_argument("--pers", metavar="LIST", help="comma-separated PERs (default 0,0.1,...,0.6)")
+    p.add_argument("--seeds", type=int, default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
+    p.add_argument("--name", default=None, help="experiment name")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--jobs", type=int, default=None, metavar="N", help="processes (default: the cores available)")
+    _run_args(p, sweep=True)
+
+    def _per_sweep(args: argparse.Namespace) -> int:
+        from openconvoy.experiments.commands import per_sweep
+
+        return per_sweep(args)
+
+    p.set_defaults(handler=_per_sweep)
+
+    p = sub.add_parser("compare", help="two runs or sweeps side by side, with differences",
+                       description="Metrics of two runs (log files or run directories, sim or "
+                       "vehicle) or two sweeps (directories with summary.json) side by side; B - A.")
+    p.add_argument("a", metavar="A")
+    p.add_argument("b", metavar="B")
+    p.add_argument("--convoy", metavar="CONVOY.toml", help="vehicle lengths for logs without length_m")
+    p.add_argument("--out", metavar="FILE.json", help="also write the comparison as JSON")
+
+    def _compare(args: argparse.Namespace) -> int:
+        from openconvoy.experiments.commands import compare
+
+        return compare(args)
+
+    p.set_defaults(handler=_compare)
 
 
 # --- V2V (issue 4): bsm listen / send / decode --------------------------------------------

@@ -1,0 +1,229 @@
+"""The work behind ``openconvoy sim``, ``report``, ``presets``, ``experiment per-sweep`` and
+``compare`` (``openconvoy.cli`` declares their arguments and calls these lazily).
+
+Bad arguments raise ``ValueError`` with one line naming the problem; the CLI prints it as
+``openconvoy: error: ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from openconvoy.core import metrics as mt
+
+
+def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
+    if not path:
+        return None
+    from openconvoy.convoy import load_convoy
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    convoy = load_convoy(path)
+    return {i: vehicle_preset(v).length_m for i, v in enumerate(convoy.vehicles)}
+
+
+def _check_per(per: float) -> None:
+    if not 0.0 <= per <= 1.0:
+        raise ValueError(f"--per must be in [0, 1], got {per}")
+
+
+def format_metrics(metrics: dict[str, Any]) -> str:
+    """The metrics as aligned ``key  value`` lines, per-follower p95 errors after them."""
+    lines = []
+    for k in mt.METRIC_KEYS:
+        v = metrics[k]
+        lines.append(f"{k:<28}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
+    for f, values in metrics.get("per_follower", {}).items():
+        v = values["p95_platooning_error_m"]
+        lines.append(f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}")
+    return "\n".join(lines)
+
+
+# --- sim ---------------------------------------------------------------------------------
+
+
+def run_config_from_args(args: argparse.Namespace) -> Any:
+    """The RunConfig that ``openconvoy sim``'s arguments describe."""
+    from openconvoy.experiments.runs import RunConfig
+
+    _check_per(args.per)
+    scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    if args.convoy:
+        from openconvoy.convoy import load_convoy
+
+        convoy = load_convoy(args.convoy)
+        scenario = scenario or convoy.scenario
+        vehicles = vehicles or convoy.vehicles
+        origin = convoy.origin
+    if args.burst is not None and args.loss != "gilbert-elliott":
+        raise ValueError("--burst applies to --loss gilbert-elliott")
+    return RunConfig(
+        scenario=scenario or "paper", policy=args.policy, per=args.per, loss_model=args.loss,
+        mean_burst_s=args.burst if args.burst is not None else 1.0,
+        latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
+        n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
+        ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
+    )
+
+
+def sim(args: argparse.Namespace) -> int:
+    """``openconvoy sim``: one run; writes log.csv, metrics.json, run.toml and plots."""
+    from openconvoy.core.config import dumps_toml
+    from openconvoy.experiments.runs import run_sim
+    from openconvoy.policies import load_policy
+
+    config = run_config_from_args(args)
+    load_policy(config.policy)  # a bad spec fails before anything is written
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = run_sim(config, out, progress=not args.quiet)
+    (out / "run.toml").write_text(dumps_toml({"run": config.to_dict()}), encoding="utf-8")
+    written = ["log.csv", "metrics.json", "run.toml"]
+    if not args.no_plots:
+        from openconvoy.experiments.figures import run_figures
+
+        label = f"({config.scenario}, {config.policy}, PER {config.per:g}, seed {config.seed})"
+        written += [p.name for p in run_figures(result.log, out, label)]
+    print(format_metrics(result.metrics))
+    print(f"wrote {', '.join(written)} to {out}")
+    return 0
+
+
+# --- report ------------------------------------------------------------------------------
+
+
+def report(args: argparse.Namespace) -> int:
+    """``openconvoy report``: recompute metrics from a log file or a run directory."""
+    from openconvoy.experiments.runs import write_json
+    from openconvoy.logs import read_log
+
+    path = Path(args.path)
+    log = read_log(path)
+    lengths = _lengths_from_convoy(args.convoy)
+    if lengths is None and "length_m" not in log:
+        print("note: the log has no vehicle lengths; pass --convoy to count collisions "
+              "against half lengths (now: centre distance < 0)")
+    metrics = mt.compute_metrics(log, lengths)
+    print(format_metrics(metrics))
+    out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
+    write_json(out, metrics)
+    written = [str(out)]
+    if args.plots:
+        from openconvoy.experiments.figures import run_figures
+
+        written += [str(p) for p in run_figures(log, out.parent)]
+    print(f"wrote {', '.join(written)}")
+    return 0
+
+
+# --- presets -----------------------------------------------------------------------------
+
+
+def presets(args: argparse.Namespace) -> int:
+    """``openconvoy presets``: policy presets, one line each, then vehicle presets."""
+    from openconvoy.envs.vehicles import VEHICLE_PRESETS
+    from openconvoy.policies.presets import PRESETS
+
+    width = max(len(n) for n in PRESETS)
+    print("policy presets (--policy NAME, NAME+ladder for the staleness ladder):")
+    for name, cfg in PRESETS.items():
+        m = cfg.member
+        parts = f"{m.topology}, {m.trigger.kind}, {m.spacing.kind}, {cfg.speed.kind} + {cfg.heading.kind}"
+        print(f"  {name:<{width}}  [{parts}] {cfg.description}")
+    print("vehicle presets (--vehicle-preset NAME or a preset .toml):")
+    for name, p in VEHICLE_PRESETS.items():
+        print(
+            f"  {name:<{width}}  length {p.length_m:g} m, accel {p.accel_max_mps2:g} / decel "
+            f"{p.decel_max_mps2:g} m/s², turn rate {math.degrees(p.turn_rate_max_radps):.0f}°/s, "
+            f"delay {p.actuation_delay_s:g} s, max {p.max_speed_mps:g} m/s"
+            + (", ranging sensor" if p.ranging else "")
+        )
+    return 0
+
+
+# --- experiment per-sweep ----------------------------------------------------------------
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise ValueError(f"--pers: expected comma-separated numbers, got {text!r}") from None
+
+
+def experiment_from_args(args: argparse.Namespace) -> Any:
+    """The ExperimentConfig of ``experiment per-sweep``: ``--config`` (if given) with any
+    explicitly given flags on top, else the defaults with the flags."""
+    from openconvoy.experiments.sweep import ExperimentConfig, with_overrides
+
+    config = ExperimentConfig.from_toml(args.config) if args.config else ExperimentConfig()
+    changes: dict[str, Any] = {}
+    if args.name:
+        changes["name"] = args.name
+    if args.scenario:
+        changes["scenario"] = args.scenario
+    if args.policy:
+        changes["policies"] = tuple(args.policy)
+    if args.pers:
+        changes["pers"] = _floats(args.pers)
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
+        changes["seeds"] = tuple(range(args.seeds))
+    if args.duration is not None:
+        changes["duration_s"] = args.duration
+    if args.loss:
+        changes["model"] = args.loss
+    if args.burst is not None:
+        changes["mean_burst_s"] = args.burst
+    if args.followers is not None:
+        changes["n_followers"] = args.followers
+    if args.vehicle_preset:
+        changes["vehicles"] = tuple(args.vehicle_preset)
+    if args.ranging:
+        changes["ranging"] = True
+    if args.ranging_range is not None:
+        changes["ranging_max_range_m"] = args.ranging_range
+    config = with_overrides(config, **changes) if changes else config
+    # Re-validate the result (dataclasses.replace runs __post_init__ too).
+    return config
+
+
+def per_sweep(args: argparse.Namespace) -> int:
+    """``openconvoy experiment per-sweep``."""
+    from openconvoy.experiments.sweep import run_experiment
+
+    config = experiment_from_args(args)
+    if args.jobs is not None and args.jobs < 1:
+        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+    out = Path(args.out)
+    result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
+    print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
+    for r in result.rows:
+        print(
+            f"{r['policy']:<24}{r['per']:>5.2f}{r['p95_platooning_error_m']['mean']:>13.3f}"
+            f"{r['mean_speed_difference_mps']['mean']:>10.3f}{r['min_gap_m']['mean']:>13.2f}"
+            f"{r['collisions']['mean']:>12.2f}{r['delivery_ratio']['mean']:>10.3f}"
+        )
+    print(f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run logs to {out}")
+    return 0
+
+
+# --- compare -----------------------------------------------------------------------------
+
+
+def compare(args: argparse.Namespace) -> int:
+    """``openconvoy compare A B``."""
+    from openconvoy.experiments import compare as cmp
+    from openconvoy.experiments.runs import write_json
+
+    lengths = _lengths_from_convoy(args.convoy)
+    result = cmp.compare(cmp.load_side(args.a, lengths), cmp.load_side(args.b, lengths))
+    print(cmp.format_comparison(result))
+    if args.out:
+        write_json(args.out, result)
+        print(f"wrote {args.out}")
+    return 0

@@ -196,27 +196,6 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
         return run_fit_plant_cli(args)
 
     p.set_defaults(handler=_fit_plant)
-
-    p = sub.add_parser(
-        "fit-plant",
-        help="fit a vehicle preset (lag, accel limits, turn rate, delay) from a vehicle run's logs",
-        description="Replays the logged commands through the simulator's plant model and fits "
-        "speed lag, acceleration/deceleration limits, turn-rate limit, heading lag and "
-        "actuation delay; writes a preset TOML that sim and experiment accept.",
-    )
-    p.add_argument("log", metavar="LOG_DIR", help="a run directory of per-vehicle logs, or one log")
-    p.add_argument("--out", metavar="PRESET.toml", help="output file (default NAME.toml)")
-    p.add_argument("--name", default="fitted", help="preset name (default fitted)")
-    p.add_argument("--base", default="1/10",
-                   help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)")
-    p.add_argument("--vehicle-id", type=int, help="which vehicle, when the logs hold several")
-
-    def _fit_plant(args: argparse.Namespace) -> int:
-        from openconvoy.bridge.fitplant import run_fit_plant_cli
-
-        return run_fit_plant_cli(args)
-
-    p.set_defaults(handler=_fit_plant)
     _add_deploy_commands(sub)
 
 

@@ -53,8 +53,10 @@ from openconvoy.logs import LogWriter
 
 log = logging.getLogger(__name__)
 
-EXTRA_COLUMNS = ("reason", "autopilot_mode", "loop_overruns")
-"""Log columns after DESIGN.md's: why a failsafe/stop holds, the autopilot's mode, overruns."""
+EXTRA_COLUMNS = ("length_m", "loop_overruns")
+"""Numeric log columns after DESIGN.md's: the vehicle's length (as ``sim`` writes, so
+``report`` counts collisions from the log alone) and the loop overruns so far. Why a
+failsafe fired goes to the metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
 
@@ -507,7 +509,7 @@ class DeployRunner:
             "mode": mode, "gap_m": gap, "desired_gap_m": m.desired_gap_m,
             "spacing_error_m": m.spacing_error_m, "msgs_sent": m.msgs_sent,
             "msgs_received": m.msgs_received, "msgs_lost": self.v2v.counters.lost,
-            "pred_msg_age_s": m.pred_msg_age_s, "reason": reason, "autopilot_mode": tel.mode,
+            "pred_msg_age_s": m.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
             "loop_overruns": self._timer.overruns if self._timer else 0,
         })
 

@@ -1,0 +1,355 @@
+"""``openconvoy demo``: the whole sim2real path on one machine, in one command.
+
+Three simulated MAVLink vehicles (``bridge.simvehicle``, ArduPilot Rover by default) start
+at the ``paper`` scenario's initial positions, and three ``openconvoy deploy`` processes
+(leader + two followers, the ``paper`` policy) drive them over MAVLink (UDP on loopback)
+while exchanging J2735 BSMs over real IPv6 multicast — inside a private network namespace
+(``unshare -rn``, see ``comms.netns``), so nothing leaves the machine. Live status lines
+show the convoy; at the end every process is stopped cleanly (SIGTERM: stop, HOLD, log
+flushed) and the run's metrics are printed side by side with the pure simulation of the
+same scenario, policy and seed (``experiments.compare``).
+
+The outer call checks that a namespace can be made (and says what is needed if not), then
+re-runs itself inside one; the inner call (``OPENCONVOY_DEMO_INSIDE=1``) does the work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
+READY_AFTER_S = 2.0
+"""The simulated autopilots allow arming this long after boot (real ArduPilot: ~40 s)."""
+PHASE_SETTLE_S = 10.0
+"""Speed tracking is judged from this long after each leader speed change."""
+
+
+@dataclass(frozen=True)
+class DemoOptions:
+    """``openconvoy demo``'s options. ``duration_s`` None = the scenario's 60 s."""
+
+    policy: str = "paper"
+    per: float = 0.0
+    autopilot: str = "ardupilot"
+    duration_s: float | None = None
+    out: str | None = None
+    json: bool = False
+
+
+def demo_from_namespace(args: argparse.Namespace) -> int:
+    opts = DemoOptions(args.policy, args.per, args.autopilot, args.duration, args.out, args.json)
+    if os.environ.get(ENV_INSIDE) == "1":
+        return run_inside(opts)
+    return run_outside(opts)
+
+
+# --- outside: check and re-run in a namespace -----------------------------------------------
+
+
+NEEDS = (
+    "openconvoy demo runs its vehicles in a private network namespace so that multicast never "
+    "leaves this machine. It needs `unshare` (util-linux) and `ip` (iproute2), and permission "
+    "to create user and network namespaces: unprivileged user namespaces enabled "
+    "(sysctl kernel.unprivileged_userns_clone=1 where that exists, user.max_user_namespaces > 0, "
+    "and on Ubuntu 24.04+ kernel.apparmor_restrict_unprivileged_userns=0), or run as root. "
+    "Inside containers, the container must allow unshare (e.g. Docker --privileged or a "
+    "seccomp profile permitting it)."
+)
+
+
+def _argv(opts: DemoOptions) -> list[str]:
+    argv = ["demo", "--policy", opts.policy, "--per", repr(opts.per), "--autopilot", opts.autopilot]
+    if opts.duration_s is not None:
+        argv += ["--duration", repr(opts.duration_s)]
+    if opts.out:
+        argv += ["--out", str(Path(opts.out).resolve())]
+    if opts.json:
+        argv.append("--json")
+    return argv
+
+
+def run_outside(opts: DemoOptions) -> int:
+    from openconvoy.comms.netns import netns_unavailable_reason
+
+    reason = netns_unavailable_reason()
+    if reason is not None:
+        print(f"openconvoy demo: cannot create a private network namespace: {reason}", file=sys.stderr)
+        print(NEEDS, file=sys.stderr)
+        return 2
+    env = {**os.environ, ENV_INSIDE: "1"}
+    cmd = ["unshare", "-rn", sys.executable, "-m", "openconvoy.cli", *_argv(opts)]
+    proc = subprocess.Popen(cmd, env=env)
+
+    def forward(signum: int, frame: Any) -> None:
+        if proc.poll() is None:
+            proc.send_signal(signum)
+
+    old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        return proc.wait()
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+# --- inside the namespace ---------------------------------------------------------------------
+
+
+def _setup_network() -> str:
+    from openconvoy.comms import netns
+
+    setup = getattr(netns, "setup_network", None) or netns._setup_network
+    setup()
+    return netns.IFACE
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _say(line: str) -> None:
+    print(line, flush=True)
+
+
+def write_convoy_toml(path: Path, vehicles: tuple[str, ...], origin: tuple[float, float, float]) -> None:
+    """The demo's convoy config (paper scenario, its vehicles, the default V2V group)."""
+    vs = ", ".join(f'"{v}"' for v in vehicles)
+    path.write_text(
+        "[convoy]\n"
+        'name = "demo"\n'
+        'scenario = "paper"\n'
+        f"vehicles = [{vs}]\n"
+        f"origin = [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\n",
+        encoding="utf-8",
+    )
+
+
+def run_inside(opts: DemoOptions) -> int:
+    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+    from openconvoy.comms.geodesy import Origin
+    from openconvoy.convoy import load_convoy
+    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.vehicles import vehicle_preset
+    from openconvoy.policies import load_policy
+
+    iface = _setup_network()
+    out = Path(opts.out) if opts.out else Path(tempfile.mkdtemp(prefix="openconvoy-demo-"))
+    out.mkdir(parents=True, exist_ok=True)
+    deploy_dir, sim_dir = out / "deploy", out / "sim"
+    convoy_path = out / "convoy.toml"
+    from openconvoy.convoy import ConvoyConfig
+
+    defaults = ConvoyConfig()
+    write_convoy_toml(convoy_path, defaults.vehicles, defaults.origin)
+    convoy = load_convoy(convoy_path)
+    policy = load_policy(opts.policy)
+    presets = [vehicle_preset(v) for v in convoy.vehicles]
+    scenario = make_scenario("paper", presets=presets)
+    member_config = getattr(policy, "member_config", None)
+    if member_config is not None:
+        scenario.spacing = member_config.spacing  # start at the policy's gaps, as `sim` does
+    init = scenario.initial_state()
+    duration = float(opts.duration_s or scenario.duration_s)
+    origin = Origin(*convoy.origin)
+    _say(f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles, policy "
+         f"{opts.policy}, PER {opts.per:g}, {duration:g} s, V2V over IPv6 multicast on {iface} "
+         f"(private network namespace); run in {out}")
+
+    vehicles: list[SimVehicle] = []
+    procs: list[subprocess.Popen] = []
+    logs: list[Any] = []
+    code = 1
+    try:
+        urls = []
+        for i, p in enumerate(presets):
+            port = _free_udp_port()
+            cfg = SimVehicleConfig(
+                system_id=i + 1, autopilot=opts.autopilot, preset=p, home=origin,
+                start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
+                start_heading_rad=float(init.heading[i]), ready_after_s=READY_AFTER_S, seed=i,
+            )
+            vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
+            urls.append(f"udpout:127.0.0.1:{port}")
+        deploy_dir.mkdir(parents=True, exist_ok=True)
+        for i, url in enumerate(urls):
+            cmd = [
+                sys.executable, "-m", "openconvoy.cli", "deploy", "--policy", opts.policy,
+                "--vehicle-id", str(i), "--convoy", str(convoy_path), "--mavlink", url,
+                "--iface", iface, "--log", str(deploy_dir), "--per", repr(opts.per),
+                "--seed", "0",
+            ]
+            if opts.duration_s is not None and i == 0:
+                cmd += ["--duration", repr(duration)]
+            err = open(out / f"deploy_{i}.txt", "w")
+            logs.append(err)
+            procs.append(subprocess.Popen(cmd, stdout=err, stderr=subprocess.STDOUT))
+        code = _watch(procs, vehicles, duration)
+    except KeyboardInterrupt:
+        _say("interrupted: stopping the convoy")
+        code = 130
+    finally:
+        _stop_all(procs)
+        for v in vehicles:
+            v.stop()
+        for f in logs:
+            f.close()
+    if code != 0:
+        for i in range(len(procs)):
+            tail = (out / f"deploy_{i}.txt").read_text(errors="replace").splitlines()[-8:]
+            _say(f"--- deploy {i} (last lines) ---\n" + "\n".join(tail))
+        return code
+    _say("running the pure simulation of the same scenario ...")
+    report = compare_with_sim(deploy_dir, sim_dir, opts, duration, convoy.origin)
+    from openconvoy.experiments.compare import format_comparison
+
+    _say(format_comparison(report["comparison"]).replace("A: ", "A (simulation): ", 1)
+         .replace("B: ", "B (MAVLink + multicast): ", 1))
+    for vid, phases in report["speed_phases"].items():
+        cells = ", ".join(f"{m:.2f}" for m in phases["mean_speed_mps"])
+        _say(f"vehicle {vid}: mean speed per leader phase {cells} m/s")
+    if opts.json:
+        print(json.dumps(report, default=_json_default), flush=True)
+    return 0
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, float | np.floating) and not math.isfinite(v):
+        return None
+    if isinstance(v, np.generic):
+        return v.item()
+    return str(v)
+
+
+def _watch(procs: list[subprocess.Popen], vehicles: list[Any], duration: float) -> int:
+    """Status lines until the leader's run ends; then stop the followers. Exit status."""
+    t0 = time.monotonic()
+    # Start-up (imports, arming after READY_AFTER_S, hearing each other) plus the run.
+    deadline = t0 + duration + 90.0
+    last = -math.inf
+    while procs[0].poll() is None:
+        now = time.monotonic()
+        if any(p.poll() is not None for p in procs[1:]):
+            _say("a follower's deploy ended early")
+            return 1
+        if now > deadline:
+            _say("the leader did not finish in time")
+            return 1
+        if now - last >= 2.0:
+            last = now
+            _say(_status_line(now - t0, vehicles))
+        time.sleep(0.1)
+    if procs[0].returncode != 0:
+        _say(f"the leader's deploy failed (exit {procs[0].returncode})")
+        return 1
+    codes = _stop_all(procs)
+    _say(_status_line(time.monotonic() - t0, vehicles) + " | stopped")
+    if any(c != 0 for c in codes):
+        _say(f"deploy exit statuses {codes}")
+        return 1
+    return 0
+
+
+def _status_line(t: float, vehicles: list[Any]) -> str:
+    states = [v.state() for v in vehicles]
+    parts = [f"t {t:5.1f} s", f"leader {states[0].speed:4.2f} m/s {vehicles[0].mode}"]
+    for i in range(1, len(states)):
+        gap = states[i].distance_to(states[i - 1])
+        parts.append(f"v{i} {states[i].speed:4.2f} m/s gap {gap:5.2f} m {vehicles[i].mode}")
+    return " | ".join(parts)
+
+
+def _stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
+    """SIGTERM every deploy still running (stop, HOLD, flush), kill stragglers."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    codes = []
+    for p in procs:
+        try:
+            codes.append(p.wait(timeout=timeout_s))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            codes.append(p.wait())
+    return codes
+
+
+def trim_to_run(log: dict[str, np.ndarray], t_start: float, duration: float) -> dict[str, np.ndarray]:
+    """The rows of a merged vehicle log within the leader's scenario window, with ``t_s``
+    shifted to start at 0 (so its ticks read like a simulator log's)."""
+    t = np.asarray(log["t_s"], dtype=float)
+    keep = (t >= t_start) & (t <= t_start + duration)
+    out = {k: v[keep] for k, v in log.items()}
+    out["t_s"] = out["t_s"] - t_start
+    return out
+
+
+def speed_phases(log: dict[str, np.ndarray], duration: float) -> dict[int, dict[str, list[float]]]:
+    """Each vehicle's mean speed in each leader speed phase of the paper scenario, from
+    ``PHASE_SETTLE_S`` after the phase began to its end (``t_s`` from the run's start)."""
+    from openconvoy.envs.scenarios import PAPER_PHASES
+
+    t = np.asarray(log["t_s"], dtype=float)
+    vid = np.asarray(log["vehicle_id"])
+    out: dict[int, dict[str, list[float]]] = {}
+    for v in sorted(set(vid.tolist())):
+        means, targets = [], []
+        for start, end, speed in PAPER_PHASES:
+            lo, hi = start + PHASE_SETTLE_S, min(end, duration)
+            if hi <= lo:
+                continue
+            sel = (vid == v) & (t >= lo) & (t < hi)
+            means.append(float(np.mean(log["speed_mps"][sel])) if sel.any() else math.nan)
+            targets.append(speed)
+        out[int(v)] = {"mean_speed_mps": means, "leader_phase_mps": targets}
+    return out
+
+
+def compare_with_sim(deploy_dir: Path, sim_dir: Path, opts: DemoOptions, duration: float,
+                     origin: tuple[float, float, float]) -> dict[str, Any]:
+    """Metrics of the deploy run (trimmed to the leader's window) and of the pure
+    simulation, and their comparison (``experiments.compare``: B = deploy, A = sim)."""
+    from openconvoy.core.metrics import compute_metrics
+    from openconvoy.experiments.compare import Side, compare
+    from openconvoy.experiments.runs import RunConfig, run_sim
+    from openconvoy.logs import read_log
+
+    meta = json.loads((deploy_dir / "vehicle_0.json").read_text())
+    t_start = meta["t_start_s"]
+    if t_start is None:
+        raise RuntimeError("the leader never started driving")
+    log = trim_to_run(read_log(deploy_dir), float(t_start), duration)
+    sim = run_sim(
+        RunConfig(scenario="paper", policy=opts.policy, per=opts.per, seed=0,
+                  duration_s=duration, origin=origin),
+        out_dir=sim_dir,
+    )
+    deploy_metrics = compute_metrics(log, sim.lengths)
+    a = Side(sim_dir, "run", metrics=sim.metrics)
+    b = Side(deploy_dir, "run", metrics=deploy_metrics)
+    return {
+        "deploy": deploy_metrics,
+        "sim": sim.metrics,
+        "comparison": compare(a, b),
+        "speed_phases": speed_phases(log, duration),
+        "sim_speed_phases": speed_phases(sim.log, duration),
+        "deploy_dir": str(deploy_dir),
+        "sim_dir": str(sim_dir),
+        "t_start_s": t_start,
+        "duration_s": duration,
+    }

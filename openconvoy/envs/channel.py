@@ -24,11 +24,11 @@ M = TypeVar("M")
 class Channel(Generic[M]):
     """Broadcast channel among ``n`` vehicles.
 
-    Attributes:
-        sent: ``sent[s, r]`` messages vehicle ``s`` offered to receiver ``r``.
-        delivered: ``delivered[s, r]`` messages that reached ``r`` (including in flight ones
-            once due).
-        lost: ``lost[s, r]`` messages the link ``s -> r`` dropped.
+    Counters (numpy arrays built on access; plain lists inside, because the per-tick
+    updates are a handful of integers and numpy indexing would cost more than the rest):
+    ``sent[s, r]`` messages vehicle ``s`` offered to receiver ``r``; ``delivered[s, r]``
+    messages that reached ``r`` (in-flight ones count once due); ``lost[s, r]`` messages
+    the link ``s -> r`` dropped. ``delivered_to[r]``, ``lost_to[r]``: per-receiver totals.
     """
 
     def __init__(self, n_vehicles: int, loss: LossConfig | None = None) -> None:
@@ -42,24 +42,17 @@ class Channel(Generic[M]):
             [self.config.make() for _ in range(n_vehicles)] for _ in range(n_vehicles)
         ]
         probe = self._links[0][0]
-        # Independent Bernoulli links are drawn for all receivers at once: statistically the
-        # same as one draw per link, and ~50x cheaper for long convoys.
+        # Independent Bernoulli links are drawn for all receivers of a broadcast at once:
+        # statistically the same as one draw per link, and much cheaper.
         self._bernoulli_per: float | None = None
         if isinstance(probe, NoLoss):
             self._bernoulli_per = 0.0
         elif isinstance(probe, Bernoulli):
             self._bernoulli_per = probe.per
         self._instant = self._latency.base_s <= 0.0 and self._latency.jitter_s <= 0.0
-        self._others = [np.array([r for r in range(n_vehicles) if r != s]) for s in range(n_vehicles)]
-        self.sent = np.zeros((n_vehicles, n_vehicles), dtype=np.int64)
-        self.delivered = np.zeros((n_vehicles, n_vehicles), dtype=np.int64)
-        self.lost = np.zeros((n_vehicles, n_vehicles), dtype=np.int64)
-        # Per-receiver totals kept alongside the matrices (cheap to read every tick).
-        self.delivered_to = [0] * n_vehicles
-        self.lost_to = [0] * n_vehicles
+        self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
         self._queue: list[tuple[float, int, int, int, M]] = []
         self._ready: list[tuple[int, int, M]] = []
-        self._seq = 0
         self.reset(np.random.default_rng(0))
 
     def reset(self, rng: np.random.Generator) -> None:
@@ -71,47 +64,61 @@ class Channel(Generic[M]):
                     # Each link gets its own stream spawned from rng: adding a vehicle does
                     # not shift the draws of the others' links.
                     model.reset(np.random.default_rng(rng.integers(2**63)))
-        self.sent[:] = 0
-        self.delivered[:] = 0
-        self.lost[:] = 0
-        self.delivered_to = [0] * self.n
-        self.lost_to = [0] * self.n
+        n = self.n
+        self._broadcasts = [0] * n
+        self._delivered = [[0] * n for _ in range(n)]
+        self._lost = [[0] * n for _ in range(n)]
+        self.delivered_to = [0] * n
+        self.lost_to = [0] * n
         self._queue.clear()
         self._ready.clear()
         self._seq = 0
 
+    @property
+    def sent(self) -> np.ndarray:
+        b = np.array(self._broadcasts, dtype=np.int64)
+        out = np.repeat(b[:, None], self.n, axis=1)
+        np.fill_diagonal(out, 0)
+        return out
+
+    @property
+    def delivered(self) -> np.ndarray:
+        return np.array(self._delivered, dtype=np.int64)
+
+    @property
+    def lost(self) -> np.ndarray:
+        return np.array(self._lost, dtype=np.int64)
+
     def send(self, sender: int, msg: M, t: float) -> None:
         """Broadcast ``msg`` from ``sender`` at time ``t`` (s) to every other vehicle."""
         others = self._others[sender]
-        self.sent[sender, others] += 1
+        self._broadcasts[sender] += 1
         per = self._bernoulli_per
-        if per is not None:
-            if per > 0.0:
-                keep = self._rng.random(len(others)) >= per
-                receivers = others[keep]
-                dropped = others[~keep]
-                if len(dropped):
-                    self.lost[sender, dropped] += 1
-                    lost_to = self.lost_to
-                    for r in dropped.tolist():
-                        lost_to[r] += 1
-            else:
-                receivers = others
+        lost_row = self._lost[sender]
+        lost_to = self.lost_to
+        if per == 0.0:
+            receivers = others
+        elif per is not None:
+            receivers = []
+            for r, u in zip(others, self._rng.random(len(others)).tolist()):
+                if u < per:
+                    lost_row[r] += 1
+                    lost_to[r] += 1
+                else:
+                    receivers.append(r)
         else:
             row = self._links[sender]
-            kept = []
+            receivers = []
             for r in others:
                 if row[r].lost(t):
-                    self.lost[sender, r] += 1
-                    self.lost_to[r] += 1
+                    lost_row[r] += 1
+                    lost_to[r] += 1
                 else:
-                    kept.append(r)
-            receivers = np.array(kept, dtype=int)
+                    receivers.append(r)
         if self._instant:
-            for r in receivers.tolist():
-                self._ready.append((r, sender, msg))
+            self._ready.extend((r, sender, msg) for r in receivers)
             return
-        for r in receivers.tolist():
+        for r in receivers:
             arrival = t + self._latency.delay(self._rng)
             heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg))
             self._seq += 1
@@ -127,13 +134,10 @@ class Channel(Generic[M]):
             while q and q[0][0] <= due:
                 _, _, r, s, msg = heapq.heappop(q)
                 out.append((r, s, msg))
-        if out:
-            delivered_to = self.delivered_to
-            for r, _s, _ in out:
-                delivered_to[r] += 1
-            senders = np.fromiter((s for _, s, _ in out), dtype=np.intp, count=len(out))
-            receivers = np.fromiter((r for r, _, _ in out), dtype=np.intp, count=len(out))
-            np.add.at(self.delivered, (senders, receivers), 1)
+        delivered, delivered_to = self._delivered, self.delivered_to
+        for r, s, _ in out:
+            delivered[s][r] += 1
+            delivered_to[r] += 1
         return out
 
     @property
@@ -143,6 +147,6 @@ class Channel(Generic[M]):
 
     def delivery_ratio(self) -> float:
         """Delivered / (delivered + lost) over all links; NaN before any message."""
-        d = int(self.delivered.sum())
-        total = d + int(self.lost.sum())
+        d = sum(self.delivered_to)
+        total = d + sum(self.lost_to)
         return d / total if total else float("nan")

@@ -175,8 +175,11 @@ class ConvoyEnv(ParallelEnv):
             )
             for a, i in self._agent_index.items()
         }
-        self._action_low = np.array([s.low for s in self._action_spaces.values()], dtype=float)
-        self._action_high = np.array([s.high for s in self._action_spaces.values()], dtype=float)
+        # (low speed, high speed, low heading change, high heading change) per agent, floats.
+        self._bounds = [
+            (float(sp.low[0]), float(sp.high[0]), float(sp.low[1]), float(sp.high[1]))
+            for sp in self._action_spaces.values()
+        ]
         self._road: np.ndarray | None = None
         self._seed_seq: np.random.SeedSequence | None = None
         self.t = 0.0
@@ -233,38 +236,44 @@ class ConvoyEnv(ParallelEnv):
         t = self.t
         cmd_v, cmd_dh = self._cmd_speed, self._cmd_dh
         ranging = self._ranging_readings()
-        low, high = self._action_low, self._action_high
+        bounds = self._bounds
+        modes = self._modes
+        names = self.possible_agents
+        members = self.members
         for i in range(1, self.n_vehicles):
             try:
-                a = actions[self.possible_agents[i - 1]]
+                a = actions[names[i - 1]]
             except KeyError:
-                raise KeyError(f"no action for {self.possible_agents[i - 1]}") from None
-            a0 = min(max(float(a[0]), low[i - 1, 0]), high[i - 1, 0])
-            a1 = min(max(float(a[1]), low[i - 1, 1]), high[i - 1, 1])
-            applied, mode = self.members[i].supervise(
-                np.array((a0, a1), dtype=np.float32), t, ranging.get(i)
+                raise KeyError(f"no action for {names[i - 1]}") from None
+            lo0, hi0, lo1, hi1 = bounds[i - 1]
+            a0 = float(a[0])
+            a1 = float(a[1])
+            a0 = lo0 if a0 < lo0 else (hi0 if a0 > hi0 else a0)
+            a1 = lo1 if a1 < lo1 else (hi1 if a1 > hi1 else a1)
+            applied, mode = members[i].supervise(
+                np.array((a0, a1), dtype=np.float32), t, ranging.get(i) if ranging else None
             )
-            cmd_v[i] = applied[0]
-            cmd_dh[i] = applied[1]
-            self._modes[i] = mode
-        v0, h0 = self.scenario.leader_command(
-            t, float(plant.x[0]), float(plant.y[0]), float(plant.heading[0]), float(plant.speed[0])
-        )
+            cmd_v[i] = float(applied[0])
+            cmd_dh[i] = float(applied[1])
+            modes[i] = mode
+        X, Y, V, H, A, _ = self._truth
+        v0, h0 = self.scenario.leader_command(t, X[0], Y[0], H[0], V[0])
         cmd_v[0] = v0
-        cmd_dh[0] = (h0 - plant.heading[0] + math.pi) % (2 * math.pi) - math.pi
-        prev_accel = plant.accel
-        plant.step(cmd_v, plant.heading + cmd_dh)
+        cmd_dh[0] = (h0 - H[0] + math.pi) % (2 * math.pi) - math.pi
+        plant.step(cmd_v, [h + d for h, d in zip(H, cmd_dh)])
         self.step_count += 1
         self.t = self.step_count * self.dt
-        self._jerk = (plant.accel - prev_accel) / self.dt
         obs = self._tick()
         self._measure()
+        inv_dt = 1.0 / self.dt
+        A_new, YR_new = self._truth[4], self._truth[5]
+        jerk = [(a1 - a0) * inv_dt for a0, a1 in zip(A[1:], A_new[1:])]
+        self._jerk = jerk
 
         rewards_list = reward(
             self.reward_config,
             [g - d for g, d in zip(self._gap, self._desired)],
-            plant.accel[1:].tolist(), self._jerk[1:].tolist(), plant.yaw_rate[1:].tolist(),
-            self._collided,
+            A_new[1:], jerk, YR_new[1:], self._collided,
         )
         done = any(self._collided)
         trunc = self.step_count >= self.max_steps and not done
@@ -348,12 +357,12 @@ class ConvoyEnv(ParallelEnv):
 
     def _reset_arrays(self) -> None:
         n = self.n_vehicles
-        self._cmd_speed = np.zeros(n)
-        self._cmd_dh = np.zeros(n)
-        self._log_cmd_v = np.full(n, math.nan)
-        self._log_cmd_dh = np.full(n, math.nan)
+        self._cmd_speed = [0.0] * n
+        self._cmd_dh = [0.0] * n
+        self._log_cmd_v = [math.nan] * n
+        self._log_cmd_dh = [math.nan] * n
         self._modes = ["coop"] * n
-        self._jerk = np.zeros(n)
+        self._jerk = [0.0] * (n - 1)
         self._gap: list[float] = [0.0] * (n - 1)
         self._desired: list[float] = [0.0] * (n - 1)
         self._collided: list[bool] = [False] * (n - 1)
@@ -364,12 +373,14 @@ class ConvoyEnv(ParallelEnv):
         """Own states -> Tx -> channel -> Rx -> observations, at ``self.t``."""
         p = self.plant
         t = self.t
-        x, y = p.x, p.y
+        truth = (p.x.tolist(), p.y.tolist(), p.speed.tolist(), p.heading.tolist(),
+                 p.accel.tolist(), p.yaw_rate.tolist())
+        self._truth = truth
+        xs, ys, vs, hs, acs, yrs = truth
         if self.gps_noise_m > 0.0:
             noise = self._gps_rng.normal(0.0, self.gps_noise_m, size=(2, self.n_vehicles))
-            x, y = x + noise[0], y + noise[1]
-        xs, ys = x.tolist(), y.tolist()
-        vs, hs, acs, yrs = p.speed.tolist(), p.heading.tolist(), p.accel.tolist(), p.yaw_rate.tolist()
+            xs = (p.x + noise[0]).tolist()
+            ys = (p.y + noise[1]).tolist()
         members = self.members
         channel = self.channel
         lengths, widths = self._lengths, self._widths
@@ -381,15 +392,15 @@ class ConvoyEnv(ParallelEnv):
         for r, _, msg in channel.deliver(t):
             members[r].receive(msg, t)
         if self.step_count:
-            self._log_cmd_v = self._cmd_speed.copy()
-            self._log_cmd_dh = self._cmd_dh.copy()
+            self._log_cmd_v = self._cmd_speed[:]
+            self._log_cmd_dh = self._cmd_dh[:]
         return {a: members[i].observation(t) for i, a in enumerate(self.agents, start=1)}
 
     def _measure(self) -> None:
         """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""
-        p = self.plant
-        x, y = p.x, p.y
-        self._gap = np.hypot(x[:-1] - x[1:], y[:-1] - y[1:]).tolist()
+        x, y = self._truth[0], self._truth[1]
+        hypot = math.hypot
+        self._gap = [hypot(x[i - 1] - x[i], y[i - 1] - y[i]) for i in range(1, len(x))]
         self._desired = [m.desired_gap_m for m in self.members[1:]]
         self._collided = [g < h for g, h in zip(self._gap, self._half_sum)]
         self._rx = self.channel.delivered_to
@@ -414,11 +425,10 @@ class ConvoyEnv(ParallelEnv):
         return out
 
     def _infos(self) -> dict[str, dict[str, Any]]:
-        p = self.plant
-        leader_speed = float(p.speed[0])
+        speed, accel = self._truth[2], self._truth[4]
+        leader_speed = speed[0]
         gap, desired = self._gap, self._desired
-        speed, accel = p.speed.tolist(), p.accel.tolist()
-        cmd_v, cmd_dh = self._log_cmd_v.tolist(), self._log_cmd_dh.tolist()
+        cmd_v, cmd_dh = self._log_cmd_v, self._log_cmd_dh
         rx, lost = self._rx, self._lost
         collided = self._collided
         out = {}

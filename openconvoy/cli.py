@@ -138,7 +138,104 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_bsm(sub: argparse._SubParsersAction) -> None:
-    pass  # filled by the comms work
+    """``bsm listen | send | decode`` (the work is in ``openconvoy.comms.tools``)."""
+    # comms.multicast.DEFAULT_GROUP / DEFAULT_PORT, spelled out to keep imports lazy
+    # (tests/comms/test_cli.py checks they agree).
+    DEFAULT_GROUP, DEFAULT_PORT = "ff15::4f43", 4200
+
+    bsm = sub.add_parser(
+        "bsm",
+        help="J2735 BSM field tools: listen, send, decode",
+        description="Field tools for the V2V layer: J2735 Basic Safety Messages (UPER "
+        "MessageFrames) over IPv6 multicast, and the original implementation's JSON.",
+    )
+    cmds = bsm.add_subparsers(dest="bsm_command", metavar="SUBCOMMAND", required=True)
+
+    def net_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--iface", required=True, help="network interface, e.g. wlan0")
+        p.add_argument("--group", default=DEFAULT_GROUP,
+                       help=f"IPv6 multicast group (default {DEFAULT_GROUP})")
+        p.add_argument("--port", type=int, default=DEFAULT_PORT,
+                       help=f"UDP port (default {DEFAULT_PORT})")
+
+    p = cmds.add_parser(
+        "listen",
+        help="print BSMs heard on an interface, one line each",
+        description="Prints every BSM heard (anyone's, not only a convoy's): temporary id, "
+        "msgCnt, latitude and longitude (degrees), speed (m/s), heading (compass degrees), "
+        "age (s, from secMark and this host's clock). Ctrl-C stops.",
+    )
+    net_args(p)
+    p.add_argument("--compat", action="store_true",
+                   help="also listen for the original JSON format on 224.0.0.1:5004")
+    p.add_argument("--count", type=int, metavar="N", help="exit after N messages")
+    p.add_argument("--timeout", type=float, metavar="S", help="exit after S seconds")
+
+    def _listen(args: argparse.Namespace) -> int:
+        from openconvoy.comms import tools
+
+        tools.listen(args.iface, group=args.group, port=args.port, compat_enabled=args.compat,
+                     count=args.count, timeout_s=args.timeout)
+        return 0
+
+    p.set_defaults(handler=_listen)
+
+    p = cmds.add_parser(
+        "send",
+        help="send test BSMs",
+        description="Sends COUNT BSMs at RATE Hz from a test vehicle starting at LAT, LON "
+        "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise).",
+    )
+    net_args(p)
+    p.add_argument("--hop-limit", type=int, default=1, help="IPv6 hop limit (default 1)")
+    p.add_argument("--count", type=int, default=10, help="messages to send (default 10)")
+    p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="default 10")
+    p.add_argument("--lat", type=float, default=28.6024, help="start latitude, degrees")
+    p.add_argument("--lon", type=float, default=-81.2001, help="start longitude, degrees")
+    p.add_argument("--elev", type=float, default=0.0, help="elevation, metres (default 0)")
+    p.add_argument("--speed", type=float, default=0.0, help="m/s (default 0)")
+    p.add_argument("--heading", type=float, default=0.0,
+                   help="compass degrees, 0 = north, clockwise (default 0)")
+    p.add_argument("--id", metavar="HEX", help="temporary id, 8 hex digits")
+    p.add_argument("--compat-car", type=int, metavar="N",
+                   help="also send the original JSON format as convoy position N (IPv4)")
+
+    def _send(args: argparse.Namespace) -> int:
+        from openconvoy.comms import tools
+
+        n = tools.send(
+            args.iface, group=args.group, port=args.port, hop_limit=args.hop_limit,
+            count=args.count, rate_hz=args.rate, lat_deg=args.lat, lon_deg=args.lon,
+            elev_m=args.elev, speed_mps=args.speed, heading_deg=args.heading,
+            temp_id=tools.temp_id_arg(args.id) if args.id else tools.DEFAULT_SEND_ID,
+            compat_car=args.compat_car,
+        )
+        print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
+        return 0
+
+    p.set_defaults(handler=_send)
+
+    p = cmds.add_parser(
+        "decode",
+        help="print one UPER MessageFrame's BSM core in physical units",
+        description="Decodes a hex-encoded J2735 MessageFrame (messageId 20) and prints the "
+        "core fields in physical units (latitude and longitude in degrees).",
+    )
+    p.add_argument("hex", nargs="+", metavar="HEX", help="the frame, hex (spaces allowed)")
+    p.add_argument("--json", action="store_true", help="one JSON object instead of lines")
+
+    def _decode(args: argparse.Namespace) -> int:
+        from openconvoy.comms import tools
+
+        data = tools.parse_hex(" ".join(args.hex))
+        try:
+            lines = tools.decode_lines(data, as_json=args.json)
+        except ValueError as exc:
+            raise CliError(f"not a valid J2735 BSM frame: {exc}") from None
+        print("\n".join(lines))
+        return 0
+
+    p.set_defaults(handler=_decode)
 
 
 # --- vehicles (issue 5): deploy, abort, vehicle --sim, fit-plant, demo --------------------

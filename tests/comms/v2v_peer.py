@@ -1,25 +1,34 @@
 """One convoy member for the network-namespace tests: send at RATE Hz, poll, report JSON.
 
-Usage: v2v_peer.py INDEX N_VEHICLES START_AT DURATION_S RATE_HZ PER SEED DROP_AT [compat]
+Usage: v2v_peer.py INDEX N_VEHICLES BARRIER_DIR DURATION_S RATE_HZ PER SEED DROP_AT [MODE]
 
-Vehicle i drives east along y = 0 from x = -15 i at 1 m/s from START_AT (Unix time), so a
-receiver can check every state it gets against where the sender really was at the
-message's (reconstructed) send time.
+MODE is ``j2735`` (default), ``compat`` (J2735 plus the compatibility twin on IPv4) or
+``legacy`` (a vehicle running the original implementation: compatibility JSON on IPv4
+only). Peers first meet at a barrier (a ready file each in BARRIER_DIR, written once
+their sockets are joined), then all start at the same instant.
+
+Vehicle i drives east along y = 0 from x = -15 i at 1 m/s from the start, so a receiver
+can check every state it gets against where the sender really was at the message's
+(reconstructed) send time.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+from openconvoy.comms import compat as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
+from openconvoy.comms.multicast import Ipv4Multicast
 from openconvoy.comms.tempids import TempIds
-from openconvoy.comms.v2v import V2V, LinkConfig
+from openconvoy.comms.v2v import V2V, LinkConfig, Received
 from openconvoy.core.state import VehicleState
 
 ORIGIN = Origin(28.6024, -81.2001, 0.0)
@@ -30,23 +39,73 @@ def true_x(index: int, t: float, start_at: float) -> float:
     return -15.0 * index + SPEED * (t - start_at)
 
 
+class LegacyLink:
+    """The original implementation, as far as the wire shows: JSON on IPv4 only."""
+
+    def __init__(self, iface: str, index: int) -> None:
+        self.sock, self.index = Ipv4Multicast(iface), index
+        self.counters = type("C", (), {})()
+        self.counters.sent = 0
+        self.metadata = {"legacy": True}
+
+    def send(self, state: VehicleState, now: float) -> bool:
+        self.sock.send(cj.encode_state(state, ORIGIN))
+        self.counters.sent += 1
+        return True
+
+    def poll(self, now: float) -> list[Received]:
+        out = []
+        for d in self.sock.recv_all():
+            try:
+                m = cj.decode(d.data)
+            except cj.CompatDecodeError:
+                continue
+            if m.car != self.index:
+                out.append(Received(cj.to_state(m, ORIGIN), now, m.abort, "compat", m.car))
+        return out
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def barrier(directory: Path, index: int, n: int) -> float:
+    """Announce readiness, wait for all n peers; the common start time (Unix seconds)."""
+    tmp = directory / f".ready.{index}"
+    tmp.write_text(str(time.time()))
+    tmp.rename(directory / f"ready.{index}")  # atomic: readers never see a partial file
+    deadline = time.monotonic() + 30.0
+    while True:
+        stamps = [directory / f"ready.{i}" for i in range(n)]
+        if all(p.exists() for p in stamps):
+            latest = max(float(p.read_text()) for p in stamps)
+            return math.ceil(latest * 10.0) / 10.0 + 0.5
+        if time.monotonic() > deadline:
+            raise SystemExit("barrier: the other peers never became ready")
+        time.sleep(0.01)
+
+
 def main() -> int:
     index, n = int(sys.argv[1]), int(sys.argv[2])
-    start_at, duration, rate = float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
+    barrier_dir, duration, rate = Path(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
     per, seed, drop_at = float(sys.argv[6]), int(sys.argv[7]), sys.argv[8]
-    compat = len(sys.argv) > 9 and sys.argv[9] == "compat"
+    mode = sys.argv[9] if len(sys.argv) > 9 else "j2735"
     iface = os.environ["OPENCONVOY_NETNS_IFACE"]
-    link = V2V(
-        LinkConfig(iface=iface, compat=compat),
-        TempIds("netns-test", n),
-        ORIGIN,
-        index,
-        loss=LossConfig(per=per) if per > 0 else None,
-        drop_at=drop_at,
-        rng=np.random.default_rng(seed),
-    )
+    if mode == "legacy":
+        link = LegacyLink(iface, index)
+    else:
+        link = V2V(
+            LinkConfig(iface=iface, compat=mode == "compat"),
+            TempIds("netns-test", n),
+            ORIGIN,
+            index,
+            loss=LossConfig(per=per) if per > 0 else None,
+            drop_at=drop_at,
+            rng=np.random.default_rng(seed),
+        )
+    start_at = barrier(barrier_dir, index, n)
     heard = {j: 0 for j in range(n) if j != index}
-    max_pos_err, min_age, max_age, sources = 0.0, float("inf"), 0.0, set()
+    by_source: dict[str, int] = {}
+    max_pos_err, min_age, max_age = 0.0, float("inf"), 0.0
     attempts = 0
 
     def poll() -> None:
@@ -54,11 +113,12 @@ def main() -> int:
         now = time.time()
         for r in link.poll(now):
             heard[r.sender] += 1
-            sources.add(r.source)
+            by_source[r.source] = by_source.get(r.source, 0) + 1
             err = abs(r.state.x - true_x(r.sender, r.state.t, start_at)) + abs(r.state.y)
             max_pos_err = max(max_pos_err, err)
             min_age, max_age = min(min_age, r.age), max(max_age, r.age)
 
+    late = max(0.0, time.time() - start_at)
     while time.time() < start_at:
         time.sleep(0.005)
     period = 1.0 / rate
@@ -86,7 +146,8 @@ def main() -> int:
                 "max_pos_err_m": max_pos_err,
                 "min_age_s": min_age,
                 "max_age_s": max_age,
-                "sources": sorted(sources),
+                "by_source": by_source,
+                "late_start_s": late,
                 "metadata": link.metadata,
             }
         )

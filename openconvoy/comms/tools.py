@@ -1,0 +1,214 @@
+"""Field tools behind ``openconvoy bsm listen | send | decode``.
+
+``listen`` prints every BSM (and compatibility message) heard on a group, one line each,
+whoever sent it; ``send`` sends test BSMs from a made-up vehicle moving at constant speed
+and heading; ``decode`` prints one frame's core fields in physical units. The argparse
+declarations live in ``openconvoy.cli`` (``_add_bsm``); these functions do the work.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import select
+import sys
+import time
+from collections.abc import Callable
+from typing import Any, TextIO
+
+from openconvoy.comms import bsm as j
+from openconvoy.comms import compat as cj
+from openconvoy.comms.geodesy import Origin
+from openconvoy.comms.mapping import reconstruct_send_time, state_to_core
+from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast
+from openconvoy.comms.tempids import derive_temp_id, parse_temp_id
+from openconvoy.core.state import VehicleState
+
+log = logging.getLogger(__name__)
+
+#: Temporary ID of ``bsm send`` unless ``--id`` is given.
+DEFAULT_SEND_ID = derive_temp_id("bsm-send", 0)
+
+
+def _fmt(v: float | None, spec: str) -> str:
+    return "n/a" if v is None else format(v, spec)
+
+
+def describe_datagram(data: bytes, t_rx: float) -> str | None:
+    """One ``listen`` line for a datagram received at ``t_rx`` (None if not a message).
+
+    J2735: ``id=0A1B2C3D cnt= 12 lat=28.6024000 lon=-81.2001000 speed=1.00 m/s
+    heading=90.0000 deg age=0.012 s``; compatibility messages show ``car=N`` instead of
+    the id and count, and ``ABORT`` when the abort flag is set.
+    """
+    if data[:2] == j.BSM_FRAME_PREFIX:
+        try:
+            msg = j.decode_frame(data)
+        except j.BsmDecodeError as exc:
+            log.debug("not a BSM: %s", exc)
+            return None
+        p = j.to_physical(msg.core)
+        age = t_rx - reconstruct_send_time(msg.core.sec_mark, t_rx)
+        extra = ""
+        if msg.part_ii_ids or msg.regional_ids:
+            extra = f" partII={list(msg.part_ii_ids)} regional={list(msg.regional_ids)}"
+        return (
+            f"id={p['temp_id']} cnt={msg.core.msg_cnt:3d} "
+            f"lat={_fmt(p['lat_deg'], '.7f')} lon={_fmt(p['lon_deg'], '.7f')} "
+            f"speed={_fmt(p['speed_mps'], '.2f')} m/s heading={_fmt(p['heading_deg'], '.4f')} deg "
+            f"age={age:.3f} s{extra}"
+        )
+    if data.lstrip()[:1] == b"{":
+        try:
+            m = cj.decode(data)
+        except cj.CompatDecodeError as exc:
+            log.debug("not a compatibility message: %s", exc)
+            return None
+        age = max(0.0, t_rx - m.t)
+        return (
+            f"car={m.car} (compat) lat={_fmt(m.lat_deg, '.7f')} lon={_fmt(m.lon_deg, '.7f')} "
+            f"speed={m.speed:.2f} m/s heading={m.heading_deg:.4f} deg age={age:.3f} s"
+            + (" ABORT" if m.abort else "")
+        )
+    log.debug("ignored a datagram of %d bytes: neither J2735 nor JSON", len(data))
+    return None
+
+
+def listen(
+    iface: str,
+    *,
+    group: str,
+    port: int,
+    compat_enabled: bool = False,
+    count: int | None = None,
+    timeout_s: float | None = None,
+    out: TextIO = sys.stdout,
+    clock: Callable[[], float] = time.time,
+) -> int:
+    """Print messages heard on ``iface`` until ``count`` messages or ``timeout_s`` seconds.
+
+    Returns the number of messages printed.
+    """
+    socks: list[Any] = [Ipv6Multicast(iface, group, port)]
+    if compat_enabled:
+        socks.append(Ipv4Multicast(iface))
+    j.warm_up()
+    printed = 0
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    try:
+        while count is None or printed < count:
+            wait = 0.5 if deadline is None else deadline - time.monotonic()
+            if wait <= 0:
+                break
+            ready, _, _ = select.select(socks, [], [], min(wait, 0.5))
+            now = clock()
+            for s in ready:
+                dgram: Datagram
+                for dgram in s.recv_all():
+                    line = describe_datagram(dgram.data, now)
+                    if line is None:
+                        continue
+                    print(line, file=out, flush=True)
+                    printed += 1
+                    if count is not None and printed >= count:
+                        return printed
+    finally:
+        for s in socks:
+            s.close()
+    return printed
+
+
+def send(
+    iface: str,
+    *,
+    group: str,
+    port: int,
+    hop_limit: int = 1,
+    count: int = 10,
+    rate_hz: float = 10.0,
+    lat_deg: float,
+    lon_deg: float,
+    elev_m: float = 0.0,
+    speed_mps: float = 0.0,
+    heading_deg: float = 0.0,
+    temp_id: bytes = DEFAULT_SEND_ID,
+    compat_car: int | None = None,
+    clock: Callable[[], float] = time.time,
+    sleep: Callable[[float], None] = time.sleep,
+) -> int:
+    """Send ``count`` test BSMs at ``rate_hz`` from a vehicle starting at ``lat_deg``,
+    ``lon_deg`` and moving at ``speed_mps`` along compass ``heading_deg``.
+
+    With ``compat_car`` set, each state also goes out as a compatibility message from that
+    convoy position on the IPv4 group. Returns the number of BSMs sent.
+    """
+    if count < 0:
+        raise ValueError(f"--count must be >= 0, got {count}")
+    if not rate_hz > 0:
+        raise ValueError(f"--rate must be > 0 Hz, got {rate_hz}")
+    start = Origin(lat_deg, lon_deg, elev_m)
+    heading_enu = math.radians(90.0 - heading_deg)
+    sock = Ipv6Multicast(iface, group, port, hop_limit)
+    sock4 = Ipv4Multicast(iface) if compat_car is not None else None
+    t0 = clock()
+    try:
+        for k in range(count):
+            if k:
+                sleep(max(0.0, t0 + k / rate_hz - clock()))
+            now = clock()
+            d = speed_mps * (now - t0)
+            state = VehicleState(
+                0 if compat_car is None else compat_car,
+                now,
+                d * math.cos(heading_enu),
+                d * math.sin(heading_enu),
+                speed_mps,
+                heading_enu,
+            )
+            core = state_to_core(state, start, temp_id, k, alt_m=elev_m)
+            sock.send(j.encode_frame(core))
+            if sock4 is not None:
+                sock4.send(cj.encode_state(state, start))
+    finally:
+        sock.close()
+        if sock4 is not None:
+            sock4.close()
+    return count
+
+
+def parse_hex(text: str) -> bytes:
+    """Bytes from hex text, tolerating spaces, colons and a ``0x`` prefix."""
+    cleaned = "".join(text.split()).replace(":", "")
+    cleaned = cleaned[2:] if cleaned.lower().startswith("0x") else cleaned
+    try:
+        return bytes.fromhex(cleaned)
+    except ValueError:
+        raise ValueError(f"not hexadecimal: {text[:40]!r}") from None
+
+
+def decode_lines(data: bytes, *, as_json: bool = False) -> list[str]:
+    """``decode``'s output for one frame: ``name: value`` lines, or one JSON line.
+
+    Raises ``ValueError`` (``BsmDecodeError``) if ``data`` is not a valid BSM frame.
+    """
+    msg = j.decode_frame(data)
+    fields: dict[str, Any] = j.to_physical(msg.core)
+    fields["part_ii_ids"] = list(msg.part_ii_ids)
+    fields["regional_ids"] = list(msg.regional_ids)
+    if as_json:
+        return [json.dumps(fields)]
+    width = max(len(k) for k in fields)
+    out = []
+    for k, v in fields.items():
+        if isinstance(v, float):
+            v = str(round(v, 7))  # J2735's finest unit is 1e-7 degree
+        elif v is None:
+            v = "unavailable"
+        out.append(f"{k:<{width}}  {v}")
+    return out
+
+
+def temp_id_arg(text: str) -> bytes:
+    """argparse type for ``--id``: 8 hex digits."""
+    return parse_temp_id(text)

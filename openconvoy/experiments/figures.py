@@ -129,10 +129,17 @@ def sweep_figures(result: SweepResult, out_dir: str | Path) -> list[Path]:
 
 
 def _trajectories(result: SweepResult, policies, pers, seed, path: Path) -> None:
+    """ENU trajectories; on a straight road (no lateral extent to see) position along the
+    road over time instead, which shows the spacing."""
     plt = _plt()
     ncols = len(pers)
     fig, axes = plt.subplots(len(policies), ncols, figsize=(2.8 * ncols + 1, 2.6 * len(policies) + 0.6),
                              squeeze=False)
+    spans = [
+        (np.nanmax(s["x"]) - np.nanmin(s["x"]), np.nanmax(s["y"]) - np.nanmin(s["y"]))
+        for s in result.series.values()
+    ]
+    straight = all(dy < 0.05 * max(dx, 1e-9) for dx, dy in spans)
     for i, label in enumerate(policies):
         for j, per in enumerate(pers):
             ax = axes[i][j]
@@ -140,13 +147,17 @@ def _trajectories(result: SweepResult, policies, pers, seed, path: Path) -> None
             if s is None:
                 continue
             for vid, (x, y) in enumerate(zip(s["x"], s["y"])):
-                ax.plot(x, y, label=_vehicle_label(vid), lw=1)
+                if straight:
+                    ax.plot(s["t"], x, label=_vehicle_label(vid), lw=1)
+                else:
+                    ax.plot(x, y, label=_vehicle_label(vid), lw=1)
             ax.set_title(f"{label}, PER {per:.1f}", fontsize=9)
-            ax.set_xlabel("east x (m)", fontsize=8)
-            ax.set_ylabel("north y (m)", fontsize=8)
+            ax.set_xlabel("time (s)" if straight else "east x (m)", fontsize=8)
+            ax.set_ylabel("east x along the road (m)" if straight else "north y (m)", fontsize=8)
             ax.tick_params(labelsize=7)
     axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"Vehicle trajectories per PER ({result.config.scenario}, seed {seed})")
+    what = "position along the straight road" if straight else "trajectories"
+    fig.suptitle(f"Vehicle {what} per PER ({result.config.scenario}, seed {seed})")
     _save(fig, path)
 
 

@@ -10,17 +10,20 @@ Built-in scenarios, any number of followers (``make_scenario(spec, n_followers)`
   1/10, ...), desired gap 15 m, starting at rest at the desired gaps; leader speed
   1 m/s for 20 s, 2 m/s for 20 s, 1 m/s for 20 s, the setpoint ramped at the leader's
   acceleration limit. 60 s.
-- ``track``: a closed oval (two straights of 20 m, lengthened when a long convoy would not
-  fit, and two semicircles of radius 10 m), counter-clockwise at 1.5 m/s, starting at
-  rest 15 m apart on the track. Two laps.
+- ``track``: a closed oval (two straights and two semicircles of radius 10 m),
+  counter-clockwise at 1.5 m/s, starting at rest 15 m apart on the bottom straight (the
+  straights are 20 m, or as long as the convoy plus 5 m, or longer so the convoy takes at
+  most two thirds of the loop). Two laps.
 - ``emergency-braking``: full-size cars (three by default) on a straight road at 25 m/s,
   spaced for CACC (2 m standstill between bumpers + 0.6 s headway, as
   ``core.spacing``'s constant-time-headway computes it); after 5 s the
   leader brakes at 6 m/s² to a stop. 15 s.
 - ``track-file:PATH``: the leader follows a track file in the original OpenConvoy JSON
   format (see ``openconvoy.envs.track``) at the file's segment speeds; vehicles start at
-  rest 15 m apart behind it (on the loop for closed tracks). Two laps when closed, else
-  until the end of the track.
+  rest 15 m apart, the last one at the track's start (the first straight's start point)
+  on a closed track, the leader there on an open one (followers behind it, on the
+  extension of the first straight). Two laps when closed, else until the end of the
+  track.
 """
 
 from __future__ import annotations
@@ -230,15 +233,18 @@ def track_scenario(n_followers: int = 2, presets: Sequence[VehiclePreset] | None
     """DESIGN.md's ``track``: an oval of two straights and two semicircles at 1.5 m/s."""
     spacing = SpacingConfig("constant-distance", distance_m=TRACK_GAP_M)
     n = n_followers + 1
-    # Lengthen the straights so the convoy takes at most two thirds of the loop.
+    # Lengthen the straights so the convoy starts on one (followers steer on their
+    # predecessors' trails, which do not exist yet at the start: a straight start is
+    # what a lab does) and takes at most two thirds of the loop.
     need = 1.5 * TRACK_GAP_M * n
-    straight_m = max(straight_m, (need - 2 * math.pi * radius_m) / 2.0)
+    straight_m = max(straight_m, TRACK_GAP_M * n_followers + 5.0,
+                     (need - 2 * math.pi * radius_m) / 2.0)
     path = oval(straight_m, radius_m)
     laps = 2.0
     duration = laps * path.length / speed_mps + 5.0
     return PathScenario(
         "track", presets or _alternating_small(n), path, lambda t, s: speed_mps,
-        duration_s=duration, spacing=spacing, leader_start_s=TRACK_GAP_M * n_followers,
+        duration_s=duration, spacing=spacing, leader_start_s=TRACK_GAP_M * n_followers + 2.5,
     )
 
 
@@ -287,6 +293,7 @@ def track_file_scenario(path: str, n_followers: int = 2,
         f"track-file:{path}", presets or _alternating_small(n), track.path,
         lambda t, s: track.speed_at(s), duration_s=duration, spacing=spacing,
         origin=track.origin,
+        leader_start_s=gap_m * n_followers if track.path.closed else 0.0,
     )
 
 

@@ -5,9 +5,25 @@
 ``OpenConvoy-v0`` (``openconvoy.envs.single_agent``).
 """
 
-from openconvoy.envs.convoy_env import ConvoyEnv, convoy_aec_env
+from openconvoy.envs.channel import Channel
+from openconvoy.envs.convoy_env import INFO_KEYS, ConvoyEnv, convoy_aec_env
+from openconvoy.envs.reward import RewardConfig
+from openconvoy.envs.scenarios import SCENARIO_NAMES, Scenario, make_scenario
+from openconvoy.envs.track import Track, load_track
 
-__all__ = ["SINGLE_AGENT_ID", "ConvoyEnv", "convoy_aec_env"]
+__all__ = [
+    "INFO_KEYS",
+    "SCENARIO_NAMES",
+    "SINGLE_AGENT_ID",
+    "Channel",
+    "ConvoyEnv",
+    "RewardConfig",
+    "Scenario",
+    "Track",
+    "convoy_aec_env",
+    "load_track",
+    "make_scenario",
+]
 
 import gymnasium as _gymnasium
 

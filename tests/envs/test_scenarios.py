@@ -196,6 +196,35 @@ def test_track_file_right_turns_and_open_track() -> None:
     assert open_track.path.length == pytest.approx(60.0 + math.pi * 5.0, rel=2e-3)
 
 
+def test_track_file_with_quarter_turns_closes() -> None:
+    # A rectangle with rounded corners, as lab garage loops are drawn: four straights and
+    # four 90° left turns of radius 3 m (chord 3√2 m).
+    r = 3.0
+    corners = [((-10.0, -5.0 - r), (10.0, -5.0 - r)), ((10.0 + r, -5.0), (10.0 + r, 5.0)),
+               ((10.0, 5.0 + r), (-10.0, 5.0 + r)), ((-10.0 - r, 5.0), (-10.0 - r, -5.0))]
+
+    def ll(p: tuple[float, float]) -> dict[str, float]:
+        lat, lon, _ = enu_to_geodetic(ORIGIN, *p)
+        return {"lat": lat, "lon": lon}
+
+    data = {
+        "name": "rounded_rectangle",
+        "straights": [{"start": ll(a), "end": ll(b), "speed": 1.0} for a, b in corners],
+        "turns": [
+            {"start": ll(corners[i][1]), "end": ll(corners[(i + 1) % 4][0]), "speed": 0.5, "direction": "left"}
+            for i in range(4)
+        ],
+        "center": {"lat": ORIGIN.lat_deg, "lon": ORIGIN.lon_deg},
+    }
+    track = parse_track(data)
+    assert track.path.length == pytest.approx(2 * 20.0 + 2 * 10.0 + 2 * math.pi * r, rel=2e-3)
+    pts = track.path.sample(0.05)
+    # Every arc ends where the next straight starts: no jumps along the loop.
+    steps = np.hypot(*np.diff(np.vstack([pts, pts[:1]]), axis=0).T)
+    assert steps.max() < 0.06
+    assert pts[:, 0].max() == pytest.approx(10.0 + r, abs=1e-3)
+
+
 @pytest.mark.parametrize(
     ("mutate", "message"),
     [

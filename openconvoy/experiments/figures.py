@@ -129,8 +129,9 @@ def sweep_figures(result: SweepResult, out_dir: str | Path) -> list[Path]:
 
 
 def _trajectories(result: SweepResult, policies, pers, seed, path: Path) -> None:
-    """ENU trajectories; on a straight road (no lateral extent to see) position along the
-    road over time instead, which shows the spacing."""
+    """ENU trajectories; on a straight road (no lateral extent to see) each vehicle's
+    position relative to the leader along the road over time instead, which shows how the
+    spacing breathes."""
     plt = _plt()
     ncols = len(pers)
     fig, axes = plt.subplots(len(policies), ncols, figsize=(2.8 * ncols + 1, 2.6 * len(policies) + 0.6),
@@ -148,15 +149,15 @@ def _trajectories(result: SweepResult, policies, pers, seed, path: Path) -> None
                 continue
             for vid, (x, y) in enumerate(zip(s["x"], s["y"])):
                 if straight:
-                    ax.plot(s["t"], x, label=_vehicle_label(vid), lw=1)
+                    ax.plot(s["t"], x - s["x"][0], label=_vehicle_label(vid), lw=1)
                 else:
                     ax.plot(x, y, label=_vehicle_label(vid), lw=1)
             ax.set_title(f"{label}, PER {per:.1f}", fontsize=9)
             ax.set_xlabel("time (s)" if straight else "east x (m)", fontsize=8)
-            ax.set_ylabel("east x along the road (m)" if straight else "north y (m)", fontsize=8)
+            ax.set_ylabel("x − leader's x (m)" if straight else "north y (m)", fontsize=8)
             ax.tick_params(labelsize=7)
     axes[0][0].legend(fontsize=7)
-    what = "position along the straight road" if straight else "trajectories"
+    what = "positions relative to the leader on the straight road" if straight else "trajectories"
     fig.suptitle(f"Vehicle {what} per PER ({result.config.scenario}, seed {seed})")
     _save(fig, path)
 

@@ -17,6 +17,10 @@ import pymap3d
 #: A float or a numpy array of floats; functions return the same kind they were given.
 Num = float | np.ndarray
 
+# Built once: pymap3d otherwise rebuilds the WGS-84 ellipsoid on every call, which
+# triples the cost of a scalar conversion (the receiver does one per message).
+_WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
+
 
 @dataclass(frozen=True, slots=True)
 class Origin:
@@ -49,7 +53,7 @@ def _out(v: Num) -> Num:
 def enu_to_geodetic(origin: Origin, x: Num, y: Num, z: Num = 0.0) -> tuple[Num, Num, Num]:
     """Local ENU (metres east, north, up of ``origin``) -> (lat_deg, lon_deg, alt_m)."""
     lat, lon, alt = pymap3d.enu2geodetic(
-        x, y, z, origin.lat_deg, origin.lon_deg, origin.alt_m, deg=True
+        x, y, z, origin.lat_deg, origin.lon_deg, origin.alt_m, ell=_WGS84, deg=True
     )
     return _out(lat), _out(lon), _out(alt)
 
@@ -65,7 +69,7 @@ def geodetic_to_enu(
     if alt_m is None:
         alt_m = origin.alt_m
     x, y, z = pymap3d.geodetic2enu(
-        lat_deg, lon_deg, alt_m, origin.lat_deg, origin.lon_deg, origin.alt_m, deg=True
+        lat_deg, lon_deg, alt_m, origin.lat_deg, origin.lon_deg, origin.alt_m, ell=_WGS84, deg=True
     )
     return _out(x), _out(y), _out(z)
 

@@ -53,6 +53,11 @@ class Transport(Protocol):
         """Release the socket."""
 
 
+def multicast_scope(group: ipaddress.IPv6Address) -> int:
+    """The scope field of an IPv6 multicast address (RFC 4291: 2 link, 5 site, 14 global)."""
+    return group.packed[1] & 0x0F
+
+
 def interface_index(iface: str) -> int:
     """Kernel index of network interface ``iface`` (``ValueError`` naming it if unknown)."""
     try:
@@ -113,7 +118,9 @@ class Ipv6Multicast:
             sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
             # Bound to the group, not ::, so datagrams for other groups on this port that
             # another socket joined are not delivered here.
-            scope = self.ifindex if addr.is_link_local else 0
+            # Interface- and link-local scoped groups (ffx1::, ffx2::) need the interface
+            # as scope id to bind; wider scopes (ff15:: site-local) must not have one.
+            scope = self.ifindex if multicast_scope(addr) <= 2 else 0
             sock.bind((self.group, port, 0, scope))
             mreq = addr.packed + struct.pack("@I", self.ifindex)
             sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_JOIN_GROUP, mreq)

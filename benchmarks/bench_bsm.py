@@ -1,0 +1,128 @@
+"""J2735 BSM codec speed: encode+decode pairs per second, printed as one JSON line.
+
+Cases, all through asn1tools' UPER codec (the only codec; no hand-written fast path):
+
+- ``codec``: ``encode_frame`` + ``decode_frame`` of a core-only MessageFrame (40 bytes):
+  the number the issue asks for (aim: >= 15,000 pairs/s on one core);
+- ``encode`` and ``decode`` alone;
+- ``decode_largest_interop``: decoding the largest frame of ../shared/interop (211 bytes,
+  all three Part II types, skipped as open types), when that file is there;
+- ``state``: VehicleState -> bytes -> VehicleState, i.e. plus the ENU <-> geodetic
+  conversions (pymap3d) and unit mapping, what a vehicle pays per message;
+- ``receiver``: ``Receiver.handle`` on member BSMs (decode, filter, rebuild time, state).
+
+Each is timed for ``--seconds`` (best of ``--repeat`` runs). One process, one core.
+
+    python benchmarks/bench_bsm.py [--seconds 1] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from collections.abc import Callable
+from importlib.metadata import version
+from pathlib import Path
+
+from openconvoy.comms import bsm as j
+from openconvoy.comms.geodesy import Origin
+from openconvoy.comms.mapping import core_to_state, reconstruct_send_time, state_to_core
+from openconvoy.comms.tempids import TempIds
+from openconvoy.comms.v2v import Receiver
+from openconvoy.core.state import VehicleState
+
+VECTORS = Path(__file__).resolve().parents[1].parent / "shared/interop/j2735-bsm-vectors.json"
+
+
+def _largest_interop_frame() -> bytes | None:
+    """The largest frame of the interop set (Part II of all three types), if present."""
+    if not VECTORS.is_file():
+        return None
+    return max((bytes.fromhex(v["hex"]) for v in json.loads(VECTORS.read_text())), key=len)
+
+
+def _rate(fn: Callable[[int], None], seconds: float, repeat: int) -> float:
+    """Calls of one unit per second: best of ``repeat`` runs of about ``seconds`` each."""
+    n = 200
+    while True:  # calibrate the batch to ~0.1 s
+        t0 = time.perf_counter()
+        fn(n)
+        dt = time.perf_counter() - t0
+        if dt > 0.1:
+            break
+        n *= 2
+    batch = max(1, int(n * seconds / dt))
+    best = 0.0
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn(batch)
+        best = max(best, batch / (time.perf_counter() - t0))
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=1.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    a = ap.parse_args()
+
+    j.warm_up()
+    origin = Origin(28.6024, -81.2001, 20.0)
+    ids = TempIds("bench", 3)
+    state = VehicleState(1, 1_700_000_000.123, 35.2, -12.7, 1.8, 0.7, 0.3, 0.05, 0.55, 0.3)
+    core = state_to_core(state, origin, ids.id_of(1), 42)
+    frame = j.encode_frame(core)
+    big = _largest_interop_frame()
+
+    def codec(n: int) -> None:
+        for _ in range(n):
+            j.decode_frame(j.encode_frame(core))
+
+    def encode(n: int) -> None:
+        for _ in range(n):
+            j.encode_frame(core)
+
+    def decode(n: int) -> None:
+        for _ in range(n):
+            j.decode_frame(frame)
+
+    def decode_part_ii(n: int) -> None:
+        for _ in range(n):
+            j.decode_frame(big)
+
+    def state_round_trip(n: int) -> None:
+        for _ in range(n):
+            c = j.decode_frame(j.encode_frame(state_to_core(state, origin, core.temp_id, 1))).core
+            core_to_state(c, origin, 1, reconstruct_send_time(c.sec_mark, state.t + 0.05))
+
+    rx = Receiver(ids, origin, 0)
+
+    def receiver(n: int) -> None:
+        for _ in range(n):
+            rx.handle(frame, state.t + 0.05)
+
+    s, r = a.seconds, a.repeat
+    result = {
+        "benchmark": "bsm",
+        "codec_pairs_per_s": round(_rate(codec, s, r)),
+        "encode_per_s": round(_rate(encode, s, r)),
+        "decode_per_s": round(_rate(decode, s, r)),
+        "decode_largest_interop_per_s": round(_rate(decode_part_ii, s, r)) if big else None,
+        "largest_interop_bytes": len(big) if big else None,
+        "state_pairs_per_s": round(_rate(state_round_trip, s, r)),
+        "receiver_msgs_per_s": round(_rate(receiver, s, r)),
+        "frame_bytes": len(frame),
+        "target_pairs_per_s": 15000,
+        "asn1tools": version("asn1tools"),
+        "pymap3d": version("pymap3d"),
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "processor": platform.processor() or platform.machine(),
+    }
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -76,8 +76,10 @@ def test_report_on_a_log_without_lengths_uses_the_convoy_file(paper_run: Path, t
         w.writeheader()
         for r in rows:
             # Squeeze follower 1 onto the leader: 0.7 m < (0.779 + 0.97) / 2.
-            if r["vehicle_id"] == "1" and r["t_s"] == "30.0":
-                r["gap_m"] = "0.7"
+            if r["t_s"] == "30.0" and r["vehicle_id"] == "0":
+                lead_x = float(r["x_m"])
+            if r["t_s"] == "30.0" and r["vehicle_id"] == "1":
+                r["x_m"] = repr(lead_x - 0.7)
             w.writerow(r)
     assert main(["report", str(log)]) == 0
     assert "no vehicle lengths" in capsys.readouterr().out

@@ -77,9 +77,11 @@ def aligned(log: Columns, column: str, grid: np.ndarray | None = None) -> tuple[
 def follower_gaps(log: Columns) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Each follower's gap to its immediate predecessor (m), centre to centre.
 
-    Returns ``{vehicle_id: (t_s, gap_m)}`` at the follower's own ticks. The ``gap_m``
-    column is used where it is finite; elsewhere (a vehicle log written without it) the gap
-    is the distance to the predecessor's position interpolated at the follower's tick.
+    Returns ``{vehicle_id: (t_s, gap_m)}`` at the follower's own ticks. When the log holds
+    the predecessor's positions, the gap is the distance to them (interpolated at the
+    follower's tick: vehicle logs tick on different clocks), which is the ground truth on
+    vehicles too, where the logged ``gap_m`` is the member's estimate from received
+    messages; the ``gap_m`` column fills the ticks outside the predecessor's time span.
     """
     ids = vehicle_ids(log)
     times = np.asarray(log["t_s"], dtype=float)
@@ -87,18 +89,20 @@ def follower_gaps(log: Columns) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     logged = np.asarray(log["gap_m"], dtype=float) if "gap_m" in log else np.full(len(times), np.nan)
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for vid in ids:
-        if vid == 0 or vid - 1 not in ids:
+        if vid == 0:
             continue
-        r, p = _rows(log, vid), _rows(log, vid - 1)
+        r = _rows(log, vid)
         t = times[r]
         gap = logged[r].copy()
-        missing = ~np.isfinite(gap)
-        if missing.any():
+        if vid - 1 in ids:
+            p = _rows(log, vid - 1)
+            p = p[np.isfinite(x[p]) & np.isfinite(y[p])]
             tp = times[p]
-            inside = missing & (t >= tp[0]) & (t <= tp[-1])
-            px = np.interp(t[inside], tp, x[p])
-            py = np.interp(t[inside], tp, y[p])
-            gap[inside] = np.hypot(x[r][inside] - px, y[r][inside] - py)
+            if len(tp):
+                inside = (t >= tp[0]) & (t <= tp[-1]) & np.isfinite(x[r]) & np.isfinite(y[r])
+                px = np.interp(t[inside], tp, x[p])
+                py = np.interp(t[inside], tp, y[p])
+                gap[inside] = np.hypot(x[r][inside] - px, y[r][inside] - py)
         out[vid] = (t, gap)
     return out
 

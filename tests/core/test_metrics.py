@@ -60,6 +60,16 @@ def test_speed_difference_and_min_gap():
     assert m.min_gaps(log) == {1: pytest.approx(15.0), 2: pytest.approx(14.0)}
 
 
+def test_gaps_come_from_positions_not_the_logged_estimate():
+    lead = 100.0 + T
+    log = make_log(T, [lead, lead - 15.0], [np.ones_like(T)] * 2)
+    log["gap_m"][log["vehicle_id"] == 1] = 14.0  # a vehicle's stale estimate
+    assert m.min_gaps(log)[1] == pytest.approx(15.0)
+    # Without the predecessor in the log, the logged gap is all there is.
+    alone = {k: v[log["vehicle_id"] == 1] for k, v in log.items()}
+    assert m.min_gaps(alone)[1] == pytest.approx(14.0)
+
+
 def test_gaps_from_positions_when_the_log_has_none():
     lead = 100.0 + T
     log = make_log(T, [lead, lead - 12.0], [np.ones_like(T)] * 2, gap_logged=False)

@@ -110,8 +110,8 @@ class Counters:
     Attributes:
         sent: messages transmitted (a J2735 BSM and its compat twin count once).
         received: messages delivered by ``poll`` (aborts included).
-        malformed: datagrams that were not a valid message (or a member BSM without
-            position).
+        malformed: datagrams that were not a valid message, or a member's BSM lacking
+            position, speed, heading or time ("unavailable").
         filtered: valid messages from outside the convoy (unknown temporary ID or car).
         lost: messages dropped by the emulated loss model (at receiver or sender).
         echoes: our own messages heard back (multicast loop).
@@ -119,6 +119,7 @@ class Counters:
         aborts: abort messages among ``received``.
         datagrams: datagrams handled by the receiver.
         send_errors: sends the OS refused (the link keeps going).
+        recv_errors: socket receive errors (the link keeps going).
     """
 
     sent: int = 0
@@ -131,6 +132,7 @@ class Counters:
     aborts: int = 0
     datagrams: int = 0
     send_errors: int = 0
+    recv_errors: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -290,8 +292,21 @@ class Receiver:
         if sender is None:
             self.counters.filtered += 1
             return None
-        if core.lat == j.LAT_UNAVAILABLE or core.lon == j.LON_UNAVAILABLE:
-            return self._malformed(source, f"BSM of vehicle {sender} has no position")
+        # A member's BSM without position, speed, heading or time is no use to the convoy
+        # (NaN would reach the controllers, an unknown age would look fresh forever):
+        # treated as not received, so the staleness ladder sees the gap.
+        missing = [
+            name
+            for name, absent in (
+                ("position", core.lat == j.LAT_UNAVAILABLE or core.lon == j.LON_UNAVAILABLE),
+                ("speed", core.speed == j.SPEED_UNAVAILABLE),
+                ("heading", core.heading == j.HEADING_UNAVAILABLE),
+                ("time", core.sec_mark >= 61000),
+            )
+            if absent
+        ]
+        if missing:
+            return self._malformed(source, f"BSM of vehicle {sender} lacks {', '.join(missing)}")
         if self._lost(sender, t_rx):
             return None
         t_send = reconstruct_send_time(core.sec_mark, t_rx, self.time_tolerance_s)
@@ -472,7 +487,13 @@ class V2V:
         out: list[Received] = []
         transports = [self._tx] if self._tx4 is None else [self._tx, self._tx4]
         for transport in transports:
-            for dgram in transport.recv_all():
+            try:
+                dgrams = transport.recv_all()
+            except OSError as exc:  # e.g. the interface went down: keep the vehicle going
+                self.counters.recv_errors += 1
+                log.debug("V2V receive failed: %s", exc)
+                continue
+            for dgram in dgrams:
                 r = self.receiver.handle(dgram.data, now, dgram.source)
                 if r is not None:
                     out.append(r)

@@ -3,6 +3,7 @@ a member consuming a mixed J2735 + compat stream, and the receiver fuzz."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -298,14 +299,53 @@ def test_receiver_survives_pathological_values():
     rx = Receiver(IDS, ORIGIN, 0)
     # a member BSM at the pole with every field at its extreme
     core = j.BsmCore(
-        msg_cnt=127, temp_id=IDS.id_of(1), sec_mark=65535, lat=j.LAT_MAX, lon=j.LON_MAX,
-        elev=j.ELEV_MAX, speed=j.SPEED_UNAVAILABLE, heading=j.HEADING_UNAVAILABLE,
-        yaw_rate=j.YAW_RATE_MIN,
+        msg_cnt=127, temp_id=IDS.id_of(1), sec_mark=60999, lat=j.LAT_MAX, lon=j.LON_MAX,
+        elev=j.ELEV_MAX, speed=j.SPEED_MAX, heading=j.HEADING_MAX, yaw_rate=j.YAW_RATE_MIN,
+        accel_long=j.ACCEL_MIN, width=j.WIDTH_MAX, length=j.LENGTH_MAX,
     )  # fmt: skip
-    r = rx.handle(j.encode_frame(core), 7.0)
-    assert r is not None and r.state.t == 7.0 and math.isnan(r.state.speed)
-    no_pos = j.BsmCore(msg_cnt=0, temp_id=IDS.id_of(1), sec_mark=0, lat=j.LAT_UNAVAILABLE, lon=0)
-    assert rx.handle(j.encode_frame(no_pos), 7.0) is None and rx.counters.malformed == 1
+    # secMark 60999 is the leap second :60.999; our clock (POSIX, no leap seconds) reads
+    # it in the next minute, and it is rebuilt as the last instant of its minute, :59.999
+    r = rx.handle(j.encode_frame(core), 60.5)
+    assert r is not None and r.state.t == pytest.approx(59.999)
+    assert r.state.speed == pytest.approx(163.8) and r.state.accel == pytest.approx(-20.0)
+    assert r.state.yaw_rate == pytest.approx(math.radians(327.67))
+
+
+@pytest.mark.parametrize(
+    "field,value,what",
+    [
+        ("lat", j.LAT_UNAVAILABLE, "position"),
+        ("lon", j.LON_UNAVAILABLE, "position"),
+        ("speed", j.SPEED_UNAVAILABLE, "speed"),
+        ("heading", j.HEADING_UNAVAILABLE, "heading"),
+        ("sec_mark", j.SEC_MARK_UNAVAILABLE, "time"),
+    ],
+)
+def test_member_bsm_without_essentials_is_not_delivered(field, value, what, caplog):
+    rx = Receiver(IDS, ORIGIN, 0)
+    base = state_to_core(_state(1, 10.0), ORIGIN, IDS.id_of(1), 0)
+    with caplog.at_level("DEBUG", logger="openconvoy.comms.v2v"):
+        assert rx.handle(j.encode_frame(dataclasses.replace(base, **{field: value})), 10.1) is None
+    assert rx.counters.malformed == 1 and rx.counters.received == 0
+    assert f"BSM of vehicle 1 lacks {what}" in caplog.text
+    assert rx.handle(j.encode_frame(base), 10.1) is not None  # the intact one is fine
+
+
+def test_receive_errors_do_not_stop_the_link():
+    class Broken:
+        def recv_all(self):
+            raise OSError(100, "Network is down")
+
+        def send(self, data):
+            raise OSError(100, "Network is down")
+
+        def close(self):
+            pass
+
+    link = V2V(LinkConfig(iface="x"), IDS, ORIGIN, 0, transport=Broken())
+    assert link.poll(1.0) == [] and link.counters.recv_errors == 1
+    assert link.send(_state(0, 1.0), 1.0) is False and link.counters.send_errors == 1
+    assert link.counters.sent == 0
 
 
 def test_sender_counts_into_shared_counters():

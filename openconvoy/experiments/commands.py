@@ -80,7 +80,11 @@ def sim(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     result = run_sim(config, out, progress=not args.quiet)
-    (out / "run.toml").write_text(dumps_toml({"run": config.to_dict()}), encoding="utf-8")
+    from openconvoy import __version__
+
+    (out / "run.toml").write_text(
+        f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
+    )
     written = ["log.csv", "metrics.json", "run.toml"]
     if not args.no_plots:
         from openconvoy.experiments.figures import run_figures

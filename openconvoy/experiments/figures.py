@@ -66,6 +66,9 @@ def run_figures(log: mt.Columns, out_dir: str | Path, title: str = "") -> list[P
     for vid in ids:
         r = vid_all == vid
         ax.plot(np.asarray(log["x_m"])[r], np.asarray(log["y_m"])[r], label=_vehicle_label(vid))
+    x_all, y_all = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
+    if np.nanmax(y_all) - np.nanmin(y_all) > 0.05 * (np.nanmax(x_all) - np.nanmin(x_all)):
+        ax.set_aspect("equal", adjustable="datalim")  # curves undistorted; a straight road stays readable
     ax.set_xlabel("east x (m)")
     ax.set_ylabel("north y (m)")
     ax.set_title(f"Trajectories {title}".strip())

@@ -139,6 +139,25 @@ def _write_sysctl(path: str, value: str) -> None:
         f.write(value)
 
 
+def setup_network() -> str:
+    """Wire the current, fresh network namespace for multicast; return the interface name.
+
+    For code that enters the namespace itself (``unshare -rn python -m ...``, as the demo
+    does) instead of going through ``run_in_netns``. Refuses (``RuntimeError``) unless
+    the namespace holds nothing but loopback, so it can never touch a real host's network.
+    """
+    import socket
+
+    others = [name for _, name in socket.if_nameindex() if name != "lo"]
+    if others:
+        raise RuntimeError(
+            "setup_network() must run in a fresh private network namespace "
+            f"(unshare -rn); this one has interfaces {', '.join(others)}"
+        )
+    _setup_network()
+    return IFACE
+
+
 def _setup_network() -> None:
     # DAD off before the links exist, so their link-local addresses are never tentative
     # (a tentative address cannot source multicast).
@@ -162,7 +181,7 @@ def _setup_network() -> None:
 
 
 def _inside(spec: dict) -> list[dict]:
-    _setup_network()
+    setup_network()
     env = {**spec["env"], ENV_IFACE: IFACE}
     procs = []
     with tempfile.TemporaryDirectory(prefix="openconvoy-netns-") as tmp:

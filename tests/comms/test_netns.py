@@ -184,3 +184,29 @@ def test_cli_send_and_listen():
     assert "speed=2.00 m/s heading=90.0000 deg" in first
     age = float(first.split("age=")[1].split()[0])
     assert 0.0 <= age < 1.0
+
+
+def test_run_in_netns_gives_a_private_multicast_veth():
+    links, env, slow = run_in_netns(
+        [
+            ["ip", "-br", "link"],
+            [sys.executable, "-c", "import os; print(os.environ['OPENCONVOY_NETNS_IFACE'])"],
+            ["sleep", "30"],
+        ],
+        timeout=3,
+    )
+    names = {line.split()[0].split("@")[0]: line.split()[1] for line in links.stdout.splitlines()}
+    assert names == {"lo": "UNKNOWN", "oc0": "UP", "oc1": "UP"}  # nothing else, no real NIC
+    assert env.stdout.strip() == "oc0"
+    assert slow.returncode == -9  # killed at the timeout
+
+
+def test_setup_network_refuses_a_namespace_with_other_interfaces(monkeypatch):
+    import socket
+
+    from openconvoy.comms import netns
+
+    monkeypatch.setattr(socket, "if_nameindex", lambda: [(1, "lo"), (2, "eth0")])
+    monkeypatch.setattr(netns, "_setup_network", lambda: pytest.fail("must not configure"))
+    with pytest.raises(RuntimeError, match="fresh private network namespace.*eth0"):
+        netns.setup_network()

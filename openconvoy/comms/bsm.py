@@ -217,7 +217,12 @@ def check_core(core: BsmCore) -> None:
 @functools.cache
 def _spec() -> tuple[Any, Any]:
     """The compiled (MessageFrame, BasicSafetyMessage) UPER types, once per process."""
-    import asn1tools  # imported here: only processes that speak J2735 pay for it
+    try:
+        import asn1tools  # imported here: only processes that speak J2735 pay for it
+    except ModuleNotFoundError:
+        raise ModuleNotFoundError(
+            "J2735 BSMs need asn1tools: pip install 'openconvoy[vehicle]'", name="asn1tools"
+        ) from None
 
     spec = asn1tools.compile_files(str(ASN_PATH), "uper")
     return spec.types["MessageFrame"], spec.types["BasicSafetyMessage"]

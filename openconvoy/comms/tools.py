@@ -31,6 +31,14 @@ log = logging.getLogger(__name__)
 DEFAULT_SEND_ID = derive_temp_id("bsm-send", 0)
 
 
+def require_codec() -> None:
+    """Compile the J2735 codec now; ``ValueError`` (one CLI line) if asn1tools is missing."""
+    try:
+        j.warm_up()
+    except ModuleNotFoundError as exc:
+        raise ValueError(str(exc)) from None
+
+
 def _fmt(v: float | None, spec: str) -> str:
     return "n/a" if v is None else format(v, spec)
 
@@ -90,10 +98,10 @@ def listen(
 
     Returns the number of messages printed.
     """
+    require_codec()
     socks: list[Any] = [Ipv6Multicast(iface, group, port)]
     if compat_enabled:
         socks.append(Ipv4Multicast(iface))
-    j.warm_up()
     printed = 0
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     try:
@@ -147,6 +155,7 @@ def send(
         raise ValueError(f"--count must be >= 0, got {count}")
     if not rate_hz > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate_hz}")
+    require_codec()
     start = Origin(lat_deg, lon_deg, elev_m)
     heading_enu = math.radians(90.0 - heading_deg)
     sock = Ipv6Multicast(iface, group, port, hop_limit)
@@ -192,6 +201,7 @@ def decode_lines(data: bytes, *, as_json: bool = False) -> list[str]:
 
     Raises ``ValueError`` (``BsmDecodeError``) if ``data`` is not a valid BSM frame.
     """
+    require_codec()
     msg = j.decode_frame(data)
     fields: dict[str, Any] = j.to_physical(msg.core)
     fields["part_ii_ids"] = list(msg.part_ii_ids)

@@ -123,3 +123,16 @@ def test_memory_bus_loops_back_and_detaches():
     b.close()
     a.send(b"2")
     assert b.recv_all() == [] and len(a.recv_all()) == 1
+
+
+def test_missing_asn1tools_is_a_one_line_error(capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "asn1tools", None)  # import fails
+    j._spec.cache_clear()
+    try:
+        rc, _, err = _run(capsys, "bsm", "decode", VECTORS[1]["hex"])
+    finally:
+        j._spec.cache_clear()
+    assert rc == 2
+    assert err == "openconvoy: error: J2735 BSMs need asn1tools: pip install 'openconvoy[vehicle]'\n"

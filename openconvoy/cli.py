@@ -228,6 +228,7 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         from openconvoy.comms import tools
 
         data = tools.parse_hex(" ".join(args.hex))
+        tools.require_codec()
         try:
             lines = tools.decode_lines(data, as_json=args.json)
         except ValueError as exc:
@@ -375,7 +376,75 @@ def _add_deploy_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_train(sub: argparse._SubParsersAction) -> None:
-    pass  # filled by the training work
+    p = sub.add_parser("train", help="train a follower policy (PPO/SAC, shared by all followers)",
+                       description="Train one policy for every follower with stable-baselines3 under "
+                       "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
+                       "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
+                       "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
+    p.add_argument("--config", metavar="TRAIN.toml", help="training config file")
+    p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
+    p.add_argument("--steps", type=int, metavar="N", help="agent steps (default 400000)")
+    p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
+    p.add_argument("--seed", type=int, help="seed (default 0)")
+    p.add_argument("--envs", type=int, metavar="N", help="environments stepped together (default 4)")
+    p.add_argument("--followers", type=int, metavar="N", help="followers per environment (default 2)")
+    p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "
+                   "default paper), or 'none' for absolute actions")
+    p.add_argument("--M", type=int, help="observation: predecessors per observation (default: the base's)")
+    p.add_argument("--k", type=int, help="observation: states per vehicle (default: the base's)")
+    p.add_argument("--rate", type=float, metavar="HZ", help="control rate (default: the base's, 20)")
+    p.add_argument("--per-range", type=float, nargs=2, metavar=("A", "B"), help="PER drawn in [A, B] (default 0 0.6)")
+    p.add_argument("--burst-prob", type=float, metavar="P", help="chance of Gilbert-Elliott bursts per episode (default 0.3)")
+    p.add_argument("--latency-range", type=float, nargs=2, metavar=("A", "B"), help="latency, seconds (default 0 0.05)")
+    p.add_argument("--gps-noise-range", type=float, nargs=2, metavar=("A", "B"), help="GPS noise std, metres (default 0 0.05)")
+    p.add_argument("--scenarios", nargs="+", metavar="SPEC", help="scenarios drawn per episode (default paper track)")
+    p.add_argument("--vehicles", nargs="+", metavar="PRESET", help="vehicle presets or fitted preset .toml files drawn per vehicle (default 1/10 1/6)")
+    p.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default 1)")
+    p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    def _train(args: argparse.Namespace) -> int:
+        from openconvoy.train.cli import train_command
+
+        return train_command(args)
+
+    p.set_defaults(handler=_train)
+
+    p = sub.add_parser("tune", help="tune a classical policy's parameters with Optuna",
+                       description="Search a classical policy's PD/PID gains, steering gain and spacing "
+                       "shape against the metrics over PERs and seeds; write the best as a policy "
+                       "TOML file (--policy accepts it) and OUT.json with the study's numbers.")
+    p.add_argument("--policy", default="paper", metavar="BASE", help="preset or policy .toml to start from")
+    p.add_argument("--trials", type=int, default=30, metavar="N")
+    p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
+    p.add_argument("--per", type=float, nargs="+", default=[0.0, 0.3, 0.6], metavar="PER", help="PERs (default 0 0.3 0.6)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], metavar="S", help="seeds (default 0 1)")
+    p.add_argument("--scenario", default="paper", metavar="SPEC")
+    p.add_argument("--duration", type=float, metavar="S", help="run length (default: the scenario's)")
+    p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
+    p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    def _tune(args: argparse.Namespace) -> int:
+        from openconvoy.train.cli import tune_command
+
+        return tune_command(args)
+
+    p.set_defaults(handler=_tune)
+
+    p = sub.add_parser("export", help="export a trained policy to a numpy-only .npz",
+                       description="Turn RUN_DIR/policy.zip (or a .zip) into a .npz that runs without "
+                       "torch (weights, observation normalization, action scaling, layout, member "
+                       "config, control rate), and check its actions against SB3's predict.")
+    p.add_argument("run", metavar="RUN_DIR", help="run directory or SB3 .zip")
+    p.add_argument("--out", required=True, metavar="FILE.npz")
+
+    def _export(args: argparse.Namespace) -> int:
+        from openconvoy.train.cli import export_command
+
+        return export_command(args)
+
+    p.set_defaults(handler=_export)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -5,7 +5,15 @@ was trained on (version, M, k, size), the member configuration (ρ, τ, σ, ladd
 control rate, the observation normalization (VecNormalize's running mean and variance,
 when training used it) and the action scaling. The network works in a normalized action
 space ``[-1, 1]^2``; ``act`` maps it to SI units ``[speed_mps, heading_change_rad]``
-(DESIGN.md, Action), so a learned policy is a ``Policy`` like any classical one.
+(DESIGN.md, Action), so a learned policy is a ``Policy`` like any classical one. Two
+action modes (``compose_action``):
+
+- absolute: the normalized action maps affinely onto ``[action_low, action_high]``;
+- residual: a classical ``base`` policy (recorded in full with the learned one) proposes
+  the action and the network adds ``a * residual_scale`` to it, clipped to
+  ``[action_low, action_high]``. Learning a correction of a working controller is what
+  makes a useful follower trainable in minutes on two cores; the base is part of the
+  policy everywhere it runs (sim, deploy), so training and deployment compute the same.
 
 - ``.npz``: written by ``openconvoy export``; the actor's layers as plain arrays and a numpy
   forward pass. Never imports torch, so vehicles deploy it without the training stack.
@@ -31,6 +39,7 @@ from openconvoy.core.config import from_dict, to_dict
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import make_action
+from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 
 META_MEMBER = "openconvoy.json"
 """Name of the metadata member inside a trained ``.zip``."""
@@ -63,6 +72,9 @@ class LearnedMeta:
         obs_clip: normalized observations are clipped to ±obs_clip.
         obs_epsilon: added to the variance before the square root.
         name: a label for logs and reports.
+        base: the classical policy a residual policy corrects (None: absolute actions).
+        residual_scale: SI size of a full-scale (±1) residual, ``[m/s, rad]``.
+        extra: free-form facts about the run (steps, seed).
     """
 
     algo: str
@@ -76,9 +88,13 @@ class LearnedMeta:
     obs_clip: float = 10.0
     obs_epsilon: float = 1e-8
     name: str = "learned"
+    base: ClassicalConfig | None = None
+    residual_scale: tuple[float, float] = (0.0, 0.0)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.base is not None and self.base.member != self.member_config:
+            raise ValueError("a residual policy's base must use the policy's member configuration")
         if self.control_rate_hz <= 0:
             raise ValueError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
         size = int(self.layout["size"])
@@ -103,6 +119,8 @@ class LearnedMeta:
             "obs_clip": self.obs_clip,
             "obs_epsilon": self.obs_epsilon,
             "name": self.name,
+            "base": None if self.base is None else to_dict(self.base),
+            "residual_scale": list(self.residual_scale),
             "extra": self.extra,
         }
 
@@ -111,6 +129,7 @@ class LearnedMeta:
         try:
             member = from_dict(MemberConfig, data["member_config"], f"{where}: member_config")
             mean, var = data.get("obs_mean"), data.get("obs_var")
+            base = data.get("base")
             return cls(
                 algo=str(data["algo"]),
                 layout={k: int(v) for k, v in data["layout"].items()},
@@ -123,6 +142,8 @@ class LearnedMeta:
                 obs_clip=float(data.get("obs_clip", 10.0)),
                 obs_epsilon=float(data.get("obs_epsilon", 1e-8)),
                 name=str(data.get("name", "learned")),
+                base=None if base is None else from_dict(ClassicalConfig, base, f"{where}: base"),
+                residual_scale=tuple(float(v) for v in data.get("residual_scale", (0.0, 0.0))),  # type: ignore[arg-type]
                 extra=dict(data.get("extra", {})),
             )
         except KeyError as exc:
@@ -136,9 +157,16 @@ class LearnedMeta:
         z = (obs - self.obs_mean) / np.sqrt(self.obs_var + self.obs_epsilon)
         return np.clip(z, -self.obs_clip, self.obs_clip)
 
-    def to_si(self, normalized_action: np.ndarray) -> np.ndarray:
-        """Normalized action in [-1, 1]^2 -> ``[speed_mps, heading_change_rad]``."""
-        return scale_action(normalized_action, self.action_low, self.action_high)
+    def make_base(self) -> ClassicalPolicy | None:
+        """A fresh instance of the residual base (None for absolute actions)."""
+        return None if self.base is None else ClassicalPolicy(self.base)
+
+    def to_si(self, normalized_action: np.ndarray, base_action: np.ndarray | None = None) -> np.ndarray:
+        """Normalized action in [-1, 1]^2 (and the base's action, for residual policies)
+        -> ``[speed_mps, heading_change_rad]``."""
+        return compose_action(
+            normalized_action, self.action_low, self.action_high, base_action, self.residual_scale
+        )
 
 
 def scale_action(
@@ -152,18 +180,37 @@ def scale_action(
     return make_action(float(si[0]), float(si[1]))
 
 
+def compose_action(
+    normalized_action: np.ndarray,
+    low: tuple[float, float],
+    high: tuple[float, float],
+    base_action: np.ndarray | None = None,
+    residual_scale: tuple[float, float] = (0.0, 0.0),
+) -> np.ndarray:
+    """The SI action of a learned policy: ``scale_action`` without a base; with one,
+    ``base_action + clip(a, -1, 1) * residual_scale`` clipped to ``[low, high]``."""
+    if base_action is None:
+        return scale_action(normalized_action, low, high)
+    a = np.clip(np.asarray(normalized_action, dtype=np.float64), -1.0, 1.0)
+    si = np.asarray(base_action, dtype=np.float64) + a * np.asarray(residual_scale, dtype=np.float64)
+    si = np.clip(si, np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64))
+    return make_action(float(si[0]), float(si[1]))
+
+
 class LearnedPolicy:
     """A trained network behind the ``Policy`` protocol.
 
     ``forward(normalized_obs) -> normalized_action`` is the network (numpy or SB3);
     ``act`` normalizes the observation, runs it, and scales the action to SI units.
-    Stateless (an MLP), so one object can serve every follower.
+    The network is stateless; a residual policy's classical base keeps controller state,
+    so give every follower its own copy (``copy.deepcopy``), as for classical policies.
     """
 
     def __init__(self, meta: LearnedMeta, forward: Callable[[np.ndarray], np.ndarray], source: str) -> None:
         self.meta = meta
         self.layout = meta.member_config.layout
         self._forward = forward
+        self._base = meta.make_base()
         self.source = source
 
     @property
@@ -179,7 +226,9 @@ class LearnedPolicy:
         return self.meta.name
 
     def reset(self, seed: int | None = None) -> None:
-        """Nothing to forget: the network has no memory."""
+        """Forget the base's controller memory (the network has none)."""
+        if self._base is not None:
+            self._base.reset(seed)
 
     def normalized_action(self, observation: np.ndarray) -> np.ndarray:
         """The network's deterministic action in [-1, 1]^2 (before SI scaling)."""
@@ -189,7 +238,9 @@ class LearnedPolicy:
         return np.asarray(self._forward(self.meta.normalize(obs)), dtype=np.float64).reshape(-1)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        return self.meta.to_si(self.normalized_action(observation))
+        a = self.normalized_action(observation)
+        base = None if self._base is None else self._base.act(np.asarray(observation, dtype=np.float32))
+        return self.meta.to_si(a, base)
 
     def check_layout(self, layout: ObservationLayout) -> None:
         """Raise ValueError if this policy was trained for another layout than ``layout``."""
@@ -352,6 +403,7 @@ __all__ = [
     "LearnedPolicy",
     "NumpyMLP",
     "scale_action",
+    "compose_action",
     "load_learned",
     "load_npz",
     "save_npz",

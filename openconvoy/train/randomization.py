@@ -7,10 +7,10 @@ pool of presets, fitted ``.toml`` presets included, with their autopilot respons
 and the scenario. ``RandomizedConvoyEnv`` is a PettingZoo ``ParallelEnv`` with a fixed set of
 agents (``n_followers``), so SuperSuit can turn it into a parameter-sharing VecEnv.
 
-Actions are normalized: each agent sends ``[-1, 1]^2``, mapped affinely to
-``[speed_mps, heading_change_rad]`` between ``action_low`` and ``action_high`` (the
-mapping ``openconvoy.policies.learned.scale_action`` applies at deployment, so a trained
-network sees the same action semantics in both places).
+Actions are normalized: each agent sends ``[-1, 1]^2``; ``EnvSpec`` says how it becomes
+``[speed_mps, heading_change_rad]``, absolute or as a residual on a classical base policy
+(``openconvoy.policies.learned.compose_action``, the function the deployed policy uses,
+so a trained network means the same thing in both places).
 """
 
 from __future__ import annotations
@@ -29,7 +29,9 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.envs.convoy_env import ConvoyEnv
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
-from openconvoy.policies.learned import scale_action
+from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
+from openconvoy.policies.learned import compose_action
+from openconvoy.policies.spec import classical_config
 
 PLANT_JITTER_FIELDS = (
     "speed_lag_s",
@@ -146,25 +148,40 @@ class EnvSpec:
 
     Attributes:
         n_followers: agents per environment (parameter sharing: all run one policy).
-        member: the followers' member configuration (its layout is the policy's).
-        control_rate_hz: control and plant rate, Hz.
-        action_low, action_high: SI values of the normalized actions -1 and +1
+        base_policy: classical policy spec (preset or TOML) the network corrects
+            (residual actions); ``""``: none, the network's action is absolute.
+        residual_scale: SI size of a full-scale residual ``[m/s, rad]``.
+        member: the followers' member configuration (its layout is the policy's); None:
+            the base policy's, or ``MemberConfig()`` without a base. A base runs with
+            this member configuration.
+        control_rate_hz: control and plant rate, Hz; None: the base policy's, else 20.
+        action_low, action_high: absolute actions: SI values of the normalized actions -1
+            and +1; residual actions: the SI bounds of the sum
             (``[speed_mps, heading_change_rad]``).
         max_time_s: episode length cap, seconds (None: the scenario's duration).
         reward: the reward's weights (``openconvoy.envs.reward``).
     """
 
     n_followers: int = 2
-    member: MemberConfig = field(default_factory=MemberConfig)
-    control_rate_hz: float = 20.0
-    action_low: tuple[float, float] = (0.0, -0.5)
-    action_high: tuple[float, float] = (5.0, 0.5)
+    base_policy: str = "paper"
+    residual_scale: tuple[float, float] = (0.5, 0.1)
+    member: MemberConfig | None = None
+    control_rate_hz: float | None = None
+    action_low: tuple[float, float] = (0.0, -math.pi / 2)
+    action_high: tuple[float, float] = (5.0, math.pi / 2)
     max_time_s: float | None = None
     reward: RewardConfig = field(default_factory=RewardConfig)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "action_low", tuple(float(v) for v in self.action_low))
-        object.__setattr__(self, "action_high", tuple(float(v) for v in self.action_high))
+        for name in ("action_low", "action_high", "residual_scale"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        base = classical_config(self.base_policy) if self.base_policy else None
+        if self.member is None:
+            object.__setattr__(self, "member", base.member if base is not None else MemberConfig())
+        if self.control_rate_hz is None:
+            object.__setattr__(self, "control_rate_hz", base.control_rate_hz if base is not None else 20.0)
+        if len(self.residual_scale) != 2 or min(self.residual_scale) < 0:
+            raise ValueError(f"residual_scale must be two non-negative numbers, got {self.residual_scale}")
         if self.n_followers < 1:
             raise ValueError(f"n_followers must be at least 1, got {self.n_followers}")
         if len(self.action_low) != 2 or len(self.action_high) != 2:
@@ -175,6 +192,27 @@ class EnvSpec:
             raise ValueError("the heading-change range must lie within ±π/2")
         if self.control_rate_hz <= 0:
             raise ValueError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
+
+    @property
+    def member_config(self) -> MemberConfig:
+        """The resolved member configuration (never None after construction)."""
+        assert self.member is not None
+        return self.member
+
+    @property
+    def rate_hz(self) -> float:
+        """The resolved control rate, Hz."""
+        assert self.control_rate_hz is not None
+        return self.control_rate_hz
+
+    def base_config(self) -> ClassicalConfig | None:
+        """The residual base as it runs here: the base policy with this member config and
+        control rate (what the trained policy records), or None."""
+        if not self.base_policy:
+            return None
+        return dataclasses.replace(
+            classical_config(self.base_policy), member=self.member_config, control_rate_hz=self.rate_hz
+        )
 
 
 class RandomizedConvoyEnv(ParallelEnv):
@@ -193,7 +231,10 @@ class RandomizedConvoyEnv(ParallelEnv):
         self.render_mode = render_mode
         self.possible_agents = [f"follower_{i}" for i in range(1, spec.n_followers + 1)]
         self.agents: list[str] = []
-        size = spec.member.layout.size
+        base = spec.base_config()
+        self._bases = {a: ClassicalPolicy(base) for a in self.possible_agents} if base is not None else {}
+        self._obs: dict[str, np.ndarray] = {}
+        size = spec.member_config.layout.size
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
         self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._rng = np.random.default_rng()
@@ -216,9 +257,9 @@ class RandomizedConvoyEnv(ParallelEnv):
         self.env = ConvoyEnv(
             w.scenario,
             n_followers=None if w.vehicles is not None else s.n_followers,
-            member_config=s.member,
+            member_config=s.member_config,
             loss=w.loss,
-            control_rate_hz=s.control_rate_hz,
+            control_rate_hz=s.rate_hz,
             gps_noise_m=w.gps_noise_m,
             max_time_s=s.max_time_s,
             render_mode=self.render_mode,
@@ -226,15 +267,22 @@ class RandomizedConvoyEnv(ParallelEnv):
             reward_config=s.reward,
         )
         obs, infos = self.env.reset(seed=int(self._rng.integers(2**31 - 1)), options=options)
+        for b in self._bases.values():
+            b.reset()
         self.agents = list(self.env.agents)
+        self._obs = obs
         return obs, infos
 
     def step(self, actions: dict[str, np.ndarray]):
         if self.env is None:
             raise RuntimeError("step() before reset()")
         s = self.spec_
-        si = {a: scale_action(act, s.action_low, s.action_high) for a, act in actions.items()}
+        si = {}
+        for a, act in actions.items():
+            base = self._bases[a].act(self._obs[a]) if self._bases else None
+            si[a] = compose_action(act, s.action_low, s.action_high, base, s.residual_scale)
         out = self.env.step(si)
+        self._obs = out[0]
         self.agents = list(self.env.agents)
         return out
 

@@ -111,11 +111,13 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
     spec = config.env
     return LearnedMeta(
         algo=config.algo,
-        layout=spec.member.layout.describe(),
-        member_config=spec.member,
-        control_rate_hz=spec.control_rate_hz,
+        layout=spec.member_config.layout.describe(),
+        member_config=spec.member_config,
+        control_rate_hz=spec.rate_hz,
         action_low=spec.action_low,
         action_high=spec.action_high,
+        base=spec.base_config(),
+        residual_scale=spec.residual_scale if spec.base_policy else (0.0, 0.0),
         obs_mean=mean,
         obs_var=var,
         obs_clip=clip,

@@ -1,0 +1,102 @@
+"""The handlers of ``openconvoy train``, ``tune`` and ``export`` (parsers in ``openconvoy.cli``)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+from openconvoy.train.config import TrainConfig, load_train_config
+
+
+def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """``--config`` (or the defaults) with the flags given on the command line applied."""
+    config = load_train_config(args.config) if args.config else TrainConfig()
+    top: dict = {}
+    for flag, key in (("algo", "algo"), ("steps", "total_steps"), ("seed", "seed"),
+                      ("envs", "n_envs"), ("threads", "torch_threads")):
+        if getattr(args, flag) is not None:
+            top[key] = getattr(args, flag)
+    env = config.env
+    env_changes: dict = {}
+    if args.base is not None:
+        # A new base brings its own member config and rate unless they are given too.
+        env_changes.update(base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None)
+    if args.followers is not None:
+        env_changes["n_followers"] = args.followers
+    if args.rate is not None:
+        env_changes["control_rate_hz"] = args.rate
+    if env_changes:
+        env = dataclasses.replace(env, **env_changes)
+    if args.M is not None or args.k is not None:
+        member = env.member_config
+        member = dataclasses.replace(member, M=args.M or member.M, k=args.k or member.k)
+        env = dataclasses.replace(env, member=member)
+    r = config.randomization
+    r_changes: dict = {}
+    for flag, key in (("per_range", "per_range"), ("burst_prob", "burst_prob"),
+                      ("latency_range", "latency_s_range"), ("gps_noise_range", "gps_noise_m_range"),
+                      ("scenarios", "scenarios"), ("vehicles", "vehicles")):
+        if getattr(args, flag) is not None:
+            r_changes[key] = tuple(getattr(args, flag)) if isinstance(getattr(args, flag), list) else getattr(args, flag)
+    if r_changes:
+        r = dataclasses.replace(r, **r_changes)
+    return dataclasses.replace(config, env=env, randomization=r, **top)
+
+
+def train_command(args: argparse.Namespace) -> int:
+    from openconvoy.train.train import train
+
+    config = train_config_from_args(args)
+    print(
+        f"training {config.algo} for {config.total_steps} agent steps on {config.n_envs} envs x "
+        f"{config.env.n_followers} followers"
+        + (f", residual on {config.env.base_policy}" if config.env.base_policy else "")
+        + f" -> {args.out}",
+        file=sys.stderr,
+    )
+    result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
+    print(f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)")
+    return 0
+
+
+def tune_command(args: argparse.Namespace) -> int:
+    from openconvoy.train.tune import TuneConfig, tune, write_tuned
+
+    config = TuneConfig(
+        base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
+        scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
+        seed=args.seed, name=_stem(args.out),
+    )
+    result = tune(config, progress_bar=not args.no_progress)
+    path = write_tuned(result, args.out)
+    values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
+    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}")
+    return 0
+
+
+def export_command(args: argparse.Namespace) -> int:
+    from openconvoy.policies.learned import load_learned
+    from openconvoy.train.export import (
+        export_policy,
+        max_action_difference,
+        resolve_policy_zip,
+        sample_observations,
+    )
+
+    path = export_policy(args.run, args.out)
+    trained = load_learned(resolve_policy_zip(args.run))
+    exported = load_learned(path)
+    obs = sample_observations(trained, n=400)
+    diff = max_action_difference(trained, exported, obs)
+    print(f"{path}: max |action difference| vs SB3 predict = {diff:.2e} on {len(obs)} observations")
+    if diff > 1e-5:
+        print("openconvoy: error: the export does not reproduce the trained policy", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _stem(path: str) -> str:
+    from pathlib import Path
+
+    return Path(path).stem

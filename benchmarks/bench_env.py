@@ -93,6 +93,8 @@ def _profile(env: ConvoyEnv, policies: dict | None, steps: int) -> dict[str, flo
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per case")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="timed runs per case; the best is reported (shared machines are noisy)")
     parser.add_argument("--profile", action="store_true", help="add a cProfile breakdown")
     args = parser.parse_args()
     results = []
@@ -101,16 +103,20 @@ def main() -> None:
             env, policies = _make(n_followers)
             pol = policies if closed_loop else None
             _run(env, pol, 0.2, 10**9)  # warm-up
-            steps, busy = _run(env, pol, args.seconds, 10**9)
+            rates = []
+            for _ in range(max(1, args.repeats)):
+                steps, busy = _run(env, pol, args.seconds / max(1, args.repeats), 10**9)
+                rates.append(steps / busy)
+            best = max(rates)
             row = {
                 "scenario": "paper",
                 "n_followers": n_followers,
                 "actions": "paper policy" if closed_loop else "fixed",
                 "loss": "bernoulli per=0.2",
-                "steps": steps,
-                "seconds": round(busy, 3),
-                "env_steps_per_s": round(steps / busy, 1),
-                "vehicle_steps_per_s": round(steps * (n_followers + 1) / busy, 1),
+                "repeats": len(rates),
+                "env_steps_per_s": round(best, 1),
+                "env_steps_per_s_median": round(float(np.median(rates)), 1),
+                "vehicle_steps_per_s": round(best * (n_followers + 1), 1),
             }
             if args.profile:
                 row["time_share"] = _profile(env, pol, max(50, min(2000, steps // 4)))

@@ -310,6 +310,11 @@ class ConvoyEnv(ParallelEnv):
     # --- sim runner helpers ---------------------------------------------------------------
 
     @property
+    def vehicle_lengths(self) -> dict[int, float]:
+        """Vehicle id -> length (m): the collision thresholds ``core.metrics`` wants."""
+        return dict(enumerate(self._lengths))
+
+    @property
     def delivery_ratio(self) -> float:
         """Messages delivered / (delivered + lost) over all links so far (NaN before any)."""
         return self.channel.delivery_ratio()

@@ -207,3 +207,20 @@ def test_long_convoy_runs() -> None:
 def test_bad_arguments_are_named(bad) -> None:
     with pytest.raises(ValueError, match=next(iter(bad))):
         ConvoyEnv(**bad)
+
+
+def test_event_trigger_sends_less_than_periodic_at_steady_speed() -> None:
+    from openconvoy.core.gates import TriggerConfig
+
+    counts = {}
+    for kind in ("periodic", "event"):
+        trigger = TriggerConfig(kind=kind, period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=1.0)
+        env = ConvoyEnv(member_config=MemberConfig(trigger=trigger), max_time_s=10.0)
+        env.reset(seed=0)
+        while env.agents:
+            _, _, _, _, infos = env.step(_hold(env, 0.0))
+        counts[kind] = infos["follower_2"]["msgs_sent"]
+    assert counts["periodic"] == 101
+    # Standing still: only the max-silence heartbeats (about one per second) go out.
+    assert 9 <= counts["event"] <= 12
+    assert ConvoyEnv().vehicle_lengths == {0: 0.779, 1: 0.97, 2: 0.779}

@@ -53,9 +53,13 @@ def test_paper_per_sweep_shows_the_papers_trend(tmp_path: Path, capsys):
 
 
 def test_rerun_from_the_copied_experiment_file_is_byte_identical(tmp_path: Path):
+    fast = tmp_path / "elsewhere" / "fast.toml"
+    fast.parent.mkdir()
+    fast.write_text('[policy]\nbase = "paper"\nspeed = { kind = "pd", kp = 0.5, kd = 1.1 }\n')
     exp = tmp_path / "exp.toml"
     exp.write_text(
-        '[experiment]\nname = "rerun"\nscenario = "paper"\npolicies = ["slow", "slow+ladder"]\n'
+        '[experiment]\nname = "rerun"\nscenario = "paper"\n'
+        f'policies = ["slow", "slow+ladder", "{fast}+ladder"]\n'
         "pers = [0.0, 0.5]\nseeds = 2\nduration_s = 8.0\n"
         '[loss]\nmodel = "gilbert-elliott"\nmean_burst_s = 0.5\n'
         '[policy.slow]\nbase = "paper"\nspeed_limit_mps = 3.0\n'
@@ -68,6 +72,9 @@ def test_rerun_from_the_copied_experiment_file_is_byte_identical(tmp_path: Path)
 
     assert manifest["openconvoy_version"] == __version__
     assert (first / "policies" / "slow.toml").is_file()
+    # The policy file is inlined: the copy stands alone.
+    fast.unlink()
+    assert "[policy.fast]" in (first / "experiment.toml").read_text()
     second = tmp_path / "second"
     assert main(["experiment", "per-sweep", "--config", str(first / "experiment.toml"),
                  "--out", str(second), "--quiet", "--jobs", "1", "--no-plots"]) == 0
@@ -75,10 +82,13 @@ def test_rerun_from_the_copied_experiment_file_is_byte_identical(tmp_path: Path)
     assert (first / "experiment.toml").read_bytes() == (second / "experiment.toml").read_bytes()
     rows = read_summary(first)
     assert [(r["policy"], r["per"]) for r in rows] == [
-        ("slow", 0.0), ("slow", 0.5), ("slow+ladder", 0.0), ("slow+ladder", 0.5)]
+        ("slow", 0.0), ("slow", 0.5), ("slow+ladder", 0.0), ("slow+ladder", 0.5),
+        ("fast+ladder", 0.0), ("fast+ladder", 0.5)]
+    assert _mean(rows, "fast+ladder", 0.5, "p95_platooning_error_m") != _mean(
+        rows, "slow+ladder", 0.5, "p95_platooning_error_m")
     # A different seed set changes the numbers: the identity above is not vacuous.
     third = tmp_path / "third"
-    assert main(["experiment", "per-sweep", "--config", str(exp), "--seeds", "1", "--out", str(third),
+    assert main(["experiment", "per-sweep", "--config", str(first / "experiment.toml"), "--seeds", "1", "--out", str(third),
                  "--quiet", "--no-plots"]) == 0
     assert (first / "summary.csv").read_bytes() != (third / "summary.csv").read_bytes()
 

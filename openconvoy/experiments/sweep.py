@@ -29,8 +29,9 @@ One TOML file fully describes an experiment::
     speed_limit_mps = 40.0
 
 An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
-name it (with ``+ladder`` too). The run directory keeps ``experiment.toml`` (the complete
-resolved experiment, every default written out), ``manifest.json`` (package version), the
+name it (with ``+ladder`` too); policy files named in ``policies`` are inlined the same way
+under their file's stem. The run directory keeps ``experiment.toml`` (the complete
+resolved experiment, every default written out, policy files inlined), ``manifest.json`` (package version), the
 inline policies as files, ``summary.json`` (DESIGN.md's shape, one row per policy and PER),
 ``summary.csv``, every run's ``log.csv`` and ``metrics.json`` under
 ``runs/<policy>/per_<PER>/seed_<seed>/``, and the figures. Rerunning from the copy gives a
@@ -192,6 +193,33 @@ class ExperimentConfig:
         return out
 
 
+def freeze(config: ExperimentConfig) -> ExperimentConfig:
+    """``config`` with every classical policy file it names inlined as a ``[policy.STEM]``
+    table (``path/fast.toml+ladder`` becomes ``fast+ladder``), so the run directory's copy
+    of the experiment needs no other file and labels do not depend on where files were."""
+    from openconvoy.policies.presets import PRESETS
+    from openconvoy.policies.spec import classical_from_toml
+
+    inline = dict(config.policy)
+    labels = []
+    for label in config.policies:
+        base = label.removesuffix(LADDER_SUFFIX)
+        if not base.endswith(".toml"):
+            labels.append(label)
+            continue
+        classical_from_toml(base)  # validates the file
+        table = dict(load_toml(base)["policy"])
+        name = Path(base).stem
+        table.setdefault("name", name)
+        if name in PRESETS or (name in inline and inline[name] != table):
+            raise ValueError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
+        inline[name] = table
+        labels.append(name + label[len(base):])
+    if labels == list(config.policies):
+        return config
+    return dataclasses.replace(config, policies=tuple(labels), policy=inline)
+
+
 def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, str]:
     """Write ``[policy.NAME]`` tables as policy files under ``out_dir/policies`` and map each
     policy label to the spec to load; check every spec loads (one clear error if not)."""
@@ -275,6 +303,7 @@ def run_experiment(
     cores available) and write the run directory (see the module docstring)."""
     from openconvoy import __version__
 
+    config = freeze(config)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.toml").write_text(config.to_toml(), encoding="utf-8")

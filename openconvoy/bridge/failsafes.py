@@ -5,7 +5,8 @@ each rule what it measured this tick and obeys the ``Verdict`` that ``Failsafes.
 returns. Rules (issue 5, item 3), by priority:
 
 1. a person took over (the mode left GUIDED/OFFBOARD without our request): send nothing
-   more, never switch back (latched);
+   more, never switch back (latched); a vehicle that comes back from a lost link in
+   another mode (rebooted, or switched while we could not see it) counts as taken over;
 2. SIGINT/SIGTERM or a convoy-wide abort: stop, HOLD, flush the log, exit (latched);
 3. autopilot link lost (telemetry silent ``telemetry_timeout_s`` or no heartbeat
    ``heartbeat_timeout_s``): command a stop while it is gone; when it returns, HOLD and
@@ -182,7 +183,9 @@ class Failsafes:
             if not self.took_over:
                 self.took_over = True
                 self._fire(now, "pilot took over")
-            return Verdict(SILENT, failsafe=True, reason="pilot took over")
+            # A signal or an abort still ends the run (log saved), commanding nothing.
+            leaving = bool(inp.stop_requested or inp.abort)
+            return Verdict(SILENT, exit=leaving, failsafe=True, reason="pilot took over")
         if inp.stop_requested or inp.abort or self.exiting:
             if not self.exiting:
                 self.exiting = inp.stop_requested or "convoy abort"

@@ -1,0 +1,178 @@
+"""A small convoy of deploy runners on simulated MAVLink vehicles, in one process.
+
+Each car is a ``SimVehicle`` (real MAVLink bytes over localhost UDP), a ``MavlinkLink``
+wrapped so the test sees every setpoint actually sent, and a ``DeployRunner`` in a thread;
+V2V goes through an in-process ``LocalBus`` (multicast is exercised by the namespace tests).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from conftest import free_port
+
+from openconvoy.bridge.localv2v import LocalBus, LocalV2V
+from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
+from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+from openconvoy.comms.geodesy import Origin
+from openconvoy.convoy import ConvoyConfig, SafetyConfig
+from openconvoy.envs.scenarios import make_scenario
+from openconvoy.envs.vehicles import vehicle_preset
+from openconvoy.policies import load_policy
+
+
+class RecordingLink:
+    """Delegates to a ``MavlinkLink``; records ``(monotonic s, speed, heading)`` of every
+    setpoint that actually went out (``send_setpoint``/``stop_motion`` returned True)."""
+
+    def __init__(self, link: MavlinkLink) -> None:
+        self._link = link
+        self.sent: list[tuple[float, float, float]] = []
+        self.holds: list[float] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._link, name)
+
+    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+        ok = self._link.send_setpoint(speed_mps, heading_rad)
+        if ok:
+            self.sent.append((time.monotonic(), float(speed_mps), float(heading_rad)))
+        return ok
+
+    def stop_motion(self) -> bool:
+        ok = self._link.stop_motion()
+        if ok and self._link.last_setpoint is not None:
+            sp = self._link.last_setpoint
+            self.sent.append((time.monotonic(), sp[0], sp[1]))
+        return ok
+
+    def hold(self, timeout_s: float = 2.0) -> None:
+        self.holds.append(time.monotonic())
+        self._link.hold(timeout_s)
+
+    def after(self, t: float) -> list[tuple[float, float, float]]:
+        return [s for s in self.sent if s[0] > t]
+
+
+@dataclass
+class Car:
+    vehicle: SimVehicle
+    link: RecordingLink
+    runner: DeployRunner
+    v2v: LocalV2V
+    port: int
+    thread: threading.Thread | None = None
+    result: RunResult | None = None
+
+    def start(self) -> Car:
+        def run() -> None:
+            self.result = self.runner.run()
+
+        self.thread = threading.Thread(target=run, daemon=True)
+        self.thread.start()
+        return self
+
+    def join(self, timeout: float = 10.0) -> RunResult:
+        assert self.thread is not None
+        self.thread.join(timeout)
+        assert not self.thread.is_alive(), "runner did not end"
+        assert self.result is not None
+        return self.result
+
+    def first_event(self, prefix: str) -> float:
+        """Monotonic time the failsafe whose reason starts with ``prefix`` first fired."""
+        for t, reason in self.runner.failsafes.events:
+            if reason.startswith(prefix):
+                return t
+        raise AssertionError(f"no failsafe event {prefix!r}: {self.runner.failsafes.events}")
+
+
+@dataclass
+class Convoy:
+    cars: list[Car]
+    bus: LocalBus
+    log_dir: Path
+    convoy: ConvoyConfig
+    extra: list[Any] = field(default_factory=list)
+
+    def stop(self) -> None:
+        for c in self.cars:
+            c.runner.request_stop("test over")
+        for c in self.cars:
+            if c.thread is not None:
+                c.thread.join(10.0)
+        for c in self.cars:
+            c.vehicle.stop()
+        for v in self.extra:
+            v.stop()
+
+
+def wait_until(pred: Callable[[], bool], timeout: float, what: str = "") -> float:
+    """Sleep-poll until ``pred()``; returns the monotonic time it became true."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return time.monotonic()
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what or pred}")
+
+
+def make_convoy(
+    tmp_path: Path,
+    n: int = 2,
+    policy: str = "paper",
+    autopilot: str = "ardupilot",
+    safety: SafetyConfig | None = None,
+    options: dict[int, dict[str, Any]] | None = None,
+    vehicle_config: dict[str, Any] | None = None,
+    start: bool = True,
+    policies: dict[int, Any] | None = None,
+) -> Convoy:
+    """``n`` cars at the paper scenario's initial positions; started unless ``start`` is False."""
+    names = ("1/10", "1/6", "1/10", "1/6")[:n]
+    convoy = ConvoyConfig(name="test", vehicles=names, safety=safety or SafetyConfig())
+    origin = Origin(*convoy.origin)
+    presets = [vehicle_preset(v) for v in names]
+    scenario = make_scenario("paper", presets=presets)
+    init = scenario.initial_state()
+    bus = LocalBus()
+    log_dir = tmp_path / "run"
+    cars = []
+    for i in range(n):
+        port = free_port()
+        cfg = SimVehicleConfig(
+            system_id=i + 1, autopilot=autopilot, preset=presets[i], home=origin,
+            start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
+            start_heading_rad=float(init.heading[i]), ready_after_s=0.0,
+            **(vehicle_config or {}),
+        )
+        vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start()
+        link = RecordingLink(MavlinkLink(
+            f"udpout:127.0.0.1:{port}", origin, vehicle_id=i, length_m=presets[i].length_m,
+            on_status=lambda line: None,
+        ))
+        v2v = LocalV2V(bus)
+        opts = RunnerOptions(vehicle_id=i, status_period_s=0.0, connect_timeout_s=5.0,
+                             arm_timeout_s=10.0, **(options or {}).get(i, {}))
+        pol = (policies or {}).get(i) or load_policy(policy)
+        runner = DeployRunner(
+            opts, convoy, pol, link, v2v, leader=scenario if i == 0 else None,
+            lengths=[p.length_m for p in presets], log_dir=log_dir, on_status=lambda line: None,
+        )
+        cars.append(Car(vehicle, link, runner, v2v, port))
+    c = Convoy(cars, bus, log_dir, convoy)
+    if start:
+        for car in cars:
+            car.start()
+    return c
+
+
+def replace_safety(**kw: Any) -> SafetyConfig:
+    return dataclasses.replace(SafetyConfig(), **kw)

@@ -129,7 +129,7 @@ def test_bad_arguments_give_one_clear_line(argv, words, tmp_path: Path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("openconvoy: error:") and words in err[0]
-    assert not (tmp_path / "out" / "log.csv").exists()
+    assert not (tmp_path / "out").exists()
 
 
 def test_presets_lists_every_policy_and_vehicle_preset(capsys):

@@ -71,17 +71,15 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
 def sim(args: argparse.Namespace) -> int:
     """``openconvoy sim``: one run; writes log.csv, metrics.json, run.toml and plots."""
+    from openconvoy import __version__
     from openconvoy.core.config import dumps_toml
-    from openconvoy.experiments.runs import run_sim
-    from openconvoy.policies import load_policy
+    from openconvoy.experiments.runs import build_env, run_sim
 
     config = run_config_from_args(args)
-    load_policy(config.policy)  # a bad spec fails before anything is written
+    build_env(config)  # a bad policy, scenario or preset fails before anything is written
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     result = run_sim(config, out, progress=not args.quiet)
-    from openconvoy import __version__
-
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )

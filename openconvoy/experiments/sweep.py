@@ -302,8 +302,12 @@ def run_experiment(
     """Run every (policy, PER, seed) of ``config`` on ``jobs`` processes (default: the
     cores available) and write the run directory (see the module docstring)."""
     from openconvoy import __version__
+    from openconvoy.policies.spec import classical_config
 
     config = freeze(config)
+    for label in config.policies:  # fail before anything is written
+        if label.removesuffix(LADDER_SUFFIX) not in config.policy and not label.endswith((".zip", ".npz")):
+            classical_config(label)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.toml").write_text(config.to_toml(), encoding="utf-8")

@@ -96,8 +96,7 @@ def test_sim_with_convoy_file_burst_loss_and_duration(tmp_path: Path):
                       "origin = [52.0, 4.37, 0.0]\n")
     out = tmp_path / "run"
     rc = main(["sim", "--convoy", str(convoy), "--per", "0.3", "--loss", "gilbert-elliott",
-               "--burst", "0.5", "--duration", "5", "--seed", "7", "--out", str(out), "--quiet",
-               "--no-plots"])
+               "--burst", "0.5", "--duration", "5", "--seed", "7", "--out", str(out), "--no-plots"])
     assert rc == 0
     run = (out / "run.toml").read_text()
     assert 'loss_model = "gilbert-elliott"' in run and "mean_burst_s = 0.5" in run

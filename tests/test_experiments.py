@@ -65,7 +65,7 @@ def test_rerun_from_the_copied_experiment_file_is_byte_identical(tmp_path: Path)
         '[policy.slow]\nbase = "paper"\nspeed_limit_mps = 3.0\n'
     )
     first = tmp_path / "first"
-    assert main(["experiment", "per-sweep", "--config", str(exp), "--out", str(first), "--quiet",
+    assert main(["experiment", "per-sweep", "--config", str(exp), "--out", str(first),
                  "--jobs", "2", "--no-plots"]) == 0
     manifest = json.loads((first / "manifest.json").read_text())
     from openconvoy import __version__

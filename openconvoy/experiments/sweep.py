@@ -319,7 +319,8 @@ def run_experiment(
     planned = config.run_configs(specs)
     first_seed = config.seeds[0]
     tasks = [
-        (rc, str(out / "runs" / policy_dirname(label) / f"per_{rc.per:.2f}" / f"seed_{rc.seed}"), rc.seed == first_seed)
+        (rc, str(out / "runs" / policy_dirname(label) / f"per_{_per_name(rc.per)}" / f"seed_{rc.seed}"),
+         rc.seed == first_seed)
         for label, rc in planned
     ]
     results = _map(tasks, jobs, progress, desc=f"{config.name}")
@@ -337,6 +338,11 @@ def run_experiment(
 
         figs.sweep_figures(result, out)
     return result
+
+
+def _per_name(per: float) -> str:
+    """``0.60`` for two-decimal PERs (sorts well), else every digit needed (``0.125``)."""
+    return f"{per:.2f}" if round(per, 2) == per else f"{per:g}"
 
 
 def _map(tasks: Sequence[Any], jobs: int | None, progress: bool, desc: str) -> list[dict[str, Any]]:

@@ -110,7 +110,9 @@ def run_in_netns(
     except FileNotFoundError:
         raise RuntimeError("the 'unshare' command (util-linux) is not installed") from None
     except subprocess.TimeoutExpired:
-        raise RuntimeError(f"network namespace did not finish within {timeout + 30:.0f} s") from None
+        raise RuntimeError(
+            f"network namespace did not finish within {timeout + 30:.0f} s"
+        ) from None
     if outer.returncode != 0:
         raise RuntimeError(
             f"network namespace setup failed (exit {outer.returncode}): {outer.stderr.strip()}"

@@ -16,4 +16,3 @@ def load_vectors() -> list[dict]:
             f"interop vectors not found at {VECTORS_PATH} (expected ../shared next to the repo)"
         )
     return json.loads(VECTORS_PATH.read_text())
-

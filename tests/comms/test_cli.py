@@ -88,7 +88,8 @@ def test_listen_lines():
         msg_cnt=7, temp_id=bytes.fromhex("0a0b0c0d"), sec_mark=30_250, lat=286024000,
         lon=-812001000, speed=50, heading=7200,
     )  # fmt: skip
-    line = tools.describe_datagram(j.encode_frame(core), 1_700_000_010.300)  # 30.3 s into its minute
+    t_rx = 1_700_000_010.300  # 30.3 s into its minute
+    line = tools.describe_datagram(j.encode_frame(core), t_rx)
     assert line == (
         "id=0A0B0C0D cnt=  7 lat=28.6024000 lon=-81.2001000 speed=1.00 m/s "
         "heading=90.0000 deg age=0.050 s"
@@ -135,4 +136,6 @@ def test_missing_asn1tools_is_a_one_line_error(capsys, monkeypatch):
     finally:
         j._spec.cache_clear()
     assert rc == 2
-    assert err == "openconvoy: error: J2735 BSMs need asn1tools: pip install 'openconvoy[vehicle]'\n"
+    assert (
+        err == "openconvoy: error: J2735 BSMs need asn1tools: pip install 'openconvoy[vehicle]'\n"
+    )

@@ -126,7 +126,6 @@ def test_known_position_maps_to_expected_lat_lon():
     assert core.elev == round(alt * 10) == 4880
 
 
-
 def _pos_tol_m(alt_m: float, distance_m: float) -> float:
     """J2735 position resolution, metres, for a point ``distance_m`` from the origin.
 

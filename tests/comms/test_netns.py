@@ -44,7 +44,9 @@ def _exchange(n, per, drop_at="receiver", modes=None, duration=DURATION_S, seeds
         assert r.returncode == 0, f"peer failed ({r.returncode}): {r.stderr[-3000:]}"
         reports.append(json.loads(r.stdout.strip().splitlines()[-1]))
     for rep in reports:
-        assert rep["late_start_s"] == 0.0, "a peer started after the common start time"
+        # a peer held up past the common start (a loaded machine) sends its first messages
+        # late, which the barriers make harmless; seconds late would mean a broken setup
+        assert rep["late_start_s"] < 2.0, "a peer started far after the common start time"
     return reports
 
 

@@ -68,20 +68,20 @@ class LegacyLink:
         self.sock.close()
 
 
-def barrier(directory: Path, index: int, n: int) -> float:
-    """Announce readiness, wait for all n peers; the common start time (Unix seconds)."""
-    tmp = directory / f".ready.{index}"
+def barrier(directory: Path, name: str, index: int, n: int, while_waiting=lambda: None) -> float:
+    """Announce ``name`` for this peer, wait for all n; the latest announcement time."""
+    tmp = directory / f".{name}.{index}"
     tmp.write_text(str(time.time()))
-    tmp.rename(directory / f"ready.{index}")  # atomic: readers never see a partial file
-    deadline = time.monotonic() + 30.0
+    tmp.rename(directory / f"{name}.{index}")  # atomic: readers never see a partial file
+    deadline = time.monotonic() + 60.0
     while True:
-        stamps = [directory / f"ready.{i}" for i in range(n)]
+        stamps = [directory / f"{name}.{i}" for i in range(n)]
         if all(p.exists() for p in stamps):
-            latest = max(float(p.read_text()) for p in stamps)
-            return math.ceil(latest * 10.0) / 10.0 + 0.5
+            return max(float(p.read_text()) for p in stamps)
         if time.monotonic() > deadline:
-            raise SystemExit("barrier: the other peers never became ready")
-        time.sleep(0.01)
+            raise SystemExit(f"barrier {name}: the other peers never arrived")
+        while_waiting()
+        time.sleep(0.005)
 
 
 def main() -> int:
@@ -102,7 +102,8 @@ def main() -> int:
             drop_at=drop_at,
             rng=np.random.default_rng(seed),
         )
-    start_at = barrier(barrier_dir, index, n)
+    # Everyone has joined the group before anyone sends: a common start after the last.
+    start_at = math.ceil(barrier(barrier_dir, "ready", index, n) * 10.0) / 10.0 + 1.0
     heard = {j: 0 for j in range(n) if j != index}
     by_source: dict[str, int] = {}
     max_pos_err, min_age, max_age = 0.0, float("inf"), 0.0
@@ -131,7 +132,9 @@ def main() -> int:
         link.send(state, now)
         attempts += 1
         poll()
-    end = time.time() + 0.5  # let the last messages of the others arrive
+    # Keep listening until every peer has sent its last message, then a little more.
+    barrier(barrier_dir, "done", index, n, while_waiting=poll)
+    end = time.time() + 0.3
     while time.time() < end:
         poll()
         time.sleep(0.005)

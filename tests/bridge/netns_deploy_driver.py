@@ -1,0 +1,105 @@
+"""Inside a private network namespace: two simulated vehicles, two ``openconvoy deploy``
+processes (leader + follower) talking BSMs over real IPv6 multicast on ``oc0``; then
+``ACTION`` (``sigterm``: SIGTERM to both deploys; ``abort``: ``openconvoy abort``).
+Prints one JSON line with what the vehicles received and how the processes ended.
+
+Usage: python netns_deploy_driver.py ACTION OUT_DIR
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from openconvoy.bridge.demo import _free_udp_port, _stop_all, write_convoy_toml
+from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+from openconvoy.comms.geodesy import Origin
+from openconvoy.convoy import ConvoyConfig
+from openconvoy.envs.scenarios import make_scenario
+from openconvoy.envs.vehicles import vehicle_preset
+
+
+def main(action: str, out: Path) -> dict:
+    iface = os.environ.get("OPENCONVOY_NETNS_IFACE", "oc0")
+    names = ("1/10", "1/6")
+    origin = ConvoyConfig().origin
+    convoy_path = out / "convoy.toml"
+    write_convoy_toml(convoy_path, names, origin)
+    presets = [vehicle_preset(v) for v in names]
+    init = make_scenario("paper", presets=presets).initial_state()
+    vehicles, received, procs = [], [], []
+    for i, p in enumerate(presets):
+        port = _free_udp_port()
+        cfg = SimVehicleConfig(system_id=i + 1, preset=p, home=Origin(*origin),
+                               start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
+                               start_heading_rad=float(init.heading[i]), ready_after_s=0.5)
+        v = SimVehicle(f"udpin:127.0.0.1:{port}", cfg)
+        log: list[tuple[float, float]] = []
+        orig = v._on_setpoint
+
+        def record(msg, local, orig=orig, log=log):
+            orig(msg, local)
+            log.append((time.time(), math.hypot(msg.vx, msg.vy)))
+
+        v._on_setpoint = record
+        vehicles.append(v.start())
+        received.append(log)
+        cmd = [sys.executable, "-m", "openconvoy.cli", "deploy", "--policy", "paper",
+               "--vehicle-id", str(i), "--convoy", str(convoy_path),
+               "--mavlink", f"udpout:127.0.0.1:{port}", "--iface", iface,
+               "--log", str(out / "run")]
+        procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
+                                      stderr=open(out / f"deploy_{i}.txt", "w")))
+    result: dict = {"action": action}
+    try:
+        deadline = time.monotonic() + 40
+        while vehicles[1].state().speed < 0.5:
+            if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
+                result["error"] = "follower never moved"
+                return result
+            time.sleep(0.05)
+        if action == "sigterm":
+            for p in procs:
+                p.send_signal(signal.SIGTERM)
+        else:
+            subprocess.run([sys.executable, "-m", "openconvoy.cli", "abort", "--iface", iface],
+                           check=True, timeout=20)
+        codes = []
+        for p in procs:
+            try:
+                codes.append(p.wait(timeout=15))
+            except subprocess.TimeoutExpired:
+                codes.append(None)
+        time.sleep(1.5)
+        # When each deploy detected the event (its metadata, on the shared wall clock).
+        metas = [json.loads((out / "run" / f"vehicle_{i}.json").read_text()) for i in range(2)]
+        t_det = [m["failsafe_events"][0]["t_s"] for m in metas]
+        result.update(
+            exit_codes=codes,
+            reasons=[m["exit_reason"] for m in metas],
+            events=[m["failsafe_events"] for m in metas],
+            modes=[v.mode for v in vehicles],
+            speeds=[v.state().speed for v in vehicles],
+            log_rows=[sum(1 for _ in open(out / "run" / f"vehicle_{i}.csv")) - 1 for i in range(2)],
+            # setpoint speeds each vehicle received more than 0.5 s after the detection
+            late_speeds=[[s for ts, s in log if ts > td + 0.5] for log, td in zip(received, t_det)],
+            first_after=[next(((ts - td, s) for ts, s in log if ts > td), None)
+                         for log, td in zip(received, t_det)],
+        )
+    finally:
+        _stop_all(procs)
+        for v in vehicles:
+            v.stop()
+    return result
+
+
+if __name__ == "__main__":
+    out = Path(sys.argv[2])
+    out.mkdir(parents=True, exist_ok=True)
+    print(json.dumps(main(sys.argv[1], out)))

@@ -95,10 +95,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per case")
     parser.add_argument("--repeats", type=int, default=3,
                         help="timed runs per case; the best is reported (shared machines are noisy)")
+    parser.add_argument("--followers", type=int, nargs="+", default=[2, 100],
+                        help="convoy sizes to time (followers)")
     parser.add_argument("--profile", action="store_true", help="add a cProfile breakdown")
     args = parser.parse_args()
     results = []
-    for n_followers in (2, 100):
+    for n_followers in args.followers:
         for closed_loop in (False, True):
             env, policies = _make(n_followers)
             pol = policies if closed_loop else None

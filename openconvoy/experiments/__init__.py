@@ -1,8 +1,10 @@
 """Experiments: single runs, PER sweeps, experiment files, figures and comparisons.
 
 ``runs`` (one seeded simulated run, shared by ``openconvoy sim`` and sweeps), ``sweep``
-(experiment files and ``experiment per-sweep``), ``figures`` (the paper's figures),
-``compare`` (two runs or sweeps side by side).
+(experiment files and ``experiment per-sweep``), ``figures`` (a run's plots and the
+paper's figures), ``compare`` (two runs or sweeps side by side), ``commands`` (what the
+CLI's ``sim``, ``report``, ``presets``, ``experiment`` and ``compare`` do). Example
+experiment files are in ``examples/``.
 """
 
 from openconvoy.experiments.runs import RunConfig, RunResult, run_sim

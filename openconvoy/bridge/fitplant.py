@@ -125,16 +125,24 @@ def _replay_heading(
 
 def _refine(
     score, bounds: list[tuple[float, float]], log_scale: list[bool], points: list[int],
-    rounds: int = 6, shrink: float = 0.35,
+    step: list[float | None], rounds: int = 8, shrink: float = 0.5,
 ) -> tuple[np.ndarray, float]:
     """Grid search refined around the best point; ``score`` maps a (k, d) array of
-    candidates to k costs."""
+    candidates to k costs. An axis with a ``step`` is discrete (the delay, in replay
+    steps): after the first round it spans the best value +- 4 steps, so the other axes'
+    refinement cannot lock the delay into a neighbouring basin."""
     lo = np.array([math.log(b[0]) if ls else b[0] for b, ls in zip(bounds, log_scale)])
     hi = np.array([math.log(b[1]) if ls else b[1] for b, ls in zip(bounds, log_scale)])
     full_lo, full_hi = lo.copy(), hi.copy()
     best, best_cost = None, math.inf
     for r in range(rounds):
-        axes = [np.linspace(a, b, p if r == 0 else max(5, p // 2 + 1)) for a, b, p in zip(lo, hi, points)]
+        axes = []
+        for i, (a, b, p) in enumerate(zip(lo, hi, points)):
+            if step[i] is not None and best is not None:
+                values = best[i] + step[i] * np.arange(-4, 5)
+                axes.append(values[(values >= full_lo[i] - 1e-12) & (values <= full_hi[i] + 1e-12)])
+            else:
+                axes.append(np.linspace(a, b, p if r == 0 else max(5, p // 2 + 1)))
         mesh = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=1)
         cand = np.where(log_scale, np.exp(mesh), mesh)
         costs = score(cand)
@@ -189,6 +197,7 @@ def fit_plant(
         bounds=[(0.0, 0.5), (0.03, 3.0), (0.1, 15.0), (0.1, 15.0)],
         log_scale=[False, True, True, True],
         points=[11, 9, 9, 9],
+        step=[_FINE_DT_S, None, None, None],
     )
     kappa = math.tan(base_preset.max_steer_rad) / base_preset.wheelbase_m
     delay_steps = int(round(delay / _FINE_DT_S))
@@ -201,7 +210,8 @@ def fit_plant(
     turning = np.ptp(np.unwrap(cmd_h)) > 0.2
     if turning:
         (rate_max, tau_h), cost_h = _refine(
-            heading_cost, bounds=[(0.05, 6.0), (0.02, 2.0)], log_scale=[True, True], points=[13, 11]
+            heading_cost, bounds=[(0.05, 6.0), (0.02, 2.0)], log_scale=[True, True], points=[13, 11],
+            step=[None, None],
         )
     else:  # no heading excitation: keep the base preset's heading loop
         rate_max, tau_h = base_preset.turn_rate_max_radps, base_preset.heading_lag_s

@@ -62,7 +62,9 @@ class Telemetry:
     Attributes:
         state: position (ENU, m), forward speed (m/s), heading (rad, 0 = east, CCW),
             acceleration (m/s², differentiated from speed), yaw rate (rad/s, CCW).
-            ``state.t`` is the wall-clock time (s) the newest telemetry message arrived.
+            ``state.t`` is the wall-clock time (s) the newest telemetry was measured
+            (the vehicle's timestamp mapped onto the wall clock; ``wall - state.t`` is
+            the state's age, including time spent in buffers).
         lat_deg, lon_deg: the vehicle's geodetic position, degrees.
         mode: the autopilot's mode name, e.g. ``"GUIDED"``, ``"HOLD"``, ``"OFFBOARD"``.
         armed: motors armed.

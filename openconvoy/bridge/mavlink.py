@@ -166,6 +166,9 @@ class MavlinkLink:
         self._yaw_rate = 0.0
         self._speed_prev: tuple[float, float] | None = None  # (vehicle time s, speed)
         self._accel = 0.0
+        self._boot_offset: float | None = None  # wall clock - vehicle boot clock, s
+        self._t_boot_offset = 0.0
+        self._t_measured = math.nan  # wall-clock time of the newest measurement
         self._updated = False
         self._telemetry: Telemetry | None = None
         self._t0 = self._clock()
@@ -210,9 +213,13 @@ class MavlinkLink:
         self._request_telemetry()
 
     def reconnect(self, timeout_s: float = 10.0) -> None:
-        """Close, reopen, wait for a heartbeat and re-request telemetry (a rebooted
-        autopilot forgets message intervals). ``pilot_took_over`` stays latched."""
-        self.close()
+        """Reopen a lost connection (``lost``: TCP EOF/reset, device error, or a failed
+        reopen), wait for a heartbeat and re-request telemetry. A connection that is open
+        but still waiting for its first heartbeat is kept, so repeated short calls add up
+        (``reconnect(0.2)`` every tick works with 1 Hz heartbeats). Raises like
+        ``connect``. ``pilot_took_over`` stays latched."""
+        if self.lost:
+            self.close()
         self.connect(timeout_s)
 
     def close(self) -> None:
@@ -263,8 +270,9 @@ class MavlinkLink:
 
     @property
     def lost(self) -> bool:
-        """The connection itself is gone (TCP EOF/reset, device error): ``reconnect``."""
-        return self._eof
+        """No usable connection (TCP EOF/reset, device error, never opened or reopening
+        failed): call ``reconnect``. A silent UDP link is not ``lost``: see ``link_ok``."""
+        return self._eof or self._conn is None
 
     @property
     def status_texts(self) -> list[str]:
@@ -341,11 +349,11 @@ class MavlinkLink:
             if self._heading is None and msg.hdg != 65535:
                 self._heading = wrap_angle(math.pi / 2 - math.radians(msg.hdg * 0.01))
             self._update_speed(msg.time_boot_ms * 1e-3)
-            self._mark_telemetry()
+            self._mark_telemetry(msg.time_boot_ms * 1e-3)
         elif kind == "ATTITUDE":
             self._heading = wrap_angle(math.pi / 2 - msg.yaw)  # NED yaw -> ENU heading
             self._yaw_rate = -msg.yawspeed  # clockwise-positive -> counter-clockwise
-            self._mark_telemetry()
+            self._mark_telemetry(msg.time_boot_ms * 1e-3)
         elif kind == "STATUSTEXT":
             text = msg.text if isinstance(msg.text, str) else msg.text.decode(errors="replace")
             self._texts.append((self._clock(), msg.severity, text.rstrip("\x00")))
@@ -370,7 +378,11 @@ class MavlinkLink:
             return
         self.message_counts["HEARTBEAT"] = self.message_counts.get("HEARTBEAT", 0) + 1
         self._autopilot_id = msg.autopilot
-        self._t_heartbeat = self._clock()
+        now = self._clock()
+        if now - self._t_heartbeat > self.heartbeat_timeout_s and self.telemetry_rates:
+            # The vehicle is back after silence (maybe rebooted, forgetting our intervals).
+            self._rerequest_telemetry()
+        self._t_heartbeat = now
         self._armed = bool(msg.base_mode & mp.mav().MAV_MODE_FLAG_SAFETY_ARMED)
         mode = mp.mode_name(msg.autopilot, msg.custom_mode)
         if (
@@ -401,15 +413,32 @@ class MavlinkLink:
         h = self._heading or 0.0
         return self._vel_en[0] * math.cos(h) + self._vel_en[1] * math.sin(h)
 
-    def _mark_telemetry(self) -> None:
+    def _mark_telemetry(self, t_boot: float) -> None:
         self._t_telemetry = self._clock()
         self._updated = True
+        # When was this measured, on the wall clock? A message can wait in the socket buffer
+        # until the next poll, so the receive time overstates freshness. The smallest
+        # (receive time - vehicle boot time) seen is the best estimate of the clock offset
+        # (transport latency only); it may creep up 1 ms/s so vehicle clock drift and
+        # reboots are followed.
+        wall = self._wall()
+        offset = wall - t_boot
+        if self._boot_offset is not None and offset - self._boot_offset > 1.0 and self.telemetry_rates:
+            self._rerequest_telemetry()  # the vehicle clock went back: a reboot
+        if self._boot_offset is not None:
+            self._boot_offset += 1e-3 * max(0.0, wall - self._t_boot_offset)
+        if self._boot_offset is None or offset < self._boot_offset or offset - self._boot_offset > 1.0:
+            self._boot_offset = offset
+        self._t_boot_offset = wall
+        measured = t_boot + self._boot_offset
+        # Position and attitude carry their own stamps; keep the state's time monotonic.
+        self._t_measured = measured if math.isnan(self._t_measured) else max(self._t_measured, measured)
 
     def _build_telemetry(self) -> Telemetry:
         assert self._pos is not None and self._heading is not None
         x, y, lat, lon = self._pos
         state = VehicleState(
-            vehicle_id=self.vehicle_id, t=self._wall(), x=x, y=y,
+            vehicle_id=self.vehicle_id, t=self._t_measured, x=x, y=y,
             speed=self._forward_speed(), heading=self._heading, accel=self._accel,
             yaw_rate=self._yaw_rate, length=self.length_m, width=self.width_m,
         )
@@ -494,6 +523,17 @@ class MavlinkLink:
                 )
                 hz = lower
         self.telemetry_rates = rates
+
+    def _rerequest_telemetry(self) -> None:
+        """Send the accepted intervals again without waiting (from ``poll``); the answers
+        are checked as they arrive (a refusal lands in ``last_refusal``)."""
+        if self._target is None:
+            return
+        self._status("vehicle back after silence or a reboot: requesting telemetry again")
+        for msg_id in _TELEMETRY_MESSAGES:
+            hz = self.telemetry_rates.get(mp.message_name(msg_id))
+            if hz:
+                self._send_command(mp.CMD_SET_MESSAGE_INTERVAL, (float(msg_id), 1e6 / hz))
 
     def _guided_mode(self) -> str:
         return "OFFBOARD" if self.autopilot == "px4" else "GUIDED"

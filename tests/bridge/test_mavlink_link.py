@@ -9,7 +9,7 @@ import time
 import pytest
 from conftest import free_port, run_for, wait_for
 
-from openconvoy.bridge.link import CommandRefused, LinkTimeout, VehicleLink
+from openconvoy.bridge.link import CommandRefused, LinkLost, LinkTimeout, VehicleLink
 from openconvoy.bridge.mavlink import MavlinkLink, check_url
 from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
@@ -210,10 +210,40 @@ def test_tcp_eof_is_a_lost_link_and_reconnect_works() -> None:
         for _ in range(200):
             assert link.poll() is None
         assert time.monotonic() - t0 < 0.2  # no busy loop inside poll
+        with pytest.raises(LinkLost):  # nobody listening: refused at once
+            link.reconnect(timeout_s=0.2)
+        assert link.lost
         vehicle = SimVehicle(f"tcpin:127.0.0.1:{port}", config).start()
-        link.reconnect(timeout_s=5.0)
+        # The runner's way: short attempts every tick until a heartbeat arrives.
+        end = time.monotonic() + 5.0
+        while True:
+            try:
+                link.reconnect(timeout_s=0.2)
+                break
+            except LinkTimeout:
+                assert time.monotonic() < end
         run_for(link, 0.3)
         assert link.link_ok(time.monotonic()) and not link.lost
+        assert vehicle.message_rates_hz["GLOBAL_POSITION_INT"] == pytest.approx(20.0)
     finally:
         link.close()
+        vehicle.stop()
+
+
+def test_restarted_udp_vehicle_gets_its_telemetry_rates_again(vehicle_and_link) -> None:
+    vehicle, link, lines = vehicle_and_link(link_kwargs=dict(telemetry_hz=20.0))
+    run_for(link, 1.5)
+    assert link.link_ok(time.monotonic())
+    url, config = vehicle.url, vehicle.config
+    vehicle.stop()  # a reboot: the new autopilot starts at its default rates
+    run_for(link, 0.6)
+    assert not link.link_ok(time.monotonic())
+    vehicle = SimVehicle(url, config).start()
+    try:
+        assert vehicle.message_rates_hz["GLOBAL_POSITION_INT"] == pytest.approx(1.0)
+        # No reconnect needed on UDP: poll notices the vehicle is back and asks again.
+        assert wait_for(lambda: vehicle.message_rates_hz["GLOBAL_POSITION_INT"] == 20.0, 5.0, link)
+        assert wait_for(lambda: link.link_ok(time.monotonic()), 1.0, link)
+        assert any("requesting telemetry again" in line for line in lines)
+    finally:
         vehicle.stop()

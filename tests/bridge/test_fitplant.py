@@ -1,0 +1,140 @@
+"""fit-plant recovers a simulated vehicle's response parameters from its own logs."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import free_port
+
+from openconvoy.bridge.fitplant import fit_plant
+from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.envs.plant import BicyclePlant
+from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset, vehicle_preset
+from openconvoy.logs import LogWriter
+
+# A vehicle unlike the stock presets, so a fit cannot pass by echoing the base preset.
+TRUTH = dataclasses.replace(
+    VEHICLE_PRESETS["1/6"], name="truth", speed_lag_s=0.35, accel_max_mps2=1.2,
+    decel_max_mps2=1.8, turn_rate_max_radps=math.radians(40.0), heading_lag_s=0.25,
+    actuation_delay_s=0.12,
+)
+FITTED = ("actuation_delay_s", "speed_lag_s", "accel_max_mps2", "decel_max_mps2",
+          "turn_rate_max_radps", "heading_lag_s")
+
+# (end time s, speed m/s, heading deg): large steps reach the acceleration and turn-rate
+# limits, small ones (0.2 m/s, 6 deg) show the lags alone.
+_SCHEDULE = [(1, 0, 0), (4, 2.0, 0), (5.5, 2.2, 0), (7, 2.0, 0), (9.5, 2.0, 60), (11, 2.0, 66),
+             (12.5, 2.0, 60), (15, 2.0, -30), (17, 0.5, -30), (19.5, 1.5, 45), (22.5, 1.5, -60),
+             (24, 0.0, -60)]
+DURATION_S = 24.0
+
+
+def excitation(t: float) -> tuple[float, float]:
+    """Speed (m/s) and absolute heading (rad) commanded at time ``t`` (s)."""
+    for end, speed, heading in _SCHEDULE:
+        if t < end:
+            return speed, math.radians(heading)
+    return 0.0, math.radians(_SCHEDULE[-1][2])
+
+
+def row(t: float, vid: int, x: float, y: float, speed: float, heading: float,
+        cmd: tuple[float, float], **extra: float) -> dict:
+    return dict(t_s=t, vehicle_id=vid, x_m=x, y_m=y, speed_mps=speed, heading_rad=heading,
+                cmd_speed_mps=cmd[0], cmd_heading_change_rad=math.remainder(cmd[1] - heading, 2 * math.pi),
+                mode="coop", **extra)
+
+
+def plant_log(path: Path, preset: VehiclePreset, vehicle_id: int = 1) -> None:
+    """Drive the plant (100 Hz) with the excitation, logging at 20 Hz as the simulator does."""
+    plant = BicyclePlant([preset], dt=0.01)
+    plant.reset(np.zeros(1), np.zeros(1), np.zeros(1))
+    with LogWriter(path) as log:
+        for k in range(int(DURATION_S / 0.05)):
+            t = k * 0.05
+            s = plant.state(0, t)
+            cmd = excitation(t)
+            log.write(row(t, vehicle_id, s.x, s.y, s.speed, s.heading, cmd))
+            for _ in range(5):
+                plant.step(np.array([cmd[0]]), np.array([cmd[1]]))
+
+
+def assert_within(fitted: VehiclePreset, truth: VehiclePreset, rel: float) -> None:
+    errors = {f: getattr(fitted, f) / getattr(truth, f) - 1.0 for f in FITTED}
+    print("fit errors:", {f: f"{100 * e:+.1f}%" for f, e in errors.items()})
+    bad = {f: f"{100 * e:+.1f}%" for f, e in errors.items() if abs(e) > rel}
+    assert not bad, f"fitted parameters off by more than {100 * rel:.0f}%: {bad}"
+
+
+def test_fit_recovers_the_plant_from_a_simulator_log(tmp_path: Path) -> None:
+    plant_log(tmp_path / "run" / "v1.csv", TRUTH)
+    fit = fit_plant(tmp_path / "run", base="1/6")
+    assert_within(fit.preset, TRUTH, 0.05)
+    assert fit.speed_limits_hit == (True, True)
+    assert fit.speed_rms_mps < 0.01
+
+
+def test_fit_recovers_the_vehicle_through_mavlink(tmp_path: Path) -> None:
+    """The simulated MAVLink vehicle driven by the link at 20 Hz, as ``deploy`` would, and
+    logged with the age of the telemetry each row used."""
+    port = free_port()
+    vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(preset=TRUTH, ready_after_s=0.0))
+    vehicle.start()
+    link = MavlinkLink(f"udpout:127.0.0.1:{port}", DEFAULT_HOME, telemetry_hz=40.0,
+                       on_status=lambda line: None)
+    try:
+        link.connect(timeout_s=5.0)
+        link.prepare_and_arm(timeout_s=10.0)
+        with LogWriter(tmp_path / "run" / "v3.csv", extra_columns=("telemetry_age_s",)) as log:
+            t0 = time.monotonic()
+            k = 0
+            while (t := time.monotonic() - t0) < DURATION_S:
+                link.poll()
+                s = link.telemetry.state
+                cmd = excitation(t)
+                link.send_setpoint(*cmd)
+                log.write(row(t, 3, s.x, s.y, s.speed, s.heading, cmd,
+                              telemetry_age_s=time.time() - s.t))
+                k += 1
+                time.sleep(max(0.0, t0 + k * 0.05 - time.monotonic()))
+    finally:
+        link.close()
+        vehicle.stop()
+    fit = fit_plant(tmp_path / "run", base="1/6")
+    assert_within(fit.preset, TRUTH, 0.10)
+
+
+def test_cli_writes_a_preset_sim_can_load(tmp_path: Path) -> None:
+    plant_log(tmp_path / "run" / "v1.csv", TRUTH)
+    out = tmp_path / "presets" / "mycar.toml"
+    result = subprocess.run(
+        [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(tmp_path / "run"),
+         "--out", str(out), "--name", "mycar", "--base", "1/6"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "speed_lag_s" in result.stdout and str(out) in result.stdout
+    loaded = vehicle_preset(str(out))
+    assert loaded.name == "mycar"
+    assert loaded.wheelbase_m == VEHICLE_PRESETS["1/6"].wheelbase_m  # from the base preset
+    assert_within(loaded, TRUTH, 0.05)
+
+
+def test_cli_errors_are_one_line(tmp_path: Path) -> None:
+    plant_log(tmp_path / "two" / "v1.csv", TRUTH, vehicle_id=1)
+    plant_log(tmp_path / "two" / "v2.csv", TRUTH, vehicle_id=2)
+    result = subprocess.run(
+        [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(tmp_path / "two")],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip() == "openconvoy: error: the log holds vehicles 1, 2: choose one with --vehicle-id"
+    with pytest.raises(ValueError, match="no rows for vehicle 5"):
+        fit_plant(tmp_path / "two", vehicle_id=5)

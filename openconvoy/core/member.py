@@ -32,9 +32,8 @@ from openconvoy.core.observation import (
 from openconvoy.core.policy import make_action
 from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
 from openconvoy.core.state import VehicleState, wrap_angle
-from openconvoy.core.trail import points_at, project
+from openconvoy.core.trail import Projection, Trail
 
-_LOOKAHEAD = np.array(LOOKAHEAD_S)
 _NF = len(STATE_FEATURES)
 _ND = len(DERIVED_FEATURES)
 
@@ -133,17 +132,21 @@ class ConvoyMember:
         for slot, vid in zip(lay.slots, slot_ids):
             if vid is None:
                 continue
-            base = lay.slot_offset(slot)
-            for j, st in enumerate(self.buffer.history(vid)):
+            vals: list[float] = []
+            for st in self.buffer.history(vid):
                 dx, dy = st.x - ego.x, st.y - ego.y
-                o = base + j * _NF
-                obs[o] = c * dx + s * dy
-                obs[o + 1] = -s * dx + c * dy
-                obs[o + 2] = wrap_angle(st.heading - ego.heading)
-                obs[o + 3] = st.speed
-                obs[o + 4] = st.accel
-                obs[o + 5] = min(max(now - st.t, 0.0), MAX_AGE_S)
-                obs[o + 6] = 1.0
+                age = now - st.t
+                vals += (
+                    c * dx + s * dy,
+                    -s * dx + c * dy,
+                    wrap_angle(st.heading - ego.heading),
+                    st.speed,
+                    st.accel,
+                    MAX_AGE_S if age > MAX_AGE_S else (age if age > 0.0 else 0.0),
+                    1.0,
+                )
+            base = lay.slot_offset(slot)
+            obs[base : base + len(vals)] = vals
         o = lay.own_offset
         obs[o : o + 3] = (ego.speed, ego.accel, ego.yaw_rate)
         self._fill_targets(obs, slot_ids, now)
@@ -206,7 +209,7 @@ class ConvoyMember:
         self._pred_estimate = None
         targets = slot_ids[: len(lay.targets)]
         preds_in_slots = set(targets[1:])
-        found: dict[str, tuple[np.ndarray, float, float, tuple[float, float, float]]] = {}
+        found: dict[str, tuple[Trail, tuple[float, float], float, float, Projection]] = {}
         for name, vid in zip(lay.targets, targets):
             if vid is None or (name == "leader" and vid in preds_in_slots):
                 continue
@@ -218,37 +221,44 @@ class ConvoyMember:
             hx = latest.x + latest.speed * math.cos(latest.heading) * dt
             hy = latest.y + latest.speed * math.sin(latest.heading) * dt
             desired = self.spacing.gap_to(i, vid, ego.speed, self.lengths)
-            pts = self.buffer.trail(vid).polyline((hx, hy), latest.heading, desired + 10.0)
-            projection = project(pts, ego.x, ego.y)
-            arc = projection[0]
+            trail = self.buffer.trail(vid)
+            head = (hx, hy)
+            projection = trail.project(head, latest.heading, ego.x, ego.y, desired)
+            arc = projection.arc_to_head
             o = lay.target_offset(name)
             obs[o : o + _ND] = (arc, desired, arc - desired, latest.speed, 1.0)
-            found[name] = (pts, arc - desired, latest.speed - ego.speed, projection)
+            found[name] = (trail, head, latest.heading, latest.speed - ego.speed, projection)
         # The nearest heard predecessor gives the path to steer on and the logged error.
         for name in (*lay.targets[1:], "leader"):
             if name in found:
-                pts, error, closing, projection = found[name]
-                self.spacing_error_m = error
+                trail, head, heading, closing, projection = found[name]
+                o = lay.target_offset(name)
+                self.spacing_error_m = float(obs[o + 2])
                 if name == "pred_1":
-                    self._pred_estimate = (error + self.desired_gap_m, closing)
-                self._fill_path(obs, pts, projection)
+                    self._pred_estimate = (projection.arc_to_head, closing)
+                self._fill_path(obs, trail, head, heading, projection)
                 break
 
     def _fill_path(
-        self, obs: np.ndarray, pts: np.ndarray, projection: tuple[float, float, float]
+        self,
+        obs: np.ndarray,
+        trail: Trail,
+        head: tuple[float, float],
+        heading: float,
+        projection: Projection,
     ) -> None:
         ego = self.own
         assert ego is not None
-        arc, cross, path_heading = projection
         c, s = math.cos(ego.heading), math.sin(ego.heading)
         o = self.layout.path_offset
-        # project() gives the ego's offset from the path; the path's offset from the ego
-        # (what a steering law corrects) is its negative.
-        obs[o] = -cross
-        obs[o + 1] = wrap_angle(path_heading - ego.heading)
-        ahead = _LOOKAHEAD * max(1.0, abs(ego.speed))
-        xs, ys = points_at(pts, arc - ahead)
-        dx, dy = xs - ego.x, ys - ego.y
-        obs[o + 2 : o + 8 : 2] = c * dx + s * dy
-        obs[o + 3 : o + 8 : 2] = -s * dx + c * dy
+        # The projection gives the ego's offset from the path; the path's offset from the
+        # ego (what a steering law corrects) is its negative.
+        obs[o] = -projection.cross_track
+        obs[o + 1] = wrap_angle(projection.heading - ego.heading)
+        scale = max(1.0, abs(ego.speed))
+        for j, t in enumerate(LOOKAHEAD_S):
+            px, py = trail.point_at(head, heading, projection.s + t * scale)
+            dx, dy = px - ego.x, py - ego.y
+            obs[o + 2 + 2 * j] = c * dx + s * dy
+            obs[o + 3 + 2 * j] = -s * dx + c * dy
         obs[o + 8] = 1.0

@@ -3,122 +3,150 @@
 Followers follow their predecessors' trails (DESIGN.md): the point at the desired following
 distance is measured along the predecessor's path, and the ego's gap is the arc length from
 its projection on that path to the predecessor. Positions are ENU metres.
+
+The path a query sees is: a straight extension behind the oldest breadcrumb (a vehicle
+that has not moved yet is assumed to have come straight along its heading), the
+breadcrumbs, and the vehicle's present (dead-reckoned) position, the *head*. Arc lengths
+``s`` are measured from the oldest breadcrumb (negative on the extension). Queries are
+plain Python on a few segments: they run every control tick for every target.
 """
 
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
+from dataclasses import dataclass
 
-import numpy as np
+
+@dataclass(frozen=True, slots=True)
+class Projection:
+    """Where a point projects on a trail.
+
+    ``arc_to_head``: arc length from the projection to the head (m); ``cross_track``:
+    signed offset of the point from the path (m, positive = point left of the path);
+    ``heading``: the path's heading there (rad); ``s``: arc coordinate of the projection.
+    """
+
+    arc_to_head: float
+    cross_track: float
+    heading: float
+    s: float
 
 
 class Trail:
-    """A bounded polyline of positions, newest last, with breadcrumbs ``spacing_m`` apart.
-
-    ``capacity`` bounds memory; the oldest breadcrumbs fall off. When the path is shorter
-    than asked for, it is extended backwards along its oldest heading (a vehicle that has
-    not moved yet is assumed to have come straight along its current heading).
-    """
+    """Breadcrumbs at least ``spacing_m`` apart, newest last, at most ``capacity`` of them
+    (the oldest half is dropped when full)."""
 
     def __init__(self, spacing_m: float = 0.2, capacity: int = 1024) -> None:
         self.spacing_m = spacing_m
         self.capacity = capacity
-        self._xy = np.zeros((capacity, 2))
-        self._cum = np.zeros(capacity)  # arc length from the oldest breadcrumb, m
-        self._n = 0
+        self.clear()
 
     def __len__(self) -> int:
-        return self._n
+        return len(self._x)
 
     def clear(self) -> None:
-        self._n = 0
+        self._x: list[float] = []
+        self._y: list[float] = []
+        self._s: list[float] = []
+        self._heading = 0.0
 
     def add(self, x: float, y: float, heading: float) -> None:
         """Record a position; kept only when ``spacing_m`` from the last breadcrumb."""
-        n = self._n
-        step = 0.0
-        if n:
-            lx, ly = self._xy[n - 1]
-            step = math.hypot(x - lx, y - ly)
-            if step < self.spacing_m:
-                return
-        if n == self.capacity:
-            # Drop the oldest half at once: amortized O(1) per add.
-            keep = self.capacity // 2
-            self._xy[:keep] = self._xy[n - keep : n]
-            self._cum[:keep] = self._cum[n - keep : n] - self._cum[n - keep]
-            n = self._n = keep
-        self._xy[n] = (x, y)
-        self._cum[n] = self._cum[n - 1] + step if n else 0.0
-        self._n = n + 1
+        if not self._x:
+            self._heading = heading
+            self._x.append(x), self._y.append(y), self._s.append(0.0)
+            return
+        step = math.hypot(x - self._x[-1], y - self._y[-1])
+        if step < self.spacing_m:
+            return
+        if len(self._x) >= self.capacity:
+            half = self.capacity // 2
+            del self._x[:half], self._y[:half], self._s[:half]
+            s0 = self._s[0]
+            self._s = [s - s0 for s in self._s]
+        self._x.append(x), self._y.append(y), self._s.append(self._s[-1] + step)
 
-    def polyline(self, head: tuple[float, float], heading: float, back_m: float) -> np.ndarray:
-        """Points from about ``back_m`` behind ``head`` (the vehicle's present position) to
-        ``head``, oldest first, extended backwards when the trail is shorter. Shape (n, 2)."""
-        n = self._n
-        hx, hy = head
-        if n == 0:
-            pts, length = np.array([[hx, hy]]), 0.0
+    # --- queries ---------------------------------------------------------------------
+
+    def _vertex(self, k: int, head: tuple[float, float], heading: float) -> tuple[float, float, float]:
+        """Vertex ``k`` of the query path: -1 = far end of the extension, 0..n-1 the
+        breadcrumbs, n the head. Returns ``(x, y, s)``."""
+        n = len(self._x)
+        if k >= n:
+            return head[0], head[1], self._s[-1] + math.hypot(head[0] - self._x[-1], head[1] - self._y[-1])
+        if k >= 0:
+            return self._x[k], self._y[k], self._s[k]
+        hx, hy = self._back_direction(head, heading)
+        far = 1e4
+        return self._x[0] + far * hx, self._y[0] + far * hy, -far
+
+    def _back_direction(self, head: tuple[float, float], heading: float) -> tuple[float, float]:
+        """Unit vector pointing backwards from the oldest breadcrumb."""
+        if len(self._x) >= 2:
+            dx, dy = self._x[1] - self._x[0], self._y[1] - self._y[0]
         else:
-            # Only the part of the trail within back_m of its newest breadcrumb matters.
-            cum = self._cum[:n]
-            i0 = max(int(np.searchsorted(cum, cum[-1] - back_m, side="right")) - 1, 0)
-            pts, length = self._xy[i0:n], float(cum[-1] - cum[i0])
-            tail = math.hypot(hx - pts[-1, 0], hy - pts[-1, 1])
-            if tail > 1e-9:
-                pts, length = np.concatenate([pts, ((hx, hy),)]), length + tail
-        d0 = pts[1] - pts[0] if len(pts) >= 2 else None
-        if length < back_m:
-            if d0 is not None and abs(d0[0]) + abs(d0[1]) > 1e-9:
-                h0 = math.atan2(d0[1], d0[0])
-            else:
-                h0 = heading
-            extra = back_m - length + 1.0
-            start = (pts[0, 0] - extra * math.cos(h0), pts[0, 1] - extra * math.sin(h0))
-            pts = np.concatenate([(start,), pts])
-        return pts
+            dx, dy = head[0] - self._x[0], head[1] - self._y[0]
+        d = math.hypot(dx, dy)
+        if d < 1e-9:
+            return -math.cos(heading), -math.sin(heading)
+        return -dx / d, -dy / d
 
+    def _segment(
+        self, k: int, head: tuple[float, float], heading: float, x: float, y: float
+    ) -> tuple[float, float, float, float, float]:
+        """Project (x, y) on segment k (vertex k → k+1): ``(dist², s, cross, heading, len)``."""
+        ax, ay, sa = self._vertex(k, head, heading)
+        bx, by, sb = self._vertex(k + 1, head, heading)
+        dx, dy = bx - ax, by - ay
+        seg = math.hypot(dx, dy)
+        if seg < 1e-12:
+            return (x - ax) ** 2 + (y - ay) ** 2, sa, 0.0, heading, 0.0
+        rx, ry = x - ax, y - ay
+        u = min(max((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
+        ex, ey = rx - u * dx, ry - u * dy
+        return ex * ex + ey * ey, sa + u * (sb - sa), (dx * ry - dy * rx) / seg, math.atan2(dy, dx), seg
 
-def project(pts: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
-    """Project ``(x, y)`` on the polyline ``pts`` (oldest → newest, at least 2 points).
+    def project(
+        self, head: tuple[float, float], heading: float, x: float, y: float, expected_arc: float
+    ) -> Projection:
+        """Project ``(x, y)`` on the path ending at ``head``; the search starts where the
+        point is expected (``expected_arc`` metres behind the head) and walks to the
+        nearest segment, so it costs a few segments when the convoy holds its gaps."""
+        if not self._x:
+            raise ValueError("cannot project on an empty trail")
+        n = len(self._x)
+        last = n - 1 if math.hypot(head[0] - self._x[-1], head[1] - self._y[-1]) > 1e-9 else n - 2
+        s_head = self._vertex(n, head, heading)[2]
+        k = min(max(bisect_right(self._s, s_head - expected_arc) - 1, -1), last)
+        best = self._segment(k, head, heading, x, y)
+        for step in (1, -1):
+            j = k + step
+            while -1 <= j <= last:
+                cand = self._segment(j, head, heading, x, y)
+                if cand[0] >= best[0]:
+                    break
+                best, k = cand, j
+                j += step
+        d2, s, cross, path_heading, _ = best
+        return Projection(arc_to_head=s_head - s, cross_track=cross, heading=path_heading, s=s)
 
-    Returns ``(arc_to_head_m, cross_track_m, path_heading_rad)``: arc length from the
-    projection to the newest point, signed lateral offset (positive = point left of the
-    path), and the path's heading at the projection.
-    """
-    ax, ay = pts[:-1, 0], pts[:-1, 1]
-    dx, dy = pts[1:, 0] - ax, pts[1:, 1] - ay
-    seg_len2 = np.maximum(dx * dx + dy * dy, 1e-12)
-    rx, ry = x - ax, y - ay
-    s = np.clip((rx * dx + ry * dy) / seg_len2, 0.0, 1.0)
-    ex, ey = rx - dx * s, ry - dy * s
-    i = int(np.argmin(ex * ex + ey * ey))
-    seg_len = np.sqrt(seg_len2)
-    arc_to_head = float(seg_len[i] * (1.0 - s[i]) + seg_len[i + 1 :].sum())
-    heading = math.atan2(dy[i], dx[i])
-    cross = float(dx[i] * ry[i] - dy[i] * rx[i]) / float(seg_len[i])
-    return arc_to_head, cross, heading
-
-
-def points_at(pts: np.ndarray, arcs_from_head: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points ``arcs_from_head`` metres back along the polyline from its newest point
-    (negative: beyond the head, extrapolated along the last segment). Returns ``(xs, ys)``."""
-    d = np.diff(pts, axis=0)
-    seg = np.hypot(d[:, 0], d[:, 1])
-    cum = np.concatenate(([0.0], np.cumsum(seg)))
-    s = cum[-1] - np.asarray(arcs_from_head, dtype=float)
-    xs = np.interp(s, cum, pts[:, 0])
-    ys = np.interp(s, cum, pts[:, 1])
-    beyond = s > cum[-1]
-    if beyond.any():
-        h = math.atan2(d[-1, 1], d[-1, 0]) if len(seg) else 0.0
-        ex = s[beyond] - cum[-1]
-        xs[beyond] = pts[-1, 0] + ex * math.cos(h)
-        ys[beyond] = pts[-1, 1] + ex * math.sin(h)
-    return xs, ys
-
-
-def point_at_arc(pts: np.ndarray, arc_from_head: float) -> tuple[float, float]:
-    """One point of ``points_at``: ``(x, y)``."""
-    xs, ys = points_at(pts, np.array([arc_from_head]))
-    return float(xs[0]), float(ys[0])
+    def point_at(self, head: tuple[float, float], heading: float, s: float) -> tuple[float, float]:
+        """The path point at arc coordinate ``s`` (beyond the head: straight on)."""
+        n = len(self._x)
+        s_head = self._vertex(n, head, heading)[2]
+        if s >= s_head:
+            if s_head - self._s[-1] > 1e-9:
+                ax, ay = self._x[-1], self._y[-1]
+                f = (s - self._s[-1]) / (s_head - self._s[-1])
+                return ax + f * (head[0] - ax), ay + f * (head[1] - ay)
+            return head[0] + (s - s_head) * math.cos(heading), head[1] + (s - s_head) * math.sin(heading)
+        if s >= self._s[-1]:
+            f = (s - self._s[-1]) / (s_head - self._s[-1])
+            return self._x[-1] + f * (head[0] - self._x[-1]), self._y[-1] + f * (head[1] - self._y[-1])
+        if s <= 0.0:
+            bx, by = self._back_direction(head, heading)
+            return self._x[0] - s * bx, self._y[0] - s * by
+        i = bisect_right(self._s, s) - 1
+        f = (s - self._s[i]) / (self._s[i + 1] - self._s[i])
+        return self._x[i] + f * (self._x[i + 1] - self._x[i]), self._y[i] + f * (self._y[i + 1] - self._y[i])

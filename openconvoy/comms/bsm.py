@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import functools
 import operator
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 #: messageId of a BasicSafetyMessage in a MessageFrame.
 BSM_MESSAGE_ID = 20
@@ -87,12 +87,13 @@ class BsmDecodeError(ValueError):
     """The bytes are not a valid J2735 BSM MessageFrame (message says why)."""
 
 
-@dataclass(frozen=True, slots=True)
-class BsmCore:
+class BsmCore(NamedTuple):
     """BSM Part I (``BSMcoreData``) in J2735 integer units, field by field.
 
     Names follow the ASN.1 (``long`` -> ``lon``, nested sequences flattened). Defaults are
-    the standard's "unavailable" codes, so a sender fills only what it knows.
+    the standard's "unavailable" codes, so a sender fills only what it knows. Immutable;
+    ``core._replace(speed=...)`` gives a modified copy. (A named tuple rather than a
+    frozen dataclass: built for every message received, and four times cheaper to build.)
 
     Attributes:
         msg_cnt: MsgCount 0..127, +1 per message from one sender, wrapping.
@@ -395,6 +396,6 @@ def to_physical(core: BsmCore) -> dict[str, Any]:
 
 def core_as_dict(core: BsmCore) -> dict[str, Any]:
     """The core's raw J2735 integers as a plain dict (temp_id as upper-case hex)."""
-    d = asdict(core)
+    d = core._asdict()
     d["temp_id"] = core.temp_id.hex().upper()
     return d

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 from comms_testdata import load_vectors
 from hypothesis import given, settings
@@ -131,9 +129,7 @@ def test_trailing_padding_is_ignored():
     ],
 )
 def test_encode_rejects_out_of_range(field, value):
-    core = dataclasses.replace(
-        BsmCore(msg_cnt=0, temp_id=b"abcd", sec_mark=0, lat=0, lon=0), **{field: value}
-    )
+    core = BsmCore(msg_cnt=0, temp_id=b"abcd", sec_mark=0, lat=0, lon=0)._replace(**{field: value})
     with pytest.raises(ValueError, match=field):
         encode_frame(core)
 

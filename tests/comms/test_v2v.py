@@ -3,7 +3,6 @@ a member consuming a mixed J2735 + compat stream, and the receiver fuzz."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import random
 
@@ -325,7 +324,7 @@ def test_member_bsm_without_essentials_is_not_delivered(field, value, what, capl
     rx = Receiver(IDS, ORIGIN, 0)
     base = state_to_core(_state(1, 10.0), ORIGIN, IDS.id_of(1), 0)
     with caplog.at_level("DEBUG", logger="openconvoy.comms.v2v"):
-        assert rx.handle(j.encode_frame(dataclasses.replace(base, **{field: value})), 10.1) is None
+        assert rx.handle(j.encode_frame(base._replace(**{field: value})), 10.1) is None
     assert rx.counters.malformed == 1 and rx.counters.received == 0
     assert f"BSM of vehicle 1 lacks {what}" in caplog.text
     assert rx.handle(j.encode_frame(base), 10.1) is not None  # the intact one is fine

@@ -31,7 +31,7 @@ class PPOConfig:
     n_steps: int = 256
     batch_size: int = 512
     n_epochs: int = 5
-    learning_rate: float = 3e-4
+    learning_rate: float = 1e-4
     gamma: float = 0.98
     gae_lambda: float = 0.95
     clip_range: float = 0.2
@@ -89,7 +89,7 @@ class TrainConfig:
     """
 
     algo: str = "ppo"
-    total_steps: int = 400_000
+    total_steps: int = 300_000
     n_envs: int = 4
     seed: int = 0
     env: EnvSpec = field(default_factory=EnvSpec)
@@ -98,7 +98,7 @@ class TrainConfig:
     sac: SACConfig = field(default_factory=SACConfig)
     normalize_obs: bool = True
     normalize_reward: bool = True
-    checkpoint_every: int = 100_000
+    checkpoint_every: int = 50_000
     torch_threads: int = 1
     name: str = "learned"
 

@@ -49,7 +49,9 @@ class Randomization:
     """Ranges drawn at every episode start (SI units; a range ``(a, a)`` is fixed).
 
     Attributes:
-        scenarios: scenario specs drawn uniformly (all must fit ``n_followers``).
+        scenarios: scenario specs drawn uniformly (all must fit ``n_followers``). Default
+            ``paper`` only: on the oval the reward's straight-line gap and the path gap the
+            controllers keep disagree in the bends, which blurs what the learner is paid for.
         per_range: packet error rate, uniform.
         burst_prob: probability that an episode's links lose packets in Gilbert-Elliott
             bursts instead of independently (same long-run PER).
@@ -63,7 +65,7 @@ class Randomization:
             (``PLANT_JITTER_FIELDS``); 0.2 = ±20 %.
     """
 
-    scenarios: tuple[str, ...] = ("paper", "track")
+    scenarios: tuple[str, ...] = ("paper",)
     per_range: tuple[float, float] = (0.0, 0.6)
     burst_prob: float = 0.3
     mean_burst_s_range: tuple[float, float] = (0.2, 1.0)
@@ -142,6 +144,13 @@ def _jitter(preset: VehiclePreset, amount: float, rng: np.random.Generator) -> V
     )
 
 
+TRAIN_REWARD = RewardConfig(spacing_scale_m=2.0, w_accel=0.01, w_jerk=0.001, w_yaw_rate=0.01)
+"""The training reward: the environment's, weighted towards the spacing error the metrics
+measure (a steeper spacing term, lighter comfort terms). With the environment's default
+weights the learner traded spacing accuracy for smoothness and ended worse than its base
+on p95 platooning error."""
+
+
 @dataclass(frozen=True)
 class EnvSpec:
     """The fixed part of the training environments.
@@ -170,7 +179,7 @@ class EnvSpec:
     action_low: tuple[float, float] = (0.0, -math.pi / 2)
     action_high: tuple[float, float] = (5.0, math.pi / 2)
     max_time_s: float | None = None
-    reward: RewardConfig = field(default_factory=RewardConfig)
+    reward: RewardConfig = field(default_factory=lambda: TRAIN_REWARD)
 
     def __post_init__(self) -> None:
         for name in ("action_low", "action_high", "residual_scale"):

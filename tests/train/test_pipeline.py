@@ -1,0 +1,258 @@
+"""The whole learned-policy path: a short training run, its files, ``sim`` and a deployed
+vehicle running them, the export matching SB3's ``predict``, layout checks.
+
+The runs are tiny (a few thousand steps): these tests check the plumbing and the numbers
+that must hold for any trained network, not the quality of the follower.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from openconvoy.cli import main
+from openconvoy.core.member import MemberConfig
+from openconvoy.policies import load_policy
+from openconvoy.policies.learned import load_learned, read_zip_meta
+from openconvoy.policies.presets import PRESETS
+from openconvoy.train.config import TrainConfig, load_train_config
+from openconvoy.train.export import export_policy, sample_observations
+
+STEPS = 2048
+
+
+@pytest.fixture(scope="module")
+def ppo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = tmp_path_factory.mktemp("train") / "run"
+    code = main([
+        "train", "--steps", str(STEPS), "--out", str(run), "--envs", "2", "--seed", "3",
+        "--per-range", "0.1", "0.4", "--no-progress",
+    ])
+    assert code == 0
+    return run
+
+
+@pytest.fixture(scope="module")
+def ppo_npz(ppo_run: Path) -> Path:
+    out = ppo_run / "policy.npz"
+    assert main(["export", str(ppo_run), "--out", str(out)]) == 0
+    return out
+
+
+def test_training_writes_a_complete_run_directory(ppo_run: Path) -> None:
+    for name in ("config.toml", "policy.zip", "policy.json", "vecnormalize.pkl", "train.json"):
+        assert (ppo_run / name).is_file(), name
+    assert list((ppo_run / "tb").rglob("events.out.tfevents.*")), "no TensorBoard events"
+    summary = json.loads((ppo_run / "train.json").read_text())
+    # SB3 rounds up to whole rollouts: 2 envs x 2 followers x n_steps 256 = 1024 per rollout.
+    assert summary["steps"] == 2048 and summary["n_slots"] == 4
+    config = load_train_config(ppo_run / "config.toml")
+    assert config.total_steps == STEPS and config.seed == 3 and config.n_envs == 2
+    assert config.randomization.per_range == (0.1, 0.4)
+    # What the policy records: layout, member config, rate, normalization, its residual base.
+    meta = read_zip_meta(ppo_run / "policy.zip")
+    assert meta.layout == PRESETS["paper"].member.layout.describe()
+    assert meta.member_config == PRESETS["paper"].member
+    assert meta.control_rate_hz == 20.0
+    assert meta.base is not None and meta.base.speed == PRESETS["paper"].speed
+    assert meta.obs_mean is not None and meta.obs_mean.shape == (meta.layout["size"],)
+    assert np.all(meta.obs_var > 0)
+    assert json.loads((ppo_run / "policy.json").read_text())["layout"] == meta.layout
+
+
+def test_a_run_config_reproduces_the_run(ppo_run: Path, tmp_path: Path) -> None:
+    """The same config.toml gives the same network (seeded end to end)."""
+    again = tmp_path / "again"
+    assert main(["train", "--config", str(ppo_run / "config.toml"), "--out", str(again), "--no-progress"]) == 0
+    a, b = load_learned(ppo_run / "policy.zip"), load_learned(again / "policy.zip")
+    np.testing.assert_array_equal(a.meta.obs_mean, b.meta.obs_mean)
+    obs = sample_observations(a, n=50)
+    np.testing.assert_array_equal([a.act(o) for o in obs], [b.act(o) for o in obs])
+
+
+def test_export_matches_sb3_predict(ppo_run: Path, ppo_npz: Path) -> None:
+    """The .npz against SB3 itself: VecNormalize's own normalization, ``predict``
+    (deterministic), then the recorded action mapping; within 1e-5 in SI units."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    model = PPO.load(str(ppo_run / "policy.zip"), device="cpu")
+    vecnorm = VecNormalize.load(str(ppo_run / "vecnormalize.pkl"), venv=_DummyVenv(model))
+    npz = load_learned(ppo_npz)
+    obs = sample_observations(npz, n=300, per=0.5)
+    rng = np.random.default_rng(0)
+    # Also observations far from the training data (clipping paths).
+    wide = (npz.meta.obs_mean + rng.normal(scale=3.0, size=(100, obs.shape[1])) * np.sqrt(npz.meta.obs_var))
+    obs = np.concatenate([obs, wide.astype(np.float32)])
+    base = npz.meta.make_base()
+    worst = 0.0
+    for o in obs:
+        a, _ = model.predict(vecnorm.normalize_obs(o), deterministic=True)
+        reference = npz.meta.to_si(a, base.act(o))
+        worst = max(worst, float(np.max(np.abs(npz.act(o) - reference))))
+    assert worst <= 1e-5
+    # The exported network is not trivially constant: the actions vary with the input.
+    assert np.ptp([npz.normalized_action(o)[0] for o in obs]) > 1e-3
+
+
+class _DummyVenv:
+    """The spaces VecNormalize.load needs, without building environments."""
+
+    def __init__(self, model) -> None:
+        self.observation_space = model.observation_space
+        self.action_space = model.action_space
+        self.num_envs = 1
+        self.render_mode = None
+
+    def get_attr(self, name, indices=None):
+        return [None]
+
+
+def test_sac_export_matches_sb3_predict(tmp_path: Path) -> None:
+    """SAC's actor (tanh-squashed mean) exports too."""
+    from stable_baselines3 import SAC
+
+    run = tmp_path / "sac"
+    cfg = tmp_path / "sac.toml"
+    cfg.write_text("algo = \"sac\"\ntotal_steps = 400\nn_envs = 1\ncheckpoint_every = 0\n"
+                   "[sac]\nlearning_starts = 100\nbatch_size = 32\nnet_arch = [32, 32]\n")
+    assert main(["train", "--config", str(cfg), "--out", str(run), "--no-progress"]) == 0
+    npz = load_learned(export_policy(run, tmp_path / "sac.npz"))
+    model = SAC.load(str(run / "policy.zip"), device="cpu")
+    assert npz.meta.algo == "sac"
+    obs = sample_observations(npz, n=200)
+    worst = max(
+        float(np.max(np.abs(npz.normalized_action(o) - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0])))
+        for o in obs
+    )
+    assert worst <= 1e-5
+
+
+@pytest.mark.parametrize("artifact", ["policy.zip", "policy.npz"])
+def test_sim_runs_the_trained_policy(ppo_run: Path, ppo_npz: Path, artifact: str, tmp_path: Path) -> None:
+    out = tmp_path / "sim"
+    code = main(["sim", "--policy", str(ppo_run / artifact), "--per", "0.3", "--duration", "8",
+                 "--out", str(out), "--quiet", "--no-plots"])
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["collisions"] == 0
+    assert 0.0 <= metrics["p95_platooning_error_m"] < 5.0
+    assert math.isclose(metrics["duration_s"], 8.0, abs_tol=0.06)
+
+
+def test_zip_and_npz_drive_the_same_sim(ppo_run: Path, ppo_npz: Path, tmp_path: Path) -> None:
+    from openconvoy.experiments.runs import RunConfig, run_sim
+
+    runs = [run_sim(RunConfig(policy=str(ppo_run / f), per=0.3, seed=1, duration_s=6.0)) for f in ("policy.zip", "policy.npz")]
+    np.testing.assert_allclose(runs[0].log["x_m"], runs[1].log["x_m"], atol=1e-4)
+    np.testing.assert_allclose(runs[0].log["speed_mps"], runs[1].log["speed_mps"], atol=1e-4)
+
+
+def test_layout_mismatch_is_refused_for_a_trained_zip(ppo_run: Path) -> None:
+    with pytest.raises(ValueError, match=r"policy.zip: policy was trained for another observation layout \(M 2 vs 1"):
+        load_learned(ppo_run / "policy.zip", member_config=MemberConfig(M=1))
+
+
+def test_layout_choice_reaches_the_trained_policy(tmp_path: Path) -> None:
+    """``--M``/``--k`` train for another layout; that policy records and enforces it."""
+    run = tmp_path / "m3"
+    assert main(["train", "--steps", "512", "--envs", "1", "--M", "3", "--k", "2", "--out", str(run), "--no-progress"]) == 0
+    policy = load_policy(str(run / "policy.zip"))
+    assert policy.meta.layout == {"version": 1, "M": 3, "k": 2, "size": MemberConfig(M=3, k=2).layout.size}
+    with pytest.raises(ValueError, match="M 3 vs 2"):
+        load_learned(run / "policy.zip", member_config=PRESETS["paper"].member)
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_deploy_runs_the_exported_policy_on_a_simulated_vehicle(ppo_npz: Path, tmp_path: Path) -> None:
+    """A leader (paper scenario) and a follower driven by the .npz: real MAVLink to
+    simulated vehicles, V2V on an in-process bus, the deploy runner's real-time loop."""
+    from openconvoy.bridge.localv2v import LocalBus, LocalV2V
+    from openconvoy.bridge.mavlink import MavlinkLink
+    from openconvoy.bridge.runner import DeployRunner, RunnerOptions
+    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+    from openconvoy.comms.geodesy import Origin
+    from openconvoy.convoy import ConvoyConfig
+    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    names = ("1/10", "1/6")
+    convoy = ConvoyConfig(name="learned", vehicles=names)
+    origin = Origin(*convoy.origin)
+    presets = [vehicle_preset(v) for v in names]
+    scenario = make_scenario("paper", presets=presets)
+    init = scenario.initial_state()
+    policies = [load_policy("paper"), load_policy(str(ppo_npz))]
+    bus = LocalBus()
+    vehicles, runners, results = [], [], {}
+    try:
+        for i in range(2):
+            port = _free_port()
+            vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(
+                system_id=i + 1, preset=presets[i], home=origin, start_x_m=float(init.x[i]),
+                start_y_m=float(init.y[i]), start_heading_rad=float(init.heading[i]), ready_after_s=0.0,
+            )).start()
+            vehicles.append(vehicle)
+            link = MavlinkLink(f"udpout:127.0.0.1:{port}", origin, vehicle_id=i,
+                               length_m=presets[i].length_m, on_status=lambda line: None)
+            runners.append(DeployRunner(
+                RunnerOptions(vehicle_id=i, rate_hz=policies[i].control_rate_hz, duration_s=4.0,
+                              status_period_s=0.0, connect_timeout_s=5.0, arm_timeout_s=10.0),
+                convoy, policies[i], link, LocalV2V(bus), leader=scenario if i == 0 else None,
+                lengths=[p.length_m for p in presets], log_dir=tmp_path / "deploy",
+                on_status=lambda line: None,
+            ))
+        threads = [threading.Thread(target=lambda i=i: results.__setitem__(i, runners[i].run()), daemon=True)
+                   for i in range(2)]
+        for t in threads:
+            t.start()
+        deadline = time.monotonic() + 30.0
+        while 0 not in results and time.monotonic() < deadline:
+            time.sleep(0.1)
+        for r in runners:
+            r.request_stop("test over")
+        for t in threads:
+            t.join(10.0)
+    finally:
+        for v in vehicles:
+            v.stop()
+    follower = results[1]
+    assert follower.policy_errors == 0
+    assert follower.ticks > 40
+    from openconvoy.logs import read_log
+
+    log = read_log(tmp_path / "deploy" / "vehicle_1.csv")
+    coop = np.asarray(log["mode"]) == "coop"
+    assert coop.sum() > 20
+    # The follower moved under the learned policy's commands, behind the leader.
+    assert np.nanmax(np.asarray(log["cmd_speed_mps"], dtype=float)[coop]) > 0.3
+    assert np.nanmax(np.asarray(log["speed_mps"], dtype=float)) > 0.2
+    gaps = np.asarray(log["gap_m"], dtype=float)
+    assert np.nanmin(gaps) > 5.0
+
+
+def test_train_config_rejects_unknown_keys(tmp_path: Path) -> None:
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("total_steps = 10\n[randomization]\nper_rnage = [0, 0.5]\n")
+    with pytest.raises(ValueError, match="unknown key.*per_rnage"):
+        load_train_config(cfg)
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 2
+
+
+def test_default_config_is_residual_on_the_paper_controller() -> None:
+    config = TrainConfig()
+    assert config.env.base_policy == "paper"
+    assert config.env.member_config == PRESETS["paper"].member
+    assert config.randomization.per_range == (0.0, 0.6)

@@ -307,11 +307,13 @@ class Receiver:
         ]
         if missing:
             return self._malformed(source, f"BSM of vehicle {sender} lacks {', '.join(missing)}")
+        # Heard over J2735 (before emulated loss: the radio did deliver it), so this
+        # vehicle's compat twins are duplicates, whatever the loss model decides here.
+        self._last_j2735[sender] = t_rx
         if self._lost(sender, t_rx):
             return None
         t_send = reconstruct_send_time(core.sec_mark, t_rx, self.time_tolerance_s)
         state = core_to_state(core, self.origin, sender, t_send)
-        self._last_j2735[sender] = t_rx
         self.counters.received += 1
         return Received(state, t_rx, False, "j2735", sender, core.temp_id, core.msg_cnt)
 

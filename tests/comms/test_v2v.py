@@ -352,3 +352,17 @@ def test_sender_counts_into_shared_counters():
     s = Sender(IDS, ORIGIN, 1, counters=c, compat_enabled=True)
     frame, twin = s.datagrams(_state(1, 3.0), 3.0)
     assert frame[:2] == b"\x00\x14" and compat.decode(twin).car == 1
+
+
+def test_compat_twins_do_not_undo_emulated_loss():
+    bus, bus4 = MemoryBus(), MemoryBus()
+    tx = _link(bus, 0, bus4)
+    rx = _link(bus, 1, bus4, loss=LossConfig(per=0.5), rng=np.random.default_rng(4))
+    for k in range(1000):
+        t = 0.1 * k
+        tx.send(_state(0, t), t)
+        rx.poll(t + 0.01)
+    c = rx.counters
+    # every twin is a duplicate; the J2735 copies alone meet the loss model
+    assert c.duplicates == 1000 and c.received + c.lost == 1000
+    assert abs(c.received / 1000 - 0.5) < 2.576 * (0.25 / 1000) ** 0.5

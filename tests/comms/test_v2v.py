@@ -366,3 +366,15 @@ def test_compat_twins_do_not_undo_emulated_loss():
     # every twin is a duplicate; the J2735 copies alone meet the loss model
     assert c.duplicates == 1000 and c.received + c.lost == 1000
     assert abs(c.received / 1000 - 0.5) < 2.576 * (0.25 / 1000) ** 0.5
+
+
+def test_link_config_from_the_convoy_config():
+    from openconvoy.convoy import V2VConfig
+
+    cfg = LinkConfig.from_v2v(V2VConfig(group="ff15::1234", port=4300, compat=True), "wlan0")
+    assert (cfg.iface, cfg.group, cfg.port, cfg.hop_limit, cfg.compat) == (
+        "wlan0", "ff15::1234", 4300, 1, True
+    )  # fmt: skip
+    assert (cfg.compat_group, cfg.compat_port, cfg.compat_ttl) == ("224.0.0.1", 5004, 1)
+    # the convoy config's defaults are the transport's
+    assert LinkConfig.from_v2v(V2VConfig(), "x") == LinkConfig("x")

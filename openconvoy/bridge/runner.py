@@ -434,7 +434,8 @@ class DeployRunner:
             return verdict.reason
         if self._t_start is not None:
             limit = self._duration()
-            if limit is not None and now - self._t_start >= limit:
+            # Half a period of slack: tick times are sums of floats.
+            if limit is not None and now - self._t_start >= limit - 0.5 / o.rate_hz:
                 return "duration reached"
         return ""
 

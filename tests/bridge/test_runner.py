@@ -1,0 +1,262 @@
+"""The deploy runner's loop with an injected clock and a scripted vehicle link."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from openconvoy.bridge.link import Telemetry
+from openconvoy.bridge.localv2v import LocalBus, LocalV2V
+from openconvoy.bridge.runner import EXTRA_COLUMNS, DeployRunner, RunnerOptions
+from openconvoy.comms.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+from openconvoy.convoy import ConvoyConfig, SafetyConfig
+from openconvoy.core.policy import make_action
+from openconvoy.core.state import VehicleState
+from openconvoy.envs.scenarios import make_scenario
+from openconvoy.logs import COLUMNS, read_log
+from openconvoy.policies import ClassicalPolicy, load_policy
+
+WALL0 = 1.7e9
+
+
+class FakeClock:
+    """Monotonic time that only moves when somebody sleeps (or ``advance``s)."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, dt: float) -> None:
+        self.t += max(dt, 0.0)
+
+    def wall(self) -> float:
+        return WALL0 + self.t
+
+
+class FakeLink:
+    """A vehicle that is wherever the test says, kinematically integrating setpoints."""
+
+    autopilot = "ardupilot"
+    telemetry_timeout_s = 0.5
+    heartbeat_timeout_s = 3.0
+
+    def __init__(self, clock: FakeClock, origin: Origin, vehicle_id: int, x: float, y: float,
+                 heading: float = 0.0, move: bool = True) -> None:
+        self.clock, self.origin, self.vehicle_id = clock, origin, vehicle_id
+        self.x, self.y, self.heading, self.speed = x, y, heading, 0.0
+        self.move = move
+        self.sent: list[tuple[float, float, float]] = []
+        self.armed = False
+        self.holds = 0
+        self.pilot_took_over = False
+        self.lost = False
+        self._t = clock()
+
+    def connect(self, timeout_s: float) -> None:
+        pass
+
+    def poll(self) -> Telemetry:
+        now = self.clock()
+        if self.move:
+            dt = now - self._t
+            self.x += self.speed * math.cos(self.heading) * dt
+            self.y += self.speed * math.sin(self.heading) * dt
+        self._t = now
+        lat, lon, _ = enu_to_geodetic(self.origin, self.x, self.y)
+        st = VehicleState(self.vehicle_id, self.clock.wall(), self.x, self.y, self.speed, self.heading)
+        return Telemetry(st, lat, lon, "GUIDED", self.armed, now, now)
+
+    def prepare_and_arm(self, timeout_s: float, on_status=None) -> None:
+        self.armed = True
+
+    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+        self.sent.append((self.clock(), speed_mps, heading_rad))
+        self.speed, self.heading = speed_mps, heading_rad  # an ideal autopilot
+        return True
+
+    def stop_motion(self) -> bool:
+        return self.send_setpoint(0.0, self.heading)
+
+    def hold(self, timeout_s: float = 2.0) -> None:
+        self.holds += 1
+
+    def reconnect(self, timeout_s: float) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class FixedPolicy:
+    """Always the same action; counts calls; optionally burns clock time on one call."""
+
+    def __init__(self, speed: float, change: float, clock: FakeClock | None = None,
+                 slow_call: int = -1, slow_s: float = 0.0) -> None:
+        self.action = make_action(speed, change)
+        self.member_config = load_policy("paper").member_config
+        self.control_rate_hz = 20.0
+        self.calls = 0
+        self.clock, self.slow_call, self.slow_s = clock, slow_call, slow_s
+
+    def reset(self, seed=None) -> None:
+        pass
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        if self.calls == self.slow_call and self.clock is not None:
+            self.clock.t += self.slow_s
+        return self.action
+
+
+def follower_setup(tmp_path, policy, rate_hz=20.0, duration_s=2.0, safety=None):
+    clock = FakeClock()
+    convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"), safety=safety or SafetyConfig())
+    origin = Origin(*convoy.origin)
+    bus = LocalBus()
+    leader = LocalV2V(bus)
+    link = FakeLink(clock, origin, 1, x=-15.0, y=0.0, move=False)
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=1, rate_hz=rate_hz, duration_s=duration_s, status_period_s=0),
+        convoy, policy, link, LocalV2V(bus), clock=clock, sleep=clock.sleep,
+        wall_clock=clock.wall, log_dir=tmp_path, on_status=lambda line: None,
+    )
+    # The leader is heard once, just now (fresh enough for a 2 s run).
+    leader.send(VehicleState(0, clock.wall(), 0.0, 0.0, 1.0, 0.0), clock.wall())
+    return clock, link, runner
+
+
+def test_fixed_rate_absolute_yaw_and_log(tmp_path):
+    policy = FixedPolicy(1.0, 0.3)
+    clock, link, runner = follower_setup(tmp_path, policy)
+    result = runner.run()
+    assert result.exit_code == 0 and result.reason == "duration reached"
+    assert result.ticks == 41 and result.overruns == 0  # 2 s at 20 Hz, both ends
+    t = np.array([s[0] for s in link.sent])
+    drive = link.sent[1:-1]  # the first is the stand-still after arming, the last the exit stop
+    assert np.allclose(np.diff(t[1:-1]), 0.05)
+    assert all(s[1] == pytest.approx(1.0) for s in drive)
+    # absolute yaw = current heading + heading change (the ideal vehicle turns at once)
+    headings = [s[2] for s in drive]
+    assert headings[0] == pytest.approx(0.3)
+    assert headings[1] == pytest.approx(0.6)
+    assert link.holds == 1  # HOLD at the end of the run
+    log = read_log(tmp_path / "vehicle_1.csv")
+    assert len(log["t_s"]) == 41
+    assert set(log["mode"].tolist()) == {"coop"}
+    assert np.allclose(np.diff(log["t_s"]), 0.05)
+    with open(tmp_path / "vehicle_1.csv") as f:
+        assert tuple(f.readline().strip().split(",")) == COLUMNS + EXTRA_COLUMNS
+    meta = json.loads((tmp_path / "vehicle_1.json").read_text())
+    assert meta["rate_hz"] == 20.0 and meta["ticks"] == 41 and meta["overruns"] == 0
+    assert meta["v2v"]["drop_at"] == "receiver"
+    assert meta["t_start_s"] == pytest.approx(WALL0 + 100.0)
+
+
+def test_fifty_hertz(tmp_path):
+    clock, link, runner = follower_setup(tmp_path, FixedPolicy(1.0, 0.0), rate_hz=50.0, duration_s=1.0)
+    assert runner.run().ticks == 51
+    assert np.allclose(np.diff([s[0] for s in link.sent[1:-1]]), 0.02)
+
+
+def test_speed_cap_holds_whatever_the_policy_says(tmp_path):
+    clock, link, runner = follower_setup(
+        tmp_path, FixedPolicy(4.5, 0.0), safety=SafetyConfig(speed_cap_mps=2.0))
+    runner.run()
+    speeds = [s[1] for s in link.sent[1:-1]]
+    assert speeds and max(speeds) == pytest.approx(2.0)
+    log = read_log(tmp_path / "vehicle_1.csv")
+    assert np.nanmax(log["cmd_speed_mps"]) == pytest.approx(2.0)
+
+
+def test_overruns_are_counted_and_the_loop_goes_on(tmp_path):
+    clock = None
+    policy = FixedPolicy(1.0, 0.0, slow_call=10, slow_s=0.17)
+    clock, link, runner = follower_setup(tmp_path, policy)
+    policy.clock = clock
+    result = runner.run()
+    assert result.overruns == 1
+    assert result.reason == "duration reached"
+    assert json.loads((tmp_path / "vehicle_1.json").read_text())["overruns"] == 1
+    assert read_log(tmp_path / "vehicle_1.csv")["t_s"].size == result.ticks
+
+
+def test_the_policy_object_is_used_as_given(tmp_path):
+    policy = load_policy("paper")
+    assert type(policy) is ClassicalPolicy  # the type `sim` uses
+    clock, link, runner = follower_setup(tmp_path, policy)
+    assert runner.policy is policy
+    runner.run()
+    # Standing 15 m behind a leader heard at 1 m/s: PD (0.3, 1.1) on zero spacing error,
+    # 1 m/s feed-forward plus 1.1 x the 1 m/s speed difference.
+    assert link.sent[1][1] == pytest.approx(2.1, abs=0.05)
+
+
+def leader_setup(tmp_path, scenario_spec: str, convoy_origin: tuple[float, float, float],
+                 start_xy: tuple[float, float] | None = None):
+    clock = FakeClock()
+    convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"), origin=convoy_origin)
+    origin = Origin(*convoy.origin)
+    scenario = make_scenario(scenario_spec, n_followers=1)
+    init = scenario.initial_state()
+    x, y = float(init.x[0]), float(init.y[0])
+    leader_origin = None
+    if scenario_spec.startswith("track-file:"):
+        leader_origin = scenario.origin
+        lat, lon, _ = enu_to_geodetic(scenario.origin, x, y)
+        x, y, _ = geodetic_to_enu(origin, lat, lon)  # the same spot in the convoy's frame
+    link = FakeLink(clock, origin, 0, x=float(x), y=float(y), heading=float(init.heading[0]))
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=0, duration_s=3.0, status_period_s=0, leader_waits_for_convoy=False),
+        convoy, load_policy("paper"), link, LocalV2V(LocalBus()), leader=scenario,
+        leader_origin=leader_origin, clock=clock, sleep=clock.sleep, wall_clock=clock.wall,
+        log_dir=tmp_path, on_status=lambda line: None,
+    )
+    return link, runner
+
+
+def test_leader_follows_the_paper_scenario(tmp_path):
+    link, runner = leader_setup(tmp_path, "paper", ConvoyConfig().origin)
+    runner.run()
+    drive = link.sent[1:-1]
+    speeds = np.array([s[1] for s in drive])
+    assert np.all(np.diff(speeds) <= 1.0 * 0.05 + 1e-9)  # ramped at the leader's accel limit
+    assert speeds[-1] == pytest.approx(1.0)
+    assert max(abs(s[2]) for s in drive) < 0.01  # straight east
+
+
+def test_track_file_leader_steers_in_the_tracks_own_frame(tmp_path):
+    # The convoy origin is ~5.6 m south of the track's centre: without converting through
+    # lat/lon the leader would believe it is off its path and steer hard.
+    convoy_origin = (28.60230, -81.2001, 0.0)
+    link, runner = leader_setup(tmp_path, "track-file:example", convoy_origin)
+    runner.run()
+    drive = link.sent[1:-1]
+    assert max(abs(s[2]) for s in drive) < 0.05  # along the first straight, east
+    assert drive[-1][1] == pytest.approx(1.5, abs=0.3)
+
+
+def test_passive_leader_broadcasts_but_commands_nothing(tmp_path):
+    clock = FakeClock()
+    convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
+    bus = LocalBus()
+    ear = LocalV2V(bus)
+    link = FakeLink(clock, Origin(*convoy.origin), 0, x=0.0, y=0.0)
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=0, passive=True, duration_s=1.0, status_period_s=0),
+        convoy, load_policy("paper"), link, LocalV2V(bus), clock=clock, sleep=clock.sleep,
+        wall_clock=clock.wall, log_dir=tmp_path, on_status=lambda line: None,
+    )
+    assert runner.run().reason == "duration reached"
+    assert link.sent == [] and not link.armed and link.holds == 0
+    heard = ear.poll(clock.wall())
+    assert len(heard) == 11 and all(m.state.vehicle_id == 0 for m in heard)  # 10 Hz for 1 s
+
+
+def test_passive_is_for_the_leader_only():
+    with pytest.raises(ValueError, match="passive"):
+        RunnerOptions(vehicle_id=1, passive=True)

@@ -147,6 +147,7 @@ class SimVehicle:
         self._t_boot = 0.0
         self._t_plant = 0.0
         self._t_heartbeat = -math.inf
+        self._heard_peer = False
 
     # ----------------------------------------------------------------- lifecycle
 
@@ -316,6 +317,11 @@ class SimVehicle:
             if msg is None:
                 return
             kind = msg.get_type()
+            if not self._heard_peer:
+                # A listening (udpin/tcpin) vehicle can only answer once it heard someone:
+                # send the first heartbeat now rather than up to 1 s later.
+                self._heard_peer = True
+                self._t_heartbeat = -math.inf
             if kind == "COMMAND_LONG":
                 if msg.target_system in (0, self.config.system_id):
                     self._on_command(msg)

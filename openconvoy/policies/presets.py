@@ -4,6 +4,10 @@ Each preset is a combination of spacing policy, topology, trigger and controller
 the surveyed work used a model-predictive controller, the description says so and the
 preset uses the closest classical controllers (PD speed on the spacing error with the
 predecessor's speed as feed-forward, Stanley steering) until an MPC exists here.
+
+``paper`` keeps the original implementation's 5 m/s speed limit; the surveyed presets allow
+40 m/s so they also drive the full-size ``emergency-braking`` scenario (a vehicle's own
+limits — the plant's, the autopilot's WP_SPEED, deploy's speed cap — still apply).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ def _preset(
     trigger: TriggerConfig,
     spacing: SpacingConfig,
     rear_weight: float = 0.0,
+    speed_limit_mps: float = 40.0,
 ) -> ClassicalConfig:
     return ClassicalConfig(
         rear_weight=rear_weight,
@@ -40,7 +45,7 @@ def _preset(
         member=MemberConfig(topology=topology, trigger=trigger, spacing=spacing),
         speed=PD,
         heading=STANLEY,
-        speed_limit_mps=5.0,
+        speed_limit_mps=speed_limit_mps,
         control_rate_hz=20.0,
     )
 
@@ -53,7 +58,7 @@ PRESETS: dict[str, ClassicalConfig] = {
         _preset(
             "paper",
             "OpenConvoy paper: all-predecessor IFT, 0.1 s broadcast, 15 m path-based spacing, PD (0.3, 1.1), Stanley 0.2, 5 m/s, 20 Hz",
-            "all-predecessors", PERIODIC, CONSTANT_DISTANCE,
+            "all-predecessors", PERIODIC, CONSTANT_DISTANCE, speed_limit_mps=5.0,
         ),
         _preset("platoon-allpred", "constant-distance platooning, all-predecessors, time-triggered" + _MPC, "all-predecessors", PERIODIC, CONSTANT_DISTANCE),
         _preset("platoon-allpred-event", "constant-distance platooning, all-predecessors, event-triggered" + _MPC, "all-predecessors", EVENT, CONSTANT_DISTANCE),

@@ -16,7 +16,9 @@ Each tick, at a fixed rate (20 Hz by default; clock and sleep injected):
 
 Followers wait, armed and still (speed 0, yaw = current heading), until they hear the leader
 and the predecessors their topology keeps; a scenario-driven leader waits until it has heard
-every member, so the convoy starts moving together as it does in simulation.
+every member, so the convoy starts moving together as it does in simulation. When its
+scenario is over the leader brakes to rest, still broadcasting (its followers see it stop
+and stop behind it), then holds and ends.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ EXTRA_COLUMNS = ("length_m", "loop_overruns")
 failsafe fired goes to the metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
+FINISH_TIMEOUT_S = 10.0
+"""Longest a leader brakes after its scenario before ending the run anyway (s)."""
 
 
 class V2VEndpoint(Protocol):
@@ -240,6 +244,7 @@ class DeployRunner:
         self._tel: Telemetry | None = None
         self._t_start: float | None = None  # monotonic time the convoy started moving
         self._t_start_wall: float | None = None
+        self._t_finish: float | None = None  # monotonic time a leader's scenario ended
         self._heard_raw: set[int] = set()
         self._writer: LogWriter | None = None
         self._timer: LoopTimer | None = None
@@ -368,6 +373,10 @@ class DeployRunner:
         if waiting:
             speed, change = 0.0, 0.0
             reason = f"waiting for vehicle(s) {', '.join(map(str, waiting))}"
+        elif self.is_leader and self._t_finish is not None:
+            # Scenario over: brake to a stop while still broadcasting, so the followers
+            # see their leader stop and stop behind it.
+            speed, change, mode, reason = 0.0, 0.0, "stop", "scenario over"
         elif self.is_leader:
             speed, change, mode = self._leader_command(tel, own, now)
             reason = ""
@@ -436,8 +445,17 @@ class DeployRunner:
             limit = self._duration()
             # Half a period of slack: tick times are sums of floats.
             if limit is not None and now - self._t_start >= limit - 0.5 / o.rate_hz:
-                return "duration reached"
+                if not self._brakes_at_end():
+                    return "duration reached"
+                if self._t_finish is None:
+                    self._t_finish = now
+                elif abs(own.speed) < 0.05 or now - self._t_finish > FINISH_TIMEOUT_S:
+                    return "duration reached"
         return ""
+
+    def _brakes_at_end(self) -> bool:
+        """A scenario-driven leader brakes to rest before ending; others end at once."""
+        return self.is_leader and self.commanding and self.leader is not None
 
     # ------------------------------------------------------------------ helpers
 

@@ -222,11 +222,14 @@ def leader_setup(tmp_path, scenario_spec: str, convoy_origin: tuple[float, float
 def test_leader_follows_the_paper_scenario(tmp_path):
     link, runner = leader_setup(tmp_path, "paper", ConvoyConfig().origin)
     runner.run()
-    drive = link.sent[1:-1]
+    t_end = runner._t_finish
+    assert t_end is not None  # scenario over: the leader brakes, broadcasting, then ends
+    drive = [s for s in link.sent[1:] if s[0] < t_end]
     speeds = np.array([s[1] for s in drive])
     assert np.all(np.diff(speeds) <= 1.0 * 0.05 + 1e-9)  # ramped at the leader's accel limit
     assert speeds[-1] == pytest.approx(1.0)
     assert max(abs(s[2]) for s in drive) < 0.01  # straight east
+    assert all(s[1] == 0.0 for s in link.sent if s[0] > t_end)
 
 
 def test_track_file_leader_steers_in_the_tracks_own_frame(tmp_path):
@@ -235,7 +238,7 @@ def test_track_file_leader_steers_in_the_tracks_own_frame(tmp_path):
     convoy_origin = (28.60230, -81.2001, 0.0)
     link, runner = leader_setup(tmp_path, "track-file:example", convoy_origin)
     runner.run()
-    drive = link.sent[1:-1]
+    drive = [s for s in link.sent[1:] if s[0] < runner._t_finish]
     assert max(abs(s[2]) for s in drive) < 0.05  # along the first straight, east
     assert drive[-1][1] == pytest.approx(1.5, abs=0.3)
 

@@ -175,6 +175,11 @@ def run_inside(opts: DemoOptions) -> int:
     procs: list[subprocess.Popen] = []
     logs: list[Any] = []
     code = 1
+
+    def on_term(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt  # SIGTERM cleans up like Ctrl-C: no orphaned deploys
+
+    signal.signal(signal.SIGTERM, on_term)
     try:
         urls = []
         for i, p in enumerate(presets):
@@ -201,6 +206,9 @@ def run_inside(opts: DemoOptions) -> int:
             procs.append(subprocess.Popen(cmd, stdout=err, stderr=subprocess.STDOUT))
         code = _watch(procs, vehicles, duration)
     except KeyboardInterrupt:
+        # Further Ctrl-C / SIGTERM must not cut the cleanup short.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         _say("interrupted: stopping the convoy")
         code = 130
     finally:
@@ -209,6 +217,8 @@ def run_inside(opts: DemoOptions) -> int:
             v.stop()
         for f in logs:
             f.close()
+    if code == 130:
+        return code
     if code != 0:
         for i in range(len(procs)):
             tail = (out / f"deploy_{i}.txt").read_text(errors="replace").splitlines()[-8:]

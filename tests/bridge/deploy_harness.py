@@ -8,6 +8,7 @@ V2V goes through an in-process ``LocalBus`` (multicast is exercised by the names
 from __future__ import annotations
 
 import dataclasses
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -36,6 +37,7 @@ class RecordingLink:
         self._link = link
         self.sent: list[tuple[float, float, float]] = []
         self.holds: list[float] = []
+        self.reconnects: list[float] = []
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._link, name)
@@ -56,6 +58,10 @@ class RecordingLink:
     def hold(self, timeout_s: float = 2.0) -> None:
         self.holds.append(time.monotonic())
         self._link.hold(timeout_s)
+
+    def reconnect(self, timeout_s: float) -> None:
+        self.reconnects.append(time.monotonic())
+        self._link.reconnect(timeout_s)
 
     def after(self, t: float) -> list[tuple[float, float, float]]:
         return [s for s in self.sent if s[0] > t]
@@ -134,6 +140,7 @@ def make_convoy(
     vehicle_config: dict[str, Any] | None = None,
     start: bool = True,
     policies: dict[int, Any] | None = None,
+    tcp: bool = False,
 ) -> Convoy:
     """``n`` cars at the paper scenario's initial positions; started unless ``start`` is False."""
     names = ("1/10", "1/6", "1/10", "1/6")[:n]
@@ -146,16 +153,16 @@ def make_convoy(
     log_dir = tmp_path / "run"
     cars = []
     for i in range(n):
-        port = free_port()
+        port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
         cfg = SimVehicleConfig(
             system_id=i + 1, autopilot=autopilot, preset=presets[i], home=origin,
             start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
             start_heading_rad=float(init.heading[i]), ready_after_s=0.0,
             **(vehicle_config or {}),
         )
-        vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start()
+        vehicle = SimVehicle(f"{'tcpin' if tcp else 'udpin'}:127.0.0.1:{port}", cfg).start()
         link = RecordingLink(MavlinkLink(
-            f"udpout:127.0.0.1:{port}", origin, vehicle_id=i, length_m=presets[i].length_m,
+            f"{'tcp' if tcp else 'udpout'}:127.0.0.1:{port}", origin, vehicle_id=i, length_m=presets[i].length_m,
             on_status=lambda line: None,
         ))
         v2v = LocalV2V(bus)

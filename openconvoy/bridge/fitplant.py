@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -41,15 +43,19 @@ class PlantFit:
         speed_rms_mps: RMS error of the replayed speed against the log.
         heading_rms_rad: RMS error of the replayed heading against the log.
         samples: log rows used.
-        speed_limits_hit: whether the replay hit the acceleration / deceleration limits
-            at all (if not, those limits are only lower bounds).
+        limits_hit: per limit (``accel_max_mps2``, ``decel_max_mps2``,
+            ``turn_rate_max_radps``), whether the run ever pushed against it; a limit
+            never reached is not measured (the preset keeps the base value or the lower
+            bound the run shows, whichever is higher).
+        cmd_timing: the log's command timing used (see ``CmdTiming``).
     """
 
     preset: VehiclePreset
     speed_rms_mps: float
     heading_rms_rad: float
     samples: int
-    speed_limits_hit: tuple[bool, bool]
+    limits_hit: dict[str, bool]
+    cmd_timing: str
 
 
 def _select_vehicle(log: dict[str, np.ndarray], vehicle_id: int | None) -> np.ndarray:
@@ -66,15 +72,18 @@ def _select_vehicle(log: dict[str, np.ndarray], vehicle_id: int | None) -> np.nd
     return mask
 
 
-def _resample(t: np.ndarray, *series: np.ndarray) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
-    """Fine time grid from t[0] to t[-1]; commands held (zero-order) between rows.
-    Returns (grid, held series, index of each log row on the grid)."""
+def _resample(
+    t: np.ndarray, t_cmd: np.ndarray, *series: np.ndarray
+) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """Fine time grid over the measurement times ``t``; commands (sent at ``t_cmd``) held
+    (zero-order) until the next one. Returns (grid, held series, grid index of each row)."""
     n = int(round((t[-1] - t[0]) / _FINE_DT_S)) + 1
     grid = t[0] + _FINE_DT_S * np.arange(n)
     rows_on_grid = np.clip(np.round((t - t[0]) / _FINE_DT_S).astype(int), 0, n - 1)
-    # Row k's command holds from its own grid point on (indices, not float comparisons).
-    row_of = np.clip(np.searchsorted(rows_on_grid, np.arange(n), side="right") - 1, 0, len(t) - 1)
-    return grid, [s[row_of] for s in series], rows_on_grid
+    cmd_on_grid = np.round((t_cmd - t[0]) / _FINE_DT_S).astype(int)
+    # Command k holds from its own grid point on (indices, not float comparisons).
+    row_of = np.clip(np.searchsorted(cmd_on_grid, np.arange(n), side="right") - 1, 0, len(t_cmd) - 1)
+    return grid, [x[row_of] for x in series], rows_on_grid
 
 
 def _row_targets(n: int, rows: np.ndarray, measured: np.ndarray) -> list[list[float]]:
@@ -98,7 +107,8 @@ def _replay_speed(
         for m in at[i]:
             sse += (v - m) ** 2
             count += 1
-        err = cmd[np.maximum(i - steps, 0)] - v
+        # Before the first logged command has come through, the vehicle holds its speed.
+        err = np.where(i >= steps, cmd[np.maximum(i - steps, 0)], v0) - v
         dv = np.clip(err / tau, -dec, acc) * _FINE_DT_S
         v = v + np.where(np.abs(dv) > np.abs(err), err, dv)  # never overshoot in one step
     return sse / max(count, 1)
@@ -117,7 +127,8 @@ def _replay_heading(
         for m in at[i]:
             sse += ((h - m + math.pi) % (2 * math.pi) - math.pi) ** 2
             count += 1
-        err = (cmd[max(i - delay_steps, 0)] - h + math.pi) % (2 * math.pi) - math.pi
+        target = cmd[i - delay_steps] if i >= delay_steps else h0
+        err = (target - h + math.pi) % (2 * math.pi) - math.pi
         cap = np.minimum(rate_max, abs(speed[i]) * kappa)
         h = h + np.clip(err / tau, -cap, cap) * _FINE_DT_S
     return sse / max(count, 1)
@@ -156,15 +167,34 @@ def _refine(
     return np.where(log_scale, np.exp(best), best), best_cost
 
 
-def fit_plant(
-    log_path: str | Path,
-    base: str | VehiclePreset = "1/10",
-    name: str = "fitted",
-    vehicle_id: int | None = None,
-) -> PlantFit:
-    """Fit speed lag, accel/decel limits, turn-rate limit, heading lag and actuation delay
-    from the log at ``log_path`` (a file or a run directory) for one vehicle."""
-    base_preset = vehicle_preset(base) if isinstance(base, str) else base
+CmdTiming = Literal["auto", "after-state", "before-state"]
+"""How a log row's command relates to its state. ``after-state``: the command was computed
+from the row's state and sent at ``t_s`` (the vehicle runner). ``before-state``: the row's
+command was applied during the tick that led to the row's state, i.e. sent at the previous
+row, relative to the previous row's heading (``ConvoyEnv.log_rows``). ``auto`` picks
+``before-state`` for a ``sim`` run directory (it holds ``run.toml``) and ``after-state``
+otherwise. The two differ by one tick in the fitted delay, and a log alone cannot tell
+them apart (shifting every command by a tick is the same as a tick more delay)."""
+
+
+def _is_sim_run(log_path: str | Path) -> bool:
+    p = Path(log_path)
+    run = (p if p.is_dir() else p.parent) / "run.toml"
+    return run.is_file() and "[run]" in run.read_text(encoding="utf-8", errors="replace")
+
+
+@dataclass
+class _Data:
+    t: np.ndarray  # measurement times (rows)
+    speed: np.ndarray
+    heading: np.ndarray
+    age: np.ndarray
+    t_cmd: np.ndarray  # command times
+    cmd_v: np.ndarray
+    cmd_h: np.ndarray  # absolute heading setpoints
+
+
+def _load(log_path: str | Path, vehicle_id: int | None) -> tuple[np.ndarray, ...]:
     log = read_log(log_path)
     mask = _select_vehicle(log, vehicle_id)
     cols = ("t_s", "speed_mps", "heading_rad", "cmd_speed_mps", "cmd_heading_change_rad")
@@ -174,81 +204,193 @@ def fit_plant(
     age = np.asarray(log.get("telemetry_age_s", np.zeros(len(mask)))[mask], dtype=float)
     age = np.where(np.isfinite(age), np.clip(age, 0.0, 1.0), 0.0)
     ok = np.all(np.isfinite(np.stack([t, speed, heading, cmd_v, cmd_dh])), axis=0)
-    t, speed, heading, cmd_v, cmd_dh, age = (
-        a[ok] for a in (t, speed, heading, cmd_v, cmd_dh, age)
-    )
+    t, speed, heading, cmd_v, cmd_dh, age = (a[ok] for a in (t, speed, heading, cmd_v, cmd_dh, age))
     if len(t) < 50 or t[-1] - t[0] < 5.0:
         raise ValueError(f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)")
     if np.ptp(cmd_v) < 0.2:
         raise ValueError(f"{log_path}: the commanded speed barely changes; drive speed steps to fit")
-    cmd_h = heading + cmd_dh
-    grid, (cmd_v_f, cmd_h_f), rows = _resample(t, cmd_v, cmd_h)
-    speed_f = np.interp(grid, t, speed)
+    return t, speed, heading, cmd_v, cmd_dh, age
 
-    measured_at = np.clip(rows - np.round(age / _FINE_DT_S).astype(int), 0, len(grid) - 1)
-    at_speed = _row_targets(len(grid), measured_at, speed)
-    at_heading = _row_targets(len(grid), measured_at, heading)
 
-    def speed_cost(c: np.ndarray) -> np.ndarray:
-        return _replay_speed(speed[0], cmd_v_f, c[:, 0], c[:, 1], c[:, 2], c[:, 3], at_speed)
+def _align(t, speed, heading, cmd_v, cmd_dh, age, timing: str) -> _Data:
+    if timing == "after-state":
+        return _Data(t, speed, heading, age, t, cmd_v, heading + cmd_dh)
+    return _Data(t, speed, heading, age, t[:-1], cmd_v[1:], heading[:-1] + cmd_dh[1:])
 
-    (delay, tau_v, acc, dec), cost_v = _refine(
-        speed_cost,
-        bounds=[(0.0, 0.5), (0.03, 3.0), (0.1, 15.0), (0.1, 15.0)],
-        log_scale=[False, True, True, True],
-        points=[11, 9, 9, 9],
-        step=[_FINE_DT_S, None, None, None],
+
+_LIFTED = 1e3  # a limit set this high never binds
+
+
+def _fit_speed(
+    d: _Data, lifted: frozenset[int] = frozenset()
+) -> tuple[np.ndarray, float, tuple, Callable[[np.ndarray], np.ndarray]]:
+    """Fit (delay, lag, accel, decel); parameters whose index is in ``lifted`` (2 = accel,
+    3 = decel) are held at a value that never binds."""
+    grid, (cmd_v_f,), rows = _resample(d.t, d.t_cmd, d.cmd_v)
+    measured_at = np.clip(rows - np.round(d.age / _FINE_DT_S).astype(int), 0, len(grid) - 1)
+    at_speed = _row_targets(len(grid), measured_at, d.speed)
+
+    def cost(c: np.ndarray) -> np.ndarray:
+        return _replay_speed(d.speed[0], cmd_v_f, c[:, 0], c[:, 1], c[:, 2], c[:, 3], at_speed)
+
+    free = [i for i in range(4) if i not in lifted]
+    bounds = [(0.0, 0.5), (0.03, 3.0), (0.1, 15.0), (0.1, 15.0)]
+    log_scale = [False, True, True, True]
+    points = [11, 9, 9, 9]
+    step: list[float | None] = [_FINE_DT_S, None, None, None]
+
+    def cost_free(c: np.ndarray) -> np.ndarray:
+        full = np.full((len(c), 4), _LIFTED)
+        full[:, free] = c
+        return cost(full)
+
+    params_free, best = _refine(
+        cost_free, bounds=[bounds[i] for i in free], log_scale=[log_scale[i] for i in free],
+        points=[points[i] for i in free], step=[step[i] for i in free],
     )
+    params = np.full(4, _LIFTED)
+    params[free] = params_free
+    return params, best, (grid, rows, measured_at), cost
+
+
+def fit_plant(
+    log_path: str | Path,
+    base: str | VehiclePreset = "1/10",
+    name: str = "fitted",
+    vehicle_id: int | None = None,
+    cmd_timing: CmdTiming = "auto",
+) -> PlantFit:
+    """Fit speed lag, accel/decel limits, turn-rate limit, heading lag and actuation delay
+    from the log at ``log_path`` (a file or a run directory) for one vehicle.
+
+    A limit the run never reached cannot be measured, only bounded from below: the
+    result then keeps the base preset's value, or the bound if that is higher."""
+    base_preset = vehicle_preset(base) if isinstance(base, str) else base
+    raw = _load(log_path, vehicle_id)
+    timing = cmd_timing
+    if timing == "auto":
+        timing = "before-state" if _is_sim_run(log_path) else "after-state"
+    if timing not in ("after-state", "before-state"):
+        raise ValueError(f"command timing must be auto, after-state or before-state, got {timing!r}")
+    d = _align(*raw, timing)
+    speed_params, cost_v, (grid, rows, measured_at), speed_cost = _fit_speed(d)
+    delay, tau_v, acc, dec = (float(x) for x in speed_params)
+
+    # Does each limit matter? Lifting it must make the fit clearly worse; otherwise the run
+    # never pushed against it: its value is only bounded from below by what was needed, and
+    # the other parameters are refitted without it (a free limit would distort them).
+    def matters(cost_fn: Callable[[np.ndarray], np.ndarray], params: list[float], i: int,
+                best: float) -> bool:
+        lifted = list(params)
+        lifted[i] = _LIFTED
+        return float(cost_fn(np.array([lifted]))[0]) > 1.2 * best + 1e-10
+
+    unused = frozenset(i for i in (2, 3) if not matters(speed_cost, list(speed_params), i, cost_v))
+    if unused:
+        speed_params, cost_v, _, _ = _fit_speed(d, lifted=unused)
+        delay, tau_v, acc, dec = (float(x) for x in speed_params)
+
+    _, (cmd_v_f, cmd_h_f), _ = _resample(d.t, d.t_cmd, d.cmd_v, d.cmd_h)
+    speed_f = np.interp(grid, d.t, d.speed)
+    at_heading = _row_targets(len(grid), measured_at, d.heading)
     kappa = math.tan(base_preset.max_steer_rad) / base_preset.wheelbase_m
     delay_steps = int(round(delay / _FINE_DT_S))
 
     def heading_cost(c: np.ndarray) -> np.ndarray:
         return _replay_heading(
-            heading[0], cmd_h_f, speed_f, kappa, delay_steps, c[:, 0], c[:, 1], at_heading
+            d.heading[0], cmd_h_f, speed_f, kappa, delay_steps, c[:, 0], c[:, 1], at_heading
         )
 
-    turning = np.ptp(np.unwrap(cmd_h)) > 0.2
-    if turning:
+    turn_hit = False
+    if np.ptp(np.unwrap(d.cmd_h)) > 0.2:
         (rate_max, tau_h), cost_h = _refine(
-            heading_cost, bounds=[(0.05, 6.0), (0.02, 2.0)], log_scale=[True, True], points=[13, 11],
-            step=[None, None],
+            heading_cost, bounds=[(0.05, 6.0), (0.02, 2.0)], log_scale=[True, True],
+            points=[13, 11], step=[None, None],
         )
+        rate_max, tau_h = float(rate_max), float(tau_h)
+        turn_hit = matters(heading_cost, [rate_max, tau_h], 0, cost_h)
+        if not turn_hit:  # refit the heading lag alone, the rate limit out of the way
+            (tau_h,), cost_h = _refine(
+                lambda c: heading_cost(np.column_stack([np.full(len(c), _LIFTED), c[:, 0]])),
+                bounds=[(0.02, 2.0)], log_scale=[True], points=[25], step=[None],
+            )
+            tau_h = float(tau_h)
     else:  # no heading excitation: keep the base preset's heading loop
         rate_max, tau_h = base_preset.turn_rate_max_radps, base_preset.heading_lag_s
         cost_h = float(heading_cost(np.array([[rate_max, tau_h]]))[0])
-
-    # Were the limits active anywhere in the replay? Otherwise they are lower bounds only.
-    steps = int(round(delay / _FINE_DT_S))
-    target = cmd_v_f[np.maximum(np.arange(len(cmd_v_f)) - steps, 0)]
-    rate_wanted = (target - speed_f) / tau_v
-    limits_hit = (bool(np.any(rate_wanted > acc * 1.02)), bool(np.any(rate_wanted < -dec * 1.02)))
+    hit = {
+        "accel_max_mps2": 2 not in unused,
+        "decel_max_mps2": 3 not in unused,
+        "turn_rate_max_radps": turn_hit,
+    }
+    idx = np.arange(len(cmd_v_f)) - delay_steps
+    target_v = np.where(idx >= 0, cmd_v_f[np.maximum(idx, 0)], d.speed[0])
+    want_v = (target_v - speed_f) / tau_v
+    want_h = _heading_rates_wanted(d.heading[0], cmd_h_f, speed_f, kappa, delay_steps, rate_max, tau_h)
+    needed = {
+        "accel_max_mps2": float(max(0.0, want_v.max())),
+        "decel_max_mps2": float(max(0.0, -want_v.min())),
+        "turn_rate_max_radps": float(want_h.max()),
+    }
+    values = {"accel_max_mps2": acc, "decel_max_mps2": dec, "turn_rate_max_radps": rate_max}
+    for key, was_hit in hit.items():
+        if was_hit:
+            values[key] = round(values[key], 4)
+        else:  # unmeasured: the base value unless the run needed more
+            base_value = getattr(base_preset, key)
+            values[key] = base_value if base_value >= needed[key] else round(needed[key], 4)
 
     preset = dataclasses.replace(
-        base_preset, name=name, speed_lag_s=round(float(tau_v), 4),
-        accel_max_mps2=round(float(acc), 4), decel_max_mps2=round(float(dec), 4),
-        turn_rate_max_radps=round(float(rate_max), 4), heading_lag_s=round(float(tau_h), 4),
-        actuation_delay_s=round(float(delay), 4),
+        base_preset, name=name, speed_lag_s=round(tau_v, 4),
+        accel_max_mps2=values["accel_max_mps2"],
+        decel_max_mps2=values["decel_max_mps2"],
+        turn_rate_max_radps=values["turn_rate_max_radps"],
+        heading_lag_s=round(tau_h, 4), actuation_delay_s=round(delay, 4),
     )
     return PlantFit(
         preset=preset, speed_rms_mps=math.sqrt(cost_v), heading_rms_rad=math.sqrt(cost_h),
-        samples=len(t), speed_limits_hit=limits_hit,
+        samples=len(d.t), limits_hit=hit, cmd_timing=timing,
     )
+
+
+def _heading_rates_wanted(
+    h0: float, cmd: np.ndarray, speed: np.ndarray, kappa: float, delay_steps: int,
+    rate_max: float, tau: float,
+) -> np.ndarray:
+    """|yaw rate| the heading loop asked for (before the turn-rate cap) along the replay,
+    where the curvature cap did not bind harder; rad/s."""
+    h = h0
+    tau = max(tau, _FINE_DT_S)
+    out = np.zeros(len(cmd))
+    for i in range(len(cmd)):
+        target = cmd[i - delay_steps] if i >= delay_steps else h0
+        err = (target - h + math.pi) % (2 * math.pi) - math.pi
+        curvature_cap = abs(speed[i]) * kappa
+        wanted = abs(err / tau)
+        out[i] = wanted if curvature_cap > rate_max else 0.0
+        cap = min(rate_max, curvature_cap)
+        h += max(-cap, min(cap, err / tau)) * _FINE_DT_S
+    return out
 
 
 def format_fit(fit: PlantFit) -> str:
     """A short human summary of a fit."""
     p = fit.preset
+
+    def limit(key: str) -> str:
+        return "" if fit.limits_hit[key] else "  (never reached: not measured, kept base/bound)"
+
     lines = [
-        f"fitted preset {p.name!r} from {fit.samples} rows",
+        f"fitted preset {p.name!r} from {fit.samples} rows (commands {fit.cmd_timing})",
         f"  actuation_delay_s   {p.actuation_delay_s:.3f}",
         f"  speed_lag_s         {p.speed_lag_s:.3f}",
-        f"  accel_max_mps2      {p.accel_max_mps2:.3f}"
-        + ("" if fit.speed_limits_hit[0] else "  (never reached: a lower bound)"),
-        f"  decel_max_mps2      {p.decel_max_mps2:.3f}"
-        + ("" if fit.speed_limits_hit[1] else "  (never reached: a lower bound)"),
-        f"  turn_rate_max_radps {p.turn_rate_max_radps:.3f} ({math.degrees(p.turn_rate_max_radps):.1f} deg/s)",
+        f"  accel_max_mps2      {p.accel_max_mps2:.3f}{limit('accel_max_mps2')}",
+        f"  decel_max_mps2      {p.decel_max_mps2:.3f}{limit('decel_max_mps2')}",
+        f"  turn_rate_max_radps {p.turn_rate_max_radps:.3f} "
+        f"({math.degrees(p.turn_rate_max_radps):.1f} deg/s){limit('turn_rate_max_radps')}",
         f"  heading_lag_s       {p.heading_lag_s:.3f}",
-        f"  residual RMS: speed {fit.speed_rms_mps:.4f} m/s, heading {math.degrees(fit.heading_rms_rad):.2f} deg",
+        f"  residual RMS: speed {fit.speed_rms_mps:.4f} m/s, heading "
+        f"{math.degrees(fit.heading_rms_rad):.2f} deg",
     ]
     return "\n".join(lines)
 
@@ -256,7 +398,8 @@ def format_fit(fit: PlantFit) -> str:
 def run_fit_plant_cli(args: object) -> int:
     """``openconvoy fit-plant LOG_DIR [--out preset.toml] [--name] [--base] [--vehicle-id]``."""
     fit = fit_plant(
-        args.log, base=args.base, name=args.name, vehicle_id=args.vehicle_id  # type: ignore[attr-defined]
+        args.log, base=args.base, name=args.name,  # type: ignore[attr-defined]
+        vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "auto"),  # type: ignore[attr-defined]
     )
     print(format_fit(fit))
     out = Path(args.out or f"{args.name}.toml")  # type: ignore[attr-defined]

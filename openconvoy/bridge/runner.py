@@ -45,7 +45,7 @@ from openconvoy.bridge.failsafes import (
     LoopTimer,
     TickInputs,
 )
-from openconvoy.bridge.link import Telemetry, VehicleLink
+from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core.member import ConvoyMember, MemberConfig
@@ -90,6 +90,10 @@ class LeaderDriver(Protocol):
     duration_s: float
 
     def leader_command(self, t: float, x: float, y: float, heading: float, speed: float) -> tuple[float, float]: ...
+
+
+class StopRequested(Exception):
+    """A signal asked to stop before the loop was running (while connecting or arming)."""
 
 
 @dataclass(frozen=True)
@@ -271,9 +275,17 @@ class DeployRunner:
     def start(self) -> None:
         """Connect, wait for telemetry, arm (unless dry-run/passive), open the log."""
         o = self.options
-        self.link.connect(o.connect_timeout_s)
         deadline = self.clock() + o.connect_timeout_s
+        while True:  # short attempts, so that a signal is obeyed while waiting
+            self._check_stop()
+            try:
+                self.link.connect(min(1.0, max(0.05, deadline - self.clock())))
+                break
+            except LinkTimeout:
+                if self.clock() >= deadline:
+                    raise
         while self._tel is None:
+            self._check_stop()
             self._tel = self.link.poll()
             if self._tel is None:
                 if self.clock() > deadline:
@@ -281,7 +293,9 @@ class DeployRunner:
                 self.sleep(0.01)
         if self.commanding and not self._stop_requested:
             self.on_status(f"vehicle {o.vehicle_id}: arming ({self.link.autopilot})")
-            self.link.prepare_and_arm(o.arm_timeout_s, self.on_status)
+            # Arming may wait ~40 s for the estimator: status lines come every retry, and
+            # a signal meanwhile ends the run through ``_status_or_stop``.
+            self.link.prepare_and_arm(o.arm_timeout_s, self._status_or_stop)
             self._armed_by_us = True
             # Stand still with the yaw at the current heading from the first moment.
             self.link.stop_motion()
@@ -314,8 +328,14 @@ class DeployRunner:
                 if done:
                     reason = done
                     break
+        except StopRequested as exc:
+            reason = str(exc)
         except KeyboardInterrupt:
             reason = "SIGINT"
+        except (VehicleLinkError, TimeoutError) as exc:  # the vehicle said no, or nothing
+            reason = f"error: {exc}"
+            code = 1
+            log.error("vehicle %d: %s", self.options.vehicle_id, exc)
         except Exception as exc:  # a runner bug must not leave the vehicle moving
             reason = f"error: {exc}"
             code = 1
@@ -331,6 +351,14 @@ class DeployRunner:
             t_start_s=self._t_start_wall,
             events=list(self.failsafes.events),
         )
+
+    def _check_stop(self) -> None:
+        if self._stop_requested:
+            raise StopRequested(self._stop_requested)
+
+    def _status_or_stop(self, line: str) -> None:
+        self.on_status(line)
+        self._check_stop()
 
     # ------------------------------------------------------------------ one tick
 

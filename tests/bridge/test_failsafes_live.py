@@ -366,3 +366,32 @@ def test_px4_streams_before_offboard_and_loses_offboard_when_the_stream_stops(tm
         c.stop()
     meta = assert_log_survived(c, 1)
     assert meta["autopilot"] == "px4" and meta["overruns"] >= 1
+
+
+def test_a_signal_while_waiting_to_arm_ends_the_run_cleanly(tmp_path):
+    # The estimator is not ready for 30 s (a real Rover needs ~40 s after boot).
+    c = make_convoy(tmp_path, n=2, vehicle_config={"ready_after_s": 30.0})
+    try:
+        follower = c.cars[1]
+        time.sleep(1.5)
+        assert follower.thread.is_alive() and not follower.vehicle.armed
+        t = time.monotonic()
+        follower.runner.request_stop("SIGTERM")
+        res = follower.join(5.0)
+        assert time.monotonic() - t < 2.5  # at the next arming retry, not after 30 s
+        assert (res.exit_code, res.reason) == (0, "SIGTERM")
+        assert not follower.vehicle.armed and follower.link.sent == []
+    finally:
+        c.stop()
+
+
+def test_arming_refused_until_timeout_names_the_autopilots_reason(tmp_path):
+    c = make_convoy(tmp_path, n=2, vehicle_config={"ready_after_s": 30.0},
+                    options={1: {"arm_timeout_s": 1.5}})
+    try:
+        res = c.cars[1].join(10.0)
+        assert res.exit_code == 1
+        assert "MAV_CMD_COMPONENT_ARM_DISARM" in res.reason and "AHRS" in res.reason
+        assert c.cars[1].link.sent == []  # nothing was commanded
+    finally:
+        c.stop()

@@ -367,14 +367,18 @@ class MavlinkLink:
                 )
 
     def _on_heartbeat(self, msg: Any) -> None:
-        if msg.type in (mp.MAV_TYPE_GCS, mp.mav().MAV_TYPE_ONBOARD_CONTROLLER):
+        m = mp.mav()
+        # Only the autopilot's heartbeat counts: not GCSs, companions, gimbals, ADS-B
+        # receivers or cameras (those report autopilot INVALID).
+        if msg.type in (mp.MAV_TYPE_GCS, m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_TYPE_GIMBAL,
+                        m.MAV_TYPE_ADSB):
             return
-        if msg.autopilot == mp.mav().MAV_AUTOPILOT_INVALID:
+        if msg.autopilot == m.MAV_AUTOPILOT_INVALID:
             return
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if self._target is None:
             self._target = src
-        elif src[0] != self._target[0]:
+        elif src != self._target:
             return
         self.message_counts["HEARTBEAT"] = self.message_counts.get("HEARTBEAT", 0) + 1
         self._autopilot_id = msg.autopilot

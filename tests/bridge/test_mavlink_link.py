@@ -247,3 +247,19 @@ def test_restarted_udp_vehicle_gets_its_telemetry_rates_again(vehicle_and_link) 
         assert any("requesting telemetry again" in line for line in lines)
     finally:
         vehicle.stop()
+
+
+def test_link_listens_for_a_vehicle_that_sends_first() -> None:
+    """The other common wiring: the autopilot (or a radio) sends to the companion's port."""
+    port = free_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", DEFAULT_HOME, on_status=lambda line: None)
+    vehicle = SimVehicle(f"udpout:127.0.0.1:{port}", SimVehicleConfig(ready_after_s=0.0))
+    try:
+        vehicle.start()
+        link.connect(timeout_s=5.0)
+        assert link.autopilot == "ardupilot" and link.telemetry_rates["ATTITUDE"] == 20.0
+        link.prepare_and_arm(timeout_s=10.0)
+        assert vehicle.armed and vehicle.mode == "GUIDED"
+    finally:
+        link.close()
+        vehicle.stop()

@@ -55,10 +55,12 @@ from openconvoy.logs import LogWriter
 
 log = logging.getLogger(__name__)
 
-EXTRA_COLUMNS = ("length_m", "loop_overruns")
+EXTRA_COLUMNS = ("length_m", "msgs_kept", "loop_overruns")
 """Numeric log columns after DESIGN.md's: the vehicle's length (as ``sim`` writes, so
-``report`` counts collisions from the log alone) and the loop overruns so far. Why a
-failsafe fired goes to the metadata JSON (``failsafe_events``)."""
+``report`` counts collisions from the log alone), the messages the Rx gate kept, and the
+loop overruns so far. As in ``sim``, ``msgs_received``/``msgs_lost`` count what the link
+delivered / the loss model dropped, before the Rx gate. Why a failsafe fired goes to the
+metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
 FINISH_TIMEOUT_S = 10.0
@@ -555,10 +557,16 @@ class DeployRunner:
             "cmd_heading_change_rad": change if sent else math.nan,
             "mode": mode, "gap_m": gap, "desired_gap_m": m.desired_gap_m,
             "spacing_error_m": m.spacing_error_m, "msgs_sent": m.msgs_sent,
-            "msgs_received": m.msgs_received, "msgs_lost": self.v2v.counters.lost,
+            "msgs_received": self._delivered(), "msgs_lost": self.v2v.counters.lost,
             "pred_msg_age_s": m.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
+            "msgs_kept": m.msgs_received,
             "loop_overruns": self._timer.overruns if self._timer else 0,
         })
+
+    def _delivered(self) -> int:
+        """Vehicle messages the V2V link delivered (aborts are not traffic)."""
+        c = self.v2v.counters
+        return int(c.received - getattr(c, "aborts", 0))
 
     def _status_line(self, now: float, own: VehicleState, mode: str, gap: float) -> None:
         p = self.options.status_period_s
@@ -619,7 +627,8 @@ class DeployRunner:
             "policy_errors": self.failsafes.policy_errors,
             "failsafe_events": [{"t_s": wall0 + t, "reason": r} for t, r in self.failsafes.events],
             "msgs_sent": self.member.msgs_sent,
-            "msgs_received": self.member.msgs_received,
+            "msgs_received": self._delivered(),
+            "msgs_kept": self.member.msgs_received,
             "msgs_lost": self.v2v.counters.lost,
             **self.metadata_extra,
         }

@@ -398,33 +398,7 @@ class DeployRunner:
             self.on_status(f"vehicle {o.vehicle_id}: convoy complete, starting")
         # 4. what the controller wants
         obs = member.observation(wall)
-        policy_error = ""
-        mode = "stop"
-        if waiting:
-            speed, change = 0.0, 0.0
-            reason = f"waiting for vehicle(s) {', '.join(map(str, waiting))}"
-        elif self.is_leader and self._t_finish is not None:
-            # Scenario over: brake to a stop while still broadcasting, so the followers
-            # see their leader stop and stop behind it.
-            speed, change, mode, reason = 0.0, 0.0, "stop", "scenario over"
-        elif self.is_leader:
-            speed, change, mode = self._leader_command(tel, own, now)
-            reason = ""
-        else:
-            try:
-                action = self.policy.act(obs)
-                action, mode = member.supervise(action, wall)
-                speed, change = float(action[0]), float(action[1])
-                if not (math.isfinite(speed) and math.isfinite(change)):
-                    raise ValueError(f"non-finite action {speed}, {change}")
-            except Exception as exc:  # the policy is foreign code: stop, log, keep looping
-                policy_error = f"{type(exc).__name__}: {exc}"
-                if not self.failsafes.policy_errors:
-                    log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
-                speed, change, mode = 0.0, 0.0, "stop"
-            reason = ""
-        if mode == "stop" and not reason:
-            reason = "staleness ladder" if member.mode == "stop" else ""
+        speed, change, mode, policy_error = self._intent(tel, own, obs, bool(waiting), now, wall)
         gap = self._gap(own, wall)
         needed_age = 0.0
         if not self.is_leader and not waiting:
@@ -447,7 +421,6 @@ class DeployRunner:
         else:
             speed, heading_cmd = 0.0, own.heading
             mode = "failsafe" if verdict.failsafe else "stop"
-            reason = verdict.reason
         if verdict.reason and verdict.reason != self._last_reason:
             self.on_status(f"vehicle {o.vehicle_id}: {verdict.reason}")
         self._last_reason = verdict.reason
@@ -466,7 +439,7 @@ class DeployRunner:
         if o.record_timing:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
         # 7. log
-        self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap, reason,
+        self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap,
                       sent=verdict.command != SILENT and self.commanding)
         self._status_line(now, own, mode, gap)
         if verdict.exit:
@@ -488,6 +461,29 @@ class DeployRunner:
         return self.is_leader and self.commanding and self.leader is not None
 
     # ------------------------------------------------------------------ helpers
+
+    def _intent(self, tel: Telemetry, own: VehicleState, obs: np.ndarray, waiting: bool,
+                now: float, wall: float) -> tuple[float, float, str, str]:
+        """What the controller wants before the failsafes: (speed m/s, heading change rad,
+        mode, policy error message or "")."""
+        if waiting:  # armed and still, yaw at the current heading
+            return 0.0, 0.0, "stop", ""
+        if self.is_leader:
+            if self._t_finish is not None:
+                # Scenario over: brake to rest while still broadcasting, so the followers
+                # see their leader stop and stop behind it.
+                return 0.0, 0.0, "stop", ""
+            return self._leader_command(tel, own, now)
+        try:
+            action, mode = self.member.supervise(self.policy.act(obs), wall)
+            speed, change = float(action[0]), float(action[1])
+            if not (math.isfinite(speed) and math.isfinite(change)):
+                raise ValueError(f"non-finite action {speed}, {change}")
+            return speed, change, mode, ""
+        except Exception as exc:  # the policy is foreign code: stop, log, keep looping
+            if not self.failsafes.policy_errors:
+                log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
+            return 0.0, 0.0, "stop", f"{type(exc).__name__}: {exc}"
 
     def _duration(self) -> float | None:
         if self.options.duration_s is not None:
@@ -511,15 +507,15 @@ class DeployRunner:
         need.add(0)
         return sorted(j for j in need if j not in self._heard_raw)
 
-    def _leader_command(self, tel: Telemetry, own: VehicleState, now: float) -> tuple[float, float, str]:
+    def _leader_command(self, tel: Telemetry, own: VehicleState, now: float) -> tuple[float, float, str, str]:
         if self.options.passive or self.leader is None:
-            return 0.0, 0.0, "coop"
+            return 0.0, 0.0, "coop", ""
         assert self._t_start is not None
         x, y = own.x, own.y
         if self.leader_origin is not None:
             x, y, _ = geodetic_to_enu(self.leader_origin, tel.lat_deg, tel.lon_deg)
         speed, heading = self.leader.leader_command(now - self._t_start, float(x), float(y), own.heading, own.speed)
-        return float(speed), wrap_angle(float(heading) - own.heading), "coop"
+        return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
 
     def _gap(self, own: VehicleState, wall: float) -> float:
         """Measured gap to the immediate predecessor (m): its newest broadcast position
@@ -545,7 +541,7 @@ class DeployRunner:
             log.info("reconnect failed: %s", exc)
 
     def _log_row(self, wall: float, own: VehicleState, tel: Telemetry, speed: float, change: float,
-                 mode: str, gap: float, reason: str, sent: bool) -> None:
+                 mode: str, gap: float, sent: bool) -> None:
         if self._writer is None:
             return
         m = self.member

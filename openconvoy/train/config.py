@@ -31,7 +31,7 @@ class PPOConfig:
     n_steps: int = 256
     batch_size: int = 512
     n_epochs: int = 5
-    learning_rate: float = 1e-4
+    learning_rate: float = 3e-4
     gamma: float = 0.98
     gae_lambda: float = 0.95
     clip_range: float = 0.2
@@ -83,13 +83,22 @@ class TrainConfig:
         randomization: what is redrawn every episode.
         normalize_obs, normalize_reward: VecNormalize (the observation statistics travel
             with the policy; reward normalization only helps the learner).
-        checkpoint_every: agent steps between checkpoints (0: none).
+        checkpoint_every: agent steps between checkpoints (0: none). Each checkpoint is
+            also validated when ``validation_seeds`` is not empty.
+        validation_pers, validation_seeds: the validation grid: deterministic runs of the
+            ``paper`` scenario, with seeds kept apart from those reports use (0..).
+            ``policy.zip`` is the checkpoint (or final network) with the lowest validation
+            objective (``openconvoy.train.tune.objective_of``: mean p95 platooning error,
+            collisions heavily penalized, mean speed difference), as SB3's EvalCallback
+            keeps a best model; ``last.zip`` is the final network. Empty seeds: no
+            validation, ``policy.zip`` is the final network.
+        validation_duration_s: length of the validation runs (None: the scenario's).
         torch_threads: torch CPU threads (the environments run in this process too).
         name: the policy's label in logs and reports.
     """
 
     algo: str = "ppo"
-    total_steps: int = 300_000
+    total_steps: int = 500_000
     n_envs: int = 4
     seed: int = 0
     env: EnvSpec = field(default_factory=EnvSpec)
@@ -98,11 +107,18 @@ class TrainConfig:
     sac: SACConfig = field(default_factory=SACConfig)
     normalize_obs: bool = True
     normalize_reward: bool = True
-    checkpoint_every: int = 50_000
+    checkpoint_every: int = 100_000
+    validation_pers: tuple[float, ...] = (0.0, 0.6)
+    validation_seeds: tuple[int, ...] = (1000, 1001)
+    validation_duration_s: float | None = None
     torch_threads: int = 1
     name: str = "learned"
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "validation_pers", tuple(float(p) for p in self.validation_pers))
+        object.__setattr__(self, "validation_seeds", tuple(int(s) for s in self.validation_seeds))
+        if self.validation_seeds and not self.validation_pers:
+            raise ValueError("validation_seeds need validation_pers")
         if self.algo not in ALGOS:
             raise ValueError(f"algo: unknown {self.algo!r}; expected one of {', '.join(ALGOS)}")
         if self.total_steps < 1 or self.n_envs < 1:

@@ -3,11 +3,16 @@
 A run directory holds::
 
     config.toml        the resolved TrainConfig (``openconvoy train --config`` reads it)
-    policy.zip         the final SB3 model, with OpenConvoy metadata inside (layout,
-                       member config, control rate, observation normalization, action
-                       scaling): ``--policy RUN/policy.zip`` works everywhere
-    policy.json        the same metadata, readable
-    vecnormalize.pkl   SB3's VecNormalize (to resume training)
+    policy.zip         the run's policy: the SB3 model with OpenConvoy metadata inside
+                       (layout, member config, control rate, observation normalization,
+                       action scaling, residual base): ``--policy RUN/policy.zip`` works
+                       everywhere. With validation (default), the best-validated of the
+                       checkpoints and the final network; else the final network
+    last.zip           the final network (with validation)
+    validation.json    every validated file's objective and runs, and which was chosen
+    policy.json        policy.zip's metadata, readable
+    vecnormalize.pkl   SB3's VecNormalize at the end (pairs with the final network, to
+                       resume training; every .zip carries its own statistics)
     checkpoints/       policy_<steps>_steps.zip, each loadable like policy.zip
     tb/                TensorBoard event files (rollout/ep_rew_mean, rollout/platooning_error_m, ...)
     train.json         steps, wall time, steps per second
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,12 +36,14 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
-from openconvoy.policies.learned import LearnedMeta, write_zip_meta
+from openconvoy.policies.learned import LearnedMeta, read_zip_meta, write_zip_meta
 from openconvoy.train.config import TrainConfig, dumps_train_config
 from openconvoy.train.randomization import RandomizedConvoyEnv
+from openconvoy.train.validate import Validation, validate
 from openconvoy.train.vec import shared_policy_vec_env
 
 POLICY_FILE = "policy.zip"
+LAST_FILE = "last.zip"
 VECNORM_FILE = "vecnormalize.pkl"
 
 
@@ -187,8 +195,14 @@ class _ConvoyStats(BaseCallback):
         self._err_sum, self._n, self._collisions = 0.0, 0, 0
 
 
+def _validate(config: TrainConfig, path: Path, steps: int) -> Validation:
+    return validate(path, config.validation_pers, config.validation_seeds, steps,
+                    duration_s=config.validation_duration_s)
+
+
 class _Checkpoint(BaseCallback):
-    """Every ``every`` agent steps, a loadable ``policy_<steps>_steps.zip``."""
+    """Every ``every`` agent steps, a loadable ``policy_<steps>_steps.zip``, validated
+    when the config asks (``validations`` collects the results)."""
 
     def __init__(self, config: TrainConfig, directory: Path, every: int) -> None:
         super().__init__()
@@ -196,11 +210,17 @@ class _Checkpoint(BaseCallback):
         self.directory = directory
         self.every = every
         self._next = every
+        self.validations: list[Validation] = []
 
     def _on_step(self) -> bool:
         if self.every and self.num_timesteps >= self._next:
             self.directory.mkdir(parents=True, exist_ok=True)
-            save_policy(self.model, self.config, self.directory / f"policy_{self.num_timesteps}_steps.zip")
+            path = save_policy(self.model, self.config, self.directory / f"policy_{self.num_timesteps}_steps.zip")
+            if self.config.validation_seeds:
+                self.validations.append(
+                    _validate(self.config, path, self.num_timesteps)
+                )
+                self.logger.record("validation/objective", self.validations[-1].objective)
             self._next += self.every
         return True
 
@@ -223,19 +243,30 @@ def train(
 
     venv = make_vec_env(config)
     model = make_model(config, venv, run_dir / "tb")
-    callbacks = CallbackList([
-        _Progress(config.total_steps, progress_bar),
-        _ConvoyStats(),
-        _Checkpoint(config, run_dir / "checkpoints", config.checkpoint_every),
-    ])
+    checkpoints = _Checkpoint(config, run_dir / "checkpoints", config.checkpoint_every)
+    callbacks = CallbackList([_Progress(config.total_steps, progress_bar), _ConvoyStats(), checkpoints])
     start = time.perf_counter()
     model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
     wall = time.perf_counter() - start
 
-    policy = save_policy(model, config, run_dir / POLICY_FILE)
+    policy = run_dir / POLICY_FILE
+    if config.validation_seeds:
+        last = save_policy(model, config, run_dir / LAST_FILE)
+        validations = [*checkpoints.validations,
+                       _validate(config, last, model.num_timesteps)]
+        # The earliest of equally good files wins (min keeps the first).
+        best = min(validations, key=lambda v: v.objective)
+        shutil.copyfile(best.path, policy)
+        (run_dir / "validation.json").write_text(json.dumps({
+            "pers": list(config.validation_pers), "seeds": list(config.validation_seeds),
+            "chosen": best.path, "chosen_steps": best.steps,
+            "validations": [v.to_json() for v in validations],
+        }, indent=1), encoding="utf-8")
+    else:
+        save_policy(model, config, policy)
     if isinstance(venv, VecNormalize):
         venv.save(str(run_dir / VECNORM_FILE))
-    meta = policy_meta(config, venv, model.num_timesteps)
+    meta = read_zip_meta(policy)
     (run_dir / "policy.json").write_text(json.dumps(meta.to_json(), indent=1), encoding="utf-8")
     result = TrainResult(run_dir, policy, int(model.num_timesteps), wall)
     summary: dict[str, Any] = {

@@ -49,8 +49,8 @@ class Param:
 PARAMETERS: dict[str, Param] = {
     p.path: p
     for p in (
-        Param("speed.kp", 0.05, 2.0, log=True),
-        Param("speed.kd", 0.1, 3.0, log=True),
+        Param("speed.kp", 0.05, 5.0, log=True),
+        Param("speed.kd", 0.1, 5.0, log=True),
         Param("speed.ki", 0.0, 0.5),
         Param("heading.gain", 0.05, 2.0, log=True),
         Param("heading.lookahead_s", 0.5, 2.0),

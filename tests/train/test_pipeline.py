@@ -28,12 +28,21 @@ from openconvoy.train.export import export_policy, sample_observations
 STEPS = 2048
 
 
+FAST = (
+    "checkpoint_every = 1024\nvalidation_pers = [0.3]\nvalidation_seeds = [1000]\n"
+    "validation_duration_s = 4.0\n"
+)
+"""Tiny checkpoints and validation runs, so the tests see every file a run writes."""
+
+
 @pytest.fixture(scope="module")
 def ppo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    run = tmp_path_factory.mktemp("train") / "run"
+    tmp = tmp_path_factory.mktemp("train")
+    (tmp / "fast.toml").write_text(FAST)
+    run = tmp / "run"
     code = main([
-        "train", "--steps", str(STEPS), "--out", str(run), "--envs", "2", "--seed", "3",
-        "--per-range", "0.1", "0.4", "--no-progress",
+        "train", "--config", str(tmp / "fast.toml"), "--steps", str(STEPS), "--out", str(run),
+        "--envs", "2", "--seed", "3", "--per-range", "0.1", "0.4", "--no-progress",
     ])
     assert code == 0
     return run
@@ -47,14 +56,25 @@ def ppo_npz(ppo_run: Path) -> Path:
 
 
 def test_training_writes_a_complete_run_directory(ppo_run: Path) -> None:
-    for name in ("config.toml", "policy.zip", "policy.json", "vecnormalize.pkl", "train.json"):
+    for name in ("config.toml", "policy.zip", "last.zip", "policy.json", "vecnormalize.pkl",
+                 "train.json", "validation.json"):
         assert (ppo_run / name).is_file(), name
     assert list((ppo_run / "tb").rglob("events.out.tfevents.*")), "no TensorBoard events"
+    assert sorted(p.name for p in (ppo_run / "checkpoints").iterdir()) == [
+        "policy_1024_steps.zip", "policy_2048_steps.zip"]
+    # policy.zip is the best-validated of the checkpoints and the final network.
+    validation = json.loads((ppo_run / "validation.json").read_text())
+    objectives = [v["objective"] for v in validation["validations"]]
+    assert len(objectives) == 3 and all(len(v["runs"]) == 1 for v in validation["validations"])
+    best = validation["validations"][objectives.index(min(objectives))]
+    assert validation["chosen"] == best["path"]
+    assert (ppo_run / "policy.zip").read_bytes() == Path(best["path"]).read_bytes()
     summary = json.loads((ppo_run / "train.json").read_text())
     # SB3 rounds up to whole rollouts: 2 envs x 2 followers x n_steps 256 = 1024 per rollout.
     assert summary["steps"] == 2048 and summary["n_slots"] == 4
     config = load_train_config(ppo_run / "config.toml")
     assert config.total_steps == STEPS and config.seed == 3 and config.n_envs == 2
+    assert config.validation_seeds == (1000,) and config.checkpoint_every == 1024
     assert config.randomization.per_range == (0.1, 0.4)
     # What the policy records: layout, member config, rate, normalization, its residual base.
     meta = read_zip_meta(ppo_run / "policy.zip")
@@ -77,29 +97,39 @@ def test_a_run_config_reproduces_the_run(ppo_run: Path, tmp_path: Path) -> None:
     np.testing.assert_array_equal([a.act(o) for o in obs], [b.act(o) for o in obs])
 
 
-def test_export_matches_sb3_predict(ppo_run: Path, ppo_npz: Path) -> None:
-    """The .npz against SB3 itself: VecNormalize's own normalization, ``predict``
-    (deterministic), then the recorded action mapping; within 1e-5 in SI units."""
+def test_export_matches_sb3_predict(ppo_run: Path, ppo_npz: Path, tmp_path: Path) -> None:
+    """The .npz against SB3 itself, within 1e-5 in SI units: the final network (last.zip)
+    exported and compared with VecNormalize's own normalization (vecnormalize.pkl, saved
+    with it) and ``predict(deterministic=True)``; then the run's chosen policy.zip."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    model = PPO.load(str(ppo_run / "policy.zip"), device="cpu")
-    vecnorm = VecNormalize.load(str(ppo_run / "vecnormalize.pkl"), venv=_DummyVenv(model))
-    npz = load_learned(ppo_npz)
-    obs = sample_observations(npz, n=300, per=0.5)
+    last = PPO.load(str(ppo_run / "last.zip"), device="cpu")
+    vecnorm = VecNormalize.load(str(ppo_run / "vecnormalize.pkl"), venv=_DummyVenv(last))
+    npz_last = load_learned(export_policy(ppo_run / "last.zip", tmp_path / "last.npz"))
+    obs = sample_observations(npz_last, n=300, per=0.5)
     rng = np.random.default_rng(0)
     # Also observations far from the training data (clipping paths).
-    wide = (npz.meta.obs_mean + rng.normal(scale=3.0, size=(100, obs.shape[1])) * np.sqrt(npz.meta.obs_var))
+    meta = npz_last.meta
+    wide = meta.obs_mean + rng.normal(scale=3.0, size=(100, obs.shape[1])) * np.sqrt(meta.obs_var)
     obs = np.concatenate([obs, wide.astype(np.float32)])
-    base = npz.meta.make_base()
+    base = meta.make_base()
     worst = 0.0
     for o in obs:
-        a, _ = model.predict(vecnorm.normalize_obs(o), deterministic=True)
-        reference = npz.meta.to_si(a, base.act(o))
-        worst = max(worst, float(np.max(np.abs(npz.act(o) - reference))))
+        a, _ = last.predict(vecnorm.normalize_obs(o), deterministic=True)
+        worst = max(worst, float(np.max(np.abs(npz_last.act(o) - meta.to_si(a, base.act(o))))))
     assert worst <= 1e-5
     # The exported network is not trivially constant: the actions vary with the input.
-    assert np.ptp([npz.normalized_action(o)[0] for o in obs]) > 1e-3
+    assert np.ptp([npz_last.normalized_action(o)[0] for o in obs]) > 1e-3
+
+    chosen = PPO.load(str(ppo_run / "policy.zip"), device="cpu")
+    npz = load_learned(ppo_npz)
+    worst = max(
+        float(np.max(np.abs(npz.normalized_action(o)
+                            - chosen.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0])))
+        for o in obs
+    )
+    assert worst <= 1e-5
 
 
 class _DummyVenv:
@@ -121,7 +151,7 @@ def test_sac_export_matches_sb3_predict(tmp_path: Path) -> None:
 
     run = tmp_path / "sac"
     cfg = tmp_path / "sac.toml"
-    cfg.write_text("algo = \"sac\"\ntotal_steps = 400\nn_envs = 1\ncheckpoint_every = 0\n"
+    cfg.write_text("algo = \"sac\"\ntotal_steps = 400\nn_envs = 1\ncheckpoint_every = 0\nvalidation_seeds = []\n"
                    "[sac]\nlearning_starts = 100\nbatch_size = 32\nnet_arch = [32, 32]\n")
     assert main(["train", "--config", str(cfg), "--out", str(run), "--no-progress"]) == 0
     npz = load_learned(export_policy(run, tmp_path / "sac.npz"))
@@ -163,7 +193,11 @@ def test_layout_mismatch_is_refused_for_a_trained_zip(ppo_run: Path) -> None:
 def test_layout_choice_reaches_the_trained_policy(tmp_path: Path) -> None:
     """``--M``/``--k`` train for another layout; that policy records and enforces it."""
     run = tmp_path / "m3"
-    assert main(["train", "--steps", "512", "--envs", "1", "--M", "3", "--k", "2", "--out", str(run), "--no-progress"]) == 0
+    cfg = tmp_path / "m3.toml"
+    cfg.write_text("validation_seeds = []\n")
+    assert main(["train", "--config", str(cfg), "--steps", "512", "--envs", "1", "--M", "3", "--k", "2",
+                 "--out", str(run), "--no-progress"]) == 0
+    assert not (run / "last.zip").exists()  # no validation: policy.zip is the final network
     policy = load_policy(str(run / "policy.zip"))
     assert policy.meta.layout == {"version": 1, "M": 3, "k": 2, "size": MemberConfig(M=3, k=2).layout.size}
     with pytest.raises(ValueError, match="M 3 vs 2"):

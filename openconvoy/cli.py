@@ -287,9 +287,9 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--base", default="1/10",
                    help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)")
     p.add_argument("--vehicle-id", type=int, help="which vehicle, when the logs hold several")
-    p.add_argument("--cmd-timing", choices=("auto", "after-state", "before-state"), default="auto",
-                   help="a row's command was sent after its state (deploy logs) or led to it "
-                   "(sim logs); auto: before-state when the directory holds sim's run.toml")
+    p.add_argument("--cmd-timing", choices=("after-state", "before-state"), default="after-state",
+                   help="a row's command was computed from its state (OpenConvoy's sim and "
+                   "vehicle logs) or led to it (some other tools' logs)")
 
     def _fit_plant(args: argparse.Namespace) -> int:
         from openconvoy.bridge.fitplant import run_fit_plant_cli

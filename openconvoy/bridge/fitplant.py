@@ -167,20 +167,13 @@ def _refine(
     return np.where(log_scale, np.exp(best), best), best_cost
 
 
-CmdTiming = Literal["auto", "after-state", "before-state"]
-"""How a log row's command relates to its state. ``after-state``: the command was computed
-from the row's state and sent at ``t_s`` (the vehicle runner). ``before-state``: the row's
-command was applied during the tick that led to the row's state, i.e. sent at the previous
-row, relative to the previous row's heading (``ConvoyEnv.log_rows``). ``auto`` picks
-``before-state`` for a ``sim`` run directory (it holds ``run.toml``) and ``after-state``
-otherwise. The two differ by one tick in the fitted delay, and a log alone cannot tell
-them apart (shifting every command by a tick is the same as a tick more delay)."""
-
-
-def _is_sim_run(log_path: str | Path) -> bool:
-    p = Path(log_path)
-    run = (p if p.is_dir() else p.parent) / "run.toml"
-    return run.is_file() and "[run]" in run.read_text(encoding="utf-8", errors="replace")
+CmdTiming = Literal["after-state", "before-state"]
+"""How a log row's command relates to its state. ``after-state`` (OpenConvoy's logs, sim and
+vehicle alike): the command was computed from the row's state and sent at ``t_s``.
+``before-state`` (some other tools' logs): the row's command was applied during the tick
+that led to the row's state, i.e. sent at the previous row, relative to the previous row's
+heading. The two differ by one tick in the fitted delay, and a log alone cannot tell them
+apart (shifting every command by a tick is the same as a tick more delay)."""
 
 
 @dataclass
@@ -258,7 +251,7 @@ def fit_plant(
     base: str | VehiclePreset = "1/10",
     name: str = "fitted",
     vehicle_id: int | None = None,
-    cmd_timing: CmdTiming = "auto",
+    cmd_timing: CmdTiming = "after-state",
 ) -> PlantFit:
     """Fit speed lag, accel/decel limits, turn-rate limit, heading lag and actuation delay
     from the log at ``log_path`` (a file or a run directory) for one vehicle.
@@ -268,10 +261,8 @@ def fit_plant(
     base_preset = vehicle_preset(base) if isinstance(base, str) else base
     raw = _load(log_path, vehicle_id)
     timing = cmd_timing
-    if timing == "auto":
-        timing = "before-state" if _is_sim_run(log_path) else "after-state"
     if timing not in ("after-state", "before-state"):
-        raise ValueError(f"command timing must be auto, after-state or before-state, got {timing!r}")
+        raise ValueError(f"command timing must be after-state or before-state, got {timing!r}")
     d = _align(*raw, timing)
     speed_params, cost_v, (grid, rows, measured_at), speed_cost = _fit_speed(d)
     delay, tau_v, acc, dec = (float(x) for x in speed_params)
@@ -399,7 +390,7 @@ def run_fit_plant_cli(args: object) -> int:
     """``openconvoy fit-plant LOG_DIR [--out preset.toml] [--name] [--base] [--vehicle-id]``."""
     fit = fit_plant(
         args.log, base=args.base, name=args.name,  # type: ignore[attr-defined]
-        vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "auto"),  # type: ignore[attr-defined]
+        vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
     )
     print(format_fit(fit))
     out = Path(args.out or f"{args.name}.toml")  # type: ignore[attr-defined]

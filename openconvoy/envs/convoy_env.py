@@ -259,6 +259,7 @@ class ConvoyEnv(ParallelEnv):
         v0, h0 = self.scenario.leader_command(t, X[0], Y[0], H[0], V[0])
         cmd_v[0] = v0
         cmd_dh[0] = (h0 - H[0] + math.pi) % (2 * math.pi) - math.pi
+        self._keep_row_inputs()
         plant.step(cmd_v, [h + d for h, d in zip(H, cmd_dh)])
         self.step_count += 1
         self.t = self.step_count * self.dt
@@ -320,42 +321,59 @@ class ConvoyEnv(ParallelEnv):
         return self.channel.delivery_ratio()
 
     def log_rows(self) -> list[dict[str, Any]]:
-        """DESIGN.md log rows for every vehicle (leader first) at the current tick.
+        """DESIGN.md log rows for every vehicle (leader first) of the tick ``step()`` just
+        completed: the state at that tick's ``t_s`` and the setpoints computed from it, as a
+        vehicle logs them (empty right after ``reset``).
 
-        The state is the plant's (ground truth) at ``t_s``; ``cmd_*`` are the setpoints
-        applied during the tick that led here (empty right after ``reset``); lat/lon come
-        from the scenario's origin. ``msgs_received``/``msgs_lost`` count what the channel
-        delivered to / dropped for the vehicle (the member's Rx gate may discard some of
-        the received ones; infos carry ``msgs_kept``).
+        The state is the plant's (ground truth); lat/lon come from the scenario's origin.
+        ``msgs_received``/``msgs_lost`` count what the channel delivered to / dropped for
+        the vehicle (the member's Rx gate may discard some of the received ones; infos
+        carry ``msgs_kept``).
         """
-        p = self.plant
-        lat, lon, _ = enu_to_geodetic(self.scenario.origin, p.x, p.y)
-        gap = [math.nan, *self._gap]
+        if self._row_inputs is None:
+            return []
+        t, truth, cmd_v, cmd_dh, modes, gaps, member_values, rx, lost = self._row_inputs
+        xs, ys, vs, hs, acs = truth[:5]
+        lat, lon, _ = enu_to_geodetic(self.scenario.origin, np.array(xs), np.array(ys))
         rows = []
         # Keys in openconvoy.logs.COLUMNS order (the tests hold them to it).
-        for i, m in enumerate(self.members):
+        for i, (desired, spacing_error, age, sent) in enumerate(member_values):
             rows.append({
-                "t_s": round(self.t, 9),
+                "t_s": t,
                 "vehicle_id": i,
-                "x_m": float(p.x[i]),
-                "y_m": float(p.y[i]),
+                "x_m": xs[i],
+                "y_m": ys[i],
                 "lat_deg": float(lat[i]),
                 "lon_deg": float(lon[i]),
-                "speed_mps": float(p.speed[i]),
-                "heading_rad": float(p.heading[i]),
-                "accel_mps2": float(p.accel[i]),
-                "cmd_speed_mps": float(self._log_cmd_v[i]),
-                "cmd_heading_change_rad": float(self._log_cmd_dh[i]),
-                "mode": self._modes[i],
-                "gap_m": gap[i],
-                "desired_gap_m": m.desired_gap_m if i else math.nan,
-                "spacing_error_m": m.spacing_error_m if i else math.nan,
-                "msgs_sent": m.msgs_sent,
-                "msgs_received": int(self._rx[i]),
-                "msgs_lost": int(self._lost[i]),
-                "pred_msg_age_s": m.pred_msg_age_s if i else math.nan,
+                "speed_mps": vs[i],
+                "heading_rad": hs[i],
+                "accel_mps2": acs[i],
+                "cmd_speed_mps": cmd_v[i],
+                "cmd_heading_change_rad": cmd_dh[i],
+                "mode": modes[i],
+                "gap_m": gaps[i],
+                "desired_gap_m": desired if i else math.nan,
+                "spacing_error_m": spacing_error if i else math.nan,
+                "msgs_sent": sent,
+                "msgs_received": rx[i],
+                "msgs_lost": lost[i],
+                "pred_msg_age_s": age if i else math.nan,
             })
         return rows
+
+    def _keep_row_inputs(self) -> None:
+        """Snapshot what ``log_rows`` reports for this tick, before the plant moves on."""
+        self._row_inputs = (
+            round(self.t, 9),
+            self._truth,
+            list(self._cmd_speed),
+            list(self._cmd_dh),
+            list(self._modes),
+            [math.nan, *self._gap],
+            [(m.desired_gap_m, m.spacing_error_m, m.pred_msg_age_s, m.msgs_sent) for m in self.members],
+            [int(v) for v in self._rx],
+            [int(v) for v in self._lost],
+        )
 
     # --- internals ---------------------------------------------------------------------
 
@@ -363,8 +381,7 @@ class ConvoyEnv(ParallelEnv):
         n = self.n_vehicles
         self._cmd_speed = [0.0] * n
         self._cmd_dh = [0.0] * n
-        self._log_cmd_v = [math.nan] * n
-        self._log_cmd_dh = [math.nan] * n
+        self._row_inputs: tuple[Any, ...] | None = None
         self._modes = ["coop"] * n
         self._jerk = [0.0] * (n - 1)
         self._gap: list[float] = [0.0] * (n - 1)
@@ -395,9 +412,6 @@ class ConvoyEnv(ParallelEnv):
                 channel.send(i, st, t)
         for r, _, msg in channel.deliver(t):
             members[r].receive(msg, t)
-        if self.step_count:
-            self._log_cmd_v = self._cmd_speed[:]
-            self._log_cmd_dh = self._cmd_dh[:]
         return {a: members[i].observation(t) for i, a in enumerate(self.agents, start=1)}
 
     def _measure(self) -> None:
@@ -432,7 +446,10 @@ class ConvoyEnv(ParallelEnv):
         speed, accel = self._truth[2], self._truth[4]
         leader_speed = speed[0]
         gap, desired = self._gap, self._desired
-        cmd_v, cmd_dh = self._log_cmd_v, self._log_cmd_dh
+        if self._row_inputs is None:  # right after reset: nothing applied yet
+            cmd_v = cmd_dh = [math.nan] * self.n_vehicles
+        else:
+            cmd_v, cmd_dh = self._row_inputs[2], self._row_inputs[3]
         rx, lost = self._rx, self._lost
         collided = self._collided
         out = {}

@@ -94,10 +94,9 @@ def test_fit_recovers_the_plant_from_a_simulator_log(tmp_path: Path) -> None:
     assert fit.speed_rms_mps < 0.01
 
 
-def test_fit_reads_sim_logs_whose_commands_precede_the_state(tmp_path: Path) -> None:
+def test_fit_reads_logs_whose_commands_precede_the_state(tmp_path: Path) -> None:
     plant_log(tmp_path / "sim" / "log.csv", TRUTH, cmd_timing="before-state")
-    (tmp_path / "sim" / "run.toml").write_text('[run]\nscenario = "paper"\n')
-    fit = fit_plant(tmp_path / "sim", base="1/6")
+    fit = fit_plant(tmp_path / "sim", base="1/6", cmd_timing="before-state")
     assert fit.cmd_timing == "before-state"
     assert_within(fit.preset, TRUTH, 0.05)
     # Read the other way, every command seems to act one tick (0.05 s) later.

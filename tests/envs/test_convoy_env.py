@@ -122,20 +122,23 @@ def test_actions_are_clipped_to_the_space_and_heading_change_is_relative() -> No
 def test_log_rows_have_the_design_columns_and_geodesy(tmp_path) -> None:
     env = ConvoyEnv(loss=LossConfig(per=0.5), max_time_s=2.0)
     env.reset(seed=1)
-    rows = env.log_rows()
-    assert [tuple(r) for r in rows] == [COLUMNS] * 3
-    assert math.isnan(rows[0]["gap_m"]) and math.isnan(rows[1]["cmd_speed_mps"])
+    assert env.log_rows() == []  # a row needs the tick's command
     with LogWriter(tmp_path / "log.csv") as log:
-        log.write_many(rows)
         while env.agents:
+            before = (float(env.plant.x[1]), float(env.plant.speed[1]), env.t)
             env.step(_hold(env, 1.0))
-            log.write_many(env.log_rows())
+            rows = env.log_rows()
+            log.write_many(rows)
+    assert [tuple(r) for r in rows] == [COLUMNS] * 3
     data = read_log(tmp_path / "log.csv")
-    assert len(data["t_s"]) == 3 * 41
-    last = env.log_rows()
+    assert len(data["t_s"]) == 3 * 40
+    assert math.isnan(data["gap_m"][0]) and data["t_s"][0] == 0.0
+    last = rows
+    # A row is the state at its tick and the command computed from it (as on vehicles).
+    assert (last[1]["x_m"], last[1]["speed_mps"], last[1]["t_s"]) == pytest.approx(before)
     assert [r["vehicle_id"] for r in last] == [0, 1, 2]
     assert last[1]["cmd_speed_mps"] == pytest.approx(1.0)
-    assert last[1]["gap_m"] == pytest.approx(math.hypot(env.plant.x[0] - env.plant.x[1], env.plant.y[0] - env.plant.y[1]))
+    assert last[1]["gap_m"] == pytest.approx(math.hypot(last[0]["x_m"] - last[1]["x_m"], last[0]["y_m"] - last[1]["y_m"]))
     assert last[2]["mode"] == "coop" and last[0]["mode"] == "coop"
     # lat/lon round-trip to the ENU position around the scenario's origin.
     x, y, _ = geodetic_to_enu(env.scenario.origin, last[2]["lat_deg"], last[2]["lon_deg"])

@@ -320,9 +320,10 @@ def test_followers_wait_still_until_they_hear_the_convoy(tmp_path):
     try:
         leader, follower = c.cars
         follower.start()
-        wait_until(lambda: follower.vehicle.armed, 10, "follower armed")
-        time.sleep(1.0)
-        assert follower.link.sent and all(s[1] == 0.0 for s in follower.link.sent)
+        # Armed (confirmed by the next 1 Hz heartbeat), then a second of the loop.
+        wait_until(lambda: len(follower.link.sent) >= 20, 10, "follower looping")
+        assert follower.vehicle.armed and follower.vehicle.mode == "GUIDED"
+        assert all(s[1] == 0.0 for s in follower.link.sent)
         assert follower.vehicle.state().speed == 0.0
         heading = follower.vehicle.state().heading
         assert all(abs(s[2] - heading) < 1e-3 for s in follower.link.sent)  # yaw = own heading

@@ -63,6 +63,8 @@ def train_command(args: argparse.Namespace) -> int:
 def tune_command(args: argparse.Namespace) -> int:
     from openconvoy.train.tune import TuneConfig, tune, write_tuned
 
+    if not args.out.endswith(".toml"):
+        raise ValueError(f"{args.out}: the tuned policy is a .toml file")
     config = TuneConfig(
         base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
         scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),

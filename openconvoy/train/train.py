@@ -88,9 +88,11 @@ def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) 
         p = config.ppo
         # Keep a minibatch within one rollout: SB3 warns (and wastes data) otherwise.
         batch = min(p.batch_size, p.n_steps * venv.num_envs)
+        lr = p.learning_rate
         return PPO(
             "MlpPolicy", venv, n_steps=p.n_steps, batch_size=batch, n_epochs=p.n_epochs,
-            learning_rate=p.learning_rate, gamma=p.gamma, gae_lambda=p.gae_lambda,
+            # SB3 passes the remaining progress, 1 -> 0.
+            learning_rate=(lambda remaining: lr * remaining) if p.lr_schedule == "linear" else lr, gamma=p.gamma, gae_lambda=p.gae_lambda,
             clip_range=p.clip_range, ent_coef=p.ent_coef, max_grad_norm=p.max_grad_norm,
             policy_kwargs={
                 "net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},

@@ -204,7 +204,12 @@ def tune(config: TuneConfig, evaluate: Evaluate | None = None, progress_bar: boo
         study.enqueue_trial({p: _get_path(base, p) for p in params if _in_range(base, p)})
         study.optimize(objective, n_trials=config.trials, show_progress_bar=progress_bar)
     best_params = {k: float(v) for k, v in study.best_params.items()}
-    best = with_values(base, best_params, config.name)
+    described = ", ".join(f"{k} {v:.4g}" for k, v in best_params.items())
+    best = dataclasses.replace(
+        with_values(base, best_params, config.name),
+        description=f"{config.base} tuned by openconvoy tune ({config.trials} trials, PER "
+        f"{', '.join(f'{p:g}' for p in config.pers)}, {len(config.seeds)} seeds): {described}",
+    )
     return TuneResult(best, float(study.best_value), best_params, base_value, history)
 
 

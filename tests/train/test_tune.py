@@ -77,6 +77,7 @@ def test_tune_cli_writes_a_policy_that_sim_accepts(tmp_path: Path) -> None:
     assert code == 0
     tuned = classical_config(str(out))
     assert tuned.name == "tuned" and tuned.member == PRESETS["paper"].member
+    assert tuned.description.startswith("paper tuned by openconvoy tune (2 trials, PER 0.3, 1 seeds): speed.kp")
     summary = json.loads(out.with_suffix(".json").read_text())
     assert len(summary["trials"]) == 2 and summary["best_value"] <= summary["base_value"] + 1e-12
     assert isinstance(load_policy(str(out)), ClassicalPolicy)

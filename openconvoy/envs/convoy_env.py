@@ -330,9 +330,16 @@ class ConvoyEnv(ParallelEnv):
         the vehicle (the member's Rx gate may discard some of the received ones; infos
         carry ``msgs_kept``).
         """
-        if self._row_inputs is None:
-            return []
-        t, truth, cmd_v, cmd_dh, modes, gaps, member_values, rx, lost = self._row_inputs
+        return [] if self._row_inputs is None else self._rows(self._row_inputs)
+
+    def final_log_rows(self) -> list[dict[str, Any]]:
+        """Rows of the state the episode ended in (a collision shows here), with empty
+        commands: a run logs them once after its last ``step``."""
+        nan = [math.nan] * self.n_vehicles
+        return self._rows(self._row_inputs_now(nan, nan))
+
+    def _rows(self, inputs: tuple[Any, ...]) -> list[dict[str, Any]]:
+        t, truth, cmd_v, cmd_dh, modes, gaps, member_values, rx, lost = inputs
         xs, ys, vs, hs, acs = truth[:5]
         lat, lon, _ = enu_to_geodetic(self.scenario.origin, np.array(xs), np.array(ys))
         rows = []
@@ -363,11 +370,14 @@ class ConvoyEnv(ParallelEnv):
 
     def _keep_row_inputs(self) -> None:
         """Snapshot what ``log_rows`` reports for this tick, before the plant moves on."""
-        self._row_inputs = (
+        self._row_inputs = self._row_inputs_now(list(self._cmd_speed), list(self._cmd_dh))
+
+    def _row_inputs_now(self, cmd_v: list[float], cmd_dh: list[float]) -> tuple[Any, ...]:
+        return (
             round(self.t, 9),
             self._truth,
-            list(self._cmd_speed),
-            list(self._cmd_dh),
+            cmd_v,
+            cmd_dh,
             list(self._modes),
             [math.nan, *self._gap],
             [(m.desired_gap_m, m.spacing_error_m, m.pred_msg_age_s, m.msgs_sent) for m in self.members],

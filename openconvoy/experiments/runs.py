@@ -175,8 +175,8 @@ def run_sim(
     if out_dir is not None:
         writer = LogWriter(Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS, flush_every=500)
 
-    def emit() -> None:
-        for r in env.log_rows():
+    def emit(tick_rows: list[dict[str, Any]]) -> None:
+        for r in tick_rows:
             r["length_m"] = lengths[r["vehicle_id"]]
             if writer is not None:
                 writer.write(r)
@@ -189,13 +189,13 @@ def run_sim(
 
         bar = tqdm(total=env.max_steps, unit="tick", desc=f"sim {config.scenario}", delay=2.0, leave=False)
     try:
-        emit()
         while env.agents:
             actions = {a: policies[a].act(obs[a]) for a in env.agents}
             obs, _, _, _, _ = env.step(actions)
-            emit()
+            emit(env.log_rows())
             if bar is not None:
                 bar.update(1)
+        emit(env.final_log_rows())
     finally:
         if bar is not None:
             bar.close()

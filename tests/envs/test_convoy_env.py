@@ -140,6 +140,9 @@ def test_log_rows_have_the_design_columns_and_geodesy(tmp_path) -> None:
     assert last[1]["cmd_speed_mps"] == pytest.approx(1.0)
     assert last[1]["gap_m"] == pytest.approx(math.hypot(last[0]["x_m"] - last[1]["x_m"], last[0]["y_m"] - last[1]["y_m"]))
     assert last[2]["mode"] == "coop" and last[0]["mode"] == "coop"
+    final = env.final_log_rows()  # the state the episode ended in, without a command
+    assert final[1]["t_s"] == pytest.approx(2.0) and math.isnan(final[1]["cmd_speed_mps"])
+    assert final[1]["x_m"] == pytest.approx(float(env.plant.x[1]))
     # lat/lon round-trip to the ENU position around the scenario's origin.
     x, y, _ = geodetic_to_enu(env.scenario.origin, last[2]["lat_deg"], last[2]["lon_deg"])
     assert (x, y) == (pytest.approx(last[2]["x_m"], abs=1e-6), pytest.approx(last[2]["y_m"], abs=1e-6))

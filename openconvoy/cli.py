@@ -386,7 +386,7 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                        "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
     p.add_argument("--config", metavar="TRAIN.toml", help="training config file")
     p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
-    p.add_argument("--steps", type=int, metavar="N", help="agent steps (default 500000)")
+    p.add_argument("--steps", type=int, metavar="N", help="agent steps (default 600000)")
     p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
     p.add_argument("--seed", type=int, help="seed (default 0)")
     p.add_argument("--envs", type=int, metavar="N", help="environments stepped together (default 4)")

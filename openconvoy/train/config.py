@@ -103,7 +103,7 @@ class TrainConfig:
     """
 
     algo: str = "ppo"
-    total_steps: int = 500_000
+    total_steps: int = 600_000
     n_envs: int = 4
     seed: int = 0
     env: EnvSpec = field(default_factory=EnvSpec)

@@ -117,7 +117,8 @@ def _setup_network() -> str:
     return netns.IFACE
 
 
-def _free_udp_port() -> int:
+def free_udp_port() -> int:
+    """A localhost UDP port nobody uses right now (for a simulated vehicle's MAVLink)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -183,7 +184,7 @@ def run_inside(opts: DemoOptions) -> int:
     try:
         urls = []
         for i, p in enumerate(presets):
-            port = _free_udp_port()
+            port = free_udp_port()
             cfg = SimVehicleConfig(
                 system_id=i + 1, autopilot=opts.autopilot, preset=p, home=origin,
                 start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
@@ -212,7 +213,7 @@ def run_inside(opts: DemoOptions) -> int:
         _say("interrupted: stopping the convoy")
         code = 130
     finally:
-        _stop_all(procs)
+        stop_all(procs)
         for v in vehicles:
             v.stop()
         for f in logs:
@@ -267,7 +268,7 @@ def _watch(procs: list[subprocess.Popen], vehicles: list[Any], duration: float) 
     if procs[0].returncode != 0:
         _say(f"the leader's deploy failed (exit {procs[0].returncode})")
         return 1
-    codes = _stop_all(procs)
+    codes = stop_all(procs)
     _say(_status_line(time.monotonic() - t0, vehicles) + " | stopped")
     if any(c != 0 for c in codes):
         _say(f"deploy exit statuses {codes}")
@@ -284,7 +285,7 @@ def _status_line(t: float, vehicles: list[Any]) -> str:
     return " | ".join(parts)
 
 
-def _stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
+def stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
     """SIGTERM every deploy still running (stop, HOLD, flush), kill stragglers."""
     for p in procs:
         if p.poll() is None:

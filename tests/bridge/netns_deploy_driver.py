@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.bridge.demo import _free_udp_port, _stop_all, write_convoy_toml
+from openconvoy.bridge.demo import free_udp_port, stop_all, write_convoy_toml
 from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
@@ -35,7 +35,7 @@ def main(action: str, out: Path) -> dict:
     init = make_scenario("paper", presets=presets).initial_state()
     vehicles, received, procs = [], [], []
     for i, p in enumerate(presets):
-        port = _free_udp_port()
+        port = free_udp_port()
         cfg = SimVehicleConfig(system_id=i + 1, preset=p, home=Origin(*origin),
                                start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
                                start_heading_rad=float(init.heading[i]), ready_after_s=0.5)
@@ -93,7 +93,7 @@ def main(action: str, out: Path) -> dict:
                          for log, td in zip(received, t_det)],
         )
     finally:
-        _stop_all(procs)
+        stop_all(procs)
         for v in vehicles:
             v.stop()
     return result

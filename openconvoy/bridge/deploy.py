@@ -5,6 +5,13 @@ plugs together — the MAVLink link to the vehicle, the V2V link (J2735 BSMs ove
 multicast on ``--iface``, loss emulated with ``--per``), the leader's scenario or track —
 installs SIGINT/SIGTERM handlers (stop, HOLD, flush the log, exit 0) and runs.
 ``abort`` broadcasts the convoy-wide stop every ``deploy`` obeys.
+
+On a vehicle's companion computer, for example (telemetry radio or autopilot serial)::
+
+    openconvoy deploy --policy paper+ladder --vehicle-id 1 --convoy lab.toml \
+        --mavlink /dev/ttyACM0 --baud 921600 --iface wlan0 --per 0.3 --log runs/today
+
+and from any machine on the convoy's network: ``openconvoy abort --iface wlan0``.
 """
 
 from __future__ import annotations

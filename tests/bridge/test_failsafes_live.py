@@ -352,7 +352,9 @@ def test_px4_streams_before_offboard_and_loses_offboard_when_the_stream_stops(tm
         car.start()
     try:
         wait_until(lambda: moving(follower), 20, "follower moving under OFFBOARD")
-        assert follower.vehicle.mode == "OFFBOARD"
+        # The simulated PX4 refuses OFFBOARD (and arming in it) unless setpoints already
+        # stream above 2 Hz for more than 1 s: being here means they streamed first.
+        assert follower.vehicle.mode == "OFFBOARD" and follower.vehicle.armed
         stall.set()
         # PX4 leaves OFFBOARD 1 s after the stream drops below 2 Hz (COM_OF_LOSS_T) and
         # holds; the runner sees a mode it did not ask for and never takes the vehicle back.

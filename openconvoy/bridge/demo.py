@@ -112,9 +112,7 @@ def run_outside(opts: DemoOptions) -> int:
 def _setup_network() -> str:
     from openconvoy.comms import netns
 
-    setup = getattr(netns, "setup_network", None) or netns._setup_network
-    setup()
-    return netns.IFACE
+    return netns.setup_network()
 
 
 def free_udp_port() -> int:

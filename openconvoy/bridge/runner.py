@@ -55,10 +55,11 @@ from openconvoy.logs import LogWriter
 
 log = logging.getLogger(__name__)
 
-EXTRA_COLUMNS = ("length_m", "msgs_kept", "loop_overruns")
+EXTRA_COLUMNS = ("length_m", "msgs_kept", "loop_overruns", "telemetry_age_s")
 """Numeric log columns after DESIGN.md's: the vehicle's length (as ``sim`` writes, so
-``report`` counts collisions from the log alone), the messages the Rx gate kept, and the
-loop overruns so far. As in ``sim``, ``msgs_received``/``msgs_lost`` count what the link
+``report`` counts collisions from the log alone), the messages the Rx gate kept, the loop
+overruns so far, and how old the telemetry behind the row was (s; ``fit-plant`` removes it
+from the fitted actuation delay). As in ``sim``, ``msgs_received``/``msgs_lost`` count what the link
 delivered / the loss model dropped, before the Rx gate. Why a failsafe fired goes to the
 metadata JSON (``failsafe_events``)."""
 
@@ -557,6 +558,7 @@ class DeployRunner:
             "pred_msg_age_s": m.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
             "msgs_kept": m.msgs_received,
             "loop_overruns": self._timer.overruns if self._timer else 0,
+            "telemetry_age_s": max(wall - own.t, 0.0),
         })
 
     def _delivered(self) -> int:

@@ -210,9 +210,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_deploy_runs_the_exported_policy_on_a_simulated_vehicle(ppo_npz: Path, tmp_path: Path) -> None:
-    """A leader (paper scenario) and a follower driven by the .npz: real MAVLink to
-    simulated vehicles, V2V on an in-process bus, the deploy runner's real-time loop."""
+@pytest.mark.parametrize("artifact", ["policy.zip", "policy.npz"])
+def test_deploy_runs_the_trained_policy_on_a_simulated_vehicle(
+    ppo_run: Path, ppo_npz: Path, artifact: str, tmp_path: Path
+) -> None:
+    """A leader (paper scenario) and a follower driven by the trained file: real MAVLink
+    to simulated vehicles, V2V on an in-process bus, the deploy runner's real-time loop."""
     from openconvoy.bridge.localv2v import LocalBus, LocalV2V
     from openconvoy.bridge.mavlink import MavlinkLink
     from openconvoy.bridge.runner import DeployRunner, RunnerOptions
@@ -228,7 +231,7 @@ def test_deploy_runs_the_exported_policy_on_a_simulated_vehicle(ppo_npz: Path, t
     presets = [vehicle_preset(v) for v in names]
     scenario = make_scenario("paper", presets=presets)
     init = scenario.initial_state()
-    policies = [load_policy("paper"), load_policy(str(ppo_npz))]
+    policies = [load_policy("paper"), load_policy(str(ppo_run / artifact))]
     bus = LocalBus()
     vehicles, runners, results = [], [], {}
     try:

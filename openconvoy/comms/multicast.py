@@ -17,7 +17,7 @@ import socket
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 #: Default IPv6 group: ff15:: is a transient (flag 1), site-local (scope 5) group, so
 #: routers keep it inside the site even if the hop limit were raised.
@@ -82,7 +82,35 @@ def _drain(sock: socket.socket, max_batch: int) -> list[Datagram]:
     return out
 
 
-class Ipv6Multicast:
+_S = TypeVar("_S", bound="_MulticastSocket")
+
+
+class _MulticastSocket:
+    """What both multicast sockets share once bound: ``_sock`` and its destination."""
+
+    _sock: socket.socket
+    _dest: tuple
+
+    def send(self, data: bytes) -> None:
+        self._sock.sendto(data, self._dest)
+
+    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
+        return _drain(self._sock, max_batch)
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self: _S) -> _S:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Ipv6Multicast(_MulticastSocket):
     """A UDP/IPv6 multicast socket joined to ``group`` on interface ``iface``.
 
     Args:
@@ -139,26 +167,8 @@ class Ipv6Multicast:
         """The local port (useful with ``port=0``)."""
         return self._sock.getsockname()[1]
 
-    def send(self, data: bytes) -> None:
-        self._sock.sendto(data, self._dest)
 
-    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
-        return _drain(self._sock, max_batch)
-
-    def fileno(self) -> int:
-        return self._sock.fileno()
-
-    def close(self) -> None:
-        self._sock.close()
-
-    def __enter__(self) -> Ipv6Multicast:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class Ipv4Multicast:
+class Ipv4Multicast(_MulticastSocket):
     """A UDP/IPv4 multicast socket (the compatibility format: 224.0.0.1:5004, TTL 1)."""
 
     def __init__(
@@ -194,24 +204,6 @@ class Ipv4Multicast:
             raise
         self._sock = sock
         self._dest = (self.group, port)
-
-    def send(self, data: bytes) -> None:
-        self._sock.sendto(data, self._dest)
-
-    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
-        return _drain(self._sock, max_batch)
-
-    def fileno(self) -> int:
-        return self._sock.fileno()
-
-    def close(self) -> None:
-        self._sock.close()
-
-    def __enter__(self) -> Ipv4Multicast:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class MemoryBus:

@@ -173,7 +173,7 @@ class EnvSpec:
 
     n_followers: int = 2
     base_policy: str = "paper"
-    residual_scale: tuple[float, float] = (0.5, 0.1)
+    residual_scale: tuple[float, float] = (1.0, 0.1)
     member: MemberConfig | None = None
     control_rate_hz: float | None = None
     action_low: tuple[float, float] = (0.0, -math.pi / 2)

@@ -293,3 +293,18 @@ def test_default_config_is_residual_on_the_paper_controller() -> None:
     assert config.env.base_policy == "paper"
     assert config.env.member_config == PRESETS["paper"].member
     assert config.randomization.per_range == (0.0, 0.6)
+
+
+def test_base_none_trains_absolute_actions(tmp_path: Path) -> None:
+    """``--base none``: no classical base; the network's action spans the recorded range."""
+    cfg = tmp_path / "abs.toml"
+    cfg.write_text("validation_seeds = []\n[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
+    run = tmp_path / "abs"
+    assert main(["train", "--config", str(cfg), "--base", "none", "--steps", "512", "--envs", "1",
+                 "--out", str(run), "--no-progress"]) == 0
+    policy = load_learned(run / "policy.zip")
+    assert policy.meta.base is None and policy.meta.residual_scale == (0.0, 0.0)
+    assert policy.meta.action_low == (0.0, -0.5) and policy.meta.action_high == (5.0, 0.5)
+    actions = np.array([policy.act(o) for o in sample_observations(policy, n=100)])
+    assert np.all((actions[:, 0] >= 0.0) & (actions[:, 0] <= 5.0))
+    assert np.all(np.abs(actions[:, 1]) <= 0.5 + 1e-6)

@@ -96,6 +96,7 @@ class ConvoyMember:
         self.spacing_error_m = math.nan
         self.pred_msg_age_s = math.nan
         self._pred_estimate: tuple[float, float] | None = None
+        self._last_s: dict[int, float] = {}  # last projection on each trail: a warm start
 
     # --- the tick --------------------------------------------------------------------
 
@@ -223,7 +224,8 @@ class ConvoyMember:
             desired = self.spacing.gap_to(i, vid, ego.speed, self.lengths)
             trail = self.buffer.trail(vid)
             head = (hx, hy)
-            projection = trail.project(head, latest.heading, ego.x, ego.y, desired)
+            projection = trail.project(head, latest.heading, ego.x, ego.y, desired, self._last_s.get(vid))
+            self._last_s[vid] = projection.s
             arc = projection.arc_to_head
             o = lay.target_offset(name)
             obs[o : o + _ND] = (arc, desired, arc - desired, latest.speed, 1.0)

@@ -7,7 +7,8 @@ its projection on that path to the predecessor. Positions are ENU metres.
 The path a query sees is: a straight extension behind the oldest breadcrumb (a vehicle
 that has not moved yet is assumed to have come straight along its heading), the
 breadcrumbs, and the vehicle's present (dead-reckoned) position, the *head*. Arc lengths
-``s`` are measured from the oldest breadcrumb (negative on the extension). Queries are
+``s`` are measured from the first breadcrumb ever recorded and stay valid when old
+breadcrumbs are dropped (smaller than the oldest kept one on the extension). Queries are
 plain Python on a few segments: they run every control tick for every target.
 """
 
@@ -62,9 +63,8 @@ class Trail:
             return
         if len(self._x) >= self.capacity:
             half = self.capacity // 2
+            # Arc coordinates stay absolute, so a caller's remembered ``s`` stays valid.
             del self._x[:half], self._y[:half], self._s[:half]
-            s0 = self._s[0]
-            self._s = [s - s0 for s in self._s]
         self._x.append(x), self._y.append(y), self._s.append(self._s[-1] + step)
 
     # --- queries ---------------------------------------------------------------------
@@ -73,13 +73,15 @@ class Trail:
         """Vertex ``k`` of the query path: -1 = far end of the extension, 0..n-1 the
         breadcrumbs, n the head. Returns ``(x, y, s)``."""
         n = len(self._x)
+        if 0 <= k < n:
+            return self._x[k], self._y[k], self._s[k]
         if k >= n:
             return head[0], head[1], self._s[-1] + math.hypot(head[0] - self._x[-1], head[1] - self._y[-1])
         if k >= 0:
             return self._x[k], self._y[k], self._s[k]
         hx, hy = self._back_direction(head, heading)
         far = 1e4
-        return self._x[0] + far * hx, self._y[0] + far * hy, -far
+        return self._x[0] + far * hx, self._y[0] + far * hy, self._s[0] - far
 
     def _back_direction(self, head: tuple[float, float], heading: float) -> tuple[float, float]:
         """Unit vector pointing backwards from the oldest breadcrumb."""
@@ -108,17 +110,25 @@ class Trail:
         return ex * ex + ey * ey, sa + u * (sb - sa), (dx * ry - dy * rx) / seg, math.atan2(dy, dx), seg
 
     def project(
-        self, head: tuple[float, float], heading: float, x: float, y: float, expected_arc: float
+        self,
+        head: tuple[float, float],
+        heading: float,
+        x: float,
+        y: float,
+        expected_arc: float,
+        hint_s: float | None = None,
     ) -> Projection:
-        """Project ``(x, y)`` on the path ending at ``head``; the search starts where the
-        point is expected (``expected_arc`` metres behind the head) and walks to the
-        nearest segment, so it costs a few segments when the convoy holds its gaps."""
+        """Project ``(x, y)`` on the path ending at ``head``. The search starts at arc
+        coordinate ``hint_s`` (the last projection's ``s``) or, without one, where the
+        point is expected (``expected_arc`` metres behind the head), and walks to the
+        nearest segment: a few segments per tick for a vehicle moving along the path."""
         if not self._x:
             raise ValueError("cannot project on an empty trail")
         n = len(self._x)
         last = n - 1 if math.hypot(head[0] - self._x[-1], head[1] - self._y[-1]) > 1e-9 else n - 2
         s_head = self._vertex(n, head, heading)[2]
-        k = min(max(bisect_right(self._s, s_head - expected_arc) - 1, -1), last)
+        start = hint_s if hint_s is not None else s_head - expected_arc
+        k = min(max(bisect_right(self._s, start) - 1, -1), last)
         best = self._segment(k, head, heading, x, y)
         for step in (1, -1):
             j = k + step
@@ -144,9 +154,9 @@ class Trail:
         if s >= self._s[-1]:
             f = (s - self._s[-1]) / (s_head - self._s[-1])
             return self._x[-1] + f * (head[0] - self._x[-1]), self._y[-1] + f * (head[1] - self._y[-1])
-        if s <= 0.0:
+        if s <= self._s[0]:
             bx, by = self._back_direction(head, heading)
-            return self._x[0] - s * bx, self._y[0] - s * by
+            return self._x[0] - (s - self._s[0]) * bx, self._y[0] - (s - self._s[0]) * by
         i = bisect_right(self._s, s) - 1
         f = (s - self._s[i]) / (self._s[i + 1] - self._s[i])
         return self._x[i] + f * (self._x[i + 1] - self._x[i]), self._y[i] + f * (self._y[i + 1] - self._y[i])

@@ -308,3 +308,21 @@ def test_base_none_trains_absolute_actions(tmp_path: Path) -> None:
     actions = np.array([policy.act(o) for o in sample_observations(policy, n=100)])
     assert np.all((actions[:, 0] >= 0.0) & (actions[:, 0] <= 5.0))
     assert np.all(np.abs(actions[:, 1]) <= 0.5 + 1e-6)
+
+
+def test_per_sweep_compares_learned_and_classical(ppo_run: Path, ppo_npz: Path, tmp_path: Path) -> None:
+    """One sweep with the .zip, the .npz and the paper controller side by side."""
+    out = tmp_path / "sweep"
+    code = main(["experiment", "per-sweep", "--policy", str(ppo_run / "policy.zip"), "--policy", str(ppo_npz),
+                 "--policy", "paper", "--pers", "0,0.3", "--seeds", "1", "--duration", "4",
+                 "--out", str(out), "--jobs", "1", "--quiet", "--no-plots"])
+    assert code == 0
+    rows = json.loads((out / "summary.json").read_text())["rows"]
+    assert len(rows) == 6
+    by = {(r["policy"], r["per"]): r for r in rows}
+    for per in (0.0, 0.3):
+        zip_row, npz_row = by[(str(ppo_run / "policy.zip"), per)], by[(str(ppo_npz), per)]
+        # The same network, two artifacts: the same numbers.
+        assert zip_row["p95_platooning_error_m"]["mean"] == pytest.approx(
+            npz_row["p95_platooning_error_m"]["mean"], abs=1e-4)
+        assert zip_row["collisions"]["max"] == 0

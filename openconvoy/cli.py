@@ -421,7 +421,8 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=int, default=30, metavar="N")
     p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
     p.add_argument("--per", type=float, nargs="+", default=[0.0, 0.3, 0.6], metavar="PER", help="PERs (default 0 0.3 0.6)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], metavar="S", help="seeds (default 0 1)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001], metavar="S",
+                   help="seeds (default 1000 1001, apart from the 0.. of reports)")
     p.add_argument("--scenario", default="paper", metavar="SPEC")
     p.add_argument("--duration", type=float, metavar="S", help="run length (default: the scenario's)")
     p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")

@@ -17,11 +17,21 @@ import numpy as np
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.vehicles import VehiclePreset
 
+SCALAR_MAX_VEHICLES = 8
+"""Up to this many vehicles the step runs on Python floats: numpy's per-call overhead
+dominates on a handful of elements (measured 47 µs vs 7.6 µs for the paper's 3 vehicles)."""
+
 
 class BicyclePlant:
-    """``n`` vehicles stepped together with a fixed time step ``dt`` (s)."""
+    """``n`` vehicles stepped together with a fixed time step ``dt`` (s).
 
-    def __init__(self, presets: Sequence[VehiclePreset], dt: float) -> None:
+    ``vectorized`` forces the numpy step (None: numpy above ``SCALAR_MAX_VEHICLES``);
+    both steps compute the same equations.
+    """
+
+    def __init__(
+        self, presets: Sequence[VehiclePreset], dt: float, vectorized: bool | None = None
+    ) -> None:
         if dt <= 0:
             raise ValueError(f"plant time step must be positive, got {dt}")
         self.presets = list(presets)
@@ -49,6 +59,15 @@ class BicyclePlant:
         self._queue_h = np.zeros((self._depth, n))
         self._head = 0
         self._idx = np.arange(n)
+        self._vectorized = n > SCALAR_MAX_VEHICLES if vectorized is None else vectorized
+        # The scalar step's copies of the parameters and of the setpoint queue.
+        self._params = list(zip(
+            self._tau_v.tolist(), self._tau_h.tolist(), self._acc.tolist(), self._dec.tolist(),
+            self._rate.tolist(), self._vmax.tolist(), self._kappa.tolist(),
+            self._delay_steps.tolist(),
+        ))
+        self._qv: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
+        self._qh: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
 
     def __len__(self) -> int:
         return len(self.presets)
@@ -70,10 +89,15 @@ class BicyclePlant:
         self.yaw_rate = np.zeros(n)
         self._queue_v[:] = self.speed
         self._queue_h[:] = self.heading
+        self._qv = [self.speed.tolist() for _ in range(self._depth)]
+        self._qh = [self.heading.tolist() for _ in range(self._depth)]
         self._head = 0
 
-    def step(self, cmd_speed: np.ndarray, cmd_heading: np.ndarray) -> None:
+    def step(self, cmd_speed: Sequence[float], cmd_heading: Sequence[float]) -> None:
         """Advance ``dt`` seconds with new setpoints (speed m/s, absolute heading rad)."""
+        if not self._vectorized:
+            self._step_scalar(cmd_speed, cmd_heading)
+            return
         dt = self.dt
         self._queue_v[self._head] = cmd_speed
         self._queue_h[self._head] = cmd_heading
@@ -101,6 +125,37 @@ class BicyclePlant:
         self.accel = dv / dt
         self.yaw_rate = rate
         self.speed = v_new
+
+    def _step_scalar(self, cmd_speed: Sequence[float], cmd_heading: Sequence[float]) -> None:
+        """``step`` on Python floats, the same equations vehicle by vehicle."""
+        dt, depth, head = self.dt, self._depth, self._head
+        self._qv[head] = [float(v) for v in cmd_speed]
+        self._qh[head] = [float(h) for h in cmd_heading]
+        self._head = (head + 1) % depth
+        two_pi, pi = 2.0 * math.pi, math.pi
+        xs, ys, hs, vs = self.x.tolist(), self.y.tolist(), self.heading.tolist(), self.speed.tolist()
+        acc_out, rate_out = [0.0] * len(vs), [0.0] * len(vs)
+        for i, (tau_v, tau_h, acc, dec, rate_max, vmax, kappa, delay) in enumerate(self._params):
+            slot = (head - delay) % depth
+            v_cmd = min(max(self._qv[slot][i], -vmax), vmax)
+            v = vs[i]
+            dv = min(max((v_cmd - v) / tau_v, -dec), acc) * dt
+            if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
+                dv = v_cmd - v
+            v_new = v + dv
+            err = (self._qh[slot][i] - hs[i] + pi) % two_pi - pi
+            v_mid = 0.5 * (v + v_new)
+            cap = min(rate_max, abs(v_mid) * kappa)
+            rate = min(max(err / max(tau_h, dt), -cap), cap)
+            h_mid = hs[i] + 0.5 * rate * dt
+            xs[i] += v_mid * math.cos(h_mid) * dt
+            ys[i] += v_mid * math.sin(h_mid) * dt
+            hs[i] = (hs[i] + rate * dt + pi) % two_pi - pi
+            vs[i] = v_new
+            acc_out[i] = dv / dt
+            rate_out[i] = rate
+        self.x, self.y, self.heading = np.array(xs), np.array(ys), np.array(hs)
+        self.speed, self.accel, self.yaw_rate = np.array(vs), np.array(acc_out), np.array(rate_out)
 
     def state(self, i: int, t: float) -> VehicleState:
         """Vehicle ``i``'s state at time ``t`` (its id is its index)."""

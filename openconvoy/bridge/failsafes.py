@@ -181,8 +181,9 @@ class Failsafes:
         now = inp.now
         if inp.pilot_took_over or self.took_over:
             if not self.took_over:
-                self.took_over = True
+                # Event first, flag second: a thread that sees the flag also sees the event.
                 self._fire(now, "pilot took over")
+                self.took_over = True
             # A signal or an abort still ends the run (log saved), commanding nothing.
             leaving = bool(inp.stop_requested or inp.abort)
             return Verdict(SILENT, exit=leaving, failsafe=True, reason="pilot took over")
@@ -217,9 +218,9 @@ class Failsafes:
         return Verdict(DRIVE)
 
     def _latch(self, now: float, reason: str, hold: bool) -> None:
-        self.latched = reason
-        self.latched_hold = hold
         self._fire(now, reason)
+        self.latched_hold = hold
+        self.latched = reason
 
 
 @dataclass

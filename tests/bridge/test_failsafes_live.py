@@ -196,6 +196,11 @@ def test_policy_exception_stops_logs_and_keeps_looping(tmp_path):
         wait_until(lambda: moving(follower), 15, "follower moving")
         policy.fail_after = policy.calls + 1
         wait_until(lambda: policy.t_first_raise is not None, 2, "policy raised")
+        # The runner records the failsafe right after act() raised, on its own thread.
+        wait_until(
+            lambda: any(r.startswith("policy error") for _, r in follower.runner.failsafes.events),
+            1, "policy error recorded",
+        )
         det = follower.first_event("policy error")
         ticks = follower.runner._timer.ticks
         time.sleep(1.0)

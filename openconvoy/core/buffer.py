@@ -36,7 +36,7 @@ class StateBuffer:
         elif q and state.t <= q[0].t:
             return
         q.appendleft(state)
-        self._trails[state.vehicle_id].add(state.x, state.y, state.heading)
+        self._trails[state.vehicle_id].add(state.x, state.y)
 
     def heard(self) -> list[int]:
         """Ids of every vehicle with at least one stored state."""

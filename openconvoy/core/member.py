@@ -78,9 +78,6 @@ class ConvoyMember:
         self.tx = TxGate(config.trigger)
         self.spacing = SpacingPolicy(config.spacing)
         self.buffer = StateBuffer(config.k, config.trail_spacing_m)
-        self._max_desired = self.spacing.gap_to(
-            vehicle_id, 0, 40.0, self.lengths
-        ) if vehicle_id > 0 else 0.0
         self.reset()
 
     def reset(self) -> None:

@@ -50,22 +50,19 @@ class Trail:
         self._x: list[float] = []
         self._y: list[float] = []
         self._s: list[float] = []
-        self._heading = 0.0
 
-    def add(self, x: float, y: float, heading: float) -> None:
+    def add(self, x: float, y: float) -> None:
         """Record a position; kept only when ``spacing_m`` from the last breadcrumb."""
-        if not self._x:
-            self._heading = heading
-            self._x.append(x), self._y.append(y), self._s.append(0.0)
-            return
-        step = math.hypot(x - self._x[-1], y - self._y[-1])
-        if step < self.spacing_m:
+        step = math.hypot(x - self._x[-1], y - self._y[-1]) if self._x else 0.0
+        if self._x and step < self.spacing_m:
             return
         if len(self._x) >= self.capacity:
             half = self.capacity // 2
             # Arc coordinates stay absolute, so a caller's remembered ``s`` stays valid.
             del self._x[:half], self._y[:half], self._s[:half]
-        self._x.append(x), self._y.append(y), self._s.append(self._s[-1] + step)
+        self._x.append(x)
+        self._y.append(y)
+        self._s.append(self._s[-1] + step if self._s else 0.0)
 
     # --- queries ---------------------------------------------------------------------
 

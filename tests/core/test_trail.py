@@ -8,7 +8,7 @@ from openconvoy.core.trail import Trail
 def straight(n: int, spacing: float = 0.5, capacity: int = 1024) -> Trail:
     trail = Trail(spacing_m=0.2, capacity=capacity)
     for k in range(n):
-        trail.add(k * spacing, 0.0, 0.0)
+        trail.add(k * spacing, 0.0)
     return trail
 
 
@@ -23,7 +23,7 @@ def test_projection_gap_offset_and_heading_on_a_straight():
 
 def test_short_trail_extends_backwards_along_its_heading():
     trail = Trail()
-    trail.add(0.0, 0.0, math.pi / 2)  # a vehicle that has not moved, heading north
+    trail.add(0.0, 0.0)  # a vehicle that has not moved, heading north
     p = trail.project((0.0, 0.0), math.pi / 2, 0.0, -15.0, expected_arc=15.0)
     assert p.arc_to_head == pytest.approx(15.0) and p.cross_track == pytest.approx(0.0, abs=1e-9)
     assert trail.point_at((0.0, 0.0), math.pi / 2, p.s + 5.0) == pytest.approx((0.0, -10.0))
@@ -37,7 +37,7 @@ def test_points_beyond_the_head_continue_straight():
 def test_breadcrumbs_closer_than_the_spacing_are_skipped():
     trail = Trail(spacing_m=0.2)
     for x in (0.0, 0.1, 0.25, 0.3, 0.5):
-        trail.add(x, 0.0, 0.0)
+        trail.add(x, 0.0)
     assert len(trail) == 3
 
 

@@ -111,6 +111,8 @@ def state_to_core(
     # is representable; values past ±180 (an origin near the antimeridian) are normalized
     # to that span too. This is the angle's periodicity, not wrapping an out-of-range value.
     lon = 180.0 - (180.0 - lon) % 360.0
+    if math.isfinite(lon) and round(lon / j.LATLON_UNIT) < j.LON_MIN:
+        lon += 360.0  # rounds onto -180 degrees: send the same meridian as +180
     if alt_m is not None:
         alt = alt_m
     reversing = state.speed < 0.0

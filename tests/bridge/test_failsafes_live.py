@@ -30,9 +30,12 @@ def assert_stopped_after(car, t_detect: float) -> None:
     and the vehicle itself came to rest."""
     late = car.link.after(t_detect + STOP_WITHIN_S)
     assert all(s[1] == 0.0 for s in late), f"motion commanded after detection: {late[:3]}"
-    first = car.link.after(t_detect - 1e-3)
-    if first:
-        assert first[0][1] == 0.0 and first[0][0] - t_detect <= STOP_WITHIN_S, first[:2]
+    sent = car.link.after(t_detect - 1e-3)
+    if sent:  # (a taken-over vehicle is sent nothing at all)
+        # A tick already under way at detection may still send its motion setpoint; the
+        # first stop setpoint must follow within 0.5 s.
+        stops = [s for s in sent if s[1] == 0.0]
+        assert stops and stops[0][0] - t_detect <= STOP_WITHIN_S, sent[:2]
     wait_until(lambda: abs(car.vehicle.state().speed) < 0.05, 4.0, "vehicle at rest")
 
 
@@ -136,7 +139,9 @@ def test_silent_predecessor_ladder_degrades_then_stops(tmp_path):
         wait_until(lambda: follower.runner.member.mode == "degraded", 2, "degraded mode")
         wait_until(lambda: follower.runner.member.mode == "stop", 4, "stop rung")
         t_stop = time.monotonic()
-        assert 1.9 <= t_stop - t_silent <= 2.0 + 0.5  # stop_after_s = 2 s of silence
+        # stop_after_s = 2 s after the last message was measured: that is up to one
+        # broadcast period (0.1 s) plus a tick (0.05 s) before the radio went silent.
+        assert 2.0 - 0.15 <= t_stop - t_silent <= 2.0 + 0.5
         time.sleep(0.8)
         assert_stopped_after(follower, t_stop)
         leader.v2v.send = type(leader.v2v).send.__get__(leader.v2v)  # radio back

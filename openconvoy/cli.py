@@ -43,6 +43,14 @@ def _run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
+def _executor_args(p: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray)."""
+    p.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where runs execute: local processes (default) or a Ray cluster (openconvoy[cluster])")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="Ray cluster to use, HOST:PORT or auto (default: a private cluster of this machine)")
+
+
 def _add_sim(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim", help="simulate one run: log, metrics and plots",
                        description="Simulate a convoy and write DIR/log.csv, DIR/metrics.json, "
@@ -108,7 +116,9 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=int, default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
     p.add_argument("--name", default=None, help="experiment name")
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--jobs", type=int, default=None, metavar="N", help="processes (default: the cores available)")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="runs at once (default: the cores available, or the Ray cluster's CPUs)")
+    _executor_args(p)
     _run_args(p, sweep=True)
 
     def _per_sweep(args: argparse.Namespace) -> int:
@@ -427,6 +437,13 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="run length (default: the scenario's)")
     p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument("--storage", metavar="URL_OR_FILE",
+                   help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+                   "or a journal file path; rerunning with it resumes the study")
+    p.add_argument("--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help="trials at once (default 1 locally, the cluster's CPUs on Ray)")
+    _executor_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     def _tune(args: argparse.Namespace) -> int:

@@ -61,19 +61,33 @@ def train_command(args: argparse.Namespace) -> int:
 
 
 def tune_command(args: argparse.Namespace) -> int:
+    """``openconvoy tune``; exit status 1 when trials failed (the study keeps the others)."""
+    from openconvoy.experiments.executor import ExecutorConfig, with_flags
     from openconvoy.train.tune import TuneConfig, tune, write_tuned
 
     if not args.out.endswith(".toml"):
         raise ValueError(f"{args.out}: the tuned policy is a .toml file")
+    if args.study_name is not None and args.storage is None:
+        raise ValueError("--study-name needs --storage (an in-memory study cannot be resumed)")
     config = TuneConfig(
         base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
         scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
         seed=args.seed, name=_stem(args.out),
     )
-    result = tune(config, progress_bar=not args.no_progress)
+    # Trials run one at a time in this process unless an executor or --jobs is asked for.
+    jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
+    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
+    result = tune(config, progress_bar=not args.no_progress, executor=executor,
+                  study_name=args.study_name, storage=args.storage)
     path = write_tuned(result, args.out)
     values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
-    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}")
+    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "
+          f"{len(result.history)} trials in study {result.study_name!r}, {result.evaluated} run now")
+    if result.failures:
+        print(f"openconvoy: error: {len(result.failures)} trials failed:", file=sys.stderr)
+        for f in result.failures:
+            print(f"  {f.line()}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -394,11 +394,17 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                        "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
                        "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
                        "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
-    p.add_argument("--config", metavar="TRAIN.toml", help="training config file")
+    p.add_argument("--config", metavar="TRAIN.toml", action="append",
+                   help="training config file; repeat for one run per config (OUT/<stem>)")
     p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
     p.add_argument("--steps", type=int, metavar="N", help="agent steps (default 600000)")
     p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
     p.add_argument("--seed", type=int, help="seed (default 0)")
+    p.add_argument("--seeds", type=int, nargs="+", metavar="S",
+                   help="one run per seed (OUT/seed_S), run as tasks of --executor")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help="training runs at once (default: the cores available, or the cluster's CPUs)")
+    _executor_args(p)
     p.add_argument("--envs", type=int, metavar="N", help="environments stepped together (default 4)")
     p.add_argument("--followers", type=int, metavar="N", help="followers per environment (default 2)")
     p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "

@@ -219,7 +219,7 @@ class LocalExecutor(Executor):
     def wait_one(self) -> tuple[Task, Any]:
         if self.jobs == 1:
             task = self._queue.popleft()
-            return task, outcome(task, guarded(task.fn, task.arg, f"this process ({worker_location()})"))
+            return task, outcome(task, guarded(task.fn, task.arg, f"the driver, {worker_location()}"))
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 

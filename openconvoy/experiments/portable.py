@@ -10,7 +10,8 @@ its own temporary directory (``land``) and runs with the specs pointing there
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +64,27 @@ def relocate(spec: str, where: dict[str, str]) -> str:
     if spec.startswith(TRACK_PREFIX):
         return TRACK_PREFIX + where[path]
     return where[path] + spec[len(path):]
+
+
+@contextmanager
+def driver_names(where: dict[str, str]) -> Iterator[None]:
+    """Errors raised inside name the driver's files, not the worker's copies."""
+    try:
+        yield
+    except Exception as exc:
+        back = {worker: driver for driver, worker in where.items()}
+
+        def rename(value: object) -> object:
+            if not isinstance(value, str):
+                return value
+            for worker, driver in back.items():
+                value = value.replace(worker, driver)
+            return value
+
+        exc.args = tuple(rename(a) for a in exc.args)
+        if isinstance(exc, OSError) and exc.filename is not None:
+            exc.filename = rename(exc.filename)
+        raise
 
 
 def run_specs(config: Any) -> list[str]:

@@ -48,7 +48,7 @@ def _run(fn: Any, arg: Any) -> Iterator[Any]:
     import ray
 
     ctx = ray.get_runtime_context()
-    where = f"{worker_location()} {ray.util.get_node_ip_address()} (Ray node {ctx.get_node_id()[:8]})"
+    where = f"Ray worker {worker_location()} {ray.util.get_node_ip_address()}, node {ctx.get_node_id()[:8]}"
     yield where
     yield guarded(fn, arg, where)
 

@@ -279,9 +279,10 @@ def _run_one(args: tuple[RunConfig, Files, bool]) -> dict[str, Any]:
     its metrics and (``keep_series``) the figure series. The driver writes the files."""
     config, files, keep_series = args
     with tempfile.TemporaryDirectory(prefix="openconvoy-run-") as tmp:
-        config = portable.relocate_run(config, portable.land(files, tmp))
+        where = portable.land(files, tmp)
         out = Path(tmp) / "run"
-        result = run_sim(config, out)
+        with portable.driver_names(where):
+            result = run_sim(portable.relocate_run(config, where), out)
         return {
             "files": {name: (out / name).read_bytes() for name in RUN_FILES},
             "metrics": result.metrics,

@@ -5,13 +5,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from pathlib import Path
 
 from openconvoy.train.config import TrainConfig, load_train_config
 
 
-def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
-    """``--config`` (or the defaults) with the flags given on the command line applied."""
-    config = load_train_config(args.config) if args.config else TrainConfig()
+def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
+    """``path`` (a ``--config``; default the first, or the defaults) with the flags given
+    on the command line applied."""
+    if path is None and args.config:
+        path = args.config[0]
+    config = load_train_config(path) if path else TrainConfig()
     top: dict = {}
     for flag, key in (("algo", "algo"), ("steps", "total_steps"), ("seed", "seed"),
                       ("envs", "n_envs"), ("threads", "torch_threads")):
@@ -45,8 +49,12 @@ def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def train_command(args: argparse.Namespace) -> int:
+    """``openconvoy train``: one run in this process, or several (``--seeds``, repeated
+    ``--config``) as tasks of the executor (``openconvoy.train.multirun``)."""
     from openconvoy.train.train import train
 
+    if args.seeds or len(args.config or ()) > 1 or args.executor == "ray":
+        return _train_many(args)
     config = train_config_from_args(args)
     print(
         f"training {config.algo} for {config.total_steps} agent steps on {config.n_envs} envs x "
@@ -57,6 +65,35 @@ def train_command(args: argparse.Namespace) -> int:
     )
     result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
     print(f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)")
+    return 0
+
+
+def _train_many(args: argparse.Namespace) -> int:
+    from openconvoy.experiments.executor import (
+        ExecutorConfig,
+        TasksFailed,
+        make_executor,
+        with_flags,
+    )
+    from openconvoy.train.multirun import plan, train_many
+
+    if args.seed is not None and args.seeds:
+        raise ValueError("give --seed or --seeds, not both")
+    if args.seeds and len(set(args.seeds)) != len(args.seeds):
+        raise ValueError(f"--seeds repeat: {' '.join(map(str, args.seeds))}")
+    paths = args.config or [None]
+    configs = [(_stem(p) if p else "default", train_config_from_args(args, p)) for p in paths]
+    runs = plan(configs, args.seeds)
+    executor = make_executor(with_flags(ExecutorConfig(), args.executor, args.address, args.jobs))
+    print(f"training {len(runs)} runs on the {executor.kind} executor ({executor.slots} at once) -> {args.out}",
+          file=sys.stderr)
+    try:
+        summary = train_many(runs, args.out, executor, progress=not args.no_progress, overwrite=args.overwrite)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
+    for entry in summary:
+        print(f"{Path(args.out) / entry['policy']}  ({entry['steps']} steps in {entry['wall_s']:.0f} s on {entry['ran_on']})")
     return 0
 
 

@@ -193,7 +193,8 @@ def evaluate_on_worker(config: TuneConfig, files: dict[str, bytes], candidate: C
     with tempfile.TemporaryDirectory(prefix="openconvoy-tune-") as tmp:
         where = portable.land(files, tmp)
         local = dataclasses.replace(config, scenario=portable.relocate(config.scenario, where))
-        return grid_evaluator(local, Path(tmp))(candidate)
+        with portable.driver_names(where):
+            return grid_evaluator(local, Path(tmp))(candidate)
 
 
 # What a resumed study must share with the one it continues (the objective's definition).

@@ -129,3 +129,12 @@ def test_only_the_ray_executor_imports_ray():
             if any(n == "ray" or n.startswith("ray.") for n in names):
                 importers.append(path.relative_to(PACKAGE).as_posix())
     assert sorted(set(importers)) == ["experiments/ray_executor.py"]
+
+
+def test_an_unreachable_cluster_is_one_error_line(tmp_path: Path, capsys):
+    pytest.importorskip("ray")
+    assert main(["experiment", "per-sweep", "--executor", "ray", "--address", "127.0.0.1:1", "--seeds", "1",
+                 "--pers", "0", "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    assert capsys.readouterr().err.startswith(
+        "openconvoy: error: cannot reach the Ray cluster at 127.0.0.1:1: ConnectionRefusedError")
+    assert not (tmp_path / "x").exists()  # nothing written before the cluster answers

@@ -53,6 +53,20 @@ def _run(fn: Any, arg: Any) -> Iterator[Any]:
     yield guarded(fn, arg, where)
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """A ``HOST:PORT`` address that nothing answers is one error line now, not Ray's
+    minutes of reconnecting."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "://" in address:
+        return  # "auto" and the like: Ray resolves them itself
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
+
+
 class RayExecutor(Executor):
     """Tasks on a Ray cluster (see the module docstring); ``jobs`` caps the tasks in
     flight (default: the cluster's CPUs when connecting), ``max_retries`` reruns a task
@@ -69,6 +83,8 @@ class RayExecutor(Executor):
             kwargs: dict[str, Any] = {}
             if address == "local":
                 kwargs["include_dashboard"] = False
+            else:
+                _check_reachable(address)
             try:
                 ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING, **kwargs)
             except ConnectionError as exc:

@@ -350,6 +350,9 @@ def run_experiment(
         chosen = executor or config.executor
         if jobs is not None and chosen.jobs is None:
             chosen = dataclasses.replace(chosen, jobs=jobs)
+        if chosen.kind == "local":  # no more processes than runs (one: in this process)
+            n_runs = len(config.policies) * len(config.pers) * len(config.seeds)
+            chosen = dataclasses.replace(chosen, jobs=min(chosen.jobs or available_cores(), n_runs))
         executor = make_executor(chosen)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

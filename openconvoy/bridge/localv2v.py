@@ -87,7 +87,8 @@ class LocalV2V:
         self.bus.publish(self._q, state)
         return True
 
-    def poll(self, now: float) -> list[Received]:
+    def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
+        """Every message waiting (in-process: ``budget_s`` is not needed)."""
         out: list[Received] = []
         while self._q:
             state, abort = self._q.popleft()

@@ -29,7 +29,7 @@ import math
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -64,6 +64,9 @@ delivered / the loss model dropped, before the Rx gate. Why a failsafe fired goe
 metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
+RECEIVE_BUDGET = 0.25
+"""Share of a loop period the V2V receive may take per tick; datagrams beyond it wait for
+the next tick (a flood of them costs messages, never the loop's timing)."""
 FINISH_TIMEOUT_S = 10.0
 """Longest a leader brakes after its scenario before ending the run anyway (s)."""
 
@@ -76,9 +79,10 @@ class V2VEndpoint(Protocol):
 
     def send(self, state: VehicleState, now: float) -> bool: ...
 
-    def poll(self, now: float) -> list[Any]:
+    def poll(self, now: float, budget_s: float | None = None) -> list[Any]:
         """Messages heard since the last poll: objects with ``state`` (VehicleState with
-        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``."""
+        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``; reading
+        for at most ``budget_s`` seconds when given."""
         ...
 
     @property
@@ -255,6 +259,7 @@ class DeployRunner:
         self._heard_raw: set[int] = set()
         self._writer: LogWriter | None = None
         self._timer: LoopTimer | None = None
+        self._late_periods = 0.0
         self._t_hold_sent = -math.inf
         self._t_status = -math.inf
         self._t_reconnect = -math.inf
@@ -326,7 +331,7 @@ class DeployRunner:
                 if wait > 0:
                     self.sleep(wait)
                 t_tick = self.clock()
-                timer.begin(t_tick)
+                self._late_periods = timer.begin(t_tick) / period
                 done = self.tick(t_tick)
                 if done:
                     reason = done
@@ -369,6 +374,7 @@ class DeployRunner:
         """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
         o = self.options
         member = self.member
+        period_s = 1.0 / o.rate_hz
         # 1. telemetry
         tel = self.link.poll()
         if tel is not None:
@@ -383,8 +389,8 @@ class DeployRunner:
         # 2. τ
         if member.wants_to_send(wall):
             self.v2v.send(own, wall)
-        # 3. ρ
-        for msg in self.v2v.poll(wall):
+        # 3. ρ, bounded in time so that a flood cannot stall the loop
+        for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET * period_s):
             if getattr(msg, "abort", False):
                 self._abort = True
                 continue
@@ -414,7 +420,7 @@ class DeployRunner:
                 stop_requested=self._stop_requested, abort=self._abort,
                 x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
                 gap_m=gap, needed_age_s=needed_age, policy_error=policy_error,
-                held=tel.mode in HOLD_MODES,
+                held=tel.mode in HOLD_MODES, late_periods=self._late_periods,
             )
         )
         if verdict.command == DRIVE:
@@ -622,6 +628,9 @@ class DeployRunner:
             "exit_reason": reason,
             "ticks": self._timer.ticks if self._timer else 0,
             "overruns": self._timer.overruns if self._timer else 0,
+            "late_ticks": self._timer.late_ticks if self._timer else 0,
+            "max_tick_late_s": self._timer.max_late_s if self._timer else 0.0,
+            "v2v_counters": _safe(lambda: asdict(self.v2v.counters)),
             "policy_errors": self.failsafes.policy_errors,
             "failsafe_events": [{"t_s": wall0 + t, "reason": r} for t, r in self.failsafes.events],
             "msgs_sent": self.member.msgs_sent,

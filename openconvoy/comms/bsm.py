@@ -399,3 +399,25 @@ def core_as_dict(core: BsmCore) -> dict[str, Any]:
     d = core._asdict()
     d["temp_id"] = core.temp_id.hex().upper()
     return d
+
+
+def peek_temp_id(data: bytes) -> bytes | None:
+    """The TemporaryID of a BSM MessageFrame read straight from its bits, without decoding.
+
+    UPER lays a core-only or Part II BSM out as: the frame's extension bit and 15-bit
+    messageId (``00 14``), the open type's length determinant (one octet below 128, two
+    from 128 on), then the BSM's extension bit, its two OPTIONAL bits, the 7-bit msgCnt and
+    the 32-bit id. A receiver uses this to drop foreign traffic at a few hundred
+    nanoseconds a datagram instead of a full decode (~50 us). None when ``data`` is too
+    short or not a BSM frame; a frame whose id is known must still be decoded in full.
+    """
+    if data[:2] != BSM_FRAME_PREFIX:
+        return None
+    if len(data) < 3:
+        return None
+    first = data[2]
+    start = 3 if first & 0x80 == 0 else 4 if first & 0xC0 == 0x80 else 0
+    if not start or len(data) < start + 6:
+        return None
+    bits = int.from_bytes(data[start:start + 6], "big")  # 48 bits: 3 + 7 + 32 + 6
+    return ((bits >> 6) & 0xFFFFFFFF).to_bytes(4, "big")

@@ -27,7 +27,8 @@ DEFAULT_HOP_LIMIT = 1
 
 #: Enough socket buffer for a roadside unit hearing ~1000 vehicles at 10 Hz between polls.
 RCVBUF_BYTES = 4 * 1024 * 1024
-#: Upper bound on datagrams returned by one ``recv_all`` (a flood cannot stall a tick).
+#: Upper bound on datagrams returned by one ``recv_all``. A control loop bounds its
+#: receiving by time instead (``V2V.poll``'s budget), reading small batches.
 MAX_BATCH = 10_000
 MAX_DATAGRAM = 65_535
 
@@ -46,8 +47,9 @@ class Transport(Protocol):
     def send(self, data: bytes) -> None:
         """Send one datagram to the group (errors raise ``OSError``)."""
 
-    def recv_all(self) -> list[Datagram]:
-        """Every datagram waiting, oldest first; empty when none. Never blocks."""
+    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
+        """Datagrams waiting (at most ``max_batch``), oldest first; empty when none.
+        Never blocks."""
 
     def close(self) -> None:
         """Release the socket."""

@@ -31,7 +31,9 @@ Network input never raises: anything that is not a valid message is counted as
 from __future__ import annotations
 
 import logging
+import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -62,6 +64,9 @@ log = logging.getLogger(__name__)
 
 DropAt = Literal["receiver", "sender"]
 Source = Literal["j2735", "compat"]
+
+#: Datagrams read from one socket between checks of the poll's time budget.
+POLL_CHUNK = 32
 
 #: A compat message from a vehicle heard over J2735 within this many seconds is a
 #: duplicate (our own vehicles send both when compat is on); J2735 wins.
@@ -112,7 +117,9 @@ class Counters:
         received: messages delivered by ``poll`` (aborts included).
         malformed: datagrams that were not a valid message, or a member's BSM lacking
             position, speed, heading or time ("unavailable").
-        filtered: valid messages from outside the convoy (unknown temporary ID or car).
+        filtered: messages from outside the convoy (unknown temporary ID or car). A J2735
+            frame is recognised by the id read from its first bits (``bsm.peek_temp_id``)
+            and dropped without a full decode, so a flood of foreign BSMs costs little.
         lost: messages dropped by the emulated loss model (at receiver or sender).
         echoes: our own messages heard back (multicast loop).
         duplicates: compat twins of messages already heard over J2735.
@@ -120,6 +127,8 @@ class Counters:
         datagrams: datagrams handled by the receiver.
         send_errors: sends the OS refused (the link keeps going).
         recv_errors: socket receive errors (the link keeps going).
+        budget_hits: polls that ended on their time budget with datagrams possibly still
+            waiting (they are read by the next poll; the kernel drops what overflows).
     """
 
     sent: int = 0
@@ -133,6 +142,7 @@ class Counters:
     datagrams: int = 0
     send_errors: int = 0
     recv_errors: int = 0
+    budget_hits: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -260,6 +270,10 @@ class Receiver:
         self.counters.datagrams += 1
         try:
             if data[:2] == j.BSM_FRAME_PREFIX:
+                temp_id = j.peek_temp_id(data)
+                if temp_id is not None and temp_id != self.own_id and self.temp_ids.index_of(temp_id) is None:
+                    self.counters.filtered += 1  # foreign: not worth a full decode
+                    return None
                 return self._handle_j2735(data, t_rx, source)
             if data.lstrip()[:1] == b"{":
                 return self._handle_compat(data, t_rx, source)
@@ -368,6 +382,7 @@ class V2V:
         rng: random source for the loss models (seeded: the same seed, the same drops).
         transport, compat_transport: injected sockets (tests); by default opened on
             ``config.iface`` (the IPv4 one only when ``config.compat``).
+        clock: monotonic clock (s) that times ``poll``'s budget.
     """
 
     def __init__(
@@ -382,8 +397,10 @@ class V2V:
         rng: np.random.Generator | None = None,
         transport: Transport | None = None,
         compat_transport: Transport | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         _check_drop_at(drop_at)
+        self._clock = clock
         self.config = config
         self.vehicle_index = vehicle_index
         self.loss = loss
@@ -484,21 +501,34 @@ class V2V:
         if self._tx4 is not None:
             self._send(self._tx4, data)
 
-    def poll(self, now: float) -> list[Received]:
-        """Every message waiting, decoded and filtered, received at ``now``, seconds."""
+    def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
+        """Messages waiting, decoded and filtered, received at ``now`` (seconds).
+
+        With ``budget_s`` the poll reads for at most that long (monotonic clock) and leaves
+        the rest in the socket buffers for the next poll, so a flood of datagrams cannot
+        stall the caller's control loop; the sockets take turns in chunks of
+        ``POLL_CHUNK``. None: every datagram waiting.
+        """
         out: list[Received] = []
         transports = [self._tx] if self._tx4 is None else [self._tx, self._tx4]
-        for transport in transports:
-            try:
-                dgrams = transport.recv_all()
-            except OSError as exc:  # e.g. the interface went down: keep the vehicle going
-                self.counters.recv_errors += 1
-                log.debug("V2V receive failed: %s", exc)
-                continue
-            for dgram in dgrams:
-                r = self.receiver.handle(dgram.data, now, dgram.source)
-                if r is not None:
-                    out.append(r)
+        deadline = math.inf if budget_s is None else self._clock() + budget_s
+        while transports:
+            for transport in list(transports):
+                try:
+                    dgrams = transport.recv_all(POLL_CHUNK)
+                except OSError as exc:  # e.g. the interface went down: keep the vehicle going
+                    self.counters.recv_errors += 1
+                    log.debug("V2V receive failed: %s", exc)
+                    dgrams = []
+                if len(dgrams) < POLL_CHUNK:
+                    transports.remove(transport)  # drained
+                for dgram in dgrams:
+                    r = self.receiver.handle(dgram.data, now, dgram.source)
+                    if r is not None:
+                        out.append(r)
+            if transports and self._clock() >= deadline:
+                self.counters.budget_hits += 1
+                break
         return out
 
     def close(self) -> None:
@@ -564,4 +594,5 @@ __all__ = [
     "V2V",
     "send_abort",
     "DUPLICATE_WINDOW_S",
+    "POLL_CHUNK",
 ]

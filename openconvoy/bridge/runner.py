@@ -64,7 +64,7 @@ delivered / the loss model dropped, before the Rx gate. Why a failsafe fired goe
 metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
-RECEIVE_BUDGET = 0.25
+RECEIVE_BUDGET = 0.4
 """Share of a loop period the V2V receive may take per tick; datagrams beyond it wait for
 the next tick (a flood of them costs messages, never the loop's timing)."""
 FINISH_TIMEOUT_S = 10.0

@@ -16,8 +16,7 @@ import ipaddress
 import socket
 import struct
 from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Protocol, TypeVar
+from typing import NamedTuple, Protocol, TypeVar
 
 #: Default IPv6 group: ff15:: is a transient (flag 1), site-local (scope 5) group, so
 #: routers keep it inside the site even if the hop limit were raised.
@@ -33,9 +32,9 @@ MAX_BATCH = 10_000
 MAX_DATAGRAM = 65_535
 
 
-@dataclass(frozen=True, slots=True)
-class Datagram:
-    """One received datagram: payload and sender address (text)."""
+class Datagram(NamedTuple):
+    """One received datagram: payload and sender address (text). (A named tuple: built for
+    every datagram, and cheaper to build than a frozen dataclass.)"""
 
     data: bytes
     source: str

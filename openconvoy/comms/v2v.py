@@ -264,14 +264,16 @@ class Receiver:
                 model.reset(_child_rng(rng))
                 self._loss[index] = model
         self._last_j2735: dict[int, float] = {}
+        # The convoy's ids (ours included, for echoes) as ``bsm.peek_temp_id`` reads them.
+        self._known_ids = {int.from_bytes(t, "big") for _, t in temp_ids}
 
     def handle(self, data: bytes, t_rx: float, source: str = "") -> Received | None:
         """Classify and decode one datagram received at ``t_rx``; None if not delivered."""
         self.counters.datagrams += 1
         try:
             if data[:2] == j.BSM_FRAME_PREFIX:
-                temp_id = j.peek_temp_id(data)
-                if temp_id is not None and temp_id != self.own_id and self.temp_ids.index_of(temp_id) is None:
+                peeked = j.peek_temp_id(data)
+                if peeked is not None and peeked not in self._known_ids:
                     self.counters.filtered += 1  # foreign: not worth a full decode
                     return None
                 return self._handle_j2735(data, t_rx, source)

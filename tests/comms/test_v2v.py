@@ -398,7 +398,8 @@ def test_peek_temp_id_reads_the_id_asn1tools_encoded(cnt, temp_id, speed, part_i
     if part_ii is not None:
         value["partII"] = [{"partII-Id": 0, "partII-Value": bytes(part_ii)}]
     frame = frame_t.encode({"messageId": 20, "value": bsm_t.encode(value)})
-    assert j.peek_temp_id(frame) == temp_id == j.decode_frame(frame).core.temp_id
+    assert j.peek_temp_id(frame) == int.from_bytes(temp_id, "big")
+    assert j.decode_frame(frame).core.temp_id == temp_id
 
 
 def test_peek_temp_id_of_non_frames_is_none():

@@ -48,6 +48,7 @@ from openconvoy.bridge.failsafes import (
 from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.policy import Policy
 from openconvoy.core.state import VehicleState, wrap_angle
@@ -138,10 +139,18 @@ class RunnerOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.rate_hz <= 0:
-            raise ValueError(f"control rate must be positive, got {self.rate_hz}")
+        # Checked here too (the CLI checks its flags): a NaN rate or timeout would busy-loop
+        # setpoints to the autopilot or wait forever.
+        for what, value, hi in (
+            ("control rate (--rate, or the policy's control_rate_hz), Hz", self.rate_hz, 100.0),
+            ("--connect-timeout, s", self.connect_timeout_s, 86400.0),
+            ("--arm-timeout, s", self.arm_timeout_s, 86400.0),
+            ("--duration, s", 1.0 if self.duration_s is None else self.duration_s, 7 * 86400.0),
+        ):
+            if not (math.isfinite(value) and 0.0 < value <= hi):
+                raise ConfigError(f"{what}: {value!r} is out of range; allowed: a finite number in (0, {hi:g}]")
         if self.passive and self.vehicle_id != 0:
-            raise ValueError("--passive is for the leader (vehicle 0): followers are driven by the policy")
+            raise ConfigError("--passive is for the leader (vehicle 0): followers are driven by the policy")
 
 
 @dataclass
@@ -223,10 +232,10 @@ class DeployRunner:
     ) -> None:
         n = convoy.n_vehicles
         if not 0 <= options.vehicle_id < n:
-            raise ValueError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
+            raise ConfigError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
         self.is_leader = options.vehicle_id == 0
         if self.is_leader and not options.passive and leader is None:
-            raise ValueError("the leader needs a scenario or track to follow, or --passive")
+            raise ConfigError("the leader needs a scenario or track to follow, or --passive")
         self.options = options
         self.convoy = convoy
         self.policy = policy
@@ -289,9 +298,10 @@ class DeployRunner:
             try:
                 self.link.connect(min(1.0, max(0.05, deadline - self.clock())))
                 break
-            except LinkTimeout:
-                if self.clock() >= deadline:
-                    raise
+            except LinkTimeout as exc:
+                if self.clock() >= deadline:  # the attempt's own timeout is not the user's
+                    why = str(exc).split(" within ")[0]
+                    raise LinkTimeout(f"{why} within --connect-timeout {o.connect_timeout_s:g} s") from None
         while self._tel is None:
             self._check_stop()
             self._tel = self.link.poll()
@@ -485,7 +495,7 @@ class DeployRunner:
             action, mode = self.member.supervise(self.policy.act(obs), wall)
             speed, change = float(action[0]), float(action[1])
             if not (math.isfinite(speed) and math.isfinite(change)):
-                raise ValueError(f"non-finite action {speed}, {change}")
+                raise ConfigError(f"non-finite action {speed}, {change}")
             return speed, change, mode, ""
         except Exception as exc:  # the policy is foreign code: stop, log, keep looping
             if not self.failsafes.policy_errors:

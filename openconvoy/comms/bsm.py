@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from openconvoy.core.errors import DependencyMissing
+
 #: messageId of a BasicSafetyMessage in a MessageFrame.
 BSM_MESSAGE_ID = 20
 #: Every BSM MessageFrame starts with these two octets (extension bit 0, messageId 20).
@@ -221,7 +223,7 @@ def _spec() -> tuple[Any, Any]:
     try:
         import asn1tools  # imported here: only processes that speak J2735 pay for it
     except ModuleNotFoundError:
-        raise ModuleNotFoundError(
+        raise DependencyMissing(
             "J2735 BSMs need asn1tools: pip install 'openconvoy[vehicle]'", name="asn1tools"
         ) from None
 

@@ -58,6 +58,7 @@ from openconvoy.comms.multicast import (
     Transport,
 )
 from openconvoy.comms.tempids import TempIds
+from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
 
 log = logging.getLogger(__name__)
@@ -182,7 +183,7 @@ def _child_rng(rng: np.random.Generator) -> np.random.Generator:
 
 def _check_drop_at(drop_at: str) -> None:
     if drop_at not in ("receiver", "sender"):
-        raise ValueError(f"drop_at must be 'receiver' or 'sender', got {drop_at!r}")
+        raise ConfigError(f"drop_at must be 'receiver' or 'sender', got {drop_at!r}")
 
 
 class Sender:
@@ -217,7 +218,7 @@ class Sender:
         sender-side loss drops it (counted in ``lost``). msgCnt advances either way, so
         receivers see the gap."""
         if state.vehicle_id != self.vehicle_index:
-            raise ValueError(
+            raise ConfigError(
                 f"state of vehicle {state.vehicle_id} sent by vehicle {self.vehicle_index}"
             )
         core = state_to_core(state, self.origin, self.temp_id, self.msg_cnt)
@@ -440,7 +441,7 @@ class V2V:
                 self._tx4 = Ipv4Multicast(
                     config.iface, config.compat_group, config.compat_port, config.compat_ttl
                 )
-            except OSError:
+            except (OSError, LinkError):
                 self._tx.close()
                 raise
         self._warned_send = False
@@ -568,7 +569,7 @@ def send_abort(
     Returns the number of datagrams sent.
     """
     if repeat < 1:
-        raise ValueError(f"repeat must be at least 1, got {repeat}")
+        raise ConfigError(f"repeat must be at least 1, got {repeat}")
     data = cj.make_abort(time.time() if now is None else now)
     socks: list[Transport] = [Ipv6Multicast(iface, group, port, hop_limit)]
     try:
@@ -579,7 +580,10 @@ def send_abort(
             if i:
                 time.sleep(interval_s)
             for s in socks:
-                s.send(data)
+                try:
+                    s.send(data)
+                except OSError as exc:  # the one command that must fail clearly
+                    raise LinkError(f"abort not sent on {iface}: {exc.strerror or exc}") from None
                 n += 1
         return n
     finally:

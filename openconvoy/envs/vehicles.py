@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from openconvoy.core.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class RangingSensor:
@@ -90,7 +92,7 @@ def vehicle_preset(name_or_path: str) -> VehiclePreset:
     path = Path(name_or_path)
     if path.suffix == ".toml" and path.is_file():
         return load_vehicle_preset(path)
-    raise ValueError(
+    raise ConfigError(
         f"unknown vehicle preset {name_or_path!r}; expected one of "
         f"{', '.join(VEHICLE_PRESETS)} or a .toml preset file"
     )
@@ -107,7 +109,7 @@ def load_vehicle_preset(path: Path) -> VehiclePreset:
     known = {f.name for f in dataclasses.fields(VehiclePreset)}
     unknown = set(table) - known
     if unknown:
-        raise ValueError(f"{path}: unknown vehicle preset key(s): {', '.join(sorted(unknown))}")
+        raise ConfigError(f"{path}: unknown vehicle preset key(s): {', '.join(sorted(unknown))}")
     table = dict(table)
     table.setdefault("name", Path(path).stem)
     if isinstance(table.get("ranging"), dict):

@@ -28,7 +28,7 @@ class _Parser(argparse.ArgumentParser):
     """Bad arguments end in one line naming the flag and what is allowed (exit 2)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"openconvoy: error: {message} (see {self.prog} --help)\n")
 
 
 def _num(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
@@ -511,7 +511,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``openconvoy`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a bad argument (one line printed)
+        return exc.code if isinstance(exc.code, int) else 2
     if args.command is None:
         parser.print_help()
         return 2

@@ -37,6 +37,7 @@ SPDUs from others are still understood (their payload is used unverified).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
@@ -75,6 +76,9 @@ Source = Literal["j2735", "compat"]
 #: A compat message from a vehicle heard over J2735 within this many seconds is a
 #: duplicate (our own vehicles send both when compat is on); J2735 wins.
 DUPLICATE_WINDOW_S = 1.0
+#: A BSM with heading "unavailable" takes the direction of its sender's travel over at
+#: least this distance (m; GPS noise makes shorter displacements meaningless).
+TRAIL_HEADING_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -275,6 +279,8 @@ class Receiver:
                 model.reset(_child_rng(rng))
                 self._loss[index] = model
         self._last_j2735: dict[int, float] = {}
+        self._heading: dict[int, float] = {}  # last heading per sender (ENU rad)
+        self._anchor: dict[int, tuple[float, float]] = {}  # a trail point per sender
 
     def handle(self, data: bytes, t_rx: float, source: str = "") -> Received | None:
         """Classify and decode one datagram received at ``t_rx``; None if not delivered."""
@@ -385,15 +391,15 @@ class Receiver:
                 return self._rejected(source, f"{cert.name} signed vehicle {sender}'s BSM")
             if self.auth.admit(spdu, t_rx, core.msg_cnt) is not None:
                 return self._rejected(source, f"vehicle {sender}'s BSM replayed")
-        # A member's BSM without position, speed, heading or time is no use to the convoy
-        # (NaN would reach the controllers, an unknown age would look fresh forever):
-        # treated as not received, so the staleness ladder sees the gap.
+        # A member's BSM without position, speed or time is no use to the convoy (NaN
+        # would reach the controllers, an unknown age would look fresh forever): treated
+        # as not received, so the staleness ladder sees the gap. An unavailable heading
+        # (other stacks send it when stopped or slow) is filled in below.
         missing = [
             name
             for name, absent in (
                 ("position", core.lat == j.LAT_UNAVAILABLE or core.lon == j.LON_UNAVAILABLE),
                 ("speed", core.speed == j.SPEED_UNAVAILABLE),
-                ("heading", core.heading == j.HEADING_UNAVAILABLE),
                 ("time", core.sec_mark >= 61000),
             )
             if absent
@@ -407,8 +413,31 @@ class Receiver:
             return None
         t_send = reconstruct_send_time(core.sec_mark, t_rx, self.time_tolerance_s)
         state = core_to_state(core, self.origin, sender, t_send)
+        if core.heading == j.HEADING_UNAVAILABLE:
+            heading = self._known_heading(sender, state)
+            if heading is None:
+                return self._malformed(source, f"BSM of vehicle {sender} lacks heading (none known yet)")
+            state = replace(state, heading=heading)
+        self._remember_heading(sender, state)
         self.counters.received += 1
         return Received(state, t_rx, False, "j2735", sender, core.temp_id, core.msg_cnt)
+
+    def _known_heading(self, sender: int, state: VehicleState) -> float | None:
+        """For a BSM whose heading is unavailable: the direction of the sender's trail
+        (its travel since a position at least ``TRAIL_HEADING_M`` back), else the last
+        heading it sent, else None."""
+        anchor = self._anchor.get(sender)
+        if anchor is not None:
+            dx, dy = state.x - anchor[0], state.y - anchor[1]
+            if dx * dx + dy * dy >= TRAIL_HEADING_M**2:
+                return math.atan2(dy, dx)
+        return self._heading.get(sender)
+
+    def _remember_heading(self, sender: int, state: VehicleState) -> None:
+        self._heading[sender] = state.heading
+        anchor = self._anchor.get(sender)
+        if anchor is None or (state.x - anchor[0]) ** 2 + (state.y - anchor[1]) ** 2 >= TRAIL_HEADING_M**2:
+            self._anchor[sender] = (state.x, state.y)
 
     def _handle_compat(self, data: bytes, t_rx: float, source: str) -> Received | None:
         try:

@@ -64,8 +64,8 @@ class V2VConfig:
             raise ValueError(f"v2v.auth: {self.auth!r} is not one of {', '.join(AUTH_MODES)}")
         if not (isinstance(self.replay_window_s, (int, float)) and self.replay_window_s > 0):
             raise ValueError(f"v2v.replay_window_s must be > 0 s, got {self.replay_window_s!r}")
-        if self.auth == "required":
-            self.auth_required  # the compat check
+        if self.compat:
+            _ = self.auth_required  # refuses compat with authentication, at load time
 
     @property
     def auth_required(self) -> bool:

@@ -15,7 +15,7 @@ T0 = time.time()
 
 
 @functools.cache
-def keys_dir(convoy: str = "lab", n: int = 3) -> Path:
+def keys_dir(convoy: str, n: int = 3) -> Path:
     d = Path(tempfile.mkdtemp(prefix=f"oc-keys-{convoy}-")) / f"{convoy}.keys"
     ks.init_authority(d, convoy, T0)
     for i in range(n):

@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import pytest
 from auth_testdata import T0, creds
+from pycrate_asn1dir import ITS_IEEE1609_2 as M
 
 from openconvoy.comms import bsm as j
 from openconvoy.comms import certs as c
 from openconvoy.comms import spdu as sp
 from openconvoy.comms.auth import Authenticator
-
-M = pytest.importorskip("pycrate_asn1dir.ITS_IEEE1609_2")
 
 
 def _pycrate(type_name: str, module: str, data: bytes):

@@ -70,9 +70,9 @@ class V2VConfig:
         except ValueError:
             addr = None
         if addr is None or addr.version != 6 or not addr.is_multicast:
-            raise ConfigError(f"group: {self.group!r} is not an IPv6 multicast group (e.g. ff15::4f43)")
+            raise ConfigError(f"v2v.group: {self.group!r} is not an IPv6 multicast group (e.g. ff15::4f43)")
         if self.auth not in ("", *AUTH_MODES):
-            raise ConfigError(f"auth: {self.auth!r} is not one of {', '.join(AUTH_MODES)}")
+            raise ConfigError(f"v2v.auth: {self.auth!r} is not one of {', '.join(AUTH_MODES)}")
         if self.compat:
             _ = self.auth_required  # refuses compat with authentication, at load time
 

@@ -184,7 +184,7 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
         auth = abort_authenticator(key, keys_dir)
         compat = False
     elif required:
-        raise ValueError(
+        raise ConfigError(
             f"this convoy only obeys signed aborts: give --key (e.g. {keys_dir}/authority.key)"
         )
     n = send_abort(args.iface, compat_enabled=compat, now=None, repeat=args.repeat, auth=auth, **kwargs)

@@ -220,7 +220,7 @@ class Sender:
     ) -> None:
         _check_drop_at(drop_at)
         if auth is not None and compat_enabled:
-            raise ValueError("the compatibility JSON format cannot be signed: disable compat or auth")
+            raise ConfigError("the compatibility JSON format cannot be signed: disable compat or auth")
         self.auth = auth
         self.temp_id = temp_ids.id_of(vehicle_index)
         self.origin = origin

@@ -99,8 +99,9 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
     except (TypeError, ValueError) as exc:  # the dataclass's own checks (__post_init__)
         msg = str(exc)
         key = msg.split(":", 1)[0]
-        if key in fields:  # "key: why" -> "file: table.key: why"
-            raise ConfigError(f"{child(where, key)}{msg[len(key):]}") from None
+        name = key.rsplit(".", 1)[-1]
+        if name in fields:  # "key: why" or "table.key: why" -> "file: table.key: why"
+            raise ConfigError(f"{child(where, name)}{msg[len(key):]}") from None
         raise ConfigError(f"{where}: {msg}") from None
 
 

@@ -115,7 +115,7 @@ class VehiclePreset:
     def __post_init__(self) -> None:
         check_fields(self, f"vehicle preset {self.name!r}")
         if self.speed_loop not in SPEED_LOOPS:
-            raise ValueError(
+            raise ConfigError(
                 f"vehicle preset {self.name!r}: speed_loop must be one of "
                 f"{', '.join(SPEED_LOOPS)}, got {self.speed_loop!r}"
             )

@@ -34,6 +34,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from openconvoy.core.errors import ConfigError
+
 EXECUTOR_KINDS = ("local", "ray")
 
 
@@ -48,13 +50,13 @@ class ExecutorConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in EXECUTOR_KINDS:
-            raise ValueError(f"unknown executor {self.kind!r}; expected one of {', '.join(EXECUTOR_KINDS)}")
+            raise ConfigError(f"unknown executor {self.kind!r}; expected one of {', '.join(EXECUTOR_KINDS)}")
         if self.address is not None and self.kind != "ray":
-            raise ValueError("an executor address needs the ray executor (--executor ray)")
+            raise ConfigError("an executor address needs the ray executor (--executor ray)")
         if self.jobs is not None and self.jobs < 1:
-            raise ValueError(f"jobs must be at least 1, got {self.jobs}")
+            raise ConfigError(f"jobs must be at least 1, got {self.jobs}")
         if self.max_retries < 0:
-            raise ValueError(f"max_retries must be >= 0, got {self.max_retries}")
+            raise ConfigError(f"max_retries must be >= 0, got {self.max_retries}")
 
 
 @dataclass(frozen=True)
@@ -81,9 +83,9 @@ class TaskFailure:
 class TasksFailed(RuntimeError):
     """Some tasks failed; the message has one line per failed task."""
 
-    def __init__(self, failures: Sequence[TaskFailure], total: int, kept: str = "") -> None:
+    def __init__(self, failures: Sequence[TaskFailure], total: int, kept: str = "", noun: str = "runs") -> None:
         self.failures = list(failures)
-        head = f"{len(self.failures)} of {total} runs failed" + (f"; {kept}" if kept else "")
+        head = f"{len(self.failures)} of {total} {noun} failed" + (f"; {kept}" if kept else "")
         super().__init__("\n".join([head, *("  " + f.line() for f in self.failures)]))
 
 

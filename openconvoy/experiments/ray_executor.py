@@ -21,6 +21,7 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
+from openconvoy.core.errors import DependencyMissing, LinkError
 from openconvoy.experiments.executor import (
     Executor,
     Task,
@@ -39,7 +40,7 @@ def import_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise ValueError(f"the ray executor needs Ray, which is not installed: {EXTRA_HINT}") from None
+        raise DependencyMissing(f"the ray executor needs Ray, which is not installed: {EXTRA_HINT}") from None
     return ray
 
 
@@ -64,7 +65,7 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
     except OSError as exc:
-        raise ValueError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
+        raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
 
 
 class RayExecutor(Executor):
@@ -88,7 +89,7 @@ class RayExecutor(Executor):
             try:
                 ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING, **kwargs)
             except ConnectionError as exc:
-                raise ValueError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
+                raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
             self._owns = address == "local"
         self.address = ray.get_runtime_context().gcs_address
         cpus = int(ray.cluster_resources().get("CPU", 1))

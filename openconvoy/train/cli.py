@@ -7,6 +7,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.train.config import TrainConfig, load_train_config
 
 
@@ -78,9 +79,9 @@ def _train_many(args: argparse.Namespace) -> int:
     from openconvoy.train.multirun import plan, train_many
 
     if args.seed is not None and args.seeds:
-        raise ValueError("give --seed or --seeds, not both")
+        raise ConfigError("give --seed or --seeds, not both")
     if args.seeds and len(set(args.seeds)) != len(args.seeds):
-        raise ValueError(f"--seeds repeat: {' '.join(map(str, args.seeds))}")
+        raise ConfigError(f"--seeds repeat: {' '.join(map(str, args.seeds))}")
     paths = args.config or [None]
     configs = [(_stem(p) if p else "default", train_config_from_args(args, p)) for p in paths]
     runs = plan(configs, args.seeds)
@@ -99,13 +100,13 @@ def _train_many(args: argparse.Namespace) -> int:
 
 def tune_command(args: argparse.Namespace) -> int:
     """``openconvoy tune``; exit status 1 when trials failed (the study keeps the others)."""
-    from openconvoy.experiments.executor import ExecutorConfig, with_flags
+    from openconvoy.experiments.executor import ExecutorConfig, TasksFailed, with_flags
     from openconvoy.train.tune import TuneConfig, tune, write_tuned
 
     if not args.out.endswith(".toml"):
-        raise ValueError(f"{args.out}: the tuned policy is a .toml file")
+        raise ConfigError(f"{args.out}: the tuned policy is a .toml file")
     if args.study_name is not None and args.storage is None:
-        raise ValueError("--study-name needs --storage (an in-memory study cannot be resumed)")
+        raise ConfigError("--study-name needs --storage (an in-memory study cannot be resumed)")
     config = TuneConfig(
         base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
         scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
@@ -114,8 +115,12 @@ def tune_command(args: argparse.Namespace) -> int:
     # Trials run one at a time in this process unless an executor or --jobs is asked for.
     jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
     executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
-    result = tune(config, progress_bar=not args.no_progress, executor=executor,
-                  study_name=args.study_name, storage=args.storage)
+    try:
+        result = tune(config, progress_bar=not args.no_progress, executor=executor,
+                      study_name=args.study_name, storage=args.storage)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     path = write_tuned(result, args.out)
     values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
     print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "

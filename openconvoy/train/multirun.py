@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from openconvoy.core.errors import ConfigError, OutputPathError
 from openconvoy.experiments import portable
 from openconvoy.experiments.executor import (
     Executor,
@@ -54,7 +55,7 @@ def plan(configs: Sequence[tuple[str, TrainConfig]], seeds: Sequence[int] | None
             runs.append(TrainRun(name, dataclasses.replace(config, seed=int(seed))))
     names = [r.name for r in runs]
     if len(set(names)) != len(names):
-        raise ValueError(f"training runs would share a directory: {', '.join(sorted(names))}; "
+        raise ConfigError(f"training runs would share a directory: {', '.join(sorted(names))}; "
                          "give configs distinct file names and seeds distinct values")
     return runs
 
@@ -112,7 +113,7 @@ def train_many(
     out = Path(out_dir)
     for run in runs:
         if (out / run.name / POLICY_FILE).exists() and not overwrite:
-            raise ValueError(f"{out / run.name} already holds a trained policy; choose another --out or --overwrite")
+            raise OutputPathError(f"{out / run.name} already holds a trained policy; choose another --out or --overwrite")
     tasks = [Task(run.name, train_on_worker, (run.config, portable.ship(train_specs(run.config)))) for run in runs]
     with executor:
         results = executor.map(tasks, progress, desc="train")

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.policies.classical import ClassicalConfig
 from openconvoy.policies.spec import classical_config, classical_to_toml
 
@@ -81,7 +82,7 @@ def with_values(config: ClassicalConfig, values: dict[str, float], name: str) ->
 
 def _replace_path(obj: Any, parts: list[str], value: float) -> Any:
     if not dataclasses.is_dataclass(obj) or parts[0] not in {f.name for f in dataclasses.fields(obj)}:
-        raise ValueError(f"unknown parameter path component {parts[0]!r}")
+        raise ConfigError(f"unknown parameter path component {parts[0]!r}")
     if len(parts) == 1:
         return dataclasses.replace(obj, **{parts[0]: float(value)})
     return dataclasses.replace(obj, **{parts[0]: _replace_path(getattr(obj, parts[0]), parts[1:], value)})
@@ -122,10 +123,10 @@ class TuneConfig:
         for name in ("pers", "seeds", "params"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.trials < 1 or not self.pers or not self.seeds:
-            raise ValueError("tune needs at least one trial, one PER and one seed")
+            raise ConfigError("tune needs at least one trial, one PER and one seed")
         unknown = [p for p in self.params if p not in PARAMETERS]
         if unknown:
-            raise ValueError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
+            raise ConfigError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
 
 
 @dataclass
@@ -246,7 +247,7 @@ def _open_study(config: TuneConfig, study_name: str, storage: Any, parallel: boo
         study.set_user_attr(STUDY_ATTR, settings)
     elif recorded != settings:
         differ = ", ".join(k for k in STUDY_KEYS if recorded.get(k) != settings.get(k))
-        raise ValueError(f"study {study_name!r} was made with other settings ({differ}); "
+        raise ConfigError(f"study {study_name!r} was made with other settings ({differ}); "
                          "use another --study-name or the same settings")
     return study, existing
 
@@ -292,6 +293,7 @@ def tune(
         LocalExecutor,
         Task,
         TaskFailure,
+        TasksFailed,
         make_executor,
     )
 
@@ -315,7 +317,7 @@ def tune(
         if base_value is None:
             task, value = _run_alone(executor, Task("base policy", fn, dataclasses.replace(base, name=config.name)))
             if isinstance(value, TaskFailure):
-                raise ValueError(f"the base policy's evaluation failed: {value.line()}")
+                raise TasksFailed([value], 1, "the base policy's evaluation is the study's reference", "trials")
             base_value = float(value)
             study.set_user_attr(BASE_ATTR, base_value)
         if not existing:
@@ -326,7 +328,7 @@ def tune(
         evaluated = _ask_tell(study, executor, fn, base, params, config.name, todo, progress_bar, failures)
     complete = sorted(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)), key=lambda t: t.number)
     if not complete:
-        raise ValueError(f"no trial of study {study_name!r} finished")
+        raise TasksFailed(failures, len(failures), f"no trial of study {study_name!r} finished", "trials")
     history = [{"trial": t.number, "value": float(t.value), **{p: float(v) for p, v in t.params.items()}}
                for t in complete]
     best_trial = min(complete, key=lambda t: (t.value, t.number))
@@ -398,7 +400,7 @@ def write_tuned(result: TuneResult, out: str | Path) -> Path:
     the study's numbers next to it."""
     out = Path(out)
     if out.suffix != ".toml":
-        raise ValueError(f"{out}: the tuned policy is a .toml file")
+        raise ConfigError(f"{out}: the tuned policy is a .toml file")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(classical_to_toml(result.best), encoding="utf-8")
     summary = {

@@ -108,6 +108,8 @@ class ConvoyEnv(ParallelEnv):
         "render_fps": 20,
         "is_parallelizable": True,
     }
+    LOG_EXTRA_COLUMNS: tuple[str, ...] = ()
+    """Columns this env's log rows carry beyond DESIGN.md's (a run writes them)."""
 
     def __init__(
         self,
@@ -275,7 +277,7 @@ class ConvoyEnv(ParallelEnv):
             [g - d for g, d in zip(self._gap, self._desired)],
             A_new[1:], jerk, YR_new[1:], self._collided,
         )
-        done = any(self._collided)
+        done = self._terminated()
         trunc = self.step_count >= self.max_steps and not done
         agents = self.agents
         rewards = dict(zip(agents, rewards_list))
@@ -386,6 +388,11 @@ class ConvoyEnv(ParallelEnv):
         )
 
     # --- internals ---------------------------------------------------------------------
+
+    def _terminated(self) -> bool:
+        """Does the episode end at this tick? (A world with more in it, such as traffic,
+        adds its own collisions.)"""
+        return any(self._collided)
 
     def _reset_arrays(self) -> None:
         n = self.n_vehicles

@@ -9,12 +9,17 @@ forward radar by default, traffic randomized by the episode's seed:
   ``cut_out_at_s`` (never if negative). Other traffic in the outer lanes only.
 - ``highway-slow-traffic``: slower IDM traffic (``slow_speed_mps``) ``slow_ahead_m`` ahead
   of the leader, in every lane; the leader's IDM follows it.
-- ``highway-merge``: the convoy in the right lane of a two-lane highway with an on-ramp
-  (highway-env's merge road); ramp cars timed to reach the merge beside the convoy
-  (``merge_offset_m`` shifts them forward), merging by MOBIL.
+- ``highway-merge``: the convoy in the right lane of the highway, an on-ramp joining it
+  ``merge_at_m`` ahead of the leader (highway-env's merge road: straight ramp, sine
+  converge, parallel merge lane ending at an obstacle); ``merge_cars`` ramp cars timed to
+  reach the merge ``merge_offset_m`` ahead of the leader (smaller or negative: beside the
+  convoy), 25 m apart, merging by MOBIL. MOBIL refuses a gap that would make the convoy
+  vehicle behind brake harder than 2 m/s² by its IDM model of it (about 37 m ahead of a
+  car at 25 m/s), so ramp cars merge ahead of or behind the convoy, or wait at the ramp's
+  end; a car forced into a convoy gap is ``highway-cut-in``.
 - ``highway-lane-drop``: three lanes, the right one ends ``drop_at_m`` ahead of the
-  leader (an obstacle at its end, as highway-env's merge road ends its ramp); the convoy
-  in the middle lane; traffic in the ending lane must merge into it.
+  leader (an obstacle at its end); the convoy in the middle lane; ``drop_cars`` cars in the
+  ending lane (ahead of the leader, beside the convoy) must merge into the convoy's lane.
 
 The leader is driven by highway-env's IDM (its ``IDMVehicle.acceleration`` towards
 ``speed_mps`` behind whatever is ahead in its lane) along its lane's centre line.
@@ -88,9 +93,10 @@ class HighwayConfig:
     # highway-merge
     merge_cars: int = 1
     merge_at_m: float = 250.0
-    merge_offset_m: float = 0.0
+    merge_offset_m: float = 70.0
     # highway-lane-drop
     drop_at_m: float = 300.0
+    drop_cars: int = 2
 
     def __post_init__(self) -> None:
         if self.lanes < 2:
@@ -98,8 +104,8 @@ class HighwayConfig:
         for name in ("speed_mps", "duration_s", "traffic_speed_max_mps"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"highway {name} must be positive, got {getattr(self, name)}")
-        if self.traffic < 0 or self.merge_cars < 0:
-            raise ValueError("highway traffic and merge_cars must be >= 0")
+        if self.traffic < 0 or self.merge_cars < 0 or not 0 <= self.drop_cars <= 2:
+            raise ValueError("highway traffic and merge_cars must be >= 0, drop_cars 0..2")
         if not 0 < self.traffic_speed_min_mps <= self.traffic_speed_max_mps:
             raise ValueError("highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps")
 
@@ -285,7 +291,9 @@ class _Spawner:
             self._merge()
         elif name == "highway-lane-drop":
             edge = ("a", "b")
+            self._drop()
         lo, hi = cfg.traffic_speed_min_mps, cfg.traffic_speed_max_mps
+        offsets_end = sc._offsets()[-1]
         if name == "highway-slow-traffic":
             lo, hi = 0.9 * cfg.slow_speed_mps, 1.1 * cfg.slow_speed_mps
         for _ in range(cfg.traffic):
@@ -300,6 +308,8 @@ class _Spawner:
                     s = min(s, x0 + cfg.merge_at_m - 10.0)
                 if lane == sc.convoy_lane and s > x0 and name != "highway-slow-traffic":
                     s += 150.0  # never right in front of the leader: the scenario says what is
+                if name == "highway-cut-in" and lane == sc.convoy_lane - 1 and s > x0 - offsets_end:
+                    s += 250.0  # nor in front of the cut-in car: it paces its gap until its cue
                 if self._free(lane, s):
                     speed = float(self.rs.uniform(lo, hi))
                     self._add(self._car(edge, lane, s, speed), lane, s)
@@ -322,18 +332,25 @@ class _Spawner:
 
     def _merge(self) -> None:
         cfg, sc = self.cfg, self.sc
-        offsets = sc._offsets()
-        # Reach the merge (node b) when the convoy's middle does.
-        t_mid = (cfg.merge_at_m + 0.5 * offsets[-1]) / cfg.speed_mps
         speed = cfg.speed_mps
         b = sc.ROAD_START_M + cfg.merge_at_m
+        t_lead = cfg.merge_at_m / speed  # when the leader reaches the merge (node b)
         for k in range(cfg.merge_cars):
-            dist = speed * t_mid - cfg.merge_offset_m + 25.0 * k
+            # Car k reaches b merge_offset_m ahead of the leader, the next ones 25 m apart.
+            dist = speed * t_lead - cfg.merge_offset_m + 25.0 * k
             # The ramp runs straight from x = 0 to b - 80 m, then 80 m of sine to b.
             s = max(b - dist, 0.0)
             ramp = self.road.network.get_lane(("j", "k", 0))
             v = IDMVehicle(self.road, ramp.position(s, 0.0), ramp.heading_at(s), speed, target_speed=speed)
             self.cars.append(v)
+
+    def _drop(self) -> None:
+        """Cars in the ending lane: one 90 m ahead of the leader, one beside the convoy's middle."""
+        cfg, sc = self.cfg, self.sc
+        lane = cfg.lanes - 1
+        x0 = sc.frame.x0
+        for s in (x0 + 90.0, x0 - 0.5 * sc._offsets()[-1])[: cfg.drop_cars]:
+            self._add(self._car(("a", "b"), lane, s, 0.95 * cfg.speed_mps, cfg.speed_mps), lane, s)
 
 
 def make_highway_scenario(spec: str, n_followers: int | None = None,

@@ -45,6 +45,10 @@ from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset
 DEFAULT_ORIGIN = Origin(28.6024, -81.2001, 0.0)
 
 SCENARIO_NAMES: tuple[str, ...] = ("paper", "track", "emergency-braking", "track-file:PATH")
+class MissingExtraError(ValueError):
+    """An optional extra a feature needs is not installed (the message names the extra)."""
+
+
 TRAFFIC_PREFIX = "highway-"
 """Specs starting with this are highway scenarios with traffic
 (``openconvoy.envs.traffic_scenarios``, the ``traffic`` extra)."""

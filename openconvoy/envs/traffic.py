@@ -26,9 +26,24 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from highway_env.road.road import Road
-from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.objects import Landmark, RoadObject
+
+from openconvoy.envs.scenarios import MissingExtraError
+
+try:  # the traffic extra, imported here only (the core never needs it)
+    from highway_env.road.lane import LineType, SineLane, StraightLane
+    from highway_env.road.road import Road, RoadNetwork
+    from highway_env.vehicle.behavior import IDMVehicle
+    from highway_env.vehicle.objects import Landmark, Obstacle, RoadObject
+except ModuleNotFoundError as exc:
+    raise MissingExtraError(
+        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'"
+    ) from exc
+
+__all__ = [
+    "TRAFFIC_ID_BASE", "ConvoyVehicle", "FastRoad", "HighwayFrame", "IDMVehicle", "InPath", "LineType",
+    "Obstacle", "Road", "RoadNetwork", "ScriptedLaneChanger", "SineLane", "StraightLane", "TrafficWorld",
+    "enu_to_highway", "highway_to_enu",
+]
 
 TRAFFIC_ID_BASE = 1000
 """Traffic vehicle k is reported as id ``TRAFFIC_ID_BASE + k`` (convoy ids are 0..n-1)."""

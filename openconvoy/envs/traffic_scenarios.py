@@ -35,28 +35,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-class MissingExtraError(ValueError):
-    """An optional extra that a feature needs is not installed (one line, names the extra)."""
-
-
-try:
-    import highway_env  # noqa: F401
-except ModuleNotFoundError as exc:  # the core never needs it
-    raise MissingExtraError(
-        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'"
-    ) from exc
-
-from highway_env.road.lane import LineType, SineLane, StraightLane
-from highway_env.road.road import Road, RoadNetwork
-from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.objects import Obstacle
-
 from openconvoy.comms.geodesy import Origin
 from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
 from openconvoy.envs.path import Path, straight_road
 from openconvoy.envs.scenarios import DEFAULT_ORIGIN, InitialState
-from openconvoy.envs.traffic import FastRoad, HighwayFrame, ScriptedLaneChanger, TrafficWorld
+from openconvoy.envs.traffic import (
+    FastRoad,
+    HighwayFrame,
+    IDMVehicle,
+    LineType,
+    Obstacle,
+    Road,
+    RoadNetwork,
+    ScriptedLaneChanger,
+    SineLane,
+    StraightLane,
+    TrafficWorld,
+)
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor, VehiclePreset
 
 HIGHWAY_SCENARIOS: tuple[str, ...] = (

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from openconvoy.envs.scenarios import MissingExtraError
+from openconvoy.core.errors import DependencyMissing
 
 try:  # the traffic extra, imported here only (the core never needs it)
     from highway_env.road.lane import LineType, SineLane, StraightLane
@@ -35,8 +35,8 @@ try:  # the traffic extra, imported here only (the core never needs it)
     from highway_env.vehicle.behavior import IDMVehicle
     from highway_env.vehicle.objects import Landmark, Obstacle, RoadObject
 except ModuleNotFoundError as exc:
-    raise MissingExtraError(
-        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'"
+    raise DependencyMissing(
+        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'", name="highway_env"
     ) from exc
 
 __all__ = [

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.envs.convoy_env import ConvoyEnv
 from openconvoy.envs.render import MODE_COLOURS
 from openconvoy.envs.traffic import InPath, TrafficWorld
@@ -63,9 +64,9 @@ class TrafficConvoyEnv(ConvoyEnv):
                 presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
             scenario = make_highway_scenario(scenario, n_followers, presets)
         elif not isinstance(scenario, HighwayScenario):
-            raise ValueError("TrafficConvoyEnv runs highway scenarios (a spec or a HighwayScenario)")
+            raise ConfigError("TrafficConvoyEnv runs highway scenarios (a spec or a HighwayScenario)")
         elif n_followers is not None or vehicle_presets is not None:
-            raise ValueError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+            raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
         self._in_path: list[InPath | None] = []
         self._hits: list[bool] = []
         self._viewer: Any = None

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
 from openconvoy.envs.path import Path, straight_road
 from openconvoy.envs.scenarios import DEFAULT_ORIGIN, InitialState
@@ -95,28 +96,28 @@ class HighwayConfig:
 
     def __post_init__(self) -> None:
         if self.lanes < 2:
-            raise ValueError(f"highway scenarios need at least 2 lanes, got lanes={self.lanes}")
+            raise ConfigError(f"highway scenarios need at least 2 lanes, got lanes={self.lanes}")
         for name in ("speed_mps", "duration_s", "traffic_speed_max_mps"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"highway {name} must be positive, got {getattr(self, name)}")
+                raise ConfigError(f"highway {name} must be positive, got {getattr(self, name)}")
         if self.traffic < 0 or self.merge_cars < 0 or not 0 <= self.drop_cars <= 2:
-            raise ValueError("highway traffic and merge_cars must be >= 0, drop_cars 0..2")
+            raise ConfigError("highway traffic and merge_cars must be >= 0, drop_cars 0..2")
         if not 0 < self.traffic_speed_min_mps <= self.traffic_speed_max_mps:
-            raise ValueError("highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps")
+            raise ConfigError("highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps")
 
 
 def parse_spec(spec: str) -> tuple[str, HighwayConfig]:
     """``highway-NAME[:key=value,...]`` -> (name, config); unknown names or keys are errors."""
     name, _, params = spec.partition(":")
     if name not in HIGHWAY_SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; highway scenarios: {', '.join(HIGHWAY_SCENARIOS)}")
+        raise ConfigError(f"unknown scenario {name!r}; highway scenarios: {', '.join(HIGHWAY_SCENARIOS)}")
     fields = {f.name: f for f in dataclasses.fields(HighwayConfig)}
     values: dict[str, object] = {}
     for item in filter(None, params.split(",")):
         key, eq, text = item.partition("=")
         key = key.strip().replace("-", "_")
         if not eq or key not in fields:
-            raise ValueError(
+            raise ConfigError(
                 f"scenario {name}: bad parameter {item!r}; expected key=value with key one of "
                 f"{', '.join(fields)}"
             )
@@ -124,7 +125,7 @@ def parse_spec(spec: str) -> tuple[str, HighwayConfig]:
         try:
             values[key] = text.strip().lower() in ("1", "true", "yes") if kind is bool else kind(text)
         except ValueError:
-            raise ValueError(f"scenario {name}: {key} must be a {kind.__name__}, got {text!r}") from None
+            raise ConfigError(f"scenario {name}: {key} must be a {kind.__name__}, got {text!r}") from None
     return name, HighwayConfig(**values)
 
 
@@ -138,7 +139,7 @@ class HighwayScenario:
     def __init__(self, name: str, presets: Sequence[VehiclePreset], config: HighwayConfig,
                  spacing: SpacingConfig = CACC, origin: Origin = DEFAULT_ORIGIN) -> None:
         if len(presets) < 2:
-            raise ValueError("a convoy needs a leader and at least one follower")
+            raise ConfigError("a convoy needs a leader and at least one follower")
         self.name = name
         self.config = config
         self.presets = tuple(presets)
@@ -147,12 +148,12 @@ class HighwayScenario:
         self.duration_s = config.duration_s
         self.convoy_lane = 1 if name != "highway-merge" else config.lanes - 1
         if name == "highway-cut-in" and not 1 <= config.cut_in_gap < len(self.presets):
-            raise ValueError(
+            raise ConfigError(
                 f"highway-cut-in: cut_in_gap must be 1..{len(self.presets) - 1} (a follower), "
                 f"got {config.cut_in_gap}"
             )
         if name == "highway-lane-drop" and config.lanes < 3:
-            raise ValueError("highway-lane-drop needs lanes >= 3")
+            raise ConfigError("highway-lane-drop needs lanes >= 3")
         self.frame = HighwayFrame(self.ROAD_START_M, self.convoy_lane * LANE_WIDTH_M)
         self.path: Path | None = straight_road(-self.ROAD_START_M, 3000.0)
         self.world: TrafficWorld | None = None
@@ -356,10 +357,10 @@ def make_highway_scenario(spec: str, n_followers: int | None = None,
     if presets is not None:
         presets = tuple(presets)
         if n_followers is not None and n_followers != len(presets) - 1:
-            raise ValueError(f"n_followers={n_followers} but {len(presets)} vehicle presets (leader included)")
+            raise ConfigError(f"n_followers={n_followers} but {len(presets)} vehicle presets (leader included)")
     else:
         n = 2 if n_followers is None else int(n_followers)
         if n < 1:
-            raise ValueError(f"a convoy needs at least one follower, got n_followers={n}")
+            raise ConfigError(f"a convoy needs at least one follower, got n_followers={n}")
         presets = (CAR,) * (n + 1)
     return HighwayScenario(name, presets, config)

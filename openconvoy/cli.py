@@ -68,7 +68,9 @@ SECONDS_POS = _num(0.0, 3600.0, lo_open=True)
 def _run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     """Arguments shared by ``sim`` and ``experiment per-sweep`` (None = not given)."""
     p.add_argument("--scenario", default=None, metavar="SPEC",
-                   help="paper (default), track, emergency-braking or track-file:PATH")
+                   help="paper (default), track, emergency-braking, track-file:PATH, or with the "
+                   "traffic extra highway-cut-in, highway-merge, highway-slow-traffic, "
+                   "highway-lane-drop (optionally :key=value,...)")
     p.add_argument("--loss", choices=("bernoulli", "gilbert-elliott"), default=None if sweep else "bernoulli",
                    help="loss model of every link (default bernoulli)")
     p.add_argument("--burst", type=SECONDS_POS, default=None, metavar="S",

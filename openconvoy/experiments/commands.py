@@ -34,9 +34,9 @@ def _check_per(per: float) -> None:
 def format_metrics(metrics: dict[str, Any]) -> str:
     """The metrics as aligned ``key  value`` lines, per-follower p95 errors after them."""
     lines = []
-    for k in mt.METRIC_KEYS:
+    for k in mt.METRIC_KEYS + tuple(k for k in mt.TRAFFIC_METRIC_KEYS if k in metrics):
         v = metrics[k]
-        lines.append(f"{k:<28}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
+        lines.append(f"{k:<28}{' ' * (len(k) >= 28)}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
     for f, values in metrics.get("per_follower", {}).items():
         v = values["p95_platooning_error_m"]
         lines.append(f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}")
@@ -110,6 +110,8 @@ def report(args: argparse.Namespace) -> int:
         print("note: the log has no vehicle lengths; pass --convoy to count collisions "
               "against half lengths (now: centre distance < 0)")
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
     print(format_metrics(metrics))
     out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
     write_json(out, metrics)

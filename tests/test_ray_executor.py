@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -107,9 +108,10 @@ def test_a_worker_killed_mid_sweep_loses_only_its_run(cluster: str, tmp_path: Pa
         run_experiment(cfg, out, executor=_KillOne(victim), progress=False)
     lines = str(info.value).splitlines()
     assert lines[0] == f"1 of 8 runs failed; the other 7 are in {out} (summary.csv covers only them)"
-    assert len(lines) == 2 and lines[1].startswith(f"  {victim}: WorkerCrashedError: The worker died unexpectedly")
     # The worker is named: its pid, host, IP and Ray node, reported before the run started.
-    assert " (on Ray worker pid " in lines[1] and ", node " in lines[1]
+    assert len(lines) == 2 and re.fullmatch(
+        rf"  {victim}: WorkerCrashedError: The worker died unexpectedly while executing this task\. [^\[]*"
+        r"\(on Ray worker pid \d+ on \S+ [\d.:a-f]+, node [0-9a-f]{8}\)", lines[1]), lines[1]
     assert not (out / victim).exists()
     assert len(list(out.rglob("log.csv"))) == 7
     assert [r["runs"] for r in read_summary(out)] == [2, 2, 2, 1]

@@ -4,6 +4,7 @@ resumed after its driver is killed, several training runs shipped back to the dr
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -183,9 +184,13 @@ FAST_TRAIN = ("total_steps = 512\nn_envs = 1\ncheckpoint_every = 0\nvalidation_p
 @pytest.mark.e2e
 def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str, tmp_path: Path, capsys):
     from openconvoy.policies import load_policy
+    from openconvoy.policies.learned import read_zip_meta
+    from openconvoy.train.config import load_train_config
 
+    base = tmp_path / "soft.toml"  # a residual base on the driver only
+    base.write_text('[policy]\nbase = "paper"\nspeed = { kind = "pd", kp = 0.4, kd = 1.1 }\n')
     cfg = tmp_path / "fast.toml"
-    cfg.write_text(FAST_TRAIN)
+    cfg.write_text(f'{FAST_TRAIN}[env]\nbase_policy = "{base}"\n')
     out = tmp_path / "multi"
     assert main(["train", "--config", str(cfg), "--seeds", "0", "1", "--executor", "ray", "--address", cluster,
                  "--out", str(out), "--no-progress"]) == 0
@@ -199,6 +204,9 @@ def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str,
         validation = json.loads((out / name / "validation.json").read_text())
         assert Path(validation["chosen"]).read_bytes() == (out / name / "policy.zip").read_bytes()
         assert load_policy(str(out / name / "policy.zip")) is not None
-    assert 'seed = 1' in (out / "seed_1" / "config.toml").read_text()
+    # The run's config names the driver's base file: `train --config RUN/config.toml` reruns it.
+    given, runs_cfg = load_train_config(cfg), [load_train_config(out / n / "config.toml") for n in ("seed_0", "seed_1")]
+    assert runs_cfg == [given, dataclasses.replace(given, seed=1)] and given.env.base_policy == str(base)
+    assert read_zip_meta(out / "seed_0" / "policy.zip").base.speed.kp == 0.4
     assert (out / "seed_0" / "last.zip").read_bytes() != (out / "seed_1" / "last.zip").read_bytes()
     assert "seed_1/policy.zip  (512 steps" in capsys.readouterr().out

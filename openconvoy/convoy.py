@@ -18,6 +18,7 @@ temp_ids = ["4f430000", ...]      # optional explicit 4-byte BSM ids, leader fir
 speed_cap_mps = 5.0
 geofence_radius_m = 200.0         # around the origin
 min_gap_m = 1.0                   # emergency stop below this measured gap
+gap_margin_m = 0.2                # braking-aware stop margin between bumpers (m); default 1/4 length
 max_msg_age_s = 3.0               # stop while needed messages are older than this
 ```
 
@@ -55,6 +56,17 @@ class SafetyConfig:
     max_msg_age_s: float = 3.0
     """Stop while the messages a follower needs are older than this (s): a backstop for
     policies running without the staleness ladder."""
+    gap_margin_m: float | None = None
+    """Braking-aware emergency stop (``core.safety``): the clearance left between bumpers
+    after braking at the preset's limit may not fall below this (m); None = a quarter of
+    the vehicle's length."""
+
+    def __post_init__(self) -> None:
+        m = self.gap_margin_m
+        if m is not None and (
+            isinstance(m, bool) or not isinstance(m, (int, float)) or not 0.0 <= m <= 100.0
+        ):
+            raise ValueError(f"safety.gap_margin_m: expected a number in [0, 100] (m), got {m!r}")
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,19 @@ target lies ``mean_j(spacing_error_j)`` metres ahead along the path (the paper's
 distances, with squares so the argmin is unique for two predecessors). χ_v turns that
 error plus the nearest predecessor's speed into a speed setpoint; χ_θ steers onto the
 nearest predecessor's trail.
+
+Stale targets only slow (issue 10). The mean runs over the fresh targets (messages no
+older than the ladder's ``degrade_after_s``, so a loss-free run is the paper's σ); each
+stale one (which the member already dead-reckons as braking) caps the speed at what it
+alone would ask for; a predecessor heard before but now older than ``stop_after_s`` stops
+the follower. ``min(mean of the others, each stale one) <= mean of all``, so a stale
+target can never make a follower faster than if it were fresh, and a phantom leader can
+no longer outweigh a stopped predecessor.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -72,18 +81,48 @@ class ClassicalPolicy:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         view = self.layout.view(observation)
-        targets = view.valid_targets()
-        if not targets:
+        fresh, stale, lost = self._sort_targets(view)
+        if lost or not (fresh or stale):
             self._speed.reset()
             return make_action(0.0, 0.0)
-        error = sum(t["spacing_error"] for t in targets) / len(targets)
-        if self.config.rear_weight > 0.0:
-            error -= self.config.rear_weight * self._rear_error(view, targets[0]["desired_gap"])
-        v_ref = targets[0]["speed"]
-        # The spacing error grows at the speed difference along the path.
-        speed = self._speed(error, v_ref, v_ref - view.own_speed)
+        own = view.own_speed
+        speed = math.inf
+        if fresh:
+            error = sum(t["spacing_error"] for t in fresh) / len(fresh)
+            if self.config.rear_weight > 0.0:
+                error -= self.config.rear_weight * self._rear_error(view, fresh[0]["desired_gap"])
+            v_ref = fresh[0]["speed"]
+            # The spacing error grows at the speed difference along the path.
+            speed = self._speed(error, v_ref, v_ref - own)
+        else:
+            self._speed.reset()
+        c = self.config.speed
+        for t in (*fresh[:1], *stale):
+            speed = min(speed, t["speed"] + c.kp * t["spacing_error"] + c.kd * (t["speed"] - own))
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
-        return make_action(speed, self._heading_change(view.path, view.own_speed))
+        return make_action(speed, self._heading_change(view.path, own))
+
+    def _sort_targets(self, view) -> tuple[list[dict[str, float]], list[dict[str, float]], bool]:
+        """Valid targets split by message age into fresh and stale (nearest first), and
+        whether a predecessor heard before is now too old to be a target (lost)."""
+        ladder = self.config.member.ladder
+        fresh: list[dict[str, float]] = []
+        stale: list[dict[str, float]] = []
+        lost = False
+        preds = self.layout.targets[1:]
+        for name in (*preds, "leader"):
+            newest = view.states(name)[0]
+            heard = newest[6] > 0.5
+            target = view.target(name)
+            if target["valid"] > 0.5:
+                (fresh if newest[5] <= ladder.degrade_after_s else stale).append(target)
+            elif heard and (name != "leader" or not self._leader_in_preds(view, newest)):
+                lost = True  # heard, but older than the stop age (the member dropped it)
+        return fresh, stale, lost
+
+    def _leader_in_preds(self, view, newest: np.ndarray) -> bool:
+        """The leader slot repeats a predecessor slot (a follower within M of the leader)."""
+        return any(np.array_equal(newest, view.states(p)[0]) for p in self.layout.targets[1:])
 
     def _rear_error(self, view, desired_gap: float) -> float:
         """How much farther behind than desired the immediate follower is (m), 0 if unheard.

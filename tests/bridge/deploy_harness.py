@@ -171,7 +171,8 @@ def make_convoy(
         pol = (policies or {}).get(i) or load_policy(policy)
         runner = DeployRunner(
             opts, convoy, pol, link, v2v, leader=scenario if i == 0 else None,
-            lengths=[p.length_m for p in presets], log_dir=log_dir, on_status=lambda line: None,
+            lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
+            log_dir=log_dir, on_status=lambda line: None,
         )
         cars.append(Car(vehicle, link, runner, v2v, port))
     c = Convoy(cars, bus, log_dir, convoy)

@@ -90,7 +90,8 @@ def test_acc_speed_widens_the_gap():
 
 
 def test_member_ladder_degrades_stops_and_recovers():
-    m = member(vid=1, n=2, ladder=LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0))
+    m = ConvoyMember(1, 2, MemberConfig(ladder=LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0)),
+                     lengths=[0.8, 0.8], decels=[1.0, 1.0])
     m.observe_own(S(1, 0.0, 0.0, v=2.0))
     act = np.array([3.0, 0.1], dtype=np.float32)
     # Never heard: stop.
@@ -100,11 +101,12 @@ def test_member_ladder_degrades_stops_and_recovers():
     m.observation(0.3)
     a, mode = m.supervise(act, 0.3)
     assert mode == "coop" and a[0] == pytest.approx(3.0)
-    m.observe_own(S(1, 1.0, 2.0, v=2.0))
+    m.observe_own(S(1, 1.0, 0.0, v=2.0))
     m.observation(1.0)
     a, mode = m.supervise(act, 1.0)
-    # Degraded: ACC on the dead-reckoned predecessor (15 m gap, wanted 15 + 2 = 17 m).
-    assert mode == "degraded" and a[0] == pytest.approx(1.0) and a[1] == pytest.approx(0.1)
+    # Degraded: ACC on the predecessor dead-reckoned as braking at 1 m/s² since its
+    # message 1 s ago (1.5 m on, 1 m/s): 16.5 m ahead, wanted 15 + 2 = 17 m.
+    assert mode == "degraded" and a[0] == pytest.approx(1.0 + 0.5 * (16.5 - 17.0)) and a[1] == pytest.approx(0.1)
     # A ranging sensor reading takes precedence over the estimate.
     a, _ = m.supervise(act, 1.0, ranging=(17.0, 0.0))
     assert a[0] == pytest.approx(2.0)

@@ -58,11 +58,21 @@ class MemberConfig:
     def layout(self) -> ObservationLayout:
         return ObservationLayout(M=self.M, k=self.k)
 
+    @property
+    def fresh_age_s(self) -> float:
+        """Message age (s) up to which a target is fresh: dead-reckoned at constant speed
+        and trusted. The ladder's ``degrade_after_s``, or longer for an event trigger,
+        whose senders stay silent up to ``max_silence_s`` exactly while the others'
+        constant-speed extrapolation of them holds."""
+        t = self.trigger
+        silence = t.max_silence_s + t.period_s if t.kind == "event" else 0.0
+        return max(self.ladder.degrade_after_s, silence)
+
 
 @dataclass(frozen=True, slots=True)
 class TargetEstimate:
     """Where a heard vehicle is now by its newest message: ENU position (m), speed (m/s),
-    heading (rad), message age (s), and ``stale`` (older than the ladder's degrade age)."""
+    heading (rad), message age (s), and ``stale`` (older than ``MemberConfig.fresh_age_s``)."""
 
     x: float
     y: float
@@ -77,8 +87,9 @@ class ConvoyMember:
     ``decels[i]`` its braking limit (m/s²), used to bound where a silent vehicle can be
     (None: a silent vehicle is taken to have stopped where it was last heard).
 
-    Target ages (issue 10): a message younger than the ladder's ``degrade_after_s`` is
-    dead-reckoned at constant speed; an older one as if its sender had braked at its limit
+    Target ages (issue 10): a message no older than ``MemberConfig.fresh_age_s`` (the
+    ladder's ``degrade_after_s``, longer for event triggers) is dead-reckoned at constant
+    speed; an older one as if its sender had braked at its limit
     from the moment it was sent (it may have: only slowing is safe to assume); older than
     ``stop_after_s`` it is no target at all. These ages apply with the ladder off too.
     """
@@ -217,7 +228,7 @@ class ConvoyMember:
         if age > ladder.stop_after_s:
             return None
         v, h = latest.speed, latest.heading
-        if age <= ladder.degrade_after_s:
+        if age <= self.config.fresh_age_s:
             d, speed, stale = v * age, v, False
         else:
             a = self._decel(vehicle_id)

@@ -9,12 +9,13 @@ error plus the nearest predecessor's speed into a speed setpoint; χ_θ steers o
 nearest predecessor's trail.
 
 Stale targets only slow (issue 10). The mean runs over the fresh targets (messages no
-older than the ladder's ``degrade_after_s``, so a loss-free run is the paper's σ); each
-stale one (which the member already dead-reckons as braking) caps the speed at what it
-alone would ask for; a predecessor heard before but now older than ``stop_after_s`` stops
-the follower. ``min(mean of the others, each stale one) <= mean of all``, so a stale
-target can never make a follower faster than if it were fresh, and a phantom leader can
-no longer outweigh a stopped predecessor.
+older than ``MemberConfig.fresh_age_s``, the ladder's ``degrade_after_s``); the nearest fresh predecessor caps the speed
+at what it alone asks for, so a leader far ahead can no longer outweigh a stopped
+predecessor; each stale target (which the member already dead-reckons as braking) caps it
+at its own term of the mean — ``min(mean of the others, each one) <= mean of all``, so a
+stale target never makes a follower faster than if it were fresh — and at what it alone
+asks for; a predecessor heard before but now older than ``stop_after_s`` stops the
+follower. Loss-free, this is the paper's σ with the nearest-predecessor cap.
 """
 
 from __future__ import annotations
@@ -81,44 +82,50 @@ class ClassicalPolicy:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         view = self.layout.view(observation)
-        fresh, stale, lost = self._sort_targets(view)
-        if lost or not (fresh or stale):
+        targets, lost = self._targets(view)
+        if lost or not targets:
             self._speed.reset()
             return make_action(0.0, 0.0)
         own = view.own_speed
+        v_ref = targets[0][0]["speed"]  # the nearest predecessor's, as in the paper
+        fresh = [t for t, stale in targets if not stale]
+        stale = [t for t, is_stale in targets if is_stale]
+        c = self.config.speed
         speed = math.inf
         if fresh:
             error = sum(t["spacing_error"] for t in fresh) / len(fresh)
             if self.config.rear_weight > 0.0:
                 error -= self.config.rear_weight * self._rear_error(view, fresh[0]["desired_gap"])
-            v_ref = fresh[0]["speed"]
             # The spacing error grows at the speed difference along the path.
             speed = self._speed(error, v_ref, v_ref - own)
+            # Never faster than the nearest fresh predecessor alone asks.
+            near = fresh[0]
+            speed = min(speed, near["speed"] + c.kp * near["spacing_error"] + c.kd * (near["speed"] - own))
         else:
             self._speed.reset()
-        c = self.config.speed
-        for t in (*fresh[:1], *stale):
-            speed = min(speed, t["speed"] + c.kp * t["spacing_error"] + c.kd * (t["speed"] - own))
+        for t in stale:
+            # Each stale target caps the speed at its term of the mean (so leaving it out
+            # of the mean cannot speed the follower up) and at what it alone asks.
+            e = t["spacing_error"]
+            speed = min(speed, v_ref + c.kp * e + c.kd * (v_ref - own), t["speed"] + c.kp * e + c.kd * (t["speed"] - own))
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
         return make_action(speed, self._heading_change(view.path, own))
 
-    def _sort_targets(self, view) -> tuple[list[dict[str, float]], list[dict[str, float]], bool]:
-        """Valid targets split by message age into fresh and stale (nearest first), and
-        whether a predecessor heard before is now too old to be a target (lost)."""
-        ladder = self.config.member.ladder
-        fresh: list[dict[str, float]] = []
-        stale: list[dict[str, float]] = []
+    def _targets(self, view) -> tuple[list[tuple[dict[str, float], bool]], bool]:
+        """Valid targets nearest first, each with whether it is stale (older than
+        ``MemberConfig.fresh_age_s``), and whether a predecessor heard before is now too
+        old to be a target (lost)."""
+        degrade = self.config.member.fresh_age_s
+        out: list[tuple[dict[str, float], bool]] = []
         lost = False
-        preds = self.layout.targets[1:]
-        for name in (*preds, "leader"):
+        for name in (*self.layout.targets[1:], "leader"):
             newest = view.states(name)[0]
-            heard = newest[6] > 0.5
             target = view.target(name)
             if target["valid"] > 0.5:
-                (fresh if newest[5] <= ladder.degrade_after_s else stale).append(target)
-            elif heard and (name != "leader" or not self._leader_in_preds(view, newest)):
+                out.append((target, bool(newest[5] > degrade)))
+            elif newest[6] > 0.5 and (name != "leader" or not self._leader_in_preds(view, newest)):
                 lost = True  # heard, but older than the stop age (the member dropped it)
-        return fresh, stale, lost
+        return out, lost
 
     def _leader_in_preds(self, view, newest: np.ndarray) -> bool:
         """The leader slot repeats a predecessor slot (a follower within M of the leader)."""

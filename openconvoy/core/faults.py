@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
+
 FAULT_KINDS = ("halt", "silent", "dead")
 FAULT_SYNTAX = "KIND:VEHICLE@T_S with KIND one of halt, silent, dead (e.g. dead:0@30)"
 
@@ -28,13 +30,13 @@ class Fault:
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {self.kind!r}; expected one of {', '.join(FAULT_KINDS)}")
+            raise ConfigError(f"unknown fault kind {self.kind!r}; expected one of {', '.join(FAULT_KINDS)}")
         if isinstance(self.vehicle, bool) or not isinstance(self.vehicle, int) or self.vehicle < 0:
-            raise ValueError(f"fault vehicle must be an index >= 0, got {self.vehicle!r}")
+            raise ConfigError(f"fault vehicle must be an index >= 0, got {self.vehicle!r}")
         if isinstance(self.t_s, bool) or not isinstance(self.t_s, (int, float)) or not (
             math.isfinite(self.t_s) and self.t_s >= 0
         ):
-            raise ValueError(f"fault time must be a finite number of seconds >= 0, got {self.t_s!r}")
+            raise ConfigError(f"fault time must be a finite number of seconds >= 0, got {self.t_s!r}")
 
     @property
     def brakes(self) -> bool:
@@ -54,21 +56,21 @@ class Fault:
 
 
 def parse_fault(spec: str) -> Fault:
-    """``"dead:0@30"`` -> ``Fault("dead", 0, 30.0)``; a bad spec raises ValueError with one
+    """``"dead:0@30"`` -> ``Fault("dead", 0, 30.0)``; a bad spec raises ConfigError (a ValueError) with one
     line naming it and the syntax."""
     text = spec.strip()
     kind, sep, rest = text.partition(":")
     vehicle, sep2, t = rest.partition("@")
     try:
         if not (sep and sep2):
-            raise ValueError("missing ':' or '@'")
+            raise ConfigError("missing ':' or '@'")
         return Fault(kind.strip(), int(vehicle), float(t))
     except ValueError as exc:
-        raise ValueError(f"bad fault {spec!r}: {exc}; expected {FAULT_SYNTAX}") from None
+        raise ConfigError(f"bad fault {spec!r}: {exc}; expected {FAULT_SYNTAX}") from None
 
 
 def check_faults(faults: tuple[Fault, ...], n_vehicles: int) -> None:
     """Raise ValueError when a fault names a vehicle the convoy does not have."""
     for f in faults:
         if f.vehicle >= n_vehicles:
-            raise ValueError(f"fault {f}: no vehicle {f.vehicle} in a convoy of {n_vehicles} (0..{n_vehicles - 1})")
+            raise ConfigError(f"fault {f}: no vehicle {f.vehicle} in a convoy of {n_vehicles} (0..{n_vehicles - 1})")

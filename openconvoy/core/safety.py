@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
+
 DEFAULT_MARGIN_LENGTHS = 0.25
 """Default margin between bumpers, in own vehicle lengths: 0.19-0.24 m for the small cars,
 1.2 m for a car (below the 2 m CACC standstill distance, so a convoy at rest is not an
@@ -44,9 +46,9 @@ class BrakingGap:
         for name in ("decel_mps2", "reaction_s", "margin_m"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value)):
-                raise ValueError(f"braking gap {name} must be a finite number, got {value!r}")
+                raise ConfigError(f"braking gap {name} must be a finite number, got {value!r}")
         if self.decel_mps2 <= 0 or self.reaction_s < 0 or self.margin_m < 0:
-            raise ValueError(
+            raise ConfigError(
                 "braking gap needs decel_mps2 > 0, reaction_s >= 0 and margin_m >= 0, got "
                 f"{self.decel_mps2}, {self.reaction_s}, {self.margin_m}"
             )

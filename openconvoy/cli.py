@@ -87,6 +87,14 @@ def _run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
+def _executor_args(p: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray)."""
+    p.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where runs execute: local processes (default) or a Ray cluster (openconvoy[cluster])")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="Ray cluster to use, HOST:PORT or auto (default: a private cluster of this machine)")
+
+
 def _add_sim(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim", help="simulate one run: log, metrics and plots",
                        description="Simulate a convoy and write DIR/log.csv, DIR/metrics.json, "
@@ -152,7 +160,9 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=_int(1, 100_000), default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
     p.add_argument("--name", default=None, help="experiment name")
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--jobs", type=_int(1, 4096), default=None, metavar="N", help="processes (default: the cores available)")
+    p.add_argument("--jobs", type=_int(1, 4096), default=None, metavar="N",
+                   help="runs at once (default: the cores available, or the Ray cluster's CPUs)")
+    _executor_args(p)
     _run_args(p, sweep=True)
 
     def _per_sweep(args: argparse.Namespace) -> int:
@@ -473,11 +483,17 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                        "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
                        "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
                        "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
-    p.add_argument("--config", metavar="TRAIN.toml", help="training config file")
+    p.add_argument("--config", metavar="TRAIN.toml", action="append",
+                   help="training config file; repeat for one run per config (OUT/<stem>)")
     p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
     p.add_argument("--steps", type=_int(1, 10**12), metavar="N", help="agent steps (default 600000)")
     p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
     p.add_argument("--seed", type=SEED, help="seed (default 0)")
+    p.add_argument("--seeds", type=SEED, nargs="+", metavar="S",
+                   help="one run per seed (OUT/seed_S), run as tasks of --executor")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="training runs at once (default: the cores available, or the cluster's CPUs)")
+    _executor_args(p)
     p.add_argument("--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)")
     p.add_argument("--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)")
     p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "
@@ -516,6 +532,13 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)")
     p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
     p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
+    p.add_argument("--storage", metavar="URL_OR_FILE",
+                   help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+                   "or a journal file path; rerunning with it resumes the study")
+    p.add_argument("--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="trials at once (default 1 locally, the cluster's CPUs on Ray)")
+    _executor_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     def _tune(args: argparse.Namespace) -> int:

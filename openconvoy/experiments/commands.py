@@ -200,14 +200,24 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
 
 
 def per_sweep(args: argparse.Namespace) -> int:
-    """``openconvoy experiment per-sweep``."""
+    """``openconvoy experiment per-sweep``; exit status 1 when runs failed (the others
+    are written)."""
+    import sys
+
+    from openconvoy.experiments.executor import TasksFailed, with_flags
     from openconvoy.experiments.sweep import run_experiment
 
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
     out = Path(args.out)
-    result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
+    try:
+        result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
+                                executor=executor)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
     for r in result.rows:
         print(

@@ -30,6 +30,7 @@ from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.convoy import ConvoyConfig, load_convoy
+from openconvoy.core.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -72,12 +73,15 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     from openconvoy.comms.v2v import V2V, LinkConfig
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
+    from openconvoy.outputs import check_output_dir
     from openconvoy.policies import load_policy
 
     convoy = convoy or load_convoy(a.convoy)
+    if a.log is not None:
+        check_output_dir(a.log, "--log")  # before connecting, never after arming
     n = convoy.n_vehicles
     if not 0 <= a.vehicle_id < n:
-        raise ValueError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
+        raise ConfigError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
     policy = load_policy(a.policy)
     presets = [vehicle_preset(v) for v in convoy.vehicles]
     origin = Origin(*convoy.origin)
@@ -180,7 +184,7 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
         auth = abort_authenticator(key, keys_dir)
         compat = False
     elif required:
-        raise ValueError(
+        raise ConfigError(
             f"this convoy only obeys signed aborts: give --key (e.g. {keys_dir}/authority.key)"
         )
     n = send_abort(args.iface, compat_enabled=compat, now=None, repeat=args.repeat, auth=auth, **kwargs)

@@ -33,6 +33,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from openconvoy.comms import certs as c
 from openconvoy.comms.spdu import SignedSpdu, encode_signed
+from openconvoy.core.errors import ConfigError
 
 DEFAULT_WINDOW_S = 1.0
 CERT_PERIOD_S = 1.0
@@ -96,7 +97,7 @@ class ReplayGuard:
 
     def __init__(self, window_s: float = DEFAULT_WINDOW_S) -> None:
         if not window_s > 0:
-            raise ValueError(f"replay window must be > 0 s, got {window_s}")
+            raise ConfigError(f"replay window must be > 0 s, got {window_s}")
         self.window_s = window_s
         self._seen: set[tuple[bytes, int]] = set()
         self._expiry: deque[tuple[float, tuple[bytes, int]]] = deque()

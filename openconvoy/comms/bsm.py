@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from openconvoy.core.errors import DependencyMissing
+
 #: messageId of a BasicSafetyMessage in a MessageFrame.
 BSM_MESSAGE_ID = 20
 #: Every BSM MessageFrame starts with these two octets (extension bit 0, messageId 20).
@@ -233,7 +235,7 @@ def _spec() -> tuple[Any, Any]:
     try:
         import asn1tools  # imported here: only processes that speak J2735 pay for it
     except ModuleNotFoundError:
-        raise ModuleNotFoundError(
+        raise DependencyMissing(
             "J2735 BSMs need asn1tools: pip install 'openconvoy[vehicle]'", name="asn1tools"
         ) from None
 
@@ -423,3 +425,25 @@ def core_as_dict(core: BsmCore) -> dict[str, Any]:
     d = core._asdict()
     d["temp_id"] = core.temp_id.hex().upper()
     return d
+
+
+def peek_temp_id(data: bytes) -> int | None:
+    """The TemporaryID of a BSM MessageFrame read straight from its bits, without decoding,
+    as a 32-bit integer (``int.from_bytes(temp_id, "big")``).
+
+    UPER lays a BSM out as: the frame's extension bit and 15-bit messageId (``00 14``),
+    the open type's length determinant (one octet below 128, two from 128 on), then the
+    BSM's extension bit, its two OPTIONAL bits, the 7-bit msgCnt and the 32-bit id. A
+    receiver uses this to drop foreign traffic for well under a microsecond a datagram
+    instead of a full decode (~50 us). None when ``data`` is not a BSM frame or too short;
+    a frame whose id is known must still be decoded in full.
+    """
+    if data[:2] != BSM_FRAME_PREFIX or len(data) < 9:
+        return None
+    if data[2] < 0x80:
+        bits = int.from_bytes(data[3:9], "big")  # 48 bits: 3 + 7 + 32 + 6
+    elif data[2] < 0xC0 and len(data) >= 10:
+        bits = int.from_bytes(data[4:10], "big")
+    else:
+        return None
+    return (bits >> 6) & 0xFFFFFFFF

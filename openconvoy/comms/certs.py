@@ -32,6 +32,8 @@ from cryptography.hazmat.primitives.asymmetric.utils import (
     encode_dss_signature,
 )
 
+from openconvoy.core.errors import ConfigError, InputFileError
+
 ASN_PATH = Path(__file__).with_name("ieee1609dot2.asn")
 
 #: PSID of the BSM (IEEE 1609.12).
@@ -50,7 +52,7 @@ _ECDSA = ec.ECDSA(hashes.SHA256())
 _EMPTY_HASH = hashlib.sha256(b"").digest()
 
 
-class CertificateError(ValueError):
+class CertificateError(InputFileError):
     """A certificate is malformed, not issued by the expected authority, or not valid."""
 
 
@@ -216,7 +218,7 @@ def make_certificate(
     which then needs ``self_key`` (the private key of ``public_key``).
     """
     if not 0 < duration_hours <= 65535:
-        raise ValueError(f"certificate duration must be 1..65535 hours, got {duration_hours}")
+        raise ConfigError(f"certificate duration must be 1..65535 hours, got {duration_hours}")
     tbs_value: dict[str, Any] = {
         "id": ("name", name),
         "cracaId": b"\x00\x00\x00",

@@ -20,6 +20,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from openconvoy.comms import certs as c
 from openconvoy.comms.auth import Credentials, authority_name, vehicle_name
+from openconvoy.core.errors import InputFileError
 
 AUTHORITY = "authority"
 AUTHORITY_HOURS = 5 * 8766  # five years
@@ -28,7 +29,7 @@ VEHICLE_HOURS = 8766  # one year
 START_SLACK_S = 3600.0
 
 
-class KeyFileError(ValueError):
+class KeyFileError(InputFileError):
     """A key or certificate file is missing, unreadable, or does not match (one line)."""
 
 

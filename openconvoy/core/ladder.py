@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
+
 COOP, DEGRADED, STOP = "coop", "degraded", "stop"
 
 
@@ -25,7 +27,7 @@ class LadderConfig:
 
     def __post_init__(self) -> None:
         if not 0 < self.degrade_after_s < self.stop_after_s:
-            raise ValueError(
+            raise ConfigError(
                 "staleness ladder needs 0 < degrade_after_s < stop_after_s, got "
                 f"{self.degrade_after_s} and {self.stop_after_s}"
             )

@@ -31,6 +31,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from openconvoy.comms.geodesy import enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.state import VehicleState
@@ -123,20 +124,20 @@ class ConvoyEnv(ParallelEnv):
         reward_config: RewardConfig | None = None,
     ) -> None:
         if control_rate_hz <= 0:
-            raise ValueError(f"control_rate_hz must be positive, got {control_rate_hz}")
+            raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
         if gps_noise_m < 0:
-            raise ValueError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+            raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         presets = None
         if vehicle_presets is not None:
             presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
         if isinstance(scenario, str):
             scenario = make_scenario(scenario, n_followers, presets)
         elif presets is not None or n_followers is not None:
-            raise ValueError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+            raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
         if scenario.n_vehicles < 2:
-            raise ValueError("a convoy needs a leader and at least one follower")
+            raise ConfigError("a convoy needs a leader and at least one follower")
         self.scenario = scenario
         self.presets = tuple(scenario.presets)
         self.n_vehicles = n = scenario.n_vehicles

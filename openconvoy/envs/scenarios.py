@@ -36,6 +36,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
 from openconvoy.envs.path import Path, oval, straight_road
 from openconvoy.envs.track import Track, example_track_path, load_track
@@ -125,7 +126,7 @@ class PathScenario:
         ramp_decel_mps2: float | None = None,
     ) -> None:
         if len(presets) < 1:
-            raise ValueError("a scenario needs at least the leader")
+            raise ConfigError("a scenario needs at least the leader")
         self.name = name
         self.presets = tuple(presets)
         self.path = path
@@ -141,7 +142,7 @@ class PathScenario:
         self.ramp_accel_mps2 = ramp_accel_mps2 or lead.accel_max_mps2
         self.ramp_decel_mps2 = ramp_decel_mps2 or lead.decel_max_mps2
         if path.closed and self._offsets()[-1] > path.length:
-            raise ValueError(
+            raise ConfigError(
                 f"scenario {name!r}: {len(self.presets)} vehicles at the desired gaps do not fit "
                 f"on a closed track of {path.length:.1f} m"
             )
@@ -310,13 +311,13 @@ def make_scenario(
     if presets is not None:
         presets = tuple(presets)
         if n_followers is not None and n_followers != len(presets) - 1:
-            raise ValueError(
+            raise ConfigError(
                 f"n_followers={n_followers} but {len(presets)} vehicle presets (leader included)"
             )
         n_followers = len(presets) - 1
     n = 2 if n_followers is None else int(n_followers)
     if n < 1:
-        raise ValueError(f"a convoy needs at least one follower, got n_followers={n}")
+        raise ConfigError(f"a convoy needs at least one follower, got n_followers={n}")
     if spec == "paper":
         return paper_scenario(n, presets)
     if spec == "track":
@@ -328,6 +329,6 @@ def make_scenario(
         if file == "example":
             file = str(example_track_path())
         return track_file_scenario(file, n, presets)
-    raise ValueError(
+    raise ConfigError(
         f"unknown scenario {spec!r}; expected one of {', '.join(SCENARIO_NAMES)}"
     )

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core import metrics as mt
+from openconvoy.core.errors import ConfigError
 
 
 def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
@@ -27,7 +28,7 @@ def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
 
 def _check_per(per: float) -> None:
     if not 0.0 <= per <= 1.0:
-        raise ValueError(f"--per must be in [0, 1], got {per}")
+        raise ConfigError(f"--per must be in [0, 1], got {per}")
 
 
 def format_metrics(metrics: dict[str, Any]) -> str:
@@ -59,7 +60,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
     if args.burst is not None and args.loss != "gilbert-elliott":
-        raise ValueError("--burst applies to --loss gilbert-elliott")
+        raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
         scenario=scenario or "paper", policy=args.policy, per=args.per, loss_model=args.loss,
         mean_burst_s=args.burst if args.burst is not None else 1.0,
@@ -155,7 +156,7 @@ def _floats(text: str) -> tuple[float, ...]:
     try:
         return tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise ValueError(f"--pers: expected comma-separated numbers, got {text!r}") from None
+        raise ConfigError(f"--pers: expected comma-separated numbers, got {text!r}") from None
 
 
 def experiment_from_args(args: argparse.Namespace) -> Any:
@@ -175,7 +176,7 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
         changes["pers"] = _floats(args.pers)
     if args.seeds is not None:
         if args.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
+            raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
         changes["seeds"] = tuple(range(args.seeds))
     if args.duration is not None:
         changes["duration_s"] = args.duration
@@ -202,7 +203,7 @@ def per_sweep(args: argparse.Namespace) -> int:
 
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
-        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+        raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
     out = Path(args.out)
     result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")

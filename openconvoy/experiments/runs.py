@@ -27,6 +27,7 @@ from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.errors import ConfigError
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
@@ -84,9 +85,9 @@ class RunConfig:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss  # validates model and PER  # noqa: B018
         if self.duration_s is not None and self.duration_s <= 0:
-            raise ValueError(f"duration must be positive, got {self.duration_s} s")
+            raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.gps_noise_m < 0:
-            raise ValueError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
+            raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
 
     @property
     def loss(self) -> LossConfig:

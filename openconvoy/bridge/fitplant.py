@@ -633,6 +633,8 @@ def fit_pi_plant(
         heading_rms = math.sqrt(cost)
     if not values:
         raise ValueError("nothing to fit: no stretch changes the commanded speed or heading")
+    # An unfitted heading loop keeps the base's heading delay, whatever the speed delay is.
+    values.setdefault("heading_delay_s", base_preset.heading_delay)
     rounded = {k: round(v, 4) for k, v in values.items()}
     preset = dataclasses.replace(base_preset, name=name, speed_loop="pi", **rounded)
     return PiFit(preset, speed_rms, heading_rms, samples, " + ".join(sorted(set(kinds))))

@@ -126,8 +126,10 @@ class BicyclePlant:
         self.accel = np.zeros(n)
         self.yaw_rate = np.zeros(n)
         self._ramp = self.speed.copy()
-        # Steady state: the drive command equals the speed (ff * v + integrator = v).
-        self._integ = np.where(self._pi, self.speed * (1.0 - self._ff), 0.0)
+        # Steady state at the setpoint: the drive holds the speed against the drag
+        # (ff * v + integrator = v + drag * v|v|). Without an integrator that offset stays.
+        v = self.speed
+        self._integ = np.where(self._pi, v + self._drag * v * np.abs(v) - self._ff * v, 0.0)
         self._rate_des = np.zeros(n)
         self._queue_v[:] = self.speed
         self._queue_h[:] = self.heading

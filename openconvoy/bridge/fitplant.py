@@ -28,6 +28,7 @@ from typing import Literal
 
 import numpy as np
 
+from openconvoy.core.errors import InputFileError
 from openconvoy.envs.vehicles import VehiclePreset, preset_to_toml, vehicle_preset
 from openconvoy.logs import read_log
 
@@ -62,13 +63,13 @@ def _select_vehicle(log: dict[str, np.ndarray], vehicle_id: int | None) -> np.nd
     ids = np.unique(log["vehicle_id"])
     if vehicle_id is None:
         if len(ids) != 1:
-            raise ValueError(
+            raise InputFileError(
                 f"the log holds vehicles {', '.join(map(str, ids))}: choose one with --vehicle-id"
             )
         vehicle_id = int(ids[0])
     mask = log["vehicle_id"] == vehicle_id
     if not mask.any():
-        raise ValueError(f"no rows for vehicle {vehicle_id} in the log (has {', '.join(map(str, ids))})")
+        raise InputFileError(f"no rows for vehicle {vehicle_id} in the log (has {', '.join(map(str, ids))})")
     return mask
 
 
@@ -199,9 +200,9 @@ def _load(log_path: str | Path, vehicle_id: int | None) -> tuple[np.ndarray, ...
     ok = np.all(np.isfinite(np.stack([t, speed, heading, cmd_v, cmd_dh])), axis=0)
     t, speed, heading, cmd_v, cmd_dh, age = (a[ok] for a in (t, speed, heading, cmd_v, cmd_dh, age))
     if len(t) < 50 or t[-1] - t[0] < 5.0:
-        raise ValueError(f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)")
+        raise InputFileError(f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)")
     if np.ptp(cmd_v) < 0.2:
-        raise ValueError(f"{log_path}: the commanded speed barely changes; drive speed steps to fit")
+        raise InputFileError(f"{log_path}: the commanded speed barely changes; drive speed steps to fit")
     return t, speed, heading, cmd_v, cmd_dh, age
 
 
@@ -262,7 +263,7 @@ def fit_plant(
     raw = _load(log_path, vehicle_id)
     timing = cmd_timing
     if timing not in ("after-state", "before-state"):
-        raise ValueError(f"command timing must be after-state or before-state, got {timing!r}")
+        raise InputFileError(f"command timing must be after-state or before-state, got {timing!r}")
     d = _align(*raw, timing)
     speed_params, cost_v, (grid, rows, measured_at), speed_cost = _fit_speed(d)
     delay, tau_v, acc, dec = (float(x) for x in speed_params)

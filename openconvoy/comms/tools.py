@@ -23,6 +23,7 @@ from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.mapping import reconstruct_send_time, state_to_core
 from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast
 from openconvoy.comms.tempids import derive_temp_id, parse_temp_id
+from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,7 @@ def require_codec() -> None:
     try:
         j.warm_up()
     except ModuleNotFoundError as exc:
-        raise ValueError(str(exc)) from None
+        raise ConfigError(str(exc)) from None
 
 
 def _fmt(v: float | None, spec: str) -> str:
@@ -152,9 +153,9 @@ def send(
     convoy position on the IPv4 group. Returns the number of BSMs sent.
     """
     if count < 0:
-        raise ValueError(f"--count must be >= 0, got {count}")
+        raise ConfigError(f"--count must be >= 0, got {count}")
     if not rate_hz > 0:
-        raise ValueError(f"--rate must be > 0 Hz, got {rate_hz}")
+        raise ConfigError(f"--rate must be > 0 Hz, got {rate_hz}")
     require_codec()
     start = Origin(lat_deg, lon_deg, elev_m)
     heading_enu = math.radians(90.0 - heading_deg)
@@ -176,7 +177,10 @@ def send(
                 heading_enu,
             )
             core = state_to_core(state, start, temp_id, k, alt_m=elev_m)
-            sock.send(j.encode_frame(core))
+            try:
+                sock.send(j.encode_frame(core))
+            except OSError as exc:
+                raise LinkError(f"--iface {iface}: cannot send: {exc.strerror or exc}") from None
             if sock4 is not None:
                 sock4.send(cj.encode_state(state, start))
     finally:
@@ -193,7 +197,7 @@ def parse_hex(text: str) -> bytes:
     try:
         return bytes.fromhex(cleaned)
     except ValueError:
-        raise ValueError(f"not hexadecimal: {text[:40]!r}") from None
+        raise ConfigError(f"not hexadecimal: {text[:40]!r}") from None
 
 
 def decode_lines(data: bytes, *, as_json: bool = False) -> list[str]:

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.vehicles import VehiclePreset
 
@@ -48,7 +49,7 @@ class BicyclePlant:
         self, presets: Sequence[VehiclePreset], dt: float, vectorized: bool | None = None
     ) -> None:
         if dt <= 0:
-            raise ValueError(f"plant time step must be positive, got {dt}")
+            raise ConfigError(f"plant time step must be positive, got {dt}")
         self.presets = list(presets)
         self.dt = dt
         n = len(self.presets)

@@ -58,6 +58,7 @@ import numpy as np
 
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.errors import ConfigError
 from openconvoy.experiments.runs import RunConfig, run_sim, write_json
 
 DEFAULT_PERS: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
@@ -90,9 +91,9 @@ class LossSection:
 
     def __post_init__(self) -> None:
         if self.model not in ("bernoulli", "gilbert-elliott"):
-            raise ValueError(f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')")
+            raise ConfigError(f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')")
         if self.mean_burst_s <= 0:
-            raise ValueError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
+            raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
 
 
 @dataclass(frozen=True)
@@ -104,7 +105,7 @@ class ExperimentConfig:
     scenario: str = "paper"
     policies: tuple[str, ...] = ("paper",)
     pers: tuple[float, ...] = DEFAULT_PERS
-    seeds: tuple[int, ...] = (0, 1, 2)
+    seeds: tuple[int, ...] | int = (0, 1, 2)
     duration_s: float | None = None
     convoy: ConvoySection = field(default_factory=ConvoySection)
     loss: LossSection = field(default_factory=LossSection)
@@ -113,7 +114,7 @@ class ExperimentConfig:
 
     def __post_init__(self) -> None:
         if self.kind != "per-sweep":
-            raise ValueError(f"unknown experiment kind {self.kind!r}; expected 'per-sweep'")
+            raise ConfigError(f"unknown experiment kind {self.kind!r}; expected 'per-sweep'")
         object.__setattr__(self, "policies", tuple(self.policies))
         object.__setattr__(self, "pers", tuple(float(p) for p in self.pers))
         seeds = self.seeds
@@ -121,21 +122,21 @@ class ExperimentConfig:
             seeds = tuple(range(seeds))
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
         if not self.policies:
-            raise ValueError("an experiment needs at least one policy")
+            raise ConfigError("an experiment needs at least one policy")
         if len(set(self.policies)) != len(self.policies):
-            raise ValueError(f"policies repeat: {', '.join(self.policies)}")
+            raise ConfigError(f"policies repeat: {', '.join(self.policies)}")
         if not self.pers or not self.seeds:
-            raise ValueError("an experiment needs at least one PER and one seed")
+            raise ConfigError("an experiment needs at least one PER and one seed")
         for p in self.pers:
             if not 0.0 <= p <= 1.0:
-                raise ValueError(f"PER must be in [0, 1], got {p}")
+                raise ConfigError(f"PER must be in [0, 1], got {p}")
         if len(set(self.pers)) != len(self.pers) or len(set(self.seeds)) != len(self.seeds):
-            raise ValueError("PERs and seeds must not repeat")
+            raise ConfigError("PERs and seeds must not repeat")
         if self.duration_s is not None and self.duration_s <= 0:
-            raise ValueError(f"duration_s must be positive, got {self.duration_s}")
+            raise ConfigError(f"duration_s must be positive, got {self.duration_s}")
         for name, table in self.policy.items():
             if not isinstance(table, dict):
-                raise ValueError(f"[policy.{name}] must be a table")
+                raise ConfigError(f"[policy.{name}] must be a table")
 
     # --- TOML ----------------------------------------------------------------------------
 
@@ -158,13 +159,13 @@ class ExperimentConfig:
     def from_tables(cls, data: dict[str, Any], where: str = "experiment") -> ExperimentConfig:
         unknown = set(data) - {"experiment", "convoy", "loss", "policy"}
         if unknown:
-            raise ValueError(f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy")
+            raise ConfigError(f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy")
         if "experiment" not in data:
-            raise ValueError(f"{where}: missing the [experiment] table")
+            raise ConfigError(f"{where}: missing the [experiment] table")
         table = dict(data["experiment"])
         for key in ("convoy", "loss", "policy"):
             if key in table:
-                raise ValueError(f"{where}: {key} belongs in its own [{key}] table")
+                raise ConfigError(f"{where}: {key} belongs in its own [{key}] table")
             if key in data:
                 table[key] = data[key]
         return from_dict(cls, table, where)
@@ -212,7 +213,7 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
         name = Path(base).stem
         table.setdefault("name", name)
         if name in PRESETS or (name in inline and inline[name] != table):
-            raise ValueError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
+            raise ConfigError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
         inline[name] = table
         labels.append(name + label[len(base):])
     if labels == list(config.policies):
@@ -228,7 +229,7 @@ def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, 
     files: dict[str, str] = {}
     for name, table in config.policy.items():
         if "/" in name or name.endswith(".toml"):
-            raise ValueError(f"[policy.{name}]: an inline policy name is a plain word")
+            raise ConfigError(f"[policy.{name}]: an inline policy name is a plain word")
         path = out_dir / "policies" / f"{name}.toml"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(dumps_toml({"policy": {"name": name, **table}}), encoding="utf-8")
@@ -445,7 +446,7 @@ def read_summary(path: str | Path) -> list[dict[str, Any]]:
     data = json.loads(p.read_text(encoding="utf-8"))
     rows = data.get("rows") if isinstance(data, dict) else None
     if not isinstance(rows, list):
-        raise ValueError(f"{p}: not a sweep summary (no 'rows' list)")
+        raise ConfigError(f"{p}: not a sweep summary (no 'rows' list)")
     for r in rows:
         for k in mt.METRIC_KEYS:
             if isinstance(r.get(k), dict):

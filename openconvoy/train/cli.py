@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import sys
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.train.config import TrainConfig, load_train_config
 
 
@@ -64,7 +65,7 @@ def tune_command(args: argparse.Namespace) -> int:
     from openconvoy.train.tune import TuneConfig, tune, write_tuned
 
     if not args.out.endswith(".toml"):
-        raise ValueError(f"{args.out}: the tuned policy is a .toml file")
+        raise ConfigError(f"{args.out}: the tuned policy is a .toml file")
     config = TuneConfig(
         base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
         scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),

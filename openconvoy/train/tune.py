@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.policies.classical import ClassicalConfig
 from openconvoy.policies.spec import classical_config, classical_to_toml
 
@@ -81,7 +82,7 @@ def with_values(config: ClassicalConfig, values: dict[str, float], name: str) ->
 
 def _replace_path(obj: Any, parts: list[str], value: float) -> Any:
     if not dataclasses.is_dataclass(obj) or parts[0] not in {f.name for f in dataclasses.fields(obj)}:
-        raise ValueError(f"unknown parameter path component {parts[0]!r}")
+        raise ConfigError(f"unknown parameter path component {parts[0]!r}")
     if len(parts) == 1:
         return dataclasses.replace(obj, **{parts[0]: float(value)})
     return dataclasses.replace(obj, **{parts[0]: _replace_path(getattr(obj, parts[0]), parts[1:], value)})
@@ -122,10 +123,10 @@ class TuneConfig:
         for name in ("pers", "seeds", "params"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.trials < 1 or not self.pers or not self.seeds:
-            raise ValueError("tune needs at least one trial, one PER and one seed")
+            raise ConfigError("tune needs at least one trial, one PER and one seed")
         unknown = [p for p in self.params if p not in PARAMETERS]
         if unknown:
-            raise ValueError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
+            raise ConfigError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
 
 
 @dataclass
@@ -231,7 +232,7 @@ def write_tuned(result: TuneResult, out: str | Path) -> Path:
     the study's numbers next to it."""
     out = Path(out)
     if out.suffix != ".toml":
-        raise ValueError(f"{out}: the tuned policy is a .toml file")
+        raise ConfigError(f"{out}: the tuned policy is a .toml file")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(classical_to_toml(result.best), encoding="utf-8")
     summary = {

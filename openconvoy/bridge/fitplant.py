@@ -28,7 +28,7 @@ from typing import Literal
 
 import numpy as np
 
-from openconvoy.core.errors import InputFileError
+from openconvoy.core.errors import ConfigError, InputFileError
 from openconvoy.envs.vehicles import VehiclePreset, preset_to_toml, vehicle_preset
 from openconvoy.logs import read_log
 
@@ -400,7 +400,7 @@ def run_fit_plant_cli(args: object) -> int:
         from openconvoy.bridge.recording import is_recording
 
         if len(logs) != 1 or is_recording(logs[0]):
-            raise ValueError("the lag model fits one run's log; use --model pi for recordings "
+            raise ConfigError("the lag model fits one run's log; use --model pi for recordings "
                              "or several inputs")
         fit = fit_plant(
             logs[0], base=args.base, name=args.name,  # type: ignore[attr-defined]
@@ -633,7 +633,7 @@ def fit_pi_plant(
         values["heading_delay_s"] = round(values["heading_delay_s"] / _PI_DT_S) * _PI_DT_S
         heading_rms = math.sqrt(cost)
     if not values:
-        raise ValueError("nothing to fit: no stretch changes the commanded speed or heading")
+        raise InputFileError("nothing to fit: no stretch changes the commanded speed or heading")
     # An unfitted heading loop keeps the base's heading delay, whatever the speed delay is.
     values.setdefault("heading_delay_s", base_preset.heading_delay)
     rounded = {k: round(v, 4) for k, v in values.items()}

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError, InputFileError
+
 FLT_EPSILON = 1.1920929e-07
 _SETPOINTS = ("SET_POSITION_TARGET_GLOBAL_INT", "SET_POSITION_TARGET_LOCAL_NED")
 _NED_FRAMES = {1, 5, 6, 11}  # LOCAL_NED and the GLOBAL_* frames: vx, vy are north, east
@@ -99,7 +101,7 @@ def read_recording(
 ) -> Recording:
     """Read a recording's armed, steadily commanded stretches (see the module docstring)."""
     if source not in ("telemetry", "truth"):
-        raise ValueError(f"recording source must be telemetry or truth, got {source!r}")
+        raise ConfigError(f"recording source must be telemetry or truth, got {source!r}")
     path = Path(path)
     opener = gzip.open if path.name.endswith(".gz") else open
     wanted = ("HEARTBEAT", "SET_POSITION_TARGET", "ATTITUDE\"", "GLOBAL_POSITION_INT",
@@ -110,7 +112,7 @@ def read_recording(
             recs = [json.loads(line) for line in f
                     if '"dir"' in line and any(w in line for w in wanted)]
     except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable MAVLink recording ({exc})") from None
+        raise InputFileError(f"{path}: not a readable MAVLink recording ({exc})") from None
     autopilot = "ardupilot"
     for r in recs:
         if r["dir"] == "rx" and r.get("type") == "HEARTBEAT" and "link" not in r:
@@ -140,7 +142,7 @@ def read_recording(
             vn, ve = fields["vx"] / 100.0, fields["vy"] / 100.0
             meas.append((r["t"], vn * math.cos(y) + ve * math.sin(y), _ned_yaw_to_enu(y)))
     if not meas or not cmds:
-        raise ValueError(f"{path}: no {'telemetry' if source == 'telemetry' else 'SIH truth'} "
+        raise InputFileError(f"{path}: no {'telemetry' if source == 'telemetry' else 'SIH truth'} "
                          "or no velocity setpoints in the recording")
     return Recording(path, autopilot, _segments(meas, cmds, armed, max_gap_s))
 

@@ -413,7 +413,15 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
         "speed lag, acceleration/deceleration limits, turn-rate limit, heading lag and "
         "actuation delay; writes a preset TOML that sim and experiment accept.",
     )
-    p.add_argument("log", metavar="LOG_DIR", help="a run directory of per-vehicle logs, or one log")
+    p.add_argument("log", metavar="LOG_DIR", nargs="+",
+                   help="a run directory of per-vehicle logs, or one log; with --model pi also "
+                   "MAVLink recordings (.jsonl.gz, as in shared/sitl), several allowed")
+    p.add_argument("--model", choices=("lag", "pi"), default="lag",
+                   help="lag: first-order speed lag (default); pi: the autopilot's PI speed loop "
+                   "with its delay, accel ramp and static friction, and its heading loop")
+    p.add_argument("--source", choices=("telemetry", "truth"), default="telemetry",
+                   help="recordings: fit GLOBAL_POSITION_INT/ATTITUDE (default) or PX4 SIH's "
+                   "true state (HIL_STATE_QUATERNION)")
     p.add_argument("--out", metavar="PRESET.toml", help="output file (default NAME.toml)")
     p.add_argument("--name", default="fitted", help="preset name (default fitted)")
     p.add_argument("--base", default="1/10",

@@ -198,7 +198,6 @@ def abort_authenticator(key_path: str, keys_dir: Path | None) -> Any:
     """An ``Authenticator`` signing with ``key_path`` (its certificate beside it), trusting
     the authority of ``keys_dir`` (default: the key's own directory)."""
     from openconvoy.comms.auth import Authenticator
-    from openconvoy.comms.keystore import load_authority, load_signer
+    from openconvoy.comms.keystore import signer_of_key
 
-    authority, _ = load_authority(keys_dir if keys_dir is not None else Path(key_path).parent)
-    return Authenticator(load_signer(key_path, authority, time.time()))
+    return Authenticator(signer_of_key(key_path, keys_dir, time.time()))

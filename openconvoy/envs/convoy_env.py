@@ -49,7 +49,7 @@ from openconvoy.envs.channel import Channel
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
-from openconvoy.envs.scenarios import Scenario, make_scenario
+from openconvoy.envs.scenarios import Scenario, is_traffic_scenario, make_scenario
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 AGENT_PREFIX = "follower_"
@@ -97,7 +97,8 @@ class ConvoyEnv(ParallelEnv):
 
     Args:
         scenario: a spec (``paper``, ``track``, ``emergency-braking``,
-            ``track-file:PATH``) or a ``Scenario`` object.
+            ``track-file:PATH``, or a ``highway-*`` spec, which makes a
+            ``TrafficConvoyEnv``) or a ``Scenario`` object.
         n_followers: convoy size for spec scenarios (default: the scenario's, 2).
         member_config: the member side of the followers' implementation (topology,
             trigger, spacing, ladder, layout M and k); default: ``MemberConfig`` with the
@@ -124,6 +125,17 @@ class ConvoyEnv(ParallelEnv):
         "render_fps": 20,
         "is_parallelizable": True,
     }
+    LOG_EXTRA_COLUMNS: tuple[str, ...] = ()
+    """Columns this env's log rows carry beyond DESIGN.md's (a run writes them)."""
+
+    def __new__(cls, scenario: str | Scenario = "paper", *args: Any, **kwargs: Any) -> ConvoyEnv:
+        # Highway scenarios bring traffic: ``ConvoyEnv("highway-cut-in")`` is a
+        # TrafficConvoyEnv (needs the ``traffic`` extra).
+        if cls is ConvoyEnv and is_traffic_scenario(scenario):
+            from openconvoy.envs.traffic_env import TrafficConvoyEnv
+
+            cls = TrafficConvoyEnv
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -306,7 +318,7 @@ class ConvoyEnv(ParallelEnv):
             [g - d for g, d in zip(self._gap, self._desired)],
             A_new[1:], jerk, YR_new[1:], self._collided,
         )
-        done = any(self._collided)
+        done = self._terminated()
         trunc = self.step_count >= self.max_steps and not done
         agents = self.agents
         rewards = dict(zip(agents, rewards_list))
@@ -417,6 +429,11 @@ class ConvoyEnv(ParallelEnv):
         )
 
     # --- internals ---------------------------------------------------------------------
+
+    def _terminated(self) -> bool:
+        """Does the episode end at this tick? (A world with more in it, such as traffic,
+        adds its own collisions.)"""
+        return any(self._collided)
 
     def _reset_arrays(self) -> None:
         n = self.n_vehicles

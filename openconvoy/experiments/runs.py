@@ -40,7 +40,7 @@ class RunConfig:
 
     Attributes:
         scenario: scenario spec (``paper``, ``track``, ``emergency-braking``,
-            ``track-file:PATH``).
+            ``track-file:PATH``, ``highway-*``).
         policy: policy spec (preset name, optionally ``+ladder``; ``.toml``, ``.zip``,
             ``.npz`` file).
         per: packet error rate of every link, 0..1.
@@ -182,7 +182,9 @@ def run_sim(
     writer = None
     rows: list[dict[str, Any]] = []
     if out_dir is not None:
-        writer = LogWriter(Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS, flush_every=500)
+        writer = LogWriter(
+            Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS + env.LOG_EXTRA_COLUMNS, flush_every=500
+        )
 
     def emit(tick_rows: list[dict[str, Any]]) -> None:
         for r in tick_rows:
@@ -212,6 +214,8 @@ def run_sim(
             writer.close()
     log = read_log(writer.path) if writer is not None else rows_to_log(rows)
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths))
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
     result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
     if out_dir is not None:

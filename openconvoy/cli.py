@@ -108,6 +108,9 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds")
     p.add_argument("--jitter", type=_num(0.0, 60.0), default=0.0, metavar="S", help="uniform delay jitter, seconds")
     p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std, metres")
+    p.add_argument("--fault", action="append", metavar="KIND:VEHICLE@T_S",
+                   help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
+                   "silent (stop broadcasting, keep driving) or dead (both), e.g. dead:0@30")
     _run_args(p, sweep=False)
 
     def _sim(args: argparse.Namespace) -> int:

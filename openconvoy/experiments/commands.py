@@ -67,6 +67,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
         n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
         ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
+        faults=tuple(getattr(args, "fault", None) or ()),
     )
 
 
@@ -84,7 +85,7 @@ def sim(args: argparse.Namespace) -> int:
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
-    written = ["log.csv", "metrics.json", "run.toml"]
+    written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
     if not args.no_plots:
         from openconvoy.experiments.figures import run_figures
 

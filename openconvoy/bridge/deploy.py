@@ -114,7 +114,8 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     )
     return DeployRunner(
         options, convoy, policy, link, v2v, leader=leader,
-        lengths=[p.length_m for p in presets], log_dir=a.log, on_status=status,
+        lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
+        log_dir=a.log, on_status=status,
         leader_origin=leader_origin,
         metadata={"per": a.per, "drop_at": a.drop_at, "policy_spec": a.policy,
                   "scenario_spec": spec, "mavlink": a.mavlink, "iface": a.iface},

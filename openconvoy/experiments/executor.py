@@ -102,11 +102,12 @@ def worker_location() -> str:
     return f"pid {os.getpid()} on {socket.gethostname()}"
 
 
-def error_line(exc: BaseException) -> str:
-    """``Type: first line of the message [file:line of the innermost frame]``."""
+def error_line(exc: BaseException, frame: bool = True) -> str:
+    """``Type: first line of the message [file:line of the innermost frame]`` (the frame
+    only with ``frame``: not for errors the driver's own machinery raises)."""
     text = str(exc).strip().splitlines()
     out = type(exc).__name__ + (f": {text[0]}" if text else "")
-    frames = traceback.extract_tb(exc.__traceback__) if exc.__traceback__ else []
+    frames = traceback.extract_tb(exc.__traceback__) if exc.__traceback__ and frame else []
     if frames:
         out += f" [{os.path.basename(frames[-1].filename)}:{frames[-1].lineno}]"
     return out
@@ -235,7 +236,7 @@ class LocalExecutor(Executor):
                 pool.shutdown(wait=False, cancel_futures=True)
                 self._pool = None  # the next submit starts a fresh pool
             return task, TaskFailure(task.label, "a worker process of the local pool, which died while "
-                                     "this run was in flight", error_line(exc))
+                                     "this run was in flight", error_line(exc, frame=False))
 
     def close(self) -> None:
         if self._pool is not None:

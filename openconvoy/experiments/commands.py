@@ -52,6 +52,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    auth = getattr(args, "auth", None)
     if args.convoy:
         from openconvoy.convoy import load_convoy
 
@@ -59,6 +60,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario = scenario or convoy.scenario
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
+        auth = auth or ("off" if convoy.v2v.auth == "off" else None)
     if args.burst is not None and args.loss != "gilbert-elliott":
         raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
@@ -67,7 +69,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
         n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
         ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
-        faults=tuple(getattr(args, "fault", None) or ()),
+        faults=tuple(getattr(args, "fault", None) or ()), auth=auth or "required",
     )
 
 

@@ -62,6 +62,7 @@ class RunConfig:
         start_at_policy_gap: place vehicles at the policy's desired gaps (else the
             scenario's).
         faults: injected faults, ``KIND:VEHICLE@T_S`` specs (``core.faults``).
+        auth: ``"required"`` (members reject forged messages, ``envs.forgery``) or ``"off"``.
     """
 
     scenario: str = "paper"
@@ -81,6 +82,7 @@ class RunConfig:
     origin: tuple[float, float, float] | None = None
     start_at_policy_gap: bool = True
     faults: tuple[str, ...] = ()
+    auth: str = "required"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
@@ -88,6 +90,8 @@ class RunConfig:
         if self.origin is not None:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss  # validates model and PER  # noqa: B018
+        if self.auth not in ("required", "off"):
+            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.gps_noise_m < 0:
@@ -155,6 +159,7 @@ def build_env(config: RunConfig):
         gps_noise_m=config.gps_noise_m,
         max_time_s=config.duration_s,
         faults=config.faults,
+        auth=config.auth == "required",
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     return env, policies
@@ -218,6 +223,10 @@ def run_sim(
         metrics.update(mt.traffic_metrics(log, lengths))
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
     result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
+    result.events += [  # what authentication stopped (forge faults)
+        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
+        for r, n in enumerate(env.forged_rejected) if n
+    ]
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)
         if result.events:

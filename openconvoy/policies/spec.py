@@ -68,7 +68,7 @@ def classical_from_toml(path: str | Path) -> ClassicalConfig:
         inherited["description"] = f"{base_name} with changes from {Path(path).name}"
         table = _merge(inherited, table)
     table.setdefault("name", Path(path).stem)
-    return from_dict(ClassicalConfig, table, f"{path}: [policy]")
+    return from_dict(ClassicalConfig, table, f"{path}: policy")
 
 
 def classical_to_toml(config: ClassicalConfig) -> str:

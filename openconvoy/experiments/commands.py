@@ -154,9 +154,12 @@ def presets(args: argparse.Namespace) -> int:
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
+        pers = tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise ConfigError(f"--pers: expected comma-separated numbers, got {text!r}") from None
+        pers = ()
+    if not pers or not all(0.0 <= p <= 1.0 for p in pers):
+        raise ConfigError(f"--pers: expected comma-separated packet error rates in [0, 1], got {text!r}")
+    return pers
 
 
 def experiment_from_args(args: argparse.Namespace) -> Any:
@@ -172,7 +175,7 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
         changes["scenario"] = args.scenario
     if args.policy:
         changes["policies"] = tuple(args.policy)
-    if args.pers:
+    if args.pers is not None:
         changes["pers"] = _floats(args.pers)
     if args.seeds is not None:
         if args.seeds < 1:

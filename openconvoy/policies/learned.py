@@ -37,7 +37,12 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core.config import from_dict, to_dict
-from openconvoy.core.errors import DependencyMissing, InputFileError, MissingFileError, OpenConvoyError
+from openconvoy.core.errors import (
+    DependencyMissing,
+    InputFileError,
+    MissingFileError,
+    OpenConvoyError,
+)
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import make_action

@@ -182,6 +182,7 @@ class Failsafes:
     events: list[tuple[float, str]] = field(default_factory=list)
     """(clock s, reason) each time a rule first fired."""
     _was_late: bool = False
+    _was_stale: bool = False
 
     def _fire(self, now: float, reason: str) -> None:
         self.events.append((now, reason))
@@ -230,7 +231,11 @@ class Failsafes:
             return Verdict(STOP, failsafe=True, reason="control loop late")
         self._was_late = False
         if inp.needed_age_s > self.envelope.max_msg_age_s:
+            if not self._was_stale:  # one event per stale episode
+                self._fire(now, "messages needed are stale")
+            self._was_stale = True
             return Verdict(STOP, failsafe=True, reason="messages needed are stale")
+        self._was_stale = False
         return Verdict(DRIVE)
 
     def _latch(self, now: float, reason: str, hold: bool) -> None:

@@ -159,6 +159,17 @@ def test_a_tick_over_two_periods_late_stops_and_is_one_event_per_episode():
     assert [r for _, r in f.events] == ["control loop late (2.5 periods)", "control loop late (3.0 periods)"]
 
 
+def test_stale_messages_stop_and_each_stale_episode_is_an_event():
+    # found (input-defects D11): the backstop's stops were missing from failsafe_events
+    f = Failsafes(envelope=Envelope(max_msg_age_s=3.0))
+    assert f.decide(fresh(1.0, needed_age_s=2.9)).command == DRIVE
+    assert f.decide(fresh(1.1, needed_age_s=3.1)).command == STOP
+    assert f.decide(fresh(1.2, needed_age_s=3.2)).command == STOP
+    assert f.decide(fresh(1.3, needed_age_s=0.1)).command == DRIVE
+    f.decide(fresh(5.0, needed_age_s=4.0))
+    assert f.events == [(1.1, "messages needed are stale"), (5.0, "messages needed are stale")]
+
+
 def test_signal_after_takeover_ends_the_run_without_commanding():
     f = Failsafes()
     f.decide(fresh(1.0, pilot_took_over=True))

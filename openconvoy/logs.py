@@ -207,7 +207,7 @@ def _check_rows(path: Path, log: Log, lines: list[int]) -> None:
         bad = np.flatnonzero(~np.isfinite(log[name]))
         if bad.size:
             k = int(bad[0])
-            raise InputFileError(f"{path}:{lines[k]}: column {name}: {log[name][k]!r} (must be a finite number)")
+            raise InputFileError(f"{path}:{lines[k]}: column {name}: {float(log[name][k])!r} (must be a finite number)")
     bad_mode = [k for k, m in enumerate(log["mode"]) if m not in MODES]
     if bad_mode:
         k = bad_mode[0]
@@ -218,4 +218,4 @@ def _check_rows(path: Path, log: Log, lines: list[int]) -> None:
     if (counts > 1).any():
         k = int(first[np.flatnonzero(counts > 1)[0]])
         raise InputFileError(
-            f"{path}:{lines[k]}: vehicle {log['vehicle_id'][k]} appears more than once at t_s = {log['t_s'][k]!r}")
+            f"{path}:{lines[k]}: vehicle {int(log['vehicle_id'][k])} appears more than once at t_s = {float(log['t_s'][k])!r}")

@@ -389,6 +389,9 @@ def format_fit(fit: PlantFit) -> str:
 
 def run_fit_plant_cli(args: object) -> int:
     """``openconvoy fit-plant LOG_DIR [--out preset.toml] [--name] [--base] [--vehicle-id]``."""
+    from openconvoy.outputs import check_output_file
+
+    check_output_file(args.out or f"{args.name}.toml", "--out")  # type: ignore[attr-defined]
     fit = fit_plant(
         args.log, base=args.base, name=args.name,  # type: ignore[attr-defined]
         vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]

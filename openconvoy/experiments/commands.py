@@ -75,10 +75,11 @@ def sim(args: argparse.Namespace) -> int:
     from openconvoy import __version__
     from openconvoy.core.config import dumps_toml
     from openconvoy.experiments.runs import build_env, run_sim
+    from openconvoy.outputs import check_output_dir
 
     config = run_config_from_args(args)
     build_env(config)  # a bad policy, scenario or preset fails before anything is written
-    out = Path(args.out)
+    out = check_output_dir(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     result = run_sim(config, out, progress=not args.quiet)
     (out / "run.toml").write_text(
@@ -102,8 +103,11 @@ def report(args: argparse.Namespace) -> int:
     """``openconvoy report``: recompute metrics from a log file or a run directory."""
     from openconvoy.experiments.runs import write_json
     from openconvoy.logs import read_log
+    from openconvoy.outputs import check_output_file
 
     path = Path(args.path)
+    if args.out:
+        check_output_file(args.out, "--out")
     log = read_log(path)
     lengths = _lengths_from_convoy(args.convoy)
     if lengths is None and "length_m" not in log:
@@ -207,7 +211,9 @@ def per_sweep(args: argparse.Namespace) -> int:
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
-    out = Path(args.out)
+    from openconvoy.outputs import check_output_dir
+
+    out = check_output_dir(args.out, "--out")
     result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
     for r in result.rows:
@@ -227,7 +233,10 @@ def compare(args: argparse.Namespace) -> int:
     """``openconvoy compare A B``."""
     from openconvoy.experiments import compare as cmp
     from openconvoy.experiments.runs import write_json
+    from openconvoy.outputs import check_output_file
 
+    if args.out:
+        check_output_file(args.out, "--out")
     lengths = _lengths_from_convoy(args.convoy)
     result = cmp.compare(cmp.load_side(args.a, lengths), cmp.load_side(args.b, lengths))
     print(cmp.format_comparison(result))

@@ -46,6 +46,15 @@ from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset
 DEFAULT_ORIGIN = Origin(28.6024, -81.2001, 0.0)
 
 SCENARIO_NAMES: tuple[str, ...] = ("paper", "track", "emergency-braking", "track-file:PATH")
+TRAFFIC_PREFIX = "highway-"
+"""Specs starting with this are highway scenarios with traffic
+(``openconvoy.envs.traffic_scenarios``, the ``traffic`` extra)."""
+
+
+def is_traffic_scenario(scenario: str | Scenario) -> bool:
+    """Is ``scenario`` (a spec or a Scenario) a highway scenario with traffic?"""
+    name = scenario if isinstance(scenario, str) else scenario.name
+    return name.startswith(TRAFFIC_PREFIX)
 
 
 @dataclass(frozen=True)
@@ -302,11 +311,12 @@ def make_scenario(
     spec: str = "paper",
     n_followers: int | None = None,
     presets: Sequence[VehiclePreset] | None = None,
-) -> PathScenario:
+) -> Scenario:
     """A built-in scenario by spec (see ``SCENARIO_NAMES``), ``n_followers`` default 2.
 
     ``presets`` (leader first) replaces the scenario's vehicles and sets the convoy size.
-    ``track-file:example`` loads the example track shipped with the package.
+    ``track-file:example`` loads the example track shipped with the package; ``highway-*``
+    specs make ``traffic_scenarios.HighwayScenario`` objects (the ``traffic`` extra).
     """
     if presets is not None:
         presets = tuple(presets)
@@ -324,6 +334,10 @@ def make_scenario(
         return track_scenario(n, presets)
     if spec == "emergency-braking":
         return emergency_braking_scenario(n, presets)
+    if is_traffic_scenario(spec):
+        from openconvoy.envs.traffic_scenarios import make_highway_scenario  # needs [traffic]
+
+        return make_highway_scenario(spec, n, presets)
     if spec.startswith("track-file:"):
         file = spec.split(":", 1)[1]
         if not file.strip():
@@ -332,5 +346,5 @@ def make_scenario(
             file = str(example_track_path())
         return track_file_scenario(file, n, presets)
     raise ConfigError(
-        f"unknown scenario {spec!r}; expected one of {', '.join(SCENARIO_NAMES)}"
+        f"unknown scenario {spec!r}; expected one of {', '.join(SCENARIO_NAMES)} or highway-*"
     )

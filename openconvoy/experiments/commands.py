@@ -34,9 +34,9 @@ def _check_per(per: float) -> None:
 def format_metrics(metrics: dict[str, Any]) -> str:
     """The metrics as aligned ``key  value`` lines, per-follower p95 errors after them."""
     lines = []
-    for k in mt.METRIC_KEYS:
+    for k in mt.METRIC_KEYS + tuple(k for k in mt.TRAFFIC_METRIC_KEYS if k in metrics):
         v = metrics[k]
-        lines.append(f"{k:<28}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
+        lines.append(f"{k:<28}{' ' * (len(k) >= 28)}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
     for f, values in metrics.get("per_follower", {}).items():
         v = values["p95_platooning_error_m"]
         lines.append(f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}")
@@ -52,6 +52,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    auth = getattr(args, "auth", None)
     if args.convoy:
         from openconvoy.convoy import load_convoy
 
@@ -59,6 +60,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario = scenario or convoy.scenario
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
+        auth = auth or ("off" if convoy.v2v.auth == "off" else None)
     if args.burst is not None and args.loss != "gilbert-elliott":
         raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
@@ -67,6 +69,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
         n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
         ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
+        faults=tuple(getattr(args, "fault", None) or ()), auth=auth or "required",
     )
 
 
@@ -85,7 +88,7 @@ def sim(args: argparse.Namespace) -> int:
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
-    written = ["log.csv", "metrics.json", "run.toml"]
+    written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
     if not args.no_plots:
         from openconvoy.experiments.figures import run_figures
 
@@ -114,6 +117,8 @@ def report(args: argparse.Namespace) -> int:
         print("note: the log has no vehicle lengths; pass --convoy to count collisions "
               "against half lengths (now: centre distance < 0)")
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
     print(format_metrics(metrics))
     out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
     write_json(out, metrics)
@@ -205,7 +210,11 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
 
 
 def per_sweep(args: argparse.Namespace) -> int:
-    """``openconvoy experiment per-sweep``."""
+    """``openconvoy experiment per-sweep``; exit status 1 when runs failed (the others
+    are written)."""
+    import sys
+
+    from openconvoy.experiments.executor import TasksFailed, with_flags
     from openconvoy.experiments.sweep import run_experiment
 
     config = experiment_from_args(args)
@@ -213,8 +222,14 @@ def per_sweep(args: argparse.Namespace) -> int:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
     from openconvoy.outputs import check_output_dir
 
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
     out = check_output_dir(args.out, "--out")
-    result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
+    try:
+        result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
+                                executor=executor)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
     for r in result.rows:
         print(

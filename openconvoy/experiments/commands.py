@@ -223,7 +223,7 @@ def per_sweep(args: argparse.Namespace) -> int:
     from openconvoy.outputs import check_output_dir
 
     executor = with_flags(config.executor, args.executor, args.address, args.jobs)
-    out = check_output_dir(args.out, "--out")
+    out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
     try:
         result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
                                 executor=executor)

@@ -39,7 +39,7 @@ def counter_uniform(key: int, *words: int) -> float:
     """
     z = key & _MASK
     for w in words:
-        z = _mix((z + _GOLDEN + (w & _MASK)) & _MASK)
+        z = _mix((z + _GOLDEN + (int(w) & _MASK)) & _MASK)
     return (z >> 11) * _UNIT
 
 

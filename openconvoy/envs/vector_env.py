@@ -40,7 +40,15 @@ from openconvoy.core.safety import for_vehicle
 from openconvoy.envs.channel import DRAW_LOSS
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.reward import RewardConfig
-from openconvoy.envs.scenarios import PathScenario, emergency_speed, make_scenario, paper_speed
+from openconvoy.envs.scenarios import (
+    EMERGENCY_BRAKE_AT_S,
+    EMERGENCY_DECEL_MPS2,
+    EMERGENCY_SPEED_MPS,
+    PathScenario,
+    emergency_speed,
+    make_scenario,
+    paper_speed,
+)
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 TWO_PI = 2.0 * math.pi
@@ -61,8 +69,6 @@ def _paper_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def _emergency_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    from openconvoy.envs.scenarios import EMERGENCY_BRAKE_AT_S, EMERGENCY_DECEL_MPS2, EMERGENCY_SPEED_MPS
-
     braking = np.maximum(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
     return np.where(t < EMERGENCY_BRAKE_AT_S, EMERGENCY_SPEED_MPS, braking)
 
@@ -313,6 +319,8 @@ class VectorConvoyEnv:
                 self._target_vid[i - 1, k] = vid
                 if (i, vid) in index:
                     self._target_link[i - 1, k] = index[(i, vid)]
+        pairs = np.argwhere(self._slot_link >= 0)
+        self._slot_pairs = (pairs[:, 0], pairs[:, 1], self._slot_link[pairs[:, 0], pairs[:, 1]])
         self._pred_link = np.array([index.get((i, i - 1), -1) for i in range(1, N)], dtype=np.int64)
 
     def _alloc(self) -> None:
@@ -716,23 +724,28 @@ class VectorConvoyEnv:
         obs = np.zeros((B, F, lay.size))
         ex, ey, ev, eh, ea, eyr = (self.own[f][:, 1:] for f in range(6))
         c, s = np.cos(eh), np.sin(eh)
-        tt = t[:, None, None, None]
-        # State slots.
-        sl = self._slot_link  # (F, nslots)
-        li = np.where(sl >= 0, sl, 0)
-        n = np.where(sl >= 0, self.hist_n[:, li], 0)  # (B, F, nslots)
-        hs = self.hist[:, :, li, :]  # (6, B, F, nslots, k)
-        valid = np.arange(k) < n[..., None]
-        dx = hs[1] - ex[:, :, None, None]
-        dy = hs[2] - ey[:, :, None, None]
-        cc, ss = c[:, :, None, None], s[:, :, None, None]
-        age = tt - hs[0]
-        feats = np.stack([
-            cc * dx + ss * dy, -ss * dx + cc * dy, _wrap(hs[4] - eh[:, :, None, None]), hs[3], hs[5],
-            np.where(age > MAX_AGE_S, MAX_AGE_S, np.where(age > 0.0, age, 0.0)), np.ones_like(age),
-        ], axis=-1)  # (B, F, nslots, k, 7)
-        feats = np.where(valid[..., None], feats, 0.0)
-        obs[:, :, : lay.own_offset] = feats.reshape(B, F, -1)
+        # State slots: only the (follower, slot) pairs whose sender the topology keeps.
+        pf, ps, pl = self._slot_pairs
+        if len(pl):
+            hs = self.hist[:, :, pl, :]  # (6, B, P, k)
+            valid = np.arange(k) < self.hist_n[:, pl][..., None]  # (B, P, k)
+            exp, eyp, ehp = ex[:, pf, None], ey[:, pf, None], eh[:, pf, None]
+            cc, ss = c[:, pf, None], s[:, pf, None]
+            dx = hs[1] - exp
+            dy = hs[2] - eyp
+            age = t[:, None, None] - hs[0]
+            feats = np.empty(valid.shape + (7,))
+            feats[..., 0] = cc * dx + ss * dy
+            feats[..., 1] = cc * dy - ss * dx
+            feats[..., 2] = _wrap(hs[4] - ehp)
+            feats[..., 3] = hs[3]
+            feats[..., 4] = hs[5]
+            feats[..., 5] = np.minimum(np.maximum(age, 0.0), MAX_AGE_S)
+            feats[..., 6] = 1.0
+            feats *= valid[..., None]
+            states = np.zeros((B, F, len(lay.slots), k, 7))
+            states[:, pf, ps] = feats
+            obs[:, :, : lay.own_offset] = states.reshape(B, F, -1)
         o = lay.own_offset
         obs[:, :, o], obs[:, :, o + 1], obs[:, :, o + 2] = ev, ea, eyr
         self._fill_targets(obs, t)
@@ -816,36 +829,48 @@ class VectorConvoyEnv:
         self._fill_path(obs, have, li[fi, ck], hx[bi, fi, ck], hy[bi, fi, ck], hh[bi, fi, ck],
                         cross[bi, fi, ck], pheading[bi, fi, ck], ps[bi, fi, ck])
 
-    def _trail_vertex(self, b, link, k, n, hx, hy, hh):
-        """Vertex ``k`` of the query path (``Trail._vertex``): x, y, s."""
-        tr = self.trail
-        kc = np.clip(k, 0, n - 1)
-        cx, cy, cs = tr[0, b, link, kc], tr[1, b, link, kc], tr[2, b, link, kc]
-        lx, ly, ls = tr[0, b, link, n - 1], tr[1, b, link, n - 1], tr[2, b, link, n - 1]
-        head_s = ls + np.hypot(hx - lx, hy - ly)
-        bx, by = self._back_dir(b, link, n, hx, hy, hh)
-        x0, y0, s0 = tr[0, b, link, 0], tr[1, b, link, 0], tr[2, b, link, 0]
-        far = 1e4
-        x = np.where(k >= n, hx, np.where(k >= 0, cx, x0 + far * bx))
-        y = np.where(k >= n, hy, np.where(k >= 0, cy, y0 + far * by))
-        s = np.where(k >= n, head_s, np.where(k >= 0, cs, s0 - far))
-        return x, y, s
-
-    def _back_dir(self, b, link, n, hx, hy, hh):
-        tr = self.trail
-        x0, y0 = tr[0, b, link, 0], tr[1, b, link, 0]
-        x1, y1 = tr[0, b, link, np.minimum(1, n - 1)], tr[1, b, link, np.minimum(1, n - 1)]
+    def _query(self, b, link, hx, hy, hh) -> dict[str, np.ndarray]:
+        """Per-query trail data (``Trail`` queries on the path ending at the head
+        ``(hx, hy)`` with heading ``hh``): flat offsets, first and last breadcrumbs, the
+        head's arc coordinate and the backward direction of the extension."""
+        C = TRAIL_CAPACITY
+        base = (b * self.L + link) * C
+        n = self.trail_n[b, link]
+        X, Y, S = (self.trail[f].reshape(-1) for f in range(3))
+        x0, y0, s0 = X.take(base), Y.take(base), S.take(base)
+        lastc = base + n - 1
+        lx, ly, ls = X.take(lastc), Y.take(lastc), S.take(lastc)
+        second = base + np.minimum(1, n - 1)
         two = n >= 2
-        dx = np.where(two, x1 - x0, hx - x0)
-        dy = np.where(two, y1 - y0, hy - y0)
+        dx = np.where(two, X.take(second) - x0, hx - x0)
+        dy = np.where(two, Y.take(second) - y0, hy - y0)
         d = np.hypot(dx, dy)
         small = d < 1e-9
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(small, -np.cos(hh), -dx / d), np.where(small, -np.sin(hh), -dy / d)
+            bx = np.where(small, -np.cos(hh), -dx / d)
+            by = np.where(small, -np.sin(hh), -dy / d)
+        to_head = np.hypot(hx - lx, hy - ly)
+        return {"base": base, "n": n, "X": X, "Y": Y, "S": S, "hx": hx, "hy": hy, "hh": hh,
+                "x0": x0, "y0": y0, "s0": s0, "lx": lx, "ly": ly, "ls": ls, "bx": bx, "by": by,
+                "to_head": to_head, "s_head": ls + to_head}
 
-    def _segment(self, b, link, k, n, hx, hy, hh, x, y):
-        ax, ay, sa = self._trail_vertex(b, link, k, n, hx, hy, hh)
-        bx, by, sb = self._trail_vertex(b, link, k + 1, n, hx, hy, hh)
+    @staticmethod
+    def _vertex(q: dict[str, np.ndarray], k: np.ndarray):
+        """Vertex ``k`` of the query path (``Trail._vertex``): x, y, s."""
+        n = q["n"]
+        flat = q["base"] + np.clip(k, 0, n - 1)
+        cx, cy, cs = q["X"].take(flat), q["Y"].take(flat), q["S"].take(flat)
+        far = 1e4
+        head, crumb = k >= n, k >= 0
+        x = np.where(head, q["hx"], np.where(crumb, cx, q["x0"] + far * q["bx"]))
+        y = np.where(head, q["hy"], np.where(crumb, cy, q["y0"] + far * q["by"]))
+        s = np.where(head, q["s_head"], np.where(crumb, cs, q["s0"] - far))
+        return x, y, s
+
+    def _segment(self, q, k, x, y):
+        """``Trail._segment``: (dist², s, cross, heading) of (x, y) on segment k."""
+        ax, ay, sa = self._vertex(q, k)
+        bx, by, sb = self._vertex(q, k + 1)
         dx, dy = bx - ax, by - ay
         seg = np.hypot(dx, dy)
         degenerate = seg < 1e-12
@@ -856,27 +881,27 @@ class VectorConvoyEnv:
             d2 = np.where(degenerate, rx ** 2 + ry ** 2, ex * ex + ey * ey)
             s = np.where(degenerate, sa, sa + u * (sb - sa))
             cross = np.where(degenerate, 0.0, (dx * ry - dy * rx) / seg)
-        heading = np.where(degenerate, hh, np.arctan2(dy, dx))
+        heading = np.where(degenerate, q["hh"], np.arctan2(dy, dx))
         return d2, s, cross, heading
 
-    def _bisect(self, b, link, n, value):
+    @staticmethod
+    def _bisect(q, value):
         """``bisect_right`` of ``value`` in each trail's arc coordinates."""
-        lo = np.zeros_like(n)
-        hi = n.copy()
-        S = self.trail[2]
+        lo = np.zeros_like(q["n"])
+        hi = q["n"].copy()
+        S, base = q["S"], q["base"]
         for _ in range(_BISECT_STEPS):
             active = lo < hi
             if not active.any():
                 break
-            mid = (lo + hi) // 2
-            sm = S[b, link, np.minimum(mid, TRAIL_CAPACITY - 1)]
-            go_left = value < sm
+            mid = (lo + hi) >> 1
+            go_left = value < S.take(base + np.minimum(mid, TRAIL_CAPACITY - 1))
             hi = np.where(active & go_left, mid, hi)
             lo = np.where(active & ~go_left, mid + 1, lo)
         return lo
 
     def _project(self, li, hx, hy, hh, x, y, expected, valid):
-        """``Trail.project`` for every (convoy, follower, target) query; flat inside."""
+        """``Trail.project`` for every valid (convoy, follower, target) query."""
         shape = valid.shape
         B = shape[0]
         b = np.broadcast_to(np.arange(B).reshape(B, 1, 1), shape)
@@ -885,58 +910,54 @@ class VectorConvoyEnv:
         out = [np.zeros(shape) for _ in range(4)]
         if len(qb) == 0:
             return out
-        hxq, hyq, hhq = hx[valid], hy[valid], hh[valid]
+        q = self._query(qb, ql, hx[valid], hy[valid], hh[valid])
         xq, yq = np.broadcast_to(x, shape)[valid], np.broadcast_to(y, shape)[valid]
-        n = self.trail_n[qb, ql]
-        tr = self.trail
-        lx, ly, ls = tr[0, qb, ql, n - 1], tr[1, qb, ql, n - 1], tr[2, qb, ql, n - 1]
-        last = np.where(np.hypot(hxq - lx, hyq - ly) > 1e-9, n - 1, n - 2)
-        s_head = ls + np.hypot(hxq - lx, hyq - ly)
+        n = q["n"]
+        last = np.where(q["to_head"] > 1e-9, n - 1, n - 2)
+        s_head = q["s_head"]
         hint = self.hint[qb, ql]
         start = np.where(np.isnan(hint), s_head - expected[valid], hint)
-        k = np.minimum(np.maximum(self._bisect(qb, ql, n, start) - 1, -1), last)
-        args = (qb, ql)
-        best = self._segment(*args, k, n, hxq, hyq, hhq, xq, yq)
+        k = np.minimum(np.maximum(self._bisect(q, start) - 1, -1), last)
+        best = self._segment(q, k, xq, yq)
         for step in (1, -1):
             j = k + step
             active = (j >= -1) & (j <= last)
             while active.any():
-                cand = self._segment(*args, j, n, hxq, hyq, hhq, xq, yq)
+                cand = self._segment(q, j, xq, yq)
                 better = active & (cand[0] < best[0])
                 best = tuple(np.where(better, c_, b_) for c_, b_ in zip(cand, best))
                 k = np.where(better, j, k)
                 j = j + step
                 active = better & (j >= -1) & (j <= last)
-        d2, s, cross, heading = best
-        vals = (s_head - s, cross, heading, s)
-        for arr, v in zip(out, vals):
+        _, s, cross, heading = best
+        for arr, v in zip(out, (s_head - s, cross, heading, s)):
             arr[valid] = v
         return out
 
-    def _point_at(self, b, link, n, hx, hy, hh, s):
+    def _point_at(self, q, s):
+        """``Trail.point_at``: the path point at arc coordinate ``s``."""
         with np.errstate(divide="ignore", invalid="ignore"):
-            return self._point_at_raw(b, link, n, hx, hy, hh, s)
+            return self._point_at_raw(q, s)
 
-    def _point_at_raw(self, b, link, n, hx, hy, hh, s):
-        tr = self.trail
-        lx, ly, ls = tr[0, b, link, n - 1], tr[1, b, link, n - 1], tr[2, b, link, n - 1]
-        s_head = ls + np.hypot(hx - lx, hy - ly)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f_head = (s - ls) / (s_head - ls)
-        ahead_x = np.where(s_head - ls > 1e-9, lx + f_head * (hx - lx), hx + (s - s_head) * np.cos(hh))
-        ahead_y = np.where(s_head - ls > 1e-9, ly + f_head * (hy - ly), hy + (s - s_head) * np.sin(hh))
+    def _point_at_raw(self, q, s):
+        hx, hy, hh = q["hx"], q["hy"], q["hh"]
+        lx, ly, ls, s_head = q["lx"], q["ly"], q["ls"], q["s_head"]
+        f_head = (s - ls) / (s_head - ls)
         tail_x = lx + f_head * (hx - lx)
         tail_y = ly + f_head * (hy - ly)
-        x0, y0, s0 = tr[0, b, link, 0], tr[1, b, link, 0], tr[2, b, link, 0]
-        bx, by = self._back_dir(b, link, n, hx, hy, hh)
-        back_x = x0 - (s - s0) * bx
-        back_y = y0 - (s - s0) * by
-        i = np.clip(self._bisect(b, link, n, s) - 1, 0, np.maximum(n - 2, 0))
-        i1 = np.minimum(i + 1, n - 1)
-        xi, yi, si = tr[0, b, link, i], tr[1, b, link, i], tr[2, b, link, i]
-        xj, yj, sj = tr[0, b, link, i1], tr[1, b, link, i1], tr[2, b, link, i1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = (s - si) / (sj - si)
+        moved = s_head - ls > 1e-9
+        ahead_x = np.where(moved, tail_x, hx + (s - s_head) * np.cos(hh))
+        ahead_y = np.where(moved, tail_y, hy + (s - s_head) * np.sin(hh))
+        s0 = q["s0"]
+        back_x = q["x0"] - (s - s0) * q["bx"]
+        back_y = q["y0"] - (s - s0) * q["by"]
+        n = q["n"]
+        i = q["base"] + np.clip(self._bisect(q, s) - 1, 0, np.maximum(n - 2, 0))
+        i1 = np.minimum(i + 1, q["base"] + n - 1)
+        X, Y, S = q["X"], q["Y"], q["S"]
+        xi, yi, si = X.take(i), Y.take(i), S.take(i)
+        xj, yj, sj = X.take(i1), Y.take(i1), S.take(i1)
+        f = (s - si) / (sj - si)
         mid_x = xi + f * (xj - xi)
         mid_y = yi + f * (yj - yi)
         x = np.where(s >= s_head, ahead_x, np.where(s >= ls, tail_x, np.where(s <= s0, back_x, mid_x)))
@@ -956,9 +977,9 @@ class VectorConvoyEnv:
         obs[bb, ff, o] = -cross[bb, ff]
         obs[bb, ff, o + 1] = _wrap(pheading[bb, ff] - eh)
         scale = np.maximum(1.0, np.abs(ev))
-        n = self.trail_n[bb, lk]
+        q = self._query(bb, lk, hxq, hyq, hhq)
         for j, tl in enumerate(LOOKAHEAD_S):
-            px, py = self._point_at(bb, lk, n, hxq, hyq, hhq, ps[bb, ff] + tl * scale)
+            px, py = self._point_at(q, ps[bb, ff] + tl * scale)
             dx, dy = px - ex, py - ey
             obs[bb, ff, o + 2 + 2 * j] = c * dx + s * dy
             obs[bb, ff, o + 3 + 2 * j] = -s * dx + c * dy

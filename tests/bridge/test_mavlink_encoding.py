@@ -142,7 +142,8 @@ def test_px4_setpoints_keep_the_ned_vector_and_stop_along_the_bearing(edge):
     # recorded stop_motion at 90.5° (vx = -0.0) swung the rover 48° south.
     for compass in (0.0, 89.5, 90.0, 90.5, 180.0, 270.0):
         ap.heading_deg = compass
-        assert wait_for(lambda: abs(math.degrees(link.telemetry.state.heading) - (90.0 - compass)) < 0.01, 1.0, link)
+        want = enu(compass)
+        assert wait_for(lambda w=want: same_angle(link.telemetry.state.heading, w, 2e-4), 1.0, link)
         link.stop_motion()
         m = sent_setpoint(ap, "SET_POSITION_TARGET_LOCAL_NED", link)
         assert math.hypot(m.vx, m.vy) == pytest.approx(0.001, rel=1e-5)

@@ -9,10 +9,14 @@ import math
 from dataclasses import replace
 
 import pytest
-from test_runner import WALL0, FakeClock, FakeLink, FixedPolicy, follower_setup
+from conftest import wait_for
+from deploy_harness import make_convoy, wait_until
+from mavlink_edge import EdgeAutopilot
+from test_runner import WALL0, FakeClock, FakeLink, FixedPolicy
 
 from openconvoy.bridge.link import Telemetry
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
+from openconvoy.bridge.mavlink import MavlinkLink
 from openconvoy.bridge.runner import HOLD_BELOW_MPS, DeployRunner, RunnerOptions
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
@@ -190,3 +194,44 @@ def test_hold_waits_until_the_stop_setpoints_have_braked_the_vehicle(tmp_path):
     first_t, first_v = link.hold_log[0]
     assert first_v < HOLD_BELOW_MPS
     assert first_t >= 100.0 + 1.9  # 2 m/s at 1 m/s²
+
+
+def test_a_signal_while_arming_ends_in_hold(tmp_path):
+    """The estimator refuses arming for 30 s; GUIDED is already set. A signal then must
+    not leave the vehicle in GUIDED: HOLD (and disarm) on the way out."""
+    c = make_convoy(tmp_path, n=2, vehicle_config={"ready_after_s": 30.0})
+    try:
+        follower = c.cars[1]
+        wait_until(lambda: follower.vehicle.mode == "GUIDED", 5, "GUIDED requested while arming")
+        follower.runner.request_stop("SIGTERM")
+        res = follower.join(5.0)
+        assert (res.exit_code, res.reason) == (0, "SIGTERM")
+        wait_until(lambda: follower.vehicle.mode == "HOLD", 2, "HOLD after the interrupted arming")
+        assert not follower.vehicle.armed and follower.link.sent == []
+    finally:
+        c.stop()
+
+
+@pytest.mark.timeout(30)
+def test_a_signal_after_the_arm_was_accepted_disarms(tmp_path):
+    """Armed, then the RC switch sets MANUAL and a signal arrives while GUIDED is asked
+    for again: the vehicle is armed although ``prepare_and_arm`` never returned."""
+    ap = EdgeAutopilot(autopilot="ardupilot", mode_after_arm="MANUAL", mode_switch_repeats=10).start()
+    convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
+    link = MavlinkLink(ap.url, Origin(*convoy.origin), vehicle_id=1, on_status=lambda line: None)
+    runner = None
+
+    def status(line: str) -> None:
+        if "after arming" in line:
+            runner.request_stop("SIGINT")  # the signal lands right now
+
+    runner = DeployRunner(RunnerOptions(vehicle_id=1, status_period_s=0, arm_timeout_s=5.0),
+                          convoy, FixedPolicy(1.0, 0.0), link, LocalV2V(LocalBus()), on_status=status)
+    try:
+        res = runner.run()
+        assert (res.exit_code, res.reason) == (0, "SIGINT")
+        assert wait_for(lambda: not ap.armed, 1.0)
+        modes = [m.param2 for m in ap.messages("COMMAND_LONG") if m.command == 176]
+        assert modes[-1] == 4  # HOLD requested on the way out
+    finally:
+        ap.stop()

@@ -16,6 +16,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from openconvoy.core.errors import InputFileError, MissingFileError
+
 COLUMNS: tuple[str, ...] = (
     "t_s",
     "vehicle_id",
@@ -122,10 +124,10 @@ def log_files(path: str | Path) -> list[Path]:
     if p.is_dir():
         files = sorted(f for f in p.glob("*.csv") if _is_log(f))
         if not files:
-            raise FileNotFoundError(f"no OpenConvoy log (*.csv with a t_s column) in {p}")
+            raise MissingFileError(f"no OpenConvoy log (*.csv with a t_s column) in {p}")
         return files
     if not p.exists():
-        raise FileNotFoundError(f"no such log file or directory: {p}")
+        raise MissingFileError(f"no such log file or directory: {p}")
     return [p]
 
 
@@ -149,10 +151,10 @@ def _read_one(path: Path) -> Log:
         reader = csv.reader(f)
         header = next(reader, None)
         if header is None:
-            raise ValueError(f"{path}: empty log file")
+            raise InputFileError(f"{path}: empty log file")
         missing = [c for c in COLUMNS if c not in header]
         if missing:
-            raise ValueError(f"{path}: not an OpenConvoy log, missing column(s): {', '.join(missing)}")
+            raise InputFileError(f"{path}: not an OpenConvoy log, missing column(s): {', '.join(missing)}")
         rows = [r for r in reader if len(r) == len(header)]  # a torn last line is skipped
     cols = list(zip(*rows)) if rows else [() for _ in header]
     out: Log = {}

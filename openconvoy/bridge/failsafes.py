@@ -14,9 +14,11 @@ returns. Rules (issue 5, item 3), by priority:
 4. geofence breached or the measured gap to the predecessor below ``min_gap_m``: emergency
    stop and HOLD (latched);
 5. an exception in the policy: stop (latched; the loop keeps running and logging);
-6. the messages the vehicle needs older than ``max_msg_age_s`` (a bridge backstop for
+6. a tick that started more than ``LATE_TICK_PERIODS`` periods late (the loop stalled):
+   that tick stops;
+7. the messages the vehicle needs older than ``max_msg_age_s`` (a bridge backstop for
    policies running without the member's staleness ladder): stop until they are fresh;
-7. the speed cap, always.
+8. the speed cap, always.
 
 "Stop" means speed 0 with the yaw at the current heading, never a zero velocity vector
 (AUTOPILOTS.md). A latched stop still sends stop setpoints, so ArduPilot's GUIDED and PX4's
@@ -27,6 +29,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+LATE_TICK_PERIODS = 2.0
+"""A tick that starts more than this many periods late is a failsafe event: the vehicle
+drove on its last setpoint unsupervised meanwhile, so that tick commands a stop."""
 
 DRIVE, STOP, SILENT = "drive", "stop", "silent"
 """What the runner sends this tick: the (capped) policy setpoint, a stop setpoint, nothing."""
@@ -140,6 +146,7 @@ class TickInputs:
         needed_age_s: age of the oldest message the vehicle needs (s), 0 for the leader.
         policy_error: the policy raised this tick (its message), "" if not.
         held: the autopilot reports its hold mode.
+        late_periods: how late this tick started, in loop periods (0 = on time).
     """
 
     now: float
@@ -157,6 +164,7 @@ class TickInputs:
     needed_age_s: float = 0.0
     policy_error: str = ""
     held: bool = False
+    late_periods: float = 0.0
 
 
 @dataclass
@@ -173,6 +181,7 @@ class Failsafes:
     policy_errors: int = 0
     events: list[tuple[float, str]] = field(default_factory=list)
     """(clock s, reason) each time a rule first fired."""
+    _was_late: bool = False
 
     def _fire(self, now: float, reason: str) -> None:
         self.events.append((now, reason))
@@ -213,6 +222,13 @@ class Failsafes:
             if self.latched_hold and inp.held:
                 return Verdict(SILENT, failsafe=True, reason=self.latched)
             return Verdict(STOP, hold=self.latched_hold, failsafe=True, reason=self.latched)
+        if inp.late_periods > LATE_TICK_PERIODS:
+            # Each late episode is one event; the late tick itself stops the vehicle.
+            if not self._was_late:
+                self._fire(now, f"control loop late ({inp.late_periods:.1f} periods)")
+            self._was_late = True
+            return Verdict(STOP, failsafe=True, reason="control loop late")
+        self._was_late = False
         if inp.needed_age_s > self.envelope.max_msg_age_s:
             return Verdict(STOP, failsafe=True, reason="messages needed are stale")
         return Verdict(DRIVE)
@@ -227,35 +243,44 @@ class Failsafes:
 class LoopTimer:
     """Fixed-rate schedule with overrun counting; clock in seconds.
 
-    ``wait_time(now)`` says how long to sleep until the next tick; a tick that starts more
-    than one period late is an overrun, and the schedule skips the missed slots instead of
-    bursting to catch up.
+    ``wait_time(now)`` says how long to sleep until the next tick. ``begin(now)`` returns
+    how late the tick started (s). Every scheduled slot that passed without a tick is an
+    overrun (a tick one and a half periods late missed one slot; a 3.7 s stall at 20 Hz
+    missed 74), and the schedule skips the missed slots instead of bursting to catch up.
     """
 
     period_s: float
     start: float
     overruns: int = 0
+    """Scheduled slots that passed without a tick."""
     ticks: int = 0
+    late_ticks: int = 0
+    """Ticks that started more than ``LATE_TICK_PERIODS`` periods late."""
+    max_late_s: float = 0.0
     _next: float = field(init=False)
 
     def __post_init__(self) -> None:
-        if self.period_s <= 0:
-            raise ValueError(f"loop period must be positive, got {self.period_s}")
+        if not (math.isfinite(self.period_s) and self.period_s > 0):
+            raise ValueError(f"loop period must be positive and finite, got {self.period_s}")
         self._next = self.start
 
     @property
     def next_tick(self) -> float:
         return self._next
 
-    def begin(self, now: float) -> None:
-        """Mark a tick started at ``now``; advance the schedule."""
+    def begin(self, now: float) -> float:
+        """Mark a tick started at ``now``; advance the schedule. Returns the lateness (s)."""
         self.ticks += 1
-        late = now - self._next
-        if late > self.period_s:
-            self.overruns += 1
-            missed = math.floor(late / self.period_s)
+        late = max(now - self._next, 0.0)
+        missed = math.floor(late / self.period_s)
+        if missed:
+            self.overruns += missed
             self._next += missed * self.period_s
+        if late > LATE_TICK_PERIODS * self.period_s:
+            self.late_ticks += 1
+        self.max_late_s = max(self.max_late_s, late)
         self._next += self.period_s
+        return late
 
     def wait_time(self, now: float) -> float:
         return max(0.0, self._next - now)

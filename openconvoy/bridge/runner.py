@@ -29,7 +29,7 @@ import math
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -48,6 +48,7 @@ from openconvoy.bridge.failsafes import (
 from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.policy import Policy
 from openconvoy.core.state import VehicleState, wrap_angle
@@ -64,6 +65,9 @@ delivered / the loss model dropped, before the Rx gate. Why a failsafe fired goe
 metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
+RECEIVE_BUDGET = 0.4
+"""Share of a loop period the V2V receive may take per tick; datagrams beyond it wait for
+the next tick (a flood of them costs messages, never the loop's timing)."""
 FINISH_TIMEOUT_S = 10.0
 """Longest a leader brakes after its scenario before ending the run anyway (s)."""
 HOLD_BELOW_MPS = 0.1
@@ -83,9 +87,10 @@ class V2VEndpoint(Protocol):
 
     def send(self, state: VehicleState, now: float) -> bool: ...
 
-    def poll(self, now: float) -> list[Any]:
+    def poll(self, now: float, budget_s: float | None = None) -> list[Any]:
         """Messages heard since the last poll: objects with ``state`` (VehicleState with
-        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``."""
+        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``; reading
+        for at most ``budget_s`` seconds when given."""
         ...
 
     @property
@@ -141,10 +146,18 @@ class RunnerOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.rate_hz <= 0:
-            raise ValueError(f"control rate must be positive, got {self.rate_hz}")
+        # Checked here too (the CLI checks its flags): a NaN rate or timeout would busy-loop
+        # setpoints to the autopilot or wait forever.
+        for what, value, hi in (
+            ("control rate (--rate, or the policy's control_rate_hz), Hz", self.rate_hz, 100.0),
+            ("--connect-timeout, s", self.connect_timeout_s, 86400.0),
+            ("--arm-timeout, s", self.arm_timeout_s, 86400.0),
+            ("--duration, s", 1.0 if self.duration_s is None else self.duration_s, 7 * 86400.0),
+        ):
+            if not (math.isfinite(value) and 0.0 < value <= hi):
+                raise ConfigError(f"{what}: {value!r} is out of range; allowed: a finite number in (0, {hi:g}]")
         if self.passive and self.vehicle_id != 0:
-            raise ValueError("--passive is for the leader (vehicle 0): followers are driven by the policy")
+            raise ConfigError("--passive is for the leader (vehicle 0): followers are driven by the policy")
 
 
 @dataclass
@@ -226,10 +239,10 @@ class DeployRunner:
     ) -> None:
         n = convoy.n_vehicles
         if not 0 <= options.vehicle_id < n:
-            raise ValueError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
+            raise ConfigError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
         self.is_leader = options.vehicle_id == 0
         if self.is_leader and not options.passive and leader is None:
-            raise ValueError("the leader needs a scenario or track to follow, or --passive")
+            raise ConfigError("the leader needs a scenario or track to follow, or --passive")
         self.options = options
         self.convoy = convoy
         self.policy = policy
@@ -262,6 +275,7 @@ class DeployRunner:
         self._heard_raw: set[int] = set()
         self._writer: LogWriter | None = None
         self._timer: LoopTimer | None = None
+        self._late_periods = 0.0
         self._t_hold_sent = -math.inf
         self._t_status = -math.inf
         self._t_reconnect = -math.inf
@@ -296,9 +310,10 @@ class DeployRunner:
             try:
                 self.link.connect(min(1.0, max(0.05, deadline - self.clock())))
                 break
-            except LinkTimeout:
-                if self.clock() >= deadline:
-                    raise
+            except LinkTimeout as exc:
+                if self.clock() >= deadline:  # the attempt's own timeout is not the user's
+                    why = str(exc).split(" within ")[0]
+                    raise LinkTimeout(f"{why} within --connect-timeout {o.connect_timeout_s:g} s") from None
         while self._tel is None:
             self._check_stop()
             self._tel = self.link.poll()
@@ -339,7 +354,7 @@ class DeployRunner:
                 if wait > 0:
                     self.sleep(wait)
                 t_tick = self.clock()
-                timer.begin(t_tick)
+                self._late_periods = timer.begin(t_tick) / period
                 done = self.tick(t_tick)
                 if done:
                     reason = done
@@ -394,6 +409,7 @@ class DeployRunner:
         """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
         o = self.options
         member = self.member
+        period_s = 1.0 / o.rate_hz
         # 1. telemetry
         tel = self.link.poll()
         if tel is not None:
@@ -412,8 +428,8 @@ class DeployRunner:
         self._track_broadcast(known, wall)
         if known and member.wants_to_send(wall):
             self.v2v.send(own, wall)
-        # 3. ρ
-        for msg in self.v2v.poll(wall):
+        # 3. ρ, bounded in time so that a flood cannot stall the loop
+        for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET * period_s):
             if getattr(msg, "abort", False):
                 self._abort = True
                 continue
@@ -444,7 +460,7 @@ class DeployRunner:
                 stop_requested=self._stop_requested, abort=self._abort,
                 x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
                 gap_m=gap, needed_age_s=needed_age, policy_error=policy_error,
-                held=tel.mode in HOLD_MODES,
+                held=tel.mode in HOLD_MODES, late_periods=self._late_periods,
             )
         )
         if verdict.command == DRIVE:
@@ -520,7 +536,7 @@ class DeployRunner:
             action, mode = self.member.supervise(self.policy.act(obs), wall, ranging)
             speed, change = float(action[0]), float(action[1])
             if not (math.isfinite(speed) and math.isfinite(change)):
-                raise ValueError(f"non-finite action {speed}, {change}")
+                raise ConfigError(f"non-finite action {speed}, {change}")
             return speed, change, mode, ""
         except Exception as exc:  # the policy is foreign code: stop, log, keep looping
             if not self.failsafes.policy_errors:
@@ -748,6 +764,9 @@ class DeployRunner:
             ],
             "ticks": self._timer.ticks if self._timer else 0,
             "overruns": self._timer.overruns if self._timer else 0,
+            "late_ticks": self._timer.late_ticks if self._timer else 0,
+            "max_tick_late_s": self._timer.max_late_s if self._timer else 0.0,
+            "v2v_counters": _safe(lambda: asdict(self.v2v.counters)),
             "policy_errors": self.failsafes.policy_errors,
             "failsafe_events": [{"t_s": wall0 + t, "reason": r} for t, r in self.failsafes.events],
             "msgs_sent": self.member.msgs_sent,

@@ -38,6 +38,7 @@ import numpy as np
 
 from openconvoy.bridge import mavproto as mp
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState, wrap_angle
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset
@@ -96,11 +97,11 @@ class SimVehicleConfig:
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+            raise ConfigError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
         if not 1 <= self.system_id <= 254:
-            raise ValueError(f"MAVLink system id must be in 1..254, got {self.system_id}")
+            raise ConfigError(f"MAVLink system id must be in 1..254, got {self.system_id}")
         if self.ready_after_s < 0 or self.setpoint_timeout_s <= 0 or self.plant_hz <= 0:
-            raise ValueError("ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required")
+            raise ConfigError("ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required")
 
 
 class SimVehicle:
@@ -209,7 +210,7 @@ class SimVehicle:
         """A person changes the mode (RC switch or GCS), e.g. ``"MANUAL"``."""
         known = mp.ROVER_MODE_NUMBERS if self.config.autopilot == "ardupilot" else mp.PX4_MODE_NUMBERS
         if mode not in known:
-            raise ValueError(f"unknown {self.config.autopilot} mode {mode!r}; one of {', '.join(known)}")
+            raise ConfigError(f"unknown {self.config.autopilot} mode {mode!r}; one of {', '.join(known)}")
         self._pending_mode = mode
 
     # ----------------------------------------------------------------- accessors
@@ -502,7 +503,7 @@ def _floats(text: str, n: int, what: str, example: str) -> list[float]:
     except ValueError:
         values = []
     if len(values) != n:
-        raise ValueError(f"{what} must be {n} comma-separated numbers like {example}, got {text!r}")
+        raise ConfigError(f"{what} must be {n} comma-separated numbers like {example}, got {text!r}")
     return values
 
 
@@ -532,7 +533,7 @@ def run_vehicle_cli(args: Any) -> int:
     from openconvoy.envs.vehicles import vehicle_preset
 
     if not args.sim:
-        raise ValueError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
+        raise ConfigError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
     check_url(args.mavlink)
     x, y, heading = parse_start(args.start)
     config = SimVehicleConfig(
@@ -545,7 +546,7 @@ def run_vehicle_cli(args: Any) -> int:
     try:
         vehicle.start()
     except OSError as exc:
-        raise ValueError(f"cannot open {args.mavlink}: {exc}") from exc
+        raise ConfigError(f"cannot open {args.mavlink}: {exc}") from exc
 
     signal.signal(signal.SIGTERM, lambda s, f: vehicle.request_stop())
     signal.signal(signal.SIGINT, lambda s, f: vehicle.request_stop())

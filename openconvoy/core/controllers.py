@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class SpeedControlConfig:
@@ -24,7 +26,7 @@ class SpeedControlConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in ("pd", "pid"):
-            raise ValueError(f"unknown speed controller {self.kind!r}; expected 'pd' or 'pid'")
+            raise ConfigError(f"unknown speed controller {self.kind!r}; expected 'pd' or 'pid'")
 
 
 class PIDSpeed:
@@ -75,7 +77,7 @@ class HeadingControlConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in ("stanley", "pure-pursuit"):
-            raise ValueError(
+            raise ConfigError(
                 f"unknown heading controller {self.kind!r}; expected 'stanley' or 'pure-pursuit'"
             )
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 
 TOPOLOGIES = (
@@ -43,10 +44,10 @@ class RxGate:
             if k == "N":
                 return max(self.n_vehicles - 1, 1)
             if not k.isdigit() or int(k) < 1:
-                raise ValueError(f"bad topology {name!r}: lookahead needs a positive K or N")
+                raise ConfigError(f"bad topology {name!r}: lookahead needs a positive K or N")
             return int(k)
         if name not in TOPOLOGIES:
-            raise ValueError(f"unknown topology {name!r}; expected one of {', '.join(TOPOLOGIES)}")
+            raise ConfigError(f"unknown topology {name!r}; expected one of {', '.join(TOPOLOGIES)}")
         return None
 
     def keeps(self, sender: int) -> bool:
@@ -98,9 +99,9 @@ class TriggerConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in ("periodic", "event"):
-            raise ValueError(f"unknown trigger {self.kind!r}; expected 'periodic' or 'event'")
+            raise ConfigError(f"unknown trigger {self.kind!r}; expected 'periodic' or 'event'")
         if self.period_s <= 0:
-            raise ValueError(f"trigger period_s must be positive, got {self.period_s}")
+            raise ConfigError(f"trigger period_s must be positive, got {self.period_s}")
 
 
 class TxGate:

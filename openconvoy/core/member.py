@@ -165,6 +165,8 @@ class ConvoyMember:
         needed = self.rx.needed()
         age = max((self.buffer.age(v, now) for v in needed), default=0.0)
         self.mode = ladder_mod.rung(age, self.config.ladder)
+        if self._ranging_override(ranging):
+            self.mode = ladder_mod.DEGRADED
         if self.mode == ladder_mod.COOP:
             return np.asarray(action, dtype=np.float32), self.mode
         if self.mode == ladder_mod.DEGRADED:
@@ -181,6 +183,14 @@ class ConvoyMember:
         return make_action(0.0, 0.0), self.mode
 
     # --- helpers ---------------------------------------------------------------------
+
+    def _ranging_override(self, ranging: tuple[float, float] | None) -> bool:
+        """Cooperating, but the ranging target is closer than the predecessor heard by V2V
+        (a cut-in) or than the desired gap: follow it by ranging (``ladder.ranging_override``)."""
+        if self.mode != ladder_mod.COOP or ranging is None or self._pred_estimate is None:
+            return False
+        desired = self.desired_gap_m if self.desired_gap_m == self.desired_gap_m else 0.0
+        return ladder_mod.ranging_override(ranging[0], self._pred_estimate[0], desired, self.config.ladder)
 
     def _length(self, vid: int) -> float:
         return self.lengths[vid] if 0 <= vid < len(self.lengths) else 0.0

@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
+
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
 
@@ -29,7 +31,7 @@ class SpacingConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in SPACING_KINDS:
-            raise ValueError(
+            raise ConfigError(
                 f"unknown spacing policy {self.kind!r}; expected one of {', '.join(SPACING_KINDS)}"
             )
 

@@ -31,6 +31,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from openconvoy.comms.geodesy import enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.state import VehicleState
@@ -38,7 +39,7 @@ from openconvoy.envs.channel import Channel
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
-from openconvoy.envs.scenarios import Scenario, make_scenario
+from openconvoy.envs.scenarios import Scenario, is_traffic_scenario, make_scenario
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 AGENT_PREFIX = "follower_"
@@ -86,7 +87,8 @@ class ConvoyEnv(ParallelEnv):
 
     Args:
         scenario: a spec (``paper``, ``track``, ``emergency-braking``,
-            ``track-file:PATH``) or a ``Scenario`` object.
+            ``track-file:PATH``, or a ``highway-*`` spec, which makes a
+            ``TrafficConvoyEnv``) or a ``Scenario`` object.
         n_followers: convoy size for spec scenarios (default: the scenario's, 2).
         member_config: the member side of the followers' implementation (topology,
             trigger, spacing, ladder, layout M and k); default: ``MemberConfig`` with the
@@ -108,6 +110,17 @@ class ConvoyEnv(ParallelEnv):
         "render_fps": 20,
         "is_parallelizable": True,
     }
+    LOG_EXTRA_COLUMNS: tuple[str, ...] = ()
+    """Columns this env's log rows carry beyond DESIGN.md's (a run writes them)."""
+
+    def __new__(cls, scenario: str | Scenario = "paper", *args: Any, **kwargs: Any) -> ConvoyEnv:
+        # Highway scenarios bring traffic: ``ConvoyEnv("highway-cut-in")`` is a
+        # TrafficConvoyEnv (needs the ``traffic`` extra).
+        if cls is ConvoyEnv and is_traffic_scenario(scenario):
+            from openconvoy.envs.traffic_env import TrafficConvoyEnv
+
+            cls = TrafficConvoyEnv
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -123,20 +136,20 @@ class ConvoyEnv(ParallelEnv):
         reward_config: RewardConfig | None = None,
     ) -> None:
         if control_rate_hz <= 0:
-            raise ValueError(f"control_rate_hz must be positive, got {control_rate_hz}")
+            raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
         if gps_noise_m < 0:
-            raise ValueError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+            raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         presets = None
         if vehicle_presets is not None:
             presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
         if isinstance(scenario, str):
             scenario = make_scenario(scenario, n_followers, presets)
         elif presets is not None or n_followers is not None:
-            raise ValueError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+            raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
         if scenario.n_vehicles < 2:
-            raise ValueError("a convoy needs a leader and at least one follower")
+            raise ConfigError("a convoy needs a leader and at least one follower")
         self.scenario = scenario
         self.presets = tuple(scenario.presets)
         self.n_vehicles = n = scenario.n_vehicles
@@ -275,7 +288,7 @@ class ConvoyEnv(ParallelEnv):
             [g - d for g, d in zip(self._gap, self._desired)],
             A_new[1:], jerk, YR_new[1:], self._collided,
         )
-        done = any(self._collided)
+        done = self._terminated()
         trunc = self.step_count >= self.max_steps and not done
         agents = self.agents
         rewards = dict(zip(agents, rewards_list))
@@ -386,6 +399,11 @@ class ConvoyEnv(ParallelEnv):
         )
 
     # --- internals ---------------------------------------------------------------------
+
+    def _terminated(self) -> bool:
+        """Does the episode end at this tick? (A world with more in it, such as traffic,
+        adds its own collisions.)"""
+        return any(self._collided)
 
     def _reset_arrays(self) -> None:
         n = self.n_vehicles

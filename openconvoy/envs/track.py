@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.core.errors import InputFileError, MissingFileError
 from openconvoy.envs.path import Path
 
 _TOP_KEYS = {"name", "center", "straights", "turns", "closed_loop"}
@@ -69,13 +70,13 @@ class Track:
 
 def _check_keys(obj: Any, allowed: set[str], required: set[str], where: str) -> None:
     if not isinstance(obj, dict):
-        raise ValueError(f"{where}: expected an object, got {type(obj).__name__}")
+        raise InputFileError(f"{where}: expected an object, got {type(obj).__name__}")
     unknown = set(obj) - allowed
     if unknown:
-        raise ValueError(f"{where}: unknown key(s): {', '.join(sorted(unknown))}")
+        raise InputFileError(f"{where}: unknown key(s): {', '.join(sorted(unknown))}")
     missing = required - set(obj)
     if missing:
-        raise ValueError(f"{where}: missing key(s): {', '.join(sorted(missing))}")
+        raise InputFileError(f"{where}: missing key(s): {', '.join(sorted(missing))}")
 
 
 def _point(obj: Any, origin: Origin, where: str) -> np.ndarray:
@@ -120,7 +121,7 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
     straights = data["straights"]
     turns = data["turns"]
     if not straights:
-        raise ValueError(f"{source}: a track needs at least one straight")
+        raise InputFileError(f"{source}: a track needs at least one straight")
     segs = []
     for i, st in enumerate(straights):
         where = f"{source}: straights[{i}]"
@@ -128,7 +129,7 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
         a = _point(st["start"], origin, f"{where}.start")
         b = _point(st["end"], origin, f"{where}.end")
         if np.hypot(*(b - a)) < 1e-6:
-            raise ValueError(f"{where}: start and end coincide")
+            raise InputFileError(f"{where}: start and end coincide")
         segs.append((a, b, float(st["speed"])))
     headings = [math.atan2(b[1] - a[1], b[0] - a[0]) for a, b, _ in segs]
     if closed and len(segs) > 1:
@@ -162,7 +163,7 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
             _check_keys(tn, _TURN_KEYS, _TURN_KEYS, where)
             direction = tn["direction"]
             if direction not in ("left", "right"):
-                raise ValueError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
+                raise InputFileError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
             ta = _point(tn["start"], origin, f"{where}.start")
             tb = _point(tn["end"], origin, f"{where}.end")
             starts.append(arc_length())
@@ -184,9 +185,9 @@ def load_track(path: str | FilePath, closed_loop: bool | None = None) -> Track:
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise FileNotFoundError(f"no such track file: {p}") from None
+        raise MissingFileError(f"no such track file: {p}") from None
     except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: not valid JSON ({e})") from None
+        raise InputFileError(f"{p}: not valid JSON ({e})") from None
     return parse_track(data, closed_loop=closed_loop, source=str(p))
 
 

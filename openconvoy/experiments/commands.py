@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core import metrics as mt
+from openconvoy.core.errors import ConfigError
 
 
 def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
@@ -28,15 +29,15 @@ def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
 
 def _check_per(per: float) -> None:
     if not 0.0 <= per <= 1.0:
-        raise ValueError(f"--per must be in [0, 1], got {per}")
+        raise ConfigError(f"--per must be in [0, 1], got {per}")
 
 
 def format_metrics(metrics: dict[str, Any]) -> str:
     """The metrics as aligned ``key  value`` lines, per-follower p95 errors after them."""
     lines = []
-    for k in mt.METRIC_KEYS:
+    for k in mt.METRIC_KEYS + tuple(k for k in mt.TRAFFIC_METRIC_KEYS if k in metrics):
         v = metrics[k]
-        lines.append(f"{k:<28}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
+        lines.append(f"{k:<28}{' ' * (len(k) >= 28)}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
     for f, values in metrics.get("per_follower", {}).items():
         v = values["p95_platooning_error_m"]
         lines.append(f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}")
@@ -60,7 +61,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
     if args.burst is not None and args.loss != "gilbert-elliott":
-        raise ValueError("--burst applies to --loss gilbert-elliott")
+        raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
         scenario=scenario or "paper", policy=args.policy, per=args.per, loss_model=args.loss,
         mean_burst_s=args.burst if args.burst is not None else 1.0,
@@ -136,6 +137,8 @@ def report(args: argparse.Namespace) -> int:
         print("note: the log has no vehicle lengths; pass --convoy to count collisions "
               "against half lengths (now: centre distance < 0)")
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
     print(format_metrics(metrics))
     warning = standstill_warning(log)
     if warning:
@@ -171,6 +174,8 @@ def presets(args: argparse.Namespace) -> int:
             f"  {name:<{width}}  length {p.length_m:g} m, accel {p.accel_max_mps2:g} / decel "
             f"{p.decel_max_mps2:g} m/s², turn rate {math.degrees(p.turn_rate_max_radps):.0f}°/s, "
             f"delay {p.actuation_delay_s:g} s, max {p.max_speed_mps:g} m/s"
+            + (", the autopilot's PI speed loop" if p.speed_loop == "pi" else "")
+            + (f", static friction below {p.breakaway_mps:g} m/s" if p.breakaway_mps else "")
             + (", ranging sensor" if p.ranging else "")
         )
     return 0
@@ -183,7 +188,7 @@ def _floats(text: str) -> tuple[float, ...]:
     try:
         return tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise ValueError(f"--pers: expected comma-separated numbers, got {text!r}") from None
+        raise ConfigError(f"--pers: expected comma-separated numbers, got {text!r}") from None
 
 
 def experiment_from_args(args: argparse.Namespace) -> Any:
@@ -203,7 +208,7 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
         changes["pers"] = _floats(args.pers)
     if args.seeds is not None:
         if args.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
+            raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
         changes["seeds"] = tuple(range(args.seeds))
     if args.duration is not None:
         changes["duration_s"] = args.duration
@@ -225,14 +230,24 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
 
 
 def per_sweep(args: argparse.Namespace) -> int:
-    """``openconvoy experiment per-sweep``."""
+    """``openconvoy experiment per-sweep``; exit status 1 when runs failed (the others
+    are written)."""
+    import sys
+
+    from openconvoy.experiments.executor import TasksFailed, with_flags
     from openconvoy.experiments.sweep import run_experiment
 
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
-        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+        raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
     out = Path(args.out)
-    result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
+    try:
+        result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
+                                executor=executor)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
     for r in result.rows:
         print(

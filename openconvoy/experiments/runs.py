@@ -27,6 +27,7 @@ from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.errors import ConfigError
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
@@ -38,7 +39,7 @@ class RunConfig:
 
     Attributes:
         scenario: scenario spec (``paper``, ``track``, ``emergency-braking``,
-            ``track-file:PATH``).
+            ``track-file:PATH``, ``highway-*``).
         policy: policy spec (preset name, optionally ``+ladder``; ``.toml``, ``.zip``,
             ``.npz`` file).
         per: packet error rate of every link, 0..1.
@@ -84,9 +85,9 @@ class RunConfig:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss  # validates model and PER  # noqa: B018
         if self.duration_s is not None and self.duration_s <= 0:
-            raise ValueError(f"duration must be positive, got {self.duration_s} s")
+            raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.gps_noise_m < 0:
-            raise ValueError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
+            raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
 
     @property
     def loss(self) -> LossConfig:
@@ -173,7 +174,9 @@ def run_sim(
     writer = None
     rows: list[dict[str, Any]] = []
     if out_dir is not None:
-        writer = LogWriter(Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS, flush_every=500)
+        writer = LogWriter(
+            Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS + env.LOG_EXTRA_COLUMNS, flush_every=500
+        )
 
     def emit(tick_rows: list[dict[str, Any]]) -> None:
         for r in tick_rows:
@@ -203,6 +206,8 @@ def run_sim(
             writer.close()
     log = read_log(writer.path) if writer is not None else rows_to_log(rows)
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths))
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)

@@ -22,6 +22,7 @@ from openconvoy.core.controllers import (
     pure_pursuit,
     stanley,
 )
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import LOOKAHEAD_S
 from openconvoy.core.policy import make_action
@@ -44,7 +45,7 @@ class ClassicalConfig:
 
     def __post_init__(self) -> None:
         if self.control_rate_hz <= 0 or self.speed_limit_mps <= 0:
-            raise ValueError("control_rate_hz and speed_limit_mps must be positive")
+            raise ConfigError("control_rate_hz and speed_limit_mps must be positive")
 
 
 class ClassicalPolicy:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.errors import ConfigError, MissingFileError
 from openconvoy.core.policy import Policy
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.presets import PRESETS, with_ladder
@@ -27,7 +28,7 @@ def load_policy(spec: str, **learned_kwargs: Any) -> Policy:
     path = Path(spec)
     if path.suffix in (".zip", ".npz"):
         if not path.is_file():
-            raise FileNotFoundError(f"policy file not found: {spec}")
+            raise MissingFileError(f"policy file not found: {spec}")
         from openconvoy.policies import learned
 
         return learned.load_learned(path, **learned_kwargs)
@@ -43,7 +44,7 @@ def classical_config(spec: str) -> ClassicalConfig:
     elif base in PRESETS:
         config = PRESETS[base]
     else:
-        raise ValueError(
+        raise ConfigError(
             f"unknown policy {spec!r}: not a preset ({', '.join(PRESETS)}), "
             "nor a .toml, .zip or .npz file"
         )
@@ -56,12 +57,12 @@ def classical_from_toml(path: str | Path) -> ClassicalConfig:
     data = load_toml(path)
     table = data.get("policy")
     if table is None or set(data) - {"policy"}:
-        raise ValueError(f"{path}: a policy file has exactly one top-level table, [policy]")
+        raise ConfigError(f"{path}: a policy file has exactly one top-level table, [policy]")
     table = dict(table)
     base_name = table.pop("base", None)
     if base_name is not None:
         if base_name not in PRESETS:
-            raise ValueError(f"{path}: unknown base preset {base_name!r}")
+            raise ConfigError(f"{path}: unknown base preset {base_name!r}")
         inherited = to_dict(PRESETS[base_name])
         inherited["name"] = Path(path).stem
         inherited["description"] = f"{base_name} with changes from {Path(path).name}"

@@ -136,13 +136,27 @@ def test_loop_timer_counts_overruns_and_skips_missed_slots():
     t.begin(0.0)
     assert t.wait_time(0.01) == pytest.approx(0.04)
     t.begin(0.05)
-    t.begin(0.23)  # 0.13 s late: an overrun; the schedule skips to the next slot
-    assert t.overruns == 1
-    assert t.next_tick == pytest.approx(0.25)
+    assert t.begin(0.23) == pytest.approx(0.13)  # slots 0.10 and 0.15 passed without a tick
+    assert t.overruns == 2 and t.late_ticks == 1  # and 0.13 s is more than 2 periods late
+    assert t.next_tick == pytest.approx(0.25)  # the schedule skips, no burst
     t.begin(0.25)
-    assert t.overruns == 1 and t.ticks == 4
+    t.begin(0.36)  # 0.06 s late: one slot missed, not late enough to be a failsafe
+    assert t.overruns == 3 and t.late_ticks == 1 and t.ticks == 5
+    t.begin(0.40 + 3.7)  # a 3.7 s stall at 20 Hz misses 74 slots, not 1
+    assert t.overruns == 3 + 74 and t.late_ticks == 2
     with pytest.raises(ValueError):
         LoopTimer(0.0, start=0.0)
+
+
+def test_a_tick_over_two_periods_late_stops_and_is_one_event_per_episode():
+    f = Failsafes()
+    assert f.decide(fresh(1.0, late_periods=1.9)).command == DRIVE
+    v = f.decide(fresh(1.05, late_periods=2.5))
+    assert (v.command, v.failsafe, v.reason) == (STOP, True, "control loop late")
+    assert f.decide(fresh(1.1, late_periods=30.0)).command == STOP
+    assert f.decide(fresh(1.15)).command == DRIVE  # on time again: not latched
+    f.decide(fresh(2.0, late_periods=3.0))
+    assert [r for _, r in f.events] == ["control loop late (2.5 periods)", "control loop late (3.0 periods)"]
 
 
 def test_signal_after_takeover_ends_the_run_without_commanding():

@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import math
 import random
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from comms_testdata import load_vectors
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from openconvoy.comms import bsm as j
 from openconvoy.comms import compat
@@ -17,7 +20,7 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.comms.mapping import state_to_core
 from openconvoy.comms.multicast import MemoryBus
 from openconvoy.comms.tempids import TempIds, derive_temp_id
-from openconvoy.comms.v2v import V2V, Counters, LinkConfig, Receiver, Sender
+from openconvoy.comms.v2v import POLL_CHUNK, V2V, Counters, LinkConfig, Receiver, Sender
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.state import VehicleState
 
@@ -43,7 +46,7 @@ def _state(i, t, x=None):
 
 
 def _balanced(c: Counters) -> bool:
-    return c.datagrams == (c.received + c.malformed + c.filtered + c.echoes + c.duplicates + c.lost)
+    return c.datagrams == (c.received + c.malformed + c.filtered + c.echoes + c.duplicates + c.rejected + c.lost)
 
 
 def test_temp_ids_default_override_and_collision():
@@ -332,7 +335,7 @@ def test_member_bsm_without_essentials_is_not_delivered(field, value, what, capl
 
 def test_receive_errors_do_not_stop_the_link():
     class Broken:
-        def recv_all(self):
+        def recv_all(self, max_batch=10_000):
             raise OSError(100, "Network is down")
 
         def send(self, data):
@@ -378,3 +381,127 @@ def test_link_config_from_the_convoy_config():
     assert (cfg.compat_group, cfg.compat_port, cfg.compat_ttl) == ("224.0.0.1", 5004, 1)
     # the convoy config's defaults are the transport's
     assert LinkConfig.from_v2v(V2VConfig(), "x") == LinkConfig("x")
+
+
+def _foreign_frames(n: int, temp_id: bytes = b"\xde\xad\xbe\xef") -> list[bytes]:
+    frames = [j.encode_frame(state_to_core(_state(0, 10.0), ORIGIN, temp_id, k)) for k in range(128)]
+    return [frames[k % 128] for k in range(n)]
+
+
+@given(cnt=st.integers(0, 127), temp_id=st.binary(min_size=4, max_size=4),
+       speed=st.integers(0, 8191), part_ii=st.none() | st.integers(0, 300))
+@settings(max_examples=60, deadline=None)
+def test_peek_temp_id_reads_the_id_asn1tools_encoded(cnt, temp_id, speed, part_ii):
+    # with and without Part II, whose size moves the BSM behind a 1- or 2-octet length
+    core = j.BsmCore(cnt, temp_id, 1000, 286024000, -812001000, speed=speed)
+    frame_t, bsm_t = j._spec()
+    value = {"coreData": j._to_asn(core)["coreData"]}
+    if part_ii is not None:
+        value["partII"] = [{"partII-Id": 0, "partII-Value": bytes(part_ii)}]
+    frame = frame_t.encode({"messageId": 20, "value": bsm_t.encode(value)})
+    assert j.peek_temp_id(frame) == int.from_bytes(temp_id, "big")
+    assert j.decode_frame(frame).core.temp_id == temp_id
+
+
+def test_peek_temp_id_of_non_frames_is_none():
+    assert j.peek_temp_id(b"") is None and j.peek_temp_id(b"\x00\x14") is None
+    assert j.peek_temp_id(b"\x00\x14\x05\x01") is None  # too short for an id
+    assert j.peek_temp_id(b"{\"car\": 1}") is None and j.peek_temp_id(b"\x00\x13" + bytes(20)) is None
+
+
+def test_foreign_bsms_are_dropped_without_a_full_decode(monkeypatch):
+    rx = Receiver(IDS, ORIGIN, 1)
+    member = j.encode_frame(state_to_core(_state(0, 10.0), ORIGIN, IDS.id_of(0), 3))
+    calls = []
+    real = j.decode_frame
+    monkeypatch.setattr(j, "decode_frame", lambda data: calls.append(1) or real(data))
+    for frame in _foreign_frames(500):
+        assert rx.handle(frame, 10.05) is None
+    assert rx.handle(member, 10.05) is not None
+    assert calls == [1]  # only the member's frame was decoded
+    assert rx.counters.filtered == 500 and rx.counters.received == 1 and _balanced(rx.counters)
+
+
+class TickClock:
+    """A monotonic clock that advances ``step`` seconds each time it is read."""
+
+    def __init__(self, step: float) -> None:
+        self.t, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        self.t += self.step
+        return self.t
+
+
+def test_poll_is_bounded_by_its_time_budget_and_the_rest_waits():
+    # 40,000 foreign BSMs waiting (a second of the flood that stalled deploys), read with
+    # a clock that advances 1 ms per reading: a 12.5 ms budget stops the poll after a few
+    # chunks; later polls go on where it stopped, and nothing is lost or counted twice.
+    bus = MemoryBus()
+    link = _link(bus, 1, clock=TickClock(0.001))
+    bus.inject_many(_foreign_frames(40_000))
+    assert link.poll(10.0, budget_s=0.0125) == []
+    first = link.counters.datagrams
+    assert 0 < first <= 14 * POLL_CHUNK and link.counters.budget_hits == 1
+    polls = 1
+    while link.counters.datagrams < 40_000:
+        link.poll(10.0, budget_s=0.0125)
+        polls += 1
+    assert link.counters.filtered == 40_000 and _balanced(link.counters)
+    assert polls == math.ceil(40_000 / first) and link.counters.budget_hits in (polls - 1, polls)
+    # without a budget, one poll reads everything (the old behaviour, for tools)
+    bus.inject_many(_foreign_frames(1000))
+    link.poll(10.0)
+    assert link.counters.datagrams == 41_000
+
+
+def test_poll_with_a_budget_takes_turns_between_the_two_sockets():
+    bus, bus4 = MemoryBus(), MemoryBus()
+    link = _link(bus, 1, bus4=bus4, clock=TickClock(0.001))
+    bus.inject_many(_foreign_frames(10_000))
+    leader = _link(bus, 0, bus4=bus4)
+    leader.send(_state(0, 10.0), 10.0)  # a J2735 BSM behind the flood, and its compat twin
+    got = link.poll(10.01, budget_s=0.005)
+    assert [(r.source, r.sender) for r in got] == [("compat", 0)]  # heard despite the flood
+
+
+def test_unavailable_heading_keeps_position_and_speed_and_takes_a_known_heading():
+    rx = Receiver(IDS, ORIGIN, 0)
+    blind = dict(heading=j.HEADING_UNAVAILABLE)
+    core = lambda s: state_to_core(s, ORIGIN, IDS.id_of(1), 0)  # noqa: E731
+    # nothing known yet: not delivered (a made-up heading would steer the followers)
+    assert rx.handle(j.encode_frame(core(_state(1, 10.0))._replace(**blind)), 10.1) is None
+    assert rx.counters.malformed == 1
+    moving = replace(_state(1, 10.0), heading=0.3, speed=0.0)
+    assert rx.handle(j.encode_frame(core(moving)), 10.1).state.heading == pytest.approx(0.3, abs=1e-3)
+    # standing still, heading unavailable: the last heading it sent
+    r = rx.handle(j.encode_frame(core(replace(moving, t=10.2))._replace(**blind)), 10.25)
+    assert r is not None and r.state.heading == pytest.approx(0.3, abs=1e-3)
+    assert (r.state.x, r.state.y, r.state.speed) == pytest.approx((moving.x, moving.y, 0.0), abs=0.02)
+    # it moved 2 m north (heading still unavailable): the direction of its trail
+    north = replace(moving, t=10.3, y=moving.y + 2.0, speed=1.0)
+    r = rx.handle(j.encode_frame(core(north)._replace(**blind)), 10.35)
+    assert r.state.heading == pytest.approx(math.pi / 2, abs=0.02)
+    assert r.state.speed == pytest.approx(1.0) and r.state.y == pytest.approx(north.y, abs=0.02)
+
+
+def test_interop_frames_with_unavailable_heading_are_delivered_once_a_heading_is_known():
+    blind = [bytes.fromhex(v["hex"]) for v in load_vectors()
+             if v["decoded_core_fields"]["heading"] == j.HEADING_UNAVAILABLE]
+    assert len(blind) == 8
+    delivered = 0
+    for data in blind:
+        c = j.decode_frame(data).core
+        ids = TempIds("x", 2, {1: c.temp_id.hex()})
+        rx = Receiver(ids, ORIGIN, 0, time_tolerance_s=120.0)
+        t_rx = 600.0 + c.sec_mark / 1000 if c.sec_mark < 60000 else 600.0
+        if c.lat == j.LAT_UNAVAILABLE or c.speed == j.SPEED_UNAVAILABLE or c.sec_mark >= 61000:
+            assert rx.handle(data, t_rx) is None  # lacks more than the heading
+            continue
+        seen = j.encode_frame(c._replace(heading=0))  # one earlier frame that had a heading
+        assert rx.handle(seen, t_rx) is not None
+        r = rx.handle(data, t_rx)
+        assert r is not None and r.state.speed == pytest.approx(c.speed * j.SPEED_UNIT)
+        assert r.state.heading == pytest.approx(math.pi / 2)  # compass 0 = ENU north
+        delivered += 1
+    assert delivered == 6  # the other two lack speed as well

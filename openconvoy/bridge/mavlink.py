@@ -735,9 +735,17 @@ class MavlinkLink:
             )
             self._wait_until(lambda: False, min(_RETRY_PAUSE_S, left))
 
-    def _arm(self, deadline: float, on_status: StatusCallback) -> None:
-        """Arm, waiting out the autopilot's refusals (estimator not ready) until ``deadline``."""
+    def _arm(self, deadline: float, on_status: StatusCallback, mode: str | None = None) -> None:
+        """Arm, waiting out the autopilot's refusals (estimator not ready) until ``deadline``.
+
+        Before every attempt the mode must still be ``mode``: ArduPilot's init and RC mode
+        switch replace a GUIDED set early in boot by MANUAL (shared/sitl rows 3-4), and it
+        accepts arming in MANUAL ~19 s before GUIDED is armable (row 2)."""
         while True:
+            if mode is not None and self._mode != mode:
+                on_status(f"mode is {self._mode} (set by {self._who_set_mode()}), not {mode}: "
+                          f"requesting {mode} again before arming")
+                self._set_mode(mode, deadline, on_status)
             result, reason = self._command(mp.CMD_COMPONENT_ARM_DISARM, (1.0,))
             if result == mp.RESULT_ACCEPTED:
                 wait = max(0.0, min(_MODE_CONFIRM_S, deadline - self._clock()))
@@ -776,13 +784,13 @@ class MavlinkLink:
             try:
                 self._wait_until(lambda: False, _PX4_PRESTREAM_S)
                 self._set_mode(target, deadline, status)
-                self._arm(deadline, status)
+                self._arm(deadline, status, target)
                 self._keep_mode_after_arming(target, status)
             finally:
                 self._keepalive = False
         else:
             self._set_mode(target, deadline, status)
-            self._arm(deadline, status)
+            self._arm(deadline, status, target)
             self._keep_mode_after_arming(target, status)
         self._engaged_mode = target
         self._requested_mode = target

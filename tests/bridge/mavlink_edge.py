@@ -150,6 +150,10 @@ class EdgeAutopilot:
         mode_after_arm: a mode it switches to on its own right after arming (and again
             ``mode_switch_repeats`` times after the guided mode is requested back).
         send_position: stream GLOBAL_POSITION_INT (False: ATTITUDE only).
+        arm_refusals: refuse this many arm commands first (result 4 and a STATUSTEXT).
+        mode_at: (t, mode): switch to ``mode`` on its own at ``t`` s after start, once (the
+            RC mode switch's first reading at boot).
+        arm_modes: the mode it was in at each arm command (filled in).
     """
 
     transport: str = "udp"
@@ -162,6 +166,9 @@ class EdgeAutopilot:
     mode_after_arm: str | None = None
     mode_switch_repeats: int = 0
     send_position: bool = True
+    arm_refusals: int = 0
+    mode_at: tuple[float, str] | None = None
+    arm_modes: list[str] = field(default_factory=list)
     system_id: int = 1
     mode: str = ""
     armed: bool = False
@@ -222,6 +229,8 @@ class EdgeAutopilot:
             if data:
                 for msg in self.parser.parse_buffer(data) or []:
                     self._on_message(msg, t)
+            if self.mode_at is not None and t >= self.mode_at[0]:
+                self.mode, self.mode_at = self.mode_at[1], None
             if t >= self._switch_at:
                 self._switch_at = math.inf
                 self.mode = self.mode_after_arm or self.mode
@@ -263,7 +272,14 @@ class EdgeAutopilot:
             if self.mode not in ("HOLD", "LOITER") and self._switches_left > 0 and self.armed:
                 self._switches_left -= 1
                 self._switch_at = t + 0.15
+        elif msg.command == mp.CMD_COMPONENT_ARM_DISARM and msg.param1 > 0.5 and self.arm_refusals > 0:
+            self.arm_refusals -= 1
+            self.arm_modes.append(self.mode)
+            self.mav.statustext_send(2, b"Arm: Gyros inconsistent")
+            result = mp.RESULT_FAILED
         elif msg.command == mp.CMD_COMPONENT_ARM_DISARM:
+            if msg.param1 > 0.5:
+                self.arm_modes.append(self.mode)
             self.armed = msg.param1 > 0.5
             if self.armed and self.mode_after_arm:
                 self._switch_at = t + 0.05  # the RC switch's reading lands just after arming

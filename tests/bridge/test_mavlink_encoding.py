@@ -290,3 +290,14 @@ def test_serial_link_over_a_pseudo_terminal(edge):
     link.send_setpoint(1.0, enu(200.0))
     m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
     assert m.vx == 1.0 and m.vy == 0.0 and same_angle(m.yaw, math.radians(200.0), 1e-5)
+
+
+def test_ardupilot_mode_lost_while_waiting_to_arm_is_set_again_before_arming(edge):
+    """shared/sitl boot_and_arm: GUIDED set early in boot is replaced by MANUAL (RC mode
+    switch) while arming is still refused; ArduPilot would then arm in MANUAL."""
+    ap, link, _ = edge(autopilot="ardupilot", arm_refusals=2, mode_at=(0.9, "MANUAL"))
+    status: list[str] = []
+    link.prepare_and_arm(timeout_s=8.0, on_status=status.append)
+    assert ap.armed and ap.mode == "GUIDED" and link.mode == "GUIDED"
+    assert ap.arm_modes[-1] == "GUIDED" and "MANUAL" not in ap.arm_modes[-1:]
+    assert any("mode is MANUAL" in s and "requesting GUIDED again before arming" in s for s in status), status

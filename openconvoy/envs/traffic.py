@@ -141,6 +141,8 @@ class FastRoad(Road):
     (the parity test runs both on the same seeds)."""
 
     _cache: dict | None = None
+    idm_accel: dict[int, float] = {}
+    """Filled by ``VectorRoad.act``; empty here."""
 
     def act(self) -> None:
         self._cache = {}
@@ -317,6 +319,10 @@ class TrafficWorld:
         """highway-env's IDM acceleration (m/s²) for the leader behind whatever is ahead of
         it on its lane (traffic or obstacle), towards the cruise speed."""
         lead = self.convoy[0]
+        if isinstance(self.road, FastRoad):
+            known = self.road.idm_accel.get(id(lead))  # VectorRoad computed it in act
+            if known is not None:
+                return known
         front, _ = self.road.neighbour_vehicles(lead, lead.lane_index)
         a = lead.acceleration(ego_vehicle=lead, front_vehicle=front)
         return float(np.clip(a, -lead.ACC_MAX, lead.ACC_MAX))

@@ -53,6 +53,7 @@ from openconvoy.envs.traffic import (
     StraightLane,
     TrafficWorld,
 )
+from openconvoy.envs.traffic_vector import VectorRoad
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor, VehiclePreset
 
 HIGHWAY_SCENARIOS: tuple[str, ...] = (
@@ -60,6 +61,11 @@ HIGHWAY_SCENARIOS: tuple[str, ...] = (
 )
 
 LANE_WIDTH_M = StraightLane.DEFAULT_WIDTH
+ROADS: tuple[str, ...] = ("vector", "fast", "highway-env")
+"""Traffic paths (``HighwayConfig.road``): ``vector`` (``traffic_vector.VectorRoad``: all
+cars at once with numpy on straight roads, ``fast`` elsewhere), ``fast`` (``FastRoad``:
+highway-env's vehicles, its neighbour search and collision pre-check done once per step),
+``highway-env`` (its ``Road`` as is)."""
 RADAR = RangingSensor(max_range_m=150.0, range_noise_m=0.1, range_rate_noise_mps=0.1)
 """The full-size cars' forward radar (a long-range automotive radar: 150 m)."""
 CAR = VEHICLE_PRESETS["full-size"].with_ranging(RADAR)
@@ -72,14 +78,14 @@ class HighwayConfig:
 
     lanes: int = 3
     speed_mps: float = 25.0
-    duration_s: float = 30.0
+    duration_s: float = 45.0
     traffic: int = 6
     traffic_speed_min_mps: float = 20.0
     traffic_speed_max_mps: float = 30.0
-    fast: bool = True
+    road: str = "vector"
     # highway-cut-in
     cut_in_at_s: float = 3.0
-    cut_out_at_s: float = 10.0
+    cut_out_at_s: float = 8.0
     cut_in_gap: int = 1
     cut_in_speed_mps: float = -1.0
     cut_in_offset_m: float = 0.0
@@ -102,6 +108,8 @@ class HighwayConfig:
                 raise ConfigError(f"highway {name} must be positive, got {getattr(self, name)}")
         if self.traffic < 0 or self.merge_cars < 0 or not 0 <= self.drop_cars <= 2:
             raise ConfigError("highway traffic and merge_cars must be >= 0, drop_cars 0..2")
+        if self.road not in ROADS:
+            raise ConfigError(f"highway road must be one of {', '.join(ROADS)}, got {self.road!r}")
         if not 0 < self.traffic_speed_min_mps <= self.traffic_speed_max_mps:
             raise ConfigError("highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps")
 
@@ -200,12 +208,12 @@ class HighwayScenario:
     # --- roads ---------------------------------------------------------------------------
 
     def _road(self, rs: np.random.RandomState) -> Road:
-        cls = FastRoad if self.config.fast else Road
+        cls = {"vector": VectorRoad, "fast": FastRoad, "highway-env": Road}[self.config.road]
         if self.name == "highway-merge":
             return self._merge_road(cls, rs)
         if self.name == "highway-lane-drop":
             return self._drop_road(cls, rs)
-        net = RoadNetwork.straight_road_network(self.config.lanes, start=0.0, length=5000.0, speed_limit=40.0)
+        net = RoadNetwork.straight_road_network(self.config.lanes, start=0.0, length=10000.0, speed_limit=40.0)
         return cls(network=net, np_random=rs)
 
     def _merge_road(self, cls: type, rs: np.random.RandomState) -> Road:
@@ -290,12 +298,13 @@ class _Spawner:
             self._drop()
         lo, hi = cfg.traffic_speed_min_mps, cfg.traffic_speed_max_mps
         offsets_end = sc._offsets()[-1]
+        half = max(250.0, 8.0 * cfg.traffic)  # metres each side of the leader's start
         if name == "highway-slow-traffic":
             lo, hi = 0.9 * cfg.slow_speed_mps, 1.1 * cfg.slow_speed_mps
         for _ in range(cfg.traffic):
             for _try in range(20):
                 lane = int(self.rs.choice(lanes))
-                s = float(self.rs.uniform(x0 - 250.0, x0 + 250.0))
+                s = float(self.rs.uniform(x0 - half, x0 + half))
                 if name == "highway-slow-traffic":
                     s = float(self.rs.uniform(x0 + cfg.slow_ahead_m + 30.0, x0 + cfg.slow_ahead_m + 400.0))
                 if name == "highway-lane-drop":

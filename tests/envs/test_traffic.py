@@ -115,32 +115,33 @@ def _rollout(spec: str, seed: int) -> list:
 def test_whole_episode_determinism(spec: str) -> None:
     from tests.envs.test_api import _same
 
-    a = _rollout(f"{spec}:duration_s=2", seed=5)
-    b = _rollout(f"{spec}:duration_s=2", seed=5)
+    a = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=5)
+    b = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=5)
     assert len(a) == len(b) > 10 and _same(a, b)
     # Traffic is randomized by the seed.
-    c = _rollout(f"{spec}:duration_s=2", seed=6)
+    c = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=6)
     assert not np.array_equal(a[0][2], c[0][2])
 
 
 @pytest.mark.parametrize("spec", ["highway-cut-in:traffic=10", "highway-slow-traffic:traffic=10"])
 def test_faster_traffic_paths_match_highway_env_road(spec: str) -> None:
     """The faster traffic paths give highway-env's trajectories: ``fast`` bit for bit,
-    ``vector`` within 1e-6 m (numpy on arrays may round the last bits differently)."""
-    ref = _rollout(f"{spec},duration_s=4,road=highway-env", seed=3)
-    fast = _rollout(f"{spec},duration_s=4,road=fast", seed=3)
-    vector = _rollout(f"{spec},duration_s=4,road=vector", seed=3)
-    assert len(fast) == len(ref) == len(vector) > 60
+    ``vector`` within 1e-9 m (bit for bit here; numpy on arrays may round the last bits
+    differently elsewhere)."""
+    ref = _rollout(f"{spec},duration_s=3,road=highway-env", seed=3)
+    fast = _rollout(f"{spec},duration_s=3,road=fast", seed=3)
+    vector = _rollout(f"{spec},duration_s=3,road=vector", seed=3)
+    assert len(fast) == len(ref) == len(vector) > 50
     traffic = lambda entry: entry[2] if len(entry) == 3 else entry[3]  # noqa: E731
     worst = 0.0
     for r, f, v in zip(ref, fast, vector):
         assert np.array_equal(traffic(f), traffic(r))
         worst = max(worst, float(np.max(np.abs(traffic(v) - traffic(r)))))
-    assert worst < 1e-6
+    assert worst < 1e-9
     # Traffic moved and changed lanes: the test compares something.
     start, end = ref[0][2], ref[-1][3]
     assert np.all(end[:, 0] - start[:, 0] > 30.0)
-    assert np.any(np.abs(end[:, 1] - start[:, 1]) > 3.0)
+    assert np.any(np.abs(end[:, 1] - start[:, 1]) > 2.0)
 
 
 def _cut_in(policy: str, seed: int = 0):
@@ -219,7 +220,7 @@ def test_render_rgb_array_draws_road_traffic_and_convoy() -> None:
     env = TrafficConvoyEnv("highway-cut-in:traffic=4", render_mode="rgb_array")
     env.reset(seed=0)
     img = env.render()
-    assert img.shape == (200, 900, 3) and img.dtype == np.uint8
+    assert img.shape == (100, 900, 3) and img.dtype == np.uint8
     # The leader's colour and a coop follower's colour are in the picture.
     flat = img.reshape(-1, 3)
     for colour in ((30, 90, 200), (40, 160, 60)):

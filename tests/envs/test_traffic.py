@@ -88,6 +88,20 @@ def test_parallel_api(spec: str) -> None:
     parallel_api_test(TrafficConvoyEnv(f"{spec}:traffic=3,duration_s=3"), num_cycles=60)
 
 
+def test_aec_api_and_single_agent_id() -> None:
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+    from pettingzoo.test import api_test
+
+    import openconvoy.envs
+
+    api_test(ConvoyEnv.aec(scenario="highway-cut-in:traffic=3,duration_s=2"), num_cycles=40)
+    env = gymnasium.make(openconvoy.envs.HIGHWAY_SINGLE_AGENT_ID, max_time_s=2.0)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=1)
+    assert obs.shape == env.observation_space.shape and info["desired_gap_m"] == pytest.approx(21.8)
+
+
 def test_convoy_env_with_a_highway_spec_is_the_traffic_env() -> None:
     env = ConvoyEnv("highway-slow-traffic", n_followers=3)
     assert isinstance(env, TrafficConvoyEnv)

@@ -77,6 +77,9 @@ class VehiclePreset:
             (ArduPilot: CRUISE_THROTTLE / CRUISE_SPEED x the same; 1 = exact).
         drive_lag_s: ``pi``: time constant of the vehicle's speed following the drive
             command (s).
+        drive_drag_per_mps: ``pi``: quadratic drag; the steady speed v under drive d solves
+            v + drag * v**2 = d (1/(m/s); 0 = linear, as ArduPilot's SITL rover; PX4 SIH's
+            rover has drag that caps it near 2.55 m/s).
         stop_speed_mps: ``pi``: with the ramped setpoint at 0, below this speed the drive
             is cut and the integrator reset (ArduPilot ATC_STOP_SPEED): no undershoot.
         breakaway_mps: static friction: a vehicle at rest stays at rest while its drive
@@ -106,6 +109,7 @@ class VehiclePreset:
     speed_ki: Annotated[float, Range(0.0, 100.0)] = 0.0
     speed_ff: Annotated[float, Range(0.0, 10.0)] = 1.0
     drive_lag_s: Annotated[float, Range(0.0, 10.0)] = 0.5
+    drive_drag_per_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
     stop_speed_mps: Annotated[float, Range(0.0, 10.0)] = 0.1
     breakaway_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
     heading_delay_s: Annotated[float, Range(0.0, 2.0)] | None = None

@@ -4,9 +4,12 @@ Specs (``make_highway_scenario``), each with any number of followers, full-size 
 forward radar by default, traffic randomized by the episode's seed:
 
 - ``highway-cut-in``: three lanes, the convoy in the middle one at 25 m/s; a car without
-  V2V drives beside gap ``cut_in_gap`` (1 = between the leader and follower 1) in the
-  lane to the left, changes into the gap at ``cut_in_at_s`` and back out at
-  ``cut_out_at_s`` (never if negative). Other traffic in the outer lanes only.
+  V2V starts beside gap ``cut_in_gap`` (1 = between the leader and follower 1) in the
+  lane to the left (shifted by ``cut_in_offset_m``) at the convoy's speed, and at
+  ``cut_in_at_s`` changes into the convoy's lane, slowing to ``cut_in_speed_mps`` (22 m/s;
+  negative: the convoy's speed), like the target car of a cut-in test (holding its speed,
+  not reacting to others); back out at ``cut_out_at_s`` (never if negative). Other traffic (IDM/MOBIL) in the
+  outer lanes only.
 - ``highway-slow-traffic``: slower IDM traffic (``slow_speed_mps``) ``slow_ahead_m`` ahead
   of the leader, in every lane; the leader's IDM follows it.
 - ``highway-merge``: the convoy in the right lane of the highway, an on-ramp joining it
@@ -87,7 +90,7 @@ class HighwayConfig:
     cut_in_at_s: float = 3.0
     cut_out_at_s: float = 8.0
     cut_in_gap: int = 1
-    cut_in_speed_mps: float = -1.0
+    cut_in_speed_mps: float = 22.0
     cut_in_offset_m: float = 0.0
     # highway-slow-traffic
     slow_speed_mps: float = 15.0
@@ -329,10 +332,12 @@ class _Spawner:
         lane = sc.convoy_lane - 1
         speed = cfg.speed_mps if cfg.cut_in_speed_mps < 0 else cfg.cut_in_speed_mps
         ln = self.road.network.get_lane(("0", "1", lane))
-        schedule = [(cfg.cut_in_at_s, sc.convoy_lane)]
+        # Paces its gap at the convoy's speed until the cue, then cuts in at its own speed.
+        schedule: list[tuple[float, int, float | None]] = [(cfg.cut_in_at_s, sc.convoy_lane, speed)]
         if cfg.cut_out_at_s >= 0:
-            schedule.append((cfg.cut_out_at_s, lane))
-        v = ScriptedLaneChanger(self.road, ln.position(s, 0.0), ln.heading_at(s), speed, schedule, target_speed=speed)
+            schedule.append((cfg.cut_out_at_s, lane, None))
+        v = ScriptedLaneChanger(self.road, ln.position(s, 0.0), ln.heading_at(s), cfg.speed_mps, schedule,
+                                target_speed=cfg.speed_mps)
         self._add(v, lane, s)
 
     def _merge(self) -> None:

@@ -71,7 +71,7 @@ class VectorRoad(FastRoad):
 
     _PARAMS = ("COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DISTANCE_WANTED", "TIME_WANTED", "DELTA", "ACC_MAX",
                "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN", "LANE_CHANGE_MAX_BRAKING_IMPOSED", "LANE_CHANGE_DELAY",
-               "LENGTH", "KP_LATERAL", "KP_HEADING", "MAX_STEERING_ANGLE", "target_speed")
+               "LENGTH", "KP_LATERAL", "KP_HEADING", "MAX_STEERING_ANGLE")
     _param_key: tuple = ()
     _param_cache: dict = {}
 
@@ -82,6 +82,8 @@ class VectorRoad(FastRoad):
             p = {k: np.array([getattr(v, k) for v in veh], dtype=float) for k in self._PARAMS}
             p["traffic"] = np.array([type(v) is not ConvoyVehicle for v in veh])
             p["lc"] = np.array([v.enable_lane_change for v in veh])
+            p["hold"] = np.array([type(v) is ScriptedLaneChanger for v in veh])
+            p["KP_A"] = np.array([v.KP_A for v in veh], dtype=float)
             self._param_key, self._param_cache = key, p
         return dict(self._param_cache)
 
@@ -113,7 +115,8 @@ class VectorRoad(FastRoad):
         crashed = np.array([v.crashed for v in veh])
         p = self._params(veh)
         p["timer"] = np.array([v.timer for v in veh], dtype=float)
-        traffic, lc, tspeed = p["traffic"], p["lc"], p["target_speed"]
+        tspeed = np.array([v.target_speed for v in veh], dtype=float)
+        traffic, lc = p["traffic"], p["lc"]
         c, s = np.cos(h), np.sin(h)
         vx, vy = sp * c, sp * s
         tlimit = np.clip(tspeed, 0, limit[lane])
@@ -218,6 +221,8 @@ class VectorRoad(FastRoad):
         if len(changing):
             acc = acc.copy()
             acc[changing] = np.minimum(acc[changing], idm(changing, changing, front[tgt[changing], changing]))
+        # A scripted target holds its speed instead (ControlledVehicle.speed_control).
+        acc = np.where(p["hold"], p["KP_A"] * (tspeed - sp), acc)
         acc = np.clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
         self.idm_accel = dict(zip(map(id, veh), np.clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
 

@@ -175,21 +175,46 @@ def test_cut_in_degrades_to_ranging_and_restores_the_gap() -> None:
     assert log["mode"][f1 & (log["t_s"] > 5.0)].tolist() == ["coop"] * int((f1 & (log["t_s"] > 5.0)).sum())
     # No collision, with the cut-in's closest approach reported.
     assert m["traffic_collisions"] == 0 and m["collisions"] == 0
-    assert 0.5 < m["min_ttc_s"] < 2.0
-    assert 6.0 < m["min_gap_ahead_m"] < 9.0
+    assert 1.5 < m["min_ttc_s"] < 2.5
+    assert 8.5 < m["min_gap_ahead_m"] < 11.0
     # Follower 1 got its cooperative gap back (|gap - desired| <= 10 % of it) and kept it.
-    assert m["gap_restored"] and 20.0 < m["gap_restore_time_s"] < 35.0
+    assert m["gap_restored"] and 18.0 < m["gap_restore_time_s"] < 28.0
     assert m["disturbance_s"] == pytest.approx(t_in.min())
     # Follower 2 never saw the intruder, and the disturbance shrank along the string.
     assert not ((log["vehicle_id"] == 2) & (log["ahead_traffic"] == 1.0)).any()
     assert m["string_stability_after_disturbance"] < 0.2
 
 
-def test_cut_in_without_the_ladder_hits_the_intruder() -> None:
-    m = _cut_in("cacc-allpred").metrics
-    # Cooperative control alone trusts V2V and drives into the car it cannot hear.
-    assert m["traffic_collisions"] == 1 and m["min_ttc_s"] < 0.1
-    assert m["duration_s"] < 3.0
+def _run_env(env: TrafficConvoyEnv, policy: str) -> dict:
+    from openconvoy.experiments.runs import rows_to_log
+    from openconvoy.policies import load_policy
+
+    pols = {a: load_policy(policy) for a in env.possible_agents}
+    obs, _ = env.reset(seed=0)
+    rows = []
+    while env.agents:
+        obs, *_ = env.step({a: pols[a].act(obs[a]) for a in env.agents})
+        rows += env.log_rows()
+    rows += env.final_log_rows()
+    log = rows_to_log(rows)
+    return {**mt.traffic_metrics(log, env.vehicle_lengths), "t_end": env.t, "log": log}
+
+
+def test_cut_in_without_the_ladder_ends_in_an_emergency_stop_or_a_crash() -> None:
+    from openconvoy.policies import load_policy
+
+    member = load_policy("cacc-allpred").member_config
+    # Cooperative control alone trusts V2V and closes on the car it cannot hear: the
+    # braking-aware emergency stop fires, and follower 1 stays stopped on the highway.
+    env = TrafficConvoyEnv(CUT_IN, member_config=member, max_time_s=12.0)
+    m = _run_env(env, "cacc-allpred")
+    assert m["traffic_collisions"] == 0 and not m["gap_restored"]
+    assert [e[1] for e in env.safety_events] == [1] and "emergency stop" in env.safety_events[0][2]
+    assert env.plant.speed[1] == pytest.approx(0.0, abs=0.01) and 0.5 < m["min_ttc_s"] < 1.5
+    # Without that last resort it drives into the intruder.
+    env = TrafficConvoyEnv(CUT_IN, member_config=member, emergency_stop=False)
+    m = _run_env(env, "cacc-allpred")
+    assert m["traffic_collisions"] == 1 and m["min_ttc_s"] < 0.5 and m["t_end"] < 5.0
 
 
 def test_slow_traffic_leader_follows_it_by_idm() -> None:

@@ -4,8 +4,10 @@ resumed after its driver is killed, several training runs shipped back to the dr
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -107,9 +109,10 @@ def test_a_worker_killed_mid_sweep_loses_only_its_run(cluster: str, tmp_path: Pa
         run_experiment(cfg, out, executor=_KillOne(victim), progress=False)
     lines = str(info.value).splitlines()
     assert lines[0] == f"1 of 8 runs failed; the other 7 are in {out} (summary.csv covers only them)"
-    assert len(lines) == 2 and lines[1].startswith(f"  {victim}: WorkerCrashedError: The worker died unexpectedly")
     # The worker is named: its pid, host, IP and Ray node, reported before the run started.
-    assert " (on Ray worker pid " in lines[1] and ", node " in lines[1]
+    assert len(lines) == 2 and re.fullmatch(
+        rf"  {victim}: WorkerCrashedError: The worker died unexpectedly while executing this task\. [^\[]*"
+        r"\(on Ray worker pid \d+ on \S+ [\d.:a-f]+, node [0-9a-f]{8}\)", lines[1]), lines[1]
     assert not (out / victim).exists()
     assert len(list(out.rglob("log.csv"))) == 7
     assert [r["runs"] for r in read_summary(out)] == [2, 2, 2, 1]
@@ -181,9 +184,13 @@ FAST_TRAIN = ("total_steps = 512\nn_envs = 1\ncheckpoint_every = 0\nvalidation_p
 @pytest.mark.e2e
 def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str, tmp_path: Path, capsys):
     from openconvoy.policies import load_policy
+    from openconvoy.policies.learned import read_zip_meta
+    from openconvoy.train.config import load_train_config
 
+    base = tmp_path / "soft.toml"  # a residual base on the driver only
+    base.write_text('[policy]\nbase = "paper"\nspeed = { kind = "pd", kp = 0.4, kd = 1.1 }\n')
     cfg = tmp_path / "fast.toml"
-    cfg.write_text(FAST_TRAIN)
+    cfg.write_text(f'{FAST_TRAIN}[env]\nbase_policy = "{base}"\n')
     out = tmp_path / "multi"
     assert main(["train", "--config", str(cfg), "--seeds", "0", "1", "--executor", "ray", "--address", cluster,
                  "--out", str(out), "--no-progress"]) == 0
@@ -197,6 +204,9 @@ def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str,
         validation = json.loads((out / name / "validation.json").read_text())
         assert Path(validation["chosen"]).read_bytes() == (out / name / "policy.zip").read_bytes()
         assert load_policy(str(out / name / "policy.zip")) is not None
-    assert 'seed = 1' in (out / "seed_1" / "config.toml").read_text()
+    # The run's config names the driver's base file: `train --config RUN/config.toml` reruns it.
+    given, runs_cfg = load_train_config(cfg), [load_train_config(out / n / "config.toml") for n in ("seed_0", "seed_1")]
+    assert runs_cfg == [given, dataclasses.replace(given, seed=1)] and given.env.base_policy == str(base)
+    assert read_zip_meta(out / "seed_0" / "policy.zip").base.speed.kp == 0.4
     assert (out / "seed_0" / "last.zip").read_bytes() != (out / "seed_1" / "last.zip").read_bytes()
     assert "seed_1/policy.zip  (512 steps" in capsys.readouterr().out

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
+from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 
@@ -72,13 +74,12 @@ class RxGate:
         return k is not None and i - k <= j < i
 
     def needed(self) -> list[int]:
-        """Vehicles whose messages the ego needs to cooperate (the staleness ladder watches
-        them): the nearest kept predecessor, else the leader. Empty for the leader."""
-        if self.ego == 0:
-            return []
-        if self.keeps(self.ego - 1):
-            return [self.ego - 1]
-        return [0] if self.keeps(0) else []
+        """Vehicles whose messages the ego needs to cooperate (the staleness ladder and the
+        bridge's message-age rule watch them): every predecessor the topology keeps,
+        nearest first (a follower of the leader alone needs the leader). Followers behind
+        are never needed: losing them cannot make the ego drive into anything. Empty for
+        the leader."""
+        return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
 
 
 @dataclass(frozen=True)
@@ -92,10 +93,10 @@ class TriggerConfig:
     """
 
     kind: str = "periodic"
-    period_s: float = 0.1
-    threshold_m: float = 0.5
-    speed_threshold_mps: float = 0.5
-    max_silence_s: float = 1.0
+    period_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 0.1
+    threshold_m: Annotated[float, Range(0.0, 1000.0, lo_open=True)] = 0.5
+    speed_threshold_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
+    max_silence_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("periodic", "event"):

@@ -65,7 +65,7 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
     except OSError as exc:
-        raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
+        raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}") from None
 
 
 class RayExecutor(Executor):
@@ -89,7 +89,7 @@ class RayExecutor(Executor):
             try:
                 ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING, **kwargs)
             except ConnectionError as exc:
-                raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc)}") from None
+                raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}") from None
             self._owns = address == "local"
         self.address = ray.get_runtime_context().gcs_address
         cpus = int(ray.cluster_resources().get("CPU", 1))
@@ -118,7 +118,8 @@ class RayExecutor(Executor):
             except ray.exceptions.RayError as exc:
                 cause = getattr(exc, "cause", None)
                 where = self._where.get(gen, "a Ray worker that had not started the run")
-                value = TaskFailure(task.label, where, error_line(cause if isinstance(cause, BaseException) else exc))
+                error = error_line(cause) if isinstance(cause, BaseException) else error_line(exc, frame=False)
+                value = TaskFailure(task.label, where, error)
             else:
                 if gen not in self._where:
                     self._where[gen] = value

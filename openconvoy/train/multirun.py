@@ -31,7 +31,8 @@ from openconvoy.experiments.executor import (
 )
 from openconvoy.train.config import TrainConfig
 
-RELOCATED_FILES = ("validation.json",)
+# Files of a run directory that record paths: the worker's are replaced by the driver's.
+RELOCATED_FILES = ("config.toml", "validation.json", "policy.json", "train.json")
 
 
 @dataclass(frozen=True)
@@ -78,8 +79,8 @@ def _relocated(config: TrainConfig, where: dict[str, str]) -> TrainConfig:
 
 def train_on_worker(args: tuple[TrainConfig, portable.Files]) -> dict[str, Any]:
     """Task: one training run in a temporary directory; returns its files (relative
-    path -> bytes; paths the run records name the temporary directory as ``{RUN_DIR}``),
-    steps and wall time."""
+    path -> bytes; in the files that record paths, the run directory is ``{RUN_DIR}`` and
+    shipped files have their driver names), steps and wall time."""
     from openconvoy.train.train import train
 
     config, files = args
@@ -93,9 +94,17 @@ def train_on_worker(args: tuple[TrainConfig, portable.Files]) -> dict[str, Any]:
             rel = path.relative_to(run_dir).as_posix()
             data = path.read_bytes()
             if rel in RELOCATED_FILES:
-                data = data.replace(json.dumps(str(run_dir))[1:-1].encode(), b"{RUN_DIR}")
+                data = _replace_paths(data, {str(run_dir): "{RUN_DIR}", **{w: d for d, w in where.items()}})
             out[rel] = data
         return {"files": out, "steps": result.steps, "wall_s": result.wall_s, "where": worker_location()}
+
+
+def _replace_paths(data: bytes, paths: dict[str, str]) -> bytes:
+    """``data`` (JSON or TOML text) with each path in ``paths`` replaced, as written in
+    those formats' strings (the same escaping for both)."""
+    for old, new in paths.items():
+        data = data.replace(json.dumps(old)[1:-1].encode(), json.dumps(new)[1:-1].encode())
+    return data
 
 
 def train_many(
@@ -129,7 +138,7 @@ def train_many(
                 path = run_dir / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
                 if rel in RELOCATED_FILES:
-                    data = data.replace(b"{RUN_DIR}", json.dumps(str(run_dir))[1:-1].encode())
+                    data = _replace_paths(data, {"{RUN_DIR}": str(run_dir.resolve())})
                 path.write_bytes(data)
             entry.update(steps=res["steps"], wall_s=round(res["wall_s"], 3), ran_on=res["where"],
                          policy=(Path(run.name) / POLICY_FILE).as_posix())

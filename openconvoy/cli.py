@@ -87,6 +87,14 @@ def _run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
+def _executor_args(p: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray)."""
+    p.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where runs execute: local processes (default) or a Ray cluster (openconvoy[cluster])")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="Ray cluster to use, HOST:PORT or auto (default: a private cluster of this machine)")
+
+
 def _add_sim(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim", help="simulate one run: log, metrics and plots",
                        description="Simulate a convoy and write DIR/log.csv, DIR/metrics.json, "
@@ -100,6 +108,13 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds")
     p.add_argument("--jitter", type=_num(0.0, 60.0), default=0.0, metavar="S", help="uniform delay jitter, seconds")
     p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std, metres")
+    p.add_argument("--fault", action="append", metavar="KIND:VEHICLE@T_S",
+                   help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
+                   "silent (stop broadcasting, keep driving), dead (both) or forge (a keyless "
+                   "station claims to be the vehicle, 1 km ahead), e.g. dead:0@30, forge:0@10")
+    p.add_argument("--auth", choices=("required", "off"), default=None,
+                   help="members authenticate messages, so forgeries are rejected (default "
+                   "required; a convoy file's [v2v] auth = \"off\" turns it off)")
     _run_args(p, sweep=False)
 
     def _sim(args: argparse.Namespace) -> int:
@@ -152,7 +167,9 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=_int(1, 100_000), default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
     p.add_argument("--name", default=None, help="experiment name")
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--jobs", type=_int(1, 4096), default=None, metavar="N", help="processes (default: the cores available)")
+    p.add_argument("--jobs", type=_int(1, 4096), default=None, metavar="N",
+                   help="runs at once (default: the cores available, or the Ray cluster's CPUs)")
+    _executor_args(p)
     _run_args(p, sweep=True)
 
     def _per_sweep(args: argparse.Namespace) -> int:
@@ -214,12 +231,15 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
                    help="also listen for the original JSON format on 224.0.0.1:5004")
     p.add_argument("--count", type=_int(1, 10**12), metavar="N", help="exit after N messages")
     p.add_argument("--timeout", type=TIMEOUT, metavar="S", help="exit after S seconds")
+    p.add_argument("--convoy", metavar="CONVOY.toml",
+                   help="verify signed BSMs with this convoy's certificates (its keys directory); "
+                   "prints accepted/rejected per sender and a summary at exit")
 
     def _listen(args: argparse.Namespace) -> int:
         from openconvoy.comms import tools
 
         tools.listen(args.iface, group=args.group, port=args.port, compat_enabled=args.compat,
-                     count=args.count, timeout_s=args.timeout)
+                     count=args.count, timeout_s=args.timeout, auth=_verifier(args.convoy))
         return 0
 
     p.set_defaults(handler=_listen)
@@ -243,16 +263,36 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--id", metavar="HEX", help="temporary id, 8 hex digits")
     p.add_argument("--compat-car", type=_int(0, 254), metavar="N",
                    help="also send the original JSON format as convoy position N (IPv4)")
+    p.add_argument("--key", metavar="KEY",
+                   help="sign as IEEE 1609.2 SPDUs with this key (its .cert beside it; a foreign "
+                   "convoy's key makes a forger that has a key)")
+    p.add_argument("--convoy", metavar="CONVOY.toml",
+                   help="the authority for --key (default: the key's directory)")
+    p.add_argument("--frame", metavar="HEX", help="replay this captured datagram COUNT times")
 
     def _send(args: argparse.Namespace) -> int:
+        import time
+
         from openconvoy.comms import tools
 
+        auth = None
+        if args.key:
+            from openconvoy.comms.auth import Authenticator
+            from openconvoy.comms.keystore import signer_of_key
+
+            keys = None
+            if args.convoy:
+                from openconvoy.convoy import load_convoy
+
+                keys = load_convoy(args.convoy).v2v.keys
+            auth = Authenticator(signer_of_key(args.key, keys, time.time()))
         n = tools.send(
             args.iface, group=args.group, port=args.port, hop_limit=args.hop_limit,
             count=args.count, rate_hz=args.rate, lat_deg=args.lat, lon_deg=args.lon,
             elev_m=args.elev, speed_mps=args.speed, heading_deg=args.heading,
             temp_id=tools.temp_id_arg(args.id) if args.id else tools.DEFAULT_SEND_ID,
-            compat_car=args.compat_car,
+            compat_car=args.compat_car, auth=auth,
+            frame=tools.parse_hex(args.frame) if args.frame else None,
         )
         print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
         return 0
@@ -281,6 +321,19 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         return 0
 
     p.set_defaults(handler=_decode)
+
+
+def _verifier(convoy_path: str | None):
+    """``bsm listen --convoy``'s verifier: the convoy authority's certificate only."""
+    if not convoy_path:
+        return None
+    from openconvoy.comms.auth import Authenticator, Credentials
+    from openconvoy.comms.keystore import load_authority
+    from openconvoy.convoy import load_convoy
+
+    v2v = load_convoy(convoy_path).v2v
+    authority, _ = load_authority(v2v.keys)
+    return Authenticator(Credentials(authority), window_s=v2v.replay_window_s)
 
 
 # --- V2V authentication (issue 12): keys init / issue --------------------------------------
@@ -481,11 +534,17 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                        "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
                        "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
                        "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
-    p.add_argument("--config", metavar="TRAIN.toml", help="training config file")
+    p.add_argument("--config", metavar="TRAIN.toml", action="append",
+                   help="training config file; repeat for one run per config (OUT/<stem>)")
     p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
     p.add_argument("--steps", type=_int(1, 10**12), metavar="N", help="agent steps (default 600000)")
     p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
     p.add_argument("--seed", type=SEED, help="seed (default 0)")
+    p.add_argument("--seeds", type=SEED, nargs="+", metavar="S",
+                   help="one run per seed (OUT/seed_S), run as tasks of --executor")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="training runs at once (default: the cores available, or the cluster's CPUs)")
+    _executor_args(p)
     p.add_argument("--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)")
     p.add_argument("--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)")
     p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "
@@ -524,6 +583,13 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)")
     p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
     p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
+    p.add_argument("--storage", metavar="URL_OR_FILE",
+                   help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+                   "or a journal file path; rerunning with it resumes the study")
+    p.add_argument("--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="trials at once (default 1 locally, the cluster's CPUs on Ray)")
+    _executor_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     def _tune(args: argparse.Namespace) -> int:

@@ -21,6 +21,7 @@ replay_window_s = 1.0             # reject signed messages generated longer ago 
 speed_cap_mps = 5.0
 geofence_radius_m = 200.0         # around the origin
 min_gap_m = 1.0                   # emergency stop below this measured gap
+gap_margin_m = 0.2                # braking-aware stop margin between bumpers (m); default 1/4 length
 max_msg_age_s = 3.0               # stop while needed messages are older than this
 ```
 
@@ -100,6 +101,10 @@ class SafetyConfig:
     max_msg_age_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 3.0
     """Stop while the messages a follower needs are older than this (s): a backstop for
     policies running without the staleness ladder."""
+    gap_margin_m: Annotated[float | None, Range(0.0, 100.0)] = None
+    """Braking-aware emergency stop (``core.safety``): the clearance left between bumpers
+    after braking at the preset's limit may not fall below this (m); None = a quarter of
+    the vehicle's length."""
 
     def __post_init__(self) -> None:
         check_fields(self, "safety")

@@ -114,7 +114,8 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     )
     return DeployRunner(
         options, convoy, policy, link, v2v, leader=leader,
-        lengths=[p.length_m for p in presets], log_dir=a.log, on_status=status,
+        lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
+        log_dir=a.log, on_status=status,
         leader_origin=leader_origin,
         metadata={"per": a.per, "drop_at": a.drop_at, "policy_spec": a.policy,
                   "scenario_spec": spec, "mavlink": a.mavlink, "iface": a.iface},
@@ -197,7 +198,6 @@ def abort_authenticator(key_path: str, keys_dir: Path | None) -> Any:
     """An ``Authenticator`` signing with ``key_path`` (its certificate beside it), trusting
     the authority of ``keys_dir`` (default: the key's own directory)."""
     from openconvoy.comms.auth import Authenticator
-    from openconvoy.comms.keystore import load_authority, load_signer
+    from openconvoy.comms.keystore import signer_of_key
 
-    authority, _ = load_authority(keys_dir if keys_dir is not None else Path(key_path).parent)
-    return Authenticator(load_signer(key_path, authority, time.time()))
+    return Authenticator(signer_of_key(key_path, keys_dir, time.time()))

@@ -11,13 +11,16 @@ returns. Rules (issue 5, item 3), by priority:
 3. autopilot link lost (telemetry silent ``telemetry_timeout_s`` or no heartbeat
    ``heartbeat_timeout_s``): command a stop while it is gone; when it returns, HOLD and
    command nothing more (latched);
-4. geofence breached or the measured gap to the predecessor below ``min_gap_m``: emergency
-   stop and HOLD (latched);
+4. geofence breached, the measured gap to the predecessor below ``min_gap_m`` (centre to
+   centre), or the braking-aware gap rule (``core.safety.BrakingGap``: the gap between
+   bumpers less the distance needed to shed the closing speed at the braking limit below
+   the margin): emergency stop and HOLD (latched);
 5. an exception in the policy: stop (latched; the loop keeps running and logging);
-6. a tick that started more than ``LATE_TICK_PERIODS`` periods late (the loop stalled):
+6. a staleness stop: the member's ladder commands a stop, or the messages the vehicle needs
+   (every predecessor its topology keeps) are older than ``max_msg_age_s`` (a bridge
+   backstop for policies running without the ladder): stop and HOLD (latched);
+7. a tick that started more than ``LATE_TICK_PERIODS`` periods late (the loop stalled):
    that tick stops;
-7. the messages the vehicle needs older than ``max_msg_age_s`` (a bridge backstop for
-   policies running without the member's staleness ladder): stop until they are fresh;
 8. the speed cap, always.
 
 "Stop" means speed 0 with the yaw at the current heading, never a zero velocity vector
@@ -29,6 +32,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+from openconvoy.core.safety import BrakingGap, bumper_gap
 
 LATE_TICK_PERIODS = 2.0
 """A tick that starts more than this many periods late is a failsafe event: the vehicle
@@ -102,6 +107,9 @@ class Envelope:
             centre, m) falls below this.
         max_msg_age_s: stop while the messages the vehicle needs are older than this (s);
             inf disables.
+        braking: the braking-aware gap rule (None: centre-to-centre ``min_gap_m`` only).
+        ego_length_m, pred_length_m: the vehicle's and its predecessor's lengths (m), for
+            the gap between bumpers.
     """
 
     speed_cap_mps: float = 5.0
@@ -109,6 +117,9 @@ class Envelope:
     geofence_lookahead_s: float = 1.0
     min_gap_m: float = 1.0
     max_msg_age_s: float = 3.0
+    braking: BrakingGap | None = None
+    ego_length_m: float = 0.0
+    pred_length_m: float = 0.0
 
     def cap(self, speed_mps: float) -> float:
         """The commanded speed clipped to [0, cap] (NaN becomes 0)."""
@@ -124,9 +135,18 @@ class Envelope:
         d = max(speed_cmd, 0.0) * self.geofence_lookahead_s
         return math.hypot(x + d * math.cos(heading), y + d * math.sin(heading)) > r
 
-    def too_close(self, gap_m: float) -> bool:
-        """True when the measured gap (m) is known and below the minimum."""
-        return math.isfinite(gap_m) and gap_m < self.min_gap_m
+    def too_close(self, gap_m: float, closing_mps: float = 0.0) -> str:
+        """Why the gap (m, centre to centre; closing speed m/s, positive = closing) calls
+        for an emergency stop, "" when it does not (or is unknown)."""
+        if not math.isfinite(gap_m):
+            return ""
+        if gap_m < self.min_gap_m:
+            return f"gap {gap_m:.2f} m below minimum"
+        if self.braking is not None:
+            bumpers = bumper_gap(gap_m, self.ego_length_m, self.pred_length_m)
+            if self.braking.too_close(bumpers, closing_mps):
+                return self.braking.reason(bumpers, closing_mps)
+        return ""
 
 
 @dataclass
@@ -143,7 +163,9 @@ class TickInputs:
         x, y, heading: own ENU position (m) and heading (rad).
         speed_cmd: the speed the policy asks for (m/s).
         gap_m: measured gap to the predecessor (m), NaN when unknown / leader.
+        closing_mps: how fast that gap shrinks (m/s, positive = closing).
         needed_age_s: age of the oldest message the vehicle needs (s), 0 for the leader.
+        stale_stop: the member's staleness ladder commands a stop.
         policy_error: the policy raised this tick (its message), "" if not.
         held: the autopilot reports its hold mode.
         late_periods: how late this tick started, in loop periods (0 = on time).
@@ -161,7 +183,9 @@ class TickInputs:
     heading: float = 0.0
     speed_cmd: float = 0.0
     gap_m: float = math.nan
+    closing_mps: float = 0.0
     needed_age_s: float = 0.0
+    stale_stop: bool = False
     policy_error: str = ""
     held: bool = False
     late_periods: float = 0.0
@@ -211,12 +235,19 @@ class Failsafes:
         if not self.latched:
             if self.envelope.outside_fence(inp.x, inp.y, inp.heading, inp.speed_cmd):
                 self._latch(now, "geofence", hold=True)
-            elif self.envelope.too_close(inp.gap_m):
-                self._latch(now, f"gap {inp.gap_m:.2f} m below minimum", hold=True)
+            elif why := self.envelope.too_close(inp.gap_m, inp.closing_mps):
+                self._latch(now, why, hold=True)
         if inp.policy_error:
             self.policy_errors += 1
             if not self.latched:
                 self._latch(now, f"policy error: {inp.policy_error}", hold=False)
+        if not self.latched:
+            # A stop for stale messages ends in HOLD, as the issue asks: coming back on
+            # fresh messages would restart a vehicle nobody watched stop.
+            if inp.stale_stop:
+                self._latch(now, "staleness ladder stop", hold=True)
+            elif inp.needed_age_s > self.envelope.max_msg_age_s:
+                self._latch(now, "messages needed are stale", hold=True)
         if self.latched:
             # Keep streaming stop setpoints until the autopilot confirms HOLD, then go quiet.
             if self.latched_hold and inp.held:
@@ -229,8 +260,6 @@ class Failsafes:
             self._was_late = True
             return Verdict(STOP, failsafe=True, reason="control loop late")
         self._was_late = False
-        if inp.needed_age_s > self.envelope.max_msg_age_s:
-            return Verdict(STOP, failsafe=True, reason="messages needed are stale")
         return Verdict(DRIVE)
 
     def _latch(self, now: float, reason: str, hold: bool) -> None:

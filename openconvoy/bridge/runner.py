@@ -177,14 +177,25 @@ class TickTiming:
     t_telemetry: float
 
 
-def envelope_from(convoy: ConvoyConfig) -> Envelope:
-    """The safety envelope a convoy config asks for."""
+def envelope_from(convoy: ConvoyConfig, vehicle_id: int | None = None) -> Envelope:
+    """The safety envelope a convoy config asks for; with ``vehicle_id``, the braking-aware
+    gap rule from that vehicle's preset (margin ``[safety] gap_margin_m`` or its default)."""
     s = convoy.safety
+    braking, ego_len, pred_len = None, 0.0, 0.0
+    if vehicle_id is not None and vehicle_id > 0:
+        from openconvoy.core.safety import for_vehicle
+        from openconvoy.envs.vehicles import vehicle_preset
+
+        ego, pred = vehicle_preset(convoy.vehicles[vehicle_id]), vehicle_preset(convoy.vehicles[vehicle_id - 1])
+        braking = for_vehicle(ego.decel_max_mps2, ego.actuation_delay_s, ego.speed_lag_s, ego.length_m,
+                              s.gap_margin_m)
+        ego_len, pred_len = ego.length_m, pred.length_m
     return Envelope(
         speed_cap_mps=s.speed_cap_mps,
         geofence_radius_m=s.geofence_radius_m,
         min_gap_m=s.min_gap_m,
         max_msg_age_s=s.max_msg_age_s,
+        braking=braking, ego_length_m=ego_len, pred_length_m=pred_len,
     )
 
 
@@ -201,6 +212,8 @@ class DeployRunner:
         v2v: the V2V endpoint (``V2VEndpoint``).
         leader: the leader's driver (a scenario), required for a non-passive leader.
         lengths: vehicle lengths (m), leader first, for the member's desired gaps.
+        decels: vehicle braking limits (m/s²), leader first: how far a silent predecessor
+            can have got (None: it is taken to have stopped where last heard).
         log_dir: directory for ``vehicle_N.csv`` and ``vehicle_N.json``; None = no log.
         clock: monotonic clock (s) for the schedule and failsafes.
         sleep: sleeps that many seconds.
@@ -221,6 +234,7 @@ class DeployRunner:
         *,
         leader: LeaderDriver | None = None,
         lengths: list[float] | None = None,
+        decels: list[float] | None = None,
         log_dir: str | Path | None = None,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
@@ -249,9 +263,9 @@ class DeployRunner:
         self.origin = Origin(*convoy.origin)
         self.leader_origin = leader_origin
         member_config: MemberConfig = getattr(policy, "member_config", None) or MemberConfig()
-        self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths)
+        self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths, decels)
         self.failsafes = Failsafes(
-            envelope=envelope or envelope_from(convoy),
+            envelope=envelope or envelope_from(convoy, options.vehicle_id),
             watchdog=LinkWatchdog(
                 getattr(link, "telemetry_timeout_s", 0.5), getattr(link, "heartbeat_timeout_s", 3.0)
             ),
@@ -416,10 +430,10 @@ class DeployRunner:
         # 4. what the controller wants
         obs = member.observation(wall)
         speed, change, mode, policy_error = self._intent(tel, own, obs, bool(waiting), now, wall)
-        gap = self._gap(own, wall)
+        gap, closing = self._gap(wall)
         needed_age = 0.0
         if not self.is_leader and not waiting:
-            needed_age = max((member.buffer.age(v, wall) for v in member.rx.needed()), default=0.0)
+            needed_age = member.needed_age(wall)
         # 5. failsafes and envelope
         heading_cmd = wrap_angle(own.heading + change)
         verdict = self.failsafes.decide(
@@ -429,7 +443,8 @@ class DeployRunner:
                 pilot_took_over=self.commanding and self.link.pilot_took_over,
                 stop_requested=self._stop_requested, abort=self._abort,
                 x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
-                gap_m=gap, needed_age_s=needed_age, policy_error=policy_error,
+                gap_m=gap, closing_mps=closing, needed_age_s=needed_age, policy_error=policy_error,
+                stale_stop=not waiting and not self.is_leader and member.mode == "stop",
                 held=tel.mode in HOLD_MODES, late_periods=self._late_periods,
             )
         )
@@ -534,17 +549,12 @@ class DeployRunner:
         speed, heading = self.leader.leader_command(now - self._t_start, float(x), float(y), own.heading, own.speed)
         return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
 
-    def _gap(self, own: VehicleState, wall: float) -> float:
-        """Measured gap to the immediate predecessor (m): its newest broadcast position
-        dead-reckoned to now, centre to centre; NaN for the leader or when unheard."""
-        if self.is_leader:
-            return math.nan
-        pred = self.member.buffer.latest(self.options.vehicle_id - 1)
-        if pred is None:
-            return math.nan
-        if wall > pred.t:
-            pred = pred.extrapolate(wall)
-        return own.distance_to(pred)
+    def _gap(self, wall: float) -> tuple[float, float]:
+        """Measured gap to the immediate predecessor (m, centre to centre) and its closing
+        speed (m/s): the member's estimate from its messages (bounded dead-reckoning, as in
+        simulation); NaN and 0 for the leader or when unknown."""
+        est = None if self.is_leader else self.member.gap_estimate(wall)
+        return (math.nan, 0.0) if est is None else est
 
     def _maybe_reconnect(self, now: float) -> None:
         """A lost connection (TCP EOF, serial error) is reopened every 2 s, briefly."""

@@ -175,3 +175,10 @@ def load_vehicle(keys_dir: str | Path, vehicle_index: int, now: float) -> Creden
             f"(run `openconvoy keys issue --vehicle-id {vehicle_index}`)"
         )
     return load_signer(kp, authority, now)
+
+
+def signer_of_key(key_path: str | Path, keys_dir: str | Path | None, now: float) -> Credentials:
+    """Credentials of any convoy key file (a vehicle's or the authority's), trusting the
+    authority of ``keys_dir`` (default: the directory the key is in)."""
+    authority, _ = load_authority(keys_dir if keys_dir is not None else Path(key_path).parent)
+    return load_signer(key_path, authority, now)

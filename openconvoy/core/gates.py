@@ -72,13 +72,12 @@ class RxGate:
         return k is not None and i - k <= j < i
 
     def needed(self) -> list[int]:
-        """Vehicles whose messages the ego needs to cooperate (the staleness ladder watches
-        them): the nearest kept predecessor, else the leader. Empty for the leader."""
-        if self.ego == 0:
-            return []
-        if self.keeps(self.ego - 1):
-            return [self.ego - 1]
-        return [0] if self.keeps(0) else []
+        """Vehicles whose messages the ego needs to cooperate (the staleness ladder and the
+        bridge's message-age rule watch them): every predecessor the topology keeps,
+        nearest first (a follower of the leader alone needs the leader). Followers behind
+        are never needed: losing them cannot make the ego drive into anything. Empty for
+        the leader."""
+        return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
 
 
 @dataclass(frozen=True)

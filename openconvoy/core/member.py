@@ -58,9 +58,41 @@ class MemberConfig:
     def layout(self) -> ObservationLayout:
         return ObservationLayout(M=self.M, k=self.k)
 
+    @property
+    def fresh_age_s(self) -> float:
+        """Message age (s) up to which a target is fresh: dead-reckoned at constant speed
+        and trusted. The ladder's ``degrade_after_s``, or longer for an event trigger,
+        whose senders stay silent up to ``max_silence_s`` exactly while the others'
+        constant-speed extrapolation of them holds."""
+        t = self.trigger
+        silence = t.max_silence_s + t.period_s if t.kind == "event" else 0.0
+        return max(self.ladder.degrade_after_s, silence)
+
+
+@dataclass(frozen=True, slots=True)
+class TargetEstimate:
+    """Where a heard vehicle is now by its newest message: ENU position (m), speed (m/s),
+    heading (rad), message age (s), and ``stale`` (older than ``MemberConfig.fresh_age_s``)."""
+
+    x: float
+    y: float
+    speed: float
+    heading: float
+    age: float
+    stale: bool
+
 
 class ConvoyMember:
-    """One vehicle's cooperative state and gates. ``lengths[i]`` is vehicle i's length (m)."""
+    """One vehicle's cooperative state and gates. ``lengths[i]`` is vehicle i's length (m);
+    ``decels[i]`` its braking limit (m/s²), used to bound where a silent vehicle can be
+    (None: a silent vehicle is taken to have stopped where it was last heard).
+
+    Target ages (issue 10): a message no older than ``MemberConfig.fresh_age_s`` (the
+    ladder's ``degrade_after_s``, longer for event triggers) is dead-reckoned at constant
+    speed; an older one as if its sender had braked at its limit
+    from the moment it was sent (it may have: only slowing is safe to assume); older than
+    ``stop_after_s`` it is no target at all. These ages apply with the ladder off too.
+    """
 
     def __init__(
         self,
@@ -68,12 +100,14 @@ class ConvoyMember:
         n_vehicles: int,
         config: MemberConfig,
         lengths: Sequence[float] | None = None,
+        decels: Sequence[float] | None = None,
     ) -> None:
         self.vehicle_id = vehicle_id
         self.n_vehicles = n_vehicles
         self.config = config
         self.layout = config.layout
         self.lengths = list(lengths) if lengths is not None else [0.0] * n_vehicles
+        self.decels = list(decels) if decels is not None else [math.inf] * n_vehicles
         self.rx = RxGate(config.topology, vehicle_id, n_vehicles)
         self.tx = TxGate(config.trigger)
         self.spacing = SpacingPolicy(config.spacing)
@@ -162,9 +196,7 @@ class ConvoyMember:
         centre, from a ranging sensor when the vehicle has one. Returns the action to
         apply and the mode (``coop``, ``degraded``, ``stop``).
         """
-        needed = self.rx.needed()
-        age = max((self.buffer.age(v, now) for v in needed), default=0.0)
-        self.mode = ladder_mod.rung(age, self.config.ladder)
+        self.mode = ladder_mod.rung(self.needed_age(now), self.config.ladder)
         if self._ranging_override(ranging):
             self.mode = ladder_mod.DEGRADED
         if self.mode == ladder_mod.COOP:
@@ -182,7 +214,58 @@ class ConvoyMember:
             self.mode = ladder_mod.STOP
         return make_action(0.0, 0.0), self.mode
 
+    def needed_age(self, now: float) -> float:
+        """Age (s) of the oldest newest-message among the vehicles the topology needs
+        (every kept predecessor; inf if one is unheard; 0 for the leader)."""
+        return max((self.buffer.age(v, now) for v in self.rx.needed()), default=0.0)
+
+    def estimate(self, vehicle_id: int, now: float) -> TargetEstimate | None:
+        """Where ``vehicle_id`` is at ``now`` by its newest message (see the class doc);
+        None when unheard or older than the ladder's stop age."""
+        latest = self.buffer.latest(vehicle_id)
+        if latest is None:
+            return None
+        ladder = self.config.ladder
+        age = max(now - latest.t, 0.0)
+        if age > ladder.stop_after_s:
+            return None
+        v, h = latest.speed, latest.heading
+        if age <= self.config.fresh_age_s:
+            d, speed, stale = v * age, v, False
+        else:
+            a = self._decel(vehicle_id)
+            if v <= 0.0 or math.isinf(a):
+                d, speed = 0.0, 0.0
+            else:
+                tau = min(age, v / a)
+                d, speed = v * tau - 0.5 * a * tau * tau, max(v - a * age, 0.0)
+            stale = True
+        return TargetEstimate(latest.x + d * math.cos(h), latest.y + d * math.sin(h), speed, h, age, stale)
+
+    def gap_estimate(self, now: float) -> tuple[float, float] | None:
+        """``(gap_m, closing_mps)`` to the immediate predecessor from its messages: centre
+        to centre, and how fast it shrinks (positive = closing); None when unknown."""
+        i = self.vehicle_id
+        if i == 0 or self.own is None:
+            return None
+        est = self.estimate(i - 1, now)
+        if est is None:
+            return None
+        own = self.own
+        dx, dy = est.x - own.x, est.y - own.y
+        gap = math.hypot(dx, dy)
+        if gap <= 0.0:
+            return 0.0, max(own.speed - est.speed, 0.0)
+        # Velocities projected on the line between the two: the range rate, negated.
+        vx = own.speed * math.cos(own.heading) - est.speed * math.cos(est.heading)
+        vy = own.speed * math.sin(own.heading) - est.speed * math.sin(est.heading)
+        return gap, (dx * vx + dy * vy) / gap
+
     # --- helpers ---------------------------------------------------------------------
+
+    def _decel(self, vid: int) -> float:
+        a = self.decels[vid] if 0 <= vid < len(self.decels) else math.inf
+        return a if a > 0.0 else math.inf
 
     def _ranging_override(self, ranging: tuple[float, float] | None) -> bool:
         """Cooperating, but the ranging target is closer than the predecessor heard by V2V
@@ -221,22 +304,19 @@ class ConvoyMember:
         for name, vid in zip(lay.targets, targets):
             if vid is None or (name == "leader" and vid in preds_in_slots):
                 continue
-            latest = self.buffer.latest(vid)
-            if latest is None:
+            est = self.estimate(vid, now)
+            if est is None:  # unheard, or too old to say where it is
                 continue
-            # Dead-reckon the sender to now along its heading.
-            dt = max(now - latest.t, 0.0)
-            hx = latest.x + latest.speed * math.cos(latest.heading) * dt
-            hy = latest.y + latest.speed * math.sin(latest.heading) * dt
             desired = self.spacing.gap_to(i, vid, ego.speed, self.lengths)
             trail = self.buffer.trail(vid)
-            head = (hx, hy)
-            projection = trail.project(head, latest.heading, ego.x, ego.y, desired, self._last_s.get(vid))
+            assert trail is not None
+            head = (est.x, est.y)
+            projection = trail.project(head, est.heading, ego.x, ego.y, desired, self._last_s.get(vid))
             self._last_s[vid] = projection.s
             arc = projection.arc_to_head
             o = lay.target_offset(name)
-            obs[o : o + _ND] = (arc, desired, arc - desired, latest.speed, 1.0)
-            found[name] = (trail, head, latest.heading, latest.speed - ego.speed, projection)
+            obs[o : o + _ND] = (arc, desired, arc - desired, est.speed, 1.0)
+            found[name] = (trail, head, est.heading, est.speed - ego.speed, projection)
         # The nearest heard predecessor gives the path to steer on and the logged error.
         for name in (*lay.targets[1:], "leader"):
             if name in found:

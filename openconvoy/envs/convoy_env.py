@@ -12,6 +12,14 @@ member, two worlds):
    loss and latency per link and delivers what is due, members keep what their Rx gate
    wants, and followers build their observations.
 
+Safety, as on vehicles: a follower whose braking-aware gap rule fires (``core.safety``:
+the gap between bumpers, less what braking at its limit from the closing speed takes, is
+below the margin; the gap from its ranging sensor, else from its member's estimate of
+the predecessor) stops for the rest of the episode, mode ``failsafe``; ``safety_events``
+says when and why. Faults (``core.faults``: ``halt``, ``silent``, ``dead``) override a
+vehicle's setpoints with a stop at its braking limit and/or mute its broadcasts from
+their time on.
+
 Termination: a collision (a follower closer to its predecessor than the sum of their half
 lengths, centre to centre) ends the episode for everybody. Truncation: the scenario's
 duration (or ``max_time_s``). Reward: ``openconvoy.envs.reward``. Infos, per agent per step:
@@ -32,10 +40,13 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from openconvoy.comms.geodesy import enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.faults import Fault, check_faults, parse_fault
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
+from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
+from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
@@ -102,6 +113,14 @@ class ConvoyEnv(ParallelEnv):
         vehicle_presets: replace the scenario's vehicles (names, TOML paths or presets,
             leader first); sets the convoy size.
         reward_config: weights of the reward (``openconvoy.envs.reward``).
+        faults: ``core.faults.Fault`` objects or ``KIND:VEHICLE@T_S`` specs, injected
+            at their times (ConfigError naming a bad one).
+        gap_margin_m: margin (m, between bumpers) of the braking-aware emergency stop;
+            None = each follower's preset default (``core.safety.for_vehicle``).
+        emergency_stop: apply that rule (default True).
+        auth: members authenticate what they receive (modelled: ``envs.forgery``), so the
+            messages of a ``forge`` fault are rejected and counted (``forged_rejected``);
+            False: they are believed (default True, as on vehicles with keys).
     """
 
     metadata = {
@@ -134,6 +153,10 @@ class ConvoyEnv(ParallelEnv):
         render_mode: str | None = None,
         vehicle_presets: Sequence[VehiclePreset | str] | None = None,
         reward_config: RewardConfig | None = None,
+        faults: Sequence[Fault | str] = (),
+        gap_margin_m: float | None = None,
+        emergency_stop: bool = True,
+        auth: bool = True,
     ) -> None:
         if control_rate_hz <= 0:
             raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
@@ -166,7 +189,17 @@ class ConvoyEnv(ParallelEnv):
         self._lengths = [p.length_m for p in self.presets]
         self._widths = [p.width_m for p in self.presets]
         self._half_sum = [0.5 * (a + b) for a, b in zip(self._lengths[1:], self._lengths[:-1])]
-        self.members = [ConvoyMember(i, n, self.member_config, self._lengths) for i in range(n)]
+        decels = [p.decel_max_mps2 for p in self.presets]
+        self.members = [ConvoyMember(i, n, self.member_config, self._lengths, decels) for i in range(n)]
+        self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
+        check_faults(self.faults, n)
+        self.emergency_stop = bool(emergency_stop)
+        self.auth = Authentication(n, required=bool(auth))
+        self._forged = tuple(f for f in self.faults if f.forges)
+        self._braking: list[BrakingGap | None] = [None] + [
+            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
+            for p in self.presets[1:]
+        ]
         self.plant = BicyclePlant(self.presets, self.dt)
         self.channel: Channel[VehicleState] = Channel(n, self.loss)
         self._ranging = [(i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging]
@@ -220,6 +253,7 @@ class ConvoyEnv(ParallelEnv):
         self._ranging_rng = np.random.default_rng(ss_ranging)
         self.scenario.reset(np.random.default_rng(ss_scenario))
         self.channel.reset(np.random.default_rng(ss_channel))
+        self.auth.reset()
         init = self.scenario.initial_state()
         self.plant.reset(init.x, init.y, init.heading, init.speed)
         for m in self.members:
@@ -262,16 +296,20 @@ class ConvoyEnv(ParallelEnv):
             a1 = float(a[1])
             a0 = lo0 if a0 < lo0 else (hi0 if a0 > hi0 else a0)
             a1 = lo1 if a1 < lo1 else (hi1 if a1 > hi1 else a1)
-            applied, mode = members[i].supervise(
-                np.array((a0, a1), dtype=np.float32), t, ranging.get(i) if ranging else None
-            )
+            reading = ranging.get(i) if ranging else None
+            applied, mode = members[i].supervise(np.array((a0, a1), dtype=np.float32), t, reading)
             cmd_v[i] = float(applied[0])
             cmd_dh[i] = float(applied[1])
             modes[i] = mode
+            if self.emergency_stop and self._emergency(i, t, reading):
+                cmd_v[i] = cmd_dh[i] = 0.0
+                modes[i] = "failsafe"
         X, Y, V, H, A, _ = self._truth
         v0, h0 = self.scenario.leader_command(t, X[0], Y[0], H[0], V[0])
         cmd_v[0] = v0
         cmd_dh[0] = (h0 - H[0] + math.pi) % (2 * math.pi) - math.pi
+        if self.faults:
+            self._apply_faults(t)
         self._keep_row_inputs()
         plant.step(cmd_v, [h + d for h, d in zip(H, cmd_dh)])
         self.step_count += 1
@@ -417,6 +455,11 @@ class ConvoyEnv(ParallelEnv):
         self._collided: list[bool] = [False] * (n - 1)
         self._rx: list[int] = [0] * n
         self._lost: list[int] = [0] * n
+        self._estopped: list[bool] = [False] * n
+        self._faults_seen: set[Fault] = set()
+        self._muted = {f.vehicle for f in self.faults if f.mutes}
+        self.safety_events: list[tuple[float, int, str]] = []
+        """(t s, vehicle, reason): faults injected and emergency stops, in order."""
 
     def _tick(self) -> dict[str, np.ndarray]:
         """Own states -> Tx -> channel -> Rx -> observations, at ``self.t``."""
@@ -436,11 +479,32 @@ class ConvoyEnv(ParallelEnv):
         for i, m in enumerate(members):
             st = VehicleState(i, t, xs[i], ys[i], vs[i], hs[i], acs[i], yrs[i], lengths[i], widths[i])
             m.observe_own(st)
+            if self._muted and i in self._muted and self._fault_active(i, t, mutes=True):
+                continue
             if m.wants_to_send(t):
                 channel.send(i, st, t)
         for r, _, msg in channel.deliver(t):
             members[r].receive(msg, t)
+        if self._forged:
+            self._forge(t, members)
         return {a: members[i].observation(t) for i, a in enumerate(self.agents, start=1)}
+
+    def _forge(self, t: float, members: list[ConvoyMember]) -> None:
+        """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
+        offered to every other member (verified when ``auth``)."""
+        x, y, v, h = self._truth[:4]
+        claimed = []
+        for f in self._forged:
+            if f.active(t):
+                i = f.vehicle
+                claimed.append(VehicleState(i, t, x[i], y[i], v[i], h[i], 0.0, 0.0,
+                                            self._lengths[i], self._widths[i]))
+        self.auth.deliver_forgeries(claimed, members, t)
+
+    @property
+    def forged_rejected(self) -> list[int]:
+        """Forged messages each member rejected so far (``forge`` faults, ``auth`` on)."""
+        return list(self.auth.rejected)
 
     def _measure(self) -> None:
         """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""
@@ -451,6 +515,45 @@ class ConvoyEnv(ParallelEnv):
         self._collided = [g < h for g, h in zip(self._gap, self._half_sum)]
         self._rx = self.channel.delivered_to
         self._lost = self.channel.lost_to
+
+    def _fault_active(self, i: int, t: float, mutes: bool = False, brakes: bool = False) -> bool:
+        return any(
+            f.vehicle == i and f.active(t) and ((mutes and f.mutes) or (brakes and f.brakes))
+            for f in self.faults
+        )
+
+    def _apply_faults(self, t: float) -> None:
+        """Faulty vehicles brake to rest at their limit (speed setpoint 0, heading held)."""
+        for f in self.faults:
+            if not f.active(t):
+                continue
+            if f not in self._faults_seen:
+                self._faults_seen.add(f)
+                self.safety_events.append((t, f.vehicle, f"fault {f}"))
+            if f.brakes:
+                self._cmd_speed[f.vehicle] = 0.0
+                self._cmd_dh[f.vehicle] = 0.0
+                self._modes[f.vehicle] = "stop"
+
+    def _emergency(self, i: int, t: float, reading: tuple[float, float] | None) -> bool:
+        """The braking-aware gap rule for follower ``i`` (latched once it fires)."""
+        if self._estopped[i]:
+            return True
+        rule = self._braking[i]
+        assert rule is not None
+        if reading is not None:
+            gap, closing = reading[0], -reading[1]
+        else:
+            est = self.members[i].gap_estimate(t)
+            if est is None:
+                return False
+            gap, closing = est
+        bumper = bumper_gap(gap, self._lengths[i], self._lengths[i - 1])
+        if not rule.too_close(bumper, closing):
+            return False
+        self._estopped[i] = True
+        self.safety_events.append((t, i, "emergency stop: " + rule.reason(bumper, closing)))
+        return True
 
     def _ranging_readings(self) -> dict[int, tuple[float, float]]:
         """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor."""

@@ -52,6 +52,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    auth = getattr(args, "auth", None)
     if args.convoy:
         from openconvoy.convoy import load_convoy
 
@@ -59,6 +60,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario = scenario or convoy.scenario
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
+        auth = auth or ("off" if convoy.v2v.auth == "off" else None)
     if args.burst is not None and args.loss != "gilbert-elliott":
         raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
@@ -67,6 +69,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
         n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
         ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
+        faults=tuple(getattr(args, "fault", None) or ()), auth=auth or "required",
     )
 
 
@@ -84,7 +87,7 @@ def sim(args: argparse.Namespace) -> int:
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
-    written = ["log.csv", "metrics.json", "run.toml"]
+    written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
     if not args.no_plots:
         from openconvoy.experiments.figures import run_figures
 
@@ -200,14 +203,24 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
 
 
 def per_sweep(args: argparse.Namespace) -> int:
-    """``openconvoy experiment per-sweep``."""
+    """``openconvoy experiment per-sweep``; exit status 1 when runs failed (the others
+    are written)."""
+    import sys
+
+    from openconvoy.experiments.executor import TasksFailed, with_flags
     from openconvoy.experiments.sweep import run_experiment
 
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
     out = Path(args.out)
-    result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
+    try:
+        result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
+                                executor=executor)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
     for r in result.rows:
         print(

@@ -28,6 +28,7 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import from_dict, to_dict
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.faults import parse_fault
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
@@ -60,6 +61,8 @@ class RunConfig:
         origin: convoy origin (latitude deg, longitude deg, altitude m); None = scenario's.
         start_at_policy_gap: place vehicles at the policy's desired gaps (else the
             scenario's).
+        faults: injected faults, ``KIND:VEHICLE@T_S`` specs (``core.faults``).
+        auth: ``"required"`` (members reject forged messages, ``envs.forgery``) or ``"off"``.
     """
 
     scenario: str = "paper"
@@ -78,12 +81,17 @@ class RunConfig:
     gps_noise_m: float = 0.0
     origin: tuple[float, float, float] | None = None
     start_at_policy_gap: bool = True
+    faults: tuple[str, ...] = ()
+    auth: str = "required"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        object.__setattr__(self, "faults", tuple(str(parse_fault(f)) for f in self.faults))
         if self.origin is not None:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss  # validates model and PER  # noqa: B018
+        if self.auth not in ("required", "off"):
+            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.gps_noise_m < 0:
@@ -102,8 +110,9 @@ class RunConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "run") -> RunConfig:
         data = dict(data)
-        if "vehicles" in data:
-            data["vehicles"] = tuple(data["vehicles"])
+        for key in ("vehicles", "faults"):
+            if key in data:
+                data[key] = tuple(data[key])
         return from_dict(cls, data, where)
 
 
@@ -116,6 +125,8 @@ class RunResult:
     metrics: dict[str, Any]
     lengths: dict[int, float]
     wall_s: float = math.nan
+    events: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Injected faults and emergency stops: ``{"t_s", "vehicle_id", "reason"}``."""
 
 
 def build_env(config: RunConfig):
@@ -147,6 +158,8 @@ def build_env(config: RunConfig):
         control_rate_hz=float(getattr(policy, "control_rate_hz", 20.0)),
         gps_noise_m=config.gps_noise_m,
         max_time_s=config.duration_s,
+        faults=config.faults,
+        auth=config.auth == "required",
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     return env, policies
@@ -209,8 +222,15 @@ def run_sim(
     if mt.has_traffic_columns(log):
         metrics.update(mt.traffic_metrics(log, lengths))
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
+    result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
+    result.events += [  # what authentication stopped (forge faults)
+        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
+        for r, n in enumerate(env.forged_rejected) if n
+    ]
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)
+        if result.events:
+            write_json(Path(out_dir) / "events.json", result.events)
     return result
 
 

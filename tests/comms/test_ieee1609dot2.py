@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import pytest
 from auth_testdata import T0, creds
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pycrate_asn1dir import ITS_IEEE1609_2 as M
 
 from openconvoy.comms import bsm as j
@@ -126,3 +128,28 @@ def test_time64_is_tai_microseconds_since_2004():
     # 2004-01-01 00:00:00 UTC is 0 + the 5 leap seconds since.
     assert c.time64(1072915200.0) == 5_000_000
     assert c.unix_of_time64(c.time64(T0)) == pytest.approx(T0, abs=1e-6)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    payload=st.binary(min_size=0, max_size=300),
+    psid=st.sampled_from([0x20, 0x7F, 0x80, 0x4000, c.PSID_ABORT]),
+    t=st.floats(0, 1e9),
+    request=st.booleans(),
+    full=st.booleans(),
+)
+def test_the_direct_reading_equals_asn1tools(payload, psid, t, request, full):
+    cr = creds(1)
+    data = sp.encode_signed(
+        payload, psid=psid, generation_time=c.time64(T0 + t), key=cr.key, certificate=cr.certificate,
+        include_certificate=full, p2pcd_request=(b"abc",) if request else (),
+    )
+    slow = sp.decode_signed_asn1(data)
+    assert sp.decode_signed(data) == slow
+    assert (slow.payload, slow.psid, slow.generation_time) == (payload, psid, c.time64(T0 + t))
+    assert c.verify(cr.certificate.public_key, slow.r, slow.s, slow.tbs, cr.certificate.coer)
+    # the common layout is read directly: a digest signer and no header extension
+    assert (sp._decode_common(data) is not None) == (not full and not request)
+    for cut in (len(data) - 1, len(data) // 2):
+        with pytest.raises(sp.SpduDecodeError):
+            sp.decode_signed(data[:cut])

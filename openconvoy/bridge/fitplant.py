@@ -428,7 +428,7 @@ _PI_SPEED_BOUNDS = ((0.0, 0.6, False), (0.2, 10.0, True), (0.2, 10.0, True),
 _PI_SPEED_PRIOR = (0.1, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.0)
 _HEADING_ERR_CAP_RAD = math.radians(15.0)
 _SPEED_ERR_CAP_MPS = 0.3
-FRICTION_MATTERS = 1.5
+FRICTION_MATTERS = 1.2
 """A fitted static friction is kept only if dropping it raises the speed cost this much."""
 _PI_HEADING_KEYS = ("heading_delay_s", "heading_lag_s", "turn_rate_max_radps",
                     "yaw_accel_max_radps2", "lateral_accel_max_mps2", "max_steer_rad")

@@ -390,6 +390,9 @@ def format_fit(fit: PlantFit) -> str:
 def run_fit_plant_cli(args: object) -> int:
     """``openconvoy fit-plant LOG_DIR... [--model lag|pi] [--out preset.toml] [--name] [--base]
     [--vehicle-id] [--source]``."""
+    from openconvoy.outputs import check_output_file
+
+    check_output_file(args.out or f"{args.name}.toml", "--out")  # type: ignore[attr-defined]
     logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
     if getattr(args, "model", "lag") == "pi":
         pi_fit = fit_pi_plant(logs, base=args.base, name=args.name,  # type: ignore[attr-defined]

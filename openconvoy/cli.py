@@ -354,7 +354,7 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_keys_handler)
     p = cmds.add_parser("issue", help="issue a vehicle's key and certificate")
     p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
-    p.add_argument("--vehicle-id", type=int, required=True, help="convoy index, 0 = leader")
+    p.add_argument("--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader")
     p.set_defaults(handler=_keys_handler)
 
 

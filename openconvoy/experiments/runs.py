@@ -19,14 +19,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
-from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.config import Range, from_dict, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import parse_fault
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
@@ -67,19 +67,19 @@ class RunConfig:
 
     scenario: str = "paper"
     policy: str = "paper"
-    per: float = 0.0
+    per: Annotated[float, Range(0.0, 1.0)] = 0.0
     loss_model: str = "bernoulli"
-    mean_burst_s: float = 1.0
-    latency_s: float = 0.0
-    jitter_s: float = 0.0
-    seed: int = 0
-    duration_s: float | None = None
-    n_followers: int | None = None
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    seed: Annotated[int, Range(0, 4294967295)] = 0
+    duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    n_followers: Annotated[int, Range(1, 1000)] | None = None
     vehicles: tuple[str, ...] = ()
     ranging: bool = False
-    ranging_max_range_m: float = 20.0
-    gps_noise_m: float = 0.0
-    origin: tuple[float, float, float] | None = None
+    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
+    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+    origin: tuple[Annotated[float, Range(-90.0, 90.0)], Annotated[float, Range(-180.0, 180.0)], Annotated[float, Range(-1000.0, 10000.0)]] | None = None
     start_at_policy_gap: bool = True
     faults: tuple[str, ...] = ()
     auth: str = "required"

@@ -6,7 +6,9 @@ this machine's cores (its start-up timed apart; the first sweep on it also start
 workers). Then ``--rounds`` more sweeps alternate local and Ray (warm workers), and the
 fastest of each is reported, so load from other processes hits both alike. The point is
 Ray's overhead on one machine, not a speed-up: more machines is what Ray is for. Also
-checks that both executors wrote the same ``summary.csv``, byte for byte.
+checks that both executors wrote the same ``summary.csv``, byte for byte, and times
+``--empty-tasks`` tasks that do nothing on each executor (its own cost per task, which the
+load on the machine disturbs less than whole runs).
 
     python benchmarks/bench_executor.py [--seeds 4] [--rounds 2] [--jobs N]
 """
@@ -21,8 +23,24 @@ import time
 from pathlib import Path
 
 from openconvoy import __version__
-from openconvoy.experiments.executor import ExecutorConfig, available_cores
+from openconvoy.experiments.executor import ExecutorConfig, LocalExecutor, available_cores
 from openconvoy.experiments.sweep import ExperimentConfig, run_experiment
+
+
+def _noop(x: int) -> int:
+    return x
+
+
+def _per_task_ms(executor, n: int) -> float:
+    """Mean wall time per task of ``n`` empty tasks (the executor's own cost), ms."""
+    from openconvoy.experiments.executor import Task
+
+    tasks = [Task(str(i), _noop, i) for i in range(n)]
+    with executor:
+        executor.map(tasks[: executor.slots], progress=False)  # workers started
+        start = time.perf_counter()
+        executor.map(tasks, progress=False)
+        return 1000 * (time.perf_counter() - start) / n
 
 
 def _sweep(config: ExperimentConfig, out: Path, executor) -> float:
@@ -35,6 +53,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--empty-tasks", type=int, default=400)
     parser.add_argument("--jobs", type=int, default=None, help="local processes (default: cores available)")
     args = parser.parse_args()
 
@@ -53,6 +72,8 @@ def main() -> None:
         local, warm = [], []
         try:
             cold_s = _sweep(config, root / "ray-cold", RayExecutor())
+            ray_task_ms = _per_task_ms(RayExecutor(), args.empty_tasks)
+            local_task_ms = _per_task_ms(LocalExecutor(jobs), args.empty_tasks)
             for i in range(args.rounds):
                 local.append(_sweep(config, root / f"local-{i}", ExecutorConfig(jobs=jobs)))
                 warm.append(_sweep(config, root / f"ray-{i}", RayExecutor()))
@@ -73,6 +94,8 @@ def main() -> None:
         "ray_warm_sweep_wall_s": round(warm_s, 2),
         "ray_rounds_s": [round(v, 2) for v in warm],
         "ray_overhead_per_run_ms": round(1000 * (warm_s - local_s) / runs, 1),
+        "empty_task_ms_local": round(local_task_ms, 3),
+        "empty_task_ms_ray": round(ray_task_ms, 3),
         "summary_csv_identical": identical,
         "ray": ray.__version__,
         "openconvoy": __version__,

@@ -110,7 +110,11 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std, metres")
     p.add_argument("--fault", action="append", metavar="KIND:VEHICLE@T_S",
                    help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
-                   "silent (stop broadcasting, keep driving) or dead (both), e.g. dead:0@30")
+                   "silent (stop broadcasting, keep driving), dead (both) or forge (a keyless "
+                   "station claims to be the vehicle, 1 km ahead), e.g. dead:0@30, forge:0@10")
+    p.add_argument("--auth", choices=("required", "off"), default=None,
+                   help="members authenticate messages, so forgeries are rejected (default "
+                   "required; a convoy file's [v2v] auth = \"off\" turns it off)")
     _run_args(p, sweep=False)
 
     def _sim(args: argparse.Namespace) -> int:
@@ -350,7 +354,7 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_keys_handler)
     p = cmds.add_parser("issue", help="issue a vehicle's key and certificate")
     p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
-    p.add_argument("--vehicle-id", type=int, required=True, help="convoy index, 0 = leader")
+    p.add_argument("--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader")
     p.set_defaults(handler=_keys_handler)
 
 

@@ -11,12 +11,20 @@ from pathlib import Path
 from openconvoy.core.errors import OutputPathError
 
 
-def check_output_dir(path: str | Path, what: str) -> Path:
+def check_output_dir(path: str | Path, what: str, create: bool = True) -> Path:
     """Make sure directory ``path`` exists (created if need be) and is writable; ``what``
-    names the flag in the error (``OutputPathError``)."""
+    names the flag in the error (``OutputPathError``). With ``create`` False nothing is
+    created: the nearest existing ancestor must be a directory we may write in."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OutputPathError(f"{what} {p}: exists and is not a directory")
+    if not create and not p.exists():
+        ancestor = p.absolute().parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
+            raise OutputPathError(f"{what} {p}: cannot create it ({ancestor} is not a writable directory)")
+        return p
     try:
         p.mkdir(parents=True, exist_ok=True)
         # Creating a file is the only reliable test (os.access ignores read-only mounts).

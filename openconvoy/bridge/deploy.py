@@ -77,8 +77,6 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     from openconvoy.policies import load_policy
 
     convoy = convoy or load_convoy(a.convoy)
-    if a.log is not None:
-        check_output_dir(a.log, "--log")  # before connecting, never after arming
     n = convoy.n_vehicles
     if not 0 <= a.vehicle_id < n:
         raise ConfigError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
@@ -95,6 +93,13 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         if spec.startswith("track-file:"):
             leader_origin = leader.origin  # the track's own frame, reached through lat/lon
     me = presets[a.vehicle_id]
+    options = RunnerOptions(  # checks rate and timeouts before any socket opens
+        vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
+        duration_s=a.duration, connect_timeout_s=a.connect_timeout, arm_timeout_s=a.arm_timeout,
+        seed=a.seed,
+    )
+    if a.log is not None:
+        check_output_dir(a.log, "--log")  # before connecting, never after arming
     link = MavlinkLink(
         a.mavlink, origin, a.baud, vehicle_id=a.vehicle_id,
         telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
@@ -106,11 +111,6 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         LinkConfig.from_v2v(convoy.v2v, a.iface), temp_ids, origin, a.vehicle_id,
         loss=loss, drop_at=a.drop_at, rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
         auth=vehicle_authenticator(convoy, a.vehicle_id),
-    )
-    options = RunnerOptions(
-        vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
-        duration_s=a.duration, connect_timeout_s=a.connect_timeout, arm_timeout_s=a.arm_timeout,
-        seed=a.seed,
     )
     return DeployRunner(
         options, convoy, policy, link, v2v, leader=leader,

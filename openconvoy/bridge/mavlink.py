@@ -63,8 +63,8 @@ def check_url(url: str) -> str:
     if url.startswith(_URL_SCHEMES):
         rest = url.split(":", 1)[1]
         host, sep, port = rest.rpartition(":")
-        if not sep or not host or not port.isdigit():
-            raise ConfigError(f"MAVLink URL {url!r}: expected SCHEME:HOST:PORT, e.g. udpin:0.0.0.0:14550")
+        if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+            raise ConfigError(f"MAVLink URL {url!r}: expected SCHEME:HOST:PORT with PORT in 1..65535, e.g. udpin:0.0.0.0:14550")
         return url
     if url.startswith("/dev/") or url.upper().startswith("COM"):
         return url

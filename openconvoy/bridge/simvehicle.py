@@ -500,8 +500,8 @@ def _floats(text: str, n: int, what: str, example: str) -> list[float]:
         values = [float(p) for p in parts]
     except ValueError:
         values = []
-    if len(values) != n:
-        raise ConfigError(f"{what} must be {n} comma-separated numbers like {example}, got {text!r}")
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"{what} must be {n} comma-separated finite numbers like {example}, got {text!r}")
     return values
 
 
@@ -520,6 +520,23 @@ def parse_start(text: str) -> tuple[float, float, float]:
     return x, y, math.radians(heading_deg)
 
 
+def _check_port_free(url: str) -> None:
+    """A ``udpin:`` port another process holds is refused (pymavlink binds with
+    SO_REUSEADDR, so two vehicles would otherwise share it silently)."""
+    if not url.startswith("udpin:"):
+        return
+    import socket
+
+    host, _, port = url.split(":", 1)[1].rpartition(":")
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind((host, int(port)))
+    except OSError as exc:
+        raise ConfigError(f"--mavlink {url}: cannot listen there ({exc.strerror or exc}; another vehicle on this port?)") from None
+    finally:
+        probe.close()
+
+
 def run_vehicle_cli(args: Any) -> int:
     """``openconvoy vehicle --sim``: run one simulated vehicle until SIGINT/SIGTERM.
 
@@ -533,6 +550,7 @@ def run_vehicle_cli(args: Any) -> int:
     if not args.sim:
         raise ConfigError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
     check_url(args.mavlink)
+    _check_port_free(args.mavlink)
     x, y, heading = parse_start(args.start)
     config = SimVehicleConfig(
         system_id=args.id, autopilot=args.autopilot, preset=vehicle_preset(args.preset),

@@ -50,6 +50,7 @@ LEAP_SECONDS_SINCE_2004 = 5
 _CURVE = ec.SECP256R1()
 _ECDSA = ec.ECDSA(hashes.SHA256())
 _EMPTY_HASH = hashlib.sha256(b"").digest()
+_ORDER = 0xFFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551  # of P-256
 
 
 class CertificateError(InputFileError):
@@ -110,7 +111,9 @@ def verify(
     key: ec.EllipticCurvePublicKey, r: bytes, s: bytes, tbs: bytes, signer_cert: bytes | None
 ) -> bool:
     """Whether (r, s) is ``key``'s signature of ``tbs`` (see ``sign``)."""
-    der = encode_dss_signature(int.from_bytes(r, "big"), int.from_bytes(s, "big"))
+    # r is sent as the x coordinate of the signature's point R (x-only or compressed);
+    # ECDSA's r is that x reduced mod the group order.
+    der = encode_dss_signature(int.from_bytes(r, "big") % _ORDER, int.from_bytes(s, "big"))
     try:
         key.verify(der, signing_input(tbs, signer_cert), _ECDSA)
     except InvalidSignature:

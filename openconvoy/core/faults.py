@@ -6,7 +6,10 @@ into the run, for good. Kinds:
 - ``halt``: the vehicle brakes to rest at its limit and stays there, still broadcasting
   (an autopilot switched to HOLD, a person on the brake);
 - ``silent``: it stops broadcasting and keeps driving its commands (a dead radio);
-- ``dead``: it brakes to rest and stops broadcasting (a crashed computer).
+- ``dead``: it brakes to rest and stops broadcasting (a crashed computer);
+- ``forge``: a station without the convoy's keys starts broadcasting messages that claim
+  to be the vehicle, 1 km ahead of it (``envs.forgery``); members that authenticate
+  messages (the default) reject and count them.
 """
 
 from __future__ import annotations
@@ -16,8 +19,8 @@ from dataclasses import dataclass
 
 from openconvoy.core.errors import ConfigError
 
-FAULT_KINDS = ("halt", "silent", "dead")
-FAULT_SYNTAX = "KIND:VEHICLE@T_S with KIND one of halt, silent, dead (e.g. dead:0@30)"
+FAULT_KINDS = ("halt", "silent", "dead", "forge")
+FAULT_SYNTAX = "KIND:VEHICLE@T_S with KIND one of halt, silent, dead, forge (e.g. dead:0@30)"
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,11 @@ class Fault:
     def mutes(self) -> bool:
         """The vehicle stops broadcasting (``silent``, ``dead``)."""
         return self.kind in ("silent", "dead")
+
+    @property
+    def forges(self) -> bool:
+        """A forger claims to be the vehicle (``forge``)."""
+        return self.kind == "forge"
 
     def active(self, t: float) -> bool:
         return t >= self.t_s - 1e-9

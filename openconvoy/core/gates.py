@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
+from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 
@@ -91,10 +93,10 @@ class TriggerConfig:
     """
 
     kind: str = "periodic"
-    period_s: float = 0.1
-    threshold_m: float = 0.5
-    speed_threshold_mps: float = 0.5
-    max_silence_s: float = 1.0
+    period_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 0.1
+    threshold_m: Annotated[float, Range(0.0, 1000.0, lo_open=True)] = 0.5
+    speed_threshold_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
+    max_silence_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("periodic", "event"):

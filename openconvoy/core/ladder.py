@@ -8,7 +8,9 @@ following on the range to the vehicle ahead with a wider time gap; older than
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
+from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 
 COOP, DEGRADED, STOP = "coop", "degraded", "stop"
@@ -22,11 +24,11 @@ class LadderConfig:
     when it is this much closer than the predecessor by its messages or the desired gap."""
 
     enabled: bool = False
-    degrade_after_s: float = 0.5
-    stop_after_s: float = 2.0
-    extra_headway_s: float = 1.0
-    gap_gain: float = 0.5
-    intruder_margin_m: float = 3.0
+    degrade_after_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 0.5
+    stop_after_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 2.0
+    extra_headway_s: Annotated[float, Range(0.0, 60.0)] = 1.0
+    gap_gain: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
+    intruder_margin_m: Annotated[float, Range(0.0, 1000.0)] = 3.0
 
     def __post_init__(self) -> None:
         if not 0 < self.degrade_after_s < self.stop_after_s:

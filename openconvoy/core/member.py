@@ -16,11 +16,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 
 from openconvoy.core import ladder as ladder_mod
 from openconvoy.core.buffer import StateBuffer
+from openconvoy.core.config import Range
 from openconvoy.core.gates import RxGate, TriggerConfig, TxGate
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.observation import (
@@ -48,9 +50,9 @@ class MemberConfig:
     trigger: TriggerConfig = field(default_factory=TriggerConfig)
     spacing: SpacingConfig = field(default_factory=SpacingConfig)
     ladder: LadderConfig = field(default_factory=LadderConfig)
-    M: int = 2
-    k: int = 3
-    trail_spacing_m: float = 0.2
+    M: Annotated[int, Range(1, 100)] = 2
+    k: Annotated[int, Range(1, 100)] = 3
+    trail_spacing_m: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.2
 
     def __post_init__(self) -> None:
         RxGate(self.topology, 1, 2)  # validates the topology name

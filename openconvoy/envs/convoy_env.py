@@ -46,6 +46,7 @@ from openconvoy.core.member import ConvoyMember, Frame, MemberConfig, member_con
 from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
+from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
@@ -118,6 +119,9 @@ class ConvoyEnv(ParallelEnv):
         gap_margin_m: margin (m, between bumpers) of the braking-aware emergency stop;
             None = each follower's preset default (``core.safety.for_vehicle``).
         emergency_stop: apply that rule (default True).
+        auth: members authenticate what they receive (modelled: ``envs.forgery``), so the
+            messages of a ``forge`` fault are rejected and counted (``forged_rejected``);
+            False: they are believed (default True, as on vehicles with keys).
     """
 
     metadata = {
@@ -153,6 +157,7 @@ class ConvoyEnv(ParallelEnv):
         faults: Sequence[Fault | str] = (),
         gap_margin_m: float | None = None,
         emergency_stop: bool = True,
+        auth: bool = True,
     ) -> None:
         if control_rate_hz <= 0:
             raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
@@ -190,6 +195,8 @@ class ConvoyEnv(ParallelEnv):
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         check_faults(self.faults, n)
         self.emergency_stop = bool(emergency_stop)
+        self.auth = Authentication(n, required=bool(auth))
+        self._forged = tuple(f for f in self.faults if f.forges)
         self._braking: list[BrakingGap | None] = [None] + [
             for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
             for p in self.presets[1:]
@@ -245,6 +252,7 @@ class ConvoyEnv(ParallelEnv):
         self._ranging_rng = np.random.default_rng(ss_ranging)
         self.scenario.reset(np.random.default_rng(ss_scenario))
         self.channel.reset(np.random.default_rng(ss_channel))
+        self.auth.reset()
         init = self.scenario.initial_state()
         self.plant.reset(init.x, init.y, init.heading, init.speed)
         for m in self.members:
@@ -473,8 +481,27 @@ class ConvoyEnv(ParallelEnv):
         inboxes: list[list[VehicleState]] = [[] for _ in members]
         for r, _, msg in channel.deliver(t):
             inboxes[r].append(msg)
+        if self._forged:
+            self._forge(t, inboxes)
         self._frames = [member_tick.sense(m, box, t) for m, box in zip(members, inboxes)]
         return {a: self._frames[i].observation for i, a in enumerate(self.agents, start=1)}
+
+    def _forge(self, t: float, inboxes: list[list[VehicleState]]) -> None:
+        """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
+        offered to every other member (verified when ``auth``)."""
+        x, y, v, h = self._truth[:4]
+        claimed = []
+        for f in self._forged:
+            if f.active(t):
+                i = f.vehicle
+                claimed.append(VehicleState(i, t, x[i], y[i], v[i], h[i], 0.0, 0.0,
+                                            self._lengths[i], self._widths[i]))
+        self.auth.deliver_forgeries(claimed, inboxes)
+
+    @property
+    def forged_rejected(self) -> list[int]:
+        """Forged messages each member rejected so far (``forge`` faults, ``auth`` on)."""
+        return list(self.auth.rejected)
 
     def _measure(self) -> None:
         """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""

@@ -340,6 +340,8 @@ def make_scenario(
         return make_highway_scenario(spec, n, presets)
     if spec.startswith("track-file:"):
         file = spec.split(":", 1)[1]
+        if not file.strip():
+            raise ConfigError("scenario 'track-file:' needs a path: track-file:PATH (or track-file:example)")
         if file == "example":
             file = str(example_track_path())
         return track_file_scenario(file, n, presets)

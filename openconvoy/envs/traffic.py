@@ -33,6 +33,7 @@ try:  # the traffic extra, imported here only (the core never needs it)
     from highway_env.road.lane import LineType, SineLane, StraightLane
     from highway_env.road.road import Road, RoadNetwork
     from highway_env.vehicle.behavior import IDMVehicle
+    from highway_env.vehicle.kinematics import Vehicle
     from highway_env.vehicle.objects import Landmark, Obstacle, RoadObject
 except ModuleNotFoundError as exc:
     raise DependencyMissing(
@@ -112,19 +113,34 @@ class ConvoyVehicle(IDMVehicle):
 
 
 class ScriptedLaneChanger(IDMVehicle):
-    """A traffic car (IDM longitudinally) that changes lane when told to, not by MOBIL:
-    ``schedule`` holds ``(time_s, lane_id)`` pairs applied by ``update(t)``."""
+    """A test-track target car: holds ``target_speed`` (highway-env's speed controller,
+    ``KP_A * (target - speed)``, clipped to ``ACC_MAX``), keeps its lane with highway-env's
+    steering law, and changes lane when told to, not by MOBIL: ``schedule`` holds
+    ``(time_s, lane_id, target_speed_mps or None)`` applied by ``update(t)``. It does not
+    react to the vehicles around it (as the target of a cut-in test does not)."""
 
     def __init__(self, road: Road, position: np.ndarray, heading: float, speed: float,
-                 schedule: Sequence[tuple[float, int]] = (), target_speed: float | None = None) -> None:
+                 schedule: Sequence[tuple[float, int, float | None]] = (),
+                 target_speed: float | None = None) -> None:
         super().__init__(road, position, heading, speed, target_speed=target_speed, enable_lane_change=False)
         self.schedule = sorted(schedule)
 
     def update(self, t: float) -> None:
         while self.schedule and self.schedule[0][0] <= t + 1e-9:
-            _, lane_id = self.schedule.pop(0)
+            _, lane_id, speed = self.schedule.pop(0)
             _from, _to, _ = self.lane_index
             self.target_lane_index = (_from, _to, lane_id)
+            if speed is not None:
+                self.target_speed = speed
+
+    def act(self, action: dict | str | None = None) -> None:
+        if self.crashed:
+            return
+        self.follow_road()
+        steering = float(np.clip(self.steering_control(self.target_lane_index),
+                                 -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+        accel = float(np.clip(self.speed_control(self.target_speed), -self.ACC_MAX, self.ACC_MAX))
+        Vehicle.act(self, {"steering": steering, "acceleration": accel})
 
 
 class FastRoad(Road):
@@ -141,6 +157,8 @@ class FastRoad(Road):
     (the parity test runs both on the same seeds)."""
 
     _cache: dict | None = None
+    idm_accel: dict[int, float] = {}
+    """Filled by ``VectorRoad.act``; empty here."""
 
     def act(self) -> None:
         self._cache = {}
@@ -317,6 +335,10 @@ class TrafficWorld:
         """highway-env's IDM acceleration (m/s²) for the leader behind whatever is ahead of
         it on its lane (traffic or obstacle), towards the cruise speed."""
         lead = self.convoy[0]
+        if isinstance(self.road, FastRoad):
+            known = self.road.idm_accel.get(id(lead))  # VectorRoad computed it in act
+            if known is not None:
+                return known
         front, _ = self.road.neighbour_vehicles(lead, lead.lane_index)
         a = lead.acceleration(ego_vehicle=lead, front_vehicle=front)
         return float(np.clip(a, -lead.ACC_MAX, lead.ACC_MAX))

@@ -52,6 +52,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    auth = getattr(args, "auth", None)
     if args.convoy:
         from openconvoy.convoy import load_convoy
 
@@ -59,6 +60,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario = scenario or convoy.scenario
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
+        auth = auth or ("off" if convoy.v2v.auth == "off" else None)
     if args.burst is not None and args.loss != "gilbert-elliott":
         raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
@@ -67,7 +69,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
         n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
         ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
-        faults=tuple(getattr(args, "fault", None) or ()),
+        faults=tuple(getattr(args, "fault", None) or ()), auth=auth or "required",
     )
 
 
@@ -76,10 +78,11 @@ def sim(args: argparse.Namespace) -> int:
     from openconvoy import __version__
     from openconvoy.core.config import dumps_toml
     from openconvoy.experiments.runs import build_env, run_sim
+    from openconvoy.outputs import check_output_dir
 
     config = run_config_from_args(args)
     build_env(config)  # a bad policy, scenario or preset fails before anything is written
-    out = Path(args.out)
+    out = check_output_dir(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     result = run_sim(config, out, progress=not args.quiet)
     (out / "run.toml").write_text(
@@ -103,8 +106,11 @@ def report(args: argparse.Namespace) -> int:
     """``openconvoy report``: recompute metrics from a log file or a run directory."""
     from openconvoy.experiments.runs import write_json
     from openconvoy.logs import read_log
+    from openconvoy.outputs import check_output_file
 
     path = Path(args.path)
+    if args.out:
+        check_output_file(args.out, "--out")
     log = read_log(path)
     lengths = _lengths_from_convoy(args.convoy)
     if lengths is None and "length_m" not in log:
@@ -157,9 +163,12 @@ def presets(args: argparse.Namespace) -> int:
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
+        pers = tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise ConfigError(f"--pers: expected comma-separated numbers, got {text!r}") from None
+        pers = ()
+    if not pers or not all(0.0 <= p <= 1.0 for p in pers):
+        raise ConfigError(f"--pers: expected comma-separated packet error rates in [0, 1], got {text!r}")
+    return pers
 
 
 def experiment_from_args(args: argparse.Namespace) -> Any:
@@ -175,7 +184,7 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
         changes["scenario"] = args.scenario
     if args.policy:
         changes["policies"] = tuple(args.policy)
-    if args.pers:
+    if args.pers is not None:
         changes["pers"] = _floats(args.pers)
     if args.seeds is not None:
         if args.seeds < 1:
@@ -211,8 +220,10 @@ def per_sweep(args: argparse.Namespace) -> int:
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
+    from openconvoy.outputs import check_output_dir
+
     executor = with_flags(config.executor, args.executor, args.address, args.jobs)
-    out = Path(args.out)
+    out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
     try:
         result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
                                 executor=executor)
@@ -237,7 +248,10 @@ def compare(args: argparse.Namespace) -> int:
     """``openconvoy compare A B``."""
     from openconvoy.experiments import compare as cmp
     from openconvoy.experiments.runs import write_json
+    from openconvoy.outputs import check_output_file
 
+    if args.out:
+        check_output_file(args.out, "--out")
     lengths = _lengths_from_convoy(args.convoy)
     result = cmp.compare(cmp.load_side(args.a, lengths), cmp.load_side(args.b, lengths))
     print(cmp.format_comparison(result))

@@ -19,14 +19,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
-from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.config import Range, from_dict, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import parse_fault
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
@@ -62,25 +62,27 @@ class RunConfig:
         start_at_policy_gap: place vehicles at the policy's desired gaps (else the
             scenario's).
         faults: injected faults, ``KIND:VEHICLE@T_S`` specs (``core.faults``).
+        auth: ``"required"`` (members reject forged messages, ``envs.forgery``) or ``"off"``.
     """
 
     scenario: str = "paper"
     policy: str = "paper"
-    per: float = 0.0
+    per: Annotated[float, Range(0.0, 1.0)] = 0.0
     loss_model: str = "bernoulli"
-    mean_burst_s: float = 1.0
-    latency_s: float = 0.0
-    jitter_s: float = 0.0
-    seed: int = 0
-    duration_s: float | None = None
-    n_followers: int | None = None
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    seed: Annotated[int, Range(0, 4294967295)] = 0
+    duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    n_followers: Annotated[int, Range(1, 1000)] | None = None
     vehicles: tuple[str, ...] = ()
     ranging: bool = False
-    ranging_max_range_m: float = 20.0
-    gps_noise_m: float = 0.0
-    origin: tuple[float, float, float] | None = None
+    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
+    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+    origin: tuple[Annotated[float, Range(-90.0, 90.0)], Annotated[float, Range(-180.0, 180.0)], Annotated[float, Range(-1000.0, 10000.0)]] | None = None
     start_at_policy_gap: bool = True
     faults: tuple[str, ...] = ()
+    auth: str = "required"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
@@ -88,6 +90,8 @@ class RunConfig:
         if self.origin is not None:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss  # validates model and PER  # noqa: B018
+        if self.auth not in ("required", "off"):
+            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.gps_noise_m < 0:
@@ -155,6 +159,7 @@ def build_env(config: RunConfig):
         gps_noise_m=config.gps_noise_m,
         max_time_s=config.duration_s,
         faults=config.faults,
+        auth=config.auth == "required",
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     return env, policies
@@ -218,6 +223,10 @@ def run_sim(
         metrics.update(mt.traffic_metrics(log, lengths))
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
     result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
+    result.events += [  # what authentication stopped (forge faults)
+        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
+        for r, n in enumerate(env.forged_rejected) if n
+    ]
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)
         if result.events:

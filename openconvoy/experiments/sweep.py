@@ -57,12 +57,12 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
 from openconvoy.core import metrics as mt
-from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.experiments import portable
 from openconvoy.experiments.executor import (
@@ -87,10 +87,10 @@ class ConvoySection:
     """The convoy of an experiment: presets (leader first), size, ranging, GPS noise (m)."""
 
     vehicles: tuple[str, ...] = ()
-    n_followers: int | None = None
+    n_followers: Annotated[int, Range(1, 1000)] | None = None
     ranging: bool = False
-    ranging_max_range_m: float = 20.0
-    gps_noise_m: float = 0.0
+    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
+    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
@@ -101,9 +101,9 @@ class LossSection:
     """The link model of every run; the PER comes from the sweep (s for times)."""
 
     model: str = "bernoulli"
-    mean_burst_s: float = 1.0
-    latency_s: float = 0.0
-    jitter_s: float = 0.0
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
 
     def __post_init__(self) -> None:
         if self.model not in ("bernoulli", "gilbert-elliott"):
@@ -120,9 +120,9 @@ class ExperimentConfig:
     kind: str = "per-sweep"
     scenario: str = "paper"
     policies: tuple[str, ...] = ("paper",)
-    pers: tuple[float, ...] = DEFAULT_PERS
-    seeds: tuple[int, ...] | int = (0, 1, 2)
-    duration_s: float | None = None
+    pers: tuple[Annotated[float, Range(0.0, 1.0)], ...] = DEFAULT_PERS
+    seeds: tuple[Annotated[int, Range(0, 4294967295)], ...] | Annotated[int, Range(1, 100000)] = (0, 1, 2)
+    duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
     convoy: ConvoySection = field(default_factory=ConvoySection)
     loss: LossSection = field(default_factory=LossSection)
     policy: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -187,7 +187,12 @@ class ExperimentConfig:
                 raise ConfigError(f"{where}: {key} belongs in its own [{key}] table")
             if key in data:
                 table[key] = data[key]
-        return from_dict(cls, table, where)
+        config = from_dict(cls, table, where)
+        from openconvoy.policies.spec import classical_from_table
+
+        for name, policy_table in config.policy.items():  # referenced or not, checked here
+            classical_from_table(policy_table, name, f"{where}: policy.{name}")
+        return config
 
     # --- runs ----------------------------------------------------------------------------
 

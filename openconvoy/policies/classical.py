@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 
+from openconvoy.core.config import Range
 from openconvoy.core.controllers import (
     HeadingControlConfig,
     PIDSpeed,
@@ -48,9 +50,9 @@ class ClassicalConfig:
     member: MemberConfig = field(default_factory=MemberConfig)
     speed: SpeedControlConfig = field(default_factory=SpeedControlConfig)
     heading: HeadingControlConfig = field(default_factory=HeadingControlConfig)
-    speed_limit_mps: float = 5.0
-    control_rate_hz: float = 20.0
-    rear_weight: float = 0.0
+    speed_limit_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 5.0
+    control_rate_hz: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 20.0
+    rear_weight: Annotated[float, Range(0.0, 10.0)] = 0.0
     """Bidirectional (M-CACC) coupling: weight of the follower's spacing error (0 = none)."""
 
     def __post_init__(self) -> None:

@@ -27,6 +27,7 @@ A policy whose recorded layout differs from the convoy's (``layout=`` or
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,7 +37,12 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core.config import from_dict, to_dict
-from openconvoy.core.errors import DependencyMissing, InputFileError, MissingFileError
+from openconvoy.core.errors import (
+    DependencyMissing,
+    InputFileError,
+    MissingFileError,
+    OpenConvoyError,
+)
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import make_action
@@ -96,8 +102,8 @@ class LearnedMeta:
     def __post_init__(self) -> None:
         if self.base is not None and self.base.member != self.member_config:
             raise InputFileError("a residual policy's base must use the policy's member configuration")
-        if self.control_rate_hz <= 0:
-            raise InputFileError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
+        if not (math.isfinite(self.control_rate_hz) and 0 < self.control_rate_hz <= 100):
+            raise InputFileError(f"control_rate_hz: {self.control_rate_hz!r} is out of range; allowed: (0, 100] Hz")
         size = int(self.layout["size"])
         for name in ("obs_mean", "obs_var"):
             arr = getattr(self, name)
@@ -149,6 +155,10 @@ class LearnedMeta:
             )
         except KeyError as exc:
             raise InputFileError(f"{where}: missing key {exc.args[0]!r}") from None
+        except (TypeError, AttributeError, ValueError) as exc:  # a value of the wrong kind
+            if isinstance(exc, OpenConvoyError):
+                raise
+            raise InputFileError(f"{where}: bad metadata ({exc})") from None
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         """The observation as the network saw it in training (VecNormalize's formula)."""
@@ -261,6 +271,8 @@ class NumpyMLP:
             raise InputFileError("an MLP needs as many bias vectors as weight matrices, at least one")
         self.weights = [np.asarray(w, dtype=np.float64) for w in weights]
         self.biases = [np.asarray(b, dtype=np.float64) for b in biases]
+        if not all(np.isfinite(a).all() for a in (*self.weights, *self.biases)):
+            raise InputFileError("the network's weights are not all finite numbers (NaN or inf)")
         for i in range(1, len(self.weights)):
             if self.weights[i].shape[1] != self.weights[i - 1].shape[0]:
                 raise InputFileError(f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}")
@@ -302,7 +314,22 @@ def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
 
 
 def load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
-    """Read an exported artifact: its metadata and its network."""
+    """Read an exported artifact: its metadata and its network. Anything that is not one
+    (random bytes, a truncated file, missing arrays, bad metadata JSON, non-finite
+    weights) is an ``InputFileError`` naming the file."""
+    try:
+        return _load_npz(path)
+    except InputFileError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise InputFileError(f"{path}: {exc}") from None
+    except (ValueError, KeyError, EOFError, OSError, zipfile.BadZipFile) as exc:
+        # numpy says "pickled data ... allow_pickle": the file is simply not an export
+        why = "not a numpy .npz archive" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
+        raise InputFileError(f"{path}: not a valid OpenConvoy policy export ({why})") from None
+
+
+def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
     with np.load(Path(path), allow_pickle=False) as data:
         if "format" not in data or str(data["format"]) != NPZ_FORMAT:
             raise InputFileError(f"{path}: not an OpenConvoy policy export (expected format {NPZ_FORMAT})")
@@ -331,6 +358,8 @@ def read_zip_meta(path: str | Path) -> LearnedMeta:
             data = json.loads(zf.read(META_MEMBER).decode("utf-8"))
     except zipfile.BadZipFile:
         raise InputFileError(f"{path}: not a zip file") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFileError(f"{path}: {META_MEMBER} is not valid JSON ({exc})") from None
     return LearnedMeta.from_json(data, str(path))
 
 
@@ -362,7 +391,10 @@ def load_sb3_model(path: str | Path, algo: str):
     # Schedules are pickled closures; inference never needs them, and replacing them avoids
     # unpickling failures across Python/SB3 versions.
     custom = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
-    return classes[algo].load(str(path), device="cpu", custom_objects=custom)
+    try:
+        return classes[algo].load(str(path), device="cpu", custom_objects=custom)
+    except Exception as exc:  # noqa: BLE001 - SB3/torch raise anything on a corrupt archive
+        raise InputFileError(f"{path}: SB3 could not load the model ({type(exc).__name__}: {exc})") from None
 
 
 def load_learned(

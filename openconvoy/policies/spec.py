@@ -60,17 +60,25 @@ def classical_from_toml(path: str | Path) -> ClassicalConfig:
     table = data.get("policy")
     if table is None or set(data) - {"policy"}:
         raise ConfigError(f"{path}: a policy file has exactly one top-level table, [policy]")
+    return classical_from_table(table, Path(path).stem, f"{path}: policy", Path(path).name)
+
+
+def classical_from_table(table: Any, name: str, where: str, source: str = "") -> ClassicalConfig:
+    """A ClassicalConfig from a ``[policy]`` table (its ``base`` preset overridden by the
+    table, table by table); errors name ``where`` and the key."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: expected a table, got {table!r}")
     table = dict(table)
     base_name = table.pop("base", None)
     if base_name is not None:
         if base_name not in PRESETS:
-            raise ConfigError(f"{path}: unknown base preset {base_name!r}")
+            raise ConfigError(f"{where}.base: unknown base preset {base_name!r}; expected one of {', '.join(PRESETS)}")
         inherited = to_dict(PRESETS[base_name])
-        inherited["name"] = Path(path).stem
-        inherited["description"] = f"{base_name} with changes from {Path(path).name}"
+        inherited["name"] = name
+        inherited["description"] = f"{base_name} with changes from {source or name}"
         table = _merge(inherited, table)
-    table.setdefault("name", Path(path).stem)
-    return from_dict(ClassicalConfig, table, f"{path}: [policy]")
+    table.setdefault("name", name)
+    return from_dict(ClassicalConfig, table, where)
 
 
 def classical_to_toml(config: ClassicalConfig) -> str:

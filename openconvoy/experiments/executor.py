@@ -191,9 +191,11 @@ def _bar(total: int, enabled: bool, desc: str) -> Any:
 class LocalExecutor(Executor):
     """Tasks on ``jobs`` spawned processes of this machine (1: in this process).
 
-    A worker process that dies breaks Python's process pool: every task then in flight
-    is reported lost (the pool cannot tell which one killed it) and a fresh pool runs the
-    rest. Finished tasks are kept."""
+    A worker process that dies (a crash, the OOM killer) breaks Python's process pool,
+    and every task then in flight with it; the pool cannot say whose worker died. So a
+    fresh pool takes the next tasks while those in flight are run again one at a time in
+    a pool of their own: the one whose worker dies again alone is reported lost, the
+    others come back as if nothing had happened."""
 
     kind = "local"
 
@@ -202,6 +204,9 @@ class LocalExecutor(Executor):
         self._queue: deque[Task] = deque()
         self._pool: Any = None
         self._futures: dict[Any, tuple[Task, Any]] = {}  # future -> (task, its pool)
+        self._suspects: deque[Task] = deque()  # in flight when a pool broke
+        self._solo_pool: Any = None
+        self._solo: tuple[Any, Task] | None = None  # the suspect running alone
 
     @property
     def slots(self) -> int:
@@ -212,11 +217,7 @@ class LocalExecutor(Executor):
             self._queue.append(task)
             return
         if self._pool is None:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
-
-            # spawn: workers start clean (no inherited threads or open files).
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = _process_pool(self.jobs)
         self._futures[self._pool.submit(guarded, task.fn, task.arg)] = (task, self._pool)
 
     def wait_one(self) -> tuple[Task, Any]:
@@ -226,24 +227,50 @@ class LocalExecutor(Executor):
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
-        done, _ = wait(list(self._futures), return_when=FIRST_COMPLETED)
-        fut = next(iter(done))
-        task, pool = self._futures.pop(fut)
-        try:
-            return task, outcome(task, fut.result())
-        except BrokenProcessPool as exc:
-            if pool is self._pool:
-                pool.shutdown(wait=False, cancel_futures=True)
-                self._pool = None  # the next submit starts a fresh pool
-            return task, TaskFailure(task.label, "a worker process of the local pool, which died while "
-                                     "this run was in flight", error_line(exc, frame=False))
+        while True:
+            if self._solo is None and self._suspects:
+                if self._solo_pool is None:
+                    self._solo_pool = _process_pool(1)
+                task = self._suspects.popleft()
+                self._solo = (self._solo_pool.submit(guarded, task.fn, task.arg), task)
+            waiting = list(self._futures) + ([self._solo[0]] if self._solo else [])
+            done, _ = wait(waiting, return_when=FIRST_COMPLETED)
+            fut = next(iter(done))
+            if self._solo is not None and fut is self._solo[0]:
+                task = self._solo[1]
+                self._solo = None
+                try:
+                    return task, outcome(task, fut.result())
+                except BrokenProcessPool as exc:
+                    self._solo_pool.shutdown(wait=False, cancel_futures=True)
+                    self._solo_pool = None
+                    return task, TaskFailure(task.label, "a local worker process, which died running it "
+                                             "(alone, on a second try)", error_line(exc, frame=False))
+            task, pool = self._futures.pop(fut)
+            try:
+                return task, outcome(task, fut.result())
+            except BrokenProcessPool:
+                if pool is self._pool:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    self._pool = None  # the next submit starts a fresh pool
+                self._suspects.append(task)
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        for pool in (self._pool, self._solo_pool):
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = self._solo_pool = self._solo = None
         self._futures.clear()
         self._queue.clear()
+        self._suspects.clear()
+
+
+def _process_pool(workers: int) -> Any:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    # spawn: workers start clean (no inherited threads or open files).
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
 
 
 def with_flags(

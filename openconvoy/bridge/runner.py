@@ -48,9 +48,11 @@ from openconvoy.bridge.failsafes import (
 from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
+from openconvoy.core import tick as member_tick
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.member import ConvoyMember, MemberConfig
-from openconvoy.core.policy import Policy
+from openconvoy.core.member import ConvoyMember, Frame, member_config_for
+from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
+from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState, wrap_angle
 from openconvoy.logs import LogWriter
 
@@ -177,6 +179,22 @@ class TickTiming:
     t_telemetry: float
 
 
+def scenario_spacing(convoy: ConvoyConfig) -> SpacingConfig:
+    """The convoy scenario's spacing σ: what the simulator gives a policy without a member
+    config of its own (``member.member_config_for``)."""
+    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    return make_scenario(convoy.scenario, presets=[vehicle_preset(v) for v in convoy.vehicles]).spacing
+
+
+def top_speed(convoy: ConvoyConfig, vehicle_id: int) -> float:
+    """The vehicle's preset top speed (m/s): the top of its action space, as in ``sim``."""
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    return vehicle_preset(convoy.vehicles[vehicle_id]).max_speed_mps
+
+
 def envelope_from(convoy: ConvoyConfig, vehicle_id: int | None = None) -> Envelope:
     """The safety envelope a convoy config asks for; with ``vehicle_id``, the braking-aware
     gap rule from that vehicle's preset (margin ``[safety] gap_margin_m`` or its default)."""
@@ -222,13 +240,17 @@ class DeployRunner:
         leader_origin: the geodetic origin of the leader driver's frame when it differs
             from the convoy's (track files carry their own); None = the convoy's.
         metadata: extra entries for the run metadata JSON.
+        bounds: the action space the policy's action is clipped to (default: speed up to
+            this vehicle's preset top speed, as in ``sim``).
+        spacing: σ for a policy without a member config (default: the convoy
+            scenario's, as in ``sim``).
     """
 
     def __init__(
         self,
         options: RunnerOptions,
         convoy: ConvoyConfig,
-        policy: Policy,
+        policy: ConvoyPolicy,
         link: VehicleLink,
         v2v: V2VEndpoint,
         *,
@@ -243,6 +265,8 @@ class DeployRunner:
         leader_origin: Origin | None = None,
         envelope: Envelope | None = None,
         metadata: dict[str, Any] | None = None,
+        bounds: member_tick.ActionBounds | None = None,
+        spacing: SpacingConfig | None = None,
     ) -> None:
         n = convoy.n_vehicles
         if not 0 <= options.vehicle_id < n:
@@ -252,7 +276,6 @@ class DeployRunner:
             raise ConfigError("the leader needs a scenario or track to follow, or --passive")
         self.options = options
         self.convoy = convoy
-        self.policy = policy
         self.link = link
         self.v2v = v2v
         self.leader = leader
@@ -262,8 +285,16 @@ class DeployRunner:
         self.on_status = on_status or (lambda line: log.warning("%s", line))
         self.origin = Origin(*convoy.origin)
         self.leader_origin = leader_origin
-        member_config: MemberConfig = getattr(policy, "member_config", None) or MemberConfig()
+        self.policy = as_convoy_policy(policy)
+        if policy.member_config is None and spacing is None:
+            spacing = scenario_spacing(convoy)
+        member_config = member_config_for(policy.member_config, spacing or SpacingConfig())
         self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths, decels)
+        self.bounds = bounds or member_tick.ActionBounds.float32(top_speed(convoy, options.vehicle_id))
+        self.frame: Frame = Frame(math.nan, member_config.layout.zeros())
+        """The member's latest frame (its observation and derived values)."""
+        self.decision: member_tick.Decision | None = None
+        """The member's latest decision (None for a leader, or while waiting to start)."""
         self.failsafes = Failsafes(
             envelope=envelope or envelope_from(convoy, options.vehicle_id),
             watchdog=LinkWatchdog(
@@ -409,11 +440,12 @@ class DeployRunner:
         self._maybe_reconnect(now)
         wall = self.wall()
         own = replace(tel.state, vehicle_id=o.vehicle_id)
-        member.observe_own(own)
         # 2. τ
-        if member.wants_to_send(wall):
-            self.v2v.send(own, wall)
+        sent = member_tick.begin(member, own, wall)
+        if sent is not None:
+            self.v2v.send(sent, wall)
         # 3. ρ, bounded in time so that a flood cannot stall the loop
+        inbox = []
         for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET * period_s):
             if getattr(msg, "abort", False):
                 self._abort = True
@@ -421,15 +453,15 @@ class DeployRunner:
             if msg.state is None:
                 continue
             self._heard_raw.add(msg.state.vehicle_id)
-            member.receive(msg.state, wall)
+            inbox.append(msg.state)
+        self.frame = frame = member_tick.sense(member, inbox, wall)
         # Waiting to start?
         waiting = self._waiting_for()
         if not waiting and self._t_start is None:
             self._t_start, self._t_start_wall = now, wall
             self.on_status(f"vehicle {o.vehicle_id}: convoy complete, starting")
         # 4. what the controller wants
-        obs = member.observation(wall)
-        speed, change, mode, policy_error = self._intent(tel, own, obs, bool(waiting), now, wall)
+        speed, change, mode, policy_error = self._intent(tel, own, frame, bool(waiting), now, wall)
         gap, closing = self._gap(wall)
         needed_age = 0.0
         if not self.is_leader and not waiting:
@@ -494,7 +526,7 @@ class DeployRunner:
 
     # ------------------------------------------------------------------ helpers
 
-    def _intent(self, tel: Telemetry, own: VehicleState, obs: np.ndarray, waiting: bool,
+    def _intent(self, tel: Telemetry, own: VehicleState, frame: Frame, waiting: bool,
                 now: float, wall: float) -> tuple[float, float, str, str]:
         """What the controller wants before the failsafes: (speed m/s, heading change rad,
         mode, policy error message or "")."""
@@ -507,15 +539,15 @@ class DeployRunner:
                 return 0.0, 0.0, "stop", ""
             return self._leader_command(tel, own, now)
         try:
-            action, mode = self.member.supervise(self.policy.act(obs), wall)
-            speed, change = float(action[0]), float(action[1])
-            if not (math.isfinite(speed) and math.isfinite(change)):
-                raise ConfigError(f"non-finite action {speed}, {change}")
-            return speed, change, mode, ""
+            action = self.policy.act(frame.observation)
         except Exception as exc:  # the policy is foreign code: stop, log, keep looping
             if not self.failsafes.policy_errors:
                 log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
-            return 0.0, 0.0, "stop", f"{type(exc).__name__}: {exc}"
+            self.decision = member_tick.stop(f"{type(exc).__name__}: {exc}")
+        else:
+            self.decision = member_tick.decide(self.member, frame, action, self.bounds)
+        d = self.decision
+        return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error
 
     def _duration(self) -> float | None:
         if self.options.duration_s is not None:
@@ -578,10 +610,10 @@ class DeployRunner:
             "heading_rad": own.heading, "accel_mps2": own.accel,
             "cmd_speed_mps": speed if sent else math.nan,
             "cmd_heading_change_rad": change if sent else math.nan,
-            "mode": mode, "gap_m": gap, "desired_gap_m": m.desired_gap_m,
-            "spacing_error_m": m.spacing_error_m, "msgs_sent": m.msgs_sent,
+            "mode": mode, "gap_m": gap, "desired_gap_m": self.frame.desired_gap_m,
+            "spacing_error_m": self.frame.spacing_error_m, "msgs_sent": m.msgs_sent,
             "msgs_received": self._delivered(), "msgs_lost": self.v2v.counters.lost,
-            "pred_msg_age_s": m.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
+            "pred_msg_age_s": self.frame.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
             "msgs_kept": m.msgs_received,
             "loop_overruns": self._timer.overruns if self._timer else 0,
             "telemetry_age_s": max(wall - own.t, 0.0),
@@ -600,8 +632,8 @@ class DeployRunner:
         m = self.member
         parts = [f"vehicle {self.options.vehicle_id}", mode, f"v {own.speed:4.2f} m/s"]
         if not self.is_leader:
-            parts.append(f"gap {gap:5.2f} m (want {m.desired_gap_m:4.1f})")
-            parts.append(f"age {m.pred_msg_age_s:4.2f} s")
+            parts.append(f"gap {gap:5.2f} m (want {self.frame.desired_gap_m:4.1f})")
+            parts.append(f"age {self.frame.pred_msg_age_s:4.2f} s")
         parts.append(f"tx {m.msgs_sent} rx {m.msgs_received}")
         self.on_status(" | ".join(parts))
 
@@ -635,7 +667,7 @@ class DeployRunner:
             "n_vehicles": self.convoy.n_vehicles,
             "convoy": self.convoy.name,
             "scenario": self.convoy.scenario,
-            "policy": getattr(self.policy, "name", type(self.policy).__name__),
+            "policy": self.policy.name,
             "rate_hz": o.rate_hz,
             "dry_run": o.dry_run,
             "passive": o.passive,

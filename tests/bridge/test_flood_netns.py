@@ -37,6 +37,6 @@ def test_a_flood_of_foreign_bsms_does_not_stall_the_loop(tmp_path):
     assert res["flood_sent"] > 10_000, res
     assert v["filtered"] > 0.5 * res["flood_sent"], res
     # Slack for a loaded 2-core CI machine; on an idle one it is 100 % and 1.1 periods.
-    assert v["ticks"] >= 0.85 * v["expected_ticks"], res
-    assert v["on_time"] >= 0.7, res
-    assert v["max_gap_periods"] <= 5.0, res
+    assert v["ticks"] >= 0.75 * v["expected_ticks"], res
+    assert v["on_time"] >= 0.5, res  # before the fix: 0 (3 ticks in 2.5 s)
+    assert v["max_gap_periods"] <= 6.0, res  # before: 21 (1.04 s)

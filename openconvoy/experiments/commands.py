@@ -164,6 +164,12 @@ def report(args: argparse.Namespace) -> int:
 # --- presets -----------------------------------------------------------------------------
 
 
+def _start_threshold(p) -> float:
+    """The setpoint (m/s) below which a preset with static friction does not start from
+    rest: its first drive command is (ff + kp) x setpoint for the ``pi`` loop."""
+    return p.breakaway_mps / (p.speed_ff + p.speed_kp) if p.speed_loop == "pi" else p.breakaway_mps
+
+
 def presets(args: argparse.Namespace) -> int:
     """``openconvoy presets``: policy presets, one line each, then vehicle presets."""
     from openconvoy.envs.vehicles import VEHICLE_PRESETS
@@ -182,7 +188,7 @@ def presets(args: argparse.Namespace) -> int:
             f"{p.decel_max_mps2:g} m/s², turn rate {math.degrees(p.turn_rate_max_radps):.0f}°/s, "
             f"delay {p.actuation_delay_s:g} s, max {p.max_speed_mps:g} m/s"
             + (", the autopilot's PI speed loop" if p.speed_loop == "pi" else "")
-            + (f", static friction below {p.breakaway_mps:g} m/s" if p.breakaway_mps else "")
+            + (f", no start from rest below {_start_threshold(p):.2g} m/s" if p.breakaway_mps else "")
             + (", ranging sensor" if p.ranging else "")
         )
     return 0

@@ -326,4 +326,3 @@ def test_cli_lag_fit_of_a_recording_is_a_one_line_error(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stderr.strip() == ("openconvoy: error: the lag model fits one run's log; "
                                      "use --model pi for recordings or several inputs")
-

@@ -396,7 +396,8 @@ def run_fit_plant_cli(args: object) -> int:
     logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
     if getattr(args, "model", "lag") == "pi":
         pi_fit = fit_pi_plant(logs, base=args.base, name=args.name,  # type: ignore[attr-defined]
-                              vehicle_id=args.vehicle_id, source=args.source)  # type: ignore[attr-defined]
+                              vehicle_id=args.vehicle_id, source=args.source,  # type: ignore[attr-defined]
+                              cmd_timing=getattr(args, "cmd_timing", "after-state"))
         print(format_pi_fit(pi_fit))
         preset = pi_fit.preset
     else:
@@ -429,7 +430,9 @@ _PI_SPEED_BOUNDS = ((0.0, 0.6, False), (0.2, 10.0, True), (0.2, 10.0, True),
                     (1e-3, 20.0, True), (1e-3, 20.0, True), (0.3, 2.5, False),
                     (0.05, 5.0, True), (0.0, 1.5, False), (0.0, 1.0, False))
 _PI_SPEED_PRIOR = (0.1, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.0)
-FRICTION_MATTERS = 1.5
+_HEADING_ERR_CAP_RAD = math.radians(15.0)
+_SPEED_ERR_CAP_MPS = 0.3
+FRICTION_MATTERS = 1.2
 """A fitted static friction is kept only if dropping it raises the speed cost this much."""
 _PI_HEADING_KEYS = ("heading_delay_s", "heading_lag_s", "turn_rate_max_radps",
                     "yaw_accel_max_radps2", "lateral_accel_max_mps2", "max_steer_rad")
@@ -489,7 +492,9 @@ def _pi_speed_sse(series: _Series, c: np.ndarray) -> np.ndarray:
         out[i] = v
     # The measurement at grid row k is the state after k steps.
     got = np.concatenate([np.full((1, len(c)), v0), out])[rows]
-    return ((got - series.speed[:, None]) ** 2).sum(axis=0)
+    # Robust: stick-slip (PX4 SIH at 0.7 m/s) is not in the model; a sample off by more
+    # than the cap counts as the cap, so it cannot drag the rest of the fit.
+    return np.minimum((got - series.speed[:, None]) ** 2, _SPEED_ERR_CAP_MPS**2).sum(axis=0)
 
 
 def _pi_heading_sse(series: _Series, c: np.ndarray, wheelbase_m: float) -> np.ndarray:
@@ -516,7 +521,10 @@ def _pi_heading_sse(series: _Series, c: np.ndarray, wheelbase_m: float) -> np.nd
         psi = psi + np.clip(rate_des, -cap, cap) * h
         out[i] = psi
     got = np.concatenate([np.full((1, len(c)), h0), out])[rows]
-    return ((((got - series.heading[:, None]) + math.pi) % (2 * math.pi) - math.pi) ** 2).sum(axis=0)
+    err = ((got - series.heading[:, None]) + math.pi) % (2 * math.pi) - math.pi
+    # Robust: a 180 deg step turns either way by a hair of residual error (README §4), so a
+    # candidate turning the other way is off by up to 180 deg for seconds; cap each sample.
+    return np.minimum(err**2, _HEADING_ERR_CAP_RAD**2).sum(axis=0)
 
 
 def _cem(
@@ -566,16 +574,18 @@ class PiFit:
     source: str
 
 
-def _series_from(path: str | Path, vehicle_id: int | None, source: str) -> tuple[list[_Series], str]:
+def _series_from(
+    path: str | Path, vehicle_id: int | None, source: str, cmd_timing: str = "after-state"
+) -> tuple[list[_Series], str]:
     from openconvoy.bridge.recording import is_recording, read_recording
 
     if is_recording(path):
         rec = read_recording(path, source=source)
         return [_Series(s.t, s.speed, s.heading, s.t_cmd, s.cmd_speed, s.cmd_heading)
                 for s in rec.segments], f"{rec.autopilot} recording"
-    t, speed, heading, cmd_v, cmd_dh, age = _load(path, vehicle_id)
-    t_meas = t - age  # a row's state is as old as its telemetry
-    return [_Series(t_meas, speed, heading, t, cmd_v, heading + cmd_dh)], "log"
+    d = _align(*_load(path, vehicle_id), cmd_timing)
+    t_meas = d.t - d.age  # a row's state is as old as its telemetry
+    return [_Series(t_meas, d.speed, d.heading, d.t_cmd, d.cmd_v, d.cmd_h)], "log"
 
 
 def fit_pi_plant(
@@ -585,6 +595,8 @@ def fit_pi_plant(
     vehicle_id: int | None = None,
     source: str = "telemetry",
     rounds: int = 14,
+    population: int = 160,
+    cmd_timing: CmdTiming = "after-state",
 ) -> PiFit:
     """Fit the autopilot's PI speed loop (delay, ramp limits, gains, feed-forward, drive
     lag, static friction) and its heading loop (delay, lag, rate and yaw-accel limits,
@@ -592,12 +604,13 @@ def fit_pi_plant(
 
     Speed is fitted on every stretch whose commanded speed changes, heading on every
     stretch whose commanded heading changes; the other loop keeps the base preset's values
-    when no stretch excites it. Size and speed cap come from the base preset."""
+    when no stretch excites it. Size and speed cap come from the base preset. The search
+    (cross-entropy, seeded) runs ``rounds`` rounds of ``population`` candidates."""
     base_preset = vehicle_preset(base) if isinstance(base, str) else base
     series: list[_Series] = []
     kinds = []
     for p in paths:
-        got, kind = _series_from(p, vehicle_id, source)
+        got, kind = _series_from(p, vehicle_id, source, cmd_timing)
         series += got
         kinds.append(kind)
     speed_series = [s for s in series if np.ptp(s.cmd_v) >= 0.2]
@@ -612,7 +625,8 @@ def fit_pi_plant(
         def speed_cost(c: np.ndarray) -> np.ndarray:
             return sum(_pi_speed_sse(s, c) for s in speed_series) / n
 
-        best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds)
+        best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds,
+                          population=population)
         # Static friction only where the data needs it: without it the fit must be clearly
         # worse (a vehicle that would not start), not just a shade off in a stop's tail.
         frictionless = best.copy()
@@ -631,7 +645,7 @@ def fit_pi_plant(
         prior = [min(x, 1e3) for x in prior]
         best, cost = _cem(
             lambda c: sum(_pi_heading_sse(s, c, base_preset.wheelbase_m) for s in heading_series) / n,
-            prior, _PI_HEADING_BOUNDS, rounds=rounds)
+            prior, _PI_HEADING_BOUNDS, rounds=rounds, population=population)
         values.update(zip(_PI_HEADING_KEYS, (float(x) for x in best)))
         values["heading_delay_s"] = round(values["heading_delay_s"] / _PI_DT_S) * _PI_DT_S
         heading_rms = math.sqrt(cost)

@@ -1,13 +1,14 @@
 """The convoy member: R^i + ρ + τ + the staleness ladder + the observation builder.
 
 The unit that makes sim2real "unchanged" (DESIGN.md, One member, two worlds): the
-simulator and the vehicle bridge drive the same object through the same calls each tick::
+simulator and the vehicle bridge drive the same object through the same calls each tick,
+written once in ``core.tick``::
 
     member.observe_own(own_state)
     if member.wants_to_send(now): broadcast(own_state)
     for msg in inbox: member.receive(msg, now)
-    obs = member.observation(now)
-    action, mode = member.supervise(policy.act(obs), now, ranging)
+    frame = member.sense(now)               # observation + the derived values, explicit
+    action, mode = member.supervise(policy.act(frame.observation), frame, ranging)
 """
 
 from __future__ import annotations
@@ -71,6 +72,29 @@ class MemberConfig:
         return max(self.ladder.degrade_after_s, silence)
 
 
+def member_config_for(config: MemberConfig | None, spacing: SpacingConfig) -> MemberConfig:
+    """The member config a world runs: the policy's, or for a policy without one the
+    scenario's ``spacing`` and the defaults otherwise (the same rule in every world)."""
+    return config if config is not None else MemberConfig(spacing=spacing)
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """What the member sensed at ``t`` (s): the policy's ``observation`` and the derived
+    values the log reports and ``supervise`` uses. ``desired_gap_m`` (centre to centre,
+    from σ at the own speed), ``spacing_error_m`` (path-based, to the nearest heard
+    predecessor) and ``pred_msg_age_s`` are NaN where they do not exist (the leader; no
+    message heard); ``pred_gap`` is ``(arc gap m, closing m/s)`` to the immediate
+    predecessor by its messages, or None."""
+
+    t: float
+    observation: np.ndarray
+    desired_gap_m: float = math.nan
+    spacing_error_m: float = math.nan
+    pred_msg_age_s: float = math.nan
+    pred_gap: tuple[float, float] | None = None
+
+
 @dataclass(frozen=True, slots=True)
 class TargetEstimate:
     """Where a heard vehicle is now by its newest message: ENU position (m), speed (m/s),
@@ -124,11 +148,7 @@ class ConvoyMember:
         self.msgs_sent = 0
         self.msgs_received = 0
         self.msgs_filtered = 0
-        self.mode = ladder_mod.COOP
-        self.desired_gap_m = math.nan
-        self.spacing_error_m = math.nan
-        self.pred_msg_age_s = math.nan
-        self._pred_estimate: tuple[float, float] | None = None
+        self.mode = ladder_mod.COOP  # the last mode ``supervise`` decided
         self._last_s: dict[int, float] = {}  # last projection on each trail: a warm start
 
     # --- the tick --------------------------------------------------------------------
@@ -155,9 +175,15 @@ class ConvoyMember:
         return True
 
     def observation(self, now: float) -> np.ndarray:
-        """Build the observation array at ``now`` (layout in ``openconvoy.core.observation``)."""
+        """The observation array at ``now`` (``sense(now).observation``)."""
+        return self.sense(now).observation
+
+    def sense(self, now: float) -> Frame:
+        """The observation array at ``now`` (layout in ``openconvoy.core.observation``)
+        and the derived values, in one ``Frame``; leaves nothing behind that ``supervise``
+        reads (it takes the frame)."""
         if self.own is None:
-            raise RuntimeError("observe_own() must be called before observation()")
+            raise RuntimeError("observe_own() must be called before sense()")
         lay = self.layout
         obs = lay.zeros()
         ego = self.own
@@ -183,28 +209,29 @@ class ConvoyMember:
             obs[base : base + len(vals)] = vals
         o = lay.own_offset
         obs[o : o + 3] = (ego.speed, ego.accel, ego.yaw_rate)
-        self._fill_targets(obs, slot_ids, now)
-        return obs
+        return self._fill_targets(obs, slot_ids, now)
 
     def supervise(
         self,
         action: np.ndarray,
-        now: float,
+        frame: Frame,
         ranging: tuple[float, float] | None = None,
     ) -> tuple[np.ndarray, str]:
-        """Apply the staleness ladder to the policy's action.
+        """Apply the staleness ladder to the policy's action, at the time of ``frame``
+        (what ``sense`` returned this tick).
 
         ``ranging`` is ``(range_m, range_rate_mps)`` to the vehicle ahead, centre to
         centre, from a ranging sensor when the vehicle has one. Returns the action to
         apply and the mode (``coop``, ``degraded``, ``stop``).
         """
-        self.mode = ladder_mod.rung(self.needed_age(now), self.config.ladder)
-        if self._ranging_override(ranging):
-            self.mode = ladder_mod.DEGRADED
+        mode = ladder_mod.rung(self.needed_age(frame.t), self.config.ladder)
+        if mode == ladder_mod.COOP and self._ranging_override(ranging, frame):
+            mode = ladder_mod.DEGRADED
+        self.mode = mode
         if self.mode == ladder_mod.COOP:
             return np.asarray(action, dtype=np.float32), self.mode
         if self.mode == ladder_mod.DEGRADED:
-            estimate = ranging if ranging is not None else self._pred_estimate
+            estimate = ranging if ranging is not None else frame.pred_gap
             if estimate is not None and self.own is not None:
                 desired = self.spacing.pair_gap(
                     self.own.speed, self._length(self.vehicle_id), self._length(self.vehicle_id - 1)
@@ -269,13 +296,13 @@ class ConvoyMember:
         a = self.decels[vid] if 0 <= vid < len(self.decels) else math.inf
         return a if a > 0.0 else math.inf
 
-    def _ranging_override(self, ranging: tuple[float, float] | None) -> bool:
-        """Cooperating, but the ranging target is closer than the predecessor heard by V2V
-        (a cut-in) or than the desired gap: follow it by ranging (``ladder.ranging_override``)."""
-        if self.mode != ladder_mod.COOP or ranging is None or self._pred_estimate is None:
+    def _ranging_override(self, ranging: tuple[float, float] | None, frame: Frame) -> bool:
+        """The ranging target is closer than the predecessor heard by V2V (a cut-in) or
+        than the desired gap: follow it by ranging (``ladder.ranging_override``)."""
+        if ranging is None or frame.pred_gap is None:
             return False
-        desired = self.desired_gap_m if self.desired_gap_m == self.desired_gap_m else 0.0
-        return ladder_mod.ranging_override(ranging[0], self._pred_estimate[0], desired, self.config.ladder)
+        desired = frame.desired_gap_m if frame.desired_gap_m == frame.desired_gap_m else 0.0
+        return ladder_mod.ranging_override(ranging[0], frame.pred_gap[0], desired, self.config.ladder)
 
     def _length(self, vid: int) -> float:
         return self.lengths[vid] if 0 <= vid < len(self.lengths) else 0.0
@@ -286,20 +313,19 @@ class ConvoyMember:
         preds: list[int | None] = [i - m if i - m >= 0 else None for m in range(1, self.layout.M + 1)]
         return [0 if i > 0 else None, *preds, i + 1 if i + 1 < n else None]
 
-    def _fill_targets(self, obs: np.ndarray, slot_ids: list[int | None], now: float) -> None:
-        """Derived and path features; also the logged desired gap, spacing error, age."""
+    def _fill_targets(self, obs: np.ndarray, slot_ids: list[int | None], now: float) -> Frame:
+        """Derived and path features into ``obs``; the frame with the logged desired gap,
+        spacing error and message age."""
         lay = self.layout
         ego = self.own
         assert ego is not None
         i = self.vehicle_id
-        self.desired_gap_m = (
-            self.spacing.pair_gap(ego.speed, self._length(i), self._length(i - 1)) if i > 0 else math.nan
-        )
-        self.pred_msg_age_s = self.buffer.age(i - 1, now) if i > 0 else math.nan
-        if math.isinf(self.pred_msg_age_s):
-            self.pred_msg_age_s = math.nan
-        self.spacing_error_m = math.nan
-        self._pred_estimate = None
+        desired_gap = self.spacing.pair_gap(ego.speed, self._length(i), self._length(i - 1)) if i > 0 else math.nan
+        pred_age = self.buffer.age(i - 1, now) if i > 0 else math.nan
+        if math.isinf(pred_age):
+            pred_age = math.nan
+        spacing_error = math.nan
+        pred_gap: tuple[float, float] | None = None
         targets = slot_ids[: len(lay.targets)]
         preds_in_slots = set(targets[1:])
         found: dict[str, tuple[Trail, tuple[float, float], float, float, Projection]] = {}
@@ -324,11 +350,12 @@ class ConvoyMember:
             if name in found:
                 trail, head, heading, closing, projection = found[name]
                 o = lay.target_offset(name)
-                self.spacing_error_m = float(obs[o + 2])
+                spacing_error = float(obs[o + 2])
                 if name == "pred_1":
-                    self._pred_estimate = (projection.arc_to_head, closing)
+                    pred_gap = (projection.arc_to_head, closing)
                 self._fill_path(obs, trail, head, heading, projection)
                 break
+        return Frame(now, obs, desired_gap, spacing_error, pred_age, pred_gap)
 
     def _fill_path(
         self,

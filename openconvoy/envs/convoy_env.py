@@ -39,10 +39,10 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from openconvoy.comms.geodesy import enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core import tick as member_tick
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_faults, parse_fault
-from openconvoy.core.member import ConvoyMember, MemberConfig
-from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
+from openconvoy.core.member import ConvoyMember, Frame, MemberConfig, member_config_for
 from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
@@ -73,6 +73,7 @@ INFO_KEYS: tuple[str, ...] = (
     "msgs_kept",
     "msgs_lost",
     "pred_msg_age_s",
+    "policy_errors",
 )
 """Per-agent info keys. ``gap_m``: ground-truth centre-to-centre distance to the immediate
 predecessor; ``desired_gap_m``, ``spacing_error_m`` (path-based, from R^i) and
@@ -184,7 +185,7 @@ class ConvoyEnv(ParallelEnv):
         self.render_mode = render_mode
         self.reward_config = reward_config or RewardConfig()
         self.loss = loss or LossConfig()
-        self.member_config = member_config or MemberConfig(spacing=scenario.spacing)
+        self.member_config = member_config_for(member_config, scenario.spacing)
 
         self._lengths = [p.length_m for p in self.presets]
         self._widths = [p.width_m for p in self.presets]
@@ -212,19 +213,17 @@ class ConvoyEnv(ParallelEnv):
             a: gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
             for a in self.possible_agents
         }
+        # The action space and the clip every world applies (core.tick), bit for bit.
+        self._bounds = [member_tick.ActionBounds.float32(p.max_speed_mps) for p in self.presets]
         self._action_spaces = {
             a: gymnasium.spaces.Box(
-                low=np.array([0.0, -MAX_HEADING_CHANGE_RAD], dtype=np.float32),
-                high=np.array([self.presets[i].max_speed_mps, MAX_HEADING_CHANGE_RAD], dtype=np.float32),
+                low=np.array([0.0, -self._bounds[i].max_heading_change_rad], dtype=np.float32),
+                high=np.array([self._bounds[i].max_speed_mps, self._bounds[i].max_heading_change_rad],
+                              dtype=np.float32),
                 dtype=np.float32,
             )
             for a, i in self._agent_index.items()
         }
-        # (low speed, high speed, low heading change, high heading change) per agent, floats.
-        self._bounds = [
-            (float(sp.low[0]), float(sp.high[0]), float(sp.low[1]), float(sp.high[1]))
-            for sp in self._action_spaces.values()
-        ]
         self._road: np.ndarray | None = None
         self._seed_seq: np.random.SeedSequence | None = None
         self.t = 0.0
@@ -282,26 +281,19 @@ class ConvoyEnv(ParallelEnv):
         t = self.t
         cmd_v, cmd_dh = self._cmd_speed, self._cmd_dh
         ranging = self._ranging_readings()
-        bounds = self._bounds
         modes = self._modes
         names = self.possible_agents
-        members = self.members
         for i in range(1, self.n_vehicles):
             try:
                 a = actions[names[i - 1]]
             except KeyError:
                 raise KeyError(f"no action for {names[i - 1]}") from None
-            lo0, hi0, lo1, hi1 = bounds[i - 1]
-            a0 = float(a[0])
-            a1 = float(a[1])
-            a0 = lo0 if a0 < lo0 else (hi0 if a0 > hi0 else a0)
-            a1 = lo1 if a1 < lo1 else (hi1 if a1 > hi1 else a1)
             reading = ranging.get(i) if ranging else None
-            applied, mode = members[i].supervise(np.array((a0, a1), dtype=np.float32), t, reading)
-            cmd_v[i] = float(applied[0])
-            cmd_dh[i] = float(applied[1])
-            modes[i] = mode
-            if self.emergency_stop and self._emergency(i, t, reading):
+            d = member_tick.decide(self.members[i], self._frames[i], a, self._bounds[i], reading)
+            cmd_v[i], cmd_dh[i], modes[i] = d.speed_mps, d.heading_change_rad, d.mode
+            if d.policy_error:
+                self._policy_error(i, t, d.policy_error)
+            if self._failed[i] or (self.emergency_stop and self._emergency(i, t, reading)):
                 cmd_v[i] = cmd_dh[i] = 0.0
                 modes[i] = "failsafe"
         X, Y, V, H, A, _ = self._truth
@@ -431,7 +423,8 @@ class ConvoyEnv(ParallelEnv):
             cmd_dh,
             list(self._modes),
             [math.nan, *self._gap],
-            [(m.desired_gap_m, m.spacing_error_m, m.pred_msg_age_s, m.msgs_sent) for m in self.members],
+            [(f.desired_gap_m, f.spacing_error_m, f.pred_msg_age_s, m.msgs_sent)
+             for f, m in zip(self._frames, self.members)],
             [int(v) for v in self._rx],
             [int(v) for v in self._lost],
         )
@@ -456,6 +449,9 @@ class ConvoyEnv(ParallelEnv):
         self._rx: list[int] = [0] * n
         self._lost: list[int] = [0] * n
         self._estopped: list[bool] = [False] * n
+        self._failed: list[bool] = [False] * n  # a refused action stopped it for the episode
+        self._policy_errors: list[int] = [0] * n
+        self._frames: list[Frame] = []
         self._faults_seen: set[Fault] = set()
         self._muted = {f.vehicle for f in self.faults if f.mutes}
         self.safety_events: list[tuple[float, int, str]] = []
@@ -478,18 +474,19 @@ class ConvoyEnv(ParallelEnv):
         lengths, widths = self._lengths, self._widths
         for i, m in enumerate(members):
             st = VehicleState(i, t, xs[i], ys[i], vs[i], hs[i], acs[i], yrs[i], lengths[i], widths[i])
-            m.observe_own(st)
-            if self._muted and i in self._muted and self._fault_active(i, t, mutes=True):
-                continue
-            if m.wants_to_send(t):
-                channel.send(i, st, t)
+            muted = bool(self._muted) and i in self._muted and self._fault_active(i, t, mutes=True)
+            sent = member_tick.begin(m, st, t, may_send=not muted)
+            if sent is not None:
+                channel.send(i, sent, t)
+        inboxes: list[list[VehicleState]] = [[] for _ in members]
         for r, _, msg in channel.deliver(t):
-            members[r].receive(msg, t)
+            inboxes[r].append(msg)
         if self._forged:
-            self._forge(t, members)
-        return {a: members[i].observation(t) for i, a in enumerate(self.agents, start=1)}
+            self._forge(t, inboxes)
+        self._frames = [member_tick.sense(m, box, t) for m, box in zip(members, inboxes)]
+        return {a: self._frames[i].observation for i, a in enumerate(self.agents, start=1)}
 
-    def _forge(self, t: float, members: list[ConvoyMember]) -> None:
+    def _forge(self, t: float, inboxes: list[list[VehicleState]]) -> None:
         """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
         offered to every other member (verified when ``auth``)."""
         x, y, v, h = self._truth[:4]
@@ -499,7 +496,7 @@ class ConvoyEnv(ParallelEnv):
                 i = f.vehicle
                 claimed.append(VehicleState(i, t, x[i], y[i], v[i], h[i], 0.0, 0.0,
                                             self._lengths[i], self._widths[i]))
-        self.auth.deliver_forgeries(claimed, members, t)
+        self.auth.deliver_forgeries(claimed, inboxes)
 
     @property
     def forged_rejected(self) -> list[int]:
@@ -511,7 +508,7 @@ class ConvoyEnv(ParallelEnv):
         x, y = self._truth[0], self._truth[1]
         hypot = math.hypot
         self._gap = [hypot(x[i - 1] - x[i], y[i - 1] - y[i]) for i in range(1, len(x))]
-        self._desired = [m.desired_gap_m for m in self.members[1:]]
+        self._desired = [f.desired_gap_m for f in self._frames[1:]]
         self._collided = [g < h for g, h in zip(self._gap, self._half_sum)]
         self._rx = self.channel.delivered_to
         self._lost = self.channel.lost_to
@@ -534,6 +531,14 @@ class ConvoyEnv(ParallelEnv):
                 self._cmd_speed[f.vehicle] = 0.0
                 self._cmd_dh[f.vehicle] = 0.0
                 self._modes[f.vehicle] = "stop"
+
+    def _policy_error(self, i: int, t: float, why: str) -> None:
+        """A refused action: counted; the follower stops for the rest of the episode (the
+        vehicle's policy-error failsafe)."""
+        self._policy_errors[i] += 1
+        if not self._failed[i]:
+            self._failed[i] = True
+            self.safety_events.append((t, i, f"policy error: {why}"))
 
     def _emergency(self, i: int, t: float, reading: tuple[float, float] | None) -> bool:
         """The braking-aware gap rule for follower ``i`` (latched once it fires)."""
@@ -585,13 +590,13 @@ class ConvoyEnv(ParallelEnv):
         collided = self._collided
         out = {}
         for i, a in enumerate(self.agents, start=1):
-            m = self.members[i]
+            m, f = self.members[i], self._frames[i]
             out[a] = {
                 "t_s": self.t,
                 "gap_m": gap[i - 1],
                 "desired_gap_m": _opt(desired[i - 1]),
                 "platooning_error_m": _opt(abs(gap[i - 1] - desired[i - 1])),
-                "spacing_error_m": _opt(m.spacing_error_m),
+                "spacing_error_m": _opt(f.spacing_error_m),
                 "speed_mps": speed[i],
                 "accel_mps2": accel[i],
                 "leader_speed_mps": leader_speed,
@@ -603,7 +608,8 @@ class ConvoyEnv(ParallelEnv):
                 "msgs_received": rx[i],
                 "msgs_kept": m.msgs_received,
                 "msgs_lost": lost[i],
-                "pred_msg_age_s": _opt(m.pred_msg_age_s),
+                "pred_msg_age_s": _opt(f.pred_msg_age_s),
+                "policy_errors": self._policy_errors[i],
             }
         return out
 

@@ -59,11 +59,11 @@ class Authentication:
             return False
         return True
 
-    def deliver_forgeries(self, claimed: Sequence[VehicleState], receivers: Sequence, t: float) -> None:
-        """Offer a forged copy of each ``claimed`` state to every other member in
-        ``receivers`` (``ConvoyMember`` objects, index = convoy position) at ``t``."""
+    def deliver_forgeries(self, claimed: Sequence[VehicleState], inboxes: Sequence[list[VehicleState]]) -> None:
+        """Offer a forged copy of each ``claimed`` state to every other member: appended to
+        ``inboxes[r]`` (index = convoy position) when receiver ``r`` accepts it."""
         for st in claimed:
             msg = forged_state(st)
-            for r, member in enumerate(receivers):
+            for r, inbox in enumerate(inboxes):
                 if r != st.vehicle_id and self.verify(r, msg):
-                    member.receive(msg, t)
+                    inbox.append(msg)

@@ -33,6 +33,7 @@ try:  # the traffic extra, imported here only (the core never needs it)
     from highway_env.road.lane import LineType, SineLane, StraightLane
     from highway_env.road.road import Road, RoadNetwork
     from highway_env.vehicle.behavior import IDMVehicle
+    from highway_env.vehicle.kinematics import Vehicle
     from highway_env.vehicle.objects import Landmark, Obstacle, RoadObject
 except ModuleNotFoundError as exc:
     raise DependencyMissing(
@@ -42,7 +43,7 @@ except ModuleNotFoundError as exc:
 __all__ = [
     "TRAFFIC_ID_BASE", "ConvoyVehicle", "FastRoad", "HighwayFrame", "IDMVehicle", "InPath", "LineType",
     "Obstacle", "Road", "RoadNetwork", "ScriptedLaneChanger", "SineLane", "StraightLane", "TrafficWorld",
-    "enu_to_highway", "highway_to_enu",
+    "collide", "enu_to_highway", "highway_to_enu",
 ]
 
 TRAFFIC_ID_BASE = 1000
@@ -112,19 +113,34 @@ class ConvoyVehicle(IDMVehicle):
 
 
 class ScriptedLaneChanger(IDMVehicle):
-    """A traffic car (IDM longitudinally) that changes lane when told to, not by MOBIL:
-    ``schedule`` holds ``(time_s, lane_id)`` pairs applied by ``update(t)``."""
+    """A test-track target car: holds ``target_speed`` (highway-env's speed controller,
+    ``KP_A * (target - speed)``, clipped to ``ACC_MAX``), keeps its lane with highway-env's
+    steering law, and changes lane when told to, not by MOBIL: ``schedule`` holds
+    ``(time_s, lane_id, target_speed_mps or None)`` applied by ``update(t)``. It does not
+    react to the vehicles around it (as the target of a cut-in test does not)."""
 
     def __init__(self, road: Road, position: np.ndarray, heading: float, speed: float,
-                 schedule: Sequence[tuple[float, int]] = (), target_speed: float | None = None) -> None:
+                 schedule: Sequence[tuple[float, int, float | None]] = (),
+                 target_speed: float | None = None) -> None:
         super().__init__(road, position, heading, speed, target_speed=target_speed, enable_lane_change=False)
         self.schedule = sorted(schedule)
 
     def update(self, t: float) -> None:
         while self.schedule and self.schedule[0][0] <= t + 1e-9:
-            _, lane_id = self.schedule.pop(0)
+            _, lane_id, speed = self.schedule.pop(0)
             _from, _to, _ = self.lane_index
             self.target_lane_index = (_from, _to, lane_id)
+            if speed is not None:
+                self.target_speed = speed
+
+    def act(self, action: dict | str | None = None) -> None:
+        if self.crashed:
+            return
+        self.follow_road()
+        steering = float(np.clip(self.steering_control(self.target_lane_index),
+                                 -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+        accel = float(np.clip(self.speed_control(self.target_speed), -self.ACC_MAX, self.ACC_MAX))
+        Vehicle.act(self, {"steering": steering, "acceleration": accel})
 
 
 class FastRoad(Road):
@@ -141,6 +157,8 @@ class FastRoad(Road):
     (the parity test runs both on the same seeds)."""
 
     _cache: dict | None = None
+    idm_accel: dict[int, float] = {}
+    """Filled by ``VectorRoad.act``; empty here."""
 
     def act(self) -> None:
         self._cache = {}
@@ -191,20 +209,53 @@ class FastRoad(Road):
     def step(self, dt: float) -> None:
         for vehicle in self.vehicles:
             vehicle.step(dt)
-        items = self.vehicles + self.objects
-        n_v = len(self.vehicles)
-        if len(items) < 2:
-            return
-        pos = np.array([o.position for o in items])
-        diag = np.array([o.diagonal for o in items])
-        speed = np.array([abs(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
-        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
-        # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
-        near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + speed[:, None] * dt + 1e-6
-        ii, jj = np.nonzero(np.triu(near, k=1))
-        for i, j in zip(ii.tolist(), jj.tolist()):
-            if i < n_v:
-                items[i].handle_collisions(items[j], dt)
+        collide(self, dt)
+
+
+def collide(road: Road, dt: float) -> None:
+    """``Road.step``'s collision pass with the same outcome: highway-env's
+    ``handle_collisions`` runs, in its order, for every vehicle–vehicle and vehicle–object
+    pair except those that numpy shows cannot touch: pairs failing its spherical
+    pre-check, and pairs its separating-axis test (``are_polygons_intersecting``, done here
+    for all pairs at once) finds apart both now and after ``dt`` (with a 1e-9 m margin)."""
+    items = road.vehicles + road.objects
+    n_v = len(road.vehicles)
+    if len(items) < 2:
+        return
+    pos = np.array([o.position for o in items], dtype=float)
+    diag = np.array([o.diagonal for o in items])
+    speed = np.array([float(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
+    dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+    # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
+    near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + np.abs(speed)[:, None] * dt + 1e-6
+    near[n_v:, :] = False
+    ii, jj = np.nonzero(np.triu(near, k=1))
+    if not len(ii):
+        return
+    heading = np.array([float(o.heading) for o in items])
+    half = 0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float)
+    c, s = np.cos(heading), np.sin(heading)
+    # Corners in RoadObject.polygon's order: (-l,-w), (-l,+w), (+l,+w), (+l,-w).
+    sl, sw = np.array([-1, -1, 1, 1]), np.array([-1, 1, 1, -1])
+    lx, wy = sl[None, :] * half[:, 0:1], sw[None, :] * half[:, 1:2]
+    corners = np.stack((c[:, None] * lx - s[:, None] * wy + pos[:, 0:1],
+                        s[:, None] * lx + c[:, None] * wy + pos[:, 1:2]), axis=-1)  # (n, 4, 2)
+    edges = np.roll(corners, -1, axis=1) - corners
+    normals = np.stack((-edges[..., 1], edges[..., 0]), axis=-1)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    vel = speed[:, None] * np.stack((c, s), axis=1) * dt
+    a, b = corners[ii], corners[jj]  # (k, 4, 2)
+    axes = np.concatenate((normals[ii], normals[jj]), axis=1)  # (k, 8, 2)
+    pa = np.einsum("kpd,kad->kap", a, axes)
+    pb = np.einsum("kpd,kad->kap", b, axes)
+    min_a, max_a, min_b, max_b = pa.min(-1), pa.max(-1), pb.min(-1), pb.max(-1)
+    apart_now = np.where(min_a < min_b, min_b - max_a, min_a - max_b) > 1e-9
+    vp = np.einsum("kad,kd->ka", axes, vel[ii] - vel[jj])
+    min_a2, max_a2 = min_a + np.minimum(vp, 0.0), max_a + np.maximum(vp, 0.0)
+    apart_later = np.where(min_a2 < min_b, min_b - max_a2, min_a2 - max_b) > 1e-9
+    maybe = ~(apart_now.any(axis=1) & apart_later.any(axis=1))
+    for i, j in zip(ii[maybe].tolist(), jj[maybe].tolist()):
+        items[i].handle_collisions(items[j], dt)
 
 
 @dataclass(frozen=True)
@@ -317,6 +368,10 @@ class TrafficWorld:
         """highway-env's IDM acceleration (m/s²) for the leader behind whatever is ahead of
         it on its lane (traffic or obstacle), towards the cruise speed."""
         lead = self.convoy[0]
+        if isinstance(self.road, FastRoad):
+            known = self.road.idm_accel.get(id(lead))  # VectorRoad computed it in act
+            if known is not None:
+                return known
         front, _ = self.road.neighbour_vehicles(lead, lead.lane_index)
         a = lead.acceleration(ego_vehicle=lead, front_vehicle=front)
         return float(np.clip(a, -lead.ACC_MAX, lead.ACC_MAX))

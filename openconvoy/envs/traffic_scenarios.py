@@ -4,9 +4,12 @@ Specs (``make_highway_scenario``), each with any number of followers, full-size 
 forward radar by default, traffic randomized by the episode's seed:
 
 - ``highway-cut-in``: three lanes, the convoy in the middle one at 25 m/s; a car without
-  V2V drives beside gap ``cut_in_gap`` (1 = between the leader and follower 1) in the
-  lane to the left, changes into the gap at ``cut_in_at_s`` and back out at
-  ``cut_out_at_s`` (never if negative). Other traffic in the outer lanes only.
+  V2V starts beside gap ``cut_in_gap`` (1 = between the leader and follower 1) in the
+  lane to the left (shifted by ``cut_in_offset_m``) at the convoy's speed, and at
+  ``cut_in_at_s`` changes into the convoy's lane, slowing to ``cut_in_speed_mps`` (22 m/s;
+  negative: the convoy's speed), like the target car of a cut-in test (holding its speed,
+  not reacting to others); back out at ``cut_out_at_s`` (never if negative). Other traffic (IDM/MOBIL) in the
+  outer lanes only.
 - ``highway-slow-traffic``: slower IDM traffic (``slow_speed_mps``) ``slow_ahead_m`` ahead
   of the leader, in every lane; the leader's IDM follows it.
 - ``highway-merge``: the convoy in the right lane of the highway, an on-ramp joining it
@@ -53,6 +56,7 @@ from openconvoy.envs.traffic import (
     StraightLane,
     TrafficWorld,
 )
+from openconvoy.envs.traffic_vector import VectorRoad
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor, VehiclePreset
 
 HIGHWAY_SCENARIOS: tuple[str, ...] = (
@@ -60,6 +64,11 @@ HIGHWAY_SCENARIOS: tuple[str, ...] = (
 )
 
 LANE_WIDTH_M = StraightLane.DEFAULT_WIDTH
+ROADS: tuple[str, ...] = ("vector", "fast", "highway-env")
+"""Traffic paths (``HighwayConfig.road``): ``vector`` (``traffic_vector.VectorRoad``: all
+cars at once with numpy on straight roads, ``fast`` elsewhere), ``fast`` (``FastRoad``:
+highway-env's vehicles, its neighbour search and collision pre-check done once per step),
+``highway-env`` (its ``Road`` as is)."""
 RADAR = RangingSensor(max_range_m=150.0, range_noise_m=0.1, range_rate_noise_mps=0.1)
 """The full-size cars' forward radar (a long-range automotive radar: 150 m)."""
 CAR = VEHICLE_PRESETS["full-size"].with_ranging(RADAR)
@@ -72,16 +81,16 @@ class HighwayConfig:
 
     lanes: int = 3
     speed_mps: float = 25.0
-    duration_s: float = 30.0
+    duration_s: float = 45.0
     traffic: int = 6
     traffic_speed_min_mps: float = 20.0
     traffic_speed_max_mps: float = 30.0
-    fast: bool = True
+    road: str = "vector"
     # highway-cut-in
     cut_in_at_s: float = 3.0
-    cut_out_at_s: float = 10.0
+    cut_out_at_s: float = 8.0
     cut_in_gap: int = 1
-    cut_in_speed_mps: float = -1.0
+    cut_in_speed_mps: float = 22.0
     cut_in_offset_m: float = 0.0
     # highway-slow-traffic
     slow_speed_mps: float = 15.0
@@ -102,6 +111,8 @@ class HighwayConfig:
                 raise ConfigError(f"highway {name} must be positive, got {getattr(self, name)}")
         if self.traffic < 0 or self.merge_cars < 0 or not 0 <= self.drop_cars <= 2:
             raise ConfigError("highway traffic and merge_cars must be >= 0, drop_cars 0..2")
+        if self.road not in ROADS:
+            raise ConfigError(f"highway road must be one of {', '.join(ROADS)}, got {self.road!r}")
         if not 0 < self.traffic_speed_min_mps <= self.traffic_speed_max_mps:
             raise ConfigError("highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps")
 
@@ -200,12 +211,12 @@ class HighwayScenario:
     # --- roads ---------------------------------------------------------------------------
 
     def _road(self, rs: np.random.RandomState) -> Road:
-        cls = FastRoad if self.config.fast else Road
+        cls = {"vector": VectorRoad, "fast": FastRoad, "highway-env": Road}[self.config.road]
         if self.name == "highway-merge":
             return self._merge_road(cls, rs)
         if self.name == "highway-lane-drop":
             return self._drop_road(cls, rs)
-        net = RoadNetwork.straight_road_network(self.config.lanes, start=0.0, length=5000.0, speed_limit=40.0)
+        net = RoadNetwork.straight_road_network(self.config.lanes, start=0.0, length=10000.0, speed_limit=40.0)
         return cls(network=net, np_random=rs)
 
     def _merge_road(self, cls: type, rs: np.random.RandomState) -> Road:
@@ -290,12 +301,13 @@ class _Spawner:
             self._drop()
         lo, hi = cfg.traffic_speed_min_mps, cfg.traffic_speed_max_mps
         offsets_end = sc._offsets()[-1]
+        half = max(250.0, 8.0 * cfg.traffic)  # metres each side of the leader's start
         if name == "highway-slow-traffic":
             lo, hi = 0.9 * cfg.slow_speed_mps, 1.1 * cfg.slow_speed_mps
         for _ in range(cfg.traffic):
             for _try in range(20):
                 lane = int(self.rs.choice(lanes))
-                s = float(self.rs.uniform(x0 - 250.0, x0 + 250.0))
+                s = float(self.rs.uniform(x0 - half, x0 + half))
                 if name == "highway-slow-traffic":
                     s = float(self.rs.uniform(x0 + cfg.slow_ahead_m + 30.0, x0 + cfg.slow_ahead_m + 400.0))
                 if name == "highway-lane-drop":
@@ -320,10 +332,12 @@ class _Spawner:
         lane = sc.convoy_lane - 1
         speed = cfg.speed_mps if cfg.cut_in_speed_mps < 0 else cfg.cut_in_speed_mps
         ln = self.road.network.get_lane(("0", "1", lane))
-        schedule = [(cfg.cut_in_at_s, sc.convoy_lane)]
+        # Paces its gap at the convoy's speed until the cue, then cuts in at its own speed.
+        schedule: list[tuple[float, int, float | None]] = [(cfg.cut_in_at_s, sc.convoy_lane, speed)]
         if cfg.cut_out_at_s >= 0:
-            schedule.append((cfg.cut_out_at_s, lane))
-        v = ScriptedLaneChanger(self.road, ln.position(s, 0.0), ln.heading_at(s), speed, schedule, target_speed=speed)
+            schedule.append((cfg.cut_out_at_s, lane, None))
+        v = ScriptedLaneChanger(self.road, ln.position(s, 0.0), ln.heading_at(s), cfg.speed_mps, schedule,
+                                target_speed=cfg.speed_mps)
         self._add(v, lane, s)
 
     def _merge(self) -> None:

@@ -139,7 +139,7 @@ def build_env(config: RunConfig):
     policy = load_policy(config.policy)
     presets = [vehicle_preset(v) for v in config.vehicles] or None
     scenario = make_scenario(config.scenario, config.n_followers, presets)
-    member_config = getattr(policy, "member_config", None)
+    member_config = policy.member_config
     if member_config is not None and config.start_at_policy_gap:
         # The scenario places its vehicles at the desired gaps of its ``spacing``.
         scenario.spacing = member_config.spacing
@@ -155,7 +155,7 @@ def build_env(config: RunConfig):
         scenario,
         member_config=member_config,
         loss=config.loss,
-        control_rate_hz=float(getattr(policy, "control_rate_hz", 20.0)),
+        control_rate_hz=float(policy.control_rate_hz),
         gps_noise_m=config.gps_noise_m,
         max_time_s=config.duration_s,
         faults=config.faults,

@@ -16,23 +16,25 @@ from typing import Any
 
 from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError, MissingFileError
-from openconvoy.core.policy import Policy
+from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.presets import PRESETS, with_ladder
 
 LADDER_SUFFIX = "+ladder"
 
 
-def load_policy(spec: str, **learned_kwargs: Any) -> Policy:
-    """The policy a spec names. Learned-policy keyword arguments pass to their loader."""
+def load_policy(spec: str, **learned_kwargs: Any) -> ConvoyPolicy:
+    """The policy a spec names (a ``ConvoyPolicy``: checked here, so callers read its
+    ``member_config``, ``control_rate_hz`` and ``name`` directly). Learned-policy keyword
+    arguments pass to their loader."""
     path = Path(spec)
     if path.suffix in (".zip", ".npz"):
         if not path.is_file():
             raise MissingFileError(f"policy file not found: {spec}")
         from openconvoy.policies import learned
 
-        return learned.load_learned(path, **learned_kwargs)
-    return ClassicalPolicy(classical_config(spec))
+        return as_convoy_policy(learned.load_learned(path, **learned_kwargs), spec)
+    return as_convoy_policy(ClassicalPolicy(classical_config(spec)), spec)
 
 
 def classical_config(spec: str) -> ClassicalConfig:

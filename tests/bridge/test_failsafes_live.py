@@ -323,7 +323,7 @@ def test_dry_run_never_arms_nor_sends_setpoints_but_logs_and_broadcasts(tmp_path
         assert follower.link.sent == [] and follower.vehicle.setpoints_received == 0
         assert not follower.vehicle.armed
         assert follower.runner.member.msgs_sent > 5
-        assert np.isfinite(follower.runner.member.spacing_error_m)
+        assert np.isfinite(follower.runner.frame.spacing_error_m)
     finally:
         c.stop()
     log = read_log(c.log_dir / "vehicle_1.csv")

@@ -100,6 +100,7 @@ class FixedPolicy:
         self.action = make_action(speed, change)
         self.member_config = load_policy("paper").member_config
         self.control_rate_hz = 20.0
+        self.name = "fixed"
         self.calls = 0
         self.clock, self.slow_call, self.slow_s = clock, slow_call, slow_s
 

@@ -31,21 +31,21 @@ def _member() -> ConvoyMember:
     m = ConvoyMember(1, 2, cfg, lengths=[4.8, 4.8])
     m.receive(VehicleState(0, 0.0, 20.0, 0.0, 25.0, 0.0), 0.0)
     m.observe_own(VehicleState(1, 0.0, 0.0, 0.0, 25.0, 0.0))
-    m.observation(0.0)
     return m
 
 
 def test_member_follows_a_cut_in_by_ranging_and_returns_to_coop() -> None:
     act = np.array([26.0, 0.0], dtype=np.float32)
     m = _member()
+    f = m.sense(0.0)
     # The sensor sees the predecessor: cooperative, the policy's action unchanged.
-    a, mode = m.supervise(act, 0.0, ranging=(20.0, 0.0))
+    a, mode = m.supervise(act, f, ranging=(20.0, 0.0))
     assert mode == "coop" and a[0] == pytest.approx(26.0)
     # A car 8 m ahead at the same speed: degraded ACC on it (8 m against 20 + 25 wanted).
-    a, mode = m.supervise(act, 0.0, ranging=(8.0, 0.0))
+    a, mode = m.supervise(act, f, ranging=(8.0, 0.0))
     assert mode == "degraded"
     assert a[0] == pytest.approx(25.0 + 0.5 * (8.0 - 45.0))
     # It left: the sensor sees the predecessor again, the member cooperates again.
-    assert m.supervise(act, 0.0, ranging=(20.1, 0.0))[1] == "coop"
+    assert m.supervise(act, f, ranging=(20.1, 0.0))[1] == "coop"
     # Without a sensor nothing changes.
-    assert m.supervise(act, 0.0)[1] == "coop"
+    assert m.supervise(act, f)[1] == "coop"

@@ -88,6 +88,20 @@ def test_parallel_api(spec: str) -> None:
     parallel_api_test(TrafficConvoyEnv(f"{spec}:traffic=3,duration_s=3"), num_cycles=60)
 
 
+def test_aec_api_and_single_agent_id() -> None:
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+    from pettingzoo.test import api_test
+
+    import openconvoy.envs
+
+    api_test(ConvoyEnv.aec(scenario="highway-cut-in:traffic=3,duration_s=2"), num_cycles=40)
+    env = gymnasium.make(openconvoy.envs.HIGHWAY_SINGLE_AGENT_ID, max_time_s=2.0)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=1)
+    assert obs.shape == env.observation_space.shape and info["desired_gap_m"] == pytest.approx(21.8)
+
+
 def test_convoy_env_with_a_highway_spec_is_the_traffic_env() -> None:
     env = ConvoyEnv("highway-slow-traffic", n_followers=3)
     assert isinstance(env, TrafficConvoyEnv)
@@ -115,26 +129,33 @@ def _rollout(spec: str, seed: int) -> list:
 def test_whole_episode_determinism(spec: str) -> None:
     from tests.envs.test_api import _same
 
-    a = _rollout(f"{spec}:duration_s=2", seed=5)
-    b = _rollout(f"{spec}:duration_s=2", seed=5)
+    a = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=5)
+    b = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=5)
     assert len(a) == len(b) > 10 and _same(a, b)
     # Traffic is randomized by the seed.
-    c = _rollout(f"{spec}:duration_s=2", seed=6)
+    c = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=6)
     assert not np.array_equal(a[0][2], c[0][2])
 
 
 @pytest.mark.parametrize("spec", ["highway-cut-in:traffic=10", "highway-slow-traffic:traffic=10"])
-def test_fast_road_matches_highway_env_road(spec: str) -> None:
-    """The faster traffic path gives highway-env's trajectories, bit for bit."""
-    fast = _rollout(f"{spec},duration_s=4,fast=true", seed=3)
-    slow = _rollout(f"{spec},duration_s=4,fast=false", seed=3)
-    assert len(fast) == len(slow) > 60
+def test_faster_traffic_paths_match_highway_env_road(spec: str) -> None:
+    """The faster traffic paths give highway-env's trajectories: ``fast`` bit for bit,
+    ``vector`` within 1e-9 m (bit for bit here; numpy on arrays may round the last bits
+    differently elsewhere)."""
+    ref = _rollout(f"{spec},duration_s=3,road=highway-env", seed=3)
+    fast = _rollout(f"{spec},duration_s=3,road=fast", seed=3)
+    vector = _rollout(f"{spec},duration_s=3,road=vector", seed=3)
+    assert len(fast) == len(ref) == len(vector) > 50
     traffic = lambda entry: entry[2] if len(entry) == 3 else entry[3]  # noqa: E731
-    for f, s in zip(fast, slow):
-        assert np.array_equal(traffic(f), traffic(s))
+    worst = 0.0
+    for r, f, v in zip(ref, fast, vector):
+        assert np.array_equal(traffic(f), traffic(r))
+        worst = max(worst, float(np.max(np.abs(traffic(v) - traffic(r)))))
+    assert worst < 1e-9
     # Traffic moved and changed lanes: the test compares something.
-    start, end = fast[0][2], fast[-1][3]
+    start, end = ref[0][2], ref[-1][3]
     assert np.all(end[:, 0] - start[:, 0] > 30.0)
+    assert np.any(np.abs(end[:, 1] - start[:, 1]) > 2.0)
 
 
 def _cut_in(policy: str, seed: int = 0):
@@ -154,21 +175,46 @@ def test_cut_in_degrades_to_ranging_and_restores_the_gap() -> None:
     assert log["mode"][f1 & (log["t_s"] > 5.0)].tolist() == ["coop"] * int((f1 & (log["t_s"] > 5.0)).sum())
     # No collision, with the cut-in's closest approach reported.
     assert m["traffic_collisions"] == 0 and m["collisions"] == 0
-    assert 0.5 < m["min_ttc_s"] < 2.0
-    assert 6.0 < m["min_gap_ahead_m"] < 9.0
+    assert 1.5 < m["min_ttc_s"] < 2.5
+    assert 8.5 < m["min_gap_ahead_m"] < 11.0
     # Follower 1 got its cooperative gap back (|gap - desired| <= 10 % of it) and kept it.
-    assert m["gap_restored"] and 20.0 < m["gap_restore_time_s"] < 35.0
+    assert m["gap_restored"] and 18.0 < m["gap_restore_time_s"] < 28.0
     assert m["disturbance_s"] == pytest.approx(t_in.min())
     # Follower 2 never saw the intruder, and the disturbance shrank along the string.
     assert not ((log["vehicle_id"] == 2) & (log["ahead_traffic"] == 1.0)).any()
     assert m["string_stability_after_disturbance"] < 0.2
 
 
-def test_cut_in_without_the_ladder_hits_the_intruder() -> None:
-    m = _cut_in("cacc-allpred").metrics
-    # Cooperative control alone trusts V2V and drives into the car it cannot hear.
-    assert m["traffic_collisions"] == 1 and m["min_ttc_s"] < 0.1
-    assert m["duration_s"] < 3.0
+def _run_env(env: TrafficConvoyEnv, policy: str) -> dict:
+    from openconvoy.experiments.runs import rows_to_log
+    from openconvoy.policies import load_policy
+
+    pols = {a: load_policy(policy) for a in env.possible_agents}
+    obs, _ = env.reset(seed=0)
+    rows = []
+    while env.agents:
+        obs, *_ = env.step({a: pols[a].act(obs[a]) for a in env.agents})
+        rows += env.log_rows()
+    rows += env.final_log_rows()
+    log = rows_to_log(rows)
+    return {**mt.traffic_metrics(log, env.vehicle_lengths), "t_end": env.t, "log": log}
+
+
+def test_cut_in_without_the_ladder_ends_in_an_emergency_stop_or_a_crash() -> None:
+    from openconvoy.policies import load_policy
+
+    member = load_policy("cacc-allpred").member_config
+    # Cooperative control alone trusts V2V and closes on the car it cannot hear: the
+    # braking-aware emergency stop fires, and follower 1 stays stopped on the highway.
+    env = TrafficConvoyEnv(CUT_IN, member_config=member, max_time_s=12.0)
+    m = _run_env(env, "cacc-allpred")
+    assert m["traffic_collisions"] == 0 and not m["gap_restored"]
+    assert [e[1] for e in env.safety_events] == [1] and "emergency stop" in env.safety_events[0][2]
+    assert env.plant.speed[1] == pytest.approx(0.0, abs=0.01) and 0.5 < m["min_ttc_s"] < 1.5
+    # Without that last resort it drives into the intruder.
+    env = TrafficConvoyEnv(CUT_IN, member_config=member, emergency_stop=False)
+    m = _run_env(env, "cacc-allpred")
+    assert m["traffic_collisions"] == 1 and m["min_ttc_s"] < 0.5 and m["t_end"] < 5.0
 
 
 def test_slow_traffic_leader_follows_it_by_idm() -> None:
@@ -213,7 +259,7 @@ def test_render_rgb_array_draws_road_traffic_and_convoy() -> None:
     env = TrafficConvoyEnv("highway-cut-in:traffic=4", render_mode="rgb_array")
     env.reset(seed=0)
     img = env.render()
-    assert img.shape == (200, 900, 3) and img.dtype == np.uint8
+    assert img.shape == (100, 900, 3) and img.dtype == np.uint8
     # The leader's colour and a coop follower's colour are in the picture.
     flat = img.reshape(-1, 3)
     for colour in ((30, 90, 200), (40, 160, 60)):

@@ -162,7 +162,7 @@ def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_pap
 
 
 def _sim_decide(env: ConvoyEnv, i: int, action, ranging=None) -> member_tick.Decision:
-    return member_tick.decide(env.members[i], env._frames[i], np.asarray(action), env._bounds[i], ranging)
+    return member_tick.decide(env.members[i], env.sim.frames[i], np.asarray(action), env.sim.bounds[i], ranging)
 
 
 def test_row_clip_before_supervise_in_both_worlds():

@@ -231,7 +231,7 @@ def test_slow_traffic_leader_follows_it_by_idm() -> None:
     lead = env.world.convoy[0]
     # The leader slowed from 25 m/s to the traffic's 15 m/s, an IDM distance behind it.
     assert abs(env.plant.speed[0] - 15.0) < 1.0
-    ahead = env._in_path[0]
+    ahead = env.sim.in_path[0]
     assert ahead.is_traffic and 25.0 < ahead.range_m < 45.0
     assert lead.lane_index[2] == 1
     # The followers kept their cooperative gaps behind a slowing leader.

@@ -421,8 +421,10 @@ class SimVehicle:
         speed = math.hypot(vn, ve)
         if not mask & mp.MASK_YAW:
             heading = wrap_angle(math.pi / 2 - float(msg.yaw))
-            along = vn * math.cos(msg.yaw) + ve * math.sin(msg.yaw)
-            if along < 0:
+            if self.config.autopilot == "ardupilot":
+                if vn <= -1.1920929e-07:  # Rover: is_negative(vx) alone reverses (sitl/ row 7)
+                    speed = -speed
+            elif vn * math.cos(msg.yaw) + ve * math.sin(msg.yaw) < 0:
                 speed = -speed  # velocity against the yaw: reverse
         elif not mask & mp.MASK_YAW_RATE:
             # Velocity + yaw rate: aim a short way ahead of the current heading.

@@ -246,9 +246,12 @@ class Authenticator:
         return cert
 
     def _learn(self, spdu: SignedSpdu, now: float) -> c.Certificate | str:
-        assert spdu.certificate is not None and spdu.certificate_value is not None
+        assert spdu.certificate is not None
         try:
-            cert = c.certificate_of_value(spdu.certificate_value, spdu.certificate)
+            if spdu.certificate_value is None:
+                cert = c.parse_certificate(spdu.certificate)
+            else:
+                cert = c.certificate_of_value(spdu.certificate_value, spdu.certificate)
             c.check_issued_by(cert, self.credentials.authority, now)
         except c.CertificateError as exc:
             if len(self._bad) >= _MAX_BAD_CERTS:

@@ -16,15 +16,15 @@ deployed V2X stacks send it. Every SPDU starts ``03 81`` (version 3, choice sign
 octets inside the datagram (what the signature covers), without checking the signature:
 ``auth`` does that with the signer's certificate.
 
-Most SPDUs on a convoy's link have one layout (a digest signer, a header of PSID and
-generation time only): ``decode_signed`` reads those octet by octet, and everything else
-through asn1tools. Reading them with asn1tools cost as much as the ECDSA verification;
+Most SPDUs on a convoy's link have one layout (a header of PSID and generation time only,
+a digest or one certificate as signer, an x-only r): ``decode_signed`` reads those octet
+by octet, and everything else through asn1tools. Reading them with asn1tools cost as much as the ECDSA verification;
 tests/comms/test_ieee1609dot2.py holds both readings equal.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric import ec
@@ -51,7 +51,7 @@ class SignedSpdu:
         payload: the unsecured data inside (for a BSM: the J2735 MessageFrame).
         digest: the signer's certificate HashedId8 (computed when the certificate is sent).
         certificate: the signer's certificate COER when sent in full, else None.
-        certificate_value: its decoded value (to build a ``Certificate`` without a decode).
+        certificate_value: its decoded value when asn1tools read the SPDU (else None).
         tbs: the to-be-signed octets (COER of tbsData) as they are in the datagram.
         r, s: the signature.
         p2pcd_request: HashedId3s of certificates the sender asks for (inlineP2pcdRequest).
@@ -62,7 +62,7 @@ class SignedSpdu:
     payload: bytes
     digest: bytes
     certificate: bytes | None
-    certificate_value: dict[str, Any] | None
+    certificate_value: dict[str, Any] | None = field(compare=False)
     tbs: bytes
     r: bytes
     s: bytes
@@ -133,12 +133,17 @@ def _decode_common(data: bytes) -> SignedSpdu | None:
         psid_len = data[q + 1]
         g = q + 2 + psid_len
         end = g + 8  # end of tbsData
-        if (
-            len(data) != end + 9 + 66
-            or data[end] != 0x80
-            or data[end + 9 : end + 11] != b"\x80\x80"
-            or not 0 < psid_len <= 4
-        ):
+        sig = len(data) - 66  # the signature: 80 80 (x-only r), r, s
+        if data[sig : sig + 2] != b"\x80\x80" or not 0 < psid_len <= 4:
+            return None
+        if data[end] == 0x80 and sig == end + 9:  # signer: digest
+            cert, digest = None, data[end + 1 : sig]
+        elif data[end : end + 3] == b"\x81\x01\x01" and sig > end + 3:  # one certificate
+            # whatever it holds, the certificate is what lies between; a verifier that
+            # does not know its digest yet parses it (auth)
+            cert = data[end + 3 : sig]
+            digest = c.hashed_id8(cert)
+        else:
             return None
     except IndexError:
         return None
@@ -146,12 +151,12 @@ def _decode_common(data: bytes) -> SignedSpdu | None:
         psid=int.from_bytes(data[q + 2 : g], "big"),
         generation_time=int.from_bytes(data[g:end], "big"),
         payload=data[p:q],
-        digest=data[end + 1 : end + 9],
-        certificate=None,
+        digest=digest,
+        certificate=cert,
         certificate_value=None,
         tbs=data[_TBS_OFFSET:end],
-        r=data[end + 11 : end + 43],
-        s=data[end + 43 : end + 75],
+        r=data[sig + 2 : sig + 34],
+        s=data[sig + 34 :],
     )
 
 

@@ -37,7 +37,6 @@ import numpy as np
 
 from openconvoy.bridge.failsafes import (
     DRIVE,
-    SILENT,
     STOP,
     Envelope,
     Failsafes,
@@ -541,7 +540,7 @@ class DeployRunner:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
         # 7. log
         self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap,
-                      sent=verdict.command != SILENT and self.commanding)
+                      sent=self.commanding and not math.isnan(t_sent))  # what really went out
         self._status_line(now, own, mode, gap)
         if verdict.exit:
             return verdict.reason

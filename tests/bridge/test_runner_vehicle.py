@@ -8,6 +8,7 @@ import json
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 from conftest import wait_for
 from deploy_harness import make_convoy, wait_until
@@ -21,6 +22,7 @@ from openconvoy.bridge.runner import HOLD_BELOW_MPS, DeployRunner, RunnerOptions
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.core.state import VehicleState
+from openconvoy.logs import read_log
 
 
 class ScriptedLink(FakeLink):
@@ -28,8 +30,10 @@ class ScriptedLink(FakeLink):
     at a time, a rangefinder reading, finite braking, and a record of holds and disarms."""
 
     def __init__(self, *args, takeover_at=math.inf, failsafe=False, freeze_at=math.inf,
-                 range_m=math.nan, range_rate=math.nan, decel=math.inf, speed=0.0, **kw):
+                 range_m=math.nan, range_rate=math.nan, decel=math.inf, speed=0.0,
+                 refuse_at=math.inf, **kw):
         super().__init__(*args, **kw)
+        self.refuse_at = refuse_at  # from then on send_setpoint refuses (PX4 stream ended)
         self.takeover_at, self.failsafe, self.freeze_at = takeover_at, failsafe, freeze_at
         self.range_m, self.range_rate, self.decel = range_m, range_rate, decel
         self.speed = self.target = speed
@@ -68,7 +72,7 @@ class ScriptedLink(FakeLink):
         return replace(tel, range_m=self.range_m, range_rate_mps=self.range_rate, t_range=now)
 
     def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        if self.pilot_took_over:
+        if self.pilot_took_over or self.clock() >= self.refuse_at:
             return False
         self.sent.append((self.clock(), speed_mps, heading_rad))
         self.heading = heading_rad
@@ -194,6 +198,16 @@ def test_hold_waits_until_the_stop_setpoints_have_braked_the_vehicle(tmp_path):
     first_t, first_v = link.hold_log[0]
     assert first_v < HOLD_BELOW_MPS
     assert first_t >= 100.0 + 1.9  # 2 m/s at 1 m/s²
+
+
+def test_the_log_shows_only_setpoints_that_went_out(tmp_path):
+    # The link refuses from 101 s on (a PX4 whose stream ended): no commanded speed logged.
+    _, link, runner, _ = runner_for(tmp_path, {"refuse_at": 101.0}, duration_s=2.0)
+    runner.run()
+    log = read_log(tmp_path / "vehicle_1.csv")
+    t = log["t_s"] - WALL0
+    assert np.all(np.isfinite(log["cmd_speed_mps"][t < 100.99]))
+    assert np.all(np.isnan(log["cmd_speed_mps"][t >= 101.01]))
 
 
 def test_a_signal_while_arming_ends_in_hold(tmp_path):

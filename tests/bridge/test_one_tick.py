@@ -114,10 +114,15 @@ def runner_for(vehicle_id: int, policy: Any, convoy: ConvoyConfig | None = None,
 
 
 def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_paper_run_under_loss():
-    # Seed 3: follower 2 hears the leader and follower 1 at t = 0 despite 30 % loss, so the
-    # runner starts at once, as the simulator does (a runner waits for them, armed and still).
-    env = ConvoyEnv("paper", loss=LossConfig(per=0.3))
+    # The first seed with which follower 2 hears the leader and follower 1 at t = 0 despite
+    # 30 % loss, so the runner starts at once, as the simulator does (a runner waits for
+    # them, armed and still).
     me = 2
+    for seed in range(20):
+        env = ConvoyEnv("paper", loss=LossConfig(per=0.3))
+        env.reset(seed=seed)
+        if all(env.members[me].buffer.latest(v) is not None for v in (0, 1)):
+            break
     inboxes: list[list[VehicleState]] = []
     member = env.members[me]
     receive = member.receive
@@ -131,7 +136,7 @@ def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_pap
     for p in policies.values():
         p.reset(0)
     inboxes.append([])
-    obs, _ = env.reset(seed=3)
+    obs, _ = env.reset(seed=seed)
     sim: list[tuple[VehicleState, list[VehicleState], np.ndarray, np.ndarray, str]] = []
     while env.agents:
         own = member.own

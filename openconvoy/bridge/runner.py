@@ -617,7 +617,8 @@ class DeployRunner:
         assert self._t_start is not None
         x, y = own.x, own.y
         if self.leader_origin is not None:
-            x, y, _ = geodetic_to_enu(self.leader_origin, tel.lat_deg, tel.lon_deg)
+            ex, ey, _ = geodetic_to_enu(self.leader_origin, tel.lat_deg, tel.lon_deg)
+            x, y = float(ex), float(ey)
         speed, heading = self.leader.leader_command(now - self._t_start, float(x), float(y), own.heading, own.speed)
         return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
 

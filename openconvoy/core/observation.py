@@ -109,7 +109,7 @@ class ObservationLayout:
         infinite elsewhere (positions, speeds, gaps)."""
         low = np.full(self.size, -np.inf, dtype=np.float32)
         high = np.full(self.size, np.inf, dtype=np.float32)
-        pi = np.float32(np.pi)
+        pi = float(np.float32(np.pi))
 
         def bound(offset: int, lo: float, hi: float) -> None:
             low[offset], high[offset] = lo, hi

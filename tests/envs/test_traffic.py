@@ -85,7 +85,10 @@ def test_ranging_sees_traffic_in_the_path_only() -> None:
 
 @pytest.mark.parametrize("spec", HIGHWAY_SCENARIOS)
 def test_parallel_api(spec: str) -> None:
-    parallel_api_test(TrafficConvoyEnv(f"{spec}:traffic=3,duration_s=3"), num_cycles=60)
+    from tests.pinned_warnings import PETTINGZOO_ALLOWED, pinned
+
+    with pinned(PETTINGZOO_ALLOWED):
+        parallel_api_test(TrafficConvoyEnv(f"{spec}:traffic=3,duration_s=3"), num_cycles=60)
 
 
 def test_aec_api_and_single_agent_id() -> None:

@@ -238,6 +238,7 @@ class VectorConvoyEnv:
         self.n_vehicles = N = scenario.n_vehicles
         check_faults(self.faults, N)
         self.autoreset = autoreset
+        self.render_mode = None
         self.control_rate_hz = float(control_rate_hz)
         self.dt = 1.0 / self.control_rate_hz
         self.max_time_s = float(scenario.duration_s if max_time_s is None else max_time_s)

@@ -15,12 +15,14 @@ import numpy as np
 import pytest
 
 from openconvoy.comms.loss import LossConfig, counter_uniform, counter_uniform_array
+from openconvoy.core.controllers import HeadingControlConfig, SpeedControlConfig
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs import ConvoyEnv, VectorConvoyEnv
 from openconvoy.envs.vector_env import MODES
+from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
 
 
@@ -138,3 +140,31 @@ def test_unsupported_options_are_config_errors() -> None:
         VectorConvoyEnv(2, loss=LossConfig(per=0.2, model="gilbert-elliott"))
     with pytest.raises(ConfigError, match="num_envs"):
         VectorConvoyEnv(0)
+
+
+def _pid_pure_pursuit() -> ClassicalPolicy:
+    base = load_policy("paper").config
+    return ClassicalPolicy(dataclasses.replace(
+        base, speed=SpeedControlConfig(kind="pid", ki=0.2), heading=HeadingControlConfig(kind="pure-pursuit")))
+
+
+@pytest.mark.parametrize("make,per", [
+    (lambda: load_policy("paper"), 0.3),
+    (lambda: load_policy("paper"), 0.8),
+    (lambda: load_policy("mcacc"), 0.3),
+    (_pid_pure_pursuit, 0.5),
+])
+def test_batched_policy_matches_one_policy_per_vehicle(make, per: float) -> None:
+    B = 3
+    probe = make()
+    ladder = LadderConfig(enabled=True) if per > 0.5 else LadderConfig()
+    mc = dataclasses.replace(probe.member_config, ladder=ladder)
+    vec = VectorConvoyEnv(B, "paper", n_followers=3, member_config=mc, loss=LossConfig(per=per))
+    batched = make()
+    singles = [[make() for _ in range(3)] for _ in range(B)]
+    obs, _ = vec.reset(seed=5)
+    for _ in range(250):
+        got = batched.act_batch(obs)
+        want = np.array([[singles[b][j].act(obs[b, j]) for j in range(3)] for b in range(B)])
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+        obs, *_ = vec.step(got)

@@ -329,6 +329,11 @@ class VectorConvoyEnv:
                     self._target_link[i - 1, k] = index[(i, vid)]
         pairs = np.argwhere(self._slot_link >= 0)
         self._slot_pairs = (pairs[:, 0], pairs[:, 1], self._slot_link[pairs[:, 0], pairs[:, 1]])
+        # Where each (pair, k, feature) lands in a (B, F*D) view of the observations.
+        nf = 7
+        within = np.arange(mc.k * nf).reshape(mc.k, nf)
+        self._slot_cols = (pairs[:, 0, None, None] * lay.size + pairs[:, 1, None, None] * lay.slot_size
+                           + within[None]).ravel()
         self._pred_link = np.array([index.get((i, i - 1), -1) for i in range(1, N)], dtype=np.int64)
 
     def _alloc(self) -> None:
@@ -801,9 +806,7 @@ class VectorConvoyEnv:
             feats[..., 5] = np.minimum(np.maximum(age, 0.0), MAX_AGE_S)
             feats[..., 6] = 1.0
             feats *= valid[..., None]
-            states = np.zeros((B, F, len(lay.slots), k, 7))
-            states[:, pf, ps] = feats
-            obs[:, :, : lay.own_offset] = states.reshape(B, F, -1)
+            obs.reshape(B, -1)[:, self._slot_cols] = feats.reshape(B, -1)
         o = lay.own_offset
         obs[:, :, o], obs[:, :, o + 1], obs[:, :, o + 2] = ev, ea, eyr
         self._fill_targets(obs, t)
@@ -1035,12 +1038,18 @@ class VectorConvoyEnv:
         obs[bb, ff, o] = -cross[bb, ff]
         obs[bb, ff, o + 1] = _wrap(pheading[bb, ff] - eh)
         scale = np.maximum(1.0, np.abs(ev))
-        q = self._query(bb, lk, hxq, hyq, hhq)
-        for j, tl in enumerate(LOOKAHEAD_S):
-            px, py = self._point_at(q, ps[bb, ff] + tl * scale)
-            dx, dy = px - ex, py - ey
-            obs[bb, ff, o + 2 + 2 * j] = c * dx + s * dy
-            obs[bb, ff, o + 3 + 2 * j] = -s * dx + c * dy
+        # The lookahead points of every query in one batch (queries repeated per time).
+        nl = len(LOOKAHEAD_S)
+        rep = lambda a: np.tile(a, nl)  # noqa: E731
+        q = self._query(rep(bb), rep(lk), rep(hxq), rep(hyq), rep(hhq))
+        s_look = np.concatenate([ps[bb, ff] + tl * scale for tl in LOOKAHEAD_S])
+        px, py = self._point_at(q, s_look)
+        P = len(bb)
+        dx = (px - rep(ex)).reshape(nl, P)
+        dy = (py - rep(ey)).reshape(nl, P)
+        for j in range(nl):
+            obs[bb, ff, o + 2 + 2 * j] = c * dx[j] + s * dy[j]
+            obs[bb, ff, o + 3 + 2 * j] = -s * dx[j] + c * dy[j]
         obs[bb, ff, o + 8] = 1.0
 
     # --- measures, reward, infos -----------------------------------------------------------

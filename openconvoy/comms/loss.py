@@ -16,6 +16,47 @@ import numpy as np
 
 from openconvoy.core.errors import ConfigError
 
+_MASK = (1 << 64) - 1
+_GOLDEN = 0x9E3779B97F4A7C15
+_M1 = 0xBF58476D1CE4E5B9
+_M2 = 0x94D049BB133111EB
+_UNIT = 2.0**-53
+
+
+def _mix(z: int) -> int:
+    """SplitMix64's finalizer on a 64-bit integer."""
+    z = ((z ^ (z >> 30)) * _M1) & _MASK
+    z = ((z ^ (z >> 27)) * _M2) & _MASK
+    return z ^ (z >> 31)
+
+
+def counter_uniform(key: int, *words: int) -> float:
+    """A uniform draw in [0, 1) that depends only on ``key`` and ``words`` (counter-based).
+
+    The channel keys its draws by (convoy seed, sender, receiver, message number) so a
+    link's draws do not depend on the order the simulator visits links in: the batched
+    simulator (``envs.vector_env``) makes the same draws with ``counter_uniform_array``.
+    """
+    z = key & _MASK
+    for w in words:
+        z = _mix((z + _GOLDEN + (int(w) & _MASK)) & _MASK)
+    return (z >> 11) * _UNIT
+
+
+def _mix_array(z: np.ndarray) -> np.ndarray:
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(_M1)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(_M2)
+    return z ^ (z >> np.uint64(31))
+
+
+def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
+    """``counter_uniform`` on arrays (broadcast together): bit-identical draws."""
+    with np.errstate(over="ignore"):
+        z = np.asarray(key, dtype=np.uint64)
+        for w in words:
+            z = _mix_array(z + np.uint64(_GOLDEN) + np.asarray(w).astype(np.uint64))
+    return (z >> np.uint64(11)).astype(np.float64) * _UNIT
+
 
 class LossModel(Protocol):
     """Decides, packet by packet, whether a message is lost."""
@@ -51,6 +92,11 @@ class Bernoulli:
 
     def lost(self, t: float) -> bool:
         return self.per > 0.0 and self._rng.random() < self.per
+
+
+GE_INIT, GE_ADVANCE, GE_LOSS = 0, 1, 2
+"""Purpose words of the Gilbert-Elliott chain's counter-based draws (the initial state,
+then per packet the state transition and the loss)."""
 
 
 class GilbertElliott:
@@ -93,19 +139,25 @@ class GilbertElliott:
         return p_bad * self.loss_bad + (1.0 - p_bad) * self.loss_good
 
     def reset(self, rng: np.random.Generator) -> None:
-        self._rng = rng
+        # Counter-based draws keyed by one number from rng: packet n's draws are
+        # ``counter_uniform(key, n, GE_ADVANCE | GE_LOSS)``, so the batched simulator
+        # (``envs.vector_env``) can make them for every link at once.
+        self.key = int(rng.integers(2**63))
+        self._n = 0
         p_bad = self.mean_bad_s / (self.mean_good_s + self.mean_bad_s)
-        self._bad = bool(rng.random() < p_bad)
+        self._bad = bool(counter_uniform(self.key, GE_INIT) < p_bad)
         self._t: float | None = None
 
     def lost(self, t: float) -> bool:
+        n = self._n
+        self._n += 1
         if self._t is not None and t > self._t:
-            self._advance(t - self._t)
+            self._advance(t - self._t, n)
         self._t = t if self._t is None else max(self._t, t)
         p = self.loss_bad if self._bad else self.loss_good
-        return p > 0.0 and self._rng.random() < p
+        return p > 0.0 and counter_uniform(self.key, n, GE_LOSS) < p
 
-    def _advance(self, dt: float) -> None:
+    def _advance(self, dt: float, n: int) -> None:
         # Exact two-state transition over dt: relaxes towards the stationary law.
         a = 1.0 / self.mean_good_s  # good -> bad rate
         b = 1.0 / self.mean_bad_s  # bad -> good rate
@@ -113,7 +165,7 @@ class GilbertElliott:
         decay = math.exp(-(a + b) * dt)
         start = 1.0 if self._bad else 0.0
         p_bad = p_bad_inf + (start - p_bad_inf) * decay
-        self._bad = bool(self._rng.random() < p_bad)
+        self._bad = bool(counter_uniform(self.key, n, GE_ADVANCE) < p_bad)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ every ordered pair (the counters ``ConvoyEnv`` reports count every receiver).
 Arrays: observations ``(B, N-1, D)`` float32 (followers in order), actions
 ``(B, N-1, 2)``; rewards ``(B, N-1)``; ``terminated``/``truncated`` ``(B,)``. Not yet
 supported (a ConfigError says so): GPS noise, ranging sensors, ``forge`` faults,
-Gilbert-Elliott loss, latency jitter, traffic scenarios.
+latency jitter, traffic scenarios.
 """
 
 from __future__ import annotations
@@ -28,7 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from openconvoy.comms.loss import LossConfig, counter_uniform_array
+from openconvoy.comms.loss import (
+    GE_ADVANCE,
+    GE_INIT,
+    GE_LOSS,
+    GilbertElliott,
+    LossConfig,
+    counter_uniform_array,
+)
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_faults, parse_fault
 from openconvoy.core.gates import RxGate
@@ -223,8 +230,8 @@ class VectorConvoyEnv:
         if scenario.n_vehicles < 2:
             raise ConfigError("a convoy needs a leader and at least one follower")
         self.loss = loss or LossConfig()
-        if self.loss.per > 0.0 and self.loss.model != "bernoulli":
-            raise ConfigError("VectorConvoyEnv supports Bernoulli loss only so far (use ConvoyEnv)")
+        probe = self.loss.make()
+        self._ge = probe if isinstance(probe, GilbertElliott) else None
         if self.loss.jitter_s > 0.0:
             raise ConfigError("VectorConvoyEnv does not support latency jitter yet (use ConvoyEnv)")
         self.scenario = scenario
@@ -335,6 +342,11 @@ class VectorConvoyEnv:
         self.lost_to = np.zeros((B, N), dtype=np.int64)
         self.msgs_kept = np.zeros((B, N), dtype=np.int64)
         self.keys = np.zeros(B, dtype=np.uint64)
+        if self._ge is not None:  # per ordered link: key, state, packets offered, last time
+            self.ge_key = np.zeros((B, N, N), dtype=np.uint64)
+            self.ge_bad = np.zeros((B, N, N), dtype=bool)
+            self.ge_n = np.zeros((B, N, N), dtype=np.int64)
+            self.ge_t = np.full((B, N, N), np.nan)
         # R^i: per kept link the last k states, newest first: t, x, y, speed, heading, accel.
         self.hist = np.zeros((6, B, L, k))
         self.hist_n = np.zeros((B, L), dtype=np.int64)
@@ -387,7 +399,10 @@ class VectorConvoyEnv:
             elif self._seed_seqs[b] is None:
                 self._seed_seqs[b] = np.random.SeedSequence()
             ss_channel = self._seed_seqs[b].spawn(4)[0]
-            self.keys[b] = np.uint64(int(np.random.default_rng(ss_channel).integers(2**63)))
+            rng = np.random.default_rng(ss_channel)
+            self.keys[b] = np.uint64(int(rng.integers(2**63)))
+            if self._ge is not None:
+                self._reset_ge(b, rng)
         init = self.scenario.initial_state()
         p = self.plant
         if which.all():
@@ -407,6 +422,46 @@ class VectorConvoyEnv:
         self.last_sent[:, w] = np.nan
         self.q_arrival[:, w] = np.inf
         self._has_cmd[w] = False
+
+    def _reset_ge(self, b: int, rng: np.random.Generator) -> None:
+        """Convoy ``b``'s Gilbert-Elliott links as ``Channel.reset`` makes them: one seed
+        per ordered link from the channel's generator, the chain's key from that seed."""
+        N = self.n_vehicles
+        seeds = rng.integers(2**63, size=N * (N - 1)).tolist()
+        keys = np.zeros((N, N), dtype=np.uint64)
+        pairs = [(s, r) for s in range(N) for r in range(N) if r != s]
+        for (s, r), seed in zip(pairs, seeds):
+            keys[s, r] = np.uint64(int(np.random.default_rng(seed).integers(2**63)))
+        ge = self._ge
+        assert ge is not None
+        p_bad = ge.mean_bad_s / (ge.mean_good_s + ge.mean_bad_s)
+        self.ge_key[b] = keys
+        self.ge_bad[b] = counter_uniform_array(keys, GE_INIT) < p_bad
+        self.ge_n[b] = 0
+        self.ge_t[b] = np.nan
+
+    def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """``GilbertElliott.lost`` on every link whose sender broadcasts now."""
+        ge = self._ge
+        assert ge is not None
+        N = self.n_vehicles
+        offered = send[:, :, None] & ~np.eye(N, dtype=bool)
+        n = self.ge_n
+        tt = t[:, None, None]
+        last = self.ge_t
+        step = offered & ~np.isnan(last) & (tt > last)
+        a, b = 1.0 / ge.mean_good_s, 1.0 / ge.mean_bad_s
+        p_inf = a / (a + b)
+        with np.errstate(invalid="ignore"):
+            decay = np.exp(-(a + b) * (tt - last))
+        p_bad = p_inf + (np.where(self.ge_bad, 1.0, 0.0) - p_inf) * decay
+        moved = counter_uniform_array(self.ge_key, n, GE_ADVANCE) < p_bad
+        self.ge_bad = np.where(step, moved, self.ge_bad)
+        self.ge_t = np.where(offered, np.where(np.isnan(last), tt, np.fmax(last, tt)), last)
+        p = np.where(self.ge_bad, ge.loss_bad, ge.loss_good)
+        lost = offered & (p > 0.0) & (counter_uniform_array(self.ge_key, n, GE_LOSS) < p)
+        self.ge_n = n + offered
+        return lost
 
     def _reset_plant_rows(self, which: np.ndarray, init: Any) -> None:
         """Reset the plant state of some convoys (``BicyclePlant.reset`` on their rows)."""
@@ -632,7 +687,9 @@ class VectorConvoyEnv:
         per = self.loss.per
         number = self.broadcasts.copy()
         self.broadcasts += send
-        if per > 0.0:
+        if self._ge is not None:
+            lost = self._ge_lost(send, t)
+        elif per > 0.0:
             s_idx = np.arange(N)[None, :, None]
             r_idx = np.arange(N)[None, None, :]
             u = counter_uniform_array(self.keys[:, None, None], s_idx, r_idx, number[:, :, None], DRAW_LOSS)

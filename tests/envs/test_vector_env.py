@@ -28,12 +28,12 @@ from openconvoy.policies.spec import load_policy
 
 def _compare(scenario: str = "paper", B: int = 2, per: float = 0.3, latency_s: float = 0.0,
              steps: int | None = None, n_followers: int | None = None, member: dict | None = None,
-             **kwargs) -> Counter:
+             model: str = "bernoulli", **kwargs) -> Counter:
     """Run both worlds; assert they agree at every tick; return the modes seen."""
     mc = load_policy("paper").member_config
     if member:
         mc = dataclasses.replace(mc, **member)
-    loss = LossConfig(per=per, latency_s=latency_s)
+    loss = LossConfig(per=per, latency_s=latency_s, model=model, mean_burst_s=0.4)
     vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=loss,
                           autoreset=False, **kwargs)
     envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=loss, **kwargs) for _ in range(B)]
@@ -103,6 +103,10 @@ def test_latency_and_per_convoy_seeds() -> None:
     _compare("paper", B=3, per=0.2, latency_s=0.12, steps=120)
 
 
+def test_gilbert_elliott_bursts() -> None:
+    _compare("paper", B=2, per=0.4, model="gilbert-elliott", n_followers=3, steps=200)
+
+
 @pytest.mark.parametrize("kind", ["constant-time-headway", "quadratic"])
 def test_spacing_policies(kind: str) -> None:
     _compare("paper", B=1, per=0.2, n_followers=3, member={"spacing": SpacingConfig(kind=kind)}, steps=150)
@@ -136,8 +140,8 @@ def test_autoreset_starts_the_next_episode_in_the_same_step() -> None:
 def test_unsupported_options_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="gps_noise_m"):
         VectorConvoyEnv(2, gps_noise_m=0.5)
-    with pytest.raises(ConfigError, match="Bernoulli"):
-        VectorConvoyEnv(2, loss=LossConfig(per=0.2, model="gilbert-elliott"))
+    with pytest.raises(ConfigError, match="jitter"):
+        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05))
     with pytest.raises(ConfigError, match="num_envs"):
         VectorConvoyEnv(0)
 

@@ -190,3 +190,23 @@ def test_kept_link_counters_give_the_same_run() -> None:
     # Counters now count the kept links: one sender each (lookahead:1), so fewer.
     all_rx, kept_rx = out[0][4]["msgs_received"], out[1][4]["msgs_received"]
     assert (kept_rx < all_rx).all() and (kept_rx == out[1][4]["msgs_kept"]).all()
+
+
+def test_gymnasium_vector_api() -> None:
+    from gymnasium.vector import AutoresetMode
+
+    from openconvoy.envs.vector_gym import ConvoyVectorEnv
+
+    venv = ConvoyVectorEnv(VectorConvoyEnv(3, "paper", max_time_s=0.25))
+    assert venv.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    obs, infos = venv.reset(seed=4)
+    assert venv.num_envs == 6 and obs.shape == venv.observation_space.shape
+    assert venv.observation_space.contains(obs)
+    first = obs.copy()
+    for k in range(5):
+        obs, rew, term, trunc, infos = venv.step(venv.action_space.sample())
+        assert rew.shape == term.shape == trunc.shape == (6,)
+        assert (k == 4) == ("final_obs" in infos)
+    assert trunc.all() and infos["_final_obs"].all()
+    assert not np.array_equal(infos["final_obs"], obs)
+    np.testing.assert_array_equal(obs, first)  # same-step autoreset: the new episode's first

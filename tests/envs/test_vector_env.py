@@ -210,3 +210,24 @@ def test_gymnasium_vector_api() -> None:
     assert trunc.all() and infos["_final_obs"].all()
     assert not np.array_equal(infos["final_obs"], obs)
     np.testing.assert_array_equal(obs, first)  # same-step autoreset: the new episode's first
+
+
+def test_autoreset_continues_each_convoys_seed_like_convoy_env_reset() -> None:
+    """Episode 2 after an autoreset is ConvoyEnv's ``reset()`` (no seed) after episode 1."""
+    B, loss = 2, LossConfig(per=0.5)
+    mc = load_policy("paper").member_config
+    vec = VectorConvoyEnv(B, "paper", member_config=mc, loss=loss, max_time_s=1.0)
+    envs = [ConvoyEnv("paper", member_config=mc, loss=loss, max_time_s=1.0) for _ in range(B)]
+    vobs, _ = vec.reset(seed=7)
+    obs = [e.reset(seed=7 + b)[0] for b, e in enumerate(envs)]
+    actions = np.tile(np.array([1.2, 0.01], np.float32), (B, 2, 1))
+    for episode in range(2):
+        for _ in range(vec.max_steps):
+            vobs, _, _, vtrunc, vinfo = vec.step(actions)
+            for b, e in enumerate(envs):
+                obs[b], _, _, trunc, info = e.step({a: actions[b, j] for j, a in enumerate(e.possible_agents)})
+                assert [info[a]["msgs_lost"] for a in e.possible_agents] == vinfo["msgs_lost"][b].tolist()
+        assert vtrunc.all()
+        obs = [e.reset()[0] for e in envs]
+        for b, e in enumerate(envs):
+            np.testing.assert_array_equal(np.stack([obs[b][a] for a in e.possible_agents]), vobs[b])

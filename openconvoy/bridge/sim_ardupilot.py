@@ -61,7 +61,7 @@ class ArduPilotTiming:
 
     @staticmethod
     def firmware() -> ArduPilotTiming:
-        return ArduPilotTiming(0.90, 2.27, 12.4, 22.5, 10.27, 19.85, 41.85)
+        return ArduPilotTiming(0.85, 2.34, 12.5, 22.5, 10.39, 19.93, 41.95)
 
     @staticmethod
     def short(ready_after_s: float, init_s: float | None = None) -> ArduPilotTiming:

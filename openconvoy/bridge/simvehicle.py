@@ -458,7 +458,9 @@ class SimVehicle:
             if result != mp.RESULT_ACCEPTED:
                 return result  # the previous rate is kept
             self._intervals[msg_id] = interval_us * 1e-6
-        self._due.pop(msg_id, None)
+        iv = self._intervals[msg_id]
+        # On a grid from boot: streams at one rate go out in the same burst, as ArduPilot's.
+        self._due[msg_id] = math.ceil(self._t / iv + 1e-9) * iv if iv > 0 else 0.0
         return mp.RESULT_ACCEPTED
 
     # ----------------------------------------------------------------- sending

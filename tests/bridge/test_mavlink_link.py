@@ -55,7 +55,7 @@ def test_identify_and_telemetry_in_enu(vehicle_and_link, autopilot) -> None:
     assert tel.state.heading == pytest.approx(math.radians(30.0), abs=1e-3)
     assert tel.state.speed == pytest.approx(0.0, abs=1e-6)
     assert abs(tel.state.t - time.time()) < 1.0  # wall clock
-    assert tel.mode == ("HOLD" if autopilot == "ardupilot" else "LOITER")
+    assert tel.mode == ("MANUAL" if autopilot == "ardupilot" else "LOITER")  # INITIAL_MODE
     assert tel.armed is False
     assert link.link_ok(time.monotonic())
 

@@ -58,10 +58,11 @@ def test_row_03_guided_during_init_is_overridden_by_initial_mode() -> None:
         recs = run("boot_mode_race")[side]
         t_req, t_next, _ = phase(recs, "guided_request_1_first_heartbeat")
         assert acks(recs, 176, t_req, t_req + 0.3)[0][1] == 0, side
-        modes = [m for _, m, _, _ in heartbeats(recs, t_req, t_next + 0.01)]
+        by = run("boot_mode_race")["boot"] + 2.75
+        modes = [m for _, m, _, _ in heartbeats(recs, t_req, by)]
         assert 15 in modes and 0 in modes[modes.index(15):], (side, modes)
-        t_manual = next(t for t, m, _, _ in heartbeats(recs, t_req) if m == 0)
-        assert boot_s("boot_mode_race", t_manual) <= 2.7, side
+        ready = next(t for t, s in texts(recs) if s == "ArduPilot Ready")
+        assert boot_s("boot_mode_race", ready) < 2.5 and ready < t_next, side
 
 
 def test_row_04_guided_at_ready_lost_to_the_rc_mode_switch() -> None:

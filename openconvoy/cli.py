@@ -239,6 +239,48 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_decode)
 
 
+# --- V2V authentication (issue 12): keys init / issue --------------------------------------
+
+
+def _add_keys(sub: argparse._SubParsersAction) -> None:
+    """``keys init | issue`` (the work is in ``openconvoy.comms.keystore``)."""
+    keys = sub.add_parser(
+        "keys", help="the convoy's signing keys: authority and vehicle certificates",
+        description="IEEE 1609.2 keys for signed BSMs and aborts. The keys live in NAME.keys/ "
+        "beside the convoy file (or [v2v] keys); once they exist, deploy signs and verifies "
+        "every message unless the convoy says auth = \"off\".",
+    )
+    cmds = keys.add_subparsers(dest="keys_command", metavar="SUBCOMMAND", required=True)
+    p = cmds.add_parser("init", help="make the convoy authority's key and certificate")
+    p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
+    p.add_argument("--force", action="store_true", help="replace an existing authority")
+    p.set_defaults(handler=_keys_handler)
+    p = cmds.add_parser("issue", help="issue a vehicle's key and certificate")
+    p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
+    p.add_argument("--vehicle-id", type=int, required=True, help="convoy index, 0 = leader")
+    p.set_defaults(handler=_keys_handler)
+
+
+def _keys_handler(args: argparse.Namespace) -> int:
+    import time
+
+    from openconvoy.comms import keystore
+    from openconvoy.convoy import load_convoy
+
+    convoy = load_convoy(args.convoy)
+    keys_dir = convoy.v2v.keys
+    if args.keys_command == "init":
+        cert = keystore.init_authority(keys_dir, convoy.name, time.time(), force=args.force)
+        print(f"{cert.name}: {keys_dir}/authority.key, authority.cert (digest {cert.digest.hex()})")
+    else:
+        if not 0 <= args.vehicle_id < convoy.n_vehicles:
+            raise CliError(f"--vehicle-id {args.vehicle_id}: the convoy has vehicles 0..{convoy.n_vehicles - 1}")
+        cert = keystore.issue_vehicle(keys_dir, convoy.name, args.vehicle_id, time.time())
+        stem = keystore.vehicle_stem(args.vehicle_id)
+        print(f"{cert.name}: {keys_dir}/{stem}.key, {stem}.cert (digest {cert.digest.hex()})")
+    return 0
+
+
 # --- vehicles (issue 5): deploy, abort, vehicle --sim, fit-plant, demo --------------------
 
 
@@ -354,6 +396,9 @@ def _add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--convoy", metavar="CONVOY.toml", help="take group/port/compat from it")
     p.add_argument("--compat", action="store_true", help="also on the IPv4 compatibility group")
     p.add_argument("--repeat", type=int, default=3, help="send this many times (default 3)")
+    p.add_argument("--key", metavar="KEY",
+                   help="sign the abort with this private key (its .cert beside it), e.g. "
+                   "NAME.keys/authority.key; required when the convoy has keys")
 
     def _abort(args: argparse.Namespace) -> int:
         from openconvoy.bridge.deploy import abort_from_namespace
@@ -471,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"openconvoy {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for add in (_add_sim, _add_experiments, _add_bsm, _add_bridge, _add_train):
+    for add in (_add_sim, _add_experiments, _add_bsm, _add_keys, _add_bridge, _add_train):
         add(sub)
     return parser
 

@@ -101,6 +101,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     v2v = V2V(
         LinkConfig.from_v2v(convoy.v2v, a.iface), temp_ids, origin, a.vehicle_id,
         loss=loss, drop_at=a.drop_at, rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
+        auth=vehicle_authenticator(convoy, a.vehicle_id),
     )
     options = RunnerOptions(
         vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
@@ -114,6 +115,18 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         metadata={"per": a.per, "drop_at": a.drop_at, "policy_spec": a.policy,
                   "scenario_spec": spec, "mavlink": a.mavlink, "iface": a.iface},
     )
+
+
+def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int) -> Any:
+    """The vehicle's ``Authenticator`` when the convoy signs its messages, else None
+    (``KeyFileError``, one line, when its keys are missing or do not match)."""
+    if not convoy.v2v.auth_required:
+        return None
+    from openconvoy.comms.auth import Authenticator
+    from openconvoy.comms.keystore import load_vehicle
+
+    creds = load_vehicle(convoy.v2v.keys, vehicle_id, time.time())
+    return Authenticator(creds, window_s=convoy.v2v.replay_window_s)
 
 
 def run_deploy(a: DeployArgs) -> int:
@@ -154,10 +167,33 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
 
     kwargs: dict[str, Any] = {}
     compat = bool(args.compat)
+    required = False
+    keys_dir: Path | None = None
     if args.convoy:
         v = load_convoy(args.convoy).v2v
         kwargs.update(group=v.group, port=v.port, hop_limit=v.hop_limit)
         compat = compat or v.compat
-    n = send_abort(args.iface, compat_enabled=compat, now=time.time(), repeat=args.repeat, **kwargs)
-    print(f"abort sent on {args.iface} ({n} datagrams)", file=sys.stderr)
+        required, keys_dir = v.auth_required, Path(v.keys)
+    key = getattr(args, "key", None)
+    auth = None
+    if key:
+        auth = abort_authenticator(key, keys_dir)
+        compat = False
+    elif required:
+        raise ValueError(
+            f"this convoy only obeys signed aborts: give --key (e.g. {keys_dir}/authority.key)"
+        )
+    n = send_abort(args.iface, compat_enabled=compat, now=None, repeat=args.repeat, auth=auth, **kwargs)
+    signed = f", signed by {auth.credentials.certificate.name}" if auth is not None else ""
+    print(f"abort sent on {args.iface} ({n} datagrams{signed})", file=sys.stderr)
     return 0
+
+
+def abort_authenticator(key_path: str, keys_dir: Path | None) -> Any:
+    """An ``Authenticator`` signing with ``key_path`` (its certificate beside it), trusting
+    the authority of ``keys_dir`` (default: the key's own directory)."""
+    from openconvoy.comms.auth import Authenticator
+    from openconvoy.comms.keystore import load_authority, load_signer
+
+    authority, _ = load_authority(keys_dir if keys_dir is not None else Path(key_path).parent)
+    return Authenticator(load_signer(key_path, authority, time.time()))

@@ -202,6 +202,18 @@ _ENUM_SETS = tuple(frozenset(v) for v in _ENUMS.values())
 _get_enums = operator.attrgetter(*_ENUM_NAMES)
 
 
+def _bit_field_holds_more(lo: int, hi: int) -> bool:
+    """Whether UPER's bit field for INTEGER (lo..hi) can carry values above ``hi``."""
+    span = hi - lo + 1
+    return (1 << (span - 1).bit_length()) > span
+
+
+_WIDE = {k: hi for k, (lo, hi) in _INT_RANGES.items() if _bit_field_holds_more(lo, hi)}
+_WIDE_NAMES = tuple(_WIDE)
+_WIDE_HI = tuple(_WIDE.values())
+_get_wide = operator.attrgetter(*_WIDE_NAMES)
+
+
 def check_core(core: BsmCore) -> None:
     """Raise ``ValueError`` naming the first field outside its J2735 range."""
     # One pass over tuples: this runs for every message sent and received.
@@ -272,38 +284,50 @@ def _to_asn(core: BsmCore) -> dict[str, Any]:
     }
 
 
+_new_core = tuple.__new__
+
+
 def _from_asn(c: dict[str, Any]) -> BsmCore:
     acc, accel, brakes, size = c["accuracy"], c["accelSet"], c["brakes"], c["size"]
     wb_bytes, wb_len = brakes["wheelBrakes"]
     if wb_len != 5 or len(wb_bytes) != 1:
         raise BsmDecodeError(f"wheelBrakes has {wb_len} bits, expected 5")
-    return BsmCore(
-        msg_cnt=c["msgCnt"],
-        temp_id=bytes(c["id"]),
-        sec_mark=c["secMark"],
-        lat=c["lat"],
-        lon=c["long"],
-        elev=c["elev"],
-        semi_major=acc["semiMajor"],
-        semi_minor=acc["semiMinor"],
-        orientation=acc["orientation"],
-        transmission=c["transmission"],
-        speed=c["speed"],
-        heading=c["heading"],
-        angle=c["angle"],
-        accel_long=accel["long"],
-        accel_lat=accel["lat"],
-        accel_vert=accel["vert"],
-        yaw_rate=accel["yaw"],
-        wheel_brakes=wb_bytes[0] >> 3,
-        traction=brakes["traction"],
-        abs=brakes["abs"],
-        scs=brakes["scs"],
-        brake_boost=brakes["brakeBoost"],
-        aux_brakes=brakes["auxBrakes"],
-        width=size["width"],
-        length=size["length"],
-    )
+    # Positional, through tuple.__new__: the named tuple's keyword constructor costs more
+    # than the rest of this function (order: BsmCore's fields).
+    return _new_core(BsmCore, (
+        c["msgCnt"], bytes(c["id"]), c["secMark"], c["lat"], c["long"], c["elev"],
+        acc["semiMajor"], acc["semiMinor"], acc["orientation"], c["transmission"],
+        c["speed"], c["heading"], c["angle"],
+        accel["long"], accel["lat"], accel["vert"], accel["yaw"],
+        wb_bytes[0] >> 3, brakes["traction"], brakes["abs"], brakes["scs"],
+        brakes["brakeBoost"], brakes["auxBrakes"], size["width"], size["length"],
+    ))
+
+
+# The MessageFrame around a BSM is its first two octets (extension bit 0, messageId 20 in
+# 15 bits) and the value as an open type: an X.691 length determinant (one octet below
+# 128, two below 16384; larger ones fragment and are never a BSM) and the BSM's octets.
+# Written and read here directly, since asn1tools would spend as long on this wrapper as
+# on the BSM itself (tests/comms/test_bsm.py holds it equal to asn1tools' encoding).
+
+
+def _frame_header(n: int) -> bytes:
+    if n < 0x80:
+        return BSM_FRAME_PREFIX + bytes((n,))
+    return BSM_FRAME_PREFIX + bytes((0x80 | (n >> 8), n & 0xFF))
+
+
+def _frame_value(data: bytes) -> bytes:
+    b = data[2]
+    if b < 0x80:
+        start, n = 3, b
+    elif b < 0xC0 and len(data) >= 4:
+        start, n = 4, ((b & 0x3F) << 8) | data[3]
+    else:
+        raise BsmDecodeError("MessageFrame value length is fragmented or truncated")
+    if len(data) < start + n:
+        raise BsmDecodeError(f"truncated MessageFrame: {len(data)} octets, value needs {start + n}")
+    return data[start : start + n]
 
 
 def encode_frame(core: BsmCore, *, check: bool = True) -> bytes:
@@ -314,9 +338,8 @@ def encode_frame(core: BsmCore, *, check: bool = True) -> bytes:
     """
     if check:
         check_core(core)
-    frame_t, bsm_t = _spec()
-    value = bsm_t.encode(_to_asn(core))
-    return frame_t.encode({"messageId": BSM_MESSAGE_ID, "value": value})
+    value = _spec()[1].encode(_to_asn(core))
+    return _frame_header(len(value)) + value
 
 
 def decode_frame(data: bytes) -> Bsm:
@@ -332,10 +355,9 @@ def decode_frame(data: bytes) -> Bsm:
             if msg_id != BSM_MESSAGE_ID:
                 raise BsmDecodeError(f"not a BSM: MessageFrame messageId {msg_id}")
         raise BsmDecodeError("not a J2735 BSM MessageFrame (too short or bad header)")
-    frame_t, bsm_t = _spec()
+    bsm_t = _spec()[1]
     try:
-        frame = frame_t.decode(data)
-        bsm = bsm_t.decode(frame["value"])
+        bsm = bsm_t.decode(_frame_value(data))
         core = _from_asn(bsm["coreData"])
         part_ii = tuple(p["partII-Id"] for p in bsm.get("partII", ()))
         regional = tuple(r["regionId"] for r in bsm.get("regional", ()))
@@ -343,10 +365,12 @@ def decode_frame(data: bytes) -> Bsm:
         raise
     except Exception as exc:  # asn1tools raises many types on garbage; all mean "invalid"
         raise BsmDecodeError(f"invalid UPER: {type(exc).__name__}: {exc}") from None
-    try:
-        check_core(core)
-    except ValueError as exc:
-        raise BsmDecodeError(str(exc)) from None
+    # Only fields whose UPER bit field can hold values past the type's range need a
+    # check here: the others cannot be out of range once decoded (and asn1tools rejects
+    # enumeration indexes it does not know).
+    for name, v, hi in zip(_WIDE_NAMES, _get_wide(core), _WIDE_HI):
+        if v > hi:
+            raise BsmDecodeError(f"BSM field {name}={v!r} outside J2735 range (max {hi})")
     return Bsm(core, part_ii, regional)
 
 

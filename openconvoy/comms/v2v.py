@@ -18,7 +18,7 @@ Receiving dispatches on content: a UPER MessageFrame starts ``00 14``, a compati
 message (``compat``) starts ``{``. Both give the same ``Received``. Every datagram handled
 is counted exactly once:
 
-    datagrams == received + malformed + filtered + echoes + duplicates + lost_rx
+    datagrams == received + malformed + filtered + echoes + duplicates + rejected + lost_rx
 
 where ``lost_rx`` is ``lost`` when losses are emulated at the receiver (the default). With
 ``drop_at="sender"`` the loss model decides per outgoing message instead (as the original
@@ -26,11 +26,18 @@ OpenConvoy implementation did), and ``lost`` counts messages never transmitted.
 
 Network input never raises: anything that is not a valid message is counted as
 ``malformed`` and dropped with a debug log line.
+
+Authentication (``auth``): with an ``Authenticator`` every BSM and abort goes out as a
+signed IEEE 1609.2 SPDU (``spdu``, starting ``03 81``) and only verified ones are
+delivered; the rest are ``rejected``, by reason in ``Authenticator.counters``
+(unsigned, unknown signer, bad signature, stale, duplicate, ...). Without one, signed
+SPDUs from others are still understood (their payload is used unverified).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
@@ -39,6 +46,9 @@ import numpy as np
 
 from openconvoy.comms import bsm as j
 from openconvoy.comms import compat as cj
+from openconvoy.comms import spdu as sp
+from openconvoy.comms.auth import Authenticator, vehicle_of
+from openconvoy.comms.certs import PSID_ABORT, PSID_BSM
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig, LossModel, NoLoss
 from openconvoy.comms.mapping import (
@@ -66,6 +76,9 @@ Source = Literal["j2735", "compat"]
 #: A compat message from a vehicle heard over J2735 within this many seconds is a
 #: duplicate (our own vehicles send both when compat is on); J2735 wins.
 DUPLICATE_WINDOW_S = 1.0
+#: A BSM with heading "unavailable" takes the direction of its sender's travel over at
+#: least this distance (m; GPS noise makes shorter displacements meaningless).
+TRAIL_HEADING_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -116,7 +129,9 @@ class Counters:
         lost: messages dropped by the emulated loss model (at receiver or sender).
         echoes: our own messages heard back (multicast loop).
         duplicates: compat twins of messages already heard over J2735.
+        rejected: messages authentication rejected (reasons: ``Authenticator.counters``).
         aborts: abort messages among ``received``.
+        aborts_rejected: aborts among ``rejected`` (unsigned or not the convoy's).
         datagrams: datagrams handled by the receiver.
         send_errors: sends the OS refused (the link keeps going).
         recv_errors: socket receive errors (the link keeps going).
@@ -129,7 +144,9 @@ class Counters:
     lost: int = 0
     echoes: int = 0
     duplicates: int = 0
+    rejected: int = 0
     aborts: int = 0
+    aborts_rejected: int = 0
     datagrams: int = 0
     send_errors: int = 0
     recv_errors: int = 0
@@ -189,8 +206,12 @@ class Sender:
         rng: np.random.Generator | None = None,
         compat_enabled: bool = False,
         counters: Counters | None = None,
+        auth: Authenticator | None = None,
     ) -> None:
         _check_drop_at(drop_at)
+        if auth is not None and compat_enabled:
+            raise ValueError("the compatibility JSON format cannot be signed: disable compat or auth")
+        self.auth = auth
         self.temp_id = temp_ids.id_of(vehicle_index)
         self.origin = origin
         self.vehicle_index = vehicle_index
@@ -216,6 +237,8 @@ class Sender:
             self.counters.lost += 1
             return None
         frame = j.encode_frame(core, check=False)  # the mapping clamps every field
+        if self.auth is not None:
+            frame = self.auth.sign(frame, PSID_BSM, now)
         twin = cj.encode_state(state, self.origin) if self.compat_enabled else None
         return frame, twin
 
@@ -237,8 +260,10 @@ class Receiver:
         rng: np.random.Generator | None = None,
         time_tolerance_s: float = DEFAULT_TIME_TOLERANCE_S,
         counters: Counters | None = None,
+        auth: Authenticator | None = None,
     ) -> None:
         _check_drop_at(drop_at)
+        self.auth = auth
         self.temp_ids = temp_ids
         self.origin = origin
         self.vehicle_index = vehicle_index
@@ -254,11 +279,17 @@ class Receiver:
                 model.reset(_child_rng(rng))
                 self._loss[index] = model
         self._last_j2735: dict[int, float] = {}
+        self._heading: dict[int, float] = {}  # last heading per sender (ENU rad)
+        self._anchor: dict[int, tuple[float, float]] = {}  # a trail point per sender
 
     def handle(self, data: bytes, t_rx: float, source: str = "") -> Received | None:
         """Classify and decode one datagram received at ``t_rx``; None if not delivered."""
         self.counters.datagrams += 1
         try:
+            if data[:2] == sp.SIGNED_PREFIX:
+                return self._handle_signed(data, t_rx, source)
+            if self.auth is not None:
+                return self._unsigned(data, source)
             if data[:2] == j.BSM_FRAME_PREFIX:
                 return self._handle_j2735(data, t_rx, source)
             if data.lstrip()[:1] == b"{":
@@ -272,6 +303,65 @@ class Receiver:
         log.debug("dropped malformed datagram from %s: %s", source or "?", why)
         return None
 
+    def _rejected(self, source: str, reason: str, abort: bool = False) -> None:
+        self.counters.rejected += 1
+        if abort:
+            self.counters.aborts_rejected += 1
+        log.debug("rejected a message from %s: %s", source or "?", reason)
+        return None
+
+    def _unsigned(self, data: bytes, source: str) -> None:
+        if data[:2] != j.BSM_FRAME_PREFIX and data.lstrip()[:1] != b"{":
+            return self._malformed(source, "neither a signed SPDU, a J2735 MessageFrame nor JSON")
+        abort = False
+        if data.lstrip()[:1] == b"{":
+            try:
+                abort = cj.decode(data).abort
+            except cj.CompatDecodeError:
+                return self._malformed(source, "invalid compatibility message")
+        self.auth.reject("unsigned")
+        return self._rejected(source, "unsigned", abort)
+
+    def _handle_signed(self, data: bytes, t_rx: float, source: str) -> Received | None:
+        try:
+            spdu = sp.decode_signed(data)
+        except sp.SpduDecodeError as exc:
+            return self._malformed(source, str(exc))
+        auth = self.auth
+        abort = spdu.psid == PSID_ABORT
+        if auth is None:  # not verifying: the payload as if it came unsigned
+            signed = None
+        elif spdu.digest == auth.own_digest:
+            self.counters.echoes += 1
+            return None
+        else:
+            cert = auth.check(spdu, t_rx)
+            if isinstance(cert, str):
+                return self._rejected(source, cert, abort)
+            signed = (spdu, cert)
+        if abort:
+            return self._handle_signed_abort(spdu, signed, t_rx, source)
+        if spdu.psid != PSID_BSM or spdu.payload[:2] != j.BSM_FRAME_PREFIX:
+            return self._malformed(source, f"signed PSID {spdu.psid:#x} payload is not a BSM")
+        return self._handle_j2735(spdu.payload, t_rx, source, signed)
+
+    def _handle_signed_abort(self, spdu: Any, signed: Any, t_rx: float, source: str) -> Received | None:
+        try:
+            msg = cj.decode(spdu.payload)
+        except cj.CompatDecodeError as exc:
+            return self._malformed(source, f"signed abort: {exc}")
+        if not msg.abort:
+            return self._malformed(source, "signed abort without the abort flag")
+        sender = msg.car
+        if signed is not None:
+            vehicle = vehicle_of(signed[1])
+            sender = -1 if vehicle is None else vehicle
+            if self.auth.admit(spdu, t_rx) is not None:
+                return self._rejected(source, "replayed abort", abort=True)
+        self.counters.received += 1
+        self.counters.aborts += 1
+        return Received(None, t_rx, True, "j2735", sender)
+
     def _lost(self, sender: int, t_rx: float) -> bool:
         model = self._loss.get(sender)
         if model is not None and model.lost(t_rx):
@@ -279,7 +369,9 @@ class Receiver:
             return True
         return False
 
-    def _handle_j2735(self, data: bytes, t_rx: float, source: str) -> Received | None:
+    def _handle_j2735(
+        self, data: bytes, t_rx: float, source: str, signed: Any = None
+    ) -> Received | None:
         try:
             msg = j.decode_frame(data)
         except j.BsmDecodeError as exc:
@@ -292,15 +384,22 @@ class Receiver:
         if sender is None:
             self.counters.filtered += 1
             return None
-        # A member's BSM without position, speed, heading or time is no use to the convoy
-        # (NaN would reach the controllers, an unknown age would look fresh forever):
-        # treated as not received, so the staleness ladder sees the gap.
+        if signed is not None:
+            spdu, cert = signed
+            if vehicle_of(cert) != sender:  # a member may only speak for itself
+                self.auth.reject("wrong_sender")
+                return self._rejected(source, f"{cert.name} signed vehicle {sender}'s BSM")
+            if self.auth.admit(spdu, t_rx, core.msg_cnt) is not None:
+                return self._rejected(source, f"vehicle {sender}'s BSM replayed")
+        # A member's BSM without position, speed or time is no use to the convoy (NaN
+        # would reach the controllers, an unknown age would look fresh forever): treated
+        # as not received, so the staleness ladder sees the gap. An unavailable heading
+        # (other stacks send it when stopped or slow) is filled in below.
         missing = [
             name
             for name, absent in (
                 ("position", core.lat == j.LAT_UNAVAILABLE or core.lon == j.LON_UNAVAILABLE),
                 ("speed", core.speed == j.SPEED_UNAVAILABLE),
-                ("heading", core.heading == j.HEADING_UNAVAILABLE),
                 ("time", core.sec_mark >= 61000),
             )
             if absent
@@ -314,8 +413,31 @@ class Receiver:
             return None
         t_send = reconstruct_send_time(core.sec_mark, t_rx, self.time_tolerance_s)
         state = core_to_state(core, self.origin, sender, t_send)
+        if core.heading == j.HEADING_UNAVAILABLE:
+            heading = self._known_heading(sender, state)
+            if heading is None:
+                return self._malformed(source, f"BSM of vehicle {sender} lacks heading (none known yet)")
+            state = replace(state, heading=heading)
+        self._remember_heading(sender, state)
         self.counters.received += 1
         return Received(state, t_rx, False, "j2735", sender, core.temp_id, core.msg_cnt)
+
+    def _known_heading(self, sender: int, state: VehicleState) -> float | None:
+        """For a BSM whose heading is unavailable: the direction of the sender's trail
+        (its travel since a position at least ``TRAIL_HEADING_M`` back), else the last
+        heading it sent, else None."""
+        anchor = self._anchor.get(sender)
+        if anchor is not None:
+            dx, dy = state.x - anchor[0], state.y - anchor[1]
+            if dx * dx + dy * dy >= TRAIL_HEADING_M**2:
+                return math.atan2(dy, dx)
+        return self._heading.get(sender)
+
+    def _remember_heading(self, sender: int, state: VehicleState) -> None:
+        self._heading[sender] = state.heading
+        anchor = self._anchor.get(sender)
+        if anchor is None or (state.x - anchor[0]) ** 2 + (state.y - anchor[1]) ** 2 >= TRAIL_HEADING_M**2:
+            self._anchor[sender] = (state.x, state.y)
 
     def _handle_compat(self, data: bytes, t_rx: float, source: str) -> Received | None:
         try:
@@ -368,6 +490,8 @@ class V2V:
         rng: random source for the loss models (seeded: the same seed, the same drops).
         transport, compat_transport: injected sockets (tests); by default opened on
             ``config.iface`` (the IPv4 one only when ``config.compat``).
+        auth: sign what is sent and deliver only verified messages (``comms.auth``);
+            None: unsigned (``[v2v] auth = "off"``).
     """
 
     def __init__(
@@ -382,8 +506,12 @@ class V2V:
         rng: np.random.Generator | None = None,
         transport: Transport | None = None,
         compat_transport: Transport | None = None,
+        auth: Authenticator | None = None,
     ) -> None:
         _check_drop_at(drop_at)
+        if auth is not None and config.compat:
+            raise ValueError("the compatibility JSON format cannot be signed: disable compat or auth")
+        self.auth = auth
         self.config = config
         self.vehicle_index = vehicle_index
         self.loss = loss
@@ -399,6 +527,7 @@ class V2V:
             rng=_child_rng(rng),
             compat_enabled=config.compat,
             counters=self.counters,
+            auth=auth,
         )
         self.receiver = Receiver(
             temp_ids,
@@ -409,6 +538,7 @@ class V2V:
             rng=_child_rng(rng),
             time_tolerance_s=config.time_tolerance_s,
             counters=self.counters,
+            auth=auth,
         )
         self._tx = (
             transport
@@ -442,6 +572,21 @@ class V2V:
             "drop_at": self.drop_at,
             "loss": asdict(self.loss) if self.loss is not None else None,
             "latency_emulated": False,
+            "auth": self._auth_metadata(),
+        }
+
+    def _auth_metadata(self) -> dict[str, Any] | None:
+        a = self.auth
+        if a is None:
+            return None
+        own = a.credentials.certificate
+        return {
+            "certificate": None if own is None else own.name,
+            "window_s": a.guard.window_s,
+            "rejected": dict(a.counters.rejected),
+            "certificates_learned": a.counters.certificates_learned,
+            "certificates_sent": a.counters.certificates_sent,
+            "requests_sent": a.counters.requests_sent,
         }
 
     def _send(self, transport: Transport, data: bytes) -> bool:
@@ -480,6 +625,8 @@ class V2V:
             data = cj.encode_state(state, self.sender.origin, abort=True)
         else:
             data = cj.make_abort(now, car=self.vehicle_index)
+        if self.auth is not None:
+            data = self.auth.sign(data, PSID_ABORT, now)
         self._send(self._tx, data)
         if self._tx4 is not None:
             self._send(self._tx4, data)
@@ -526,6 +673,7 @@ def send_abort(
     now: float | None = None,
     repeat: int = 3,
     interval_s: float = 0.05,
+    auth: Authenticator | None = None,
 ) -> int:
     """Send a convoy-wide abort as an operator (``event_flags.car = -1``).
 
@@ -533,11 +681,14 @@ def send_abort(
     vehicles) and, with ``compat_enabled``, to the IPv4 group (vehicles running the
     original implementation). Sent ``repeat`` times ``interval_s`` apart, since multicast
     has no acknowledgement. ``now`` (seconds, default the system clock) stamps the message.
-    Returns the number of datagrams sent.
+    With ``auth`` the abort is a signed SPDU (PSID ``PSID_ABORT``; each repeat has its own
+    generation time), and only on the IPv6 group. Returns the number of datagrams sent.
     """
     if repeat < 1:
         raise ValueError(f"repeat must be at least 1, got {repeat}")
-    data = cj.make_abort(time.time() if now is None else now)
+    if auth is not None and compat_enabled:
+        raise ValueError("a signed abort cannot go out in the compatibility JSON format")
+    t0 = time.time() if now is None else now
     socks: list[Transport] = [Ipv6Multicast(iface, group, port, hop_limit)]
     try:
         if compat_enabled:
@@ -546,6 +697,9 @@ def send_abort(
         for i in range(repeat):
             if i:
                 time.sleep(interval_s)
+            data = cj.make_abort(t0)
+            if auth is not None:
+                data = auth.sign(data, PSID_ABORT, t0 if now is not None else time.time())
             for s in socks:
                 s.send(data)
                 n += 1

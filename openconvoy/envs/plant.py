@@ -1,10 +1,20 @@
 """The plant: kinematic bicycles with their autopilot inner loops, vectorized over vehicles.
 
 Each vehicle takes a speed setpoint (m/s) and an absolute heading setpoint (rad, ENU).
-After the preset's actuation delay, speed follows with a first-order lag clipped by the
-acceleration limits, heading follows with a lag clipped by the turn-rate limit and by the
-bicycle's maximum curvature at the current speed (no turning on the spot), and the
-reference point moves along the heading. Matches shared/AUTOPILOTS.md's Rover response.
+After the preset's delays:
+
+- speed (``speed_loop = "lag"``) follows with a first-order lag clipped by the acceleration
+  limits; or (``"pi"``) the setpoint is ramped at the acceleration limits and tracked by
+  the autopilot's PI speed controller with feed-forward, whose drive command the vehicle's
+  speed follows with a first-order lag (shared/sitl/README.md §3: dead time, overshoot, no
+  undershoot on stops). A vehicle at rest stays there while its drive is below the
+  preset's static friction (``breakaway_mps``).
+- heading turns at ``err / heading_lag_s``, clipped to the turn-rate limit, slewed at the
+  yaw acceleration limit, and capped by the bicycle's curvature and the lateral
+  acceleration limit at the current speed (no turning on the spot).
+
+The reference point moves along the heading. Matches shared/AUTOPILOTS.md's Rover response;
+the ``pi`` presets are fitted to real firmware (``fit-plant``).
 """
 
 from __future__ import annotations
@@ -20,6 +30,11 @@ from openconvoy.envs.vehicles import VehiclePreset
 SCALAR_MAX_VEHICLES = 8
 """Up to this many vehicles the step runs on Python floats: numpy's per-call overhead
 dominates on a handful of elements (measured 47 µs vs 7.6 µs for the paper's 3 vehicles)."""
+
+PI_MAX_DT_S = 0.02
+"""The ``pi`` speed loop runs in substeps of at most this (s), the autopilots' 50 Hz loop:
+at 20 Hz Euler steps its stop logic would miss the zero crossing (-0.40 m/s undershoot
+from 5 m/s instead of the firmware's -0.10)."""
 
 
 class BicyclePlant:
@@ -45,16 +60,32 @@ class BicyclePlant:
         self._rate = col("turn_rate_max_radps")
         self._vmax = col("max_speed_mps")
         self._kappa = np.tan(col("max_steer_rad")) / col("wheelbase_m")
-        self._delay_steps = np.array(
-            [int(round(p.actuation_delay_s / dt)) for p in self.presets], dtype=int
-        )
-        self._depth = int(self._delay_steps.max()) + 1 if n else 1
+        self._pi = np.array([p.speed_loop == "pi" for p in self.presets], dtype=bool)
+        self._any_pi = bool(self._pi.any())
+        self._pi_sub = max(1, math.ceil(dt / PI_MAX_DT_S - 1e-9))
+        self._kp = col("speed_kp")
+        self._ki = col("speed_ki")
+        self._ff = col("speed_ff")
+        self._tau_d = np.maximum(col("drive_lag_s"), 1e-6)
+        self._stop = col("stop_speed_mps")
+        self._brk = col("breakaway_mps")
+        self._yaw_acc = col("yaw_accel_max_radps2")
+        self._alat = col("lateral_accel_max_mps2")
+        steps = lambda delays: np.array([int(round(d / dt)) for d in delays], dtype=int)  # noqa: E731
+        self._delay_steps = steps(p.actuation_delay_s for p in self.presets)
+        self._hdelay_steps = steps(p.heading_delay for p in self.presets)
+        self._depth = int(max(self._delay_steps.max(), self._hdelay_steps.max())) + 1 if n else 1
         self.x = np.zeros(n)
         self.y = np.zeros(n)
         self.heading = np.zeros(n)
         self.speed = np.zeros(n)
         self.accel = np.zeros(n)
         self.yaw_rate = np.zeros(n)
+        # Inner-loop state: the ramped speed setpoint and the PI integrator (``pi``), and the
+        # heading loop's slewed desired yaw rate.
+        self._ramp = np.zeros(n)
+        self._integ = np.zeros(n)
+        self._rate_des = np.zeros(n)
         self._queue_v = np.zeros((self._depth, n))
         self._queue_h = np.zeros((self._depth, n))
         self._head = 0
@@ -64,7 +95,12 @@ class BicyclePlant:
         self._params = list(zip(
             self._tau_v.tolist(), self._tau_h.tolist(), self._acc.tolist(), self._dec.tolist(),
             self._rate.tolist(), self._vmax.tolist(), self._kappa.tolist(),
-            self._delay_steps.tolist(),
+            self._delay_steps.tolist(), self._hdelay_steps.tolist(), self._pi.tolist(),
+            self._brk.tolist(), self._yaw_acc.tolist(), self._alat.tolist(),
+        ))
+        self._pi_params = list(zip(
+            self._kp.tolist(), self._ki.tolist(), self._ff.tolist(), self._tau_d.tolist(),
+            self._stop.tolist(),
         ))
         self._qv: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
         self._qh: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
@@ -79,7 +115,8 @@ class BicyclePlant:
         heading: np.ndarray,
         speed: np.ndarray | None = None,
     ) -> None:
-        """Place the vehicles; pending setpoints hold the initial speed and heading."""
+        """Place the vehicles; pending setpoints hold the initial speed and heading, and the
+        inner loops start in steady state at that speed."""
         n = len(self)
         self.x = np.asarray(x, dtype=float).copy()
         self.y = np.asarray(y, dtype=float).copy()
@@ -87,6 +124,10 @@ class BicyclePlant:
         self.speed = np.zeros(n) if speed is None else np.asarray(speed, dtype=float).copy()
         self.accel = np.zeros(n)
         self.yaw_rate = np.zeros(n)
+        self._ramp = self.speed.copy()
+        # Steady state: the drive command equals the speed (ff * v + integrator = v).
+        self._integ = np.where(self._pi, self.speed * (1.0 - self._ff), 0.0)
+        self._rate_des = np.zeros(n)
         self._queue_v[:] = self.speed
         self._queue_h[:] = self.heading
         self._qv = [self.speed.tolist() for _ in range(self._depth)]
@@ -101,22 +142,34 @@ class BicyclePlant:
         dt = self.dt
         self._queue_v[self._head] = cmd_speed
         self._queue_h[self._head] = cmd_heading
-        slot = (self._head - self._delay_steps) % self._depth
-        v_cmd = np.clip(self._queue_v[slot, self._idx], -self._vmax, self._vmax)
-        h_cmd = self._queue_h[slot, self._idx]
+        slot_v = (self._head - self._delay_steps) % self._depth
+        slot_h = (self._head - self._hdelay_steps) % self._depth
+        v_cmd = np.clip(self._queue_v[slot_v, self._idx], -self._vmax, self._vmax)
+        h_cmd = self._queue_h[slot_h, self._idx]
         self._head = (self._head + 1) % self._depth
 
-        # Speed: first-order lag, clipped to the acceleration limits.
-        dv = np.clip((v_cmd - self.speed) / self._tau_v, -self._dec, self._acc) * dt
+        v = self.speed
+        # Speed, lag: first-order lag, clipped to the acceleration limits.
+        dv = np.clip((v_cmd - v) / self._tau_v, -self._dec, self._acc) * dt
         # Never overshoot the setpoint within one step.
-        dv = np.where(np.abs(dv) > np.abs(v_cmd - self.speed), v_cmd - self.speed, dv)
-        v_new = self.speed + dv
+        dv = np.where(np.abs(dv) > np.abs(v_cmd - v), v_cmd - v, dv)
+        if self._brk.any():  # static friction holds a vehicle at rest
+            dv = np.where((v == 0.0) & (np.abs(v_cmd) < self._brk), 0.0, dv)
+        if self._any_pi:
+            dv = np.where(self._pi, self._pi_dv(v_cmd), dv)
+        v_new = v + dv
 
-        # Heading: lag towards the setpoint, clipped by turn rate and curvature at speed.
+        # Heading: lag towards the setpoint, clipped by turn rate, slewed by the yaw
+        # acceleration limit, capped by curvature and lateral acceleration at speed.
         err = (h_cmd - self.heading + math.pi) % (2.0 * math.pi) - math.pi
-        v_mid = 0.5 * (self.speed + v_new)
-        rate_cap = np.minimum(self._rate, np.abs(v_mid) * self._kappa)
-        rate = np.clip(err / np.maximum(self._tau_h, dt), -rate_cap, rate_cap)
+        v_mid = 0.5 * (v + v_new)
+        wanted = np.clip(err / np.maximum(self._tau_h, dt), -self._rate, self._rate)
+        slew = self._yaw_acc * dt
+        self._rate_des = np.clip(wanted, self._rate_des - slew, self._rate_des + slew)
+        speed_mid = np.abs(v_mid)
+        cap = np.minimum(speed_mid * self._kappa,
+                         self._alat / np.maximum(speed_mid, 1e-9))
+        rate = np.clip(self._rate_des, -cap, cap)
         h_mid = self.heading + 0.5 * rate * dt
 
         self.x = self.x + v_mid * np.cos(h_mid) * dt
@@ -126,27 +179,80 @@ class BicyclePlant:
         self.yaw_rate = rate
         self.speed = v_new
 
+    def _pi_dv(self, v_cmd: np.ndarray) -> np.ndarray:
+        """The ``pi`` speed loop's speed change over one step (numpy; updates its state)."""
+        h = self.dt / self._pi_sub
+        v0 = v = self.speed
+        r, integ = self._ramp, self._integ
+        for _ in range(self._pi_sub):
+            # Ramp the setpoint: the accel limit speeding up, the decel limit slowing down.
+            lim = np.where(np.abs(v_cmd) > np.abs(r), self._acc, self._dec) * h
+            r = r + np.clip(v_cmd - r, -lim, lim)
+            err = r - v
+            stopped = (r == 0.0) & (np.abs(v) <= self._stop)
+            integ = np.where(stopped, 0.0, integ + self._ki * err * h)
+            drive = np.where(stopped, 0.0, self._ff * r + self._kp * err + integ)
+            dv = (drive - v) / self._tau_d * h
+            # Friction: at rest below breakaway nothing moves; slowing down stops at zero,
+            # and a stopped vehicle (drive cut) comes to rest rather than coasting on.
+            stuck = (np.abs(drive) < self._brk) & (
+                (v == 0.0) | ((v + dv) * v < 0.0) | stopped)
+            v = np.where(stuck, 0.0, v + dv)
+        self._ramp = np.where(self._pi, r, self._ramp)
+        self._integ = np.where(self._pi, integ, self._integ)
+        return v - v0
+
     def _step_scalar(self, cmd_speed: Sequence[float], cmd_heading: Sequence[float]) -> None:
         """``step`` on Python floats, the same equations vehicle by vehicle."""
         dt, depth, head = self.dt, self._depth, self._head
+        n_sub = self._pi_sub
+        h = dt / n_sub
         self._qv[head] = [float(v) for v in cmd_speed]
         self._qh[head] = [float(h) for h in cmd_heading]
         self._head = (head + 1) % depth
         two_pi, pi = 2.0 * math.pi, math.pi
         xs, ys, hs, vs = self.x.tolist(), self.y.tolist(), self.heading.tolist(), self.speed.tolist()
+        ramp, integ, rate_des = self._ramp.tolist(), self._integ.tolist(), self._rate_des.tolist()
         acc_out, rate_out = [0.0] * len(vs), [0.0] * len(vs)
-        for i, (tau_v, tau_h, acc, dec, rate_max, vmax, kappa, delay) in enumerate(self._params):
-            slot = (head - delay) % depth
-            v_cmd = min(max(self._qv[slot][i], -vmax), vmax)
+        for i, (tau_v, tau_h, acc, dec, rate_max, vmax, kappa, delay, hdelay, is_pi, brk,
+                yaw_acc, alat) in enumerate(self._params):
+            v_cmd = min(max(self._qv[(head - delay) % depth][i], -vmax), vmax)
             v = vs[i]
-            dv = min(max((v_cmd - v) / tau_v, -dec), acc) * dt
-            if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
-                dv = v_cmd - v
+            if is_pi:
+                kp, ki, ff, tau_d, stop = self._pi_params[i]
+                r, acc_i, vs_ = ramp[i], integ[i], v
+                for _ in range(n_sub):
+                    lim = (acc if abs(v_cmd) > abs(r) else dec) * h
+                    r += min(max(v_cmd - r, -lim), lim)
+                    err = r - vs_
+                    stopped = r == 0.0 and abs(vs_) <= stop
+                    if stopped:
+                        acc_i = drive = 0.0
+                    else:
+                        acc_i += ki * err * h
+                        drive = ff * r + kp * err + acc_i
+                    d = (drive - vs_) / tau_d * h
+                    if abs(drive) < brk and (vs_ == 0.0 or (vs_ + d) * vs_ < 0.0 or stopped):
+                        vs_ = 0.0  # at rest it stays; slowing down it stops at zero
+                    else:
+                        vs_ += d
+                ramp[i], integ[i] = r, acc_i
+                dv = vs_ - v
+            else:
+                dv = min(max((v_cmd - v) / tau_v, -dec), acc) * dt
+                if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
+                    dv = v_cmd - v
+                if v == 0.0 and abs(v_cmd) < brk:
+                    dv = 0.0
             v_new = v + dv
-            err = (self._qh[slot][i] - hs[i] + pi) % two_pi - pi
+            err_h = (self._qh[(head - hdelay) % depth][i] - hs[i] + pi) % two_pi - pi
             v_mid = 0.5 * (v + v_new)
-            cap = min(rate_max, abs(v_mid) * kappa)
-            rate = min(max(err / max(tau_h, dt), -cap), cap)
+            wanted = min(max(err_h / max(tau_h, dt), -rate_max), rate_max)
+            slew = yaw_acc * dt
+            rd = rate_des[i] = min(max(wanted, rate_des[i] - slew), rate_des[i] + slew)
+            speed_mid = abs(v_mid)
+            cap = min(speed_mid * kappa, alat / max(speed_mid, 1e-9))
+            rate = min(max(rd, -cap), cap)
             h_mid = hs[i] + 0.5 * rate * dt
             xs[i] += v_mid * math.cos(h_mid) * dt
             ys[i] += v_mid * math.sin(h_mid) * dt
@@ -156,6 +262,7 @@ class BicyclePlant:
             rate_out[i] = rate
         self.x, self.y, self.heading = np.array(xs), np.array(ys), np.array(hs)
         self.speed, self.accel, self.yaw_rate = np.array(vs), np.array(acc_out), np.array(rate_out)
+        self._ramp, self._integ, self._rate_des = np.array(ramp), np.array(integ), np.array(rate_des)
 
     def state(self, i: int, t: float) -> VehicleState:
         """Vehicle ``i``'s state at time ``t`` (its id is its index)."""

@@ -1,10 +1,24 @@
 """Vehicle presets: size and the autopilot's inner-loop response, per vehicle class.
 
-The numbers model a vehicle *with* its autopilot (DESIGN.md, Plant; AUTOPILOTS.md):
-speed follows the setpoint with a first-order lag and an acceleration limit, heading
-follows with a turn-rate limit, and every setpoint acts after an actuation delay.
-Presets load from TOML files too (``fit-plant`` writes them), strictly: an unknown key
-is an error naming the key.
+The numbers model a vehicle *with* its autopilot (DESIGN.md, Plant; AUTOPILOTS.md).
+Two speed loops (``speed_loop``):
+
+- ``lag`` (the original presets): speed follows the setpoint with a first-order lag and an
+  acceleration limit.
+- ``pi``: the autopilot's own speed controller, as in ArduPilot's ``AR_AttitudeControl``
+  and PX4's rover speed control: the setpoint is ramped at the acceleration limits, a PI
+  controller with feed-forward turns the ramp into a drive command, and the vehicle's
+  speed follows that command with a first-order lag (the motor and body). This gives the
+  firmware's ~0.3 s dead time and ~29 % overshoot that a lag cannot (shared/sitl/README.md
+  §3). A static-friction dead zone (``breakaway_mps``) keeps a vehicle at rest until the
+  drive command reaches it (PX4 SIH: ~0.75 m/s).
+
+Heading follows with a rate limit (``err / heading_lag_s`` clipped to the turn-rate limit),
+optionally slewed at a yaw acceleration limit and capped by the steering lock and a lateral
+acceleration limit at speed. Every setpoint acts after its delay. The defaults of the new
+fields keep the original presets' behaviour exactly. Presets load from TOML files too
+(``fit-plant`` writes them, and the firmware-fitted presets ship as ``presets/*.toml``),
+strictly: an unknown key is an error naming the key.
 """
 
 from __future__ import annotations
@@ -25,6 +39,10 @@ class RangingSensor:
     range_rate_noise_mps: float = 0.05
 
 
+SPEED_LOOPS = ("lag", "pi")
+"""The speed-loop models a preset can use (``VehiclePreset.speed_loop``)."""
+
+
 @dataclass(frozen=True)
 class VehiclePreset:
     """A vehicle class with its autopilot, in SI units.
@@ -42,6 +60,25 @@ class VehiclePreset:
         actuation_delay_s: delay from setpoint to first actuator change.
         max_speed_mps: speed cap of the autopilot (ArduPilot WP_SPEED).
         ranging: optional forward ranging sensor.
+        speed_loop: ``lag`` (first-order lag, ``speed_lag_s``) or ``pi`` (the autopilot's
+            PI speed loop below; ``speed_lag_s`` unused). With ``pi`` the acceleration
+            limits ramp the setpoint (ArduPilot ATC_ACCEL_MAX / ATC_DECEL_MAX).
+        speed_kp: ``pi``: proportional gain, drive command (m/s) per m/s of error
+            (ArduPilot: ATC_SPEED_P x the vehicle's m/s per unit throttle).
+        speed_ki: ``pi``: integral gain, 1/s (ATC_SPEED_I x the same).
+        speed_ff: ``pi``: feed-forward, drive command per m/s of ramped setpoint
+            (ArduPilot: CRUISE_THROTTLE / CRUISE_SPEED x the same; 1 = exact).
+        drive_lag_s: ``pi``: time constant of the vehicle's speed following the drive
+            command (s).
+        stop_speed_mps: ``pi``: with the ramped setpoint at 0, below this speed the drive
+            is cut and the integrator reset (ArduPilot ATC_STOP_SPEED): no undershoot.
+        breakaway_mps: static friction: a vehicle at rest stays at rest while its drive
+            command (``pi``) or speed setpoint (``lag``) is below this (m/s); 0 = none.
+        heading_delay_s: delay from a heading setpoint to its first effect (s); None =
+            ``actuation_delay_s``.
+        yaw_accel_max_radps2: slew limit of the heading loop's desired yaw rate (ArduPilot
+            ATC_STR_ACC_MAX), rad/s²; inf = none.
+        lateral_accel_max_mps2: yaw rate is also capped at this / speed (m/s²); inf = none.
     """
 
     name: str
@@ -57,6 +94,28 @@ class VehiclePreset:
     actuation_delay_s: float = 0.1
     max_speed_mps: float = 5.0
     ranging: RangingSensor | None = None
+    speed_loop: str = "lag"
+    speed_kp: float = 0.0
+    speed_ki: float = 0.0
+    speed_ff: float = 1.0
+    drive_lag_s: float = 0.5
+    stop_speed_mps: float = 0.1
+    breakaway_mps: float = 0.0
+    heading_delay_s: float | None = None
+    yaw_accel_max_radps2: float = math.inf
+    lateral_accel_max_mps2: float = math.inf
+
+    def __post_init__(self) -> None:
+        if self.speed_loop not in SPEED_LOOPS:
+            raise ValueError(
+                f"vehicle preset {self.name!r}: speed_loop must be one of "
+                f"{', '.join(SPEED_LOOPS)}, got {self.speed_loop!r}"
+            )
+
+    @property
+    def heading_delay(self) -> float:
+        """The heading setpoint's delay (s): ``heading_delay_s`` or the actuation delay."""
+        return self.actuation_delay_s if self.heading_delay_s is None else self.heading_delay_s
 
     def with_ranging(self, sensor: RangingSensor | None = None) -> VehiclePreset:
         """This preset carrying a ranging sensor (the default one if none given)."""
@@ -81,6 +140,10 @@ VEHICLE_PRESETS: dict[str, VehiclePreset] = {
         actuation_delay_s=0.15, max_speed_mps=40.0,
     ),
 }
+
+
+PRESET_DIR = Path(__file__).with_name("presets")
+"""Shipped presets fitted from real-firmware recordings (``fit-plant``), one TOML file each."""
 
 
 def vehicle_preset(name_or_path: str) -> VehiclePreset:
@@ -131,3 +194,8 @@ def preset_to_toml(preset: VehiclePreset) -> str:
         for f in dataclasses.fields(preset.ranging):
             lines.append(f"{f.name} = {getattr(preset.ranging, f.name)!r}")
     return "\n".join(lines) + "\n"
+
+
+VEHICLE_PRESETS.update(
+    (f.stem, load_vehicle_preset(f)) for f in sorted(PRESET_DIR.glob("*.toml"))
+)

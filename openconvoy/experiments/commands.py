@@ -141,6 +141,8 @@ def presets(args: argparse.Namespace) -> int:
             f"  {name:<{width}}  length {p.length_m:g} m, accel {p.accel_max_mps2:g} / decel "
             f"{p.decel_max_mps2:g} m/s², turn rate {math.degrees(p.turn_rate_max_radps):.0f}°/s, "
             f"delay {p.actuation_delay_s:g} s, max {p.max_speed_mps:g} m/s"
+            + (", the autopilot's PI speed loop" if p.speed_loop == "pi" else "")
+            + (f", static friction below {p.breakaway_mps:g} m/s" if p.breakaway_mps else "")
             + (", ranging sensor" if p.ranging else "")
         )
     return 0

@@ -216,3 +216,27 @@ def test_physical_units_and_unavailable():
     assert p["steering_angle_deg"] is None
     assert p["wheel_brakes"] == ["leftFront", "rightRear"]
     assert p["temp_id"] == "0000002A"
+
+
+@settings(max_examples=200, deadline=None)
+@given(_cores())
+def test_encode_frame_is_bytes_equal_to_asn1tools_message_frame(core):
+    # Our own MessageFrame wrapper against asn1tools' encoding of the whole frame; and
+    # any out-of-range bit pattern the decoder lets through would fail check_core.
+    data = encode_frame(core)
+    assert type(data) is bytes and hash(data) is not None
+    frame_t, bsm_t = j._spec()
+    assert data == bytes(frame_t.encode({"messageId": 20, "value": bsm_t.encode(j._to_asn(core))}))
+    j.check_core(decode_frame(data).core)
+
+
+def test_two_octet_value_lengths_and_truncation():
+    big = max((bytes.fromhex(v["hex"]) for v in VECTORS), key=len)
+    assert big[2] & 0xC0 == 0x80  # a 2-octet length determinant (value >= 128 octets)
+    frame_t, bsm_t = j._spec()
+    assert decode_frame(big).core == j._from_asn(bsm_t.decode(frame_t.decode(big)["value"])["coreData"])
+    for cut in (3, 4, 100, len(big) - 1):
+        with pytest.raises(BsmDecodeError):
+            decode_frame(big[:cut])
+    with pytest.raises(BsmDecodeError, match="fragmented"):
+        decode_frame(b"\x00\x14\xc1" + bytes(40))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import random
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -43,7 +44,7 @@ def _state(i, t, x=None):
 
 
 def _balanced(c: Counters) -> bool:
-    return c.datagrams == (c.received + c.malformed + c.filtered + c.echoes + c.duplicates + c.lost)
+    return c.datagrams == (c.received + c.malformed + c.filtered + c.echoes + c.duplicates + c.rejected + c.lost)
 
 
 def test_temp_ids_default_override_and_collision():
@@ -378,3 +379,45 @@ def test_link_config_from_the_convoy_config():
     assert (cfg.compat_group, cfg.compat_port, cfg.compat_ttl) == ("224.0.0.1", 5004, 1)
     # the convoy config's defaults are the transport's
     assert LinkConfig.from_v2v(V2VConfig(), "x") == LinkConfig("x")
+
+
+def test_unavailable_heading_keeps_position_and_speed_and_takes_a_known_heading():
+    rx = Receiver(IDS, ORIGIN, 0)
+    blind = dict(heading=j.HEADING_UNAVAILABLE)
+    core = lambda s: state_to_core(s, ORIGIN, IDS.id_of(1), 0)  # noqa: E731
+    # nothing known yet: not delivered (a made-up heading would steer the followers)
+    assert rx.handle(j.encode_frame(core(_state(1, 10.0))._replace(**blind)), 10.1) is None
+    assert rx.counters.malformed == 1
+    moving = replace(_state(1, 10.0), heading=0.3, speed=0.0)
+    assert rx.handle(j.encode_frame(core(moving)), 10.1).state.heading == pytest.approx(0.3, abs=1e-3)
+    # standing still, heading unavailable: the last heading it sent
+    r = rx.handle(j.encode_frame(core(replace(moving, t=10.2))._replace(**blind)), 10.25)
+    assert r is not None and r.state.heading == pytest.approx(0.3, abs=1e-3)
+    assert (r.state.x, r.state.y, r.state.speed) == pytest.approx((moving.x, moving.y, 0.0), abs=0.02)
+    # it moved 2 m north (heading still unavailable): the direction of its trail
+    north = replace(moving, t=10.3, y=moving.y + 2.0, speed=1.0)
+    r = rx.handle(j.encode_frame(core(north)._replace(**blind)), 10.35)
+    assert r.state.heading == pytest.approx(math.pi / 2, abs=0.02)
+    assert r.state.speed == pytest.approx(1.0) and r.state.y == pytest.approx(north.y, abs=0.02)
+
+
+def test_interop_frames_with_unavailable_heading_are_delivered_once_a_heading_is_known():
+    blind = [bytes.fromhex(v["hex"]) for v in load_vectors()
+             if v["decoded_core_fields"]["heading"] == j.HEADING_UNAVAILABLE]
+    assert len(blind) == 8
+    delivered = 0
+    for data in blind:
+        c = j.decode_frame(data).core
+        ids = TempIds("x", 2, {1: c.temp_id.hex()})
+        rx = Receiver(ids, ORIGIN, 0, time_tolerance_s=120.0)
+        t_rx = 600.0 + c.sec_mark / 1000 if c.sec_mark < 60000 else 600.0
+        if c.lat == j.LAT_UNAVAILABLE or c.speed == j.SPEED_UNAVAILABLE or c.sec_mark >= 61000:
+            assert rx.handle(data, t_rx) is None  # lacks more than the heading
+            continue
+        seen = j.encode_frame(c._replace(heading=0))  # one earlier frame that had a heading
+        assert rx.handle(seen, t_rx) is not None
+        r = rx.handle(data, t_rx)
+        assert r is not None and r.state.speed == pytest.approx(c.speed * j.SPEED_UNIT)
+        assert r.state.heading == pytest.approx(math.pi / 2)  # compass 0 = ENU north
+        delivered += 1
+    assert delivered == 6  # the other two lack speed as well

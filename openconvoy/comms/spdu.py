@@ -1,0 +1,167 @@
+"""Signed IEEE 1609.2 SPDUs: ``Ieee1609Dot2Data`` with ``signedData`` around a payload.
+
+On the wire (canonical OER, ``ieee1609dot2.asn``)::
+
+    Ieee1609Dot2Data { protocolVersion 3, content signedData: SignedData {
+        hashId sha256,
+        tbsData { payload { data: Ieee1609Dot2Data { 3, unsecuredData: <payload> } },
+                  headerInfo { psid, generationTime, [inlineP2pcdRequest] } },
+        signer digest: HashedId8 | certificate: { <the signer's certificate> },
+        signature ecdsaNistP256Signature { rSig x-only, sSig } } }
+
+The payload of a BSM SPDU (PSID 0x20) is the unsecured UPER J2735 MessageFrame, as
+deployed V2X stacks send it. Every SPDU starts ``03 81`` (version 3, choice signedData).
+
+``encode_signed`` builds one; ``decode_signed`` parses one and locates the to-be-signed
+octets inside the datagram (what the signature covers), without checking the signature:
+``auth`` does that with the signer's certificate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from cryptography.hazmat.primitives.asymmetric import ec
+
+from openconvoy.comms import certs as c
+
+#: Every signed SPDU starts with these octets: protocolVersion 3, content = signedData.
+SIGNED_PREFIX = b"\x03\x81"
+#: Octets before tbsData: the two above and hashId (sha256 = 0).
+_TBS_OFFSET = 3
+
+
+class SpduDecodeError(ValueError):
+    """Not a signed IEEE 1609.2 SPDU we can read (message says why)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SignedSpdu:
+    """A parsed signed SPDU (signature not yet checked).
+
+    Attributes:
+        psid: headerInfo.psid.
+        generation_time: headerInfo.generationTime, 1609.2 Time64 (TAI µs since 2004).
+        payload: the unsecured data inside (for a BSM: the J2735 MessageFrame).
+        digest: the signer's certificate HashedId8 (computed when the certificate is sent).
+        certificate: the signer's certificate COER when sent in full, else None.
+        certificate_value: its decoded value (to build a ``Certificate`` without a decode).
+        tbs: the to-be-signed octets (COER of tbsData) as they are in the datagram.
+        r, s: the signature.
+        p2pcd_request: HashedId3s of certificates the sender asks for (inlineP2pcdRequest).
+    """
+
+    psid: int
+    generation_time: int
+    payload: bytes
+    digest: bytes
+    certificate: bytes | None
+    certificate_value: dict[str, Any] | None
+    tbs: bytes
+    r: bytes
+    s: bytes
+    p2pcd_request: tuple[bytes, ...] = ()
+
+
+def encode_signed(
+    payload: bytes,
+    *,
+    psid: int,
+    generation_time: int,
+    key: ec.EllipticCurvePrivateKey,
+    certificate: c.Certificate,
+    include_certificate: bool,
+    p2pcd_request: tuple[bytes, ...] = (),
+) -> bytes:
+    """A signed SPDU carrying ``payload``, signed by ``key`` (whose certificate is
+    ``certificate``), identified by the certificate's digest or, with
+    ``include_certificate``, the certificate itself. ``p2pcd_request``: HashedId3s of
+    certificates this sender asks their holders to send (unknown digests it heard)."""
+    spec = c.spec()
+    header: dict[str, Any] = {"psid": psid, "generationTime": generation_time}
+    if p2pcd_request:
+        header["inlineP2pcdRequest"] = list(p2pcd_request)
+    tbs_value = {
+        "payload": {"data": {"protocolVersion": 3, "content": ("unsecuredData", payload)}},
+        "headerInfo": header,
+    }
+    tbs = spec.encode("ToBeSignedData", tbs_value)
+    # A self-signed signer (the authority) hashes the empty string as its signer input
+    # only for its own certificate; signing data, every signer hashes its certificate.
+    r, s = c.sign(key, tbs, certificate.coer)
+    if include_certificate:
+        signer = b"\x81\x01\x01" + certificate.coer  # certificate: SEQUENCE OF, quantity 1
+    else:
+        signer = b"\x80" + certificate.digest
+    # rSig x-only (choice 0), sSig: the fixed 66-octet ecdsaNistP256Signature.
+    return SIGNED_PREFIX + b"\x00" + tbs + signer + b"\x80\x80" + r + s
+
+
+def decode_signed(data: bytes) -> SignedSpdu:
+    """Parse a signed SPDU; ``SpduDecodeError`` unless it is one carrying unsecured data
+    with a PSID and a generation time, signed with ECDSA P-256 by a digest or one
+    explicit certificate."""
+    if data[:2] != SIGNED_PREFIX:
+        raise SpduDecodeError("not a signed IEEE 1609.2 SPDU (does not start 03 81)")
+    try:
+        v = c.spec().decode("Ieee1609Dot2Data", data)
+    except Exception as exc:  # asn1tools raises many types on garbage; all mean "invalid"
+        raise SpduDecodeError(f"invalid OER: {type(exc).__name__}: {exc}") from None
+    sd = v["content"][1]
+    if sd["hashId"] != "sha256":
+        raise SpduDecodeError(f"hash algorithm {sd['hashId']}")
+    tbs_v = sd["tbsData"]
+    inner = tbs_v["payload"].get("data")
+    if inner is None or inner["content"][0] != "unsecuredData":
+        raise SpduDecodeError("payload is not unsecured data")
+    header = tbs_v["headerInfo"]
+    gen = header.get("generationTime")
+    if gen is None:
+        raise SpduDecodeError("no generation time")
+    try:
+        r, s = c.signature_parts(sd["signature"])
+    except c.CertificateError as exc:
+        raise SpduDecodeError(str(exc)) from None
+    # What the signature covers is the tbsData as sent: it ends where the signer begins.
+    # The signature is 1 + 33 + 32 octets (x-only or compressed r); the signer is a
+    # digest (1 + 8) or one certificate (1 + 2 + its length).
+    sig_len = 66
+    signer_kind, signer = sd["signer"]
+    cert_bytes: bytes | None = None
+    cert_value: dict[str, Any] | None = None
+    if signer_kind == "digest":
+        digest = bytes(signer)
+        end = len(data) - sig_len - 9
+        if data[end : end + 9] != b"\x80" + digest:
+            raise SpduDecodeError("trailing octets after the signature")
+    elif signer_kind == "certificate":
+        if len(signer) != 1:
+            raise SpduDecodeError(f"signer is a chain of {len(signer)} certificates, expected 1")
+        cert_value = signer[0]
+        cert_bytes = c.spec().encode("CertificateBase", cert_value)
+        end = len(data) - sig_len - 3 - len(cert_bytes)
+        if data[end : end + 3] != b"\x81\x01\x01" or data[end + 3 : len(data) - sig_len] != cert_bytes:
+            raise SpduDecodeError("signer certificate is not canonical OER")
+        digest = c.hashed_id8(cert_bytes)
+    else:
+        raise SpduDecodeError(f"signer is {signer_kind}")
+    if end <= _TBS_OFFSET or len(data) - end - sig_len < 0:
+        raise SpduDecodeError("truncated")
+    return SignedSpdu(
+        psid=header["psid"],
+        generation_time=gen,
+        payload=bytes(inner["content"][1]),
+        digest=digest,
+        certificate=cert_bytes,
+        certificate_value=cert_value,
+        tbs=data[_TBS_OFFSET:end],
+        r=r,
+        s=s,
+        p2pcd_request=tuple(bytes(h) for h in header.get("inlineP2pcdRequest", ())),
+    )
+
+
+def is_signed(data: bytes) -> bool:
+    """Whether ``data`` looks like a signed SPDU (prefix only)."""
+    return data[:2] == SIGNED_PREFIX

@@ -1,0 +1,128 @@
+"""Our signed SPDUs and certificates against an independent IEEE 1609.2 decoder.
+
+The independent decoder is pycrate's compilation of the published IEEE 1609.2 ASN.1
+modules Ieee1609Dot2 and Ieee1609Dot2BaseTypes (``pycrate_asn1dir/ITS_IEEE1609_2.py``,
+module OIDs {1 3 111 2 1609 2 1 1 2 3} and {... 2 1 2 2 2}), not our
+``comms/ieee1609dot2.asn``. Compared: every field of the SPDU (version, content choice,
+hashId, payload, headerInfo psid / generationTime / inlineP2pcdRequest, signer digest or
+certificate, signature) and of both certificates (type, issuer, id name, cracaId,
+crlSeries, validity, appPermissions, certIssuePermissions, verifyKeyIndicator,
+signature); pycrate re-encodes each value to the same octets (canonical OER).
+"""
+
+from __future__ import annotations
+
+import pytest
+from auth_testdata import T0, creds
+from pycrate_asn1dir import ITS_IEEE1609_2 as M
+
+from openconvoy.comms import bsm as j
+from openconvoy.comms import certs as c
+from openconvoy.comms import spdu as sp
+from openconvoy.comms.auth import Authenticator
+
+
+def _pycrate(type_name: str, module: str, data: bytes):
+    t = getattr(getattr(M, module), type_name)
+    t.from_oer(data)
+    value = t.get_val()
+    assert t.to_oer() == data  # canonical: pycrate writes the very same octets
+    return value
+
+
+@pytest.fixture(scope="module")
+def frames() -> tuple[bytes, bytes, bytes]:
+    core = j.BsmCore(7, b"\x4f\x43\x00\x01", 12345, 286024000, -812001000, speed=100, heading=7200)
+    payload = j.encode_frame(core)
+    a = Authenticator(creds(1))
+    a._requests[b"\xaa\xbb\xcc"] = None  # as if we had heard an unknown digest
+    with_cert = a.sign(payload, c.PSID_BSM, T0)
+    with_digest = a.sign(payload, c.PSID_BSM, T0 + 0.1)
+    return payload, with_cert, with_digest
+
+
+def test_signed_bsm_decodes_identically_with_pycrate(frames):
+    payload, with_cert, with_digest = frames
+    cert = creds(1).certificate
+    for data, signer in ((with_cert, "certificate"), (with_digest, "digest")):
+        assert data[:2] == sp.SIGNED_PREFIX
+        v = _pycrate("Ieee1609Dot2Data", "Ieee1609Dot2", data)
+        assert v["protocolVersion"] == 3
+        kind, sd = v["content"]
+        assert kind == "signedData" and sd["hashId"] == "sha256"
+        inner = sd["tbsData"]["payload"]["data"]
+        assert inner == {"protocolVersion": 3, "content": ("unsecuredData", payload)}
+        header = sd["tbsData"]["headerInfo"]
+        ours = sp.decode_signed(data)
+        assert header["psid"] == 0x20 == ours.psid
+        assert header["generationTime"] == ours.generation_time
+        assert abs(c.unix_of_time64(ours.generation_time) - (T0 if signer == "certificate" else T0 + 0.1)) < 1e-6
+        sig_kind, sig = sd["signature"]
+        assert sig_kind == "ecdsaNistP256Signature"
+        assert sig["rSig"] == ("x-only", ours.r) and sig["sSig"] == ours.s
+        assert sd["signer"][0] == signer
+        if signer == "digest":
+            assert sd["signer"][1] == cert.digest == ours.digest
+            assert "inlineP2pcdRequest" not in header
+        else:
+            (pc,) = sd["signer"][1]
+            assert M.Ieee1609Dot2.Certificate.from_oer(cert.coer) is None
+            assert pc == M.Ieee1609Dot2.Certificate.get_val()
+            assert header["inlineP2pcdRequest"] == [b"\xaa\xbb\xcc"]
+        # the signature covers the tbsData octets pycrate finds
+        tbs = M.Ieee1609Dot2.ToBeSignedData
+        tbs.set_val(sd["tbsData"])
+        assert tbs.to_oer() == ours.tbs
+        assert c.verify(cert.public_key, ours.r, ours.s, ours.tbs, cert.coer)
+
+
+def test_certificates_decode_identically_with_pycrate():
+    cr = creds(2)
+    for cert, issuer in ((cr.authority, ("self", "sha256")), (cr.certificate, ("sha256AndDigest", cr.authority.digest))):
+        v = _pycrate("CertificateBase", "Ieee1609Dot2", cert.coer)
+        assert v["version"] == 3 and v["type"] == "explicit"
+        assert v["issuer"] == issuer
+        tbs = v["toBeSigned"]
+        assert tbs["id"] == ("name", cert.name)
+        assert tbs["cracaId"] == b"\0\0\0" and tbs["crlSeries"] == 0
+        assert tbs["validityPeriod"]["duration"][0] == "hours"
+        assert abs(c.unix_of_time32(tbs["validityPeriod"]["start"]) - cert.valid_from) < 1
+        assert {p["psid"] for p in tbs["appPermissions"]} == set(cert.psids)
+        assert ("certIssuePermissions" in tbs) == cert.can_issue
+        vk_kind, (alg, (point_kind, x)) = tbs["verifyKeyIndicator"]
+        assert (vk_kind, alg) == ("verificationKey", "ecdsaNistP256")
+        assert point_kind in ("compressed-y-0", "compressed-y-1")
+        assert c.key_of_point((point_kind, x)).public_numbers() == cert.public_key.public_numbers()
+        assert v["signature"] == c.signature_value(cert.r, cert.s)
+        c.check_issued_by(cert, cr.authority, T0)
+
+
+def test_pycrate_built_spdu_decodes_with_ours():
+    # The other direction: an SPDU composed by pycrate from the published modules.
+    cr = creds(0)
+    payload = j.encode_frame(j.BsmCore(1, b"\x01\x02\x03\x04", 500, 0, 0, speed=0, heading=0))
+    tbs_v = {"payload": {"data": {"protocolVersion": 3, "content": ("unsecuredData", payload)}},
+             "headerInfo": {"psid": 32, "generationTime": c.time64(T0)}}
+    tbs_t = M.Ieee1609Dot2.ToBeSignedData
+    tbs_t.set_val(tbs_v)
+    tbs = tbs_t.to_oer()
+    r, s = c.sign(cr.key, tbs, cr.certificate.coer)
+    d = M.Ieee1609Dot2.Ieee1609Dot2Data
+    d.set_val({"protocolVersion": 3, "content": ("signedData", {
+        "hashId": "sha256", "tbsData": tbs_v, "signer": ("digest", cr.certificate.digest),
+        "signature": ("ecdsaNistP256Signature", {"rSig": ("x-only", r), "sSig": s})})})
+    ours = sp.decode_signed(d.to_oer())
+    assert ours.payload == payload and ours.tbs == tbs and ours.digest == cr.certificate.digest
+    assert c.verify(cr.certificate.public_key, ours.r, ours.s, ours.tbs, cr.certificate.coer)
+
+
+@pytest.mark.parametrize("bad", [b"", b"\x03\x81", b"\x03\x81\x00\x40", bytes(range(256))[:90]])
+def test_garbage_is_a_decode_error(bad):
+    with pytest.raises(sp.SpduDecodeError):
+        sp.decode_signed(b"\x03\x81" + bad)
+
+
+def test_time64_is_tai_microseconds_since_2004():
+    # 2004-01-01 00:00:00 UTC is 0 + the 5 leap seconds since.
+    assert c.time64(1072915200.0) == 5_000_000
+    assert c.unix_of_time64(c.time64(T0)) == pytest.approx(T0, abs=1e-6)

@@ -14,7 +14,7 @@ SHARED = Path(__file__).parents[2].parent / "shared"
 Record = dict[str, Any]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def sides(folder: str, name: str) -> dict[str, Any]:
     """``{"firmware": records, "sim": records, "boot": {side: t_boot}}`` for one recording."""
     meta, recs = load_recording(SHARED / folder / f"{name}.jsonl.gz")

@@ -9,8 +9,19 @@ import math
 
 import pytest
 from conformance import (
-    acks, angle_diff, circular_mean, heartbeats, mean, motion, phase, rx, servos, sides,
-    step_metrics, texts, yaw_series,
+    acks,
+    angle_diff,
+    circular_mean,
+    heartbeats,
+    mean,
+    motion,
+    phase,
+    rx,
+    servos,
+    sides,
+    step_metrics,
+    texts,
+    yaw_series,
 )
 
 SIDES = ("firmware", "sim")

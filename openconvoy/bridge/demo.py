@@ -32,11 +32,8 @@ from typing import Any
 import numpy as np
 
 ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
-READY_AFTER_S = 3.0
-"""The simulated autopilots allow arming this long after boot (real ArduPilot: ~42 s)."""
-INIT_S = 2.34
-"""ArduPilot's "ArduPilot Ready" (INITIAL_MODE MANUAL), then the RC mode switch's MANUAL
-0.42 s later, as the firmware does at boot: a deploy that set GUIDED earlier must notice."""
+READY_AFTER_S = 2.0
+"""The simulated autopilots allow arming this long after boot (real ArduPilot: ~40 s)."""
 PHASE_SETTLE_S = 10.0
 """Speed tracking is judged from this long after each leader speed change."""
 
@@ -184,14 +181,12 @@ def run_inside(opts: DemoOptions) -> int:
     signal.signal(signal.SIGTERM, on_term)
     try:
         urls = []
-        for i in range(len(presets)):
+        for i, p in enumerate(presets):
             port = free_udp_port()
-            # The firmware's own loops and vehicle model (preset=None), RC switch at boot.
             cfg = SimVehicleConfig(
-                system_id=i + 1, autopilot=opts.autopilot, home=origin,
+                system_id=i + 1, autopilot=opts.autopilot, preset=p, home=origin,
                 start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                start_heading_rad=float(init.heading[i]), ready_after_s=READY_AFTER_S,
-                init_s=INIT_S, rc_mode_switch=True, seed=i,
+                start_heading_rad=float(init.heading[i]), ready_after_s=READY_AFTER_S, seed=i,
             )
             vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
             urls.append(f"udpout:127.0.0.1:{port}")

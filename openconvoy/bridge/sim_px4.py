@@ -63,7 +63,7 @@ class Px4Timing:
 
     @staticmethod
     def firmware() -> Px4Timing:
-        return Px4Timing(1.35, 3.65, 0.990)
+        return Px4Timing(1.35, 3.6, 0.990)
 
     @staticmethod
     def short(ready_after_s: float) -> Px4Timing:

@@ -59,6 +59,7 @@ def vehicle_and_link() -> Iterator[Callable[..., tuple[SimVehicle, MavlinkLink, 
         # loops and the boot race are the conformance tests' subject.
         config.setdefault("preset", VEHICLE_PRESETS["1/10"])
         config.setdefault("init_s", 0.0)
+        config.setdefault("rc_mode_switch", False)
         vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(**config)).start()
         lines: list[str] = []
         kwargs = dict(on_status=lines.append)

@@ -42,9 +42,12 @@ RO_SPEED_LIM = 3.0
 RO_ACCEL_LIM = 3.0
 RO_YAW_P = 5.0
 RO_YAW_RATE_LIM = math.radians(180.0)
-LAT_ACCEL_MAX = 5.1  # m/s²: the recorded 141-148 °/s at 2 m/s
+TURN_RATE_AT_1MPS = math.radians(103.0)  # peak yaw rate ~ 103 °/s · sqrt(v): 101-105 at 1 m/s,
+# 141-148 at 2 m/s in the recordings
+YAW_ACCEL_LIM = math.radians(250.0)  # rad/s²: slew of the yaw-rate setpoint
+BRAKE_FRACTION = 0.8  # of YAW_ACCEL_LIM planned for slowing the turn before the bearing
 SPEED_DELAY_S = 0.35  # setpoint to throttle: the recorded 0.3-0.95 s before motion
-STEER_LAG_S = 0.12
+STEER_LAG_S = 0.1
 HOLD_RADIUS_M = 0.5
 _ARMING_DENIED = "Arming denied: Resolve system health failures first"
 _OFFBOARD_UNAVAILABLE = "Switching to Offboard is currently not available"
@@ -97,6 +100,7 @@ class Px4Rover:
         self._speed_queue: deque[float] = deque([0.0] * max(1, int(round(SPEED_DELAY_S / LOOP_DT))))
         self._speed_ramped = 0.0
         self._steer = 0.0
+        self._rate_sp = 0.0
         self._hold_yaw: float | None = None
         self.setpoints_received = 0
         self.setpoints_ignored = 0
@@ -242,10 +246,16 @@ class Px4Rover:
 
     def _steering_for(self, yaw: float) -> float:
         s = self.state
-        rate = max(-RO_YAW_RATE_LIM, min(RO_YAW_RATE_LIM, RO_YAW_P * wrap_pi(yaw - s.yaw)))
+        err = wrap_pi(yaw - s.yaw)
+        rate = max(-RO_YAW_RATE_LIM, min(RO_YAW_RATE_LIM, RO_YAW_P * err))
+        brake = math.sqrt(2.0 * YAW_ACCEL_LIM * BRAKE_FRACTION * abs(err))  # stop at the bearing
+        rate = max(-brake, min(brake, rate))
         v = max(abs(s.speed), 0.3)
-        cap = LAT_ACCEL_MAX / v
+        cap = TURN_RATE_AT_1MPS * math.sqrt(max(self._speed_ramped, 0.3))
         rate = max(-cap, min(cap, rate))
+        step = YAW_ACCEL_LIM * self.loop_dt
+        rate = max(self._rate_sp - step, min(self._rate_sp + step, rate))
+        self._rate_sp = rate
         delta = math.atan(rate * SihRover.WHEELBASE_M / v)
         return max(-1.0, min(1.0, delta / SihRover.MAX_STEER_RAD))
 

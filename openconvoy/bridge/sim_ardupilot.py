@@ -259,7 +259,7 @@ class ArduPilotRover:
         self._target_rate: float | None = None
         self.setpoints_received = 0
         self.setpoints_ignored = 0
-        self._substeps = 5
+        self._substeps = 2
 
     # --- status
     @property

@@ -46,9 +46,12 @@ TURN_RATE_AT_1MPS = math.radians(103.0)  # peak yaw rate ~ 103 °/s · sqrt(v): 
 # 141-148 at 2 m/s in the recordings
 YAW_ACCEL_LIM = math.radians(250.0)  # rad/s²: slew of the yaw-rate setpoint
 BRAKE_FRACTION = 0.8  # of YAW_ACCEL_LIM planned for slowing the turn before the bearing
-SPEED_DELAY_S = 0.35  # setpoint to throttle: the recorded 0.3-0.95 s before motion
+SPEED_DELAY_S = 0.45  # setpoint to throttle: the recorded 0.3-0.95 s before motion
 STEER_LAG_S = 0.1
-HOLD_RADIUS_M = 0.5
+HOLD_RADIUS_M = 0.8
+HOLD_SPEED = 1.5  # m/s: the return to the hold point
+HOLD_GAIN = 1.0  # 1/s: return speed per metre beyond HOLD_RADIUS_M
+HOLD_MIN_SPEED = 1.0  # m/s: enough to break away from rest (SIH's dead zone)
 _ARMING_DENIED = "Arming denied: Resolve system health failures first"
 _OFFBOARD_UNAVAILABLE = "Switching to Offboard is currently not available"
 # (main, sub) -> name, as mavproto
@@ -104,7 +107,7 @@ class Px4Rover:
         self._hold_yaw: float | None = None
         self.setpoints_received = 0
         self.setpoints_ignored = 0
-        self._substeps = 5
+        self._substeps = 2
         self._beats = 0
 
     # --- status
@@ -232,8 +235,11 @@ class Px4Rover:
                 self.motion.drive(speed, yaw)
             return
         dt = self.loop_dt
-        self._speed_queue.append(speed)
+        # The delay is the offboard path's (its setpoints queue up); Hold/POSCTL act at once.
+        self._speed_queue.append(min(self._speed, RO_SPEED_LIM) if self.armed else 0.0)
         delayed = self._speed_queue.popleft()
+        if self.mode != "OFFBOARD" or not self.armed:
+            delayed = speed
         step = RO_ACCEL_LIM * dt
         self._speed_ramped = max(self._speed_ramped - step, min(self._speed_ramped + step, delayed))
         throttle = self._speed_ramped / RO_MAX_THR_SPEED if self.armed else 0.0
@@ -272,8 +278,8 @@ class Px4Rover:
             d = math.hypot(dn, de)
             if d > HOLD_RADIUS_M:  # drive back to where Hold was engaged
                 self._hold_yaw = None
-                return min(RO_SPEED_LIM, math.sqrt(2.0 * RO_ACCEL_LIM * (d - HOLD_RADIUS_M)) + 0.5), \
-                    math.atan2(de, dn)
+                bearing = math.atan2(de, dn)
+                return min(HOLD_SPEED, max(HOLD_MIN_SPEED, HOLD_GAIN * (d - HOLD_RADIUS_M))), bearing
         if self._hold_yaw is None:
             self._hold_yaw = s.yaw  # brake straight, holding the heading
         return 0.0, self._hold_yaw

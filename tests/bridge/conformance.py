@@ -3,6 +3,7 @@ into the simulated vehicle, measured by the same functions (``firmware`` and ``s
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
 from pathlib import Path
@@ -31,10 +32,25 @@ def phase(recs: list[Record], name: str, k: int = 0) -> tuple[float, float, dict
     return marks[i]["t"], end, marks[i]["fields"]
 
 
+_INDEX: dict[int, dict[tuple[str, str | None], tuple[list[float], list[Record]]]] = {}
+
+
 def rx(recs: list[Record], kind: str, t0: float = -math.inf, t1: float = math.inf,
        link: str | None = None) -> list[Record]:
-    return [r for r in recs if r["dir"] == "rx" and r["type"] == kind and t0 <= r["t"] < t1
-            and r.get("link") == link]
+    """Received messages of one type (and link) with t0 <= t < t1, from a per-recording
+    index (the recordings are cached, so their identity is stable)."""
+    index = _INDEX.get(id(recs))
+    if index is None:
+        index = {}
+        for r in recs:
+            if r["dir"] == "rx":
+                index.setdefault((r["type"], r.get("link")), ([], []))[1].append(r)
+        for times, rows in index.values():
+            rows.sort(key=lambda r: r["t"])
+            times.extend(r["t"] for r in rows)
+        _INDEX[id(recs)] = index
+    times, rows = index.get((kind, link), ([], []))
+    return rows[bisect.bisect_left(times, t0):bisect.bisect_left(times, t1)]
 
 
 def motion(recs: list[Record], t0: float, t1: float) -> list[tuple[float, float, float, float]]:

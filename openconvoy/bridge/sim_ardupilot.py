@@ -208,7 +208,9 @@ class RoverControl:
             return
         throttle = max(-1.0, min(1.0, throttle))
         step = self.slew_per_s * dt
-        throttle = max(self.throttle - step, min(self.throttle + step, throttle))
+        slewed = max(self.throttle - step, min(self.throttle + step, throttle))
+        slew_limited = slewed != throttle  # slew_limit_throttle sets the limit flags too
+        throttle = slewed
         self.limit_steer = False
         speed = self.s.speed
         if scale:
@@ -219,7 +221,7 @@ class RoverControl:
             if speed < 0:
                 steering = -steering
         self.limit_steer |= abs(steering) >= 1.0
-        self.limit_throttle = abs(throttle) >= 1.0
+        self.limit_throttle = abs(throttle) >= 1.0 or slew_limited
         self.throttle = throttle
         self.steering = max(-1.0, min(1.0, steering))
 
@@ -246,6 +248,7 @@ class ArduPilotRover:
         self.control = RoverControl(state)
         self.first_heartbeat_s = timing.first_heartbeat_s
         self.mode_number = MODE_INITIALISING
+        self.heartbeat_now = False
         self.armed = False
         self.texts: list[tuple[int, str]] = []
         self._initialised = False
@@ -296,8 +299,13 @@ class ArduPilotRover:
             return mp.RESULT_FAILED
         if number == 15 and self.mode_number != 15:
             self._have_target = False  # GUIDED starts stopped
-        self.mode_number = number
+        self._change_mode(number)
         return mp.RESULT_ACCEPTED
+
+    def _change_mode(self, number: int) -> None:
+        if number != self.mode_number:
+            self.heartbeat_now = True  # ArduPilot announces a new mode with a heartbeat
+        self.mode_number = number
 
     def pilot_set_mode(self, name: str) -> None:
         self.set_mode(MODE_NUMBERS[name], by="pilot")
@@ -421,9 +429,12 @@ class ArduPilotRover:
         if isinstance(self.motion, PresetMotion):
             self._drive_preset(speed if (self.armed and not coast) else 0.0, yaw, rate)
             return
+        # The servos carry whole microseconds: the vehicle sees the quantised outputs.
+        steer_pwm, thr_pwm = self.servo_pwm()
+        throttle, steering = (thr_pwm - 1500) / 500.0, (steer_pwm - 1500) / 500.0
         h = dt / self._substeps
         for _ in range(self._substeps):
-            self.motion.step(c.throttle, c.steering, h)
+            self.motion.step(throttle, steering, h)
 
     def _drive_preset(self, speed: float, yaw: float, rate: float | None) -> None:
         if rate is not None:
@@ -436,12 +447,12 @@ class ArduPilotRover:
         tm = self.timing
         if not self._initialised and t >= tm.init_s:
             self._initialised = True
-            self.mode_number = 0  # INITIAL_MODE = MANUAL, overriding any earlier request
+            self._change_mode(0)  # INITIAL_MODE = MANUAL, overriding any earlier request
             self.texts.append((6, "ArduPilot Ready"))
         if self.rc_mode_switch and not self._rc_read and self._initialised \
                 and t >= tm.init_s + tm.rc_delay_s:
             self._rc_read = True
-            self.mode_number = 0  # channel 8 at 1800 us -> MODE6 = MANUAL
+            self._change_mode(0)  # channel 8 at 1800 us -> MODE6 = MANUAL
         for key, at, text in (("origin", tm.origin_s, "EKF3 IMU0 origin set"),
                               ("gps", tm.ekf_gps_s, "EKF3 IMU0 is using GPS")):
             if key not in self._announced and t >= at and self._initialised:

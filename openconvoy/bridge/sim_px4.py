@@ -81,6 +81,7 @@ class Px4Rover:
 
     autopilot_id = mp.AUTOPILOT_PX4
     loop_dt = LOOP_DT
+    heartbeat_now = False  # PX4 shows a mode change at its next (1 Hz) heartbeat
 
     def __init__(self, state: MotionState, timing: Px4Timing, lat_deg: float, lon_deg: float,
                  obl_rc_act: int = 0, motion: SihRover | PresetMotion | None = None) -> None:

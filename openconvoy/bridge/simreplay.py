@@ -30,12 +30,31 @@ _SENT_TYPES = {
 }
 
 
-def load_recording(path: str | Path) -> tuple[dict[str, Any], list[Record]]:
-    """(meta, records) of a ``.jsonl.gz`` recording."""
+def load_recording(path: str | Path, rx_types: set[str] | None = None) -> tuple[dict[str, Any], list[Record]]:
+    """(meta, records) of a ``.jsonl.gz`` recording; with ``rx_types``, received messages
+    of other types are skipped before they are parsed (``tx`` and ``mark`` always kept)."""
+    records = []
     with gzip.open(path, "rt", encoding="utf-8") as f:
         meta = json.loads(f.readline())["meta"]
-        records = [json.loads(line) for line in f]
+        for line in f:
+            if rx_types is not None:
+                kind = _rx_type(line)
+                if kind is not None and kind not in rx_types:
+                    continue
+            records.append(json.loads(line))
     return meta, records
+
+
+def _rx_type(line: str) -> str | None:
+    """The ``type`` of a received-message line without parsing it (None for tx/mark)."""
+    head = line[:120]
+    if '"rx"' not in head:
+        return None
+    i = head.find('"type":')
+    if i < 0:
+        return None
+    start = head.find('"', i + 7) + 1
+    return head[start:head.find('"', start)]
 
 
 def _home(meta: dict[str, Any]) -> tuple[Origin, float]:
@@ -85,9 +104,11 @@ def replay_config(meta: dict[str, Any], records: list[Record], **overrides: Any)
 
 
 def replay(meta: dict[str, Any], records: list[Record], step_s: float = 0.02,
-           **overrides: Any) -> list[Record]:
+           rx_types: set[str] | None = None, **overrides: Any) -> list[Record]:
     """Send the recording's ``tx`` messages to a simulated vehicle at their times and return
-    what it sent back, as records (``t`` = the recorder's clock), plus the ``mark``s."""
+    what it sent back, as records (``t`` = the recorder's clock), plus the ``mark``s.
+    ``rx_types``: decode and keep only these message types (the rest is received and
+    dropped by message id, unparsed)."""
     config = replay_config(meta, records, **overrides)
     t_boot = boot_time(meta, records)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -99,6 +120,10 @@ def replay(meta: dict[str, Any], records: list[Record], step_s: float = 0.02,
         source_component=int(meta.get("source_component", 190)),
     )
     mav = mp.mav()
+    keep_ids = None
+    if rx_types is not None:
+        keep_ids = {cls.id for cls in mav.mavlink_map.values() if cls.msgname in rx_types}
+    sock = gcs.port
     sent = [r for r in records if r["dir"] == "tx" and r["type"] in _SENT_TYPES]
     out: list[Record] = [r for r in records if r["dir"] == "mark"]
     end = float(meta.get("duration_s") or records[-1]["t"])
@@ -119,16 +144,31 @@ def replay(meta: dict[str, Any], records: list[Record], step_s: float = 0.02,
             if any_sent:
                 vehicle.wait_readable(0.05)
             vehicle.advance_to(t - t_boot)
-            while (msg := gcs.recv_msg()) is not None:
-                kind = msg.get_type()
-                if kind == "BAD_DATA":
-                    continue
+            for msg in _receive(gcs, sock, keep_ids):
                 d = msg.to_dict()
                 d.pop("mavpackettype", None)
-                out.append({"t": t, "dir": "rx", "type": kind,
+                out.append({"t": t, "dir": "rx", "type": msg.get_type(),
                             "src": [msg.get_srcSystem(), msg.get_srcComponent()], "fields": d})
     finally:
         gcs.close()
         vehicle.close()
     out.sort(key=lambda r: r["t"])
     return out
+
+
+def _receive(gcs: Any, sock: socket.socket, keep_ids: set[int] | None) -> list[Any]:
+    """Every datagram waiting on the recorder's socket (one MAVLink 2 message each, as
+    pymavlink sends them), decoded by pymavlink when its id is wanted."""
+    out = []
+    while True:
+        try:
+            data, _ = sock.recvfrom(65535)
+        except BlockingIOError:
+            return out
+        if len(data) < 10 or data[0] != 0xFD:
+            continue
+        if keep_ids is not None and (data[7] | data[8] << 8 | data[9] << 16) not in keep_ids:
+            continue
+        for msg in gcs.mav.parse_buffer(data) or []:
+            if msg.get_type() != "BAD_DATA":
+                out.append(msg)

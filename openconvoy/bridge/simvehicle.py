@@ -499,7 +499,9 @@ class SimVehicle:
         tick of its due time, so 20 Hz on a 50 Hz loop alternates 40 and 60 ms."""
         mav = self._conn.mav
         half = 0.5 * self.firmware.loop_dt
-        sent_any = False
+        if self.firmware.heartbeat_now:
+            self.firmware.heartbeat_now = False
+            self._heartbeat(mav, t)
         for msg_id, interval in self._intervals.items():
             if interval <= 0:
                 continue
@@ -510,7 +512,7 @@ class SimVehicle:
             if msg_id == MSG_HEARTBEAT:
                 self._heartbeat(mav, t)
             else:
-                sent_any |= self._send_telemetry(mav, msg_id, t)
+                self._send_telemetry(mav, msg_id, t)
 
     def _heartbeat(self, mav: Any, t: float) -> None:
         base, custom, status = self.firmware.heartbeat(t)

@@ -13,14 +13,17 @@ from openconvoy.bridge.simreplay import boot_time, load_recording, replay
 
 SHARED = Path(__file__).parents[2].parent / "shared"
 Record = dict[str, Any]
+RX_TYPES = {"GLOBAL_POSITION_INT", "ATTITUDE", "SERVO_OUTPUT_RAW", "HEARTBEAT", "STATUSTEXT",
+            "COMMAND_ACK", "HIL_STATE_QUATERNION"}
+"""What the analyses read; the rest of each recording (and of each replay) is skipped."""
 
 
 @functools.cache
 def sides(folder: str, name: str) -> dict[str, Any]:
     """``{"firmware": records, "sim": records, "boot": {side: t_boot}}`` for one recording."""
-    meta, recs = load_recording(SHARED / folder / f"{name}.jsonl.gz")
+    meta, recs = load_recording(SHARED / folder / f"{name}.jsonl.gz", RX_TYPES)
     t_boot = boot_time(meta, recs)
-    return {"firmware": recs, "sim": replay(meta, recs), "boot": t_boot, "meta": meta}
+    return {"firmware": recs, "sim": replay(meta, recs, rx_types=RX_TYPES), "boot": t_boot, "meta": meta}
 
 
 def phase(recs: list[Record], name: str, k: int = 0) -> tuple[float, float, dict[str, Any]]:

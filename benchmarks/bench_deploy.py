@@ -64,14 +64,15 @@ class UdpPair:
     def send(self, data: bytes) -> None:
         self._sock.sendto(data, self._peer)
 
-    def recv_all(self) -> list[Datagram]:
-        out = []
-        while True:
+    def recv_all(self, max_batch: int = 10_000) -> list[Datagram]:
+        out: list[Datagram] = []
+        while len(out) < max_batch:
             try:
                 data, addr = self._sock.recvfrom(65535)
             except (BlockingIOError, ConnectionRefusedError):
                 return out
             out.append(Datagram(data, addr[0]))
+        return out
 
     def close(self) -> None:
         self._sock.close()

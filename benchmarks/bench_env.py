@@ -38,11 +38,12 @@ COMPONENTS = {
 }
 
 
-def _make(n_followers: int) -> tuple[ConvoyEnv, dict]:
+def _make(n_followers: int, preset: str | None = None) -> tuple[ConvoyEnv, dict]:
     probe = load_policy("paper")
     env = ConvoyEnv(
         "paper", n_followers=n_followers, member_config=probe.member_config,
         control_rate_hz=probe.control_rate_hz, loss=LossConfig(per=0.2),
+        vehicle_presets=None if preset is None else [preset] * (n_followers + 1),
     )
     policies = {a: load_policy("paper") for a in env.possible_agents}
     return env, policies
@@ -98,11 +99,14 @@ def main() -> None:
     parser.add_argument("--followers", type=int, nargs="+", default=[2, 100],
                         help="convoy sizes to time (followers)")
     parser.add_argument("--profile", action="store_true", help="add a cProfile breakdown")
+    parser.add_argument("--vehicle-preset", metavar="PRESET",
+                        help="every vehicle this preset (default: the scenario's lag presets), "
+                        "e.g. ardupilot-rover for the autopilot's PI speed loop")
     args = parser.parse_args()
     results = []
     for n_followers in args.followers:
         for closed_loop in (False, True):
-            env, policies = _make(n_followers)
+            env, policies = _make(n_followers, args.vehicle_preset)
             pol = policies if closed_loop else None
             _run(env, pol, 0.2, 10**9)  # warm-up
             rates = []
@@ -112,6 +116,7 @@ def main() -> None:
             best = max(rates)
             row = {
                 "scenario": "paper",
+                "vehicles": args.vehicle_preset or "scenario (1/10, 1/6)",
                 "n_followers": n_followers,
                 "actions": "paper policy" if closed_loop else "fixed",
                 "loss": "bernoulli per=0.2",

@@ -11,13 +11,55 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
+
+from openconvoy.core.config import Range
+from openconvoy.core.errors import ConfigError, OpenConvoyError
 
 
-class CliError(Exception):
+class CliError(ConfigError):
     """A user-facing error: printed as one line, exit status 2."""
 
 
 Handler = Callable[[argparse.Namespace], int | None]
+
+
+class _Parser(argparse.ArgumentParser):
+    """Bad arguments end in one line naming the flag and what is allowed (exit 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"openconvoy: error: {message} (see {self.prog} --help)\n")
+
+
+def _num(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+         hi_open: bool = False, integer: bool = False) -> Callable[[str], Any]:
+    """An argparse type: a finite number (or an integer) inside the given interval."""
+    rng = Range(lo, hi, lo_open, hi_open)
+    kind = "integer" if integer else "number"
+
+    def parse(text: str) -> float | int:
+        try:
+            value: float | int = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an' if integer else 'a'} {kind}, got {text!r}") from None
+        if not rng.contains(float(value)):
+            raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: {rng.describe(kind)}")
+        return value
+
+    parse.__name__ = kind
+    return parse
+
+
+def _int(lo: int, hi: int) -> Callable[[str], Any]:
+    return _num(lo, hi, integer=True)
+
+
+FRACTION = _num(0.0, 1.0)  # probabilities and packet error rates
+SEED = _int(0, 2**32 - 1)
+RATE_HZ = _num(0.0, 100.0, lo_open=True)  # control rates: above 100 Hz no autopilot keeps up
+DURATION = _num(0.0, 7 * 86400.0, lo_open=True)  # seconds
+TIMEOUT = _num(0.0, 86400.0, lo_open=True)  # seconds
+SECONDS_POS = _num(0.0, 3600.0, lo_open=True)
 
 
 # --- simulation (issue 2): sim, report, presets ------------------------------------------
@@ -26,21 +68,31 @@ Handler = Callable[[argparse.Namespace], int | None]
 def _run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     """Arguments shared by ``sim`` and ``experiment per-sweep`` (None = not given)."""
     p.add_argument("--scenario", default=None, metavar="SPEC",
-                   help="paper (default), track, emergency-braking or track-file:PATH")
+                   help="paper (default), track, emergency-braking, track-file:PATH, or with the "
+                   "traffic extra highway-cut-in, highway-merge, highway-slow-traffic, "
+                   "highway-lane-drop (optionally :key=value,...)")
     p.add_argument("--loss", choices=("bernoulli", "gilbert-elliott"), default=None if sweep else "bernoulli",
                    help="loss model of every link (default bernoulli)")
-    p.add_argument("--burst", type=float, default=None, metavar="S",
+    p.add_argument("--burst", type=SECONDS_POS, default=None, metavar="S",
                    help="mean loss burst of gilbert-elliott, seconds (default 1)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="run length (default: the scenario's)")
-    p.add_argument("--followers", type=int, default=None, metavar="N", help="number of followers")
+    p.add_argument("--duration", type=DURATION, default=None, metavar="S", help="run length (default: the scenario's)")
+    p.add_argument("--followers", type=_int(1, 1000), default=None, metavar="N", help="number of followers")
     p.add_argument("--vehicle-preset", action="append", metavar="PRESET",
                    help="vehicle preset name or .toml, repeated leader first (default: the scenario's)")
     p.add_argument("--ranging", action="store_true",
                    help="give followers a ranging sensor (used by the staleness ladder's degraded mode)")
-    p.add_argument("--ranging-range", type=float, default=None if sweep else 20.0, metavar="M",
+    p.add_argument("--ranging-range", type=_num(0.0, 10_000.0, lo_open=True), default=None if sweep else 20.0, metavar="M",
                    help="that sensor's range in metres (default 20)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
+
+
+def _executor_args(p: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray)."""
+    p.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where runs execute: local processes (default) or a Ray cluster (openconvoy[cluster])")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="Ray cluster to use, HOST:PORT or auto (default: a private cluster of this machine)")
 
 
 def _add_sim(sub: argparse._SubParsersAction) -> None:
@@ -49,13 +101,20 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
                        "DIR/run.toml and plots (trajectories, gaps, speeds).")
     p.add_argument("--policy", default="paper", metavar="SPEC",
                    help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz")
-    p.add_argument("--per", type=float, default=0.0, help="packet error rate 0..1 (default 0)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--per", type=FRACTION, default=0.0, help="packet error rate 0..1 (default 0)")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--out", default="runs/sim", metavar="DIR", help="output directory (default runs/sim)")
     p.add_argument("--convoy", metavar="CONVOY.toml", help="convoy file: scenario, vehicles, origin")
-    p.add_argument("--latency", type=float, default=0.0, metavar="S", help="delivery delay, seconds")
-    p.add_argument("--jitter", type=float, default=0.0, metavar="S", help="uniform delay jitter, seconds")
-    p.add_argument("--gps-noise", type=float, default=0.0, metavar="M", help="position noise std, metres")
+    p.add_argument("--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds")
+    p.add_argument("--jitter", type=_num(0.0, 60.0), default=0.0, metavar="S", help="uniform delay jitter, seconds")
+    p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std, metres")
+    p.add_argument("--fault", action="append", metavar="KIND:VEHICLE@T_S",
+                   help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
+                   "silent (stop broadcasting, keep driving), dead (both) or forge (a keyless "
+                   "station claims to be the vehicle, 1 km ahead), e.g. dead:0@30, forge:0@10")
+    p.add_argument("--auth", choices=("required", "off"), default=None,
+                   help="members authenticate messages, so forgeries are rejected (default "
+                   "required; a convoy file's [v2v] auth = \"off\" turns it off)")
     _run_args(p, sweep=False)
 
     def _sim(args: argparse.Namespace) -> int:
@@ -105,10 +164,12 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", action="append", metavar="SPEC",
                    help="policy spec; repeat to draw several (e.g. --policy paper --policy paper+ladder)")
     p.add_argument("--pers", metavar="LIST", help="comma-separated PERs (default 0,0.1,...,0.6)")
-    p.add_argument("--seeds", type=int, default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
+    p.add_argument("--seeds", type=_int(1, 100_000), default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
     p.add_argument("--name", default=None, help="experiment name")
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--jobs", type=int, default=None, metavar="N", help="processes (default: the cores available)")
+    p.add_argument("--jobs", type=_int(1, 4096), default=None, metavar="N",
+                   help="runs at once (default: the cores available, or the Ray cluster's CPUs)")
+    _executor_args(p)
     _run_args(p, sweep=True)
 
     def _per_sweep(args: argparse.Namespace) -> int:
@@ -155,7 +216,7 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--iface", required=True, help="network interface, e.g. wlan0")
         p.add_argument("--group", default=DEFAULT_GROUP,
                        help=f"IPv6 multicast group (default {DEFAULT_GROUP})")
-        p.add_argument("--port", type=int, default=DEFAULT_PORT,
+        p.add_argument("--port", type=_int(1, 65535), default=DEFAULT_PORT,
                        help=f"UDP port (default {DEFAULT_PORT})")
 
     p = cmds.add_parser(
@@ -168,14 +229,17 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
     net_args(p)
     p.add_argument("--compat", action="store_true",
                    help="also listen for the original JSON format on 224.0.0.1:5004")
-    p.add_argument("--count", type=int, metavar="N", help="exit after N messages")
-    p.add_argument("--timeout", type=float, metavar="S", help="exit after S seconds")
+    p.add_argument("--count", type=_int(1, 10**12), metavar="N", help="exit after N messages")
+    p.add_argument("--timeout", type=TIMEOUT, metavar="S", help="exit after S seconds")
+    p.add_argument("--convoy", metavar="CONVOY.toml",
+                   help="verify signed BSMs with this convoy's certificates (its keys directory); "
+                   "prints accepted/rejected per sender and a summary at exit")
 
     def _listen(args: argparse.Namespace) -> int:
         from openconvoy.comms import tools
 
         tools.listen(args.iface, group=args.group, port=args.port, compat_enabled=args.compat,
-                     count=args.count, timeout_s=args.timeout)
+                     count=args.count, timeout_s=args.timeout, auth=_verifier(args.convoy))
         return 0
 
     p.set_defaults(handler=_listen)
@@ -187,28 +251,48 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise).",
     )
     net_args(p)
-    p.add_argument("--hop-limit", type=int, default=1, help="IPv6 hop limit (default 1)")
-    p.add_argument("--count", type=int, default=10, help="messages to send (default 10)")
-    p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="default 10")
-    p.add_argument("--lat", type=float, default=28.6024, help="start latitude, degrees")
-    p.add_argument("--lon", type=float, default=-81.2001, help="start longitude, degrees")
-    p.add_argument("--elev", type=float, default=0.0, help="elevation, metres (default 0)")
-    p.add_argument("--speed", type=float, default=0.0, help="m/s (default 0)")
-    p.add_argument("--heading", type=float, default=0.0,
+    p.add_argument("--hop-limit", type=_int(1, 255), default=1, help="IPv6 hop limit (default 1)")
+    p.add_argument("--count", type=_int(0, 10**12), default=10, help="messages to send (default 10)")
+    p.add_argument("--rate", type=_num(0.0, 100_000.0, lo_open=True), default=10.0, metavar="HZ", help="default 10")
+    p.add_argument("--lat", type=_num(-90.0, 90.0), default=28.6024, help="start latitude, degrees")
+    p.add_argument("--lon", type=_num(-180.0, 180.0), default=-81.2001, help="start longitude, degrees")
+    p.add_argument("--elev", type=_num(-1000.0, 10_000.0), default=0.0, help="elevation, metres (default 0)")
+    p.add_argument("--speed", type=_num(0.0, 163.8), default=0.0, help="m/s (default 0)")
+    p.add_argument("--heading", type=_num(0.0, 360.0, hi_open=True), default=0.0,
                    help="compass degrees, 0 = north, clockwise (default 0)")
     p.add_argument("--id", metavar="HEX", help="temporary id, 8 hex digits")
-    p.add_argument("--compat-car", type=int, metavar="N",
+    p.add_argument("--compat-car", type=_int(0, 254), metavar="N",
                    help="also send the original JSON format as convoy position N (IPv4)")
+    p.add_argument("--key", metavar="KEY",
+                   help="sign as IEEE 1609.2 SPDUs with this key (its .cert beside it; a foreign "
+                   "convoy's key makes a forger that has a key)")
+    p.add_argument("--convoy", metavar="CONVOY.toml",
+                   help="the authority for --key (default: the key's directory)")
+    p.add_argument("--frame", metavar="HEX", help="replay this captured datagram COUNT times")
 
     def _send(args: argparse.Namespace) -> int:
+        import time
+
         from openconvoy.comms import tools
 
+        auth = None
+        if args.key:
+            from openconvoy.comms.auth import Authenticator
+            from openconvoy.comms.keystore import signer_of_key
+
+            keys = None
+            if args.convoy:
+                from openconvoy.convoy import load_convoy
+
+                keys = load_convoy(args.convoy).v2v.keys
+            auth = Authenticator(signer_of_key(args.key, keys, time.time()))
         n = tools.send(
             args.iface, group=args.group, port=args.port, hop_limit=args.hop_limit,
             count=args.count, rate_hz=args.rate, lat_deg=args.lat, lon_deg=args.lon,
             elev_m=args.elev, speed_mps=args.speed, heading_deg=args.heading,
             temp_id=tools.temp_id_arg(args.id) if args.id else tools.DEFAULT_SEND_ID,
-            compat_car=args.compat_car,
+            compat_car=args.compat_car, auth=auth,
+            frame=tools.parse_hex(args.frame) if args.frame else None,
         )
         print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
         return 0
@@ -239,6 +323,19 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_decode)
 
 
+def _verifier(convoy_path: str | None):
+    """``bsm listen --convoy``'s verifier: the convoy authority's certificate only."""
+    if not convoy_path:
+        return None
+    from openconvoy.comms.auth import Authenticator, Credentials
+    from openconvoy.comms.keystore import load_authority
+    from openconvoy.convoy import load_convoy
+
+    v2v = load_convoy(convoy_path).v2v
+    authority, _ = load_authority(v2v.keys)
+    return Authenticator(Credentials(authority), window_s=v2v.replay_window_s)
+
+
 # --- V2V authentication (issue 12): keys init / issue --------------------------------------
 
 
@@ -257,7 +354,7 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_keys_handler)
     p = cmds.add_parser("issue", help="issue a vehicle's key and certificate")
     p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
-    p.add_argument("--vehicle-id", type=int, required=True, help="convoy index, 0 = leader")
+    p.add_argument("--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader")
     p.set_defaults(handler=_keys_handler)
 
 
@@ -293,7 +390,7 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
         "SIGUSR2: toggle a telemetry freeze; SIGTERM/SIGINT: exit.",
     )
     p.add_argument("--sim", action="store_true", help="simulated vehicle (required)")
-    p.add_argument("--id", type=int, required=True, help="MAVLink system id (1..254)")
+    p.add_argument("--id", type=_int(1, 254), required=True, help="MAVLink system id (1..254)")
     p.add_argument("--mavlink", required=True, metavar="URL", help="e.g. udpin:127.0.0.1:14551")
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
     p.add_argument("--preset", default=None,
@@ -304,20 +401,20 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
                    "recorded firmware's (ArduPilot GUIDED ~42 s, PX4 ~3.7 s)")
     p.add_argument("--no-rc-switch", action="store_true",
                    help="ArduPilot: no RC mode switch reading (MANUAL) 0.42 s after boot")
-    p.add_argument("--speedup", type=float, default=1.0, metavar="X",
+    p.add_argument("--speedup", type=_num(0.0, 1000.0, lo_open=True), default=1.0, metavar="X",
                    help="run the vehicle's clock X times faster than real time (default 1)")
     p.add_argument("--home", default="52.0,4.37,0", metavar="LAT,LON,ALT")
     p.add_argument("--start", default="0,0,0", metavar="X,Y,HEADING_DEG",
                    help="ENU metres around home; heading degrees, 0 = east, counter-clockwise")
-    p.add_argument("--ready-after", type=float, default=5.0, metavar="S",
+    p.add_argument("--ready-after", type=_num(0.0, 3600.0), default=5.0, metavar="S",
                    help="seconds until arming is possible (default 5)")
-    p.add_argument("--setpoint-timeout", type=float, default=3.0, metavar="S",
+    p.add_argument("--setpoint-timeout", type=_num(0.0, 600.0, lo_open=True), default=3.0, metavar="S",
                    help="ArduPilot GUIDED stops after this long without setpoints (default 3)")
-    p.add_argument("--max-rate", type=float, default=None, metavar="HZ",
+    p.add_argument("--max-rate", type=_num(0.0, 1000.0, lo_open=True), default=None, metavar="HZ",
                    help="refuse telemetry rates above HZ (default: the firmware's rule, "
                    "ArduPilot < 50 Hz)")
-    p.add_argument("--gps-noise", type=float, default=0.0, metavar="M", help="position noise std")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std")
+    p.add_argument("--seed", type=SEED, default=0)
 
     def _vehicle(args: argparse.Namespace) -> int:
         from openconvoy.bridge.simvehicle import run_vehicle_cli
@@ -333,12 +430,20 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
         "speed lag, acceleration/deceleration limits, turn-rate limit, heading lag and "
         "actuation delay; writes a preset TOML that sim and experiment accept.",
     )
-    p.add_argument("log", metavar="LOG_DIR", help="a run directory of per-vehicle logs, or one log")
+    p.add_argument("log", metavar="LOG_DIR", nargs="+",
+                   help="a run directory of per-vehicle logs, or one log; with --model pi also "
+                   "MAVLink recordings (.jsonl.gz, as in shared/sitl), several allowed")
+    p.add_argument("--model", choices=("lag", "pi"), default="lag",
+                   help="lag: first-order speed lag (default); pi: the autopilot's PI speed loop "
+                   "with its delay, accel ramp and static friction, and its heading loop")
+    p.add_argument("--source", choices=("telemetry", "truth"), default="telemetry",
+                   help="recordings: fit GLOBAL_POSITION_INT/ATTITUDE (default) or PX4 SIH's "
+                   "true state (HIL_STATE_QUATERNION)")
     p.add_argument("--out", metavar="PRESET.toml", help="output file (default NAME.toml)")
     p.add_argument("--name", default="fitted", help="preset name (default fitted)")
     p.add_argument("--base", default="1/10",
                    help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)")
-    p.add_argument("--vehicle-id", type=int, help="which vehicle, when the logs hold several")
+    p.add_argument("--vehicle-id", type=_int(0, 254), help="which vehicle, when the logs hold several")
     p.add_argument("--cmd-timing", choices=("after-state", "before-state"), default="after-state",
                    help="a row's command was computed from its state (OpenConvoy's sim and "
                    "vehicle logs) or led to it (some other tools' logs)")
@@ -362,26 +467,26 @@ def _add_deploy_commands(sub: argparse._SubParsersAction) -> None:
         "SIGINT/SIGTERM: stop, HOLD, save the log, exit 0.",
     )
     p.add_argument("--policy", required=True, help="preset name, policy .toml, .zip or .npz")
-    p.add_argument("--vehicle-id", type=int, required=True, help="convoy index, 0 = leader")
+    p.add_argument("--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader")
     p.add_argument("--convoy", required=True, metavar="CONVOY.toml", help="the convoy config")
     p.add_argument("--mavlink", required=True, metavar="URL",
                    help="autopilot link: /dev/ttyX (with --baud), udp:, udpin:, udpout:, tcp:")
     p.add_argument("--iface", required=True, help="network interface for V2V multicast")
-    p.add_argument("--per", type=float, default=0.0, help="emulated packet error rate 0..1")
+    p.add_argument("--per", type=FRACTION, default=0.0, help="emulated packet error rate 0..1")
     p.add_argument("--drop-at", choices=("receiver", "sender"), default="receiver",
                    help="where the emulated loss drops messages (default receiver)")
     p.add_argument("--log", metavar="DIR", help="write DIR/vehicle_N.csv and DIR/vehicle_N.json")
-    p.add_argument("--rate", type=float, metavar="HZ", help="control rate (default: the policy's)")
+    p.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="control rate (default: the policy's)")
     p.add_argument("--dry-run", action="store_true", help="everything but arming and setpoints")
     p.add_argument("--passive", action="store_true",
                    help="leader driven by a person: broadcast and log only")
     p.add_argument("--track", metavar="FILE", help="leader follows this OpenConvoy JSON track")
-    p.add_argument("--duration", type=float, metavar="S",
+    p.add_argument("--duration", type=DURATION, metavar="S",
                    help="end after S seconds of driving (default: the leader's scenario)")
-    p.add_argument("--baud", type=int, default=57600, help="serial baud rate")
-    p.add_argument("--seed", type=int, default=0, help="seeds the emulated loss")
-    p.add_argument("--arm-timeout", type=float, default=60.0, metavar="S")
-    p.add_argument("--connect-timeout", type=float, default=30.0, metavar="S")
+    p.add_argument("--baud", type=_int(50, 20_000_000), default=57600, help="serial baud rate")
+    p.add_argument("--seed", type=SEED, default=0, help="seeds the emulated loss")
+    p.add_argument("--arm-timeout", type=TIMEOUT, default=60.0, metavar="S")
+    p.add_argument("--connect-timeout", type=TIMEOUT, default=30.0, metavar="S")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
     def _deploy(args: argparse.Namespace) -> int:
@@ -395,7 +500,7 @@ def _add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--iface", required=True, help="network interface of the convoy's V2V")
     p.add_argument("--convoy", metavar="CONVOY.toml", help="take group/port/compat from it")
     p.add_argument("--compat", action="store_true", help="also on the IPv4 compatibility group")
-    p.add_argument("--repeat", type=int, default=3, help="send this many times (default 3)")
+    p.add_argument("--repeat", type=_int(1, 1000), default=3, help="send this many times (default 3)")
     p.add_argument("--key", metavar="KEY",
                    help="sign the abort with this private key (its .cert beside it), e.g. "
                    "NAME.keys/authority.key; required when the convoy has keys")
@@ -415,9 +520,9 @@ def _add_deploy_commands(sub: argparse._SubParsersAction) -> None:
         "multicast that never leaves the machine), then compares with the pure simulation.",
     )
     p.add_argument("--policy", default="paper", help="policy spec (default paper)")
-    p.add_argument("--per", type=float, default=0.0, help="emulated packet error rate")
+    p.add_argument("--per", type=FRACTION, default=0.0, help="emulated packet error rate")
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
-    p.add_argument("--duration", type=float, metavar="S",
+    p.add_argument("--duration", type=DURATION, metavar="S",
                    help="shorten the scenario to S seconds (default: all 60 s)")
     p.add_argument("--out", metavar="DIR", help="keep the run here (default a temporary dir)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
@@ -439,25 +544,31 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                        "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
                        "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
                        "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
-    p.add_argument("--config", metavar="TRAIN.toml", help="training config file")
+    p.add_argument("--config", metavar="TRAIN.toml", action="append",
+                   help="training config file; repeat for one run per config (OUT/<stem>)")
     p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
-    p.add_argument("--steps", type=int, metavar="N", help="agent steps (default 600000)")
+    p.add_argument("--steps", type=_int(1, 10**12), metavar="N", help="agent steps (default 600000)")
     p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
-    p.add_argument("--seed", type=int, help="seed (default 0)")
-    p.add_argument("--envs", type=int, metavar="N", help="environments stepped together (default 4)")
-    p.add_argument("--followers", type=int, metavar="N", help="followers per environment (default 2)")
+    p.add_argument("--seed", type=SEED, help="seed (default 0)")
+    p.add_argument("--seeds", type=SEED, nargs="+", metavar="S",
+                   help="one run per seed (OUT/seed_S), run as tasks of --executor")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="training runs at once (default: the cores available, or the cluster's CPUs)")
+    _executor_args(p)
+    p.add_argument("--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)")
+    p.add_argument("--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)")
     p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "
                    "default paper), or 'none' for absolute actions")
-    p.add_argument("--M", type=int, help="observation: predecessors per observation (default: the base's)")
-    p.add_argument("--k", type=int, help="observation: states per vehicle (default: the base's)")
-    p.add_argument("--rate", type=float, metavar="HZ", help="control rate (default: the base's, 20)")
-    p.add_argument("--per-range", type=float, nargs=2, metavar=("A", "B"), help="PER drawn in [A, B] (default 0 0.6)")
-    p.add_argument("--burst-prob", type=float, metavar="P", help="chance of Gilbert-Elliott bursts per episode (default 0.3)")
-    p.add_argument("--latency-range", type=float, nargs=2, metavar=("A", "B"), help="latency, seconds (default 0 0.05)")
-    p.add_argument("--gps-noise-range", type=float, nargs=2, metavar=("A", "B"), help="GPS noise std, metres (default 0 0.05)")
+    p.add_argument("--M", type=_int(1, 1000), help="observation: predecessors per observation (default: the base's)")
+    p.add_argument("--k", type=_int(1, 1000), help="observation: states per vehicle (default: the base's)")
+    p.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="control rate (default: the base's, 20)")
+    p.add_argument("--per-range", type=FRACTION, nargs=2, metavar=("A", "B"), help="PER drawn in [A, B] (default 0 0.6)")
+    p.add_argument("--burst-prob", type=FRACTION, metavar="P", help="chance of Gilbert-Elliott bursts per episode (default 0.3)")
+    p.add_argument("--latency-range", type=_num(0.0, 60.0), nargs=2, metavar=("A", "B"), help="latency, seconds (default 0 0.05)")
+    p.add_argument("--gps-noise-range", type=_num(0.0, 1000.0), nargs=2, metavar=("A", "B"), help="GPS noise std, metres (default 0 0.05)")
     p.add_argument("--scenarios", nargs="+", metavar="SPEC", help="scenarios drawn per episode (default paper)")
     p.add_argument("--vehicles", nargs="+", metavar="PRESET", help="vehicle presets or fitted preset .toml files drawn per vehicle (default 1/10 1/6)")
-    p.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default 1)")
+    p.add_argument("--threads", type=_int(1, 1024), metavar="N", help="torch CPU threads (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -473,15 +584,22 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                        "shape against the metrics over PERs and seeds; write the best as a policy "
                        "TOML file (--policy accepts it) and OUT.json with the study's numbers.")
     p.add_argument("--policy", default="paper", metavar="BASE", help="preset or policy .toml to start from")
-    p.add_argument("--trials", type=int, default=30, metavar="N")
+    p.add_argument("--trials", type=_int(1, 10**7), default=30, metavar="N")
     p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
-    p.add_argument("--per", type=float, nargs="+", default=[0.0, 0.3, 0.6], metavar="PER", help="PERs (default 0 0.3 0.6)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001], metavar="S",
+    p.add_argument("--per", type=FRACTION, nargs="+", default=[0.0, 0.3, 0.6], metavar="PER", help="PERs (default 0 0.3 0.6)")
+    p.add_argument("--seeds", type=SEED, nargs="+", default=[1000, 1001], metavar="S",
                    help="seeds (default 1000 1001, apart from the 0.. of reports)")
     p.add_argument("--scenario", default="paper", metavar="SPEC")
-    p.add_argument("--duration", type=float, metavar="S", help="run length (default: the scenario's)")
+    p.add_argument("--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)")
     p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
-    p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
+    p.add_argument("--storage", metavar="URL_OR_FILE",
+                   help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+                   "or a journal file path; rerunning with it resumes the study")
+    p.add_argument("--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="trials at once (default 1 locally, the cluster's CPUs on Ray)")
+    _executor_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     def _tune(args: argparse.Namespace) -> int:
@@ -507,7 +625,7 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="openconvoy",
         description="Cooperative driving in simulation and on PX4/ArduPilot vehicles.",
     )
@@ -524,7 +642,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``openconvoy`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a bad argument (one line printed)
+        return exc.code if isinstance(exc.code, int) else 2
     if args.command is None:
         parser.print_help()
         return 2
@@ -539,9 +660,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(handler(args) or 0)
     except KeyboardInterrupt:
         return 130
-    except (CliError, ValueError, FileNotFoundError, KeyError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"openconvoy: error: {message}", file=sys.stderr)
+    except OpenConvoyError as exc:  # what a user can get wrong; anything else is a bug
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if exc.filename is None:
+            raise
+        # The file system said no (permissions, a directory where a file should be, a full
+        # disk): the file and the reason, not a traceback.
+        print(f"openconvoy: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
 
 

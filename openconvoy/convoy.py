@@ -21,18 +21,23 @@ replay_window_s = 1.0             # reject signed messages generated longer ago 
 speed_cap_mps = 5.0
 geofence_radius_m = 200.0         # around the origin
 min_gap_m = 1.0                   # emergency stop below this measured gap
+gap_margin_m = 0.2                # braking-aware stop margin between bumpers (m); default 1/4 length
 max_msg_age_s = 3.0               # stop while needed messages are older than this
 ```
 
-Strict: an unknown key is an error naming it.
+Strict: an unknown key, a value of the wrong type or out of its range is an error naming
+the file, the key and what is allowed (``core.config.from_dict``), before anything moves.
 """
 
 from __future__ import annotations
 
+import ipaddress
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any
 
-from openconvoy.core.config import from_dict, load_toml
+from openconvoy.core.config import Range, check_fields, from_dict, load_toml
+from openconvoy.core.errors import ConfigError
 
 UCF_ORIGIN = (28.6024, -81.2001, 0.0)
 
@@ -51,19 +56,24 @@ class V2VConfig:
     """
 
     group: str = "ff15::4f43"
-    port: int = 4200
-    hop_limit: int = 1
+    port: Annotated[int, Range(1, 65535)] = 4200
+    hop_limit: Annotated[int, Range(1, 255)] = 1
     compat: bool = False
     temp_ids: tuple[str, ...] = ()
     auth: str = ""
     keys: str = ""
-    replay_window_s: float = 1.0
+    replay_window_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 1.0
 
     def __post_init__(self) -> None:
+        check_fields(self, "v2v")
+        try:
+            addr = ipaddress.ip_address(self.group)
+        except ValueError:
+            addr = None
+        if addr is None or addr.version != 6 or not addr.is_multicast:
+            raise ConfigError(f"v2v.group: {self.group!r} is not an IPv6 multicast group (e.g. ff15::4f43)")
         if self.auth not in ("", *AUTH_MODES):
-            raise ValueError(f"v2v.auth: {self.auth!r} is not one of {', '.join(AUTH_MODES)}")
-        if not (isinstance(self.replay_window_s, (int, float)) and self.replay_window_s > 0):
-            raise ValueError(f"v2v.replay_window_s must be > 0 s, got {self.replay_window_s!r}")
+            raise ConfigError(f"v2v.auth: {self.auth!r} is not one of {', '.join(AUTH_MODES)}")
         if self.compat:
             _ = self.auth_required  # refuses compat with authentication, at load time
 
@@ -74,7 +84,7 @@ class V2VConfig:
             self.auth == "" and bool(self.keys) and (Path(self.keys) / "authority.cert").is_file()
         )
         if required and self.compat:
-            raise ValueError(
+            raise ConfigError(
                 "v2v: compat = true cannot be combined with authentication (the JSON format "
                 "cannot be signed): set compat = false, or auth = \"off\""
             )
@@ -85,12 +95,19 @@ class V2VConfig:
 class SafetyConfig:
     """Safety envelope on vehicles: limits that hold whatever the policy says."""
 
-    speed_cap_mps: float = 5.0
-    geofence_radius_m: float = 200.0
-    min_gap_m: float = 1.0
-    max_msg_age_s: float = 3.0
+    speed_cap_mps: Annotated[float, Range(0.0, 50.0, lo_open=True)] = 5.0
+    geofence_radius_m: Annotated[float, Range(0.0, 100_000.0, lo_open=True)] = 200.0
+    min_gap_m: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 1.0
+    max_msg_age_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 3.0
     """Stop while the messages a follower needs are older than this (s): a backstop for
     policies running without the staleness ladder."""
+    gap_margin_m: Annotated[float | None, Range(0.0, 100.0)] = None
+    """Braking-aware emergency stop (``core.safety``): the clearance left between bumpers
+    after braking at the preset's limit may not fall below this (m); None = a quarter of
+    the vehicle's length."""
+
+    def __post_init__(self) -> None:
+        check_fields(self, "safety")
 
 
 @dataclass(frozen=True)
@@ -100,17 +117,21 @@ class ConvoyConfig:
     name: str = "openconvoy"
     scenario: str = "paper"
     vehicles: tuple[str, ...] = ("1/10", "1/6", "1/10")
-    origin: tuple[float, float, float] = UCF_ORIGIN
+    origin: tuple[
+        Annotated[float, Range(-90.0, 90.0)],
+        Annotated[float, Range(-180.0, 180.0)],
+        Annotated[float, Range(-1000.0, 10_000.0)],
+    ] = UCF_ORIGIN
     v2v: V2VConfig = field(default_factory=V2VConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        object.__setattr__(self, "origin", tuple(self.origin))
+        check_fields(self, "convoy")
         object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         if len(self.vehicles) < 2:
-            raise ValueError("convoy.vehicles: a convoy needs a leader and at least one follower")
-        if len(self.origin) != 3:
-            raise ValueError("convoy.origin: expected [latitude_deg, longitude_deg, altitude_m]")
+            raise ConfigError("convoy.vehicles: a convoy needs a leader and at least one follower")
 
     @property
     def n_vehicles(self) -> int:
@@ -122,17 +143,19 @@ def load_convoy(path: str | Path) -> ConvoyConfig:
     data = load_toml(path)
     unknown = set(data) - {"convoy", "v2v", "safety"}
     if unknown:
-        raise ValueError(f"{path}: unknown table(s) {', '.join(sorted(unknown))}; expected convoy, v2v, safety")
-    table = dict(data.get("convoy", {}))
+        raise ConfigError(f"{path}: unknown table(s) {', '.join(sorted(unknown))}; expected convoy, v2v, safety")
+    for key, value in data.items():
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: {key} must be a table ([{key}]), got {value!r}")
+    table: dict[str, Any] = dict(data.get("convoy", {}))
     for key in ("v2v", "safety"):
         if key in data:
+            if key in table:
+                raise ConfigError(f"{path}: {key} given twice ([{key}] and convoy.{key})")
             table[key] = data[key]
-    if isinstance(table.get("v2v"), dict) and "temp_ids" in table["v2v"]:
-        table["v2v"] = {**table["v2v"], "temp_ids": tuple(table["v2v"]["temp_ids"])}
-    v2v = table.get("v2v") or {}
-    if not isinstance(v2v, dict):
-        raise ValueError(f"{path}: [v2v] must be a table")
-    v2v = dict(v2v)
+    v2v = dict(table.get("v2v") or {})
+    if not isinstance(v2v.get("keys", ""), str):
+        raise ConfigError(f"{path}: v2v.keys: expected a string (a directory), got {v2v['keys']!r}")
     keys = Path(str(v2v.get("keys") or Path(path).with_suffix(".keys").name))
     v2v["keys"] = str(keys if keys.is_absolute() else Path(path).parent / keys)
     table["v2v"] = v2v

@@ -16,6 +16,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from openconvoy.core.errors import InputFileError, MissingFileError
+
 COLUMNS: tuple[str, ...] = (
     "t_s",
     "vehicle_id",
@@ -122,21 +124,29 @@ def log_files(path: str | Path) -> list[Path]:
     if p.is_dir():
         files = sorted(f for f in p.glob("*.csv") if _is_log(f))
         if not files:
-            raise FileNotFoundError(f"no OpenConvoy log (*.csv with a t_s column) in {p}")
+            raise MissingFileError(f"no OpenConvoy log (*.csv with a t_s column) in {p}")
         return files
     if not p.exists():
-        raise FileNotFoundError(f"no such log file or directory: {p}")
+        raise MissingFileError(f"no such log file or directory: {p}")
     return [p]
 
 
 def _is_log(path: Path) -> bool:
-    with path.open(encoding="utf-8") as f:
-        header = f.readline().strip().split(",")
+    try:
+        with path.open(encoding="utf-8") as f:
+            header = f.readline().strip().split(",")
+    except UnicodeDecodeError:
+        return False
     return header[:2] == ["t_s", "vehicle_id"]
 
 
 def read_log(path: str | Path) -> Log:
-    """Read a log file or merge a directory of per-vehicle logs, sorted by time then vehicle."""
+    """Read a log file or merge a directory of per-vehicle logs, sorted by time then vehicle.
+
+    A log that is not one (binary, no data rows, a value that is not a number, a mode not
+    in ``MODES``, a non-finite time or position, the same vehicle twice at one time) is an
+    ``InputFileError`` naming the file, the line and the column.
+    """
     parts: list[Log] = [_read_one(f) for f in log_files(path)]
     columns = [c for c in parts[0] if all(c in p for p in parts)]
     merged = {c: np.concatenate([p[c] for p in parts]) for c in columns}
@@ -144,23 +154,68 @@ def read_log(path: str | Path) -> Log:
     return {c: v[order] for c, v in merged.items()}
 
 
+_FINITE_COLUMNS = ("t_s", "x_m", "y_m")
+"""Columns every row must carry as finite numbers."""
+
+
 def _read_one(path: Path) -> Log:
-    with path.open(newline="", encoding="utf-8") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header is None:
-            raise ValueError(f"{path}: empty log file")
-        missing = [c for c in COLUMNS if c not in header]
-        if missing:
-            raise ValueError(f"{path}: not an OpenConvoy log, missing column(s): {', '.join(missing)}")
-        rows = [r for r in reader if len(r) == len(header)]  # a torn last line is skipped
-    cols = list(zip(*rows)) if rows else [() for _ in header]
+    try:
+        with path.open(newline="", encoding="utf-8") as f:
+            reader = csv.reader(f)
+            header = next(reader, None)
+            if header is None:
+                raise InputFileError(f"{path}: empty log file")
+            missing = [c for c in COLUMNS if c not in header]
+            if missing:
+                raise InputFileError(f"{path}: not an OpenConvoy log, missing column(s): {', '.join(missing)}")
+            # (line number, row); a torn last line is skipped
+            rows = [(n, r) for n, r in enumerate(reader, start=2) if len(r) == len(header)]
+    except UnicodeDecodeError:
+        raise InputFileError(f"{path}: not a text file (an OpenConvoy log is CSV text)") from None
+    except csv.Error as exc:
+        raise InputFileError(f"{path}: not a CSV file ({exc})") from None
+    if not rows:
+        raise InputFileError(f"{path}: the log has a header but no data rows")
     out: Log = {}
-    for name, values in zip(header, cols):
-        if name in _TEXT_COLUMNS:
-            out[name] = np.array(values, dtype=object)
-        elif name in _INT_COLUMNS:
-            out[name] = np.array([int(float(v)) if v else -1 for v in values], dtype=np.int64)
-        else:
-            out[name] = np.array([float(v) if v else math.nan for v in values], dtype=float)
+    for i, name in enumerate(header):
+        values = [r[i] for _, r in rows]
+        try:
+            if name in _TEXT_COLUMNS:
+                out[name] = np.array(values, dtype=object)
+            elif name in _INT_COLUMNS:
+                out[name] = np.array([int(float(v)) if v else -1 for v in values], dtype=np.int64)
+            else:
+                out[name] = np.array([float(v) if v else math.nan for v in values], dtype=float)
+        except (ValueError, OverflowError):
+            line, value = next((n, r[i]) for n, r in rows if not _is_number(r[i]))
+            raise InputFileError(f"{path}:{line}: column {name}: {value!r} is not a number") from None
+    _check_rows(path, out, [n for n, _ in rows])
     return out
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text or "nan")
+        return True
+    except ValueError:
+        return False
+
+
+def _check_rows(path: Path, log: Log, lines: list[int]) -> None:
+    """The checks on values ``read_log`` promises (see there)."""
+    for name in _FINITE_COLUMNS:
+        bad = np.flatnonzero(~np.isfinite(log[name]))
+        if bad.size:
+            k = int(bad[0])
+            raise InputFileError(f"{path}:{lines[k]}: column {name}: {float(log[name][k])!r} (must be a finite number)")
+    bad_mode = [k for k, m in enumerate(log["mode"]) if m not in MODES]
+    if bad_mode:
+        k = bad_mode[0]
+        raise InputFileError(
+            f"{path}:{lines[k]}: column mode: {log['mode'][k]!r} is not one of {', '.join(MODES)}")
+    keys = np.stack([log["t_s"], log["vehicle_id"].astype(float)], axis=1)
+    _, first, counts = np.unique(keys, axis=0, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        k = int(first[np.flatnonzero(counts > 1)[0]])
+        raise InputFileError(
+            f"{path}:{lines[k]}: vehicle {int(log['vehicle_id'][k])} appears more than once at t_s = {float(log['t_s'][k])!r}")

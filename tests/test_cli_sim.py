@@ -120,6 +120,8 @@ def test_sim_with_convoy_file_burst_loss_and_duration(tmp_path: Path):
         (["report", "/nonexistent/run"], "no such log"),
         (["experiment", "per-sweep", "--pers", "0,x"], "--pers"),
         (["experiment", "per-sweep", "--policy", "paper+lader"], "unknown policy"),
+        (["sim", "--fault", "crash:0@3"], "bad fault 'crash:0@3': unknown fault kind"),
+        (["sim", "--fault", "dead:0@3", "--fault", "dead:7@3"], "no vehicle 7"),
     ],
 )
 def test_bad_arguments_give_one_clear_line(argv, words, tmp_path: Path, capsys):
@@ -152,3 +154,17 @@ def test_compare_two_runs_shows_differences(paper_run: Path, tmp_path: Path, cap
     d = result["metrics"]["delivery_ratio"]
     assert d["a"] == 1.0 and d["diff"] == pytest.approx(d["b"] - 1.0) and d["b"] < 0.5
     assert result["metrics"]["p95_platooning_error_m"]["diff"] > 0
+
+
+def test_sim_fault_stops_the_convoy_and_writes_events(tmp_path: Path, capsys):
+    out = tmp_path / "fault"
+    assert main(["sim", "--fault", "dead:0@5", "--fault", "silent:1@6", "--duration", "12",
+                 "--out", str(out), "--quiet", "--no-plots"]) == 0
+    assert "events.json" in capsys.readouterr().out
+    events = json.loads((out / "events.json").read_text())
+    assert [(e["t_s"], e["vehicle_id"], e["reason"]) for e in events] == [
+        (pytest.approx(5.0), 0, "fault dead:0@5"), (pytest.approx(6.0), 1, "fault silent:1@6")]
+    rows = list(csv.DictReader(open(out / "log.csv")))
+    last = {r["vehicle_id"]: r for r in rows}
+    assert all(abs(float(last[v]["speed_mps"])) < 0.05 for v in ("0", "1", "2"))
+    assert 'faults = ["dead:0@5", "silent:1@6"]' in (out / "run.toml").read_text()

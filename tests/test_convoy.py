@@ -28,3 +28,22 @@ def test_unknown_key_is_named(tmp_path):
 def test_needs_a_follower():
     with pytest.raises(ValueError, match="follower"):
         ConvoyConfig(vehicles=("1/10",))
+
+
+@pytest.mark.parametrize("value, ok", [("0.5", True), ("0", True), ("-0.1", False), ("nan", False),
+                                       ("inf", False), ('"1"', False), ("101.0", False)])
+def test_gap_margin_is_checked_and_reaches_the_envelope(tmp_path, value, ok):
+    from openconvoy.bridge.runner import envelope_from
+
+    p = tmp_path / "c.toml"
+    p.write_text(f'[convoy]\nvehicles = ["1/10", "1/6"]\n[safety]\ngap_margin_m = {value}\n')
+    if not ok:
+        with pytest.raises(ValueError, match="gap_margin_m"):
+            load_convoy(p)
+        return
+    env = envelope_from(load_convoy(p), vehicle_id=1)
+    assert env.braking.margin_m == float(value)
+    assert env.braking.decel_mps2 == 1.0 and env.braking.reaction_s == pytest.approx(0.12 + 0.35)
+    assert (env.ego_length_m, env.pred_length_m) == (0.97, 0.779)
+    assert envelope_from(ConvoyConfig(), vehicle_id=1).braking.margin_m == pytest.approx(0.25 * 0.97)
+    assert envelope_from(ConvoyConfig(), vehicle_id=0).braking is None  # the leader follows nobody

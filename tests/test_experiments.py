@@ -200,7 +200,10 @@ def test_emergency_braking_under_bursts_the_ladder_prevents_collisions(tmp_path:
     by = {label: [m for lab, _, m in result.runs if lab == label] for label in cfg.policies}
     without, with_ladder = by["cacc-highway"], by["cacc-highway+ladder"]
     assert all(m["collisions"] == 0 for m in with_ladder)
-    assert any(m["collisions"] > 0 for m in without)  # the scenario is a real test
+    # Without the ladder CACC once collided here; since stale targets only slow it (issue
+    # 10: bounded, braking dead-reckoning; the nearest predecessor caps σ) it no longer
+    # does, but it still ends closer than with the ladder.
+    assert all(m["collisions"] == 0 for m in without)
     mean = lambda runs: float(np.mean([m["min_gap_m"] for m in runs]))  # noqa: E731
     assert mean(with_ladder) > mean(without)
     assert min(m["min_gap_m"] for m in with_ladder) > max(4.8, min(m["min_gap_m"] for m in without))

@@ -160,7 +160,7 @@ def run_inside(opts: DemoOptions) -> int:
     policy = load_policy(opts.policy)
     presets = [vehicle_preset(v) for v in convoy.vehicles]
     scenario = make_scenario("paper", presets=presets)
-    member_config = getattr(policy, "member_config", None)
+    member_config = policy.member_config
     if member_config is not None:
         scenario.spacing = member_config.spacing  # start at the policy's gaps, as `sim` does
     init = scenario.initial_state()

@@ -30,6 +30,7 @@ from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.convoy import ConvoyConfig, load_convoy
+from openconvoy.core.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -72,16 +73,17 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     from openconvoy.comms.v2v import V2V, LinkConfig
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
+    from openconvoy.outputs import check_output_dir
     from openconvoy.policies import load_policy
 
     convoy = convoy or load_convoy(a.convoy)
     n = convoy.n_vehicles
     if not 0 <= a.vehicle_id < n:
-        raise ValueError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
+        raise ConfigError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
     policy = load_policy(a.policy)
     presets = [vehicle_preset(v) for v in convoy.vehicles]
     origin = Origin(*convoy.origin)
-    rate = a.rate if a.rate is not None else float(getattr(policy, "control_rate_hz", 20.0))
+    rate = a.rate if a.rate is not None else float(policy.control_rate_hz)
     status = _status(a.quiet)
     leader = None
     leader_origin = None
@@ -91,6 +93,13 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         if spec.startswith("track-file:"):
             leader_origin = leader.origin  # the track's own frame, reached through lat/lon
     me = presets[a.vehicle_id]
+    options = RunnerOptions(  # checks rate and timeouts before any socket opens
+        vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
+        duration_s=a.duration, connect_timeout_s=a.connect_timeout, arm_timeout_s=a.arm_timeout,
+        seed=a.seed,
+    )
+    if a.log is not None:
+        check_output_dir(a.log, "--log")  # before connecting, never after arming
     link = MavlinkLink(
         a.mavlink, origin, a.baud, vehicle_id=a.vehicle_id,
         telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
@@ -103,14 +112,10 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         loss=loss, drop_at=a.drop_at, rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
         auth=vehicle_authenticator(convoy, a.vehicle_id),
     )
-    options = RunnerOptions(
-        vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
-        duration_s=a.duration, connect_timeout_s=a.connect_timeout, arm_timeout_s=a.arm_timeout,
-        seed=a.seed,
-    )
     return DeployRunner(
         options, convoy, policy, link, v2v, leader=leader,
-        lengths=[p.length_m for p in presets], log_dir=a.log, on_status=status,
+        lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
+        log_dir=a.log, on_status=status,
         leader_origin=leader_origin,
         metadata={"per": a.per, "drop_at": a.drop_at, "policy_spec": a.policy,
                   "scenario_spec": spec, "mavlink": a.mavlink, "iface": a.iface},
@@ -180,7 +185,7 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
         auth = abort_authenticator(key, keys_dir)
         compat = False
     elif required:
-        raise ValueError(
+        raise ConfigError(
             f"this convoy only obeys signed aborts: give --key (e.g. {keys_dir}/authority.key)"
         )
     n = send_abort(args.iface, compat_enabled=compat, now=None, repeat=args.repeat, auth=auth, **kwargs)
@@ -193,7 +198,6 @@ def abort_authenticator(key_path: str, keys_dir: Path | None) -> Any:
     """An ``Authenticator`` signing with ``key_path`` (its certificate beside it), trusting
     the authority of ``keys_dir`` (default: the key's own directory)."""
     from openconvoy.comms.auth import Authenticator
-    from openconvoy.comms.keystore import load_authority, load_signer
+    from openconvoy.comms.keystore import signer_of_key
 
-    authority, _ = load_authority(keys_dir if keys_dir is not None else Path(key_path).parent)
-    return Authenticator(load_signer(key_path, authority, time.time()))
+    return Authenticator(signer_of_key(key_path, keys_dir, time.time()))

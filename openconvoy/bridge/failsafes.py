@@ -11,12 +11,17 @@ returns. Rules (issue 5, item 3), by priority:
 3. autopilot link lost (telemetry silent ``telemetry_timeout_s`` or no heartbeat
    ``heartbeat_timeout_s``): command a stop while it is gone; when it returns, HOLD and
    command nothing more (latched);
-4. geofence breached or the measured gap to the predecessor below ``min_gap_m``: emergency
-   stop and HOLD (latched);
+4. geofence breached, the measured gap to the predecessor below ``min_gap_m`` (centre to
+   centre), or the braking-aware gap rule (``core.safety.BrakingGap``: the gap between
+   bumpers less the distance needed to shed the closing speed at the braking limit below
+   the margin): emergency stop and HOLD (latched);
 5. an exception in the policy: stop (latched; the loop keeps running and logging);
-6. the messages the vehicle needs older than ``max_msg_age_s`` (a bridge backstop for
-   policies running without the member's staleness ladder): stop until they are fresh;
-7. the speed cap, always.
+6. a staleness stop: the member's ladder commands a stop, or the messages the vehicle needs
+   (every predecessor its topology keeps) are older than ``max_msg_age_s`` (a bridge
+   backstop for policies running without the ladder): stop and HOLD (latched);
+7. a tick that started more than ``LATE_TICK_PERIODS`` periods late (the loop stalled):
+   that tick stops;
+8. the speed cap, always.
 
 "Stop" means speed 0 with the yaw at the current heading, never a zero velocity vector
 (AUTOPILOTS.md). A latched stop still sends stop setpoints, so ArduPilot's GUIDED and PX4's
@@ -27,6 +32,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+from openconvoy.core.safety import BrakingGap, bumper_gap
+
+LATE_TICK_PERIODS = 2.0
+"""A tick that starts more than this many periods late is a failsafe event: the vehicle
+drove on its last setpoint unsupervised meanwhile, so that tick commands a stop."""
 
 DRIVE, STOP, SILENT = "drive", "stop", "silent"
 """What the runner sends this tick: the (capped) policy setpoint, a stop setpoint, nothing."""
@@ -96,6 +107,9 @@ class Envelope:
             centre, m) falls below this.
         max_msg_age_s: stop while the messages the vehicle needs are older than this (s);
             inf disables.
+        braking: the braking-aware gap rule (None: centre-to-centre ``min_gap_m`` only).
+        ego_length_m, pred_length_m: the vehicle's and its predecessor's lengths (m), for
+            the gap between bumpers.
     """
 
     speed_cap_mps: float = 5.0
@@ -103,6 +117,9 @@ class Envelope:
     geofence_lookahead_s: float = 1.0
     min_gap_m: float = 1.0
     max_msg_age_s: float = 3.0
+    braking: BrakingGap | None = None
+    ego_length_m: float = 0.0
+    pred_length_m: float = 0.0
 
     def cap(self, speed_mps: float) -> float:
         """The commanded speed clipped to [0, cap] (NaN becomes 0)."""
@@ -118,9 +135,18 @@ class Envelope:
         d = max(speed_cmd, 0.0) * self.geofence_lookahead_s
         return math.hypot(x + d * math.cos(heading), y + d * math.sin(heading)) > r
 
-    def too_close(self, gap_m: float) -> bool:
-        """True when the measured gap (m) is known and below the minimum."""
-        return math.isfinite(gap_m) and gap_m < self.min_gap_m
+    def too_close(self, gap_m: float, closing_mps: float = 0.0) -> str:
+        """Why the gap (m, centre to centre; closing speed m/s, positive = closing) calls
+        for an emergency stop, "" when it does not (or is unknown)."""
+        if not math.isfinite(gap_m):
+            return ""
+        if gap_m < self.min_gap_m:
+            return f"gap {gap_m:.2f} m below minimum"
+        if self.braking is not None:
+            bumpers = bumper_gap(gap_m, self.ego_length_m, self.pred_length_m)
+            if self.braking.too_close(bumpers, closing_mps):
+                return self.braking.reason(bumpers, closing_mps)
+        return ""
 
 
 @dataclass
@@ -137,9 +163,12 @@ class TickInputs:
         x, y, heading: own ENU position (m) and heading (rad).
         speed_cmd: the speed the policy asks for (m/s).
         gap_m: measured gap to the predecessor (m), NaN when unknown / leader.
+        closing_mps: how fast that gap shrinks (m/s, positive = closing).
         needed_age_s: age of the oldest message the vehicle needs (s), 0 for the leader.
+        stale_stop: the member's staleness ladder commands a stop.
         policy_error: the policy raised this tick (its message), "" if not.
         held: the autopilot reports its hold mode.
+        late_periods: how late this tick started, in loop periods (0 = on time).
     """
 
     now: float
@@ -154,9 +183,12 @@ class TickInputs:
     heading: float = 0.0
     speed_cmd: float = 0.0
     gap_m: float = math.nan
+    closing_mps: float = 0.0
     needed_age_s: float = 0.0
+    stale_stop: bool = False
     policy_error: str = ""
     held: bool = False
+    late_periods: float = 0.0
 
 
 @dataclass
@@ -173,6 +205,7 @@ class Failsafes:
     policy_errors: int = 0
     events: list[tuple[float, str]] = field(default_factory=list)
     """(clock s, reason) each time a rule first fired."""
+    _was_late: bool = False
 
     def _fire(self, now: float, reason: str) -> None:
         self.events.append((now, reason))
@@ -202,19 +235,31 @@ class Failsafes:
         if not self.latched:
             if self.envelope.outside_fence(inp.x, inp.y, inp.heading, inp.speed_cmd):
                 self._latch(now, "geofence", hold=True)
-            elif self.envelope.too_close(inp.gap_m):
-                self._latch(now, f"gap {inp.gap_m:.2f} m below minimum", hold=True)
+            elif why := self.envelope.too_close(inp.gap_m, inp.closing_mps):
+                self._latch(now, why, hold=True)
         if inp.policy_error:
             self.policy_errors += 1
             if not self.latched:
                 self._latch(now, f"policy error: {inp.policy_error}", hold=False)
+        if not self.latched:
+            # A stop for stale messages ends in HOLD, as the issue asks: coming back on
+            # fresh messages would restart a vehicle nobody watched stop.
+            if inp.stale_stop:
+                self._latch(now, "staleness ladder stop", hold=True)
+            elif inp.needed_age_s > self.envelope.max_msg_age_s:
+                self._latch(now, "messages needed are stale", hold=True)
         if self.latched:
             # Keep streaming stop setpoints until the autopilot confirms HOLD, then go quiet.
             if self.latched_hold and inp.held:
                 return Verdict(SILENT, failsafe=True, reason=self.latched)
             return Verdict(STOP, hold=self.latched_hold, failsafe=True, reason=self.latched)
-        if inp.needed_age_s > self.envelope.max_msg_age_s:
-            return Verdict(STOP, failsafe=True, reason="messages needed are stale")
+        if inp.late_periods > LATE_TICK_PERIODS:
+            # Each late episode is one event; the late tick itself stops the vehicle.
+            if not self._was_late:
+                self._fire(now, f"control loop late ({inp.late_periods:.1f} periods)")
+            self._was_late = True
+            return Verdict(STOP, failsafe=True, reason="control loop late")
+        self._was_late = False
         return Verdict(DRIVE)
 
     def _latch(self, now: float, reason: str, hold: bool) -> None:
@@ -227,35 +272,44 @@ class Failsafes:
 class LoopTimer:
     """Fixed-rate schedule with overrun counting; clock in seconds.
 
-    ``wait_time(now)`` says how long to sleep until the next tick; a tick that starts more
-    than one period late is an overrun, and the schedule skips the missed slots instead of
-    bursting to catch up.
+    ``wait_time(now)`` says how long to sleep until the next tick. ``begin(now)`` returns
+    how late the tick started (s). Every scheduled slot that passed without a tick is an
+    overrun (a tick one and a half periods late missed one slot; a 3.7 s stall at 20 Hz
+    missed 74), and the schedule skips the missed slots instead of bursting to catch up.
     """
 
     period_s: float
     start: float
     overruns: int = 0
+    """Scheduled slots that passed without a tick."""
     ticks: int = 0
+    late_ticks: int = 0
+    """Ticks that started more than ``LATE_TICK_PERIODS`` periods late."""
+    max_late_s: float = 0.0
     _next: float = field(init=False)
 
     def __post_init__(self) -> None:
-        if self.period_s <= 0:
-            raise ValueError(f"loop period must be positive, got {self.period_s}")
+        if not (math.isfinite(self.period_s) and self.period_s > 0):
+            raise ValueError(f"loop period must be positive and finite, got {self.period_s}")
         self._next = self.start
 
     @property
     def next_tick(self) -> float:
         return self._next
 
-    def begin(self, now: float) -> None:
-        """Mark a tick started at ``now``; advance the schedule."""
+    def begin(self, now: float) -> float:
+        """Mark a tick started at ``now``; advance the schedule. Returns the lateness (s)."""
         self.ticks += 1
-        late = now - self._next
-        if late > self.period_s:
-            self.overruns += 1
-            missed = math.floor(late / self.period_s)
+        late = max(now - self._next, 0.0)
+        missed = math.floor(late / self.period_s)
+        if missed:
+            self.overruns += missed
             self._next += missed * self.period_s
+        if late > LATE_TICK_PERIODS * self.period_s:
+            self.late_ticks += 1
+        self.max_late_s = max(self.max_late_s, late)
         self._next += self.period_s
+        return late
 
     def wait_time(self, now: float) -> float:
         return max(0.0, self._next - now)

@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError, InputFileError
 from openconvoy.envs.vehicles import VehiclePreset, preset_to_toml, vehicle_preset
 from openconvoy.logs import read_log
 
@@ -62,13 +63,13 @@ def _select_vehicle(log: dict[str, np.ndarray], vehicle_id: int | None) -> np.nd
     ids = np.unique(log["vehicle_id"])
     if vehicle_id is None:
         if len(ids) != 1:
-            raise ValueError(
+            raise InputFileError(
                 f"the log holds vehicles {', '.join(map(str, ids))}: choose one with --vehicle-id"
             )
         vehicle_id = int(ids[0])
     mask = log["vehicle_id"] == vehicle_id
     if not mask.any():
-        raise ValueError(f"no rows for vehicle {vehicle_id} in the log (has {', '.join(map(str, ids))})")
+        raise InputFileError(f"no rows for vehicle {vehicle_id} in the log (has {', '.join(map(str, ids))})")
     return mask
 
 
@@ -199,9 +200,9 @@ def _load(log_path: str | Path, vehicle_id: int | None) -> tuple[np.ndarray, ...
     ok = np.all(np.isfinite(np.stack([t, speed, heading, cmd_v, cmd_dh])), axis=0)
     t, speed, heading, cmd_v, cmd_dh, age = (a[ok] for a in (t, speed, heading, cmd_v, cmd_dh, age))
     if len(t) < 50 or t[-1] - t[0] < 5.0:
-        raise ValueError(f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)")
+        raise InputFileError(f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)")
     if np.ptp(cmd_v) < 0.2:
-        raise ValueError(f"{log_path}: the commanded speed barely changes; drive speed steps to fit")
+        raise InputFileError(f"{log_path}: the commanded speed barely changes; drive speed steps to fit")
     return t, speed, heading, cmd_v, cmd_dh, age
 
 
@@ -262,7 +263,7 @@ def fit_plant(
     raw = _load(log_path, vehicle_id)
     timing = cmd_timing
     if timing not in ("after-state", "before-state"):
-        raise ValueError(f"command timing must be after-state or before-state, got {timing!r}")
+        raise InputFileError(f"command timing must be after-state or before-state, got {timing!r}")
     d = _align(*raw, timing)
     speed_params, cost_v, (grid, rows, measured_at), speed_cost = _fit_speed(d)
     delay, tau_v, acc, dec = (float(x) for x in speed_params)
@@ -387,14 +388,281 @@ def format_fit(fit: PlantFit) -> str:
 
 
 def run_fit_plant_cli(args: object) -> int:
-    """``openconvoy fit-plant LOG_DIR [--out preset.toml] [--name] [--base] [--vehicle-id]``."""
-    fit = fit_plant(
-        args.log, base=args.base, name=args.name,  # type: ignore[attr-defined]
-        vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
-    )
-    print(format_fit(fit))
+    """``openconvoy fit-plant LOG_DIR... [--model lag|pi] [--out preset.toml] [--name] [--base]
+    [--vehicle-id] [--source]``."""
+    from openconvoy.outputs import check_output_file
+
+    check_output_file(args.out or f"{args.name}.toml", "--out")  # type: ignore[attr-defined]
+    logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
+    if getattr(args, "model", "lag") == "pi":
+        pi_fit = fit_pi_plant(logs, base=args.base, name=args.name,  # type: ignore[attr-defined]
+                              vehicle_id=args.vehicle_id, source=args.source)  # type: ignore[attr-defined]
+        print(format_pi_fit(pi_fit))
+        preset = pi_fit.preset
+    else:
+        from openconvoy.bridge.recording import is_recording
+
+        if len(logs) != 1 or is_recording(logs[0]):
+            raise ConfigError("the lag model fits one run's log; use --model pi for recordings "
+                             "or several inputs")
+        fit = fit_plant(
+            logs[0], base=args.base, name=args.name,  # type: ignore[attr-defined]
+            vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
+        )
+        print(format_fit(fit))
+        preset = fit.preset
     out = Path(args.out or f"{args.name}.toml")  # type: ignore[attr-defined]
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(preset_to_toml(fit.preset))
+    out.write_text(preset_to_toml(preset))
     print(f"wrote {out}")
     return 0
+
+
+# --- The autopilot's PI speed loop (``speed_loop = "pi"``), from logs or recordings -------
+
+_PI_DT_S = 0.02  # the replay step: the plant's pi substep (PI_MAX_DT_S), the autopilots' loop
+_PI_SPEED_KEYS = ("actuation_delay_s", "accel_max_mps2", "decel_max_mps2", "speed_kp",
+                  "speed_ki", "speed_ff", "drive_lag_s", "breakaway_mps", "drive_drag_per_mps")
+# (low, high, log scale) per parameter; the search starts at the base preset when it has a
+# pi loop, else at a generic loop (unit gains and feed-forward, 1 s drive lag).
+_PI_SPEED_BOUNDS = ((0.0, 0.6, False), (0.2, 10.0, True), (0.2, 10.0, True),
+                    (1e-3, 20.0, True), (1e-3, 20.0, True), (0.3, 2.5, False),
+                    (0.05, 5.0, True), (0.0, 1.5, False), (0.0, 1.0, False))
+_PI_SPEED_PRIOR = (0.1, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.0)
+_HEADING_ERR_CAP_RAD = math.radians(15.0)
+_SPEED_ERR_CAP_MPS = 0.3
+FRICTION_MATTERS = 1.2
+"""A fitted static friction is kept only if dropping it raises the speed cost this much."""
+_PI_HEADING_KEYS = ("heading_delay_s", "heading_lag_s", "turn_rate_max_radps",
+                    "yaw_accel_max_radps2", "lateral_accel_max_mps2", "max_steer_rad")
+_PI_HEADING_BOUNDS = ((0.0, 0.5, False), (0.05, 2.0, True), (0.3, 6.0, True),
+                      (0.3, 60.0, True), (0.5, 30.0, True), (0.05, 1.2, True))
+_PI_HEADING_PRIOR = (0.02, 0.5, 2.09, 2.09, 10.0, 0.35)
+
+
+@dataclass(frozen=True)
+class _Series:
+    """One contiguous stretch for the pi fit: measurements and commands (s, m/s, ENU rad)."""
+
+    t: np.ndarray
+    speed: np.ndarray
+    heading: np.ndarray
+    t_cmd: np.ndarray
+    cmd_v: np.ndarray
+    cmd_h: np.ndarray
+
+
+def _held(series: _Series, *values: np.ndarray) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """The pi replay grid (``_PI_DT_S``) of a stretch, commands held from their send times,
+    and the grid index of each measurement."""
+    t0 = series.t_cmd[0]
+    n = int(round((series.t[-1] - t0) / _PI_DT_S)) + 1
+    grid = t0 + _PI_DT_S * np.arange(n)
+    k = np.clip(np.searchsorted(series.t_cmd, grid + 1e-9, side="right") - 1, 0, len(series.t_cmd) - 1)
+    rows = np.clip(np.round((series.t - t0) / _PI_DT_S).astype(int), 0, n - 1)
+    return grid, [v[k] for v in values], rows
+
+
+def _pi_speed_sse(series: _Series, c: np.ndarray) -> np.ndarray:
+    """Sum of squared speed errors at the measurements for candidates ``c`` (k, 9) in
+    ``_PI_SPEED_KEYS`` order, replaying ``envs.plant``'s pi loop at ``_PI_DT_S``."""
+    _, (cmd,), rows = _held(series, series.cmd_v)
+    h = _PI_DT_S
+    delay = np.round(c[:, 0] / h).astype(int)
+    acc, dec, kp, ki, ff, tau, brk, drag = (c[:, i] for i in range(1, 9))
+    v0 = float(series.speed[0])
+    v = np.full(len(c), v0)
+    r = v.copy()
+    integ = v0 * (1.0 - ff)
+    out = np.empty((len(cmd), len(c)))
+    stop = 0.1
+    for i in range(len(cmd)):
+        j = i - delay
+        v_cmd = np.where(j >= 0, cmd[np.maximum(j, 0)], v0)
+        lim = np.where(np.abs(v_cmd) > np.abs(r), acc, dec) * h
+        r = r + np.clip(v_cmd - r, -lim, lim)
+        err = r - v
+        stopped = (r == 0.0) & (np.abs(v) <= stop)
+        integ = np.where(stopped, 0.0, integ + ki * err * h)
+        drive = np.where(stopped, 0.0, ff * r + kp * err + integ)
+        dv = (drive - v - drag * v * np.abs(v)) / tau * h
+        stuck = (np.abs(drive) < brk) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
+        v = np.where(stuck, 0.0, v + dv)
+        out[i] = v
+    # The measurement at grid row k is the state after k steps.
+    got = np.concatenate([np.full((1, len(c)), v0), out])[rows]
+    # Robust: stick-slip (PX4 SIH at 0.7 m/s) is not in the model; a sample off by more
+    # than the cap counts as the cap, so it cannot drag the rest of the fit.
+    return np.minimum((got - series.speed[:, None]) ** 2, _SPEED_ERR_CAP_MPS**2).sum(axis=0)
+
+
+def _pi_heading_sse(series: _Series, c: np.ndarray, wheelbase_m: float) -> np.ndarray:
+    """Sum of squared (wrapped) heading errors for candidates ``c`` (k, 6) in
+    ``_PI_HEADING_KEYS`` order; the measured speed drives the curvature caps."""
+    grid, (cmd,), rows = _held(series, np.unwrap(series.cmd_h))
+    speed = np.interp(grid, series.t, series.speed)
+    h = _PI_DT_S
+    delay = np.round(c[:, 0] / h).astype(int)
+    tau, rate_max, yaw_acc, alat, steer = (c[:, i] for i in range(1, 6))
+    kappa = np.tan(steer) / wheelbase_m
+    h0 = float(series.heading[0])
+    psi = np.full(len(c), h0)
+    rate_des = np.zeros(len(c))
+    out = np.empty((len(cmd), len(c)))
+    for i in range(len(cmd)):
+        j = i - delay
+        target = np.where(j >= 0, cmd[np.maximum(j, 0)], h0)
+        err = (target - psi + math.pi) % (2 * math.pi) - math.pi
+        wanted = np.clip(err / np.maximum(tau, h), -rate_max, rate_max)
+        rate_des = np.clip(wanted, rate_des - yaw_acc * h, rate_des + yaw_acc * h)
+        s = abs(speed[i])
+        cap = np.minimum(s * kappa, alat / max(s, 1e-9))
+        psi = psi + np.clip(rate_des, -cap, cap) * h
+        out[i] = psi
+    got = np.concatenate([np.full((1, len(c)), h0), out])[rows]
+    err = ((got - series.heading[:, None]) + math.pi) % (2 * math.pi) - math.pi
+    # Robust: a 180 deg step turns either way by a hair of residual error (README §4), so a
+    # candidate turning the other way is off by up to 180 deg for seconds; cap each sample.
+    return np.minimum(err**2, _HEADING_ERR_CAP_RAD**2).sum(axis=0)
+
+
+def _cem(
+    cost, prior: Sequence[float], bounds: Sequence[tuple[float, float, bool]],
+    rounds: int = 14, population: int = 160, elite: int = 16, seed: int = 0,
+) -> tuple[np.ndarray, float]:
+    """Minimize ``cost`` ((k, d) candidates -> k costs) by the cross-entropy method: sample
+    around the mean, refit mean and spread to the best, repeat. Deterministic (seeded);
+    works through the loops' kinks (stop logic, friction, the discrete delay) where a
+    gradient method would not."""
+    rng = np.random.default_rng(seed)
+    raw_cost = cost
+
+    def cost(x: np.ndarray) -> np.ndarray:  # unstable candidates overflow: never the best
+        with np.errstate(all="ignore"):
+            c = raw_cost(x)
+        return np.where(np.isfinite(c), c, np.inf)
+
+    lo = np.array([math.log(b[0]) if b[2] else b[0] for b in bounds])
+    hi = np.array([math.log(b[1]) if b[2] else b[1] for b in bounds])
+    logs = np.array([b[2] for b in bounds])
+    to_z = lambda x: np.where(logs, np.log(np.maximum(x, 1e-12)), x)  # noqa: E731
+    from_z = lambda z: np.where(logs, np.exp(z), z)  # noqa: E731
+    mean = np.clip(to_z(np.asarray(prior, dtype=float)), lo, hi)
+    spread = (hi - lo) / 4.0
+    best_z, best_cost = mean.copy(), float(cost(from_z(mean[None, :]))[0])
+    for _ in range(rounds):
+        z = np.clip(mean + spread * rng.standard_normal((population, len(mean))), lo, hi)
+        z[0] = best_z  # keep the best so far
+        costs = cost(from_z(z))
+        order = np.argsort(costs)[:elite]
+        if costs[order[0]] < best_cost:
+            best_z, best_cost = z[order[0]].copy(), float(costs[order[0]])
+        mean = z[order].mean(axis=0)
+        spread = np.maximum(z[order].std(axis=0), (hi - lo) * 1e-3)
+    return from_z(best_z), best_cost
+
+
+@dataclass(frozen=True)
+class PiFit:
+    """Result of a pi fit: the preset, residual RMS, samples and where the data came from."""
+
+    preset: VehiclePreset
+    speed_rms_mps: float
+    heading_rms_rad: float
+    samples: int
+    source: str
+
+
+def _series_from(path: str | Path, vehicle_id: int | None, source: str) -> tuple[list[_Series], str]:
+    from openconvoy.bridge.recording import is_recording, read_recording
+
+    if is_recording(path):
+        rec = read_recording(path, source=source)
+        return [_Series(s.t, s.speed, s.heading, s.t_cmd, s.cmd_speed, s.cmd_heading)
+                for s in rec.segments], f"{rec.autopilot} recording"
+    t, speed, heading, cmd_v, cmd_dh, age = _load(path, vehicle_id)
+    t_meas = t - age  # a row's state is as old as its telemetry
+    return [_Series(t_meas, speed, heading, t, cmd_v, heading + cmd_dh)], "log"
+
+
+def fit_pi_plant(
+    paths: Sequence[str | Path],
+    base: str | VehiclePreset = "ardupilot-rover",
+    name: str = "fitted",
+    vehicle_id: int | None = None,
+    source: str = "telemetry",
+    rounds: int = 14,
+    population: int = 160,
+) -> PiFit:
+    """Fit the autopilot's PI speed loop (delay, ramp limits, gains, feed-forward, drive
+    lag, static friction) and its heading loop (delay, lag, rate and yaw-accel limits,
+    lateral accel, steering lock) from deploy logs and/or MAVLink recordings.
+
+    Speed is fitted on every stretch whose commanded speed changes, heading on every
+    stretch whose commanded heading changes; the other loop keeps the base preset's values
+    when no stretch excites it. Size and speed cap come from the base preset. The search
+    (cross-entropy, seeded) runs ``rounds`` rounds of ``population`` candidates."""
+    base_preset = vehicle_preset(base) if isinstance(base, str) else base
+    series: list[_Series] = []
+    kinds = []
+    for p in paths:
+        got, kind = _series_from(p, vehicle_id, source)
+        series += got
+        kinds.append(kind)
+    speed_series = [s for s in series if np.ptp(s.cmd_v) >= 0.2]
+    heading_series = [s for s in series if np.ptp(np.unwrap(s.cmd_h)) > 0.2]
+    values: dict[str, float] = {}
+    samples = sum(len(s.t) for s in series)
+    speed_rms = heading_rms = math.nan
+    if speed_series:
+        n = sum(len(s.t) for s in speed_series)
+        prior = ([getattr(base_preset, k) for k in _PI_SPEED_KEYS]
+                 if base_preset.speed_loop == "pi" else list(_PI_SPEED_PRIOR))
+        def speed_cost(c: np.ndarray) -> np.ndarray:
+            return sum(_pi_speed_sse(s, c) for s in speed_series) / n
+
+        best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds,
+                          population=population)
+        # Static friction only where the data needs it: without it the fit must be clearly
+        # worse (a vehicle that would not start), not just a shade off in a stop's tail.
+        frictionless = best.copy()
+        frictionless[7] = 0.0
+        with np.errstate(all="ignore"):
+            cost_free = float(speed_cost(frictionless[None, :])[0])
+        if cost_free <= FRICTION_MATTERS * cost:
+            best, cost = frictionless, cost_free
+        values.update(zip(_PI_SPEED_KEYS, (float(x) for x in best)))
+        values["actuation_delay_s"] = round(values["actuation_delay_s"] / _PI_DT_S) * _PI_DT_S
+        speed_rms = math.sqrt(cost)
+    if heading_series:
+        n = sum(len(s.t) for s in heading_series)
+        prior = [base_preset.heading_delay if k == "heading_delay_s" else getattr(base_preset, k)
+                 for k in _PI_HEADING_KEYS]
+        prior = [min(x, 1e3) for x in prior]
+        best, cost = _cem(
+            lambda c: sum(_pi_heading_sse(s, c, base_preset.wheelbase_m) for s in heading_series) / n,
+            prior, _PI_HEADING_BOUNDS, rounds=rounds, population=population)
+        values.update(zip(_PI_HEADING_KEYS, (float(x) for x in best)))
+        values["heading_delay_s"] = round(values["heading_delay_s"] / _PI_DT_S) * _PI_DT_S
+        heading_rms = math.sqrt(cost)
+    if not values:
+        raise InputFileError("nothing to fit: no stretch changes the commanded speed or heading")
+    # An unfitted heading loop keeps the base's heading delay, whatever the speed delay is.
+    values.setdefault("heading_delay_s", base_preset.heading_delay)
+    rounded = {k: round(v, 4) for k, v in values.items()}
+    preset = dataclasses.replace(base_preset, name=name, speed_loop="pi", **rounded)
+    return PiFit(preset, speed_rms, heading_rms, samples, " + ".join(sorted(set(kinds))))
+
+
+def format_pi_fit(fit: PiFit) -> str:
+    """A short human summary of a pi fit."""
+    p = fit.preset
+    lines = [f"fitted preset {p.name!r} (autopilot PI speed loop) from {fit.samples} samples "
+             f"({fit.source})"]
+    for key in _PI_SPEED_KEYS + _PI_HEADING_KEYS:
+        value = p.heading_delay if key == "heading_delay_s" else getattr(p, key)
+        extra = f" ({math.degrees(value):.1f} deg/s)" if key == "turn_rate_max_radps" else ""
+        lines.append(f"  {key:<24}{value:.4g}{extra}")
+    lines.append(f"  residual RMS: speed {fit.speed_rms_mps:.4f} m/s, heading "
+                 f"{math.degrees(fit.heading_rms_rad):.2f} deg")
+    return "\n".join(lines)

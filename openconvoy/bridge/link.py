@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
+from openconvoy.core.errors import LinkError
 from openconvoy.core.state import VehicleState
 
 Autopilot = Literal["ardupilot", "px4"]
@@ -26,7 +27,7 @@ StatusCallback = Callable[[str], None]
 """Receives one human-readable status line (waiting for arming, refused rates, ...)."""
 
 
-class VehicleLinkError(RuntimeError):
+class VehicleLinkError(LinkError, RuntimeError):
     """A link failure the runner cannot work around by waiting (base class)."""
 
 

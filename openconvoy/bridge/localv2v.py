@@ -17,6 +17,7 @@ import numpy as np
 
 from openconvoy.comms.loss import LossConfig
 from openconvoy.comms.v2v import Counters
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 
 
@@ -70,7 +71,7 @@ class LocalV2V:
         seed: int = 0,
     ) -> None:
         if drop_at not in ("receiver", "sender"):
-            raise ValueError(f"drop_at must be 'receiver' or 'sender', got {drop_at!r}")
+            raise ConfigError(f"drop_at must be 'receiver' or 'sender', got {drop_at!r}")
         self.bus = bus
         self.loss_config = loss or LossConfig()
         self.drop_at = drop_at
@@ -87,7 +88,8 @@ class LocalV2V:
         self.bus.publish(self._q, state)
         return True
 
-    def poll(self, now: float) -> list[Received]:
+    def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
+        """Every message waiting (in-process: ``budget_s`` is not needed)."""
         out: list[Received] = []
         while self._q:
             state, abort = self._q.popleft()

@@ -44,6 +44,7 @@ from openconvoy.bridge.link import (
     Telemetry,
 )
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState, wrap_angle
 
 log = logging.getLogger(__name__)
@@ -62,12 +63,12 @@ def check_url(url: str) -> str:
     if url.startswith(_URL_SCHEMES):
         rest = url.split(":", 1)[1]
         host, sep, port = rest.rpartition(":")
-        if not sep or not host or not port.isdigit():
-            raise ValueError(f"MAVLink URL {url!r}: expected SCHEME:HOST:PORT, e.g. udpin:0.0.0.0:14550")
+        if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+            raise ConfigError(f"MAVLink URL {url!r}: expected SCHEME:HOST:PORT with PORT in 1..65535, e.g. udpin:0.0.0.0:14550")
         return url
     if url.startswith("/dev/") or url.upper().startswith("COM"):
         return url
-    raise ValueError(
+    raise ConfigError(
         f"MAVLink URL {url!r}: expected a serial device (/dev/ttyX) or one of "
         f"{', '.join(s + 'HOST:PORT' for s in _URL_SCHEMES)}"
     )
@@ -115,7 +116,7 @@ class MavlinkLink:
     ) -> None:
         self.url = check_url(url)
         if telemetry_hz <= 0:
-            raise ValueError(f"telemetry_hz must be positive, got {telemetry_hz}")
+            raise ConfigError(f"telemetry_hz must be positive, got {telemetry_hz}")
         self.origin = origin
         self.baud = baud
         self.vehicle_id = vehicle_id

@@ -29,7 +29,7 @@ import math
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -48,8 +48,11 @@ from openconvoy.bridge.failsafes import (
 from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
-from openconvoy.core.member import ConvoyMember, MemberConfig
-from openconvoy.core.policy import Policy
+from openconvoy.core import tick as member_tick
+from openconvoy.core.errors import ConfigError
+from openconvoy.core.member import ConvoyMember, Frame, member_config_for
+from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
+from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState, wrap_angle
 from openconvoy.logs import LogWriter
 
@@ -64,6 +67,9 @@ delivered / the loss model dropped, before the Rx gate. Why a failsafe fired goe
 metadata JSON (``failsafe_events``)."""
 
 HOLD_MODES = ("HOLD", "LOITER")
+RECEIVE_BUDGET = 0.4
+"""Share of a loop period the V2V receive may take per tick; datagrams beyond it wait for
+the next tick (a flood of them costs messages, never the loop's timing)."""
 FINISH_TIMEOUT_S = 10.0
 """Longest a leader brakes after its scenario before ending the run anyway (s)."""
 
@@ -76,9 +82,10 @@ class V2VEndpoint(Protocol):
 
     def send(self, state: VehicleState, now: float) -> bool: ...
 
-    def poll(self, now: float) -> list[Any]:
+    def poll(self, now: float, budget_s: float | None = None) -> list[Any]:
         """Messages heard since the last poll: objects with ``state`` (VehicleState with
-        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``."""
+        ``vehicle_id`` = convoy index, ``t`` = sender time), ``t_rx`` and ``abort``; reading
+        for at most ``budget_s`` seconds when given."""
         ...
 
     @property
@@ -134,10 +141,18 @@ class RunnerOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.rate_hz <= 0:
-            raise ValueError(f"control rate must be positive, got {self.rate_hz}")
+        # Checked here too (the CLI checks its flags): a NaN rate or timeout would busy-loop
+        # setpoints to the autopilot or wait forever.
+        for what, value, hi in (
+            ("control rate (--rate, or the policy's control_rate_hz), Hz", self.rate_hz, 100.0),
+            ("--connect-timeout, s", self.connect_timeout_s, 86400.0),
+            ("--arm-timeout, s", self.arm_timeout_s, 86400.0),
+            ("--duration, s", 1.0 if self.duration_s is None else self.duration_s, 7 * 86400.0),
+        ):
+            if not (math.isfinite(value) and 0.0 < value <= hi):
+                raise ConfigError(f"{what}: {value!r} is out of range; allowed: a finite number in (0, {hi:g}]")
         if self.passive and self.vehicle_id != 0:
-            raise ValueError("--passive is for the leader (vehicle 0): followers are driven by the policy")
+            raise ConfigError("--passive is for the leader (vehicle 0): followers are driven by the policy")
 
 
 @dataclass
@@ -164,14 +179,41 @@ class TickTiming:
     t_telemetry: float
 
 
-def envelope_from(convoy: ConvoyConfig) -> Envelope:
-    """The safety envelope a convoy config asks for."""
+def scenario_spacing(convoy: ConvoyConfig) -> SpacingConfig:
+    """The convoy scenario's spacing σ: what the simulator gives a policy without a member
+    config of its own (``member.member_config_for``)."""
+    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    return make_scenario(convoy.scenario, presets=[vehicle_preset(v) for v in convoy.vehicles]).spacing
+
+
+def top_speed(convoy: ConvoyConfig, vehicle_id: int) -> float:
+    """The vehicle's preset top speed (m/s): the top of its action space, as in ``sim``."""
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    return vehicle_preset(convoy.vehicles[vehicle_id]).max_speed_mps
+
+
+def envelope_from(convoy: ConvoyConfig, vehicle_id: int | None = None) -> Envelope:
+    """The safety envelope a convoy config asks for; with ``vehicle_id``, the braking-aware
+    gap rule from that vehicle's preset (margin ``[safety] gap_margin_m`` or its default)."""
     s = convoy.safety
+    braking, ego_len, pred_len = None, 0.0, 0.0
+    if vehicle_id is not None and vehicle_id > 0:
+        from openconvoy.core.safety import for_vehicle
+        from openconvoy.envs.vehicles import vehicle_preset
+
+        ego, pred = vehicle_preset(convoy.vehicles[vehicle_id]), vehicle_preset(convoy.vehicles[vehicle_id - 1])
+        braking = for_vehicle(ego.decel_max_mps2, ego.actuation_delay_s, ego.speed_lag_s, ego.length_m,
+                              s.gap_margin_m)
+        ego_len, pred_len = ego.length_m, pred.length_m
     return Envelope(
         speed_cap_mps=s.speed_cap_mps,
         geofence_radius_m=s.geofence_radius_m,
         min_gap_m=s.min_gap_m,
         max_msg_age_s=s.max_msg_age_s,
+        braking=braking, ego_length_m=ego_len, pred_length_m=pred_len,
     )
 
 
@@ -188,6 +230,8 @@ class DeployRunner:
         v2v: the V2V endpoint (``V2VEndpoint``).
         leader: the leader's driver (a scenario), required for a non-passive leader.
         lengths: vehicle lengths (m), leader first, for the member's desired gaps.
+        decels: vehicle braking limits (m/s²), leader first: how far a silent predecessor
+            can have got (None: it is taken to have stopped where last heard).
         log_dir: directory for ``vehicle_N.csv`` and ``vehicle_N.json``; None = no log.
         clock: monotonic clock (s) for the schedule and failsafes.
         sleep: sleeps that many seconds.
@@ -196,18 +240,23 @@ class DeployRunner:
         leader_origin: the geodetic origin of the leader driver's frame when it differs
             from the convoy's (track files carry their own); None = the convoy's.
         metadata: extra entries for the run metadata JSON.
+        bounds: the action space the policy's action is clipped to (default: speed up to
+            this vehicle's preset top speed, as in ``sim``).
+        spacing: σ for a policy without a member config (default: the convoy
+            scenario's, as in ``sim``).
     """
 
     def __init__(
         self,
         options: RunnerOptions,
         convoy: ConvoyConfig,
-        policy: Policy,
+        policy: ConvoyPolicy,
         link: VehicleLink,
         v2v: V2VEndpoint,
         *,
         leader: LeaderDriver | None = None,
         lengths: list[float] | None = None,
+        decels: list[float] | None = None,
         log_dir: str | Path | None = None,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
@@ -216,16 +265,17 @@ class DeployRunner:
         leader_origin: Origin | None = None,
         envelope: Envelope | None = None,
         metadata: dict[str, Any] | None = None,
+        bounds: member_tick.ActionBounds | None = None,
+        spacing: SpacingConfig | None = None,
     ) -> None:
         n = convoy.n_vehicles
         if not 0 <= options.vehicle_id < n:
-            raise ValueError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
+            raise ConfigError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
         self.is_leader = options.vehicle_id == 0
         if self.is_leader and not options.passive and leader is None:
-            raise ValueError("the leader needs a scenario or track to follow, or --passive")
+            raise ConfigError("the leader needs a scenario or track to follow, or --passive")
         self.options = options
         self.convoy = convoy
-        self.policy = policy
         self.link = link
         self.v2v = v2v
         self.leader = leader
@@ -235,10 +285,18 @@ class DeployRunner:
         self.on_status = on_status or (lambda line: log.warning("%s", line))
         self.origin = Origin(*convoy.origin)
         self.leader_origin = leader_origin
-        member_config: MemberConfig = getattr(policy, "member_config", None) or MemberConfig()
-        self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths)
+        self.policy = as_convoy_policy(policy)
+        if policy.member_config is None and spacing is None:
+            spacing = scenario_spacing(convoy)
+        member_config = member_config_for(policy.member_config, spacing or SpacingConfig())
+        self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths, decels)
+        self.bounds = bounds or member_tick.ActionBounds.float32(top_speed(convoy, options.vehicle_id))
+        self.frame: Frame = Frame(math.nan, member_config.layout.zeros())
+        """The member's latest frame (its observation and derived values)."""
+        self.decision: member_tick.Decision | None = None
+        """The member's latest decision (None for a leader, or while waiting to start)."""
         self.failsafes = Failsafes(
-            envelope=envelope or envelope_from(convoy),
+            envelope=envelope or envelope_from(convoy, options.vehicle_id),
             watchdog=LinkWatchdog(
                 getattr(link, "telemetry_timeout_s", 0.5), getattr(link, "heartbeat_timeout_s", 3.0)
             ),
@@ -255,6 +313,7 @@ class DeployRunner:
         self._heard_raw: set[int] = set()
         self._writer: LogWriter | None = None
         self._timer: LoopTimer | None = None
+        self._late_periods = 0.0
         self._t_hold_sent = -math.inf
         self._t_status = -math.inf
         self._t_reconnect = -math.inf
@@ -284,9 +343,10 @@ class DeployRunner:
             try:
                 self.link.connect(min(1.0, max(0.05, deadline - self.clock())))
                 break
-            except LinkTimeout:
-                if self.clock() >= deadline:
-                    raise
+            except LinkTimeout as exc:
+                if self.clock() >= deadline:  # the attempt's own timeout is not the user's
+                    why = str(exc).split(" within ")[0]
+                    raise LinkTimeout(f"{why} within --connect-timeout {o.connect_timeout_s:g} s") from None
         while self._tel is None:
             self._check_stop()
             self._tel = self.link.poll()
@@ -326,7 +386,7 @@ class DeployRunner:
                 if wait > 0:
                     self.sleep(wait)
                 t_tick = self.clock()
-                timer.begin(t_tick)
+                self._late_periods = timer.begin(t_tick) / period
                 done = self.tick(t_tick)
                 if done:
                     reason = done
@@ -369,6 +429,7 @@ class DeployRunner:
         """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
         o = self.options
         member = self.member
+        period_s = 1.0 / o.rate_hz
         # 1. telemetry
         tel = self.link.poll()
         if tel is not None:
@@ -379,31 +440,32 @@ class DeployRunner:
         self._maybe_reconnect(now)
         wall = self.wall()
         own = replace(tel.state, vehicle_id=o.vehicle_id)
-        member.observe_own(own)
         # 2. τ
-        if member.wants_to_send(wall):
-            self.v2v.send(own, wall)
-        # 3. ρ
-        for msg in self.v2v.poll(wall):
+        sent = member_tick.begin(member, own, wall)
+        if sent is not None:
+            self.v2v.send(sent, wall)
+        # 3. ρ, bounded in time so that a flood cannot stall the loop
+        inbox = []
+        for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET * period_s):
             if getattr(msg, "abort", False):
                 self._abort = True
                 continue
             if msg.state is None:
                 continue
             self._heard_raw.add(msg.state.vehicle_id)
-            member.receive(msg.state, wall)
+            inbox.append(msg.state)
+        self.frame = frame = member_tick.sense(member, inbox, wall)
         # Waiting to start?
         waiting = self._waiting_for()
         if not waiting and self._t_start is None:
             self._t_start, self._t_start_wall = now, wall
             self.on_status(f"vehicle {o.vehicle_id}: convoy complete, starting")
         # 4. what the controller wants
-        obs = member.observation(wall)
-        speed, change, mode, policy_error = self._intent(tel, own, obs, bool(waiting), now, wall)
-        gap = self._gap(own, wall)
+        speed, change, mode, policy_error = self._intent(tel, own, frame, bool(waiting), now, wall)
+        gap, closing = self._gap(wall)
         needed_age = 0.0
         if not self.is_leader and not waiting:
-            needed_age = max((member.buffer.age(v, wall) for v in member.rx.needed()), default=0.0)
+            needed_age = member.needed_age(wall)
         # 5. failsafes and envelope
         heading_cmd = wrap_angle(own.heading + change)
         verdict = self.failsafes.decide(
@@ -413,8 +475,9 @@ class DeployRunner:
                 pilot_took_over=self.commanding and self.link.pilot_took_over,
                 stop_requested=self._stop_requested, abort=self._abort,
                 x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
-                gap_m=gap, needed_age_s=needed_age, policy_error=policy_error,
-                held=tel.mode in HOLD_MODES,
+                gap_m=gap, closing_mps=closing, needed_age_s=needed_age, policy_error=policy_error,
+                stale_stop=not waiting and not self.is_leader and member.mode == "stop",
+                held=tel.mode in HOLD_MODES, late_periods=self._late_periods,
             )
         )
         if verdict.command == DRIVE:
@@ -463,7 +526,7 @@ class DeployRunner:
 
     # ------------------------------------------------------------------ helpers
 
-    def _intent(self, tel: Telemetry, own: VehicleState, obs: np.ndarray, waiting: bool,
+    def _intent(self, tel: Telemetry, own: VehicleState, frame: Frame, waiting: bool,
                 now: float, wall: float) -> tuple[float, float, str, str]:
         """What the controller wants before the failsafes: (speed m/s, heading change rad,
         mode, policy error message or "")."""
@@ -476,15 +539,15 @@ class DeployRunner:
                 return 0.0, 0.0, "stop", ""
             return self._leader_command(tel, own, now)
         try:
-            action, mode = self.member.supervise(self.policy.act(obs), wall)
-            speed, change = float(action[0]), float(action[1])
-            if not (math.isfinite(speed) and math.isfinite(change)):
-                raise ValueError(f"non-finite action {speed}, {change}")
-            return speed, change, mode, ""
+            action = self.policy.act(frame.observation)
         except Exception as exc:  # the policy is foreign code: stop, log, keep looping
             if not self.failsafes.policy_errors:
                 log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
-            return 0.0, 0.0, "stop", f"{type(exc).__name__}: {exc}"
+            self.decision = member_tick.stop(f"{type(exc).__name__}: {exc}")
+        else:
+            self.decision = member_tick.decide(self.member, frame, action, self.bounds)
+        d = self.decision
+        return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error
 
     def _duration(self) -> float | None:
         if self.options.duration_s is not None:
@@ -518,17 +581,12 @@ class DeployRunner:
         speed, heading = self.leader.leader_command(now - self._t_start, float(x), float(y), own.heading, own.speed)
         return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
 
-    def _gap(self, own: VehicleState, wall: float) -> float:
-        """Measured gap to the immediate predecessor (m): its newest broadcast position
-        dead-reckoned to now, centre to centre; NaN for the leader or when unheard."""
-        if self.is_leader:
-            return math.nan
-        pred = self.member.buffer.latest(self.options.vehicle_id - 1)
-        if pred is None:
-            return math.nan
-        if wall > pred.t:
-            pred = pred.extrapolate(wall)
-        return own.distance_to(pred)
+    def _gap(self, wall: float) -> tuple[float, float]:
+        """Measured gap to the immediate predecessor (m, centre to centre) and its closing
+        speed (m/s): the member's estimate from its messages (bounded dead-reckoning, as in
+        simulation); NaN and 0 for the leader or when unknown."""
+        est = None if self.is_leader else self.member.gap_estimate(wall)
+        return (math.nan, 0.0) if est is None else est
 
     def _maybe_reconnect(self, now: float) -> None:
         """A lost connection (TCP EOF, serial error) is reopened every 2 s, briefly."""
@@ -552,10 +610,10 @@ class DeployRunner:
             "heading_rad": own.heading, "accel_mps2": own.accel,
             "cmd_speed_mps": speed if sent else math.nan,
             "cmd_heading_change_rad": change if sent else math.nan,
-            "mode": mode, "gap_m": gap, "desired_gap_m": m.desired_gap_m,
-            "spacing_error_m": m.spacing_error_m, "msgs_sent": m.msgs_sent,
+            "mode": mode, "gap_m": gap, "desired_gap_m": self.frame.desired_gap_m,
+            "spacing_error_m": self.frame.spacing_error_m, "msgs_sent": m.msgs_sent,
             "msgs_received": self._delivered(), "msgs_lost": self.v2v.counters.lost,
-            "pred_msg_age_s": m.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
+            "pred_msg_age_s": self.frame.pred_msg_age_s, "length_m": m.lengths[self.options.vehicle_id],
             "msgs_kept": m.msgs_received,
             "loop_overruns": self._timer.overruns if self._timer else 0,
             "telemetry_age_s": max(wall - own.t, 0.0),
@@ -574,8 +632,8 @@ class DeployRunner:
         m = self.member
         parts = [f"vehicle {self.options.vehicle_id}", mode, f"v {own.speed:4.2f} m/s"]
         if not self.is_leader:
-            parts.append(f"gap {gap:5.2f} m (want {m.desired_gap_m:4.1f})")
-            parts.append(f"age {m.pred_msg_age_s:4.2f} s")
+            parts.append(f"gap {gap:5.2f} m (want {self.frame.desired_gap_m:4.1f})")
+            parts.append(f"age {self.frame.pred_msg_age_s:4.2f} s")
         parts.append(f"tx {m.msgs_sent} rx {m.msgs_received}")
         self.on_status(" | ".join(parts))
 
@@ -609,7 +667,7 @@ class DeployRunner:
             "n_vehicles": self.convoy.n_vehicles,
             "convoy": self.convoy.name,
             "scenario": self.convoy.scenario,
-            "policy": getattr(self.policy, "name", type(self.policy).__name__),
+            "policy": self.policy.name,
             "rate_hz": o.rate_hz,
             "dry_run": o.dry_run,
             "passive": o.passive,
@@ -622,6 +680,9 @@ class DeployRunner:
             "exit_reason": reason,
             "ticks": self._timer.ticks if self._timer else 0,
             "overruns": self._timer.overruns if self._timer else 0,
+            "late_ticks": self._timer.late_ticks if self._timer else 0,
+            "max_tick_late_s": self._timer.max_late_s if self._timer else 0.0,
+            "v2v_counters": _safe(lambda: asdict(self.v2v.counters)),
             "policy_errors": self.failsafes.policy_errors,
             "failsafe_events": [{"t_s": wall0 + t, "reason": r} for t, r in self.failsafes.events],
             "msgs_sent": self.member.msgs_sent,

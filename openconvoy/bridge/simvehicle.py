@@ -45,6 +45,7 @@ from openconvoy.bridge.sim_ardupilot import ArduPilotRover, ArduPilotTiming
 from openconvoy.bridge.sim_px4 import Px4Rover, Px4Timing
 from openconvoy.bridge.simmotion import MotionState, PresetMotion
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState, wrap_angle
 from openconvoy.envs.vehicles import VehiclePreset
 
@@ -146,17 +147,17 @@ class SimVehicleConfig:
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+            raise ConfigError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
         if self.timing not in ("short", "firmware"):
-            raise ValueError(f"timing must be 'short' or 'firmware', got {self.timing!r}")
+            raise ConfigError(f"timing must be 'short' or 'firmware', got {self.timing!r}")
         if not 1 <= self.system_id <= 254:
-            raise ValueError(f"MAVLink system id must be in 1..254, got {self.system_id}")
+            raise ConfigError(f"MAVLink system id must be in 1..254, got {self.system_id}")
         if self.ready_after_s < 0 or self.setpoint_timeout_s <= 0 or self.plant_hz <= 0:
-            raise ValueError("ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required")
+            raise ConfigError("ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required")
         if self.speedup <= 0:
-            raise ValueError(f"speedup must be positive, got {self.speedup}")
+            raise ConfigError(f"speedup must be positive, got {self.speedup}")
         if self.offboard_loss_action not in (0, 5):
-            raise ValueError(f"offboard_loss_action must be 0 (POSCTL) or 5 (Hold), got {self.offboard_loss_action}")
+            raise ConfigError(f"offboard_loss_action must be 0 (POSCTL) or 5 (Hold), got {self.offboard_loss_action}")
 
     @property
     def armable_after_s(self) -> float:
@@ -297,7 +298,7 @@ class SimVehicle:
         """A person changes the mode (RC switch or GCS), e.g. ``"MANUAL"``."""
         known = mp.ROVER_MODE_NUMBERS if self.config.autopilot == "ardupilot" else mp.PX4_MODE_NUMBERS
         if mode not in known:
-            raise ValueError(f"unknown {self.config.autopilot} mode {mode!r}; one of {', '.join(known)}")
+            raise ConfigError(f"unknown {self.config.autopilot} mode {mode!r}; one of {', '.join(known)}")
         self._pending_mode = mode
 
     # ----------------------------------------------------------------- accessors
@@ -564,8 +565,8 @@ def _floats(text: str, n: int, what: str, example: str) -> list[float]:
         values = [float(p) for p in parts]
     except ValueError:
         values = []
-    if len(values) != n:
-        raise ValueError(f"{what} must be {n} comma-separated numbers like {example}, got {text!r}")
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"{what} must be {n} comma-separated finite numbers like {example}, got {text!r}")
     return values
 
 
@@ -584,6 +585,23 @@ def parse_start(text: str) -> tuple[float, float, float]:
     return x, y, math.radians(heading_deg)
 
 
+def _check_port_free(url: str) -> None:
+    """A ``udpin:`` port another process holds is refused (pymavlink binds with
+    SO_REUSEADDR, so two vehicles would otherwise share it silently)."""
+    if not url.startswith("udpin:"):
+        return
+    import socket
+
+    host, _, port = url.split(":", 1)[1].rpartition(":")
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind((host, int(port)))
+    except OSError as exc:
+        raise ConfigError(f"--mavlink {url}: cannot listen there ({exc.strerror or exc}; another vehicle on this port?)") from None
+    finally:
+        probe.close()
+
+
 def run_vehicle_cli(args: Any) -> int:
     """``openconvoy vehicle --sim``: run one simulated vehicle until SIGINT/SIGTERM.
 
@@ -595,8 +613,9 @@ def run_vehicle_cli(args: Any) -> int:
     from openconvoy.envs.vehicles import vehicle_preset
 
     if not args.sim:
-        raise ValueError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
+        raise ConfigError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
     check_url(args.mavlink)
+    _check_port_free(args.mavlink)
     x, y, heading = parse_start(args.start)
     config = SimVehicleConfig(
         system_id=args.id, autopilot=args.autopilot,
@@ -610,7 +629,7 @@ def run_vehicle_cli(args: Any) -> int:
     try:
         vehicle.start()
     except OSError as exc:
-        raise ValueError(f"cannot open {args.mavlink}: {exc}") from exc
+        raise ConfigError(f"cannot open {args.mavlink}: {exc}") from exc
 
     signal.signal(signal.SIGTERM, lambda s, f: vehicle.request_stop())
     signal.signal(signal.SIGINT, lambda s, f: vehicle.request_stop())

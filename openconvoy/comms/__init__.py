@@ -10,6 +10,10 @@
 - ``loss``: packet loss and latency models, shared with the simulator's channel.
 - ``netns``: private network namespaces for tests and demos.
 - ``tools``: ``openconvoy bsm listen | send | decode``.
+- ``certs``: IEEE 1609.2 certificates and ECDSA P-256 signatures (``ieee1609dot2.asn``, OER).
+- ``spdu``: signed SPDUs (``Ieee1609Dot2Data`` / ``signedData``) around BSMs and aborts.
+- ``auth``: ``Authenticator``: signing, verification, certificate learning, replay checks.
+- ``keystore``: the convoy's key files (``openconvoy keys init | issue``).
 
 Heavy imports (asn1tools) happen on first use, not on import of this package.
 """

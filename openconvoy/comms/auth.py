@@ -33,6 +33,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from openconvoy.comms import certs as c
 from openconvoy.comms.spdu import SignedSpdu, encode_signed
+from openconvoy.core.errors import ConfigError
 
 DEFAULT_WINDOW_S = 1.0
 CERT_PERIOD_S = 1.0
@@ -96,7 +97,7 @@ class ReplayGuard:
 
     def __init__(self, window_s: float = DEFAULT_WINDOW_S) -> None:
         if not window_s > 0:
-            raise ValueError(f"replay window must be > 0 s, got {window_s}")
+            raise ConfigError(f"replay window must be > 0 s, got {window_s}")
         self.window_s = window_s
         self._seen: set[tuple[bytes, int]] = set()
         self._expiry: deque[tuple[float, tuple[bytes, int]]] = deque()
@@ -245,9 +246,12 @@ class Authenticator:
         return cert
 
     def _learn(self, spdu: SignedSpdu, now: float) -> c.Certificate | str:
-        assert spdu.certificate is not None and spdu.certificate_value is not None
+        assert spdu.certificate is not None
         try:
-            cert = c.certificate_of_value(spdu.certificate_value, spdu.certificate)
+            if spdu.certificate_value is None:
+                cert = c.parse_certificate(spdu.certificate)
+            else:
+                cert = c.certificate_of_value(spdu.certificate_value, spdu.certificate)
             c.check_issued_by(cert, self.credentials.authority, now)
         except c.CertificateError as exc:
             if len(self._bad) >= _MAX_BAD_CERTS:

@@ -32,6 +32,8 @@ from cryptography.hazmat.primitives.asymmetric.utils import (
     encode_dss_signature,
 )
 
+from openconvoy.core.errors import ConfigError, InputFileError
+
 ASN_PATH = Path(__file__).with_name("ieee1609dot2.asn")
 
 #: PSID of the BSM (IEEE 1609.12).
@@ -48,9 +50,10 @@ LEAP_SECONDS_SINCE_2004 = 5
 _CURVE = ec.SECP256R1()
 _ECDSA = ec.ECDSA(hashes.SHA256())
 _EMPTY_HASH = hashlib.sha256(b"").digest()
+_ORDER = 0xFFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551  # of P-256
 
 
-class CertificateError(ValueError):
+class CertificateError(InputFileError):
     """A certificate is malformed, not issued by the expected authority, or not valid."""
 
 
@@ -108,7 +111,9 @@ def verify(
     key: ec.EllipticCurvePublicKey, r: bytes, s: bytes, tbs: bytes, signer_cert: bytes | None
 ) -> bool:
     """Whether (r, s) is ``key``'s signature of ``tbs`` (see ``sign``)."""
-    der = encode_dss_signature(int.from_bytes(r, "big"), int.from_bytes(s, "big"))
+    # r is sent as the x coordinate of the signature's point R (x-only or compressed);
+    # ECDSA's r is that x reduced mod the group order.
+    der = encode_dss_signature(int.from_bytes(r, "big") % _ORDER, int.from_bytes(s, "big"))
     try:
         key.verify(der, signing_input(tbs, signer_cert), _ECDSA)
     except InvalidSignature:
@@ -216,7 +221,7 @@ def make_certificate(
     which then needs ``self_key`` (the private key of ``public_key``).
     """
     if not 0 < duration_hours <= 65535:
-        raise ValueError(f"certificate duration must be 1..65535 hours, got {duration_hours}")
+        raise ConfigError(f"certificate duration must be 1..65535 hours, got {duration_hours}")
     tbs_value: dict[str, Any] = {
         "id": ("name", name),
         "cracaId": b"\x00\x00\x00",

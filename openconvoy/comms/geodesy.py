@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import pymap3d
 
+from openconvoy.core.errors import ConfigError
+
 #: A float or a numpy array of floats; functions return the same kind they were given.
 Num = float | np.ndarray
 
@@ -38,9 +40,9 @@ class Origin:
 
     def __post_init__(self) -> None:
         if not -90.0 <= self.lat_deg <= 90.0:
-            raise ValueError(f"origin latitude must be in [-90, 90] degrees, got {self.lat_deg}")
+            raise ConfigError(f"origin latitude must be in [-90, 90] degrees, got {self.lat_deg}")
         if not -180.0 <= self.lon_deg <= 180.0:
-            raise ValueError(f"origin longitude must be in [-180, 180] degrees, got {self.lon_deg}")
+            raise ConfigError(f"origin longitude must be in [-180, 180] degrees, got {self.lon_deg}")
 
 
 def _out(v: Num) -> Num:

@@ -20,6 +20,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 
 from openconvoy.comms import certs as c
 from openconvoy.comms.auth import Credentials, authority_name, vehicle_name
+from openconvoy.core.errors import InputFileError
 
 AUTHORITY = "authority"
 AUTHORITY_HOURS = 5 * 8766  # five years
@@ -28,7 +29,7 @@ VEHICLE_HOURS = 8766  # one year
 START_SLACK_S = 3600.0
 
 
-class KeyFileError(ValueError):
+class KeyFileError(InputFileError):
     """A key or certificate file is missing, unreadable, or does not match (one line)."""
 
 
@@ -174,3 +175,10 @@ def load_vehicle(keys_dir: str | Path, vehicle_index: int, now: float) -> Creden
             f"(run `openconvoy keys issue --vehicle-id {vehicle_index}`)"
         )
     return load_signer(kp, authority, now)
+
+
+def signer_of_key(key_path: str | Path, keys_dir: str | Path | None, now: float) -> Credentials:
+    """Credentials of any convoy key file (a vehicle's or the authority's), trusting the
+    authority of ``keys_dir`` (default: the directory the key is in)."""
+    authority, _ = load_authority(keys_dir if keys_dir is not None else Path(key_path).parent)
+    return load_signer(key_path, authority, now)

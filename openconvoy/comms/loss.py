@@ -14,6 +14,8 @@ from typing import Protocol
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
+
 
 class LossModel(Protocol):
     """Decides, packet by packet, whether a message is lost."""
@@ -40,7 +42,7 @@ class Bernoulli:
 
     def __init__(self, per: float) -> None:
         if not 0.0 <= per <= 1.0:
-            raise ValueError(f"packet error rate must be in [0, 1], got {per}")
+            raise ConfigError(f"packet error rate must be in [0, 1], got {per}")
         self.per = per
         self._rng = np.random.default_rng(0)
 
@@ -68,7 +70,7 @@ class GilbertElliott:
         loss_bad: float = 1.0,
     ) -> None:
         if mean_good_s <= 0 or mean_bad_s <= 0:
-            raise ValueError("Gilbert-Elliott sojourn times must be positive")
+            raise ConfigError("Gilbert-Elliott sojourn times must be positive")
         self.mean_good_s = mean_good_s
         self.mean_bad_s = mean_bad_s
         self.loss_good = loss_good
@@ -81,7 +83,7 @@ class GilbertElliott:
         if not 0.0 < per < 1.0:
             if per == 0.0:
                 return cls(mean_good_s=1e12, mean_bad_s=mean_burst_s)
-            raise ValueError(f"packet error rate must be in [0, 1), got {per}")
+            raise ConfigError(f"packet error rate must be in [0, 1), got {per}")
         return cls(mean_good_s=mean_burst_s * (1.0 - per) / per, mean_bad_s=mean_burst_s)
 
     @property
@@ -144,11 +146,11 @@ class LossConfig:
 
     def __post_init__(self) -> None:
         if self.model not in ("bernoulli", "gilbert-elliott"):
-            raise ValueError(
+            raise ConfigError(
                 f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
             )
         if not 0.0 <= self.per <= 1.0:
-            raise ValueError(f"per must be in [0, 1], got {self.per}")
+            raise ConfigError(f"per must be in [0, 1], got {self.per}")
 
     def make(self) -> LossModel:
         """A fresh loss model for one link."""

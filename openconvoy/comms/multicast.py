@@ -16,8 +16,9 @@ import ipaddress
 import socket
 import struct
 from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Protocol, TypeVar
+from typing import NamedTuple, Protocol, TypeVar
+
+from openconvoy.core.errors import ConfigError, LinkError
 
 #: Default IPv6 group: ff15:: is a transient (flag 1), site-local (scope 5) group, so
 #: routers keep it inside the site even if the hop limit were raised.
@@ -27,14 +28,15 @@ DEFAULT_HOP_LIMIT = 1
 
 #: Enough socket buffer for a roadside unit hearing ~1000 vehicles at 10 Hz between polls.
 RCVBUF_BYTES = 4 * 1024 * 1024
-#: Upper bound on datagrams returned by one ``recv_all`` (a flood cannot stall a tick).
+#: Upper bound on datagrams returned by one ``recv_all``. A control loop bounds its
+#: receiving by time instead (``V2V.poll``'s budget), reading small batches.
 MAX_BATCH = 10_000
 MAX_DATAGRAM = 65_535
 
 
-@dataclass(frozen=True, slots=True)
-class Datagram:
-    """One received datagram: payload and sender address (text)."""
+class Datagram(NamedTuple):
+    """One received datagram: payload and sender address (text). (A named tuple: built for
+    every datagram, and cheaper to build than a frozen dataclass.)"""
 
     data: bytes
     source: str
@@ -46,8 +48,9 @@ class Transport(Protocol):
     def send(self, data: bytes) -> None:
         """Send one datagram to the group (errors raise ``OSError``)."""
 
-    def recv_all(self) -> list[Datagram]:
-        """Every datagram waiting, oldest first; empty when none. Never blocks."""
+    def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
+        """Datagrams waiting (at most ``max_batch``), oldest first; empty when none.
+        Never blocks."""
 
     def close(self) -> None:
         """Release the socket."""
@@ -63,7 +66,7 @@ def interface_index(iface: str) -> int:
     try:
         return socket.if_nametoindex(iface)
     except OSError:
-        raise ValueError(f"no network interface named {iface!r}") from None
+        raise ConfigError(f"no network interface named {iface!r}") from None
 
 
 def _drain(sock: socket.socket, max_batch: int) -> list[Datagram]:
@@ -131,11 +134,11 @@ class Ipv6Multicast(_MulticastSocket):
     ) -> None:
         addr = ipaddress.ip_address(group)
         if addr.version != 6 or not addr.is_multicast:
-            raise ValueError(f"{group!r} is not an IPv6 multicast group")
+            raise ConfigError(f"{group!r} is not an IPv6 multicast group")
         if not 0 <= port <= 65535:
-            raise ValueError(f"port must be in 0..65535, got {port}")
+            raise ConfigError(f"port must be in 0..65535, got {port}")
         if not 0 <= hop_limit <= 255:
-            raise ValueError(f"hop limit must be in 0..255, got {hop_limit}")
+            raise ConfigError(f"hop limit must be in 0..255, got {hop_limit}")
         self.iface, self.group, self.port, self.hop_limit = iface, str(addr), port, hop_limit
         self.ifindex = interface_index(iface)
         sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
@@ -156,9 +159,10 @@ class Ipv6Multicast(_MulticastSocket):
             sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, hop_limit)
             sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_LOOP, int(loop))
             sock.setblocking(False)
-        except OSError:
+        except OSError as exc:
             sock.close()
-            raise
+            raise LinkError(f"cannot use IPv6 multicast group {self.group} port {port} on {iface}: "
+                            f"{exc.strerror or exc} (does {iface} support IPv6 multicast?)") from None
         self._sock = sock
         self._dest = (self.group, port, 0, self.ifindex)
 
@@ -181,9 +185,9 @@ class Ipv4Multicast(_MulticastSocket):
     ) -> None:
         addr = ipaddress.ip_address(group)
         if addr.version != 4 or not addr.is_multicast:
-            raise ValueError(f"{group!r} is not an IPv4 multicast group")
+            raise ConfigError(f"{group!r} is not an IPv4 multicast group")
         if not 0 <= ttl <= 255:
-            raise ValueError(f"TTL must be in 0..255, got {ttl}")
+            raise ConfigError(f"TTL must be in 0..255, got {ttl}")
         self.iface, self.group, self.port, self.ttl = iface, str(addr), port, ttl
         self.ifindex = interface_index(iface)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
@@ -199,9 +203,10 @@ class Ipv4Multicast(_MulticastSocket):
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, ttl)
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, int(loop))
             sock.setblocking(False)
-        except OSError:
+        except OSError as exc:
             sock.close()
-            raise
+            raise LinkError(f"cannot use IPv4 multicast group {self.group} port {port} on {iface}: "
+                            f"{exc.strerror or exc}") from None
         self._sock = sock
         self._dest = (self.group, port)
 

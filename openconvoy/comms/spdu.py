@@ -15,11 +15,16 @@ deployed V2X stacks send it. Every SPDU starts ``03 81`` (version 3, choice sign
 ``encode_signed`` builds one; ``decode_signed`` parses one and locates the to-be-signed
 octets inside the datagram (what the signature covers), without checking the signature:
 ``auth`` does that with the signer's certificate.
+
+Most SPDUs on a convoy's link have one layout (a header of PSID and generation time only,
+a digest or one certificate as signer, an x-only r): ``decode_signed`` reads those octet
+by octet, and everything else through asn1tools. Reading them with asn1tools cost as much as the ECDSA verification;
+tests/comms/test_ieee1609dot2.py holds both readings equal.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric import ec
@@ -46,7 +51,7 @@ class SignedSpdu:
         payload: the unsecured data inside (for a BSM: the J2735 MessageFrame).
         digest: the signer's certificate HashedId8 (computed when the certificate is sent).
         certificate: the signer's certificate COER when sent in full, else None.
-        certificate_value: its decoded value (to build a ``Certificate`` without a decode).
+        certificate_value: its decoded value when asn1tools read the SPDU (else None).
         tbs: the to-be-signed octets (COER of tbsData) as they are in the datagram.
         r, s: the signature.
         p2pcd_request: HashedId3s of certificates the sender asks for (inlineP2pcdRequest).
@@ -57,7 +62,7 @@ class SignedSpdu:
     payload: bytes
     digest: bytes
     certificate: bytes | None
-    certificate_value: dict[str, Any] | None
+    certificate_value: dict[str, Any] | None = field(compare=False)
     tbs: bytes
     r: bytes
     s: bytes
@@ -98,10 +103,77 @@ def encode_signed(
     return SIGNED_PREFIX + b"\x00" + tbs + signer + b"\x80\x80" + r + s
 
 
+def _oer_length(data: bytes, i: int) -> tuple[int, int]:
+    """(length, index after it) of the OER length determinant at ``data[i]``."""
+    b = data[i]
+    if b < 0x80:
+        return b, i + 1
+    n = b & 0x7F
+    if not 0 < n <= 3:
+        raise IndexError("unsupported length determinant")
+    return int.from_bytes(data[i + 1 : i + 1 + n], "big"), i + 1 + n
+
+
+# Octets of the common layout: version 3, signedData, sha256, payload preamble (data
+# present), inner Ieee1609Dot2Data version 3 with unsecuredData.
+_FAST_HEAD = b"\x03\x81\x00\x40\x03\x80"
+_HEADER_PSID_TIME = 0x40  # HeaderInfo preamble: no extensions, generationTime only
+_DIGEST_AND_SIG = b"\x80"  # signer digest; the signature then starts 80 80 (x-only r)
+
+
+def _decode_common(data: bytes) -> SignedSpdu | None:
+    """The common layout read directly, or None (then asn1tools reads it)."""
+    if data[:6] != _FAST_HEAD:
+        return None
+    try:
+        n, p = _oer_length(data, 6)
+        q = p + n
+        if data[q] != _HEADER_PSID_TIME:
+            return None
+        psid_len = data[q + 1]
+        g = q + 2 + psid_len
+        end = g + 8  # end of tbsData
+        sig = len(data) - 66  # the signature: 80 80 (x-only r), r, s
+        if data[sig : sig + 2] != b"\x80\x80" or not 0 < psid_len <= 4:
+            return None
+        if data[end] == 0x80 and sig == end + 9:  # signer: digest
+            cert, digest = None, data[end + 1 : sig]
+        elif data[end : end + 3] == b"\x81\x01\x01" and sig > end + 3:  # one certificate
+            # whatever it holds, the certificate is what lies between; a verifier that
+            # does not know its digest yet parses it (auth)
+            cert = data[end + 3 : sig]
+            digest = c.hashed_id8(cert)
+        else:
+            return None
+    except IndexError:
+        return None
+    return SignedSpdu(
+        psid=int.from_bytes(data[q + 2 : g], "big"),
+        generation_time=int.from_bytes(data[g:end], "big"),
+        payload=data[p:q],
+        digest=digest,
+        certificate=cert,
+        certificate_value=None,
+        tbs=data[_TBS_OFFSET:end],
+        r=data[sig + 2 : sig + 34],
+        s=data[sig + 34 :],
+    )
+
+
 def decode_signed(data: bytes) -> SignedSpdu:
     """Parse a signed SPDU; ``SpduDecodeError`` unless it is one carrying unsecured data
     with a PSID and a generation time, signed with ECDSA P-256 by a digest or one
     explicit certificate."""
+    if data[:2] != SIGNED_PREFIX:
+        raise SpduDecodeError("not a signed IEEE 1609.2 SPDU (does not start 03 81)")
+    common = _decode_common(data)
+    if common is not None:
+        return common
+    return decode_signed_asn1(data)
+
+
+def decode_signed_asn1(data: bytes) -> SignedSpdu:
+    """``decode_signed`` entirely through asn1tools (any layout)."""
     if data[:2] != SIGNED_PREFIX:
         raise SpduDecodeError("not a signed IEEE 1609.2 SPDU (does not start 03 81)")
     try:

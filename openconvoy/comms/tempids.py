@@ -13,6 +13,8 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterator, Mapping
 
+from openconvoy.core.errors import ConfigError
+
 
 def derive_temp_id(convoy: str, index: int) -> bytes:
     """The default temporary ID of vehicle ``index`` in convoy ``convoy``: 4 bytes."""
@@ -26,9 +28,9 @@ def parse_temp_id(value: bytes | str) -> bytes:
         try:
             value = bytes.fromhex(text)
         except ValueError:
-            raise ValueError(f"temporary ID {text!r} is not hexadecimal") from None
+            raise ConfigError(f"temporary ID {text!r} is not hexadecimal") from None
     if len(value) != 4:
-        raise ValueError(f"temporary ID must be 4 bytes (8 hex digits), got {len(value)} bytes")
+        raise ConfigError(f"temporary ID must be 4 bytes (8 hex digits), got {len(value)} bytes")
     return bytes(value)
 
 
@@ -50,17 +52,17 @@ class TempIds:
         overrides: Mapping[int, bytes | str] | None = None,
     ) -> None:
         if size < 1:
-            raise ValueError(f"convoy size must be at least 1, got {size}")
+            raise ConfigError(f"convoy size must be at least 1, got {size}")
         self.convoy = convoy
         self._ids = [derive_temp_id(convoy, i) for i in range(size)]
         for index, value in (overrides or {}).items():
             if not 0 <= index < size:
-                raise ValueError(f"temporary ID override for vehicle {index}: not in 0..{size - 1}")
+                raise ConfigError(f"temporary ID override for vehicle {index}: not in 0..{size - 1}")
             self._ids[index] = parse_temp_id(value)
         self._index = {tid: i for i, tid in enumerate(self._ids)}
         if len(self._index) != size:
             dup = sorted({tid.hex() for tid in self._ids if self._ids.count(tid) > 1})
-            raise ValueError(f"temporary IDs collide within the convoy: {', '.join(dup)}")
+            raise ConfigError(f"temporary IDs collide within the convoy: {', '.join(dup)}")
 
     def __len__(self) -> int:
         return len(self._ids)

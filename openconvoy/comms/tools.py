@@ -1,9 +1,13 @@
 """Field tools behind ``openconvoy bsm listen | send | decode``.
 
 ``listen`` prints every BSM (and compatibility message) heard on a group, one line each,
-whoever sent it; ``send`` sends test BSMs from a made-up vehicle moving at constant speed
-and heading; ``decode`` prints one frame's core fields in physical units. The argparse
-declarations live in ``openconvoy.cli`` (``_add_bsm``); these functions do the work.
+whoever sent it; with a convoy's keys (``--convoy``) it verifies signed SPDUs and prints,
+per sender, the frames accepted and rejected by reason, and a summary at exit. ``send``
+sends test BSMs from a made-up vehicle moving at constant speed and heading, signed with
+``--key`` or not, or replays a captured datagram, at any rate (a forger's or a flood's
+tool, for resilience experiments). ``decode`` prints one frame's core fields in physical
+units. The argparse declarations live in ``openconvoy.cli`` (``_add_bsm``); these
+functions do the work.
 """
 
 from __future__ import annotations
@@ -18,11 +22,15 @@ from collections.abc import Callable
 from typing import Any, TextIO
 
 from openconvoy.comms import bsm as j
+from openconvoy.comms import certs as c
 from openconvoy.comms import compat as cj
+from openconvoy.comms import spdu as sp
+from openconvoy.comms.auth import Authenticator
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.mapping import reconstruct_send_time, state_to_core
 from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast
 from openconvoy.comms.tempids import derive_temp_id, parse_temp_id
+from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
 
 log = logging.getLogger(__name__)
@@ -36,11 +44,89 @@ def require_codec() -> None:
     try:
         j.warm_up()
     except ModuleNotFoundError as exc:
-        raise ValueError(str(exc)) from None
+        raise ConfigError(str(exc)) from None
 
 
 def _fmt(v: float | None, spec: str) -> str:
     return "n/a" if v is None else format(v, spec)
+
+
+class Tally:
+    """Per sender: frames accepted and rejected by reason (``listen``'s summary)."""
+
+    def __init__(self) -> None:
+        self.accepted: dict[str, int] = {}
+        self.rejected: dict[str, dict[str, int]] = {}
+
+    def accept(self, sender: str) -> None:
+        self.accepted[sender] = self.accepted.get(sender, 0) + 1
+
+    def reject(self, sender: str, reason: str) -> None:
+        by = self.rejected.setdefault(sender, {})
+        by[reason] = by.get(reason, 0) + 1
+
+    def lines(self) -> list[str]:
+        """One line per sender, then the total."""
+        out = []
+        for sender in sorted(set(self.accepted) | set(self.rejected)):
+            by = self.rejected.get(sender, {})
+            reasons = " ".join(f"{r}={n}" for r, n in sorted(by.items()))
+            out.append(f"{sender}: accepted {self.accepted.get(sender, 0)}, rejected "
+                       f"{sum(by.values())}" + (f" ({reasons})" if reasons else ""))
+        n_ok = sum(self.accepted.values())
+        n_bad = sum(sum(by.values()) for by in self.rejected.values())
+        out.append(f"summary: {n_ok} accepted, {n_bad} rejected from "
+                   f"{len(set(self.accepted) | set(self.rejected))} senders")
+        return out
+
+
+def _unsigned_sender(data: bytes) -> str:
+    if data[:2] == j.BSM_FRAME_PREFIX:
+        try:
+            return f"id {j.decode_frame(data).core.temp_id.hex().upper()} (unsigned)"
+        except j.BsmDecodeError:
+            return "malformed"
+    try:
+        return f"car {cj.decode(data).car} (unsigned)"
+    except cj.CompatDecodeError:
+        return "malformed"
+
+
+def verify_datagram(data: bytes, t_rx: float, auth: Authenticator, tally: Tally) -> str:
+    """``listen --convoy``'s line for one datagram: the message, prefixed by its verified
+    signer, or ``REJECTED <reason>``; counted in ``tally``."""
+    if not sp.is_signed(data):
+        sender = _unsigned_sender(data)
+        reason = "malformed" if sender == "malformed" else "unsigned"
+        tally.reject(sender, reason)
+        return f"REJECTED {reason}: {sender}"
+    try:
+        spdu = sp.decode_signed(data)
+    except sp.SpduDecodeError as exc:
+        tally.reject("malformed", "malformed")
+        return f"REJECTED malformed: {exc}"
+    cert = auth.check(spdu, t_rx)
+    known = auth.known(spdu.digest)
+    sender = known.name if known is not None else f"digest {spdu.digest.hex()}"
+    if isinstance(cert, str):
+        tally.reject(sender, cert)
+        return f"REJECTED {cert}: {sender}"
+    msg_cnt = None
+    if spdu.psid == c.PSID_ABORT:
+        line = "ABORT"
+    else:
+        described = describe_datagram(spdu.payload, t_rx)
+        if described is None:
+            tally.reject(sender, "malformed")
+            return f"REJECTED malformed: {sender}"
+        msg_cnt = j.decode_frame(spdu.payload).core.msg_cnt
+        line = described
+    reason = auth.admit(spdu, t_rx, msg_cnt)
+    if reason is not None:
+        tally.reject(sender, reason)
+        return f"REJECTED {reason}: {sender}"
+    tally.accept(sender)
+    return f"[{cert.name}] {line}"
 
 
 def describe_datagram(data: bytes, t_rx: float) -> str | None:
@@ -93,12 +179,16 @@ def listen(
     timeout_s: float | None = None,
     out: TextIO = sys.stdout,
     clock: Callable[[], float] = time.time,
+    auth: Authenticator | None = None,
 ) -> int:
     """Print messages heard on ``iface`` until ``count`` messages or ``timeout_s`` seconds.
 
-    Returns the number of messages printed.
+    With ``auth`` (a verifier holding the convoy's authority certificate) every datagram
+    is verified and its line says so, and a per-sender summary is printed at the end,
+    Ctrl-C included. Returns the number of messages printed.
     """
     require_codec()
+    tally = Tally()
     socks: list[Any] = [Ipv6Multicast(iface, group, port)]
     if compat_enabled:
         socks.append(Ipv4Multicast(iface))
@@ -114,7 +204,10 @@ def listen(
             for s in ready:
                 dgram: Datagram
                 for dgram in s.recv_all():
-                    line = describe_datagram(dgram.data, now)
+                    if auth is not None:
+                        line: str | None = verify_datagram(dgram.data, now, auth, tally)
+                    else:
+                        line = describe_datagram(dgram.data, now)
                     if line is None:
                         continue
                     print(line, file=out, flush=True)
@@ -124,6 +217,8 @@ def listen(
     finally:
         for s in socks:
             s.close()
+        if auth is not None:
+            print("\n".join(tally.lines()), file=out, flush=True)
     return printed
 
 
@@ -144,17 +239,21 @@ def send(
     compat_car: int | None = None,
     clock: Callable[[], float] = time.time,
     sleep: Callable[[float], None] = time.sleep,
+    auth: Authenticator | None = None,
+    frame: bytes | None = None,
 ) -> int:
     """Send ``count`` test BSMs at ``rate_hz`` from a vehicle starting at ``lat_deg``,
     ``lon_deg`` and moving at ``speed_mps`` along compass ``heading_deg``.
 
     With ``compat_car`` set, each state also goes out as a compatibility message from that
-    convoy position on the IPv4 group. Returns the number of BSMs sent.
+    convoy position on the IPv4 group. With ``auth`` each BSM is a signed SPDU. With
+    ``frame`` that datagram is sent as it is, ``count`` times (a replay). Returns the
+    number of BSMs sent.
     """
     if count < 0:
-        raise ValueError(f"--count must be >= 0, got {count}")
+        raise ConfigError(f"--count must be >= 0, got {count}")
     if not rate_hz > 0:
-        raise ValueError(f"--rate must be > 0 Hz, got {rate_hz}")
+        raise ConfigError(f"--rate must be > 0 Hz, got {rate_hz}")
     require_codec()
     start = Origin(lat_deg, lon_deg, elev_m)
     heading_enu = math.radians(90.0 - heading_deg)
@@ -175,8 +274,18 @@ def send(
                 speed_mps,
                 heading_enu,
             )
-            core = state_to_core(state, start, temp_id, k, alt_m=elev_m)
-            sock.send(j.encode_frame(core))
+            if frame is None:
+                core = state_to_core(state, start, temp_id, k % 128, alt_m=elev_m)
+                data = j.encode_frame(core)
+                data = data if auth is None else auth.sign(data, c.PSID_BSM, now)
+            else:
+                data = frame
+            try:
+                sock.send(data)
+            except OSError as exc:
+                raise LinkError(f"--iface {iface}: cannot send: {exc.strerror or exc}") from None
+            if frame is not None:
+                continue
             if sock4 is not None:
                 sock4.send(cj.encode_state(state, start))
     finally:
@@ -193,7 +302,7 @@ def parse_hex(text: str) -> bytes:
     try:
         return bytes.fromhex(cleaned)
     except ValueError:
-        raise ValueError(f"not hexadecimal: {text[:40]!r}") from None
+        raise ConfigError(f"not hexadecimal: {text[:40]!r}") from None
 
 
 def decode_lines(data: bytes, *, as_json: bool = False) -> list[str]:

@@ -39,6 +39,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -66,12 +67,16 @@ from openconvoy.comms.multicast import (
     Transport,
 )
 from openconvoy.comms.tempids import TempIds
+from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
 
 log = logging.getLogger(__name__)
 
 DropAt = Literal["receiver", "sender"]
 Source = Literal["j2735", "compat"]
+
+#: Datagrams read from one socket between checks of the poll's time budget.
+POLL_CHUNK = 32
 
 #: A compat message from a vehicle heard over J2735 within this many seconds is a
 #: duplicate (our own vehicles send both when compat is on); J2735 wins.
@@ -125,7 +130,9 @@ class Counters:
         received: messages delivered by ``poll`` (aborts included).
         malformed: datagrams that were not a valid message, or a member's BSM lacking
             position, speed, heading or time ("unavailable").
-        filtered: valid messages from outside the convoy (unknown temporary ID or car).
+        filtered: messages from outside the convoy (unknown temporary ID or car). A J2735
+            frame is recognised by the id read from its first bits (``bsm.peek_temp_id``)
+            and dropped without a full decode, so a flood of foreign BSMs costs little.
         lost: messages dropped by the emulated loss model (at receiver or sender).
         echoes: our own messages heard back (multicast loop).
         duplicates: compat twins of messages already heard over J2735.
@@ -135,6 +142,8 @@ class Counters:
         datagrams: datagrams handled by the receiver.
         send_errors: sends the OS refused (the link keeps going).
         recv_errors: socket receive errors (the link keeps going).
+        budget_hits: polls that ended on their time budget with datagrams possibly still
+            waiting (they are read by the next poll; the kernel drops what overflows).
     """
 
     sent: int = 0
@@ -150,6 +159,7 @@ class Counters:
     datagrams: int = 0
     send_errors: int = 0
     recv_errors: int = 0
+    budget_hits: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,7 +199,7 @@ def _child_rng(rng: np.random.Generator) -> np.random.Generator:
 
 def _check_drop_at(drop_at: str) -> None:
     if drop_at not in ("receiver", "sender"):
-        raise ValueError(f"drop_at must be 'receiver' or 'sender', got {drop_at!r}")
+        raise ConfigError(f"drop_at must be 'receiver' or 'sender', got {drop_at!r}")
 
 
 class Sender:
@@ -210,7 +220,7 @@ class Sender:
     ) -> None:
         _check_drop_at(drop_at)
         if auth is not None and compat_enabled:
-            raise ValueError("the compatibility JSON format cannot be signed: disable compat or auth")
+            raise ConfigError("the compatibility JSON format cannot be signed: disable compat or auth")
         self.auth = auth
         self.temp_id = temp_ids.id_of(vehicle_index)
         self.origin = origin
@@ -228,7 +238,7 @@ class Sender:
         sender-side loss drops it (counted in ``lost``). msgCnt advances either way, so
         receivers see the gap."""
         if state.vehicle_id != self.vehicle_index:
-            raise ValueError(
+            raise ConfigError(
                 f"state of vehicle {state.vehicle_id} sent by vehicle {self.vehicle_index}"
             )
         core = state_to_core(state, self.origin, self.temp_id, self.msg_cnt)
@@ -279,6 +289,8 @@ class Receiver:
                 model.reset(_child_rng(rng))
                 self._loss[index] = model
         self._last_j2735: dict[int, float] = {}
+        # The convoy's ids (ours included, for echoes) as ``bsm.peek_temp_id`` reads them.
+        self._known_ids = {int.from_bytes(t, "big") for _, t in temp_ids}
         self._heading: dict[int, float] = {}  # last heading per sender (ENU rad)
         self._anchor: dict[int, tuple[float, float]] = {}  # a trail point per sender
 
@@ -291,12 +303,23 @@ class Receiver:
             if self.auth is not None:
                 return self._unsigned(data, source)
             if data[:2] == j.BSM_FRAME_PREFIX:
+                if self._foreign(data):
+                    return None
                 return self._handle_j2735(data, t_rx, source)
             if data.lstrip()[:1] == b"{":
                 return self._handle_compat(data, t_rx, source)
             return self._malformed(source, "neither a J2735 MessageFrame nor JSON")
         except Exception as exc:  # defensive: no network input may escape as an exception
             return self._malformed(source, f"unexpected {type(exc).__name__}: {exc}")
+
+    def _foreign(self, frame: bytes) -> bool:
+        """A BSM frame whose id (read without decoding) is not the convoy's: counted as
+        ``filtered``; a full decode (~50 us) is not worth it."""
+        peeked = j.peek_temp_id(frame)
+        if peeked is not None and peeked not in self._known_ids:
+            self.counters.filtered += 1
+            return True
+        return False
 
     def _malformed(self, source: str, why: str) -> None:
         self.counters.malformed += 1
@@ -329,6 +352,8 @@ class Receiver:
             return self._malformed(source, str(exc))
         auth = self.auth
         abort = spdu.psid == PSID_ABORT
+        if not abort and self._foreign(spdu.payload):
+            return None  # before verifying: a flood of foreign signed BSMs stays cheap
         if auth is None:  # not verifying: the payload as if it came unsigned
             signed = None
         elif spdu.digest == auth.own_digest:
@@ -490,6 +515,7 @@ class V2V:
         rng: random source for the loss models (seeded: the same seed, the same drops).
         transport, compat_transport: injected sockets (tests); by default opened on
             ``config.iface`` (the IPv4 one only when ``config.compat``).
+        clock: monotonic clock (s) that times ``poll``'s budget.
         auth: sign what is sent and deliver only verified messages (``comms.auth``);
             None: unsigned (``[v2v] auth = "off"``).
     """
@@ -507,10 +533,12 @@ class V2V:
         transport: Transport | None = None,
         compat_transport: Transport | None = None,
         auth: Authenticator | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         _check_drop_at(drop_at)
+        self._clock = clock
         if auth is not None and config.compat:
-            raise ValueError("the compatibility JSON format cannot be signed: disable compat or auth")
+            raise ConfigError("the compatibility JSON format cannot be signed: disable compat or auth")
         self.auth = auth
         self.config = config
         self.vehicle_index = vehicle_index
@@ -551,7 +579,7 @@ class V2V:
                 self._tx4 = Ipv4Multicast(
                     config.iface, config.compat_group, config.compat_port, config.compat_ttl
                 )
-            except OSError:
+            except (OSError, LinkError):
                 self._tx.close()
                 raise
         self._warned_send = False
@@ -631,21 +659,34 @@ class V2V:
         if self._tx4 is not None:
             self._send(self._tx4, data)
 
-    def poll(self, now: float) -> list[Received]:
-        """Every message waiting, decoded and filtered, received at ``now``, seconds."""
+    def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
+        """Messages waiting, decoded and filtered, received at ``now`` (seconds).
+
+        With ``budget_s`` the poll reads for at most that long (monotonic clock) and leaves
+        the rest in the socket buffers for the next poll, so a flood of datagrams cannot
+        stall the caller's control loop; the sockets take turns in chunks of
+        ``POLL_CHUNK``. None: every datagram waiting.
+        """
         out: list[Received] = []
         transports = [self._tx] if self._tx4 is None else [self._tx, self._tx4]
-        for transport in transports:
-            try:
-                dgrams = transport.recv_all()
-            except OSError as exc:  # e.g. the interface went down: keep the vehicle going
-                self.counters.recv_errors += 1
-                log.debug("V2V receive failed: %s", exc)
-                continue
-            for dgram in dgrams:
-                r = self.receiver.handle(dgram.data, now, dgram.source)
-                if r is not None:
-                    out.append(r)
+        deadline = math.inf if budget_s is None else self._clock() + budget_s
+        while transports:
+            for transport in list(transports):
+                try:
+                    dgrams = transport.recv_all(POLL_CHUNK)
+                except OSError as exc:  # e.g. the interface went down: keep the vehicle going
+                    self.counters.recv_errors += 1
+                    log.debug("V2V receive failed: %s", exc)
+                    dgrams = []
+                if len(dgrams) < POLL_CHUNK:
+                    transports.remove(transport)  # drained
+                for dgram in dgrams:
+                    r = self.receiver.handle(dgram.data, now, dgram.source)
+                    if r is not None:
+                        out.append(r)
+            if transports and self._clock() >= deadline:
+                self.counters.budget_hits += 1
+                break
         return out
 
     def close(self) -> None:
@@ -685,9 +726,9 @@ def send_abort(
     generation time), and only on the IPv6 group. Returns the number of datagrams sent.
     """
     if repeat < 1:
-        raise ValueError(f"repeat must be at least 1, got {repeat}")
+        raise ConfigError(f"repeat must be at least 1, got {repeat}")
     if auth is not None and compat_enabled:
-        raise ValueError("a signed abort cannot go out in the compatibility JSON format")
+        raise ConfigError("a signed abort cannot go out in the compatibility JSON format")
     t0 = time.time() if now is None else now
     socks: list[Transport] = [Ipv6Multicast(iface, group, port, hop_limit)]
     try:
@@ -701,7 +742,10 @@ def send_abort(
             if auth is not None:
                 data = auth.sign(data, PSID_ABORT, t0 if now is not None else time.time())
             for s in socks:
-                s.send(data)
+                try:
+                    s.send(data)
+                except OSError as exc:  # the one command that must fail clearly
+                    raise LinkError(f"abort not sent on {iface}: {exc.strerror or exc}") from None
                 n += 1
         return n
     finally:
@@ -718,4 +762,5 @@ __all__ = [
     "V2V",
     "send_abort",
     "DUPLICATE_WINDOW_S",
+    "POLL_CHUNK",
 ]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections import deque
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 from openconvoy.core.trail import Trail
 
@@ -17,7 +18,7 @@ class StateBuffer:
 
     def __init__(self, k: int, trail_spacing_m: float = 0.2) -> None:
         if k < 1:
-            raise ValueError(f"buffer depth k must be at least 1, got {k}")
+            raise ConfigError(f"buffer depth k must be at least 1, got {k}")
         self.k = k
         self.trail_spacing_m = trail_spacing_m
         self._states: dict[int, deque[VehicleState]] = {}

@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
+
+from openconvoy.core.config import Range
+from openconvoy.core.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -17,14 +21,14 @@ class SpeedControlConfig:
     """χ_v: ``kind`` ``pd`` or ``pid``; gains on the spacing error (1/s, 1/s², -)."""
 
     kind: str = "pd"
-    kp: float = 0.3
-    ki: float = 0.0
-    kd: float = 1.1
-    integral_limit: float = 5.0
+    kp: Annotated[float, Range(0.0, 100.0)] = 0.3
+    ki: Annotated[float, Range(0.0, 100.0)] = 0.0
+    kd: Annotated[float, Range(0.0, 100.0)] = 1.1
+    integral_limit: Annotated[float, Range(0.0, 1000.0)] = 5.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("pd", "pid"):
-            raise ValueError(f"unknown speed controller {self.kind!r}; expected 'pd' or 'pid'")
+            raise ConfigError(f"unknown speed controller {self.kind!r}; expected 'pd' or 'pid'")
 
 
 class PIDSpeed:
@@ -68,14 +72,14 @@ class HeadingControlConfig:
     ``pure-pursuit`` (lookahead time, s, with a minimum distance, m)."""
 
     kind: str = "stanley"
-    gain: float = 0.2
-    softening_mps: float = 0.5
-    lookahead_s: float = 1.0
-    min_lookahead_m: float = 1.0
+    gain: Annotated[float, Range(0.0, 100.0)] = 0.2
+    softening_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
+    lookahead_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 1.0
+    min_lookahead_m: Annotated[float, Range(0.0, 1000.0)] = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("stanley", "pure-pursuit"):
-            raise ValueError(
+            raise ConfigError(
                 f"unknown heading controller {self.kind!r}; expected 'stanley' or 'pure-pursuit'"
             )
 

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
+from openconvoy.core.config import Range
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 
 TOPOLOGIES = (
@@ -43,10 +46,10 @@ class RxGate:
             if k == "N":
                 return max(self.n_vehicles - 1, 1)
             if not k.isdigit() or int(k) < 1:
-                raise ValueError(f"bad topology {name!r}: lookahead needs a positive K or N")
+                raise ConfigError(f"bad topology {name!r}: lookahead needs a positive K or N")
             return int(k)
         if name not in TOPOLOGIES:
-            raise ValueError(f"unknown topology {name!r}; expected one of {', '.join(TOPOLOGIES)}")
+            raise ConfigError(f"unknown topology {name!r}; expected one of {', '.join(TOPOLOGIES)}")
         return None
 
     def keeps(self, sender: int) -> bool:
@@ -71,13 +74,12 @@ class RxGate:
         return k is not None and i - k <= j < i
 
     def needed(self) -> list[int]:
-        """Vehicles whose messages the ego needs to cooperate (the staleness ladder watches
-        them): the nearest kept predecessor, else the leader. Empty for the leader."""
-        if self.ego == 0:
-            return []
-        if self.keeps(self.ego - 1):
-            return [self.ego - 1]
-        return [0] if self.keeps(0) else []
+        """Vehicles whose messages the ego needs to cooperate (the staleness ladder and the
+        bridge's message-age rule watch them): every predecessor the topology keeps,
+        nearest first (a follower of the leader alone needs the leader). Followers behind
+        are never needed: losing them cannot make the ego drive into anything. Empty for
+        the leader."""
+        return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
 
 
 @dataclass(frozen=True)
@@ -91,16 +93,16 @@ class TriggerConfig:
     """
 
     kind: str = "periodic"
-    period_s: float = 0.1
-    threshold_m: float = 0.5
-    speed_threshold_mps: float = 0.5
-    max_silence_s: float = 1.0
+    period_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 0.1
+    threshold_m: Annotated[float, Range(0.0, 1000.0, lo_open=True)] = 0.5
+    speed_threshold_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
+    max_silence_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("periodic", "event"):
-            raise ValueError(f"unknown trigger {self.kind!r}; expected 'periodic' or 'event'")
+            raise ConfigError(f"unknown trigger {self.kind!r}; expected 'periodic' or 'event'")
         if self.period_s <= 0:
-            raise ValueError(f"trigger period_s must be positive, got {self.period_s}")
+            raise ConfigError(f"trigger period_s must be positive, got {self.period_s}")
 
 
 class TxGate:

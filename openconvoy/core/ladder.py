@@ -8,6 +8,10 @@ following on the range to the vehicle ahead with a wider time gap; older than
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
+
+from openconvoy.core.config import Range
+from openconvoy.core.errors import ConfigError
 
 COOP, DEGRADED, STOP = "coop", "degraded", "stop"
 
@@ -15,20 +19,25 @@ COOP, DEGRADED, STOP = "coop", "degraded", "stop"
 @dataclass(frozen=True)
 class LadderConfig:
     """``enabled``; ages in seconds; ``extra_headway_s`` widens the desired gap by that
-    many seconds of ego speed in degraded mode; ``gap_gain`` (1/s) of the ACC law."""
+    many seconds of ego speed in degraded mode; ``gap_gain`` (1/s) of the ACC law;
+    ``intruder_margin_m``: the ranging sensor's target takes over (``ranging_override``)
+    when it is this much closer than the predecessor by its messages or the desired gap."""
 
     enabled: bool = False
-    degrade_after_s: float = 0.5
-    stop_after_s: float = 2.0
-    extra_headway_s: float = 1.0
-    gap_gain: float = 0.5
+    degrade_after_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 0.5
+    stop_after_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 2.0
+    extra_headway_s: Annotated[float, Range(0.0, 60.0)] = 1.0
+    gap_gain: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
+    intruder_margin_m: Annotated[float, Range(0.0, 1000.0)] = 3.0
 
     def __post_init__(self) -> None:
         if not 0 < self.degrade_after_s < self.stop_after_s:
-            raise ValueError(
+            raise ConfigError(
                 "staleness ladder needs 0 < degrade_after_s < stop_after_s, got "
                 f"{self.degrade_after_s} and {self.stop_after_s}"
             )
+        if not self.intruder_margin_m >= 0:
+            raise ConfigError(f"staleness ladder needs intruder_margin_m >= 0, got {self.intruder_margin_m}")
 
 
 def rung(age_s: float, config: LadderConfig) -> str:
@@ -38,6 +47,16 @@ def rung(age_s: float, config: LadderConfig) -> str:
     if age_s <= config.stop_after_s:
         return DEGRADED
     return STOP
+
+
+def ranging_override(range_m: float, v2v_gap_m: float, desired_gap_m: float, config: LadderConfig) -> bool:
+    """True when the ranging sensor's target (``range_m``, centre to centre) is closer by more
+    than ``intruder_margin_m`` than the predecessor by its messages (``v2v_gap_m``:
+    something without V2V is in the gap, a cut-in) or than the desired gap (the cooperative
+    controller is not keeping its distance): the vehicle then follows by ranging (degraded).
+    Never with the ladder off."""
+    limit = max(v2v_gap_m, desired_gap_m) - config.intruder_margin_m
+    return config.enabled and range_m < limit
 
 
 def acc_speed(

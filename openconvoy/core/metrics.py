@@ -292,3 +292,163 @@ def json_safe(value: Any) -> Any:
         f = float(value)
         return f if math.isfinite(f) else None
     return value
+
+
+# --- traffic metrics (highway scenarios, issue 13) ------------------------------------------
+
+TRAFFIC_METRIC_KEYS: tuple[str, ...] = (
+    "min_ttc_s",
+    "min_gap_ahead_m",
+    "gap_restore_time_s",
+    "string_stability_after_disturbance",
+    "traffic_collisions",
+)
+"""The traffic metrics of ``metrics.json`` (runs whose log has the ``ahead_*`` columns of
+``openconvoy.envs.traffic_env.TRAFFIC_LOG_COLUMNS``); definitions in ``traffic_metrics``."""
+
+RESTORE_TOLERANCE_M = 1.0
+RESTORE_TOLERANCE_FRACTION = 0.1
+
+
+def has_traffic_columns(log: Columns) -> bool:
+    """Does the log carry the traffic columns (a highway run)?"""
+    return all(c in log for c in ("ahead_gap_m", "ahead_closing_mps", "ahead_length_m", "ahead_traffic"))
+
+
+def time_to_collision(log: Columns, lengths: Mapping[int, float]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Each vehicle's time to collision with the vehicle in its path ahead (s):
+    bumper-to-bumper gap (centre gap less the two half lengths) over the closing speed,
+    where closing; inf where the gap opens or nothing is ahead. ``{id: (t_s, ttc_s)}``."""
+    out = {}
+    gap_c = np.asarray(log["ahead_gap_m"], dtype=float)
+    closing_c = np.asarray(log["ahead_closing_mps"], dtype=float)
+    other_c = np.asarray(log["ahead_length_m"], dtype=float)
+    times = np.asarray(log["t_s"], dtype=float)
+    for vid in vehicle_ids(log):
+        r = _rows(log, vid)
+        bumper = gap_c[r] - 0.5 * (lengths.get(vid, 0.0) + np.nan_to_num(other_c[r]))
+        closing = closing_c[r]
+        ttc = np.full(len(r), math.inf)
+        ok = np.isfinite(bumper) & np.isfinite(closing) & (closing > 0.0)
+        ttc[ok] = np.maximum(bumper[ok], 0.0) / closing[ok]
+        out[vid] = (times[r], ttc)
+    return out
+
+
+def min_time_to_collision(log: Columns, lengths: Mapping[int, float]) -> tuple[float, dict[int, float]]:
+    """Smallest time to collision (s) over the run: overall and per vehicle (inf: never closing)."""
+    per = {vid: float(ttc.min()) if len(ttc) else math.inf for vid, (_, ttc) in time_to_collision(log, lengths).items()}
+    return (min(per.values()) if per else math.inf), per
+
+
+def min_gap_ahead(log: Columns) -> tuple[float, dict[int, float]]:
+    """Smallest centre-to-centre distance (m) to the vehicle in the path ahead, convoy or
+    traffic: overall and per vehicle (NaN when nothing was ever ahead)."""
+    col = np.asarray(log["ahead_gap_m"], dtype=float)
+    per = {}
+    for vid in vehicle_ids(log):
+        g = col[_rows(log, vid)]
+        g = g[np.isfinite(g)]
+        per[vid] = float(g.min()) if len(g) else math.nan
+    finite = [g for g in per.values() if math.isfinite(g)]
+    return (min(finite) if finite else math.nan), per
+
+
+def intrusions(log: Columns) -> dict[int, list[tuple[float, float]]]:
+    """Per follower, the time intervals ``(start_s, end_s)`` during which the vehicle in its
+    path ahead was traffic (a car without V2V in its gap): ``end_s`` is the first tick
+    without it (or the last tick if it stayed)."""
+    col = np.asarray(log["ahead_traffic"], dtype=float)
+    times = np.asarray(log["t_s"], dtype=float)
+    out: dict[int, list[tuple[float, float]]] = {}
+    for vid in vehicle_ids(log):
+        if vid == 0:
+            continue
+        r = _rows(log, vid)
+        t, flag = times[r], col[r] == 1.0
+        spans = []
+        k = 0
+        while k < len(t):
+            if flag[k]:
+                j = k
+                while j < len(t) and flag[j]:
+                    j += 1
+                spans.append((float(t[k]), float(t[min(j, len(t) - 1)])))
+                k = j
+            else:
+                k += 1
+        out[vid] = spans
+    return out
+
+
+def gap_restore_times(log: Columns) -> dict[int, float]:
+    """Per disturbed follower, the time (s) from the end of its last intrusion until its
+    platooning error |gap − desired gap| comes within ``max(1 m, 10 % of the desired
+    gap)`` and stays there to the end of the run; inf if it never does. Followers
+    without intrusions are left out."""
+    errors = platooning_errors(log)
+    desired_col = np.asarray(log["desired_gap_m"], dtype=float)
+    out = {}
+    for vid, spans in intrusions(log).items():
+        if not spans:
+            continue
+        end = spans[-1][1]
+        t, err = errors[vid]
+        desired = desired_col[_rows(log, vid)]
+        tol = np.maximum(RESTORE_TOLERANCE_M, RESTORE_TOLERANCE_FRACTION * np.nan_to_num(desired))
+        after = t >= end
+        bad = after & ~(err <= tol)
+        if spans[-1][1] >= t[-1] or not after.any() or bad[after][-1]:  # never left, never back
+            out[vid] = math.inf
+            continue
+        last_bad = np.flatnonzero(bad)
+        out[vid] = float(t[last_bad[-1] + 1] - end) if len(last_bad) else 0.0
+    return out
+
+
+def string_stability_after(log: Columns, t0: float) -> tuple[float, dict[int, float]]:
+    """``string_stability`` on the part of the log from ``t0`` (s) on."""
+    keep = np.asarray(log["t_s"], dtype=float) >= t0
+    return string_stability({k: np.asarray(v)[keep] for k, v in log.items()})
+
+
+def traffic_collisions(log: Columns) -> int:
+    """Convoy vehicles that touched traffic (or a road obstacle) during the run."""
+    if "traffic_collision" not in log:
+        return 0
+    col = np.asarray(log["traffic_collision"], dtype=float)
+    return sum(bool(np.nanmax(col[_rows(log, vid)], initial=0.0) >= 1.0) for vid in vehicle_ids(log))
+
+
+def traffic_metrics(log: Columns, lengths: Mapping[int, float]) -> dict[str, Any]:
+    """The traffic metrics (``TRAFFIC_METRIC_KEYS``) of a highway run:
+
+    - ``min_ttc_s``: smallest time to collision of any convoy vehicle with the vehicle in
+      its path ahead (bumper gap / closing speed; inf = never closing);
+    - ``min_gap_ahead_m``: smallest centre-to-centre distance of any convoy vehicle to the
+      vehicle in its path ahead, convoy or traffic;
+    - ``gap_restore_time_s``: the longest ``gap_restore_times`` over the disturbed
+      followers (NaN: no intrusion; inf: a gap never restored);
+    - ``string_stability_after_disturbance``: ``string_stability`` from the first intrusion
+      on (NaN without one);
+    - ``traffic_collisions``: ``traffic_collisions``.
+
+    ``gap_restored`` says whether every disturbed follower restored its gap (None without a
+    disturbance) and ``disturbance_s`` when the first intrusion began.
+    """
+    ttc, ttc_per = min_time_to_collision(log, lengths)
+    gap, _ = min_gap_ahead(log)
+    restore = gap_restore_times(log)
+    starts = [s[0][0] for s in intrusions(log).values() if s]
+    t0 = min(starts) if starts else math.nan
+    ss = string_stability_after(log, t0)[0] if starts else math.nan
+    return {
+        "min_ttc_s": ttc,
+        "min_gap_ahead_m": gap,
+        "gap_restore_time_s": max(restore.values()) if restore else math.nan,
+        "string_stability_after_disturbance": ss,
+        "traffic_collisions": traffic_collisions(log),
+        "gap_restored": all(math.isfinite(v) for v in restore.values()) if restore else None,
+        "disturbance_s": t0,
+        "restore_time_per_follower_s": {str(k): v for k, v in restore.items()},
+    }

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
+
 LAYOUT_VERSION = 1
 
 STATE_FEATURES = ("dx", "dy", "dheading", "speed", "accel", "age", "valid")
@@ -61,7 +63,7 @@ class ObservationLayout:
 
     def __post_init__(self) -> None:
         if self.M < 1 or self.k < 1:
-            raise ValueError(f"observation layout needs M >= 1 and k >= 1, got M={self.M}, k={self.k}")
+            raise ConfigError(f"observation layout needs M >= 1 and k >= 1, got M={self.M}, k={self.k}")
         preds = tuple(f"pred_{m}" for m in range(1, self.M + 1))
         # Offsets are computed once: the member reads them on every tick.
         slots = ("leader", *preds, "follower")

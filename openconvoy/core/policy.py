@@ -9,9 +9,14 @@ from a vehicle.
 from __future__ import annotations
 
 import math
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
+
+from openconvoy.core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from openconvoy.core.member import MemberConfig
 
 MAX_HEADING_CHANGE_RAD = math.pi / 2
 
@@ -23,6 +28,36 @@ class Policy(Protocol):
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         """The action for one observation: ``[speed_mps, heading_change_rad]``."""
+
+
+@runtime_checkable
+class ConvoyPolicy(Policy, Protocol):
+    """A policy as the worlds run it (``policies.load_policy`` returns one): what its
+    callers read besides ``act``. ``member_config``: the member side it was built or
+    trained for (None: the scenario's, ``member.member_config_for``); ``control_rate_hz``:
+    the rate it ticks at (Hz); ``name``: for logs and metadata."""
+
+    @property
+    def member_config(self) -> MemberConfig | None: ...
+
+    @property
+    def control_rate_hz(self) -> float: ...
+
+    @property
+    def name(self) -> str: ...
+
+
+CONVOY_POLICY_ATTRIBUTES = ("reset", "act", "member_config", "control_rate_hz", "name")
+
+
+def as_convoy_policy(obj: Any, where: str = "policy") -> ConvoyPolicy:
+    """``obj`` if it has everything ``ConvoyPolicy`` declares, else a ``ConfigError``
+    naming what is missing (checked once, where a policy is loaded or handed over)."""
+    missing = [a for a in CONVOY_POLICY_ATTRIBUTES if not hasattr(obj, a)]
+    if missing:
+        raise ConfigError(f"{where} ({type(obj).__name__}) lacks {', '.join(missing)}: a convoy policy "
+                          f"declares {', '.join(CONVOY_POLICY_ATTRIBUTES)}")
+    return obj  # type: ignore[no-any-return]
 
 
 def make_action(speed_mps: float, heading_change_rad: float) -> np.ndarray:

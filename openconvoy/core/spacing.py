@@ -12,6 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Annotated
+
+from openconvoy.core.config import Range
+from openconvoy.core.errors import ConfigError
 
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
@@ -22,14 +26,14 @@ class SpacingConfig:
     ``headway_s`` (and ``quadratic_s2_per_m`` for quadratic) for the others."""
 
     kind: str = "constant-distance"
-    distance_m: float = 15.0
-    standstill_m: float = 2.0
-    headway_s: float = 0.6
-    quadratic_s2_per_m: float = 0.01
+    distance_m: Annotated[float, Range(0.0, 1000.0, lo_open=True)] = 15.0
+    standstill_m: Annotated[float, Range(0.0, 1000.0)] = 2.0
+    headway_s: Annotated[float, Range(0.0, 60.0)] = 0.6
+    quadratic_s2_per_m: Annotated[float, Range(0.0, 10.0)] = 0.01
 
     def __post_init__(self) -> None:
         if self.kind not in SPACING_KINDS:
-            raise ValueError(
+            raise ConfigError(
                 f"unknown spacing policy {self.kind!r}; expected one of {', '.join(SPACING_KINDS)}"
             )
 

@@ -14,6 +14,7 @@ from openconvoy.envs.track import Track, load_track
 __all__ = [
     "INFO_KEYS",
     "SCENARIO_NAMES",
+    "HIGHWAY_SINGLE_AGENT_ID",
     "SINGLE_AGENT_ID",
     "Channel",
     "ConvoyEnv",
@@ -33,4 +34,14 @@ SINGLE_AGENT_ID = "OpenConvoy-v0"
 if SINGLE_AGENT_ID not in _gymnasium.registry:
     _gymnasium.register(
         id=SINGLE_AGENT_ID, entry_point="openconvoy.envs.single_agent:SingleAgentConvoyEnv"
+    )
+
+HIGHWAY_SINGLE_AGENT_ID = "OpenConvoy-Highway-v0"
+"""Gymnasium id of the single-agent view of ``highway-cut-in`` (the ``traffic`` extra): the
+learner drives ``follower_1``, the other followers ``cacc-allpred+ladder``."""
+
+if HIGHWAY_SINGLE_AGENT_ID not in _gymnasium.registry:
+    _gymnasium.register(
+        id=HIGHWAY_SINGLE_AGENT_ID, entry_point="openconvoy.envs.single_agent:SingleAgentConvoyEnv",
+        kwargs={"scenario": "highway-cut-in", "others": "cacc-allpred+ladder"},
     )

@@ -17,6 +17,7 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from openconvoy.comms.loss import Bernoulli, LossConfig, LossModel, NoLoss
+from openconvoy.core.errors import ConfigError
 
 M = TypeVar("M")
 
@@ -33,7 +34,7 @@ class Channel(Generic[M]):
 
     def __init__(self, n_vehicles: int, loss: LossConfig | None = None) -> None:
         if n_vehicles < 1:
-            raise ValueError(f"a channel needs at least one vehicle, got {n_vehicles}")
+            raise ConfigError(f"a channel needs at least one vehicle, got {n_vehicles}")
         self.n = n_vehicles
         self.config = loss or LossConfig()
         self._latency = self.config.latency

@@ -12,6 +12,14 @@ member, two worlds):
    loss and latency per link and delivers what is due, members keep what their Rx gate
    wants, and followers build their observations.
 
+Safety, as on vehicles: a follower whose braking-aware gap rule fires (``core.safety``:
+the gap between bumpers, less what braking at its limit from the closing speed takes, is
+below the margin; the gap from its ranging sensor, else from its member's estimate of
+the predecessor) stops for the rest of the episode, mode ``failsafe``; ``safety_events``
+says when and why. Faults (``core.faults``: ``halt``, ``silent``, ``dead``) override a
+vehicle's setpoints with a stop at its braking limit and/or mute its broadcasts from
+their time on.
+
 Termination: a collision (a follower closer to its predecessor than the sum of their half
 lengths, centre to centre) ends the episode for everybody. Truncation: the scenario's
 duration (or ``max_time_s``). Reward: ``openconvoy.envs.reward``. Infos, per agent per step:
@@ -31,14 +39,18 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from openconvoy.comms.geodesy import enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
-from openconvoy.core.member import ConvoyMember, MemberConfig
-from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
+from openconvoy.core import tick as member_tick
+from openconvoy.core.errors import ConfigError
+from openconvoy.core.faults import Fault, check_faults, parse_fault
+from openconvoy.core.member import ConvoyMember, Frame, MemberConfig, member_config_for
+from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
+from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
-from openconvoy.envs.scenarios import Scenario, make_scenario
+from openconvoy.envs.scenarios import Scenario, is_traffic_scenario, make_scenario
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 AGENT_PREFIX = "follower_"
@@ -61,6 +73,7 @@ INFO_KEYS: tuple[str, ...] = (
     "msgs_kept",
     "msgs_lost",
     "pred_msg_age_s",
+    "policy_errors",
 )
 """Per-agent info keys. ``gap_m``: ground-truth centre-to-centre distance to the immediate
 predecessor; ``desired_gap_m``, ``spacing_error_m`` (path-based, from R^i) and
@@ -86,7 +99,8 @@ class ConvoyEnv(ParallelEnv):
 
     Args:
         scenario: a spec (``paper``, ``track``, ``emergency-braking``,
-            ``track-file:PATH``) or a ``Scenario`` object.
+            ``track-file:PATH``, or a ``highway-*`` spec, which makes a
+            ``TrafficConvoyEnv``) or a ``Scenario`` object.
         n_followers: convoy size for spec scenarios (default: the scenario's, 2).
         member_config: the member side of the followers' implementation (topology,
             trigger, spacing, ladder, layout M and k); default: ``MemberConfig`` with the
@@ -100,6 +114,14 @@ class ConvoyEnv(ParallelEnv):
         vehicle_presets: replace the scenario's vehicles (names, TOML paths or presets,
             leader first); sets the convoy size.
         reward_config: weights of the reward (``openconvoy.envs.reward``).
+        faults: ``core.faults.Fault`` objects or ``KIND:VEHICLE@T_S`` specs, injected
+            at their times (ConfigError naming a bad one).
+        gap_margin_m: margin (m, between bumpers) of the braking-aware emergency stop;
+            None = each follower's preset default (``core.safety.for_vehicle``).
+        emergency_stop: apply that rule (default True).
+        auth: members authenticate what they receive (modelled: ``envs.forgery``), so the
+            messages of a ``forge`` fault are rejected and counted (``forged_rejected``);
+            False: they are believed (default True, as on vehicles with keys).
     """
 
     metadata = {
@@ -108,6 +130,17 @@ class ConvoyEnv(ParallelEnv):
         "render_fps": 20,
         "is_parallelizable": True,
     }
+    LOG_EXTRA_COLUMNS: tuple[str, ...] = ()
+    """Columns this env's log rows carry beyond DESIGN.md's (a run writes them)."""
+
+    def __new__(cls, scenario: str | Scenario = "paper", *args: Any, **kwargs: Any) -> ConvoyEnv:
+        # Highway scenarios bring traffic: ``ConvoyEnv("highway-cut-in")`` is a
+        # TrafficConvoyEnv (needs the ``traffic`` extra).
+        if cls is ConvoyEnv and is_traffic_scenario(scenario):
+            from openconvoy.envs.traffic_env import TrafficConvoyEnv
+
+            cls = TrafficConvoyEnv
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -121,22 +154,26 @@ class ConvoyEnv(ParallelEnv):
         render_mode: str | None = None,
         vehicle_presets: Sequence[VehiclePreset | str] | None = None,
         reward_config: RewardConfig | None = None,
+        faults: Sequence[Fault | str] = (),
+        gap_margin_m: float | None = None,
+        emergency_stop: bool = True,
+        auth: bool = True,
     ) -> None:
         if control_rate_hz <= 0:
-            raise ValueError(f"control_rate_hz must be positive, got {control_rate_hz}")
+            raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
         if gps_noise_m < 0:
-            raise ValueError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+            raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         presets = None
         if vehicle_presets is not None:
             presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
         if isinstance(scenario, str):
             scenario = make_scenario(scenario, n_followers, presets)
         elif presets is not None or n_followers is not None:
-            raise ValueError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+            raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
         if scenario.n_vehicles < 2:
-            raise ValueError("a convoy needs a leader and at least one follower")
+            raise ConfigError("a convoy needs a leader and at least one follower")
         self.scenario = scenario
         self.presets = tuple(scenario.presets)
         self.n_vehicles = n = scenario.n_vehicles
@@ -148,12 +185,22 @@ class ConvoyEnv(ParallelEnv):
         self.render_mode = render_mode
         self.reward_config = reward_config or RewardConfig()
         self.loss = loss or LossConfig()
-        self.member_config = member_config or MemberConfig(spacing=scenario.spacing)
+        self.member_config = member_config_for(member_config, scenario.spacing)
 
         self._lengths = [p.length_m for p in self.presets]
         self._widths = [p.width_m for p in self.presets]
         self._half_sum = [0.5 * (a + b) for a, b in zip(self._lengths[1:], self._lengths[:-1])]
-        self.members = [ConvoyMember(i, n, self.member_config, self._lengths) for i in range(n)]
+        decels = [p.decel_max_mps2 for p in self.presets]
+        self.members = [ConvoyMember(i, n, self.member_config, self._lengths, decels) for i in range(n)]
+        self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
+        check_faults(self.faults, n)
+        self.emergency_stop = bool(emergency_stop)
+        self.auth = Authentication(n, required=bool(auth))
+        self._forged = tuple(f for f in self.faults if f.forges)
+        self._braking: list[BrakingGap | None] = [None] + [
+            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
+            for p in self.presets[1:]
+        ]
         self.plant = BicyclePlant(self.presets, self.dt)
         self.channel: Channel[VehicleState] = Channel(n, self.loss)
         self._ranging = [(i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging]
@@ -166,19 +213,17 @@ class ConvoyEnv(ParallelEnv):
             a: gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
             for a in self.possible_agents
         }
+        # The action space and the clip every world applies (core.tick), bit for bit.
+        self._bounds = [member_tick.ActionBounds.float32(p.max_speed_mps) for p in self.presets]
         self._action_spaces = {
             a: gymnasium.spaces.Box(
-                low=np.array([0.0, -MAX_HEADING_CHANGE_RAD], dtype=np.float32),
-                high=np.array([self.presets[i].max_speed_mps, MAX_HEADING_CHANGE_RAD], dtype=np.float32),
+                low=np.array([0.0, -self._bounds[i].max_heading_change_rad], dtype=np.float32),
+                high=np.array([self._bounds[i].max_speed_mps, self._bounds[i].max_heading_change_rad],
+                              dtype=np.float32),
                 dtype=np.float32,
             )
             for a, i in self._agent_index.items()
         }
-        # (low speed, high speed, low heading change, high heading change) per agent, floats.
-        self._bounds = [
-            (float(sp.low[0]), float(sp.high[0]), float(sp.low[1]), float(sp.high[1]))
-            for sp in self._action_spaces.values()
-        ]
         self._road: np.ndarray | None = None
         self._seed_seq: np.random.SeedSequence | None = None
         self.t = 0.0
@@ -207,6 +252,7 @@ class ConvoyEnv(ParallelEnv):
         self._ranging_rng = np.random.default_rng(ss_ranging)
         self.scenario.reset(np.random.default_rng(ss_scenario))
         self.channel.reset(np.random.default_rng(ss_channel))
+        self.auth.reset()
         init = self.scenario.initial_state()
         self.plant.reset(init.x, init.y, init.heading, init.speed)
         for m in self.members:
@@ -235,30 +281,27 @@ class ConvoyEnv(ParallelEnv):
         t = self.t
         cmd_v, cmd_dh = self._cmd_speed, self._cmd_dh
         ranging = self._ranging_readings()
-        bounds = self._bounds
         modes = self._modes
         names = self.possible_agents
-        members = self.members
         for i in range(1, self.n_vehicles):
             try:
                 a = actions[names[i - 1]]
             except KeyError:
                 raise KeyError(f"no action for {names[i - 1]}") from None
-            lo0, hi0, lo1, hi1 = bounds[i - 1]
-            a0 = float(a[0])
-            a1 = float(a[1])
-            a0 = lo0 if a0 < lo0 else (hi0 if a0 > hi0 else a0)
-            a1 = lo1 if a1 < lo1 else (hi1 if a1 > hi1 else a1)
-            applied, mode = members[i].supervise(
-                np.array((a0, a1), dtype=np.float32), t, ranging.get(i) if ranging else None
-            )
-            cmd_v[i] = float(applied[0])
-            cmd_dh[i] = float(applied[1])
-            modes[i] = mode
+            reading = ranging.get(i) if ranging else None
+            d = member_tick.decide(self.members[i], self._frames[i], a, self._bounds[i], reading)
+            cmd_v[i], cmd_dh[i], modes[i] = d.speed_mps, d.heading_change_rad, d.mode
+            if d.policy_error:
+                self._policy_error(i, t, d.policy_error)
+            if self._failed[i] or (self.emergency_stop and self._emergency(i, t, reading)):
+                cmd_v[i] = cmd_dh[i] = 0.0
+                modes[i] = "failsafe"
         X, Y, V, H, A, _ = self._truth
         v0, h0 = self.scenario.leader_command(t, X[0], Y[0], H[0], V[0])
         cmd_v[0] = v0
         cmd_dh[0] = (h0 - H[0] + math.pi) % (2 * math.pi) - math.pi
+        if self.faults:
+            self._apply_faults(t)
         self._keep_row_inputs()
         plant.step(cmd_v, [h + d for h, d in zip(H, cmd_dh)])
         self.step_count += 1
@@ -275,7 +318,7 @@ class ConvoyEnv(ParallelEnv):
             [g - d for g, d in zip(self._gap, self._desired)],
             A_new[1:], jerk, YR_new[1:], self._collided,
         )
-        done = any(self._collided)
+        done = self._terminated()
         trunc = self.step_count >= self.max_steps and not done
         agents = self.agents
         rewards = dict(zip(agents, rewards_list))
@@ -380,12 +423,18 @@ class ConvoyEnv(ParallelEnv):
             cmd_dh,
             list(self._modes),
             [math.nan, *self._gap],
-            [(m.desired_gap_m, m.spacing_error_m, m.pred_msg_age_s, m.msgs_sent) for m in self.members],
+            [(f.desired_gap_m, f.spacing_error_m, f.pred_msg_age_s, m.msgs_sent)
+             for f, m in zip(self._frames, self.members)],
             [int(v) for v in self._rx],
             [int(v) for v in self._lost],
         )
 
     # --- internals ---------------------------------------------------------------------
+
+    def _terminated(self) -> bool:
+        """Does the episode end at this tick? (A world with more in it, such as traffic,
+        adds its own collisions.)"""
+        return any(self._collided)
 
     def _reset_arrays(self) -> None:
         n = self.n_vehicles
@@ -399,6 +448,14 @@ class ConvoyEnv(ParallelEnv):
         self._collided: list[bool] = [False] * (n - 1)
         self._rx: list[int] = [0] * n
         self._lost: list[int] = [0] * n
+        self._estopped: list[bool] = [False] * n
+        self._failed: list[bool] = [False] * n  # a refused action stopped it for the episode
+        self._policy_errors: list[int] = [0] * n
+        self._frames: list[Frame] = []
+        self._faults_seen: set[Fault] = set()
+        self._muted = {f.vehicle for f in self.faults if f.mutes}
+        self.safety_events: list[tuple[float, int, str]] = []
+        """(t s, vehicle, reason): faults injected and emergency stops, in order."""
 
     def _tick(self) -> dict[str, np.ndarray]:
         """Own states -> Tx -> channel -> Rx -> observations, at ``self.t``."""
@@ -417,22 +474,91 @@ class ConvoyEnv(ParallelEnv):
         lengths, widths = self._lengths, self._widths
         for i, m in enumerate(members):
             st = VehicleState(i, t, xs[i], ys[i], vs[i], hs[i], acs[i], yrs[i], lengths[i], widths[i])
-            m.observe_own(st)
-            if m.wants_to_send(t):
-                channel.send(i, st, t)
+            muted = bool(self._muted) and i in self._muted and self._fault_active(i, t, mutes=True)
+            sent = member_tick.begin(m, st, t, may_send=not muted)
+            if sent is not None:
+                channel.send(i, sent, t)
+        inboxes: list[list[VehicleState]] = [[] for _ in members]
         for r, _, msg in channel.deliver(t):
-            members[r].receive(msg, t)
-        return {a: members[i].observation(t) for i, a in enumerate(self.agents, start=1)}
+            inboxes[r].append(msg)
+        if self._forged:
+            self._forge(t, inboxes)
+        self._frames = [member_tick.sense(m, box, t) for m, box in zip(members, inboxes)]
+        return {a: self._frames[i].observation for i, a in enumerate(self.agents, start=1)}
+
+    def _forge(self, t: float, inboxes: list[list[VehicleState]]) -> None:
+        """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
+        offered to every other member (verified when ``auth``)."""
+        x, y, v, h = self._truth[:4]
+        claimed = []
+        for f in self._forged:
+            if f.active(t):
+                i = f.vehicle
+                claimed.append(VehicleState(i, t, x[i], y[i], v[i], h[i], 0.0, 0.0,
+                                            self._lengths[i], self._widths[i]))
+        self.auth.deliver_forgeries(claimed, inboxes)
+
+    @property
+    def forged_rejected(self) -> list[int]:
+        """Forged messages each member rejected so far (``forge`` faults, ``auth`` on)."""
+        return list(self.auth.rejected)
 
     def _measure(self) -> None:
         """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""
         x, y = self._truth[0], self._truth[1]
         hypot = math.hypot
         self._gap = [hypot(x[i - 1] - x[i], y[i - 1] - y[i]) for i in range(1, len(x))]
-        self._desired = [m.desired_gap_m for m in self.members[1:]]
+        self._desired = [f.desired_gap_m for f in self._frames[1:]]
         self._collided = [g < h for g, h in zip(self._gap, self._half_sum)]
         self._rx = self.channel.delivered_to
         self._lost = self.channel.lost_to
+
+    def _fault_active(self, i: int, t: float, mutes: bool = False, brakes: bool = False) -> bool:
+        return any(
+            f.vehicle == i and f.active(t) and ((mutes and f.mutes) or (brakes and f.brakes))
+            for f in self.faults
+        )
+
+    def _apply_faults(self, t: float) -> None:
+        """Faulty vehicles brake to rest at their limit (speed setpoint 0, heading held)."""
+        for f in self.faults:
+            if not f.active(t):
+                continue
+            if f not in self._faults_seen:
+                self._faults_seen.add(f)
+                self.safety_events.append((t, f.vehicle, f"fault {f}"))
+            if f.brakes:
+                self._cmd_speed[f.vehicle] = 0.0
+                self._cmd_dh[f.vehicle] = 0.0
+                self._modes[f.vehicle] = "stop"
+
+    def _policy_error(self, i: int, t: float, why: str) -> None:
+        """A refused action: counted; the follower stops for the rest of the episode (the
+        vehicle's policy-error failsafe)."""
+        self._policy_errors[i] += 1
+        if not self._failed[i]:
+            self._failed[i] = True
+            self.safety_events.append((t, i, f"policy error: {why}"))
+
+    def _emergency(self, i: int, t: float, reading: tuple[float, float] | None) -> bool:
+        """The braking-aware gap rule for follower ``i`` (latched once it fires)."""
+        if self._estopped[i]:
+            return True
+        rule = self._braking[i]
+        assert rule is not None
+        if reading is not None:
+            gap, closing = reading[0], -reading[1]
+        else:
+            est = self.members[i].gap_estimate(t)
+            if est is None:
+                return False
+            gap, closing = est
+        bumper = bumper_gap(gap, self._lengths[i], self._lengths[i - 1])
+        if not rule.too_close(bumper, closing):
+            return False
+        self._estopped[i] = True
+        self.safety_events.append((t, i, "emergency stop: " + rule.reason(bumper, closing)))
+        return True
 
     def _ranging_readings(self) -> dict[int, tuple[float, float]]:
         """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor."""
@@ -464,13 +590,13 @@ class ConvoyEnv(ParallelEnv):
         collided = self._collided
         out = {}
         for i, a in enumerate(self.agents, start=1):
-            m = self.members[i]
+            m, f = self.members[i], self._frames[i]
             out[a] = {
                 "t_s": self.t,
                 "gap_m": gap[i - 1],
                 "desired_gap_m": _opt(desired[i - 1]),
                 "platooning_error_m": _opt(abs(gap[i - 1] - desired[i - 1])),
-                "spacing_error_m": _opt(m.spacing_error_m),
+                "spacing_error_m": _opt(f.spacing_error_m),
                 "speed_mps": speed[i],
                 "accel_mps2": accel[i],
                 "leader_speed_mps": leader_speed,
@@ -482,7 +608,8 @@ class ConvoyEnv(ParallelEnv):
                 "msgs_received": rx[i],
                 "msgs_kept": m.msgs_received,
                 "msgs_lost": lost[i],
-                "pred_msg_age_s": _opt(m.pred_msg_age_s),
+                "pred_msg_age_s": _opt(f.pred_msg_age_s),
+                "policy_errors": self._policy_errors[i],
             }
         return out
 

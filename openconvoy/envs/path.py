@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
+
 
 class Path:
     """A polyline through ``points`` (N x 2, metres, ENU), optionally closed.
@@ -25,7 +27,7 @@ class Path:
     def __init__(self, points: np.ndarray, closed: bool = False) -> None:
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-            raise ValueError("a path needs at least two (x, y) points")
+            raise ConfigError("a path needs at least two (x, y) points")
         if closed and np.hypot(*(pts[-1] - pts[0])) < 1e-9:
             pts = pts[:-1]
         # Drop repeated vertices: zero-length segments have no heading.
@@ -132,7 +134,7 @@ def oval(straight_m: float, radius_m: float, step_m: float = 0.25) -> Path:
     east from (-straight_m/2, -radius_m).
     """
     if straight_m < 0 or radius_m <= 0:
-        raise ValueError("oval needs straight_m >= 0 and radius_m > 0")
+        raise ConfigError("oval needs straight_m >= 0 and radius_m > 0")
     half = straight_m / 2.0
     k = max(8, int(math.ceil(math.pi * radius_m / step_m)))
     pts = [(-half, -radius_m), (half, -radius_m)]

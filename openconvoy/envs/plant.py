@@ -6,7 +6,7 @@ After the preset's delays:
 - speed (``speed_loop = "lag"``) follows with a first-order lag clipped by the acceleration
   limits; or (``"pi"``) the setpoint is ramped at the acceleration limits and tracked by
   the autopilot's PI speed controller with feed-forward, whose drive command the vehicle's
-  speed follows with a first-order lag (shared/sitl/README.md §3: dead time, overshoot, no
+  speed follows with a first-order lag (and optional quadratic drag) (shared/sitl/README.md §3: dead time, overshoot, no
   undershoot on stops). A vehicle at rest stays there while its drive is below the
   preset's static friction (``breakaway_mps``).
 - heading turns at ``err / heading_lag_s``, clipped to the turn-rate limit, slewed at the
@@ -24,6 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.vehicles import VehiclePreset
 
@@ -48,7 +49,7 @@ class BicyclePlant:
         self, presets: Sequence[VehiclePreset], dt: float, vectorized: bool | None = None
     ) -> None:
         if dt <= 0:
-            raise ValueError(f"plant time step must be positive, got {dt}")
+            raise ConfigError(f"plant time step must be positive, got {dt}")
         self.presets = list(presets)
         self.dt = dt
         n = len(self.presets)
@@ -67,6 +68,7 @@ class BicyclePlant:
         self._ki = col("speed_ki")
         self._ff = col("speed_ff")
         self._tau_d = np.maximum(col("drive_lag_s"), 1e-6)
+        self._drag = col("drive_drag_per_mps")
         self._stop = col("stop_speed_mps")
         self._brk = col("breakaway_mps")
         self._yaw_acc = col("yaw_accel_max_radps2")
@@ -100,7 +102,7 @@ class BicyclePlant:
         ))
         self._pi_params = list(zip(
             self._kp.tolist(), self._ki.tolist(), self._ff.tolist(), self._tau_d.tolist(),
-            self._stop.tolist(),
+            self._stop.tolist(), self._drag.tolist(),
         ))
         self._qv: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
         self._qh: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
@@ -125,8 +127,10 @@ class BicyclePlant:
         self.accel = np.zeros(n)
         self.yaw_rate = np.zeros(n)
         self._ramp = self.speed.copy()
-        # Steady state: the drive command equals the speed (ff * v + integrator = v).
-        self._integ = np.where(self._pi, self.speed * (1.0 - self._ff), 0.0)
+        # Steady state at the setpoint: the drive holds the speed against the drag
+        # (ff * v + integrator = v + drag * v|v|). Without an integrator that offset stays.
+        v = self.speed
+        self._integ = np.where(self._pi, v + self._drag * v * np.abs(v) - self._ff * v, 0.0)
         self._rate_des = np.zeros(n)
         self._queue_v[:] = self.speed
         self._queue_h[:] = self.heading
@@ -192,7 +196,7 @@ class BicyclePlant:
             stopped = (r == 0.0) & (np.abs(v) <= self._stop)
             integ = np.where(stopped, 0.0, integ + self._ki * err * h)
             drive = np.where(stopped, 0.0, self._ff * r + self._kp * err + integ)
-            dv = (drive - v) / self._tau_d * h
+            dv = (drive - v - self._drag * v * np.abs(v)) / self._tau_d * h
             # Friction: at rest below breakaway nothing moves; slowing down stops at zero,
             # and a stopped vehicle (drive cut) comes to rest rather than coasting on.
             stuck = (np.abs(drive) < self._brk) & (
@@ -219,7 +223,7 @@ class BicyclePlant:
             v_cmd = min(max(self._qv[(head - delay) % depth][i], -vmax), vmax)
             v = vs[i]
             if is_pi:
-                kp, ki, ff, tau_d, stop = self._pi_params[i]
+                kp, ki, ff, tau_d, stop, drag = self._pi_params[i]
                 r, acc_i, vs_ = ramp[i], integ[i], v
                 for _ in range(n_sub):
                     lim = (acc if abs(v_cmd) > abs(r) else dec) * h
@@ -231,7 +235,7 @@ class BicyclePlant:
                     else:
                         acc_i += ki * err * h
                         drive = ff * r + kp * err + acc_i
-                    d = (drive - vs_) / tau_d * h
+                    d = (drive - vs_ - drag * vs_ * abs(vs_)) / tau_d * h
                     if abs(drive) < brk and (vs_ == 0.0 or (vs_ + d) * vs_ < 0.0 or stopped):
                         vs_ = 0.0  # at rest it stays; slowing down it stops at zero
                     else:

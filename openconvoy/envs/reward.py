@@ -18,6 +18,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from openconvoy.core.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class RewardConfig:
@@ -36,7 +38,7 @@ class RewardConfig:
     def __post_init__(self) -> None:
         for name in ("spacing_scale_m", "accel_scale_mps2", "jerk_scale_mps3", "yaw_rate_scale_radps"):
             if getattr(self, name) <= 0:
-                raise ValueError(f"reward {name} must be positive")
+                raise ConfigError(f"reward {name} must be positive")
 
 
 def reward(

@@ -36,6 +36,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
 from openconvoy.envs.path import Path, oval, straight_road
 from openconvoy.envs.track import Track, example_track_path, load_track
@@ -45,6 +46,15 @@ from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset
 DEFAULT_ORIGIN = Origin(28.6024, -81.2001, 0.0)
 
 SCENARIO_NAMES: tuple[str, ...] = ("paper", "track", "emergency-braking", "track-file:PATH")
+TRAFFIC_PREFIX = "highway-"
+"""Specs starting with this are highway scenarios with traffic
+(``openconvoy.envs.traffic_scenarios``, the ``traffic`` extra)."""
+
+
+def is_traffic_scenario(scenario: str | Scenario) -> bool:
+    """Is ``scenario`` (a spec or a Scenario) a highway scenario with traffic?"""
+    name = scenario if isinstance(scenario, str) else scenario.name
+    return name.startswith(TRAFFIC_PREFIX)
 
 
 @dataclass(frozen=True)
@@ -125,7 +135,7 @@ class PathScenario:
         ramp_decel_mps2: float | None = None,
     ) -> None:
         if len(presets) < 1:
-            raise ValueError("a scenario needs at least the leader")
+            raise ConfigError("a scenario needs at least the leader")
         self.name = name
         self.presets = tuple(presets)
         self.path = path
@@ -141,7 +151,7 @@ class PathScenario:
         self.ramp_accel_mps2 = ramp_accel_mps2 or lead.accel_max_mps2
         self.ramp_decel_mps2 = ramp_decel_mps2 or lead.decel_max_mps2
         if path.closed and self._offsets()[-1] > path.length:
-            raise ValueError(
+            raise ConfigError(
                 f"scenario {name!r}: {len(self.presets)} vehicles at the desired gaps do not fit "
                 f"on a closed track of {path.length:.1f} m"
             )
@@ -301,33 +311,40 @@ def make_scenario(
     spec: str = "paper",
     n_followers: int | None = None,
     presets: Sequence[VehiclePreset] | None = None,
-) -> PathScenario:
+) -> Scenario:
     """A built-in scenario by spec (see ``SCENARIO_NAMES``), ``n_followers`` default 2.
 
     ``presets`` (leader first) replaces the scenario's vehicles and sets the convoy size.
-    ``track-file:example`` loads the example track shipped with the package.
+    ``track-file:example`` loads the example track shipped with the package; ``highway-*``
+    specs make ``traffic_scenarios.HighwayScenario`` objects (the ``traffic`` extra).
     """
     if presets is not None:
         presets = tuple(presets)
         if n_followers is not None and n_followers != len(presets) - 1:
-            raise ValueError(
+            raise ConfigError(
                 f"n_followers={n_followers} but {len(presets)} vehicle presets (leader included)"
             )
         n_followers = len(presets) - 1
     n = 2 if n_followers is None else int(n_followers)
     if n < 1:
-        raise ValueError(f"a convoy needs at least one follower, got n_followers={n}")
+        raise ConfigError(f"a convoy needs at least one follower, got n_followers={n}")
     if spec == "paper":
         return paper_scenario(n, presets)
     if spec == "track":
         return track_scenario(n, presets)
     if spec == "emergency-braking":
         return emergency_braking_scenario(n, presets)
+    if is_traffic_scenario(spec):
+        from openconvoy.envs.traffic_scenarios import make_highway_scenario  # needs [traffic]
+
+        return make_highway_scenario(spec, n, presets)
     if spec.startswith("track-file:"):
         file = spec.split(":", 1)[1]
+        if not file.strip():
+            raise ConfigError("scenario 'track-file:' needs a path: track-file:PATH (or track-file:example)")
         if file == "example":
             file = str(example_track_path())
         return track_file_scenario(file, n, presets)
-    raise ValueError(
-        f"unknown scenario {spec!r}; expected one of {', '.join(SCENARIO_NAMES)}"
+    raise ConfigError(
+        f"unknown scenario {spec!r}; expected one of {', '.join(SCENARIO_NAMES)} or highway-*"
     )

@@ -22,7 +22,7 @@ import gymnasium
 import numpy as np
 
 from openconvoy.core.member import MemberConfig
-from openconvoy.core.policy import Policy
+from openconvoy.core.policy import ConvoyPolicy, Policy, as_convoy_policy
 from openconvoy.envs.convoy_env import ConvoyEnv
 from openconvoy.envs.scenarios import Scenario
 
@@ -51,9 +51,9 @@ class SingleAgentConvoyEnv(gymnasium.Env):
         others: what drives every follower but the learner (default ``"paper"``).
         agent: the learner's follower (``follower_1`` by default).
         member_config: the member configuration of all followers; default: the other
-            policies' ``member_config`` when they have one (a classical policy does), so
+            policies' ``member_config`` (a ``ConvoyPolicy``; None: the scenario's), so
             the learner observes what they observe.
-        control_rate_hz: default: the other policies' ``control_rate_hz``, else 20 Hz.
+        control_rate_hz: default: the other policies' ``control_rate_hz``.
         render_mode: None or ``"rgb_array"``.
         **env_kwargs: passed to ``ConvoyEnv`` (``n_followers``, ``loss``, ``gps_noise_m``,
             ``max_time_s``, ``vehicle_presets``, ``reward_config``).
@@ -72,11 +72,11 @@ class SingleAgentConvoyEnv(gymnasium.Env):
         **env_kwargs: Any,
     ) -> None:
         make = _factory(others)
-        probe = make()
+        probe: ConvoyPolicy = as_convoy_policy(make(), "others")
         if member_config is None:
-            member_config = getattr(probe, "member_config", None)
+            member_config = probe.member_config
         if control_rate_hz is None:
-            control_rate_hz = float(getattr(probe, "control_rate_hz", 20.0))
+            control_rate_hz = float(probe.control_rate_hz)
         self.env = ConvoyEnv(
             scenario, member_config=member_config, control_rate_hz=control_rate_hz,
             render_mode=render_mode, **env_kwargs,

@@ -33,12 +33,17 @@ from typing import Any
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.core.errors import InputFileError, MissingFileError
 from openconvoy.envs.path import Path
 
 _TOP_KEYS = {"name", "center", "straights", "turns", "closed_loop"}
 _STRAIGHT_KEYS = {"start", "end", "speed"}
 _TURN_KEYS = {"start", "end", "speed", "direction"}
 _POINT_KEYS = {"lat", "lon"}
+MAX_SPEED_MPS = 50.0
+"""Fastest segment speed a track may ask for (m/s)."""
+MAX_EXTENT_M = 50_000.0
+"""Farthest a track point may lie from the track's centre (m): beyond, it is a typo."""
 
 
 @dataclass(frozen=True)
@@ -69,18 +74,37 @@ class Track:
 
 def _check_keys(obj: Any, allowed: set[str], required: set[str], where: str) -> None:
     if not isinstance(obj, dict):
-        raise ValueError(f"{where}: expected an object, got {type(obj).__name__}")
+        raise InputFileError(f"{where}: expected an object, got {type(obj).__name__}")
     unknown = set(obj) - allowed
     if unknown:
-        raise ValueError(f"{where}: unknown key(s): {', '.join(sorted(unknown))}")
+        raise InputFileError(f"{where}: unknown key(s): {', '.join(sorted(unknown))}")
     missing = required - set(obj)
     if missing:
-        raise ValueError(f"{where}: missing key(s): {', '.join(sorted(missing))}")
+        raise InputFileError(f"{where}: missing key(s): {', '.join(sorted(missing))}")
+
+
+def _number(obj: dict[str, Any], key: str, where: str, lo: float, hi: float, lo_open: bool = False) -> float:
+    """``obj[key]`` as a finite number in [lo, hi] (``(lo, hi]`` with ``lo_open``)."""
+    v = obj[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputFileError(f"{where}.{key}: expected a number, got {v!r}")
+    if not (math.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi):
+        raise InputFileError(f"{where}.{key}: {v!r} is out of range; allowed: a finite number in "
+                             f"{'(' if lo_open else '['}{lo:g}, {hi:g}]")
+    return float(v)
+
+
+def _latlon(obj: Any, where: str) -> tuple[float, float]:
+    _check_keys(obj, _POINT_KEYS, _POINT_KEYS, where)
+    return _number(obj, "lat", where, -90.0, 90.0), _number(obj, "lon", where, -180.0, 180.0)
 
 
 def _point(obj: Any, origin: Origin, where: str) -> np.ndarray:
-    _check_keys(obj, _POINT_KEYS, _POINT_KEYS, where)
-    x, y, _ = geodetic_to_enu(origin, float(obj["lat"]), float(obj["lon"]))
+    lat, lon = _latlon(obj, where)
+    x, y, _ = geodetic_to_enu(origin, lat, lon)
+    if math.hypot(x, y) > MAX_EXTENT_M:
+        raise InputFileError(f"{where}: {math.hypot(x, y) / 1000:.0f} km from the track's center "
+                             f"(at most {MAX_EXTENT_M / 1000:g} km)")
     return np.array([x, y])
 
 
@@ -113,14 +137,20 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
     original beacon's default). ``step_m`` is the arc sampling step, metres.
     """
     _check_keys(data, _TOP_KEYS, {"name", "center", "straights", "turns"}, source)
-    c = data["center"]
-    _check_keys(c, _POINT_KEYS, _POINT_KEYS, f"{source}: center")
-    origin = Origin(float(c["lat"]), float(c["lon"]))
-    closed = bool(data.get("closed_loop", True)) if closed_loop is None else closed_loop
+    origin = Origin(*_latlon(data["center"], f"{source}: center"))
+    if not isinstance(data["name"], str):
+        raise InputFileError(f"{source}: name: expected a string, got {data['name']!r}")
+    flag = data.get("closed_loop", True)
+    if not isinstance(flag, bool):
+        raise InputFileError(f"{source}: closed_loop: expected true or false, got {flag!r}")
+    closed = flag if closed_loop is None else closed_loop
     straights = data["straights"]
     turns = data["turns"]
+    for key, value in (("straights", straights), ("turns", turns)):
+        if not isinstance(value, list):
+            raise InputFileError(f"{source}: {key}: expected a list, got {value!r}")
     if not straights:
-        raise ValueError(f"{source}: a track needs at least one straight")
+        raise InputFileError(f"{source}: a track needs at least one straight")
     segs = []
     for i, st in enumerate(straights):
         where = f"{source}: straights[{i}]"
@@ -128,8 +158,8 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
         a = _point(st["start"], origin, f"{where}.start")
         b = _point(st["end"], origin, f"{where}.end")
         if np.hypot(*(b - a)) < 1e-6:
-            raise ValueError(f"{where}: start and end coincide")
-        segs.append((a, b, float(st["speed"])))
+            raise InputFileError(f"{where}: start and end coincide")
+        segs.append((a, b, _number(st, "speed", where, 0.0, MAX_SPEED_MPS, lo_open=True)))
     headings = [math.atan2(b[1] - a[1], b[0] - a[0]) for a, b, _ in segs]
     if closed and len(segs) > 1:
         pairs = [(headings[i], headings[(i + 1) % len(segs)]) for i in range(len(segs))]
@@ -162,11 +192,11 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
             _check_keys(tn, _TURN_KEYS, _TURN_KEYS, where)
             direction = tn["direction"]
             if direction not in ("left", "right"):
-                raise ValueError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
+                raise InputFileError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
             ta = _point(tn["start"], origin, f"{where}.start")
             tb = _point(tn["end"], origin, f"{where}.end")
             starts.append(arc_length())
-            speeds.append(float(tn["speed"]))
+            speeds.append(_number(tn, "speed", where, 0.0, MAX_SPEED_MPS, lo_open=True))
             add(tuple(ta))
             h0, h1 = pairs[i]
             for p in _arc(ta, h0, h1, tb, direction == "left", step_m):
@@ -184,9 +214,13 @@ def load_track(path: str | FilePath, closed_loop: bool | None = None) -> Track:
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise FileNotFoundError(f"no such track file: {p}") from None
+        raise MissingFileError(f"no such track file: {p}") from None
+    except IsADirectoryError:
+        raise InputFileError(f"{p}: is a directory, not a track file") from None
+    except UnicodeDecodeError:
+        raise InputFileError(f"{p}: not a text file (a track is JSON)") from None
     except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: not valid JSON ({e})") from None
+        raise InputFileError(f"{p}: not valid JSON ({e})") from None
     return parse_track(data, closed_loop=closed_loop, source=str(p))
 
 

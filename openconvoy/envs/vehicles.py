@@ -27,6 +27,10 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal
+
+from openconvoy.core.config import Range, check_fields, from_dict, load_toml
+from openconvoy.core.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -34,9 +38,12 @@ class RangingSensor:
     """A forward range sensor (lidar/radar) on the vehicle: range and range rate to the
     vehicle ahead, with Gaussian noise. Used by the degraded mode when present."""
 
-    max_range_m: float = 20.0
-    range_noise_m: float = 0.05
-    range_rate_noise_mps: float = 0.05
+    max_range_m: Annotated[float, Range(0.0, 10_000.0, lo_open=True)] = 20.0
+    range_noise_m: Annotated[float, Range(0.0, 100.0)] = 0.05
+    range_rate_noise_mps: Annotated[float, Range(0.0, 100.0)] = 0.05
+
+    def __post_init__(self) -> None:
+        check_fields(self, "ranging")
 
 
 SPEED_LOOPS = ("lag", "pi")
@@ -70,6 +77,9 @@ class VehiclePreset:
             (ArduPilot: CRUISE_THROTTLE / CRUISE_SPEED x the same; 1 = exact).
         drive_lag_s: ``pi``: time constant of the vehicle's speed following the drive
             command (s).
+        drive_drag_per_mps: ``pi``: quadratic drag; the steady speed v under drive d solves
+            v + drag * v**2 = d (1/(m/s); 0 = linear, as ArduPilot's SITL rover; PX4 SIH's
+            rover has drag that caps it near 2.55 m/s).
         stop_speed_mps: ``pi``: with the ramped setpoint at 0, below this speed the drive
             is cut and the integrator reset (ArduPilot ATC_STOP_SPEED): no undershoot.
         breakaway_mps: static friction: a vehicle at rest stays at rest while its drive
@@ -82,32 +92,34 @@ class VehiclePreset:
     """
 
     name: str
-    length_m: float
-    width_m: float
-    wheelbase_m: float
-    max_steer_rad: float = math.radians(30.0)
-    speed_lag_s: float = 0.3
-    accel_max_mps2: float = 1.0
-    decel_max_mps2: float = 1.0
-    turn_rate_max_radps: float = math.radians(45.0)
-    heading_lag_s: float = 0.2
-    actuation_delay_s: float = 0.1
-    max_speed_mps: float = 5.0
+    length_m: Annotated[float, Range(0.0, 50.0, lo_open=True)]
+    width_m: Annotated[float, Range(0.0, 10.0, lo_open=True)]
+    wheelbase_m: Annotated[float, Range(0.0, 20.0, lo_open=True)]
+    max_steer_rad: Annotated[float, Range(0.0, 1.5, lo_open=True)] = math.radians(30.0)
+    speed_lag_s: Annotated[float, Range(0.0, 10.0)] = 0.3
+    accel_max_mps2: Annotated[float, Range(0.0, 50.0, lo_open=True)] = 1.0
+    decel_max_mps2: Annotated[float, Range(0.0, 50.0, lo_open=True)] = 1.0
+    turn_rate_max_radps: Annotated[float, Range(0.0, 20.0, lo_open=True)] = math.radians(45.0)
+    heading_lag_s: Annotated[float, Range(0.0, 10.0)] = 0.2
+    actuation_delay_s: Annotated[float, Range(0.0, 2.0)] = 0.1
+    max_speed_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 5.0
     ranging: RangingSensor | None = None
-    speed_loop: str = "lag"
-    speed_kp: float = 0.0
-    speed_ki: float = 0.0
-    speed_ff: float = 1.0
-    drive_lag_s: float = 0.5
-    stop_speed_mps: float = 0.1
-    breakaway_mps: float = 0.0
-    heading_delay_s: float | None = None
-    yaw_accel_max_radps2: float = math.inf
-    lateral_accel_max_mps2: float = math.inf
+    speed_loop: Literal["lag", "pi"] = "lag"
+    speed_kp: Annotated[float, Range(0.0, 100.0)] = 0.0
+    speed_ki: Annotated[float, Range(0.0, 100.0)] = 0.0
+    speed_ff: Annotated[float, Range(0.0, 10.0)] = 1.0
+    drive_lag_s: Annotated[float, Range(0.0, 10.0)] = 0.5
+    drive_drag_per_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
+    stop_speed_mps: Annotated[float, Range(0.0, 10.0)] = 0.1
+    breakaway_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
+    heading_delay_s: Annotated[float, Range(0.0, 2.0)] | None = None
+    yaw_accel_max_radps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
+    lateral_accel_max_mps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
 
     def __post_init__(self) -> None:
+        check_fields(self, f"vehicle preset {self.name!r}")
         if self.speed_loop not in SPEED_LOOPS:
-            raise ValueError(
+            raise ConfigError(
                 f"vehicle preset {self.name!r}: speed_loop must be one of "
                 f"{', '.join(SPEED_LOOPS)}, got {self.speed_loop!r}"
             )
@@ -153,29 +165,22 @@ def vehicle_preset(name_or_path: str) -> VehiclePreset:
     path = Path(name_or_path)
     if path.suffix == ".toml" and path.is_file():
         return load_vehicle_preset(path)
-    raise ValueError(
+    raise ConfigError(
         f"unknown vehicle preset {name_or_path!r}; expected one of "
         f"{', '.join(VEHICLE_PRESETS)} or a .toml preset file"
     )
 
 
 def load_vehicle_preset(path: Path) -> VehiclePreset:
-    """Load a preset from TOML: a ``[vehicle]`` table (or top-level keys), strict."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    data = tomllib.loads(Path(path).read_text())
+    """Load a preset from TOML: a ``[vehicle]`` table (or top-level keys), strict: unknown
+    keys, wrong types and values out of range are errors naming the file and key."""
+    data = load_toml(path)
     table = data.get("vehicle", data)
-    known = {f.name for f in dataclasses.fields(VehiclePreset)}
-    unknown = set(table) - known
-    if unknown:
-        raise ValueError(f"{path}: unknown vehicle preset key(s): {', '.join(sorted(unknown))}")
+    if not isinstance(table, dict):
+        raise ConfigError(f"{path}: vehicle must be a table ([vehicle]), got {table!r}")
     table = dict(table)
     table.setdefault("name", Path(path).stem)
-    if isinstance(table.get("ranging"), dict):
-        table["ranging"] = RangingSensor(**table["ranging"])
-    return VehiclePreset(**table)
+    return from_dict(VehiclePreset, table, f"{path}: vehicle" if "vehicle" in data else str(path))
 
 
 def preset_to_toml(preset: VehiclePreset) -> str:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core import metrics as mt
+from openconvoy.core.errors import ConfigError
 
 
 def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
@@ -27,15 +28,15 @@ def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
 
 def _check_per(per: float) -> None:
     if not 0.0 <= per <= 1.0:
-        raise ValueError(f"--per must be in [0, 1], got {per}")
+        raise ConfigError(f"--per must be in [0, 1], got {per}")
 
 
 def format_metrics(metrics: dict[str, Any]) -> str:
     """The metrics as aligned ``key  value`` lines, per-follower p95 errors after them."""
     lines = []
-    for k in mt.METRIC_KEYS:
+    for k in mt.METRIC_KEYS + tuple(k for k in mt.TRAFFIC_METRIC_KEYS if k in metrics):
         v = metrics[k]
-        lines.append(f"{k:<28}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
+        lines.append(f"{k:<28}{' ' * (len(k) >= 28)}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
     for f, values in metrics.get("per_follower", {}).items():
         v = values["p95_platooning_error_m"]
         lines.append(f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}")
@@ -51,6 +52,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    auth = getattr(args, "auth", None)
     if args.convoy:
         from openconvoy.convoy import load_convoy
 
@@ -58,14 +60,16 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario = scenario or convoy.scenario
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
+        auth = auth or ("off" if convoy.v2v.auth == "off" else None)
     if args.burst is not None and args.loss != "gilbert-elliott":
-        raise ValueError("--burst applies to --loss gilbert-elliott")
+        raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
         scenario=scenario or "paper", policy=args.policy, per=args.per, loss_model=args.loss,
         mean_burst_s=args.burst if args.burst is not None else 1.0,
         latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
         n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
         ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
+        faults=tuple(getattr(args, "fault", None) or ()), auth=auth or "required",
     )
 
 
@@ -74,16 +78,17 @@ def sim(args: argparse.Namespace) -> int:
     from openconvoy import __version__
     from openconvoy.core.config import dumps_toml
     from openconvoy.experiments.runs import build_env, run_sim
+    from openconvoy.outputs import check_output_dir
 
     config = run_config_from_args(args)
     build_env(config)  # a bad policy, scenario or preset fails before anything is written
-    out = Path(args.out)
+    out = check_output_dir(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     result = run_sim(config, out, progress=not args.quiet)
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
-    written = ["log.csv", "metrics.json", "run.toml"]
+    written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
     if not args.no_plots:
         from openconvoy.experiments.figures import run_figures
 
@@ -101,14 +106,19 @@ def report(args: argparse.Namespace) -> int:
     """``openconvoy report``: recompute metrics from a log file or a run directory."""
     from openconvoy.experiments.runs import write_json
     from openconvoy.logs import read_log
+    from openconvoy.outputs import check_output_file
 
     path = Path(args.path)
+    if args.out:
+        check_output_file(args.out, "--out")
     log = read_log(path)
     lengths = _lengths_from_convoy(args.convoy)
     if lengths is None and "length_m" not in log:
         print("note: the log has no vehicle lengths; pass --convoy to count collisions "
               "against half lengths (now: centre distance < 0)")
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
     print(format_metrics(metrics))
     out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
     write_json(out, metrics)
@@ -153,9 +163,12 @@ def presets(args: argparse.Namespace) -> int:
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
+        pers = tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise ValueError(f"--pers: expected comma-separated numbers, got {text!r}") from None
+        pers = ()
+    if not pers or not all(0.0 <= p <= 1.0 for p in pers):
+        raise ConfigError(f"--pers: expected comma-separated packet error rates in [0, 1], got {text!r}")
+    return pers
 
 
 def experiment_from_args(args: argparse.Namespace) -> Any:
@@ -171,11 +184,11 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
         changes["scenario"] = args.scenario
     if args.policy:
         changes["policies"] = tuple(args.policy)
-    if args.pers:
+    if args.pers is not None:
         changes["pers"] = _floats(args.pers)
     if args.seeds is not None:
         if args.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
+            raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
         changes["seeds"] = tuple(range(args.seeds))
     if args.duration is not None:
         changes["duration_s"] = args.duration
@@ -197,14 +210,26 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
 
 
 def per_sweep(args: argparse.Namespace) -> int:
-    """``openconvoy experiment per-sweep``."""
+    """``openconvoy experiment per-sweep``; exit status 1 when runs failed (the others
+    are written)."""
+    import sys
+
+    from openconvoy.experiments.executor import TasksFailed, with_flags
     from openconvoy.experiments.sweep import run_experiment
 
     config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
-        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
-    out = Path(args.out)
-    result = run_experiment(config, out, jobs=args.jobs, progress=not args.quiet, figures=not args.no_plots)
+        raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
+    from openconvoy.outputs import check_output_dir
+
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
+    out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
+    try:
+        result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
+                                executor=executor)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
     for r in result.rows:
         print(
@@ -223,7 +248,10 @@ def compare(args: argparse.Namespace) -> int:
     """``openconvoy compare A B``."""
     from openconvoy.experiments import compare as cmp
     from openconvoy.experiments.runs import write_json
+    from openconvoy.outputs import check_output_file
 
+    if args.out:
+        check_output_file(args.out, "--out")
     lengths = _lengths_from_convoy(args.convoy)
     result = cmp.compare(cmp.load_side(args.a, lengths), cmp.load_side(args.b, lengths))
     print(cmp.format_comparison(result))

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core import metrics as mt
+from openconvoy.core.errors import InputFileError
 
 
 @dataclass
@@ -52,7 +53,7 @@ def compare(a: Side, b: Side) -> dict[str, Any]:
     """The comparison as data: runs give ``{"metrics": {key: {a, b, diff}}}``; sweeps give
     ``{"rows": [{"policy_a", "policy_b", "per", key: {a, b, diff}}]}`` (means over seeds)."""
     if a.kind != b.kind:
-        raise ValueError(f"cannot compare a {a.kind} ({a.path}) with a {b.kind} ({b.path})")
+        raise InputFileError(f"cannot compare a {a.kind} ({a.path}) with a {b.kind} ({b.path})")
     if a.kind == "run":
         assert a.metrics is not None and b.metrics is not None
         out = {k: _triple(_num(a.metrics[k]), _num(b.metrics[k])) for k in mt.METRIC_KEYS}
@@ -79,7 +80,7 @@ def compare(a: Side, b: Side) -> dict[str, Any]:
             row[k] = _triple(ra[k]["mean"], rb[k]["mean"])
         rows.append(row)
     if not rows:
-        raise ValueError(f"{a.path} and {b.path} have no (policy, PER) row in common")
+        raise InputFileError(f"{a.path} and {b.path} have no (policy, PER) row in common")
     return {"kind": "sweep", "a": str(a.path), "b": str(b.path), "rows": rows}
 
 

@@ -19,14 +19,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
-from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.config import Range, from_dict, to_dict
+from openconvoy.core.errors import ConfigError
+from openconvoy.core.faults import parse_fault
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
@@ -38,7 +40,7 @@ class RunConfig:
 
     Attributes:
         scenario: scenario spec (``paper``, ``track``, ``emergency-braking``,
-            ``track-file:PATH``).
+            ``track-file:PATH``, ``highway-*``).
         policy: policy spec (preset name, optionally ``+ladder``; ``.toml``, ``.zip``,
             ``.npz`` file).
         per: packet error rate of every link, 0..1.
@@ -59,34 +61,41 @@ class RunConfig:
         origin: convoy origin (latitude deg, longitude deg, altitude m); None = scenario's.
         start_at_policy_gap: place vehicles at the policy's desired gaps (else the
             scenario's).
+        faults: injected faults, ``KIND:VEHICLE@T_S`` specs (``core.faults``).
+        auth: ``"required"`` (members reject forged messages, ``envs.forgery``) or ``"off"``.
     """
 
     scenario: str = "paper"
     policy: str = "paper"
-    per: float = 0.0
+    per: Annotated[float, Range(0.0, 1.0)] = 0.0
     loss_model: str = "bernoulli"
-    mean_burst_s: float = 1.0
-    latency_s: float = 0.0
-    jitter_s: float = 0.0
-    seed: int = 0
-    duration_s: float | None = None
-    n_followers: int | None = None
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    seed: Annotated[int, Range(0, 4294967295)] = 0
+    duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    n_followers: Annotated[int, Range(1, 1000)] | None = None
     vehicles: tuple[str, ...] = ()
     ranging: bool = False
-    ranging_max_range_m: float = 20.0
-    gps_noise_m: float = 0.0
-    origin: tuple[float, float, float] | None = None
+    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
+    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+    origin: tuple[Annotated[float, Range(-90.0, 90.0)], Annotated[float, Range(-180.0, 180.0)], Annotated[float, Range(-1000.0, 10000.0)]] | None = None
     start_at_policy_gap: bool = True
+    faults: tuple[str, ...] = ()
+    auth: str = "required"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        object.__setattr__(self, "faults", tuple(str(parse_fault(f)) for f in self.faults))
         if self.origin is not None:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss  # validates model and PER  # noqa: B018
+        if self.auth not in ("required", "off"):
+            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
         if self.duration_s is not None and self.duration_s <= 0:
-            raise ValueError(f"duration must be positive, got {self.duration_s} s")
+            raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.gps_noise_m < 0:
-            raise ValueError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
+            raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
 
     @property
     def loss(self) -> LossConfig:
@@ -101,8 +110,9 @@ class RunConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "run") -> RunConfig:
         data = dict(data)
-        if "vehicles" in data:
-            data["vehicles"] = tuple(data["vehicles"])
+        for key in ("vehicles", "faults"):
+            if key in data:
+                data[key] = tuple(data[key])
         return from_dict(cls, data, where)
 
 
@@ -115,6 +125,8 @@ class RunResult:
     metrics: dict[str, Any]
     lengths: dict[int, float]
     wall_s: float = math.nan
+    events: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Injected faults and emergency stops: ``{"t_s", "vehicle_id", "reason"}``."""
 
 
 def build_env(config: RunConfig):
@@ -127,7 +139,7 @@ def build_env(config: RunConfig):
     policy = load_policy(config.policy)
     presets = [vehicle_preset(v) for v in config.vehicles] or None
     scenario = make_scenario(config.scenario, config.n_followers, presets)
-    member_config = getattr(policy, "member_config", None)
+    member_config = policy.member_config
     if member_config is not None and config.start_at_policy_gap:
         # The scenario places its vehicles at the desired gaps of its ``spacing``.
         scenario.spacing = member_config.spacing
@@ -143,9 +155,11 @@ def build_env(config: RunConfig):
         scenario,
         member_config=member_config,
         loss=config.loss,
-        control_rate_hz=float(getattr(policy, "control_rate_hz", 20.0)),
+        control_rate_hz=float(policy.control_rate_hz),
         gps_noise_m=config.gps_noise_m,
         max_time_s=config.duration_s,
+        faults=config.faults,
+        auth=config.auth == "required",
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     return env, policies
@@ -173,7 +187,9 @@ def run_sim(
     writer = None
     rows: list[dict[str, Any]] = []
     if out_dir is not None:
-        writer = LogWriter(Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS, flush_every=500)
+        writer = LogWriter(
+            Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS + env.LOG_EXTRA_COLUMNS, flush_every=500
+        )
 
     def emit(tick_rows: list[dict[str, Any]]) -> None:
         for r in tick_rows:
@@ -203,9 +219,18 @@ def run_sim(
             writer.close()
     log = read_log(writer.path) if writer is not None else rows_to_log(rows)
     metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths))
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
+    result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
+    result.events += [  # what authentication stopped (forge faults)
+        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
+        for r, n in enumerate(env.forged_rejected) if n
+    ]
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)
+        if result.events:
+            write_json(Path(out_dir) / "events.json", result.events)
     return result
 
 

@@ -28,6 +28,10 @@ One TOML file fully describes an experiment::
     base = "cacc-allpred"                    # a preset; the keys below override it
     speed_limit_mps = 40.0
 
+    [executor]                               # optional: where the runs execute
+    kind = "ray"                             # default "local" (processes on this machine)
+    address = "10.0.0.5:6379"                # see openconvoy.experiments.executor
+
 An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
 name it (with ``+ladder`` too); policy files named in ``policies`` are inlined the same way
 under their file's stem. The run directory keeps ``experiment.toml`` (the complete
@@ -37,6 +41,9 @@ inline policies as files, ``summary.json`` (DESIGN.md's shape, one row per polic
 ``runs/<policy>/per_<PER>/seed_<seed>/``, and the figures. Rerunning from the copy gives a
 byte-identical ``summary.csv``: every run is seeded, results are ordered by (policy, PER,
 seed) whatever order the processes finish in, and numbers are written with fixed format.
+The executor does not change a number: each run is a task that ships its log and metrics
+back as bytes, and only this process writes the run directory. A run that fails leaves
+the others written, ``failures.json`` naming it, and a summary of the runs that finished.
 """
 
 from __future__ import annotations
@@ -46,18 +53,28 @@ import dataclasses
 import io
 import json
 import math
-import multiprocessing
-import os
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
 from openconvoy.core import metrics as mt
-from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.errors import ConfigError
+from openconvoy.experiments import portable
+from openconvoy.experiments.executor import (
+    Executor,
+    ExecutorConfig,
+    Task,
+    TaskFailure,
+    TasksFailed,
+    make_executor,
+)
+from openconvoy.experiments.executor import available_cores as available_cores  # re-export
+from openconvoy.experiments.portable import Files
 from openconvoy.experiments.runs import RunConfig, run_sim, write_json
 
 DEFAULT_PERS: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
@@ -70,10 +87,10 @@ class ConvoySection:
     """The convoy of an experiment: presets (leader first), size, ranging, GPS noise (m)."""
 
     vehicles: tuple[str, ...] = ()
-    n_followers: int | None = None
+    n_followers: Annotated[int, Range(1, 1000)] | None = None
     ranging: bool = False
-    ranging_max_range_m: float = 20.0
-    gps_noise_m: float = 0.0
+    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
+    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
@@ -84,15 +101,15 @@ class LossSection:
     """The link model of every run; the PER comes from the sweep (s for times)."""
 
     model: str = "bernoulli"
-    mean_burst_s: float = 1.0
-    latency_s: float = 0.0
-    jitter_s: float = 0.0
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
 
     def __post_init__(self) -> None:
         if self.model not in ("bernoulli", "gilbert-elliott"):
-            raise ValueError(f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')")
+            raise ConfigError(f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')")
         if self.mean_burst_s <= 0:
-            raise ValueError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
+            raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
 
 
 @dataclass(frozen=True)
@@ -103,17 +120,20 @@ class ExperimentConfig:
     kind: str = "per-sweep"
     scenario: str = "paper"
     policies: tuple[str, ...] = ("paper",)
-    pers: tuple[float, ...] = DEFAULT_PERS
-    seeds: tuple[int, ...] = (0, 1, 2)
-    duration_s: float | None = None
+    pers: tuple[Annotated[float, Range(0.0, 1.0)], ...] = DEFAULT_PERS
+    seeds: tuple[Annotated[int, Range(0, 4294967295)], ...] | Annotated[int, Range(1, 100000)] = (0, 1, 2)
+    duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
     convoy: ConvoySection = field(default_factory=ConvoySection)
     loss: LossSection = field(default_factory=LossSection)
     policy: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Inline policy tables by name (each a policy file's ``[policy]`` table)."""
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig, compare=False)
+    """Where the runs execute (``[executor]``): not part of the experiment's results, so
+    neither compared nor written to the run directory's copy (which reruns locally)."""
 
     def __post_init__(self) -> None:
         if self.kind != "per-sweep":
-            raise ValueError(f"unknown experiment kind {self.kind!r}; expected 'per-sweep'")
+            raise ConfigError(f"unknown experiment kind {self.kind!r}; expected 'per-sweep'")
         object.__setattr__(self, "policies", tuple(self.policies))
         object.__setattr__(self, "pers", tuple(float(p) for p in self.pers))
         seeds = self.seeds
@@ -121,28 +141,28 @@ class ExperimentConfig:
             seeds = tuple(range(seeds))
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
         if not self.policies:
-            raise ValueError("an experiment needs at least one policy")
+            raise ConfigError("an experiment needs at least one policy")
         if len(set(self.policies)) != len(self.policies):
-            raise ValueError(f"policies repeat: {', '.join(self.policies)}")
+            raise ConfigError(f"policies repeat: {', '.join(self.policies)}")
         if not self.pers or not self.seeds:
-            raise ValueError("an experiment needs at least one PER and one seed")
+            raise ConfigError("an experiment needs at least one PER and one seed")
         for p in self.pers:
             if not 0.0 <= p <= 1.0:
-                raise ValueError(f"PER must be in [0, 1], got {p}")
+                raise ConfigError(f"PER must be in [0, 1], got {p}")
         if len(set(self.pers)) != len(self.pers) or len(set(self.seeds)) != len(self.seeds):
-            raise ValueError("PERs and seeds must not repeat")
+            raise ConfigError("PERs and seeds must not repeat")
         if self.duration_s is not None and self.duration_s <= 0:
-            raise ValueError(f"duration_s must be positive, got {self.duration_s}")
+            raise ConfigError(f"duration_s must be positive, got {self.duration_s}")
         for name, table in self.policy.items():
             if not isinstance(table, dict):
-                raise ValueError(f"[policy.{name}] must be a table")
+                raise ConfigError(f"[policy.{name}] must be a table")
 
     # --- TOML ----------------------------------------------------------------------------
 
     def to_toml(self) -> str:
         """The experiment file for this config, every value written out."""
         data = to_dict(self)
-        top = {k: v for k, v in data.items() if k not in ("convoy", "loss", "policy")}
+        top = {k: v for k, v in data.items() if k not in ("convoy", "loss", "policy", "executor")}
         out: dict[str, Any] = {"experiment": top, "convoy": data["convoy"], "loss": data["loss"]}
         if self.policy:
             out["policy"] = {name: dict(table) for name, table in self.policy.items()}
@@ -156,18 +176,23 @@ class ExperimentConfig:
 
     @classmethod
     def from_tables(cls, data: dict[str, Any], where: str = "experiment") -> ExperimentConfig:
-        unknown = set(data) - {"experiment", "convoy", "loss", "policy"}
+        unknown = set(data) - {"experiment", "convoy", "loss", "policy", "executor"}
         if unknown:
-            raise ValueError(f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy")
+            raise ConfigError(f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy, executor")
         if "experiment" not in data:
-            raise ValueError(f"{where}: missing the [experiment] table")
+            raise ConfigError(f"{where}: missing the [experiment] table")
         table = dict(data["experiment"])
-        for key in ("convoy", "loss", "policy"):
+        for key in ("convoy", "loss", "policy", "executor"):
             if key in table:
-                raise ValueError(f"{where}: {key} belongs in its own [{key}] table")
+                raise ConfigError(f"{where}: {key} belongs in its own [{key}] table")
             if key in data:
                 table[key] = data[key]
-        return from_dict(cls, table, where)
+        config = from_dict(cls, table, where)
+        from openconvoy.policies.spec import classical_from_table
+
+        for name, policy_table in config.policy.items():  # referenced or not, checked here
+            classical_from_table(policy_table, name, f"{where}: policy.{name}")
+        return config
 
     # --- runs ----------------------------------------------------------------------------
 
@@ -212,7 +237,7 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
         name = Path(base).stem
         table.setdefault("name", name)
         if name in PRESETS or (name in inline and inline[name] != table):
-            raise ValueError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
+            raise ConfigError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
         inline[name] = table
         labels.append(name + label[len(base):])
     if labels == list(config.policies):
@@ -228,7 +253,7 @@ def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, 
     files: dict[str, str] = {}
     for name, table in config.policy.items():
         if "/" in name or name.endswith(".toml"):
-            raise ValueError(f"[policy.{name}]: an inline policy name is a plain word")
+            raise ConfigError(f"[policy.{name}]: an inline policy name is a plain word")
         path = out_dir / "policies" / f"{name}.toml"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(dumps_toml({"policy": {"name": name, **table}}), encoding="utf-8")
@@ -252,12 +277,23 @@ def policy_dirname(label: str) -> str:
 
 # --- running -----------------------------------------------------------------------------
 
+RUN_FILES = ("log.csv", "metrics.json")
 
-def _run_one(args: tuple[RunConfig, str, bool]) -> dict[str, Any]:
-    """Worker: one run, writing its log and metrics; returns metrics (and figure series)."""
-    config, out_dir, keep_series = args
-    result = run_sim(config, out_dir)
-    return {"metrics": result.metrics, "series": run_series(result.log, result.lengths) if keep_series else None}
+
+def _run_one(args: tuple[RunConfig, Files, bool]) -> dict[str, Any]:
+    """Task: one run in a temporary directory of its worker; returns its files as bytes,
+    its metrics and (``keep_series``) the figure series. The driver writes the files."""
+    config, files, keep_series = args
+    with tempfile.TemporaryDirectory(prefix="openconvoy-run-") as tmp:
+        where = portable.land(files, tmp)
+        out = Path(tmp) / "run"
+        with portable.driver_names(where):
+            result = run_sim(portable.relocate_run(config, where), out)
+        return {
+            "files": {name: (out / name).read_bytes() for name in RUN_FILES},
+            "metrics": result.metrics,
+            "series": run_series(result.log, result.lengths) if keep_series else None,
+        }
 
 
 def run_series(log: mt.Columns, lengths: dict[int, float], max_points: int = 800) -> dict[str, Any]:
@@ -283,13 +319,15 @@ def run_series(log: mt.Columns, lengths: dict[int, float], max_points: int = 800
 
 @dataclass
 class SweepResult:
-    """A finished sweep: its config, summary rows, per-run metrics and figure series."""
+    """A finished sweep: its config, summary rows, per-run metrics and figure series
+    (only the runs that finished; ``failures`` names the others)."""
 
     config: ExperimentConfig
     rows: list[dict[str, Any]]
     runs: list[tuple[str, RunConfig, dict[str, Any]]]
     series: dict[tuple[str, float], dict[str, Any]]
     out_dir: Path
+    failures: list[TaskFailure] = field(default_factory=list)
 
 
 def run_experiment(
@@ -298,9 +336,15 @@ def run_experiment(
     jobs: int | None = None,
     progress: bool = True,
     figures: bool = True,
+    executor: ExecutorConfig | Executor | None = None,
+    raise_on_failure: bool = True,
 ) -> SweepResult:
-    """Run every (policy, PER, seed) of ``config`` on ``jobs`` processes (default: the
-    cores available) and write the run directory (see the module docstring)."""
+    """Run every (policy, PER, seed) of ``config`` and write the run directory (see the
+    module docstring). The runs are tasks of ``executor`` (default: ``config.executor``,
+    the local processes, ``jobs`` of them if given). When runs fail, the others' results
+    are written all the same, ``summary.*`` covers them, ``failures.json`` names the lost
+    runs, and ``TasksFailed`` is raised (or, without ``raise_on_failure``, the result
+    lists them)."""
     from openconvoy import __version__
     from openconvoy.policies.spec import classical_config
 
@@ -308,6 +352,14 @@ def run_experiment(
     for label in config.policies:  # fail before anything is written
         if label.removesuffix(LADDER_SUFFIX) not in config.policy and not label.endswith((".zip", ".npz")):
             classical_config(label)
+    if not isinstance(executor, Executor):
+        chosen = executor or config.executor
+        if jobs is not None and chosen.jobs is None:
+            chosen = dataclasses.replace(chosen, jobs=jobs)
+        if chosen.kind == "local":  # no more processes than runs (one: in this process)
+            n_runs = len(config.policies) * len(config.pers) * len(config.seeds)
+            chosen = dataclasses.replace(chosen, jobs=min(chosen.jobs or available_cores(), n_runs))
+        executor = make_executor(chosen)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.toml").write_text(config.to_toml(), encoding="utf-8")
@@ -318,21 +370,35 @@ def run_experiment(
     specs = write_inline_policies(config, out)
     planned = config.run_configs(specs)
     first_seed = config.seeds[0]
+    dirs = [run_dirname(label, rc) for label, rc in planned]
     tasks = [
-        (rc, str(out / "runs" / policy_dirname(label) / f"per_{_per_name(rc.per)}" / f"seed_{rc.seed}"),
-         rc.seed == first_seed)
-        for label, rc in planned
+        Task(d, _run_one, (rc, portable.ship(portable.run_specs(rc)), rc.seed == first_seed))
+        for d, (label, rc) in zip(dirs, planned)
     ]
-    results = _map(tasks, jobs, progress, desc=f"{config.name}")
-    runs = [(label, rc, res["metrics"]) for (label, rc), res in zip(planned, results)]
-    series = {
-        (label, rc.per): res["series"]
-        for (label, rc), res in zip(planned, results) if res["series"] is not None
-    }
+    with executor:
+        results = executor.map(tasks, progress, desc=config.name)
+    runs, failures = [], []
+    series = {}
+    for d, (label, rc), res in zip(dirs, planned, results):
+        if isinstance(res, TaskFailure):
+            failures.append(res)
+            continue
+        run_dir = out / d
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for name, data in res["files"].items():
+            (run_dir / name).write_bytes(data)
+        runs.append((label, rc, res["metrics"]))
+        if res["series"] is not None:
+            series[(label, rc.per)] = res["series"]
     rows = summarize(runs, config.policies, config.pers)
     write_json(out / "summary.json", {"rows": rows})
     (out / "summary.csv").write_text(summary_csv(rows), encoding="utf-8")
-    result = SweepResult(config, rows, runs, series, out)
+    result = SweepResult(config, rows, runs, series, out, failures)
+    if failures:
+        write_json(out / "failures.json", {"failures": [dataclasses.asdict(f) for f in failures]})
+        if raise_on_failure:
+            raise TasksFailed(failures, len(tasks), f"the other {len(runs)} are in {out} (summary.csv covers only them)")
+        return result
     if figures:
         from openconvoy.experiments import figures as figs
 
@@ -340,56 +406,14 @@ def run_experiment(
     return result
 
 
+def run_dirname(label: str, config: RunConfig) -> str:
+    """A run's directory under the sweep's: ``runs/<policy>/per_<PER>/seed_<seed>``."""
+    return f"runs/{policy_dirname(label)}/per_{_per_name(config.per)}/seed_{config.seed}"
+
+
 def _per_name(per: float) -> str:
     """``0.60`` for two-decimal PERs (sorts well), else every digit needed (``0.125``)."""
     return f"{per:.2f}" if round(per, 2) == per else f"{per:g}"
-
-
-def _map(tasks: Sequence[Any], jobs: int | None, progress: bool, desc: str) -> list[dict[str, Any]]:
-    """``_run_one`` over ``tasks`` in processes; results in task order."""
-    jobs = max(1, min(jobs or available_cores(), len(tasks)))
-    bar = _bar(len(tasks), progress, desc)
-    results: list[dict[str, Any] | None] = [None] * len(tasks)
-    try:
-        if jobs == 1:
-            for i, task in enumerate(tasks):
-                results[i] = _run_one(task)
-                bar(1)
-        else:
-            # spawn: workers start clean (no inherited threads or open files).
-            ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-                futures = {pool.submit(_run_one, task): i for i, task in enumerate(tasks)}
-                for fut in as_completed(futures):
-                    results[futures[fut]] = fut.result()
-                    bar(1)
-    finally:
-        bar(0, close=True)
-    return [r for r in results if r is not None]
-
-
-def _bar(total: int, enabled: bool, desc: str) -> Callable[..., None]:
-    if not enabled:
-        return lambda n, close=False: None
-    from tqdm import tqdm
-
-    bar = tqdm(total=total, unit="run", desc=desc)
-
-    def update(n: int, close: bool = False) -> None:
-        if n:
-            bar.update(n)
-        if close:
-            bar.close()
-
-    return update
-
-
-def available_cores() -> int:
-    """Cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 # --- summaries ---------------------------------------------------------------------------
@@ -445,7 +469,7 @@ def read_summary(path: str | Path) -> list[dict[str, Any]]:
     data = json.loads(p.read_text(encoding="utf-8"))
     rows = data.get("rows") if isinstance(data, dict) else None
     if not isinstance(rows, list):
-        raise ValueError(f"{p}: not a sweep summary (no 'rows' list)")
+        raise ConfigError(f"{p}: not a sweep summary (no 'rows' list)")
     for r in rows:
         for k in mt.METRIC_KEYS:
             if isinstance(r.get(k), dict):

@@ -7,14 +7,26 @@ target lies ``mean_j(spacing_error_j)`` metres ahead along the path (the paper's
 distances, with squares so the argmin is unique for two predecessors). χ_v turns that
 error plus the nearest predecessor's speed into a speed setpoint; χ_θ steers onto the
 nearest predecessor's trail.
+
+Stale targets only slow (issue 10). The mean runs over the fresh targets (messages no
+older than ``MemberConfig.fresh_age_s``, the ladder's ``degrade_after_s``); the nearest fresh predecessor caps the speed
+at what it alone asks for, so a leader far ahead can no longer outweigh a stopped
+predecessor; each stale target (which the member already dead-reckons as braking) caps it
+at its own term of the mean — ``min(mean of the others, each one) <= mean of all``, so a
+stale target never makes a follower faster than if it were fresh — and at what it alone
+asks for; a predecessor heard before but now older than ``stop_after_s`` stops the
+follower. Loss-free, this is the paper's σ with the nearest-predecessor cap.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 
+from openconvoy.core.config import Range
 from openconvoy.core.controllers import (
     HeadingControlConfig,
     PIDSpeed,
@@ -22,6 +34,7 @@ from openconvoy.core.controllers import (
     pure_pursuit,
     stanley,
 )
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import LOOKAHEAD_S
 from openconvoy.core.policy import make_action
@@ -37,14 +50,14 @@ class ClassicalConfig:
     member: MemberConfig = field(default_factory=MemberConfig)
     speed: SpeedControlConfig = field(default_factory=SpeedControlConfig)
     heading: HeadingControlConfig = field(default_factory=HeadingControlConfig)
-    speed_limit_mps: float = 5.0
-    control_rate_hz: float = 20.0
-    rear_weight: float = 0.0
+    speed_limit_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 5.0
+    control_rate_hz: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 20.0
+    rear_weight: Annotated[float, Range(0.0, 10.0)] = 0.0
     """Bidirectional (M-CACC) coupling: weight of the follower's spacing error (0 = none)."""
 
     def __post_init__(self) -> None:
         if self.control_rate_hz <= 0 or self.speed_limit_mps <= 0:
-            raise ValueError("control_rate_hz and speed_limit_mps must be positive")
+            raise ConfigError("control_rate_hz and speed_limit_mps must be positive")
 
 
 class ClassicalPolicy:
@@ -72,18 +85,54 @@ class ClassicalPolicy:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         view = self.layout.view(observation)
-        targets = view.valid_targets()
-        if not targets:
+        targets, lost = self._targets(view)
+        if lost or not targets:
             self._speed.reset()
             return make_action(0.0, 0.0)
-        error = sum(t["spacing_error"] for t in targets) / len(targets)
-        if self.config.rear_weight > 0.0:
-            error -= self.config.rear_weight * self._rear_error(view, targets[0]["desired_gap"])
-        v_ref = targets[0]["speed"]
-        # The spacing error grows at the speed difference along the path.
-        speed = self._speed(error, v_ref, v_ref - view.own_speed)
+        own = view.own_speed
+        v_ref = targets[0][0]["speed"]  # the nearest predecessor's, as in the paper
+        fresh = [t for t, stale in targets if not stale]
+        stale = [t for t, is_stale in targets if is_stale]
+        c = self.config.speed
+        speed = math.inf
+        if fresh:
+            error = sum(t["spacing_error"] for t in fresh) / len(fresh)
+            if self.config.rear_weight > 0.0:
+                error -= self.config.rear_weight * self._rear_error(view, fresh[0]["desired_gap"])
+            # The spacing error grows at the speed difference along the path.
+            speed = self._speed(error, v_ref, v_ref - own)
+            # Never faster than the nearest fresh predecessor alone asks.
+            near = fresh[0]
+            speed = min(speed, near["speed"] + c.kp * near["spacing_error"] + c.kd * (near["speed"] - own))
+        else:
+            self._speed.reset()
+        for t in stale:
+            # Each stale target caps the speed at its term of the mean (so leaving it out
+            # of the mean cannot speed the follower up) and at what it alone asks.
+            e = t["spacing_error"]
+            speed = min(speed, v_ref + c.kp * e + c.kd * (v_ref - own), t["speed"] + c.kp * e + c.kd * (t["speed"] - own))
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
-        return make_action(speed, self._heading_change(view.path, view.own_speed))
+        return make_action(speed, self._heading_change(view.path, own))
+
+    def _targets(self, view) -> tuple[list[tuple[dict[str, float], bool]], bool]:
+        """Valid targets nearest first, each with whether it is stale (older than
+        ``MemberConfig.fresh_age_s``), and whether a predecessor heard before is now too
+        old to be a target (lost)."""
+        degrade = self.config.member.fresh_age_s
+        out: list[tuple[dict[str, float], bool]] = []
+        lost = False
+        for name in (*self.layout.targets[1:], "leader"):
+            newest = view.states(name)[0]
+            target = view.target(name)
+            if target["valid"] > 0.5:
+                out.append((target, bool(newest[5] > degrade)))
+            elif newest[6] > 0.5 and (name != "leader" or not self._leader_in_preds(view, newest)):
+                lost = True  # heard, but older than the stop age (the member dropped it)
+        return out, lost
+
+    def _leader_in_preds(self, view, newest: np.ndarray) -> bool:
+        """The leader slot repeats a predecessor slot (a follower within M of the leader)."""
+        return any(np.array_equal(newest, view.states(p)[0]) for p in self.layout.targets[1:])
 
     def _rear_error(self, view, desired_gap: float) -> float:
         """How much farther behind than desired the immediate follower is (m), 0 if unheard.

@@ -27,6 +27,7 @@ A policy whose recorded layout differs from the convoy's (``layout=`` or
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,6 +37,12 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core.config import from_dict, to_dict
+from openconvoy.core.errors import (
+    DependencyMissing,
+    InputFileError,
+    MissingFileError,
+    OpenConvoyError,
+)
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import make_action
@@ -94,14 +101,14 @@ class LearnedMeta:
 
     def __post_init__(self) -> None:
         if self.base is not None and self.base.member != self.member_config:
-            raise ValueError("a residual policy's base must use the policy's member configuration")
-        if self.control_rate_hz <= 0:
-            raise ValueError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
+            raise InputFileError("a residual policy's base must use the policy's member configuration")
+        if not (math.isfinite(self.control_rate_hz) and 0 < self.control_rate_hz <= 100):
+            raise InputFileError(f"control_rate_hz: {self.control_rate_hz!r} is out of range; allowed: (0, 100] Hz")
         size = int(self.layout["size"])
         for name in ("obs_mean", "obs_var"):
             arr = getattr(self, name)
             if arr is not None and np.shape(arr) != (size,):
-                raise ValueError(f"{name} has shape {np.shape(arr)}, the layout has size {size}")
+                raise InputFileError(f"{name} has shape {np.shape(arr)}, the layout has size {size}")
         # The member config must describe the layout the policy records.
         self.member_config.layout.check_compatible(self.layout)
 
@@ -147,7 +154,11 @@ class LearnedMeta:
                 extra=dict(data.get("extra", {})),
             )
         except KeyError as exc:
-            raise ValueError(f"{where}: missing key {exc.args[0]!r}") from None
+            raise InputFileError(f"{where}: missing key {exc.args[0]!r}") from None
+        except (TypeError, AttributeError, ValueError) as exc:  # a value of the wrong kind
+            if isinstance(exc, OpenConvoyError):
+                raise
+            raise InputFileError(f"{where}: bad metadata ({exc})") from None
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         """The observation as the network saw it in training (VecNormalize's formula)."""
@@ -234,7 +245,7 @@ class LearnedPolicy:
         """The network's deterministic action in [-1, 1]^2 (before SI scaling)."""
         obs = np.asarray(observation)
         if obs.shape != (self.layout.size,):
-            raise ValueError(f"observation has shape {obs.shape}, layout expects ({self.layout.size},)")
+            raise InputFileError(f"observation has shape {obs.shape}, layout expects ({self.layout.size},)")
         return np.asarray(self._forward(self.meta.normalize(obs)), dtype=np.float64).reshape(-1)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
@@ -253,16 +264,18 @@ class NumpyMLP:
 
     def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], activation: str, output: str) -> None:
         if activation not in ACTIVATIONS:
-            raise ValueError(f"unknown activation {activation!r}; expected one of {', '.join(ACTIVATIONS)}")
+            raise InputFileError(f"unknown activation {activation!r}; expected one of {', '.join(ACTIVATIONS)}")
         if output not in OUTPUTS:
-            raise ValueError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
+            raise InputFileError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
         if len(weights) != len(biases) or not weights:
-            raise ValueError("an MLP needs as many bias vectors as weight matrices, at least one")
+            raise InputFileError("an MLP needs as many bias vectors as weight matrices, at least one")
         self.weights = [np.asarray(w, dtype=np.float64) for w in weights]
         self.biases = [np.asarray(b, dtype=np.float64) for b in biases]
+        if not all(np.isfinite(a).all() for a in (*self.weights, *self.biases)):
+            raise InputFileError("the network's weights are not all finite numbers (NaN or inf)")
         for i in range(1, len(self.weights)):
             if self.weights[i].shape[1] != self.weights[i - 1].shape[0]:
-                raise ValueError(f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}")
+                raise InputFileError(f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}")
         self.activation = activation
         self.output = output
         self._act = ACTIVATIONS[activation]
@@ -301,10 +314,25 @@ def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
 
 
 def load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
-    """Read an exported artifact: its metadata and its network."""
+    """Read an exported artifact: its metadata and its network. Anything that is not one
+    (random bytes, a truncated file, missing arrays, bad metadata JSON, non-finite
+    weights) is an ``InputFileError`` naming the file."""
+    try:
+        return _load_npz(path)
+    except InputFileError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise InputFileError(f"{path}: {exc}") from None
+    except (ValueError, KeyError, EOFError, OSError, zipfile.BadZipFile) as exc:
+        # numpy says "pickled data ... allow_pickle": the file is simply not an export
+        why = "not a numpy .npz archive" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
+        raise InputFileError(f"{path}: not a valid OpenConvoy policy export ({why})") from None
+
+
+def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
     with np.load(Path(path), allow_pickle=False) as data:
         if "format" not in data or str(data["format"]) != NPZ_FORMAT:
-            raise ValueError(f"{path}: not an OpenConvoy policy export (expected format {NPZ_FORMAT})")
+            raise InputFileError(f"{path}: not an OpenConvoy policy export (expected format {NPZ_FORMAT})")
         meta = LearnedMeta.from_json(json.loads(str(data["meta"])), f"{path}")
         n = int(data["n_layers"])
         mlp = NumpyMLP(
@@ -314,7 +342,7 @@ def load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
             str(data["output"]),
         )
     if mlp.n_inputs != meta.layout["size"]:
-        raise ValueError(f"{path}: the network takes {mlp.n_inputs} inputs, the layout has {meta.layout['size']}")
+        raise InputFileError(f"{path}: the network takes {mlp.n_inputs} inputs, the layout has {meta.layout['size']}")
     return meta, mlp
 
 
@@ -323,13 +351,15 @@ def read_zip_meta(path: str | Path) -> LearnedMeta:
     try:
         with zipfile.ZipFile(path) as zf:
             if META_MEMBER not in zf.namelist():
-                raise ValueError(
+                raise InputFileError(
                     f"{path}: an SB3 model without OpenConvoy metadata ({META_MEMBER}); "
                     "train it with `openconvoy train`"
                 )
             data = json.loads(zf.read(META_MEMBER).decode("utf-8"))
     except zipfile.BadZipFile:
-        raise ValueError(f"{path}: not a zip file") from None
+        raise InputFileError(f"{path}: not a zip file") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFileError(f"{path}: {META_MEMBER} is not valid JSON ({exc})") from None
     return LearnedMeta.from_json(data, str(path))
 
 
@@ -351,17 +381,20 @@ def load_sb3_model(path: str | Path, algo: str):
     try:
         import stable_baselines3 as sb3
     except ImportError as exc:
-        raise ValueError(
+        raise DependencyMissing(
             f"{path}: loading an SB3 .zip needs the train extra (pip install 'openconvoy[train]'); "
             "export it to .npz with `openconvoy export` to run without torch"
         ) from exc
     classes = {"ppo": sb3.PPO, "sac": sb3.SAC}
     if algo not in classes:
-        raise ValueError(f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}")
+        raise InputFileError(f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}")
     # Schedules are pickled closures; inference never needs them, and replacing them avoids
     # unpickling failures across Python/SB3 versions.
     custom = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
-    return classes[algo].load(str(path), device="cpu", custom_objects=custom)
+    try:
+        return classes[algo].load(str(path), device="cpu", custom_objects=custom)
+    except Exception as exc:  # noqa: BLE001 - SB3/torch raise anything on a corrupt archive
+        raise InputFileError(f"{path}: SB3 could not load the model ({type(exc).__name__}: {exc})") from None
 
 
 def load_learned(
@@ -376,7 +409,7 @@ def load_learned(
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"policy file not found: {path}")
+        raise MissingFileError(f"policy file not found: {path}")
     if path.suffix == ".npz":
         meta, forward = load_npz(path)
     elif path.suffix == ".zip":
@@ -388,13 +421,13 @@ def load_learned(
             return action
 
     else:
-        raise ValueError(f"{path}: a learned policy is a .zip (SB3) or .npz (export) file")
+        raise InputFileError(f"{path}: a learned policy is a .zip (SB3) or .npz (export) file")
     for expected in (layout, None if member_config is None else member_config.layout):
         if expected is not None:
             try:
                 expected.check_compatible(meta.layout)
             except ValueError as exc:
-                raise ValueError(f"{path}: {exc}") from None
+                raise InputFileError(f"{path}: {exc}") from None
     return LearnedPolicy(meta, forward, str(path))
 
 

@@ -15,23 +15,26 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
-from openconvoy.core.policy import Policy
+from openconvoy.core.errors import ConfigError, MissingFileError
+from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.presets import PRESETS, with_ladder
 
 LADDER_SUFFIX = "+ladder"
 
 
-def load_policy(spec: str, **learned_kwargs: Any) -> Policy:
-    """The policy a spec names. Learned-policy keyword arguments pass to their loader."""
+def load_policy(spec: str, **learned_kwargs: Any) -> ConvoyPolicy:
+    """The policy a spec names (a ``ConvoyPolicy``: checked here, so callers read its
+    ``member_config``, ``control_rate_hz`` and ``name`` directly). Learned-policy keyword
+    arguments pass to their loader."""
     path = Path(spec)
     if path.suffix in (".zip", ".npz"):
         if not path.is_file():
-            raise FileNotFoundError(f"policy file not found: {spec}")
+            raise MissingFileError(f"policy file not found: {spec}")
         from openconvoy.policies import learned
 
-        return learned.load_learned(path, **learned_kwargs)
-    return ClassicalPolicy(classical_config(spec))
+        return as_convoy_policy(learned.load_learned(path, **learned_kwargs), spec)
+    return as_convoy_policy(ClassicalPolicy(classical_config(spec)), spec)
 
 
 def classical_config(spec: str) -> ClassicalConfig:
@@ -43,7 +46,7 @@ def classical_config(spec: str) -> ClassicalConfig:
     elif base in PRESETS:
         config = PRESETS[base]
     else:
-        raise ValueError(
+        raise ConfigError(
             f"unknown policy {spec!r}: not a preset ({', '.join(PRESETS)}), "
             "nor a .toml, .zip or .npz file"
         )
@@ -56,18 +59,26 @@ def classical_from_toml(path: str | Path) -> ClassicalConfig:
     data = load_toml(path)
     table = data.get("policy")
     if table is None or set(data) - {"policy"}:
-        raise ValueError(f"{path}: a policy file has exactly one top-level table, [policy]")
+        raise ConfigError(f"{path}: a policy file has exactly one top-level table, [policy]")
+    return classical_from_table(table, Path(path).stem, f"{path}: policy", Path(path).name)
+
+
+def classical_from_table(table: Any, name: str, where: str, source: str = "") -> ClassicalConfig:
+    """A ClassicalConfig from a ``[policy]`` table (its ``base`` preset overridden by the
+    table, table by table); errors name ``where`` and the key."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: expected a table, got {table!r}")
     table = dict(table)
     base_name = table.pop("base", None)
     if base_name is not None:
         if base_name not in PRESETS:
-            raise ValueError(f"{path}: unknown base preset {base_name!r}")
+            raise ConfigError(f"{where}.base: unknown base preset {base_name!r}; expected one of {', '.join(PRESETS)}")
         inherited = to_dict(PRESETS[base_name])
-        inherited["name"] = Path(path).stem
-        inherited["description"] = f"{base_name} with changes from {Path(path).name}"
+        inherited["name"] = name
+        inherited["description"] = f"{base_name} with changes from {source or name}"
         table = _merge(inherited, table)
-    table.setdefault("name", Path(path).stem)
-    return from_dict(ClassicalConfig, table, f"{path}: [policy]")
+    table.setdefault("name", name)
+    return from_dict(ClassicalConfig, table, where)
 
 
 def classical_to_toml(config: ClassicalConfig) -> str:

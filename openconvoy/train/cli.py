@@ -5,13 +5,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from pathlib import Path
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.train.config import TrainConfig, load_train_config
 
 
-def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
-    """``--config`` (or the defaults) with the flags given on the command line applied."""
-    config = load_train_config(args.config) if args.config else TrainConfig()
+def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
+    """``path`` (a ``--config``; default the first, or the defaults) with the flags given
+    on the command line applied."""
+    if path is None and args.config:
+        path = args.config[0]
+    config = load_train_config(path) if path else TrainConfig()
     top: dict = {}
     for flag, key in (("algo", "algo"), ("steps", "total_steps"), ("seed", "seed"),
                       ("envs", "n_envs"), ("threads", "torch_threads")):
@@ -45,8 +50,12 @@ def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def train_command(args: argparse.Namespace) -> int:
+    """``openconvoy train``: one run in this process, or several (``--seeds``, repeated
+    ``--config``) as tasks of the executor (``openconvoy.train.multirun``)."""
     from openconvoy.train.train import train
 
+    if args.seeds or len(args.config or ()) > 1 or args.executor == "ray":
+        return _train_many(args)
     config = train_config_from_args(args)
     print(
         f"training {config.algo} for {config.total_steps} agent steps on {config.n_envs} envs x "
@@ -60,20 +69,67 @@ def train_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train_many(args: argparse.Namespace) -> int:
+    from openconvoy.experiments.executor import (
+        ExecutorConfig,
+        TasksFailed,
+        make_executor,
+        with_flags,
+    )
+    from openconvoy.train.multirun import plan, train_many
+
+    if args.seed is not None and args.seeds:
+        raise ConfigError("give --seed or --seeds, not both")
+    if args.seeds and len(set(args.seeds)) != len(args.seeds):
+        raise ConfigError(f"--seeds repeat: {' '.join(map(str, args.seeds))}")
+    paths = args.config or [None]
+    configs = [(_stem(p) if p else "default", train_config_from_args(args, p)) for p in paths]
+    runs = plan(configs, args.seeds)
+    executor = make_executor(with_flags(ExecutorConfig(), args.executor, args.address, args.jobs))
+    print(f"training {len(runs)} runs on the {executor.kind} executor ({executor.slots} at once) -> {args.out}",
+          file=sys.stderr)
+    try:
+        summary = train_many(runs, args.out, executor, progress=not args.no_progress, overwrite=args.overwrite)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
+    for entry in summary:
+        print(f"{Path(args.out) / entry['policy']}  ({entry['steps']} steps in {entry['wall_s']:.0f} s on {entry['ran_on']})")
+    return 0
+
+
 def tune_command(args: argparse.Namespace) -> int:
+    """``openconvoy tune``; exit status 1 when trials failed (the study keeps the others)."""
+    from openconvoy.experiments.executor import ExecutorConfig, TasksFailed, with_flags
     from openconvoy.train.tune import TuneConfig, tune, write_tuned
 
     if not args.out.endswith(".toml"):
-        raise ValueError(f"{args.out}: the tuned policy is a .toml file")
+        raise ConfigError(f"{args.out}: the tuned policy is a .toml file")
+    if args.study_name is not None and args.storage is None:
+        raise ConfigError("--study-name needs --storage (an in-memory study cannot be resumed)")
     config = TuneConfig(
         base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
         scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
         seed=args.seed, name=_stem(args.out),
     )
-    result = tune(config, progress_bar=not args.no_progress)
+    # Trials run one at a time in this process unless an executor or --jobs is asked for.
+    jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
+    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
+    try:
+        result = tune(config, progress_bar=not args.no_progress, executor=executor,
+                      study_name=args.study_name, storage=args.storage)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
     path = write_tuned(result, args.out)
     values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
-    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}")
+    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "
+          f"{len(result.history)} trials in study {result.study_name!r}, {result.evaluated} run now")
+    if result.failures:
+        print(f"openconvoy: error: {len(result.failures)} trials failed:", file=sys.stderr)
+        for f in result.failures:
+            print(f"  {f.line()}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.errors import ConfigError
 from openconvoy.train.randomization import EnvSpec, Randomization
 
 ALGOS = ("ppo", "sac")
@@ -47,11 +48,11 @@ class PPOConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
         if self.activation not in ACTIVATION_NAMES:
-            raise ValueError(f"ppo.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}")
+            raise ConfigError(f"ppo.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}")
         if self.lr_schedule not in ("linear", "constant"):
-            raise ValueError(f"ppo.lr_schedule: unknown {self.lr_schedule!r}; expected linear or constant")
+            raise ConfigError(f"ppo.lr_schedule: unknown {self.lr_schedule!r}; expected linear or constant")
         if self.n_steps < 2 or self.batch_size < 2 or self.n_epochs < 1:
-            raise ValueError("ppo: n_steps and batch_size must be >= 2, n_epochs >= 1")
+            raise ConfigError("ppo: n_steps and batch_size must be >= 2, n_epochs >= 1")
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,7 @@ class SACConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
         if self.activation not in ACTIVATION_NAMES:
-            raise ValueError(f"sac.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}")
+            raise ConfigError(f"sac.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}")
 
 
 @dataclass(frozen=True)
@@ -123,13 +124,13 @@ class TrainConfig:
         object.__setattr__(self, "validation_pers", tuple(float(p) for p in self.validation_pers))
         object.__setattr__(self, "validation_seeds", tuple(int(s) for s in self.validation_seeds))
         if self.validation_seeds and not self.validation_pers:
-            raise ValueError("validation_seeds need validation_pers")
+            raise ConfigError("validation_seeds need validation_pers")
         if self.algo not in ALGOS:
-            raise ValueError(f"algo: unknown {self.algo!r}; expected one of {', '.join(ALGOS)}")
+            raise ConfigError(f"algo: unknown {self.algo!r}; expected one of {', '.join(ALGOS)}")
         if self.total_steps < 1 or self.n_envs < 1:
-            raise ValueError("total_steps and n_envs must be positive")
+            raise ConfigError("total_steps and n_envs must be positive")
         if self.checkpoint_every < 0 or self.torch_threads < 1:
-            raise ValueError("checkpoint_every must be >= 0 and torch_threads >= 1")
+            raise ConfigError("checkpoint_every must be >= 0 and torch_threads >= 1")
 
     @property
     def n_slots(self) -> int:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from openconvoy.core.errors import InputFileError, MissingFileError
 from openconvoy.policies.learned import (
     LearnedPolicy,
     NumpyMLP,
@@ -33,9 +34,9 @@ def resolve_policy_zip(source: str | Path) -> Path:
     if path.is_dir():
         path = path / POLICY_FILE
     if not path.is_file():
-        raise FileNotFoundError(f"no trained policy at {path} (give a run directory or a .zip)")
+        raise MissingFileError(f"no trained policy at {path} (give a run directory or a .zip)")
     if path.suffix != ".zip":
-        raise ValueError(f"{path}: expected an SB3 .zip or a run directory")
+        raise InputFileError(f"{path}: expected an SB3 .zip or a run directory")
     return path
 
 
@@ -51,15 +52,15 @@ def _layers(modules, where: str) -> tuple[list[np.ndarray], list[np.ndarray], st
             biases.append(bias.astype(np.float64))
         elif type(m).__name__ in _ACTIVATION_CLASSES:
             if isinstance(m, nn.LeakyReLU) and m.negative_slope != 0.01:
-                raise ValueError(f"{where}: LeakyReLU slope {m.negative_slope} is not exportable (0.01 is)")
+                raise InputFileError(f"{where}: LeakyReLU slope {m.negative_slope} is not exportable (0.01 is)")
             name = _ACTIVATION_CLASSES[type(m).__name__]
             if activation not in (None, name):
-                raise ValueError(f"{where}: mixed activations {activation} and {name} are not exportable")
+                raise InputFileError(f"{where}: mixed activations {activation} and {name} are not exportable")
             activation = name
         elif isinstance(m, (nn.Flatten, nn.Identity)):
             continue
         else:
-            raise ValueError(f"{where}: layer {type(m).__name__} is not exportable")
+            raise InputFileError(f"{where}: layer {type(m).__name__} is not exportable")
     return weights, biases, activation
 
 
@@ -71,21 +72,21 @@ def actor_mlp(model) -> NumpyMLP:
     if isinstance(model, PPO):
         policy = model.policy
         if not isinstance(policy.pi_features_extractor, FlattenExtractor):
-            raise ValueError("only PPO MlpPolicy (flat observations) is exportable")
+            raise InputFileError("only PPO MlpPolicy (flat observations) is exportable")
         if policy.squash_output or policy.use_sde:
-            raise ValueError("PPO with gSDE or squashed outputs is not exportable")
+            raise InputFileError("PPO with gSDE or squashed outputs is not exportable")
         hidden = list(policy.mlp_extractor.policy_net)
         head = [policy.action_net]
         output = "clip"
     elif isinstance(model, SAC):
         actor = model.policy.actor
         if not isinstance(actor.features_extractor, FlattenExtractor) or actor.use_sde:
-            raise ValueError("only SAC MlpPolicy without gSDE is exportable")
+            raise InputFileError("only SAC MlpPolicy without gSDE is exportable")
         hidden = list(actor.latent_pi)
         head = [actor.mu]
         output = "tanh"
     else:
-        raise ValueError(f"cannot export a {type(model).__name__} model (PPO and SAC are exportable)")
+        raise InputFileError(f"cannot export a {type(model).__name__} model (PPO and SAC are exportable)")
     w, b, activation = _layers(hidden, type(model).__name__)
     hw, hb, _ = _layers(head, type(model).__name__)
     return NumpyMLP(w + hw, b + hb, activation or "identity", output)
@@ -97,7 +98,7 @@ def export_policy(source: str | Path, out: str | Path) -> Path:
 
     out = Path(out)
     if out.suffix != ".npz":
-        raise ValueError(f"{out}: the exported policy is a .npz file")
+        raise InputFileError(f"{out}: the exported policy is a .npz file")
     path = resolve_policy_zip(source)
     meta = read_zip_meta(path)
     model = load_sb3_model(path, meta.algo)

@@ -25,6 +25,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
 from openconvoy.envs.convoy_env import ConvoyEnv
 from openconvoy.envs.reward import RewardConfig
@@ -80,26 +81,26 @@ class Randomization:
                      "jitter_s_range", "gps_noise_m_range"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if not self.scenarios:
-            raise ValueError("randomization.scenarios: give at least one scenario")
+            raise ConfigError("randomization.scenarios: give at least one scenario")
         for name in ("per_range", "mean_burst_s_range", "latency_s_range", "jitter_s_range", "gps_noise_m_range"):
             lo, hi = _pair(getattr(self, name), f"randomization.{name}")
             if lo < 0 or hi < lo:
-                raise ValueError(f"randomization.{name}: need 0 <= low <= high, got ({lo}, {hi})")
+                raise ConfigError(f"randomization.{name}: need 0 <= low <= high, got ({lo}, {hi})")
         if self.per_range[1] > 0.95:
-            raise ValueError(f"randomization.per_range: PER above 0.95 leaves nothing to learn from, got {self.per_range[1]}")
+            raise ConfigError(f"randomization.per_range: PER above 0.95 leaves nothing to learn from, got {self.per_range[1]}")
         if self.mean_burst_s_range[0] <= 0:
-            raise ValueError("randomization.mean_burst_s_range: bursts must be longer than 0 s")
+            raise ConfigError("randomization.mean_burst_s_range: bursts must be longer than 0 s")
         if not 0.0 <= self.burst_prob <= 1.0:
-            raise ValueError(f"randomization.burst_prob must be in [0, 1], got {self.burst_prob}")
+            raise ConfigError(f"randomization.burst_prob must be in [0, 1], got {self.burst_prob}")
         if not 0.0 <= self.plant_jitter < 1.0:
-            raise ValueError(f"randomization.plant_jitter must be in [0, 1), got {self.plant_jitter}")
+            raise ConfigError(f"randomization.plant_jitter must be in [0, 1), got {self.plant_jitter}")
         for v in self.vehicles:
             vehicle_preset(v)  # an unknown preset or missing file fails now, not mid-training
 
 
 def _pair(value: tuple[float, ...], where: str) -> tuple[float, float]:
     if len(value) != 2:
-        raise ValueError(f"{where}: expected [low, high], got {list(value)}")
+        raise ConfigError(f"{where}: expected [low, high], got {list(value)}")
     return float(value[0]), float(value[1])
 
 
@@ -190,17 +191,17 @@ class EnvSpec:
         if self.control_rate_hz is None:
             object.__setattr__(self, "control_rate_hz", base.control_rate_hz if base is not None else 20.0)
         if len(self.residual_scale) != 2 or min(self.residual_scale) < 0:
-            raise ValueError(f"residual_scale must be two non-negative numbers, got {self.residual_scale}")
+            raise ConfigError(f"residual_scale must be two non-negative numbers, got {self.residual_scale}")
         if self.n_followers < 1:
-            raise ValueError(f"n_followers must be at least 1, got {self.n_followers}")
+            raise ConfigError(f"n_followers must be at least 1, got {self.n_followers}")
         if len(self.action_low) != 2 or len(self.action_high) != 2:
-            raise ValueError("action_low and action_high are [speed_mps, heading_change_rad]")
+            raise ConfigError("action_low and action_high are [speed_mps, heading_change_rad]")
         if not all(lo < hi for lo, hi in zip(self.action_low, self.action_high)):
-            raise ValueError(f"action_low {self.action_low} must lie below action_high {self.action_high}")
+            raise ConfigError(f"action_low {self.action_low} must lie below action_high {self.action_high}")
         if max(abs(self.action_low[1]), abs(self.action_high[1])) > math.pi / 2:
-            raise ValueError("the heading-change range must lie within ±π/2")
+            raise ConfigError("the heading-change range must lie within ±π/2")
         if self.control_rate_hz <= 0:
-            raise ValueError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
+            raise ConfigError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
 
     @property
     def member_config(self) -> MemberConfig:

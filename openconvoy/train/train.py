@@ -36,6 +36,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.policies.learned import LearnedMeta, read_zip_meta, write_zip_meta
 from openconvoy.train.config import TrainConfig, dumps_train_config
 from openconvoy.train.randomization import RandomizedConvoyEnv
@@ -238,7 +239,7 @@ def train(
 
     run_dir = Path(run_dir)
     if (run_dir / POLICY_FILE).exists() and not overwrite:
-        raise ValueError(f"{run_dir} already holds a trained policy; choose another --out")
+        raise ConfigError(f"{run_dir} already holds a trained policy; choose another --out")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.toml").write_text(dumps_train_config(config), encoding="utf-8")
     torch.set_num_threads(config.torch_threads)

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from openconvoy.core.errors import ConfigError
 from openconvoy.policies.classical import ClassicalConfig
 from openconvoy.policies.spec import classical_config, classical_to_toml
 
@@ -81,7 +82,7 @@ def with_values(config: ClassicalConfig, values: dict[str, float], name: str) ->
 
 def _replace_path(obj: Any, parts: list[str], value: float) -> Any:
     if not dataclasses.is_dataclass(obj) or parts[0] not in {f.name for f in dataclasses.fields(obj)}:
-        raise ValueError(f"unknown parameter path component {parts[0]!r}")
+        raise ConfigError(f"unknown parameter path component {parts[0]!r}")
     if len(parts) == 1:
         return dataclasses.replace(obj, **{parts[0]: float(value)})
     return dataclasses.replace(obj, **{parts[0]: _replace_path(getattr(obj, parts[0]), parts[1:], value)})
@@ -122,21 +123,28 @@ class TuneConfig:
         for name in ("pers", "seeds", "params"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.trials < 1 or not self.pers or not self.seeds:
-            raise ValueError("tune needs at least one trial, one PER and one seed")
+            raise ConfigError("tune needs at least one trial, one PER and one seed")
         unknown = [p for p in self.params if p not in PARAMETERS]
         if unknown:
-            raise ValueError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
+            raise ConfigError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
 
 
 @dataclass
 class TuneResult:
-    """The best configuration, its objective and the per-trial history."""
+    """The best configuration, its objective and the per-trial history (every finished
+    trial of the study, earlier sessions' too); ``evaluated``: trials this call ran,
+    ``requeued``: trials a stopped driver had left running, ``failures``: evaluations
+    that failed (TaskFailure)."""
 
     best: ClassicalConfig
     best_value: float
     best_params: dict[str, float]
     base_value: float
     history: list[dict[str, Any]] = field(default_factory=list)
+    study_name: str = ""
+    evaluated: int = 0
+    requeued: int = 0
+    failures: list[Any] = field(default_factory=list)
 
 
 Evaluate = Callable[[ClassicalConfig], float]
@@ -178,40 +186,201 @@ def grid_evaluator(config: TuneConfig, workdir: Path) -> Evaluate:
     return evaluate
 
 
-def tune(config: TuneConfig, evaluate: Evaluate | None = None, progress_bar: bool = False) -> TuneResult:
-    """Run the study; ``evaluate`` defaults to ``grid_evaluator`` (simulated runs)."""
+def evaluate_on_worker(config: TuneConfig, files: dict[str, bytes], candidate: ClassicalConfig) -> float:
+    """Task: ``candidate``'s objective over the grid, in a temporary directory of the
+    worker (``files``: the scenario's track file, if any, shipped from the driver)."""
+    from openconvoy.experiments import portable
+
+    with tempfile.TemporaryDirectory(prefix="openconvoy-tune-") as tmp:
+        where = portable.land(files, tmp)
+        local = dataclasses.replace(config, scenario=portable.relocate(config.scenario, where))
+        with portable.driver_names(where):
+            return grid_evaluator(local, Path(tmp))(candidate)
+
+
+# What a resumed study must share with the one it continues (the objective's definition).
+STUDY_KEYS = ("base", "pers", "seeds", "scenario", "duration_s", "params",
+              "collision_penalty_m", "speed_difference_weight")
+STUDY_ATTR = "openconvoy_tune"
+BASE_ATTR = "openconvoy_base_value"
+
+
+def open_storage(storage: str | None) -> Any:
+    """Optuna storage: None (in memory), an RDB URL (``sqlite:///study.db``,
+    ``postgresql://...``) or a journal file path (``study.journal``, anything without
+    ``://``), all opened by this driver only."""
+    if storage is None or "://" in storage:
+        return storage
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    Path(storage).parent.mkdir(parents=True, exist_ok=True)
+    return JournalStorage(JournalFileBackend(storage))
+
+
+def _sampler(config: TuneConfig, resumed_trials: int, parallel: bool) -> Any:
     import optuna
+
+    # A resumed study must not redraw the first session's random trials: the same seed
+    # would, so the sampler's seed also takes the number of trials already in the study.
+    seed = config.seed if not resumed_trials else int(np.random.SeedSequence([config.seed, resumed_trials]).generate_state(1)[0])
+    # constant_liar: trials in flight count as pessimistic guesses, so parallel workers
+    # do not all sample the same region (Optuna's advice for distributed TPE).
+    return optuna.samplers.TPESampler(seed=seed, constant_liar=parallel)
+
+
+def _open_study(config: TuneConfig, study_name: str, storage: Any, parallel: bool) -> tuple[Any, int]:
+    """The study (created, or loaded to resume) and how many trials it already held."""
+    import optuna
+
+    settings = json.loads(json.dumps({k: getattr(config, k) for k in STUDY_KEYS}))
+    existing = 0
+    if storage is not None:
+        try:
+            existing = len(optuna.load_study(study_name=study_name, storage=storage).trials)
+        except KeyError:
+            existing = 0
+    study = optuna.create_study(study_name=study_name, storage=storage, direction="minimize",
+                                sampler=_sampler(config, existing, parallel), load_if_exists=True)
+    recorded = study.user_attrs.get(STUDY_ATTR)
+    if recorded is None:
+        study.set_user_attr(STUDY_ATTR, settings)
+    elif recorded != settings:
+        differ = ", ".join(k for k in STUDY_KEYS if recorded.get(k) != settings.get(k))
+        raise ConfigError(f"study {study_name!r} was made with other settings ({differ}); "
+                         "use another --study-name or the same settings")
+    return study, existing
+
+
+def _requeue_orphans(study: Any) -> int:
+    """Trials left running by a driver that was stopped: failed, and their parameters
+    queued again, so the candidate is evaluated once and finished trials are never
+    repeated. Assumes one driver per study at a time."""
+    from optuna.trial import TrialState
+
+    orphans = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+    for t in orphans:
+        study.tell(t.number, state=TrialState.FAIL)
+        study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
+    return len(orphans)
+
+
+def tune(
+    config: TuneConfig,
+    evaluate: Evaluate | None = None,
+    progress_bar: bool = False,
+    executor: Any = None,
+    study_name: str | None = None,
+    storage: str | None = None,
+) -> TuneResult:
+    """Run the study until it holds ``config.trials`` finished trials.
+
+    Each trial is a task of ``executor`` (an ``ExecutorConfig`` or ``Executor``; default:
+    in this process), with up to its ``slots`` trials in flight; ``evaluate`` (an
+    in-process callable, for tests) replaces the simulated grid and runs here. With
+    ``storage`` (see ``open_storage``) the study persists under ``study_name`` (default
+    ``config.name``): a later call with the same name and storage resumes it, running only
+    the trials still missing (those a stopped driver left running are evaluated again).
+    """
+    import functools
+
+    import optuna
+    from optuna.trial import TrialState
+
+    from openconvoy.experiments import portable
+    from openconvoy.experiments.executor import (
+        Executor,
+        LocalExecutor,
+        Task,
+        TaskFailure,
+        TasksFailed,
+        make_executor,
+    )
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     base = classical_config(config.base)
     params = list(config.params) or applicable(base)
-    with tempfile.TemporaryDirectory(prefix="openconvoy-tune-") as tmp:
-        ev = evaluate or grid_evaluator(config, Path(tmp))
-        base_value = ev(dataclasses.replace(base, name=config.name))
-        history: list[dict[str, Any]] = []
-
-        def objective(trial: optuna.Trial) -> float:
-            values = {
-                p: trial.suggest_float(p, PARAMETERS[p].low, PARAMETERS[p].high, log=PARAMETERS[p].log)
-                for p in params
-            }
-            value = ev(with_values(base, values, config.name))
-            history.append({"trial": trial.number, "value": value, **values})
-            return value
-
-        sampler = optuna.samplers.TPESampler(seed=config.seed)
-        study = optuna.create_study(direction="minimize", sampler=sampler)
-        # The base's own values first: the study can only improve on the starting point.
-        study.enqueue_trial({p: _get_path(base, p) for p in params if _in_range(base, p)})
-        study.optimize(objective, n_trials=config.trials, show_progress_bar=progress_bar)
-    best_params = {k: float(v) for k, v in study.best_params.items()}
+    if evaluate is not None or executor is None:
+        executor = LocalExecutor(jobs=1)
+    elif not isinstance(executor, Executor):
+        executor = make_executor(executor)
+    if evaluate is not None:
+        fn: Callable[[ClassicalConfig], float] = evaluate
+    else:
+        fn = functools.partial(evaluate_on_worker, config, portable.ship([config.scenario]))
+    study_name = study_name or config.name
+    failures: list[TaskFailure] = []
+    with executor:
+        study, existing = _open_study(config, study_name, open_storage(storage), executor.slots > 1)
+        requeued = _requeue_orphans(study)
+        base_value = study.user_attrs.get(BASE_ATTR)
+        if base_value is None:
+            task, value = _run_alone(executor, Task("base policy", fn, dataclasses.replace(base, name=config.name)))
+            if isinstance(value, TaskFailure):
+                raise TasksFailed([value], 1, "the base policy's evaluation is the study's reference", "trials")
+            base_value = float(value)
+            study.set_user_attr(BASE_ATTR, base_value)
+        if not existing:
+            # The base's own values first: the study can only improve on the starting point.
+            study.enqueue_trial({p: _get_path(base, p) for p in params if _in_range(base, p)})
+        done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
+        todo = max(0, config.trials - done)
+        evaluated = _ask_tell(study, executor, fn, base, params, config.name, todo, progress_bar, failures)
+    complete = sorted(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)), key=lambda t: t.number)
+    if not complete:
+        raise TasksFailed(failures, len(failures), f"no trial of study {study_name!r} finished", "trials")
+    history = [{"trial": t.number, "value": float(t.value), **{p: float(v) for p, v in t.params.items()}}
+               for t in complete]
+    best_trial = min(complete, key=lambda t: (t.value, t.number))
+    best_params = {k: float(v) for k, v in best_trial.params.items()}
     described = ", ".join(f"{k} {v:.4g}" for k, v in best_params.items())
     best = dataclasses.replace(
         with_values(base, best_params, config.name),
-        description=f"{config.base} tuned by openconvoy tune ({config.trials} trials, PER "
+        description=f"{config.base} tuned by openconvoy tune ({len(complete)} trials, PER "
         f"{', '.join(f'{p:g}' for p in config.pers)}, {len(config.seeds)} seeds): {described}",
     )
-    return TuneResult(best, float(study.best_value), best_params, base_value, history)
+    return TuneResult(best, float(best_trial.value), best_params, float(base_value), history,
+                      study_name=study_name, evaluated=evaluated, requeued=requeued, failures=failures)
+
+
+def _run_alone(executor: Any, task: Any) -> tuple[Any, Any]:
+    executor.submit(task)
+    return executor.wait_one()
+
+
+def _ask_tell(study: Any, executor: Any, fn: Callable[[ClassicalConfig], float], base: ClassicalConfig,
+              params: list[str], name: str, todo: int, progress_bar: bool, failures: list[Any]) -> int:
+    """Ask ``todo`` trials, at most ``executor.slots`` in flight, telling each result as
+    it comes; failed evaluations are told as failed and collected in ``failures``."""
+    from tqdm import tqdm
+
+    from openconvoy.experiments.executor import Task, TaskFailure
+
+    in_flight: dict[int, Any] = {}
+    asked = 0
+    with tqdm(total=todo, unit="trial", desc="tune", disable=not progress_bar) as bar:
+        while asked < todo or in_flight:
+            while asked < todo and len(in_flight) < executor.slots:
+                trial = study.ask()
+                values = {
+                    p: trial.suggest_float(p, PARAMETERS[p].low, PARAMETERS[p].high, log=PARAMETERS[p].log)
+                    for p in params
+                }
+                task = Task(f"trial {trial.number}", fn, with_values(base, values, name))
+                executor.submit(task)
+                in_flight[id(task)] = trial
+                asked += 1
+            task, value = executor.wait_one()
+            trial = in_flight.pop(id(task))
+            if isinstance(value, TaskFailure):
+                from optuna.trial import TrialState
+
+                study.tell(trial, state=TrialState.FAIL)
+                failures.append(value)
+            else:
+                study.tell(trial, float(value))
+            bar.update(1)
+    return asked
 
 
 def _get_path(config: ClassicalConfig, path: str) -> float:
@@ -231,13 +400,17 @@ def write_tuned(result: TuneResult, out: str | Path) -> Path:
     the study's numbers next to it."""
     out = Path(out)
     if out.suffix != ".toml":
-        raise ValueError(f"{out}: the tuned policy is a .toml file")
+        raise ConfigError(f"{out}: the tuned policy is a .toml file")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(classical_to_toml(result.best), encoding="utf-8")
     summary = {
         "best_value": result.best_value,
         "base_value": result.base_value,
         "best_params": result.best_params,
+        "study_name": result.study_name,
+        "evaluated_this_run": result.evaluated,
+        "requeued": result.requeued,
+        "failed": [f.line() for f in result.failures],
         "trials": result.history,
     }
     out.with_suffix(".json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")

@@ -20,6 +20,8 @@ from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env import VecEnv
 from supersuit.vector.sb3_vector_wrapper import SB3VecEnvWrapper
 
+from openconvoy.core.errors import ConfigError
+
 
 class SharedPolicyVecEnv(SB3VecEnvWrapper):
     """SuperSuit's SB3 adapter with working seeding (``seed`` then ``reset``)."""
@@ -58,7 +60,7 @@ class SharedPolicyVecEnv(SB3VecEnvWrapper):
 def shared_policy_vec_env(make_env: Callable[[], ParallelEnv], n_envs: int) -> VecEnv:
     """``n_envs`` copies of ``make_env()`` as one SB3 VecEnv with a slot per agent."""
     if n_envs < 1:
-        raise ValueError(f"n_envs must be at least 1, got {n_envs}")
+        raise ConfigError(f"n_envs must be at least 1, got {n_envs}")
     markov = ss.pettingzoo_env_to_vec_env_v1(make_env())
     # num_cpus=0: all copies in this process. On the small machines this targets, torch
     # already uses the cores; subprocesses would only add pickling overhead.

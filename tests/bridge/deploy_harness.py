@@ -72,7 +72,7 @@ class Car:
     vehicle: SimVehicle
     link: RecordingLink
     runner: DeployRunner
-    v2v: LocalV2V
+    v2v: Any  # LocalV2V, or a real comms.v2v.V2V
     port: int
     thread: threading.Thread | None = None
     result: RunResult | None = None
@@ -141,8 +141,10 @@ def make_convoy(
     start: bool = True,
     policies: dict[int, Any] | None = None,
     tcp: bool = False,
+    v2v_factory: Callable[[int, ConvoyConfig], Any] | None = None,
 ) -> Convoy:
-    """``n`` cars at the paper scenario's initial positions; started unless ``start`` is False."""
+    """``n`` cars at the paper scenario's initial positions; started unless ``start`` is False.
+    ``v2v_factory(i, convoy)`` gives car ``i`` its V2V endpoint (default: the in-process bus)."""
     names = ("1/10", "1/6", "1/10", "1/6")[:n]
     convoy = ConvoyConfig(name="test", vehicles=names, safety=safety or SafetyConfig())
     origin = Origin(*convoy.origin)
@@ -165,13 +167,14 @@ def make_convoy(
             f"{'tcp' if tcp else 'udpout'}:127.0.0.1:{port}", origin, vehicle_id=i, length_m=presets[i].length_m,
             on_status=lambda line: None,
         ))
-        v2v = LocalV2V(bus)
+        v2v = v2v_factory(i, convoy) if v2v_factory is not None else LocalV2V(bus)
         opts = RunnerOptions(**{"vehicle_id": i, "status_period_s": 0.0, "connect_timeout_s": 5.0,
                                 "arm_timeout_s": 10.0, **(options or {}).get(i, {})})
         pol = (policies or {}).get(i) or load_policy(policy)
         runner = DeployRunner(
             opts, convoy, pol, link, v2v, leader=scenario if i == 0 else None,
-            lengths=[p.length_m for p in presets], log_dir=log_dir, on_status=lambda line: None,
+            lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
+            log_dir=log_dir, on_status=lambda line: None,
         )
         cars.append(Car(vehicle, link, runner, v2v, port))
     c = Convoy(cars, bus, log_dir, convoy)

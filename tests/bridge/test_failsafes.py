@@ -16,6 +16,7 @@ from openconvoy.bridge.failsafes import (
     LoopTimer,
     TickInputs,
 )
+from openconvoy.core.safety import BrakingGap, for_vehicle
 
 
 def fresh(now: float, **kw) -> TickInputs:
@@ -110,11 +111,51 @@ def test_policy_error_stops_without_hold_and_counts():
     assert f.policy_errors == 2
 
 
-def test_stale_messages_stop_until_fresh():
+def test_stale_messages_stop_and_hold_for_good():
+    # Issue 10: a stop for stale messages once left the vehicle in GUIDED without HOLD,
+    # and fresh messages drove it off again.
     f = Failsafes(envelope=Envelope(max_msg_age_s=3.0))
     assert f.decide(fresh(1.0, needed_age_s=2.9)).command == DRIVE
-    assert f.decide(fresh(1.05, needed_age_s=3.1)).command == STOP
-    assert f.decide(fresh(1.1, needed_age_s=0.1)).command == DRIVE  # not latched
+    v = f.decide(fresh(1.05, needed_age_s=3.1))
+    assert (v.command, v.hold, v.failsafe, v.reason) == (STOP, True, True, "messages needed are stale")
+    assert f.decide(fresh(1.1, needed_age_s=0.1)).command == STOP  # latched
+    assert f.decide(fresh(1.15, needed_age_s=0.1, held=True)).command == SILENT  # held: quiet
+
+
+def test_ladder_stop_holds():
+    f = Failsafes()
+    assert f.decide(fresh(1.0)).command == DRIVE
+    v = f.decide(fresh(1.05, stale_stop=True))
+    assert (v.command, v.hold, v.reason) == (STOP, True, "staleness ladder stop")
+    assert f.decide(fresh(1.1)).hold  # fresh messages do not undo it
+    assert f.events == [(1.05, "staleness ladder stop")]
+
+
+def test_braking_aware_gap_stops_before_the_bumpers_meet():
+    # 1/6 car behind a 1/10 car: 0.874 m of half lengths; brakes at 1 m/s² after 0.47 s.
+    rule = for_vehicle(1.0, 0.12, 0.35, 0.97)
+    assert rule.margin_m == pytest.approx(0.2425)
+    env = Envelope(min_gap_m=1.0, braking=rule, ego_length_m=0.97, pred_length_m=0.779)
+    # The old rule's 1 m centre to centre is 0.13 m between bumpers: now far too close.
+    assert env.too_close(1.0, 0.0).startswith("gap 0.13 m between bumpers")
+    # Closing at 2 m/s needs 2 m of braking + 0.94 m of reaction: 4.2 m centre gap fires,
+    # 4.1 + margin would not at rest.
+    assert env.too_close(0.874 + 2.0 + 0.94 + 0.24, 2.0)
+    assert env.too_close(0.874 + 2.0 + 0.94 + 0.25, 2.0) == ""
+    assert env.too_close(0.874 + 0.25, 0.0) == ""
+    assert env.too_close(0.874 + 0.25, -3.0) == ""  # opening: only the margin counts
+    assert env.too_close(math.nan, 2.0) == ""
+    f = Failsafes(envelope=env)
+    v = f.decide(fresh(1.0, gap_m=4.0, closing_mps=2.0))
+    assert (v.command, v.hold) == (STOP, True) and "after braking" in v.reason
+
+
+@pytest.mark.parametrize("bad", [dict(decel_mps2=0.0), dict(reaction_s=-1.0), dict(margin_m=math.nan),
+                                 dict(margin_m=math.inf)])
+def test_braking_gap_rejects_bad_numbers(bad):
+    kw = dict(decel_mps2=1.0, reaction_s=0.5, margin_m=0.2) | bad
+    with pytest.raises(ValueError, match="braking gap"):
+        BrakingGap(**kw)
 
 
 def test_speed_cap():
@@ -136,13 +177,27 @@ def test_loop_timer_counts_overruns_and_skips_missed_slots():
     t.begin(0.0)
     assert t.wait_time(0.01) == pytest.approx(0.04)
     t.begin(0.05)
-    t.begin(0.23)  # 0.13 s late: an overrun; the schedule skips to the next slot
-    assert t.overruns == 1
-    assert t.next_tick == pytest.approx(0.25)
+    assert t.begin(0.23) == pytest.approx(0.13)  # slots 0.10 and 0.15 passed without a tick
+    assert t.overruns == 2 and t.late_ticks == 1  # and 0.13 s is more than 2 periods late
+    assert t.next_tick == pytest.approx(0.25)  # the schedule skips, no burst
     t.begin(0.25)
-    assert t.overruns == 1 and t.ticks == 4
+    t.begin(0.36)  # 0.06 s late: one slot missed, not late enough to be a failsafe
+    assert t.overruns == 3 and t.late_ticks == 1 and t.ticks == 5
+    t.begin(0.40 + 3.7)  # a 3.7 s stall at 20 Hz misses 74 slots, not 1
+    assert t.overruns == 3 + 74 and t.late_ticks == 2
     with pytest.raises(ValueError):
         LoopTimer(0.0, start=0.0)
+
+
+def test_a_tick_over_two_periods_late_stops_and_is_one_event_per_episode():
+    f = Failsafes()
+    assert f.decide(fresh(1.0, late_periods=1.9)).command == DRIVE
+    v = f.decide(fresh(1.05, late_periods=2.5))
+    assert (v.command, v.failsafe, v.reason) == (STOP, True, "control loop late")
+    assert f.decide(fresh(1.1, late_periods=30.0)).command == STOP
+    assert f.decide(fresh(1.15)).command == DRIVE  # on time again: not latched
+    f.decide(fresh(2.0, late_periods=3.0))
+    assert [r for _, r in f.events] == ["control loop late (2.5 periods)", "control loop late (3.0 periods)"]
 
 
 def test_signal_after_takeover_ends_the_run_without_commanding():

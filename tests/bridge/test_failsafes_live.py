@@ -129,7 +129,7 @@ def test_lost_tcp_link_stops_and_keeps_reconnecting(tmp_path):
     assert_log_survived(c, 1)
 
 
-def test_silent_predecessor_ladder_degrades_then_stops(tmp_path):
+def test_silent_predecessor_ladder_degrades_then_stops_and_holds(tmp_path):
     c = make_convoy(tmp_path, n=2, policy="paper+ladder")
     try:
         leader, follower = c.cars
@@ -144,12 +144,17 @@ def test_silent_predecessor_ladder_degrades_then_stops(tmp_path):
         assert 2.0 - 0.15 <= t_stop - t_silent <= 2.0 + 0.5
         time.sleep(0.8)
         assert_stopped_after(follower, t_stop)
+        # Issue 10: a staleness stop once left the vehicle in GUIDED; now it holds.
+        wait_until(lambda: follower.vehicle.mode == "HOLD", 3, "HOLD after the staleness stop")
+        assert follower.first_event("staleness ladder stop") >= t_silent
         leader.v2v.send = type(leader.v2v).send.__get__(leader.v2v)  # radio back
-        wait_until(lambda: follower.runner.member.mode == "coop", 2, "back to coop")
+        wait_until(lambda: follower.runner.member.mode == "coop", 2, "member back to coop")
+        time.sleep(0.5)
+        assert follower.vehicle.mode == "HOLD" and follower.vehicle.state().speed < 0.05  # stays held
     finally:
         c.stop()
     log = read_log(c.log_dir / "vehicle_1.csv")
-    assert {"coop", "degraded", "stop"} <= set(log["mode"].tolist())
+    assert {"coop", "degraded", "failsafe"} <= set(log["mode"].tolist())
 
 
 def test_silent_predecessor_without_ladder_hits_the_bridge_backstop(tmp_path):
@@ -164,6 +169,7 @@ def test_silent_predecessor_without_ladder_hits_the_bridge_backstop(tmp_path):
         assert t_det - t_silent <= 1.0 + 0.5
         time.sleep(0.8)
         assert_stopped_after(follower, t_det)
+        wait_until(lambda: follower.vehicle.mode == "HOLD", 3, "HOLD after the backstop")
     finally:
         c.stop()
     assert_log_survived(c, 1)
@@ -317,7 +323,7 @@ def test_dry_run_never_arms_nor_sends_setpoints_but_logs_and_broadcasts(tmp_path
         assert follower.link.sent == [] and follower.vehicle.setpoints_received == 0
         assert not follower.vehicle.armed
         assert follower.runner.member.msgs_sent > 5
-        assert np.isfinite(follower.runner.member.spacing_error_m)
+        assert np.isfinite(follower.runner.frame.spacing_error_m)
     finally:
         c.stop()
     log = read_log(c.log_dir / "vehicle_1.csv")

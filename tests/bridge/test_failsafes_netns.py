@@ -28,6 +28,7 @@ def check_stopped_held_logged(result: dict, reason: str) -> None:
     assert result["exit_codes"] == [0, 0]
     assert result["reasons"] == [reason, reason]
     for events in result["events"]:
+        events = [e for e in events if not e["reason"].startswith("control loop late")]
         assert events[0]["reason"] == reason
     for first in result["first_after"]:
         # the first setpoint after detection is a stop, within 0.5 s (or none was needed)

@@ -100,6 +100,7 @@ class FixedPolicy:
         self.action = make_action(speed, change)
         self.member_config = load_policy("paper").member_config
         self.control_rate_hz = 20.0
+        self.name = "fixed"
         self.calls = 0
         self.clock, self.slow_call, self.slow_s = clock, slow_call, slow_s
 
@@ -179,9 +180,17 @@ def test_overruns_are_counted_and_the_loop_goes_on(tmp_path):
     clock, link, runner = follower_setup(tmp_path, policy)
     policy.clock = clock
     result = runner.run()
-    assert result.overruns == 1
+    # The 11th tick ran 0.17 s: the next one started 0.12 s (2.4 periods) late, so the
+    # slots of 2 ticks passed without one, and that late tick stopped the vehicle.
+    assert result.overruns == 2 and result.ticks == 41 - 2
+    assert [r for _, r in result.events] == ["control loop late (2.4 periods)"]
+    speeds = [s[1] for s in link.sent[1:-1]]
+    assert speeds.count(0.0) == 1 and speeds.index(0.0) in (10, 11) and set(speeds) == {0.0, 1.0}
     assert result.reason == "duration reached"
-    assert json.loads((tmp_path / "vehicle_1.json").read_text())["overruns"] == 1
+    meta = json.loads((tmp_path / "vehicle_1.json").read_text())
+    assert (meta["overruns"], meta["late_ticks"]) == (2, 1)
+    assert meta["max_tick_late_s"] == pytest.approx(0.12)
+    assert meta["failsafe_events"][0]["reason"] == "control loop late (2.4 periods)"
     assert read_log(tmp_path / "vehicle_1.csv")["t_s"].size == result.ticks
 
 

@@ -7,13 +7,18 @@ module OIDs {1 3 111 2 1609 2 1 1 2 3} and {... 2 1 2 2 2}), not our
 hashId, payload, headerInfo psid / generationTime / inlineP2pcdRequest, signer digest or
 certificate, signature) and of both certificates (type, issuer, id name, cracaId,
 crlSeries, validity, appPermissions, certIssuePermissions, verifyKeyIndicator,
-signature); pycrate re-encodes each value to the same octets (canonical OER).
+signature); pycrate re-encodes each value to the same octets (canonical OER). Also two
+SPDUs captured from a deployed roadside unit (a BSM and a SPaT, kept as test data by the
+USDOT JPO ODE project) read the same with ours and pycrate's, and their generation times
+confirm Time64's TAI epoch.
 """
 
 from __future__ import annotations
 
 import pytest
 from auth_testdata import T0, creds
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pycrate_asn1dir import ITS_IEEE1609_2 as M
 
 from openconvoy.comms import bsm as j
@@ -126,3 +131,72 @@ def test_time64_is_tai_microseconds_since_2004():
     # 2004-01-01 00:00:00 UTC is 0 + the 5 leap seconds since.
     assert c.time64(1072915200.0) == 5_000_000
     assert c.unix_of_time64(c.time64(T0)) == pytest.approx(T0, abs=1e-6)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    payload=st.binary(min_size=0, max_size=300),
+    psid=st.sampled_from([0x20, 0x7F, 0x80, 0x4000, c.PSID_ABORT]),
+    t=st.floats(0, 1e9),
+    request=st.booleans(),
+    full=st.booleans(),
+)
+def test_the_direct_reading_equals_asn1tools(payload, psid, t, request, full):
+    cr = creds(1)
+    data = sp.encode_signed(
+        payload, psid=psid, generation_time=c.time64(T0 + t), key=cr.key, certificate=cr.certificate,
+        include_certificate=full, p2pcd_request=(b"abc",) if request else (),
+    )
+    slow = sp.decode_signed_asn1(data)
+    assert sp.decode_signed(data) == slow
+    assert (slow.payload, slow.psid, slow.generation_time) == (payload, psid, c.time64(T0 + t))
+    assert c.verify(cr.certificate.public_key, slow.r, slow.s, slow.tbs, cr.certificate.coer)
+    # the common layout is read directly: no header extension
+    assert (sp._decode_common(data) is not None) == (not request)
+    for cut in (len(data) - 1, len(data) // 2):
+        with pytest.raises(sp.SpduDecodeError):
+            sp.decode_signed(data[:cut])
+
+
+# Two signed SPDUs captured from a roadside unit's traffic on 2023-05-03 and kept as test
+# data by the USDOT JPO ODE project (Java package us.dot.its.jpo.ode.api.pcap, class
+# PcapDecoderTests, UDP_FRAME and WSMP_FRAME): the SPDU octets start at "038100400380".
+# (hex, psid, capture time: the pcap's frame.time_epoch, s)
+CAPTURED = [
+    ("038100400380630014604edee641a6f6c566d3144e145c1cb823de1d9415ba70005510fdfa1fa1007fff8000"
+     "a02801009cc061002dbfcd500019b81002bbecb6ffc1fca0fe713456efde2ab20fe36af550fce334afffec80"
+     "2107c0009000014e9b5fbfffc7ffff28000040012000022b029e7fa620807eee4644feddb2898080f9cc5b0e"
+     "1fdf0341a83402f32ed81815bd20f6af31e46d907d255ab1e2bb544cf5420c3a91211db23249119980d24ed3"
+     "5f0fea3270309d118328a129f52189f9", 0x20, 1683155397.59677),
+    ("0381004003804d00134a42b3c30180c7ce400302b3c3dd6007001043425c1a5c1801021a130b530b400c10d0"
+     "9dbe9dbe00808c84b014b45005043425c1a5c1803021a13155315401c10c095bc01008c84ae64b4450018200"
+     "022b02ed6e026a18095de9bd6aaa9d38f6809127648f49b09c018082cad6384a78c2345441b13fd1c899e115"
+     "9493bce677e94b0097749787def147bd4ecff7e31f436d5ba48358e391c4e8cfe9c96c036bcab2a3744cb5cb"
+     "734e6d06", 0x82, 1683156721.857857),
+]
+
+
+@pytest.mark.parametrize("hex_, psid, t_capture", CAPTURED)
+def test_captured_spdus_from_a_deployed_stack(hex_, psid, t_capture):
+    data = bytes.fromhex(hex_)
+    ours = sp.decode_signed(data)
+    assert ours == sp.decode_signed_asn1(data)
+    v = _pycrate("Ieee1609Dot2Data", "Ieee1609Dot2", data)
+    sd = v["content"][1]
+    assert sd["tbsData"]["headerInfo"]["psid"] == ours.psid == psid
+    assert sd["tbsData"]["headerInfo"]["generationTime"] == ours.generation_time
+    assert sd["signer"] == ("digest", ours.digest)
+    assert sd["tbsData"]["payload"]["data"]["content"] == ("unsecuredData", ours.payload)
+    sig_kind, sig = sd["signature"]
+    assert sig_kind == "ecdsaNistP256Signature" and (sig["rSig"][1], sig["sSig"]) == (ours.r, ours.s)
+    # Time64 is TAI: generated ~0.1 s before it was captured only with the 5 leap seconds
+    # (read as UTC it would be 5 s after the capture)
+    assert 0.0 < t_capture - c.unix_of_time64(ours.generation_time) < 0.2
+    if psid == 0x20:  # the BSM inside decodes with our J2735 codec
+        bsm = j.decode_frame(ours.payload)
+        assert bsm.part_ii_ids == (0, 2) and bsm.core.temp_id.hex() == "7b99069b"
+        assert sp._decode_common(data) is not None  # the common layout, read directly
+    else:  # a SPaT, generationLocation in its header, r as compressed-y-0: via asn1tools
+        assert sig["rSig"][0] == "compressed-y-0"
+        assert sp._decode_common(data) is None
+        assert sd["tbsData"]["headerInfo"]["generationLocation"]["latitude"] == 403267049

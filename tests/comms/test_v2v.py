@@ -10,6 +10,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from comms_testdata import load_vectors
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from openconvoy.comms import bsm as j
 from openconvoy.comms import compat
@@ -18,7 +20,7 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.comms.mapping import state_to_core
 from openconvoy.comms.multicast import MemoryBus
 from openconvoy.comms.tempids import TempIds, derive_temp_id
-from openconvoy.comms.v2v import V2V, Counters, LinkConfig, Receiver, Sender
+from openconvoy.comms.v2v import POLL_CHUNK, V2V, Counters, LinkConfig, Receiver, Sender
 from openconvoy.core.member import ConvoyMember, MemberConfig
 from openconvoy.core.state import VehicleState
 
@@ -333,7 +335,7 @@ def test_member_bsm_without_essentials_is_not_delivered(field, value, what, capl
 
 def test_receive_errors_do_not_stop_the_link():
     class Broken:
-        def recv_all(self):
+        def recv_all(self, max_batch=10_000):
             raise OSError(100, "Network is down")
 
         def send(self, data):
@@ -379,6 +381,88 @@ def test_link_config_from_the_convoy_config():
     assert (cfg.compat_group, cfg.compat_port, cfg.compat_ttl) == ("224.0.0.1", 5004, 1)
     # the convoy config's defaults are the transport's
     assert LinkConfig.from_v2v(V2VConfig(), "x") == LinkConfig("x")
+
+
+def _foreign_frames(n: int, temp_id: bytes = b"\xde\xad\xbe\xef") -> list[bytes]:
+    frames = [j.encode_frame(state_to_core(_state(0, 10.0), ORIGIN, temp_id, k)) for k in range(128)]
+    return [frames[k % 128] for k in range(n)]
+
+
+@given(cnt=st.integers(0, 127), temp_id=st.binary(min_size=4, max_size=4),
+       speed=st.integers(0, 8191), part_ii=st.none() | st.integers(0, 300))
+@settings(max_examples=60, deadline=None)
+def test_peek_temp_id_reads_the_id_asn1tools_encoded(cnt, temp_id, speed, part_ii):
+    # with and without Part II, whose size moves the BSM behind a 1- or 2-octet length
+    core = j.BsmCore(cnt, temp_id, 1000, 286024000, -812001000, speed=speed)
+    frame_t, bsm_t = j._spec()
+    value = {"coreData": j._to_asn(core)["coreData"]}
+    if part_ii is not None:
+        value["partII"] = [{"partII-Id": 0, "partII-Value": bytes(part_ii)}]
+    frame = frame_t.encode({"messageId": 20, "value": bsm_t.encode(value)})
+    assert j.peek_temp_id(frame) == int.from_bytes(temp_id, "big")
+    assert j.decode_frame(frame).core.temp_id == temp_id
+
+
+def test_peek_temp_id_of_non_frames_is_none():
+    assert j.peek_temp_id(b"") is None and j.peek_temp_id(b"\x00\x14") is None
+    assert j.peek_temp_id(b"\x00\x14\x05\x01") is None  # too short for an id
+    assert j.peek_temp_id(b"{\"car\": 1}") is None and j.peek_temp_id(b"\x00\x13" + bytes(20)) is None
+
+
+def test_foreign_bsms_are_dropped_without_a_full_decode(monkeypatch):
+    rx = Receiver(IDS, ORIGIN, 1)
+    member = j.encode_frame(state_to_core(_state(0, 10.0), ORIGIN, IDS.id_of(0), 3))
+    calls = []
+    real = j.decode_frame
+    monkeypatch.setattr(j, "decode_frame", lambda data: calls.append(1) or real(data))
+    for frame in _foreign_frames(500):
+        assert rx.handle(frame, 10.05) is None
+    assert rx.handle(member, 10.05) is not None
+    assert calls == [1]  # only the member's frame was decoded
+    assert rx.counters.filtered == 500 and rx.counters.received == 1 and _balanced(rx.counters)
+
+
+class TickClock:
+    """A monotonic clock that advances ``step`` seconds each time it is read."""
+
+    def __init__(self, step: float) -> None:
+        self.t, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        self.t += self.step
+        return self.t
+
+
+def test_poll_is_bounded_by_its_time_budget_and_the_rest_waits():
+    # 40,000 foreign BSMs waiting (a second of the flood that stalled deploys), read with
+    # a clock that advances 1 ms per reading: a 12.5 ms budget stops the poll after a few
+    # chunks; later polls go on where it stopped, and nothing is lost or counted twice.
+    bus = MemoryBus()
+    link = _link(bus, 1, clock=TickClock(0.001))
+    bus.inject_many(_foreign_frames(40_000))
+    assert link.poll(10.0, budget_s=0.0125) == []
+    first = link.counters.datagrams
+    assert 0 < first <= 14 * POLL_CHUNK and link.counters.budget_hits == 1
+    polls = 1
+    while link.counters.datagrams < 40_000:
+        link.poll(10.0, budget_s=0.0125)
+        polls += 1
+    assert link.counters.filtered == 40_000 and _balanced(link.counters)
+    assert polls == math.ceil(40_000 / first) and link.counters.budget_hits in (polls - 1, polls)
+    # without a budget, one poll reads everything (the old behaviour, for tools)
+    bus.inject_many(_foreign_frames(1000))
+    link.poll(10.0)
+    assert link.counters.datagrams == 41_000
+
+
+def test_poll_with_a_budget_takes_turns_between_the_two_sockets():
+    bus, bus4 = MemoryBus(), MemoryBus()
+    link = _link(bus, 1, bus4=bus4, clock=TickClock(0.001))
+    bus.inject_many(_foreign_frames(10_000))
+    leader = _link(bus, 0, bus4=bus4)
+    leader.send(_state(0, 10.0), 10.0)  # a J2735 BSM behind the flood, and its compat twin
+    got = link.poll(10.01, budget_s=0.005)
+    assert [(r.source, r.sender) for r in got] == [("compat", 0)]  # heard despite the flood
 
 
 def test_unavailable_heading_keeps_position_and_speed_and_takes_a_known_heading():

@@ -53,7 +53,7 @@ class LegacyLink:
         self.counters.sent += 1
         return True
 
-    def poll(self, now: float) -> list[Received]:
+    def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
         out = []
         for d in self.sock.recv_all():
             try:

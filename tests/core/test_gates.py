@@ -23,10 +23,15 @@ def test_each_topology_keeps_exactly_its_senders(topology):
     assert {j for j in range(6) if gate.keeps(j)} == KEPT[topology]
 
 
-def test_needed_vehicles_for_the_ladder():
+def test_needed_vehicles_for_the_ladder_are_every_kept_predecessor():
+    # Issue 10: the ladder once watched only the nearest one, so a dead leader that the
+    # policy still followed (dead-reckoned) went unnoticed.
     assert RxGate("leader", 3, 6).needed() == [0]
-    assert RxGate("all-predecessors", 3, 6).needed() == [2]
+    assert RxGate("all-predecessors", 3, 6).needed() == [2, 1, 0]
+    assert RxGate("leader-predecessor", 3, 6).needed() == [2, 0]
+    assert RxGate("lookahead:2", 4, 6).needed() == [3, 2]
     assert RxGate("bidirectional", 1, 3).needed() == [0]
+    assert RxGate("all", 2, 4).needed() == [1, 0]
     assert RxGate("all", 0, 3).needed() == []
 
 

@@ -43,8 +43,10 @@ def test_observation_on_a_straight_road_at_the_desired_gaps():
     assert view.target("leader")["valid"] == 0.0  # leader already is pred_2
     assert view.states("pred_1")[0, :2] == pytest.approx([14.9, 0.0])
     assert view.states("pred_1")[0, 5] == pytest.approx(0.1)  # age
-    assert m.desired_gap_m == 15.0 and m.spacing_error_m == pytest.approx(0.0, abs=1e-6)
-    assert m.pred_msg_age_s == pytest.approx(0.1)
+    f = m.sense(1.0)
+    assert (f.observation == obs).all()  # sensing twice gives the same
+    assert f.desired_gap_m == 15.0 and f.spacing_error_m == pytest.approx(0.0, abs=1e-6)
+    assert f.pred_msg_age_s == pytest.approx(0.1)
     assert obs.dtype == np.float32 and obs.shape == (m.layout.size,)
 
 
@@ -90,30 +92,32 @@ def test_acc_speed_widens_the_gap():
 
 
 def test_member_ladder_degrades_stops_and_recovers():
-    m = member(vid=1, n=2, ladder=LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0))
+    m = ConvoyMember(1, 2, MemberConfig(ladder=LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0)),
+                     lengths=[0.8, 0.8], decels=[1.0, 1.0])
     m.observe_own(S(1, 0.0, 0.0, v=2.0))
     act = np.array([3.0, 0.1], dtype=np.float32)
     # Never heard: stop.
-    m.observation(0.0)
-    assert m.supervise(act, 0.0)[1] == "stop"
+    f = m.sense(0.0)
+    assert m.supervise(act, f)[1] == "stop"
     m.receive(S(0, 0.0, 15.0, v=2.0), 0.0)
-    m.observation(0.3)
-    a, mode = m.supervise(act, 0.3)
+    f = m.sense(0.3)
+    a, mode = m.supervise(act, f)
     assert mode == "coop" and a[0] == pytest.approx(3.0)
-    m.observe_own(S(1, 1.0, 2.0, v=2.0))
-    m.observation(1.0)
-    a, mode = m.supervise(act, 1.0)
-    # Degraded: ACC on the dead-reckoned predecessor (15 m gap, wanted 15 + 2 = 17 m).
-    assert mode == "degraded" and a[0] == pytest.approx(1.0) and a[1] == pytest.approx(0.1)
+    m.observe_own(S(1, 1.0, 0.0, v=2.0))
+    f = m.sense(1.0)
+    a, mode = m.supervise(act, f)
+    # Degraded: ACC on the predecessor dead-reckoned as braking at 1 m/s² since its
+    # message 1 s ago (1.5 m on, 1 m/s): 16.5 m ahead, wanted 15 + 2 = 17 m.
+    assert mode == "degraded" and a[0] == pytest.approx(1.0 + 0.5 * (16.5 - 17.0)) and a[1] == pytest.approx(0.1)
     # A ranging sensor reading takes precedence over the estimate.
-    a, _ = m.supervise(act, 1.0, ranging=(17.0, 0.0))
+    a, _ = m.supervise(act, f, ranging=(17.0, 0.0))
     assert a[0] == pytest.approx(2.0)
-    m.observation(2.5)
-    a, mode = m.supervise(act, 2.5)
+    f = m.sense(2.5)
+    a, mode = m.supervise(act, f)
     assert mode == "stop" and a[0] == 0.0 and a[1] == 0.0
     m.receive(S(0, 2.6, 20.0, v=2.0), 2.6)
-    m.observation(2.6)
-    assert m.supervise(act, 2.6)[1] == "coop"
+    f = m.sense(2.6)
+    assert m.supervise(act, f)[1] == "coop"
 
 
 def test_layout_sizes_and_mismatch_message():
@@ -123,3 +127,42 @@ def test_layout_sizes_and_mismatch_message():
     with pytest.raises(ValueError, match="M 3 vs 2"):
         lay.check_compatible({"version": 1, "M": 3, "k": 3, "size": 0})
     lay.check_compatible(lay.describe())
+
+
+def test_dead_reckoning_is_bounded_and_old_targets_are_dropped():
+    # Issue 10, row 1: a dead leader once "drove on" at 2 m/s forever, valid.
+    ladder = LadderConfig(degrade_after_s=0.5, stop_after_s=2.0)  # off: the ages still hold
+    m = ConvoyMember(1, 2, MemberConfig(ladder=ladder), lengths=[0.8, 0.8], decels=[1.0, 1.0])
+    m.receive(S(0, 0.0, 15.0, v=2.0), 0.0)
+    m.observe_own(S(1, 0.4, 0.0, v=2.0))
+    est = m.estimate(0, 0.4)
+    assert (est.x, est.speed, est.stale) == (pytest.approx(15.8), 2.0, False)  # constant speed
+    est = m.estimate(0, 1.5)  # stale: as if braking at 1 m/s² since the message
+    assert (est.x, est.speed, est.stale) == (pytest.approx(15.0 + 3.0 - 1.125), pytest.approx(0.5), True)
+    assert m.estimate(0, 2.0).x == pytest.approx(17.0)  # stopped after 2 m
+    assert m.estimate(0, 2.01) is None  # older than the stop age: no target at all
+    m.observe_own(S(1, 2.01, 0.0, v=2.0))
+    view = m.layout.view(m.observation(2.01))
+    assert view.target("pred_1")["valid"] == 0.0 and view.valid_targets() == []
+    assert view.states("pred_1")[0, 5] == pytest.approx(2.01)  # the state slot keeps its age
+    assert m.gap_estimate(2.01) is None
+    # Without a braking limit a silent sender is taken to have stopped where last heard.
+    m2 = member(vid=1, n=2)
+    m2.receive(S(0, 0.0, 15.0, v=2.0), 0.0)
+    m2.observe_own(S(1, 1.0, 0.0, v=2.0))
+    assert m2.estimate(0, 1.0).x == 15.0 and m2.gap_estimate(1.0) == (15.0, 2.0)
+
+
+def test_ladder_watches_every_needed_target_not_only_the_nearest():
+    # Issue 10, row 1: the ladder watched only the nearest predecessor, so follower 2
+    # cooperated on with a dead leader.
+    lad = LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0)
+    m = ConvoyMember(2, 3, MemberConfig(ladder=lad), lengths=[0.8] * 3)
+    m.receive(S(0, 0.0, 30.0), 0.0)  # the leader, then silence
+    for k in range(31):
+        m.receive(S(1, 0.1 * k, 15.0 + 0.1 * k), 0.1 * k)
+    m.observe_own(S(2, 3.0, 3.0))
+    f = m.sense(3.0)
+    assert m.needed_age(3.0) == pytest.approx(3.0)
+    _, mode = m.supervise(np.array([1.0, 0.0], dtype=np.float32), f)
+    assert mode == "stop"

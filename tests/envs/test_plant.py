@@ -248,7 +248,8 @@ def test_lateral_acceleration_caps_the_yaw_rate_at_speed() -> None:
 def test_scalar_and_vectorized_steps_agree_with_every_model() -> None:
     import dataclasses
 
-    sticky = dataclasses.replace(ROVER, name="sticky", breakaway_mps=0.75, speed_ki=0.5)
+    sticky = dataclasses.replace(ROVER, name="sticky", breakaway_mps=0.75, speed_ki=0.5,
+                                 drive_drag_per_mps=0.3)
     lagged = dataclasses.replace(SMALL, name="lagged", breakaway_mps=0.3,
                                  lateral_accel_max_mps2=2.0, yaw_accel_max_radps2=3.0,
                                  heading_delay_s=0.2)

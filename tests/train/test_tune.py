@@ -90,3 +90,46 @@ def test_tuned_file_must_be_toml(tmp_path: Path) -> None:
     result = tune(TuneConfig(trials=1), evaluate=lambda c: 1.0)
     with pytest.raises(ValueError, match=r"\.toml"):
         write_tuned(result, tmp_path / "tuned.yaml")
+
+
+def test_a_stored_study_resumes_without_repeating_finished_trials(tmp_path: Path) -> None:
+    """Journal storage; a trial left running (its driver stopped) is evaluated again once."""
+    import optuna
+    from optuna.trial import TrialState
+
+    from openconvoy.train.tune import open_storage
+
+    evaluated: list[float] = []
+
+    def evaluate(c: ClassicalConfig) -> float:
+        evaluated.append(c.speed.kp)
+        return (c.speed.kp - 0.8) ** 2 + (c.heading.gain - 0.6) ** 2
+
+    journal = str(tmp_path / "study.journal")
+    first = tune(TuneConfig(trials=4, seed=2), evaluate=evaluate, storage=journal, study_name="s")
+    assert len(evaluated) == 5 and first.evaluated == 4  # the base, then 4 trials
+    # A driver stopped mid-trial leaves it RUNNING in the storage.
+    study = optuna.load_study(study_name="s", storage=open_storage(journal))
+    orphan = study.ask()
+    orphan_kp = orphan.suggest_float("speed.kp", 0.05, 5.0, log=True)
+    for p in ("speed.kd", "heading.gain"):
+        orphan.suggest_float(p, *((0.1, 5.0) if p == "speed.kd" else (0.05, 2.0)), log=True)
+    evaluated.clear()
+    second = tune(TuneConfig(trials=7, seed=2), evaluate=evaluate, storage=journal, study_name="s")
+    # Only the three missing trials ran (the orphan's parameters first), not the base again.
+    assert len(evaluated) == 3 and evaluated[0] == orphan_kp
+    assert (second.evaluated, second.requeued, second.base_value) == (3, 1, first.base_value)
+    assert second.history[:4] == first.history
+    assert len(second.history) == 7 and len({h["speed.kp"] for h in second.history}) == 7
+    states = [t.state for t in optuna.load_study(study_name="s", storage=open_storage(journal)).trials]
+    assert states.count(TrialState.FAIL) == 1 and states.count(TrialState.COMPLETE) == 7
+    evaluated.clear()
+    assert tune(TuneConfig(trials=7, seed=2), evaluate=evaluate, storage=journal, study_name="s").evaluated == 0
+    assert evaluated == []
+    with pytest.raises(ValueError, match=r"study 's' was made with other settings \(pers\)"):
+        tune(TuneConfig(trials=8, pers=(0.5,)), evaluate=evaluate, storage=journal, study_name="s")
+
+
+def test_tune_cli_storage_flags(tmp_path: Path, capsys) -> None:
+    assert main(["tune", "--study-name", "x", "--out", str(tmp_path / "t.toml")]) == 2
+    assert "--study-name needs --storage" in capsys.readouterr().err

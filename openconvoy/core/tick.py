@@ -1,0 +1,144 @@
+"""One member's control tick, written once for every world (simulator, traffic, vehicle).
+
+The sequence (DESIGN.md, One member, two worlds) in three steps, because a simulator sends
+for every vehicle before any of them receives, and a PettingZoo env hands observations out
+and takes actions back between sensing and deciding:
+
+1. ``begin``: the own state in; τ says whether to broadcast it (``may_send`` False
+   mutes it: a fault, or a vehicle whose autopilot link is lost);
+2. ``sense``: ρ on every message of the inbox, then the observation and the derived
+   values (``member.Frame``);
+3. ``decide``: the policy's action checked (a non-finite one is a policy error: stop),
+   clipped to the action space (``ActionBounds``), then the staleness ladder
+   (``member.supervise``, with the ranging sensor's reading when there is one).
+
+``tick`` runs all three with ``policy.act`` in between (a policy that raises is a policy
+error too): a world with one member per process (a vehicle) calls it as is.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from openconvoy.core import ladder
+from openconvoy.core.member import ConvoyMember, Frame
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD, Policy
+from openconvoy.core.state import VehicleState
+
+Ranging = tuple[float, float]
+"""``(range_m, range_rate_mps)`` to the vehicle ahead, centre to centre."""
+
+
+@dataclass(frozen=True, slots=True)
+class ActionBounds:
+    """The action space: speed setpoint in ``[0, max_speed_mps]`` (m/s), heading change in
+    ``±max_heading_change_rad`` (rad)."""
+
+    max_speed_mps: float
+    max_heading_change_rad: float = MAX_HEADING_CHANGE_RAD
+
+    @classmethod
+    def float32(cls, max_speed_mps: float) -> ActionBounds:
+        """Bounds equal to those of a float32 action space (a ``gymnasium`` Box): the
+        simulator's space and a vehicle's clip agree to the bit."""
+        return cls(float(np.float32(max_speed_mps)), float(np.float32(MAX_HEADING_CHANGE_RAD)))
+
+    def clip(self, speed: float, change: float) -> tuple[float, float]:
+        """``(speed, change)`` clipped to the bounds (finite inputs)."""
+        hi_v, hi_h = self.max_speed_mps, self.max_heading_change_rad
+        speed = 0.0 if speed < 0.0 else (hi_v if speed > hi_v else speed)
+        change = -hi_h if change < -hi_h else (hi_h if change > hi_h else change)
+        return speed, change
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    """What the member decided: the ``action`` to apply (``[speed_mps,
+    heading_change_rad]``, float32), its ``mode`` (``coop``, ``degraded``, ``stop``), and
+    ``policy_error``: why the policy's action was refused ("" when it was not)."""
+
+    action: np.ndarray
+    mode: str
+    policy_error: str = ""
+
+    @property
+    def speed_mps(self) -> float:
+        return float(self.action[0])
+
+    @property
+    def heading_change_rad(self) -> float:
+        return float(self.action[1])
+
+
+@dataclass(frozen=True, slots=True)
+class TickResult:
+    """One tick of one member: ``broadcast`` (the own state to send, or None), the
+    ``frame`` sensed and the ``decision`` taken (None for a member without a policy, a
+    leader)."""
+
+    broadcast: VehicleState | None
+    frame: Frame
+    decision: Decision | None
+
+
+def stop(policy_error: str = "") -> Decision:
+    """Speed 0, heading held: the ``stop`` decision."""
+    return Decision(np.zeros(2, dtype=np.float32), ladder.STOP, policy_error)
+
+
+def begin(member: ConvoyMember, own: VehicleState, now: float, may_send: bool = True) -> VehicleState | None:
+    """Step 1: the own state in; the state to broadcast now (τ), or None."""
+    member.observe_own(own)
+    return own if may_send and member.wants_to_send(now) else None
+
+
+def sense(member: ConvoyMember, inbox: Iterable[VehicleState], now: float) -> Frame:
+    """Step 2: ρ on each message received, then the frame at ``now``."""
+    for msg in inbox:
+        member.receive(msg, now)
+    return member.sense(now)
+
+
+def decide(
+    member: ConvoyMember,
+    frame: Frame,
+    action: np.ndarray,
+    bounds: ActionBounds,
+    ranging: Ranging | None = None,
+) -> Decision:
+    """Step 3: check, clip and supervise the policy's ``action`` for ``frame``."""
+    try:
+        speed, change = float(action[0]), float(action[1])
+    except (TypeError, ValueError, IndexError) as exc:
+        return stop(f"action {action!r} is not [speed, heading change]: {exc}")
+    if not (math.isfinite(speed) and math.isfinite(change)):
+        return stop(f"non-finite action {speed}, {change}")
+    clipped = np.array(bounds.clip(speed, change), dtype=np.float32)
+    applied, mode = member.supervise(clipped, frame, ranging)
+    return Decision(applied, mode)
+
+
+def tick(
+    member: ConvoyMember,
+    policy: Policy | None,
+    own: VehicleState,
+    inbox: Iterable[VehicleState],
+    now: float,
+    bounds: ActionBounds,
+    ranging: Ranging | None = None,
+    may_send: bool = True,
+) -> TickResult:
+    """The whole tick for one member; ``policy`` None senses only (a leader)."""
+    broadcast = begin(member, own, now, may_send)
+    frame = sense(member, inbox, now)
+    if policy is None:
+        return TickResult(broadcast, frame, None)
+    try:
+        action = policy.act(frame.observation)
+    except Exception as exc:  # noqa: BLE001 - the policy is foreign code: stop, report, go on
+        return TickResult(broadcast, frame, stop(f"{type(exc).__name__}: {exc}"))
+    return TickResult(broadcast, frame, decide(member, frame, action, bounds, ranging))

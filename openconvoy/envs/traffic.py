@@ -1,0 +1,344 @@
+"""The traffic world: highway-env's road and IDM/MOBIL traffic around our convoy.
+
+highway-env (``openconvoy[traffic]``) owns the road network, the traffic vehicles (its
+``IDMVehicle``: IDM car following, MOBIL lane changes) and the collision check between
+vehicle rectangles. The convoy keeps our plant, members, channel and policies; each of its
+vehicles appears on highway-env's road as a ``ConvoyVehicle`` whose state we set every
+tick, so traffic reacts to it (IDM brakes for it, MOBIL weighs it) and highway-env's
+collision check sees it. Traffic has no V2V: the convoy sees it only through the forward
+ranging sensor (``in_path``).
+
+Frames: our ENU (x east, y north, heading counter-clockwise from east) and highway-env's
+(x along the road, y across it towards higher lane indices, i.e. to the right of travel,
+heading clockwise from x). ``enu_to_highway`` / ``highway_to_enu`` are the one mapping:
+the convoy drives east, the ENU origin sits on the centre line of the convoy's lane.
+
+One tick of the world (``advance``), at the end of the env's tick ``t``: set the convoy
+vehicles to their plant states at ``t``; step traffic from ``t - dt`` to ``t`` with the
+decisions it took at ``t - dt``; check collisions at ``t``; run scripted events; let
+traffic decide (``Road.act``) on the state at ``t``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from openconvoy.core.errors import DependencyMissing
+
+try:  # the traffic extra, imported here only (the core never needs it)
+    from highway_env.road.lane import LineType, SineLane, StraightLane
+    from highway_env.road.road import Road, RoadNetwork
+    from highway_env.vehicle.behavior import IDMVehicle
+    from highway_env.vehicle.kinematics import Vehicle
+    from highway_env.vehicle.objects import Landmark, Obstacle, RoadObject
+except ModuleNotFoundError as exc:
+    raise DependencyMissing(
+        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'", name="highway_env"
+    ) from exc
+
+__all__ = [
+    "TRAFFIC_ID_BASE", "ConvoyVehicle", "FastRoad", "HighwayFrame", "IDMVehicle", "InPath", "LineType",
+    "Obstacle", "Road", "RoadNetwork", "ScriptedLaneChanger", "SineLane", "StraightLane", "TrafficWorld",
+    "enu_to_highway", "highway_to_enu",
+]
+
+TRAFFIC_ID_BASE = 1000
+"""Traffic vehicle k is reported as id ``TRAFFIC_ID_BASE + k`` (convoy ids are 0..n-1)."""
+
+
+@dataclass(frozen=True)
+class HighwayFrame:
+    """Where our ENU origin lies in highway-env's frame: ``(x0, y0)`` metres."""
+
+    x0: float = 0.0
+    y0: float = 0.0
+
+
+def enu_to_highway(frame: HighwayFrame, x: float, y: float, heading: float) -> tuple[float, float, float]:
+    """ENU position (m) and heading (rad, CCW from east) -> highway-env's x, y, heading.
+
+    highway-env's y grows to the right of travel (its lane 0 is the leftmost lane), so the
+    lateral axis and the heading change sign."""
+    return frame.x0 + x, frame.y0 - y, -heading
+
+
+def highway_to_enu(frame: HighwayFrame, hx: float, hy: float, heading: float) -> tuple[float, float, float]:
+    """The inverse of ``enu_to_highway``."""
+    return hx - frame.x0, frame.y0 - hy, -heading
+
+
+class ConvoyVehicle(IDMVehicle):
+    """A convoy vehicle on highway-env's road: state set from our plant, never stepped.
+
+    An ``IDMVehicle`` so that traffic's MOBIL models it like any driver (with
+    ``target_speed`` the convoy's cruise speed) and the leader can ask highway-env's IDM
+    for its acceleration; ``act`` and ``step`` do nothing. Collisions with other convoy
+    vehicles are left to ``ConvoyEnv``'s own rule; ``traffic_hit`` records a touch with
+    traffic (highway-env's rectangle test)."""
+
+    def __init__(self, road: Road, vehicle_id: int, length_m: float, width_m: float, target_speed: float) -> None:
+        self.LENGTH = float(length_m)
+        self.WIDTH = float(width_m)
+        super().__init__(road, np.zeros(2), 0.0, 0.0, target_speed=target_speed, enable_lane_change=False)
+        self.vehicle_id = vehicle_id
+        self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
+        self.traffic_hit = False
+        self.color: tuple[int, int, int] | None = None
+
+    def set_state(self, hx: float, hy: float, heading: float, speed: float) -> None:
+        """Place the vehicle (highway-env frame) and update its lane."""
+        self.position = np.array((hx, hy), dtype=np.float64)
+        self.heading = heading
+        self.speed = speed
+        self.impact = None
+        self.on_state_update()
+        self.target_lane_index = self.lane_index
+
+    def act(self, action: dict | str | None = None) -> None:
+        pass
+
+    def step(self, dt: float) -> None:
+        pass
+
+    def handle_collisions(self, other: RoadObject, dt: float = 0) -> None:
+        if isinstance(other, ConvoyVehicle):
+            return
+        super().handle_collisions(other, dt)
+        # Only traffic and obstacles get here: ``crashed`` means a touch with one of them.
+        self.traffic_hit = self.traffic_hit or self.crashed
+
+
+class ScriptedLaneChanger(IDMVehicle):
+    """A test-track target car: holds ``target_speed`` (highway-env's speed controller,
+    ``KP_A * (target - speed)``, clipped to ``ACC_MAX``), keeps its lane with highway-env's
+    steering law, and changes lane when told to, not by MOBIL: ``schedule`` holds
+    ``(time_s, lane_id, target_speed_mps or None)`` applied by ``update(t)``. It does not
+    react to the vehicles around it (as the target of a cut-in test does not)."""
+
+    def __init__(self, road: Road, position: np.ndarray, heading: float, speed: float,
+                 schedule: Sequence[tuple[float, int, float | None]] = (),
+                 target_speed: float | None = None) -> None:
+        super().__init__(road, position, heading, speed, target_speed=target_speed, enable_lane_change=False)
+        self.schedule = sorted(schedule)
+
+    def update(self, t: float) -> None:
+        while self.schedule and self.schedule[0][0] <= t + 1e-9:
+            _, lane_id, speed = self.schedule.pop(0)
+            _from, _to, _ = self.lane_index
+            self.target_lane_index = (_from, _to, lane_id)
+            if speed is not None:
+                self.target_speed = speed
+
+    def act(self, action: dict | str | None = None) -> None:
+        if self.crashed:
+            return
+        self.follow_road()
+        steering = float(np.clip(self.steering_control(self.target_lane_index),
+                                 -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+        accel = float(np.clip(self.speed_control(self.target_speed), -self.ACC_MAX, self.ACC_MAX))
+        Vehicle.act(self, {"steering": steering, "acceleration": accel})
+
+
+class FastRoad(Road):
+    """``Road`` with the same results, fewer repeated computations (the faster traffic
+    path, ``TrafficConfig.fast``):
+
+    - during ``act`` every vehicle's lane coordinates on a lane are computed once per lane
+      (highway-env recomputes them for every query: O(n²) ``local_coordinates`` per act);
+    - ``step`` calls ``handle_collisions`` only for pairs that pass highway-env's own
+      spherical pre-check (done for all pairs at once with numpy, with a small margin so
+      no pair that highway-env would test is skipped).
+
+    The neighbour search reproduces ``Road.neighbour_vehicles`` decision for decision
+    (the parity test runs both on the same seeds)."""
+
+    _cache: dict | None = None
+    idm_accel: dict[int, float] = {}
+    """Filled by ``VectorRoad.act``; empty here."""
+
+    def act(self) -> None:
+        self._cache = {}
+        self._objs = [v for v in self.vehicles + self.objects if not isinstance(v, Landmark)]
+        self._index = {id(v): k for k, v in enumerate(self._objs)}
+        try:
+            super().act()
+        finally:
+            self._cache = None
+
+    def _coords(self, lane_index) -> tuple[np.ndarray, np.ndarray]:
+        got = self._cache.get(lane_index)
+        if got is None:
+            lane = self.network.get_lane(lane_index)
+            s = np.empty(len(self._objs))
+            on = np.empty(len(self._objs), dtype=bool)
+            for k, v in enumerate(self._objs):
+                sv, lat = lane.local_coordinates(v.position)
+                s[k] = sv
+                on[k] = lane.on_lane(v.position, sv, lat, margin=1)
+            got = self._cache[lane_index] = (s, on)
+        return got
+
+    def neighbour_vehicles(self, vehicle, lane_index=None):
+        if self._cache is None or self.neighbour_vehicles_connected_lanes or id(vehicle) not in self._index:
+            return super().neighbour_vehicles(vehicle, lane_index)
+        lane_index = lane_index or vehicle.lane_index
+        if not lane_index:
+            return None, None
+        s_all, on = self._coords(lane_index)
+        me = self._index[id(vehicle)]
+        s = s_all[me]
+        cand = on.copy()
+        cand[me] = False
+        front_mask = cand & (s_all >= s)
+        rear_mask = cand & (s_all < s)
+        v_front = v_rear = None
+        if front_mask.any():
+            idx = np.flatnonzero(front_mask)
+            best = s_all[idx].min()
+            v_front = self._objs[idx[s_all[idx] == best][-1]]  # Road keeps the last tie
+        if rear_mask.any():
+            idx = np.flatnonzero(rear_mask)
+            best = s_all[idx].max()
+            v_rear = self._objs[idx[s_all[idx] == best][0]]  # and the first tie behind
+        return v_front, v_rear
+
+    def step(self, dt: float) -> None:
+        for vehicle in self.vehicles:
+            vehicle.step(dt)
+        items = self.vehicles + self.objects
+        n_v = len(self.vehicles)
+        if len(items) < 2:
+            return
+        pos = np.array([o.position for o in items])
+        diag = np.array([o.diagonal for o in items])
+        speed = np.array([abs(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
+        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+        # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
+        near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + speed[:, None] * dt + 1e-6
+        ii, jj = np.nonzero(np.triu(near, k=1))
+        for i, j in zip(ii.tolist(), jj.tolist()):
+            if i < n_v:
+                items[i].handle_collisions(items[j], dt)
+
+
+@dataclass(frozen=True)
+class InPath:
+    """The nearest vehicle in a convoy vehicle's path, ahead of it (ground truth):
+    centre-to-centre range (m), range rate (m/s, negative = closing), its length (m), its
+    id (convoy id, or ``TRAFFIC_ID_BASE + k`` for traffic) and whether it is traffic."""
+
+    range_m: float
+    range_rate_mps: float
+    length_m: float
+    target_id: int
+    is_traffic: bool
+
+
+class TrafficWorld:
+    """highway-env's ``Road`` with our convoy on it (see the module doc).
+
+    ``reset`` takes a built road (traffic already on it) and the convoy's proxies are put
+    first in ``road.vehicles`` (so every convoy–traffic pair is tested by the convoy
+    vehicle's ``handle_collisions``)."""
+
+    def __init__(self, frame: HighwayFrame, lengths: Sequence[float], widths: Sequence[float],
+                 cruise_speed_mps: float, max_look_m: float = 250.0) -> None:
+        self.frame = frame
+        self.lengths = list(lengths)
+        self.widths = list(widths)
+        self.cruise_speed_mps = cruise_speed_mps
+        self.max_look_m = max_look_m
+        self.road: Road | None = None
+        self.convoy: list[ConvoyVehicle] = []
+        self.traffic: list[IDMVehicle] = []
+        self.t = 0.0
+
+    def reset(self, road: Road, traffic: Sequence[IDMVehicle]) -> None:
+        self.road = road
+        self.convoy = [
+            ConvoyVehicle(road, i, length, width, self.cruise_speed_mps)
+            for i, (length, width) in enumerate(zip(self.lengths, self.widths))
+        ]
+        self.traffic = list(traffic)
+        road.vehicles = [*self.convoy, *self.traffic]
+        self.t = 0.0
+
+    def place(self, x: Sequence[float], y: Sequence[float], heading: Sequence[float], speed: Sequence[float]) -> None:
+        """Set every convoy vehicle from ENU states (m, rad, m/s)."""
+        f = self.frame
+        for v, xi, yi, hi, si in zip(self.convoy, x, y, heading, speed):
+            hx, hy, hh = enu_to_highway(f, xi, yi, hi)
+            v.set_state(hx, hy, hh, si)
+
+    def act(self, t: float) -> None:
+        """Scripted events due at ``t``, then traffic decides on the state at ``t``."""
+        for v in self.traffic:
+            if isinstance(v, ScriptedLaneChanger):
+                v.update(t)
+        self.road.act()
+
+    def step(self, dt: float) -> None:
+        """Traffic moves ``dt`` seconds (convoy vehicles were placed already) and highway-env
+        checks collisions."""
+        self.road.step(dt)
+        self.t += dt
+
+    def traffic_hits(self) -> list[bool]:
+        """Per convoy vehicle: has it touched a traffic vehicle (ever, this episode)?"""
+        return [v.traffic_hit for v in self.convoy]
+
+    def in_path(self) -> list[InPath | None]:
+        """For each convoy vehicle, the nearest vehicle ahead whose body overlaps its path
+        (the corridor of its own width straight ahead), within ``max_look_m``."""
+        objs = [*self.convoy, *self.traffic]
+        pos = np.array([o.position for o in objs])
+        head = np.array([o.heading for o in objs])
+        spd = np.array([o.speed for o in objs], dtype=float)
+        vel = spd[:, None] * np.stack((np.cos(head), np.sin(head)), axis=1)
+        half_w = 0.5 * np.array([o.WIDTH for o in objs])
+        lengths = np.array([o.LENGTH for o in objs])
+        n = len(self.convoy)
+        out: list[InPath | None] = []
+        for i in range(n):
+            d = pos - pos[i]
+            c, s = math.cos(head[i]), math.sin(head[i])
+            lon = d[:, 0] * c + d[:, 1] * s
+            lat = -d[:, 0] * s + d[:, 1] * c
+            ok = (lon > 0.0) & (np.abs(lat) < half_w + half_w[i]) & (lon < self.max_look_m)
+            ok[i] = False
+            if not ok.any():
+                out.append(None)
+                continue
+            cand = np.flatnonzero(ok)
+            j = int(cand[np.argmin(lon[cand])])
+            rng = float(math.hypot(d[j, 0], d[j, 1]))
+            dv = vel[j] - vel[i]
+            rate = float((d[j, 0] * dv[0] + d[j, 1] * dv[1]) / rng) if rng > 0 else 0.0
+            traffic = j >= n
+            tid = TRAFFIC_ID_BASE + (j - n) if traffic else j
+            out.append(InPath(rng, rate, float(lengths[j]), tid, traffic))
+        return out
+
+    def traffic_states_enu(self) -> np.ndarray:
+        """Traffic as rows ``(x, y, heading, speed, length, width)`` in ENU."""
+        rows = []
+        for v in self.traffic:
+            x, y, h = highway_to_enu(self.frame, float(v.position[0]), float(v.position[1]), float(v.heading))
+            rows.append((x, y, h, float(v.speed), v.LENGTH, v.WIDTH))
+        return np.array(rows, dtype=float).reshape(-1, 6)
+
+    def leader_idm_accel(self) -> float:
+        """highway-env's IDM acceleration (m/s²) for the leader behind whatever is ahead of
+        it on its lane (traffic or obstacle), towards the cruise speed."""
+        lead = self.convoy[0]
+        if isinstance(self.road, FastRoad):
+            known = self.road.idm_accel.get(id(lead))  # VectorRoad computed it in act
+            if known is not None:
+                return known
+        front, _ = self.road.neighbour_vehicles(lead, lead.lane_index)
+        a = lead.acceleration(ego_vehicle=lead, front_vehicle=front)
+        return float(np.clip(a, -lead.ACC_MAX, lead.ACC_MAX))

@@ -1,0 +1,317 @@
+"""Vectorized traffic on straight multi-lane roads: highway-env's IDM/MOBIL, all cars at once.
+
+``VectorRoad`` is a highway-env ``Road`` whose ``act`` and ``step`` compute what every
+``IDMVehicle`` on it would (``IDMVehicle.act``: MOBIL lane changes, the lane-keeping
+steering law, IDM acceleration; ``Vehicle.step``: the kinematic bicycle, lane update) with
+numpy over all vehicles, instead of vehicle by vehicle, and write the results back to the
+same highway-env vehicle objects (so collisions, rendering and everything reading them are
+unchanged). It applies to one road edge of parallel straight lanes along +x starting at
+x = 0 (``highway-cut-in``, ``highway-slow-traffic``) with plain ``IDMVehicle`` traffic
+(no routes) and our ``ConvoyVehicle`` s; any other road or vehicle falls back to
+``FastRoad`` (highway-env's own per-vehicle code).
+
+Decisions that depend on each other keep highway-env's order: a car's abort of a lane
+change looks at the targets of the cars before it in ``road.vehicles``, as in its loop.
+The parity test holds trajectories to 1e-9 m of highway-env's own (they agree bit for bit
+on this machine: the same operations in the same order, on arrays).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from openconvoy.envs.traffic import (
+    ConvoyVehicle,
+    FastRoad,
+    IDMVehicle,
+    ScriptedLaneChanger,
+    StraightLane,
+)
+
+_EPS = 1e-2  # highway_env.utils.not_zero
+
+
+def _not_zero(x: np.ndarray) -> np.ndarray:
+    return np.where(np.abs(x) > _EPS, x, np.where(x >= 0, _EPS, -_EPS))
+
+
+class VectorRoad(FastRoad):
+    """See the module doc. ``lanes``: the edge's lanes, index = lane id."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._edge = self._straight_edge()
+
+    def _straight_edge(self) -> tuple[str, str, list[StraightLane]] | None:
+        graph = self.network.graph
+        if len(graph) != 1 or self.objects or self.neighbour_vehicles_connected_lanes or self.record_history:
+            return None
+        (_from, tos), = graph.items()
+        if len(tos) != 1:
+            return None
+        (_to, lanes), = tos.items()
+        for ln in lanes:
+            if (type(ln) is not StraightLane or ln.start[0] != 0.0 or ln.direction[0] != 1.0
+                    or ln.direction[1] != 0.0 or ln.forbidden):
+                return None
+        return _from, _to, list(lanes)
+
+    def _vectorizable(self) -> bool:
+        if self._edge is None:
+            return False
+        end = self._edge[2][0].length - self._edge[2][0].VEHICLE_LENGTH / 2
+        for v in self.vehicles:
+            t = type(v)
+            if t is ConvoyVehicle:
+                continue
+            # No routes, and nobody at the lane's end (where follow_road would switch lanes).
+            if t not in (IDMVehicle, ScriptedLaneChanger) or v.route or v.position[0] > end:
+                return False
+        return True
+
+    _PARAMS = ("COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DISTANCE_WANTED", "TIME_WANTED", "DELTA", "ACC_MAX",
+               "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN", "LANE_CHANGE_MAX_BRAKING_IMPOSED", "LANE_CHANGE_DELAY",
+               "LENGTH", "KP_LATERAL", "KP_HEADING", "MAX_STEERING_ANGLE")
+    _param_key: tuple = ()
+    _param_cache: dict = {}
+
+    def _params(self, veh: list) -> dict[str, np.ndarray]:
+        """The vehicles' fixed parameters as arrays (read once per set of vehicles)."""
+        key = tuple(map(id, veh))
+        if key != self._param_key:
+            p = {k: np.array([getattr(v, k) for v in veh], dtype=float) for k in self._PARAMS}
+            p["traffic"] = np.array([type(v) is not ConvoyVehicle for v in veh])
+            p["lc"] = np.array([v.enable_lane_change for v in veh])
+            p["hold"] = np.array([type(v) is ScriptedLaneChanger for v in veh])
+            p["KP_A"] = np.array([v.KP_A for v in veh], dtype=float)
+            self._param_key, self._param_cache = key, p
+        return dict(self._param_cache)
+
+    # ``idm_accel``: the IDM acceleration (m/s², clipped) of every vehicle at the last
+    # vectorized ``act``, by ``id``, which the leader's driver uses (TrafficWorld).
+
+    # --- act -------------------------------------------------------------------------------
+
+    def act(self) -> None:
+        self.idm_accel = {}
+        if not self._vectorizable():
+            super().act()
+            return
+        veh = self.vehicles
+        n = len(veh)
+        _from, _to, lanes = self._edge
+        lane_y = np.array([ln.start[1] for ln in lanes])
+        lane_len = np.array([ln.length for ln in lanes])
+        half_w = np.array([ln.width / 2 for ln in lanes])
+        limit = np.array([40.0 if ln.speed_limit is None else ln.speed_limit for ln in lanes])
+        vlen = lanes[0].VEHICLE_LENGTH
+
+        pos = np.array([v.position for v in veh], dtype=float).reshape(n, 2)
+        x, y = pos[:, 0], pos[:, 1]
+        h = np.array([v.heading for v in veh], dtype=float)
+        sp = np.array([v.speed for v in veh], dtype=float)
+        lane = np.array([v.lane_index[2] for v in veh])
+        tgt = np.array([v.target_lane_index[2] for v in veh])
+        crashed = np.array([v.crashed for v in veh])
+        p = self._params(veh)
+        p["timer"] = np.array([v.timer for v in veh], dtype=float)
+        tspeed = np.array([v.target_speed for v in veh], dtype=float)
+        traffic, lc = p["traffic"], p["lc"]
+        c, s = np.cos(h), np.sin(h)
+        vx, vy = sp * c, sp * s
+        tlimit = np.clip(tspeed, 0, limit[lane])
+
+        # Neighbours on every lane, as Road.neighbour_vehicles finds them (ties: the last
+        # equal one ahead, the first equal one behind).
+        others = ~np.eye(n, dtype=bool)
+        front = np.full((len(lanes), n), -1)
+        rear = np.full((len(lanes), n), -1)
+        for k in range(len(lanes)):
+            on = (np.abs(y - lane_y[k]) <= half_w[k] + 1.0) & (-vlen <= x) & (x < lane_len[k] + vlen)
+            cand = on[None, :] & others
+            ahead = cand & (x[None, :] >= x[:, None])
+            xf = np.where(ahead, x[None, :], np.inf)[:, ::-1]
+            jf = n - 1 - np.argmin(xf, axis=1)
+            front[k] = np.where(np.isfinite(xf.min(axis=1)), jf, -1)
+            behind = cand & (x[None, :] < x[:, None])
+            xr = np.where(behind, x[None, :], -np.inf)
+            jr = np.argmax(xr, axis=1)
+            rear[k] = np.where(np.isfinite(xr.max(axis=1)), jr, -1)
+
+        def idm(me: np.ndarray, ego: np.ndarray, fr: np.ndarray) -> np.ndarray:
+            """IDMVehicle.acceleration with ``me``'s parameters for ``ego`` behind ``fr``
+            (index arrays; -1 = none: no ego gives 0, no front the free-road term)."""
+            e = np.maximum(ego, 0)
+            f = np.maximum(fr, 0)
+            amax = p["COMFORT_ACC_MAX"][me]
+            acc = amax * (1 - np.power(np.maximum(sp[e], 0) / np.abs(_not_zero(tlimit[e])), p["DELTA"][me]))
+            dv = (vx[e] - vx[f]) * c[e] + (vy[e] - vy[f]) * s[e]
+            ab = -amax * p["COMFORT_ACC_MIN"][me]
+            d_star = p["DISTANCE_WANTED"][me] + sp[e] * p["TIME_WANTED"][me] + sp[e] * dv / (2 * np.sqrt(ab))
+            inter = amax * np.power(d_star / _not_zero(x[f] - x[e]), 2)
+            acc = acc - np.where(fr >= 0, inter, 0.0)
+            return np.where(ego >= 0, acc, 0.0)
+
+        idx = np.arange(n)
+        act = traffic & ~crashed
+        # MOBIL for every car whose timer fires (decisions need positions only).
+        fires = act & lc & (lane == tgt) & (p["LANE_CHANGE_DELAY"] < p["timer"])
+        moving = np.abs(sp) >= 1
+        mobil_ok: dict[int, np.ndarray] = {}
+        sides = {}
+        me_l, ego_l, fr_l = [], [], []
+        for side in (-1, 1):
+            cl = lane + side
+            valid = fires & (cl >= 0) & (cl < len(lanes))
+            cl_c = np.clip(cl, 0, len(lanes) - 1)
+            reach = (np.abs(y - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x) & (x < lane_len[cl_c] + vlen)
+            sides[side] = valid & reach & moving
+            new_pre, new_fol = front[cl_c, idx], rear[cl_c, idx]
+            old_pre, old_fol = front[lane, idx], rear[lane, idx]
+            # new follower before/after, self after/before, old follower before/after
+            for ego, fr in ((new_fol, new_pre), (new_fol, idx), (idx, new_pre), (idx, old_pre),
+                            (old_fol, idx), (old_fol, old_pre)):
+                me_l.append(idx)
+                ego_l.append(ego)
+                fr_l.append(fr)
+        # The final accelerations too: on the current lane, and on every lane as a target.
+        me_l.append(idx)
+        ego_l.append(idx)
+        fr_l.append(front[lane, idx])
+        all_a = idm(np.concatenate(me_l), np.concatenate(ego_l), np.concatenate(fr_l)).reshape(len(me_l), n)
+        mobil_ok: dict[int, np.ndarray] = {}
+        for k, side in enumerate((-1, 1)):
+            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = all_a[6 * k: 6 * k + 6]
+            jerk = self_pred_a - self_a + p["POLITENESS"] * (nf_pred_a - nf_a + of_pred_a - of_a)
+            mobil_ok[side] = (sides[side] & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"])
+                              & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"]))
+        acc_lane = all_a[-1]
+
+        # Lane-change policy in road order (an abort reads the targets set before it).
+        timer = p["timer"].copy()
+        for i in np.flatnonzero(act & lc).tolist():
+            if lane[i] != tgt[i]:
+                mates = (idx != i) & (lane != tgt[i]) & (tgt == tgt[i])
+                if mates.any():
+                    j = np.flatnonzero(mates)
+                    d = x[j] - x[i]
+                    dv = (vx[i] - vx[j]) * c[i] + (vy[i] - vy[j]) * s[i]
+                    ab = -p["COMFORT_ACC_MAX"][i] * p["COMFORT_ACC_MIN"][i]
+                    d_star = p["DISTANCE_WANTED"][i] + sp[i] * p["TIME_WANTED"][i] + sp[i] * dv / (2 * np.sqrt(ab))
+                    if ((0 < d) & (d < d_star)).any():
+                        tgt[i] = lane[i]
+                continue
+            if not fires[i]:
+                continue
+            timer[i] = 0.0
+            for side in (-1, 1):
+                if mobil_ok[side][i]:
+                    tgt[i] = lane[i] + side
+
+        # Steering onto the target lane and IDM on the current (and target) lane.
+        lat = y - lane_y[tgt]
+        heading_cmd = np.arcsin(np.clip(-p["KP_LATERAL"] * lat / _not_zero(sp), -1, 1))
+        heading_ref = 0.0 + np.clip(heading_cmd, -np.pi / 4, np.pi / 4)
+        rate_cmd = p["KP_HEADING"] * (((heading_ref - h) + np.pi) % (2 * np.pi) - np.pi)
+        slip = np.arcsin(np.clip(p["LENGTH"] / 2 / _not_zero(sp) * rate_cmd, -1, 1))
+        steer = np.clip(np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        steer = np.clip(steer, -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        acc = acc_lane
+        changing = np.flatnonzero(lane != tgt)
+        if len(changing):
+            acc = acc.copy()
+            acc[changing] = np.minimum(acc[changing], idm(changing, changing, front[tgt[changing], changing]))
+        # A scripted target holds its speed instead (ControlledVehicle.speed_control).
+        acc = np.where(p["hold"], p["KP_A"] * (tspeed - sp), acc)
+        acc = np.clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
+        self.idm_accel = dict(zip(map(id, veh), np.clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
+
+        steer_l, acc_l, tgt_l, timer_l = steer.tolist(), acc.tolist(), tgt.tolist(), timer.tolist()
+        for i in np.flatnonzero(act).tolist():
+            v = veh[i]
+            v.timer = timer_l[i]
+            if tgt_l[i] != v.target_lane_index[2]:
+                v.target_lane_index = (_from, _to, tgt_l[i])
+            v.action = {"steering": steer_l[i], "acceleration": acc_l[i]}
+
+    # --- step ------------------------------------------------------------------------------
+
+    def step(self, dt: float) -> None:
+        if not self._vectorizable():
+            super().step(dt)
+            return
+        _from, _to, lanes = self._edge
+        movers = [v for v in self.vehicles if type(v) is not ConvoyVehicle]
+        if movers:
+            self._move(movers, dt, lanes, _from, _to)
+        self._collide(dt)
+
+    def _move(self, movers: list, dt: float, lanes: list, _from: str, _to: str) -> None:
+        m = len(movers)
+        pos = np.array([v.position for v in movers], dtype=float).reshape(m, 2)
+        h = np.array([v.heading for v in movers], dtype=float)
+        sp = np.array([v.speed for v in movers], dtype=float)
+        crashed = np.array([v.crashed for v in movers])
+        steer = np.array([float(v.action["steering"]) for v in movers])
+        acc = np.array([float(v.action["acceleration"]) for v in movers])
+        length = np.array([v.LENGTH for v in movers], dtype=float)
+        vmax = np.array([v.MAX_SPEED for v in movers], dtype=float)
+        vmin = np.array([v.MIN_SPEED for v in movers], dtype=float)
+        impact = [v.impact for v in movers]
+        # Vehicle.clip_actions
+        steer = np.where(crashed, 0.0, steer)
+        acc = np.where(crashed, -1.0 * sp, acc)
+        acc = np.where(sp > vmax, np.minimum(acc, 1.0 * (vmax - sp)),
+                       np.where(sp < vmin, np.maximum(acc, 1.0 * (vmin - sp)), acc))
+        # Vehicle.step
+        beta = np.arctan(1 / 2 * np.tan(steer))
+        pos[:, 0] += sp * np.cos(h + beta) * dt
+        pos[:, 1] += sp * np.sin(h + beta) * dt
+        hit = np.array([imp is not None for imp in impact])
+        for k in np.flatnonzero(hit).tolist():
+            pos[k] += impact[k]
+        h_new = h + sp * np.sin(beta) / (length / 2) * dt
+        sp_new = sp + acc * dt
+        # on_state_update: the closest lane (Road.get_closest_lane_index, parallel lanes).
+        lane_y = np.array([ln.start[1] for ln in lanes])
+        lane_len = np.array([ln.length for ln in lanes])
+        s = pos[:, 0:1]
+        r = pos[:, 1:2] - lane_y[None, :]
+        angle = np.abs(((h_new[:, None] - 0.0) + np.pi) % (2 * np.pi) - np.pi)
+        dist = np.abs(r) + np.maximum(s - lane_len[None, :], 0) + np.maximum(0 - s, 0) + 1.0 * angle
+        lane_new = np.argmin(dist, axis=1).tolist()
+        pos_l, h_l, sp_l = pos.tolist(), h_new.tolist(), sp_new.tolist()
+        steer_l, acc_l, crashed_l, hit_l = steer.tolist(), acc.tolist(), crashed.tolist(), hit.tolist()
+        for k, v in enumerate(movers):
+            v.timer += dt
+            v.action["steering"] = steer_l[k]
+            v.action["acceleration"] = acc_l[k]
+            v.position = np.array(pos_l[k])
+            v.heading = h_l[k]
+            v.speed = sp_l[k]
+            if hit_l[k]:
+                v.crashed = True
+                v.impact = None
+            else:
+                v.crashed = crashed_l[k]
+            li = lane_new[k]
+            if li != v.lane_index[2]:
+                v.lane_index = (_from, _to, li)
+                v.lane = lanes[li]
+
+    def _collide(self, dt: float) -> None:
+        """FastRoad's collision pass (highway-env's test for every pair that can touch)."""
+        items = self.vehicles + self.objects
+        n_v = len(self.vehicles)
+        if len(items) < 2:
+            return
+        pos = np.array([o.position for o in items])
+        diag = np.array([o.diagonal for o in items])
+        speed = np.array([abs(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
+        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+        near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + speed[:, None] * dt + 1e-6
+        ii, jj = np.nonzero(np.triu(near, k=1))
+        for i, j in zip(ii.tolist(), jj.tolist()):
+            if i < n_v:
+                items[i].handle_collisions(items[j], dt)
+

@@ -1,0 +1,264 @@
+"""One tick in every world (issue 11): the simulator and the deploy runner drive the member
+through ``core.tick`` alike — bit-equal over a whole paper run under loss — and the four
+rows where they had drifted (clip, ranging, a non-finite action, no member config) agree."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+
+from openconvoy.bridge.link import Telemetry
+from openconvoy.bridge.runner import DeployRunner, RunnerOptions
+from openconvoy.comms.loss import LossConfig
+from openconvoy.comms.v2v import Counters
+from openconvoy.convoy import ConvoyConfig
+from openconvoy.core import tick as member_tick
+from openconvoy.core.member import MemberConfig
+from openconvoy.core.state import VehicleState
+from openconvoy.envs import ConvoyEnv
+from openconvoy.envs.scenarios import make_scenario
+from openconvoy.policies import load_policy
+
+VEHICLES = ("1/10", "1/6", "1/10")  # the paper scenario's presets
+
+
+@dataclass
+class Heard:
+    state: VehicleState | None
+    abort: bool = False
+
+
+class ReplayLink:
+    """A vehicle whose telemetry is whatever the test sets (``state``), always fresh."""
+
+    autopilot = "ardupilot"
+    telemetry_timeout_s = 0.5
+    heartbeat_timeout_s = 3.0
+    pilot_took_over = False
+    lost = False
+
+    def __init__(self, clock: list[float]) -> None:
+        self.clock = clock
+        self.state: VehicleState | None = None
+        self.ranging: tuple[float, float] | None = None
+        self.sent: list[tuple[float, float]] = []
+
+    def connect(self, timeout_s: float) -> None: ...
+
+    def poll(self) -> Telemetry | None:
+        if self.state is None:
+            return None
+        now = self.clock[0]
+        return Telemetry(self.state, 0.0, 0.0, "GUIDED", True, now, now)
+
+    def prepare_and_arm(self, timeout_s: float, on_status: Any = None) -> None: ...
+
+    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+        self.sent.append((speed_mps, heading_rad))
+        return True
+
+    def stop_motion(self) -> bool:
+        return True
+
+    def hold(self, timeout_s: float = 2.0) -> None: ...
+
+    def link_ok(self, now: float) -> bool:
+        return True
+
+    def reconnect(self, timeout_s: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ReplayV2V:
+    """Delivers exactly the messages the test puts in ``inbox``."""
+
+    def __init__(self) -> None:
+        self.counters = Counters()
+        self.inbox: list[VehicleState] = []
+        self.metadata: dict[str, Any] = {}
+
+    def send(self, state: VehicleState, now: float) -> bool:
+        self.counters.sent += 1
+        return True
+
+    def poll(self, now: float, budget_s: float | None = None) -> list[Heard]:
+        out, self.inbox = [Heard(s) for s in self.inbox], []
+        self.counters.received += len(out)
+        return out
+
+    def close(self) -> None: ...
+
+
+def runner_for(vehicle_id: int, policy: Any, convoy: ConvoyConfig | None = None,
+               lengths: list[float] | None = None, decels: list[float] | None = None):
+    clock = [100.0]
+    wall = [0.0]
+    link, v2v = ReplayLink(clock), ReplayV2V()
+    convoy = convoy or ConvoyConfig(name="x", vehicles=VEHICLES)
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=vehicle_id, duration_s=1000.0, status_period_s=0), convoy, policy, link, v2v,
+        lengths=lengths, decels=decels, clock=lambda: clock[0], sleep=lambda s: None,
+        wall_clock=lambda: wall[0], on_status=lambda line: None,
+    )
+    return runner, link, v2v, clock, wall
+
+
+def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_paper_run_under_loss():
+    # Seed 3: follower 2 hears the leader and follower 1 at t = 0 despite 30 % loss, so the
+    # runner starts at once, as the simulator does (a runner waits for them, armed and still).
+    env = ConvoyEnv("paper", loss=LossConfig(per=0.3))
+    me = 2
+    inboxes: list[list[VehicleState]] = []
+    member = env.members[me]
+    receive = member.receive
+
+    def recording_receive(msg: VehicleState, now: float) -> bool:
+        inboxes[-1].append(msg)
+        return receive(msg, now)
+
+    member.receive = recording_receive  # type: ignore[method-assign]
+    policies = {a: load_policy("paper") for a in env.possible_agents}
+    for p in policies.values():
+        p.reset(0)
+    inboxes.append([])
+    obs, _ = env.reset(seed=3)
+    sim: list[tuple[VehicleState, list[VehicleState], np.ndarray, np.ndarray, str]] = []
+    while env.agents:
+        own = member.own
+        assert own is not None
+        actions = {a: policies[a].act(obs[a]) for a in env.agents}
+        frame_obs = obs[f"follower_{me}"]
+        box = inboxes[-1]
+        inboxes.append([])
+        obs, _, _, _, infos = env.step(actions)
+        info = infos[f"follower_{me}"]
+        applied = np.array([info["cmd_speed_mps"], info["cmd_heading_change_rad"]], dtype=np.float32)
+        sim.append((own, box, frame_obs, applied, info["mode"]))
+    assert len(sim) == 1200
+    lost = env.channel.lost_to[me]
+    assert lost > 300  # under loss indeed (30 % of ~2400 messages to it)
+
+    scenario = make_scenario("paper")
+    lengths = [p.length_m for p in scenario.presets]
+    decels = [p.decel_max_mps2 for p in scenario.presets]
+    runner, link, v2v, clock, wall = runner_for(me, load_policy("paper"), lengths=lengths, decels=decels)
+    link.state = sim[0][0]
+    runner.start()
+    for k, (own, box, o, applied, mode) in enumerate(sim):
+        clock[0] = 100.0 + k * env.dt
+        wall[0] = own.t
+        link.state = own
+        v2v.inbox = list(box)
+        assert runner.tick(clock[0]) == ""
+        assert runner.decision is not None, f"tick {k}: the runner did not drive"
+        assert runner.frame.observation.tobytes() == o.tobytes(), f"observation differs at tick {k}"
+        assert runner.decision.action.tobytes() == applied.tobytes(), f"action differs at tick {k}"
+        assert runner.decision.mode == mode, f"mode differs at tick {k}"
+
+
+def _sim_decide(env: ConvoyEnv, i: int, action, ranging=None) -> member_tick.Decision:
+    return member_tick.decide(env.members[i], env._frames[i], np.asarray(action), env._bounds[i], ranging)
+
+
+def test_row_clip_before_supervise_in_both_worlds():
+    env = ConvoyEnv("paper")
+    env.reset(seed=0)
+    policy = load_policy("paper")
+    runner, link, v2v, clock, wall = runner_for(1, policy)
+    # A policy asking for 99 m/s and a 3 rad turn gets the top of the action space in both.
+    runner.policy = _Fixed(policy, np.array([99.0, 3.0], dtype=np.float32))
+    state = env.members[1].own
+    link.state = state
+    v2v.inbox = [env.members[0].own]
+    runner.start()
+    runner.tick(clock[0])
+    d = runner.decision
+    assert d is not None and d.mode == "coop"
+    space = env.action_space("follower_1")
+    top = env.presets[1].max_speed_mps  # the 1/6-scale car's
+    assert d.action.tolist() == space.high.tolist() == [top, pytest.approx(math.pi / 2)] and top < 99.0
+    assert _sim_decide(env, 1, [99.0, 3.0]).action.tobytes() == d.action.tobytes()
+    assert _sim_decide(env, 1, [-5.0, -3.0]).action.tolist() == space.low.tolist()
+
+
+def test_row_a_non_finite_action_is_a_counted_policy_error_and_a_stop_in_both_worlds():
+    policy = load_policy("paper")
+    env = ConvoyEnv("paper")
+    obs, _ = env.reset(seed=0)
+    actions = {a: policy.act(o) for a, o in obs.items()}
+    actions["follower_1"] = np.array([math.nan, 0.0], dtype=np.float32)
+    _, _, _, _, infos = env.step(actions)
+    i1 = infos["follower_1"]
+    assert (i1["cmd_speed_mps"], i1["mode"], i1["policy_errors"]) == (0.0, "failsafe", 1)
+    assert env.safety_events == [(0.0, 1, "policy error: non-finite action nan, 0.0")]
+    # Stopped for the rest of the episode, as a vehicle's failsafe latches.
+    actions["follower_1"] = np.array([1.0, 0.0], dtype=np.float32)
+    _, _, _, _, infos = env.step(actions)
+    assert (infos["follower_1"]["cmd_speed_mps"], infos["follower_1"]["mode"]) == (0.0, "failsafe")
+    assert infos["follower_2"]["policy_errors"] == 0
+
+    runner, link, v2v, clock, wall = runner_for(1, _Fixed(policy, np.array([math.nan, 0.0], dtype=np.float32)))
+    link.state = VehicleState(1, 0.0, -15.0, 0.0, 0.0, 0.0)
+    v2v.inbox = [VehicleState(0, 0.0, 0.0, 0.0, 0.0, 0.0)]
+    runner.start()
+    runner.tick(clock[0])
+    assert runner.decision is not None
+    assert runner.decision.policy_error == "non-finite action nan, 0.0"
+    assert runner.decision.mode == "stop" and runner.decision.speed_mps == 0.0
+    assert runner.failsafes.policy_errors == 1 and "policy error" in runner.failsafes.latched
+    assert link.sent[-1] == (0.0, 0.0)
+
+
+def test_row_a_policy_without_member_config_gets_the_scenario_spacing_in_both_worlds():
+    policy = _Fixed(load_policy("paper"), np.array([1.0, 0.0], dtype=np.float32), member_config=None)
+    convoy = ConvoyConfig(name="e", scenario="emergency-braking", vehicles=("full-size",) * 3)
+    runner, *_ = runner_for(1, policy, convoy=convoy)
+    env = ConvoyEnv("emergency-braking", member_config=policy.member_config)
+    assert runner.member.config == env.member_config == MemberConfig(spacing=env.scenario.spacing)
+    assert env.scenario.spacing.kind == "constant-time-headway"
+
+
+def test_row_ranging_reaches_the_ladder_in_both_worlds():
+    from openconvoy.core.ladder import LadderConfig
+    from openconvoy.core.spacing import SpacingConfig
+
+    cfg = MemberConfig(spacing=SpacingConfig("constant-distance", distance_m=20.0),
+                       ladder=LadderConfig(enabled=True))
+    env = ConvoyEnv("emergency-braking", member_config=cfg, vehicle_presets=["full-size", "full-size"])
+    env.reset(seed=0)
+    cut_in = (8.0, 0.0)  # something 8 m ahead, the predecessor heard 20+ m ahead
+    assert _sim_decide(env, 1, [25.0, 0.0], cut_in).mode == "degraded"
+    assert _sim_decide(env, 1, [25.0, 0.0]).mode == "coop"
+
+
+class _Fixed:
+    """``inner``'s member side and name, always ``action``."""
+
+    def __init__(self, inner: Any, action: np.ndarray, **over: Any) -> None:
+        self.member_config = over.get("member_config", inner.member_config)
+        self.control_rate_hz = inner.control_rate_hz
+        self.name = "fixed"
+        self.action = action
+
+    def reset(self, seed: int | None = None) -> None: ...
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        return self.action
+
+
+def test_a_policy_missing_a_declared_attribute_is_refused_when_handed_over():
+    class Bare:
+        def reset(self, seed=None): ...
+
+        def act(self, obs):
+            return np.zeros(2, dtype=np.float32)
+
+    from openconvoy.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="lacks member_config, control_rate_hz, name"):
+        runner_for(1, Bare())

@@ -118,6 +118,9 @@ class SimVehicleConfig:
         wp_speed_mps: ArduPilot WP_SPEED speed cap.
         plant_hz: plant step rate with a preset.
         speedup: real-time form: the vehicle's clock runs this many times faster.
+        boot_on_connect: real-time form: boot when the first MAVLink message arrives (as
+            SITL waiting for its serial0 connection), so a companion that connects at once
+            meets the whole boot sequence.
         gps_noise_m: standard deviation of position noise on GLOBAL_POSITION_INT.
         seed: seeds the noise.
     """
@@ -142,6 +145,7 @@ class SimVehicleConfig:
     wp_speed_mps: float = 5.0
     plant_hz: float = 50.0
     speedup: float = 1.0
+    boot_on_connect: bool = False
     gps_noise_m: float = 0.0
     seed: int = 0
 
@@ -348,6 +352,11 @@ class SimVehicle:
     def _run(self) -> None:
         dt = self.firmware.loop_dt
         speed = self.config.speedup
+        if self.config.boot_on_connect:
+            while not self._heard_peer and not self._stop_evt.is_set():
+                self._receive(queue_only=True)
+                self._stop_evt.wait(0.005)
+            self._t_wall0 = self._clock()
         while not self._stop_evt.is_set():
             target = (self._clock() - self._t_wall0) * speed
             if target - self._t > 0.5:  # fell far behind (debugger, SIGSTOP): skip ahead
@@ -389,9 +398,14 @@ class SimVehicle:
 
     # ----------------------------------------------------------------- receiving
 
-    def _receive(self) -> None:
+    def _receive(self, queue_only: bool = False) -> None:
+        """Handle what arrived; ``queue_only``: before boot, only notice the first peer
+        (its datagrams stay queued for the booted autopilot)."""
         conn = self._conn
         if conn is None:
+            return
+        if queue_only:
+            self._heard_peer = self.wait_readable(0.0)
             return
         for _ in range(1000):
             try:

@@ -100,6 +100,10 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     )
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming
+    auth = vehicle_authenticator(convoy, a.vehicle_id)  # key problems: before any socket
+    if auth is not None:
+        status(f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
+               f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates")
     link = MavlinkLink(
         a.mavlink, origin, a.baud, vehicle_id=a.vehicle_id,
         telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
@@ -110,7 +114,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     v2v = V2V(
         LinkConfig.from_v2v(convoy.v2v, a.iface), temp_ids, origin, a.vehicle_id,
         loss=loss, drop_at=a.drop_at, rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
-        auth=vehicle_authenticator(convoy, a.vehicle_id),
+        auth=auth,
     )
     return DeployRunner(
         options, convoy, policy, link, v2v, leader=leader,

@@ -396,7 +396,8 @@ def run_fit_plant_cli(args: object) -> int:
     logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
     if getattr(args, "model", "lag") == "pi":
         pi_fit = fit_pi_plant(logs, base=args.base, name=args.name,  # type: ignore[attr-defined]
-                              vehicle_id=args.vehicle_id, source=args.source)  # type: ignore[attr-defined]
+                              vehicle_id=args.vehicle_id, source=args.source,  # type: ignore[attr-defined]
+                              cmd_timing=getattr(args, "cmd_timing", "after-state"))
         print(format_pi_fit(pi_fit))
         preset = pi_fit.preset
     else:
@@ -573,16 +574,18 @@ class PiFit:
     source: str
 
 
-def _series_from(path: str | Path, vehicle_id: int | None, source: str) -> tuple[list[_Series], str]:
+def _series_from(
+    path: str | Path, vehicle_id: int | None, source: str, cmd_timing: str = "after-state"
+) -> tuple[list[_Series], str]:
     from openconvoy.bridge.recording import is_recording, read_recording
 
     if is_recording(path):
         rec = read_recording(path, source=source)
         return [_Series(s.t, s.speed, s.heading, s.t_cmd, s.cmd_speed, s.cmd_heading)
                 for s in rec.segments], f"{rec.autopilot} recording"
-    t, speed, heading, cmd_v, cmd_dh, age = _load(path, vehicle_id)
-    t_meas = t - age  # a row's state is as old as its telemetry
-    return [_Series(t_meas, speed, heading, t, cmd_v, heading + cmd_dh)], "log"
+    d = _align(*_load(path, vehicle_id), cmd_timing)
+    t_meas = d.t - d.age  # a row's state is as old as its telemetry
+    return [_Series(t_meas, d.speed, d.heading, d.t_cmd, d.cmd_v, d.cmd_h)], "log"
 
 
 def fit_pi_plant(
@@ -593,6 +596,7 @@ def fit_pi_plant(
     source: str = "telemetry",
     rounds: int = 14,
     population: int = 160,
+    cmd_timing: CmdTiming = "after-state",
 ) -> PiFit:
     """Fit the autopilot's PI speed loop (delay, ramp limits, gains, feed-forward, drive
     lag, static friction) and its heading loop (delay, lag, rate and yaw-accel limits,
@@ -606,7 +610,7 @@ def fit_pi_plant(
     series: list[_Series] = []
     kinds = []
     for p in paths:
-        got, kind = _series_from(p, vehicle_id, source)
+        got, kind = _series_from(p, vehicle_id, source, cmd_timing)
         series += got
         kinds.append(kind)
     speed_series = [s for s in series if np.ptp(s.cmd_v) >= 0.2]

@@ -13,6 +13,7 @@ block for up to their timeout and are meant for start-up, stops and link recover
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
@@ -56,6 +57,11 @@ class CommandRefused(VehicleLinkError):
         super().__init__(f"{command} refused by the autopilot ({result}){why}")
 
 
+class ModeLost(VehicleLinkError):
+    """The vehicle left the guided mode between arming and the first motion setpoint and
+    did not keep it when asked again; the message names the mode and who set it."""
+
+
 @dataclass(frozen=True, slots=True)
 class Telemetry:
     """The latest picture of the vehicle, in internal units.
@@ -69,8 +75,13 @@ class Telemetry:
         lat_deg, lon_deg: the vehicle's geodetic position, degrees.
         mode: the autopilot's mode name, e.g. ``"GUIDED"``, ``"HOLD"``, ``"OFFBOARD"``.
         armed: motors armed.
-        t_telemetry: link clock (s) when the newest position/attitude message arrived.
+        t_telemetry: link clock (s) when the newest position message arrived (attitude
+            alone does not count: a frozen position must look stale).
         t_heartbeat: link clock (s) when the newest vehicle heartbeat arrived.
+        range_m: forward rangefinder reading (m, from the sensor — the front bumper — to
+            the obstacle ahead), NaN when the vehicle has none or nothing is in range.
+        range_rate_mps: its rate of change (m/s, negative = closing), NaN when unknown.
+        t_range: link clock (s) when ``range_m`` arrived (-inf if never).
     """
 
     state: VehicleState
@@ -80,6 +91,9 @@ class Telemetry:
     armed: bool
     t_telemetry: float
     t_heartbeat: float
+    range_m: float = math.nan
+    range_rate_mps: float = math.nan
+    t_range: float = -math.inf
 
 
 @runtime_checkable
@@ -126,7 +140,12 @@ class VehicleLink(Protocol):
         ...
 
     def hold(self, timeout_s: float = 2.0) -> None:
-        """Switch the autopilot to its hold mode (stops the vehicle); 0 = do not wait."""
+        """Switch the autopilot to its hold mode; 0 = do not wait. Stop first (PX4's Hold
+        loops back to where it engaged, ArduPilot's coasts without braking)."""
+        ...
+
+    def disarm(self, timeout_s: float = 2.0) -> None:
+        """Disarm (standing still); 0 = send and do not wait."""
         ...
 
     def link_ok(self, now: float) -> bool:
@@ -134,7 +153,8 @@ class VehicleLink(Protocol):
         ...
 
     def reconnect(self, timeout_s: float) -> None:
-        """Close and reopen the link, then wait for a heartbeat and re-request telemetry."""
+        """Close and reopen the link, then wait for a heartbeat and re-request telemetry;
+        ``timeout_s`` = 0 starts that and returns at once (``poll`` finishes it)."""
         ...
 
     def close(self) -> None:

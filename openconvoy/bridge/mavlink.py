@@ -1,26 +1,62 @@
 """``MavlinkLink``: the vehicle link over MAVLink (pymavlink), for ArduPilot Rover and PX4.
 
-Follows shared/AUTOPILOTS.md:
+Follows shared/AUTOPILOTS.md and the firmware recordings in shared/sitl/ (ArduPilot Rover
+4.7) and shared/sitl-px4/ (PX4 main, SIH Ackermann rover):
 
 - connect by URL (``/dev/ttyUSB0`` with ``baud``, ``udp:``/``udpin:`` listen, ``udpout:``
   send, ``tcp:`` connect, ``tcpin:`` listen), wait for a vehicle heartbeat, identify the
   firmware (autopilot 3 = ArduPilot, 12 = PX4);
 - telemetry is requested per message with ``MAV_CMD_SET_MESSAGE_INTERVAL`` at
   ``telemetry_hz`` (independent of the control rate); a refused rate is reported and
-  retried lower;
-- ArduPilot: GUIDED (confirmed by the heartbeat), then arm, retrying while the autopilot
-  refuses with its status text, bounded by a timeout; setpoints are
-  ``SET_POSITION_TARGET_GLOBAL_INT`` (no EKF origin needed) with type_mask 2503: a
-  velocity vector along the commanded yaw plus the yaw, so heading and speed both come out
-  right; stop = speed 0 along the current heading;
-- PX4: setpoints stream (10 Hz, > 1 s) before OFFBOARD and arming; setpoints are
-  ``SET_POSITION_TARGET_LOCAL_NED`` with the same mask;
+  retried lower. Only GLOBAL_POSITION_INT keeps the telemetry fresh (``link_ok``,
+  ``Telemetry.t_telemetry``): ATTITUDE alone must not let a vehicle drive on a frozen
+  position;
+- a forward rangefinder (DISTANCE_SENSOR with orientation 0) gives range and range rate;
+- arming: GUIDED / OFFBOARD (confirmed by the heartbeat), then arm, retrying while the
+  autopilot refuses with its status text, bounded by a timeout; then the mode is checked
+  again on a heartbeat received after arming (ArduPilot's RC mode switch sets MANUAL
+  ~0.4 s after "ArduPilot Ready", and arming is accepted in MANUAL): a changed mode is
+  requested again a bounded number of times, else the vehicle is disarmed and ``ModeLost``
+  names the mode and who set it;
 - every command's COMMAND_ACK is checked; a refusal raises ``CommandRefused`` with the
   autopilot's latest STATUSTEXT;
 - a GCS heartbeat goes out at 1 Hz; lost links are detected (silence, missing heartbeat,
-  TCP EOF — pymavlink reports that in a busy loop instead of raising);
+  TCP EOF — pymavlink reports that in a busy loop instead of raising); ``reconnect(0)``
+  reopens in a helper thread and never blocks the caller;
 - a mode change away from GUIDED/OFFBOARD that this link did not ask for latches
-  ``pilot_took_over``.
+  ``pilot_took_over`` (``takeover_reason`` says by whom, as far as the link can tell).
+
+Setpoints: what each firmware does with them (checked in its source and its recordings)
+---------------------------------------------------------------------------------------
+
+ArduPilot Rover, ``Rover/GCS_MAVLink_Rover.cpp`` (``handle_set_position_target_global_int``
+and ``_local_ned``, unchanged since 2017): with the yaw or yaw-rate field in use, the sign of
+``vx`` alone selects the direction ("we are using the x-axis velocity to determine
+direction even though the frame is provided in MAV_FRAME_GLOBAL_xxx": ``if
+(is_negative(packet.vx)) speed_dir = -1``), the speed is |(vx, vy)| and the nose points at
+``yaw``. A NED vector with yaw therefore reverses on every heading with a southward
+component (recorded: shared/sitl/ rows 6-8). So we send type_mask 2503, ``vx`` = the
+body-forward speed, ``vy`` = 0, ``yaw`` absolute; only a negative commanded speed reverses.
+Stop = speed 0 with yaw = the current heading (row 20: heading held within 0.5°), never the
+zero velocity-only setpoint (row 21: "heading north", the nose swings ~80°). GLOBAL_INT is
+used because LOCAL_NED is ignored until the EKF has an origin (rows 24-25).
+
+PX4, ``src/modules/mavlink/mavlink_receiver.cpp`` (``handle_message_set_position_target_
+local_ned`` / ``_global_int``): the message's velocity becomes ``trajectory_setpoint.velocity``
+and ``offboard_control_mode.velocity``; the yaw is copied but the rover modules do not use it.
+``src/modules/rover_ackermann/AckermannDriveModes/AckermannOffboardMode/AckermannOffboardMode.cpp``
+(``offboardControl``): ``speed_body_x = |(vx, vy)|`` and ``yaw_setpoint = atan2f(vy, vx)``, so
+the rover steers to the vector's bearing, never reverses, ignores the yaw field, and a zero
+vector means bearing atan2(±0, ±0) = north or south by the sign of the zero (recorded:
+shared/sitl-px4/ rows 7-9, 20-21: a ~48° swing from 2 m/s). ``rover_differential`` and
+``rover_mecanum`` have their own offboard modes. So we keep the NED vector (speed along the
+heading; type_mask 2503 with the yaw for firmwares that use it), and stop with a vanishing
+vector along the current bearing (``_PX4_STOP_MPS`` = 0.001 m/s; recorded: stopped in
+1.25 s from 2 m/s, heading 90.4 → 90.0°). PX4's commander leaves OFFBOARD
+``COM_OF_LOSS_T`` (1 s) after the last setpoint and **returns to OFFBOARD by itself when
+setpoints resume** (recorded, rows 16-18), so once the stream has paused that long, or the
+autopilot link was lost, or a mode change we did not ask for was seen, this link sends no
+setpoint again (``stream_ended``) until a new run.
 
 Not thread-safe: one thread (the runner's loop) owns a link.
 """
@@ -29,6 +65,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -40,8 +77,10 @@ from openconvoy.bridge.link import (
     CommandRefused,
     LinkLost,
     LinkTimeout,
+    ModeLost,
     StatusCallback,
     Telemetry,
+    VehicleLinkError,
 )
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.core.errors import ConfigError
@@ -56,6 +95,12 @@ _PX4_PRESTREAM_S = 1.2  # PX4 v1.16+ wants > 1 s of setpoints above 2 Hz before 
 _KEEPALIVE_PERIOD_S = 0.1  # setpoint stream while blocking in PX4 preparation (10 Hz)
 _MODE_CONFIRM_S = 2.5  # heartbeats come at 1 Hz: allow two and a half periods
 _RETRY_PAUSE_S = 1.0
+_MODE_REREQUESTS = 2  # a mode lost after arming is requested again this many times
+_PX4_STOP_MPS = 0.001  # PX4's stop: a vanishing vector that still has a bearing (see above)
+_PX4_RESUME_GAP_S = 1.0  # COM_OF_LOSS_T: after such a pause PX4 may be in its failsafe
+_RANGE_WINDOW_S = 0.5  # range rate: least-squares slope over this much of the newest ranges
+_RANGE_GAP_S = 0.5  # a range older than this (vehicle time) starts a new slope
+_FAILSAFE_TEXT_S = 3.0  # a "failsafe" STATUSTEXT this recent explains a mode change
 
 
 def check_url(url: str) -> str:
@@ -132,8 +177,13 @@ class MavlinkLink:
         self._wall = wall_clock
         self._on_status = on_status or (lambda line: log.warning("%s", line))
         self._conn: Any = None
+        self._pending: list[Any] = []  # a connection opened by the reconnect thread
+        self._opener: threading.Thread | None = None
         self._reset_link_state()
         self._pilot_took_over = False
+        self._takeover_reason = ""
+        self._failsafe_took_over = False
+        self._stream_ended = ""
         self._engaged_mode: str | None = None
         self._requested_mode: str | None = None
         self.telemetry_rates: dict[str, float] = {}
@@ -172,9 +222,18 @@ class MavlinkLink:
         self._t_measured = math.nan  # wall-clock time of the newest measurement
         self._updated = False
         self._telemetry: Telemetry | None = None
+        self._heartbeats = 0
+        self._ranges: deque[tuple[float, float]] = deque(maxlen=64)  # (vehicle time s, m)
+        self._range_m = math.nan
+        self._range_rate = math.nan
+        self._t_range = -math.inf
         self._t0 = self._clock()
 
     def _open(self) -> None:
+        self._install(self._make_connection())
+
+    def _make_connection(self) -> Any:
+        """A new pymavlink connection (may block: TCP connect); raises ``LinkLost``."""
         kwargs: dict[str, Any] = dict(
             source_system=self.source_system,
             source_component=self.source_component,
@@ -186,6 +245,9 @@ class MavlinkLink:
             conn = mp.mavutil.mavlink_connection(self.url, baud=self.baud, **kwargs)
         except OSError as exc:
             raise LinkLost(f"cannot open MAVLink link {self.url}: {exc}") from exc
+        return conn
+
+    def _install(self, conn: Any) -> None:
         # pymavlink's TCP link prints and "reconnects" (a no-op without autoreconnect) on EOF
         # and returns no data, forever: hook it so EOF marks the link lost instead.
         conn.handle_eof = lambda: self._mark_lost("connection closed by the vehicle (EOF)")
@@ -216,15 +278,45 @@ class MavlinkLink:
     def reconnect(self, timeout_s: float = 10.0) -> None:
         """Reopen a lost connection (``lost``: TCP EOF/reset, device error, or a failed
         reopen), wait for a heartbeat and re-request telemetry. A connection that is open
-        but still waiting for its first heartbeat is kept, so repeated short calls add up
-        (``reconnect(0.2)`` every tick works with 1 Hz heartbeats). Raises like
-        ``connect``. ``pilot_took_over`` stays latched."""
-        if self.lost:
-            self.close()
-        self.connect(timeout_s)
+        but still waiting for its first heartbeat is kept, so repeated short calls add up.
+        Raises like ``connect``. ``pilot_took_over`` stays latched.
+
+        ``timeout_s`` <= 0 never blocks (what the runner's loop calls): the connection is
+        opened in a helper thread (a TCP connect can take seconds) and installed by a later
+        ``poll``; the telemetry intervals are re-sent without waiting for their ACKs when
+        the first heartbeat arrives, so a vehicle that answers heartbeats but not commands
+        cannot stall the caller. Open failures come as status lines."""
+        if timeout_s > 0:
+            if self.lost:
+                self.close()
+            self.connect(timeout_s)
+            return
+        if not self.lost or self._pending or (self._opener is not None and self._opener.is_alive()):
+            return
+        self.close()
+        self._reset_link_state()
+
+        def open_in_background() -> None:
+            try:
+                self._pending.append(self._make_connection())
+            except LinkLost as exc:
+                self._status(f"reconnect failed: {exc}")
+
+        self._opener = threading.Thread(target=open_in_background, name="mavlink-reopen", daemon=True)
+        self._opener.start()
+
+    def _install_pending(self) -> None:
+        if self._pending and self._conn is None:
+            self._install(self._pending.pop())
+            self._status(f"MAVLink link {self.url} reopened; waiting for the vehicle's heartbeat")
 
     def close(self) -> None:
         """Close the connection (idempotent)."""
+        while self._pending:
+            try:
+                self._pending.pop().close()
+            except OSError:
+                pass
         if self._conn is not None:
             try:
                 self._conn.close()
@@ -270,6 +362,23 @@ class MavlinkLink:
         return self._pilot_took_over
 
     @property
+    def takeover_reason(self) -> str:
+        """One line: which mode the vehicle went to and who set it ("" before a takeover)."""
+        return self._takeover_reason
+
+    @property
+    def failsafe_took_over(self) -> bool:
+        """The takeover came with the autopilot's own failsafe text (not a person)."""
+        return self._failsafe_took_over
+
+    @property
+    def stream_ended(self) -> str:
+        """Why this link sends no more setpoints (PX4: a paused stream, a lost link or a
+        takeover; "" while it may). Latched for the link's life: PX4 would re-enter
+        OFFBOARD by itself if setpoints resumed after its failsafe."""
+        return self._stream_ended
+
+    @property
     def lost(self) -> bool:
         """No usable connection (TCP EOF/reset, device error, never opened or reopening
         failed): call ``reconnect``. A silent UDP link is not ``lost``: see ``link_ok``."""
@@ -306,6 +415,7 @@ class MavlinkLink:
 
     def _service(self) -> None:
         """Periodic sends (GCS heartbeat, PX4 keep-alive stream) and draining."""
+        self._install_pending()
         if self._conn is None:
             return
         now = self._clock()
@@ -354,7 +464,10 @@ class MavlinkLink:
         elif kind == "ATTITUDE":
             self._heading = wrap_angle(math.pi / 2 - msg.yaw)  # NED yaw -> ENU heading
             self._yaw_rate = -msg.yawspeed  # clockwise-positive -> counter-clockwise
-            self._mark_telemetry(msg.time_boot_ms * 1e-3)
+            # Fresher heading, but not fresher telemetry: only a position refreshes it.
+            self._updated = True
+        elif kind == "DISTANCE_SENSOR":
+            self._on_range(msg)
         elif kind == "STATUSTEXT":
             text = msg.text if isinstance(msg.text, str) else msg.text.decode(errors="replace")
             self._texts.append((self._clock(), msg.severity, text.rstrip("\x00")))
@@ -382,6 +495,7 @@ class MavlinkLink:
         elif src != self._target:
             return
         self.message_counts["HEARTBEAT"] = self.message_counts.get("HEARTBEAT", 0) + 1
+        self._heartbeats += 1
         self._autopilot_id = msg.autopilot
         now = self._clock()
         if now - self._t_heartbeat > self.heartbeat_timeout_s and self.telemetry_rates:
@@ -397,11 +511,29 @@ class MavlinkLink:
             and not self._pilot_took_over
         ):
             self._pilot_took_over = True
-            self._status(
-                f"mode changed from {self._engaged_mode} to {mode} without our request: "
-                "a pilot (or a failsafe) took over; no more setpoints"
-            )
+            who = self._who_set_mode()
+            self._failsafe_took_over = who.startswith("the autopilot's failsafe")
+            self._takeover_reason = f"mode changed from {self._engaged_mode} to {mode}, set by {who}"
+            self._end_stream("a mode change we did not ask for")
+            self._status(f"{self._takeover_reason}: somebody else took over; no more setpoints")
         self._mode = mode
+
+    def _who_set_mode(self) -> str:
+        """Who changed the mode, as far as MAVLink tells: a recent failsafe STATUSTEXT
+        names the autopilot itself; otherwise it was not this link."""
+        now = self._clock()
+        for t, _, text in reversed(self._texts):
+            if now - t > _FAILSAFE_TEXT_S:
+                break
+            if "failsafe" in text.lower():
+                return f"the autopilot's failsafe ({text.strip()!r})"
+        if self._autopilot_id == mp.AUTOPILOT_PX4:
+            return "not this link (the RC, another GCS, or a PX4 failsafe without a text)"
+        return "not this link (the RC mode switch, MODE_CH, or another GCS)"
+
+    def _end_stream(self, why: str) -> None:
+        if not self._stream_ended and self._autopilot_id == mp.AUTOPILOT_PX4:
+            self._stream_ended = why
 
     def _update_speed(self, t_vehicle: float) -> None:
         if self._heading is None:
@@ -417,6 +549,36 @@ class MavlinkLink:
     def _forward_speed(self) -> float:
         h = self._heading or 0.0
         return self._vel_en[0] * math.cos(h) + self._vel_en[1] * math.sin(h)
+
+    def _on_range(self, msg: Any) -> None:
+        """A forward rangefinder (orientation 0 = MAV_SENSOR_ROTATION_NONE) reading: range
+        (cm -> m) and its rate, the least-squares slope over the last ``_RANGE_WINDOW_S``
+        of readings (1 cm steps at 10-20 Hz make a plain difference ±0.2 m/s of noise).
+        Other orientations (PX4 SIH streams a downward one, orientation 25) are ignored;
+        a reading outside [min_distance, max_distance) means nothing in range."""
+        if msg.orientation != 0:
+            return
+        self._t_range = self._clock()
+        cm = msg.current_distance
+        if cm == 0xFFFF or cm < msg.min_distance or cm >= msg.max_distance or cm <= 0:
+            self._ranges.clear()
+            self._range_m = self._range_rate = math.nan
+            return
+        t = msg.time_boot_ms * 1e-3
+        if self._ranges and not 0.0 < t - self._ranges[-1][0] <= _RANGE_GAP_S:
+            self._ranges.clear()  # a gap, a repeat or a reboot: start a new slope
+        self._ranges.append((t, cm * 0.01))
+        while t - self._ranges[0][0] > _RANGE_WINDOW_S:
+            self._ranges.popleft()
+        self._range_m = cm * 0.01
+        n = len(self._ranges)
+        if n < 2:
+            self._range_rate = math.nan
+            return
+        mt = sum(p[0] for p in self._ranges) / n
+        mr = sum(p[1] for p in self._ranges) / n
+        stt = sum((p[0] - mt) ** 2 for p in self._ranges)
+        self._range_rate = sum((p[0] - mt) * (p[1] - mr) for p in self._ranges) / stt
 
     def _mark_telemetry(self, t_boot: float) -> None:
         self._t_telemetry = self._clock()
@@ -450,6 +612,7 @@ class MavlinkLink:
         return Telemetry(
             state=state, lat_deg=lat, lon_deg=lon, mode=self._mode, armed=self._armed,
             t_telemetry=self._t_telemetry, t_heartbeat=self._t_heartbeat,
+            range_m=self._range_m, range_rate_mps=self._range_rate, t_range=self._t_range,
         )
 
     # ----------------------------------------------------------------- commands
@@ -572,9 +735,17 @@ class MavlinkLink:
             )
             self._wait_until(lambda: False, min(_RETRY_PAUSE_S, left))
 
-    def _arm(self, deadline: float, on_status: StatusCallback) -> None:
-        """Arm, waiting out the autopilot's refusals (estimator not ready) until ``deadline``."""
+    def _arm(self, deadline: float, on_status: StatusCallback, mode: str | None = None) -> None:
+        """Arm, waiting out the autopilot's refusals (estimator not ready) until ``deadline``.
+
+        Before every attempt the mode must still be ``mode``: ArduPilot's init and RC mode
+        switch replace a GUIDED set early in boot by MANUAL (shared/sitl rows 3-4), and it
+        accepts arming in MANUAL ~19 s before GUIDED is armable (row 2)."""
         while True:
+            if mode is not None and self._mode != mode:
+                on_status(f"mode is {self._mode} (set by {self._who_set_mode()}), not {mode}: "
+                          f"requesting {mode} again before arming")
+                self._set_mode(mode, deadline, on_status)
             result, reason = self._command(mp.CMD_COMPONENT_ARM_DISARM, (1.0,))
             if result == mp.RESULT_ACCEPTED:
                 wait = max(0.0, min(_MODE_CONFIRM_S, deadline - self._clock()))
@@ -591,13 +762,17 @@ class MavlinkLink:
             self._wait_until(lambda: False, min(_RETRY_PAUSE_S, left))
 
     def prepare_and_arm(self, timeout_s: float = 60.0, on_status: StatusCallback | None = None) -> None:
-        """Switch to GUIDED (ArduPilot) or OFFBOARD (PX4) and arm, standing still.
+        """Switch to GUIDED (ArduPilot) or OFFBOARD (PX4) and arm, standing still; then
+        check the mode again on a heartbeat received after arming.
 
         PX4: streams stop setpoints (10 Hz) for 1.2 s first and during the whole call; from
         its return on, the caller must keep sending setpoints above 2 Hz. Refusals are
         retried with status lines (``on_status``) until ``timeout_s`` s have passed; then
-        ``CommandRefused`` names the command and the autopilot's reason. Not allowed once
-        a pilot took over."""
+        ``CommandRefused`` names the command and the autopilot's reason. A mode lost after
+        arming (ArduPilot's RC mode switch at boot) is requested again up to
+        ``_MODE_REREQUESTS`` times; if it still does not hold, the vehicle is disarmed and
+        ``ModeLost`` says which mode it is in and who set it. Not allowed once a pilot
+        took over."""
         if self._pilot_took_over:
             raise CommandRefused("prepare_and_arm", "PILOT_TOOK_OVER", "a pilot took over this vehicle")
         status = on_status or self._status
@@ -609,51 +784,119 @@ class MavlinkLink:
             try:
                 self._wait_until(lambda: False, _PX4_PRESTREAM_S)
                 self._set_mode(target, deadline, status)
-                self._arm(deadline, status)
+                self._arm(deadline, status, target)
+                self._keep_mode_after_arming(target, status)
             finally:
                 self._keepalive = False
         else:
             self._set_mode(target, deadline, status)
-            self._arm(deadline, status)
+            self._arm(deadline, status, target)
+            self._keep_mode_after_arming(target, status)
         self._engaged_mode = target
         self._requested_mode = target
+
+    def _next_heartbeat(self) -> bool:
+        """Wait for a heartbeat received after now (at most ``_MODE_CONFIRM_S``)."""
+        n = self._heartbeats
+        return self._wait_until(lambda: self._heartbeats > n, _MODE_CONFIRM_S)
+
+    def _keep_mode_after_arming(self, target: str, status: StatusCallback) -> None:
+        """The mode on a heartbeat after arming must still be ``target``; else ask again
+        (bounded), else disarm and raise ``ModeLost``."""
+        for attempt in range(_MODE_REREQUESTS + 1):
+            if not self._next_heartbeat():
+                raise LinkTimeout(f"no heartbeat within {_MODE_CONFIRM_S:g} s after arming")
+            if self._mode == target and self._armed:
+                return
+            if not self._armed:
+                raise ModeLost(f"vehicle disarmed right after arming (mode {self._mode}, "
+                               f"set by {self._who_set_mode()})")
+            who = self._who_set_mode()
+            if attempt == _MODE_REREQUESTS:
+                break
+            status(f"mode changed to {self._mode} after arming, set by {who}; "
+                   f"requesting {target} again ({attempt + 1} of {_MODE_REREQUESTS})")
+            try:
+                self._set_mode(target, self._clock() + _MODE_CONFIRM_S, status)
+            except CommandRefused as exc:
+                status(f"{target} refused again: {exc}")
+        mode = self._mode
+        try:
+            self.disarm(2.0)
+            after = "disarmed"
+        except VehicleLinkError as exc:
+            after = f"DISARM FAILED ({exc}): the vehicle may still be armed"
+        raise ModeLost(
+            f"vehicle armed in {mode}, not {target}: set by {who}; {target} requested "
+            f"{_MODE_REREQUESTS} more times and not kept; {after}. Check the RC mode switch "
+            f"({'MODE_CH' if self.autopilot == 'ardupilot' else 'COM_RC_IN_MODE'}) and INITIAL_MODE"
+        )
 
     def _setpoint_frame(self) -> str:
         if self.setpoint_frame != "auto":
             return self.setpoint_frame
         return "local" if self.autopilot == "px4" else "global"
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        """Send speed (m/s, forward; negative is clipped to 0) and ENU heading (rad).
-
-        One MAVLink message, no waiting. The velocity vector points along the commanded
-        yaw, so ArduPilot's velocity-derived heading and its yaw field agree. Returns False
-        without sending when there is no link or a pilot took over."""
-        if self._conn is None or self._target is None or self._pilot_took_over:
+    def _may_send(self, now: float) -> bool:
+        """Whether a setpoint may go out now; latches ``stream_ended`` on PX4 once the
+        stream paused longer than ``COM_OF_LOSS_T`` or the autopilot link was lost while
+        engaged (PX4 would be in its failsafe and would take OFFBOARD back on the next
+        setpoint: a run must not resume driving a vehicle whose failsafe took it)."""
+        if self._conn is None or self._target is None or self._pilot_took_over or self._stream_ended:
             return False
-        speed = max(0.0, float(speed_mps))
-        yaw = wrap_angle(math.pi / 2 - float(heading_rad))  # ENU heading -> NED yaw
-        vn, ve = speed * math.cos(yaw), speed * math.sin(yaw)
+        if self.autopilot == "px4" and self._engaged_mode is not None:
+            gap = now - self.last_setpoint[2] if self.last_setpoint is not None else 0.0
+            if gap > _PX4_RESUME_GAP_S:
+                self._end_stream(f"the setpoint stream paused {gap:.2f} s (PX4's COM_OF_LOSS_T is 1 s)")
+            elif not self.link_ok(now):
+                self._end_stream("the autopilot link was lost")
+            if self._stream_ended:
+                self._status(f"no more setpoints to this PX4: {self._stream_ended}")
+                return False
+        return True
+
+    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+        """Send speed (m/s, forward) and ENU heading (rad); one MAVLink message, no waiting.
+
+        ArduPilot: type_mask 2503, vx = the speed along the body axis (negative = reverse),
+        vy = 0, yaw absolute. PX4: the NED vector of the speed along the heading (PX4
+        rovers cannot reverse: a negative speed is sent as a stop), never shorter than
+        ``_PX4_STOP_MPS`` so that it keeps a bearing. See the module docstring. Returns
+        False without sending when there is no link, a pilot took over, or the PX4 stream
+        ended (``stream_ended``)."""
         now = self._clock()
+        if not self._may_send(now):
+            return False
+        speed = float(speed_mps)
+        if not math.isfinite(speed):
+            speed = 0.0
+        yaw = wrap_angle(math.pi / 2 - float(heading_rad))  # ENU heading -> NED yaw
+        if self.autopilot == "px4":
+            along = max(speed, _PX4_STOP_MPS)
+            vx, vy = along * math.cos(yaw), along * math.sin(yaw)
+            speed = max(speed, 0.0)
+        else:
+            vx, vy = speed + 0.0, 0.0  # + 0.0 turns a -0.0 into +0.0: only v < 0 reverses
         t_ms = int((now - self._t0) * 1000) & 0xFFFFFFFF
         ts, tc = self._target
         if self._setpoint_frame() == "global":
             self._conn.mav.set_position_target_global_int_send(
                 t_ms, ts, tc, mp.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mp.TYPE_MASK_VEL_YAW,
-                0, 0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, yaw, 0.0,
+                0, 0, 0.0, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw, 0.0,
             )
         else:
             self._conn.mav.set_position_target_local_ned_send(
                 t_ms, ts, tc, mp.MAV_FRAME_LOCAL_NED, mp.TYPE_MASK_VEL_YAW,
-                0.0, 0.0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, yaw, 0.0,
+                0.0, 0.0, 0.0, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw, 0.0,
             )
         self.last_setpoint = (speed, float(heading_rad), now)
         return True
 
     def stop_motion(self) -> bool:
-        """Speed 0 along the current heading (the last commanded one before telemetry).
+        """Speed 0 along the current heading (the last commanded one before telemetry):
+        ArduPilot vx = 0 with yaw = heading; PX4 a 0.001 m/s vector along it.
 
-        Never the zero velocity-only setpoint, which would steer to north (AUTOPILOTS.md)."""
+        Never the zero velocity vector, which both firmwares read as "bearing north"."""
         heading = self._heading
         if heading is None:
             heading = self.last_setpoint[1] if self.last_setpoint else 0.0
@@ -662,7 +905,9 @@ class MavlinkLink:
     def hold(self, timeout_s: float = 2.0) -> None:
         """Switch to HOLD (ArduPilot) or AUTO.LOITER (PX4). A requested hold is not a
         takeover. ``timeout_s`` > 0 waits for the heartbeat to confirm (raising
-        ``CommandRefused``); 0 sends and returns (a refusal lands in ``last_refusal``)."""
+        ``CommandRefused``); 0 sends and returns (a refusal lands in ``last_refusal``).
+        Stop first: PX4's Hold loops back to where it engaged (recorded: 150 °/s turns
+        from 2 m/s), ArduPilot's coasts without braking."""
         mode = self._hold_mode()
         self._engaged_mode = None
         self._requested_mode = mode
@@ -684,7 +929,12 @@ class MavlinkLink:
         self._set_mode(mode, self._clock() + timeout_s, self._status)
 
     def disarm(self, timeout_s: float = 2.0) -> None:
-        """Disarm (standing still); raises ``CommandRefused`` if refused."""
+        """Disarm (standing still); raises ``CommandRefused`` if refused. ``timeout_s`` 0
+        sends and returns."""
+        if timeout_s <= 0:
+            if self._conn is not None and self._target is not None:
+                self._send_command(mp.CMD_COMPONENT_ARM_DISARM, (0.0,))
+            return
         result, reason = self._command(mp.CMD_COMPONENT_ARM_DISARM, (0.0,), timeout_s)
         if result != mp.RESULT_ACCEPTED:
             raise CommandRefused("MAV_CMD_COMPONENT_ARM_DISARM(disarm)", mp.result_name(result), reason)

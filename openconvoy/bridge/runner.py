@@ -37,7 +37,6 @@ import numpy as np
 
 from openconvoy.bridge.failsafes import (
     DRIVE,
-    SILENT,
     STOP,
     Envelope,
     Failsafes,
@@ -72,6 +71,13 @@ RECEIVE_BUDGET = 0.4
 the next tick (a flood of them costs messages, never the loop's timing)."""
 FINISH_TIMEOUT_S = 10.0
 """Longest a leader brakes after its scenario before ending the run anyway (s)."""
+HOLD_BELOW_MPS = 0.1
+"""HOLD is requested once the vehicle is this slow (m/s) under stop setpoints, or after
+``_brake_time_s``: PX4's Hold loops back to where it engaged (150 °/s turns from 2 m/s,
+shared/sitl-px4 row 23) and ArduPilot's coasts without braking (4.4 s from 2 m/s against
+1.9 s for a stop setpoint, shared/sitl rows 20, 23)."""
+RANGE_MAX_AGE_S = 0.5
+"""A rangefinder reading older than this (s) is not passed to the staleness ladder."""
 
 
 class V2VEndpoint(Protocol):
@@ -319,6 +325,11 @@ class DeployRunner:
         self._t_reconnect = -math.inf
         self._last_reason = ""
         self._armed_by_us = False
+        self._arming = False  # prepare_and_arm was entered and did not return
+        self._t_stop = math.nan  # when the current stop-and-hold began (monotonic s)
+        self._v_stop = 0.0  # speed then (m/s)
+        self._broadcasting = True
+        self._broadcast_pauses: list[list[float | None]] = []  # [wall from, wall to]
         self._t_begin_wall = self.wall()
 
     # ------------------------------------------------------------------ control
@@ -358,8 +369,9 @@ class DeployRunner:
             self.on_status(f"vehicle {o.vehicle_id}: arming ({self.link.autopilot})")
             # Arming may wait ~40 s for the estimator: status lines come every retry, and
             # a signal meanwhile ends the run through ``_status_or_stop``.
+            self._arming = True
             self.link.prepare_and_arm(o.arm_timeout_s, self._status_or_stop)
-            self._armed_by_us = True
+            self._armed_by_us, self._arming = True, False
             # Stand still with the yaw at the current heading from the first moment.
             self.link.stop_motion()
         if self.log_dir is not None:
@@ -404,7 +416,8 @@ class DeployRunner:
             code = 1
             log.error("deploy loop failed:\n%s", traceback.format_exc())
         finally:
-            self._finish(reason)
+            code = code or self._failure_code(reason)
+            self._finish(reason, code)
         return RunResult(
             exit_code=code,
             reason=reason,
@@ -414,6 +427,17 @@ class DeployRunner:
             t_start_s=self._t_start_wall,
             events=list(self.failsafes.events),
         )
+
+    def _failure_code(self, reason: str) -> int:
+        """1 when the run ended by a failsafe, a lost autopilot link, a takeover before the
+        convoy drove or an autopilot failsafe; 0 when it completed or a person stopped it
+        (signal, ``abort``) with nothing of that kind on the way."""
+        f = self.failsafes
+        if f.latched or f.watchdog.was_lost:
+            return 1
+        if f.took_over and (self._t_start is None or getattr(self.link, "failsafe_took_over", False)):
+            return 1
+        return 0
 
     def _check_stop(self) -> None:
         if self._stop_requested:
@@ -440,8 +464,12 @@ class DeployRunner:
         self._maybe_reconnect(now)
         wall = self.wall()
         own = replace(tel.state, vehicle_id=o.vehicle_id)
-        # 2. τ
-        sent = member_tick.begin(member, own, wall)
+        # 2. τ — only while the autopilot link is fresh: without it the vehicle no longer
+        # knows its own state, and a stale one with new timestamps would mislead the convoy.
+        lost = getattr(self.link, "lost", False)
+        known = self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat, not lost)
+        self._track_broadcast(known, wall)
+        sent = member_tick.begin(member, own, wall, may_send=known)
         if sent is not None:
             self.v2v.send(sent, wall)
         # 3. ρ, bounded in time so that a flood cannot stall the loop
@@ -461,7 +489,8 @@ class DeployRunner:
             self._t_start, self._t_start_wall = now, wall
             self.on_status(f"vehicle {o.vehicle_id}: convoy complete, starting")
         # 4. what the controller wants
-        speed, change, mode, policy_error = self._intent(tel, own, frame, bool(waiting), now, wall)
+        speed, change, mode, policy_error = self._intent(
+            tel, own, frame, bool(waiting), now, wall, self._ranging(tel, now))
         gap, closing = self._gap(wall)
         needed_age = 0.0
         if not self.is_leader and not waiting:
@@ -486,7 +515,8 @@ class DeployRunner:
             speed, heading_cmd = 0.0, own.heading
             mode = "failsafe" if verdict.failsafe else "stop"
         if verdict.reason and verdict.reason != self._last_reason:
-            self.on_status(f"vehicle {o.vehicle_id}: {verdict.reason}")
+            why = getattr(self.link, "takeover_reason", "") if verdict.reason == "pilot took over" else ""
+            self.on_status(f"vehicle {o.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else ""))
         self._last_reason = verdict.reason
         # 6. actuate
         t_sent = math.nan
@@ -494,7 +524,13 @@ class DeployRunner:
             if verdict.command in (DRIVE, STOP):
                 if self.link.send_setpoint(speed, heading_cmd):
                     t_sent = self.clock()
-            if verdict.hold and now - self._t_hold_sent >= 1.0 and tel.mode not in HOLD_MODES:
+            if not verdict.hold:
+                self._t_stop = math.nan
+            elif math.isnan(self._t_stop):
+                self._t_stop, self._v_stop = now, abs(own.speed)
+            if (verdict.hold and now - self._t_hold_sent >= 1.0 and tel.mode not in HOLD_MODES
+                    and (abs(own.speed) < HOLD_BELOW_MPS
+                         or now - self._t_stop >= self._brake_time_s(self._v_stop))):
                 self._t_hold_sent = now
                 try:
                     self.link.hold(0.0)
@@ -504,10 +540,13 @@ class DeployRunner:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
         # 7. log
         self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap,
-                      sent=verdict.command != SILENT and self.commanding)
+                      sent=self.commanding and not math.isnan(t_sent))  # what really went out
         self._status_line(now, own, mode, gap)
         if verdict.exit:
             return verdict.reason
+        if self.failsafes.took_over and self._t_start is None and self.commanding:
+            why = getattr(self.link, "takeover_reason", "") or "a mode change we did not ask for"
+            return f"pilot took over before the convoy drove: {why}"
         if self._t_start is not None:
             limit = self._duration()
             # Half a period of slack: tick times are sums of floats.
@@ -527,7 +566,8 @@ class DeployRunner:
     # ------------------------------------------------------------------ helpers
 
     def _intent(self, tel: Telemetry, own: VehicleState, frame: Frame, waiting: bool,
-                now: float, wall: float) -> tuple[float, float, str, str]:
+                now: float, wall: float, ranging: tuple[float, float] | None = None,
+                ) -> tuple[float, float, str, str]:
         """What the controller wants before the failsafes: (speed m/s, heading change rad,
         mode, policy error message or "")."""
         if waiting:  # armed and still, yaw at the current heading
@@ -545,7 +585,7 @@ class DeployRunner:
                 log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
             self.decision = member_tick.stop(f"{type(exc).__name__}: {exc}")
         else:
-            self.decision = member_tick.decide(self.member, frame, action, self.bounds)
+            self.decision = member_tick.decide(self.member, frame, action, self.bounds, ranging)
         d = self.decision
         return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error
 
@@ -589,15 +629,48 @@ class DeployRunner:
         return (math.nan, 0.0) if est is None else est
 
     def _maybe_reconnect(self, now: float) -> None:
-        """A lost connection (TCP EOF, serial error) is reopened every 2 s, briefly."""
+        """A lost connection (TCP EOF, serial error) is reopened every 2 s, without
+        blocking the tick (``reconnect(0)``: the link opens it in the background)."""
         if not getattr(self.link, "lost", False) or now - self._t_reconnect < 2.0:
             return
         self._t_reconnect = now
         try:
-            self.link.reconnect(0.2)
-            self.on_status(f"vehicle {self.options.vehicle_id}: autopilot link reconnected")
+            self.link.reconnect(0.0)
         except Exception as exc:  # noqa: BLE001 - keep trying
             log.info("reconnect failed: %s", exc)
+
+    def _ranging(self, tel: Telemetry, now: float) -> tuple[float, float] | None:
+        """(range, range rate) to the vehicle ahead for the staleness ladder, centre to
+        centre (m, m/s) as in ``sim``: the rangefinder reads from the front bumper to the
+        predecessor's rear, so half of each length is added. None without a fresh reading."""
+        r, rate = tel.range_m, tel.range_rate_mps
+        if self.is_leader or not (math.isfinite(r) and math.isfinite(rate)):
+            return None
+        if now - tel.t_range > RANGE_MAX_AGE_S:
+            return None
+        lengths = self.member.lengths
+        i = self.options.vehicle_id
+        return r + 0.5 * (lengths[i] + lengths[i - 1]), rate
+
+    def _track_broadcast(self, known: bool, wall: float) -> None:
+        """Announce and record when broadcasting stops (autopilot link lost) and resumes."""
+        if known == self._broadcasting:
+            return
+        self._broadcasting = known
+        vid = self.options.vehicle_id
+        if known:
+            self._broadcast_pauses[-1][1] = wall
+            self.on_status(f"vehicle {vid}: autopilot link back: broadcasting the own state again")
+        else:
+            self._broadcast_pauses.append([wall, None])
+            self.on_status(f"vehicle {vid}: autopilot link lost: not broadcasting the own state "
+                           "(it is unknown now)")
+
+    @staticmethod
+    def _brake_time_s(v0: float) -> float:
+        """How long stop setpoints are streamed before HOLD at most (s): braking from
+        ``v0`` m/s at 1 m/s² (ArduPilot's ATC_ACCEL_MAX) plus a second, 1-6 s."""
+        return min(6.0, 1.0 + abs(v0))
 
     def _log_row(self, wall: float, own: VehicleState, tel: Telemetry, speed: float, change: float,
                  mode: str, gap: float, sent: bool) -> None:
@@ -637,19 +710,30 @@ class DeployRunner:
         parts.append(f"tx {m.msgs_sent} rx {m.msgs_received}")
         self.on_status(" | ".join(parts))
 
-    def _finish(self, reason: str) -> None:
+    def _finish(self, reason: str, code: int = 0) -> None:
         """Stop, HOLD, flush and close the log, write metadata. Never raises."""
         o = self.options
         took_over = self.failsafes.took_over or getattr(self.link, "pilot_took_over", False)
         if self.commanding and self._armed_by_us and not took_over:
             try:
-                self.link.stop_motion()
+                self._brake_to_rest()
                 self.link.hold(2.0)
             except Exception as exc:  # noqa: BLE001 - the log must still be saved
                 log.warning("vehicle %d: HOLD at exit failed: %s", o.vehicle_id, exc)
+        elif self.commanding and self._arming:
+            # Interrupted while arming (a signal, a refusal, a lost mode): it may have armed
+            # meanwhile. Standing still, so HOLD and disarm; never armed without HOLD.
+            for step in (self.link.hold, getattr(self.link, "disarm", None)):
+                try:
+                    if step is not None:
+                        step(0.0)
+                except Exception as exc:  # noqa: BLE001
+                    log.warning("vehicle %d: HOLD/disarm after arming failed: %s", o.vehicle_id, exc)
+        elif self.commanding and took_over and self._t_start is None and self._armed_by_us:
+            self._disarm_if_at_rest()
         if self._writer is not None:
             self._writer.close()
-            self._write_metadata(reason)
+            self._write_metadata(reason, code)
         for closer in (self.v2v.close, self.link.close):
             try:
                 closer()
@@ -657,7 +741,43 @@ class DeployRunner:
                 pass
         self.on_status(f"vehicle {o.vehicle_id}: stopped ({reason})")
 
-    def _write_metadata(self, reason: str) -> None:
+    def _brake_to_rest(self) -> None:
+        """Stream stop setpoints until the vehicle is slower than ``HOLD_BELOW_MPS`` (at
+        most ``_brake_time_s``), while the autopilot link is fresh."""
+        tel = self._tel
+        v0 = abs(tel.state.speed) if tel is not None else 0.0
+        end = self.clock() + self._brake_time_s(v0)
+        period = 1.0 / self.options.rate_hz
+        while True:
+            if not self.link.stop_motion():
+                return  # taken over, or a PX4 stream that must not resume
+            got = self.link.poll()
+            tel = got or tel
+            now = self.clock()
+            if tel is None or abs(tel.state.speed) < HOLD_BELOW_MPS or now >= end:
+                return
+            if not self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat,
+                                                 not getattr(self.link, "lost", False)):
+                return
+            self.sleep(period)
+
+    def _disarm_if_at_rest(self) -> None:
+        """A takeover before the convoy drove (ArduPilot's RC mode switch setting MANUAL
+        after GUIDED, say) must not leave the vehicle armed and forgotten: disarm it if it
+        stands still, else say loudly that it is armed in someone else's hands."""
+        vid = self.options.vehicle_id
+        tel = self.link.poll() or self._tel
+        mode = tel.mode if tel is not None else "?"
+        if tel is not None and abs(tel.state.speed) < HOLD_BELOW_MPS:
+            try:
+                self.link.disarm(2.0)
+                self.on_status(f"vehicle {vid}: disarmed (taken over in {mode} before the convoy drove)")
+                return
+            except Exception as exc:  # noqa: BLE001
+                log.warning("vehicle %d: disarm failed: %s", vid, exc)
+        self.on_status(f"vehicle {vid}: WARNING: left ARMED in {mode} (taken over before the convoy drove)")
+
+    def _write_metadata(self, reason: str, code: int = 0) -> None:
         assert self.log_dir is not None
         o = self.options
         wall0 = self.wall() - self.clock()  # maps monotonic event times to the shared clock
@@ -678,6 +798,11 @@ class DeployRunner:
             "t_start_s": self._t_start_wall,
             "t_end_s": self.wall(),
             "exit_reason": reason,
+            "exit_code": code,
+            "takeover_reason": getattr(self.link, "takeover_reason", "") or None,
+            "broadcast_paused": [
+                {"from_s": a, "to_s": b, "why": "autopilot link lost"} for a, b in self._broadcast_pauses
+            ],
             "ticks": self._timer.ticks if self._timer else 0,
             "overruns": self._timer.overruns if self._timer else 0,
             "late_ticks": self._timer.late_ticks if self._timer else 0,

@@ -16,6 +16,47 @@ import numpy as np
 
 from openconvoy.core.errors import ConfigError
 
+_MASK = (1 << 64) - 1
+_GOLDEN = 0x9E3779B97F4A7C15
+_M1 = 0xBF58476D1CE4E5B9
+_M2 = 0x94D049BB133111EB
+_UNIT = 2.0**-53
+
+
+def _mix(z: int) -> int:
+    """SplitMix64's finalizer on a 64-bit integer."""
+    z = ((z ^ (z >> 30)) * _M1) & _MASK
+    z = ((z ^ (z >> 27)) * _M2) & _MASK
+    return z ^ (z >> 31)
+
+
+def counter_uniform(key: int, *words: int) -> float:
+    """A uniform draw in [0, 1) that depends only on ``key`` and ``words`` (counter-based).
+
+    The channel keys its draws by (convoy seed, sender, receiver, message number) so a
+    link's draws do not depend on the order the simulator visits links in: the batched
+    simulator (``envs.vector_env``) makes the same draws with ``counter_uniform_array``.
+    """
+    z = key & _MASK
+    for w in words:
+        z = _mix((z + _GOLDEN + (int(w) & _MASK)) & _MASK)
+    return (z >> 11) * _UNIT
+
+
+def _mix_array(z: np.ndarray) -> np.ndarray:
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(_M1)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(_M2)
+    return z ^ (z >> np.uint64(31))
+
+
+def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
+    """``counter_uniform`` on arrays (broadcast together): bit-identical draws."""
+    with np.errstate(over="ignore"):
+        z = np.asarray(key, dtype=np.uint64)
+        for w in words:
+            z = _mix_array(z + np.uint64(_GOLDEN) + np.asarray(w).astype(np.uint64))
+    return (z >> np.uint64(11)).astype(np.float64) * _UNIT
+
 
 class LossModel(Protocol):
     """Decides, packet by packet, whether a message is lost."""

@@ -26,8 +26,16 @@ DEFAULT_GROUP = "ff15::4f43"
 DEFAULT_PORT = 4200
 DEFAULT_HOP_LIMIT = 1
 
-#: Enough socket buffer for a roadside unit hearing ~1000 vehicles at 10 Hz between polls.
+#: Enough socket buffer for a roadside unit hearing ~1000 vehicles at 10 Hz between polls
+#: (Linux doubles it, and holds ~10,000 small datagrams in that). A control loop wants far
+#: less: see ``V2V_RCVBUF_BYTES``.
 RCVBUF_BYTES = 4 * 1024 * 1024
+#: A vehicle's V2V socket buffer: ~600 small datagrams, a second of a 60-vehicle convoy's
+#: BSMs. Under a flood the loop cannot read in time, a big buffer turns into seconds of
+#: latency for the convoy's own messages (10,000 queued datagrams read at ~5,000/s are 2 s
+#: old; measured by ``benchmarks/bench_flood.py``: followers stopped on stale messages);
+#: this one bounds it to about a tenth of a second, and the excess is lost instead.
+V2V_RCVBUF_BYTES = 256 * 1024
 #: Upper bound on datagrams returned by one ``recv_all``. A control loop bounds its
 #: receiving by time instead (``V2V.poll``'s budget), reading small batches.
 MAX_BATCH = 10_000
@@ -122,6 +130,7 @@ class Ipv6Multicast(_MulticastSocket):
         port: UDP port (default 4200).
         hop_limit: IPv6 multicast hop limit (default 1: one link).
         loop: deliver our own datagrams to sockets on this host (default on).
+        rcvbuf_bytes: receive buffer asked of the kernel (``RCVBUF_BYTES``).
     """
 
     def __init__(
@@ -131,6 +140,7 @@ class Ipv6Multicast(_MulticastSocket):
         port: int = DEFAULT_PORT,
         hop_limit: int = DEFAULT_HOP_LIMIT,
         loop: bool = True,
+        rcvbuf_bytes: int = RCVBUF_BYTES,
     ) -> None:
         addr = ipaddress.ip_address(group)
         if addr.version != 6 or not addr.is_multicast:
@@ -145,7 +155,7 @@ class Ipv6Multicast(_MulticastSocket):
         try:
             # Several members on one host share the group and port.
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
             sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
             # Bound to the group, not ::, so datagrams for other groups on this port that
             # another socket joined are not delivered here.
@@ -182,6 +192,7 @@ class Ipv4Multicast(_MulticastSocket):
         port: int = 5004,
         ttl: int = 1,
         loop: bool = True,
+        rcvbuf_bytes: int = RCVBUF_BYTES,
     ) -> None:
         addr = ipaddress.ip_address(group)
         if addr.version != 4 or not addr.is_multicast:
@@ -193,7 +204,7 @@ class Ipv4Multicast(_MulticastSocket):
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
             sock.bind((self.group, port))
             # struct ip_mreqn {group, local address (any), ifindex}: selects the interface
             # by index, so it works whatever IPv4 address the interface has.

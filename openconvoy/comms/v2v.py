@@ -62,6 +62,7 @@ from openconvoy.comms.multicast import (
     DEFAULT_GROUP,
     DEFAULT_HOP_LIMIT,
     DEFAULT_PORT,
+    V2V_RCVBUF_BYTES,
     Ipv4Multicast,
     Ipv6Multicast,
     Transport,
@@ -571,13 +572,15 @@ class V2V:
         self._tx = (
             transport
             if transport is not None
-            else Ipv6Multicast(config.iface, config.group, config.port, config.hop_limit)
+            else Ipv6Multicast(config.iface, config.group, config.port, config.hop_limit,
+                               rcvbuf_bytes=V2V_RCVBUF_BYTES)
         )
         self._tx4: Transport | None = compat_transport
         if self._tx4 is None and config.compat:
             try:
                 self._tx4 = Ipv4Multicast(
-                    config.iface, config.compat_group, config.compat_port, config.compat_ttl
+                    config.iface, config.compat_group, config.compat_port, config.compat_ttl,
+                    rcvbuf_bytes=V2V_RCVBUF_BYTES,
                 )
             except (OSError, LinkError):
                 self._tx.close()

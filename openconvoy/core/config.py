@@ -52,8 +52,9 @@ class Range:
     def describe(self, kind: str = "number") -> str:
         """The interval in words, e.g. ``a finite number in (0, 50]``."""
         left = "(" if self.lo is None or self.lo_open else "["
-        lo = "-inf" if self.lo is None else f"{self.lo:g}"
-        hi = "inf" if self.hi is None else f"{self.hi:g}"
+        num = (lambda v: f"{int(v)}") if kind == "integer" else (lambda v: f"{v:g}")
+        lo = "-inf" if self.lo is None else num(self.lo)
+        hi = "inf" if self.hi is None else num(self.hi)
         right = "]" if (self.hi is None and self.allow_inf) or (self.hi is not None and not self.hi_open) else ")"
         finite = "" if self.allow_inf or kind == "integer" else "finite "
         return f"{'an' if kind == 'integer' else 'a'} {finite}{kind} in {left}{lo}, {hi}{right}"

@@ -1,7 +1,7 @@
 """The simulator: plant, scenarios, channel, and the PettingZoo convoy environment.
 
 ``ConvoyEnv`` (PettingZoo parallel API; ``ConvoyEnv()`` is the ``paper`` scenario),
-``convoy_aec_env`` (its AEC version), and the single-agent Gymnasium view registered as
+``convoy_aec_env`` (its AEC version), ``VectorConvoyEnv`` (many convoys batched in numpy), and the single-agent Gymnasium view registered as
 ``OpenConvoy-v0`` (``openconvoy.envs.single_agent``).
 """
 
@@ -10,6 +10,7 @@ from openconvoy.envs.convoy_env import INFO_KEYS, ConvoyEnv, convoy_aec_env
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import SCENARIO_NAMES, Scenario, make_scenario
 from openconvoy.envs.track import Track, load_track
+from openconvoy.envs.vector_env import VectorConvoyEnv
 
 __all__ = [
     "INFO_KEYS",
@@ -21,6 +22,7 @@ __all__ = [
     "RewardConfig",
     "Scenario",
     "Track",
+    "VectorConvoyEnv",
     "convoy_aec_env",
     "load_track",
     "make_scenario",

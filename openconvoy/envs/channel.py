@@ -6,7 +6,10 @@ draws. A broadcast offered at ``t_send`` reaches each receiver whose link did no
 ``t_send + delay``; ``deliver(now)`` hands out everything due by ``now`` in arrival order.
 The loss models are the shared classes of ``openconvoy.comms.loss`` that vehicles apply at
 the receiver with ``deploy --per``. All randomness comes from the Generator given to
-``reset``, so a seed fixes the run.
+``reset``, so a seed fixes the run. Bernoulli losses and latency jitter are counter-based
+draws (``comms.loss.counter_uniform``) keyed by (channel key, sender, receiver, the
+sender's broadcast number, purpose), so the batched simulator (``envs.vector_env``)
+reproduces them with array operations.
 """
 
 from __future__ import annotations
@@ -16,10 +19,13 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from openconvoy.comms.loss import Bernoulli, LossConfig, LossModel, NoLoss
+from openconvoy.comms.loss import Bernoulli, LossConfig, LossModel, NoLoss, counter_uniform
 from openconvoy.core.errors import ConfigError
 
 M = TypeVar("M")
+
+DRAW_LOSS, DRAW_JITTER = 0, 1
+"""Purpose words of the channel's counter-based draws."""
 
 
 class Channel(Generic[M]):
@@ -59,6 +65,7 @@ class Channel(Generic[M]):
     def reset(self, rng: np.random.Generator) -> None:
         """Empty the channel, zero the counters, and draw all randomness from ``rng``."""
         self._rng = rng
+        self.key = int(rng.integers(2**63))  # first, so the per-link streams stay as they were
         for s, row in enumerate(self._links):
             for r, model in enumerate(row):
                 if r != s:
@@ -93,7 +100,9 @@ class Channel(Generic[M]):
     def send(self, sender: int, msg: M, t: float) -> None:
         """Broadcast ``msg`` from ``sender`` at time ``t`` (s) to every other vehicle."""
         others = self._others[sender]
+        number = self._broadcasts[sender]
         self._broadcasts[sender] += 1
+        key = self.key
         per = self._bernoulli_per
         lost_row = self._lost[sender]
         lost_to = self.lost_to
@@ -101,8 +110,8 @@ class Channel(Generic[M]):
             receivers = others
         elif per is not None:
             receivers = []
-            for r, u in zip(others, self._rng.random(len(others)).tolist()):
-                if u < per:
+            for r in others:
+                if counter_uniform(key, sender, r, number, DRAW_LOSS) < per:
                     lost_row[r] += 1
                     lost_to[r] += 1
                 else:
@@ -119,8 +128,11 @@ class Channel(Generic[M]):
         if self._instant:
             self._ready.extend((r, sender, msg) for r in receivers)
             return
+        lat = self._latency
         for r in receivers:
-            arrival = t + self._latency.delay(self._rng)
+            arrival = t + lat.base_s
+            if lat.jitter_s > 0.0:
+                arrival += counter_uniform(key, sender, r, number, DRAW_JITTER) * lat.jitter_s
             heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg))
             self._seq += 1
 

@@ -99,6 +99,7 @@ class BicyclePlant:
             self._rate.tolist(), self._vmax.tolist(), self._kappa.tolist(),
             self._delay_steps.tolist(), self._hdelay_steps.tolist(), self._pi.tolist(),
             self._brk.tolist(), self._yaw_acc.tolist(), self._alat.tolist(),
+            (np.isinf(self._yaw_acc) & np.isinf(self._alat)).tolist(),
         ))
         self._pi_params = list(zip(
             self._kp.tolist(), self._ki.tolist(), self._ff.tolist(), self._tau_d.tolist(),
@@ -106,6 +107,8 @@ class BicyclePlant:
         ))
         self._qv: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
         self._qh: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
+        # The scalar step keeps the inner-loop state as lists (no conversions per step).
+        self._ramp_l, self._integ_l, self._rate_des_l = [0.0] * n, [0.0] * n, [0.0] * n
 
     def __len__(self) -> int:
         return len(self.presets)
@@ -132,6 +135,8 @@ class BicyclePlant:
         v = self.speed
         self._integ = np.where(self._pi, v + self._drag * v * np.abs(v) - self._ff * v, 0.0)
         self._rate_des = np.zeros(n)
+        self._ramp_l, self._integ_l = self._ramp.tolist(), self._integ.tolist()
+        self._rate_des_l = [0.0] * n
         self._queue_v[:] = self.speed
         self._queue_h[:] = self.heading
         self._qv = [self.speed.tolist() for _ in range(self._depth)]
@@ -210,32 +215,32 @@ class BicyclePlant:
         """``step`` on Python floats, the same equations vehicle by vehicle."""
         dt, depth, head = self.dt, self._depth, self._head
         n_sub = self._pi_sub
-        h = dt / n_sub
+        h_sub = dt / n_sub
         self._qv[head] = [float(v) for v in cmd_speed]
         self._qh[head] = [float(h) for h in cmd_heading]
         self._head = (head + 1) % depth
         two_pi, pi = 2.0 * math.pi, math.pi
         xs, ys, hs, vs = self.x.tolist(), self.y.tolist(), self.heading.tolist(), self.speed.tolist()
-        ramp, integ, rate_des = self._ramp.tolist(), self._integ.tolist(), self._rate_des.tolist()
+        ramp, integ, rate_des = self._ramp_l, self._integ_l, self._rate_des_l
         acc_out, rate_out = [0.0] * len(vs), [0.0] * len(vs)
         for i, (tau_v, tau_h, acc, dec, rate_max, vmax, kappa, delay, hdelay, is_pi, brk,
-                yaw_acc, alat) in enumerate(self._params):
+                yaw_acc, alat, plain_heading) in enumerate(self._params):
             v_cmd = min(max(self._qv[(head - delay) % depth][i], -vmax), vmax)
             v = vs[i]
             if is_pi:
                 kp, ki, ff, tau_d, stop, drag = self._pi_params[i]
                 r, acc_i, vs_ = ramp[i], integ[i], v
                 for _ in range(n_sub):
-                    lim = (acc if abs(v_cmd) > abs(r) else dec) * h
+                    lim = (acc if abs(v_cmd) > abs(r) else dec) * h_sub
                     r += min(max(v_cmd - r, -lim), lim)
                     err = r - vs_
                     stopped = r == 0.0 and abs(vs_) <= stop
                     if stopped:
                         acc_i = drive = 0.0
                     else:
-                        acc_i += ki * err * h
+                        acc_i += ki * err * h_sub
                         drive = ff * r + kp * err + acc_i
-                    d = (drive - vs_ - drag * vs_ * abs(vs_)) / tau_d * h
+                    d = (drive - vs_ - drag * vs_ * abs(vs_)) / tau_d * h_sub
                     if abs(drive) < brk and (vs_ == 0.0 or (vs_ + d) * vs_ < 0.0 or stopped):
                         vs_ = 0.0  # at rest it stays; slowing down it stops at zero
                     else:
@@ -251,12 +256,16 @@ class BicyclePlant:
             v_new = v + dv
             err_h = (self._qh[(head - hdelay) % depth][i] - hs[i] + pi) % two_pi - pi
             v_mid = 0.5 * (v + v_new)
-            wanted = min(max(err_h / max(tau_h, dt), -rate_max), rate_max)
-            slew = yaw_acc * dt
-            rd = rate_des[i] = min(max(wanted, rate_des[i] - slew), rate_des[i] + slew)
-            speed_mid = abs(v_mid)
-            cap = min(speed_mid * kappa, alat / max(speed_mid, 1e-9))
-            rate = min(max(rd, -cap), cap)
+            if plain_heading:  # no slew, no lateral limit: one clip (the same numbers)
+                cap = min(rate_max, abs(v_mid) * kappa)
+                rate = min(max(err_h / max(tau_h, dt), -cap), cap)
+            else:
+                wanted = min(max(err_h / max(tau_h, dt), -rate_max), rate_max)
+                slew = yaw_acc * dt
+                rd = rate_des[i] = min(max(wanted, rate_des[i] - slew), rate_des[i] + slew)
+                speed_mid = abs(v_mid)
+                cap = min(speed_mid * kappa, alat / max(speed_mid, 1e-9))
+                rate = min(max(rd, -cap), cap)
             h_mid = hs[i] + 0.5 * rate * dt
             xs[i] += v_mid * math.cos(h_mid) * dt
             ys[i] += v_mid * math.sin(h_mid) * dt
@@ -266,7 +275,13 @@ class BicyclePlant:
             rate_out[i] = rate
         self.x, self.y, self.heading = np.array(xs), np.array(ys), np.array(hs)
         self.speed, self.accel, self.yaw_rate = np.array(vs), np.array(acc_out), np.array(rate_out)
-        self._ramp, self._integ, self._rate_des = np.array(ramp), np.array(integ), np.array(rate_des)
+
+    def inner_state(self) -> dict[str, np.ndarray]:
+        """The inner loops' state: ``ramp`` (the ramped speed setpoint, m/s) and ``integ``
+        (the PI integrator, m/s) of ``pi`` vehicles; for tests and inspection."""
+        if self._vectorized:
+            return {"ramp": self._ramp.copy(), "integ": self._integ.copy()}
+        return {"ramp": np.array(self._ramp_l), "integ": np.array(self._integ_l)}
 
     def state(self, i: int, t: float) -> VehicleState:
         """Vehicle ``i``'s state at time ``t`` (its id is its index)."""

@@ -43,7 +43,7 @@ except ModuleNotFoundError as exc:
 __all__ = [
     "TRAFFIC_ID_BASE", "ConvoyVehicle", "FastRoad", "HighwayFrame", "IDMVehicle", "InPath", "LineType",
     "Obstacle", "Road", "RoadNetwork", "ScriptedLaneChanger", "SineLane", "StraightLane", "TrafficWorld",
-    "enu_to_highway", "highway_to_enu",
+    "collide", "enu_to_highway", "highway_to_enu",
 ]
 
 TRAFFIC_ID_BASE = 1000
@@ -209,20 +209,53 @@ class FastRoad(Road):
     def step(self, dt: float) -> None:
         for vehicle in self.vehicles:
             vehicle.step(dt)
-        items = self.vehicles + self.objects
-        n_v = len(self.vehicles)
-        if len(items) < 2:
-            return
-        pos = np.array([o.position for o in items])
-        diag = np.array([o.diagonal for o in items])
-        speed = np.array([abs(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
-        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
-        # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
-        near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + speed[:, None] * dt + 1e-6
-        ii, jj = np.nonzero(np.triu(near, k=1))
-        for i, j in zip(ii.tolist(), jj.tolist()):
-            if i < n_v:
-                items[i].handle_collisions(items[j], dt)
+        collide(self, dt)
+
+
+def collide(road: Road, dt: float) -> None:
+    """``Road.step``'s collision pass with the same outcome: highway-env's
+    ``handle_collisions`` runs, in its order, for every vehicle–vehicle and vehicle–object
+    pair except those that numpy shows cannot touch: pairs failing its spherical
+    pre-check, and pairs its separating-axis test (``are_polygons_intersecting``, done here
+    for all pairs at once) finds apart both now and after ``dt`` (with a 1e-9 m margin)."""
+    items = road.vehicles + road.objects
+    n_v = len(road.vehicles)
+    if len(items) < 2:
+        return
+    pos = np.array([o.position for o in items], dtype=float)
+    diag = np.array([o.diagonal for o in items])
+    speed = np.array([float(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
+    dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+    # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
+    near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + np.abs(speed)[:, None] * dt + 1e-6
+    near[n_v:, :] = False
+    ii, jj = np.nonzero(np.triu(near, k=1))
+    if not len(ii):
+        return
+    heading = np.array([float(o.heading) for o in items])
+    half = 0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float)
+    c, s = np.cos(heading), np.sin(heading)
+    # Corners in RoadObject.polygon's order: (-l,-w), (-l,+w), (+l,+w), (+l,-w).
+    sl, sw = np.array([-1, -1, 1, 1]), np.array([-1, 1, 1, -1])
+    lx, wy = sl[None, :] * half[:, 0:1], sw[None, :] * half[:, 1:2]
+    corners = np.stack((c[:, None] * lx - s[:, None] * wy + pos[:, 0:1],
+                        s[:, None] * lx + c[:, None] * wy + pos[:, 1:2]), axis=-1)  # (n, 4, 2)
+    edges = np.roll(corners, -1, axis=1) - corners
+    normals = np.stack((-edges[..., 1], edges[..., 0]), axis=-1)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    vel = speed[:, None] * np.stack((c, s), axis=1) * dt
+    a, b = corners[ii], corners[jj]  # (k, 4, 2)
+    axes = np.concatenate((normals[ii], normals[jj]), axis=1)  # (k, 8, 2)
+    pa = np.einsum("kpd,kad->kap", a, axes)
+    pb = np.einsum("kpd,kad->kap", b, axes)
+    min_a, max_a, min_b, max_b = pa.min(-1), pa.max(-1), pb.min(-1), pb.max(-1)
+    apart_now = np.where(min_a < min_b, min_b - max_a, min_a - max_b) > 1e-9
+    vp = np.einsum("kad,kd->ka", axes, vel[ii] - vel[jj])
+    min_a2, max_a2 = min_a + np.minimum(vp, 0.0), max_a + np.maximum(vp, 0.0)
+    apart_later = np.where(min_a2 < min_b, min_b - max_a2, min_a2 - max_b) > 1e-9
+    maybe = ~(apart_now.any(axis=1) & apart_later.any(axis=1))
+    for i, j in zip(ii[maybe].tolist(), jj[maybe].tolist()):
+        items[i].handle_collisions(items[j], dt)
 
 
 @dataclass(frozen=True)

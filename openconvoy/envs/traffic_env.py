@@ -69,7 +69,6 @@ class TrafficConvoyEnv(ConvoyEnv):
             raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
         self._in_path: list[InPath | None] = []
         self._hits: list[bool] = []
-        self._viewer: Any = None
         super().__init__(scenario, **kwargs)
 
     @property
@@ -140,9 +139,6 @@ class TrafficConvoyEnv(ConvoyEnv):
         for v, mode in zip(self.world.convoy, modes):
             v.color = MODE_COLOURS.get(mode, (0, 0, 0))
         return draw_highway(self.world)
-
-    def close(self) -> None:
-        self._viewer = None
 
 
 def _ahead_values(a: InPath | None) -> tuple[float, float, float, float]:

@@ -26,6 +26,7 @@ from openconvoy.envs.traffic import (
     IDMVehicle,
     ScriptedLaneChanger,
     StraightLane,
+    collide,
 )
 
 _EPS = 1e-2  # highway_env.utils.not_zero
@@ -244,7 +245,7 @@ class VectorRoad(FastRoad):
         movers = [v for v in self.vehicles if type(v) is not ConvoyVehicle]
         if movers:
             self._move(movers, dt, lanes, _from, _to)
-        self._collide(dt)
+        collide(self, dt)
 
     def _move(self, movers: list, dt: float, lanes: list, _from: str, _to: str) -> None:
         m = len(movers)
@@ -298,20 +299,4 @@ class VectorRoad(FastRoad):
             if li != v.lane_index[2]:
                 v.lane_index = (_from, _to, li)
                 v.lane = lanes[li]
-
-    def _collide(self, dt: float) -> None:
-        """FastRoad's collision pass (highway-env's test for every pair that can touch)."""
-        items = self.vehicles + self.objects
-        n_v = len(self.vehicles)
-        if len(items) < 2:
-            return
-        pos = np.array([o.position for o in items])
-        diag = np.array([o.diagonal for o in items])
-        speed = np.array([abs(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
-        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
-        near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + speed[:, None] * dt + 1e-6
-        ii, jj = np.nonzero(np.triu(near, k=1))
-        for i, j in zip(ii.tolist(), jj.tolist()):
-            if i < n_v:
-                items[i].handle_collisions(items[j], dt)
 

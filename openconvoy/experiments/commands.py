@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +103,32 @@ def sim(args: argparse.Namespace) -> int:
 # --- report ------------------------------------------------------------------------------
 
 
+MOVED_SPEED_MPS = 0.05
+MOVED_DISTANCE_M = 0.5
+
+
+def standstill_warning(log: dict[str, Any]) -> str:
+    """One warning line when no vehicle in the log moved (every |speed| below
+    ``MOVED_SPEED_MPS`` and every vehicle within ``MOVED_DISTANCE_M`` of where it began),
+    else "": metrics of a convoy that never drove (armed in MANUAL, say) look perfect."""
+    import numpy as np
+
+    speed = np.abs(np.asarray(log["speed_mps"], dtype=float))
+    ids = np.asarray(log["vehicle_id"])
+    x, y = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
+    moved = 0.0
+    for v in np.unique(ids):
+        sel = (ids == v) & np.isfinite(x) & np.isfinite(y)
+        if sel.any():
+            xs, ys = x[sel], y[sel]
+            moved = max(moved, float(np.max(np.hypot(xs - xs[0], ys - ys[0]))))
+    fastest = float(np.nanmax(speed)) if np.isfinite(speed).any() else 0.0
+    if fastest >= MOVED_SPEED_MPS or moved >= MOVED_DISTANCE_M:
+        return ""
+    return (f"warning: no vehicle moved (fastest {fastest:.2f} m/s, farthest {moved:.2f} m from "
+            "its start): these metrics describe a convoy that stood still")
+
+
 def report(args: argparse.Namespace) -> int:
     """``openconvoy report``: recompute metrics from a log file or a run directory."""
     from openconvoy.experiments.runs import write_json
@@ -120,6 +147,9 @@ def report(args: argparse.Namespace) -> int:
     if mt.has_traffic_columns(log):
         metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
     print(format_metrics(metrics))
+    warning = standstill_warning(log)
+    if warning:
+        print(warning, file=sys.stderr)
     out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
     write_json(out, metrics)
     written = [str(out)]
@@ -132,6 +162,12 @@ def report(args: argparse.Namespace) -> int:
 
 
 # --- presets -----------------------------------------------------------------------------
+
+
+def _start_threshold(p) -> float:
+    """The setpoint (m/s) below which a preset with static friction does not start from
+    rest: its first drive command is (ff + kp) x setpoint for the ``pi`` loop."""
+    return p.breakaway_mps / (p.speed_ff + p.speed_kp) if p.speed_loop == "pi" else p.breakaway_mps
 
 
 def presets(args: argparse.Namespace) -> int:
@@ -152,7 +188,7 @@ def presets(args: argparse.Namespace) -> int:
             f"{p.decel_max_mps2:g} m/s², turn rate {math.degrees(p.turn_rate_max_radps):.0f}°/s, "
             f"delay {p.actuation_delay_s:g} s, max {p.max_speed_mps:g} m/s"
             + (", the autopilot's PI speed loop" if p.speed_loop == "pi" else "")
-            + (f", static friction below {p.breakaway_mps:g} m/s" if p.breakaway_mps else "")
+            + (f", no start from rest below {_start_threshold(p):.2g} m/s" if p.breakaway_mps else "")
             + (", ranging sensor" if p.ranging else "")
         )
     return 0

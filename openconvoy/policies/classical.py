@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import LOOKAHEAD_S
 from openconvoy.core.policy import make_action
+
+if TYPE_CHECKING:
+    from openconvoy.policies.batched import BatchedClassical
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,7 @@ class ClassicalPolicy:
         self.config = config
         self.layout = config.member.layout
         self._speed = PIDSpeed(config.speed, 1.0 / config.control_rate_hz)
+        self._batched: BatchedClassical | None = None
 
     @property
     def member_config(self) -> MemberConfig:
@@ -82,6 +86,16 @@ class ClassicalPolicy:
 
     def reset(self, seed: int | None = None) -> None:
         self._speed.reset()
+        self._batched = None
+
+    def act_batch(self, observations: np.ndarray) -> np.ndarray:
+        """``act`` for a batch ``(..., D)`` -> ``(..., 2)``, each row with its own
+        controller state (``policies.batched``)."""
+        if self._batched is None:
+            from openconvoy.policies.batched import BatchedClassical
+
+            self._batched = BatchedClassical(self.config)
+        return self._batched.act_batch(observations)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         view = self.layout.view(observation)

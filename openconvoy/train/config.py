@@ -14,8 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
-from openconvoy.core.config import dumps_toml, from_dict, load_toml, to_dict
+from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.train.randomization import EnvSpec, Randomization
 
@@ -31,19 +32,19 @@ class PPOConfig:
     ``log_std_init`` is the initial log standard deviation of the normalized
     actions (-1: std 0.37, enough to explore, not so much that a car swerves off the road)."""
 
-    n_steps: int = 256
-    batch_size: int = 512
-    n_epochs: int = 5
-    learning_rate: float = 3e-4
+    n_steps: Annotated[int, Range(1, 10000000)] = 256
+    batch_size: Annotated[int, Range(1, 10000000)] = 512
+    n_epochs: Annotated[int, Range(1, 1000)] = 5
+    learning_rate: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 3e-4
     lr_schedule: str = "linear"
-    gamma: float = 0.98
-    gae_lambda: float = 0.95
-    clip_range: float = 0.2
-    ent_coef: float = 0.0
-    max_grad_norm: float = 0.5
-    net_arch: tuple[int, ...] = (64, 64)
+    gamma: Annotated[float, Range(0.0, 1.0)] = 0.98
+    gae_lambda: Annotated[float, Range(0.0, 1.0)] = 0.95
+    clip_range: Annotated[float, Range(0.0, 10.0, lo_open=True)] = 0.2
+    ent_coef: Annotated[float, Range(0.0, 10.0)] = 0.0
+    max_grad_norm: Annotated[float, Range(0.0, 1000.0, lo_open=True)] = 0.5
+    net_arch: tuple[Annotated[int, Range(1, 100_000)], ...] = (64, 64)
     activation: str = "tanh"
-    log_std_init: float = -1.0
+    log_std_init: Annotated[float, Range(-20.0, 5.0)] = -1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -59,15 +60,15 @@ class PPOConfig:
 class SACConfig:
     """stable-baselines3 SAC hyperparameters (see its documentation)."""
 
-    learning_rate: float = 3e-4
-    buffer_size: int = 300_000
-    learning_starts: int = 5_000
-    batch_size: int = 256
-    tau: float = 0.005
-    gamma: float = 0.98
-    train_freq: int = 1
-    gradient_steps: int = 1
-    net_arch: tuple[int, ...] = (256, 256)
+    learning_rate: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 3e-4
+    buffer_size: Annotated[int, Range(1, 1000000000)] = 300_000
+    learning_starts: Annotated[int, Range(0, 1000000000)] = 5_000
+    batch_size: Annotated[int, Range(1, 10000000)] = 256
+    tau: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 0.005
+    gamma: Annotated[float, Range(0.0, 1.0)] = 0.98
+    train_freq: Annotated[int, Range(1, 1000000)] = 1
+    gradient_steps: Annotated[int, Range(-1, 1000000)] = 1
+    net_arch: tuple[Annotated[int, Range(1, 100_000)], ...] = (256, 256)
     activation: str = "relu"
 
     def __post_init__(self) -> None:
@@ -104,20 +105,20 @@ class TrainConfig:
     """
 
     algo: str = "ppo"
-    total_steps: int = 600_000
-    n_envs: int = 4
-    seed: int = 0
+    total_steps: Annotated[int, Range(1, 1000000000000)] = 600_000
+    n_envs: Annotated[int, Range(1, 1024)] = 4
+    seed: Annotated[int, Range(0, 4294967295)] = 0
     env: EnvSpec = field(default_factory=EnvSpec)
     randomization: Randomization = field(default_factory=Randomization)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     sac: SACConfig = field(default_factory=SACConfig)
     normalize_obs: bool = True
     normalize_reward: bool = True
-    checkpoint_every: int = 100_000
-    validation_pers: tuple[float, ...] = (0.3, 0.6)
-    validation_seeds: tuple[int, ...] = (1000, 1001, 1002)
-    validation_duration_s: float | None = None
-    torch_threads: int = 1
+    checkpoint_every: Annotated[int, Range(0, 1000000000000)] = 100_000
+    validation_pers: tuple[Annotated[float, Range(0.0, 1.0)], ...] = (0.3, 0.6)
+    validation_seeds: tuple[Annotated[int, Range(0, 2**32 - 1)], ...] = (1000, 1001, 1002)
+    validation_duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    torch_threads: Annotated[int, Range(1, 1024)] = 1
     name: str = "learned"
 
     def __post_init__(self) -> None:

@@ -18,13 +18,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
 from openconvoy.envs.convoy_env import ConvoyEnv
@@ -67,14 +68,14 @@ class Randomization:
     """
 
     scenarios: tuple[str, ...] = ("paper",)
-    per_range: tuple[float, float] = (0.0, 0.6)
-    burst_prob: float = 0.3
-    mean_burst_s_range: tuple[float, float] = (0.2, 1.0)
-    latency_s_range: tuple[float, float] = (0.0, 0.05)
-    jitter_s_range: tuple[float, float] = (0.0, 0.05)
-    gps_noise_m_range: tuple[float, float] = (0.0, 0.05)
+    per_range: tuple[Annotated[float, Range(0.0, 1.0)], Annotated[float, Range(0.0, 1.0)]] = (0.0, 0.6)
+    burst_prob: Annotated[float, Range(0.0, 1.0)] = 0.3
+    mean_burst_s_range: tuple[Annotated[float, Range(0.0, 3600.0)], Annotated[float, Range(0.0, 3600.0)]] = (0.2, 1.0)
+    latency_s_range: tuple[Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]] = (0.0, 0.05)
+    jitter_s_range: tuple[Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]] = (0.0, 0.05)
+    gps_noise_m_range: tuple[Annotated[float, Range(0.0, 1000.0)], Annotated[float, Range(0.0, 1000.0)]] = (0.0, 0.05)
     vehicles: tuple[str, ...] = ("1/10", "1/6")
-    plant_jitter: float = 0.2
+    plant_jitter: Annotated[float, Range(0.0, 0.9)] = 0.2
 
     def __post_init__(self) -> None:
         for name in ("scenarios", "vehicles", "per_range", "mean_burst_s_range", "latency_s_range",
@@ -172,14 +173,14 @@ class EnvSpec:
         reward: the reward's weights (``openconvoy.envs.reward``).
     """
 
-    n_followers: int = 2
+    n_followers: Annotated[int, Range(1, 1000)] = 2
     base_policy: str = "paper"
     residual_scale: tuple[float, float] = (1.0, 0.1)
     member: MemberConfig | None = None
-    control_rate_hz: float | None = None
+    control_rate_hz: Annotated[float, Range(0.0, 100.0, lo_open=True)] | None = None
     action_low: tuple[float, float] = (0.0, -math.pi / 2)
     action_high: tuple[float, float] = (5.0, math.pi / 2)
-    max_time_s: float | None = None
+    max_time_s: Annotated[float, Range(0.0, 7 * 86400.0, lo_open=True)] | None = None
     reward: RewardConfig = field(default_factory=lambda: TRAIN_REWARD)
 
     def __post_init__(self) -> None:

@@ -315,3 +315,14 @@ def test_pi_fit_from_a_firmware_deploy_log(tmp_path: Path) -> None:
     m = step_response(preset, 0.0, 1.0)
     assert 0.25 <= m["overshoot"] <= 0.35, m
     assert m["t90"] == pytest.approx(1.24, abs=0.15), m  # paper 0 -> 1 on the firmware
+
+
+def test_cli_lag_fit_of_a_recording_is_a_one_line_error(tmp_path: Path) -> None:
+    rec = recording_excerpt(SITL / "speed_steps.jsonl.gz", tmp_path / "a.jsonl.gz", 43.0, 50.0)
+    result = subprocess.run(
+        [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(rec)],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip() == ("openconvoy: error: the lag model fits one run's log; "
+                                     "use --model pi for recordings or several inputs")

@@ -31,9 +31,12 @@ def test_a_flood_of_foreign_bsms_does_not_stall_the_loop(tmp_path):
     res = json.loads(r.stdout.strip().splitlines()[-1])
     assert "error" not in res, (res, [p.read_text()[-2000:] for p in tmp_path.glob("deploy_*.txt")])
     (v,) = res["per_vehicle"].values()
-    assert res["flood_sent"] > 40_000  # the flood did happen (at least 16,000 a second)
-    assert v["filtered"] > 20_000  # and reached the deploy, which dropped it as foreign
-    # Slack for a loaded 2-core CI machine; unloaded it is 100 % and 1.1 periods.
-    assert v["ticks"] >= 0.9 * v["expected_ticks"]
-    assert v["on_time"] >= 0.8
-    assert v["max_gap_periods"] <= 4.0
+    # The flood did happen and reached the deploy, which dropped it as foreign. (Its rate
+    # is what the machine gives the sender: 40,000/s asked, ~30,000/s on 2 idle cores,
+    # ~5,000/s on 2 cores at a load of 10.)
+    assert res["flood_sent"] > 10_000, res
+    assert v["filtered"] > 0.5 * res["flood_sent"], res
+    # Slack for a loaded 2-core CI machine; on an idle one it is 100 % and 1.1 periods.
+    assert v["ticks"] >= 0.75 * v["expected_ticks"], res
+    assert v["on_time"] >= 0.5, res  # before the fix: 0 (3 ticks in 2.5 s)
+    assert v["max_gap_periods"] <= 6.0, res  # before: 21 (1.04 s)

@@ -261,3 +261,39 @@ def test_link_listens_for_a_vehicle_that_sends_first() -> None:
     finally:
         link.close()
         vehicle.stop()
+
+
+FLT_EPSILON = 1.1920929e-07
+
+
+def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_firmware_did(vehicle_and_link) -> None:
+    """Against the simulated ArduPilot, over MAVLink: MavlinkLink's setpoints drive forward
+    at headings in all four quadrants; the old encoding (NED (vx, vy) with yaw, e9a5f3e)
+    reverses exactly where real Rover 4.7 did (shared/sitl row 7: vx <= -FLT_EPSILON)."""
+    vehicle, link, _ = vehicle_and_link(start_heading_rad=0.0)
+    link.prepare_and_arm(timeout_s=10.0)
+    ts, tc = link._target
+
+    def drive(send, seconds: float = 1.5) -> float:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            link.poll()
+            send()
+            time.sleep(0.05)
+        return vehicle.state().speed
+
+    for compass in (45.0, 135.0, 225.0, 315.0):
+        heading = math.radians(90.0 - compass)
+        assert drive(lambda h=heading: link.send_setpoint(1.0, h)) > 0.3, compass
+        drive(link.stop_motion, 1.2)
+    for compass in (45.0, 135.0, 225.0, 315.0):
+        yaw = math.radians(compass)
+        vn, ve = math.cos(yaw), math.sin(yaw)
+
+        def old(vn=vn, ve=ve, yaw=yaw) -> None:
+            link._conn.mav.set_position_target_global_int_send(
+                0, ts, tc, 6, 2503, 0, 0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, yaw, 0.0)
+
+        speed = drive(old)
+        assert (speed < -0.3) if vn <= -FLT_EPSILON else (speed > 0.3), (compass, speed)
+        drive(link.stop_motion, 1.2)

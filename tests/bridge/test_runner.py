@@ -272,3 +272,35 @@ def test_passive_leader_broadcasts_but_commands_nothing(tmp_path):
 def test_passive_is_for_the_leader_only():
     with pytest.raises(ValueError, match="passive"):
         RunnerOptions(vehicle_id=1, passive=True)
+
+
+def test_connect_timeout_names_the_users_timeout_not_one_attempts(tmp_path):
+    # found (input-defects D9): the error said "within 1 s" (one short attempt) after a
+    # 5 s --connect-timeout
+    from openconvoy.bridge.link import LinkTimeout
+
+    class Silent(FakeLink):
+        def connect(self, timeout_s: float) -> None:
+            self.clock.sleep(timeout_s)  # nobody answers for the whole attempt
+            raise LinkTimeout(f"no heartbeat from a vehicle on udp:x within {timeout_s:g} s")
+
+    clock = FakeClock()
+    convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
+    link = Silent(clock, Origin(*convoy.origin), 1, x=-15.0, y=0.0)
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=1, connect_timeout_s=5.0, status_period_s=0), convoy,
+        FixedPolicy(1.0, 0.0), link, LocalV2V(LocalBus()), clock=clock, sleep=clock.sleep,
+        wall_clock=clock.wall, on_status=lambda line: None,
+    )
+    result = runner.run()
+    assert result.exit_code != 0 and link.sent == []
+    assert "within --connect-timeout 5 s" in result.reason and "within 1 s" not in result.reason
+
+
+@pytest.mark.parametrize("field, value", [("rate_hz", math.nan), ("rate_hz", 1e6), ("rate_hz", math.inf),
+                                          ("connect_timeout_s", math.nan), ("arm_timeout_s", -1.0),
+                                          ("duration_s", -5.0)])
+def test_options_that_would_busy_loop_or_wait_forever_are_refused(field, value):
+    # found (issue 10, "What was found" 3): --rate nan flooded the autopilot at ~14 kHz
+    with pytest.raises(ValueError, match="out of range"):
+        RunnerOptions(vehicle_id=1, **{field: value})

@@ -7,7 +7,9 @@ module OIDs {1 3 111 2 1609 2 1 1 2 3} and {... 2 1 2 2 2}), not our
 hashId, payload, headerInfo psid / generationTime / inlineP2pcdRequest, signer digest or
 certificate, signature) and of both certificates (type, issuer, id name, cracaId,
 crlSeries, validity, appPermissions, certIssuePermissions, verifyKeyIndicator,
-signature); pycrate re-encodes each value to the same octets (canonical OER). Also two
+signature); pycrate re-encodes each value to the same octets (canonical OER). The module
+itself is compared type by type with the published one (components, optionality,
+extension markers, ranges and sizes). Also two
 SPDUs captured from a deployed roadside unit (a BSM and a SPaT, kept as test data by the
 USDOT JPO ODE project) read the same with ours and pycrate's, and their generation times
 confirm Time64's TAI epoch.
@@ -200,3 +202,81 @@ def test_captured_spdus_from_a_deployed_stack(hex_, psid, t_capture):
         assert sig["rSig"][0] == "compressed-y-0"
         assert sp._decode_common(data) is None
         assert sd["tbsData"]["headerInfo"]["generationLocation"]["latitude"] == 403267049
+
+
+def _published(name: str):
+    for module in (M.Ieee1609Dot2, M.Ieee1609Dot2BaseTypes):
+        t = getattr(module, name, None)
+        if t is not None and hasattr(t, "TYPE"):
+            return t
+    return None
+
+
+def test_our_module_restates_the_published_types_component_for_component():
+    # Every SEQUENCE, CHOICE and ENUMERATED of comms/ieee1609dot2.asn that the published
+    # modules define under the same name: the same root components in the same order,
+    # the same OPTIONAL/DEFAULT ones, an extension marker where they have one, and only
+    # a prefix of their extension additions (OER skips the ones left out).
+    import asn1tools
+
+    ours = asn1tools.parse_files(str(c.ASN_PATH))["OpenConvoyIeee1609Dot2"]["types"]
+    compared = []
+    for name, t in ours.items():
+        pub = _published(name)
+        if pub is None or t["type"] not in ("SEQUENCE", "CHOICE", "ENUMERATED"):
+            continue
+        assert pub.TYPE == t["type"], name
+        if t["type"] == "ENUMERATED":
+            names = [v[0] if isinstance(v, tuple) else v for v in t["values"]]
+            root = names[: names.index(None)] if None in names else names
+            ext = names[names.index(None) + 1 :] if None in names else None
+            assert root == list(pub._root), name
+        else:
+            members = t["members"]
+            cut = members.index(None) if None in members else len(members)
+            root, ext_m = members[:cut], (members[cut + 1 :] if None in members else None)
+            assert [m["name"] for m in root] == list(pub._root), name
+            ext = None if ext_m is None else [m["name"] for m in ext_m if m is not None]
+            if t["type"] == "SEQUENCE":
+                for m in root:
+                    p = pub._cont[m["name"]]
+                    assert ("optional" in m or "default" in m) == bool(p._opt or p._def is not None), (name, m["name"])
+        assert (ext is None) == (pub._ext is None), name
+        if ext is not None:
+            assert ext == list(pub._ext)[: len(ext)], name
+        compared.append(name)
+    assert len(compared) >= 45, compared
+    for must in ("Ieee1609Dot2Data", "SignedData", "ToBeSignedData", "HeaderInfo", "SignerIdentifier",
+                 "CertificateBase", "ToBeSignedCertificate", "EccP256CurvePoint", "Signature"):
+        assert must in compared
+
+
+def test_our_integer_ranges_and_string_sizes_are_the_published_ones():
+    import asn1tools
+
+    ours = asn1tools.parse_files(str(c.ASN_PATH))["OpenConvoyIeee1609Dot2"]["types"]
+
+    def bounds(const):
+        out = []
+        for x in const.root:
+            if isinstance(x, int):
+                out.append((x, x))
+            else:
+                out.append((x.lb, "MAX" if x.ub is None else x.ub))
+        return out
+
+    def ours_bounds(spec):
+        return [v if isinstance(v, tuple) else (v, v) for v in spec]
+
+    compared = 0
+    for name, t in ours.items():
+        pub = _published(name)
+        if pub is None:
+            continue
+        if "restricted-to" in t:
+            assert ours_bounds(t["restricted-to"]) == bounds(pub._const_val), name
+            compared += 1
+        if "size" in t:
+            assert ours_bounds(t["size"]) == bounds(pub._const_sz), name
+            compared += 1
+    assert compared >= 20

@@ -96,3 +96,13 @@ def test_missing_unreadable_and_mismatched_keys_are_one_line_errors(convoy, tmp_
         (d / "vehicle-0.key").chmod(0)
         with pytest.raises(ks.KeyFileError, match="cannot read private key"):
             ks.read_key(d / "vehicle-0.key")
+
+
+def test_deploy_with_keys_but_without_the_vehicles_key_fails_in_one_line(convoy, capsys):
+    main(["keys", "init", "--convoy", str(convoy)])
+    capsys.readouterr()
+    rc = main(["deploy", "--policy", "paper", "--vehicle-id", "1", "--convoy", str(convoy),
+               "--mavlink", "udpout:127.0.0.1:9", "--iface", "lo", "--quiet"])
+    assert rc == 2
+    line = _err(capsys)
+    assert "no key for vehicle 1" in line and "keys issue --vehicle-id 1" in line

@@ -1,0 +1,128 @@
+"""The classical policy on arrays: ``ClassicalPolicy.act`` for a whole batch at once.
+
+``BatchedClassical(config).act_batch(obs)`` takes observations shaped ``(..., D)`` (for
+example ``(B, N-1, D)`` from ``envs.VectorConvoyEnv``) and returns actions ``(..., 2)``,
+float32, equal to what one ``ClassicalPolicy`` per row would return for the same
+sequence of observations: the same arithmetic in the same order, with each row's PID
+integrator kept separately. The per-vehicle ``act`` is unchanged (vehicles use it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from openconvoy.core.observation import LOOKAHEAD_S, STATE_FEATURES
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
+from openconvoy.policies.classical import ClassicalConfig
+
+_NF = len(STATE_FEATURES)
+
+
+class BatchedClassical:
+    """The classical policy of ``config`` for a batch of vehicles (rows)."""
+
+    def __init__(self, config: ClassicalConfig) -> None:
+        self.config = config
+        self.layout = config.member.layout
+        self.dt = 1.0 / config.control_rate_hz
+        self._integral: np.ndarray | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget every row's controller state."""
+        self._integral = None
+
+    def reset_rows(self, rows: np.ndarray) -> None:
+        """Forget the state of the rows where ``rows`` (bool, the batch shape) is True
+        (convoys that started a new episode)."""
+        if self._integral is not None:
+            self._integral[rows] = 0.0
+
+    def act_batch(self, observations: np.ndarray) -> np.ndarray:
+        """Actions ``(..., 2)`` float32 (SI: speed m/s, heading change rad)."""
+        obs = np.asarray(observations, dtype=np.float32)
+        lay, cfg = self.layout, self.config
+        if obs.shape[-1] != lay.size:
+            raise ValueError(f"observations have {obs.shape[-1]} features, layout expects {lay.size}")
+        shape = obs.shape[:-1]
+        if self._integral is None or self._integral.shape != shape:
+            self._integral = np.zeros(shape)
+        o = obs.astype(np.float64)
+        c = cfg.speed
+        degrade = cfg.member.fresh_age_s
+        names = (*lay.targets[1:], "leader")
+        newest = {n: obs[..., lay.slot_offset(n) : lay.slot_offset(n) + _NF] for n in lay.slots}
+        leader_dup = np.zeros(shape, dtype=bool)
+        for p in lay.targets[1:]:
+            leader_dup |= np.all(newest["leader"] == newest[p], axis=-1)
+        lost = np.zeros(shape, dtype=bool)
+        any_valid = np.zeros(shape, dtype=bool)
+        v_ref = np.zeros(shape)
+        fresh_sum = np.zeros(shape)
+        fresh_n = np.zeros(shape)
+        near_speed = np.zeros(shape)
+        near_err = np.zeros(shape)
+        near_desired = np.zeros(shape)
+        have_fresh = np.zeros(shape, dtype=bool)
+        stale_terms = []
+        for name in names:
+            t0 = lay.target_offset(name)
+            valid = o[..., t0 + 4] > 0.5
+            err, speed, desired = o[..., t0 + 2], o[..., t0 + 3], o[..., t0 + 1]
+            stale = o[..., lay.slot_offset(name) + 5] > degrade
+            heard = o[..., lay.slot_offset(name) + 6] > 0.5
+            gone = ~valid & heard
+            if name == "leader":
+                gone &= ~leader_dup
+            lost |= gone
+            first = valid & ~any_valid
+            v_ref = np.where(first, speed, v_ref)
+            any_valid |= valid
+            fresh = valid & ~stale
+            fresh_sum = fresh_sum + np.where(fresh, err, 0.0)
+            fresh_n += fresh
+            first_fresh = fresh & ~have_fresh
+            near_speed = np.where(first_fresh, speed, near_speed)
+            near_err = np.where(first_fresh, err, near_err)
+            near_desired = np.where(first_fresh, desired, near_desired)
+            have_fresh |= fresh
+            stale_terms.append((valid & stale, err, speed))
+        own = o[..., lay.own_offset]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            error = fresh_sum / fresh_n
+        if cfg.rear_weight > 0.0:
+            f = newest["follower"]
+            rear = np.where(f[..., 6] < 0.5, 0.0, np.hypot(f[..., 0], f[..., 1]).astype(np.float64) - near_desired)
+            error = error - cfg.rear_weight * rear
+        integral = self._integral
+        if c.kind == "pid":
+            lim = c.integral_limit
+            integral = np.where(have_fresh, np.minimum(np.maximum(integral + error * self.dt, -lim), lim), integral)
+        de = v_ref - own
+        pid = v_ref + c.kp * error + c.ki * integral + c.kd * de
+        cap = near_speed + c.kp * near_err + c.kd * (near_speed - own)
+        speed = np.where(have_fresh, np.minimum(pid, cap), np.inf)
+        for is_stale, e, ts in stale_terms:
+            limit = np.minimum(v_ref + c.kp * e + c.kd * (v_ref - own), ts + c.kp * e + c.kd * (ts - own))
+            speed = np.where(is_stale, np.minimum(speed, limit), speed)
+        speed = np.minimum(np.maximum(speed, 0.0), cfg.speed_limit_mps)
+        stop = lost | ~any_valid
+        # The controller's memory resets where it did not run on fresh targets.
+        self._integral = np.where(stop | ~have_fresh, 0.0, integral)
+        heading = self._heading(o, own)
+        out = np.empty(shape + (2,), dtype=np.float32)
+        out[..., 0] = np.where(stop, 0.0, speed)
+        h = np.minimum(np.maximum(heading, -MAX_HEADING_CHANGE_RAD), MAX_HEADING_CHANGE_RAD)
+        out[..., 1] = np.where(stop, 0.0, h)
+        return out
+
+    def _heading(self, o: np.ndarray, own: np.ndarray) -> np.ndarray:
+        p = self.layout.path_offset
+        h = self.config.heading
+        valid = o[..., p + 8] >= 0.5
+        if h.kind == "stanley":
+            change = o[..., p + 1] + np.arctan2(h.gain * o[..., p], h.softening_mps + np.abs(own))
+        else:
+            j = int(np.argmin([abs(t - h.lookahead_s) for t in LOOKAHEAD_S]))
+            x, y = o[..., p + 2 + 2 * j], o[..., p + 3 + 2 * j]
+            change = np.where((x == 0.0) & (y == 0.0), 0.0, np.arctan2(y, x))
+        return np.where(valid, change, 0.0)

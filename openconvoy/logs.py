@@ -12,6 +12,7 @@ import csv
 import math
 from array import array
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -46,6 +47,46 @@ MODES: tuple[str, ...] = ("coop", "degraded", "stop", "failsafe")
 
 _TEXT_COLUMNS = {"mode"}
 _INT_COLUMNS = {"vehicle_id", "msgs_sent", "msgs_received", "msgs_lost"}
+
+
+@dataclass(frozen=True, slots=True)
+class TickSnapshot:
+    """One tick of a whole convoy, one entry per vehicle (leader first) in each field:
+    what its log rows report. Units as the columns say (``COLUMNS``); ``extra`` holds
+    further columns by name (a world with more in it, such as traffic)."""
+
+    t_s: float
+    x_m: Sequence[float]
+    y_m: Sequence[float]
+    lat_deg: Sequence[float]
+    lon_deg: Sequence[float]
+    speed_mps: Sequence[float]
+    heading_rad: Sequence[float]
+    accel_mps2: Sequence[float]
+    cmd_speed_mps: Sequence[float]
+    cmd_heading_change_rad: Sequence[float]
+    mode: Sequence[str]
+    gap_m: Sequence[float]
+    desired_gap_m: Sequence[float]
+    spacing_error_m: Sequence[float]
+    msgs_sent: Sequence[int]
+    msgs_received: Sequence[int]
+    msgs_lost: Sequence[int]
+    pred_msg_age_s: Sequence[float]
+    extra: Mapping[str, Sequence[Any]] = field(default_factory=dict)
+
+
+def snapshot_rows(snap: TickSnapshot) -> list[dict[str, Any]]:
+    """The log rows (``COLUMNS`` order, then ``extra``'s) of every vehicle in ``snap``."""
+    per_vehicle = [getattr(snap, c) for c in COLUMNS[2:]]
+    rows = []
+    for i in range(len(snap.x_m)):
+        row: dict[str, Any] = {"t_s": snap.t_s, "vehicle_id": i}
+        row.update(zip(COLUMNS[2:], (values[i] for values in per_vehicle)))
+        for name, values in snap.extra.items():
+            row[name] = values[i]
+        rows.append(row)
+    return rows
 
 
 def _format(value: Any) -> str:

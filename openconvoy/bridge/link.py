@@ -98,7 +98,21 @@ class Telemetry:
 
 @runtime_checkable
 class VehicleLink(Protocol):
-    """What the runner uses to read and drive one vehicle."""
+    """What the runner uses to read and drive one vehicle: exactly that, no more (the
+    runner reads nothing else of a link; ``tests/bridge/test_link_contract.py`` holds
+    ``MavlinkLink`` and ``bridge.scriptedlink.ScriptedLink`` to it). The seam further
+    links (ROS, DDS) are written against.
+
+    Attributes:
+        telemetry_timeout_s: the runner's watchdog declares the link lost after this long
+            without position telemetry (s).
+        heartbeat_timeout_s: likewise without a vehicle heartbeat (s).
+        telemetry_rates: message name -> rate (Hz) the vehicle agreed to (run metadata).
+    """
+
+    telemetry_timeout_s: float
+    heartbeat_timeout_s: float
+    telemetry_rates: dict[str, float]
 
     @property
     def autopilot(self) -> Autopilot:
@@ -110,6 +124,21 @@ class VehicleLink(Protocol):
         """True (latched) once the mode left GUIDED/OFFBOARD without this link asking.
 
         The runner must then stop commanding and never switch back by itself."""
+        ...
+
+    @property
+    def takeover_reason(self) -> str:
+        """One line: which mode the vehicle went to and who set it ("" before a takeover)."""
+        ...
+
+    @property
+    def failsafe_took_over(self) -> bool:
+        """The takeover was the autopilot's own failsafe (not a person): a failed run."""
+        ...
+
+    @property
+    def lost(self) -> bool:
+        """No usable connection (closed by the peer, device gone): ``reconnect`` it."""
         ...
 
     def connect(self, timeout_s: float) -> None:
@@ -146,10 +175,6 @@ class VehicleLink(Protocol):
 
     def disarm(self, timeout_s: float = 2.0) -> None:
         """Disarm (standing still); 0 = send and do not wait."""
-        ...
-
-    def link_ok(self, now: float) -> bool:
-        """Telemetry and heartbeat are fresh at link-clock time ``now`` and the link is open."""
         ...
 
     def reconnect(self, timeout_s: float) -> None:

@@ -304,7 +304,7 @@ class DeployRunner:
         self.failsafes = Failsafes(
             envelope=envelope or envelope_from(convoy, options.vehicle_id),
             watchdog=LinkWatchdog(
-                getattr(link, "telemetry_timeout_s", 0.5), getattr(link, "heartbeat_timeout_s", 3.0)
+                link.telemetry_timeout_s, link.heartbeat_timeout_s
             ),
         )
         self.log_dir = Path(log_dir) if log_dir is not None else None
@@ -435,7 +435,7 @@ class DeployRunner:
         f = self.failsafes
         if f.latched or f.watchdog.was_lost:
             return 1
-        if f.took_over and (self._t_start is None or getattr(self.link, "failsafe_took_over", False)):
+        if f.took_over and (self._t_start is None or self.link.failsafe_took_over):
             return 1
         return 0
 
@@ -466,7 +466,7 @@ class DeployRunner:
         own = replace(tel.state, vehicle_id=o.vehicle_id)
         # 2. τ — only while the autopilot link is fresh: without it the vehicle no longer
         # knows its own state, and a stale one with new timestamps would mislead the convoy.
-        lost = getattr(self.link, "lost", False)
+        lost = self.link.lost
         known = self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat, not lost)
         self._track_broadcast(known, wall)
         sent = member_tick.begin(member, own, wall, may_send=known)
@@ -475,7 +475,7 @@ class DeployRunner:
         # 3. ρ, bounded in time so that a flood cannot stall the loop
         inbox = []
         for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET * period_s):
-            if getattr(msg, "abort", False):
+            if msg.abort:
                 self._abort = True
                 continue
             if msg.state is None:
@@ -500,7 +500,7 @@ class DeployRunner:
         verdict = self.failsafes.decide(
             TickInputs(
                 now=now, t_telemetry=tel.t_telemetry, t_heartbeat=tel.t_heartbeat,
-                link_open=not getattr(self.link, "lost", False),
+                link_open=not self.link.lost,
                 pilot_took_over=self.commanding and self.link.pilot_took_over,
                 stop_requested=self._stop_requested, abort=self._abort,
                 x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
@@ -515,7 +515,7 @@ class DeployRunner:
             speed, heading_cmd = 0.0, own.heading
             mode = "failsafe" if verdict.failsafe else "stop"
         if verdict.reason and verdict.reason != self._last_reason:
-            why = getattr(self.link, "takeover_reason", "") if verdict.reason == "pilot took over" else ""
+            why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
             self.on_status(f"vehicle {o.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else ""))
         self._last_reason = verdict.reason
         # 6. actuate
@@ -545,7 +545,7 @@ class DeployRunner:
         if verdict.exit:
             return verdict.reason
         if self.failsafes.took_over and self._t_start is None and self.commanding:
-            why = getattr(self.link, "takeover_reason", "") or "a mode change we did not ask for"
+            why = self.link.takeover_reason or "a mode change we did not ask for"
             return f"pilot took over before the convoy drove: {why}"
         if self._t_start is not None:
             limit = self._duration()
@@ -617,7 +617,8 @@ class DeployRunner:
         assert self._t_start is not None
         x, y = own.x, own.y
         if self.leader_origin is not None:
-            x, y, _ = geodetic_to_enu(self.leader_origin, tel.lat_deg, tel.lon_deg)
+            ex, ey, _ = geodetic_to_enu(self.leader_origin, tel.lat_deg, tel.lon_deg)
+            x, y = float(ex), float(ey)
         speed, heading = self.leader.leader_command(now - self._t_start, float(x), float(y), own.heading, own.speed)
         return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
 
@@ -631,7 +632,7 @@ class DeployRunner:
     def _maybe_reconnect(self, now: float) -> None:
         """A lost connection (TCP EOF, serial error) is reopened every 2 s, without
         blocking the tick (``reconnect(0)``: the link opens it in the background)."""
-        if not getattr(self.link, "lost", False) or now - self._t_reconnect < 2.0:
+        if not self.link.lost or now - self._t_reconnect < 2.0:
             return
         self._t_reconnect = now
         try:
@@ -695,7 +696,7 @@ class DeployRunner:
     def _delivered(self) -> int:
         """Vehicle messages the V2V link delivered (aborts are not traffic)."""
         c = self.v2v.counters
-        return int(c.received - getattr(c, "aborts", 0))
+        return int(c.received - c.aborts)
 
     def _status_line(self, now: float, own: VehicleState, mode: str, gap: float) -> None:
         p = self.options.status_period_s
@@ -713,7 +714,7 @@ class DeployRunner:
     def _finish(self, reason: str, code: int = 0) -> None:
         """Stop, HOLD, flush and close the log, write metadata. Never raises."""
         o = self.options
-        took_over = self.failsafes.took_over or getattr(self.link, "pilot_took_over", False)
+        took_over = self.failsafes.took_over or self.link.pilot_took_over
         if self.commanding and self._armed_by_us and not took_over:
             try:
                 self._brake_to_rest()
@@ -723,10 +724,9 @@ class DeployRunner:
         elif self.commanding and self._arming:
             # Interrupted while arming (a signal, a refusal, a lost mode): it may have armed
             # meanwhile. Standing still, so HOLD and disarm; never armed without HOLD.
-            for step in (self.link.hold, getattr(self.link, "disarm", None)):
+            for step in (self.link.hold, self.link.disarm):
                 try:
-                    if step is not None:
-                        step(0.0)
+                    step(0.0)
                 except Exception as exc:  # noqa: BLE001
                     log.warning("vehicle %d: HOLD/disarm after arming failed: %s", o.vehicle_id, exc)
         elif self.commanding and took_over and self._t_start is None and self._armed_by_us:
@@ -757,7 +757,7 @@ class DeployRunner:
             if tel is None or abs(tel.state.speed) < HOLD_BELOW_MPS or now >= end:
                 return
             if not self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat,
-                                                 not getattr(self.link, "lost", False)):
+                                                 not self.link.lost):
                 return
             self.sleep(period)
 
@@ -792,14 +792,14 @@ class DeployRunner:
             "dry_run": o.dry_run,
             "passive": o.passive,
             "autopilot": _safe(lambda: self.link.autopilot),
-            "telemetry_rates_hz": getattr(self.link, "telemetry_rates", {}),
+            "telemetry_rates_hz": self.link.telemetry_rates,
             "v2v": _safe(lambda: self.v2v.metadata) or {},
             "t_begin_s": self._t_begin_wall,
             "t_start_s": self._t_start_wall,
             "t_end_s": self.wall(),
             "exit_reason": reason,
             "exit_code": code,
-            "takeover_reason": getattr(self.link, "takeover_reason", "") or None,
+            "takeover_reason": self.link.takeover_reason or None,
             "broadcast_paused": [
                 {"from_s": a, "to_s": b, "why": "autopilot link lost"} for a, b in self._broadcast_pauses
             ],

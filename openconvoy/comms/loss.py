@@ -94,6 +94,11 @@ class Bernoulli:
         return self.per > 0.0 and self._rng.random() < self.per
 
 
+GE_INIT, GE_ADVANCE, GE_LOSS = 0, 1, 2
+"""Purpose words of the Gilbert-Elliott chain's counter-based draws (the initial state,
+then per packet the state transition and the loss)."""
+
+
 class GilbertElliott:
     """Bursty loss: a two-state (good/bad) Markov chain evolving in continuous time.
 
@@ -134,19 +139,25 @@ class GilbertElliott:
         return p_bad * self.loss_bad + (1.0 - p_bad) * self.loss_good
 
     def reset(self, rng: np.random.Generator) -> None:
-        self._rng = rng
+        # Counter-based draws keyed by one number from rng: packet n's draws are
+        # ``counter_uniform(key, n, GE_ADVANCE | GE_LOSS)``, so the batched simulator
+        # (``envs.vector_env``) can make them for every link at once.
+        self.key = int(rng.integers(2**63))
+        self._n = 0
         p_bad = self.mean_bad_s / (self.mean_good_s + self.mean_bad_s)
-        self._bad = bool(rng.random() < p_bad)
+        self._bad = bool(counter_uniform(self.key, GE_INIT) < p_bad)
         self._t: float | None = None
 
     def lost(self, t: float) -> bool:
+        n = self._n
+        self._n += 1
         if self._t is not None and t > self._t:
-            self._advance(t - self._t)
+            self._advance(t - self._t, n)
         self._t = t if self._t is None else max(self._t, t)
         p = self.loss_bad if self._bad else self.loss_good
-        return p > 0.0 and self._rng.random() < p
+        return p > 0.0 and counter_uniform(self.key, n, GE_LOSS) < p
 
-    def _advance(self, dt: float) -> None:
+    def _advance(self, dt: float, n: int) -> None:
         # Exact two-state transition over dt: relaxes towards the stationary law.
         a = 1.0 / self.mean_good_s  # good -> bad rate
         b = 1.0 / self.mean_bad_s  # bad -> good rate
@@ -154,7 +165,7 @@ class GilbertElliott:
         decay = math.exp(-(a + b) * dt)
         start = 1.0 if self._bad else 0.0
         p_bad = p_bad_inf + (start - p_bad_inf) * decay
-        self._bad = bool(self._rng.random() < p_bad)
+        self._bad = bool(counter_uniform(self.key, n, GE_ADVANCE) < p_bad)
 
 
 @dataclass(frozen=True)

@@ -103,6 +103,30 @@ class ObservationLayout:
     def zeros(self) -> np.ndarray:
         return np.zeros(self.size, dtype=np.float32)
 
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(low, high)`` float32 arrays: finite where the layout bounds a feature (validity
+        flags in [0, 1], ages in [0, ``MAX_AGE_S``], heading differences in [-π, π]),
+        infinite elsewhere (positions, speeds, gaps)."""
+        low = np.full(self.size, -np.inf, dtype=np.float32)
+        high = np.full(self.size, np.inf, dtype=np.float32)
+        pi = float(np.float32(np.pi))
+
+        def bound(offset: int, lo: float, hi: float) -> None:
+            low[offset], high[offset] = lo, hi
+
+        nf = len(STATE_FEATURES)
+        for slot in self.slots:
+            for j in range(self.k):
+                o = self.slot_offset(slot) + j * nf
+                bound(o + STATE_FEATURES.index("dheading"), -pi, pi)
+                bound(o + STATE_FEATURES.index("age"), 0.0, MAX_AGE_S)
+                bound(o + STATE_FEATURES.index("valid"), 0.0, 1.0)
+        for target in self.targets:
+            bound(self.target_offset(target) + DERIVED_FEATURES.index("valid"), 0.0, 1.0)
+        bound(self.path_offset + PATH_FEATURES.index("heading_error"), -pi, pi)
+        bound(self.path_offset + PATH_FEATURES.index("valid"), 0.0, 1.0)
+        return low, high
+
     def view(self, obs: np.ndarray) -> ObservationView:
         return ObservationView(self, obs)
 

@@ -57,7 +57,7 @@ def as_convoy_policy(obj: Any, where: str = "policy") -> ConvoyPolicy:
     if missing:
         raise ConfigError(f"{where} ({type(obj).__name__}) lacks {', '.join(missing)}: a convoy policy "
                           f"declares {', '.join(CONVOY_POLICY_ATTRIBUTES)}")
-    return obj  # type: ignore[no-any-return]
+    return obj
 
 
 def make_action(speed_mps: float, heading_change_rad: float) -> np.ndarray:

@@ -1,24 +1,11 @@
 """ConvoyEnv: the convoy as a PettingZoo ``ParallelEnv``; followers are the agents.
 
-One tick (``dt = 1 / control_rate_hz``), the same sequence a vehicle runs (DESIGN.md, One
-member, two worlds):
-
-1. each follower's action ``[speed_mps, heading_change_rad]`` goes through its member's
-   staleness ladder (``supervise``, with the ranging sensor's reading when the vehicle has
-   one); the leader's setpoints come from the scenario's driver;
-2. the plant steps with speed and absolute heading setpoints (current heading + change);
-3. every member takes its own state (with optional GPS noise on the position), its Tx gate
-   decides whether to broadcast (the gate keeps its own check period), the channel applies
-   loss and latency per link and delivers what is due, members keep what their Rx gate
-   wants, and followers build their observations.
-
-Safety, as on vehicles: a follower whose braking-aware gap rule fires (``core.safety``:
-the gap between bumpers, less what braking at its limit from the closing speed takes, is
-below the margin; the gap from its ranging sensor, else from its member's estimate of
-the predecessor) stops for the rest of the episode, mode ``failsafe``; ``safety_events``
-says when and why. Faults (``core.faults``: ``halt``, ``silent``, ``dead``) override a
-vehicle's setpoints with a stop at its braking limit and/or mute its broadcasts from
-their time on.
+One tick (``dt = 1 / control_rate_hz``) is the vehicle's (DESIGN.md, One member, two
+worlds): the simulation behind the API is a ``ConvoyWorld`` (``envs.world``: plant,
+channel, members, sensors, faults) that drives each member through ``core.tick``. Each
+follower's action ``[speed_mps, heading_change_rad]`` is checked, clipped to the action
+space and supervised by its member's staleness ladder; the leader's setpoints come from
+the scenario's driver; safety stops and faults are the world's (``safety_events``).
 
 Termination: a collision (a follower closer to its predecessor than the sum of their half
 lengths, centre to centre) ends the episode for everybody. Truncation: the scenario's
@@ -37,21 +24,16 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from openconvoy.comms.geodesy import enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
-from openconvoy.core import tick as member_tick
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.faults import Fault, check_faults, parse_fault
-from openconvoy.core.member import ConvoyMember, Frame, MemberConfig, member_config_for
-from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
-from openconvoy.core.state import VehicleState
-from openconvoy.envs.channel import Channel
-from openconvoy.envs.forgery import Authentication
-from openconvoy.envs.plant import BicyclePlant
+from openconvoy.core.faults import Fault, parse_fault
+from openconvoy.core.member import MemberConfig, member_config_for
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
 from openconvoy.envs.scenarios import Scenario, is_traffic_scenario, make_scenario
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
+from openconvoy.envs.world import ConvoyWorld, TickRecord
+from openconvoy.logs import snapshot_rows
 
 AGENT_PREFIX = "follower_"
 
@@ -132,6 +114,8 @@ class ConvoyEnv(ParallelEnv):
     }
     LOG_EXTRA_COLUMNS: tuple[str, ...] = ()
     """Columns this env's log rows carry beyond DESIGN.md's (a run writes them)."""
+    WORLD: type[ConvoyWorld] = ConvoyWorld
+    """The simulation behind the API (a world with more in it subclasses it)."""
 
     def __new__(cls, scenario: str | Scenario = "paper", *args: Any, **kwargs: Any) -> ConvoyEnv:
         # Highway scenarios bring traffic: ``ConvoyEnv("highway-cut-in")`` is a
@@ -165,15 +149,7 @@ class ConvoyEnv(ParallelEnv):
             raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        presets = None
-        if vehicle_presets is not None:
-            presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
-        if isinstance(scenario, str):
-            scenario = make_scenario(scenario, n_followers, presets)
-        elif presets is not None or n_followers is not None:
-            raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
-        if scenario.n_vehicles < 2:
-            raise ConfigError("a convoy needs a leader and at least one follower")
+        scenario = _resolve_scenario(scenario, n_followers, vehicle_presets)
         self.scenario = scenario
         self.presets = tuple(scenario.presets)
         self.n_vehicles = n = scenario.n_vehicles
@@ -187,48 +163,33 @@ class ConvoyEnv(ParallelEnv):
         self.loss = loss or LossConfig()
         self.member_config = member_config_for(member_config, scenario.spacing)
 
-        self._lengths = [p.length_m for p in self.presets]
-        self._widths = [p.width_m for p in self.presets]
-        self._half_sum = [0.5 * (a + b) for a, b in zip(self._lengths[1:], self._lengths[:-1])]
-        decels = [p.decel_max_mps2 for p in self.presets]
-        self.members = [ConvoyMember(i, n, self.member_config, self._lengths, decels) for i in range(n)]
-        self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
-        check_faults(self.faults, n)
-        self.emergency_stop = bool(emergency_stop)
-        self.auth = Authentication(n, required=bool(auth))
-        self._forged = tuple(f for f in self.faults if f.forges)
-        self._braking: list[BrakingGap | None] = [None] + [
-            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
-            for p in self.presets[1:]
-        ]
-        self.plant = BicyclePlant(self.presets, self.dt)
-        self.channel: Channel[VehicleState] = Channel(n, self.loss)
-        self._ranging = [(i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging]
-
+        parsed = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
+        self.sim = self.WORLD(
+            scenario, self.member_config, self.loss, self.dt, self.gps_noise_m, parsed,
+            gap_margin_m, bool(emergency_stop), bool(auth),
+        )
+        """The simulated convoy (``envs.world.ConvoyWorld``)."""
         self.possible_agents = [agent_name(i) for i in range(1, n)]
         self.agents: list[str] = []
         self._agent_index = {a: i for i, a in enumerate(self.possible_agents, start=1)}
-        size = self.member_config.layout.size
-        self._observation_spaces = {
-            a: gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
-            for a in self.possible_agents
-        }
-        # The action space and the clip every world applies (core.tick), bit for bit.
-        self._bounds = [member_tick.ActionBounds.float32(p.max_speed_mps) for p in self.presets]
-        self._action_spaces = {
-            a: gymnasium.spaces.Box(
-                low=np.array([0.0, -self._bounds[i].max_heading_change_rad], dtype=np.float32),
-                high=np.array([self._bounds[i].max_speed_mps, self._bounds[i].max_heading_change_rad],
-                              dtype=np.float32),
-                dtype=np.float32,
-            )
-            for a, i in self._agent_index.items()
-        }
+        self._observation_spaces, self._action_spaces = self._spaces()
         self._road: np.ndarray | None = None
         self._seed_seq: np.random.SeedSequence | None = None
-        self.t = 0.0
-        self.step_count = 0
-        self._reset_arrays()
+
+    def _spaces(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Observation and action spaces per agent; the action space is the clip every
+        world applies (``core.tick.ActionBounds``), bit for bit."""
+        low, high = self.member_config.layout.bounds()
+        obs = {a: gymnasium.spaces.Box(low, high, dtype=np.float32) for a in self.possible_agents}
+        act = {}
+        for a, i in self._agent_index.items():
+            b = self.sim.bounds[i]
+            act[a] = gymnasium.spaces.Box(
+                low=np.array([0.0, -b.max_heading_change_rad], dtype=np.float32),
+                high=np.array([b.max_speed_mps, b.max_heading_change_rad], dtype=np.float32),
+                dtype=np.float32,
+            )
+        return obs, act
 
     # --- PettingZoo API ------------------------------------------------------------------
 
@@ -247,23 +208,9 @@ class ConvoyEnv(ParallelEnv):
             self._seed_seq = np.random.SeedSequence(seed)
         elif self._seed_seq is None:
             self._seed_seq = np.random.SeedSequence()
-        ss_channel, ss_gps, ss_ranging, ss_scenario = self._seed_seq.spawn(4)
-        self._gps_rng = np.random.default_rng(ss_gps)
-        self._ranging_rng = np.random.default_rng(ss_ranging)
-        self.scenario.reset(np.random.default_rng(ss_scenario))
-        self.channel.reset(np.random.default_rng(ss_channel))
-        self.auth.reset()
-        init = self.scenario.initial_state()
-        self.plant.reset(init.x, init.y, init.heading, init.speed)
-        for m in self.members:
-            m.reset()
-        self.t = 0.0
-        self.step_count = 0
-        self._reset_arrays()
+        self.sim.reset(self._seed_seq)
         self.agents = self.possible_agents[:]
-        obs = self._tick()
-        self._measure()
-        return obs, self._infos()
+        return self._observations(), self._infos()
 
     def step(
         self, actions: dict[str, np.ndarray]
@@ -277,54 +224,29 @@ class ConvoyEnv(ParallelEnv):
         """Advance one tick with every live agent's action (SI units, clipped to the space)."""
         if not self.agents:
             raise RuntimeError("step() called on a finished episode; call reset()")
-        plant = self.plant
-        t = self.t
-        cmd_v, cmd_dh = self._cmd_speed, self._cmd_dh
-        ranging = self._ranging_readings()
-        modes = self._modes
         names = self.possible_agents
-        for i in range(1, self.n_vehicles):
-            try:
-                a = actions[names[i - 1]]
-            except KeyError:
-                raise KeyError(f"no action for {names[i - 1]}") from None
-            reading = ranging.get(i) if ranging else None
-            d = member_tick.decide(self.members[i], self._frames[i], a, self._bounds[i], reading)
-            cmd_v[i], cmd_dh[i], modes[i] = d.speed_mps, d.heading_change_rad, d.mode
-            if d.policy_error:
-                self._policy_error(i, t, d.policy_error)
-            if self._failed[i] or (self.emergency_stop and self._emergency(i, t, reading)):
-                cmd_v[i] = cmd_dh[i] = 0.0
-                modes[i] = "failsafe"
-        X, Y, V, H, A, _ = self._truth
-        v0, h0 = self.scenario.leader_command(t, X[0], Y[0], H[0], V[0])
-        cmd_v[0] = v0
-        cmd_dh[0] = (h0 - H[0] + math.pi) % (2 * math.pi) - math.pi
-        if self.faults:
-            self._apply_faults(t)
-        self._keep_row_inputs()
-        plant.step(cmd_v, [h + d for h, d in zip(H, cmd_dh)])
-        self.step_count += 1
-        self.t = self.step_count * self.dt
-        obs = self._tick()
-        self._measure()
+        try:
+            ordered = [actions[a] for a in names]
+        except KeyError as exc:
+            raise KeyError(f"no action for {exc.args[0]}") from None
+        sim = self.sim
+        accel_before = sim.truth.accel
+        sim.decide(ordered)
+        sim.advance()
         inv_dt = 1.0 / self.dt
-        A_new, YR_new = self._truth[4], self._truth[5]
-        jerk = [(a1 - a0) * inv_dt for a0, a1 in zip(A[1:], A_new[1:])]
-        self._jerk = jerk
-
+        tr = sim.truth
+        jerk = [(a1 - a0) * inv_dt for a0, a1 in zip(accel_before[1:], tr.accel[1:])]
         rewards_list = reward(
-            self.reward_config,
-            [g - d for g, d in zip(self._gap, self._desired)],
-            A_new[1:], jerk, YR_new[1:], self._collided,
+            self.reward_config, [g - d for g, d in zip(sim.gaps, sim.desired)],
+            tr.accel[1:], jerk, tr.yaw_rate[1:], sim.collided,
         )
-        done = self._terminated()
-        trunc = self.step_count >= self.max_steps and not done
+        done = sim.terminated()
+        trunc = sim.step_count >= self.max_steps and not done
         agents = self.agents
         rewards = dict(zip(agents, rewards_list))
         terminations = dict.fromkeys(agents, done)
         truncations = dict.fromkeys(agents, trunc)
-        infos = self._infos()
+        obs, infos = self._observations(), self._infos()
         if done or trunc:
             self.agents = []
         return obs, rewards, terminations, truncations, infos
@@ -337,10 +259,10 @@ class ConvoyEnv(ParallelEnv):
         if self._road is None and self.scenario.path is not None:
             path = self.scenario.path
             self._road = path.points if len(path.points) == 2 and not path.closed else path.sample(0.5)
-        modes = ["leader", *self._modes[1:]]
+        modes = ["leader", *self.sim.modes[1:]]
         return draw_convoy(
-            self.plant.x, self.plant.y, self.plant.heading, np.array(self._lengths),
-            np.array(self._widths), modes, self._road,
+            self.plant.x, self.plant.y, self.plant.heading, np.array(self.sim.lengths),
+            np.array(self.sim.widths), modes, self._road,
         )
 
     def close(self) -> None:
@@ -356,12 +278,12 @@ class ConvoyEnv(ParallelEnv):
     @property
     def vehicle_lengths(self) -> dict[int, float]:
         """Vehicle id -> length (m): the collision thresholds ``core.metrics`` wants."""
-        return dict(enumerate(self._lengths))
+        return dict(enumerate(self.sim.lengths))
 
     @property
     def delivery_ratio(self) -> float:
         """Messages delivered / (delivered + lost) over all links so far (NaN before any)."""
-        return self.channel.delivery_ratio()
+        return self.sim.channel.delivery_ratio()
 
     def log_rows(self) -> list[dict[str, Any]]:
         """DESIGN.md log rows for every vehicle (leader first) of the tick ``step()`` just
@@ -373,245 +295,92 @@ class ConvoyEnv(ParallelEnv):
         the vehicle (the member's Rx gate may discard some of the received ones; infos
         carry ``msgs_kept``).
         """
-        return [] if self._row_inputs is None else self._rows(self._row_inputs)
+        record = self.sim.record
+        return [] if record is None else self._rows(record)
 
     def final_log_rows(self) -> list[dict[str, Any]]:
         """Rows of the state the episode ended in (a collision shows here), with empty
         commands: a run logs them once after its last ``step``."""
-        nan = [math.nan] * self.n_vehicles
-        return self._rows(self._row_inputs_now(nan, nan))
+        return self._rows(self.sim.final_record())
 
-    def _rows(self, inputs: tuple[Any, ...]) -> list[dict[str, Any]]:
-        t, truth, cmd_v, cmd_dh, modes, gaps, member_values, rx, lost = inputs
-        xs, ys, vs, hs, acs = truth[:5]
-        lat, lon, _ = enu_to_geodetic(self.scenario.origin, np.array(xs), np.array(ys))
-        rows = []
-        # Keys in openconvoy.logs.COLUMNS order (the tests hold them to it).
-        for i, (desired, spacing_error, age, sent) in enumerate(member_values):
-            rows.append({
-                "t_s": t,
-                "vehicle_id": i,
-                "x_m": xs[i],
-                "y_m": ys[i],
-                "lat_deg": float(lat[i]),
-                "lon_deg": float(lon[i]),
-                "speed_mps": vs[i],
-                "heading_rad": hs[i],
-                "accel_mps2": acs[i],
-                "cmd_speed_mps": cmd_v[i],
-                "cmd_heading_change_rad": cmd_dh[i],
-                "mode": modes[i],
-                "gap_m": gaps[i],
-                "desired_gap_m": desired if i else math.nan,
-                "spacing_error_m": spacing_error if i else math.nan,
-                "msgs_sent": sent,
-                "msgs_received": rx[i],
-                "msgs_lost": lost[i],
-                "pred_msg_age_s": age if i else math.nan,
-            })
-        return rows
+    def _rows(self, record: TickRecord) -> list[dict[str, Any]]:
+        return snapshot_rows(self.sim.snapshot(record))
 
-    def _keep_row_inputs(self) -> None:
-        """Snapshot what ``log_rows`` reports for this tick, before the plant moves on."""
-        self._row_inputs = self._row_inputs_now(list(self._cmd_speed), list(self._cmd_dh))
+    # --- the world's parts, for callers and tests ----------------------------------------
 
-    def _row_inputs_now(self, cmd_v: list[float], cmd_dh: list[float]) -> tuple[Any, ...]:
-        return (
-            round(self.t, 9),
-            self._truth,
-            cmd_v,
-            cmd_dh,
-            list(self._modes),
-            [math.nan, *self._gap],
-            [(f.desired_gap_m, f.spacing_error_m, f.pred_msg_age_s, m.msgs_sent)
-             for f, m in zip(self._frames, self.members)],
-            [int(v) for v in self._rx],
-            [int(v) for v in self._lost],
-        )
-
-    # --- internals ---------------------------------------------------------------------
-
-    def _terminated(self) -> bool:
-        """Does the episode end at this tick? (A world with more in it, such as traffic,
-        adds its own collisions.)"""
-        return any(self._collided)
-
-    def _reset_arrays(self) -> None:
-        n = self.n_vehicles
-        self._cmd_speed = [0.0] * n
-        self._cmd_dh = [0.0] * n
-        self._row_inputs: tuple[Any, ...] | None = None
-        self._modes = ["coop"] * n
-        self._jerk = [0.0] * (n - 1)
-        self._gap: list[float] = [0.0] * (n - 1)
-        self._desired: list[float] = [0.0] * (n - 1)
-        self._collided: list[bool] = [False] * (n - 1)
-        self._rx: list[int] = [0] * n
-        self._lost: list[int] = [0] * n
-        self._estopped: list[bool] = [False] * n
-        self._failed: list[bool] = [False] * n  # a refused action stopped it for the episode
-        self._policy_errors: list[int] = [0] * n
-        self._frames: list[Frame] = []
-        self._faults_seen: set[Fault] = set()
-        self._muted = {f.vehicle for f in self.faults if f.mutes}
-        self.safety_events: list[tuple[float, int, str]] = []
-        """(t s, vehicle, reason): faults injected and emergency stops, in order."""
-
-    def _tick(self) -> dict[str, np.ndarray]:
-        """Own states -> Tx -> channel -> Rx -> observations, at ``self.t``."""
-        p = self.plant
-        t = self.t
-        truth = (p.x.tolist(), p.y.tolist(), p.speed.tolist(), p.heading.tolist(),
-                 p.accel.tolist(), p.yaw_rate.tolist())
-        self._truth = truth
-        xs, ys, vs, hs, acs, yrs = truth
-        if self.gps_noise_m > 0.0:
-            noise = self._gps_rng.normal(0.0, self.gps_noise_m, size=(2, self.n_vehicles))
-            xs = (p.x + noise[0]).tolist()
-            ys = (p.y + noise[1]).tolist()
-        members = self.members
-        channel = self.channel
-        lengths, widths = self._lengths, self._widths
-        for i, m in enumerate(members):
-            st = VehicleState(i, t, xs[i], ys[i], vs[i], hs[i], acs[i], yrs[i], lengths[i], widths[i])
-            muted = bool(self._muted) and i in self._muted and self._fault_active(i, t, mutes=True)
-            sent = member_tick.begin(m, st, t, may_send=not muted)
-            if sent is not None:
-                channel.send(i, sent, t)
-        inboxes: list[list[VehicleState]] = [[] for _ in members]
-        for r, _, msg in channel.deliver(t):
-            inboxes[r].append(msg)
-        if self._forged:
-            self._forge(t, inboxes)
-        self._frames = [member_tick.sense(m, box, t) for m, box in zip(members, inboxes)]
-        return {a: self._frames[i].observation for i, a in enumerate(self.agents, start=1)}
-
-    def _forge(self, t: float, inboxes: list[list[VehicleState]]) -> None:
-        """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
-        offered to every other member (verified when ``auth``)."""
-        x, y, v, h = self._truth[:4]
-        claimed = []
-        for f in self._forged:
-            if f.active(t):
-                i = f.vehicle
-                claimed.append(VehicleState(i, t, x[i], y[i], v[i], h[i], 0.0, 0.0,
-                                            self._lengths[i], self._widths[i]))
-        self.auth.deliver_forgeries(claimed, inboxes)
+    t = property(lambda self: self.sim.t, doc="Simulated time (s).")
+    step_count = property(lambda self: self.sim.step_count, doc="Steps since reset.")
+    plant = property(lambda self: self.sim.plant, doc="The vehicles' plant (``BicyclePlant``).")
+    channel = property(lambda self: self.sim.channel, doc="The V2V channel (``Channel``).")
+    members = property(lambda self: self.sim.members, doc="The ``ConvoyMember`` of each vehicle.")
+    faults = property(lambda self: self.sim.faults, doc="The injected ``Fault``s.")
+    auth = property(lambda self: self.sim.auth, doc="Receivers' verification (``Authentication``).")
+    safety_events = property(
+        lambda self: self.sim.safety_events,
+        doc="(t s, vehicle, reason): faults injected, refused actions and emergency stops.",
+    )
 
     @property
     def forged_rejected(self) -> list[int]:
         """Forged messages each member rejected so far (``forge`` faults, ``auth`` on)."""
-        return list(self.auth.rejected)
+        return list(self.sim.auth.rejected)
 
-    def _measure(self) -> None:
-        """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""
-        x, y = self._truth[0], self._truth[1]
-        hypot = math.hypot
-        self._gap = [hypot(x[i - 1] - x[i], y[i - 1] - y[i]) for i in range(1, len(x))]
-        self._desired = [f.desired_gap_m for f in self._frames[1:]]
-        self._collided = [g < h for g, h in zip(self._gap, self._half_sum)]
-        self._rx = self.channel.delivered_to
-        self._lost = self.channel.lost_to
+    # --- internals ---------------------------------------------------------------------
 
-    def _fault_active(self, i: int, t: float, mutes: bool = False, brakes: bool = False) -> bool:
-        return any(
-            f.vehicle == i and f.active(t) and ((mutes and f.mutes) or (brakes and f.brakes))
-            for f in self.faults
-        )
-
-    def _apply_faults(self, t: float) -> None:
-        """Faulty vehicles brake to rest at their limit (speed setpoint 0, heading held)."""
-        for f in self.faults:
-            if not f.active(t):
-                continue
-            if f not in self._faults_seen:
-                self._faults_seen.add(f)
-                self.safety_events.append((t, f.vehicle, f"fault {f}"))
-            if f.brakes:
-                self._cmd_speed[f.vehicle] = 0.0
-                self._cmd_dh[f.vehicle] = 0.0
-                self._modes[f.vehicle] = "stop"
-
-    def _policy_error(self, i: int, t: float, why: str) -> None:
-        """A refused action: counted; the follower stops for the rest of the episode (the
-        vehicle's policy-error failsafe)."""
-        self._policy_errors[i] += 1
-        if not self._failed[i]:
-            self._failed[i] = True
-            self.safety_events.append((t, i, f"policy error: {why}"))
-
-    def _emergency(self, i: int, t: float, reading: tuple[float, float] | None) -> bool:
-        """The braking-aware gap rule for follower ``i`` (latched once it fires)."""
-        if self._estopped[i]:
-            return True
-        rule = self._braking[i]
-        assert rule is not None
-        if reading is not None:
-            gap, closing = reading[0], -reading[1]
-        else:
-            est = self.members[i].gap_estimate(t)
-            if est is None:
-                return False
-            gap, closing = est
-        bumper = bumper_gap(gap, self._lengths[i], self._lengths[i - 1])
-        if not rule.too_close(bumper, closing):
-            return False
-        self._estopped[i] = True
-        self.safety_events.append((t, i, "emergency stop: " + rule.reason(bumper, closing)))
-        return True
-
-    def _ranging_readings(self) -> dict[int, tuple[float, float]]:
-        """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor."""
-        out: dict[int, tuple[float, float]] = {}
-        if not self._ranging:
-            return out
-        p = self.plant
-        for i, sensor in self._ranging:
-            dx, dy = p.x[i - 1] - p.x[i], p.y[i - 1] - p.y[i]
-            rng_m = math.hypot(dx, dy)
-            if rng_m > sensor.max_range_m or rng_m <= 0.0:
-                continue
-            dvx = p.speed[i - 1] * math.cos(p.heading[i - 1]) - p.speed[i] * math.cos(p.heading[i])
-            dvy = p.speed[i - 1] * math.sin(p.heading[i - 1]) - p.speed[i] * math.sin(p.heading[i])
-            rate = (dx * dvx + dy * dvy) / rng_m
-            n1, n2 = self._ranging_rng.normal(size=2)
-            out[i] = (rng_m + sensor.range_noise_m * n1, rate + sensor.range_rate_noise_mps * n2)
-        return out
+    def _observations(self) -> dict[str, np.ndarray]:
+        frames = self.sim.frames
+        return {a: frames[i].observation for i, a in enumerate(self.agents, start=1)}
 
     def _infos(self) -> dict[str, dict[str, Any]]:
-        speed, accel = self._truth[2], self._truth[4]
-        leader_speed = speed[0]
-        gap, desired = self._gap, self._desired
-        if self._row_inputs is None:  # right after reset: nothing applied yet
+        sim = self.sim
+        speed, accel = sim.truth.speed, sim.truth.accel
+        gap, desired = sim.gaps, sim.desired
+        record = sim.record
+        if record is None:  # right after reset: nothing applied yet
             cmd_v = cmd_dh = [math.nan] * self.n_vehicles
         else:
-            cmd_v, cmd_dh = self._row_inputs[2], self._row_inputs[3]
-        rx, lost = self._rx, self._lost
-        collided = self._collided
+            cmd_v, cmd_dh = record.cmd_speed, record.cmd_heading_change
+        errors = sim.policy_errors
         out = {}
         for i, a in enumerate(self.agents, start=1):
-            m, f = self.members[i], self._frames[i]
+            m, f = sim.members[i], sim.frames[i]
             out[a] = {
-                "t_s": self.t,
+                "t_s": sim.t,
                 "gap_m": gap[i - 1],
                 "desired_gap_m": _opt(desired[i - 1]),
                 "platooning_error_m": _opt(abs(gap[i - 1] - desired[i - 1])),
                 "spacing_error_m": _opt(f.spacing_error_m),
                 "speed_mps": speed[i],
                 "accel_mps2": accel[i],
-                "leader_speed_mps": leader_speed,
+                "leader_speed_mps": speed[0],
                 "cmd_speed_mps": _opt(cmd_v[i]),
                 "cmd_heading_change_rad": _opt(cmd_dh[i]),
-                "mode": self._modes[i],
-                "collision": collided[i - 1],
+                "mode": sim.modes[i],
+                "collision": sim.collided[i - 1],
                 "msgs_sent": m.msgs_sent,
-                "msgs_received": rx[i],
+                "msgs_received": sim.rx[i],
                 "msgs_kept": m.msgs_received,
-                "msgs_lost": lost[i],
+                "msgs_lost": sim.lost[i],
                 "pred_msg_age_s": _opt(f.pred_msg_age_s),
-                "policy_errors": self._policy_errors[i],
+                "policy_errors": errors[i],
             }
         return out
+
+
+def _resolve_scenario(
+    scenario: str | Scenario, n_followers: int | None, vehicle_presets: Sequence[VehiclePreset | str] | None
+) -> Scenario:
+    """The scenario object of a spec (with its convoy size and vehicles) or as given."""
+    presets = None
+    if vehicle_presets is not None:
+        presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
+    if isinstance(scenario, str):
+        scenario = make_scenario(scenario, n_followers, presets)
+    elif presets is not None or n_followers is not None:
+        raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+    if scenario.n_vehicles < 2:
+        raise ConfigError("a convoy needs a leader and at least one follower")
+    return scenario
 
 
 def convoy_aec_env(**kwargs: Any):

@@ -28,6 +28,7 @@ from openconvoy.envs.render import MODE_COLOURS
 from openconvoy.envs.traffic import InPath, TrafficWorld
 from openconvoy.envs.traffic_scenarios import HighwayScenario, make_highway_scenario
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
+from openconvoy.envs.world import ConvoyWorld
 
 TRAFFIC_LOG_COLUMNS: tuple[str, ...] = (
     "ahead_gap_m",
@@ -43,6 +44,54 @@ traffic (no V2V), else 0; 1 once the vehicle has touched traffic (highway-env's 
 test), else 0."""
 
 
+class TrafficConvoyWorld(ConvoyWorld):
+    """``ConvoyWorld`` on highway-env's road: the traffic moves before every sense, the
+    ranging sensor sees traffic too, and touching traffic ends the episode."""
+
+    def __init__(self, scenario: HighwayScenario, *args: Any, **kwargs: Any) -> None:
+        self.highway = scenario
+        self.in_path: list[InPath | None] = []
+        self.hits: list[bool] = []
+        super().__init__(scenario, *args, **kwargs)
+
+    @property
+    def traffic(self) -> TrafficWorld:
+        assert self.highway.world is not None, "reset() first"
+        return self.highway.world
+
+    def before_sense(self) -> None:
+        world, p = self.traffic, self.plant
+        world.place(p.x.tolist(), p.y.tolist(), p.heading.tolist(), p.speed.tolist())
+        if self.step_count > 0:
+            world.step(self.dt)
+        world.act(self.t)
+
+    def measure(self) -> None:
+        super().measure()
+        self.in_path = self.traffic.in_path()
+        self.hits = self.traffic.traffic_hits()
+        self.collided = [c or h for c, h in zip(self.collided, self.hits[1:])]
+
+    def terminated(self) -> bool:
+        return any(self.collided) or self.hits[0]
+
+    def ranging_readings(self) -> dict[int, tuple[float, float]]:
+        """The forward sensor sees the nearest vehicle in the path (convoy or traffic)."""
+        out: dict[int, tuple[float, float]] = {}
+        for i, sensor in self.ranging_sensors:
+            target = self.in_path[i]
+            if target is None or target.range_m > sensor.max_range_m:
+                continue
+            n1, n2 = self._ranging_rng.normal(size=2)
+            out[i] = (target.range_m + sensor.range_noise_m * n1,
+                      target.range_rate_mps + sensor.range_rate_noise_mps * n2)
+        return out
+
+    def extra_columns(self) -> dict[str, list[Any]]:
+        values = [_ahead_values(a) + (1.0 if h else 0.0,) for a, h in zip(self.in_path, self.hits)]
+        return {c: [v[k] for v in values] for k, c in enumerate(TRAFFIC_LOG_COLUMNS)}
+
+
 class TrafficConvoyEnv(ConvoyEnv):
     """The convoy on a highway with traffic (PettingZoo ``ParallelEnv``, followers are the
     agents). ``scenario``: a highway spec (``openconvoy.envs.traffic_scenarios``) or a
@@ -50,6 +99,7 @@ class TrafficConvoyEnv(ConvoyEnv):
 
     metadata = {**ConvoyEnv.metadata, "name": "openconvoy_traffic_v0", "render_fps": 20}
     LOG_EXTRA_COLUMNS = TRAFFIC_LOG_COLUMNS
+    WORLD = TrafficConvoyWorld
 
     def __init__(
         self,
@@ -67,64 +117,24 @@ class TrafficConvoyEnv(ConvoyEnv):
             raise ConfigError("TrafficConvoyEnv runs highway scenarios (a spec or a HighwayScenario)")
         elif n_followers is not None or vehicle_presets is not None:
             raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
-        self._in_path: list[InPath | None] = []
-        self._hits: list[bool] = []
         super().__init__(scenario, **kwargs)
 
     @property
     def world(self) -> TrafficWorld:
         """The traffic world of the current episode (rebuilt by ``reset``)."""
-        assert self.scenario.world is not None, "reset() first"
-        return self.scenario.world
-
-    # --- hooks into ConvoyEnv's tick --------------------------------------------------------
-
-    def _tick(self) -> dict[str, np.ndarray]:
-        world, p = self.world, self.plant
-        world.place(p.x.tolist(), p.y.tolist(), p.heading.tolist(), p.speed.tolist())
-        if self.step_count > 0:
-            world.step(self.dt)
-        world.act(self.t)
-        return super()._tick()
-
-    def _measure(self) -> None:
-        super()._measure()
-        self._in_path = self.world.in_path()
-        self._hits = self.world.traffic_hits()
-        self._collided = [c or h for c, h in zip(self._collided, self._hits[1:])]
-
-    def _terminated(self) -> bool:
-        return any(self._collided) or self._hits[0]
-
-    def _ranging_readings(self) -> dict[int, tuple[float, float]]:
-        """The forward sensor sees the nearest vehicle in the path (convoy or traffic)."""
-        out: dict[int, tuple[float, float]] = {}
-        for i, sensor in self._ranging:
-            target = self._in_path[i]
-            if target is None or target.range_m > sensor.max_range_m:
-                continue
-            n1, n2 = self._ranging_rng.normal(size=2)
-            out[i] = (target.range_m + sensor.range_noise_m * n1,
-                      target.range_rate_mps + sensor.range_rate_noise_mps * n2)
-        return out
-
-    def _row_inputs_now(self, cmd_v: list[float], cmd_dh: list[float]) -> tuple[Any, ...]:
-        extra = [_ahead_values(a) + (1.0 if h else 0.0,) for a, h in zip(self._in_path, self._hits)]
-        return (*super()._row_inputs_now(cmd_v, cmd_dh), extra)
-
-    def _rows(self, inputs: tuple[Any, ...]) -> list[dict[str, Any]]:
-        rows = super()._rows(inputs[:-1])
-        for row, values in zip(rows, inputs[-1]):
-            row.update(zip(TRAFFIC_LOG_COLUMNS, values))
-        return rows
+        sim = self.sim
+        assert isinstance(sim, TrafficConvoyWorld)
+        return sim.traffic
 
     def _infos(self) -> dict[str, dict[str, Any]]:
         infos = super()._infos()
+        sim = self.sim
+        assert isinstance(sim, TrafficConvoyWorld)
         for i, a in enumerate(self.agents, start=1):
-            target = self._in_path[i]
+            target = sim.in_path[i]
             infos[a]["ahead_gap_m"] = None if target is None else target.range_m
             infos[a]["ahead_traffic"] = None if target is None else target.is_traffic
-            infos[a]["traffic_collision"] = self._hits[i]
+            infos[a]["traffic_collision"] = sim.hits[i]
         return infos
 
     # --- rendering --------------------------------------------------------------------------
@@ -135,7 +145,7 @@ class TrafficConvoyEnv(ConvoyEnv):
             return super().render()
         from openconvoy.envs.traffic_render import draw_highway
 
-        modes = ["leader", *self._modes[1:]]
+        modes = ["leader", *self.sim.modes[1:]]
         for v, mode in zip(self.world.convoy, modes):
             v.color = MODE_COLOURS.get(mode, (0, 0, 0))
         return draw_highway(self.world)

@@ -44,6 +44,8 @@ class FakeLink:
     autopilot = "ardupilot"
     telemetry_timeout_s = 0.5
     heartbeat_timeout_s = 3.0
+    takeover_reason = ""
+    failsafe_took_over = False
 
     def __init__(self, clock: FakeClock, origin: Origin, vehicle_id: int, x: float, y: float,
                  heading: float = 0.0, move: bool = True) -> None:
@@ -54,6 +56,7 @@ class FakeLink:
         self.armed = False
         self.holds = 0
         self.pilot_took_over = False
+        self.telemetry_rates: dict[str, float] = {}
         self.lost = False
         self._t = clock()
 
@@ -84,6 +87,9 @@ class FakeLink:
 
     def hold(self, timeout_s: float = 2.0) -> None:
         self.holds += 1
+
+    def disarm(self, timeout_s: float = 2.0) -> None:
+        self.armed = False
 
     def reconnect(self, timeout_s: float) -> None:
         pass

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -249,3 +250,36 @@ def test_a_signal_after_the_arm_was_accepted_disarms(tmp_path):
         assert modes[-1] == 4  # HOLD requested on the way out
     finally:
         ap.stop()
+
+
+def test_distance_sensor_bytes_reach_the_ladder_through_link_and_runner(tmp_path):
+    """DISTANCE_SENSOR (forward, 9.00 m) from the autopilot over MAVLink, through
+    MavlinkLink and the runner, into the member's ``supervise``, centre to centre."""
+    def rangefinder(mav, t):
+        mav.distance_sensor_send(int(t * 1000), 10, 2000, 900, 0, 0, 0, 0)
+
+    ap = EdgeAutopilot(autopilot="ardupilot", extra=[rangefinder]).start()
+    convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
+    bus = LocalBus()
+    link = MavlinkLink(ap.url, Origin(*convoy.origin), vehicle_id=1, on_status=lambda line: None)
+    runner = DeployRunner(RunnerOptions(vehicle_id=1, status_period_s=0, duration_s=1.0),
+                          convoy, FixedPolicy(0.0, 0.0), link, LocalV2V(bus), on_status=lambda line: None)
+    seen = []
+    real = runner.member.supervise
+
+    def spy(action, frame, ranging=None):
+        seen.append(ranging)
+        return real(action, frame, ranging)
+
+    runner.member.supervise = spy
+    leader = LocalV2V(bus)
+    leader.send(VehicleState(0, time.time(), 0.0, 0.0, 0.0, 0.0), time.time())
+    try:
+        res = runner.run()
+    finally:
+        ap.stop()
+    assert res.reason == "duration reached"
+    lengths = runner.member.lengths
+    got = [r for r in seen if r is not None]
+    assert len(got) >= 0.8 * len(seen) > 10
+    assert all(r[0] == pytest.approx(9.0 + 0.5 * (lengths[0] + lengths[1])) and abs(r[1]) < 1e-6 for r in got)

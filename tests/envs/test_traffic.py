@@ -85,7 +85,10 @@ def test_ranging_sees_traffic_in_the_path_only() -> None:
 
 @pytest.mark.parametrize("spec", HIGHWAY_SCENARIOS)
 def test_parallel_api(spec: str) -> None:
-    parallel_api_test(TrafficConvoyEnv(f"{spec}:traffic=3,duration_s=3"), num_cycles=60)
+    from tests.pinned_warnings import PETTINGZOO_ALLOWED, pinned
+
+    with pinned(PETTINGZOO_ALLOWED):
+        parallel_api_test(TrafficConvoyEnv(f"{spec}:traffic=3,duration_s=3"), num_cycles=60)
 
 
 def test_aec_api_and_single_agent_id() -> None:
@@ -231,7 +234,7 @@ def test_slow_traffic_leader_follows_it_by_idm() -> None:
     lead = env.world.convoy[0]
     # The leader slowed from 25 m/s to the traffic's 15 m/s, an IDM distance behind it.
     assert abs(env.plant.speed[0] - 15.0) < 1.0
-    ahead = env._in_path[0]
+    ahead = env.sim.in_path[0]
     assert ahead.is_traffic and 25.0 < ahead.range_m < 45.0
     assert lead.lane_index[2] == 1
     # The followers kept their cooperative gaps behind a slowing leader.

@@ -28,12 +28,12 @@ from openconvoy.policies.spec import load_policy
 
 def _compare(scenario: str = "paper", B: int = 2, per: float = 0.3, latency_s: float = 0.0,
              steps: int | None = None, n_followers: int | None = None, member: dict | None = None,
-             **kwargs) -> Counter:
+             model: str = "bernoulli", **kwargs) -> Counter:
     """Run both worlds; assert they agree at every tick; return the modes seen."""
     mc = load_policy("paper").member_config
     if member:
         mc = dataclasses.replace(mc, **member)
-    loss = LossConfig(per=per, latency_s=latency_s)
+    loss = LossConfig(per=per, latency_s=latency_s, model=model, mean_burst_s=0.4)
     vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=loss,
                           autoreset=False, **kwargs)
     envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=loss, **kwargs) for _ in range(B)]
@@ -103,6 +103,10 @@ def test_latency_and_per_convoy_seeds() -> None:
     _compare("paper", B=3, per=0.2, latency_s=0.12, steps=120)
 
 
+def test_gilbert_elliott_bursts() -> None:
+    _compare("paper", B=2, per=0.4, model="gilbert-elliott", n_followers=3, steps=200)
+
+
 @pytest.mark.parametrize("kind", ["constant-time-headway", "quadratic"])
 def test_spacing_policies(kind: str) -> None:
     _compare("paper", B=1, per=0.2, n_followers=3, member={"spacing": SpacingConfig(kind=kind)}, steps=150)
@@ -136,8 +140,8 @@ def test_autoreset_starts_the_next_episode_in_the_same_step() -> None:
 def test_unsupported_options_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="gps_noise_m"):
         VectorConvoyEnv(2, gps_noise_m=0.5)
-    with pytest.raises(ConfigError, match="Bernoulli"):
-        VectorConvoyEnv(2, loss=LossConfig(per=0.2, model="gilbert-elliott"))
+    with pytest.raises(ConfigError, match="jitter"):
+        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05))
     with pytest.raises(ConfigError, match="num_envs"):
         VectorConvoyEnv(0)
 
@@ -168,3 +172,21 @@ def test_batched_policy_matches_one_policy_per_vehicle(make, per: float) -> None
         want = np.array([[singles[b][j].act(obs[b, j]) for j in range(3)] for b in range(B)])
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
         obs, *_ = vec.step(got)
+
+
+def test_kept_link_counters_give_the_same_run() -> None:
+    mc = dataclasses.replace(load_policy("paper").member_config, topology="lookahead:1")
+    envs = [VectorConvoyEnv(2, "paper", n_followers=5, member_config=mc, loss=LossConfig(per=0.4),
+                            link_counters=c) for c in ("all", "kept")]
+    obs = [e.reset(seed=1)[0] for e in envs]
+    policy = load_policy("paper")
+    for _ in range(150):
+        np.testing.assert_array_equal(obs[0], obs[1])
+        actions = policy.act_batch(obs[0])
+        out = [e.step(actions) for e in envs]
+        obs = [o[0] for o in out]
+        np.testing.assert_array_equal(envs[0].plant.x, envs[1].plant.x)
+        np.testing.assert_array_equal(out[0][4]["msgs_kept"], out[1][4]["msgs_kept"])
+    # Counters now count the kept links: one sender each (lookahead:1), so fewer.
+    all_rx, kept_rx = out[0][4]["msgs_received"], out[1][4]["msgs_received"]
+    assert (kept_rx < all_rx).all() and (kept_rx == out[1][4]["msgs_kept"]).all()

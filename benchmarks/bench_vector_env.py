@@ -3,7 +3,8 @@
 Cases: the ``paper`` scenario (leader + 2 followers) at B = 1, 64, 1024 (and 16384 with
 ``--big``), and 10- and 100-vehicle convoys at B = 1 and 64, each with fixed actions under
 Bernoulli loss (PER 0.2) with the ``paper`` member config (all-predecessors: O(N²) links);
-100 and 1000 vehicles with ``lookahead:1`` (``cacc-lookahead1``'s member config); plus
+100 and 1000 vehicles with ``lookahead:1`` (``cacc-lookahead1``'s member config), with
+loss drawn on every pair and on the kept links only (``link_counters``); plus
 the paper policy acting batched (``act_batch``) at B = 1024. ``ConvoyEnv`` runs the same configurations (B = 1:
 it is one convoy; its env-steps/s do not grow with B). ``env_steps_per_s`` counts convoy
 ticks, ``vehicle_steps_per_s`` vehicle ticks.
@@ -35,10 +36,11 @@ def _timed(step, seconds: float) -> tuple[int, float]:
             return n, dt
 
 
-def bench_vector(B: int, vehicles: int, seconds: float, policy: bool = False, preset: str = "paper") -> dict:
+def bench_vector(B: int, vehicles: int, seconds: float, policy: bool = False, preset: str = "paper",
+                 link_counters: str = "all") -> dict:
     pol = load_policy(preset)
     env = VectorConvoyEnv(B, "paper", n_followers=vehicles - 1, member_config=pol.member_config,
-                          loss=LossConfig(per=0.2))
+                          loss=LossConfig(per=0.2), link_counters=link_counters)
     obs, _ = env.reset(seed=0)
     fixed = np.tile(np.array([1.0, 0.0], np.float32), (B, vehicles - 1, 1))
     state = {"obs": obs}
@@ -49,7 +51,7 @@ def bench_vector(B: int, vehicles: int, seconds: float, policy: bool = False, pr
 
     n, dt = _timed(step, seconds)
     return {"world": "VectorConvoyEnv", "B": B, "vehicles": vehicles, "policy": preset if policy else "fixed",
-            "topology": pol.member_config.topology,
+            "topology": pol.member_config.topology, "link_counters": link_counters,
             "steps_per_s": round(n / dt, 1), "env_steps_per_s": round(n * B / dt),
             "vehicle_steps_per_s": round(n * B * vehicles / dt)}
 
@@ -85,7 +87,9 @@ def main() -> None:
             print(json.dumps(bench_vector(B, vehicles, args.seconds)), flush=True)
     # A bounded topology (lookahead:1): cost linear in N.
     for vehicles in (100, 1000):
-        print(json.dumps(bench_vector(1, vehicles, args.seconds, preset="cacc-lookahead1")), flush=True)
+        for counters in ("all", "kept"):
+            print(json.dumps(bench_vector(1, vehicles, args.seconds, preset="cacc-lookahead1",
+                                          link_counters=counters)), flush=True)
     print(json.dumps(bench_single(100, args.seconds, preset="cacc-lookahead1")), flush=True)
     print(json.dumps(bench_vector(1024, 3, args.seconds, policy=True)), flush=True)
 

@@ -191,6 +191,10 @@ class VectorConvoyEnv:
     (its seed sequence continued, as ``ConvoyEnv.reset()`` without a seed) and the
     observation returned is the new episode's first; the final one is in
     ``infos["final_observation"]``.
+    ``link_counters``: ``"all"`` (default) draws loss on every ordered pair, as
+    ``ConvoyEnv``, so the message counters match it; ``"kept"`` only on the links the
+    topology keeps (the same deliveries into R^i, hence the same run; counters then
+    count those links): O(N·K) per step for ``lookahead:K``.
     """
 
     def __init__(
@@ -211,6 +215,7 @@ class VectorConvoyEnv:
         emergency_stop: bool = True,
         auth: bool = True,
         autoreset: bool = True,
+        link_counters: str = "all",
     ) -> None:
         if num_envs < 1:
             raise ConfigError(f"num_envs must be at least 1, got {num_envs}")
@@ -246,6 +251,11 @@ class VectorConvoyEnv:
         check_faults(self.faults, N)
         self.autoreset = autoreset
         self.render_mode = None
+        if link_counters not in ("all", "kept"):
+            raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
+        self.link_counters = link_counters
+        if link_counters == "kept" and (self.loss.latency_s > 0.0 or (self.loss.per > 0.0 and self.loss.model != "bernoulli")):
+            raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
         self.control_rate_hz = float(control_rate_hz)
         self.dt = 1.0 / self.control_rate_hz
         self.max_time_s = float(scenario.duration_s if max_time_s is None else max_time_s)
@@ -329,6 +339,12 @@ class VectorConvoyEnv:
                     self._target_link[i - 1, k] = index[(i, vid)]
         pairs = np.argwhere(self._slot_link >= 0)
         self._slot_pairs = (pairs[:, 0], pairs[:, 1], self._slot_link[pairs[:, 0], pairs[:, 1]])
+        # Where each (pair, k, feature) lands in a (B, F*D) view of the observations.
+        nf = 7
+        within = np.arange(mc.k * nf).reshape(mc.k, nf)
+        self._slot_cols = (pairs[:, 0, None, None] * lay.size + pairs[:, 1, None, None] * lay.slot_size
+                           + within[None]).ravel()
+        self._leader_rows = np.flatnonzero(self._target_link[:, 0] >= 0)
         self._pred_link = np.array([index.get((i, i - 1), -1) for i in range(1, N)], dtype=np.int64)
 
     def _alloc(self) -> None:
@@ -687,6 +703,9 @@ class VectorConvoyEnv:
         per = self.loss.per
         number = self.broadcasts.copy()
         self.broadcasts += send
+        if self.link_counters == "kept":
+            self._channel_kept(send, t, number)
+            return
         if self._ge is not None:
             lost = self._ge_lost(send, t)
         elif per > 0.0:
@@ -702,7 +721,7 @@ class VectorConvoyEnv:
         if self._instant:
             arrived = send[:, :, None] & ~lost & offdiag
             self.delivered_to += arrived.sum(axis=1)
-            self._push(arrived, self.own, t)
+            self._push(arrived[:, self._link_s, self._link_r], self.own, t)
             return
         S = self._slots
         rows = np.flatnonzero(which)
@@ -722,16 +741,32 @@ class VectorConvoyEnv:
             arrived = due[:, :, None] & ~self.q_lost[sl, rows] & offdiag
             self.delivered_to += arrived.sum(axis=1)
             self.q_arrival[sl, rows] = np.where(due, np.inf, arr)
-            self._push(arrived, self.q_state[sl, :, rows].transpose(1, 0, 2), self.q_t[sl, rows])
+            self._push(arrived[:, self._link_s, self._link_r],
+                       self.q_state[sl, :, rows].transpose(1, 0, 2), self.q_t[sl, rows])
 
-    def _push(self, arrived: np.ndarray, state: np.ndarray, t_sent: np.ndarray) -> None:
-        """``StateBuffer.push`` + ``Trail.add`` on every kept link that got a message."""
+    def _channel_kept(self, send: np.ndarray, t: np.ndarray, number: np.ndarray) -> None:
+        """The channel on the kept links only (``link_counters="kept"``, instant links):
+        the same draws on those links, so R^i, modes and states are as with every link;
+        the message counters then count kept links only."""
+        ls, lr = self._link_s, self._link_r
+        offered = send[:, ls]
+        if self.loss.per > 0.0:
+            u = counter_uniform_array(self.keys[:, None], ls[None], lr[None], number[:, ls], DRAW_LOSS)
+            lost = offered & (u < self.loss.per)
+        else:
+            lost = np.zeros_like(offered)
+        got = offered & ~lost
+        self.lost_to += self._per_receiver(lost)
+        self.delivered_to += self._per_receiver(got)
+        self._push(got, self.own, t)
+
+    def _push(self, got: np.ndarray, state: np.ndarray, t_sent: np.ndarray) -> None:
+        """``StateBuffer.push`` + ``Trail.add`` on every kept link that got a message
+        (``got``: (B, L)); ``t_sent`` per convoy (B,) or per sender (B, N)."""
         if self.L == 0:
             return
-        got = arrived[:, self._link_s, self._link_r]  # (B, L)
-        self.msgs_kept[:, 1:] += self._per_receiver(got)
-        ts = np.broadcast_to(t_sent, arrived.shape[:2])[:, self._link_s] if np.ndim(t_sent) == 2 \
-            else np.broadcast_to(t_sent[:, None], got.shape)
+        self.msgs_kept += self._per_receiver(got)
+        ts = t_sent[:, self._link_s] if np.ndim(t_sent) == 2 else np.broadcast_to(t_sent[:, None], got.shape)
         newer = (self.hist_n == 0) | (ts > self.hist[0, :, :, 0])
         push = got & newer
         if not push.any():
@@ -745,9 +780,10 @@ class VectorConvoyEnv:
         self._trail_add(push, fields[1], fields[2])
 
     def _per_receiver(self, got: np.ndarray) -> np.ndarray:
-        out = np.zeros((got.shape[0], self.n_vehicles), dtype=np.int64)
-        np.add.at(out.T, self._link_r, got.T.astype(np.int64))
-        return out[:, 1:]
+        """Per-receiver totals (B, N) of a per-link (B, L) count."""
+        B, N = self.num_envs, self.n_vehicles
+        flat = (np.arange(B)[:, None] * N + self._link_r[None, :]).ravel()
+        return np.bincount(flat, weights=got.ravel(), minlength=B * N).reshape(B, N).astype(np.int64)
 
     def _trail_add(self, push: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         tr, n = self.trail, self.trail_n
@@ -801,9 +837,7 @@ class VectorConvoyEnv:
             feats[..., 5] = np.minimum(np.maximum(age, 0.0), MAX_AGE_S)
             feats[..., 6] = 1.0
             feats *= valid[..., None]
-            states = np.zeros((B, F, len(lay.slots), k, 7))
-            states[:, pf, ps] = feats
-            obs[:, :, : lay.own_offset] = states.reshape(B, F, -1)
+            obs.reshape(B, -1)[:, self._slot_cols] = feats.reshape(B, -1)
         o = lay.own_offset
         obs[:, :, o], obs[:, :, o + 1], obs[:, :, o + 2] = ev, ea, eyr
         self._fill_targets(obs, t)
@@ -849,12 +883,15 @@ class VectorConvoyEnv:
             base = c.standstill_m + c.headway_s * v
             if c.kind == "quadratic":
                 base = base + c.quadratic_s2_per_m * v * v
-            # Each follower i sums pairs 0..i-1 at its own speed: O(N²) only for the leader target.
+            # Each follower i sums pairs 0..i-1 at its own speed, in ConvoyMember's order:
+            # O(i) per follower that keeps the leader as a target (O(N²) only when all do).
             halves = 0.5 * (self.lengths[1:] + self.lengths[:-1])
-            terms = base[:, :, None] + halves[None, None, :]  # (B, F, pairs)
-            mask = np.arange(F)[None, :] <= fidx[:, None]
-            desired[:, :, 0] = np.cumsum(np.where(mask[None], terms, 0.0), axis=2)[:, fidx, fidx] \
-                if F > 0 else 0.0
+            rows = self._leader_rows
+            if len(rows):
+                terms = base[:, rows, None] + halves[None, None, : rows.max() + 1]
+                mask = np.arange(rows.max() + 1)[None, :] <= rows[:, None]
+                sums = np.cumsum(np.where(mask[None], terms, 0.0), axis=2)
+                desired[:, rows, 0] = sums[:, np.arange(len(rows)), rows]
         tl = self._target_link  # (F, ntg)
         valid, hx, hy, hv, hh, _ = self._estimate(tl, t)  # (B, F, ntg)
         li = np.where(tl >= 0, tl, 0)
@@ -1035,12 +1072,18 @@ class VectorConvoyEnv:
         obs[bb, ff, o] = -cross[bb, ff]
         obs[bb, ff, o + 1] = _wrap(pheading[bb, ff] - eh)
         scale = np.maximum(1.0, np.abs(ev))
-        q = self._query(bb, lk, hxq, hyq, hhq)
-        for j, tl in enumerate(LOOKAHEAD_S):
-            px, py = self._point_at(q, ps[bb, ff] + tl * scale)
-            dx, dy = px - ex, py - ey
-            obs[bb, ff, o + 2 + 2 * j] = c * dx + s * dy
-            obs[bb, ff, o + 3 + 2 * j] = -s * dx + c * dy
+        # The lookahead points of every query in one batch (queries repeated per time).
+        nl = len(LOOKAHEAD_S)
+        rep = lambda a: np.tile(a, nl)  # noqa: E731
+        q = self._query(rep(bb), rep(lk), rep(hxq), rep(hyq), rep(hhq))
+        s_look = np.concatenate([ps[bb, ff] + tl * scale for tl in LOOKAHEAD_S])
+        px, py = self._point_at(q, s_look)
+        P = len(bb)
+        dx = (px - rep(ex)).reshape(nl, P)
+        dy = (py - rep(ey)).reshape(nl, P)
+        for j in range(nl):
+            obs[bb, ff, o + 2 + 2 * j] = c * dx[j] + s * dy[j]
+            obs[bb, ff, o + 3 + 2 * j] = -s * dx[j] + c * dy[j]
         obs[bb, ff, o + 8] = 1.0
 
     # --- measures, reward, infos -----------------------------------------------------------

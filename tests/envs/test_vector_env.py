@@ -172,3 +172,21 @@ def test_batched_policy_matches_one_policy_per_vehicle(make, per: float) -> None
         want = np.array([[singles[b][j].act(obs[b, j]) for j in range(3)] for b in range(B)])
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
         obs, *_ = vec.step(got)
+
+
+def test_kept_link_counters_give_the_same_run() -> None:
+    mc = dataclasses.replace(load_policy("paper").member_config, topology="lookahead:1")
+    envs = [VectorConvoyEnv(2, "paper", n_followers=5, member_config=mc, loss=LossConfig(per=0.4),
+                            link_counters=c) for c in ("all", "kept")]
+    obs = [e.reset(seed=1)[0] for e in envs]
+    policy = load_policy("paper")
+    for _ in range(150):
+        np.testing.assert_array_equal(obs[0], obs[1])
+        actions = policy.act_batch(obs[0])
+        out = [e.step(actions) for e in envs]
+        obs = [o[0] for o in out]
+        np.testing.assert_array_equal(envs[0].plant.x, envs[1].plant.x)
+        np.testing.assert_array_equal(out[0][4]["msgs_kept"], out[1][4]["msgs_kept"])
+    # Counters now count the kept links: one sender each (lookahead:1), so fewer.
+    all_rx, kept_rx = out[0][4]["msgs_received"], out[1][4]["msgs_received"]
+    assert (kept_rx < all_rx).all() and (kept_rx == out[1][4]["msgs_kept"]).all()

@@ -393,7 +393,16 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--id", type=_int(1, 254), required=True, help="MAVLink system id (1..254)")
     p.add_argument("--mavlink", required=True, metavar="URL", help="e.g. udpin:127.0.0.1:14551")
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
-    p.add_argument("--preset", default="1/10", help="vehicle preset name or .toml (default 1/10)")
+    p.add_argument("--preset", default=None,
+                   help="move like this vehicle preset (name or .toml) instead of the recorded "
+                   "firmware's loops and vehicle model (the default)")
+    p.add_argument("--timing", choices=("short", "firmware"), default="short",
+                   help="boot/arming timeline: short (armable after --ready-after) or the "
+                   "recorded firmware's (ArduPilot GUIDED ~42 s, PX4 ~3.7 s)")
+    p.add_argument("--no-rc-switch", action="store_true",
+                   help="ArduPilot: no RC mode switch reading (MANUAL) 0.42 s after boot")
+    p.add_argument("--speedup", type=_num(0.0, 1000.0, lo_open=True), default=1.0, metavar="X",
+                   help="run the vehicle's clock X times faster than real time (default 1)")
     p.add_argument("--home", default="52.0,4.37,0", metavar="LAT,LON,ALT")
     p.add_argument("--start", default="0,0,0", metavar="X,Y,HEADING_DEG",
                    help="ENU metres around home; heading degrees, 0 = east, counter-clockwise")
@@ -401,8 +410,9 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
                    help="seconds until arming is possible (default 5)")
     p.add_argument("--setpoint-timeout", type=_num(0.0, 600.0, lo_open=True), default=3.0, metavar="S",
                    help="ArduPilot GUIDED stops after this long without setpoints (default 3)")
-    p.add_argument("--max-rate", type=_num(0.0, 1000.0, lo_open=True), default=40.0, metavar="HZ",
-                   help="fastest telemetry rate accepted (default 40)")
+    p.add_argument("--max-rate", type=_num(0.0, 1000.0, lo_open=True), default=None, metavar="HZ",
+                   help="refuse telemetry rates above HZ (default: the firmware's rule, "
+                   "ArduPilot < 50 Hz)")
     p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std")
     p.add_argument("--seed", type=SEED, default=0)
 

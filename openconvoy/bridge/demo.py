@@ -1,7 +1,8 @@
 """``openconvoy demo``: the whole sim2real path on one machine, in one command.
 
-Three simulated MAVLink vehicles (``bridge.simvehicle``, ArduPilot Rover by default) start
-at the ``paper`` scenario's initial positions, and three ``openconvoy deploy`` processes
+Three simulated MAVLink vehicles (``bridge.simvehicle``, ArduPilot Rover by default, with
+the recorded firmware's loops, vehicle model and boot sequence) start at the ``paper``
+scenario's initial positions, and three ``openconvoy deploy`` processes
 (leader + two followers, the ``paper`` policy) drive them over MAVLink (UDP on loopback)
 while exchanging J2735 BSMs over real IPv6 multicast — inside a private network namespace
 (``unshare -rn``, see ``comms.netns``), so nothing leaves the machine. Live status lines
@@ -32,8 +33,12 @@ from typing import Any
 import numpy as np
 
 ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
-READY_AFTER_S = 2.0
-"""The simulated autopilots allow arming this long after boot (real ArduPilot: ~40 s)."""
+READY_AFTER_S = 3.0
+"""The simulated autopilots allow arming this long after boot (real ArduPilot: ~42 s)."""
+INIT_S = 2.34
+"""ArduPilot's "ArduPilot Ready" (INITIAL_MODE MANUAL), then the RC mode switch's MANUAL
+0.42 s later, as the firmware does at boot. The vehicles boot when their deploy connects
+(as SITL waiting for serial0), so the GUIDED it sets first is lost and must be noticed."""
 PHASE_SETTLE_S = 10.0
 """Speed tracking is judged from this long after each leader speed change."""
 
@@ -181,12 +186,14 @@ def run_inside(opts: DemoOptions) -> int:
     signal.signal(signal.SIGTERM, on_term)
     try:
         urls = []
-        for i, p in enumerate(presets):
+        for i in range(len(presets)):
             port = free_udp_port()
+            # The firmware's own loops and vehicle model (preset=None), RC switch at boot.
             cfg = SimVehicleConfig(
-                system_id=i + 1, autopilot=opts.autopilot, preset=p, home=origin,
+                system_id=i + 1, autopilot=opts.autopilot, home=origin,
                 start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                start_heading_rad=float(init.heading[i]), ready_after_s=READY_AFTER_S, seed=i,
+                start_heading_rad=float(init.heading[i]), ready_after_s=READY_AFTER_S,
+                init_s=INIT_S, rc_mode_switch=True, boot_on_connect=True, seed=i,
             )
             vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
             urls.append(f"udpout:127.0.0.1:{port}")

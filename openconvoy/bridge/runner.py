@@ -23,7 +23,6 @@ and stop behind it), then holds and ends.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -46,6 +45,7 @@ from openconvoy.bridge.failsafes import (
     Verdict,
 )
 from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
+from openconvoy.bridge.recorder import RunRecorder
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
@@ -54,7 +54,6 @@ from openconvoy.core.member import ConvoyMember, Frame, member_config_for
 from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState, wrap_angle
-from openconvoy.logs import LogWriter
 
 log = logging.getLogger(__name__)
 
@@ -318,7 +317,7 @@ class DeployRunner:
         self._t_start_wall: float | None = None
         self._t_finish: float | None = None  # monotonic time a leader's scenario ended
         self._heard_raw: set[int] = set()
-        self._writer: LogWriter | None = None
+        self.recorder = RunRecorder(self.log_dir, options.vehicle_id, EXTRA_COLUMNS)
         self._timer: LoopTimer | None = None
         self._late_periods = 0.0
         self._t_hold_sent = -math.inf
@@ -375,8 +374,7 @@ class DeployRunner:
             self._armed_by_us, self._arming = True, False
             # Stand still with the yaw at the current heading from the first moment.
             self.link.stop_motion()
-        if self.log_dir is not None:
-            self._writer = LogWriter(self.log_dir / f"vehicle_{o.vehicle_id}.csv", extra_columns=EXTRA_COLUMNS)
+        self.recorder.open()
         self.policy.reset(o.seed)
         if self.leader is not None and hasattr(self.leader, "reset"):
             self.leader.reset(np.random.default_rng(o.seed))
@@ -693,10 +691,10 @@ class DeployRunner:
 
     def _log_row(self, wall: float, own: VehicleState, tel: Telemetry, speed: float, change: float,
                  mode: str, gap: float, sent: bool) -> None:
-        if self._writer is None:
+        if not self.recorder.recording:
             return
         m = self.member
-        self._writer.write({
+        self.recorder.row({
             "t_s": wall, "vehicle_id": self.options.vehicle_id, "x_m": own.x, "y_m": own.y,
             "lat_deg": tel.lat_deg, "lon_deg": tel.lon_deg, "speed_mps": own.speed,
             "heading_rad": own.heading, "accel_mps2": own.accel,
@@ -749,9 +747,8 @@ class DeployRunner:
                     log.warning("vehicle %d: HOLD/disarm after arming failed: %s", o.vehicle_id, exc)
         elif self.commanding and took_over and self._t_start is None and self._armed_by_us:
             self._disarm_if_at_rest()
-        if self._writer is not None:
-            self._writer.close()
-            self._write_metadata(reason, code)
+        if self.recorder.recording:
+            self.recorder.close(self._metadata(reason, code))
         for closer in (self.v2v.close, self.link.close):
             try:
                 closer()
@@ -795,8 +792,8 @@ class DeployRunner:
                 log.warning("vehicle %d: disarm failed: %s", vid, exc)
         self.on_status(f"vehicle {vid}: WARNING: left ARMED in {mode} (taken over before the convoy drove)")
 
-    def _write_metadata(self, reason: str, code: int = 0) -> None:
-        assert self.log_dir is not None
+    def _metadata(self, reason: str, code: int = 0) -> dict[str, Any]:
+        """The run's metadata (``vehicle_N.json``)."""
         o = self.options
         wall0 = self.wall() - self.clock()  # maps monotonic event times to the shared clock
         meta = {
@@ -834,8 +831,7 @@ class DeployRunner:
             "msgs_lost": self.v2v.counters.lost,
             **self.metadata_extra,
         }
-        path = self.log_dir / f"vehicle_{o.vehicle_id}.json"
-        path.write_text(json.dumps(meta, indent=2, default=str) + "\n", encoding="utf-8")
+        return meta
 
 
 def _safe(fn: Callable[[], Any]) -> Any:

@@ -1,53 +1,90 @@
 """A simulated vehicle that speaks MAVLink like ArduPilot Rover (GUIDED) or PX4 (OFFBOARD).
 
-Real MAVLink bytes through pymavlink, driven in real time by the simulator's plant
-(``envs.plant.BicyclePlant`` with a vehicle preset), with GPS coordinates around a home
-position. It reproduces shared/AUTOPILOTS.md, with the start-up delays configurable and
-shorter by default:
+Real MAVLink bytes through pymavlink around a firmware model fitted to recordings of the
+real firmware: ``sim_ardupilot.ArduPilotRover`` (shared/sitl/, ArduPilot Rover 4.7 SITL)
+and ``sim_px4.Px4Rover`` (shared/sitl-px4/, PX4 SIH rover). Each one models the
+firmware's mode logic, arming checks, setpoint semantics, failsafes and message-rate
+rules; the motion under it is pluggable (``simmotion``): by default the firmware's own
+loops drive the vehicle model its recordings were made with (SITL rover, SIH rover), or,
+with ``preset=``, the simulator's plant with that vehicle preset.
 
-- heartbeat: type 10 (ground rover), autopilot 3 or 12, ``custom_mode`` (ArduPilot mode
-  number; PX4 ``main << 16 | sub << 24``), armed bit 128; 1 Hz;
-- arming refused (COMMAND_ACK result 4 after a STATUSTEXT reason) until the estimator is
-  ready (``ready_after_s``); LOCAL_NED setpoints ignored until the EKF has an origin;
-- ArduPilot: setpoints ignored outside GUIDED, dropped when the acceleration bits are not
-  all "ignore"; velocity + yaw gives heading from yaw and speed |v| (capped by WP_SPEED),
-  velocity only gives heading atan2(vy, vx); no setpoint for ``setpoint_timeout_s`` (3 s)
-  -> stop, staying in GUIDED;
-- PX4: OFFBOARD (and arming in it) refused unless setpoints stream above 2 Hz for more
-  than 1 s; when the stream drops below 2 Hz, OFFBOARD is left after ``offboard_loss_s``
-  (COM_OF_LOSS_T) for the failsafe, AUTO.LOITER (hold);
-- SET_MESSAGE_INTERVAL accepted up to ``max_message_hz``, refused (result 4) above it;
-- test hooks: ``freeze`` (stop sending), ``stop`` (a killed vehicle), ``pilot_set_mode``
-  (a person flips the mode switch); in the process form SIGUSR1 switches to MANUAL and
-  SIGUSR2 toggles the freeze (SIGSTOP/SIGKILL freeze or kill the whole process).
+This module is the shell: the MAVLink connection, the heartbeat and telemetry streams
+(on the firmware's 50 Hz scheduler, so 20 Hz comes as alternating 40/60 ms intervals,
+all messages in one burst), COMMAND_ACKs and STATUSTEXTs (split into 50-character
+chunks), and the clock:
 
-Use in-process (``SimVehicle(...).start()`` runs a background thread) or as a process
-(``openconvoy vehicle --sim``).
+- real time in a background thread (``start``), optionally ``speedup`` times faster;
+- lockstep (``open`` then ``advance(dt)``): the caller moves the vehicle's clock, so a
+  replay runs as fast as the CPU allows (the conformance tests).
+
+``timing="firmware"`` reproduces the recorded boot and arming timeline (ArduPilot: arm
+in MANUAL ~23 s, in GUIDED ~42 s after boot); the default ``"short"`` keeps its order,
+compressed so that GUIDED/OFFBOARD is armable after ``ready_after_s``. ArduPilot's RC
+mode switch at boot (MANUAL 0.42 s after "ArduPilot Ready") is on by default.
+
+Test hooks: ``freeze`` (stop sending), ``stop`` (a killed vehicle), ``pilot_set_mode``
+(a person flips the mode switch); in the process form SIGUSR1 switches to MANUAL and
+SIGUSR2 toggles the freeze.
 """
 
 from __future__ import annotations
 
 import math
+import select
+import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
 from openconvoy.bridge import mavproto as mp
+from openconvoy.bridge.sim_ardupilot import ArduPilotRover, ArduPilotTiming
+from openconvoy.bridge.sim_px4 import Px4Rover, Px4Timing
+from openconvoy.bridge.simmotion import MotionState, PresetMotion
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState, wrap_angle
-from openconvoy.envs.plant import BicyclePlant
-from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset
+from openconvoy.envs.vehicles import VehiclePreset
 
-_STREAM_MIN_HZ = 2.0  # PX4: the offboard stream must stay above this rate
-_STREAM_WARMUP_S = 1.0  # PX4 v1.16+: ... for more than this long before OFFBOARD
-_TELEMETRY_IDS = (
+MSG_HEARTBEAT = 0
+MSG_RC_CHANNELS = 65
+MSG_SERVO_OUTPUT_RAW = 36
+_STREAMS = (
     mp.MSG_GLOBAL_POSITION_INT, mp.MSG_ATTITUDE, mp.MSG_VFR_HUD, mp.MSG_LOCAL_POSITION_NED,
+    MSG_SERVO_OUTPUT_RAW, MSG_RC_CHANNELS,
 )
+_TEXT_CHUNK = 50
+
+class _GeodeticCache:
+    """ENU -> geodetic through a linear map re-anchored (with pymap3d) every ``span_m``:
+    within 25 m of an anchor the map's error is below 0.1 mm, and it costs a few µs
+    instead of pymap3d's ~1.5 ms per GLOBAL_POSITION_INT."""
+
+    def __init__(self, home: Origin, span_m: float = 25.0) -> None:
+        self.home = home
+        self.span_m = span_m
+        self._anchor: tuple[float, float] | None = None
+        self._map = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def _reanchor(self, east: float, north: float) -> None:
+        lat0, lon0, alt0 = enu_to_geodetic(self.home, east, north, 0.0)
+        lat_e, lon_e, _ = enu_to_geodetic(self.home, east + 1.0, north, 0.0)
+        lat_n, lon_n, _ = enu_to_geodetic(self.home, east, north + 1.0, 0.0)
+        self._anchor = (east, north)
+        self._map = (lat0, lon0, alt0, lat_e - lat0, lat_n - lat0, lon_e - lon0, lon_n - lon0)
+
+    def __call__(self, east: float, north: float) -> tuple[float, float, float]:
+        a = self._anchor
+        if a is None or abs(east - a[0]) > self.span_m or abs(north - a[1]) > self.span_m:
+            self._reanchor(east, north)
+            a = self._anchor
+        lat0, lon0, alt0, dlat_e, dlat_n, dlon_e, dlon_n = self._map
+        de, dn = east - a[0], north - a[1]
+        return lat0 + dlat_e * de + dlat_n * dn, lon0 + dlon_e * de + dlon_n * dn, alt0
+
 
 DEFAULT_HOME = Origin(52.0, 4.37, 0.0)
 """Home position used when none is given (an open field; any would do)."""
@@ -60,56 +97,113 @@ class SimVehicleConfig:
     Attributes:
         system_id: MAVLink system id (the ``--id``).
         autopilot: ``"ardupilot"`` (Rover, GUIDED) or ``"px4"`` (OFFBOARD).
-        preset: the vehicle + inner loops (speed lag, accel limits, turn rate, delay).
-        home: geodetic home; the plant's ENU frame is tangent there.
+        preset: None = the firmware's loops on the recorded firmware's vehicle model;
+            a preset = the simulator's plant with it (its lags, limits and delay).
+        home: geodetic home; the ENU frame is tangent there.
         start_x_m, start_y_m, start_heading_rad: initial ENU pose around home.
-        ready_after_s: time after boot until the estimator allows arming (real: ~40 s).
-        ekf_origin_after_s: time after boot until LOCAL_NED setpoints are accepted
-            (real: ~20 s); None = half of ``ready_after_s``.
+        timing: ``"short"`` (the boot order compressed to ``ready_after_s``) or
+            ``"firmware"`` (the recorded timeline; ``ready_after_s`` unused).
+        ready_after_s: short timing: GUIDED/OFFBOARD armable this long after boot.
+        init_s: ArduPilot, short timing: "ArduPilot Ready" (INITIAL_MODE, then the RC
+            switch 0.42 s later) at this time instead of the compressed one.
+        ekf_origin_after_s: short timing: LOCAL_NED setpoints accepted from then
+            (None = the compressed firmware time).
+        rc_mode_switch: ArduPilot: the RC mode switch's first reading sets MANUAL.
         setpoint_timeout_s: ArduPilot GUIDED stops after this long without a setpoint.
-        offboard_loss_s: PX4 COM_OF_LOSS_T: leave OFFBOARD this long after the stream
-            dropped below 2 Hz.
-        max_message_hz: fastest telemetry rate SET_MESSAGE_INTERVAL accepts.
+        offboard_loss_s: PX4 COM_OF_LOSS_T.
+        offboard_loss_action: PX4 COM_OBL_RC_ACT: 0 POSCTL (brake), 5 Hold (loiter).
+        max_message_hz: refuse SET_MESSAGE_INTERVAL above this (None = the firmware's
+            rule: ArduPilot refuses rates >= SCHED_LOOP_RATE 50 Hz, PX4 none).
         default_message_hz: telemetry rate before any request.
         wp_speed_mps: ArduPilot WP_SPEED speed cap.
-        plant_hz: plant step rate.
+        plant_hz: plant step rate with a preset.
+        speedup: real-time form: the vehicle's clock runs this many times faster.
+        boot_on_connect: real-time form: boot when the first MAVLink message arrives (as
+            SITL waiting for its serial0 connection), so a companion that connects at once
+            meets the whole boot sequence.
         gps_noise_m: standard deviation of position noise on GLOBAL_POSITION_INT.
         seed: seeds the noise.
     """
 
     system_id: int = 1
     autopilot: Literal["ardupilot", "px4"] = "ardupilot"
-    preset: VehiclePreset = field(default_factory=lambda: VEHICLE_PRESETS["1/10"])
+    preset: VehiclePreset | None = None
     home: Origin = DEFAULT_HOME
     start_x_m: float = 0.0
     start_y_m: float = 0.0
     start_heading_rad: float = 0.0
+    timing: Literal["short", "firmware"] = "short"
     ready_after_s: float = 5.0
+    init_s: float | None = None
     ekf_origin_after_s: float | None = None
+    rc_mode_switch: bool = True
     setpoint_timeout_s: float = 3.0
     offboard_loss_s: float = 1.0
-    max_message_hz: float = 40.0
+    offboard_loss_action: int = 0
+    max_message_hz: float | None = None
     default_message_hz: float = 1.0
     wp_speed_mps: float = 5.0
     plant_hz: float = 50.0
+    speedup: float = 1.0
+    boot_on_connect: bool = False
     gps_noise_m: float = 0.0
     seed: int = 0
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("ardupilot", "px4"):
             raise ConfigError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+        if self.timing not in ("short", "firmware"):
+            raise ConfigError(f"timing must be 'short' or 'firmware', got {self.timing!r}")
         if not 1 <= self.system_id <= 254:
             raise ConfigError(f"MAVLink system id must be in 1..254, got {self.system_id}")
         if self.ready_after_s < 0 or self.setpoint_timeout_s <= 0 or self.plant_hz <= 0:
             raise ConfigError("ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required")
+        if self.speedup <= 0:
+            raise ConfigError(f"speedup must be positive, got {self.speedup}")
+        if self.offboard_loss_action not in (0, 5):
+            raise ConfigError(f"offboard_loss_action must be 0 (POSCTL) or 5 (Hold), got {self.offboard_loss_action}")
+
+    @property
+    def armable_after_s(self) -> float:
+        """When GUIDED (ArduPilot) or OFFBOARD (PX4) arming is first accepted."""
+        if self.autopilot == "px4":
+            t = Px4Timing.firmware() if self.timing == "firmware" else Px4Timing.short(self.ready_after_s)
+            return t.armable_s
+        return self._ardupilot_timing().ekf_gps_s
+
+    def _ardupilot_timing(self) -> ArduPilotTiming:
+        if self.timing == "firmware":
+            return ArduPilotTiming.firmware()
+        t = ArduPilotTiming.short(self.ready_after_s, self.init_s)
+        if self.ekf_origin_after_s is not None:
+            from dataclasses import replace
+
+            t = replace(t, origin_s=self.ekf_origin_after_s, gps_s=min(t.gps_s, self.ekf_origin_after_s))
+        return t
+
+
+def make_firmware(config: SimVehicleConfig, state: MotionState) -> ArduPilotRover | Px4Rover:
+    """The firmware model (and its motion) a config asks for."""
+    c = config
+    motion = PresetMotion(state, c.preset, 1.0 / c.plant_hz) if c.preset is not None else None
+    if c.autopilot == "ardupilot":
+        return ArduPilotRover(state, c._ardupilot_timing(), rc_mode_switch=c.rc_mode_switch,
+                              wp_speed_mps=c.wp_speed_mps, setpoint_timeout_s=c.setpoint_timeout_s,
+                              motion=motion)
+    timing = Px4Timing.firmware() if c.timing == "firmware" else Px4Timing.short(c.ready_after_s)
+    fw = Px4Rover(state, timing, c.home.lat_deg, c.home.lon_deg,
+                  obl_rc_act=c.offboard_loss_action, motion=motion)
+    fw.params["COM_OF_LOSS_T"] = c.offboard_loss_s
+    return fw
 
 
 class SimVehicle:
     """One simulated autopilot + vehicle on a MAVLink URL (e.g. ``udpin:127.0.0.1:14551``).
 
-    ``start`` opens the link and runs the vehicle in a daemon thread in real time; ``stop``
-    ends it and closes the socket (a killed vehicle). Thread-safe accessors for tests:
-    ``state``, ``mode``, ``armed``, ``setpoints_received``.
+    ``start`` opens the link and runs the vehicle in a daemon thread in real time
+    (times ``config.speedup``); ``stop`` ends it and closes the socket (a killed vehicle).
+    Lockstep instead: ``open()``, then ``advance(dt)`` as often as wanted. Thread-safe
+    accessors for tests: ``state``, ``mode``, ``armed``, ``setpoints_received``.
     """
 
     def __init__(
@@ -122,43 +216,39 @@ class SimVehicle:
         self.config = config or SimVehicleConfig()
         self._clock = clock
         c = self.config
-        self._plant = BicyclePlant([c.preset], dt=1.0 / c.plant_hz)
-        self._plant.reset(
-            np.array([c.start_x_m]), np.array([c.start_y_m]), np.array([c.start_heading_rad])
-        )
+        yaw = wrap_angle(math.pi / 2 - c.start_heading_rad)
+        self.motion_state = MotionState(north=c.start_y_m, east=c.start_x_m, yaw=yaw)
+        self.firmware = make_firmware(c, self.motion_state)
         self._rng = np.random.default_rng(c.seed)
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._stop_evt = threading.Event()
         self._conn: Any = None
         self._frozen = False
-        self._armed = False
-        self._mode = "HOLD" if c.autopilot == "ardupilot" else "LOITER"
         self._pending_mode: str | None = None  # set from other threads (pilot, signals)
-        self._sp: tuple[float, float] | None = None  # (speed, ENU heading) of last setpoint
-        self._t_sp = -math.inf
-        self._stream_since = -math.inf
-        self._t_stream_lost: float | None = None
-        self.setpoints_received = 0
-        """Setpoints accepted (not ignored or dropped) so far."""
-        self.setpoints_ignored = 0
-        """Setpoints ignored (wrong mode, no EKF origin) or dropped (acceleration bits)."""
-        self._intervals: dict[int, float] = {m: 1.0 / c.default_message_hz for m in _TELEMETRY_IDS}
+        default_iv = 1.0 / c.default_message_hz
+        self._intervals: dict[int, float] = {m: default_iv for m in _STREAMS}
+        self._intervals[MSG_HEARTBEAT] = 1.0
         self._due: dict[int, float] = {}
-        self._t_boot = 0.0
-        self._t_plant = 0.0
-        self._t_heartbeat = -math.inf
+        self._t = 0.0  # vehicle time since boot (s): the loop's clock
+        self._t_wall0 = 0.0
         self._heard_peer = False
+        self._text_id = 0
+        self._geodetic = _GeodeticCache(c.home)
 
     # ----------------------------------------------------------------- lifecycle
 
-    def start(self) -> SimVehicle:
-        """Open the MAVLink link and start the vehicle thread; returns self."""
+    def open(self) -> SimVehicle:
+        """Open the MAVLink link without a thread (lockstep: drive it with ``advance``)."""
         self._conn = mp.mavutil.mavlink_connection(
             self.url, source_system=self.config.system_id, source_component=1
         )
-        self._t_boot = self._clock()
-        self._t_plant = self._t_boot
+        return self
+
+    def start(self) -> SimVehicle:
+        """Open the MAVLink link and start the real-time vehicle thread; returns self."""
+        self.open()
+        self._t_wall0 = self._clock()
         self._stop_evt.clear()
         self._thread = threading.Thread(
             target=self._run, name=f"simvehicle-{self.config.system_id}", daemon=True
@@ -178,6 +268,8 @@ class SimVehicle:
             except OSError:
                 pass
             self._conn = None
+
+    close = stop
 
     def request_stop(self) -> None:
         """Ask the thread to end (safe from signal handlers); ``stop`` then cleans up."""
@@ -216,17 +308,37 @@ class SimVehicle:
     # ----------------------------------------------------------------- accessors
 
     def state(self) -> VehicleState:
-        """Ground truth: ENU around home, the vehicle clock's seconds since boot."""
+        """Ground truth: ENU around home, the vehicle's seconds since boot."""
         with self._lock:
-            return self._plant.state(0, self._clock() - self._t_boot)
+            s = self.motion_state
+            return VehicleState(
+                vehicle_id=0, t=self._t, x=s.east, y=s.north,
+                speed=s.speed, heading=wrap_angle(math.pi / 2 - s.yaw),
+                accel=s.accel, yaw_rate=-s.yaw_rate,
+            )
+
+    @property
+    def t(self) -> float:
+        """Vehicle time since boot (s)."""
+        return self._t
 
     @property
     def mode(self) -> str:
-        return self._mode
+        return self.firmware.mode
 
     @property
     def armed(self) -> bool:
-        return self._armed
+        return self.firmware.armed
+
+    @property
+    def setpoints_received(self) -> int:
+        """Setpoints accepted (not ignored or dropped) so far."""
+        return self.firmware.setpoints_received
+
+    @property
+    def setpoints_ignored(self) -> int:
+        """Setpoints ignored (wrong mode, no EKF origin, invalid mask or frame)."""
+        return self.firmware.setpoints_ignored
 
     @property
     def message_rates_hz(self) -> dict[str, float]:
@@ -237,84 +349,69 @@ class SimVehicle:
 
     # ----------------------------------------------------------------- the loop
 
-    def _now(self) -> float:
-        return self._clock() - self._t_boot
-
     def _run(self) -> None:
-        dt = self._plant.dt
+        dt = self.firmware.loop_dt
+        speed = self.config.speedup
+        if self.config.boot_on_connect:
+            while not self._heard_peer and not self._stop_evt.is_set():
+                self._receive(queue_only=True)
+                self._stop_evt.wait(0.005)
+            self._t_wall0 = self._clock()
         while not self._stop_evt.is_set():
-            try:
-                self._receive()
-            except OSError:
-                pass  # a peer went away (TCP); keep simulating, as firmware would
-            if self._pending_mode is not None:
-                mode, self._pending_mode = self._pending_mode, None
-                self._enter_mode(mode, by_pilot=True)
-            t = self._now()
-            self._supervise(t)
-            steps = 0
-            while self._clock() - self._t_plant >= dt and steps < 25:
-                speed, heading = self._target()
-                with self._lock:
-                    self._plant.step(np.array([speed]), np.array([heading]))
-                self._t_plant += dt
-                steps += 1
-            if self._clock() - self._t_plant > 0.5:  # fell far behind (debugger, SIGSTOP)
-                self._t_plant = self._clock()
-            if not self._frozen:
-                self._send_due(t)
-            self._stop_evt.wait(max(0.0, self._t_plant + dt - self._clock()))
+            target = (self._clock() - self._t_wall0) * speed
+            if target - self._t > 0.5:  # fell far behind (debugger, SIGSTOP): skip ahead
+                self._t = target - dt
+            self._service(target)
+            wake = self._t_wall0 + (self._t + dt) / speed
+            self._stop_evt.wait(max(0.0, wake - self._clock()))
 
-    def _target(self) -> tuple[float, float]:
-        """The (speed, heading) the inner loops aim at now."""
-        heading = float(self._plant.heading[0])
-        if not self._armed or self._sp is None:
-            return 0.0, heading
-        if self.config.autopilot == "ardupilot":
-            if self._mode != "GUIDED" or self._now() - self._t_sp > self.config.setpoint_timeout_s:
-                return 0.0, heading  # GUIDED without setpoints stops (and stays in GUIDED)
-        elif self._mode != "OFFBOARD":
-            return 0.0, heading
-        return self._sp
+    def advance(self, seconds: float) -> None:
+        """Lockstep: receive what arrived, then run the firmware loop ``seconds`` on."""
+        self._service(self._t + seconds)
 
-    def _supervise(self, t: float) -> None:
-        """PX4's offboard-loss failsafe."""
-        if self.config.autopilot != "px4" or self._mode != "OFFBOARD":
-            self._t_stream_lost = None
-            return
-        if t - self._t_sp <= 1.0 / _STREAM_MIN_HZ:
-            self._t_stream_lost = None
-            return
-        if self._t_stream_lost is None:
-            self._t_stream_lost = self._t_sp + 1.0 / _STREAM_MIN_HZ
-        if t - self._t_stream_lost >= self.config.offboard_loss_s:
-            self._text(2, "Failsafe: offboard control lost, activating Hold")
-            self._enter_mode("LOITER", by_pilot=False)
+    def advance_to(self, t: float) -> None:
+        """Lockstep: receive, then run the firmware loop up to vehicle time ``t`` (s)."""
+        self._service(t)
 
-    def _enter_mode(self, mode: str, by_pilot: bool) -> None:
-        self._mode = mode
-        if by_pilot:
-            self._text(6, f"Mode changed to {mode}")
+    def wait_readable(self, timeout_s: float) -> bool:
+        """True when a datagram is waiting (lockstep callers use it after sending)."""
+        port = getattr(self._conn, "port", None)
+        if port is None:
+            return False
+        return bool(select.select([port], [], [], timeout_s)[0])
 
-    def _estimator_ready(self) -> bool:
-        return self._now() >= self.config.ready_after_s
-
-    def _ekf_origin(self) -> bool:
-        after = self.config.ekf_origin_after_s
-        if after is None:
-            after = self.config.ready_after_s / 2
-        return self._now() >= after
-
-    def _stream_ok(self) -> bool:
-        t = self._now()
-        return t - self._t_sp <= 1.0 / _STREAM_MIN_HZ and t - self._stream_since > _STREAM_WARMUP_S
+    def _service(self, until: float) -> None:
+        """Receive, then run every loop tick up to vehicle time ``until``, sending what is
+        due on each tick."""
+        dt = self.firmware.loop_dt
+        self._receive()
+        if self._pending_mode is not None:
+            mode, self._pending_mode = self._pending_mode, None
+            self.firmware.pilot_set_mode(mode)
+        while self._t + dt <= until + 1e-9:
+            with self._lock:
+                self.firmware.tick(self._t)
+                self._t += dt
+            self._flush_texts()
+            if not self._frozen and self._t >= self.firmware.first_heartbeat_s:
+                self._send_due(self._t)
 
     # ----------------------------------------------------------------- receiving
 
-    def _receive(self) -> None:
+    def _receive(self, queue_only: bool = False) -> None:
+        """Handle what arrived; ``queue_only``: before boot, only notice the first peer
+        (its datagrams stay queued for the booted autopilot)."""
         conn = self._conn
+        if conn is None:
+            return
+        if queue_only:
+            self._heard_peer = self.wait_readable(0.0)
+            return
         for _ in range(1000):
-            msg = conn.recv_msg()
+            try:
+                msg = conn.recv_msg()
+            except OSError:
+                return  # a peer went away (TCP); keep simulating, as firmware would
             if msg is None:
                 return
             kind = msg.get_type()
@@ -322,13 +419,31 @@ class SimVehicle:
                 # A listening (udpin/tcpin) vehicle can only answer once it heard someone:
                 # send the first heartbeat now rather than up to 1 s later.
                 self._heard_peer = True
-                self._t_heartbeat = -math.inf
+                self._due.pop(MSG_HEARTBEAT, None)
             if kind == "COMMAND_LONG":
                 if msg.target_system in (0, self.config.system_id):
                     self._on_command(msg)
             elif kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
-                if msg.target_system in (0, self.config.system_id):
-                    self._on_setpoint(msg, local=kind.endswith("LOCAL_NED"))
+                if msg.target_system in (0, self.config.system_id) and self._t >= self.firmware.first_heartbeat_s:
+                    with self._lock:
+                        self.firmware.setpoint(
+                            self._t, kind.endswith("LOCAL_NED"), int(msg.coordinate_frame),
+                            int(msg.type_mask), float(msg.vx), float(msg.vy),
+                            float(msg.yaw), float(msg.yaw_rate),
+                        )
+                    self._flush_texts()
+            elif kind == "PARAM_SET" and msg.target_system in (0, self.config.system_id):
+                self._on_param_set(msg)
+
+    def _on_param_set(self, msg: Any) -> None:
+        setter = getattr(self.firmware, "param_set", None)
+        name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
+        value = float(msg.param_value)
+        if msg.param_type in (1, 2, 3, 4, 5, 6):  # integers travel as their raw bytes
+            value = float(struct.unpack("<i", struct.pack("<f", value))[0])
+        value = setter(name, value) if setter else None
+        if value is not None and not self._frozen:
+            self._conn.mav.param_value_send(name.encode(), value, msg.param_type, 0, 0)
 
     def _ack(self, msg: Any, result: int) -> None:
         if self._frozen:
@@ -337,160 +452,122 @@ class SimVehicle:
             msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
         )
 
+    def _flush_texts(self) -> None:
+        texts = self.firmware.texts
+        while texts:
+            severity, text = texts.pop(0)
+            self._text(severity, text)
+
     def _text(self, severity: int, text: str) -> None:
+        """STATUSTEXT, split into 50-byte chunks with an id as ArduPilot and PX4 do."""
         if self._frozen or self._conn is None:
             return
-        self._conn.mav.statustext_send(severity, text.encode()[:50])
+        data = text.encode()
+        if len(data) <= _TEXT_CHUNK:
+            self._conn.mav.statustext_send(severity, data, 0, 0)
+            return
+        self._text_id = self._text_id % 0xFFFF + 1
+        for seq, i in enumerate(range(0, len(data), _TEXT_CHUNK)):
+            self._conn.mav.statustext_send(severity, data[i:i + _TEXT_CHUNK], self._text_id, seq)
 
     def _on_command(self, msg: Any) -> None:
         cmd = msg.command
-        if cmd == mp.CMD_DO_SET_MODE:
-            self._ack(msg, self._on_set_mode(msg))
-        elif cmd == mp.CMD_COMPONENT_ARM_DISARM:
-            self._ack(msg, self._on_arm(msg.param1 > 0.5))
-        elif cmd == mp.CMD_SET_MESSAGE_INTERVAL:
-            self._ack(msg, self._on_interval(int(msg.param1), msg.param2))
-        else:
-            self._ack(msg, mp.RESULT_UNSUPPORTED)
-
-    def _on_set_mode(self, msg: Any) -> int:
-        if self.config.autopilot == "ardupilot":
-            name = mp.ROVER_MODES.get(int(msg.param2))
-            if name is None:
-                return mp.RESULT_FAILED
-        else:
-            name = mp.PX4_MODES.get((int(msg.param2), int(msg.param3)))
-            if name is None:
-                return mp.RESULT_DENIED
-            if name == "OFFBOARD" and self._mode != "OFFBOARD" and not self._stream_ok():
-                self._text(2, "Switching to Offboard is currently not available")
-                return mp.RESULT_TEMPORARILY_REJECTED
-        self._enter_mode(name, by_pilot=False)
-        return mp.RESULT_ACCEPTED
-
-    def _on_arm(self, arm: bool) -> int:
-        if not arm:
-            self._armed = False
-            return mp.RESULT_ACCEPTED
-        if self._armed:
-            return mp.RESULT_ACCEPTED
-        if not self._estimator_ready():
-            if self.config.autopilot == "ardupilot":
-                self._text(2, "PreArm: AHRS: not using configured AHRS type")
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+        if self._t < self.firmware.first_heartbeat_s:
+            return  # not running yet: nothing answers
+        with self._lock:
+            if cmd == mp.CMD_SET_MESSAGE_INTERVAL:
+                result = self._on_interval(int(msg.param1), msg.param2)
             else:
-                self._text(2, "Preflight Fail: ekf2 not ready (no GPS fusion yet)")
-            return mp.RESULT_FAILED
-        if self.config.autopilot == "px4" and self._mode == "OFFBOARD" and not self._stream_ok():
-            self._text(2, "Arming denied: offboard signal lost")
-            return mp.RESULT_DENIED
-        self._armed = True
-        return mp.RESULT_ACCEPTED
+                result = self.firmware.command(self._t, cmd, params)
+        self._ack(msg, result)
+        self._flush_texts()
 
     def _on_interval(self, msg_id: int, interval_us: float) -> int:
-        if msg_id not in _TELEMETRY_IDS:
+        if msg_id not in self._intervals:
             return mp.RESULT_FAILED
         if interval_us < 0:
             self._intervals[msg_id] = 0.0  # disabled
         elif interval_us == 0:
-            self._intervals[msg_id] = 1.0 / self.config.default_message_hz
+            self._intervals[msg_id] = 1.0 if msg_id == MSG_HEARTBEAT else 1.0 / self.config.default_message_hz
         else:
-            if 1e6 / interval_us > self.config.max_message_hz + 1e-9:
-                return mp.RESULT_FAILED  # faster than the scheduler loop: refused
+            hz = 1e6 / interval_us
+            limit = self.config.max_message_hz
+            if limit is not None and hz > limit + 1e-9:
+                self.firmware.texts.append(
+                    (6, f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE")
+                )
+                return mp.RESULT_DENIED
+            result = self.firmware.interval(msg_id, hz)
+            if result != mp.RESULT_ACCEPTED:
+                return result  # the previous rate is kept
             self._intervals[msg_id] = interval_us * 1e-6
-        self._due.pop(msg_id, None)
+        iv = self._intervals[msg_id]
+        # On a grid from boot: streams at one rate go out in the same burst, as ArduPilot's.
+        self._due[msg_id] = math.ceil(self._t / iv + 1e-9) * iv if iv > 0 else 0.0
         return mp.RESULT_ACCEPTED
-
-    def _on_setpoint(self, msg: Any, local: bool) -> None:
-        t = self._now()
-        mask = msg.type_mask
-        if self.config.autopilot == "px4":
-            # PX4 counts every setpoint message towards the offboard stream's health.
-            if t - self._t_sp > 1.0 / _STREAM_MIN_HZ:
-                self._stream_since = t
-            self._t_sp = t
-        ignored = (
-            (mask & mp.MASK_ACC) != mp.MASK_ACC  # acceleration in use: dropped
-            or (mask & mp.MASK_VEL) != 0  # only velocity setpoints are modelled
-            or (local and not self._ekf_origin() and self.config.autopilot == "ardupilot")
-            or (self.config.autopilot == "ardupilot" and self._mode != "GUIDED")
-        )
-        if ignored:
-            self.setpoints_ignored += 1
-            return
-        vn, ve = float(msg.vx), float(msg.vy)
-        speed = math.hypot(vn, ve)
-        if not mask & mp.MASK_YAW:
-            heading = wrap_angle(math.pi / 2 - float(msg.yaw))
-            if self.config.autopilot == "ardupilot":
-                if vn <= -1.1920929e-07:  # Rover: is_negative(vx) alone reverses (sitl/ row 7)
-                    speed = -speed
-            elif vn * math.cos(msg.yaw) + ve * math.sin(msg.yaw) < 0:
-                speed = -speed  # velocity against the yaw: reverse
-        elif not mask & mp.MASK_YAW_RATE:
-            # Velocity + yaw rate: aim a short way ahead of the current heading.
-            heading = wrap_angle(float(self._plant.heading[0]) - float(msg.yaw_rate) * 0.5)
-        else:
-            # Velocity only: heading atan2 of the vector (a zero vector means north).
-            heading = wrap_angle(math.pi / 2 - math.atan2(ve, vn))
-        speed = max(-self.config.wp_speed_mps, min(self.config.wp_speed_mps, speed))
-        self._sp = (speed, heading)
-        if self.config.autopilot == "ardupilot":
-            self._t_sp = t
-        self.setpoints_received += 1
 
     # ----------------------------------------------------------------- sending
 
     def _send_due(self, t: float) -> None:
+        """Streams on the loop's ticks: a message goes out on the first tick within half a
+        tick of its due time, so 20 Hz on a 50 Hz loop alternates 40 and 60 ms."""
         mav = self._conn.mav
-        if t - self._t_heartbeat >= 1.0:
-            self._t_heartbeat = t
-            self._heartbeat(mav)
+        half = 0.5 * self.firmware.loop_dt
+        if self.firmware.heartbeat_now:
+            self.firmware.heartbeat_now = False
+            self._heartbeat(mav, t)
         for msg_id, interval in self._intervals.items():
             if interval <= 0:
                 continue
             due = self._due.get(msg_id, t)
-            if t + 1e-6 < due:
+            if t + half < due:
                 continue
-            # Keep the schedule's phase unless we fell behind by more than one period.
             self._due[msg_id] = due + interval if t - due < interval else t + interval
-            self._send_telemetry(mav, msg_id, t)
+            if msg_id == MSG_HEARTBEAT:
+                self._heartbeat(mav, t)
+            else:
+                self._send_telemetry(mav, msg_id, t)
 
-    def _heartbeat(self, mav: Any) -> None:
-        c = self.config
-        base = mp.mav().MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-        if self._armed:
-            base |= mp.mav().MAV_MODE_FLAG_SAFETY_ARMED
-        if c.autopilot == "ardupilot":
-            autopilot, custom = mp.AUTOPILOT_ARDUPILOT, mp.ROVER_MODE_NUMBERS[self._mode]
-        else:
-            autopilot, custom = mp.AUTOPILOT_PX4, mp.px4_custom_mode(*mp.PX4_MODE_NUMBERS[self._mode])
-        status = mp.mav().MAV_STATE_ACTIVE if self._armed else mp.mav().MAV_STATE_STANDBY
-        mav.heartbeat_send(mp.MAV_TYPE_GROUND_ROVER, autopilot, base, custom, status)
+    def _heartbeat(self, mav: Any, t: float) -> None:
+        base, custom, status = self.firmware.heartbeat(t)
+        mav.heartbeat_send(mp.MAV_TYPE_GROUND_ROVER, self.firmware.autopilot_id, base, custom, status)
 
-    def _send_telemetry(self, mav: Any, msg_id: int, t: float) -> None:
+    def _send_telemetry(self, mav: Any, msg_id: int, t: float) -> bool:
+        fw = self.firmware
         with self._lock:
-            x, y = float(self._plant.x[0]), float(self._plant.y[0])
-            h, v = float(self._plant.heading[0]), float(self._plant.speed[0])
-            yaw_rate = float(self._plant.yaw_rate[0])
-        t_ms = int(t * 1000) & 0xFFFFFFFF
-        yaw = wrap_angle(math.pi / 2 - h)
-        vn, ve = v * math.sin(h), v * math.cos(h)
+            s = self.motion_state
+            north, east, yaw, v, yaw_rate = s.north, s.east, s.yaw, s.speed, s.yaw_rate
+        t_ms = int(t * fw.clock_ratio * 1000) & 0xFFFFFFFF
+        vn, ve = v * math.cos(yaw), v * math.sin(yaw)
         if msg_id == mp.MSG_GLOBAL_POSITION_INT:
             if self.config.gps_noise_m > 0:
-                x += float(self._rng.normal(0.0, self.config.gps_noise_m))
-                y += float(self._rng.normal(0.0, self.config.gps_noise_m))
-            lat, lon, alt = enu_to_geodetic(self.config.home, x, y, 0.0)
+                north += float(self._rng.normal(0.0, self.config.gps_noise_m))
+                east += float(self._rng.normal(0.0, self.config.gps_noise_m))
+            lat, lon, alt = self._geodetic(east, north)
             mav.global_position_int_send(
                 t_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)), 0,
                 int(round(vn * 100)), int(round(ve * 100)), 0,
                 int(round(math.degrees(yaw) * 100)) % 36000,
             )
         elif msg_id == mp.MSG_ATTITUDE:
-            mav.attitude_send(t_ms, 0.0, 0.0, yaw, 0.0, 0.0, -yaw_rate)
+            mav.attitude_send(t_ms, 0.0, 0.0, yaw, 0.0, 0.0, yaw_rate)
         elif msg_id == mp.MSG_VFR_HUD:
-            mav.vfr_hud_send(abs(v), abs(v), int(math.degrees(yaw)) % 360, 0, 0.0, 0.0)
-        elif msg_id == mp.MSG_LOCAL_POSITION_NED and self._ekf_origin():
-            mav.local_position_ned_send(t_ms, y, x, 0.0, vn, ve, 0.0)
+            thr = fw.servo_pwm()[1]
+            mav.vfr_hud_send(abs(v), abs(v), int(round(math.degrees(yaw))) % 360,
+                             int(max(0, (thr - 1500) / 5)), 0.0, 0.0)
+        elif msg_id == mp.MSG_LOCAL_POSITION_NED:
+            if not fw.position_flowing(t):
+                return False
+            mav.local_position_ned_send(t_ms, north, east, 0.0, vn, ve, 0.0)
+        elif msg_id == MSG_SERVO_OUTPUT_RAW:
+            steer, thr = fw.servo_pwm()
+            mav.servo_output_raw_send(int(t * fw.clock_ratio * 1e6) & 0xFFFFFFFF, 0,
+                                      steer, 1500, thr, 1500, 0, 0, 0, 0)
+        elif msg_id == MSG_RC_CHANNELS:
+            ch = fw.rc_channels()
+            mav.rc_channels_send(t_ms, 8 if ch[0] else 0, *ch, *([0] * 10), 255)
+        return True
 
 
 # --------------------------------------------------------------------- process form (CLI)
@@ -555,10 +632,12 @@ def run_vehicle_cli(args: Any) -> int:
     _check_port_free(args.mavlink)
     x, y, heading = parse_start(args.start)
     config = SimVehicleConfig(
-        system_id=args.id, autopilot=args.autopilot, preset=vehicle_preset(args.preset),
+        system_id=args.id, autopilot=args.autopilot,
+        preset=vehicle_preset(args.preset) if args.preset else None,
         home=parse_home(args.home), start_x_m=x, start_y_m=y, start_heading_rad=heading,
-        ready_after_s=args.ready_after, setpoint_timeout_s=args.setpoint_timeout,
-        max_message_hz=args.max_rate, gps_noise_m=args.gps_noise, seed=args.seed,
+        timing=args.timing, ready_after_s=args.ready_after, rc_mode_switch=not args.no_rc_switch,
+        setpoint_timeout_s=args.setpoint_timeout, max_message_hz=args.max_rate,
+        speedup=args.speedup, gps_noise_m=args.gps_noise, seed=args.seed,
     )
     vehicle = SimVehicle(args.mavlink, config)
     try:
@@ -571,10 +650,11 @@ def run_vehicle_cli(args: Any) -> int:
     signal.signal(signal.SIGUSR1, lambda s, f: vehicle.pilot_set_mode("MANUAL"))
     signal.signal(signal.SIGUSR2, lambda s, f: vehicle.freeze(not vehicle.frozen))
     h = config.home
+    motion = config.preset.name if config.preset else "firmware loops"
     print(
-        f"vehicle {config.system_id}: simulated {config.autopilot} {config.preset.name} on "
-        f"{args.mavlink}, home {h.lat_deg:.7f},{h.lon_deg:.7f},{h.alt_m:g}, "
-        f"arming possible after {config.ready_after_s:g} s",
+        f"vehicle {config.system_id}: simulated {config.autopilot} ({motion}, {config.timing} "
+        f"timing) on {args.mavlink}, home {h.lat_deg:.7f},{h.lon_deg:.7f},{h.alt_m:g}, "
+        f"arming possible after {config.armable_after_s:g} s",
         flush=True,
     )
     vehicle.run_forever()

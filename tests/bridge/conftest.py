@@ -12,6 +12,7 @@ import pytest
 
 from openconvoy.bridge.mavlink import MavlinkLink
 from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.envs.vehicles import VEHICLE_PRESETS
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
@@ -54,6 +55,11 @@ def vehicle_and_link() -> Iterator[Callable[..., tuple[SimVehicle, MavlinkLink, 
              **config: Any) -> tuple[SimVehicle, MavlinkLink, list[str]]:
         port = free_port()
         config.setdefault("ready_after_s", 0.0)
+        # The link tests drive the 1/10 preset plant from a booted autopilot; the firmware
+        # loops and the boot race are the conformance tests' subject.
+        config.setdefault("preset", VEHICLE_PRESETS["1/10"])
+        config.setdefault("init_s", 0.0)
+        config.setdefault("rc_mode_switch", False)
         vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(**config)).start()
         lines: list[str] = []
         kwargs = dict(on_status=lines.append)

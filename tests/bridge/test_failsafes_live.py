@@ -99,8 +99,7 @@ def test_killed_vehicle_stops_and_rebooted_one_is_left_alone(tmp_path):
         time.sleep(1.0)
         assert all(s[1] == 0.0 for s in follower.link.after(t_reborn))
         assert follower.link.after(t_seen) == []
-        # (The firmware boots in INITIAL_MODE, MANUAL; the older simulation in HOLD.)
-        assert reborn.mode in ("HOLD", "MANUAL") and not reborn.armed and reborn.state().speed == 0.0
+        assert reborn.mode == "MANUAL" and not reborn.armed and reborn.state().speed == 0.0  # INITIAL_MODE
     finally:
         c.stop()
     assert_log_survived(c, 1)
@@ -122,9 +121,9 @@ def test_lost_tcp_link_stops_and_keeps_reconnecting(tmp_path):
         reborn = SimVehicle(f"tcpin:127.0.0.1:{follower.port}", cfg).start()
         c.extra.append(reborn)
         wait_until(lambda: not follower.link.lost, 6, "reconnected")
-        # Back, disarmed and in HOLD (a mode we did not ask for): left alone.
+        # Back, disarmed and in MANUAL (ArduPilot's INITIAL_MODE, not asked for): left alone.
         wait_until(lambda: follower.runner.failsafes.took_over, 4, "rebooted vehicle seen")
-        assert reborn.mode in ("HOLD", "MANUAL") and not reborn.armed  # the firmware boots in MANUAL
+        assert reborn.mode == "MANUAL" and not reborn.armed
     finally:
         c.stop()
     assert_log_survived(c, 1)
@@ -369,21 +368,19 @@ def test_px4_streams_before_offboard_and_loses_offboard_when_the_stream_stops(tm
         car.start()
     try:
         wait_until(lambda: moving(follower), 20, "follower moving under OFFBOARD")
-        # The simulated PX4 refuses OFFBOARD (and arming in it) unless setpoints already
-        # stream above 2 Hz for more than 1 s: being here means they streamed first.
+        # The simulated PX4, as the real one, refuses arming in OFFBOARD without a setpoint
+        # stream (shared/sitl-px4 rows 3-5): being here means they streamed first.
         assert follower.vehicle.mode == "OFFBOARD" and follower.vehicle.armed
         stall.set()
-        # PX4 leaves OFFBOARD 1 s after the last setpoint (COM_OF_LOSS_T): POSCTL on the
-        # firmware (COM_OBL_RC_ACT 0; Hold in the older simulation). The runner sees a mode it
-        # did not ask for and never takes the vehicle back; PX4 would re-enter OFFBOARD by
-        # itself if setpoints resumed, so none may.
-        failsafe_modes = ("POSCTL", "LOITER")
-        wait_until(lambda: follower.vehicle.mode in failsafe_modes, 4, "PX4 offboard-loss failsafe")
+        # PX4 leaves OFFBOARD 1 s after the last setpoint (COM_OF_LOSS_T) for POSCTL and
+        # brakes (shared/sitl-px4 row 16); the runner sees a mode it did not ask for and
+        # never takes the vehicle back.
+        wait_until(lambda: follower.vehicle.mode == "POSCTL", 4, "PX4 offboard-loss failsafe")
         wait_until(lambda: follower.runner.failsafes.took_over, 4, "runner sees it")
         det = follower.first_event("pilot took over")
         time.sleep(1.0)
         assert follower.link.after(det) == []
-        assert follower.vehicle.mode in failsafe_modes and follower.link.stream_ended
+        assert follower.vehicle.mode == "POSCTL" and follower.link.stream_ended  # never resumed
         assert follower.runner._timer.overruns >= 1  # the stall was counted
     finally:
         c.stop()

@@ -167,7 +167,7 @@ def run_inside(opts: DemoOptions) -> int:
     scenario = make_scenario("paper", presets=presets)
     member_config = policy.member_config
     if member_config is not None:
-        scenario.spacing = member_config.spacing  # start at the policy's gaps, as `sim` does
+        scenario = scenario.with_changes(spacing=member_config.spacing)  # the policy's gaps, as `sim`
     init = scenario.initial_state()
     duration = float(opts.duration_s or scenario.duration_s)
     origin = Origin(*convoy.origin)

@@ -23,7 +23,6 @@ and stop behind it), then holds and ends.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -43,8 +42,10 @@ from openconvoy.bridge.failsafes import (
     LinkWatchdog,
     LoopTimer,
     TickInputs,
+    Verdict,
 )
 from openconvoy.bridge.link import LinkTimeout, Telemetry, VehicleLink, VehicleLinkError
+from openconvoy.bridge.recorder import RunRecorder
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
@@ -53,7 +54,6 @@ from openconvoy.core.member import ConvoyMember, Frame, member_config_for
 from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState, wrap_angle
-from openconvoy.logs import LogWriter
 
 log = logging.getLogger(__name__)
 
@@ -317,7 +317,7 @@ class DeployRunner:
         self._t_start_wall: float | None = None
         self._t_finish: float | None = None  # monotonic time a leader's scenario ended
         self._heard_raw: set[int] = set()
-        self._writer: LogWriter | None = None
+        self.recorder = RunRecorder(self.log_dir, options.vehicle_id, EXTRA_COLUMNS)
         self._timer: LoopTimer | None = None
         self._late_periods = 0.0
         self._t_hold_sent = -math.inf
@@ -374,8 +374,7 @@ class DeployRunner:
             self._armed_by_us, self._arming = True, False
             # Stand still with the yaw at the current heading from the first moment.
             self.link.stop_motion()
-        if self.log_dir is not None:
-            self._writer = LogWriter(self.log_dir / f"vehicle_{o.vehicle_id}.csv", extra_columns=EXTRA_COLUMNS)
+        self.recorder.open()
         self.policy.reset(o.seed)
         if self.leader is not None and hasattr(self.leader, "reset"):
             self.leader.reset(np.random.default_rng(o.seed))
@@ -451,52 +450,70 @@ class DeployRunner:
 
     def tick(self, now: float) -> str:
         """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
-        o = self.options
-        member = self.member
-        period_s = 1.0 / o.rate_hz
-        # 1. telemetry
+        tel, t_polled = self._read_telemetry(now)
+        wall = self.wall()
+        own = replace(tel.state, vehicle_id=self.options.vehicle_id)
+        self.frame = frame = self._exchange(now, wall, tel, own)
+        waiting = bool(self._waiting_for())
+        if not waiting and self._t_start is None:
+            self._t_start, self._t_start_wall = now, wall
+            self.on_status(f"vehicle {self.options.vehicle_id}: convoy complete, starting")
+        # What the controller wants (the member's decision, or the leader's driver) ...
+        speed, change, mode, policy_error = self._intent(
+            tel, own, frame, waiting, now, wall, self._ranging(tel, now))
+        gap, closing = self._gap(wall)
+        heading_cmd = wrap_angle(own.heading + change)
+        # ... and what the failsafes and the envelope let through.
+        verdict = self._verdict(now, wall, tel, own, waiting, heading_cmd, speed, gap, closing, policy_error)
+        if verdict.command == DRIVE:
+            speed = self.failsafes.envelope.cap(speed)
+        else:
+            speed, heading_cmd = 0.0, own.heading
+            mode = "failsafe" if verdict.failsafe else "stop"
+        t_sent = self._actuate(now, tel, own, verdict, speed, heading_cmd)
+        if self.options.record_timing:
+            self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
+        self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap,
+                      sent=self.commanding and not math.isnan(t_sent))  # what really went out
+        self._status_line(now, own, mode, gap)
+        return verdict.reason if verdict.exit else self._end_reason(now, own)
+
+    # ------------------------------------------------------------------ tick phases
+
+    def _read_telemetry(self, now: float) -> tuple[Telemetry, float]:
+        """The newest telemetry (the last one when none arrived) and when it was read;
+        reopens a lost link now and then."""
         tel = self.link.poll()
         if tel is not None:
             self._tel = tel
-        tel = self._tel
-        assert tel is not None
+        assert self._tel is not None
         t_polled = self.clock()
         self._maybe_reconnect(now)
-        wall = self.wall()
-        own = replace(tel.state, vehicle_id=o.vehicle_id)
-        # 2. τ — only while the autopilot link is fresh: without it the vehicle no longer
-        # knows its own state, and a stale one with new timestamps would mislead the convoy.
-        lost = self.link.lost
-        known = self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat, not lost)
+        return self._tel, t_polled
+
+    def _exchange(self, now: float, wall: float, tel: Telemetry, own: VehicleState) -> Frame:
+        """τ and ρ (``core.tick``): broadcast the own state — only while the autopilot link
+        is fresh (without it the vehicle no longer knows its own state, and a stale one with
+        new timestamps would mislead the convoy) — then receive, bounded in time so that a
+        flood cannot stall the loop, and sense. An abort message ends the run."""
+        known = self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost)
         self._track_broadcast(known, wall)
-        sent = member_tick.begin(member, own, wall, may_send=known)
+        sent = member_tick.begin(self.member, own, wall, may_send=known)
         if sent is not None:
             self.v2v.send(sent, wall)
-        # 3. ρ, bounded in time so that a flood cannot stall the loop
         inbox = []
-        for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET * period_s):
+        for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET / self.options.rate_hz):
             if msg.abort:
                 self._abort = True
-                continue
-            if msg.state is None:
-                continue
-            self._heard_raw.add(msg.state.vehicle_id)
-            inbox.append(msg.state)
-        self.frame = frame = member_tick.sense(member, inbox, wall)
-        # Waiting to start?
-        waiting = self._waiting_for()
-        if not waiting and self._t_start is None:
-            self._t_start, self._t_start_wall = now, wall
-            self.on_status(f"vehicle {o.vehicle_id}: convoy complete, starting")
-        # 4. what the controller wants
-        speed, change, mode, policy_error = self._intent(
-            tel, own, frame, bool(waiting), now, wall, self._ranging(tel, now))
-        gap, closing = self._gap(wall)
-        needed_age = 0.0
-        if not self.is_leader and not waiting:
-            needed_age = member.needed_age(wall)
-        # 5. failsafes and envelope
-        heading_cmd = wrap_angle(own.heading + change)
+            elif msg.state is not None:
+                self._heard_raw.add(msg.state.vehicle_id)
+                inbox.append(msg.state)
+        return member_tick.sense(self.member, inbox, wall)
+
+    def _verdict(self, now: float, wall: float, tel: Telemetry, own: VehicleState, waiting: bool,
+                 heading_cmd: float, speed: float, gap: float, closing: float, policy_error: str) -> Verdict:
+        """The failsafes' and the envelope's decision this tick (status line on a change)."""
+        following = not self.is_leader and not waiting
         verdict = self.failsafes.decide(
             TickInputs(
                 now=now, t_telemetry=tel.t_telemetry, t_heartbeat=tel.t_heartbeat,
@@ -504,59 +521,58 @@ class DeployRunner:
                 pilot_took_over=self.commanding and self.link.pilot_took_over,
                 stop_requested=self._stop_requested, abort=self._abort,
                 x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
-                gap_m=gap, closing_mps=closing, needed_age_s=needed_age, policy_error=policy_error,
-                stale_stop=not waiting and not self.is_leader and member.mode == "stop",
+                gap_m=gap, closing_mps=closing, needed_age_s=self.member.needed_age(wall) if following else 0.0,
+                policy_error=policy_error, stale_stop=following and self.member.mode == "stop",
                 held=tel.mode in HOLD_MODES, late_periods=self._late_periods,
             )
         )
-        if verdict.command == DRIVE:
-            speed = self.failsafes.envelope.cap(speed)
-        else:
-            speed, heading_cmd = 0.0, own.heading
-            mode = "failsafe" if verdict.failsafe else "stop"
         if verdict.reason and verdict.reason != self._last_reason:
             why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
-            self.on_status(f"vehicle {o.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else ""))
+            self.on_status(f"vehicle {self.options.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else ""))
         self._last_reason = verdict.reason
-        # 6. actuate
+        return verdict
+
+    def _actuate(self, now: float, tel: Telemetry, own: VehicleState, verdict: Verdict,
+                 speed: float, heading_cmd: float) -> float:
+        """Send the setpoint (and HOLD once braked, or after the braking time); the link
+        clock time it went out, NaN if none did."""
         t_sent = math.nan
-        if self.commanding:
-            if verdict.command in (DRIVE, STOP):
-                if self.link.send_setpoint(speed, heading_cmd):
-                    t_sent = self.clock()
-            if not verdict.hold:
-                self._t_stop = math.nan
-            elif math.isnan(self._t_stop):
-                self._t_stop, self._v_stop = now, abs(own.speed)
-            if (verdict.hold and now - self._t_hold_sent >= 1.0 and tel.mode not in HOLD_MODES
-                    and (abs(own.speed) < HOLD_BELOW_MPS
-                         or now - self._t_stop >= self._brake_time_s(self._v_stop))):
-                self._t_hold_sent = now
-                try:
-                    self.link.hold(0.0)
-                except Exception as exc:  # noqa: BLE001 - a hold that cannot be sent is retried
-                    log.warning("HOLD not sent: %s", exc)
-        if o.record_timing:
-            self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
-        # 7. log
-        self._log_row(wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap,
-                      sent=self.commanding and not math.isnan(t_sent))  # what really went out
-        self._status_line(now, own, mode, gap)
-        if verdict.exit:
-            return verdict.reason
+        if not self.commanding:
+            return t_sent
+        if verdict.command in (DRIVE, STOP) and self.link.send_setpoint(speed, heading_cmd):
+            t_sent = self.clock()
+        if not verdict.hold:
+            self._t_stop = math.nan
+        elif math.isnan(self._t_stop):
+            self._t_stop, self._v_stop = now, abs(own.speed)
+        if (verdict.hold and now - self._t_hold_sent >= 1.0 and tel.mode not in HOLD_MODES
+                and (abs(own.speed) < HOLD_BELOW_MPS
+                     or now - self._t_stop >= self._brake_time_s(self._v_stop))):
+            self._t_hold_sent = now
+            try:
+                self.link.hold(0.0)
+            except Exception as exc:  # noqa: BLE001 - a hold that cannot be sent is retried
+                log.warning("HOLD not sent: %s", exc)
+        return t_sent
+
+    def _end_reason(self, now: float, own: VehicleState) -> str:
+        """Why the run ends after this tick ("" = it goes on): a takeover before the convoy
+        drove, or the duration (a scenario-driven leader first brakes to rest)."""
         if self.failsafes.took_over and self._t_start is None and self.commanding:
             why = self.link.takeover_reason or "a mode change we did not ask for"
             return f"pilot took over before the convoy drove: {why}"
-        if self._t_start is not None:
-            limit = self._duration()
-            # Half a period of slack: tick times are sums of floats.
-            if limit is not None and now - self._t_start >= limit - 0.5 / o.rate_hz:
-                if not self._brakes_at_end():
-                    return "duration reached"
-                if self._t_finish is None:
-                    self._t_finish = now
-                elif abs(own.speed) < 0.05 or now - self._t_finish > FINISH_TIMEOUT_S:
-                    return "duration reached"
+        if self._t_start is None:
+            return ""
+        limit = self._duration()
+        # Half a period of slack: tick times are sums of floats.
+        if limit is None or now - self._t_start < limit - 0.5 / self.options.rate_hz:
+            return ""
+        if not self._brakes_at_end():
+            return "duration reached"
+        if self._t_finish is None:
+            self._t_finish = now
+        elif abs(own.speed) < 0.05 or now - self._t_finish > FINISH_TIMEOUT_S:
+            return "duration reached"
         return ""
 
     def _brakes_at_end(self) -> bool:
@@ -675,10 +691,10 @@ class DeployRunner:
 
     def _log_row(self, wall: float, own: VehicleState, tel: Telemetry, speed: float, change: float,
                  mode: str, gap: float, sent: bool) -> None:
-        if self._writer is None:
+        if not self.recorder.recording:
             return
         m = self.member
-        self._writer.write({
+        self.recorder.row({
             "t_s": wall, "vehicle_id": self.options.vehicle_id, "x_m": own.x, "y_m": own.y,
             "lat_deg": tel.lat_deg, "lon_deg": tel.lon_deg, "speed_mps": own.speed,
             "heading_rad": own.heading, "accel_mps2": own.accel,
@@ -731,9 +747,8 @@ class DeployRunner:
                     log.warning("vehicle %d: HOLD/disarm after arming failed: %s", o.vehicle_id, exc)
         elif self.commanding and took_over and self._t_start is None and self._armed_by_us:
             self._disarm_if_at_rest()
-        if self._writer is not None:
-            self._writer.close()
-            self._write_metadata(reason, code)
+        if self.recorder.recording:
+            self.recorder.close(self._metadata(reason, code))
         for closer in (self.v2v.close, self.link.close):
             try:
                 closer()
@@ -777,8 +792,8 @@ class DeployRunner:
                 log.warning("vehicle %d: disarm failed: %s", vid, exc)
         self.on_status(f"vehicle {vid}: WARNING: left ARMED in {mode} (taken over before the convoy drove)")
 
-    def _write_metadata(self, reason: str, code: int = 0) -> None:
-        assert self.log_dir is not None
+    def _metadata(self, reason: str, code: int = 0) -> dict[str, Any]:
+        """The run's metadata (``vehicle_N.json``)."""
         o = self.options
         wall0 = self.wall() - self.clock()  # maps monotonic event times to the shared clock
         meta = {
@@ -816,8 +831,7 @@ class DeployRunner:
             "msgs_lost": self.v2v.counters.lost,
             **self.metadata_extra,
         }
-        path = self.log_dir / f"vehicle_{o.vehicle_id}.json"
-        path.write_text(json.dumps(meta, indent=2, default=str) + "\n", encoding="utf-8")
+        return meta
 
 
 def _safe(fn: Callable[[], Any]) -> Any:

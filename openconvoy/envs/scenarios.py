@@ -103,6 +103,16 @@ class Scenario(Protocol):
         """The leader's setpoints at time ``t`` (s) given its state: (speed m/s, absolute
         heading rad)."""
 
+    def with_changes(
+        self,
+        *,
+        presets: Sequence[VehiclePreset] | None = None,
+        spacing: SpacingConfig | None = None,
+        origin: Origin | None = None,
+    ) -> Scenario:
+        """A new scenario, built and validated again, with these parameters changed (a
+        built scenario is never modified)."""
+
 
 SpeedProfile = Callable[[float, float], float]
 """Target leader speed (m/s) as a function of (time s, arc length m)."""
@@ -147,6 +157,7 @@ class PathScenario:
         self.leader_start_s = leader_start_s
         self.lookahead_min_m = lookahead_min_m
         self.lookahead_time_s = lookahead_time_s
+        self._ramps = (ramp_accel_mps2, ramp_decel_mps2)
         lead = self.presets[0]
         self.ramp_accel_mps2 = ramp_accel_mps2 or lead.accel_max_mps2
         self.ramp_decel_mps2 = ramp_decel_mps2 or lead.decel_max_mps2
@@ -160,6 +171,21 @@ class PathScenario:
     @property
     def n_vehicles(self) -> int:
         return len(self.presets)
+
+    def with_changes(
+        self,
+        *,
+        presets: Sequence[VehiclePreset] | None = None,
+        spacing: SpacingConfig | None = None,
+        origin: Origin | None = None,
+    ) -> PathScenario:
+        """See ``Scenario.with_changes``."""
+        return PathScenario(
+            self.name, self.presets if presets is None else presets, self.path, self.speed_profile,
+            self.duration_s, self.spacing if spacing is None else spacing, self.start_speed_mps,
+            self.leader_start_s, self.origin if origin is None else origin, self.lookahead_min_m,
+            self.lookahead_time_s, *self._ramps,
+        )
 
     def _offsets(self) -> list[float]:
         """Arc length behind the leader of each vehicle at the desired gaps, metres."""

@@ -170,6 +170,19 @@ class HighwayScenario:
         self.world: TrafficWorld | None = None
         self._t_last: float | None = None
 
+    def with_changes(
+        self,
+        *,
+        presets: Sequence[VehiclePreset] | None = None,
+        spacing: SpacingConfig | None = None,
+        origin: Origin | None = None,
+    ) -> HighwayScenario:
+        """A new scenario, built and validated again, with these parameters changed."""
+        return HighwayScenario(
+            self.name, self.presets if presets is None else presets, self.config,
+            self.spacing if spacing is None else spacing, self.origin if origin is None else origin,
+        )
+
     @property
     def n_vehicles(self) -> int:
         return len(self.presets)

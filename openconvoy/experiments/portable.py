@@ -15,7 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-LADDER_SUFFIX = "+ladder"
+from openconvoy.policies.spec import PolicySpec
+
 TRACK_PREFIX = "track-file:"
 FILE_SUFFIXES = (".toml", ".zip", ".npz", ".json")
 
@@ -28,7 +29,7 @@ def spec_file(spec: str) -> str | None:
         return None
     if spec.startswith(TRACK_PREFIX):
         return spec[len(TRACK_PREFIX):]
-    base = spec.removesuffix(LADDER_SUFFIX)
+    base = PolicySpec.parse(spec).base
     return base if base.endswith(FILE_SUFFIXES) else None
 
 

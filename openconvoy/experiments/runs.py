@@ -140,17 +140,20 @@ def build_env(config: RunConfig):
     presets = [vehicle_preset(v) for v in config.vehicles] or None
     scenario = make_scenario(config.scenario, config.n_followers, presets)
     member_config = policy.member_config
+    changes: dict[str, Any] = {}
     if member_config is not None and config.start_at_policy_gap:
         # The scenario places its vehicles at the desired gaps of its ``spacing``.
-        scenario.spacing = member_config.spacing
+        changes["spacing"] = member_config.spacing
     if config.ranging:
         sensor = RangingSensor(max_range_m=config.ranging_max_range_m)
-        scenario.presets = tuple(
+        changes["presets"] = tuple(
             p if i == 0 or p.ranging is not None else p.with_ranging(sensor)
             for i, p in enumerate(scenario.presets)
         )
     if config.origin is not None:
-        scenario.origin = Origin(*config.origin)
+        changes["origin"] = Origin(*config.origin)
+    if changes:
+        scenario = scenario.with_changes(**changes)
     env = ConvoyEnv(
         scenario,
         member_config=member_config,

@@ -76,9 +76,10 @@ from openconvoy.experiments.executor import (
 from openconvoy.experiments.executor import available_cores as available_cores  # re-export
 from openconvoy.experiments.portable import Files
 from openconvoy.experiments.runs import RunConfig, run_sim, write_json
+from openconvoy.policies.spec import LADDER_SUFFIX as LADDER_SUFFIX  # re-export
+from openconvoy.policies.spec import PolicySpec
 
 DEFAULT_PERS: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
-LADDER_SUFFIX = "+ladder"
 STATS = ("mean", "std", "min", "max")
 
 
@@ -228,8 +229,9 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
     inline = dict(config.policy)
     labels = []
     for label in config.policies:
-        base = label.removesuffix(LADDER_SUFFIX)
-        if not base.endswith(".toml"):
+        spec = PolicySpec.parse(label)
+        base = spec.base
+        if not spec.toml:
             labels.append(label)
             continue
         classical_from_toml(base)  # validates the file
@@ -239,7 +241,7 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
         if name in PRESETS or (name in inline and inline[name] != table):
             raise ConfigError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
         inline[name] = table
-        labels.append(name + label[len(base):])
+        labels.append(str(spec.with_base(name)))
     if labels == list(config.policies):
         return config
     return dataclasses.replace(config, policies=tuple(labels), policy=inline)
@@ -260,9 +262,9 @@ def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, 
         files[name] = str(path)
     specs: dict[str, str] = {}
     for label in config.policies:
-        base = label.removesuffix(LADDER_SUFFIX)
-        spec = files[base] + label[len(base):] if base in files else label
-        if not spec.endswith((".zip", ".npz")):
+        parsed = PolicySpec.parse(label)
+        spec = str(parsed.with_base(files[parsed.base])) if parsed.base in files else label
+        if not PolicySpec.parse(spec).learned:
             classical_config(spec)  # fail before any process starts
         specs[label] = spec
     return specs
@@ -270,9 +272,9 @@ def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, 
 
 def policy_dirname(label: str) -> str:
     """A directory name for a policy label (file specs: the file's stem)."""
-    base = label.removesuffix(LADDER_SUFFIX)
-    suffix = label[len(base):]
-    return Path(base).stem.replace(" ", "_") + suffix if ("/" in base or "." in base) else label
+    spec = PolicySpec.parse(label)
+    base = spec.base
+    return Path(base).stem.replace(" ", "_") + spec.suffix if ("/" in base or "." in base) else label
 
 
 # --- running -----------------------------------------------------------------------------
@@ -350,7 +352,8 @@ def run_experiment(
 
     config = freeze(config)
     for label in config.policies:  # fail before anything is written
-        if label.removesuffix(LADDER_SUFFIX) not in config.policy and not label.endswith((".zip", ".npz")):
+        spec = PolicySpec.parse(label)
+        if spec.base not in config.policy and not spec.learned:
             classical_config(label)
     if not isinstance(executor, Executor):
         chosen = executor or config.executor

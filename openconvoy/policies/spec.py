@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +22,52 @@ from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.presets import PRESETS, with_ladder
 
 LADDER_SUFFIX = "+ladder"
+LEARNED_SUFFIXES = (".zip", ".npz")
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A ``--policy`` spec, parsed (the one place that reads the grammar): ``base`` is a
+    preset name or a file path, ``ladder`` whether ``+ladder`` follows it."""
+
+    base: str
+    ladder: bool = False
+
+    @classmethod
+    def parse(cls, spec: str) -> PolicySpec:
+        if spec.endswith(LADDER_SUFFIX):
+            return cls(spec[: -len(LADDER_SUFFIX)], True)
+        return cls(spec)
+
+    @property
+    def suffix(self) -> str:
+        """``"+ladder"`` or ``""``: what follows the base."""
+        return LADDER_SUFFIX if self.ladder else ""
+
+    @property
+    def learned(self) -> bool:
+        """An SB3 ``.zip`` or exported ``.npz`` (a learned policy takes no ``+ladder``)."""
+        return not self.ladder and Path(self.base).suffix in LEARNED_SUFFIXES
+
+    @property
+    def toml(self) -> bool:
+        """A classical policy file."""
+        return self.base.endswith(".toml")
+
+    def with_base(self, base: str) -> PolicySpec:
+        return PolicySpec(base, self.ladder)
+
+    def __str__(self) -> str:
+        return self.base + self.suffix
 
 
 def load_policy(spec: str, **learned_kwargs: Any) -> ConvoyPolicy:
     """The policy a spec names (a ``ConvoyPolicy``: checked here, so callers read its
     ``member_config``, ``control_rate_hz`` and ``name`` directly). Learned-policy keyword
     arguments pass to their loader."""
-    path = Path(spec)
-    if path.suffix in (".zip", ".npz"):
+    parsed = PolicySpec.parse(spec)
+    if parsed.learned:
+        path = Path(parsed.base)
         if not path.is_file():
             raise MissingFileError(f"policy file not found: {spec}")
         from openconvoy.policies import learned
@@ -39,9 +78,9 @@ def load_policy(spec: str, **learned_kwargs: Any) -> ConvoyPolicy:
 
 def classical_config(spec: str) -> ClassicalConfig:
     """The ClassicalConfig of a preset name (with optional ``+ladder``) or TOML file."""
-    ladder = spec.endswith(LADDER_SUFFIX)
-    base = spec[: -len(LADDER_SUFFIX)] if ladder else spec
-    if base.endswith(".toml"):
+    parsed = PolicySpec.parse(spec)
+    base = parsed.base
+    if parsed.toml:
         config = classical_from_toml(base)
     elif base in PRESETS:
         config = PRESETS[base]
@@ -50,7 +89,7 @@ def classical_config(spec: str) -> ClassicalConfig:
             f"unknown policy {spec!r}: not a preset ({', '.join(PRESETS)}), "
             "nor a .toml, .zip or .npz file"
         )
-    return with_ladder(config) if ladder else config
+    return with_ladder(config) if parsed.ladder else config
 
 
 def classical_from_toml(path: str | Path) -> ClassicalConfig:

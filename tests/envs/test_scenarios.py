@@ -276,3 +276,15 @@ def test_unknown_scenario_names_the_choices() -> None:
         make_scenario("track-file:/nonexistent.json")
     with pytest.raises(ValueError, match="at least one follower"):
         make_scenario("paper", 0)
+
+
+def test_a_built_scenario_is_changed_only_by_building_a_new_one_validated_again() -> None:
+    from openconvoy.core.errors import ConfigError
+    from openconvoy.core.spacing import SpacingConfig
+
+    track = make_scenario("track")
+    wider = track.with_changes(spacing=SpacingConfig("constant-distance", distance_m=12.0))
+    assert wider.spacing.distance_m == 12.0 and track.spacing.distance_m != 12.0  # untouched
+    # Gaps that do not fit on the closed track are refused, as at construction.
+    with pytest.raises(ConfigError, match="do not fit"):
+        track.with_changes(spacing=SpacingConfig("constant-distance", distance_m=500.0))

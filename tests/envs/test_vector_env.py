@@ -26,17 +26,18 @@ from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
 
 
-def _compare(scenario: str = "paper", B: int = 2, per: float = 0.3, latency_s: float = 0.0,
+def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3, latency_s: float = 0.0,
              steps: int | None = None, n_followers: int | None = None, member: dict | None = None,
              model: str = "bernoulli", **kwargs) -> Counter:
     """Run both worlds; assert they agree at every tick; return the modes seen."""
     mc = load_policy("paper").member_config
     if member:
         mc = dataclasses.replace(mc, **member)
-    loss = LossConfig(per=per, latency_s=latency_s, model=model, mean_burst_s=0.4)
-    vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=loss,
+    pers = per if isinstance(per, list) else [per] * B
+    losses = [LossConfig(per=p, latency_s=latency_s, model=model, mean_burst_s=0.4) for p in pers]
+    vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=losses,
                           autoreset=False, **kwargs)
-    envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=loss, **kwargs) for _ in range(B)]
+    envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=c, **kwargs) for c in losses]
     agents = envs[0].possible_agents
     policies = [[load_policy("paper") for _ in agents] for _ in envs]
     obs = [e.reset(seed=10 + b)[0] for b, e in enumerate(envs)]
@@ -105,6 +106,11 @@ def test_latency_and_per_convoy_seeds() -> None:
 
 def test_gilbert_elliott_bursts() -> None:
     _compare("paper", B=2, per=0.4, model="gilbert-elliott", n_followers=3, steps=200)
+
+
+@pytest.mark.parametrize("model", ["bernoulli", "gilbert-elliott"])
+def test_one_per_per_convoy_for_batched_sweeps(model: str) -> None:
+    _compare("paper", B=3, per=[0.0, 0.3, 0.6], model=model, steps=150)
 
 
 @pytest.mark.parametrize("kind", ["constant-time-headway", "quadratic"])
@@ -190,3 +196,44 @@ def test_kept_link_counters_give_the_same_run() -> None:
     # Counters now count the kept links: one sender each (lookahead:1), so fewer.
     all_rx, kept_rx = out[0][4]["msgs_received"], out[1][4]["msgs_received"]
     assert (kept_rx < all_rx).all() and (kept_rx == out[1][4]["msgs_kept"]).all()
+
+
+def test_gymnasium_vector_api() -> None:
+    from gymnasium.vector import AutoresetMode
+
+    from openconvoy.envs.vector_gym import ConvoyVectorEnv
+
+    venv = ConvoyVectorEnv(VectorConvoyEnv(3, "paper", max_time_s=0.25))
+    assert venv.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    obs, infos = venv.reset(seed=4)
+    assert venv.num_envs == 6 and obs.shape == venv.observation_space.shape
+    assert venv.observation_space.contains(obs)
+    first = obs.copy()
+    for k in range(5):
+        obs, rew, term, trunc, infos = venv.step(venv.action_space.sample())
+        assert rew.shape == term.shape == trunc.shape == (6,)
+        assert (k == 4) == ("final_obs" in infos)
+    assert trunc.all() and infos["_final_obs"].all()
+    assert not np.array_equal(infos["final_obs"], obs)
+    np.testing.assert_array_equal(obs, first)  # same-step autoreset: the new episode's first
+
+
+def test_autoreset_continues_each_convoys_seed_like_convoy_env_reset() -> None:
+    """Episode 2 after an autoreset is ConvoyEnv's ``reset()`` (no seed) after episode 1."""
+    B, loss = 2, LossConfig(per=0.5)
+    mc = load_policy("paper").member_config
+    vec = VectorConvoyEnv(B, "paper", member_config=mc, loss=loss, max_time_s=1.0)
+    envs = [ConvoyEnv("paper", member_config=mc, loss=loss, max_time_s=1.0) for _ in range(B)]
+    vobs, _ = vec.reset(seed=7)
+    obs = [e.reset(seed=7 + b)[0] for b, e in enumerate(envs)]
+    actions = np.tile(np.array([1.2, 0.01], np.float32), (B, 2, 1))
+    for _episode in range(2):
+        for _ in range(vec.max_steps):
+            vobs, _, _, vtrunc, vinfo = vec.step(actions)
+            for b, e in enumerate(envs):
+                obs[b], _, _, trunc, info = e.step({a: actions[b, j] for j, a in enumerate(e.possible_agents)})
+                assert [info[a]["msgs_lost"] for a in e.possible_agents] == vinfo["msgs_lost"][b].tolist()
+        assert vtrunc.all()
+        obs = [e.reset()[0] for e in envs]
+        for b, e in enumerate(envs):
+            np.testing.assert_array_equal(np.stack([obs[b][a] for a in e.possible_agents]), vobs[b])

@@ -63,3 +63,15 @@ def test_policy_acts_on_member_observations():
     a = pol.act(m.observation(0.0))
     assert a[0] == pytest.approx(1.0 + 0.3 * 2.0, abs=1e-5) and a[1] == pytest.approx(0.0, abs=1e-6)
     assert a.dtype == np.float32
+
+
+def test_the_spec_grammar_is_parsed_in_one_place() -> None:
+    from openconvoy.policies.spec import PolicySpec
+
+    p = PolicySpec.parse("dir/fast.toml+ladder")
+    assert (p.base, p.ladder, p.toml, p.learned, p.suffix) == ("dir/fast.toml", True, True, False, "+ladder")
+    assert str(p.with_base("fast")) == "fast+ladder" and str(p) == "dir/fast.toml+ladder"
+    assert PolicySpec.parse("run/model.zip").learned and PolicySpec.parse("p.npz").learned
+    # A learned policy takes no ladder suffix: that spec is a (bad) classical one.
+    assert not PolicySpec.parse("model.zip+ladder").learned
+    assert PolicySpec.parse("paper") == PolicySpec("paper", False)

@@ -403,6 +403,8 @@ def _add_bridge(sub: argparse._SubParsersAction) -> None:
                    help="ArduPilot: no RC mode switch reading (MANUAL) 0.42 s after boot")
     p.add_argument("--speedup", type=_num(0.0, 1000.0, lo_open=True), default=1.0, metavar="X",
                    help="run the vehicle's clock X times faster than real time (default 1)")
+    p.add_argument("--boot-on-connect", action="store_true",
+                   help="boot when the first MAVLink message arrives (as SITL waiting for serial0)")
     p.add_argument("--home", default="52.0,4.37,0", metavar="LAT,LON,ALT")
     p.add_argument("--start", default="0,0,0", metavar="X,Y,HEADING_DEG",
                    help="ENU metres around home; heading degrees, 0 = east, counter-clockwise")

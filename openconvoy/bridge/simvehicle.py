@@ -637,7 +637,8 @@ def run_vehicle_cli(args: Any) -> int:
         home=parse_home(args.home), start_x_m=x, start_y_m=y, start_heading_rad=heading,
         timing=args.timing, ready_after_s=args.ready_after, rc_mode_switch=not args.no_rc_switch,
         setpoint_timeout_s=args.setpoint_timeout, max_message_hz=args.max_rate,
-        speedup=args.speedup, gps_noise_m=args.gps_noise, seed=args.seed,
+        speedup=args.speedup, boot_on_connect=args.boot_on_connect,
+        gps_noise_m=args.gps_noise, seed=args.seed,
     )
     vehicle = SimVehicle(args.mavlink, config)
     try:

@@ -203,7 +203,7 @@ class VectorConvoyEnv:
         scenario: str | PathScenario = "paper",
         n_followers: int | None = None,
         member_config: MemberConfig | None = None,
-        loss: LossConfig | None = None,
+        loss: LossConfig | Sequence[LossConfig] | None = None,
         control_rate_hz: float = 20.0,
         gps_noise_m: float = 0.0,
         max_time_s: float | None = None,
@@ -234,9 +234,15 @@ class VectorConvoyEnv:
             raise ConfigError("VectorConvoyEnv supports path scenarios (paper, track, emergency-braking, track-file)")
         if scenario.n_vehicles < 2:
             raise ConfigError("a convoy needs a leader and at least one follower")
-        self.loss = loss or LossConfig()
+        self.losses = self._per_convoy_loss(loss, int(num_envs))
+        self.loss = max(self.losses, key=lambda c: c.per)
+        self._per = np.array([c.per for c in self.losses])
         probe = self.loss.make()
         self._ge = probe if isinstance(probe, GilbertElliott) else None
+        if self._ge is not None:
+            # Per convoy: the chain for its PER (a PER of 0 is a perfect link, as ConvoyEnv's).
+            self._ge_good = np.array([c.mean_burst_s * (1.0 - c.per) / c.per if c.per > 0 else np.inf
+                                      for c in self.losses])
         if self.loss.jitter_s > 0.0:
             raise ConfigError("VectorConvoyEnv does not support latency jitter yet (use ConvoyEnv)")
         self.scenario = scenario
@@ -290,6 +296,21 @@ class VectorConvoyEnv:
         self.t = np.zeros(B)
         self.step_count = np.zeros(B, dtype=np.int64)
         self._alloc()
+
+    @staticmethod
+    def _per_convoy_loss(loss: LossConfig | Sequence[LossConfig] | None, B: int) -> list[LossConfig]:
+        """One LossConfig per convoy; a sequence may differ only in ``per`` (a batched sweep)."""
+        if loss is None or isinstance(loss, LossConfig):
+            return [loss or LossConfig()] * B
+        out = list(loss)
+        if len(out) != B:
+            raise ConfigError(f"loss: need one LossConfig per convoy ({B}), got {len(out)}")
+        first = out[0]
+        for c in out[1:]:
+            if (c.model, c.mean_burst_s, c.latency_s, c.jitter_s) != (
+                    first.model, first.mean_burst_s, first.latency_s, first.jitter_s):
+                raise ConfigError("loss: the convoys' LossConfigs may differ only in per")
+        return out
 
     # --- static structure ----------------------------------------------------------
 
@@ -450,7 +471,7 @@ class VectorConvoyEnv:
             keys[s, r] = np.uint64(int(np.random.default_rng(seed).integers(2**63)))
         ge = self._ge
         assert ge is not None
-        p_bad = ge.mean_bad_s / (ge.mean_good_s + ge.mean_bad_s)
+        p_bad = ge.mean_bad_s / (self._ge_good[b] + ge.mean_bad_s)
         self.ge_key[b] = keys
         self.ge_bad[b] = counter_uniform_array(keys, GE_INIT) < p_bad
         self.ge_n[b] = 0
@@ -465,8 +486,9 @@ class VectorConvoyEnv:
         n = self.ge_n
         tt = t[:, None, None]
         last = self.ge_t
+        offered &= (self._per > 0.0)[:, None, None]  # PER 0: a perfect link, no chain
         step = offered & ~np.isnan(last) & (tt > last)
-        a, b = 1.0 / ge.mean_good_s, 1.0 / ge.mean_bad_s
+        a, b = (1.0 / self._ge_good)[:, None, None], 1.0 / ge.mean_bad_s
         p_inf = a / (a + b)
         with np.errstate(invalid="ignore"):
             decay = np.exp(-(a + b) * (tt - last))
@@ -712,7 +734,7 @@ class VectorConvoyEnv:
             s_idx = np.arange(N)[None, :, None]
             r_idx = np.arange(N)[None, None, :]
             u = counter_uniform_array(self.keys[:, None, None], s_idx, r_idx, number[:, :, None], DRAW_LOSS)
-            lost = u < per
+            lost = u < self._per[:, None, None]
         else:
             lost = np.zeros((B, N, N), dtype=bool)
         offdiag = ~np.eye(N, dtype=bool)
@@ -752,7 +774,7 @@ class VectorConvoyEnv:
         offered = send[:, ls]
         if self.loss.per > 0.0:
             u = counter_uniform_array(self.keys[:, None], ls[None], lr[None], number[:, ls], DRAW_LOSS)
-            lost = offered & (u < self.loss.per)
+            lost = offered & (u < self._per[:, None])
         else:
             lost = np.zeros_like(offered)
         got = offered & ~lost

@@ -26,17 +26,18 @@ from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
 
 
-def _compare(scenario: str = "paper", B: int = 2, per: float = 0.3, latency_s: float = 0.0,
+def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3, latency_s: float = 0.0,
              steps: int | None = None, n_followers: int | None = None, member: dict | None = None,
              model: str = "bernoulli", **kwargs) -> Counter:
     """Run both worlds; assert they agree at every tick; return the modes seen."""
     mc = load_policy("paper").member_config
     if member:
         mc = dataclasses.replace(mc, **member)
-    loss = LossConfig(per=per, latency_s=latency_s, model=model, mean_burst_s=0.4)
-    vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=loss,
+    pers = per if isinstance(per, list) else [per] * B
+    losses = [LossConfig(per=p, latency_s=latency_s, model=model, mean_burst_s=0.4) for p in pers]
+    vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=losses,
                           autoreset=False, **kwargs)
-    envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=loss, **kwargs) for _ in range(B)]
+    envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=c, **kwargs) for c in losses]
     agents = envs[0].possible_agents
     policies = [[load_policy("paper") for _ in agents] for _ in envs]
     obs = [e.reset(seed=10 + b)[0] for b, e in enumerate(envs)]
@@ -105,6 +106,11 @@ def test_latency_and_per_convoy_seeds() -> None:
 
 def test_gilbert_elliott_bursts() -> None:
     _compare("paper", B=2, per=0.4, model="gilbert-elliott", n_followers=3, steps=200)
+
+
+@pytest.mark.parametrize("model", ["bernoulli", "gilbert-elliott"])
+def test_one_per_per_convoy_for_batched_sweeps(model: str) -> None:
+    _compare("paper", B=3, per=[0.0, 0.3, 0.6], model=model, steps=150)
 
 
 @pytest.mark.parametrize("kind", ["constant-time-headway", "quadratic"])
@@ -221,7 +227,7 @@ def test_autoreset_continues_each_convoys_seed_like_convoy_env_reset() -> None:
     vobs, _ = vec.reset(seed=7)
     obs = [e.reset(seed=7 + b)[0] for b, e in enumerate(envs)]
     actions = np.tile(np.array([1.2, 0.01], np.float32), (B, 2, 1))
-    for episode in range(2):
+    for _episode in range(2):
         for _ in range(vec.max_steps):
             vobs, _, _, vtrunc, vinfo = vec.step(actions)
             for b, e in enumerate(envs):

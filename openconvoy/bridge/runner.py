@@ -292,24 +292,34 @@ class DeployRunner:
         self.origin = Origin(*convoy.origin)
         self.leader_origin = leader_origin
         self.policy = as_convoy_policy(policy)
-        if policy.member_config is None and spacing is None:
-            spacing = scenario_spacing(convoy)
-        member_config = member_config_for(policy.member_config, spacing or SpacingConfig())
-        self.member = ConvoyMember(options.vehicle_id, n, member_config, lengths, decels)
+        self.member = self._member(spacing, lengths, decels)
         self.bounds = bounds or member_tick.ActionBounds.float32(top_speed(convoy, options.vehicle_id))
-        self.frame: Frame = Frame(math.nan, member_config.layout.zeros())
+        self.frame: Frame = Frame(math.nan, self.member.layout.zeros())
         """The member's latest frame (its observation and derived values)."""
         self.decision: member_tick.Decision | None = None
         """The member's latest decision (None for a leader, or while waiting to start)."""
         self.failsafes = Failsafes(
             envelope=envelope or envelope_from(convoy, options.vehicle_id),
-            watchdog=LinkWatchdog(
-                link.telemetry_timeout_s, link.heartbeat_timeout_s
-            ),
+            watchdog=LinkWatchdog(link.telemetry_timeout_s, link.heartbeat_timeout_s),
         )
         self.log_dir = Path(log_dir) if log_dir is not None else None
         self.metadata_extra = dict(metadata or {})
         self.timings: list[TickTiming] = []
+        self._init_run_state()
+
+    def _member(self, spacing: SpacingConfig | None, lengths: list[float] | None,
+                decels: list[float] | None) -> ConvoyMember:
+        """The convoy member, configured as in ``sim``: the policy's member config, or for
+        a policy without one the convoy scenario's spacing (``member_config_for``)."""
+        config = self.policy.member_config
+        if config is None and spacing is None:
+            spacing = scenario_spacing(self.convoy)
+        member_config = member_config_for(config, spacing or SpacingConfig())
+        return ConvoyMember(self.options.vehicle_id, self.convoy.n_vehicles, member_config, lengths, decels)
+
+    def _init_run_state(self) -> None:
+        """What one run accumulates (stop requests, start and end times, timers, HOLD and
+        broadcast bookkeeping)."""
         self._stop_requested = ""
         self._abort = False
         self._tel: Telemetry | None = None
@@ -317,7 +327,7 @@ class DeployRunner:
         self._t_start_wall: float | None = None
         self._t_finish: float | None = None  # monotonic time a leader's scenario ended
         self._heard_raw: set[int] = set()
-        self.recorder = RunRecorder(self.log_dir, options.vehicle_id, EXTRA_COLUMNS)
+        self.recorder = RunRecorder(self.log_dir, self.options.vehicle_id, EXTRA_COLUMNS)
         self._timer: LoopTimer | None = None
         self._late_periods = 0.0
         self._t_hold_sent = -math.inf

@@ -1,160 +1,103 @@
-"""The handlers of ``openconvoy train``, ``tune`` and ``export`` (parsers in ``openconvoy.cli``)."""
+"""The ``openconvoy`` commands of learning: ``train``, ``tune``, ``export`` (their work is in
+``commands``, imported when a command runs, so the parser needs no torch).
+"""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import sys
-from pathlib import Path
 
-from openconvoy.core.errors import ConfigError
-from openconvoy.train.config import TrainConfig, load_train_config
-
-
-def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
-    """``path`` (a ``--config``; default the first, or the defaults) with the flags given
-    on the command line applied."""
-    if path is None and args.config:
-        path = args.config[0]
-    config = load_train_config(path) if path else TrainConfig()
-    top: dict = {}
-    for flag, key in (("algo", "algo"), ("steps", "total_steps"), ("seed", "seed"),
-                      ("envs", "n_envs"), ("threads", "torch_threads")):
-        if getattr(args, flag) is not None:
-            top[key] = getattr(args, flag)
-    env = config.env
-    env_changes: dict = {}
-    if args.base is not None:
-        # A new base brings its own member config and rate unless they are given too.
-        env_changes.update(base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None)
-    if args.followers is not None:
-        env_changes["n_followers"] = args.followers
-    if args.rate is not None:
-        env_changes["control_rate_hz"] = args.rate
-    if env_changes:
-        env = dataclasses.replace(env, **env_changes)
-    if args.M is not None or args.k is not None:
-        member = env.member_config
-        member = dataclasses.replace(member, M=args.M or member.M, k=args.k or member.k)
-        env = dataclasses.replace(env, member=member)
-    r = config.randomization
-    r_changes: dict = {}
-    for flag, key in (("per_range", "per_range"), ("burst_prob", "burst_prob"),
-                      ("latency_range", "latency_s_range"), ("gps_noise_range", "gps_noise_m_range"),
-                      ("scenarios", "scenarios"), ("vehicles", "vehicles")):
-        if getattr(args, flag) is not None:
-            r_changes[key] = tuple(getattr(args, flag)) if isinstance(getattr(args, flag), list) else getattr(args, flag)
-    if r_changes:
-        r = dataclasses.replace(r, **r_changes)
-    return dataclasses.replace(config, env=env, randomization=r, **top)
+from openconvoy.core.args import DURATION, FRACTION, RATE_HZ, SEED
+from openconvoy.core.args import integer as _int
+from openconvoy.core.args import number as _num
+from openconvoy.experiments.cli import executor_args
 
 
-def train_command(args: argparse.Namespace) -> int:
-    """``openconvoy train``: one run in this process, or several (``--seeds``, repeated
-    ``--config``) as tasks of the executor (``openconvoy.train.multirun``)."""
-    from openconvoy.train.train import train
+def _add_train(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("train", help="train a follower policy (PPO/SAC, shared by all followers)",
+                       description="Train one policy for every follower with stable-baselines3 under "
+                       "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
+                       "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
+                       "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
+    p.add_argument("--config", metavar="TRAIN.toml", action="append",
+                   help="training config file; repeat for one run per config (OUT/<stem>)")
+    p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
+    p.add_argument("--steps", type=_int(1, 10**12), metavar="N", help="agent steps (default 600000)")
+    p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
+    p.add_argument("--seed", type=SEED, help="seed (default 0)")
+    p.add_argument("--seeds", type=SEED, nargs="+", metavar="S",
+                   help="one run per seed (OUT/seed_S), run as tasks of --executor")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="training runs at once (default: the cores available, or the cluster's CPUs)")
+    executor_args(p)
+    p.add_argument("--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)")
+    p.add_argument("--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)")
+    p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "
+                   "default paper), or 'none' for absolute actions")
+    p.add_argument("--M", type=_int(1, 1000), help="observation: predecessors per observation (default: the base's)")
+    p.add_argument("--k", type=_int(1, 1000), help="observation: states per vehicle (default: the base's)")
+    p.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="control rate (default: the base's, 20)")
+    p.add_argument("--per-range", type=FRACTION, nargs=2, metavar=("A", "B"), help="PER drawn in [A, B] (default 0 0.6)")
+    p.add_argument("--burst-prob", type=FRACTION, metavar="P", help="chance of Gilbert-Elliott bursts per episode (default 0.3)")
+    p.add_argument("--latency-range", type=_num(0.0, 60.0), nargs=2, metavar=("A", "B"), help="latency, seconds (default 0 0.05)")
+    p.add_argument("--gps-noise-range", type=_num(0.0, 1000.0), nargs=2, metavar=("A", "B"), help="GPS noise std, metres (default 0 0.05)")
+    p.add_argument("--scenarios", nargs="+", metavar="SPEC", help="scenarios drawn per episode (default paper)")
+    p.add_argument("--vehicles", nargs="+", metavar="PRESET", help="vehicle presets or fitted preset .toml files drawn per vehicle (default 1/10 1/6)")
+    p.add_argument("--threads", type=_int(1, 1024), metavar="N", help="torch CPU threads (default 1)")
+    p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    if args.seeds or len(args.config or ()) > 1 or args.executor == "ray":
-        return _train_many(args)
-    config = train_config_from_args(args)
-    print(
-        f"training {config.algo} for {config.total_steps} agent steps on {config.n_envs} envs x "
-        f"{config.env.n_followers} followers"
-        + (f", residual on {config.env.base_policy}" if config.env.base_policy else "")
-        + f" -> {args.out}",
-        file=sys.stderr,
-    )
-    result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
-    print(f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)")
-    return 0
+    def _train(args: argparse.Namespace) -> int:
+        from openconvoy.train.commands import train_command
 
+        return train_command(args)
 
-def _train_many(args: argparse.Namespace) -> int:
-    from openconvoy.experiments.executor import (
-        ExecutorConfig,
-        TasksFailed,
-        make_executor,
-        with_flags,
-    )
-    from openconvoy.train.multirun import plan, train_many
+    p.set_defaults(handler=_train)
 
-    if args.seed is not None and args.seeds:
-        raise ConfigError("give --seed or --seeds, not both")
-    if args.seeds and len(set(args.seeds)) != len(args.seeds):
-        raise ConfigError(f"--seeds repeat: {' '.join(map(str, args.seeds))}")
-    paths = args.config or [None]
-    configs = [(_stem(p) if p else "default", train_config_from_args(args, p)) for p in paths]
-    runs = plan(configs, args.seeds)
-    executor = make_executor(with_flags(ExecutorConfig(), args.executor, args.address, args.jobs))
-    print(f"training {len(runs)} runs on the {executor.kind} executor ({executor.slots} at once) -> {args.out}",
-          file=sys.stderr)
-    try:
-        summary = train_many(runs, args.out, executor, progress=not args.no_progress, overwrite=args.overwrite)
-    except TasksFailed as exc:
-        print(f"openconvoy: error: {exc}", file=sys.stderr)
-        return 1
-    for entry in summary:
-        print(f"{Path(args.out) / entry['policy']}  ({entry['steps']} steps in {entry['wall_s']:.0f} s on {entry['ran_on']})")
-    return 0
+    p = sub.add_parser("tune", help="tune a classical policy's parameters with Optuna",
+                       description="Search a classical policy's PD/PID gains, steering gain and spacing "
+                       "shape against the metrics over PERs and seeds; write the best as a policy "
+                       "TOML file (--policy accepts it) and OUT.json with the study's numbers.")
+    p.add_argument("--policy", default="paper", metavar="BASE", help="preset or policy .toml to start from")
+    p.add_argument("--trials", type=_int(1, 10**7), default=30, metavar="N")
+    p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
+    p.add_argument("--per", type=FRACTION, nargs="+", default=[0.0, 0.3, 0.6], metavar="PER", help="PERs (default 0 0.3 0.6)")
+    p.add_argument("--seeds", type=SEED, nargs="+", default=[1000, 1001], metavar="S",
+                   help="seeds (default 1000 1001, apart from the 0.. of reports)")
+    p.add_argument("--scenario", default="paper", metavar="SPEC")
+    p.add_argument("--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)")
+    p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
+    p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
+    p.add_argument("--storage", metavar="URL_OR_FILE",
+                   help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+                   "or a journal file path; rerunning with it resumes the study")
+    p.add_argument("--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)")
+    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
+                   help="trials at once (default 1 locally, the cluster's CPUs on Ray)")
+    executor_args(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    def _tune(args: argparse.Namespace) -> int:
+        from openconvoy.train.commands import tune_command
 
-def tune_command(args: argparse.Namespace) -> int:
-    """``openconvoy tune``; exit status 1 when trials failed (the study keeps the others)."""
-    from openconvoy.experiments.executor import ExecutorConfig, TasksFailed, with_flags
-    from openconvoy.train.tune import TuneConfig, tune, write_tuned
+        return tune_command(args)
 
-    if not args.out.endswith(".toml"):
-        raise ConfigError(f"{args.out}: the tuned policy is a .toml file")
-    if args.study_name is not None and args.storage is None:
-        raise ConfigError("--study-name needs --storage (an in-memory study cannot be resumed)")
-    config = TuneConfig(
-        base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
-        scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
-        seed=args.seed, name=_stem(args.out),
-    )
-    # Trials run one at a time in this process unless an executor or --jobs is asked for.
-    jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
-    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
-    try:
-        result = tune(config, progress_bar=not args.no_progress, executor=executor,
-                      study_name=args.study_name, storage=args.storage)
-    except TasksFailed as exc:
-        print(f"openconvoy: error: {exc}", file=sys.stderr)
-        return 1
-    path = write_tuned(result, args.out)
-    values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
-    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "
-          f"{len(result.history)} trials in study {result.study_name!r}, {result.evaluated} run now")
-    if result.failures:
-        print(f"openconvoy: error: {len(result.failures)} trials failed:", file=sys.stderr)
-        for f in result.failures:
-            print(f"  {f.line()}", file=sys.stderr)
-        return 1
-    return 0
+    p.set_defaults(handler=_tune)
 
+    p = sub.add_parser("export", help="export a trained policy to a numpy-only .npz",
+                       description="Turn RUN_DIR/policy.zip (or a .zip) into a .npz that runs without "
+                       "torch (weights, observation normalization, action scaling, layout, member "
+                       "config, control rate), and check its actions against SB3's predict.")
+    p.add_argument("run", metavar="RUN_DIR", help="run directory or SB3 .zip")
+    p.add_argument("--out", required=True, metavar="FILE.npz")
 
-def export_command(args: argparse.Namespace) -> int:
-    from openconvoy.policies.learned import load_learned
-    from openconvoy.train.export import (
-        export_policy,
-        max_action_difference,
-        resolve_policy_zip,
-        sample_observations,
-    )
+    def _export(args: argparse.Namespace) -> int:
+        from openconvoy.train.commands import export_command
 
-    path = export_policy(args.run, args.out)
-    trained = load_learned(resolve_policy_zip(args.run))
-    exported = load_learned(path)
-    obs = sample_observations(trained, n=400)
-    diff = max_action_difference(trained, exported, obs)
-    print(f"{path}: max |action difference| vs SB3 predict = {diff:.2e} on {len(obs)} observations")
-    if diff > 1e-5:
-        print("openconvoy: error: the export does not reproduce the trained policy", file=sys.stderr)
-        return 1
-    return 0
+        return export_command(args)
+
+    p.set_defaults(handler=_export)
 
 
-def _stem(path: str) -> str:
-    from pathlib import Path
-
-    return Path(path).stem
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add this package's commands to ``openconvoy``'s subparsers (handlers import lazily)."""
+    _add_train(sub)

@@ -16,13 +16,13 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.bridge.demo import free_udp_port, stop_all, write_convoy_toml
 from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
 from openconvoy.comms import keystore as ks
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.comms.tempids import TempIds
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import metrics as mt
+from openconvoy.demo import free_udp_port, stop_all, write_convoy_toml
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.logs import read_log

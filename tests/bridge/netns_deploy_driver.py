@@ -17,10 +17,10 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.bridge.demo import free_udp_port, stop_all, write_convoy_toml
 from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
+from openconvoy.demo import free_udp_port, stop_all, write_convoy_toml
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from openconvoy.bridge.recording import decode_setpoint, is_recording, read_recording
+from openconvoy.experiments.recording import decode_setpoint, is_recording, read_recording
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 SITL = REPO_ROOT.parent / "shared" / "sitl"

@@ -401,7 +401,7 @@ def run_fit_plant_cli(args: object) -> int:
         print(format_pi_fit(pi_fit))
         preset = pi_fit.preset
     else:
-        from openconvoy.bridge.recording import is_recording
+        from openconvoy.experiments.recording import is_recording
 
         if len(logs) != 1 or is_recording(logs[0]):
             raise ConfigError("the lag model fits one run's log; use --model pi for recordings "
@@ -577,7 +577,7 @@ class PiFit:
 def _series_from(
     path: str | Path, vehicle_id: int | None, source: str, cmd_timing: str = "after-state"
 ) -> tuple[list[_Series], str]:
-    from openconvoy.bridge.recording import is_recording, read_recording
+    from openconvoy.experiments.recording import is_recording, read_recording
 
     if is_recording(path):
         rec = read_recording(path, source=source)

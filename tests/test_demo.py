@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from openconvoy.bridge import demo
+from openconvoy import demo
 from openconvoy.comms.netns import netns_unavailable_reason
 
 

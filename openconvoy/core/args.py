@@ -1,0 +1,44 @@
+"""argparse value types: finite numbers inside declared ranges (``core.config.Range``).
+
+Shared by every subpackage's ``cli`` module, so that a bad number is one line naming the
+flag and the interval allowed, the same everywhere. Units are the flags' own (seconds, Hz).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+from openconvoy.core.config import Range
+
+
+def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+         hi_open: bool = False, integer: bool = False) -> Callable[[str], Any]:
+    """An argparse type: a finite number (or an integer) inside the given interval."""
+    rng = Range(lo, hi, lo_open, hi_open)
+    kind = "integer" if integer else "number"
+
+    def parse(text: str) -> float | int:
+        try:
+            value: float | int = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an' if integer else 'a'} {kind}, got {text!r}") from None
+        if not rng.contains(float(value)):
+            raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: {rng.describe(kind)}")
+        return value
+
+    parse.__name__ = kind
+    return parse
+
+
+def integer(lo: int, hi: int) -> Callable[[str], Any]:
+    return number(lo, hi, integer=True)
+
+
+FRACTION = number(0.0, 1.0)  # probabilities and packet error rates
+SEED = integer(0, 2**32 - 1)
+RATE_HZ = number(0.0, 100.0, lo_open=True)  # control rates: above 100 Hz no autopilot keeps up
+DURATION = number(0.0, 7 * 86400.0, lo_open=True)  # seconds
+TIMEOUT = number(0.0, 86400.0, lo_open=True)  # seconds
+SECONDS_POS = number(0.0, 3600.0, lo_open=True)

@@ -1,0 +1,160 @@
+"""The handlers of ``openconvoy train``, ``tune`` and ``export`` (parsers in ``openconvoy.train.cli``)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from openconvoy.core.errors import ConfigError
+from openconvoy.train.config import TrainConfig, load_train_config
+
+
+def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
+    """``path`` (a ``--config``; default the first, or the defaults) with the flags given
+    on the command line applied."""
+    if path is None and args.config:
+        path = args.config[0]
+    config = load_train_config(path) if path else TrainConfig()
+    top: dict = {}
+    for flag, key in (("algo", "algo"), ("steps", "total_steps"), ("seed", "seed"),
+                      ("envs", "n_envs"), ("threads", "torch_threads")):
+        if getattr(args, flag) is not None:
+            top[key] = getattr(args, flag)
+    env = config.env
+    env_changes: dict = {}
+    if args.base is not None:
+        # A new base brings its own member config and rate unless they are given too.
+        env_changes.update(base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None)
+    if args.followers is not None:
+        env_changes["n_followers"] = args.followers
+    if args.rate is not None:
+        env_changes["control_rate_hz"] = args.rate
+    if env_changes:
+        env = dataclasses.replace(env, **env_changes)
+    if args.M is not None or args.k is not None:
+        member = env.member_config
+        member = dataclasses.replace(member, M=args.M or member.M, k=args.k or member.k)
+        env = dataclasses.replace(env, member=member)
+    r = config.randomization
+    r_changes: dict = {}
+    for flag, key in (("per_range", "per_range"), ("burst_prob", "burst_prob"),
+                      ("latency_range", "latency_s_range"), ("gps_noise_range", "gps_noise_m_range"),
+                      ("scenarios", "scenarios"), ("vehicles", "vehicles")):
+        if getattr(args, flag) is not None:
+            r_changes[key] = tuple(getattr(args, flag)) if isinstance(getattr(args, flag), list) else getattr(args, flag)
+    if r_changes:
+        r = dataclasses.replace(r, **r_changes)
+    return dataclasses.replace(config, env=env, randomization=r, **top)
+
+
+def train_command(args: argparse.Namespace) -> int:
+    """``openconvoy train``: one run in this process, or several (``--seeds``, repeated
+    ``--config``) as tasks of the executor (``openconvoy.train.multirun``)."""
+    from openconvoy.train.train import train
+
+    if args.seeds or len(args.config or ()) > 1 or args.executor == "ray":
+        return _train_many(args)
+    config = train_config_from_args(args)
+    print(
+        f"training {config.algo} for {config.total_steps} agent steps on {config.n_envs} envs x "
+        f"{config.env.n_followers} followers"
+        + (f", residual on {config.env.base_policy}" if config.env.base_policy else "")
+        + f" -> {args.out}",
+        file=sys.stderr,
+    )
+    result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
+    print(f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)")
+    return 0
+
+
+def _train_many(args: argparse.Namespace) -> int:
+    from openconvoy.experiments.executor import (
+        ExecutorConfig,
+        TasksFailed,
+        make_executor,
+        with_flags,
+    )
+    from openconvoy.train.multirun import plan, train_many
+
+    if args.seed is not None and args.seeds:
+        raise ConfigError("give --seed or --seeds, not both")
+    if args.seeds and len(set(args.seeds)) != len(args.seeds):
+        raise ConfigError(f"--seeds repeat: {' '.join(map(str, args.seeds))}")
+    paths = args.config or [None]
+    configs = [(_stem(p) if p else "default", train_config_from_args(args, p)) for p in paths]
+    runs = plan(configs, args.seeds)
+    executor = make_executor(with_flags(ExecutorConfig(), args.executor, args.address, args.jobs))
+    print(f"training {len(runs)} runs on the {executor.kind} executor ({executor.slots} at once) -> {args.out}",
+          file=sys.stderr)
+    try:
+        summary = train_many(runs, args.out, executor, progress=not args.no_progress, overwrite=args.overwrite)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
+    for entry in summary:
+        print(f"{Path(args.out) / entry['policy']}  ({entry['steps']} steps in {entry['wall_s']:.0f} s on {entry['ran_on']})")
+    return 0
+
+
+def tune_command(args: argparse.Namespace) -> int:
+    """``openconvoy tune``; exit status 1 when trials failed (the study keeps the others)."""
+    from openconvoy.experiments.executor import ExecutorConfig, TasksFailed, with_flags
+    from openconvoy.train.tune import TuneConfig, tune, write_tuned
+
+    if not args.out.endswith(".toml"):
+        raise ConfigError(f"{args.out}: the tuned policy is a .toml file")
+    if args.study_name is not None and args.storage is None:
+        raise ConfigError("--study-name needs --storage (an in-memory study cannot be resumed)")
+    config = TuneConfig(
+        base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
+        scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
+        seed=args.seed, name=_stem(args.out),
+    )
+    # Trials run one at a time in this process unless an executor or --jobs is asked for.
+    jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
+    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
+    try:
+        result = tune(config, progress_bar=not args.no_progress, executor=executor,
+                      study_name=args.study_name, storage=args.storage)
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
+    path = write_tuned(result, args.out)
+    values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
+    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "
+          f"{len(result.history)} trials in study {result.study_name!r}, {result.evaluated} run now")
+    if result.failures:
+        print(f"openconvoy: error: {len(result.failures)} trials failed:", file=sys.stderr)
+        for f in result.failures:
+            print(f"  {f.line()}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def export_command(args: argparse.Namespace) -> int:
+    from openconvoy.policies.learned import load_learned
+    from openconvoy.train.export import (
+        export_policy,
+        max_action_difference,
+        resolve_policy_zip,
+        sample_observations,
+    )
+
+    path = export_policy(args.run, args.out)
+    trained = load_learned(resolve_policy_zip(args.run))
+    exported = load_learned(path)
+    obs = sample_observations(trained, n=400)
+    diff = max_action_difference(trained, exported, obs)
+    print(f"{path}: max |action difference| vs SB3 predict = {diff:.2e} on {len(obs)} observations")
+    if diff > 1e-5:
+        print("openconvoy: error: the export does not reproduce the trained policy", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _stem(path: str) -> str:
+    from pathlib import Path
+
+    return Path(path).stem

@@ -124,20 +124,15 @@ class VectorRoad(FastRoad):
 
         # Neighbours on every lane, as Road.neighbour_vehicles finds them (ties: the last
         # equal one ahead, the first equal one behind).
-        others = ~np.eye(n, dtype=bool)
-        front = np.full((len(lanes), n), -1)
-        rear = np.full((len(lanes), n), -1)
-        for k in range(len(lanes)):
-            on = (np.abs(y - lane_y[k]) <= half_w[k] + 1.0) & (-vlen <= x) & (x < lane_len[k] + vlen)
-            cand = on[None, :] & others
-            ahead = cand & (x[None, :] >= x[:, None])
-            xf = np.where(ahead, x[None, :], np.inf)[:, ::-1]
-            jf = n - 1 - np.argmin(xf, axis=1)
-            front[k] = np.where(np.isfinite(xf.min(axis=1)), jf, -1)
-            behind = cand & (x[None, :] < x[:, None])
-            xr = np.where(behind, x[None, :], -np.inf)
-            jr = np.argmax(xr, axis=1)
-            rear[k] = np.where(np.isfinite(xr.max(axis=1)), jr, -1)
+        # All lanes at once: (lane, ego, other) masks.
+        on = ((np.abs(y[None, :] - lane_y[:, None]) <= half_w[:, None] + 1.0) & (-vlen <= x)[None, :]
+              & (x[None, :] < lane_len[:, None] + vlen))
+        cand = on[:, None, :] & ~np.eye(n, dtype=bool)[None]
+        ge = x[None, :] >= x[:, None]
+        xf = np.where(cand & ge[None], x[None, None, :], np.inf)[:, :, ::-1]
+        front = np.where(np.isfinite(xf.min(axis=2)), n - 1 - np.argmin(xf, axis=2), -1)
+        xr = np.where(cand & ~ge[None], x[None, None, :], -np.inf)
+        rear = np.where(np.isfinite(xr.max(axis=2)), np.argmax(xr, axis=2), -1)
 
         def idm(me: np.ndarray, ego: np.ndarray, fr: np.ndarray) -> np.ndarray:
             """IDMVehicle.acceleration with ``me``'s parameters for ``ego`` behind ``fr``
@@ -190,8 +185,10 @@ class VectorRoad(FastRoad):
 
         # Lane-change policy in road order (an abort reads the targets set before it).
         timer = p["timer"].copy()
+        lane_l, fires_l = lane.tolist(), fires.tolist()
+        ok_l = {side: mobil_ok[side].tolist() for side in (-1, 1)}
         for i in np.flatnonzero(act & lc).tolist():
-            if lane[i] != tgt[i]:
+            if lane_l[i] != tgt[i]:
                 mates = (idx != i) & (lane != tgt[i]) & (tgt == tgt[i])
                 if mates.any():
                     j = np.flatnonzero(mates)
@@ -200,14 +197,14 @@ class VectorRoad(FastRoad):
                     ab = -p["COMFORT_ACC_MAX"][i] * p["COMFORT_ACC_MIN"][i]
                     d_star = p["DISTANCE_WANTED"][i] + sp[i] * p["TIME_WANTED"][i] + sp[i] * dv / (2 * np.sqrt(ab))
                     if ((0 < d) & (d < d_star)).any():
-                        tgt[i] = lane[i]
+                        tgt[i] = lane_l[i]
                 continue
-            if not fires[i]:
+            if not fires_l[i]:
                 continue
             timer[i] = 0.0
             for side in (-1, 1):
-                if mobil_ok[side][i]:
-                    tgt[i] = lane[i] + side
+                if ok_l[side][i]:
+                    tgt[i] = lane_l[i] + side
 
         # Steering onto the target lane and IDM on the current (and target) lane.
         lat = y - lane_y[tgt]

@@ -95,7 +95,12 @@ class ConvoyVehicle(IDMVehicle):
         self.heading = heading
         self.speed = speed
         self.impact = None
-        self.on_state_update()
+        closest = getattr(self.road, "closest_lane", None)
+        known = closest(hx, hy, heading) if closest is not None else None
+        if known is None:
+            self.on_state_update()
+        else:  # a straight edge: the same choice as get_closest_lane_index, without its loop
+            self.lane_index, self.lane = known
         self.target_lane_index = self.lane_index
 
     def act(self, action: dict | str | None = None) -> None:

@@ -19,6 +19,7 @@ on this machine: the same operations in the same order, on arrays).
 from __future__ import annotations
 
 import numpy as np
+from highway_env.utils import wrap_to_pi
 
 from openconvoy.envs.traffic import (
     ConvoyVehicle,
@@ -56,6 +57,23 @@ class VectorRoad(FastRoad):
                     or ln.direction[1] != 0.0 or ln.forbidden):
                 return None
         return _from, _to, list(lanes)
+
+    def closest_lane(self, hx: float, hy: float, heading: float) -> tuple[tuple, StraightLane] | None:
+        """``(lane_index, lane)`` that ``RoadNetwork.get_closest_lane_index`` picks for a
+        vehicle at ``(hx, hy)`` (m) with ``heading`` (rad), computed as its
+        ``distance_with_heading`` does, lane by lane; None off a straight edge."""
+        if self._edge is None:
+            return None
+        _from, _to, lanes = self._edge
+        # Every lane heads along +x, so the heading term is the same for all of them.
+        angle = np.abs(wrap_to_pi(heading - lanes[0].heading))
+        s = float(hx)
+        best, best_d = 0, None
+        for k, ln in enumerate(lanes):
+            d = abs(float(hy - ln.start[1])) + max(s - ln.length, 0) + max(0 - s, 0) + 1.0 * angle
+            if best_d is None or d < best_d:
+                best, best_d = k, d
+        return (_from, _to, best), lanes[best]
 
     def _vectorizable(self) -> bool:
         if self._edge is None:

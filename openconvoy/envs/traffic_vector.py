@@ -171,35 +171,39 @@ class VectorRoad(FastRoad):
         # MOBIL for every car whose timer fires (decisions need positions only).
         fires = act & lc & (lane == tgt) & (p["LANE_CHANGE_DELAY"] < p["timer"])
         moving = np.abs(sp) >= 1
-        mobil_ok: dict[int, np.ndarray] = {}
+        # The accelerations on the current lane (every car), then MOBIL's six per side for
+        # the cars whose timer fires (a few per tick: each fires once per LANE_CHANGE_DELAY).
+        fi = np.flatnonzero(fires)
+        nf = len(fi)
+        me_l, ego_l, fr_l = [idx], [idx], [front[lane, idx]]
         sides = {}
-        me_l, ego_l, fr_l = [], [], []
+        lane_f, x_f = lane[fi], x[fi]
         for side in (-1, 1):
-            cl = lane + side
-            valid = fires & (cl >= 0) & (cl < len(lanes))
+            cl = lane_f + side
+            valid = (cl >= 0) & (cl < len(lanes))
             cl_c = np.clip(cl, 0, len(lanes) - 1)
-            reach = (np.abs(y - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x) & (x < lane_len[cl_c] + vlen)
-            sides[side] = valid & reach & moving
-            new_pre, new_fol = front[cl_c, idx], rear[cl_c, idx]
-            old_pre, old_fol = front[lane, idx], rear[lane, idx]
+            reach = ((np.abs(y[fi] - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x_f)
+                     & (x_f < lane_len[cl_c] + vlen))
+            sides[side] = valid & reach & moving[fi]
+            new_pre, new_fol = front[cl_c, fi], rear[cl_c, fi]
+            old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
             # new follower before/after, self after/before, old follower before/after
-            for ego, fr in ((new_fol, new_pre), (new_fol, idx), (idx, new_pre), (idx, old_pre),
-                            (old_fol, idx), (old_fol, old_pre)):
-                me_l.append(idx)
+            for ego, fr in ((new_fol, new_pre), (new_fol, fi), (fi, new_pre), (fi, old_pre),
+                            (old_fol, fi), (old_fol, old_pre)):
+                me_l.append(fi)
                 ego_l.append(ego)
                 fr_l.append(fr)
-        # The final accelerations too: on the current lane, and on every lane as a target.
-        me_l.append(idx)
-        ego_l.append(idx)
-        fr_l.append(front[lane, idx])
-        all_a = idm(np.concatenate(me_l), np.concatenate(ego_l), np.concatenate(fr_l)).reshape(len(me_l), n)
+        all_a = idm(np.concatenate(me_l), np.concatenate(ego_l), np.concatenate(fr_l))
+        acc_lane = all_a[:n]
+        mobil = all_a[n:].reshape(12, nf)
         mobil_ok: dict[int, np.ndarray] = {}
         for k, side in enumerate((-1, 1)):
-            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = all_a[6 * k: 6 * k + 6]
-            jerk = self_pred_a - self_a + p["POLITENESS"] * (nf_pred_a - nf_a + of_pred_a - of_a)
-            mobil_ok[side] = (sides[side] & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"])
-                              & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"]))
-        acc_lane = all_a[-1]
+            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = mobil[6 * k: 6 * k + 6]
+            jerk = self_pred_a - self_a + p["POLITENESS"][fi] * (nf_pred_a - nf_a + of_pred_a - of_a)
+            ok = np.zeros(n, dtype=bool)
+            ok[fi] = (sides[side] & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"][fi])
+                      & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"][fi]))
+            mobil_ok[side] = ok
 
         # Lane-change policy in road order (an abort reads the targets set before it).
         timer = p["timer"].copy()

@@ -340,22 +340,25 @@ class TrafficWorld:
         half_w = 0.5 * np.array([o.WIDTH for o in objs])
         lengths = np.array([o.LENGTH for o in objs])
         n = len(self.convoy)
+        # Every convoy vehicle at once: rows = convoy vehicle i, columns = every object.
+        c = np.array([math.cos(h) for h in head[:n].tolist()])
+        s = np.array([math.sin(h) for h in head[:n].tolist()])
+        d = pos[None, :, :] - pos[:n, None, :]
+        lon = d[:, :, 0] * c[:, None] + d[:, :, 1] * s[:, None]
+        lat = -d[:, :, 0] * s[:, None] + d[:, :, 1] * c[:, None]
+        ok = (lon > 0.0) & (np.abs(lat) < half_w[None, :] + half_w[:n, None]) & (lon < self.max_look_m)
+        ok[np.arange(n), np.arange(n)] = False
+        nearest = np.argmin(np.where(ok, lon, np.inf), axis=1).tolist()
+        seen = ok.any(axis=1).tolist()
         out: list[InPath | None] = []
         for i in range(n):
-            d = pos - pos[i]
-            c, s = math.cos(head[i]), math.sin(head[i])
-            lon = d[:, 0] * c + d[:, 1] * s
-            lat = -d[:, 0] * s + d[:, 1] * c
-            ok = (lon > 0.0) & (np.abs(lat) < half_w + half_w[i]) & (lon < self.max_look_m)
-            ok[i] = False
-            if not ok.any():
+            if not seen[i]:
                 out.append(None)
                 continue
-            cand = np.flatnonzero(ok)
-            j = int(cand[np.argmin(lon[cand])])
-            rng = float(math.hypot(d[j, 0], d[j, 1]))
+            j = nearest[i]
+            rng = float(math.hypot(d[i, j, 0], d[i, j, 1]))
             dv = vel[j] - vel[i]
-            rate = float((d[j, 0] * dv[0] + d[j, 1] * dv[1]) / rng) if rng > 0 else 0.0
+            rate = float((d[i, j, 0] * dv[0] + d[i, j, 1] * dv[1]) / rng) if rng > 0 else 0.0
             traffic = j >= n
             tid = TRAFFIC_ID_BASE + (j - n) if traffic else j
             out.append(InPath(rng, rate, float(lengths[j]), tid, traffic))

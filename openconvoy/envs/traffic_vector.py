@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from highway_env.utils import wrap_to_pi
+from numpy._core.umath import clip as _clip  # np.clip's own ufunc, without its wrapper's overhead
 
 from openconvoy.envs.traffic import (
     ConvoyVehicle,
@@ -43,6 +44,14 @@ class VectorRoad(FastRoad):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._edge = self._straight_edge()
+        if self._edge is not None:  # the edge's lanes, fixed for the road's life
+            lanes = self._edge[2]
+            self._lane_arrays = (
+                np.array([ln.start[1] for ln in lanes]),
+                np.array([ln.length for ln in lanes]),
+                np.array([ln.width / 2 for ln in lanes]),
+                np.array([40.0 if ln.speed_limit is None else ln.speed_limit for ln in lanes]),
+            )
 
     def _straight_edge(self) -> tuple[str, str, list[StraightLane]] | None:
         graph = self.network.graph
@@ -92,6 +101,8 @@ class VectorRoad(FastRoad):
                "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN", "LANE_CHANGE_MAX_BRAKING_IMPOSED", "LANE_CHANGE_DELAY",
                "LENGTH", "KP_LATERAL", "KP_HEADING", "MAX_STEERING_ANGLE")
     _param_key: tuple = ()
+    _mover_key: tuple = ()
+    _mover_const: tuple = ()
     _param_cache: dict = {}
 
     def _params(self, veh: list) -> dict[str, np.ndarray]:
@@ -119,10 +130,7 @@ class VectorRoad(FastRoad):
         veh = self.vehicles
         n = len(veh)
         _from, _to, lanes = self._edge
-        lane_y = np.array([ln.start[1] for ln in lanes])
-        lane_len = np.array([ln.length for ln in lanes])
-        half_w = np.array([ln.width / 2 for ln in lanes])
-        limit = np.array([40.0 if ln.speed_limit is None else ln.speed_limit for ln in lanes])
+        lane_y, lane_len, half_w, limit = self._lane_arrays
         vlen = lanes[0].VEHICLE_LENGTH
 
         pos = np.array([v.position for v in veh], dtype=float).reshape(n, 2)
@@ -138,7 +146,7 @@ class VectorRoad(FastRoad):
         traffic, lc = p["traffic"], p["lc"]
         c, s = np.cos(h), np.sin(h)
         vx, vy = sp * c, sp * s
-        tlimit = np.clip(tspeed, 0, limit[lane])
+        tlimit = _clip(tspeed, 0, limit[lane])
 
         # Neighbours on every lane, as Road.neighbour_vehicles finds them (ties: the last
         # equal one ahead, the first equal one behind).
@@ -181,7 +189,7 @@ class VectorRoad(FastRoad):
         for side in (-1, 1):
             cl = lane_f + side
             valid = (cl >= 0) & (cl < len(lanes))
-            cl_c = np.clip(cl, 0, len(lanes) - 1)
+            cl_c = _clip(cl, 0, len(lanes) - 1)
             reach = ((np.abs(y[fi] - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x_f)
                      & (x_f < lane_len[cl_c] + vlen))
             sides[side] = valid & reach & moving[fi]
@@ -230,12 +238,12 @@ class VectorRoad(FastRoad):
 
         # Steering onto the target lane and IDM on the current (and target) lane.
         lat = y - lane_y[tgt]
-        heading_cmd = np.arcsin(np.clip(-p["KP_LATERAL"] * lat / _not_zero(sp), -1, 1))
-        heading_ref = 0.0 + np.clip(heading_cmd, -np.pi / 4, np.pi / 4)
+        heading_cmd = np.arcsin(_clip(-p["KP_LATERAL"] * lat / _not_zero(sp), -1, 1))
+        heading_ref = 0.0 + _clip(heading_cmd, -np.pi / 4, np.pi / 4)
         rate_cmd = p["KP_HEADING"] * (((heading_ref - h) + np.pi) % (2 * np.pi) - np.pi)
-        slip = np.arcsin(np.clip(p["LENGTH"] / 2 / _not_zero(sp) * rate_cmd, -1, 1))
-        steer = np.clip(np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
-        steer = np.clip(steer, -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        slip = np.arcsin(_clip(p["LENGTH"] / 2 / _not_zero(sp) * rate_cmd, -1, 1))
+        steer = _clip(np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        steer = _clip(steer, -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
         acc = acc_lane
         changing = np.flatnonzero(lane != tgt)
         if len(changing):
@@ -243,8 +251,8 @@ class VectorRoad(FastRoad):
             acc[changing] = np.minimum(acc[changing], idm(changing, changing, front[tgt[changing], changing]))
         # A scripted target holds its speed instead (ControlledVehicle.speed_control).
         acc = np.where(p["hold"], p["KP_A"] * (tspeed - sp), acc)
-        acc = np.clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
-        self.idm_accel = dict(zip(map(id, veh), np.clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
+        acc = _clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
+        self.idm_accel = dict(zip(map(id, veh), _clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
 
         steer_l, acc_l, tgt_l, timer_l = steer.tolist(), acc.tolist(), tgt.tolist(), timer.tolist()
         for i in np.flatnonzero(act).tolist():
@@ -274,9 +282,12 @@ class VectorRoad(FastRoad):
         crashed = np.array([v.crashed for v in movers])
         steer = np.array([float(v.action["steering"]) for v in movers])
         acc = np.array([float(v.action["acceleration"]) for v in movers])
-        length = np.array([v.LENGTH for v in movers], dtype=float)
-        vmax = np.array([v.MAX_SPEED for v in movers], dtype=float)
-        vmin = np.array([v.MIN_SPEED for v in movers], dtype=float)
+        key = tuple(map(id, movers))
+        if key != self._mover_key:  # fixed per set of vehicles
+            self._mover_key = key
+            self._mover_const = tuple(np.array([getattr(v, k) for v in movers], dtype=float)
+                                      for k in ("LENGTH", "MAX_SPEED", "MIN_SPEED"))
+        length, vmax, vmin = self._mover_const
         impact = [v.impact for v in movers]
         # Vehicle.clip_actions
         steer = np.where(crashed, 0.0, steer)
@@ -293,8 +304,7 @@ class VectorRoad(FastRoad):
         h_new = h + sp * np.sin(beta) / (length / 2) * dt
         sp_new = sp + acc * dt
         # on_state_update: the closest lane (Road.get_closest_lane_index, parallel lanes).
-        lane_y = np.array([ln.start[1] for ln in lanes])
-        lane_len = np.array([ln.length for ln in lanes])
+        lane_y, lane_len = self._lane_arrays[:2]
         s = pos[:, 0:1]
         r = pos[:, 1:2] - lane_y[None, :]
         angle = np.abs(((h_new[:, None] - 0.0) + np.pi) % (2 * np.pi) - np.pi)

@@ -114,7 +114,7 @@ class VectorRoad(FastRoad):
             p["lc"] = np.array([v.enable_lane_change for v in veh])
             p["hold"] = np.array([type(v) is ScriptedLaneChanger for v in veh])
             p["KP_A"] = np.array([v.KP_A for v in veh], dtype=float)
-            self._param_key, self._param_cache = key, p
+            self._param_key, self._param_cache, self._param_objs = key, p, list(veh)  # held: the ids stay theirs
         return dict(self._param_cache)
 
     # ``idm_accel``: the IDM acceleration (m/s², clipped) of every vehicle at the last
@@ -284,7 +284,7 @@ class VectorRoad(FastRoad):
         acc = np.array([float(v.action["acceleration"]) for v in movers])
         key = tuple(map(id, movers))
         if key != self._mover_key:  # fixed per set of vehicles
-            self._mover_key = key
+            self._mover_key, self._mover_objs = key, movers  # held: the ids stay theirs
             self._mover_const = tuple(np.array([getattr(v, k) for v in movers], dtype=float)
                                       for k in ("LENGTH", "MAX_SPEED", "MIN_SPEED"))
         length, vmax, vmin = self._mover_const

@@ -32,6 +32,7 @@ from openconvoy.envs.traffic import (
 )
 
 _EPS = 1e-2  # highway_env.utils.not_zero
+_VECTOR_TYPES = (IDMVehicle, ScriptedLaneChanger)
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
@@ -84,18 +85,30 @@ class VectorRoad(FastRoad):
                 best, best_d = k, d
         return (_from, _to, best), lanes[best]
 
-    def _vectorizable(self) -> bool:
+    def _vectorizable_types(self) -> bool:
+        """A straight edge, and only convoy vehicles and route-less IDM / scripted traffic?"""
         if self._edge is None:
             return False
-        end = self._edge[2][0].length - self._edge[2][0].VEHICLE_LENGTH / 2
         for v in self.vehicles:
             t = type(v)
-            if t is ConvoyVehicle:
-                continue
-            # No routes, and nobody at the lane's end (where follow_road would switch lanes).
-            if t not in (IDMVehicle, ScriptedLaneChanger) or v.route or v.position[0] > end:
+            if t is not ConvoyVehicle and (t not in _VECTOR_TYPES or v.route):
                 return False
         return True
+
+    def _before_lane_end(self, x: np.ndarray, movers: np.ndarray) -> bool:
+        """No traffic (``movers``) with x position (``x``, m) at the lane's end, where
+        ``follow_road`` would switch lanes?"""
+        end = self._edge[2][0].length - self._edge[2][0].VEHICLE_LENGTH / 2
+        return not bool((movers & (x > end)).any())
+
+    _eye_n = -1
+    _eye: np.ndarray
+
+    def _not_self(self, n: int) -> np.ndarray:
+        """(1, n, n): True off the diagonal (a vehicle is not its own neighbour)."""
+        if n != self._eye_n:
+            self._eye_n, self._eye = n, ~np.eye(n, dtype=bool)[None]
+        return self._eye
 
     _PARAMS = ("COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DISTANCE_WANTED", "TIME_WANTED", "DELTA", "ACC_MAX",
                "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN", "LANE_CHANGE_MAX_BRAKING_IMPOSED", "LANE_CHANGE_DELAY",
@@ -124,25 +137,28 @@ class VectorRoad(FastRoad):
 
     def act(self) -> None:
         self.idm_accel = {}
-        if not self._vectorizable():
-            super().act()
-            return
         veh = self.vehicles
         n = len(veh)
+        if not n or not self._vectorizable_types():
+            super().act()
+            return
+        pos = np.array([v.position for v in veh], dtype=float).reshape(n, 2)
+        x, y = pos[:, 0], pos[:, 1]
+        p = self._params(veh)
+        if not self._before_lane_end(x, p["traffic"]):
+            super().act()
+            return
         _from, _to, lanes = self._edge
         lane_y, lane_len, half_w, limit = self._lane_arrays
         vlen = lanes[0].VEHICLE_LENGTH
 
-        pos = np.array([v.position for v in veh], dtype=float).reshape(n, 2)
-        x, y = pos[:, 0], pos[:, 1]
-        h = np.array([v.heading for v in veh], dtype=float)
-        sp = np.array([v.speed for v in veh], dtype=float)
-        lane = np.array([v.lane_index[2] for v in veh])
-        tgt = np.array([v.target_lane_index[2] for v in veh])
-        crashed = np.array([v.crashed for v in veh])
-        p = self._params(veh)
-        p["timer"] = np.array([v.timer for v in veh], dtype=float)
-        tspeed = np.array([v.target_speed for v in veh], dtype=float)
+        # One pass over the vehicles, one contiguous row per quantity.
+        cols = np.array([(v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.crashed, v.timer,
+                          v.target_speed) for v in veh], dtype=float).reshape(n, 7).T.copy()
+        h, sp, tspeed = cols[0], cols[1], cols[6]
+        lane, tgt = cols[2].astype(int), cols[3].astype(int)
+        crashed = cols[4] != 0.0
+        p["timer"] = cols[5]
         traffic, lc = p["traffic"], p["lc"]
         c, s = np.cos(h), np.sin(h)
         vx, vy = sp * c, sp * s
@@ -153,12 +169,13 @@ class VectorRoad(FastRoad):
         # All lanes at once: (lane, ego, other) masks.
         on = ((np.abs(y[None, :] - lane_y[:, None]) <= half_w[:, None] + 1.0) & (-vlen <= x)[None, :]
               & (x[None, :] < lane_len[:, None] + vlen))
-        cand = on[:, None, :] & ~np.eye(n, dtype=bool)[None]
+        cand = on[:, None, :] & self._not_self(n)
         ge = x[None, :] >= x[:, None]
-        xf = np.where(cand & ge[None], x[None, None, :], np.inf)[:, :, ::-1]
-        front = np.where(np.isfinite(xf.min(axis=2)), n - 1 - np.argmin(xf, axis=2), -1)
-        xr = np.where(cand & ~ge[None], x[None, None, :], -np.inf)
-        rear = np.where(np.isfinite(xr.max(axis=2)), np.argmax(xr, axis=2), -1)
+        ahead, behind = cand & ge, cand & ~ge
+        xf = np.where(ahead, x, np.inf)[:, :, ::-1]
+        front = np.where(ahead.any(axis=2), n - 1 - np.argmin(xf, axis=2), -1)
+        xr = np.where(behind, x, -np.inf)
+        rear = np.where(behind.any(axis=2), np.argmax(xr, axis=2), -1)
 
         def idm(me: np.ndarray, ego: np.ndarray, fr: np.ndarray) -> np.ndarray:
             """IDMVehicle.acceleration with ``me``'s parameters for ``ego`` behind ``fr``
@@ -265,23 +282,26 @@ class VectorRoad(FastRoad):
     # --- step ------------------------------------------------------------------------------
 
     def step(self, dt: float) -> None:
-        if not self._vectorizable():
+        if not self._vectorizable_types():
+            super().step(dt)
+            return
+        movers = [v for v in self.vehicles if type(v) is not ConvoyVehicle]
+        m = len(movers)
+        pos = np.array([v.position for v in movers], dtype=float).reshape(m, 2)
+        if not self._before_lane_end(pos[:, 0], np.ones(m, dtype=bool)):
             super().step(dt)
             return
         _from, _to, lanes = self._edge
-        movers = [v for v in self.vehicles if type(v) is not ConvoyVehicle]
         if movers:
-            self._move(movers, dt, lanes, _from, _to)
+            self._move(movers, pos, dt, lanes, _from, _to)
         collide(self, dt)
 
-    def _move(self, movers: list, dt: float, lanes: list, _from: str, _to: str) -> None:
+    def _move(self, movers: list, pos: np.ndarray, dt: float, lanes: list, _from: str, _to: str) -> None:
         m = len(movers)
-        pos = np.array([v.position for v in movers], dtype=float).reshape(m, 2)
-        h = np.array([v.heading for v in movers], dtype=float)
-        sp = np.array([v.speed for v in movers], dtype=float)
-        crashed = np.array([v.crashed for v in movers])
-        steer = np.array([float(v.action["steering"]) for v in movers])
-        acc = np.array([float(v.action["acceleration"]) for v in movers])
+        cols = np.array([(v.heading, v.speed, v.crashed, float(v.action["steering"]), float(v.action["acceleration"]))
+                         for v in movers], dtype=float).reshape(m, 5).T.copy()
+        h, sp, steer, acc = cols[0], cols[1], cols[3], cols[4]
+        crashed = cols[2] != 0.0
         key = tuple(map(id, movers))
         if key != self._mover_key:  # fixed per set of vehicles
             self._mover_key, self._mover_objs = key, movers  # held: the ids stay theirs

@@ -19,6 +19,11 @@ and the predecessors their topology keeps; a scenario-driven leader waits until 
 every member, so the convoy starts moving together as it does in simulation. When its
 scenario is over the leader brakes to rest, still broadcasting (its followers see it stop
 and stop behind it), then holds and ends.
+
+The parts: ``bridge.vehicle`` (connect, arm, setpoints and HOLD, the safe finish),
+``bridge.convoystart`` (the wait for the convoy), ``bridge.leaderdrive`` (the leader's
+commands, the run's length), ``bridge.exchange`` (V2V send and receive), ``bridge.runlog``
+(log rows, status lines, metadata); ``DeployRunner`` schedules them and owns the tick.
 """
 
 from __future__ import annotations

@@ -108,7 +108,7 @@ def test_experiment_files_are_strict_and_round_trip(tmp_path: Path):
     with pytest.raises(ValueError, match="markov"):
         ExperimentConfig.from_toml(bad)
     bad.write_text('[experiment]\npers = [0.0, 1.5]\n')
-    with pytest.raises(ValueError, match="PER"):
+    with pytest.raises(ValueError, match=r"pers\[1\].*1\.5.*\[0, 1\]"):
         ExperimentConfig.from_toml(bad)
 
 

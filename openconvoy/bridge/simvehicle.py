@@ -22,6 +22,11 @@ in MANUAL ~23 s, in GUIDED ~42 s after boot); the default ``"short"`` keeps its 
 compressed so that GUIDED/OFFBOARD is armable after ``ready_after_s``. ArduPilot's RC
 mode switch at boot (MANUAL 0.42 s after "ArduPilot Ready") is on by default.
 
+With a ``world`` (``simworld.SimWorld``) and a preset carrying a ranging sensor, the
+vehicle streams DISTANCE_SENSOR as a forward rangefinder would (orientation 0, laser, cm
+from the front bumper to the nearest vehicle ahead, max + 1 m when nothing is in range)
+at ``RANGE_HZ``; without a world it has no rangefinder.
+
 Test hooks: ``freeze`` (stop sending), ``stop`` (a killed vehicle), ``pilot_set_mode``
 (a person flips the mode switch); in the process form SIGUSR1 switches to MANUAL and
 SIGUSR2 toggles the freeze.
@@ -44,6 +49,7 @@ from openconvoy.bridge import mavproto as mp
 from openconvoy.bridge.sim_ardupilot import ArduPilotRover, ArduPilotTiming
 from openconvoy.bridge.sim_px4 import Px4Rover, Px4Timing
 from openconvoy.bridge.simmotion import MotionState, PresetMotion
+from openconvoy.bridge.simworld import SimWorld, distance_sensor_cm
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState, wrap_angle
@@ -52,6 +58,10 @@ from openconvoy.envs.vehicles import VehiclePreset
 MSG_HEARTBEAT = 0
 MSG_RC_CHANNELS = 65
 MSG_SERVO_OUTPUT_RAW = 36
+MSG_DISTANCE_SENSOR = 132
+RANGE_HZ = 20.0
+"""DISTANCE_SENSOR rate (Hz): a lidar at ArduPilot's usual 20 Hz stream rate."""
+MAV_DISTANCE_SENSOR_LASER = 0
 _STREAMS = (
     mp.MSG_GLOBAL_POSITION_INT, mp.MSG_ATTITUDE, mp.MSG_VFR_HUD, mp.MSG_LOCAL_POSITION_NED,
     MSG_SERVO_OUTPUT_RAW, MSG_RC_CHANNELS,
@@ -211,6 +221,7 @@ class SimVehicle:
         url: str,
         config: SimVehicleConfig | None = None,
         clock: Callable[[], float] = time.monotonic,
+        world: SimWorld | None = None,
     ) -> None:
         self.url = url
         self.config = config or SimVehicleConfig()
@@ -235,6 +246,12 @@ class SimVehicle:
         self._heard_peer = False
         self._text_id = 0
         self._geodetic = _GeodeticCache(c.home)
+        self._world = world
+        self._sensor = c.preset.ranging if c.preset is not None and world is not None else None
+        if world is not None:
+            world.register(c.system_id, self.state, c.preset.length_m if c.preset else 0.0)
+        if self._sensor is not None:
+            self._intervals[MSG_DISTANCE_SENSOR] = 1.0 / RANGE_HZ
 
     # ----------------------------------------------------------------- lifecycle
 
@@ -564,10 +581,22 @@ class SimVehicle:
             steer, thr = fw.servo_pwm()
             mav.servo_output_raw_send(int(t * fw.clock_ratio * 1e6) & 0xFFFFFFFF, 0,
                                       steer, 1500, thr, 1500, 0, 0, 0, 0)
+        elif msg_id == MSG_DISTANCE_SENSOR:
+            self._send_range(mav, t_ms)
         elif msg_id == MSG_RC_CHANNELS:
             ch = fw.rc_channels()
             mav.rc_channels_send(t_ms, 8 if ch[0] else 0, *ch, *([0] * 10), 255)
         return True
+
+    def _send_range(self, mav: Any, t_ms: int) -> None:
+        """DISTANCE_SENSOR from the world's true geometry plus the sensor's noise."""
+        sensor, world = self._sensor, self._world
+        if sensor is None or world is None:
+            return
+        reading = world.forward_range(self.config.system_id, sensor.max_range_m)
+        lo, hi, cm = distance_sensor_cm(reading, sensor.max_range_m, sensor.range_noise_m,
+                                        lambda: float(self._rng.normal()))
+        mav.distance_sensor_send(t_ms, lo, hi, cm, MAV_DISTANCE_SENSOR_LASER, 0, 0, 0)
 
 
 # --------------------------------------------------------------------- process form (CLI)

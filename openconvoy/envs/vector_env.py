@@ -400,6 +400,8 @@ class VectorConvoyEnv:
         self.cmd_v = np.zeros((B, N))
         self.cmd_dh = np.zeros((B, N))
         self.estopped = np.zeros((B, N), dtype=bool)
+        self.policy_failed = np.zeros((B, N), dtype=bool)
+        self.policy_errors = np.zeros((B, N), dtype=np.int64)
         self.desired_gap = np.full((B, N), np.nan)
         self.spacing_error = np.full((B, N), np.nan)
         self.pred_age = np.full((B, N), np.nan)
@@ -454,7 +456,8 @@ class VectorConvoyEnv:
         for arr, value in ((self.next_check, -np.inf), (self.msgs_sent, 0), (self.broadcasts, 0),
                            (self.delivered_to, 0), (self.lost_to, 0), (self.msgs_kept, 0),
                            (self.hist_n, 0), (self.trail_n, 0), (self.hint, np.nan), (self.modes, COOP),
-                           (self.cmd_v, 0.0), (self.cmd_dh, 0.0), (self.estopped, False)):
+                           (self.cmd_v, 0.0), (self.cmd_dh, 0.0), (self.estopped, False),
+                           (self.policy_failed, False), (self.policy_errors, 0)):
             arr[w] = value
         self.last_sent[:, w] = np.nan
         self.q_arrival[:, w] = np.inf
@@ -525,6 +528,13 @@ class VectorConvoyEnv:
         if a.shape != (B, N - 1, 2):
             raise ValueError(f"actions must have shape {(B, N - 1, 2)}, got {a.shape}")
         t = self.t
+        # A non-finite action is a policy error, as in ConvoyEnv (core.tick.decide): the
+        # follower stops, the error is counted, and it stays stopped (failsafe) after.
+        bad = ~np.isfinite(a).all(axis=-1)
+        if bad.any():
+            self.policy_errors[:, 1:] += bad
+            self.policy_failed[:, 1:] |= bad
+            a = np.where(bad[..., None], np.float32(0.0), a)
         a64 = np.clip(a.astype(np.float64), self.action_low, self.action_high)
         a0 = a64[..., 0].astype(np.float32).astype(np.float64)
         a1 = a64[..., 1].astype(np.float32).astype(np.float64)
@@ -532,6 +542,11 @@ class VectorConvoyEnv:
         cmd_v, cmd_dh = self.cmd_v, self.cmd_dh
         cmd_v[:, 1:], cmd_dh[:, 1:] = v, dh
         self.modes[:, 1:] = mode
+        failed = self.policy_failed[:, 1:]
+        if failed.any():
+            cmd_v[:, 1:] = np.where(failed, 0.0, cmd_v[:, 1:])
+            cmd_dh[:, 1:] = np.where(failed, 0.0, cmd_dh[:, 1:])
+            self.modes[:, 1:] = np.where(failed, FAILSAFE, self.modes[:, 1:])
         if self.emergency_stop:
             self._emergency(t)
         X, Y, V, H, A, _ = self.own_truth
@@ -1149,4 +1164,5 @@ class VectorConvoyEnv:
             "msgs_kept": self.msgs_kept[:, 1:].copy(),
             "msgs_lost": self.lost_to[:, 1:].copy(),
             "pred_msg_age_s": self.pred_age[:, 1:].copy(),
+            "policy_errors": self.policy_errors[:, 1:].copy(),
         }

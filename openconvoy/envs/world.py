@@ -31,6 +31,7 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.core import tick as member_tick
 from openconvoy.core.faults import Fault, check_faults
 from openconvoy.core.member import ConvoyMember, Frame, MemberConfig
+from openconvoy.core.ranging import range_and_rate
 from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
@@ -239,13 +240,12 @@ class ConvoyWorld:
         out: dict[int, Ranging] = {}
         p = self.plant
         for i, sensor in self.ranging_sensors:
-            dx, dy = p.x[i - 1] - p.x[i], p.y[i - 1] - p.y[i]
-            rng_m = math.hypot(dx, dy)
+            rng_m, rate = range_and_rate(
+                p.x[i], p.y[i], p.speed[i], p.heading[i],
+                p.x[i - 1], p.y[i - 1], p.speed[i - 1], p.heading[i - 1],
+            )
             if rng_m > sensor.max_range_m or rng_m <= 0.0:
                 continue
-            dvx = p.speed[i - 1] * math.cos(p.heading[i - 1]) - p.speed[i] * math.cos(p.heading[i])
-            dvy = p.speed[i - 1] * math.sin(p.heading[i - 1]) - p.speed[i] * math.sin(p.heading[i])
-            rate = (dx * dvx + dy * dvy) / rng_m
             n1, n2 = self._ranging_rng.normal(size=2)
             out[i] = (rng_m + sensor.range_noise_m * n1, rate + sensor.range_rate_noise_mps * n2)
         return out

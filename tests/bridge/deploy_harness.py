@@ -22,10 +22,11 @@ from openconvoy.bridge.localv2v import LocalBus, LocalV2V
 from openconvoy.bridge.mavlink import MavlinkLink
 from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
 from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+from openconvoy.bridge.simworld import SimWorld
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.envs.scenarios import make_scenario
-from openconvoy.envs.vehicles import vehicle_preset
+from openconvoy.envs.vehicles import RangingSensor, vehicle_preset
 from openconvoy.policies import load_policy
 
 
@@ -142,9 +143,12 @@ def make_convoy(
     policies: dict[int, Any] | None = None,
     tcp: bool = False,
     v2v_factory: Callable[[int, ConvoyConfig], Any] | None = None,
+    ranging: dict[int, RangingSensor] | None = None,
 ) -> Convoy:
     """``n`` cars at the paper scenario's initial positions; started unless ``start`` is False.
-    ``v2v_factory(i, convoy)`` gives car ``i`` its V2V endpoint (default: the in-process bus)."""
+    ``v2v_factory(i, convoy)`` gives car ``i`` its V2V endpoint (default: the in-process bus).
+    ``ranging``: the cars whose simulated vehicle has that forward rangefinder (all cars
+    then share one ``SimWorld``, so it sees the others)."""
     names = ("1/10", "1/6", "1/10", "1/6")[:n]
     convoy = ConvoyConfig(name="test", vehicles=names, safety=safety or SafetyConfig())
     origin = Origin(*convoy.origin)
@@ -152,17 +156,19 @@ def make_convoy(
     scenario = make_scenario("paper", presets=presets)
     init = scenario.initial_state()
     bus = LocalBus()
+    world = SimWorld() if ranging else None
     log_dir = tmp_path / "run"
     cars = []
     for i in range(n):
         port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
         cfg = SimVehicleConfig(**{
-            "system_id": i + 1, "autopilot": autopilot, "preset": presets[i], "home": origin,
+            "system_id": i + 1, "autopilot": autopilot, "home": origin,
+            "preset": presets[i].with_ranging(ranging[i]) if ranging and i in ranging else presets[i],
             "start_x_m": float(init.x[i]), "start_y_m": float(init.y[i]),
             "start_heading_rad": float(init.heading[i]), "ready_after_s": 0.0,
             **(vehicle_config or {}),
         })
-        vehicle = SimVehicle(f"{'tcpin' if tcp else 'udpin'}:127.0.0.1:{port}", cfg).start()
+        vehicle = SimVehicle(f"{'tcpin' if tcp else 'udpin'}:127.0.0.1:{port}", cfg, world=world).start()
         link = RecordingLink(MavlinkLink(
             f"{'tcp' if tcp else 'udpout'}:127.0.0.1:{port}", origin, vehicle_id=i, length_m=presets[i].length_m,
             on_status=lambda line: None,

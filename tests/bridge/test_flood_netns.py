@@ -35,7 +35,9 @@ def test_a_flood_of_foreign_bsms_does_not_stall_the_loop(tmp_path):
     # is what the machine gives the sender: 40,000/s asked, ~30,000/s on 2 idle cores,
     # ~5,000/s on 2 cores at a load of 10.)
     assert res["flood_sent"] > 10_000, res
-    assert v["filtered"] > 0.5 * res["flood_sent"], res
+    # The receive buffer is small on purpose (what is read is at most ~0.1 s old), so on a
+    # loaded machine the kernel drops part of the flood before the deploy sees it.
+    assert v["filtered"] > 5_000, res
     # Slack for a loaded 2-core CI machine; on an idle one it is 100 % and 1.1 periods.
     assert v["ticks"] >= 0.75 * v["expected_ticks"], res
     assert v["on_time"] >= 0.5, res  # before the fix: 0 (3 ticks in 2.5 s)

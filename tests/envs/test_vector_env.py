@@ -28,7 +28,7 @@ from openconvoy.policies.spec import load_policy
 
 def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3, latency_s: float = 0.0,
              steps: int | None = None, n_followers: int | None = None, member: dict | None = None,
-             model: str = "bernoulli", **kwargs) -> Counter:
+             model: str = "bernoulli", corrupt=None, **kwargs) -> Counter:
     """Run both worlds; assert they agree at every tick; return the modes seen."""
     mc = load_policy("paper").member_config
     if member:
@@ -50,6 +50,8 @@ def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3
             for j, a in enumerate(agents):
                 np.testing.assert_allclose(vobs[b, j], obs[b][a], rtol=0, atol=1e-5, err_msg=f"tick {k}")
                 actions[b, j] = policies[b][j].act(vobs[b, j])
+        if corrupt is not None:
+            actions = corrupt(k, actions)
         vobs, vrew, vterm, vtrunc, vinfo = vec.step(actions)
         for b, env in enumerate(envs):
             obs[b], rew, term, trunc, info = env.step({a: actions[b, j] for j, a in enumerate(agents)})
@@ -59,7 +61,7 @@ def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3
                 i = info[a]
                 assert i["mode"] == MODES[vinfo["mode"][b, j]], (k, b, a)
                 modes[i["mode"]] += 1
-                for key in ("msgs_sent", "msgs_received", "msgs_kept", "msgs_lost"):
+                for key in ("msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors"):
                     assert i[key] == vinfo[key][b, j], (k, b, a, key)
                 assert rew[a] == pytest.approx(vrew[b, j], abs=1e-9)
                 for key in ("gap_m", "speed_mps"):
@@ -126,6 +128,19 @@ def test_staleness_ladder_under_heavy_loss() -> None:
 def test_faults_and_emergency_stop() -> None:
     modes = _compare("paper", B=1, per=0.1, faults=["dead:1@5", "silent:0@8"], steps=260)
     assert modes["stop"] > 0
+
+
+def test_a_non_finite_action_stops_the_follower_as_in_convoy_env() -> None:
+    """The one-tick rule in the batched world too: NaN is a counted policy error and a
+    latched stop (failsafe), never a command to the plant."""
+    def corrupt(k: int, actions: np.ndarray) -> np.ndarray:
+        if k in (200, 201):
+            actions = actions.copy()
+            actions[0, 0, 0] = np.nan
+        return actions
+
+    modes = _compare(steps=300, corrupt=corrupt)
+    assert modes["failsafe"] == 100  # follower 1 of convoy 0, from tick 200 to the end
 
 
 def test_autoreset_starts_the_next_episode_in_the_same_step() -> None:

@@ -156,7 +156,7 @@ def measure(rate_hz: float, seconds: float) -> dict:
             if proc.poll() is None:
                 proc.kill()
         sent_times = np.array(json.loads(Path(spec["times"]).read_text()))
-    t_start = follower._t_start if follower._t_start is not None else follower.timings[0].t_tick
+    t_start = follower.start_gate.t_start if follower.start_gate.t_start is not None else follower.timings[0].t_tick
     timings = [t for t in follower.timings if t.t_tick >= t_start]  # driving only
     periods = np.diff(np.array([t.t_tick for t in timings]))
     jitter = np.abs(periods - 1.0 / rate_hz)

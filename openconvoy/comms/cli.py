@@ -12,13 +12,13 @@ from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 from openconvoy.core.errors import ConfigError
 
+# comms.multicast.DEFAULT_GROUP / DEFAULT_PORT, spelled out to keep imports lazy
+# (tests/comms/test_cli.py checks they agree).
+DEFAULT_GROUP, DEFAULT_PORT = "ff15::4f43", 4200
+
 
 def _add_bsm(sub: argparse._SubParsersAction) -> None:
     """``bsm listen | send | decode`` (the work is in ``openconvoy.comms.tools``)."""
-    # comms.multicast.DEFAULT_GROUP / DEFAULT_PORT, spelled out to keep imports lazy
-    # (tests/comms/test_cli.py checks they agree).
-    DEFAULT_GROUP, DEFAULT_PORT = "ff15::4f43", 4200
-
     bsm = sub.add_parser(
         "bsm",
         help="J2735 BSM field tools: listen, send, decode",
@@ -26,14 +26,20 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         "MessageFrames) over IPv6 multicast, and the original implementation's JSON.",
     )
     cmds = bsm.add_subparsers(dest="bsm_command", metavar="SUBCOMMAND", required=True)
+    for add in (_add_listen, _add_send, _add_decode):
+        add(cmds)
 
-    def net_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--iface", required=True, help="network interface, e.g. wlan0")
-        p.add_argument("--group", default=DEFAULT_GROUP,
-                       help=f"IPv6 multicast group (default {DEFAULT_GROUP})")
-        p.add_argument("--port", type=_int(1, 65535), default=DEFAULT_PORT,
-                       help=f"UDP port (default {DEFAULT_PORT})")
 
+def net_args(p: argparse.ArgumentParser) -> None:
+    """``--iface``, ``--group``, ``--port`` of the BSM tools."""
+    p.add_argument("--iface", required=True, help="network interface, e.g. wlan0")
+    p.add_argument("--group", default=DEFAULT_GROUP,
+                   help=f"IPv6 multicast group (default {DEFAULT_GROUP})")
+    p.add_argument("--port", type=_int(1, 65535), default=DEFAULT_PORT,
+                   help=f"UDP port (default {DEFAULT_PORT})")
+
+
+def _add_listen(cmds: argparse._SubParsersAction) -> None:
     p = cmds.add_parser(
         "listen",
         help="print BSMs heard on an interface, one line each",
@@ -59,6 +65,8 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_listen)
 
+
+def _add_send(cmds: argparse._SubParsersAction) -> None:
     p = cmds.add_parser(
         "send",
         help="send test BSMs",
@@ -114,6 +122,8 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_send)
 
+
+def _add_decode(cmds: argparse._SubParsersAction) -> None:
     p = cmds.add_parser(
         "decode",
         help="print one UPER MessageFrame's BSM core in physical units",

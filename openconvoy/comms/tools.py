@@ -6,7 +6,7 @@ per sender, the frames accepted and rejected by reason, and a summary at exit. `
 sends test BSMs from a made-up vehicle moving at constant speed and heading, signed with
 ``--key`` or not, or replays a captured datagram, at any rate (a forger's or a flood's
 tool, for resilience experiments). ``decode`` prints one frame's core fields in physical
-units. The argparse declarations live in ``openconvoy.cli`` (``_add_bsm``); these
+units. The argparse declarations live in ``openconvoy.comms.cli`` (``_add_bsm``); these
 functions do the work.
 """
 

@@ -53,6 +53,8 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_train)
 
+
+def _add_tune(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("tune", help="tune a classical policy's parameters with Optuna",
                        description="Search a classical policy's PD/PID gains, steering gain and spacing "
                        "shape against the metrics over PERs and seeds; write the best as a policy "
@@ -83,6 +85,8 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_tune)
 
+
+def _add_export(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="export a trained policy to a numpy-only .npz",
                        description="Turn RUN_DIR/policy.zip (or a .zip) into a .npz that runs without "
                        "torch (weights, observation normalization, action scaling, layout, member "
@@ -101,3 +105,5 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this package's commands to ``openconvoy``'s subparsers (handlers import lazily)."""
     _add_train(sub)
+    _add_tune(sub)
+    _add_export(sub)

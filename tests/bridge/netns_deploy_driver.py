@@ -41,13 +41,14 @@ def main(action: str, out: Path) -> dict:
                                start_heading_rad=float(init.heading[i]), ready_after_s=0.5)
         v = SimVehicle(f"udpin:127.0.0.1:{port}", cfg)
         log: list[tuple[float, float]] = []
-        orig = v._on_setpoint
+        orig = v.firmware.setpoint
 
-        def record(msg, local, orig=orig, log=log):
-            orig(msg, local)
-            log.append((time.time(), math.hypot(msg.vx, msg.vy)))
+        def record(t, local, frame, mask, vx, vy, yaw, yaw_rate, orig=orig, log=log):
+            orig(t, local, frame, mask, vx, vy, yaw, yaw_rate)
+            log.append((time.time(), math.hypot(vx, vy)))
 
-        v._on_setpoint = record
+        # Every setpoint the simulated autopilot receives, with its wall time.
+        v.firmware.setpoint = record
         vehicles.append(v.start())
         received.append(log)
         cmd = [sys.executable, "-m", "openconvoy.cli", "deploy", "--policy", "paper",

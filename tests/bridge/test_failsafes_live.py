@@ -64,7 +64,7 @@ def test_frozen_telemetry_stops_then_holds_when_it_returns(tmp_path):
         follower.vehicle.freeze(False)  # the link returns: HOLD, no more commands
         wait_until(lambda: follower.vehicle.mode == "HOLD", 4, "HOLD after the link returned")
         # The runner learns the mode from the next 1 Hz heartbeat, then goes quiet.
-        wait_until(lambda: follower.runner._tel.mode == "HOLD", 2.5, "HOLD seen by the runner")
+        wait_until(lambda: follower.runner.vehicle.tel.mode == "HOLD", 2.5, "HOLD seen by the runner")
         n_sent = len(follower.link.sent)
         time.sleep(0.5)
         assert len(follower.link.sent) - n_sent <= 2  # quiet once held
@@ -213,9 +213,9 @@ def test_policy_exception_stops_logs_and_keeps_looping(tmp_path):
             1, "policy error recorded",
         )
         det = follower.first_event("policy error")
-        ticks = follower.runner._timer.ticks
+        ticks = follower.runner.timer.ticks
         time.sleep(1.0)
-        assert follower.runner._timer.ticks - ticks >= 10  # the loop goes on
+        assert follower.runner.timer.ticks - ticks >= 10  # the loop goes on
         assert_stopped_after(follower, det)
         assert follower.vehicle.mode == "GUIDED"  # a stop, not a HOLD: a person decides
     finally:
@@ -381,7 +381,7 @@ def test_px4_streams_before_offboard_and_loses_offboard_when_the_stream_stops(tm
         time.sleep(1.0)
         assert follower.link.after(det) == []
         assert follower.vehicle.mode == "POSCTL" and follower.link.stream_ended  # never resumed
-        assert follower.runner._timer.overruns >= 1  # the stall was counted
+        assert follower.runner.timer.overruns >= 1  # the stall was counted
     finally:
         c.stop()
     meta = assert_log_survived(c, 1)

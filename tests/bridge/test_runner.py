@@ -237,7 +237,7 @@ def leader_setup(tmp_path, scenario_spec: str, convoy_origin: tuple[float, float
 def test_leader_follows_the_paper_scenario(tmp_path):
     link, runner = leader_setup(tmp_path, "paper", ConvoyConfig().origin)
     runner.run()
-    t_end = runner._t_finish
+    t_end = runner.leading.t_finish
     assert t_end is not None  # scenario over: the leader brakes, broadcasting, then ends
     drive = [s for s in link.sent[1:] if s[0] < t_end]
     speeds = np.array([s[1] for s in drive])
@@ -253,7 +253,7 @@ def test_track_file_leader_steers_in_the_tracks_own_frame(tmp_path):
     convoy_origin = (28.60230, -81.2001, 0.0)
     link, runner = leader_setup(tmp_path, "track-file:example", convoy_origin)
     runner.run()
-    drive = [s for s in link.sent[1:] if s[0] < runner._t_finish]
+    drive = [s for s in link.sent[1:] if s[0] < runner.leading.t_finish]
     assert max(abs(s[2]) for s in drive) < 0.05  # along the first straight, east
     assert drive[-1][1] == pytest.approx(1.5, abs=0.3)
 

@@ -1,0 +1,64 @@
+"""The deploy runner's convoy start: waiting for the vehicles the topology needs.
+
+A follower waits, armed and still, until it has heard the leader and the predecessors its
+Rx gate keeps; a scenario-driven leader waits until it has heard every member (at most
+``RunnerOptions.convoy_wait_s``), so the convoy starts moving together as in simulation.
+"Heard" counts every vehicle message the V2V link delivered, before the Rx gate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+
+class ConvoyStart:
+    """Who has been heard, and when this vehicle started moving.
+
+    Args:
+        vehicle_id: convoy index, 0 = leader; n_vehicles: the convoy's size.
+        keeps: the member's Rx gate (``rx.keeps(j)``: whether messages of ``j`` are kept).
+        leader_waits: whether a leader waits for the convoy (not passive, and
+            ``leader_waits_for_convoy``); wait_s: the longest such wait (s).
+        clock: the runner's monotonic clock (s).
+    """
+
+    def __init__(self, vehicle_id: int, n_vehicles: int, keeps: Callable[[int], bool], *,
+                 leader_waits: bool, wait_s: float, clock: Callable[[], float]) -> None:
+        self.vehicle_id = vehicle_id
+        self.n_vehicles = n_vehicles
+        self.keeps = keeps
+        self.leader_waits = leader_waits
+        self.wait_s = wait_s
+        self.clock = clock
+        self.heard: set[int] = set()
+        self.t_start: float | None = None
+        """Monotonic time (s) the convoy started moving; None before."""
+        self.t_start_wall: float | None = None
+        """The same on the shared clock (s)."""
+
+    def heard_from(self, vehicle_id: int) -> None:
+        self.heard.add(vehicle_id)
+
+    def waiting_for(self, t_loop_start: float | None) -> list[int]:
+        """Vehicles still unheard before this one may start (empty = go); the leader's wait
+        counts from ``t_loop_start`` (the loop's first tick, monotonic s)."""
+        if self.t_start is not None:
+            return []
+        i, n = self.vehicle_id, self.n_vehicles
+        if i == 0:
+            if not self.leader_waits:
+                return []
+            if self.clock() - (t_loop_start if t_loop_start is not None else self.clock()) > self.wait_s:
+                return []
+            return [j for j in range(1, n) if j not in self.heard]
+        need = {j for j in range(i) if self.keeps(j)}
+        need.add(0)
+        return sorted(j for j in need if j not in self.heard)
+
+    def update(self, now: float, wall: float, t_loop_start: float | None) -> bool:
+        """Whether this vehicle still waits at monotonic ``now``; the first time it need not,
+        the start is recorded (``t_start``, and ``wall`` as ``t_start_wall``)."""
+        waiting = bool(self.waiting_for(t_loop_start))
+        if not waiting and self.t_start is None:
+            self.t_start, self.t_start_wall = now, wall
+        return waiting

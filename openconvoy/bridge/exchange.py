@@ -1,0 +1,80 @@
+"""The deploy runner's V2V exchange: τ (broadcast the own state while it is known) and the
+time-bounded receive, feeding the member's ρ.
+
+Broadcasting pauses while the autopilot link is stale — without it the vehicle no longer
+knows its own state, and a stale one with new timestamps would mislead the convoy — and
+the pauses are announced and kept for the run's metadata. Receiving reads for at most
+``RECEIVE_BUDGET`` of a loop period, so that a flood costs messages, never the loop's timing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from openconvoy.bridge.convoystart import ConvoyStart
+from openconvoy.core import tick as member_tick
+from openconvoy.core.member import ConvoyMember, Frame
+from openconvoy.core.state import VehicleState
+
+RECEIVE_BUDGET = 0.4
+"""Share of a loop period the V2V receive may take per tick; datagrams beyond it wait for
+the next tick (a flood of them costs messages, never the loop's timing)."""
+
+
+class Exchange:
+    """One vehicle's side of the V2V exchange, tick by tick.
+
+    Args:
+        member: the convoy member (its Tx and Rx gates); v2v: the endpoint
+            (``runner.V2VEndpoint``); start_gate: told who was heard.
+        rate_hz: control rate (Hz), for the receive budget.
+        on_status: receives status lines (broadcast paused / resumed).
+    """
+
+    def __init__(self, member: ConvoyMember, v2v: Any, start_gate: ConvoyStart, *, rate_hz: float,
+                 on_status: Callable[[str], None]) -> None:
+        self.member = member
+        self.v2v = v2v
+        self.start_gate = start_gate
+        self.rate_hz = rate_hz
+        self.on_status = on_status
+        self.abort = False
+        """Whether an abort message was heard."""
+        self.broadcasting = True
+        self.broadcast_pauses: list[list[float | None]] = []  # [wall from, wall to]
+
+    def step(self, own: VehicleState, wall: float, known: bool) -> Frame:
+        """Broadcast ``own`` if ``known`` (and the Tx gate says so), receive, and sense at
+        shared-clock time ``wall`` (s): the member's frame."""
+        self._track_broadcast(known, wall)
+        sent = member_tick.begin(self.member, own, wall, may_send=known)
+        if sent is not None:
+            self.v2v.send(sent, wall)
+        inbox = []
+        for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET / self.rate_hz):
+            if msg.abort:
+                self.abort = True
+            elif msg.state is not None:
+                self.start_gate.heard_from(msg.state.vehicle_id)
+                inbox.append(msg.state)
+        return member_tick.sense(self.member, inbox, wall)
+
+    def delivered(self) -> int:
+        """Vehicle messages the V2V link delivered (aborts are not traffic)."""
+        c = self.v2v.counters
+        return int(c.received - c.aborts)
+
+    def _track_broadcast(self, known: bool, wall: float) -> None:
+        """Announce and record when broadcasting stops (autopilot link lost) and resumes."""
+        if known == self.broadcasting:
+            return
+        self.broadcasting = known
+        vid = self.member.vehicle_id
+        if known:
+            self.broadcast_pauses[-1][1] = wall
+            self.on_status(f"vehicle {vid}: autopilot link back: broadcasting the own state again")
+        else:
+            self.broadcast_pauses.append([wall, None])
+            self.on_status(f"vehicle {vid}: autopilot link lost: not broadcasting the own state "
+                           "(it is unknown now)")

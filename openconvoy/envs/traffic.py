@@ -95,7 +95,12 @@ class ConvoyVehicle(IDMVehicle):
         self.heading = heading
         self.speed = speed
         self.impact = None
-        self.on_state_update()
+        closest = getattr(self.road, "closest_lane", None)
+        known = closest(hx, hy, heading) if closest is not None else None
+        if known is None:
+            self.on_state_update()
+        else:  # a straight edge: the same choice as get_closest_lane_index, without its loop
+            self.lane_index, self.lane = known
         self.target_lane_index = self.lane_index
 
     def act(self, action: dict | str | None = None) -> None:
@@ -212,6 +217,23 @@ class FastRoad(Road):
         collide(self, dt)
 
 
+_NEXT_CORNER = np.array([1, 2, 3, 0])
+_shape_key: tuple = ()
+_shape_val: tuple = ()
+_shape_items: list = []  # held so that the ids in the key stay theirs
+
+
+def _shapes(items: list) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonals (m) and half (length, width) (m) of ``items``, read once per set of objects."""
+    global _shape_key, _shape_val, _shape_items
+    key = tuple(map(id, items))
+    if key != _shape_key:
+        _shape_key, _shape_items = key, items
+        _shape_val = (np.array([o.diagonal for o in items]),
+                      0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float))
+    return _shape_val
+
+
 def collide(road: Road, dt: float) -> None:
     """``Road.step``'s collision pass with the same outcome: highway-env's
     ``handle_collisions`` runs, in its order, for every vehicle–vehicle and vehicle–object
@@ -223,26 +245,27 @@ def collide(road: Road, dt: float) -> None:
     if len(items) < 2:
         return
     pos = np.array([o.position for o in items], dtype=float)
-    diag = np.array([o.diagonal for o in items])
+    diag, half = _shapes(items)
     speed = np.array([float(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
     dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
     # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
     near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + np.abs(speed)[:, None] * dt + 1e-6
     near[n_v:, :] = False
-    ii, jj = np.nonzero(np.triu(near, k=1))
+    ii, jj = np.nonzero(near)
+    upper = ii < jj  # each pair once, in np.triu's row-major order
+    ii, jj = ii[upper], jj[upper]
     if not len(ii):
         return
     heading = np.array([float(o.heading) for o in items])
-    half = 0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float)
     c, s = np.cos(heading), np.sin(heading)
     # Corners in RoadObject.polygon's order: (-l,-w), (-l,+w), (+l,+w), (+l,-w).
     sl, sw = np.array([-1, -1, 1, 1]), np.array([-1, 1, 1, -1])
     lx, wy = sl[None, :] * half[:, 0:1], sw[None, :] * half[:, 1:2]
     corners = np.stack((c[:, None] * lx - s[:, None] * wy + pos[:, 0:1],
                         s[:, None] * lx + c[:, None] * wy + pos[:, 1:2]), axis=-1)  # (n, 4, 2)
-    edges = np.roll(corners, -1, axis=1) - corners
+    edges = corners[:, _NEXT_CORNER] - corners
     normals = np.stack((-edges[..., 1], edges[..., 0]), axis=-1)
-    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    normals /= np.sqrt(normals[..., 0:1] * normals[..., 0:1] + normals[..., 1:2] * normals[..., 1:2])
     vel = speed[:, None] * np.stack((c, s), axis=1) * dt
     a, b = corners[ii], corners[jj]  # (k, 4, 2)
     axes = np.concatenate((normals[ii], normals[jj]), axis=1)  # (k, 8, 2)
@@ -335,22 +358,25 @@ class TrafficWorld:
         half_w = 0.5 * np.array([o.WIDTH for o in objs])
         lengths = np.array([o.LENGTH for o in objs])
         n = len(self.convoy)
+        # Every convoy vehicle at once: rows = convoy vehicle i, columns = every object.
+        c = np.array([math.cos(h) for h in head[:n].tolist()])
+        s = np.array([math.sin(h) for h in head[:n].tolist()])
+        d = pos[None, :, :] - pos[:n, None, :]
+        lon = d[:, :, 0] * c[:, None] + d[:, :, 1] * s[:, None]
+        lat = -d[:, :, 0] * s[:, None] + d[:, :, 1] * c[:, None]
+        ok = (lon > 0.0) & (np.abs(lat) < half_w[None, :] + half_w[:n, None]) & (lon < self.max_look_m)
+        ok[np.arange(n), np.arange(n)] = False
+        nearest = np.argmin(np.where(ok, lon, np.inf), axis=1).tolist()
+        seen = ok.any(axis=1).tolist()
         out: list[InPath | None] = []
         for i in range(n):
-            d = pos - pos[i]
-            c, s = math.cos(head[i]), math.sin(head[i])
-            lon = d[:, 0] * c + d[:, 1] * s
-            lat = -d[:, 0] * s + d[:, 1] * c
-            ok = (lon > 0.0) & (np.abs(lat) < half_w + half_w[i]) & (lon < self.max_look_m)
-            ok[i] = False
-            if not ok.any():
+            if not seen[i]:
                 out.append(None)
                 continue
-            cand = np.flatnonzero(ok)
-            j = int(cand[np.argmin(lon[cand])])
-            rng = float(math.hypot(d[j, 0], d[j, 1]))
+            j = nearest[i]
+            rng = float(math.hypot(d[i, j, 0], d[i, j, 1]))
             dv = vel[j] - vel[i]
-            rate = float((d[j, 0] * dv[0] + d[j, 1] * dv[1]) / rng) if rng > 0 else 0.0
+            rate = float((d[i, j, 0] * dv[0] + d[i, j, 1] * dv[1]) / rng) if rng > 0 else 0.0
             traffic = j >= n
             tid = TRAFFIC_ID_BASE + (j - n) if traffic else j
             out.append(InPath(rng, rate, float(lengths[j]), tid, traffic))

@@ -19,6 +19,8 @@ on this machine: the same operations in the same order, on arrays).
 from __future__ import annotations
 
 import numpy as np
+from highway_env.utils import wrap_to_pi
+from numpy._core.umath import clip as _clip  # np.clip's own ufunc, without its wrapper's overhead
 
 from openconvoy.envs.traffic import (
     ConvoyVehicle,
@@ -30,6 +32,7 @@ from openconvoy.envs.traffic import (
 )
 
 _EPS = 1e-2  # highway_env.utils.not_zero
+_VECTOR_TYPES = (IDMVehicle, ScriptedLaneChanger)
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
@@ -42,6 +45,14 @@ class VectorRoad(FastRoad):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._edge = self._straight_edge()
+        if self._edge is not None:  # the edge's lanes, fixed for the road's life
+            lanes = self._edge[2]
+            self._lane_arrays = (
+                np.array([ln.start[1] for ln in lanes]),
+                np.array([ln.length for ln in lanes]),
+                np.array([ln.width / 2 for ln in lanes]),
+                np.array([40.0 if ln.speed_limit is None else ln.speed_limit for ln in lanes]),
+            )
 
     def _straight_edge(self) -> tuple[str, str, list[StraightLane]] | None:
         graph = self.network.graph
@@ -57,23 +68,54 @@ class VectorRoad(FastRoad):
                 return None
         return _from, _to, list(lanes)
 
-    def _vectorizable(self) -> bool:
+    def closest_lane(self, hx: float, hy: float, heading: float) -> tuple[tuple, StraightLane] | None:
+        """``(lane_index, lane)`` that ``RoadNetwork.get_closest_lane_index`` picks for a
+        vehicle at ``(hx, hy)`` (m) with ``heading`` (rad), computed as its
+        ``distance_with_heading`` does, lane by lane; None off a straight edge."""
+        if self._edge is None:
+            return None
+        _from, _to, lanes = self._edge
+        # Every lane heads along +x, so the heading term is the same for all of them.
+        angle = np.abs(wrap_to_pi(heading - lanes[0].heading))
+        s = float(hx)
+        best, best_d = 0, None
+        for k, ln in enumerate(lanes):
+            d = abs(float(hy - ln.start[1])) + max(s - ln.length, 0) + max(0 - s, 0) + 1.0 * angle
+            if best_d is None or d < best_d:
+                best, best_d = k, d
+        return (_from, _to, best), lanes[best]
+
+    def _vectorizable_types(self) -> bool:
+        """A straight edge, and only convoy vehicles and route-less IDM / scripted traffic?"""
         if self._edge is None:
             return False
-        end = self._edge[2][0].length - self._edge[2][0].VEHICLE_LENGTH / 2
         for v in self.vehicles:
             t = type(v)
-            if t is ConvoyVehicle:
-                continue
-            # No routes, and nobody at the lane's end (where follow_road would switch lanes).
-            if t not in (IDMVehicle, ScriptedLaneChanger) or v.route or v.position[0] > end:
+            if t is not ConvoyVehicle and (t not in _VECTOR_TYPES or v.route):
                 return False
         return True
+
+    def _before_lane_end(self, x: np.ndarray, movers: np.ndarray) -> bool:
+        """No traffic (``movers``) with x position (``x``, m) at the lane's end, where
+        ``follow_road`` would switch lanes?"""
+        end = self._edge[2][0].length - self._edge[2][0].VEHICLE_LENGTH / 2
+        return not bool((movers & (x > end)).any())
+
+    _eye_n = -1
+    _eye: np.ndarray
+
+    def _not_self(self, n: int) -> np.ndarray:
+        """(1, n, n): True off the diagonal (a vehicle is not its own neighbour)."""
+        if n != self._eye_n:
+            self._eye_n, self._eye = n, ~np.eye(n, dtype=bool)[None]
+        return self._eye
 
     _PARAMS = ("COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DISTANCE_WANTED", "TIME_WANTED", "DELTA", "ACC_MAX",
                "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN", "LANE_CHANGE_MAX_BRAKING_IMPOSED", "LANE_CHANGE_DELAY",
                "LENGTH", "KP_LATERAL", "KP_HEADING", "MAX_STEERING_ANGLE")
     _param_key: tuple = ()
+    _mover_key: tuple = ()
+    _mover_const: tuple = ()
     _param_cache: dict = {}
 
     def _params(self, veh: list) -> dict[str, np.ndarray]:
@@ -85,7 +127,7 @@ class VectorRoad(FastRoad):
             p["lc"] = np.array([v.enable_lane_change for v in veh])
             p["hold"] = np.array([type(v) is ScriptedLaneChanger for v in veh])
             p["KP_A"] = np.array([v.KP_A for v in veh], dtype=float)
-            self._param_key, self._param_cache = key, p
+            self._param_key, self._param_cache, self._param_objs = key, p, list(veh)  # held: the ids stay theirs
         return dict(self._param_cache)
 
     # ``idm_accel``: the IDM acceleration (m/s², clipped) of every vehicle at the last
@@ -95,49 +137,45 @@ class VectorRoad(FastRoad):
 
     def act(self) -> None:
         self.idm_accel = {}
-        if not self._vectorizable():
-            super().act()
-            return
         veh = self.vehicles
         n = len(veh)
-        _from, _to, lanes = self._edge
-        lane_y = np.array([ln.start[1] for ln in lanes])
-        lane_len = np.array([ln.length for ln in lanes])
-        half_w = np.array([ln.width / 2 for ln in lanes])
-        limit = np.array([40.0 if ln.speed_limit is None else ln.speed_limit for ln in lanes])
-        vlen = lanes[0].VEHICLE_LENGTH
-
+        if not n or not self._vectorizable_types():
+            super().act()
+            return
         pos = np.array([v.position for v in veh], dtype=float).reshape(n, 2)
         x, y = pos[:, 0], pos[:, 1]
-        h = np.array([v.heading for v in veh], dtype=float)
-        sp = np.array([v.speed for v in veh], dtype=float)
-        lane = np.array([v.lane_index[2] for v in veh])
-        tgt = np.array([v.target_lane_index[2] for v in veh])
-        crashed = np.array([v.crashed for v in veh])
         p = self._params(veh)
-        p["timer"] = np.array([v.timer for v in veh], dtype=float)
-        tspeed = np.array([v.target_speed for v in veh], dtype=float)
+        if not self._before_lane_end(x, p["traffic"]):
+            super().act()
+            return
+        _from, _to, lanes = self._edge
+        lane_y, lane_len, half_w, limit = self._lane_arrays
+        vlen = lanes[0].VEHICLE_LENGTH
+
+        # One pass over the vehicles, one contiguous row per quantity.
+        cols = np.array([(v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.crashed, v.timer,
+                          v.target_speed) for v in veh], dtype=float).reshape(n, 7).T.copy()
+        h, sp, tspeed = cols[0], cols[1], cols[6]
+        lane, tgt = cols[2].astype(int), cols[3].astype(int)
+        crashed = cols[4] != 0.0
+        p["timer"] = cols[5]
         traffic, lc = p["traffic"], p["lc"]
         c, s = np.cos(h), np.sin(h)
         vx, vy = sp * c, sp * s
-        tlimit = np.clip(tspeed, 0, limit[lane])
+        tlimit = _clip(tspeed, 0, limit[lane])
 
         # Neighbours on every lane, as Road.neighbour_vehicles finds them (ties: the last
         # equal one ahead, the first equal one behind).
-        others = ~np.eye(n, dtype=bool)
-        front = np.full((len(lanes), n), -1)
-        rear = np.full((len(lanes), n), -1)
-        for k in range(len(lanes)):
-            on = (np.abs(y - lane_y[k]) <= half_w[k] + 1.0) & (-vlen <= x) & (x < lane_len[k] + vlen)
-            cand = on[None, :] & others
-            ahead = cand & (x[None, :] >= x[:, None])
-            xf = np.where(ahead, x[None, :], np.inf)[:, ::-1]
-            jf = n - 1 - np.argmin(xf, axis=1)
-            front[k] = np.where(np.isfinite(xf.min(axis=1)), jf, -1)
-            behind = cand & (x[None, :] < x[:, None])
-            xr = np.where(behind, x[None, :], -np.inf)
-            jr = np.argmax(xr, axis=1)
-            rear[k] = np.where(np.isfinite(xr.max(axis=1)), jr, -1)
+        # All lanes at once: (lane, ego, other) masks.
+        on = ((np.abs(y[None, :] - lane_y[:, None]) <= half_w[:, None] + 1.0) & (-vlen <= x)[None, :]
+              & (x[None, :] < lane_len[:, None] + vlen))
+        cand = on[:, None, :] & self._not_self(n)
+        ge = x[None, :] >= x[:, None]
+        ahead, behind = cand & ge, cand & ~ge
+        xf = np.where(ahead, x, np.inf)[:, :, ::-1]
+        front = np.where(ahead.any(axis=2), n - 1 - np.argmin(xf, axis=2), -1)
+        xr = np.where(behind, x, -np.inf)
+        rear = np.where(behind.any(axis=2), np.argmax(xr, axis=2), -1)
 
         def idm(me: np.ndarray, ego: np.ndarray, fr: np.ndarray) -> np.ndarray:
             """IDMVehicle.acceleration with ``me``'s parameters for ``ego`` behind ``fr``
@@ -158,40 +196,46 @@ class VectorRoad(FastRoad):
         # MOBIL for every car whose timer fires (decisions need positions only).
         fires = act & lc & (lane == tgt) & (p["LANE_CHANGE_DELAY"] < p["timer"])
         moving = np.abs(sp) >= 1
-        mobil_ok: dict[int, np.ndarray] = {}
+        # The accelerations on the current lane (every car), then MOBIL's six per side for
+        # the cars whose timer fires (a few per tick: each fires once per LANE_CHANGE_DELAY).
+        fi = np.flatnonzero(fires)
+        nf = len(fi)
+        me_l, ego_l, fr_l = [idx], [idx], [front[lane, idx]]
         sides = {}
-        me_l, ego_l, fr_l = [], [], []
+        lane_f, x_f = lane[fi], x[fi]
         for side in (-1, 1):
-            cl = lane + side
-            valid = fires & (cl >= 0) & (cl < len(lanes))
-            cl_c = np.clip(cl, 0, len(lanes) - 1)
-            reach = (np.abs(y - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x) & (x < lane_len[cl_c] + vlen)
-            sides[side] = valid & reach & moving
-            new_pre, new_fol = front[cl_c, idx], rear[cl_c, idx]
-            old_pre, old_fol = front[lane, idx], rear[lane, idx]
+            cl = lane_f + side
+            valid = (cl >= 0) & (cl < len(lanes))
+            cl_c = _clip(cl, 0, len(lanes) - 1)
+            reach = ((np.abs(y[fi] - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x_f)
+                     & (x_f < lane_len[cl_c] + vlen))
+            sides[side] = valid & reach & moving[fi]
+            new_pre, new_fol = front[cl_c, fi], rear[cl_c, fi]
+            old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
             # new follower before/after, self after/before, old follower before/after
-            for ego, fr in ((new_fol, new_pre), (new_fol, idx), (idx, new_pre), (idx, old_pre),
-                            (old_fol, idx), (old_fol, old_pre)):
-                me_l.append(idx)
+            for ego, fr in ((new_fol, new_pre), (new_fol, fi), (fi, new_pre), (fi, old_pre),
+                            (old_fol, fi), (old_fol, old_pre)):
+                me_l.append(fi)
                 ego_l.append(ego)
                 fr_l.append(fr)
-        # The final accelerations too: on the current lane, and on every lane as a target.
-        me_l.append(idx)
-        ego_l.append(idx)
-        fr_l.append(front[lane, idx])
-        all_a = idm(np.concatenate(me_l), np.concatenate(ego_l), np.concatenate(fr_l)).reshape(len(me_l), n)
+        all_a = idm(np.concatenate(me_l), np.concatenate(ego_l), np.concatenate(fr_l))
+        acc_lane = all_a[:n]
+        mobil = all_a[n:].reshape(12, nf)
         mobil_ok: dict[int, np.ndarray] = {}
         for k, side in enumerate((-1, 1)):
-            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = all_a[6 * k: 6 * k + 6]
-            jerk = self_pred_a - self_a + p["POLITENESS"] * (nf_pred_a - nf_a + of_pred_a - of_a)
-            mobil_ok[side] = (sides[side] & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"])
-                              & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"]))
-        acc_lane = all_a[-1]
+            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = mobil[6 * k: 6 * k + 6]
+            jerk = self_pred_a - self_a + p["POLITENESS"][fi] * (nf_pred_a - nf_a + of_pred_a - of_a)
+            ok = np.zeros(n, dtype=bool)
+            ok[fi] = (sides[side] & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"][fi])
+                      & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"][fi]))
+            mobil_ok[side] = ok
 
         # Lane-change policy in road order (an abort reads the targets set before it).
         timer = p["timer"].copy()
+        lane_l, fires_l = lane.tolist(), fires.tolist()
+        ok_l = {side: mobil_ok[side].tolist() for side in (-1, 1)}
         for i in np.flatnonzero(act & lc).tolist():
-            if lane[i] != tgt[i]:
+            if lane_l[i] != tgt[i]:
                 mates = (idx != i) & (lane != tgt[i]) & (tgt == tgt[i])
                 if mates.any():
                     j = np.flatnonzero(mates)
@@ -200,23 +244,23 @@ class VectorRoad(FastRoad):
                     ab = -p["COMFORT_ACC_MAX"][i] * p["COMFORT_ACC_MIN"][i]
                     d_star = p["DISTANCE_WANTED"][i] + sp[i] * p["TIME_WANTED"][i] + sp[i] * dv / (2 * np.sqrt(ab))
                     if ((0 < d) & (d < d_star)).any():
-                        tgt[i] = lane[i]
+                        tgt[i] = lane_l[i]
                 continue
-            if not fires[i]:
+            if not fires_l[i]:
                 continue
             timer[i] = 0.0
             for side in (-1, 1):
-                if mobil_ok[side][i]:
-                    tgt[i] = lane[i] + side
+                if ok_l[side][i]:
+                    tgt[i] = lane_l[i] + side
 
         # Steering onto the target lane and IDM on the current (and target) lane.
         lat = y - lane_y[tgt]
-        heading_cmd = np.arcsin(np.clip(-p["KP_LATERAL"] * lat / _not_zero(sp), -1, 1))
-        heading_ref = 0.0 + np.clip(heading_cmd, -np.pi / 4, np.pi / 4)
+        heading_cmd = np.arcsin(_clip(-p["KP_LATERAL"] * lat / _not_zero(sp), -1, 1))
+        heading_ref = 0.0 + _clip(heading_cmd, -np.pi / 4, np.pi / 4)
         rate_cmd = p["KP_HEADING"] * (((heading_ref - h) + np.pi) % (2 * np.pi) - np.pi)
-        slip = np.arcsin(np.clip(p["LENGTH"] / 2 / _not_zero(sp) * rate_cmd, -1, 1))
-        steer = np.clip(np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
-        steer = np.clip(steer, -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        slip = np.arcsin(_clip(p["LENGTH"] / 2 / _not_zero(sp) * rate_cmd, -1, 1))
+        steer = _clip(np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        steer = _clip(steer, -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
         acc = acc_lane
         changing = np.flatnonzero(lane != tgt)
         if len(changing):
@@ -224,8 +268,8 @@ class VectorRoad(FastRoad):
             acc[changing] = np.minimum(acc[changing], idm(changing, changing, front[tgt[changing], changing]))
         # A scripted target holds its speed instead (ControlledVehicle.speed_control).
         acc = np.where(p["hold"], p["KP_A"] * (tspeed - sp), acc)
-        acc = np.clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
-        self.idm_accel = dict(zip(map(id, veh), np.clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
+        acc = _clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
+        self.idm_accel = dict(zip(map(id, veh), _clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
 
         steer_l, acc_l, tgt_l, timer_l = steer.tolist(), acc.tolist(), tgt.tolist(), timer.tolist()
         for i in np.flatnonzero(act).tolist():
@@ -238,26 +282,32 @@ class VectorRoad(FastRoad):
     # --- step ------------------------------------------------------------------------------
 
     def step(self, dt: float) -> None:
-        if not self._vectorizable():
+        if not self._vectorizable_types():
+            super().step(dt)
+            return
+        movers = [v for v in self.vehicles if type(v) is not ConvoyVehicle]
+        m = len(movers)
+        pos = np.array([v.position for v in movers], dtype=float).reshape(m, 2)
+        if not self._before_lane_end(pos[:, 0], np.ones(m, dtype=bool)):
             super().step(dt)
             return
         _from, _to, lanes = self._edge
-        movers = [v for v in self.vehicles if type(v) is not ConvoyVehicle]
         if movers:
-            self._move(movers, dt, lanes, _from, _to)
+            self._move(movers, pos, dt, lanes, _from, _to)
         collide(self, dt)
 
-    def _move(self, movers: list, dt: float, lanes: list, _from: str, _to: str) -> None:
+    def _move(self, movers: list, pos: np.ndarray, dt: float, lanes: list, _from: str, _to: str) -> None:
         m = len(movers)
-        pos = np.array([v.position for v in movers], dtype=float).reshape(m, 2)
-        h = np.array([v.heading for v in movers], dtype=float)
-        sp = np.array([v.speed for v in movers], dtype=float)
-        crashed = np.array([v.crashed for v in movers])
-        steer = np.array([float(v.action["steering"]) for v in movers])
-        acc = np.array([float(v.action["acceleration"]) for v in movers])
-        length = np.array([v.LENGTH for v in movers], dtype=float)
-        vmax = np.array([v.MAX_SPEED for v in movers], dtype=float)
-        vmin = np.array([v.MIN_SPEED for v in movers], dtype=float)
+        cols = np.array([(v.heading, v.speed, v.crashed, float(v.action["steering"]), float(v.action["acceleration"]))
+                         for v in movers], dtype=float).reshape(m, 5).T.copy()
+        h, sp, steer, acc = cols[0], cols[1], cols[3], cols[4]
+        crashed = cols[2] != 0.0
+        key = tuple(map(id, movers))
+        if key != self._mover_key:  # fixed per set of vehicles
+            self._mover_key, self._mover_objs = key, movers  # held: the ids stay theirs
+            self._mover_const = tuple(np.array([getattr(v, k) for v in movers], dtype=float)
+                                      for k in ("LENGTH", "MAX_SPEED", "MIN_SPEED"))
+        length, vmax, vmin = self._mover_const
         impact = [v.impact for v in movers]
         # Vehicle.clip_actions
         steer = np.where(crashed, 0.0, steer)
@@ -274,8 +324,7 @@ class VectorRoad(FastRoad):
         h_new = h + sp * np.sin(beta) / (length / 2) * dt
         sp_new = sp + acc * dt
         # on_state_update: the closest lane (Road.get_closest_lane_index, parallel lanes).
-        lane_y = np.array([ln.start[1] for ln in lanes])
-        lane_len = np.array([ln.length for ln in lanes])
+        lane_y, lane_len = self._lane_arrays[:2]
         s = pos[:, 0:1]
         r = pos[:, 1:2] - lane_y[None, :]
         angle = np.abs(((h_new[:, None] - 0.0) + np.pi) % (2 * np.pi) - np.pi)

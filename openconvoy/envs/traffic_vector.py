@@ -318,9 +318,10 @@ class VectorRoad(FastRoad):
         beta = np.arctan(1 / 2 * np.tan(steer))
         pos[:, 0] += sp * np.cos(h + beta) * dt
         pos[:, 1] += sp * np.sin(h + beta) * dt
-        hit = np.array([imp is not None for imp in impact])
-        for k in np.flatnonzero(hit).tolist():
-            pos[k] += impact[k]
+        hit_l = [imp is not None for imp in impact]
+        for k, was_hit in enumerate(hit_l):
+            if was_hit:
+                pos[k] += impact[k]
         h_new = h + sp * np.sin(beta) / (length / 2) * dt
         sp_new = sp + acc * dt
         # on_state_update: the closest lane (Road.get_closest_lane_index, parallel lanes).
@@ -330,13 +331,14 @@ class VectorRoad(FastRoad):
         angle = np.abs(((h_new[:, None] - 0.0) + np.pi) % (2 * np.pi) - np.pi)
         dist = np.abs(r) + np.maximum(s - lane_len[None, :], 0) + np.maximum(0 - s, 0) + 1.0 * angle
         lane_new = np.argmin(dist, axis=1).tolist()
-        pos_l, h_l, sp_l = pos.tolist(), h_new.tolist(), sp_new.tolist()
-        steer_l, acc_l, crashed_l, hit_l = steer.tolist(), acc.tolist(), crashed.tolist(), hit.tolist()
-        for k, v in enumerate(movers):
+        h_l, sp_l = h_new.tolist(), sp_new.tolist()
+        steer_l, acc_l, crashed_l = steer.tolist(), acc.tolist(), crashed.tolist()
+        # Each vehicle gets its own row of this tick's fresh array (no copy needed).
+        for k, (v, row) in enumerate(zip(movers, pos)):
             v.timer += dt
             v.action["steering"] = steer_l[k]
             v.action["acceleration"] = acc_l[k]
-            v.position = np.array(pos_l[k])
+            v.position = row
             v.heading = h_l[k]
             v.speed = sp_l[k]
             if hit_l[k]:

@@ -18,6 +18,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check openconvoy tests benchmarks
+	$(VENV)/bin/ruff format --check openconvoy tests benchmarks
 	$(VENV)/bin/mypy
 	$(VENV)/bin/python -m pytest -q
 

@@ -63,7 +63,9 @@ def main() -> None:
     origin = Origin(28.6024, -81.2001, 20.0)
     ids = TempIds("bench", N_SENDERS + 1)
     creds = [ks.load_vehicle(keys, i, now) for i in range(N_SENDERS + 1)]
-    senders = [Sender(ids, origin, i, auth=Authenticator(creds[i])) for i in range(1, N_SENDERS + 1)]
+    senders = [
+        Sender(ids, origin, i, auth=Authenticator(creds[i])) for i in range(1, N_SENDERS + 1)
+    ]
     plain = [Sender(ids, origin, i) for i in range(1, N_SENDERS + 1)]
 
     def frames(pool: list[Sender], n: int, t0: float) -> list[tuple[bytes, float]]:

@@ -146,7 +146,9 @@ def main() -> None:
         cpu, wall = _rate(fn, s, r)
         result[f"{name}_per_s"] = round(cpu)
         result[f"{name}_per_wall_s"] = round(wall)
-    result["codec_vs_asn1tools"] = round(result["codec_pairs_per_s"] / result["asn1tools_pairs_per_s"], 2)
+    result["codec_vs_asn1tools"] = round(
+        result["codec_pairs_per_s"] / result["asn1tools_pairs_per_s"], 2
+    )
     result.update(
         {
             "largest_interop_bytes": len(big) if big else None,

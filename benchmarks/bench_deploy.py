@@ -84,20 +84,37 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
-def _runner(i: int, rate_hz: float, seconds: float, mav_port: int, v2v_port: int, peer: int,
-            log_dir: Path) -> DeployRunner:
+def _runner(
+    i: int, rate_hz: float, seconds: float, mav_port: int, v2v_port: int, peer: int, log_dir: Path
+) -> DeployRunner:
     origin = Origin(*CONVOY.origin)
     presets = [vehicle_preset(v) for v in CONVOY.vehicles]
-    v2v = V2V(LinkConfig(iface="lo"), TempIds(CONVOY.name, 2), origin, i,
-              transport=UdpPair(v2v_port, peer))
-    link = MavlinkLink(f"udpout:127.0.0.1:{mav_port}", origin, vehicle_id=i,
-                       telemetry_hz=rate_hz, on_status=lambda line: None)
+    v2v = V2V(
+        LinkConfig(iface="lo"),
+        TempIds(CONVOY.name, 2),
+        origin,
+        i,
+        transport=UdpPair(v2v_port, peer),
+    )
+    link = MavlinkLink(
+        f"udpout:127.0.0.1:{mav_port}",
+        origin,
+        vehicle_id=i,
+        telemetry_hz=rate_hz,
+        on_status=lambda line: None,
+    )
     return DeployRunner(
-        RunnerOptions(vehicle_id=i, rate_hz=rate_hz, duration_s=seconds, status_period_s=0,
-                      record_timing=True),
-        CONVOY, load_policy("paper"), link, v2v,
+        RunnerOptions(
+            vehicle_id=i, rate_hz=rate_hz, duration_s=seconds, status_period_s=0, record_timing=True
+        ),
+        CONVOY,
+        load_policy("paper"),
+        link,
+        v2v,
         leader=make_scenario("paper", presets=presets) if i == 0 else None,
-        lengths=[p.length_m for p in presets], log_dir=log_dir, on_status=lambda line: None,
+        lengths=[p.length_m for p in presets],
+        log_dir=log_dir,
+        on_status=lambda line: None,
     )
 
 
@@ -109,9 +126,14 @@ def child(spec: dict) -> int:
     init = make_scenario("paper", presets=presets).initial_state()
     vehicles, sent = [], []
     for i in range(2):
-        cfg = SimVehicleConfig(system_id=i + 1, preset=presets[i], home=origin,
-                               start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                               ready_after_s=0.0)
+        cfg = SimVehicleConfig(
+            system_id=i + 1,
+            preset=presets[i],
+            home=origin,
+            start_x_m=float(init.x[i]),
+            start_y_m=float(init.y[i]),
+            ready_after_s=0.0,
+        )
         v = SimVehicle(f"udpin:127.0.0.1:{spec['mav'][i]}", cfg)
         if i == 1:
             orig = v._send_telemetry
@@ -124,8 +146,15 @@ def child(spec: dict) -> int:
             v._send_telemetry = send
         vehicles.append(v.start())
     print("ready", flush=True)
-    leader = _runner(0, spec["rate"], spec["seconds"], spec["mav"][0], spec["v2v"][0],
-                     spec["v2v"][1], Path(spec["dir"]) / "leader")
+    leader = _runner(
+        0,
+        spec["rate"],
+        spec["seconds"],
+        spec["mav"][0],
+        spec["v2v"][0],
+        spec["v2v"][1],
+        Path(spec["dir"]) / "leader",
+    )
     leader.run()
     sys.stdin.readline()  # until the follower is done
     for v in vehicles:
@@ -140,14 +169,31 @@ def _pct(a: np.ndarray, q: float) -> float:
 
 def measure(rate_hz: float, seconds: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        spec = {"rate": rate_hz, "seconds": seconds, "mav": [_port(), _port()],
-                "v2v": [_port(), _port()], "dir": tmp, "times": str(Path(tmp) / "times.json")}
-        proc = subprocess.Popen([sys.executable, __file__, "--child", json.dumps(spec)],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        spec = {
+            "rate": rate_hz,
+            "seconds": seconds,
+            "mav": [_port(), _port()],
+            "v2v": [_port(), _port()],
+            "dir": tmp,
+            "times": str(Path(tmp) / "times.json"),
+        }
+        proc = subprocess.Popen(
+            [sys.executable, __file__, "--child", json.dumps(spec)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert proc.stdout.readline().strip() == "ready"
-            follower = _runner(1, rate_hz, seconds, spec["mav"][1], spec["v2v"][1],
-                               spec["v2v"][0], Path(tmp) / "follower")
+            follower = _runner(
+                1,
+                rate_hz,
+                seconds,
+                spec["mav"][1],
+                spec["v2v"][1],
+                spec["v2v"][0],
+                Path(tmp) / "follower",
+            )
             result = follower.run()
             proc.stdin.write("\n")
             proc.stdin.flush()
@@ -156,7 +202,11 @@ def measure(rate_hz: float, seconds: float) -> dict:
             if proc.poll() is None:
                 proc.kill()
         sent_times = np.array(json.loads(Path(spec["times"]).read_text()))
-    t_start = follower.start_gate.t_start if follower.start_gate.t_start is not None else follower.timings[0].t_tick
+    t_start = (
+        follower.start_gate.t_start
+        if follower.start_gate.t_start is not None
+        else follower.timings[0].t_tick
+    )
     timings = [t for t in follower.timings if t.t_tick >= t_start]  # driving only
     periods = np.diff(np.array([t.t_tick for t in timings]))
     jitter = np.abs(periods - 1.0 / rate_hz)
@@ -186,7 +236,9 @@ def measure(rate_hz: float, seconds: float) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=10.0, help="driving time per rate (default 10)")
+    ap.add_argument(
+        "--seconds", type=float, default=10.0, help="driving time per rate (default 10)"
+    )
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:

@@ -41,15 +41,20 @@ COMPONENTS = {
 def _make(n_followers: int, preset: str | None = None) -> tuple[ConvoyEnv, dict]:
     probe = load_policy("paper")
     env = ConvoyEnv(
-        "paper", n_followers=n_followers, member_config=probe.member_config,
-        control_rate_hz=probe.control_rate_hz, loss=LossConfig(per=0.2),
+        "paper",
+        n_followers=n_followers,
+        member_config=probe.member_config,
+        control_rate_hz=probe.control_rate_hz,
+        loss=LossConfig(per=0.2),
         vehicle_presets=None if preset is None else [preset] * (n_followers + 1),
     )
     policies = {a: load_policy("paper") for a in env.possible_agents}
     return env, policies
 
 
-def _run(env: ConvoyEnv, policies: dict | None, seconds: float, max_steps: int) -> tuple[int, float]:
+def _run(
+    env: ConvoyEnv, policies: dict | None, seconds: float, max_steps: int
+) -> tuple[int, float]:
     """Step (resetting at episode ends, reset time excluded) for ``seconds``; (steps, s)."""
     fixed = {a: np.array([1.0, 0.0], dtype=np.float32) for a in env.possible_agents}
     steps, busy, seed = 0, 0.0, 0
@@ -81,7 +86,9 @@ def _profile(env: ConvoyEnv, policies: dict | None, steps: int) -> dict[str, flo
     total = sum(tt for (_, _, _), (_, _, tt, _, _) in stats.items())
 
     def cum(file: str, func: str) -> float:
-        return sum(ct for (f, _, fn), (_, _, _, ct, _) in stats.items() if f.endswith(file) and fn == func)
+        return sum(
+            ct for (f, _, fn), (_, _, _, ct, _) in stats.items() if f.endswith(file) and fn == func
+        )
 
     out = {}
     for name, spec in COMPONENTS.items():
@@ -94,14 +101,26 @@ def _profile(env: ConvoyEnv, policies: dict | None, steps: int) -> dict[str, flo
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per case")
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="timed runs per case; the best is reported (shared machines are noisy)")
-    parser.add_argument("--followers", type=int, nargs="+", default=[2, 100],
-                        help="convoy sizes to time (followers)")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="timed runs per case; the best is reported (shared machines are noisy)",
+    )
+    parser.add_argument(
+        "--followers",
+        type=int,
+        nargs="+",
+        default=[2, 100],
+        help="convoy sizes to time (followers)",
+    )
     parser.add_argument("--profile", action="store_true", help="add a cProfile breakdown")
-    parser.add_argument("--vehicle-preset", metavar="PRESET",
-                        help="every vehicle this preset (default: the scenario's lag presets), "
-                        "e.g. ardupilot-rover for the autopilot's PI speed loop")
+    parser.add_argument(
+        "--vehicle-preset",
+        metavar="PRESET",
+        help="every vehicle this preset (default: the scenario's lag presets), "
+        "e.g. ardupilot-rover for the autopilot's PI speed loop",
+    )
     args = parser.parse_args()
     results = []
     for n_followers in args.followers:
@@ -128,13 +147,18 @@ def main() -> None:
             if args.profile:
                 row["time_share"] = _profile(env, pol, max(50, min(2000, steps // 4)))
             results.append(row)
-    print(json.dumps({
-        "benchmark": "bench_env",
-        "python": platform.python_version(),
-        "machine": platform.machine(),
-        "processor": platform.processor() or platform.machine(),
-        "results": results,
-    }, indent=2))
+    print(
+        json.dumps(
+            {
+                "benchmark": "bench_env",
+                "python": platform.python_version(),
+                "machine": platform.machine(),
+                "processor": platform.processor() or platform.machine(),
+                "results": results,
+            },
+            indent=2,
+        )
+    )
 
 
 if __name__ == "__main__":

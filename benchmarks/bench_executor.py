@@ -54,20 +54,25 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--empty-tasks", type=int, default=400)
-    parser.add_argument("--jobs", type=int, default=None, help="local processes (default: cores available)")
+    parser.add_argument(
+        "--jobs", type=int, default=None, help="local processes (default: cores available)"
+    )
     args = parser.parse_args()
 
     import ray
 
     from openconvoy.experiments.ray_executor import RayExecutor
 
-    config = ExperimentConfig(name="bench", policies=("paper",), pers=(0.0, 0.3, 0.6),
-                              seeds=tuple(range(args.seeds)))
+    config = ExperimentConfig(
+        name="bench", policies=("paper",), pers=(0.0, 0.3, 0.6), seeds=tuple(range(args.seeds))
+    )
     jobs = args.jobs or available_cores()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         start = time.perf_counter()
-        ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False, logging_level="warning")
+        ray.init(
+            num_cpus=jobs, include_dashboard=False, log_to_driver=False, logging_level="warning"
+        )
         ray_start_s = time.perf_counter() - start
         local, warm = [], []
         try:
@@ -83,25 +88,29 @@ def main() -> None:
         identical = all((d / "summary.csv").read_bytes() == reference for d in root.iterdir())
     local_s, warm_s = min(local), min(warm)
     runs = len(config.pers) * len(config.seeds)
-    print(json.dumps({
-        "benchmark": "executor_local_vs_ray",
-        "runs": runs,
-        "cpus": jobs,
-        "local_wall_s": round(local_s, 2),
-        "local_rounds_s": [round(v, 2) for v in local],
-        "ray_cluster_start_s": round(ray_start_s, 2),
-        "ray_first_sweep_wall_s": round(cold_s, 2),
-        "ray_warm_sweep_wall_s": round(warm_s, 2),
-        "ray_rounds_s": [round(v, 2) for v in warm],
-        "ray_overhead_per_run_ms": round(1000 * (warm_s - local_s) / runs, 1),
-        "empty_task_ms_local": round(local_task_ms, 3),
-        "empty_task_ms_ray": round(ray_task_ms, 3),
-        "summary_csv_identical": identical,
-        "ray": ray.__version__,
-        "openconvoy": __version__,
-        "python": platform.python_version(),
-        "machine": platform.machine(),
-    }))
+    print(
+        json.dumps(
+            {
+                "benchmark": "executor_local_vs_ray",
+                "runs": runs,
+                "cpus": jobs,
+                "local_wall_s": round(local_s, 2),
+                "local_rounds_s": [round(v, 2) for v in local],
+                "ray_cluster_start_s": round(ray_start_s, 2),
+                "ray_first_sweep_wall_s": round(cold_s, 2),
+                "ray_warm_sweep_wall_s": round(warm_s, 2),
+                "ray_rounds_s": [round(v, 2) for v in warm],
+                "ray_overhead_per_run_ms": round(1000 * (warm_s - local_s) / runs, 1),
+                "empty_task_ms_local": round(local_task_ms, 3),
+                "empty_task_ms_ray": round(ray_task_ms, 3),
+                "summary_csv_identical": identical,
+                "ray": ray.__version__,
+                "openconvoy": __version__,
+                "python": platform.python_version(),
+                "machine": platform.machine(),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -50,7 +50,9 @@ def flood(iface: str, group: str, port: int, rate: float, seconds: float) -> dic
 
     origin = Origin(28.6024, -81.2001, 0.0)
     frames = [
-        j.encode_frame(state_to_core(VehicleState(0, time.time(), 5.0, 0.0, 2.0, 0.0), origin, FOREIGN_ID, k))
+        j.encode_frame(
+            state_to_core(VehicleState(0, time.time(), 5.0, 0.0, 2.0, 0.0), origin, FOREIGN_ID, k)
+        )
         for k in range(128)
     ]
     sock = Ipv6Multicast(iface, group, port, loop=True)
@@ -79,7 +81,12 @@ def tick_stats(t_s: list[float], period: float) -> dict:
     """Ticks on time and the largest gap from a log's row times (s)."""
     gaps = [b - a for a, b in zip(t_s, t_s[1:])]
     if not gaps:
-        return {"ticks": len(t_s), "on_time": math.nan, "max_gap_s": math.nan, "max_gap_periods": math.nan}
+        return {
+            "ticks": len(t_s),
+            "on_time": math.nan,
+            "max_gap_s": math.nan,
+            "max_gap_periods": math.nan,
+        }
     on_time = sum(1 for g in gaps if abs(g - period) <= 0.5 * period) / len(gaps)
     return {
         "ticks": len(t_s),
@@ -109,7 +116,11 @@ def inside(args: argparse.Namespace) -> dict:
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
 
-    iface = netns.setup_network() if os.environ.get(netns.ENV_IFACE) is None else os.environ[netns.ENV_IFACE]
+    iface = (
+        netns.setup_network()
+        if os.environ.get(netns.ENV_IFACE) is None
+        else os.environ[netns.ENV_IFACE]
+    )
     out = Path(args.out or tempfile.mkdtemp(prefix="openconvoy-flood-"))
     out.mkdir(parents=True, exist_ok=True)
     defaults = ConvoyConfig()
@@ -122,19 +133,48 @@ def inside(args: argparse.Namespace) -> dict:
     ids = list(range(len(names))) if args.vehicles > 1 else [1]
     vehicles, procs, errs = [], [], []
     period = 1.0 / args.loop_hz
-    result: dict = {"vehicles": len(ids), "rate_per_s": args.rate, "flood_s": args.flood_s,
-                    "loop_hz": args.loop_hz, "cpus": os.cpu_count()}
+    result: dict = {
+        "vehicles": len(ids),
+        "rate_per_s": args.rate,
+        "flood_s": args.flood_s,
+        "loop_hz": args.loop_hz,
+        "cpus": os.cpu_count(),
+    }
     try:
         for i in ids:
             port = free_udp_port()
-            cfg = SimVehicleConfig(system_id=i + 1, preset=presets[i], home=Origin(*defaults.origin),
-                                   start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                                   start_heading_rad=float(init.heading[i]), ready_after_s=0.5, seed=i)
+            cfg = SimVehicleConfig(
+                system_id=i + 1,
+                preset=presets[i],
+                home=Origin(*defaults.origin),
+                start_x_m=float(init.x[i]),
+                start_y_m=float(init.y[i]),
+                start_heading_rad=float(init.heading[i]),
+                ready_after_s=0.5,
+                seed=i,
+            )
             vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
-            cmd = [sys.executable, "-m", "openconvoy.cli", "deploy", "--policy", "paper",
-                   "--vehicle-id", str(i), "--convoy", str(convoy_path), "--iface", iface,
-                   "--mavlink", f"udpout:127.0.0.1:{port}", "--log", str(out / "run"),
-                   "--rate", repr(args.loop_hz), "--quiet"]
+            cmd = [
+                sys.executable,
+                "-m",
+                "openconvoy.cli",
+                "deploy",
+                "--policy",
+                "paper",
+                "--vehicle-id",
+                str(i),
+                "--convoy",
+                str(convoy_path),
+                "--iface",
+                iface,
+                "--mavlink",
+                f"udpout:127.0.0.1:{port}",
+                "--log",
+                str(out / "run"),
+                "--rate",
+                repr(args.loop_hz),
+                "--quiet",
+            ]
             if args.vehicles == 1:
                 cmd.append("--dry-run")
             errs.append(open(out / f"deploy_{i}.txt", "w"))
@@ -153,9 +193,20 @@ def inside(args: argparse.Namespace) -> dict:
                 break
             time.sleep(0.05)
         flooder = subprocess.run(
-            [sys.executable, __file__, "--flood-only", "--iface", iface, "--rate", repr(args.rate),
-             "--flood-s", repr(args.flood_s)],
-            capture_output=True, text=True, timeout=args.flood_s + 60,
+            [
+                sys.executable,
+                __file__,
+                "--flood-only",
+                "--iface",
+                iface,
+                "--rate",
+                repr(args.rate),
+                "--flood-s",
+                repr(args.flood_s),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=args.flood_s + 60,
         )
         if flooder.returncode != 0:
             result["error"] = f"flood failed: {flooder.stderr[-2000:]}"
@@ -177,11 +228,16 @@ def inside(args: argparse.Namespace) -> dict:
         stats = tick_stats(_rows(out / "run" / f"vehicle_{i}.csv", t0, t1), period)
         counters = meta.get("v2v_counters") or {}
         stats.update(
-            overruns=meta["overruns"], late_ticks=meta.get("late_ticks"),
-            max_tick_late_s=meta.get("max_tick_late_s"), run_ticks=meta["ticks"],
-            filtered=counters.get("filtered"), received=counters.get("received"),
+            overruns=meta["overruns"],
+            late_ticks=meta.get("late_ticks"),
+            max_tick_late_s=meta.get("max_tick_late_s"),
+            run_ticks=meta["ticks"],
+            filtered=counters.get("filtered"),
+            received=counters.get("received"),
             budget_hits=counters.get("budget_hits"),
-            late_events=sum(1 for e in meta["failsafe_events"] if e["reason"].startswith("control loop late")),
+            late_events=sum(
+                1 for e in meta["failsafe_events"] if e["reason"].startswith("control loop late")
+            ),
         )
         per_vehicle[str(i)] = stats
     result["per_vehicle"] = per_vehicle
@@ -210,12 +266,24 @@ def main() -> None:
     from openconvoy.comms.netns import require_netns
 
     require_netns()
-    argv = [sys.executable, __file__, "--inside", "--vehicles", str(args.vehicles), "--rate",
-            repr(args.rate), "--flood-s", repr(args.flood_s), "--loop-hz", repr(args.loop_hz)]
+    argv = [
+        sys.executable,
+        __file__,
+        "--inside",
+        "--vehicles",
+        str(args.vehicles),
+        "--rate",
+        repr(args.rate),
+        "--flood-s",
+        repr(args.flood_s),
+        "--loop-hz",
+        repr(args.loop_hz),
+    ]
     if args.out:
         argv += ["--out", str(Path(args.out).resolve())]
-    r = subprocess.run(["unshare", "-rn", *argv], capture_output=True, text=True,
-                       timeout=args.flood_s + 180)
+    r = subprocess.run(
+        ["unshare", "-rn", *argv], capture_output=True, text=True, timeout=args.flood_s + 180
+    )
     if r.returncode != 0:
         sys.exit(f"bench_flood failed: {r.stderr[-3000:]}")
     print(r.stdout.strip().splitlines()[-1])

@@ -25,7 +25,9 @@ from openconvoy.experiments.sweep import ExperimentConfig, available_cores, run_
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--jobs", type=int, default=None, help="processes (default: cores available)")
+    parser.add_argument(
+        "--jobs", type=int, default=None, help="processes (default: cores available)"
+    )
     parser.add_argument("--seeds", type=int, default=3)
     args = parser.parse_args()
 
@@ -45,18 +47,22 @@ def main() -> None:
         for key in ("p95_platooning_error_m", "mean_speed_difference_mps")
         for per in (0.0, 0.6)
     }
-    print(json.dumps({
-        "benchmark": "per_sweep_paper",
-        "command": f"openconvoy experiment per-sweep --policy paper --seeds {args.seeds}",
-        "runs": len(result.runs),
-        "jobs": jobs,
-        "wall_s": round(sweep_s, 2),
-        "single_run_wall_s": round(single_s, 2),
-        **trend,
-        "openconvoy": __version__,
-        "python": platform.python_version(),
-        "machine": platform.machine(),
-    }))
+    print(
+        json.dumps(
+            {
+                "benchmark": "per_sweep_paper",
+                "command": f"openconvoy experiment per-sweep --policy paper --seeds {args.seeds}",
+                "runs": len(result.runs),
+                "jobs": jobs,
+                "wall_s": round(sweep_s, 2),
+                "single_run_wall_s": round(single_s, 2),
+                **trend,
+                "openconvoy": __version__,
+                "python": platform.python_version(),
+                "machine": platform.machine(),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

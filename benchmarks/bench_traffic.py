@@ -68,16 +68,22 @@ def bench_highway_v0(count: int, sim_hz: int, policy_hz: int, seconds: float) ->
     import gymnasium
     import highway_env  # noqa: F401  (registers highway-v0)
 
-    env = gymnasium.make("highway-v0", config={
-        "controlled_vehicles": 3,
-        "vehicles_count": count,
-        "lanes_count": 4,
-        "simulation_frequency": sim_hz,
-        "policy_frequency": policy_hz,
-        "duration": 10_000,
-        "action": {"type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction"}},
-        "observation": {"type": "MultiAgentObservation", "observation_config": {"type": "Kinematics"}},
-    })
+    env = gymnasium.make(
+        "highway-v0",
+        config={
+            "controlled_vehicles": 3,
+            "vehicles_count": count,
+            "lanes_count": 4,
+            "simulation_frequency": sim_hz,
+            "policy_frequency": policy_hz,
+            "duration": 10_000,
+            "action": {"type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction"}},
+            "observation": {
+                "type": "MultiAgentObservation",
+                "observation_config": {"type": "Kinematics"},
+            },
+        },
+    )
     idle = (1, 1, 1)  # DiscreteMetaAction IDLE for each controlled vehicle
     seed = [0]
 
@@ -100,23 +106,35 @@ def main() -> None:
     counts = [int(c) for c in args.counts.split(",")]
     rows = []
     for n in counts:
-        rows.append({
-            "traffic_cars": n,
-            "openconvoy_vector_steps_per_s": round(bench_openconvoy(n, "vector", args.seconds), 1),
-            "openconvoy_fast_steps_per_s": round(bench_openconvoy(n, "fast", args.seconds), 1),
-            "openconvoy_highway_env_road_steps_per_s": round(bench_openconvoy(n, "highway-env", args.seconds), 1),
-            "highway_v0_20hz_steps_per_s": round(bench_highway_v0(n, 20, 20, args.seconds), 1),
-            "highway_v0_default_15hz_1hz_steps_per_s": round(bench_highway_v0(n, 15, 1, args.seconds), 1),
-        })
+        rows.append(
+            {
+                "traffic_cars": n,
+                "openconvoy_vector_steps_per_s": round(
+                    bench_openconvoy(n, "vector", args.seconds), 1
+                ),
+                "openconvoy_fast_steps_per_s": round(bench_openconvoy(n, "fast", args.seconds), 1),
+                "openconvoy_highway_env_road_steps_per_s": round(
+                    bench_openconvoy(n, "highway-env", args.seconds), 1
+                ),
+                "highway_v0_20hz_steps_per_s": round(bench_highway_v0(n, 20, 20, args.seconds), 1),
+                "highway_v0_default_15hz_1hz_steps_per_s": round(
+                    bench_highway_v0(n, 15, 1, args.seconds), 1
+                ),
+            }
+        )
         print(json.dumps(rows[-1]), flush=True)
-    print(json.dumps({
-        "benchmark": "traffic",
-        "convoy": "leader + 2 followers, full-size, fixed actions",
-        "tick_s": 0.05,
-        "python": platform.python_version(),
-        "machine": platform.machine(),
-        "rows": rows,
-    }))
+    print(
+        json.dumps(
+            {
+                "benchmark": "traffic",
+                "convoy": "leader + 2 followers, full-size, fixed actions",
+                "tick_s": 0.05,
+                "python": platform.python_version(),
+                "machine": platform.machine(),
+                "rows": rows,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

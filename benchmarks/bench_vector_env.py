@@ -36,11 +36,23 @@ def _timed(step, seconds: float) -> tuple[int, float]:
             return n, dt
 
 
-def bench_vector(B: int, vehicles: int, seconds: float, policy: bool = False, preset: str = "paper",
-                 link_counters: str = "all") -> dict:
+def bench_vector(
+    B: int,
+    vehicles: int,
+    seconds: float,
+    policy: bool = False,
+    preset: str = "paper",
+    link_counters: str = "all",
+) -> dict:
     pol = load_policy(preset)
-    env = VectorConvoyEnv(B, "paper", n_followers=vehicles - 1, member_config=pol.member_config,
-                          loss=LossConfig(per=0.2), link_counters=link_counters)
+    env = VectorConvoyEnv(
+        B,
+        "paper",
+        n_followers=vehicles - 1,
+        member_config=pol.member_config,
+        loss=LossConfig(per=0.2),
+        link_counters=link_counters,
+    )
     obs, _ = env.reset(seed=0)
     fixed = np.tile(np.array([1.0, 0.0], np.float32), (B, vehicles - 1, 1))
     state = {"obs": obs}
@@ -50,15 +62,24 @@ def bench_vector(B: int, vehicles: int, seconds: float, policy: bool = False, pr
         state["obs"] = env.step(actions)[0]
 
     n, dt = _timed(step, seconds)
-    return {"world": "VectorConvoyEnv", "B": B, "vehicles": vehicles, "policy": preset if policy else "fixed",
-            "topology": pol.member_config.topology, "link_counters": link_counters,
-            "steps_per_s": round(n / dt, 1), "env_steps_per_s": round(n * B / dt),
-            "vehicle_steps_per_s": round(n * B * vehicles / dt)}
+    return {
+        "world": "VectorConvoyEnv",
+        "B": B,
+        "vehicles": vehicles,
+        "policy": preset if policy else "fixed",
+        "topology": pol.member_config.topology,
+        "link_counters": link_counters,
+        "steps_per_s": round(n / dt, 1),
+        "env_steps_per_s": round(n * B / dt),
+        "vehicle_steps_per_s": round(n * B * vehicles / dt),
+    }
 
 
 def bench_single(vehicles: int, seconds: float, preset: str = "paper") -> dict:
     pol = load_policy(preset)
-    env = ConvoyEnv("paper", n_followers=vehicles - 1, member_config=pol.member_config, loss=LossConfig(per=0.2))
+    env = ConvoyEnv(
+        "paper", n_followers=vehicles - 1, member_config=pol.member_config, loss=LossConfig(per=0.2)
+    )
     env.reset(seed=0)
     fixed = {a: np.array([1.0, 0.0], np.float32) for a in env.possible_agents}
 
@@ -68,10 +89,16 @@ def bench_single(vehicles: int, seconds: float, preset: str = "paper") -> dict:
         env.step(fixed)
 
     n, dt = _timed(step, seconds)
-    return {"world": "ConvoyEnv", "B": 1, "vehicles": vehicles, "policy": "fixed",
-            "topology": pol.member_config.topology,
-            "steps_per_s": round(n / dt, 1), "env_steps_per_s": round(n / dt),
-            "vehicle_steps_per_s": round(n * vehicles / dt)}
+    return {
+        "world": "ConvoyEnv",
+        "B": 1,
+        "vehicles": vehicles,
+        "policy": "fixed",
+        "topology": pol.member_config.topology,
+        "steps_per_s": round(n / dt, 1),
+        "env_steps_per_s": round(n / dt),
+        "vehicle_steps_per_s": round(n * vehicles / dt),
+    }
 
 
 def main() -> None:
@@ -88,8 +115,14 @@ def main() -> None:
     # A bounded topology (lookahead:1): cost linear in N.
     for vehicles in (100, 1000):
         for counters in ("all", "kept"):
-            print(json.dumps(bench_vector(1, vehicles, args.seconds, preset="cacc-lookahead1",
-                                          link_counters=counters)), flush=True)
+            print(
+                json.dumps(
+                    bench_vector(
+                        1, vehicles, args.seconds, preset="cacc-lookahead1", link_counters=counters
+                    )
+                ),
+                flush=True,
+            )
     print(json.dumps(bench_single(100, args.seconds, preset="cacc-lookahead1")), flush=True)
     print(json.dumps(bench_vector(1024, 3, args.seconds, policy=True)), flush=True)
 

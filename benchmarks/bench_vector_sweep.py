@@ -34,9 +34,14 @@ def main() -> None:
     start = time.perf_counter()
     policy = load_policy("paper")
     runs = [(per, seed) for per in PERS for seed in range(args.seeds)]
-    env = VectorConvoyEnv(len(runs), "paper", member_config=policy.member_config,
-                          control_rate_hz=policy.control_rate_hz,
-                          loss=[LossConfig(per=per) for per, _ in runs], autoreset=False)
+    env = VectorConvoyEnv(
+        len(runs),
+        "paper",
+        member_config=policy.member_config,
+        control_rate_hz=policy.control_rate_hz,
+        loss=[LossConfig(per=per) for per, _ in runs],
+        autoreset=False,
+    )
     obs, info = env.reset(seed=[seed for _, seed in runs])
     errors = [info["platooning_error_m"]]
     alive = np.ones(len(runs), dtype=bool)
@@ -56,11 +61,20 @@ def main() -> None:
         sel = per_arr == per
         p95 = [float(np.nanpercentile(e, 95.0)) for e in err[sel]]
         ratio = delivered[sel] / np.maximum(delivered[sel] + lost[sel], 1)
-        rows.append({"per": per, "p95_platooning_error_m_mean": round(float(np.mean(p95)), 4),
-                     "p95_platooning_error_m_max": round(float(np.max(p95)), 4),
-                     "collisions": int(collided[sel].sum()),
-                     "delivery_ratio_mean": round(float(np.mean(ratio)), 4)})
-    print(json.dumps({"runs": len(runs), "ticks": env.max_steps + 1, "wall_s": round(wall, 1), "rows": rows}))
+        rows.append(
+            {
+                "per": per,
+                "p95_platooning_error_m_mean": round(float(np.mean(p95)), 4),
+                "p95_platooning_error_m_max": round(float(np.max(p95)), 4),
+                "collisions": int(collided[sel].sum()),
+                "delivery_ratio_mean": round(float(np.mean(ratio)), 4),
+            }
+        )
+    print(
+        json.dumps(
+            {"runs": len(runs), "ticks": env.max_steps + 1, "wall_s": round(wall, 1), "rows": rows}
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -45,8 +45,12 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", default="paper", help="policy spec (default paper)")
     p.add_argument("--per", type=FRACTION, default=0.0, help="emulated packet error rate")
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
-    p.add_argument("--duration", type=DURATION, metavar="S",
-                   help="shorten the scenario to S seconds (default: all 60 s)")
+    p.add_argument(
+        "--duration",
+        type=DURATION,
+        metavar="S",
+        help="shorten the scenario to S seconds (default: all 60 s)",
+    )
     p.add_argument("--out", metavar="DIR", help="keep the run here (default a temporary dir)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
 

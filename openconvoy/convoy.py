@@ -71,7 +71,9 @@ class V2VConfig:
         except ValueError:
             addr = None
         if addr is None or addr.version != 6 or not addr.is_multicast:
-            raise ConfigError(f"v2v.group: {self.group!r} is not an IPv6 multicast group (e.g. ff15::4f43)")
+            raise ConfigError(
+                f"v2v.group: {self.group!r} is not an IPv6 multicast group (e.g. ff15::4f43)"
+            )
         if self.auth not in ("", *AUTH_MODES):
             raise ConfigError(f"v2v.auth: {self.auth!r} is not one of {', '.join(AUTH_MODES)}")
         if self.compat:
@@ -86,7 +88,7 @@ class V2VConfig:
         if required and self.compat:
             raise ConfigError(
                 "v2v: compat = true cannot be combined with authentication (the JSON format "
-                "cannot be signed): set compat = false, or auth = \"off\""
+                'cannot be signed): set compat = false, or auth = "off"'
             )
         return required
 
@@ -143,7 +145,9 @@ def load_convoy(path: str | Path) -> ConvoyConfig:
     data = load_toml(path)
     unknown = set(data) - {"convoy", "v2v", "safety"}
     if unknown:
-        raise ConfigError(f"{path}: unknown table(s) {', '.join(sorted(unknown))}; expected convoy, v2v, safety")
+        raise ConfigError(
+            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; expected convoy, v2v, safety"
+        )
     for key, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: {key} must be a table ([{key}]), got {value!r}")

@@ -92,7 +92,9 @@ def run_outside(opts: DemoOptions) -> int:
 
     reason = netns_unavailable_reason()
     if reason is not None:
-        print(f"openconvoy demo: cannot create a private network namespace: {reason}", file=sys.stderr)
+        print(
+            f"openconvoy demo: cannot create a private network namespace: {reason}", file=sys.stderr
+        )
         print(NEEDS, file=sys.stderr)
         return 2
     env = {**os.environ, ENV_INSIDE: "1"}
@@ -131,7 +133,9 @@ def _say(line: str) -> None:
     print(line, flush=True)
 
 
-def write_convoy_toml(path: Path, vehicles: tuple[str, ...], origin: tuple[float, float, float]) -> None:
+def write_convoy_toml(
+    path: Path, vehicles: tuple[str, ...], origin: tuple[float, float, float]
+) -> None:
     """The demo's convoy config (paper scenario, its vehicles, the default V2V group)."""
     vs = ", ".join(f'"{v}"' for v in vehicles)
     path.write_text(
@@ -167,13 +171,17 @@ def run_inside(opts: DemoOptions) -> int:
     scenario = make_scenario("paper", presets=presets)
     member_config = policy.member_config
     if member_config is not None:
-        scenario = scenario.with_changes(spacing=member_config.spacing)  # the policy's gaps, as `sim`
+        scenario = scenario.with_changes(
+            spacing=member_config.spacing
+        )  # the policy's gaps, as `sim`
     init = scenario.initial_state()
     duration = float(opts.duration_s or scenario.duration_s)
     origin = Origin(*convoy.origin)
-    _say(f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles, policy "
-         f"{opts.policy}, PER {opts.per:g}, {duration:g} s, V2V over IPv6 multicast on {iface} "
-         f"(private network namespace); run in {out}")
+    _say(
+        f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles, policy "
+        f"{opts.policy}, PER {opts.per:g}, {duration:g} s, V2V over IPv6 multicast on {iface} "
+        f"(private network namespace); run in {out}"
+    )
 
     vehicles: list[SimVehicle] = []
     procs: list[subprocess.Popen] = []
@@ -190,20 +198,43 @@ def run_inside(opts: DemoOptions) -> int:
             port = free_udp_port()
             # The firmware's own loops and vehicle model (preset=None), RC switch at boot.
             cfg = SimVehicleConfig(
-                system_id=i + 1, autopilot=opts.autopilot, home=origin,
-                start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                start_heading_rad=float(init.heading[i]), ready_after_s=READY_AFTER_S,
-                init_s=INIT_S, rc_mode_switch=True, boot_on_connect=True, seed=i,
+                system_id=i + 1,
+                autopilot=opts.autopilot,
+                home=origin,
+                start_x_m=float(init.x[i]),
+                start_y_m=float(init.y[i]),
+                start_heading_rad=float(init.heading[i]),
+                ready_after_s=READY_AFTER_S,
+                init_s=INIT_S,
+                rc_mode_switch=True,
+                boot_on_connect=True,
+                seed=i,
             )
             vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
             urls.append(f"udpout:127.0.0.1:{port}")
         deploy_dir.mkdir(parents=True, exist_ok=True)
         for i, url in enumerate(urls):
             cmd = [
-                sys.executable, "-m", "openconvoy.cli", "deploy", "--policy", opts.policy,
-                "--vehicle-id", str(i), "--convoy", str(convoy_path), "--mavlink", url,
-                "--iface", iface, "--log", str(deploy_dir), "--per", repr(opts.per),
-                "--seed", "0",
+                sys.executable,
+                "-m",
+                "openconvoy.cli",
+                "deploy",
+                "--policy",
+                opts.policy,
+                "--vehicle-id",
+                str(i),
+                "--convoy",
+                str(convoy_path),
+                "--mavlink",
+                url,
+                "--iface",
+                iface,
+                "--log",
+                str(deploy_dir),
+                "--per",
+                repr(opts.per),
+                "--seed",
+                "0",
             ]
             if opts.duration_s is not None and i == 0:
                 cmd += ["--duration", repr(duration)]
@@ -234,8 +265,11 @@ def run_inside(opts: DemoOptions) -> int:
     report = compare_with_sim(deploy_dir, sim_dir, opts, duration, convoy.origin)
     from openconvoy.experiments.compare import format_comparison
 
-    _say(format_comparison(report["comparison"]).replace("A: ", "A (simulation): ", 1)
-         .replace("B: ", "B (MAVLink + multicast): ", 1))
+    _say(
+        format_comparison(report["comparison"])
+        .replace("A: ", "A (simulation): ", 1)
+        .replace("B: ", "B (MAVLink + multicast): ", 1)
+    )
     for vid, phases in report["speed_phases"].items():
         cells = ", ".join(f"{m:.2f}" for m in phases["mean_speed_mps"])
         _say(f"vehicle {vid}: mean speed per leader phase {cells} m/s")
@@ -305,7 +339,9 @@ def stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int
     return codes
 
 
-def trim_to_run(log: dict[str, np.ndarray], t_start: float, duration: float) -> dict[str, np.ndarray]:
+def trim_to_run(
+    log: dict[str, np.ndarray], t_start: float, duration: float
+) -> dict[str, np.ndarray]:
     """The rows of a merged vehicle log within the leader's scenario window, with ``t_s``
     shifted to start at 0 (so its ticks read like a simulator log's)."""
     t = np.asarray(log["t_s"], dtype=float)
@@ -336,8 +372,13 @@ def speed_phases(log: dict[str, np.ndarray], duration: float) -> dict[int, dict[
     return out
 
 
-def compare_with_sim(deploy_dir: Path, sim_dir: Path, opts: DemoOptions, duration: float,
-                     origin: tuple[float, float, float]) -> dict[str, Any]:
+def compare_with_sim(
+    deploy_dir: Path,
+    sim_dir: Path,
+    opts: DemoOptions,
+    duration: float,
+    origin: tuple[float, float, float],
+) -> dict[str, Any]:
     """Metrics of the deploy run (trimmed to the leader's window) and of the pure
     simulation, and their comparison (``experiments.compare``: B = deploy, A = sim)."""
     from openconvoy.core.metrics import compute_metrics
@@ -351,8 +392,14 @@ def compare_with_sim(deploy_dir: Path, sim_dir: Path, opts: DemoOptions, duratio
         raise RuntimeError("the leader never started driving")
     log = trim_to_run(read_log(deploy_dir), float(t_start), duration)
     sim = run_sim(
-        RunConfig(scenario="paper", policy=opts.policy, per=opts.per, seed=0,
-                  duration_s=duration, origin=origin),
+        RunConfig(
+            scenario="paper",
+            policy=opts.policy,
+            per=opts.per,
+            seed=0,
+            duration_s=duration,
+            origin=origin,
+        ),
         out_dir=sim_dir,
     )
     deploy_metrics = compute_metrics(log, sim.lengths)

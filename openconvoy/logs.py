@@ -116,7 +116,9 @@ class LogWriter:
     ) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.columns: tuple[str, ...] = COLUMNS + tuple(c for c in extra_columns if c not in COLUMNS)
+        self.columns: tuple[str, ...] = COLUMNS + tuple(
+            c for c in extra_columns if c not in COLUMNS
+        )
         self._file: IO[str] = self.path.open("w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._file)
         self._writer.writerow(self.columns)
@@ -211,7 +213,9 @@ def _read_one(path: Path) -> Log:
                 raise InputFileError(f"{path}: empty log file")
             missing = [c for c in COLUMNS if c not in header]
             if missing:
-                raise InputFileError(f"{path}: not an OpenConvoy log, missing column(s): {', '.join(missing)}")
+                raise InputFileError(
+                    f"{path}: not an OpenConvoy log, missing column(s): {', '.join(missing)}"
+                )
             columns, lines = _columns(path, header, reader)
     except UnicodeDecodeError:
         raise InputFileError(f"{path}: not a text file (an OpenConvoy log is CSV text)") from None
@@ -224,9 +228,15 @@ def _read_one(path: Path) -> Log:
         if name in _TEXT_COLUMNS:
             out[name] = np.array(values, dtype=object)
         elif name in _INT_COLUMNS:
-            out[name] = np.frombuffer(values, dtype=np.int64).copy() if len(values) else np.zeros(0, np.int64)
+            out[name] = (
+                np.frombuffer(values, dtype=np.int64).copy()
+                if len(values)
+                else np.zeros(0, np.int64)
+            )
         else:
-            out[name] = np.frombuffer(values, dtype=np.float64).copy() if len(values) else np.zeros(0)
+            out[name] = (
+                np.frombuffer(values, dtype=np.float64).copy() if len(values) else np.zeros(0)
+            )
     _check_rows(path, out, lines)
     return out
 
@@ -250,7 +260,9 @@ def _columns(path: Path, header: list[str], reader: Any) -> tuple[list[Any], lis
                 else:
                     columns[i].append(texts.setdefault(v, v))
             except (ValueError, OverflowError):
-                raise InputFileError(f"{path}:{n}: column {header[i]}: {v!r} is not a number") from None
+                raise InputFileError(
+                    f"{path}:{n}: column {header[i]}: {v!r} is not a number"
+                ) from None
         lines.append(n)
     return columns, lines
 
@@ -261,15 +273,19 @@ def _check_rows(path: Path, log: Log, lines: list[int]) -> None:
         bad = np.flatnonzero(~np.isfinite(log[name]))
         if bad.size:
             k = int(bad[0])
-            raise InputFileError(f"{path}:{lines[k]}: column {name}: {float(log[name][k])!r} (must be a finite number)")
+            raise InputFileError(
+                f"{path}:{lines[k]}: column {name}: {float(log[name][k])!r} (must be a finite number)"
+            )
     bad_mode = [k for k, m in enumerate(log["mode"]) if m not in MODES]
     if bad_mode:
         k = bad_mode[0]
         raise InputFileError(
-            f"{path}:{lines[k]}: column mode: {log['mode'][k]!r} is not one of {', '.join(MODES)}")
+            f"{path}:{lines[k]}: column mode: {log['mode'][k]!r} is not one of {', '.join(MODES)}"
+        )
     keys = np.stack([log["t_s"], log["vehicle_id"].astype(float)], axis=1)
     _, first, counts = np.unique(keys, axis=0, return_index=True, return_counts=True)
     if (counts > 1).any():
         k = int(first[np.flatnonzero(counts > 1)[0]])
         raise InputFileError(
-            f"{path}:{lines[k]}: vehicle {int(log['vehicle_id'][k])} appears more than once at t_s = {float(log['t_s'][k])!r}")
+            f"{path}:{lines[k]}: vehicle {int(log['vehicle_id'][k])} appears more than once at t_s = {float(log['t_s'][k])!r}"
+        )

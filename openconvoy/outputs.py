@@ -23,7 +23,9 @@ def check_output_dir(path: str | Path, what: str, create: bool = True) -> Path:
         while not ancestor.exists():
             ancestor = ancestor.parent
         if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
-            raise OutputPathError(f"{what} {p}: cannot create it ({ancestor} is not a writable directory)")
+            raise OutputPathError(
+                f"{what} {p}: cannot create it ({ancestor} is not a writable directory)"
+            )
         return p
     try:
         p.mkdir(parents=True, exist_ok=True)

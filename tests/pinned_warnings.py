@@ -20,7 +20,7 @@ GYMNASIUM_ALLOWED: Mapping[str, str] = {
     r"observation space minimum value is -infinity": UNBOUNDED,
     r"observation space maximum value is infinity": UNBOUNDED,
     r"symmetric and normalized (space|Box action space)": "actions are SI units by design (DESIGN.md, Action); "
-                                       "learners normalize in a wrapper",
+    "learners normalize in a wrapper",
     r"not having a spec": "checked on the instance; gymnasium.make is tested beside it",
 }
 

@@ -17,14 +17,35 @@ from openconvoy.policies.presets import PRESETS
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sim") / "paper"
-    rc = main(["sim", "--scenario", "paper", "--policy", "paper", "--per", "0", "--seed", "0",
-               "--out", str(out), "--quiet"])
+    rc = main(
+        [
+            "sim",
+            "--scenario",
+            "paper",
+            "--policy",
+            "paper",
+            "--per",
+            "0",
+            "--seed",
+            "0",
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert rc == 0
     return out
 
 
 def test_sim_writes_log_metrics_and_plots(paper_run: Path):
-    for name in ("log.csv", "metrics.json", "run.toml", "trajectories.png", "gaps.png", "speeds.png"):
+    for name in (
+        "log.csv",
+        "metrics.json",
+        "run.toml",
+        "trajectories.png",
+        "gaps.png",
+        "speeds.png",
+    ):
         assert (paper_run / name).stat().st_size > 0, name
     metrics = json.loads((paper_run / "metrics.json").read_text())
     assert set(METRIC_KEYS) <= set(metrics)
@@ -66,7 +87,9 @@ def test_report_merges_per_vehicle_logs(paper_run: Path, tmp_path: Path):
         assert merged[key] == pytest.approx(original[key]), key
 
 
-def test_report_on_a_log_without_lengths_uses_the_convoy_file(paper_run: Path, tmp_path: Path, capsys):
+def test_report_on_a_log_without_lengths_uses_the_convoy_file(
+    paper_run: Path, tmp_path: Path, capsys
+):
     with (paper_run / "log.csv").open() as f:
         rows = list(csv.DictReader(f))
     log = tmp_path / "bare.csv"
@@ -92,11 +115,31 @@ def test_report_on_a_log_without_lengths_uses_the_convoy_file(paper_run: Path, t
 
 def test_sim_with_convoy_file_burst_loss_and_duration(tmp_path: Path):
     convoy = tmp_path / "convoy.toml"
-    convoy.write_text('[convoy]\nscenario = "paper"\nvehicles = ["1/10", "1/10", "1/6", "1/10"]\n'
-                      "origin = [52.0, 4.37, 0.0]\n")
+    convoy.write_text(
+        '[convoy]\nscenario = "paper"\nvehicles = ["1/10", "1/10", "1/6", "1/10"]\n'
+        "origin = [52.0, 4.37, 0.0]\n"
+    )
     out = tmp_path / "run"
-    rc = main(["sim", "--convoy", str(convoy), "--per", "0.3", "--loss", "gilbert-elliott",
-               "--burst", "0.5", "--duration", "5", "--seed", "7", "--out", str(out), "--no-plots"])
+    rc = main(
+        [
+            "sim",
+            "--convoy",
+            str(convoy),
+            "--per",
+            "0.3",
+            "--loss",
+            "gilbert-elliott",
+            "--burst",
+            "0.5",
+            "--duration",
+            "5",
+            "--seed",
+            "7",
+            "--out",
+            str(out),
+            "--no-plots",
+        ]
+    )
     assert rc == 0
     run = (out / "run.toml").read_text()
     assert 'loss_model = "gilbert-elliott"' in run and "mean_burst_s = 0.5" in run
@@ -158,12 +201,30 @@ def test_compare_two_runs_shows_differences(paper_run: Path, tmp_path: Path, cap
 
 def test_sim_fault_stops_the_convoy_and_writes_events(tmp_path: Path, capsys):
     out = tmp_path / "fault"
-    assert main(["sim", "--fault", "dead:0@5", "--fault", "silent:1@6", "--duration", "12",
-                 "--out", str(out), "--quiet", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "--fault",
+                "dead:0@5",
+                "--fault",
+                "silent:1@6",
+                "--duration",
+                "12",
+                "--out",
+                str(out),
+                "--quiet",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     assert "events.json" in capsys.readouterr().out
     events = json.loads((out / "events.json").read_text())
     assert [(e["t_s"], e["vehicle_id"], e["reason"]) for e in events] == [
-        (pytest.approx(5.0), 0, "fault dead:0@5"), (pytest.approx(6.0), 1, "fault silent:1@6")]
+        (pytest.approx(5.0), 0, "fault dead:0@5"),
+        (pytest.approx(6.0), 1, "fault silent:1@6"),
+    ]
     rows = list(csv.DictReader(open(out / "log.csv")))
     last = {r["vehicle_id"]: r for r in rows}
     assert all(abs(float(last[v]["speed_mps"])) < 0.05 for v in ("0", "1", "2"))

@@ -30,8 +30,18 @@ def test_needs_a_follower():
         ConvoyConfig(vehicles=("1/10",))
 
 
-@pytest.mark.parametrize("value, ok", [("0.5", True), ("0", True), ("-0.1", False), ("nan", False),
-                                       ("inf", False), ('"1"', False), ("101.0", False)])
+@pytest.mark.parametrize(
+    "value, ok",
+    [
+        ("0.5", True),
+        ("0", True),
+        ("-0.1", False),
+        ("nan", False),
+        ("inf", False),
+        ('"1"', False),
+        ("101.0", False),
+    ],
+)
 def test_gap_margin_is_checked_and_reaches_the_envelope(tmp_path, value, ok):
     from openconvoy.bridge.runner import envelope_from
 
@@ -45,5 +55,7 @@ def test_gap_margin_is_checked_and_reaches_the_envelope(tmp_path, value, ok):
     assert env.braking.margin_m == float(value)
     assert env.braking.decel_mps2 == 1.0 and env.braking.reaction_s == pytest.approx(0.12 + 0.35)
     assert (env.ego_length_m, env.pred_length_m) == (0.97, 0.779)
-    assert envelope_from(ConvoyConfig(), vehicle_id=1).braking.margin_m == pytest.approx(0.25 * 0.97)
+    assert envelope_from(ConvoyConfig(), vehicle_id=1).braking.margin_m == pytest.approx(
+        0.25 * 0.97
+    )
     assert envelope_from(ConvoyConfig(), vehicle_id=0).braking is None  # the leader follows nobody

@@ -16,7 +16,9 @@ from openconvoy.comms.netns import netns_unavailable_reason
 def test_without_a_namespace_it_says_what_it_needs(monkeypatch, capsys):
     import openconvoy.comms.netns as netns
 
-    monkeypatch.setattr(netns, "netns_unavailable_reason", lambda: "unshare: Operation not permitted")
+    monkeypatch.setattr(
+        netns, "netns_unavailable_reason", lambda: "unshare: Operation not permitted"
+    )
     code = demo.run_outside(demo.DemoOptions())
     err = capsys.readouterr().err
     assert code == 2
@@ -30,10 +32,12 @@ def test_trim_and_speed_phases():
     log = {
         "t_s": np.concatenate([t, t]),
         "vehicle_id": np.concatenate([np.zeros(n, int), np.ones(n, int)]),
-        "speed_mps": np.concatenate([
-            np.where((t - 1002.0 >= 20) & (t - 1002.0 < 40), 2.0, 1.0),
-            np.full(n, 1.5),
-        ]),
+        "speed_mps": np.concatenate(
+            [
+                np.where((t - 1002.0 >= 20) & (t - 1002.0 < 40), 2.0, 1.0),
+                np.full(n, 1.5),
+            ]
+        ),
     }
     trimmed = demo.trim_to_run(log, 1002.0, 60.0)
     assert trimmed["t_s"].min() == pytest.approx(0.0, abs=0.05)
@@ -54,7 +58,9 @@ def test_demo_convoy_matches_the_pure_simulation(tmp_path):
     assert reason is None, f"the demo needs a private network namespace: {reason}"
     r = subprocess.run(
         [sys.executable, "-m", "openconvoy.cli", "demo", "--json", "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=300,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-4000:]
     lines = r.stdout.strip().splitlines()

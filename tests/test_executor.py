@@ -45,8 +45,9 @@ def _sweep(tmp_path: Path) -> ExperimentConfig:
     # A corrupt learned-policy file: its runs fail on the worker when the policy loads.
     broken = tmp_path / "broken.zip"
     broken.write_bytes(b"not a zip file")
-    return ExperimentConfig(name="fail", policies=("paper", str(broken)), pers=(0.0, 0.5), seeds=(0,),
-                            duration_s=3.0)
+    return ExperimentConfig(
+        name="fail", policies=("paper", str(broken)), pers=(0.0, 0.5), seeds=(0,), duration_s=3.0
+    )
 
 
 def test_a_failed_run_is_named_and_the_others_are_written(tmp_path: Path):
@@ -54,7 +55,9 @@ def test_a_failed_run_is_named_and_the_others_are_written(tmp_path: Path):
     with pytest.raises(TasksFailed) as info:
         run_experiment(_sweep(tmp_path), out, jobs=1, progress=False)
     lines = str(info.value).splitlines()
-    assert lines[0] == f"2 of 4 runs failed; the other 2 are in {out} (summary.csv covers only them)"
+    assert (
+        lines[0] == f"2 of 4 runs failed; the other 2 are in {out} (summary.csv covers only them)"
+    )
     assert lines[1].startswith("  runs/broken/per_0.00/seed_0: ")
     assert lines[2].startswith("  runs/broken/per_0.50/seed_0: ")
     assert f"(on the driver, pid {os.getpid()} on " in lines[1]
@@ -65,15 +68,40 @@ def test_a_failed_run_is_named_and_the_others_are_written(tmp_path: Path):
         assert not (out / "runs" / "broken" / f"per_{per}").exists()
     rows = read_summary(out)
     assert [(r["policy"].split("/")[-1], r["runs"]) for r in rows] == [
-        ("paper", 1), ("paper", 1), ("broken.zip", 0), ("broken.zip", 0)]
+        ("paper", 1),
+        ("paper", 1),
+        ("broken.zip", 0),
+        ("broken.zip", 0),
+    ]
     failures = json.loads((out / "failures.json").read_text())["failures"]
-    assert [f["label"] for f in failures] == ["runs/broken/per_0.00/seed_0", "runs/broken/per_0.50/seed_0"]
+    assert [f["label"] for f in failures] == [
+        "runs/broken/per_0.00/seed_0",
+        "runs/broken/per_0.50/seed_0",
+    ]
 
 
 def test_the_cli_reports_failed_runs_in_one_line_each_and_exits_1(tmp_path: Path, capsys):
     cfg = _sweep(tmp_path)
-    argv = ["experiment", "per-sweep", "--out", str(tmp_path / "cli"), "--quiet", "--no-plots", "--jobs", "1",
-            "--pers", "0.2", "--seeds", "1", "--duration", "3", "--policy", "paper", "--policy", cfg.policies[1]]
+    argv = [
+        "experiment",
+        "per-sweep",
+        "--out",
+        str(tmp_path / "cli"),
+        "--quiet",
+        "--no-plots",
+        "--jobs",
+        "1",
+        "--pers",
+        "0.2",
+        "--seeds",
+        "1",
+        "--duration",
+        "3",
+        "--policy",
+        "paper",
+        "--policy",
+        cfg.policies[1],
+    ]
     assert main(argv) == 1
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith("openconvoy: error: 1 of 2 runs failed;")
@@ -82,7 +110,9 @@ def test_the_cli_reports_failed_runs_in_one_line_each_and_exits_1(tmp_path: Path
 
 def test_executor_table_and_flags(tmp_path: Path):
     exp = tmp_path / "exp.toml"
-    exp.write_text('[experiment]\nseeds = 1\n[executor]\nkind = "ray"\naddress = "10.1.2.3:6379"\njobs = 8\n')
+    exp.write_text(
+        '[experiment]\nseeds = 1\n[executor]\nkind = "ray"\naddress = "10.1.2.3:6379"\njobs = 8\n'
+    )
     cfg = ExperimentConfig.from_toml(exp)
     assert cfg.executor == ExecutorConfig(kind="ray", address="10.1.2.3:6379", jobs=8)
     # Where runs execute is not part of the experiment: not compared, not in the copy.
@@ -94,30 +124,55 @@ def test_executor_table_and_flags(tmp_path: Path):
     exp.write_text('[experiment]\n[executor]\nkind = "dask"\n')
     with pytest.raises(ValueError, match="unknown executor 'dask'"):
         ExperimentConfig.from_toml(exp)
-    exp.write_text('[experiment]\n[executor]\nnodes = 3\n')
+    exp.write_text("[experiment]\n[executor]\nnodes = 3\n")
     with pytest.raises(ValueError, match="unknown key.*nodes"):
         ExperimentConfig.from_toml(exp)
 
 
 def test_bad_executor_flags_are_one_error_line(tmp_path: Path, capsys):
-    assert main(["experiment", "per-sweep", "--address", "10.0.0.1:6379", "--out", str(tmp_path)]) == 2
-    assert capsys.readouterr().err == "openconvoy: error: an executor address needs the ray executor (--executor ray)\n"
+    assert (
+        main(["experiment", "per-sweep", "--address", "10.0.0.1:6379", "--out", str(tmp_path)]) == 2
+    )
+    assert (
+        capsys.readouterr().err
+        == "openconvoy: error: an executor address needs the ray executor (--executor ray)\n"
+    )
 
 
 def test_missing_ray_is_one_line_naming_the_extra(tmp_path: Path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets without the extra
-    assert main(["experiment", "per-sweep", "--executor", "ray", "--seeds", "1", "--pers", "0",
-                 "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    assert (
+        main(
+            [
+                "experiment",
+                "per-sweep",
+                "--executor",
+                "ray",
+                "--seeds",
+                "1",
+                "--pers",
+                "0",
+                "--out",
+                str(tmp_path / "x"),
+                "--quiet",
+            ]
+        )
+        == 2
+    )
     assert capsys.readouterr().err == (
-        "openconvoy: error: the ray executor needs Ray, which is not installed: pip install 'openconvoy[cluster]'\n")
+        "openconvoy: error: the ray executor needs Ray, which is not installed: pip install 'openconvoy[cluster]'\n"
+    )
 
 
 def test_only_the_ray_executor_imports_ray():
     importers = []
     for path in PACKAGE.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
-                [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else ([node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            )
             if any(n == "ray" or n.startswith("ray.") for n in names):
                 importers.append(path.relative_to(PACKAGE).as_posix())
     assert sorted(set(importers)) == ["experiments/ray_executor.py"]
@@ -125,8 +180,27 @@ def test_only_the_ray_executor_imports_ray():
 
 def test_an_unreachable_cluster_is_one_error_line(tmp_path: Path, capsys):
     pytest.importorskip("ray")
-    assert main(["experiment", "per-sweep", "--executor", "ray", "--address", "127.0.0.1:1", "--seeds", "1",
-                 "--pers", "0", "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    assert (
+        main(
+            [
+                "experiment",
+                "per-sweep",
+                "--executor",
+                "ray",
+                "--address",
+                "127.0.0.1:1",
+                "--seeds",
+                "1",
+                "--pers",
+                "0",
+                "--out",
+                str(tmp_path / "x"),
+                "--quiet",
+            ]
+        )
+        == 2
+    )
     assert capsys.readouterr().err.startswith(
-        "openconvoy: error: cannot reach the Ray cluster at 127.0.0.1:1: ConnectionRefusedError")
+        "openconvoy: error: cannot reach the Ray cluster at 127.0.0.1:1: ConnectionRefusedError"
+    )
     assert not (tmp_path / "x").exists()  # nothing written before the cluster answers

@@ -31,8 +31,21 @@ def _mean(rows, policy, per, key):
 @pytest.mark.e2e
 def test_paper_per_sweep_shows_the_papers_trend(tmp_path: Path, capsys):
     out = tmp_path / "sweep"
-    rc = main(["experiment", "per-sweep", "--policy", "paper", "--seeds", "3", "--out", str(out),
-               "--quiet", "--jobs", "2"])
+    rc = main(
+        [
+            "experiment",
+            "per-sweep",
+            "--policy",
+            "paper",
+            "--seeds",
+            "3",
+            "--out",
+            str(out),
+            "--quiet",
+            "--jobs",
+            "2",
+        ]
+    )
     assert rc == 0
     rows = json.loads((out / "summary.json").read_text())["rows"]
     assert [r["per"] for r in rows] == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
@@ -65,8 +78,22 @@ def test_rerun_from_the_copied_experiment_file_is_byte_identical(tmp_path: Path)
         '[policy.slow]\nbase = "paper"\nspeed_limit_mps = 3.0\n'
     )
     first = tmp_path / "first"
-    assert main(["experiment", "per-sweep", "--config", str(exp), "--out", str(first),
-                 "--jobs", "2", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "experiment",
+                "per-sweep",
+                "--config",
+                str(exp),
+                "--out",
+                str(first),
+                "--jobs",
+                "2",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     manifest = json.loads((first / "manifest.json").read_text())
     from openconvoy import __version__
 
@@ -76,20 +103,56 @@ def test_rerun_from_the_copied_experiment_file_is_byte_identical(tmp_path: Path)
     fast.unlink()
     assert "[policy.fast]" in (first / "experiment.toml").read_text()
     second = tmp_path / "second"
-    assert main(["experiment", "per-sweep", "--config", str(first / "experiment.toml"),
-                 "--out", str(second), "--quiet", "--jobs", "1", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "experiment",
+                "per-sweep",
+                "--config",
+                str(first / "experiment.toml"),
+                "--out",
+                str(second),
+                "--quiet",
+                "--jobs",
+                "1",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     assert (first / "summary.csv").read_bytes() == (second / "summary.csv").read_bytes()
     assert (first / "experiment.toml").read_bytes() == (second / "experiment.toml").read_bytes()
     rows = read_summary(first)
     assert [(r["policy"], r["per"]) for r in rows] == [
-        ("slow", 0.0), ("slow", 0.5), ("slow+ladder", 0.0), ("slow+ladder", 0.5),
-        ("fast+ladder", 0.0), ("fast+ladder", 0.5)]
+        ("slow", 0.0),
+        ("slow", 0.5),
+        ("slow+ladder", 0.0),
+        ("slow+ladder", 0.5),
+        ("fast+ladder", 0.0),
+        ("fast+ladder", 0.5),
+    ]
     assert _mean(rows, "fast+ladder", 0.5, "p95_platooning_error_m") != _mean(
-        rows, "slow+ladder", 0.5, "p95_platooning_error_m")
+        rows, "slow+ladder", 0.5, "p95_platooning_error_m"
+    )
     # A different seed set changes the numbers: the identity above is not vacuous.
     third = tmp_path / "third"
-    assert main(["experiment", "per-sweep", "--config", str(first / "experiment.toml"), "--seeds", "1", "--out", str(third),
-                 "--quiet", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "experiment",
+                "per-sweep",
+                "--config",
+                str(first / "experiment.toml"),
+                "--seeds",
+                "1",
+                "--out",
+                str(third),
+                "--quiet",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     assert (first / "summary.csv").read_bytes() != (third / "summary.csv").read_bytes()
 
 
@@ -99,7 +162,10 @@ def test_experiment_files_are_strict_and_round_trip(tmp_path: Path):
     again = tmp_path / "again.toml"
     again.write_text(cfg.to_toml())
     assert ExperimentConfig.from_toml(again) == cfg
-    assert ExperimentConfig.from_toml(EXAMPLES / "paper-per-sweep.toml").policies == ("paper", "paper+ladder")
+    assert ExperimentConfig.from_toml(EXAMPLES / "paper-per-sweep.toml").policies == (
+        "paper",
+        "paper+ladder",
+    )
     bad = tmp_path / "bad.toml"
     bad.write_text('[experiment]\nscenario = "paper"\nper = [0.1]\n')
     with pytest.raises(ValueError, match="unknown key.*per"):
@@ -107,7 +173,7 @@ def test_experiment_files_are_strict_and_round_trip(tmp_path: Path):
     bad.write_text('[experiment]\n[loss]\nmodel = "markov"\n')
     with pytest.raises(ValueError, match="markov"):
         ExperimentConfig.from_toml(bad)
-    bad.write_text('[experiment]\npers = [0.0, 1.5]\n')
+    bad.write_text("[experiment]\npers = [0.0, 1.5]\n")
     with pytest.raises(ValueError, match=r"pers\[1\].*1\.5.*\[0, 1\]"):
         ExperimentConfig.from_toml(bad)
 
@@ -134,9 +200,14 @@ def test_every_preset_platoons_the_paper_scenario_at_per_0(name: str):
 def _claimed(name: str) -> tuple[str, str]:
     """The topology and trigger a preset's name claims."""
     trigger = "event" if name.endswith("-event") else "periodic"
-    for word, topology in (("leader", "leader"), ("allpred", "all-predecessors"), ("paper", "all-predecessors"),
-                           ("lookahead1", "lookahead:1"), ("lookaheadN", "lookahead:N"),
-                           ("mcacc", "bidirectional")):
+    for word, topology in (
+        ("leader", "leader"),
+        ("allpred", "all-predecessors"),
+        ("paper", "all-predecessors"),
+        ("lookahead1", "lookahead:1"),
+        ("lookaheadN", "lookahead:N"),
+        ("mcacc", "bidirectional"),
+    ):
         if word in name:
             return topology, trigger
     raise AssertionError(f"no claim in {name}")
@@ -157,7 +228,11 @@ def test_each_preset_uses_the_topology_and_trigger_it_claims(name: str):
     topology, trigger = _claimed(name)
     assert (cfg.topology, cfg.trigger.kind) == (topology, trigger)
     member = ConvoyMember(2, 4, cfg)
-    kept = {j for j in (0, 1, 3) if member.receive(VehicleState(j, 0.0, 10.0 * (2 - j), 0.0, 1.0, 0.0), 0.0)}
+    kept = {
+        j
+        for j in (0, 1, 3)
+        if member.receive(VehicleState(j, 0.0, 10.0 * (2 - j), 0.0, 1.0, 0.0), 0.0)
+    }
     assert kept == KEPT_BY_VEHICLE_2_OF_4[topology]
 
 
@@ -184,7 +259,9 @@ def test_event_triggered_members_send_less_on_a_steady_road(periodic: str):
 
 
 def test_ranging_option_gives_followers_a_sensor():
-    env, policies = build_env(RunConfig(scenario="emergency-braking", ranging=True, ranging_max_range_m=150.0))
+    env, policies = build_env(
+        RunConfig(scenario="emergency-braking", ranging=True, ranging_max_range_m=150.0)
+    )
     assert env.presets[0].ranging is None
     assert [p.ranging.max_range_m for p in env.presets[1:]] == [150.0, 150.0]
     assert set(policies) == set(env.possible_agents)
@@ -220,12 +297,37 @@ def test_emergency_braking_under_bursts_the_ladder_prevents_collisions(tmp_path:
 
 def test_compare_two_sweeps_matches_rows_by_per(tmp_path: Path, capsys):
     for label in ("paper", "paper+ladder"):
-        assert main(["experiment", "per-sweep", "--policy", label, "--pers", "0,0.6", "--seeds", "1",
-                     "--duration", "6", "--out", str(tmp_path / label), "--quiet", "--no-plots",
-                     "--jobs", "1"]) == 0
+        assert (
+            main(
+                [
+                    "experiment",
+                    "per-sweep",
+                    "--policy",
+                    label,
+                    "--pers",
+                    "0,0.6",
+                    "--seeds",
+                    "1",
+                    "--duration",
+                    "6",
+                    "--out",
+                    str(tmp_path / label),
+                    "--quiet",
+                    "--no-plots",
+                    "--jobs",
+                    "1",
+                ]
+            )
+            == 0
+        )
     capsys.readouterr()
     out = tmp_path / "cmp.json"
-    assert main(["compare", str(tmp_path / "paper"), str(tmp_path / "paper+ladder"), "--out", str(out)]) == 0
+    assert (
+        main(
+            ["compare", str(tmp_path / "paper"), str(tmp_path / "paper+ladder"), "--out", str(out)]
+        )
+        == 0
+    )
     result = json.loads(out.read_text())
     assert [r["per"] for r in result["rows"]] == [0.0, 0.6]
     first = result["rows"][0]

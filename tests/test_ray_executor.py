@@ -30,8 +30,14 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def cluster() -> Any:
     """A local Ray cluster of 2 CPUs; its GCS address (other drivers connect to it)."""
-    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1",
-             object_store_memory=100 * 1024 * 1024, log_to_driver=False, logging_level="warning")
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        _node_ip_address="127.0.0.1",
+        object_store_memory=100 * 1024 * 1024,
+        log_to_driver=False,
+        logging_level="warning",
+    )
     try:
         yield ray.get_runtime_context().gcs_address
     finally:
@@ -42,8 +48,13 @@ def _experiment(tmp_path: Path) -> ExperimentConfig:
     # A policy file on the driver only: the workers get its bytes.
     policy = tmp_path / "gentle.toml"
     policy.write_text('[policy]\nbase = "paper"\nspeed = { kind = "pd", kp = 0.5, kd = 1.1 }\n')
-    return ExperimentConfig(name="ray", policies=("paper+ladder", str(policy)), pers=(0.0, 0.5),
-                            seeds=(0, 1), duration_s=4.0)
+    return ExperimentConfig(
+        name="ray",
+        policies=("paper+ladder", str(policy)),
+        pers=(0.0, 0.5),
+        seeds=(0, 1),
+        duration_s=4.0,
+    )
 
 
 def test_a_ray_sweep_is_byte_identical_to_the_local_one(cluster: str, tmp_path: Path):
@@ -52,7 +63,9 @@ def test_a_ray_sweep_is_byte_identical_to_the_local_one(cluster: str, tmp_path: 
     executor = RayExecutor()
     assert executor.address == cluster and executor.slots == 2
     run_experiment(cfg, tmp_path / "ray", executor=executor, progress=False, figures=False)
-    assert (tmp_path / "ray" / "summary.csv").read_bytes() == (tmp_path / "local" / "summary.csv").read_bytes()
+    assert (tmp_path / "ray" / "summary.csv").read_bytes() == (
+        tmp_path / "local" / "summary.csv"
+    ).read_bytes()
     logs = sorted(p.relative_to(tmp_path / "local") for p in (tmp_path / "local").rglob("log.csv"))
     assert len(logs) == 8
     for rel in logs:
@@ -108,11 +121,15 @@ def test_a_worker_killed_mid_sweep_loses_only_its_run(cluster: str, tmp_path: Pa
     with pytest.raises(TasksFailed) as info:
         run_experiment(cfg, out, executor=_KillOne(victim), progress=False)
     lines = str(info.value).splitlines()
-    assert lines[0] == f"1 of 8 runs failed; the other 7 are in {out} (summary.csv covers only them)"
+    assert (
+        lines[0] == f"1 of 8 runs failed; the other 7 are in {out} (summary.csv covers only them)"
+    )
     # The worker is named: its pid, host, IP and Ray node, reported before the run started.
     assert len(lines) == 2 and re.fullmatch(
         rf"  {victim}: WorkerCrashedError: The worker died unexpectedly while executing this task\. [^\[]*"
-        r"\(on Ray worker pid \d+ on \S+ [\d.:a-f]+, node [0-9a-f]{8}\)", lines[1]), lines[1]
+        r"\(on Ray worker pid \d+ on \S+ [\d.:a-f]+, node [0-9a-f]{8}\)",
+        lines[1],
+    ), lines[1]
     assert not (out / victim).exists()
     assert len(list(out.rglob("log.csv"))) == 7
     assert [r["runs"] for r in read_summary(out)] == [2, 2, 2, 1]
@@ -120,9 +137,28 @@ def test_a_worker_killed_mid_sweep_loses_only_its_run(cluster: str, tmp_path: Pa
 
 
 def _tune_argv(address: str, storage: Path, out: Path, trials: int) -> list[str]:
-    return ["tune", "--executor", "ray", "--address", address, "--storage", str(storage),
-            "--study-name", "resume", "--trials", str(trials), "--per", "0.3", "--seeds", "1000",
-            "--duration", "8", "--out", str(out), "--no-progress"]
+    return [
+        "tune",
+        "--executor",
+        "ray",
+        "--address",
+        address,
+        "--storage",
+        str(storage),
+        "--study-name",
+        "resume",
+        "--trials",
+        str(trials),
+        "--per",
+        "0.3",
+        "--seeds",
+        "1000",
+        "--duration",
+        "8",
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
 
 
 def _trials(storage: Path) -> list[Any]:
@@ -131,7 +167,9 @@ def _trials(storage: Path) -> list[Any]:
     from optuna.storages.journal import JournalFileBackend
 
     try:
-        study = optuna.load_study(study_name="resume", storage=JournalStorage(JournalFileBackend(str(storage))))
+        study = optuna.load_study(
+            study_name="resume", storage=JournalStorage(JournalFileBackend(str(storage)))
+        )
     except KeyError:
         return []
     return study.get_trials(deepcopy=True)
@@ -142,8 +180,12 @@ def test_a_tuning_study_resumes_after_its_driver_is_killed(cluster: str, tmp_pat
     from optuna.trial import TrialState
 
     storage, out = tmp_path / "study.journal", tmp_path / "tuned.toml"
-    driver = subprocess.Popen([sys.executable, "-m", "openconvoy.cli", *_tune_argv(cluster, storage, out, 200)],
-                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    driver = subprocess.Popen(
+        [sys.executable, "-m", "openconvoy.cli", *_tune_argv(cluster, storage, out, 200)],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     try:
         deadline = time.monotonic() + 180
         while sum(t.state == TrialState.COMPLETE for t in _trials(storage) if storage.exists()) < 3:
@@ -173,16 +215,22 @@ def test_a_tuning_study_resumes_after_its_driver_is_killed(cluster: str, tmp_pat
     # ... and the runs the killed driver left unfinished are evaluated once, in the resumed run.
     new = [t for t in complete if t.number not in {f.number for f in finished}]
     for orphan in orphans:
-        assert [t.user_attrs.get("requeued_from") for t in new if t.params == orphan.params] == [orphan.number]
+        assert [t.user_attrs.get("requeued_from") for t in new if t.params == orphan.params] == [
+            orphan.number
+        ]
     assert summary["best_value"] <= summary["base_value"]
 
 
-FAST_TRAIN = ("total_steps = 512\nn_envs = 1\ncheckpoint_every = 0\nvalidation_pers = [0.3]\n"
-              "validation_seeds = [1000]\nvalidation_duration_s = 3.0\n[ppo]\nn_steps = 256\n")
+FAST_TRAIN = (
+    "total_steps = 512\nn_envs = 1\ncheckpoint_every = 0\nvalidation_pers = [0.3]\n"
+    "validation_seeds = [1000]\nvalidation_duration_s = 3.0\n[ppo]\nn_steps = 256\n"
+)
 
 
 @pytest.mark.e2e
-def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str, tmp_path: Path, capsys):
+def test_training_runs_on_the_cluster_come_back_as_run_directories(
+    cluster: str, tmp_path: Path, capsys
+):
     from openconvoy.policies import load_policy
     from openconvoy.policies.learned import read_zip_meta
     from openconvoy.train.config import load_train_config
@@ -192,12 +240,40 @@ def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str,
     cfg = tmp_path / "fast.toml"
     cfg.write_text(f'{FAST_TRAIN}[env]\nbase_policy = "{base}"\n')
     out = tmp_path / "multi"
-    assert main(["train", "--config", str(cfg), "--seeds", "0", "1", "--executor", "ray", "--address", cluster,
-                 "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--config",
+                str(cfg),
+                "--seeds",
+                "0",
+                "1",
+                "--executor",
+                "ray",
+                "--address",
+                cluster,
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     runs = json.loads((out / "runs.json").read_text())["runs"]
-    assert [(r["name"], r["seed"], r["steps"]) for r in runs] == [("seed_0", 0, 512), ("seed_1", 1, 512)]
+    assert [(r["name"], r["seed"], r["steps"]) for r in runs] == [
+        ("seed_0", 0, 512),
+        ("seed_1", 1, 512),
+    ]
     for name in ("seed_0", "seed_1"):
-        for f in ("config.toml", "policy.zip", "last.zip", "policy.json", "train.json", "validation.json"):
+        for f in (
+            "config.toml",
+            "policy.zip",
+            "last.zip",
+            "policy.json",
+            "train.json",
+            "validation.json",
+        ):
             assert (out / name / f).is_file(), (name, f)
         assert list((out / name / "tb").rglob("events.out.tfevents.*"))
         # Paths the run recorded name the driver's directory, not the worker's.
@@ -205,8 +281,13 @@ def test_training_runs_on_the_cluster_come_back_as_run_directories(cluster: str,
         assert Path(validation["chosen"]).read_bytes() == (out / name / "policy.zip").read_bytes()
         assert load_policy(str(out / name / "policy.zip")) is not None
     # The run's config names the driver's base file: `train --config RUN/config.toml` reruns it.
-    given, runs_cfg = load_train_config(cfg), [load_train_config(out / n / "config.toml") for n in ("seed_0", "seed_1")]
-    assert runs_cfg == [given, dataclasses.replace(given, seed=1)] and given.env.base_policy == str(base)
+    given, runs_cfg = (
+        load_train_config(cfg),
+        [load_train_config(out / n / "config.toml") for n in ("seed_0", "seed_1")],
+    )
+    assert runs_cfg == [given, dataclasses.replace(given, seed=1)] and given.env.base_policy == str(
+        base
+    )
     assert read_zip_meta(out / "seed_0" / "policy.zip").base.speed.kp == 0.4
     assert (out / "seed_0" / "last.zip").read_bytes() != (out / "seed_1" / "last.zip").read_bytes()
     assert "seed_1/policy.zip  (512 steps" in capsys.readouterr().out

@@ -22,8 +22,16 @@ class ConvoyStart:
         clock: the runner's monotonic clock (s).
     """
 
-    def __init__(self, vehicle_id: int, n_vehicles: int, keeps: Callable[[int], bool], *,
-                 leader_waits: bool, wait_s: float, clock: Callable[[], float]) -> None:
+    def __init__(
+        self,
+        vehicle_id: int,
+        n_vehicles: int,
+        keeps: Callable[[int], bool],
+        *,
+        leader_waits: bool,
+        wait_s: float,
+        clock: Callable[[], float],
+    ) -> None:
         self.vehicle_id = vehicle_id
         self.n_vehicles = n_vehicles
         self.keeps = keeps
@@ -48,7 +56,10 @@ class ConvoyStart:
         if i == 0:
             if not self.leader_waits:
                 return []
-            if self.clock() - (t_loop_start if t_loop_start is not None else self.clock()) > self.wait_s:
+            if (
+                self.clock() - (t_loop_start if t_loop_start is not None else self.clock())
+                > self.wait_s
+            ):
                 return []
             return [j for j in range(1, n) if j not in self.heard]
         need = {j for j in range(i) if self.keeps(j)}

@@ -94,35 +94,65 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             leader_origin = leader.origin  # the track's own frame, reached through lat/lon
     me = presets[a.vehicle_id]
     options = RunnerOptions(  # checks rate and timeouts before any socket opens
-        vehicle_id=a.vehicle_id, rate_hz=rate, dry_run=a.dry_run, passive=a.passive,
-        duration_s=a.duration, connect_timeout_s=a.connect_timeout, arm_timeout_s=a.arm_timeout,
+        vehicle_id=a.vehicle_id,
+        rate_hz=rate,
+        dry_run=a.dry_run,
+        passive=a.passive,
+        duration_s=a.duration,
+        connect_timeout_s=a.connect_timeout,
+        arm_timeout_s=a.arm_timeout,
         seed=a.seed,
     )
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming
     auth = vehicle_authenticator(convoy, a.vehicle_id)  # key problems: before any socket
     if auth is not None:
-        status(f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
-               f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates")
+        status(
+            f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
+            f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates"
+        )
     link = MavlinkLink(
-        a.mavlink, origin, a.baud, vehicle_id=a.vehicle_id,
+        a.mavlink,
+        origin,
+        a.baud,
+        vehicle_id=a.vehicle_id,
         telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
-        length_m=me.length_m, width_m=me.width_m, on_status=status,
+        length_m=me.length_m,
+        width_m=me.width_m,
+        on_status=status,
     )
     temp_ids = TempIds(convoy.name, n, dict(enumerate(convoy.v2v.temp_ids)) or None)
     loss = LossConfig(per=a.per) if a.per > 0 else None
     v2v = V2V(
-        LinkConfig.from_v2v(convoy.v2v, a.iface), temp_ids, origin, a.vehicle_id,
-        loss=loss, drop_at=a.drop_at, rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
+        LinkConfig.from_v2v(convoy.v2v, a.iface),
+        temp_ids,
+        origin,
+        a.vehicle_id,
+        loss=loss,
+        drop_at=a.drop_at,
+        rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
         auth=auth,
     )
     return DeployRunner(
-        options, convoy, policy, link, v2v, leader=leader,
-        lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
-        log_dir=a.log, on_status=status,
+        options,
+        convoy,
+        policy,
+        link,
+        v2v,
+        leader=leader,
+        lengths=[p.length_m for p in presets],
+        decels=[p.decel_max_mps2 for p in presets],
+        log_dir=a.log,
+        on_status=status,
         leader_origin=leader_origin,
-        metadata={"per": a.per, "drop_at": a.drop_at, "policy_spec": a.policy,
-                  "scenario_spec": spec, "mavlink": a.mavlink, "iface": a.iface},
+        metadata={
+            "per": a.per,
+            "drop_at": a.drop_at,
+            "policy_spec": a.policy,
+            "scenario_spec": spec,
+            "mavlink": a.mavlink,
+            "iface": a.iface,
+        },
     )
 
 
@@ -192,7 +222,9 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"this convoy only obeys signed aborts: give --key (e.g. {keys_dir}/authority.key)"
         )
-    n = send_abort(args.iface, compat_enabled=compat, now=None, repeat=args.repeat, auth=auth, **kwargs)
+    n = send_abort(
+        args.iface, compat_enabled=compat, now=None, repeat=args.repeat, auth=auth, **kwargs
+    )
     signed = f", signed by {auth.credentials.certificate.name}" if auth is not None else ""
     print(f"abort sent on {args.iface} ({n} datagrams{signed})", file=sys.stderr)
     return 0

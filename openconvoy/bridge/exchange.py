@@ -32,8 +32,15 @@ class Exchange:
         on_status: receives status lines (broadcast paused / resumed).
     """
 
-    def __init__(self, member: ConvoyMember, v2v: Any, start_gate: ConvoyStart, *, rate_hz: float,
-                 on_status: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        member: ConvoyMember,
+        v2v: Any,
+        start_gate: ConvoyStart,
+        *,
+        rate_hz: float,
+        on_status: Callable[[str], None],
+    ) -> None:
         self.member = member
         self.v2v = v2v
         self.start_gate = start_gate
@@ -76,5 +83,7 @@ class Exchange:
             self.on_status(f"vehicle {vid}: autopilot link back: broadcasting the own state again")
         else:
             self.broadcast_pauses.append([wall, None])
-            self.on_status(f"vehicle {vid}: autopilot link lost: not broadcasting the own state "
-                           "(it is unknown now)")
+            self.on_status(
+                f"vehicle {vid}: autopilot link lost: not broadcasting the own state "
+                "(it is unknown now)"
+            )

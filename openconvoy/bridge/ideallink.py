@@ -26,9 +26,18 @@ class IdealLink:
     telemetry_timeout_s = 0.5
     heartbeat_timeout_s = 3.0
 
-    def __init__(self, clock: Callable[[], float], wall: Callable[[], float], origin: Origin,
-                 vehicle_id: int, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
-                 move: bool = True, autopilot: Autopilot = "ardupilot") -> None:
+    def __init__(
+        self,
+        clock: Callable[[], float],
+        wall: Callable[[], float],
+        origin: Origin,
+        vehicle_id: int,
+        x: float = 0.0,
+        y: float = 0.0,
+        heading: float = 0.0,
+        move: bool = True,
+        autopilot: Autopilot = "ardupilot",
+    ) -> None:
         self.clock, self.wall, self.origin, self.vehicle_id = clock, wall, origin, vehicle_id
         self.x, self.y, self.heading, self.speed = x, y, heading, 0.0
         self.move = move

@@ -27,7 +27,9 @@ class LeaderDriver(Protocol):
 
     duration_s: float
 
-    def leader_command(self, t: float, x: float, y: float, heading: float, speed: float) -> tuple[float, float]: ...
+    def leader_command(
+        self, t: float, x: float, y: float, heading: float, speed: float
+    ) -> tuple[float, float]: ...
 
 
 class LeaderDriving:
@@ -43,8 +45,17 @@ class LeaderDriving:
             convoy's (track files carry their own); None = the convoy's.
     """
 
-    def __init__(self, driver: LeaderDriver | None, *, is_leader: bool, passive: bool, commanding: bool,
-                 duration_s: float | None, rate_hz: float, origin: Origin | None = None) -> None:
+    def __init__(
+        self,
+        driver: LeaderDriver | None,
+        *,
+        is_leader: bool,
+        passive: bool,
+        commanding: bool,
+        duration_s: float | None,
+        rate_hz: float,
+        origin: Origin | None = None,
+    ) -> None:
         self.driver = driver
         self.is_leader = is_leader
         self.passive = passive
@@ -68,7 +79,9 @@ class LeaderDriving:
             return float(self.driver.duration_s)
         return None
 
-    def command(self, tel: Telemetry, own: VehicleState, now: float, t_start: float) -> tuple[float, float, str, str]:
+    def command(
+        self, tel: Telemetry, own: VehicleState, now: float, t_start: float
+    ) -> tuple[float, float, str, str]:
         """The leader's (speed m/s, heading change rad, mode, "") at monotonic ``now``."""
         if self.t_finish is not None:
             # Scenario over: brake to rest while still broadcasting, so the followers see
@@ -80,7 +93,9 @@ class LeaderDriving:
         if self.origin is not None:
             ex, ey, _ = geodetic_to_enu(self.origin, tel.lat_deg, tel.lon_deg)
             x, y = float(ex), float(ey)
-        speed, heading = self.driver.leader_command(now - t_start, float(x), float(y), own.heading, own.speed)
+        speed, heading = self.driver.leader_command(
+            now - t_start, float(x), float(y), own.heading, own.speed
+        )
         return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
 
     def over(self, now: float, t_start: float, speed: float) -> bool:
@@ -102,5 +117,3 @@ class LeaderDriving:
     def brakes_at_end(self) -> bool:
         """A scenario-driven leader brakes to rest before ending; others end at once."""
         return self.is_leader and self.commanding and self.driver is not None
-
-

@@ -109,7 +109,9 @@ def check_url(url: str) -> str:
         rest = url.split(":", 1)[1]
         host, sep, port = rest.rpartition(":")
         if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-            raise ConfigError(f"MAVLink URL {url!r}: expected SCHEME:HOST:PORT with PORT in 1..65535, e.g. udpin:0.0.0.0:14550")
+            raise ConfigError(
+                f"MAVLink URL {url!r}: expected SCHEME:HOST:PORT with PORT in 1..65535, e.g. udpin:0.0.0.0:14550"
+            )
         return url
     if url.startswith("/dev/") or url.upper().startswith("COM"):
         return url
@@ -302,7 +304,9 @@ class MavlinkLink:
             except LinkLost as exc:
                 self._status(f"reconnect failed: {exc}")
 
-        self._opener = threading.Thread(target=open_in_background, name="mavlink-reopen", daemon=True)
+        self._opener = threading.Thread(
+            target=open_in_background, name="mavlink-reopen", daemon=True
+        )
         self._opener.start()
 
     def _install_pending(self) -> None:
@@ -484,8 +488,12 @@ class MavlinkLink:
         m = mp.mav()
         # Only the autopilot's heartbeat counts: not GCSs, companions, gimbals, ADS-B
         # receivers or cameras (those report autopilot INVALID).
-        if msg.type in (mp.MAV_TYPE_GCS, m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_TYPE_GIMBAL,
-                        m.MAV_TYPE_ADSB):
+        if msg.type in (
+            mp.MAV_TYPE_GCS,
+            m.MAV_TYPE_ONBOARD_CONTROLLER,
+            m.MAV_TYPE_GIMBAL,
+            m.MAV_TYPE_ADSB,
+        ):
             return
         if msg.autopilot == m.MAV_AUTOPILOT_INVALID:
             return
@@ -513,7 +521,9 @@ class MavlinkLink:
             self._pilot_took_over = True
             who = self._who_set_mode()
             self._failsafe_took_over = who.startswith("the autopilot's failsafe")
-            self._takeover_reason = f"mode changed from {self._engaged_mode} to {mode}, set by {who}"
+            self._takeover_reason = (
+                f"mode changed from {self._engaged_mode} to {mode}, set by {who}"
+            )
             self._end_stream("a mode change we did not ask for")
             self._status(f"{self._takeover_reason}: somebody else took over; no more setpoints")
         self._mode = mode
@@ -590,29 +600,53 @@ class MavlinkLink:
         # reboots are followed.
         wall = self._wall()
         offset = wall - t_boot
-        if self._boot_offset is not None and offset - self._boot_offset > 1.0 and self.telemetry_rates:
+        if (
+            self._boot_offset is not None
+            and offset - self._boot_offset > 1.0
+            and self.telemetry_rates
+        ):
             self._rerequest_telemetry()  # the vehicle clock went back: a reboot
         if self._boot_offset is not None:
             self._boot_offset += 1e-3 * max(0.0, wall - self._t_boot_offset)
-        if self._boot_offset is None or offset < self._boot_offset or offset - self._boot_offset > 1.0:
+        if (
+            self._boot_offset is None
+            or offset < self._boot_offset
+            or offset - self._boot_offset > 1.0
+        ):
             self._boot_offset = offset
         self._t_boot_offset = wall
         measured = t_boot + self._boot_offset
         # Position and attitude carry their own stamps; keep the state's time monotonic.
-        self._t_measured = measured if math.isnan(self._t_measured) else max(self._t_measured, measured)
+        self._t_measured = (
+            measured if math.isnan(self._t_measured) else max(self._t_measured, measured)
+        )
 
     def _build_telemetry(self) -> Telemetry:
         assert self._pos is not None and self._heading is not None
         x, y, lat, lon = self._pos
         state = VehicleState(
-            vehicle_id=self.vehicle_id, t=self._t_measured, x=x, y=y,
-            speed=self._forward_speed(), heading=self._heading, accel=self._accel,
-            yaw_rate=self._yaw_rate, length=self.length_m, width=self.width_m,
+            vehicle_id=self.vehicle_id,
+            t=self._t_measured,
+            x=x,
+            y=y,
+            speed=self._forward_speed(),
+            heading=self._heading,
+            accel=self._accel,
+            yaw_rate=self._yaw_rate,
+            length=self.length_m,
+            width=self.width_m,
         )
         return Telemetry(
-            state=state, lat_deg=lat, lon_deg=lon, mode=self._mode, armed=self._armed,
-            t_telemetry=self._t_telemetry, t_heartbeat=self._t_heartbeat,
-            range_m=self._range_m, range_rate_mps=self._range_rate, t_range=self._t_range,
+            state=state,
+            lat_deg=lat,
+            lon_deg=lon,
+            mode=self._mode,
+            armed=self._armed,
+            t_telemetry=self._t_telemetry,
+            t_heartbeat=self._t_heartbeat,
+            range_m=self._range_m,
+            range_rate_mps=self._range_rate,
+            t_range=self._t_range,
         )
 
     # ----------------------------------------------------------------- commands
@@ -683,7 +717,8 @@ class MavlinkLink:
                 if lower is None:
                     raise CommandRefused(
                         f"MAV_CMD_SET_MESSAGE_INTERVAL({name} at {hz:g} Hz)",
-                        mp.result_name(result), reason,
+                        mp.result_name(result),
+                        reason,
                     )
                 self._status(
                     f"{name} at {hz:g} Hz refused ({mp.result_name(result)}{why}); "
@@ -743,8 +778,10 @@ class MavlinkLink:
         accepts arming in MANUAL ~19 s before GUIDED is armable (row 2)."""
         while True:
             if mode is not None and self._mode != mode:
-                on_status(f"mode is {self._mode} (set by {self._who_set_mode()}), not {mode}: "
-                          f"requesting {mode} again before arming")
+                on_status(
+                    f"mode is {self._mode} (set by {self._who_set_mode()}), not {mode}: "
+                    f"requesting {mode} again before arming"
+                )
                 self._set_mode(mode, deadline, on_status)
             result, reason = self._command(mp.CMD_COMPONENT_ARM_DISARM, (1.0,))
             if result == mp.RESULT_ACCEPTED:
@@ -761,7 +798,9 @@ class MavlinkLink:
             )
             self._wait_until(lambda: False, min(_RETRY_PAUSE_S, left))
 
-    def prepare_and_arm(self, timeout_s: float = 60.0, on_status: StatusCallback | None = None) -> None:
+    def prepare_and_arm(
+        self, timeout_s: float = 60.0, on_status: StatusCallback | None = None
+    ) -> None:
         """Switch to GUIDED (ArduPilot) or OFFBOARD (PX4) and arm, standing still; then
         check the mode again on a heartbeat received after arming.
 
@@ -774,7 +813,9 @@ class MavlinkLink:
         ``ModeLost`` says which mode it is in and who set it. Not allowed once a pilot
         took over."""
         if self._pilot_took_over:
-            raise CommandRefused("prepare_and_arm", "PILOT_TOOK_OVER", "a pilot took over this vehicle")
+            raise CommandRefused(
+                "prepare_and_arm", "PILOT_TOOK_OVER", "a pilot took over this vehicle"
+            )
         status = on_status or self._status
         deadline = self._clock() + timeout_s
         target = self._guided_mode()
@@ -809,13 +850,17 @@ class MavlinkLink:
             if self._mode == target and self._armed:
                 return
             if not self._armed:
-                raise ModeLost(f"vehicle disarmed right after arming (mode {self._mode}, "
-                               f"set by {self._who_set_mode()})")
+                raise ModeLost(
+                    f"vehicle disarmed right after arming (mode {self._mode}, "
+                    f"set by {self._who_set_mode()})"
+                )
             who = self._who_set_mode()
             if attempt == _MODE_REREQUESTS:
                 break
-            status(f"mode changed to {self._mode} after arming, set by {who}; "
-                   f"requesting {target} again ({attempt + 1} of {_MODE_REREQUESTS})")
+            status(
+                f"mode changed to {self._mode} after arming, set by {who}; "
+                f"requesting {target} again ({attempt + 1} of {_MODE_REREQUESTS})"
+            )
             try:
                 self._set_mode(target, self._clock() + _MODE_CONFIRM_S, status)
             except CommandRefused as exc:
@@ -842,12 +887,19 @@ class MavlinkLink:
         stream paused longer than ``COM_OF_LOSS_T`` or the autopilot link was lost while
         engaged (PX4 would be in its failsafe and would take OFFBOARD back on the next
         setpoint: a run must not resume driving a vehicle whose failsafe took it)."""
-        if self._conn is None or self._target is None or self._pilot_took_over or self._stream_ended:
+        if (
+            self._conn is None
+            or self._target is None
+            or self._pilot_took_over
+            or self._stream_ended
+        ):
             return False
         if self.autopilot == "px4" and self._engaged_mode is not None:
             gap = now - self.last_setpoint[2] if self.last_setpoint is not None else 0.0
             if gap > _PX4_RESUME_GAP_S:
-                self._end_stream(f"the setpoint stream paused {gap:.2f} s (PX4's COM_OF_LOSS_T is 1 s)")
+                self._end_stream(
+                    f"the setpoint stream paused {gap:.2f} s (PX4's COM_OF_LOSS_T is 1 s)"
+                )
             elif not self.link_ok(now):
                 self._end_stream("the autopilot link was lost")
             if self._stream_ended:
@@ -881,13 +933,41 @@ class MavlinkLink:
         ts, tc = self._target
         if self._setpoint_frame() == "global":
             self._conn.mav.set_position_target_global_int_send(
-                t_ms, ts, tc, mp.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mp.TYPE_MASK_VEL_YAW,
-                0, 0, 0.0, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw, 0.0,
+                t_ms,
+                ts,
+                tc,
+                mp.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                mp.TYPE_MASK_VEL_YAW,
+                0,
+                0,
+                0.0,
+                vx,
+                vy,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                yaw,
+                0.0,
             )
         else:
             self._conn.mav.set_position_target_local_ned_send(
-                t_ms, ts, tc, mp.MAV_FRAME_LOCAL_NED, mp.TYPE_MASK_VEL_YAW,
-                0.0, 0.0, 0.0, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw, 0.0,
+                t_ms,
+                ts,
+                tc,
+                mp.MAV_FRAME_LOCAL_NED,
+                mp.TYPE_MASK_VEL_YAW,
+                0.0,
+                0.0,
+                0.0,
+                vx,
+                vy,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                yaw,
+                0.0,
             )
         self.last_setpoint = (speed, float(heading_rad), now)
         return True
@@ -937,4 +1017,6 @@ class MavlinkLink:
             return
         result, reason = self._command(mp.CMD_COMPONENT_ARM_DISARM, (0.0,), timeout_s)
         if result != mp.RESULT_ACCEPTED:
-            raise CommandRefused("MAV_CMD_COMPONENT_ARM_DISARM(disarm)", mp.result_name(result), reason)
+            raise CommandRefused(
+                "MAV_CMD_COMPONENT_ARM_DISARM(disarm)", mp.result_name(result), reason
+            )

@@ -16,7 +16,9 @@ class RunRecorder:
     """Records vehicle ``vehicle_id``'s run in ``log_dir`` (None: records nothing).
     ``extra_columns`` follow DESIGN.md's columns in the CSV."""
 
-    def __init__(self, log_dir: str | Path | None, vehicle_id: int, extra_columns: Sequence[str] = ()) -> None:
+    def __init__(
+        self, log_dir: str | Path | None, vehicle_id: int, extra_columns: Sequence[str] = ()
+    ) -> None:
         self.log_dir = Path(log_dir) if log_dir is not None else None
         self.vehicle_id = vehicle_id
         self.extra_columns = tuple(extra_columns)
@@ -30,8 +32,9 @@ class RunRecorder:
     def open(self) -> None:
         """Create the CSV (its header written); nothing without a log directory."""
         if self.log_dir is not None and self._writer is None:
-            self._writer = LogWriter(self.log_dir / f"vehicle_{self.vehicle_id}.csv",
-                                     extra_columns=self.extra_columns)
+            self._writer = LogWriter(
+                self.log_dir / f"vehicle_{self.vehicle_id}.csv", extra_columns=self.extra_columns
+            )
 
     def row(self, row: Mapping[str, Any]) -> None:
         """One tick's row (flushed by ``LogWriter`` as it sees fit, closed by ``close``)."""

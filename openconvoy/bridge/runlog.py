@@ -37,33 +37,61 @@ class RunLog:
         on_status: receives status lines.
     """
 
-    def __init__(self, log_dir: Path | None, vehicle_id: int, status_period_s: float,
-                 on_status: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        log_dir: Path | None,
+        vehicle_id: int,
+        status_period_s: float,
+        on_status: Callable[[str], None],
+    ) -> None:
         self.recorder = RunRecorder(log_dir, vehicle_id, EXTRA_COLUMNS)
         self.status_period_s = status_period_s
         self.on_status = on_status
         self._t_status = -math.inf
 
-    def row(self, r: DeployRunner, wall: float, own: VehicleState, tel: Telemetry, speed: float,
-            change: float, mode: str, gap: float, sent: bool) -> None:
+    def row(
+        self,
+        r: DeployRunner,
+        wall: float,
+        own: VehicleState,
+        tel: Telemetry,
+        speed: float,
+        change: float,
+        mode: str,
+        gap: float,
+        sent: bool,
+    ) -> None:
         """This tick's row: what was measured, and what was commanded (NaN if nothing went out)."""
         if not self.recorder.recording:
             return
         m, vid, frame = r.member, r.options.vehicle_id, r.frame
-        self.recorder.row({
-            "t_s": wall, "vehicle_id": vid, "x_m": own.x, "y_m": own.y,
-            "lat_deg": tel.lat_deg, "lon_deg": tel.lon_deg, "speed_mps": own.speed,
-            "heading_rad": own.heading, "accel_mps2": own.accel,
-            "cmd_speed_mps": speed if sent else math.nan,
-            "cmd_heading_change_rad": change if sent else math.nan,
-            "mode": mode, "gap_m": gap, "desired_gap_m": frame.desired_gap_m,
-            "spacing_error_m": frame.spacing_error_m, "msgs_sent": m.msgs_sent,
-            "msgs_received": r.exchange.delivered(), "msgs_lost": r.v2v.counters.lost,
-            "pred_msg_age_s": frame.pred_msg_age_s, "length_m": m.lengths[vid],
-            "msgs_kept": m.msgs_received,
-            "loop_overruns": r.timer.overruns if r.timer else 0,
-            "telemetry_age_s": max(wall - own.t, 0.0),
-        })
+        self.recorder.row(
+            {
+                "t_s": wall,
+                "vehicle_id": vid,
+                "x_m": own.x,
+                "y_m": own.y,
+                "lat_deg": tel.lat_deg,
+                "lon_deg": tel.lon_deg,
+                "speed_mps": own.speed,
+                "heading_rad": own.heading,
+                "accel_mps2": own.accel,
+                "cmd_speed_mps": speed if sent else math.nan,
+                "cmd_heading_change_rad": change if sent else math.nan,
+                "mode": mode,
+                "gap_m": gap,
+                "desired_gap_m": frame.desired_gap_m,
+                "spacing_error_m": frame.spacing_error_m,
+                "msgs_sent": m.msgs_sent,
+                "msgs_received": r.exchange.delivered(),
+                "msgs_lost": r.v2v.counters.lost,
+                "pred_msg_age_s": frame.pred_msg_age_s,
+                "length_m": m.lengths[vid],
+                "msgs_kept": m.msgs_received,
+                "loop_overruns": r.timer.overruns if r.timer else 0,
+                "telemetry_age_s": max(wall - own.t, 0.0),
+            }
+        )
 
     def status(self, r: DeployRunner, now: float, own: VehicleState, mode: str, gap: float) -> None:
         """A status line every ``status_period_s``."""
@@ -90,16 +118,27 @@ def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
     o, timer, link, v2v = r.options, r.timer, r.link, r.v2v
     wall0 = r.wall() - r.clock()  # maps monotonic event times to the shared clock
     return {
-        "kind": "deploy", "vehicle_id": o.vehicle_id, "n_vehicles": r.convoy.n_vehicles,
-        "convoy": r.convoy.name, "scenario": r.convoy.scenario, "policy": r.policy.name,
-        "rate_hz": o.rate_hz, "dry_run": o.dry_run, "passive": o.passive,
+        "kind": "deploy",
+        "vehicle_id": o.vehicle_id,
+        "n_vehicles": r.convoy.n_vehicles,
+        "convoy": r.convoy.name,
+        "scenario": r.convoy.scenario,
+        "policy": r.policy.name,
+        "rate_hz": o.rate_hz,
+        "dry_run": o.dry_run,
+        "passive": o.passive,
         "autopilot": _safe(lambda: link.autopilot),
         "telemetry_rates_hz": link.telemetry_rates,
         "v2v": _safe(lambda: v2v.metadata) or {},
-        "t_begin_s": r.t_begin_wall, "t_start_s": r.start_gate.t_start_wall, "t_end_s": r.wall(),
-        "exit_reason": reason, "exit_code": code, "takeover_reason": link.takeover_reason or None,
+        "t_begin_s": r.t_begin_wall,
+        "t_start_s": r.start_gate.t_start_wall,
+        "t_end_s": r.wall(),
+        "exit_reason": reason,
+        "exit_code": code,
+        "takeover_reason": link.takeover_reason or None,
         "broadcast_paused": [
-            {"from_s": a, "to_s": b, "why": "autopilot link lost"} for a, b in r.exchange.broadcast_pauses
+            {"from_s": a, "to_s": b, "why": "autopilot link lost"}
+            for a, b in r.exchange.broadcast_pauses
         ],
         "ticks": timer.ticks if timer else 0,
         "overruns": timer.overruns if timer else 0,
@@ -108,8 +147,10 @@ def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
         "v2v_counters": _safe(lambda: asdict(v2v.counters)),
         "policy_errors": r.failsafes.policy_errors,
         "failsafe_events": [{"t_s": wall0 + t, "reason": why} for t, why in r.failsafes.events],
-        "msgs_sent": r.member.msgs_sent, "msgs_received": r.exchange.delivered(),
-        "msgs_kept": r.member.msgs_received, "msgs_lost": v2v.counters.lost,
+        "msgs_sent": r.member.msgs_sent,
+        "msgs_received": r.exchange.delivered(),
+        "msgs_kept": r.member.msgs_received,
+        "msgs_lost": v2v.counters.lost,
         **r.metadata_extra,
     }
 

@@ -64,8 +64,19 @@ from openconvoy.core.state import VehicleState, wrap_angle
 log = logging.getLogger(__name__)
 
 __all__ = [  # the parts' names stay importable from here
-    "EXTRA_COLUMNS", "FINISH_TIMEOUT_S", "RECEIVE_BUDGET", "HOLD_BELOW_MPS", "HOLD_MODES", "DeployRunner", "LeaderDriver",
-    "RunResult", "RunnerOptions", "StopRequested", "TickTiming", "V2VEndpoint", "envelope_from",
+    "EXTRA_COLUMNS",
+    "FINISH_TIMEOUT_S",
+    "RECEIVE_BUDGET",
+    "HOLD_BELOW_MPS",
+    "HOLD_MODES",
+    "DeployRunner",
+    "LeaderDriver",
+    "RunResult",
+    "RunnerOptions",
+    "StopRequested",
+    "TickTiming",
+    "V2VEndpoint",
+    "envelope_from",
 ]
 
 RANGE_MAX_AGE_S = 0.5
@@ -136,9 +147,13 @@ class RunnerOptions:
             ("--duration, s", 1.0 if self.duration_s is None else self.duration_s, 7 * 86400.0),
         ):
             if not (math.isfinite(value) and 0.0 < value <= hi):
-                raise ConfigError(f"{what}: {value!r} is out of range; allowed: a finite number in (0, {hi:g}]")
+                raise ConfigError(
+                    f"{what}: {value!r} is out of range; allowed: a finite number in (0, {hi:g}]"
+                )
         if self.passive and self.vehicle_id != 0:
-            raise ConfigError("--passive is for the leader (vehicle 0): followers are driven by the policy")
+            raise ConfigError(
+                "--passive is for the leader (vehicle 0): followers are driven by the policy"
+            )
 
 
 @dataclass
@@ -171,7 +186,9 @@ def scenario_spacing(convoy: ConvoyConfig) -> SpacingConfig:
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
 
-    return make_scenario(convoy.scenario, presets=[vehicle_preset(v) for v in convoy.vehicles]).spacing
+    return make_scenario(
+        convoy.scenario, presets=[vehicle_preset(v) for v in convoy.vehicles]
+    ).spacing
 
 
 def top_speed(convoy: ConvoyConfig, vehicle_id: int) -> float:
@@ -190,23 +207,33 @@ def envelope_from(convoy: ConvoyConfig, vehicle_id: int | None = None) -> Envelo
         from openconvoy.core.safety import for_vehicle
         from openconvoy.envs.vehicles import vehicle_preset
 
-        ego, pred = vehicle_preset(convoy.vehicles[vehicle_id]), vehicle_preset(convoy.vehicles[vehicle_id - 1])
-        braking = for_vehicle(ego.decel_max_mps2, ego.actuation_delay_s, ego.speed_lag_s, ego.length_m,
-                              s.gap_margin_m)
+        ego, pred = (
+            vehicle_preset(convoy.vehicles[vehicle_id]),
+            vehicle_preset(convoy.vehicles[vehicle_id - 1]),
+        )
+        braking = for_vehicle(
+            ego.decel_max_mps2, ego.actuation_delay_s, ego.speed_lag_s, ego.length_m, s.gap_margin_m
+        )
         ego_len, pred_len = ego.length_m, pred.length_m
     return Envelope(
         speed_cap_mps=s.speed_cap_mps,
         geofence_radius_m=s.geofence_radius_m,
         min_gap_m=s.min_gap_m,
         max_msg_age_s=s.max_msg_age_s,
-        braking=braking, ego_length_m=ego_len, pred_length_m=pred_len,
+        braking=braking,
+        ego_length_m=ego_len,
+        pred_length_m=pred_len,
     )
 
 
-
-
-def make_member(policy: ConvoyPolicy, convoy: ConvoyConfig, vehicle_id: int, spacing: SpacingConfig | None,
-                lengths: list[float] | None, decels: list[float] | None) -> ConvoyMember:
+def make_member(
+    policy: ConvoyPolicy,
+    convoy: ConvoyConfig,
+    vehicle_id: int,
+    spacing: SpacingConfig | None,
+    lengths: list[float] | None,
+    decels: list[float] | None,
+) -> ConvoyMember:
     """The convoy member, configured as in ``sim``: the policy's member config, or for a
     policy without one ``spacing`` (default: the convoy scenario's; ``member_config_for``)."""
     config = policy.member_config
@@ -216,7 +243,9 @@ def make_member(policy: ConvoyPolicy, convoy: ConvoyConfig, vehicle_id: int, spa
     return ConvoyMember(vehicle_id, convoy.n_vehicles, member_config, lengths, decels)
 
 
-def ranging_ahead(tel: Telemetry, lengths: list[float], vehicle_id: int, now: float) -> tuple[float, float] | None:
+def ranging_ahead(
+    tel: Telemetry, lengths: list[float], vehicle_id: int, now: float
+) -> tuple[float, float] | None:
     """(range, range rate) to the vehicle ahead for the staleness ladder, centre to centre
     (m, m/s) as in ``sim``: the rangefinder reads from the front bumper to the predecessor's
     rear, so half of each length is added. None for the leader or without a fresh reading
@@ -248,8 +277,15 @@ def failure_code(failsafes: Failsafes, started: bool, autopilot_failsafe: bool) 
     return 0
 
 
-def follower_decision(policy: ConvoyPolicy, member: ConvoyMember, frame: Frame, bounds: member_tick.ActionBounds,
-                      ranging: tuple[float, float] | None, wall: float, first_error: bool) -> member_tick.Decision:
+def follower_decision(
+    policy: ConvoyPolicy,
+    member: ConvoyMember,
+    frame: Frame,
+    bounds: member_tick.ActionBounds,
+    ranging: tuple[float, float] | None,
+    wall: float,
+    first_error: bool,
+) -> member_tick.Decision:
     """``policy.act`` on the frame's observation, then the member's decision
     (``core.tick.decide``); a policy that raises gets a stop decision naming the error (the
     traceback is logged for the ``first_error`` only)."""
@@ -321,7 +357,9 @@ class DeployRunner:
     ) -> None:
         n = convoy.n_vehicles
         if not 0 <= options.vehicle_id < n:
-            raise ConfigError(f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})")
+            raise ConfigError(
+                f"vehicle id {options.vehicle_id} not in this convoy of {n} vehicles (0..{n - 1})"
+            )
         self.is_leader = options.vehicle_id == 0
         if self.is_leader and not options.passive and leader is None:
             raise ConfigError("the leader needs a scenario or track to follow, or --passive")
@@ -338,7 +376,9 @@ class DeployRunner:
         self.leader_origin = leader_origin
         self.policy = as_convoy_policy(policy)
         self.member = make_member(self.policy, convoy, options.vehicle_id, spacing, lengths, decels)
-        self.bounds = bounds or member_tick.ActionBounds.float32(top_speed(convoy, options.vehicle_id))
+        self.bounds = bounds or member_tick.ActionBounds.float32(
+            top_speed(convoy, options.vehicle_id)
+        )
         self.frame: Frame = Frame(math.nan, self.member.layout.zeros())
         """The member's latest frame (its observation and derived values)."""
         self.decision: member_tick.Decision | None = None
@@ -360,16 +400,36 @@ class DeployRunner:
         # The lambdas read ``self.sleep`` / ``self.on_status`` at call time (tests swap them).
         status = lambda line: self.on_status(line)  # noqa: E731
         self.vehicle = VehicleHandler(
-            self.link, self.failsafes.watchdog, vehicle_id=o.vehicle_id, rate_hz=o.rate_hz,
-            commanding=self.commanding, clock=self.clock, sleep=lambda s: self.sleep(s),
-            on_status=status, check_stop=self._check_stop)
+            self.link,
+            self.failsafes.watchdog,
+            vehicle_id=o.vehicle_id,
+            rate_hz=o.rate_hz,
+            commanding=self.commanding,
+            clock=self.clock,
+            sleep=lambda s: self.sleep(s),
+            on_status=status,
+            check_stop=self._check_stop,
+        )
         self.start_gate = ConvoyStart(
-            o.vehicle_id, self.convoy.n_vehicles, self.member.rx.keeps,
-            leader_waits=not o.passive and o.leader_waits_for_convoy, wait_s=o.convoy_wait_s, clock=self.clock)
+            o.vehicle_id,
+            self.convoy.n_vehicles,
+            self.member.rx.keeps,
+            leader_waits=not o.passive and o.leader_waits_for_convoy,
+            wait_s=o.convoy_wait_s,
+            clock=self.clock,
+        )
         self.leading = LeaderDriving(
-            self.leader, is_leader=self.is_leader, passive=o.passive, commanding=self.commanding,
-            duration_s=o.duration_s, rate_hz=o.rate_hz, origin=self.leader_origin)
-        self.exchange = Exchange(self.member, self.v2v, self.start_gate, rate_hz=o.rate_hz, on_status=status)
+            self.leader,
+            is_leader=self.is_leader,
+            passive=o.passive,
+            commanding=self.commanding,
+            duration_s=o.duration_s,
+            rate_hz=o.rate_hz,
+            origin=self.leader_origin,
+        )
+        self.exchange = Exchange(
+            self.member, self.v2v, self.start_gate, rate_hz=o.rate_hz, on_status=status
+        )
         self.runlog = RunLog(self.log_dir, o.vehicle_id, o.status_period_s, status)
         self.timer: LoopTimer | None = None
         self._late_periods = 0.0
@@ -424,8 +484,9 @@ class DeployRunner:
             code = 1
             log.error("deploy loop failed:\n%s", traceback.format_exc())
         finally:
-            code = code or failure_code(self.failsafes, self.start_gate.t_start is not None,
-                                        self.link.failsafe_took_over)
+            code = code or failure_code(
+                self.failsafes, self.start_gate.t_start is not None, self.link.failsafe_took_over
+            )
             self._finish(reason, code)
         return RunResult(
             exit_code=code,
@@ -462,17 +523,27 @@ class DeployRunner:
         tel, t_polled = self.vehicle.read(now)
         wall = self.wall()
         own = replace(tel.state, vehicle_id=self.options.vehicle_id)
-        known = self.failsafes.watchdog.fresh(now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost)
+        known = self.failsafes.watchdog.fresh(
+            now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost
+        )
         self.frame = frame = self.exchange.step(own, wall, known)  # τ, receive, ρ
         waiting = self._waiting(now, wall)
         # What the controller wants (the member's decision, or the leader's driver) ...
         speed, change, mode, policy_error = self._intent(
-            tel, own, frame, waiting, now, wall,
-            ranging_ahead(tel, self.member.lengths, self.options.vehicle_id, now))
+            tel,
+            own,
+            frame,
+            waiting,
+            now,
+            wall,
+            ranging_ahead(tel, self.member.lengths, self.options.vehicle_id, now),
+        )
         gap, closing = gap_ahead(self.member, wall)
         heading_cmd = wrap_angle(own.heading + change)
         # ... and what the failsafes and the envelope let through.
-        verdict = self._verdict(now, wall, tel, own, waiting, heading_cmd, speed, gap, closing, policy_error)
+        verdict = self._verdict(
+            now, wall, tel, own, waiting, heading_cmd, speed, gap, closing, policy_error
+        )
         if verdict.command == DRIVE:
             speed = self.failsafes.envelope.cap(speed)
         else:
@@ -481,8 +552,17 @@ class DeployRunner:
         t_sent = self.vehicle.actuate(now, tel, own, verdict, speed, heading_cmd)
         if self.options.record_timing:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
-        self.runlog.row(self, wall, own, tel, speed, wrap_angle(heading_cmd - own.heading), mode, gap,
-                        sent=self.commanding and not math.isnan(t_sent))  # what really went out
+        self.runlog.row(
+            self,
+            wall,
+            own,
+            tel,
+            speed,
+            wrap_angle(heading_cmd - own.heading),
+            mode,
+            gap,
+            sent=self.commanding and not math.isnan(t_sent),
+        )  # what really went out
         self.runlog.status(self, now, own, mode, gap)
         return verdict.reason if verdict.exit else self._end_reason(now, own)
 
@@ -496,25 +576,49 @@ class DeployRunner:
             self.on_status(f"vehicle {self.options.vehicle_id}: convoy complete, starting")
         return waiting
 
-    def _verdict(self, now: float, wall: float, tel: Telemetry, own: VehicleState, waiting: bool,
-                 heading_cmd: float, speed: float, gap: float, closing: float, policy_error: str) -> Verdict:
+    def _verdict(
+        self,
+        now: float,
+        wall: float,
+        tel: Telemetry,
+        own: VehicleState,
+        waiting: bool,
+        heading_cmd: float,
+        speed: float,
+        gap: float,
+        closing: float,
+        policy_error: str,
+    ) -> Verdict:
         """The failsafes' and the envelope's decision this tick (status line on a change)."""
         following = not self.is_leader and not waiting
         verdict = self.failsafes.decide(
             TickInputs(
-                now=now, t_telemetry=tel.t_telemetry, t_heartbeat=tel.t_heartbeat,
+                now=now,
+                t_telemetry=tel.t_telemetry,
+                t_heartbeat=tel.t_heartbeat,
                 link_open=not self.link.lost,
                 pilot_took_over=self.commanding and self.link.pilot_took_over,
-                stop_requested=self._stop_requested, abort=self.exchange.abort,
-                x=own.x, y=own.y, heading=heading_cmd, speed_cmd=speed if not waiting else 0.0,
-                gap_m=gap, closing_mps=closing, needed_age_s=self.member.needed_age(wall) if following else 0.0,
-                policy_error=policy_error, stale_stop=following and self.member.mode == "stop",
-                held=tel.mode in HOLD_MODES, late_periods=self._late_periods,
+                stop_requested=self._stop_requested,
+                abort=self.exchange.abort,
+                x=own.x,
+                y=own.y,
+                heading=heading_cmd,
+                speed_cmd=speed if not waiting else 0.0,
+                gap_m=gap,
+                closing_mps=closing,
+                needed_age_s=self.member.needed_age(wall) if following else 0.0,
+                policy_error=policy_error,
+                stale_stop=following and self.member.mode == "stop",
+                held=tel.mode in HOLD_MODES,
+                late_periods=self._late_periods,
             )
         )
         if verdict.reason and verdict.reason != self._last_reason:
             why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
-            self.on_status(f"vehicle {self.options.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else ""))
+            self.on_status(
+                f"vehicle {self.options.vehicle_id}: {verdict.reason}"
+                + (f" ({why})" if why else "")
+            )
         self._last_reason = verdict.reason
         return verdict
 
@@ -529,9 +633,16 @@ class DeployRunner:
             return ""
         return "duration reached" if self.leading.over(now, t_start, own.speed) else ""
 
-    def _intent(self, tel: Telemetry, own: VehicleState, frame: Frame, waiting: bool,
-                now: float, wall: float, ranging: tuple[float, float] | None = None,
-                ) -> tuple[float, float, str, str]:
+    def _intent(
+        self,
+        tel: Telemetry,
+        own: VehicleState,
+        frame: Frame,
+        waiting: bool,
+        now: float,
+        wall: float,
+        ranging: tuple[float, float] | None = None,
+    ) -> tuple[float, float, str, str]:
         """What the controller wants before the failsafes: (speed m/s, heading change rad,
         mode, policy error message or "")."""
         if waiting:  # armed and still, yaw at the current heading
@@ -540,8 +651,15 @@ class DeployRunner:
             t_start = self.start_gate.t_start
             assert t_start is not None  # not waiting: started
             return self.leading.command(tel, own, now, t_start)
-        self.decision = d = follower_decision(self.policy, self.member, frame, self.bounds, ranging,
-                                              wall, first_error=not self.failsafes.policy_errors)
+        self.decision = d = follower_decision(
+            self.policy,
+            self.member,
+            frame,
+            self.bounds,
+            ranging,
+            wall,
+            first_error=not self.failsafes.policy_errors,
+        )
         return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error
 
     # ------------------------------------------------------------------ helpers

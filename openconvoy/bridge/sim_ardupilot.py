@@ -71,8 +71,13 @@ class ArduPilotTiming:
         k = ready_after_s / f.ekf_gps_s
         init = f.init_s * k if init_s is None else init_s
         return ArduPilotTiming(
-            min(f.first_heartbeat_s * k, init), init, max(init, f.accels_ok_s * k),
-            max(init, f.gyros_ok_s * k), f.gps_s * k, f.origin_s * k, max(init, ready_after_s),
+            min(f.first_heartbeat_s * k, init),
+            init,
+            max(init, f.accels_ok_s * k),
+            max(init, f.gyros_ok_s * k),
+            f.gps_s * k,
+            f.origin_s * k,
+            max(init, ready_after_s),
             f.rc_delay_s * k if init_s is None else f.rc_delay_s,
         )
 
@@ -236,9 +241,15 @@ class ArduPilotRover:
     loop_dt = LOOP_DT
     clock_ratio = 1.0
 
-    def __init__(self, state: MotionState, timing: ArduPilotTiming, rc_mode_switch: bool = True,
-                 wp_speed_mps: float = 5.0, setpoint_timeout_s: float = 3.0,
-                 motion: SitlRover | PresetMotion | None = None) -> None:
+    def __init__(
+        self,
+        state: MotionState,
+        timing: ArduPilotTiming,
+        rc_mode_switch: bool = True,
+        wp_speed_mps: float = 5.0,
+        setpoint_timeout_s: float = 3.0,
+        motion: SitlRover | PresetMotion | None = None,
+    ) -> None:
         self.state = state
         self.timing = timing
         self.rc_mode_switch = rc_mode_switch
@@ -356,8 +367,17 @@ class ArduPilotRover:
         return out
 
     # --- setpoints
-    def setpoint(self, t: float, local: bool, frame: int, mask: int, vx: float, vy: float,
-                 yaw: float, yaw_rate: float) -> None:
+    def setpoint(
+        self,
+        t: float,
+        local: bool,
+        frame: int,
+        mask: int,
+        vx: float,
+        vy: float,
+        yaw: float,
+        yaw_rate: float,
+    ) -> None:
         """SET_POSITION_TARGET_{LOCAL_NED,GLOBAL_INT} as GCS_MAVLink_Rover.cpp handles them."""
         if self.mode_number != 15 or (local and not self.origin_set(t)):
             self.setpoints_ignored += 1
@@ -374,7 +394,9 @@ class ArduPilotRover:
             heading = math.atan2(vy, vx) + (self.state.yaw if body else 0.0)
         if not yaw_ign:
             heading = yaw + (self.state.yaw if body else 0.0)
-        direction = -1.0 if (not vel_ign and (not yaw_ign or not rate_ign) and vx <= -FLT_EPSILON) else 1.0
+        direction = (
+            -1.0 if (not vel_ign and (not yaw_ign or not rate_ign) and vx <= -FLT_EPSILON) else 1.0
+        )
         if not (pos_ign and acc_ign):
             self.setpoints_ignored += 1  # positions are not modelled; acceleration: invalid
             return
@@ -449,12 +471,18 @@ class ArduPilotRover:
             self._initialised = True
             self._change_mode(0)  # INITIAL_MODE = MANUAL, overriding any earlier request
             self.texts.append((6, "ArduPilot Ready"))
-        if self.rc_mode_switch and not self._rc_read and self._initialised \
-                and t >= tm.init_s + tm.rc_delay_s:
+        if (
+            self.rc_mode_switch
+            and not self._rc_read
+            and self._initialised
+            and t >= tm.init_s + tm.rc_delay_s
+        ):
             self._rc_read = True
             self._change_mode(0)  # channel 8 at 1800 us -> MODE6 = MANUAL
-        for key, at, text in (("origin", tm.origin_s, "EKF3 IMU0 origin set"),
-                              ("gps", tm.ekf_gps_s, "EKF3 IMU0 is using GPS")):
+        for key, at, text in (
+            ("origin", tm.origin_s, "EKF3 IMU0 origin set"),
+            ("gps", tm.ekf_gps_s, "EKF3 IMU0 is using GPS"),
+        ):
             if key not in self._announced and t >= at and self._initialised:
                 self._announced.add(key)
                 self.texts.append((6, text))

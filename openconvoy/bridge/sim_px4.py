@@ -83,8 +83,15 @@ class Px4Rover:
     loop_dt = LOOP_DT
     heartbeat_now = False  # PX4 shows a mode change at its next (1 Hz) heartbeat
 
-    def __init__(self, state: MotionState, timing: Px4Timing, lat_deg: float, lon_deg: float,
-                 obl_rc_act: int = 0, motion: SihRover | PresetMotion | None = None) -> None:
+    def __init__(
+        self,
+        state: MotionState,
+        timing: Px4Timing,
+        lat_deg: float,
+        lon_deg: float,
+        obl_rc_act: int = 0,
+        motion: SihRover | PresetMotion | None = None,
+    ) -> None:
         self.state = state
         self.timing = timing
         self.clock_ratio = timing.clock_ratio
@@ -200,8 +207,17 @@ class Px4Rover:
         return None
 
     # --- setpoints
-    def setpoint(self, t: float, local: bool, frame: int, mask: int, vx: float, vy: float,
-                 yaw: float, yaw_rate: float) -> None:
+    def setpoint(
+        self,
+        t: float,
+        local: bool,
+        frame: int,
+        mask: int,
+        vx: float,
+        vy: float,
+        yaw: float,
+        yaw_rate: float,
+    ) -> None:
         if local and frame == 7:
             self.texts.append((3, "SET_POSITION_TARGET_LOCAL_NED coordinate frame 7 unsupported"))
             self.setpoints_ignored += 1
@@ -280,7 +296,9 @@ class Px4Rover:
             if d > HOLD_RADIUS_M:  # drive back to where Hold was engaged
                 self._hold_yaw = None
                 bearing = math.atan2(de, dn)
-                return min(HOLD_SPEED, max(HOLD_MIN_SPEED, HOLD_GAIN * (d - HOLD_RADIUS_M))), bearing
+                return min(
+                    HOLD_SPEED, max(HOLD_MIN_SPEED, HOLD_GAIN * (d - HOLD_RADIUS_M))
+                ), bearing
         if self._hold_yaw is None:
             self._hold_yaw = s.yaw  # brake straight, holding the heading
         return 0.0, self._hold_yaw

@@ -56,8 +56,14 @@ class SitlRover:
     ``step(throttle, steering, dt)`` with both in −1…1 as the servo outputs
     (pwm − 1500) / 500; positive steering turns right (clockwise)."""
 
-    def __init__(self, state: MotionState, max_speed: float = 20.0, max_accel: float = 10.0,
-                 turning_circle_m: float = 1.8, max_wheel_turn_deg: float = 35.0) -> None:
+    def __init__(
+        self,
+        state: MotionState,
+        max_speed: float = 20.0,
+        max_accel: float = 10.0,
+        turning_circle_m: float = 1.8,
+        max_wheel_turn_deg: float = 35.0,
+    ) -> None:
         self.state = state
         self.max_speed = max_speed
         self.max_accel = max_accel
@@ -153,8 +159,9 @@ class PresetMotion:
         self.state = state
         self.preset = preset
         self._plant = BicyclePlant([preset], dt=dt)
-        self._plant.reset(np.array([state.east]), np.array([state.north]),
-                          np.array([math.pi / 2 - state.yaw]))
+        self._plant.reset(
+            np.array([state.east]), np.array([state.north]), np.array([math.pi / 2 - state.yaw])
+        )
 
     def drive(self, speed: float, yaw_ned: float) -> None:
         """One plant step (the plant's dt) toward ``speed`` (m/s) and NED ``yaw_ned``."""

@@ -25,12 +25,17 @@ from openconvoy.comms.geodesy import Origin
 
 Record = dict[str, Any]
 _SENT_TYPES = {
-    "COMMAND_LONG", "SET_POSITION_TARGET_GLOBAL_INT", "SET_POSITION_TARGET_LOCAL_NED",
-    "PARAM_SET", "HEARTBEAT",
+    "COMMAND_LONG",
+    "SET_POSITION_TARGET_GLOBAL_INT",
+    "SET_POSITION_TARGET_LOCAL_NED",
+    "PARAM_SET",
+    "HEARTBEAT",
 }
 
 
-def load_recording(path: str | Path, rx_types: set[str] | None = None) -> tuple[dict[str, Any], list[Record]]:
+def load_recording(
+    path: str | Path, rx_types: set[str] | None = None
+) -> tuple[dict[str, Any], list[Record]]:
     """(meta, records) of a ``.jsonl.gz`` recording; with ``rx_types``, received messages
     of other types are skipped before they are parsed (``tx`` and ``mark`` always kept)."""
     records = []
@@ -54,15 +59,16 @@ def _rx_type(line: str) -> str | None:
     if i < 0:
         return None
     start = head.find('"', i + 7) + 1
-    return head[start:head.find('"', start)]
+    return head[start : head.find('"', start)]
 
 
 def _home(meta: dict[str, Any]) -> tuple[Origin, float]:
     """(home, start heading in compass degrees) from a recording's ``meta.home``."""
     home = meta["home"]
     if isinstance(home, dict):
-        return Origin(float(home["lat"]), float(home["lon"]), float(home.get("alt", 0.0))), \
-            float(home.get("heading_deg", 0.0))
+        return Origin(float(home["lat"]), float(home["lon"]), float(home.get("alt", 0.0))), float(
+            home.get("heading_deg", 0.0)
+        )
     lat, lon, alt, heading = (float(v) for v in str(home).split(","))
     return Origin(lat, lon, alt), heading
 
@@ -90,21 +96,34 @@ def _fields(fields: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def replay_config(meta: dict[str, Any], records: list[Record], **overrides: Any) -> SimVehicleConfig:
+def replay_config(
+    meta: dict[str, Any], records: list[Record], **overrides: Any
+) -> SimVehicleConfig:
     """The simulated vehicle a recording's firmware corresponds to (firmware timing)."""
     home, heading_deg = _home(meta)
-    sysid = next(r["fields"]["target_system"] for r in records
-                 if r["dir"] == "tx" and "target_system" in r["fields"])
+    sysid = next(
+        r["fields"]["target_system"]
+        for r in records
+        if r["dir"] == "tx" and "target_system" in r["fields"]
+    )
     px4 = "t_px4_started" in meta
     config = SimVehicleConfig(
-        system_id=int(sysid), autopilot="px4" if px4 else "ardupilot", home=home,
-        start_heading_rad=math.radians(90.0 - heading_deg), timing="firmware",
+        system_id=int(sysid),
+        autopilot="px4" if px4 else "ardupilot",
+        home=home,
+        start_heading_rad=math.radians(90.0 - heading_deg),
+        timing="firmware",
     )
     return replace(config, **overrides)
 
 
-def replay(meta: dict[str, Any], records: list[Record], step_s: float = 0.02,
-           rx_types: set[str] | None = None, **overrides: Any) -> list[Record]:
+def replay(
+    meta: dict[str, Any],
+    records: list[Record],
+    step_s: float = 0.02,
+    rx_types: set[str] | None = None,
+    **overrides: Any,
+) -> list[Record]:
     """Send the recording's ``tx`` messages to a simulated vehicle at their times and return
     what it sent back, as records (``t`` = the recorder's clock), plus the ``mark``s.
     ``rx_types``: decode and keep only these message types (the rest is received and
@@ -116,7 +135,8 @@ def replay(meta: dict[str, Any], records: list[Record], step_s: float = 0.02,
         port = s.getsockname()[1]
     vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", config).open()
     gcs = mp.mavutil.mavlink_connection(
-        f"udpout:127.0.0.1:{port}", source_system=int(meta.get("source_system", 255)),
+        f"udpout:127.0.0.1:{port}",
+        source_system=int(meta.get("source_system", 255)),
         source_component=int(meta.get("source_component", 190)),
     )
     mav = mp.mav()
@@ -147,8 +167,15 @@ def replay(meta: dict[str, Any], records: list[Record], step_s: float = 0.02,
             for msg in _receive(gcs, sock, keep_ids):
                 d = msg.to_dict()
                 d.pop("mavpackettype", None)
-                out.append({"t": t, "dir": "rx", "type": msg.get_type(),
-                            "src": [msg.get_srcSystem(), msg.get_srcComponent()], "fields": d})
+                out.append(
+                    {
+                        "t": t,
+                        "dir": "rx",
+                        "type": msg.get_type(),
+                        "src": [msg.get_srcSystem(), msg.get_srcComponent()],
+                        "fields": d,
+                    }
+                )
     finally:
         gcs.close()
         vehicle.close()

@@ -63,10 +63,15 @@ RANGE_HZ = 20.0
 """DISTANCE_SENSOR rate (Hz): a lidar at ArduPilot's usual 20 Hz stream rate."""
 MAV_DISTANCE_SENSOR_LASER = 0
 _STREAMS = (
-    mp.MSG_GLOBAL_POSITION_INT, mp.MSG_ATTITUDE, mp.MSG_VFR_HUD, mp.MSG_LOCAL_POSITION_NED,
-    MSG_SERVO_OUTPUT_RAW, MSG_RC_CHANNELS,
+    mp.MSG_GLOBAL_POSITION_INT,
+    mp.MSG_ATTITUDE,
+    mp.MSG_VFR_HUD,
+    mp.MSG_LOCAL_POSITION_NED,
+    MSG_SERVO_OUTPUT_RAW,
+    MSG_RC_CHANNELS,
 )
 _TEXT_CHUNK = 50
+
 
 class _GeodeticCache:
     """ENU -> geodetic through a linear map re-anchored (with pymap3d) every ``span_m``:
@@ -167,17 +172,25 @@ class SimVehicleConfig:
         if not 1 <= self.system_id <= 254:
             raise ConfigError(f"MAVLink system id must be in 1..254, got {self.system_id}")
         if self.ready_after_s < 0 or self.setpoint_timeout_s <= 0 or self.plant_hz <= 0:
-            raise ConfigError("ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required")
+            raise ConfigError(
+                "ready_after_s >= 0, setpoint_timeout_s > 0 and plant_hz > 0 required"
+            )
         if self.speedup <= 0:
             raise ConfigError(f"speedup must be positive, got {self.speedup}")
         if self.offboard_loss_action not in (0, 5):
-            raise ConfigError(f"offboard_loss_action must be 0 (POSCTL) or 5 (Hold), got {self.offboard_loss_action}")
+            raise ConfigError(
+                f"offboard_loss_action must be 0 (POSCTL) or 5 (Hold), got {self.offboard_loss_action}"
+            )
 
     @property
     def armable_after_s(self) -> float:
         """When GUIDED (ArduPilot) or OFFBOARD (PX4) arming is first accepted."""
         if self.autopilot == "px4":
-            t = Px4Timing.firmware() if self.timing == "firmware" else Px4Timing.short(self.ready_after_s)
+            t = (
+                Px4Timing.firmware()
+                if self.timing == "firmware"
+                else Px4Timing.short(self.ready_after_s)
+            )
             return t.armable_s
         return self._ardupilot_timing().ekf_gps_s
 
@@ -188,7 +201,9 @@ class SimVehicleConfig:
         if self.ekf_origin_after_s is not None:
             from dataclasses import replace
 
-            t = replace(t, origin_s=self.ekf_origin_after_s, gps_s=min(t.gps_s, self.ekf_origin_after_s))
+            t = replace(
+                t, origin_s=self.ekf_origin_after_s, gps_s=min(t.gps_s, self.ekf_origin_after_s)
+            )
         return t
 
 
@@ -197,12 +212,23 @@ def make_firmware(config: SimVehicleConfig, state: MotionState) -> ArduPilotRove
     c = config
     motion = PresetMotion(state, c.preset, 1.0 / c.plant_hz) if c.preset is not None else None
     if c.autopilot == "ardupilot":
-        return ArduPilotRover(state, c._ardupilot_timing(), rc_mode_switch=c.rc_mode_switch,
-                              wp_speed_mps=c.wp_speed_mps, setpoint_timeout_s=c.setpoint_timeout_s,
-                              motion=motion)
+        return ArduPilotRover(
+            state,
+            c._ardupilot_timing(),
+            rc_mode_switch=c.rc_mode_switch,
+            wp_speed_mps=c.wp_speed_mps,
+            setpoint_timeout_s=c.setpoint_timeout_s,
+            motion=motion,
+        )
     timing = Px4Timing.firmware() if c.timing == "firmware" else Px4Timing.short(c.ready_after_s)
-    fw = Px4Rover(state, timing, c.home.lat_deg, c.home.lon_deg,
-                  obl_rc_act=c.offboard_loss_action, motion=motion)
+    fw = Px4Rover(
+        state,
+        timing,
+        c.home.lat_deg,
+        c.home.lon_deg,
+        obl_rc_act=c.offboard_loss_action,
+        motion=motion,
+    )
     fw.params["COM_OF_LOSS_T"] = c.offboard_loss_s
     return fw
 
@@ -317,9 +343,13 @@ class SimVehicle:
 
     def pilot_set_mode(self, mode: str) -> None:
         """A person changes the mode (RC switch or GCS), e.g. ``"MANUAL"``."""
-        known = mp.ROVER_MODE_NUMBERS if self.config.autopilot == "ardupilot" else mp.PX4_MODE_NUMBERS
+        known = (
+            mp.ROVER_MODE_NUMBERS if self.config.autopilot == "ardupilot" else mp.PX4_MODE_NUMBERS
+        )
         if mode not in known:
-            raise ConfigError(f"unknown {self.config.autopilot} mode {mode!r}; one of {', '.join(known)}")
+            raise ConfigError(
+                f"unknown {self.config.autopilot} mode {mode!r}; one of {', '.join(known)}"
+            )
         self._pending_mode = mode
 
     # ----------------------------------------------------------------- accessors
@@ -329,9 +359,14 @@ class SimVehicle:
         with self._lock:
             s = self.motion_state
             return VehicleState(
-                vehicle_id=0, t=self._t, x=s.east, y=s.north,
-                speed=s.speed, heading=wrap_angle(math.pi / 2 - s.yaw),
-                accel=s.accel, yaw_rate=-s.yaw_rate,
+                vehicle_id=0,
+                t=self._t,
+                x=s.east,
+                y=s.north,
+                speed=s.speed,
+                heading=wrap_angle(math.pi / 2 - s.yaw),
+                accel=s.accel,
+                yaw_rate=-s.yaw_rate,
             )
 
     @property
@@ -441,12 +476,20 @@ class SimVehicle:
                 if msg.target_system in (0, self.config.system_id):
                     self._on_command(msg)
             elif kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
-                if msg.target_system in (0, self.config.system_id) and self._t >= self.firmware.first_heartbeat_s:
+                if (
+                    msg.target_system in (0, self.config.system_id)
+                    and self._t >= self.firmware.first_heartbeat_s
+                ):
                     with self._lock:
                         self.firmware.setpoint(
-                            self._t, kind.endswith("LOCAL_NED"), int(msg.coordinate_frame),
-                            int(msg.type_mask), float(msg.vx), float(msg.vy),
-                            float(msg.yaw), float(msg.yaw_rate),
+                            self._t,
+                            kind.endswith("LOCAL_NED"),
+                            int(msg.coordinate_frame),
+                            int(msg.type_mask),
+                            float(msg.vx),
+                            float(msg.vy),
+                            float(msg.yaw),
+                            float(msg.yaw_rate),
                         )
                     self._flush_texts()
             elif kind == "PARAM_SET" and msg.target_system in (0, self.config.system_id):
@@ -485,11 +528,19 @@ class SimVehicle:
             return
         self._text_id = self._text_id % 0xFFFF + 1
         for seq, i in enumerate(range(0, len(data), _TEXT_CHUNK)):
-            self._conn.mav.statustext_send(severity, data[i:i + _TEXT_CHUNK], self._text_id, seq)
+            self._conn.mav.statustext_send(severity, data[i : i + _TEXT_CHUNK], self._text_id, seq)
 
     def _on_command(self, msg: Any) -> None:
         cmd = msg.command
-        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+        params = [
+            msg.param1,
+            msg.param2,
+            msg.param3,
+            msg.param4,
+            msg.param5,
+            msg.param6,
+            msg.param7,
+        ]
         if self._t < self.firmware.first_heartbeat_s:
             return  # not running yet: nothing answers
         with self._lock:
@@ -506,13 +557,18 @@ class SimVehicle:
         if interval_us < 0:
             self._intervals[msg_id] = 0.0  # disabled
         elif interval_us == 0:
-            self._intervals[msg_id] = 1.0 if msg_id == MSG_HEARTBEAT else 1.0 / self.config.default_message_hz
+            self._intervals[msg_id] = (
+                1.0 if msg_id == MSG_HEARTBEAT else 1.0 / self.config.default_message_hz
+            )
         else:
             hz = 1e6 / interval_us
             limit = self.config.max_message_hz
             if limit is not None and hz > limit + 1e-9:
                 self.firmware.texts.append(
-                    (6, f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE")
+                    (
+                        6,
+                        f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE",
+                    )
                 )
                 return mp.RESULT_DENIED
             result = self.firmware.interval(msg_id, hz)
@@ -548,7 +604,9 @@ class SimVehicle:
 
     def _heartbeat(self, mav: Any, t: float) -> None:
         base, custom, status = self.firmware.heartbeat(t)
-        mav.heartbeat_send(mp.MAV_TYPE_GROUND_ROVER, self.firmware.autopilot_id, base, custom, status)
+        mav.heartbeat_send(
+            mp.MAV_TYPE_GROUND_ROVER, self.firmware.autopilot_id, base, custom, status
+        )
 
     def _send_telemetry(self, mav: Any, msg_id: int, t: float) -> bool:
         fw = self.firmware
@@ -563,24 +621,37 @@ class SimVehicle:
                 east += float(self._rng.normal(0.0, self.config.gps_noise_m))
             lat, lon, alt = self._geodetic(east, north)
             mav.global_position_int_send(
-                t_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)), 0,
-                int(round(vn * 100)), int(round(ve * 100)), 0,
+                t_ms,
+                int(round(lat * 1e7)),
+                int(round(lon * 1e7)),
+                int(round(alt * 1000)),
+                0,
+                int(round(vn * 100)),
+                int(round(ve * 100)),
+                0,
                 int(round(math.degrees(yaw) * 100)) % 36000,
             )
         elif msg_id == mp.MSG_ATTITUDE:
             mav.attitude_send(t_ms, 0.0, 0.0, yaw, 0.0, 0.0, yaw_rate)
         elif msg_id == mp.MSG_VFR_HUD:
             thr = fw.servo_pwm()[1]
-            mav.vfr_hud_send(abs(v), abs(v), int(round(math.degrees(yaw))) % 360,
-                             int(max(0, (thr - 1500) / 5)), 0.0, 0.0)
+            mav.vfr_hud_send(
+                abs(v),
+                abs(v),
+                int(round(math.degrees(yaw))) % 360,
+                int(max(0, (thr - 1500) / 5)),
+                0.0,
+                0.0,
+            )
         elif msg_id == mp.MSG_LOCAL_POSITION_NED:
             if not fw.position_flowing(t):
                 return False
             mav.local_position_ned_send(t_ms, north, east, 0.0, vn, ve, 0.0)
         elif msg_id == MSG_SERVO_OUTPUT_RAW:
             steer, thr = fw.servo_pwm()
-            mav.servo_output_raw_send(int(t * fw.clock_ratio * 1e6) & 0xFFFFFFFF, 0,
-                                      steer, 1500, thr, 1500, 0, 0, 0, 0)
+            mav.servo_output_raw_send(
+                int(t * fw.clock_ratio * 1e6) & 0xFFFFFFFF, 0, steer, 1500, thr, 1500, 0, 0, 0, 0
+            )
         elif msg_id == MSG_DISTANCE_SENSOR:
             self._send_range(mav, t_ms)
         elif msg_id == MSG_RC_CHANNELS:
@@ -594,8 +665,9 @@ class SimVehicle:
         if sensor is None or world is None:
             return
         reading = world.forward_range(self.config.system_id, sensor.max_range_m)
-        lo, hi, cm = distance_sensor_cm(reading, sensor.max_range_m, sensor.range_noise_m,
-                                        lambda: float(self._rng.normal()))
+        lo, hi, cm = distance_sensor_cm(
+            reading, sensor.max_range_m, sensor.range_noise_m, lambda: float(self._rng.normal())
+        )
         mav.distance_sensor_send(t_ms, lo, hi, cm, MAV_DISTANCE_SENSOR_LASER, 0, 0, 0)
 
 
@@ -609,7 +681,9 @@ def _floats(text: str, n: int, what: str, example: str) -> list[float]:
     except ValueError:
         values = []
     if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise ConfigError(f"{what} must be {n} comma-separated finite numbers like {example}, got {text!r}")
+        raise ConfigError(
+            f"{what} must be {n} comma-separated finite numbers like {example}, got {text!r}"
+        )
     return values
 
 
@@ -640,7 +714,9 @@ def _check_port_free(url: str) -> None:
     try:
         probe.bind((host, int(port)))
     except OSError as exc:
-        raise ConfigError(f"--mavlink {url}: cannot listen there ({exc.strerror or exc}; another vehicle on this port?)") from None
+        raise ConfigError(
+            f"--mavlink {url}: cannot listen there ({exc.strerror or exc}; another vehicle on this port?)"
+        ) from None
     finally:
         probe.close()
 
@@ -656,18 +732,29 @@ def run_vehicle_cli(args: Any) -> int:
     from openconvoy.envs.vehicles import vehicle_preset
 
     if not args.sim:
-        raise ConfigError("only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)")
+        raise ConfigError(
+            "only simulated vehicles exist here: add --sim (a real vehicle runs its own autopilot)"
+        )
     check_url(args.mavlink)
     _check_port_free(args.mavlink)
     x, y, heading = parse_start(args.start)
     config = SimVehicleConfig(
-        system_id=args.id, autopilot=args.autopilot,
+        system_id=args.id,
+        autopilot=args.autopilot,
         preset=vehicle_preset(args.preset) if args.preset else None,
-        home=parse_home(args.home), start_x_m=x, start_y_m=y, start_heading_rad=heading,
-        timing=args.timing, ready_after_s=args.ready_after, rc_mode_switch=not args.no_rc_switch,
-        setpoint_timeout_s=args.setpoint_timeout, max_message_hz=args.max_rate,
-        speedup=args.speedup, boot_on_connect=args.boot_on_connect,
-        gps_noise_m=args.gps_noise, seed=args.seed,
+        home=parse_home(args.home),
+        start_x_m=x,
+        start_y_m=y,
+        start_heading_rad=heading,
+        timing=args.timing,
+        ready_after_s=args.ready_after,
+        rc_mode_switch=not args.no_rc_switch,
+        setpoint_timeout_s=args.setpoint_timeout,
+        max_message_hz=args.max_rate,
+        speedup=args.speedup,
+        boot_on_connect=args.boot_on_connect,
+        gps_noise_m=args.gps_noise,
+        seed=args.seed,
     )
     vehicle = SimVehicle(args.mavlink, config)
     try:

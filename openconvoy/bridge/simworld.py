@@ -56,7 +56,9 @@ class SimWorld:
             s = other.state()
             if not in_view(ego.x, ego.y, ego.heading, s.x, s.y):
                 continue
-            rng, rate = range_and_rate(ego.x, ego.y, ego.speed, ego.heading, s.x, s.y, s.speed, s.heading)
+            rng, rate = range_and_rate(
+                ego.x, ego.y, ego.speed, ego.heading, s.x, s.y, s.speed, s.heading
+            )
             bumper = rng - 0.5 * (me.length_m + other.length_m)
             if bumper > max_range_m or (best is not None and bumper >= best[0]):
                 continue
@@ -64,8 +66,12 @@ class SimWorld:
         return best
 
 
-def distance_sensor_cm(reading: tuple[float, float] | None, max_range_m: float,
-                       noise_m: float, gauss: Callable[[], float]) -> tuple[int, int, int]:
+def distance_sensor_cm(
+    reading: tuple[float, float] | None,
+    max_range_m: float,
+    noise_m: float,
+    gauss: Callable[[], float],
+) -> tuple[int, int, int]:
     """(min_distance, max_distance, current_distance) in cm for DISTANCE_SENSOR. Nothing in
     range reads max + 100 cm, as ArduPilot's lidar drivers (LightWare, Benewake:
     ``*_OUT_OF_RANGE_ADD_CM``) report it; a reading is clipped to the sensor's span."""

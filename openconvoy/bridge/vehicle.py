@@ -51,9 +51,19 @@ class VehicleHandler:
         check_stop: raises ``StopRequested`` when a stop was asked for.
     """
 
-    def __init__(self, link: VehicleLink, watchdog: LinkWatchdog, *, vehicle_id: int, rate_hz: float,
-                 commanding: bool, clock: Callable[[], float], sleep: Callable[[float], None],
-                 on_status: Callable[[str], None], check_stop: Callable[[], None]) -> None:
+    def __init__(
+        self,
+        link: VehicleLink,
+        watchdog: LinkWatchdog,
+        *,
+        vehicle_id: int,
+        rate_hz: float,
+        commanding: bool,
+        clock: Callable[[], float],
+        sleep: Callable[[float], None],
+        on_status: Callable[[str], None],
+        check_stop: Callable[[], None],
+    ) -> None:
         self.link = link
         self.watchdog = watchdog
         self.vehicle_id = vehicle_id
@@ -91,7 +101,9 @@ class VehicleHandler:
             self.tel = self.link.poll()
             if self.tel is None:
                 if self.clock() > deadline:
-                    raise TimeoutError(f"no position telemetry from the vehicle within {timeout_s:g} s")
+                    raise TimeoutError(
+                        f"no position telemetry from the vehicle within {timeout_s:g} s"
+                    )
                 self.sleep(0.01)
 
     def arm(self, timeout_s: float) -> None:
@@ -132,8 +144,15 @@ class VehicleHandler:
         except Exception as exc:  # noqa: BLE001 - keep trying
             log.info("reconnect failed: %s", exc)
 
-    def actuate(self, now: float, tel: Telemetry, own: VehicleState, verdict: Verdict,
-                speed: float, heading_cmd: float) -> float:
+    def actuate(
+        self,
+        now: float,
+        tel: Telemetry,
+        own: VehicleState,
+        verdict: Verdict,
+        speed: float,
+        heading_cmd: float,
+    ) -> float:
         """Send the setpoint (and HOLD once braked, or after the braking time); the link
         clock time it went out, NaN if none did."""
         t_sent = math.nan
@@ -145,9 +164,14 @@ class VehicleHandler:
             self._t_stop = math.nan
         elif math.isnan(self._t_stop):
             self._t_stop, self._v_stop = now, abs(own.speed)
-        if (verdict.hold and now - self._t_hold_sent >= 1.0 and tel.mode not in HOLD_MODES
-                and (abs(own.speed) < HOLD_BELOW_MPS
-                     or now - self._t_stop >= brake_time_s(self._v_stop))):
+        if (
+            verdict.hold
+            and now - self._t_hold_sent >= 1.0
+            and tel.mode not in HOLD_MODES
+            and (
+                abs(own.speed) < HOLD_BELOW_MPS or now - self._t_stop >= brake_time_s(self._v_stop)
+            )
+        ):
             self._t_hold_sent = now
             try:
                 self.link.hold(0.0)
@@ -208,8 +232,12 @@ class VehicleHandler:
         if tel is not None and abs(tel.state.speed) < HOLD_BELOW_MPS:
             try:
                 self.link.disarm(2.0)
-                self.on_status(f"vehicle {vid}: disarmed (taken over in {mode} before the convoy drove)")
+                self.on_status(
+                    f"vehicle {vid}: disarmed (taken over in {mode} before the convoy drove)"
+                )
                 return
             except Exception as exc:  # noqa: BLE001
                 log.warning("vehicle %d: disarm failed: %s", vid, exc)
-        self.on_status(f"vehicle {vid}: WARNING: left ARMED in {mode} (taken over before the convoy drove)")
+        self.on_status(
+            f"vehicle {vid}: WARNING: left ARMED in {mode} (taken over before the convoy drove)"
+        )

@@ -196,8 +196,13 @@ class Authenticator:
             self._requests.clear()
             self.counters.requests_sent += 1
         return encode_signed(
-            payload, psid=psid, generation_time=c.time64(now), key=cred.key,
-            certificate=cred.certificate, include_certificate=full, p2pcd_request=requests,
+            payload,
+            psid=psid,
+            generation_time=c.time64(now),
+            key=cred.key,
+            certificate=cred.certificate,
+            include_certificate=full,
+            p2pcd_request=requests,
         )
 
     # ---------------------------------------------------------------- receiving

@@ -300,14 +300,36 @@ def _from_asn(c: dict[str, Any]) -> BsmCore:
         raise BsmDecodeError(f"wheelBrakes has {wb_len} bits, expected 5")
     # Positional, through tuple.__new__: the named tuple's keyword constructor costs more
     # than the rest of this function (order: BsmCore's fields).
-    return _new_core(BsmCore, (
-        c["msgCnt"], bytes(c["id"]), c["secMark"], c["lat"], c["long"], c["elev"],
-        acc["semiMajor"], acc["semiMinor"], acc["orientation"], c["transmission"],
-        c["speed"], c["heading"], c["angle"],
-        accel["long"], accel["lat"], accel["vert"], accel["yaw"],
-        wb_bytes[0] >> 3, brakes["traction"], brakes["abs"], brakes["scs"],
-        brakes["brakeBoost"], brakes["auxBrakes"], size["width"], size["length"],
-    ))
+    return _new_core(
+        BsmCore,
+        (
+            c["msgCnt"],
+            bytes(c["id"]),
+            c["secMark"],
+            c["lat"],
+            c["long"],
+            c["elev"],
+            acc["semiMajor"],
+            acc["semiMinor"],
+            acc["orientation"],
+            c["transmission"],
+            c["speed"],
+            c["heading"],
+            c["angle"],
+            accel["long"],
+            accel["lat"],
+            accel["vert"],
+            accel["yaw"],
+            wb_bytes[0] >> 3,
+            brakes["traction"],
+            brakes["abs"],
+            brakes["scs"],
+            brakes["brakeBoost"],
+            brakes["auxBrakes"],
+            size["width"],
+            size["length"],
+        ),
+    )
 
 
 # The MessageFrame around a BSM is its first two octets (extension bit 0, messageId 20 in
@@ -341,14 +363,31 @@ def _frame_value(data: bytes) -> bytes:
 # here with shifts; asn1tools reads every other BSM. (name, bits, lower bound or the
 # enumeration's names), in wire order; tests/comms/test_bsm.py holds both readings equal.
 _CORE_FIELDS: tuple[tuple[str, int, Any], ...] = (
-    ("msg_cnt", 7, 0), ("temp_id", 32, None), ("sec_mark", 16, 0), ("lat", 31, LAT_MIN),
-    ("lon", 32, LON_MIN), ("elev", 16, ELEV_UNAVAILABLE), ("semi_major", 8, 0),
-    ("semi_minor", 8, 0), ("orientation", 16, 0), ("transmission", 3, TRANSMISSION_STATES),
-    ("speed", 13, 0), ("heading", 15, 0), ("angle", 8, ANGLE_MIN), ("accel_long", 12, ACCEL_MIN),
-    ("accel_lat", 12, ACCEL_MIN), ("accel_vert", 8, VERT_UNAVAILABLE), ("yaw_rate", 16, YAW_RATE_MIN),
-    ("wheel_brakes", 5, 0), ("traction", 2, CONTROL_STATES), ("abs", 2, CONTROL_STATES),
-    ("scs", 2, CONTROL_STATES), ("brake_boost", 2, BRAKE_BOOST_STATES),
-    ("aux_brakes", 2, AUX_BRAKE_STATES), ("width", 10, 0), ("length", 12, 0),
+    ("msg_cnt", 7, 0),
+    ("temp_id", 32, None),
+    ("sec_mark", 16, 0),
+    ("lat", 31, LAT_MIN),
+    ("lon", 32, LON_MIN),
+    ("elev", 16, ELEV_UNAVAILABLE),
+    ("semi_major", 8, 0),
+    ("semi_minor", 8, 0),
+    ("orientation", 16, 0),
+    ("transmission", 3, TRANSMISSION_STATES),
+    ("speed", 13, 0),
+    ("heading", 15, 0),
+    ("angle", 8, ANGLE_MIN),
+    ("accel_long", 12, ACCEL_MIN),
+    ("accel_lat", 12, ACCEL_MIN),
+    ("accel_vert", 8, VERT_UNAVAILABLE),
+    ("yaw_rate", 16, YAW_RATE_MIN),
+    ("wheel_brakes", 5, 0),
+    ("traction", 2, CONTROL_STATES),
+    ("abs", 2, CONTROL_STATES),
+    ("scs", 2, CONTROL_STATES),
+    ("brake_boost", 2, BRAKE_BOOST_STATES),
+    ("aux_brakes", 2, AUX_BRAKE_STATES),
+    ("width", 10, 0),
+    ("length", 12, 0),
 )
 CORE_ONLY_OCTETS = 37
 

@@ -100,7 +100,9 @@ def signing_input(tbs: bytes, signer_cert: bytes | None) -> bytes:
     return hashlib.sha256(tbs).digest() + signer_hash
 
 
-def sign(key: ec.EllipticCurvePrivateKey, tbs: bytes, signer_cert: bytes | None) -> tuple[bytes, bytes]:
+def sign(
+    key: ec.EllipticCurvePrivateKey, tbs: bytes, signer_cert: bytes | None
+) -> tuple[bytes, bytes]:
     """(r, s), 32 octets each, of ``tbs`` signed by ``key`` whose certificate is ``signer_cert``
     (None: a self-signed certificate signing itself)."""
     r, s = decode_dss_signature(key.sign(signing_input(tbs, signer_cert), _ECDSA))
@@ -199,8 +201,13 @@ class Certificate:
 
 
 _DURATION_S = {
-    "microseconds": 1e-6, "milliseconds": 1e-3, "seconds": 1.0, "minutes": 60.0,
-    "hours": 3600.0, "sixtyHours": 216000.0, "years": 31556952.0,
+    "microseconds": 1e-6,
+    "milliseconds": 1e-3,
+    "seconds": 1.0,
+    "minutes": 60.0,
+    "hours": 3600.0,
+    "sixtyHours": 216000.0,
+    "years": 31556952.0,
 }
 
 
@@ -309,10 +316,16 @@ def check_issued_by(cert: Certificate, authority: Certificate, now_unix: float) 
     elif cert.issuer == authority.digest:
         issuer_cert = authority.coer
     else:
-        raise CertificateError(f"certificate {cert.name!r} was not issued by this convoy's authority")
+        raise CertificateError(
+            f"certificate {cert.name!r} was not issued by this convoy's authority"
+        )
     if not authority.can_issue:
-        raise CertificateError(f"authority certificate {authority.name!r} may not issue certificates")
+        raise CertificateError(
+            f"authority certificate {authority.name!r} may not issue certificates"
+        )
     if not verify(authority.public_key, cert.r, cert.s, cert.tbs, issuer_cert):
-        raise CertificateError(f"certificate {cert.name!r}: the authority's signature does not verify")
+        raise CertificateError(
+            f"certificate {cert.name!r}: the authority's signature does not verify"
+        )
     if not (cert.valid_at(now_unix) and authority.valid_at(now_unix)):
         raise CertificateError(f"certificate {cert.name!r} is not valid now")

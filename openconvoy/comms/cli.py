@@ -33,10 +33,15 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
 def net_args(p: argparse.ArgumentParser) -> None:
     """``--iface``, ``--group``, ``--port`` of the BSM tools."""
     p.add_argument("--iface", required=True, help="network interface, e.g. wlan0")
-    p.add_argument("--group", default=DEFAULT_GROUP,
-                   help=f"IPv6 multicast group (default {DEFAULT_GROUP})")
-    p.add_argument("--port", type=_int(1, 65535), default=DEFAULT_PORT,
-                   help=f"UDP port (default {DEFAULT_PORT})")
+    p.add_argument(
+        "--group", default=DEFAULT_GROUP, help=f"IPv6 multicast group (default {DEFAULT_GROUP})"
+    )
+    p.add_argument(
+        "--port",
+        type=_int(1, 65535),
+        default=DEFAULT_PORT,
+        help=f"UDP port (default {DEFAULT_PORT})",
+    )
 
 
 def _add_listen(cmds: argparse._SubParsersAction) -> None:
@@ -48,19 +53,32 @@ def _add_listen(cmds: argparse._SubParsersAction) -> None:
         "age (s, from secMark and this host's clock). Ctrl-C stops.",
     )
     net_args(p)
-    p.add_argument("--compat", action="store_true",
-                   help="also listen for the original JSON format on 224.0.0.1:5004")
+    p.add_argument(
+        "--compat",
+        action="store_true",
+        help="also listen for the original JSON format on 224.0.0.1:5004",
+    )
     p.add_argument("--count", type=_int(1, 10**12), metavar="N", help="exit after N messages")
     p.add_argument("--timeout", type=TIMEOUT, metavar="S", help="exit after S seconds")
-    p.add_argument("--convoy", metavar="CONVOY.toml",
-                   help="verify signed BSMs with this convoy's certificates (its keys directory); "
-                   "prints accepted/rejected per sender and a summary at exit")
+    p.add_argument(
+        "--convoy",
+        metavar="CONVOY.toml",
+        help="verify signed BSMs with this convoy's certificates (its keys directory); "
+        "prints accepted/rejected per sender and a summary at exit",
+    )
 
     def _listen(args: argparse.Namespace) -> int:
         from openconvoy.comms import tools
 
-        tools.listen(args.iface, group=args.group, port=args.port, compat_enabled=args.compat,
-                     count=args.count, timeout_s=args.timeout, auth=_verifier(args.convoy))
+        tools.listen(
+            args.iface,
+            group=args.group,
+            port=args.port,
+            compat_enabled=args.compat,
+            count=args.count,
+            timeout_s=args.timeout,
+            auth=_verifier(args.convoy),
+        )
         return 0
 
     p.set_defaults(handler=_listen)
@@ -75,22 +93,48 @@ def _add_send(cmds: argparse._SubParsersAction) -> None:
     )
     net_args(p)
     p.add_argument("--hop-limit", type=_int(1, 255), default=1, help="IPv6 hop limit (default 1)")
-    p.add_argument("--count", type=_int(0, 10**12), default=10, help="messages to send (default 10)")
-    p.add_argument("--rate", type=_num(0.0, 100_000.0, lo_open=True), default=10.0, metavar="HZ", help="default 10")
+    p.add_argument(
+        "--count", type=_int(0, 10**12), default=10, help="messages to send (default 10)"
+    )
+    p.add_argument(
+        "--rate",
+        type=_num(0.0, 100_000.0, lo_open=True),
+        default=10.0,
+        metavar="HZ",
+        help="default 10",
+    )
     p.add_argument("--lat", type=_num(-90.0, 90.0), default=28.6024, help="start latitude, degrees")
-    p.add_argument("--lon", type=_num(-180.0, 180.0), default=-81.2001, help="start longitude, degrees")
-    p.add_argument("--elev", type=_num(-1000.0, 10_000.0), default=0.0, help="elevation, metres (default 0)")
+    p.add_argument(
+        "--lon", type=_num(-180.0, 180.0), default=-81.2001, help="start longitude, degrees"
+    )
+    p.add_argument(
+        "--elev", type=_num(-1000.0, 10_000.0), default=0.0, help="elevation, metres (default 0)"
+    )
     p.add_argument("--speed", type=_num(0.0, 163.8), default=0.0, help="m/s (default 0)")
-    p.add_argument("--heading", type=_num(0.0, 360.0, hi_open=True), default=0.0,
-                   help="compass degrees, 0 = north, clockwise (default 0)")
+    p.add_argument(
+        "--heading",
+        type=_num(0.0, 360.0, hi_open=True),
+        default=0.0,
+        help="compass degrees, 0 = north, clockwise (default 0)",
+    )
     p.add_argument("--id", metavar="HEX", help="temporary id, 8 hex digits")
-    p.add_argument("--compat-car", type=_int(0, 254), metavar="N",
-                   help="also send the original JSON format as convoy position N (IPv4)")
-    p.add_argument("--key", metavar="KEY",
-                   help="sign as IEEE 1609.2 SPDUs with this key (its .cert beside it; a foreign "
-                   "convoy's key makes a forger that has a key)")
-    p.add_argument("--convoy", metavar="CONVOY.toml",
-                   help="the authority for --key (default: the key's directory)")
+    p.add_argument(
+        "--compat-car",
+        type=_int(0, 254),
+        metavar="N",
+        help="also send the original JSON format as convoy position N (IPv4)",
+    )
+    p.add_argument(
+        "--key",
+        metavar="KEY",
+        help="sign as IEEE 1609.2 SPDUs with this key (its .cert beside it; a foreign "
+        "convoy's key makes a forger that has a key)",
+    )
+    p.add_argument(
+        "--convoy",
+        metavar="CONVOY.toml",
+        help="the authority for --key (default: the key's directory)",
+    )
     p.add_argument("--frame", metavar="HEX", help="replay this captured datagram COUNT times")
 
     def _send(args: argparse.Namespace) -> int:
@@ -110,11 +154,20 @@ def _add_send(cmds: argparse._SubParsersAction) -> None:
                 keys = load_convoy(args.convoy).v2v.keys
             auth = Authenticator(signer_of_key(args.key, keys, time.time()))
         n = tools.send(
-            args.iface, group=args.group, port=args.port, hop_limit=args.hop_limit,
-            count=args.count, rate_hz=args.rate, lat_deg=args.lat, lon_deg=args.lon,
-            elev_m=args.elev, speed_mps=args.speed, heading_deg=args.heading,
+            args.iface,
+            group=args.group,
+            port=args.port,
+            hop_limit=args.hop_limit,
+            count=args.count,
+            rate_hz=args.rate,
+            lat_deg=args.lat,
+            lon_deg=args.lon,
+            elev_m=args.elev,
+            speed_mps=args.speed,
+            heading_deg=args.heading,
             temp_id=tools.temp_id_arg(args.id) if args.id else tools.DEFAULT_SEND_ID,
-            compat_car=args.compat_car, auth=auth,
+            compat_car=args.compat_car,
+            auth=auth,
             frame=tools.parse_hex(args.frame) if args.frame else None,
         )
         print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
@@ -161,14 +214,14 @@ def _verifier(convoy_path: str | None):
     return Authenticator(Credentials(authority), window_s=v2v.replay_window_s)
 
 
-
 def _add_keys(sub: argparse._SubParsersAction) -> None:
     """``keys init | issue`` (the work is in ``openconvoy.comms.keystore``)."""
     keys = sub.add_parser(
-        "keys", help="the convoy's signing keys: authority and vehicle certificates",
+        "keys",
+        help="the convoy's signing keys: authority and vehicle certificates",
         description="IEEE 1609.2 keys for signed BSMs and aborts. The keys live in NAME.keys/ "
         "beside the convoy file (or [v2v] keys); once they exist, deploy signs and verifies "
-        "every message unless the convoy says auth = \"off\".",
+        'every message unless the convoy says auth = "off".',
     )
     cmds = keys.add_subparsers(dest="keys_command", metavar="SUBCOMMAND", required=True)
     p = cmds.add_parser("init", help="make the convoy authority's key and certificate")
@@ -177,7 +230,9 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_keys_handler)
     p = cmds.add_parser("issue", help="issue a vehicle's key and certificate")
     p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
-    p.add_argument("--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader")
+    p.add_argument(
+        "--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader"
+    )
     p.set_defaults(handler=_keys_handler)
 
 
@@ -194,7 +249,9 @@ def _keys_handler(args: argparse.Namespace) -> int:
         print(f"{cert.name}: {keys_dir}/authority.key, authority.cert (digest {cert.digest.hex()})")
     else:
         if not 0 <= args.vehicle_id < convoy.n_vehicles:
-            raise ConfigError(f"--vehicle-id {args.vehicle_id}: the convoy has vehicles 0..{convoy.n_vehicles - 1}")
+            raise ConfigError(
+                f"--vehicle-id {args.vehicle_id}: the convoy has vehicles 0..{convoy.n_vehicles - 1}"
+            )
         cert = keystore.issue_vehicle(keys_dir, convoy.name, args.vehicle_id, time.time())
         stem = keystore.vehicle_stem(args.vehicle_id)
         print(f"{cert.name}: {keys_dir}/{stem}.key, {stem}.cert (digest {cert.digest.hex()})")

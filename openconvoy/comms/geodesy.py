@@ -42,7 +42,9 @@ class Origin:
         if not -90.0 <= self.lat_deg <= 90.0:
             raise ConfigError(f"origin latitude must be in [-90, 90] degrees, got {self.lat_deg}")
         if not -180.0 <= self.lon_deg <= 180.0:
-            raise ConfigError(f"origin longitude must be in [-180, 180] degrees, got {self.lon_deg}")
+            raise ConfigError(
+                f"origin longitude must be in [-180, 180] degrees, got {self.lon_deg}"
+            )
 
 
 def _out(v: Num) -> Num:

@@ -58,7 +58,9 @@ def _write_private(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
-def _write_pair(keys_dir: Path, stem: str, key: ec.EllipticCurvePrivateKey, cert: c.Certificate) -> None:
+def _write_pair(
+    keys_dir: Path, stem: str, key: ec.EllipticCurvePrivateKey, cert: c.Certificate
+) -> None:
     keys_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
     pem = key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
@@ -98,27 +100,38 @@ def read_certificate(path: str | Path) -> c.Certificate:
         raise KeyFileError(f"{p}: {exc}") from None
 
 
-def _matching(key: ec.EllipticCurvePrivateKey, cert: c.Certificate, key_path: Path, cert_path: Path) -> None:
+def _matching(
+    key: ec.EllipticCurvePrivateKey, cert: c.Certificate, key_path: Path, cert_path: Path
+) -> None:
     if key.public_key().public_numbers() != cert.public_key.public_numbers():
         raise KeyFileError(f"{key_path} does not match the certificate {cert_path}")
 
 
-def init_authority(keys_dir: str | Path, convoy: str, now: float, *, force: bool = False) -> c.Certificate:
+def init_authority(
+    keys_dir: str | Path, convoy: str, now: float, *, force: bool = False
+) -> c.Certificate:
     """Make the convoy authority's key and self-signed certificate in ``keys_dir``."""
     d = Path(keys_dir)
     if has_keys(d) and not force:
         raise KeyFileError(f"{d} already holds a convoy authority (use --force to replace it)")
     key = ec.generate_private_key(ec.SECP256R1())
     cert = c.make_certificate(
-        authority_name(convoy), key.public_key(), psids=(c.PSID_ABORT,),
-        start_unix=now - START_SLACK_S, duration_hours=AUTHORITY_HOURS,
-        issuer=None, self_key=key, can_issue=True,
+        authority_name(convoy),
+        key.public_key(),
+        psids=(c.PSID_ABORT,),
+        start_unix=now - START_SLACK_S,
+        duration_hours=AUTHORITY_HOURS,
+        issuer=None,
+        self_key=key,
+        can_issue=True,
     )
     _write_pair(d, AUTHORITY, key, cert)
     return cert
 
 
-def load_authority(keys_dir: str | Path, *, with_key: bool = False) -> tuple[c.Certificate, ec.EllipticCurvePrivateKey | None]:
+def load_authority(
+    keys_dir: str | Path, *, with_key: bool = False
+) -> tuple[c.Certificate, ec.EllipticCurvePrivateKey | None]:
     """The authority certificate (and key, ``with_key``), checked to match."""
     d = Path(keys_dir)
     cert_path, key_path = d / f"{AUTHORITY}.cert", d / f"{AUTHORITY}.key"
@@ -134,7 +147,9 @@ def load_authority(keys_dir: str | Path, *, with_key: bool = False) -> tuple[c.C
     return cert, key
 
 
-def issue_vehicle(keys_dir: str | Path, convoy: str, vehicle_index: int, now: float) -> c.Certificate:
+def issue_vehicle(
+    keys_dir: str | Path, convoy: str, vehicle_index: int, now: float
+) -> c.Certificate:
     """Issue vehicle ``vehicle_index``'s key and certificate, signed by the authority."""
     if vehicle_index < 0:
         raise KeyFileError(f"--vehicle-id must be >= 0, got {vehicle_index}")
@@ -142,9 +157,12 @@ def issue_vehicle(keys_dir: str | Path, convoy: str, vehicle_index: int, now: fl
     assert akey is not None
     key = ec.generate_private_key(ec.SECP256R1())
     cert = c.make_certificate(
-        vehicle_name(convoy, vehicle_index), key.public_key(),
-        psids=(c.PSID_BSM, c.PSID_ABORT), start_unix=now - START_SLACK_S,
-        duration_hours=VEHICLE_HOURS, issuer=(authority, akey),
+        vehicle_name(convoy, vehicle_index),
+        key.public_key(),
+        psids=(c.PSID_BSM, c.PSID_ABORT),
+        start_unix=now - START_SLACK_S,
+        duration_hours=VEHICLE_HOURS,
+        issuer=(authority, akey),
     )
     _write_pair(Path(keys_dir), vehicle_stem(vehicle_index), key, cert)
     return cert

@@ -171,8 +171,10 @@ class Ipv6Multicast(_MulticastSocket):
             sock.setblocking(False)
         except OSError as exc:
             sock.close()
-            raise LinkError(f"cannot use IPv6 multicast group {self.group} port {port} on {iface}: "
-                            f"{exc.strerror or exc} (does {iface} support IPv6 multicast?)") from None
+            raise LinkError(
+                f"cannot use IPv6 multicast group {self.group} port {port} on {iface}: "
+                f"{exc.strerror or exc} (does {iface} support IPv6 multicast?)"
+            ) from None
         self._sock = sock
         self._dest = (self.group, port, 0, self.ifindex)
 
@@ -216,8 +218,10 @@ class Ipv4Multicast(_MulticastSocket):
             sock.setblocking(False)
         except OSError as exc:
             sock.close()
-            raise LinkError(f"cannot use IPv4 multicast group {self.group} port {port} on {iface}: "
-                            f"{exc.strerror or exc}") from None
+            raise LinkError(
+                f"cannot use IPv4 multicast group {self.group} port {port} on {iface}: "
+                f"{exc.strerror or exc}"
+            ) from None
         self._sock = sock
         self._dest = (self.group, port)
 

@@ -213,7 +213,10 @@ def decode_signed_asn1(data: bytes) -> SignedSpdu:
         cert_value = signer[0]
         cert_bytes = c.spec().encode("CertificateBase", cert_value)
         end = len(data) - sig_len - 3 - len(cert_bytes)
-        if data[end : end + 3] != b"\x81\x01\x01" or data[end + 3 : len(data) - sig_len] != cert_bytes:
+        if (
+            data[end : end + 3] != b"\x81\x01\x01"
+            or data[end + 3 : len(data) - sig_len] != cert_bytes
+        ):
             raise SpduDecodeError("signer certificate is not canonical OER")
         digest = c.hashed_id8(cert_bytes)
     else:

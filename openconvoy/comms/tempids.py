@@ -57,7 +57,9 @@ class TempIds:
         self._ids = [derive_temp_id(convoy, i) for i in range(size)]
         for index, value in (overrides or {}).items():
             if not 0 <= index < size:
-                raise ConfigError(f"temporary ID override for vehicle {index}: not in 0..{size - 1}")
+                raise ConfigError(
+                    f"temporary ID override for vehicle {index}: not in 0..{size - 1}"
+                )
             self._ids[index] = parse_temp_id(value)
         self._index = {tid: i for i, tid in enumerate(self._ids)}
         if len(self._index) != size:

@@ -71,12 +71,16 @@ class Tally:
         for sender in sorted(set(self.accepted) | set(self.rejected)):
             by = self.rejected.get(sender, {})
             reasons = " ".join(f"{r}={n}" for r, n in sorted(by.items()))
-            out.append(f"{sender}: accepted {self.accepted.get(sender, 0)}, rejected "
-                       f"{sum(by.values())}" + (f" ({reasons})" if reasons else ""))
+            out.append(
+                f"{sender}: accepted {self.accepted.get(sender, 0)}, rejected "
+                f"{sum(by.values())}" + (f" ({reasons})" if reasons else "")
+            )
         n_ok = sum(self.accepted.values())
         n_bad = sum(sum(by.values()) for by in self.rejected.values())
-        out.append(f"summary: {n_ok} accepted, {n_bad} rejected from "
-                   f"{len(set(self.accepted) | set(self.rejected))} senders")
+        out.append(
+            f"summary: {n_ok} accepted, {n_bad} rejected from "
+            f"{len(set(self.accepted) | set(self.rejected))} senders"
+        )
         return out
 
 

@@ -221,7 +221,9 @@ class Sender:
     ) -> None:
         _check_drop_at(drop_at)
         if auth is not None and compat_enabled:
-            raise ConfigError("the compatibility JSON format cannot be signed: disable compat or auth")
+            raise ConfigError(
+                "the compatibility JSON format cannot be signed: disable compat or auth"
+            )
         self.auth = auth
         self.temp_id = temp_ids.id_of(vehicle_index)
         self.origin = origin
@@ -371,7 +373,9 @@ class Receiver:
             return self._malformed(source, f"signed PSID {spdu.psid:#x} payload is not a BSM")
         return self._handle_j2735(spdu.payload, t_rx, source, signed)
 
-    def _handle_signed_abort(self, spdu: Any, signed: Any, t_rx: float, source: str) -> Received | None:
+    def _handle_signed_abort(
+        self, spdu: Any, signed: Any, t_rx: float, source: str
+    ) -> Received | None:
         try:
             msg = cj.decode(spdu.payload)
         except cj.CompatDecodeError as exc:
@@ -442,7 +446,9 @@ class Receiver:
         if core.heading == j.HEADING_UNAVAILABLE:
             heading = self._known_heading(sender, state)
             if heading is None:
-                return self._malformed(source, f"BSM of vehicle {sender} lacks heading (none known yet)")
+                return self._malformed(
+                    source, f"BSM of vehicle {sender} lacks heading (none known yet)"
+                )
             state = replace(state, heading=heading)
         self._remember_heading(sender, state)
         self.counters.received += 1
@@ -462,7 +468,10 @@ class Receiver:
     def _remember_heading(self, sender: int, state: VehicleState) -> None:
         self._heading[sender] = state.heading
         anchor = self._anchor.get(sender)
-        if anchor is None or (state.x - anchor[0]) ** 2 + (state.y - anchor[1]) ** 2 >= TRAIL_HEADING_M**2:
+        if (
+            anchor is None
+            or (state.x - anchor[0]) ** 2 + (state.y - anchor[1]) ** 2 >= TRAIL_HEADING_M**2
+        ):
             self._anchor[sender] = (state.x, state.y)
 
     def _handle_compat(self, data: bytes, t_rx: float, source: str) -> Received | None:
@@ -539,7 +548,9 @@ class V2V:
         _check_drop_at(drop_at)
         self._clock = clock
         if auth is not None and config.compat:
-            raise ConfigError("the compatibility JSON format cannot be signed: disable compat or auth")
+            raise ConfigError(
+                "the compatibility JSON format cannot be signed: disable compat or auth"
+            )
         self.auth = auth
         self.config = config
         self.vehicle_index = vehicle_index
@@ -572,14 +583,22 @@ class V2V:
         self._tx = (
             transport
             if transport is not None
-            else Ipv6Multicast(config.iface, config.group, config.port, config.hop_limit,
-                               rcvbuf_bytes=V2V_RCVBUF_BYTES)
+            else Ipv6Multicast(
+                config.iface,
+                config.group,
+                config.port,
+                config.hop_limit,
+                rcvbuf_bytes=V2V_RCVBUF_BYTES,
+            )
         )
         self._tx4: Transport | None = compat_transport
         if self._tx4 is None and config.compat:
             try:
                 self._tx4 = Ipv4Multicast(
-                    config.iface, config.compat_group, config.compat_port, config.compat_ttl,
+                    config.iface,
+                    config.compat_group,
+                    config.compat_port,
+                    config.compat_ttl,
                     rcvbuf_bytes=V2V_RCVBUF_BYTES,
                 )
             except (OSError, LinkError):

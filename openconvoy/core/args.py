@@ -13,8 +13,14 @@ from typing import Any
 from openconvoy.core.config import Range
 
 
-def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
-         hi_open: bool = False, integer: bool = False) -> Callable[[str], Any]:
+def number(
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    integer: bool = False,
+) -> Callable[[str], Any]:
     """An argparse type: a finite number (or an integer) inside the given interval."""
     rng = Range(lo, hi, lo_open, hi_open)
     kind = "integer" if integer else "number"
@@ -23,9 +29,13 @@ def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = 
         try:
             value: float | int = int(text) if integer else float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {'an' if integer else 'a'} {kind}, got {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"expected {'an' if integer else 'a'} {kind}, got {text!r}"
+            ) from None
         if not rng.contains(float(value)):
-            raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: {rng.describe(kind)}")
+            raise argparse.ArgumentTypeError(
+                f"{text} is out of range; allowed: {rng.describe(kind)}"
+            )
         return value
 
     parse.__name__ = kind

@@ -55,7 +55,11 @@ class Range:
         num = (lambda v: f"{int(v)}") if kind == "integer" else (lambda v: f"{v:g}")
         lo = "-inf" if self.lo is None else num(self.lo)
         hi = "inf" if self.hi is None else num(self.hi)
-        right = "]" if (self.hi is None and self.allow_inf) or (self.hi is not None and not self.hi_open) else ")"
+        right = (
+            "]"
+            if (self.hi is None and self.allow_inf) or (self.hi is not None and not self.hi_open)
+            else ")"
+        )
         finite = "" if self.allow_inf or kind == "integer" else "finite "
         return f"{'an' if kind == 'integer' else 'a'} {finite}{kind} in {left}{lo}, {hi}{right}"
 
@@ -66,7 +70,11 @@ FINITE = Range()
 def check_number(value: Any, where: str, rng: Range = FINITE, integer: bool = False) -> float | int:
     """``value`` as a number inside ``rng``, else ``ConfigError`` naming ``where`` and the range."""
     kind = "an integer" if integer else "a number"
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or (integer and not isinstance(value, int))
+    ):
         raise ConfigError(f"{where}: expected {kind}, got {_describe(value)}")
     if not rng.contains(float(value)):
         allowed = rng.describe("integer" if integer else "number")
@@ -86,9 +94,16 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; expected some of {', '.join(fields)}")
-    missing = [n for n, f in fields.items() if n not in data and f.default is dataclasses.MISSING
-               and f.default_factory is dataclasses.MISSING]
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(unknown)}; expected some of {', '.join(fields)}"
+        )
+    missing = [
+        n
+        for n, f in fields.items()
+        if n not in data
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
     if missing:
         raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
     hints = typing.get_type_hints(cls, include_extras=True)
@@ -102,7 +117,7 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
         key = msg.split(":", 1)[0]
         name = key.rsplit(".", 1)[-1]
         if name in fields:  # "key: why" or "table.key: why" -> "file: table.key: why"
-            raise ConfigError(f"{child(where, name)}{msg[len(key):]}") from None
+            raise ConfigError(f"{child(where, name)}{msg[len(key) :]}") from None
         raise ConfigError(f"{where}: {msg}") from None
 
 
@@ -159,7 +174,9 @@ def _type_name(hint: Any) -> str:
             return f"a list of {_PLURAL.get(args[0], 'values')}"
         if len(set(args)) == 1:
             return f"a list of {len(args)} {_PLURAL.get(args[0], 'values')}"
-        return "a list" if not args else "a list of (" + ", ".join(_type_name(a) for a in args) + ")"
+        return (
+            "a list" if not args else "a list of (" + ", ".join(_type_name(a) for a in args) + ")"
+        )
     if isinstance(hint, types.UnionType) or origin is typing.Union:
         return " or ".join(_type_name(a) for a in typing.get_args(hint) if a is not type(None))
     if dataclasses.is_dataclass(hint):
@@ -183,7 +200,9 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         errors = []
         for arg in (a for a in args if a is not type(None)):
             try:
-                return _convert(value, typing.Annotated[arg, rng] if rng is not FINITE else arg, where)
+                return _convert(
+                    value, typing.Annotated[arg, rng] if rng is not FINITE else arg, where
+                )
             except ConfigError as exc:
                 errors.append(exc)
         if len(errors) == 1:
@@ -194,7 +213,9 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             return value
         return from_dict(hint, value, where)  # type: ignore[arg-type]
     if origin is typing.Literal:
-        if value not in typing.get_args(hint) or isinstance(value, bool) != any(isinstance(a, bool) for a in typing.get_args(hint)):
+        if value not in typing.get_args(hint) or isinstance(value, bool) != any(
+            isinstance(a, bool) for a in typing.get_args(hint)
+        ):
             raise ConfigError(f"{where}: expected {_type_name(hint)}, got {_describe(value)}")
         return value
     if origin in (tuple, list):
@@ -203,9 +224,13 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         args = typing.get_args(hint)
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(value) != len(args):
-                raise ConfigError(f"{where}: expected {len(args)} values ({_type_name(hint)}), got {len(value)}")
-            items = [_convert(v, typing.Annotated[a, rng] if rng is not FINITE else a, f"{where}[{i}]")
-                     for i, (v, a) in enumerate(zip(value, args))]
+                raise ConfigError(
+                    f"{where}: expected {len(args)} values ({_type_name(hint)}), got {len(value)}"
+                )
+            items = [
+                _convert(v, typing.Annotated[a, rng] if rng is not FINITE else a, f"{where}[{i}]")
+                for i, (v, a) in enumerate(zip(value, args))
+            ]
         else:
             inner = args[0] if args else Any
             if rng is not FINITE:

@@ -84,7 +84,9 @@ class HeadingControlConfig:
             )
 
 
-def stanley(heading_error: float, cross_track: float, speed: float, gain: float, soft: float) -> float:
+def stanley(
+    heading_error: float, cross_track: float, speed: float, gain: float, soft: float
+) -> float:
     """Stanley steering law as a heading change (rad).
 
     ``heading_error``: path heading − ego heading (rad); ``cross_track``: path's lateral

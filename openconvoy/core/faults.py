@@ -33,13 +33,19 @@ class Fault:
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
-            raise ConfigError(f"unknown fault kind {self.kind!r}; expected one of {', '.join(FAULT_KINDS)}")
+            raise ConfigError(
+                f"unknown fault kind {self.kind!r}; expected one of {', '.join(FAULT_KINDS)}"
+            )
         if isinstance(self.vehicle, bool) or not isinstance(self.vehicle, int) or self.vehicle < 0:
             raise ConfigError(f"fault vehicle must be an index >= 0, got {self.vehicle!r}")
-        if isinstance(self.t_s, bool) or not isinstance(self.t_s, (int, float)) or not (
-            math.isfinite(self.t_s) and self.t_s >= 0
+        if (
+            isinstance(self.t_s, bool)
+            or not isinstance(self.t_s, (int, float))
+            or not (math.isfinite(self.t_s) and self.t_s >= 0)
         ):
-            raise ConfigError(f"fault time must be a finite number of seconds >= 0, got {self.t_s!r}")
+            raise ConfigError(
+                f"fault time must be a finite number of seconds >= 0, got {self.t_s!r}"
+            )
 
     @property
     def brakes(self) -> bool:
@@ -81,4 +87,6 @@ def check_faults(faults: tuple[Fault, ...], n_vehicles: int) -> None:
     """Raise ValueError when a fault names a vehicle the convoy does not have."""
     for f in faults:
         if f.vehicle >= n_vehicles:
-            raise ConfigError(f"fault {f}: no vehicle {f.vehicle} in a convoy of {n_vehicles} (0..{n_vehicles - 1})")
+            raise ConfigError(
+                f"fault {f}: no vehicle {f.vehicle} in a convoy of {n_vehicles} (0..{n_vehicles - 1})"
+            )

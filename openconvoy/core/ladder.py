@@ -37,7 +37,9 @@ class LadderConfig:
                 f"{self.degrade_after_s} and {self.stop_after_s}"
             )
         if not self.intruder_margin_m >= 0:
-            raise ConfigError(f"staleness ladder needs intruder_margin_m >= 0, got {self.intruder_margin_m}")
+            raise ConfigError(
+                f"staleness ladder needs intruder_margin_m >= 0, got {self.intruder_margin_m}"
+            )
 
 
 def rung(age_s: float, config: LadderConfig) -> str:
@@ -49,7 +51,9 @@ def rung(age_s: float, config: LadderConfig) -> str:
     return STOP
 
 
-def ranging_override(range_m: float, v2v_gap_m: float, desired_gap_m: float, config: LadderConfig) -> bool:
+def ranging_override(
+    range_m: float, v2v_gap_m: float, desired_gap_m: float, config: LadderConfig
+) -> bool:
     """True when the ranging sensor's target (``range_m``, centre to centre) is closer by more
     than ``intruder_margin_m`` than the predecessor by its messages (``v2v_gap_m``:
     something without V2V is in the gap, a cut-in) or than the desired gap (the cooperative

@@ -269,7 +269,9 @@ class ConvoyMember:
                 tau = min(age, v / a)
                 d, speed = v * tau - 0.5 * a * tau * tau, max(v - a * age, 0.0)
             stale = True
-        return TargetEstimate(latest.x + d * math.cos(h), latest.y + d * math.sin(h), speed, h, age, stale)
+        return TargetEstimate(
+            latest.x + d * math.cos(h), latest.y + d * math.sin(h), speed, h, age, stale
+        )
 
     def gap_estimate(self, now: float) -> tuple[float, float] | None:
         """``(gap_m, closing_mps)`` to the immediate predecessor from its messages: centre
@@ -302,7 +304,9 @@ class ConvoyMember:
         if ranging is None or frame.pred_gap is None:
             return False
         desired = frame.desired_gap_m if frame.desired_gap_m == frame.desired_gap_m else 0.0
-        return ladder_mod.ranging_override(ranging[0], frame.pred_gap[0], desired, self.config.ladder)
+        return ladder_mod.ranging_override(
+            ranging[0], frame.pred_gap[0], desired, self.config.ladder
+        )
 
     def _length(self, vid: int) -> float:
         return self.lengths[vid] if 0 <= vid < len(self.lengths) else 0.0
@@ -310,7 +314,9 @@ class ConvoyMember:
     def _slot_ids(self) -> list[int | None]:
         """Vehicle id in each state slot (None when the slot has no vehicle)."""
         i, n = self.vehicle_id, self.n_vehicles
-        preds: list[int | None] = [i - m if i - m >= 0 else None for m in range(1, self.layout.M + 1)]
+        preds: list[int | None] = [
+            i - m if i - m >= 0 else None for m in range(1, self.layout.M + 1)
+        ]
         return [0 if i > 0 else None, *preds, i + 1 if i + 1 < n else None]
 
     def _fill_targets(self, obs: np.ndarray, slot_ids: list[int | None], now: float) -> Frame:
@@ -320,7 +326,11 @@ class ConvoyMember:
         ego = self.own
         assert ego is not None
         i = self.vehicle_id
-        desired_gap = self.spacing.pair_gap(ego.speed, self._length(i), self._length(i - 1)) if i > 0 else math.nan
+        desired_gap = (
+            self.spacing.pair_gap(ego.speed, self._length(i), self._length(i - 1))
+            if i > 0
+            else math.nan
+        )
         pred_age = self.buffer.age(i - 1, now) if i > 0 else math.nan
         if math.isinf(pred_age):
             pred_age = math.nan
@@ -339,7 +349,9 @@ class ConvoyMember:
             trail = self.buffer.trail(vid)
             assert trail is not None
             head = (est.x, est.y)
-            projection = trail.project(head, est.heading, ego.x, ego.y, desired, self._last_s.get(vid))
+            projection = trail.project(
+                head, est.heading, ego.x, ego.y, desired, self._last_s.get(vid)
+            )
             self._last_s[vid] = projection.s
             arc = projection.arc_to_head
             o = lay.target_offset(name)

@@ -50,7 +50,9 @@ def time_grid(log: Columns) -> np.ndarray:
     return np.unique(np.asarray(log["t_s"], dtype=float))
 
 
-def aligned(log: Columns, column: str, grid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def aligned(
+    log: Columns, column: str, grid: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """``column`` per vehicle on a common time grid.
 
     Returns ``(t, values)`` where ``values[k, j]`` is vehicle ``vehicle_ids(log)[j]``'s
@@ -86,7 +88,9 @@ def follower_gaps(log: Columns) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     ids = vehicle_ids(log)
     times = np.asarray(log["t_s"], dtype=float)
     x, y = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
-    logged = np.asarray(log["gap_m"], dtype=float) if "gap_m" in log else np.full(len(times), np.nan)
+    logged = (
+        np.asarray(log["gap_m"], dtype=float) if "gap_m" in log else np.full(len(times), np.nan)
+    )
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for vid in ids:
         if vid == 0:
@@ -197,7 +201,10 @@ def string_stability(log: Columns) -> tuple[float, dict[int, float]]:
     shrink along the string). Per follower from the second on; the scalar is the largest
     ratio (the string is stable when every ratio is below 1). NaN with one follower."""
     errors = platooning_errors(log)
-    peaks = {vid: float(np.nanmax(e)) if np.isfinite(e).any() else math.nan for vid, (_, e) in errors.items()}
+    peaks = {
+        vid: float(np.nanmax(e)) if np.isfinite(e).any() else math.nan
+        for vid, (_, e) in errors.items()
+    }
     ratios: dict[int, float] = {}
     for vid, peak in peaks.items():
         prev = peaks.get(vid - 1)
@@ -312,10 +319,14 @@ RESTORE_TOLERANCE_FRACTION = 0.1
 
 def has_traffic_columns(log: Columns) -> bool:
     """Does the log carry the traffic columns (a highway run)?"""
-    return all(c in log for c in ("ahead_gap_m", "ahead_closing_mps", "ahead_length_m", "ahead_traffic"))
+    return all(
+        c in log for c in ("ahead_gap_m", "ahead_closing_mps", "ahead_length_m", "ahead_traffic")
+    )
 
 
-def time_to_collision(log: Columns, lengths: Mapping[int, float]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def time_to_collision(
+    log: Columns, lengths: Mapping[int, float]
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Each vehicle's time to collision with the vehicle in its path ahead (s):
     bumper-to-bumper gap (centre gap less the two half lengths) over the closing speed,
     where closing; inf where the gap opens or nothing is ahead. ``{id: (t_s, ttc_s)}``."""
@@ -335,9 +346,14 @@ def time_to_collision(log: Columns, lengths: Mapping[int, float]) -> dict[int, t
     return out
 
 
-def min_time_to_collision(log: Columns, lengths: Mapping[int, float]) -> tuple[float, dict[int, float]]:
+def min_time_to_collision(
+    log: Columns, lengths: Mapping[int, float]
+) -> tuple[float, dict[int, float]]:
     """Smallest time to collision (s) over the run: overall and per vehicle (inf: never closing)."""
-    per = {vid: float(ttc.min()) if len(ttc) else math.inf for vid, (_, ttc) in time_to_collision(log, lengths).items()}
+    per = {
+        vid: float(ttc.min()) if len(ttc) else math.inf
+        for vid, (_, ttc) in time_to_collision(log, lengths).items()
+    }
     return (min(per.values()) if per else math.inf), per
 
 
@@ -417,7 +433,9 @@ def traffic_collisions(log: Columns) -> int:
     if "traffic_collision" not in log:
         return 0
     col = np.asarray(log["traffic_collision"], dtype=float)
-    return sum(bool(np.nanmax(col[_rows(log, vid)], initial=0.0) >= 1.0) for vid in vehicle_ids(log))
+    return sum(
+        bool(np.nanmax(col[_rows(log, vid)], initial=0.0) >= 1.0) for vid in vehicle_ids(log)
+    )
 
 
 def traffic_metrics(log: Columns, lengths: Mapping[int, float]) -> dict[str, Any]:

@@ -63,7 +63,9 @@ class ObservationLayout:
 
     def __post_init__(self) -> None:
         if self.M < 1 or self.k < 1:
-            raise ConfigError(f"observation layout needs M >= 1 and k >= 1, got M={self.M}, k={self.k}")
+            raise ConfigError(
+                f"observation layout needs M >= 1 and k >= 1, got M={self.M}, k={self.k}"
+            )
         preds = tuple(f"pred_{m}" for m in range(1, self.M + 1))
         # Offsets are computed once: the member reads them on every tick.
         slots = ("leader", *preds, "follower")
@@ -73,8 +75,12 @@ class ObservationLayout:
         derived = own + len(OWN_FEATURES)
         path = derived + len(targets) * len(DERIVED_FEATURES)
         for name, value in (
-            ("slots", slots), ("targets", targets), ("slot_size", slot_size),
-            ("own_offset", own), ("derived_offset", derived), ("path_offset", path),
+            ("slots", slots),
+            ("targets", targets),
+            ("slot_size", slot_size),
+            ("own_offset", own),
+            ("derived_offset", derived),
+            ("path_offset", path),
             ("size", path + len(PATH_FEATURES)),
         ):
             object.__setattr__(self, name, value)
@@ -92,7 +98,11 @@ class ObservationLayout:
     def check_compatible(self, recorded: dict[str, int]) -> None:
         """Raise ValueError naming the difference when ``recorded`` is another layout."""
         mine = self.describe()
-        diffs = [f"{key} {recorded.get(key)} vs {mine[key]}" for key in mine if recorded.get(key) != mine[key]]
+        diffs = [
+            f"{key} {recorded.get(key)} vs {mine[key]}"
+            for key in mine
+            if recorded.get(key) != mine[key]
+        ]
         if diffs:
             raise ValueError(
                 "policy was trained for another observation layout ("

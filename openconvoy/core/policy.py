@@ -55,8 +55,10 @@ def as_convoy_policy(obj: Any, where: str = "policy") -> ConvoyPolicy:
     naming what is missing (checked once, where a policy is loaded or handed over)."""
     missing = [a for a in CONVOY_POLICY_ATTRIBUTES if not hasattr(obj, a)]
     if missing:
-        raise ConfigError(f"{where} ({type(obj).__name__}) lacks {', '.join(missing)}: a convoy policy "
-                          f"declares {', '.join(CONVOY_POLICY_ATTRIBUTES)}")
+        raise ConfigError(
+            f"{where} ({type(obj).__name__}) lacks {', '.join(missing)}: a convoy policy "
+            f"declares {', '.join(CONVOY_POLICY_ATTRIBUTES)}"
+        )
     return obj
 
 

@@ -14,8 +14,14 @@ FIELD_OF_VIEW_RAD = math.radians(30.0)
 
 
 def range_and_rate(
-    ego_x: float, ego_y: float, ego_speed: float, ego_heading: float,
-    ahead_x: float, ahead_y: float, ahead_speed: float, ahead_heading: float,
+    ego_x: float,
+    ego_y: float,
+    ego_speed: float,
+    ego_heading: float,
+    ahead_x: float,
+    ahead_y: float,
+    ahead_speed: float,
+    ahead_heading: float,
 ) -> tuple[float, float]:
     """Centre-to-centre range (m) from the ego to the vehicle ahead and its rate of change
     (m/s, negative = closing): the relative velocity projected on the line of sight."""
@@ -28,8 +34,14 @@ def range_and_rate(
     return rng_m, (dx * dvx + dy * dvy) / rng_m
 
 
-def in_view(ego_x: float, ego_y: float, ego_heading: float, x: float, y: float,
-            fov_rad: float = FIELD_OF_VIEW_RAD) -> bool:
+def in_view(
+    ego_x: float,
+    ego_y: float,
+    ego_heading: float,
+    x: float,
+    y: float,
+    fov_rad: float = FIELD_OF_VIEW_RAD,
+) -> bool:
     """Is the point ``(x, y)`` ahead of the ego within the sensor's horizontal field of view?"""
     bearing = math.atan2(y - ego_y, x - ego_x) - ego_heading
     bearing = (bearing + math.pi) % (2.0 * math.pi) - math.pi

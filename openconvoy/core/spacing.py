@@ -58,6 +58,4 @@ class SpacingPolicy:
     def gap_to(self, ego: int, target: int, speed: float, lengths: Sequence[float]) -> float:
         """Desired arc-length gap (m) from vehicle ``ego`` to vehicle ``target`` ahead of it
         (``target`` < ``ego``): the sum of the pair gaps between them at ``speed``."""
-        return sum(
-            self.pair_gap(speed, lengths[j + 1], lengths[j]) for j in range(target, ego)
-        )
+        return sum(self.pair_gap(speed, lengths[j + 1], lengths[j]) for j in range(target, ego))

@@ -90,7 +90,9 @@ def stop(policy_error: str = "") -> Decision:
     return Decision(np.zeros(2, dtype=np.float32), ladder.STOP, policy_error)
 
 
-def begin(member: ConvoyMember, own: VehicleState, now: float, may_send: bool = True) -> VehicleState | None:
+def begin(
+    member: ConvoyMember, own: VehicleState, now: float, may_send: bool = True
+) -> VehicleState | None:
     """Step 1: the own state in; the state to broadcast now (τ), or None."""
     member.observe_own(own)
     return own if may_send and member.wants_to_send(now) else None

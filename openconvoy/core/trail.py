@@ -66,14 +66,20 @@ class Trail:
 
     # --- queries ---------------------------------------------------------------------
 
-    def _vertex(self, k: int, head: tuple[float, float], heading: float) -> tuple[float, float, float]:
+    def _vertex(
+        self, k: int, head: tuple[float, float], heading: float
+    ) -> tuple[float, float, float]:
         """Vertex ``k`` of the query path: -1 = far end of the extension, 0..n-1 the
         breadcrumbs, n the head. Returns ``(x, y, s)``."""
         n = len(self._x)
         if 0 <= k < n:
             return self._x[k], self._y[k], self._s[k]
         if k >= n:
-            return head[0], head[1], self._s[-1] + math.hypot(head[0] - self._x[-1], head[1] - self._y[-1])
+            return (
+                head[0],
+                head[1],
+                self._s[-1] + math.hypot(head[0] - self._x[-1], head[1] - self._y[-1]),
+            )
         if k >= 0:
             return self._x[k], self._y[k], self._s[k]
         hx, hy = self._back_direction(head, heading)
@@ -104,7 +110,13 @@ class Trail:
         rx, ry = x - ax, y - ay
         u = min(max((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
         ex, ey = rx - u * dx, ry - u * dy
-        return ex * ex + ey * ey, sa + u * (sb - sa), (dx * ry - dy * rx) / seg, math.atan2(dy, dx), seg
+        return (
+            ex * ex + ey * ey,
+            sa + u * (sb - sa),
+            (dx * ry - dy * rx) / seg,
+            math.atan2(dy, dx),
+            seg,
+        )
 
     def project(
         self,
@@ -147,13 +159,19 @@ class Trail:
                 ax, ay = self._x[-1], self._y[-1]
                 f = (s - self._s[-1]) / (s_head - self._s[-1])
                 return ax + f * (head[0] - ax), ay + f * (head[1] - ay)
-            return head[0] + (s - s_head) * math.cos(heading), head[1] + (s - s_head) * math.sin(heading)
+            return head[0] + (s - s_head) * math.cos(heading), head[1] + (s - s_head) * math.sin(
+                heading
+            )
         if s >= self._s[-1]:
             f = (s - self._s[-1]) / (s_head - self._s[-1])
-            return self._x[-1] + f * (head[0] - self._x[-1]), self._y[-1] + f * (head[1] - self._y[-1])
+            return self._x[-1] + f * (head[0] - self._x[-1]), self._y[-1] + f * (
+                head[1] - self._y[-1]
+            )
         if s <= self._s[0]:
             bx, by = self._back_direction(head, heading)
             return self._x[0] - (s - self._s[0]) * bx, self._y[0] - (s - self._s[0]) * by
         i = bisect_right(self._s, s) - 1
         f = (s - self._s[i]) / (self._s[i + 1] - self._s[i])
-        return self._x[i] + f * (self._x[i + 1] - self._x[i]), self._y[i] + f * (self._y[i + 1] - self._y[i])
+        return self._x[i] + f * (self._x[i + 1] - self._x[i]), self._y[i] + f * (
+            self._y[i + 1] - self._y[i]
+        )

@@ -44,6 +44,7 @@ learner drives ``follower_1``, the other followers ``cacc-allpred+ladder``."""
 
 if HIGHWAY_SINGLE_AGENT_ID not in _gymnasium.registry:
     _gymnasium.register(
-        id=HIGHWAY_SINGLE_AGENT_ID, entry_point="openconvoy.envs.single_agent:SingleAgentConvoyEnv",
+        id=HIGHWAY_SINGLE_AGENT_ID,
+        entry_point="openconvoy.envs.single_agent:SingleAgentConvoyEnv",
         kwargs={"scenario": "highway-cut-in", "others": "cacc-allpred+ladder"},
     )

@@ -165,8 +165,15 @@ class ConvoyEnv(ParallelEnv):
 
         parsed = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         self.sim = self.WORLD(
-            scenario, self.member_config, self.loss, self.dt, self.gps_noise_m, parsed,
-            gap_margin_m, bool(emergency_stop), bool(auth),
+            scenario,
+            self.member_config,
+            self.loss,
+            self.dt,
+            self.gps_noise_m,
+            parsed,
+            gap_margin_m,
+            bool(emergency_stop),
+            bool(auth),
         )
         """The simulated convoy (``envs.world.ConvoyWorld``)."""
         self.possible_agents = [agent_name(i) for i in range(1, n)]
@@ -237,8 +244,12 @@ class ConvoyEnv(ParallelEnv):
         tr = sim.truth
         jerk = [(a1 - a0) * inv_dt for a0, a1 in zip(accel_before[1:], tr.accel[1:])]
         rewards_list = reward(
-            self.reward_config, [g - d for g, d in zip(sim.gaps, sim.desired)],
-            tr.accel[1:], jerk, tr.yaw_rate[1:], sim.collided,
+            self.reward_config,
+            [g - d for g, d in zip(sim.gaps, sim.desired)],
+            tr.accel[1:],
+            jerk,
+            tr.yaw_rate[1:],
+            sim.collided,
         )
         done = sim.terminated()
         trunc = sim.step_count >= self.max_steps and not done
@@ -258,11 +269,18 @@ class ConvoyEnv(ParallelEnv):
             return None
         if self._road is None and self.scenario.path is not None:
             path = self.scenario.path
-            self._road = path.points if len(path.points) == 2 and not path.closed else path.sample(0.5)
+            self._road = (
+                path.points if len(path.points) == 2 and not path.closed else path.sample(0.5)
+            )
         modes = ["leader", *self.sim.modes[1:]]
         return draw_convoy(
-            self.plant.x, self.plant.y, self.plant.heading, np.array(self.sim.lengths),
-            np.array(self.sim.widths), modes, self._road,
+            self.plant.x,
+            self.plant.y,
+            self.plant.heading,
+            np.array(self.sim.lengths),
+            np.array(self.sim.widths),
+            modes,
+            self._road,
         )
 
     def close(self) -> None:
@@ -368,16 +386,22 @@ class ConvoyEnv(ParallelEnv):
 
 
 def _resolve_scenario(
-    scenario: str | Scenario, n_followers: int | None, vehicle_presets: Sequence[VehiclePreset | str] | None
+    scenario: str | Scenario,
+    n_followers: int | None,
+    vehicle_presets: Sequence[VehiclePreset | str] | None,
 ) -> Scenario:
     """The scenario object of a spec (with its convoy size and vehicles) or as given."""
     presets = None
     if vehicle_presets is not None:
-        presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
+        presets = [
+            p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets
+        ]
     if isinstance(scenario, str):
         scenario = make_scenario(scenario, n_followers, presets)
     elif presets is not None or n_followers is not None:
-        raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+        raise ConfigError(
+            "n_followers and vehicle_presets apply to scenario specs, not Scenario objects"
+        )
     if scenario.n_vehicles < 2:
         raise ConfigError("a convoy needs a leader and at least one follower")
     return scenario

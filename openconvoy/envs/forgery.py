@@ -34,8 +34,16 @@ def forged_state(claimed: VehicleState) -> ForgedState:
     """The forger's message about ``claimed``: ``FORGED_AHEAD_M`` further along its heading."""
     c, s = math.cos(claimed.heading), math.sin(claimed.heading)
     return ForgedState(
-        claimed.vehicle_id, claimed.t, claimed.x + FORGED_AHEAD_M * c, claimed.y + FORGED_AHEAD_M * s,
-        claimed.speed, claimed.heading, claimed.accel, claimed.yaw_rate, claimed.length, claimed.width,
+        claimed.vehicle_id,
+        claimed.t,
+        claimed.x + FORGED_AHEAD_M * c,
+        claimed.y + FORGED_AHEAD_M * s,
+        claimed.speed,
+        claimed.heading,
+        claimed.accel,
+        claimed.yaw_rate,
+        claimed.length,
+        claimed.width,
     )
 
 
@@ -59,7 +67,9 @@ class Authentication:
             return False
         return True
 
-    def deliver_forgeries(self, claimed: Sequence[VehicleState], inboxes: Sequence[list[VehicleState]]) -> None:
+    def deliver_forgeries(
+        self, claimed: Sequence[VehicleState], inboxes: Sequence[list[VehicleState]]
+    ) -> None:
         """Offer a forged copy of each ``claimed`` state to every other member: appended to
         ``inboxes[r]`` (index = convoy position) when receiver ``r`` accepts it."""
         for st in claimed:

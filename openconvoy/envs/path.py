@@ -73,7 +73,9 @@ class Path:
         """The path's direction at arc length ``s``, radians (ENU, CCW from east)."""
         return self._heading_list[self._segment(self._wrap(s))]
 
-    def project(self, x: float, y: float, s_hint: float | None = None, window_m: float = 20.0) -> float:
+    def project(
+        self, x: float, y: float, s_hint: float | None = None, window_m: float = 20.0
+    ) -> float:
         """Arc length of the path point nearest to (x, y), metres.
 
         With ``s_hint`` only segments within ``window_m`` of it are searched (the leader

@@ -94,17 +94,34 @@ class BicyclePlant:
         self._idx = np.arange(n)
         self._vectorized = n > SCALAR_MAX_VEHICLES if vectorized is None else vectorized
         # The scalar step's copies of the parameters and of the setpoint queue.
-        self._params = list(zip(
-            self._tau_v.tolist(), self._tau_h.tolist(), self._acc.tolist(), self._dec.tolist(),
-            self._rate.tolist(), self._vmax.tolist(), self._kappa.tolist(),
-            self._delay_steps.tolist(), self._hdelay_steps.tolist(), self._pi.tolist(),
-            self._brk.tolist(), self._yaw_acc.tolist(), self._alat.tolist(),
-            (np.isinf(self._yaw_acc) & np.isinf(self._alat)).tolist(),
-        ))
-        self._pi_params = list(zip(
-            self._kp.tolist(), self._ki.tolist(), self._ff.tolist(), self._tau_d.tolist(),
-            self._stop.tolist(), self._drag.tolist(),
-        ))
+        self._params = list(
+            zip(
+                self._tau_v.tolist(),
+                self._tau_h.tolist(),
+                self._acc.tolist(),
+                self._dec.tolist(),
+                self._rate.tolist(),
+                self._vmax.tolist(),
+                self._kappa.tolist(),
+                self._delay_steps.tolist(),
+                self._hdelay_steps.tolist(),
+                self._pi.tolist(),
+                self._brk.tolist(),
+                self._yaw_acc.tolist(),
+                self._alat.tolist(),
+                (np.isinf(self._yaw_acc) & np.isinf(self._alat)).tolist(),
+            )
+        )
+        self._pi_params = list(
+            zip(
+                self._kp.tolist(),
+                self._ki.tolist(),
+                self._ff.tolist(),
+                self._tau_d.tolist(),
+                self._stop.tolist(),
+                self._drag.tolist(),
+            )
+        )
         self._qv: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
         self._qh: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
         # The scalar step keeps the inner-loop state as lists (no conversions per step).
@@ -176,8 +193,7 @@ class BicyclePlant:
         slew = self._yaw_acc * dt
         self._rate_des = np.clip(wanted, self._rate_des - slew, self._rate_des + slew)
         speed_mid = np.abs(v_mid)
-        cap = np.minimum(speed_mid * self._kappa,
-                         self._alat / np.maximum(speed_mid, 1e-9))
+        cap = np.minimum(speed_mid * self._kappa, self._alat / np.maximum(speed_mid, 1e-9))
         rate = np.clip(self._rate_des, -cap, cap)
         h_mid = self.heading + 0.5 * rate * dt
 
@@ -204,8 +220,7 @@ class BicyclePlant:
             dv = (drive - v - self._drag * v * np.abs(v)) / self._tau_d * h
             # Friction: at rest below breakaway nothing moves; slowing down stops at zero,
             # and a stopped vehicle (drive cut) comes to rest rather than coasting on.
-            stuck = (np.abs(drive) < self._brk) & (
-                (v == 0.0) | ((v + dv) * v < 0.0) | stopped)
+            stuck = (np.abs(drive) < self._brk) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
             v = np.where(stuck, 0.0, v + dv)
         self._ramp = np.where(self._pi, r, self._ramp)
         self._integ = np.where(self._pi, integ, self._integ)
@@ -220,11 +235,30 @@ class BicyclePlant:
         self._qh[head] = [float(h) for h in cmd_heading]
         self._head = (head + 1) % depth
         two_pi, pi = 2.0 * math.pi, math.pi
-        xs, ys, hs, vs = self.x.tolist(), self.y.tolist(), self.heading.tolist(), self.speed.tolist()
+        xs, ys, hs, vs = (
+            self.x.tolist(),
+            self.y.tolist(),
+            self.heading.tolist(),
+            self.speed.tolist(),
+        )
         ramp, integ, rate_des = self._ramp_l, self._integ_l, self._rate_des_l
         acc_out, rate_out = [0.0] * len(vs), [0.0] * len(vs)
-        for i, (tau_v, tau_h, acc, dec, rate_max, vmax, kappa, delay, hdelay, is_pi, brk,
-                yaw_acc, alat, plain_heading) in enumerate(self._params):
+        for i, (
+            tau_v,
+            tau_h,
+            acc,
+            dec,
+            rate_max,
+            vmax,
+            kappa,
+            delay,
+            hdelay,
+            is_pi,
+            brk,
+            yaw_acc,
+            alat,
+            plain_heading,
+        ) in enumerate(self._params):
             v_cmd = min(max(self._qv[(head - delay) % depth][i], -vmax), vmax)
             v = vs[i]
             if is_pi:
@@ -287,8 +321,14 @@ class BicyclePlant:
         """Vehicle ``i``'s state at time ``t`` (its id is its index)."""
         p = self.presets[i]
         return VehicleState(
-            vehicle_id=i, t=t, x=float(self.x[i]), y=float(self.y[i]),
-            speed=float(self.speed[i]), heading=float(self.heading[i]),
-            accel=float(self.accel[i]), yaw_rate=float(self.yaw_rate[i]),
-            length=p.length_m, width=p.width_m,
+            vehicle_id=i,
+            t=t,
+            x=float(self.x[i]),
+            y=float(self.y[i]),
+            speed=float(self.speed[i]),
+            heading=float(self.heading[i]),
+            accel=float(self.accel[i]),
+            yaw_rate=float(self.yaw_rate[i]),
+            length=p.length_m,
+            width=p.width_m,
         )

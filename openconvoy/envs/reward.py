@@ -36,7 +36,12 @@ class RewardConfig:
     collision_penalty: float = 100.0
 
     def __post_init__(self) -> None:
-        for name in ("spacing_scale_m", "accel_scale_mps2", "jerk_scale_mps3", "yaw_rate_scale_radps"):
+        for name in (
+            "spacing_scale_m",
+            "accel_scale_mps2",
+            "jerk_scale_mps3",
+            "yaw_rate_scale_radps",
+        ):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"reward {name} must be positive")
 
@@ -62,6 +67,13 @@ def reward(
         a /= c.accel_scale_mps2
         j /= c.jerk_scale_mps3
         w /= c.yaw_rate_scale_radps
-        out.append(-(c.w_spacing * e + c.w_accel * a * a + c.w_jerk * j * j
-                     + c.w_yaw_rate * w * w + (c.collision_penalty if hit else 0.0)))
+        out.append(
+            -(
+                c.w_spacing * e
+                + c.w_accel * a * a
+                + c.w_jerk * j * j
+                + c.w_yaw_rate * w * w
+                + (c.collision_penalty if hit else 0.0)
+            )
+        )
     return out

@@ -181,10 +181,18 @@ class PathScenario:
     ) -> PathScenario:
         """See ``Scenario.with_changes``."""
         return PathScenario(
-            self.name, self.presets if presets is None else presets, self.path, self.speed_profile,
-            self.duration_s, self.spacing if spacing is None else spacing, self.start_speed_mps,
-            self.leader_start_s, self.origin if origin is None else origin, self.lookahead_min_m,
-            self.lookahead_time_s, *self._ramps,
+            self.name,
+            self.presets if presets is None else presets,
+            self.path,
+            self.speed_profile,
+            self.duration_s,
+            self.spacing if spacing is None else spacing,
+            self.start_speed_mps,
+            self.leader_start_s,
+            self.origin if origin is None else origin,
+            self.lookahead_min_m,
+            self.lookahead_time_s,
+            *self._ramps,
         )
 
     def _offsets(self) -> list[float]:
@@ -209,7 +217,9 @@ class PathScenario:
         return InitialState(xs, ys, hs, np.full(n, float(self.start_speed_mps)))
 
     def reset(self, rng: np.random.Generator) -> None:
-        self._s = self.leader_start_s % self.path.length if self.path.closed else self.leader_start_s
+        self._s = (
+            self.leader_start_s % self.path.length if self.path.closed else self.leader_start_s
+        )
         self._cmd_speed = float(self.start_speed_mps)
         self._t_last: float | None = None
 
@@ -243,7 +253,11 @@ def paper_speed(t: float, s: float) -> float:
     return 2.0 if 20.0 <= t < 40.0 else 1.0
 
 
-PAPER_PHASES: tuple[tuple[float, float, float], ...] = ((0.0, 20.0, 1.0), (20.0, 40.0, 2.0), (40.0, 60.0, 1.0))
+PAPER_PHASES: tuple[tuple[float, float, float], ...] = (
+    (0.0, 20.0, 1.0),
+    (20.0, 40.0, 2.0),
+    (40.0, 60.0, 1.0),
+)
 """The paper scenario's speed phases: (start s, end s, leader speed m/s)."""
 
 
@@ -251,21 +265,32 @@ PAPER_GAP_M = 15.0
 TRACK_GAP_M = 15.0
 
 
-def paper_scenario(n_followers: int = 2, presets: Sequence[VehiclePreset] | None = None) -> PathScenario:
+def paper_scenario(
+    n_followers: int = 2, presets: Sequence[VehiclePreset] | None = None
+) -> PathScenario:
     """DESIGN.md's ``paper`` scenario with ``n_followers`` followers."""
     spacing = SpacingConfig("constant-distance", distance_m=PAPER_GAP_M)
     n = n_followers + 1
     back = PAPER_GAP_M * n + 50.0
     road = straight_road(-back, 300.0)
     return PathScenario(
-        "paper", presets or _alternating_small(n), road, paper_speed, duration_s=60.0, spacing=spacing,
+        "paper",
+        presets or _alternating_small(n),
+        road,
+        paper_speed,
+        duration_s=60.0,
+        spacing=spacing,
         leader_start_s=back,
     )
 
 
-def track_scenario(n_followers: int = 2, presets: Sequence[VehiclePreset] | None = None,
-                   radius_m: float = 10.0, speed_mps: float = 1.5,
-                   straight_m: float = 20.0) -> PathScenario:
+def track_scenario(
+    n_followers: int = 2,
+    presets: Sequence[VehiclePreset] | None = None,
+    radius_m: float = 10.0,
+    speed_mps: float = 1.5,
+    straight_m: float = 20.0,
+) -> PathScenario:
     """DESIGN.md's ``track``: an oval of two straights and two semicircles at 1.5 m/s."""
     spacing = SpacingConfig("constant-distance", distance_m=TRACK_GAP_M)
     n = n_followers + 1
@@ -273,14 +298,20 @@ def track_scenario(n_followers: int = 2, presets: Sequence[VehiclePreset] | None
     # predecessors' trails, which do not exist yet at the start: a straight start is
     # what a lab does) and takes at most two thirds of the loop.
     need = 1.5 * TRACK_GAP_M * n
-    straight_m = max(straight_m, TRACK_GAP_M * n_followers + 5.0,
-                     (need - 2 * math.pi * radius_m) / 2.0)
+    straight_m = max(
+        straight_m, TRACK_GAP_M * n_followers + 5.0, (need - 2 * math.pi * radius_m) / 2.0
+    )
     path = oval(straight_m, radius_m)
     laps = 2.0
     duration = laps * path.length / speed_mps + 5.0
     return PathScenario(
-        "track", presets or _alternating_small(n), path, lambda t, s: speed_mps,
-        duration_s=duration, spacing=spacing, leader_start_s=TRACK_GAP_M * n_followers + 2.5,
+        "track",
+        presets or _alternating_small(n),
+        path,
+        lambda t, s: speed_mps,
+        duration_s=duration,
+        spacing=spacing,
+        leader_start_s=TRACK_GAP_M * n_followers + 2.5,
     )
 
 
@@ -296,25 +327,37 @@ def emergency_speed(t: float, s: float) -> float:
     return max(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
 
 
-def emergency_braking_scenario(n_followers: int = 2, presets: Sequence[VehiclePreset] | None = None) -> PathScenario:
+def emergency_braking_scenario(
+    n_followers: int = 2, presets: Sequence[VehiclePreset] | None = None
+) -> PathScenario:
     """DESIGN.md's ``emergency-braking``: full-size cars, CACC spacing, hard stop."""
     spacing = SpacingConfig("constant-time-headway", standstill_m=2.0, headway_s=0.6)
     n = n_followers + 1
     back = 30.0 * n + 100.0
     road = straight_road(-back, 1000.0)
     return PathScenario(
-        "emergency-braking", presets or (VEHICLE_PRESETS["full-size"],) * n, road, emergency_speed,
-        duration_s=15.0, spacing=spacing, start_speed_mps=EMERGENCY_SPEED_MPS, leader_start_s=back,
-        lookahead_min_m=5.0, lookahead_time_s=1.0,
+        "emergency-braking",
+        presets or (VEHICLE_PRESETS["full-size"],) * n,
+        road,
+        emergency_speed,
+        duration_s=15.0,
+        spacing=spacing,
+        start_speed_mps=EMERGENCY_SPEED_MPS,
+        leader_start_s=back,
+        lookahead_min_m=5.0,
+        lookahead_time_s=1.0,
         # The profile itself is the braking law; ramp limits only guard against steps.
         ramp_accel_mps2=VEHICLE_PRESETS["full-size"].accel_max_mps2,
         ramp_decel_mps2=EMERGENCY_DECEL_MPS2,
     )
 
 
-def track_file_scenario(path: str, n_followers: int = 2,
-                        presets: Sequence[VehiclePreset] | None = None,
-                        gap_m: float = TRACK_GAP_M) -> PathScenario:
+def track_file_scenario(
+    path: str,
+    n_followers: int = 2,
+    presets: Sequence[VehiclePreset] | None = None,
+    gap_m: float = TRACK_GAP_M,
+) -> PathScenario:
     """A leader following a track file (original OpenConvoy JSON) at its segment speeds."""
     track: Track = load_track(path)
     spacing = SpacingConfig("constant-distance", distance_m=gap_m)
@@ -326,8 +369,12 @@ def track_file_scenario(path: str, n_followers: int = 2,
         vmin = float(np.min(track.speed_mps))
         duration = track.path.length / max(vmin, 0.1) + 10.0
     return PathScenario(
-        f"track-file:{path}", presets or _alternating_small(n), track.path,
-        lambda t, s: track.speed_at(s), duration_s=duration, spacing=spacing,
+        f"track-file:{path}",
+        presets or _alternating_small(n),
+        track.path,
+        lambda t, s: track.speed_at(s),
+        duration_s=duration,
+        spacing=spacing,
         origin=track.origin,
         leader_start_s=gap_m * n_followers if track.path.closed else 0.0,
     )
@@ -367,7 +414,9 @@ def make_scenario(
     if spec.startswith("track-file:"):
         file = spec.split(":", 1)[1]
         if not file.strip():
-            raise ConfigError("scenario 'track-file:' needs a path: track-file:PATH (or track-file:example)")
+            raise ConfigError(
+                "scenario 'track-file:' needs a path: track-file:PATH (or track-file:example)"
+            )
         if file == "example":
             file = str(example_track_path())
         return track_file_scenario(file, n, presets)

@@ -40,7 +40,9 @@ def _factory(source: PolicySource) -> Callable[[], Policy]:
         return lambda: copy.deepcopy(source)
     if callable(source):
         return source
-    raise TypeError(f"others must be a policy spec, a Policy or a factory, got {type(source).__name__}")
+    raise TypeError(
+        f"others must be a policy spec, a Policy or a factory, got {type(source).__name__}"
+    )
 
 
 class SingleAgentConvoyEnv(gymnasium.Env):
@@ -78,11 +80,16 @@ class SingleAgentConvoyEnv(gymnasium.Env):
         if control_rate_hz is None:
             control_rate_hz = float(probe.control_rate_hz)
         self.env = ConvoyEnv(
-            scenario, member_config=member_config, control_rate_hz=control_rate_hz,
-            render_mode=render_mode, **env_kwargs,
+            scenario,
+            member_config=member_config,
+            control_rate_hz=control_rate_hz,
+            render_mode=render_mode,
+            **env_kwargs,
         )
         if agent not in self.env.possible_agents:
-            raise ValueError(f"unknown agent {agent!r}; expected one of {', '.join(self.env.possible_agents)}")
+            raise ValueError(
+                f"unknown agent {agent!r}; expected one of {', '.join(self.env.possible_agents)}"
+            )
         self.agent = agent
         self.render_mode = render_mode
         others_agents = [a for a in self.env.possible_agents if a != agent]

@@ -83,14 +83,18 @@ def _check_keys(obj: Any, allowed: set[str], required: set[str], where: str) -> 
         raise InputFileError(f"{where}: missing key(s): {', '.join(sorted(missing))}")
 
 
-def _number(obj: dict[str, Any], key: str, where: str, lo: float, hi: float, lo_open: bool = False) -> float:
+def _number(
+    obj: dict[str, Any], key: str, where: str, lo: float, hi: float, lo_open: bool = False
+) -> float:
     """``obj[key]`` as a finite number in [lo, hi] (``(lo, hi]`` with ``lo_open``)."""
     v = obj[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise InputFileError(f"{where}.{key}: expected a number, got {v!r}")
     if not (math.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi):
-        raise InputFileError(f"{where}.{key}: {v!r} is out of range; allowed: a finite number in "
-                             f"{'(' if lo_open else '['}{lo:g}, {hi:g}]")
+        raise InputFileError(
+            f"{where}.{key}: {v!r} is out of range; allowed: a finite number in "
+            f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        )
     return float(v)
 
 
@@ -103,8 +107,10 @@ def _point(obj: Any, origin: Origin, where: str) -> np.ndarray:
     lat, lon = _latlon(obj, where)
     x, y, _ = geodetic_to_enu(origin, lat, lon)
     if math.hypot(x, y) > MAX_EXTENT_M:
-        raise InputFileError(f"{where}: {math.hypot(x, y) / 1000:.0f} km from the track's center "
-                             f"(at most {MAX_EXTENT_M / 1000:g} km)")
+        raise InputFileError(
+            f"{where}: {math.hypot(x, y) / 1000:.0f} km from the track's center "
+            f"(at most {MAX_EXTENT_M / 1000:g} km)"
+        )
     return np.array([x, y])
 
 
@@ -129,8 +135,12 @@ def _arc(
     return pts
 
 
-def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: float = 0.25,
-                source: str = "track") -> Track:
+def parse_track(
+    data: dict[str, Any],
+    closed_loop: bool | None = None,
+    step_m: float = 0.25,
+    source: str = "track",
+) -> Track:
     """Build a ``Track`` from the decoded JSON of a track file.
 
     ``closed_loop`` overrides the file's optional ``closed_loop`` (default true, as the
@@ -192,7 +202,9 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
             _check_keys(tn, _TURN_KEYS, _TURN_KEYS, where)
             direction = tn["direction"]
             if direction not in ("left", "right"):
-                raise InputFileError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
+                raise InputFileError(
+                    f"{where}: direction must be 'left' or 'right', got {direction!r}"
+                )
             ta = _point(tn["start"], origin, f"{where}.start")
             tb = _point(tn["end"], origin, f"{where}.end")
             starts.append(arc_length())
@@ -203,8 +215,11 @@ def parse_track(data: dict[str, Any], closed_loop: bool | None = None, step_m: f
                 add(p)
     path = Path(np.array(points), closed=closed)
     return Track(
-        name=str(data["name"]), origin=origin, path=path,
-        speed_s=np.array(starts), speed_mps=np.array(speeds),
+        name=str(data["name"]),
+        origin=origin,
+        path=path,
+        speed_s=np.array(starts),
+        speed_mps=np.array(speeds),
     )
 
 

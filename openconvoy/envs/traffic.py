@@ -37,13 +37,28 @@ try:  # the traffic extra, imported here only (the core never needs it)
     from highway_env.vehicle.objects import Landmark, Obstacle, RoadObject
 except ModuleNotFoundError as exc:
     raise DependencyMissing(
-        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'", name="highway_env"
+        "highway-* scenarios need highway-env: pip install 'openconvoy[traffic]'",
+        name="highway_env",
     ) from exc
 
 __all__ = [
-    "TRAFFIC_ID_BASE", "ConvoyVehicle", "FastRoad", "HighwayFrame", "IDMVehicle", "InPath", "LineType",
-    "Obstacle", "Road", "RoadNetwork", "ScriptedLaneChanger", "SineLane", "StraightLane", "TrafficWorld",
-    "collide", "enu_to_highway", "highway_to_enu",
+    "TRAFFIC_ID_BASE",
+    "ConvoyVehicle",
+    "FastRoad",
+    "HighwayFrame",
+    "IDMVehicle",
+    "InPath",
+    "LineType",
+    "Obstacle",
+    "Road",
+    "RoadNetwork",
+    "ScriptedLaneChanger",
+    "SineLane",
+    "StraightLane",
+    "TrafficWorld",
+    "collide",
+    "enu_to_highway",
+    "highway_to_enu",
 ]
 
 TRAFFIC_ID_BASE = 1000
@@ -58,7 +73,9 @@ class HighwayFrame:
     y0: float = 0.0
 
 
-def enu_to_highway(frame: HighwayFrame, x: float, y: float, heading: float) -> tuple[float, float, float]:
+def enu_to_highway(
+    frame: HighwayFrame, x: float, y: float, heading: float
+) -> tuple[float, float, float]:
     """ENU position (m) and heading (rad, CCW from east) -> highway-env's x, y, heading.
 
     highway-env's y grows to the right of travel (its lane 0 is the leftmost lane), so the
@@ -66,7 +83,9 @@ def enu_to_highway(frame: HighwayFrame, x: float, y: float, heading: float) -> t
     return frame.x0 + x, frame.y0 - y, -heading
 
 
-def highway_to_enu(frame: HighwayFrame, hx: float, hy: float, heading: float) -> tuple[float, float, float]:
+def highway_to_enu(
+    frame: HighwayFrame, hx: float, hy: float, heading: float
+) -> tuple[float, float, float]:
     """The inverse of ``enu_to_highway``."""
     return hx - frame.x0, frame.y0 - hy, -heading
 
@@ -80,10 +99,14 @@ class ConvoyVehicle(IDMVehicle):
     vehicles are left to ``ConvoyEnv``'s own rule; ``traffic_hit`` records a touch with
     traffic (highway-env's rectangle test)."""
 
-    def __init__(self, road: Road, vehicle_id: int, length_m: float, width_m: float, target_speed: float) -> None:
+    def __init__(
+        self, road: Road, vehicle_id: int, length_m: float, width_m: float, target_speed: float
+    ) -> None:
         self.LENGTH = float(length_m)
         self.WIDTH = float(width_m)
-        super().__init__(road, np.zeros(2), 0.0, 0.0, target_speed=target_speed, enable_lane_change=False)
+        super().__init__(
+            road, np.zeros(2), 0.0, 0.0, target_speed=target_speed, enable_lane_change=False
+        )
         self.vehicle_id = vehicle_id
         self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
         self.traffic_hit = False
@@ -124,10 +147,18 @@ class ScriptedLaneChanger(IDMVehicle):
     ``(time_s, lane_id, target_speed_mps or None)`` applied by ``update(t)``. It does not
     react to the vehicles around it (as the target of a cut-in test does not)."""
 
-    def __init__(self, road: Road, position: np.ndarray, heading: float, speed: float,
-                 schedule: Sequence[tuple[float, int, float | None]] = (),
-                 target_speed: float | None = None) -> None:
-        super().__init__(road, position, heading, speed, target_speed=target_speed, enable_lane_change=False)
+    def __init__(
+        self,
+        road: Road,
+        position: np.ndarray,
+        heading: float,
+        speed: float,
+        schedule: Sequence[tuple[float, int, float | None]] = (),
+        target_speed: float | None = None,
+    ) -> None:
+        super().__init__(
+            road, position, heading, speed, target_speed=target_speed, enable_lane_change=False
+        )
         self.schedule = sorted(schedule)
 
     def update(self, t: float) -> None:
@@ -142,8 +173,13 @@ class ScriptedLaneChanger(IDMVehicle):
         if self.crashed:
             return
         self.follow_road()
-        steering = float(np.clip(self.steering_control(self.target_lane_index),
-                                 -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+        steering = float(
+            np.clip(
+                self.steering_control(self.target_lane_index),
+                -self.MAX_STEERING_ANGLE,
+                self.MAX_STEERING_ANGLE,
+            )
+        )
         accel = float(np.clip(self.speed_control(self.target_speed), -self.ACC_MAX, self.ACC_MAX))
         Vehicle.act(self, {"steering": steering, "acceleration": accel})
 
@@ -188,7 +224,11 @@ class FastRoad(Road):
         return got
 
     def neighbour_vehicles(self, vehicle, lane_index=None):
-        if self._cache is None or self.neighbour_vehicles_connected_lanes or id(vehicle) not in self._index:
+        if (
+            self._cache is None
+            or self.neighbour_vehicles_connected_lanes
+            or id(vehicle) not in self._index
+        ):
             return super().neighbour_vehicles(vehicle, lane_index)
         lane_index = lane_index or vehicle.lane_index
         if not lane_index:
@@ -229,8 +269,10 @@ def _shapes(items: list) -> tuple[np.ndarray, np.ndarray]:
     key = tuple(map(id, items))
     if key != _shape_key:
         _shape_key, _shape_items = key, items
-        _shape_val = (np.array([o.diagonal for o in items]),
-                      0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float))
+        _shape_val = (
+            np.array([o.diagonal for o in items]),
+            0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float),
+        )
     return _shape_val
 
 
@@ -261,11 +303,18 @@ def collide(road: Road, dt: float) -> None:
     # Corners in RoadObject.polygon's order: (-l,-w), (-l,+w), (+l,+w), (+l,-w).
     sl, sw = np.array([-1, -1, 1, 1]), np.array([-1, 1, 1, -1])
     lx, wy = sl[None, :] * half[:, 0:1], sw[None, :] * half[:, 1:2]
-    corners = np.stack((c[:, None] * lx - s[:, None] * wy + pos[:, 0:1],
-                        s[:, None] * lx + c[:, None] * wy + pos[:, 1:2]), axis=-1)  # (n, 4, 2)
+    corners = np.stack(
+        (
+            c[:, None] * lx - s[:, None] * wy + pos[:, 0:1],
+            s[:, None] * lx + c[:, None] * wy + pos[:, 1:2],
+        ),
+        axis=-1,
+    )  # (n, 4, 2)
     edges = corners[:, _NEXT_CORNER] - corners
     normals = np.stack((-edges[..., 1], edges[..., 0]), axis=-1)
-    normals /= np.sqrt(normals[..., 0:1] * normals[..., 0:1] + normals[..., 1:2] * normals[..., 1:2])
+    normals /= np.sqrt(
+        normals[..., 0:1] * normals[..., 0:1] + normals[..., 1:2] * normals[..., 1:2]
+    )
     vel = speed[:, None] * np.stack((c, s), axis=1) * dt
     a, b = corners[ii], corners[jj]  # (k, 4, 2)
     axes = np.concatenate((normals[ii], normals[jj]), axis=1)  # (k, 8, 2)
@@ -301,8 +350,14 @@ class TrafficWorld:
     first in ``road.vehicles`` (so every convoy–traffic pair is tested by the convoy
     vehicle's ``handle_collisions``)."""
 
-    def __init__(self, frame: HighwayFrame, lengths: Sequence[float], widths: Sequence[float],
-                 cruise_speed_mps: float, max_look_m: float = 250.0) -> None:
+    def __init__(
+        self,
+        frame: HighwayFrame,
+        lengths: Sequence[float],
+        widths: Sequence[float],
+        cruise_speed_mps: float,
+        max_look_m: float = 250.0,
+    ) -> None:
         self.frame = frame
         self.lengths = list(lengths)
         self.widths = list(widths)
@@ -323,7 +378,13 @@ class TrafficWorld:
         road.vehicles = [*self.convoy, *self.traffic]
         self.t = 0.0
 
-    def place(self, x: Sequence[float], y: Sequence[float], heading: Sequence[float], speed: Sequence[float]) -> None:
+    def place(
+        self,
+        x: Sequence[float],
+        y: Sequence[float],
+        heading: Sequence[float],
+        speed: Sequence[float],
+    ) -> None:
         """Set every convoy vehicle from ENU states (m, rad, m/s)."""
         f = self.frame
         for v, xi, yi, hi, si in zip(self.convoy, x, y, heading, speed):
@@ -364,7 +425,11 @@ class TrafficWorld:
         d = pos[None, :, :] - pos[:n, None, :]
         lon = d[:, :, 0] * c[:, None] + d[:, :, 1] * s[:, None]
         lat = -d[:, :, 0] * s[:, None] + d[:, :, 1] * c[:, None]
-        ok = (lon > 0.0) & (np.abs(lat) < half_w[None, :] + half_w[:n, None]) & (lon < self.max_look_m)
+        ok = (
+            (lon > 0.0)
+            & (np.abs(lat) < half_w[None, :] + half_w[:n, None])
+            & (lon < self.max_look_m)
+        )
         ok[np.arange(n), np.arange(n)] = False
         nearest = np.argmin(np.where(ok, lon, np.inf), axis=1).tolist()
         seen = ok.any(axis=1).tolist()
@@ -386,7 +451,9 @@ class TrafficWorld:
         """Traffic as rows ``(x, y, heading, speed, length, width)`` in ENU."""
         rows = []
         for v in self.traffic:
-            x, y, h = highway_to_enu(self.frame, float(v.position[0]), float(v.position[1]), float(v.heading))
+            x, y, h = highway_to_enu(
+                self.frame, float(v.position[0]), float(v.position[1]), float(v.heading)
+            )
             rows.append((x, y, h, float(v.speed), v.LENGTH, v.WIDTH))
         return np.array(rows, dtype=float).reshape(-1, 6)
 

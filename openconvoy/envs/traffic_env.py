@@ -83,8 +83,10 @@ class TrafficConvoyWorld(ConvoyWorld):
             if target is None or target.range_m > sensor.max_range_m:
                 continue
             n1, n2 = self._ranging_rng.normal(size=2)
-            out[i] = (target.range_m + sensor.range_noise_m * n1,
-                      target.range_rate_mps + sensor.range_rate_noise_mps * n2)
+            out[i] = (
+                target.range_m + sensor.range_noise_m * n1,
+                target.range_rate_mps + sensor.range_rate_noise_mps * n2,
+            )
         return out
 
     def extra_columns(self) -> dict[str, list[Any]]:
@@ -111,12 +113,19 @@ class TrafficConvoyEnv(ConvoyEnv):
         if isinstance(scenario, str):
             presets = None
             if vehicle_presets is not None:
-                presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
+                presets = [
+                    p if isinstance(p, VehiclePreset) else vehicle_preset(p)
+                    for p in vehicle_presets
+                ]
             scenario = make_highway_scenario(scenario, n_followers, presets)
         elif not isinstance(scenario, HighwayScenario):
-            raise ConfigError("TrafficConvoyEnv runs highway scenarios (a spec or a HighwayScenario)")
+            raise ConfigError(
+                "TrafficConvoyEnv runs highway scenarios (a spec or a HighwayScenario)"
+            )
         elif n_followers is not None or vehicle_presets is not None:
-            raise ConfigError("n_followers and vehicle_presets apply to scenario specs, not Scenario objects")
+            raise ConfigError(
+                "n_followers and vehicle_presets apply to scenario specs, not Scenario objects"
+            )
         super().__init__(scenario, **kwargs)
 
     @property

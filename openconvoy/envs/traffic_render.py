@@ -13,7 +13,9 @@ import numpy as np
 from openconvoy.envs.traffic import TrafficWorld
 
 
-def draw_highway(world: TrafficWorld, size: tuple[int, int] = (100, 900), scaling: float = 5.0) -> np.ndarray:
+def draw_highway(
+    world: TrafficWorld, size: tuple[int, int] = (100, 900), scaling: float = 5.0
+) -> np.ndarray:
     """An RGB image (H x W x 3, uint8) of the road around the convoy; ``scaling`` px/m."""
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # off screen: no display needed
     import pygame

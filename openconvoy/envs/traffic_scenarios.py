@@ -60,7 +60,10 @@ from openconvoy.envs.traffic_vector import VectorRoad
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor, VehiclePreset
 
 HIGHWAY_SCENARIOS: tuple[str, ...] = (
-    "highway-cut-in", "highway-slow-traffic", "highway-merge", "highway-lane-drop",
+    "highway-cut-in",
+    "highway-slow-traffic",
+    "highway-merge",
+    "highway-lane-drop",
 )
 
 LANE_WIDTH_M = StraightLane.DEFAULT_WIDTH
@@ -114,14 +117,18 @@ class HighwayConfig:
         if self.road not in ROADS:
             raise ConfigError(f"highway road must be one of {', '.join(ROADS)}, got {self.road!r}")
         if not 0 < self.traffic_speed_min_mps <= self.traffic_speed_max_mps:
-            raise ConfigError("highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps")
+            raise ConfigError(
+                "highway traffic speeds need 0 < traffic_speed_min_mps <= traffic_speed_max_mps"
+            )
 
 
 def parse_spec(spec: str) -> tuple[str, HighwayConfig]:
     """``highway-NAME[:key=value,...]`` -> (name, config); unknown names or keys are errors."""
     name, _, params = spec.partition(":")
     if name not in HIGHWAY_SCENARIOS:
-        raise ConfigError(f"unknown scenario {name!r}; highway scenarios: {', '.join(HIGHWAY_SCENARIOS)}")
+        raise ConfigError(
+            f"unknown scenario {name!r}; highway scenarios: {', '.join(HIGHWAY_SCENARIOS)}"
+        )
     fields = {f.name: f for f in dataclasses.fields(HighwayConfig)}
     values: dict[str, object] = {}
     for item in filter(None, params.split(",")):
@@ -134,9 +141,13 @@ def parse_spec(spec: str) -> tuple[str, HighwayConfig]:
             )
         kind = type(getattr(HighwayConfig(), key))
         try:
-            values[key] = text.strip().lower() in ("1", "true", "yes") if kind is bool else kind(text)
+            values[key] = (
+                text.strip().lower() in ("1", "true", "yes") if kind is bool else kind(text)
+            )
         except ValueError:
-            raise ConfigError(f"scenario {name}: {key} must be a {kind.__name__}, got {text!r}") from None
+            raise ConfigError(
+                f"scenario {name}: {key} must be a {kind.__name__}, got {text!r}"
+            ) from None
     return name, HighwayConfig(**values)
 
 
@@ -147,8 +158,14 @@ class HighwayScenario:
     ROAD_START_M = 300.0
     """highway-env x of the leader's start (room behind the convoy for traffic)."""
 
-    def __init__(self, name: str, presets: Sequence[VehiclePreset], config: HighwayConfig,
-                 spacing: SpacingConfig = CACC, origin: Origin = DEFAULT_ORIGIN) -> None:
+    def __init__(
+        self,
+        name: str,
+        presets: Sequence[VehiclePreset],
+        config: HighwayConfig,
+        spacing: SpacingConfig = CACC,
+        origin: Origin = DEFAULT_ORIGIN,
+    ) -> None:
         if len(presets) < 2:
             raise ConfigError("a convoy needs a leader and at least one follower")
         self.name = name
@@ -179,8 +196,11 @@ class HighwayScenario:
     ) -> HighwayScenario:
         """A new scenario, built and validated again, with these parameters changed."""
         return HighwayScenario(
-            self.name, self.presets if presets is None else presets, self.config,
-            self.spacing if spacing is None else spacing, self.origin if origin is None else origin,
+            self.name,
+            self.presets if presets is None else presets,
+            self.config,
+            self.spacing if spacing is None else spacing,
+            self.origin if origin is None else origin,
         )
 
     @property
@@ -203,7 +223,9 @@ class HighwayScenario:
     def reset(self, rng: np.random.Generator) -> None:
         cfg = self.config
         self.world = TrafficWorld(
-            self.frame, [p.length_m for p in self.presets], [p.width_m for p in self.presets],
+            self.frame,
+            [p.length_m for p in self.presets],
+            [p.width_m for p in self.presets],
             cfg.speed_mps,
         )
         road_rng = np.random.RandomState(int(rng.integers(2**31 - 1)))
@@ -212,7 +234,9 @@ class HighwayScenario:
         self.world.reset(road, traffic)
         self._t_last = None
 
-    def leader_command(self, t: float, x: float, y: float, heading: float, speed: float) -> tuple[float, float]:
+    def leader_command(
+        self, t: float, x: float, y: float, heading: float, speed: float
+    ) -> tuple[float, float]:
         """highway-env's IDM acceleration turned into a speed setpoint for our first-order
         speed loop (``v + a * lag``), heading onto the lane's centre line (y = 0)."""
         lead = self.presets[0]
@@ -229,7 +253,9 @@ class HighwayScenario:
             return self._merge_road(cls, rs)
         if self.name == "highway-lane-drop":
             return self._drop_road(cls, rs)
-        net = RoadNetwork.straight_road_network(self.config.lanes, start=0.0, length=10000.0, speed_limit=40.0)
+        net = RoadNetwork.straight_road_network(
+            self.config.lanes, start=0.0, length=10000.0, speed_limit=40.0
+        )
         return cls(network=net, np_random=rs)
 
     def _merge_road(self, cls: type, rs: np.random.RandomState) -> Road:
@@ -239,15 +265,41 @@ class HighwayScenario:
         b = self.ROAD_START_M + cfg.merge_at_m
         pre = b - converge
         net = RoadNetwork()
-        for nodes, start, length in ((("a", "b"), 0.0, b), (("b", "c"), b, parallel), (("c", "d"), b + parallel, 5000.0)):
-            RoadNetwork.straight_road_network(lanes, start=start, length=length, nodes_str=nodes, speed_limit=40.0, net=net)
+        for nodes, start, length in (
+            (("a", "b"), 0.0, b),
+            (("b", "c"), b, parallel),
+            (("c", "d"), b + parallel, 5000.0),
+        ):
+            RoadNetwork.straight_road_network(
+                lanes, start=start, length=length, nodes_str=nodes, speed_limit=40.0, net=net
+            )
         amplitude = 3.25
         y_par = lanes * LANE_WIDTH_M
         c = LineType.CONTINUOUS_LINE
-        ljk = StraightLane([0, y_par + 2 * amplitude], [pre, y_par + 2 * amplitude], line_types=[c, c], forbidden=True, speed_limit=40.0)
-        lkb = SineLane([pre, y_par + amplitude], [b, y_par + amplitude], amplitude, 2 * np.pi / (2 * converge),
-                       np.pi / 2, line_types=[c, c], forbidden=True, speed_limit=40.0)
-        lbc = StraightLane([b, y_par], [b + parallel, y_par], line_types=[LineType.STRIPED, c], forbidden=True, speed_limit=40.0)
+        ljk = StraightLane(
+            [0, y_par + 2 * amplitude],
+            [pre, y_par + 2 * amplitude],
+            line_types=[c, c],
+            forbidden=True,
+            speed_limit=40.0,
+        )
+        lkb = SineLane(
+            [pre, y_par + amplitude],
+            [b, y_par + amplitude],
+            amplitude,
+            2 * np.pi / (2 * converge),
+            np.pi / 2,
+            line_types=[c, c],
+            forbidden=True,
+            speed_limit=40.0,
+        )
+        lbc = StraightLane(
+            [b, y_par],
+            [b + parallel, y_par],
+            line_types=[LineType.STRIPED, c],
+            forbidden=True,
+            speed_limit=40.0,
+        )
         net.add_lane("j", "k", ljk)
         net.add_lane("k", "b", lkb)
         net.add_lane("b", "c", lbc)
@@ -259,8 +311,12 @@ class HighwayScenario:
         """Three (or more) lanes; the right one ends ``drop_at_m`` ahead of the leader."""
         lanes = self.config.lanes
         drop = self.ROAD_START_M + self.config.drop_at_m
-        net = RoadNetwork.straight_road_network(lanes, start=0.0, length=drop, nodes_str=("a", "b"), speed_limit=40.0)
-        RoadNetwork.straight_road_network(lanes - 1, start=drop, length=5000.0, nodes_str=("b", "c"), speed_limit=40.0, net=net)
+        net = RoadNetwork.straight_road_network(
+            lanes, start=0.0, length=drop, nodes_str=("a", "b"), speed_limit=40.0
+        )
+        RoadNetwork.straight_road_network(
+            lanes - 1, start=drop, length=5000.0, nodes_str=("b", "c"), speed_limit=40.0, net=net
+        )
         road = cls(network=net, np_random=rs, neighbour_vehicles_connected_lanes=True)
         road.objects.append(Obstacle(road, net.get_lane(("a", "b", lanes - 1)).position(drop, 0)))
         return road
@@ -288,9 +344,13 @@ class _Spawner:
         self.taken.setdefault(lane, []).append(s)
         self.cars.append(v)
 
-    def _car(self, edge: tuple[str, str], lane: int, s: float, speed: float, target: float | None = None) -> IDMVehicle:
+    def _car(
+        self, edge: tuple[str, str], lane: int, s: float, speed: float, target: float | None = None
+    ) -> IDMVehicle:
         ln = self.road.network.get_lane((*edge, lane))
-        v = IDMVehicle(self.road, ln.position(s, 0.0), ln.heading_at(s), speed, target_speed=target or speed)
+        v = IDMVehicle(
+            self.road, ln.position(s, 0.0), ln.heading_at(s), speed, target_speed=target or speed
+        )
         v.randomize_behavior()
         return v
 
@@ -322,7 +382,9 @@ class _Spawner:
                 lane = int(self.rs.choice(lanes))
                 s = float(self.rs.uniform(x0 - half, x0 + half))
                 if name == "highway-slow-traffic":
-                    s = float(self.rs.uniform(x0 + cfg.slow_ahead_m + 30.0, x0 + cfg.slow_ahead_m + 400.0))
+                    s = float(
+                        self.rs.uniform(x0 + cfg.slow_ahead_m + 30.0, x0 + cfg.slow_ahead_m + 400.0)
+                    )
                 if name == "highway-lane-drop":
                     s = min(s, x0 + cfg.drop_at_m - 60.0)
                 if name == "highway-merge":
@@ -349,8 +411,14 @@ class _Spawner:
         schedule: list[tuple[float, int, float | None]] = [(cfg.cut_in_at_s, sc.convoy_lane, speed)]
         if cfg.cut_out_at_s >= 0:
             schedule.append((cfg.cut_out_at_s, lane, None))
-        v = ScriptedLaneChanger(self.road, ln.position(s, 0.0), ln.heading_at(s), cfg.speed_mps, schedule,
-                                target_speed=cfg.speed_mps)
+        v = ScriptedLaneChanger(
+            self.road,
+            ln.position(s, 0.0),
+            ln.heading_at(s),
+            cfg.speed_mps,
+            schedule,
+            target_speed=cfg.speed_mps,
+        )
         self._add(v, lane, s)
 
     def _merge(self) -> None:
@@ -364,7 +432,9 @@ class _Spawner:
             # The ramp runs straight from x = 0 to b - 80 m, then 80 m of sine to b.
             s = max(b - dist, 0.0)
             ramp = self.road.network.get_lane(("j", "k", 0))
-            v = IDMVehicle(self.road, ramp.position(s, 0.0), ramp.heading_at(s), speed, target_speed=speed)
+            v = IDMVehicle(
+                self.road, ramp.position(s, 0.0), ramp.heading_at(s), speed, target_speed=speed
+            )
             self.cars.append(v)
 
     def _drop(self) -> None:
@@ -376,15 +446,18 @@ class _Spawner:
             self._add(self._car(("a", "b"), lane, s, 0.95 * cfg.speed_mps, cfg.speed_mps), lane, s)
 
 
-def make_highway_scenario(spec: str, n_followers: int | None = None,
-                          presets: Sequence[VehiclePreset] | None = None) -> HighwayScenario:
+def make_highway_scenario(
+    spec: str, n_followers: int | None = None, presets: Sequence[VehiclePreset] | None = None
+) -> HighwayScenario:
     """A highway scenario by spec (``HIGHWAY_SCENARIOS``, optional ``:key=value,...``);
     ``n_followers`` default 2; ``presets`` (leader first) replace the full-size cars."""
     name, config = parse_spec(spec)
     if presets is not None:
         presets = tuple(presets)
         if n_followers is not None and n_followers != len(presets) - 1:
-            raise ConfigError(f"n_followers={n_followers} but {len(presets)} vehicle presets (leader included)")
+            raise ConfigError(
+                f"n_followers={n_followers} but {len(presets)} vehicle presets (leader included)"
+            )
     else:
         n = 2 if n_followers is None else int(n_followers)
         if n < 1:

@@ -56,19 +56,31 @@ class VectorRoad(FastRoad):
 
     def _straight_edge(self) -> tuple[str, str, list[StraightLane]] | None:
         graph = self.network.graph
-        if len(graph) != 1 or self.objects or self.neighbour_vehicles_connected_lanes or self.record_history:
+        if (
+            len(graph) != 1
+            or self.objects
+            or self.neighbour_vehicles_connected_lanes
+            or self.record_history
+        ):
             return None
-        (_from, tos), = graph.items()
+        ((_from, tos),) = graph.items()
         if len(tos) != 1:
             return None
-        (_to, lanes), = tos.items()
+        ((_to, lanes),) = tos.items()
         for ln in lanes:
-            if (type(ln) is not StraightLane or ln.start[0] != 0.0 or ln.direction[0] != 1.0
-                    or ln.direction[1] != 0.0 or ln.forbidden):
+            if (
+                type(ln) is not StraightLane
+                or ln.start[0] != 0.0
+                or ln.direction[0] != 1.0
+                or ln.direction[1] != 0.0
+                or ln.forbidden
+            ):
                 return None
         return _from, _to, list(lanes)
 
-    def closest_lane(self, hx: float, hy: float, heading: float) -> tuple[tuple, StraightLane] | None:
+    def closest_lane(
+        self, hx: float, hy: float, heading: float
+    ) -> tuple[tuple, StraightLane] | None:
         """``(lane_index, lane)`` that ``RoadNetwork.get_closest_lane_index`` picks for a
         vehicle at ``(hx, hy)`` (m) with ``heading`` (rad), computed as its
         ``distance_with_heading`` does, lane by lane; None off a straight edge."""
@@ -110,9 +122,22 @@ class VectorRoad(FastRoad):
             self._eye_n, self._eye = n, ~np.eye(n, dtype=bool)[None]
         return self._eye
 
-    _PARAMS = ("COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DISTANCE_WANTED", "TIME_WANTED", "DELTA", "ACC_MAX",
-               "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN", "LANE_CHANGE_MAX_BRAKING_IMPOSED", "LANE_CHANGE_DELAY",
-               "LENGTH", "KP_LATERAL", "KP_HEADING", "MAX_STEERING_ANGLE")
+    _PARAMS = (
+        "COMFORT_ACC_MAX",
+        "COMFORT_ACC_MIN",
+        "DISTANCE_WANTED",
+        "TIME_WANTED",
+        "DELTA",
+        "ACC_MAX",
+        "POLITENESS",
+        "LANE_CHANGE_MIN_ACC_GAIN",
+        "LANE_CHANGE_MAX_BRAKING_IMPOSED",
+        "LANE_CHANGE_DELAY",
+        "LENGTH",
+        "KP_LATERAL",
+        "KP_HEADING",
+        "MAX_STEERING_ANGLE",
+    )
     _param_key: tuple = ()
     _mover_key: tuple = ()
     _mover_const: tuple = ()
@@ -127,7 +152,11 @@ class VectorRoad(FastRoad):
             p["lc"] = np.array([v.enable_lane_change for v in veh])
             p["hold"] = np.array([type(v) is ScriptedLaneChanger for v in veh])
             p["KP_A"] = np.array([v.KP_A for v in veh], dtype=float)
-            self._param_key, self._param_cache, self._param_objs = key, p, list(veh)  # held: the ids stay theirs
+            self._param_key, self._param_cache, self._param_objs = (
+                key,
+                p,
+                list(veh),
+            )  # held: the ids stay theirs
         return dict(self._param_cache)
 
     # ``idm_accel``: the IDM acceleration (m/s², clipped) of every vehicle at the last
@@ -153,8 +182,25 @@ class VectorRoad(FastRoad):
         vlen = lanes[0].VEHICLE_LENGTH
 
         # One pass over the vehicles, one contiguous row per quantity.
-        cols = np.array([(v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.crashed, v.timer,
-                          v.target_speed) for v in veh], dtype=float).reshape(n, 7).T.copy()
+        cols = (
+            np.array(
+                [
+                    (
+                        v.heading,
+                        v.speed,
+                        v.lane_index[2],
+                        v.target_lane_index[2],
+                        v.crashed,
+                        v.timer,
+                        v.target_speed,
+                    )
+                    for v in veh
+                ],
+                dtype=float,
+            )
+            .reshape(n, 7)
+            .T.copy()
+        )
         h, sp, tspeed = cols[0], cols[1], cols[6]
         lane, tgt = cols[2].astype(int), cols[3].astype(int)
         crashed = cols[4] != 0.0
@@ -167,8 +213,11 @@ class VectorRoad(FastRoad):
         # Neighbours on every lane, as Road.neighbour_vehicles finds them (ties: the last
         # equal one ahead, the first equal one behind).
         # All lanes at once: (lane, ego, other) masks.
-        on = ((np.abs(y[None, :] - lane_y[:, None]) <= half_w[:, None] + 1.0) & (-vlen <= x)[None, :]
-              & (x[None, :] < lane_len[:, None] + vlen))
+        on = (
+            (np.abs(y[None, :] - lane_y[:, None]) <= half_w[:, None] + 1.0)
+            & (-vlen <= x)[None, :]
+            & (x[None, :] < lane_len[:, None] + vlen)
+        )
         cand = on[:, None, :] & self._not_self(n)
         ge = x[None, :] >= x[:, None]
         ahead, behind = cand & ge, cand & ~ge
@@ -183,10 +232,16 @@ class VectorRoad(FastRoad):
             e = np.maximum(ego, 0)
             f = np.maximum(fr, 0)
             amax = p["COMFORT_ACC_MAX"][me]
-            acc = amax * (1 - np.power(np.maximum(sp[e], 0) / np.abs(_not_zero(tlimit[e])), p["DELTA"][me]))
+            acc = amax * (
+                1 - np.power(np.maximum(sp[e], 0) / np.abs(_not_zero(tlimit[e])), p["DELTA"][me])
+            )
             dv = (vx[e] - vx[f]) * c[e] + (vy[e] - vy[f]) * s[e]
             ab = -amax * p["COMFORT_ACC_MIN"][me]
-            d_star = p["DISTANCE_WANTED"][me] + sp[e] * p["TIME_WANTED"][me] + sp[e] * dv / (2 * np.sqrt(ab))
+            d_star = (
+                p["DISTANCE_WANTED"][me]
+                + sp[e] * p["TIME_WANTED"][me]
+                + sp[e] * dv / (2 * np.sqrt(ab))
+            )
             inter = amax * np.power(d_star / _not_zero(x[f] - x[e]), 2)
             acc = acc - np.where(fr >= 0, inter, 0.0)
             return np.where(ego >= 0, acc, 0.0)
@@ -207,14 +262,23 @@ class VectorRoad(FastRoad):
             cl = lane_f + side
             valid = (cl >= 0) & (cl < len(lanes))
             cl_c = _clip(cl, 0, len(lanes) - 1)
-            reach = ((np.abs(y[fi] - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c]) & (0 <= x_f)
-                     & (x_f < lane_len[cl_c] + vlen))
+            reach = (
+                (np.abs(y[fi] - lane_y[cl_c]) <= 2 * 2 * half_w[cl_c])
+                & (0 <= x_f)
+                & (x_f < lane_len[cl_c] + vlen)
+            )
             sides[side] = valid & reach & moving[fi]
             new_pre, new_fol = front[cl_c, fi], rear[cl_c, fi]
             old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
             # new follower before/after, self after/before, old follower before/after
-            for ego, fr in ((new_fol, new_pre), (new_fol, fi), (fi, new_pre), (fi, old_pre),
-                            (old_fol, fi), (old_fol, old_pre)):
+            for ego, fr in (
+                (new_fol, new_pre),
+                (new_fol, fi),
+                (fi, new_pre),
+                (fi, old_pre),
+                (old_fol, fi),
+                (old_fol, old_pre),
+            ):
                 me_l.append(fi)
                 ego_l.append(ego)
                 fr_l.append(fr)
@@ -223,11 +287,16 @@ class VectorRoad(FastRoad):
         mobil = all_a[n:].reshape(12, nf)
         mobil_ok: dict[int, np.ndarray] = {}
         for k, side in enumerate((-1, 1)):
-            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = mobil[6 * k: 6 * k + 6]
-            jerk = self_pred_a - self_a + p["POLITENESS"][fi] * (nf_pred_a - nf_a + of_pred_a - of_a)
+            nf_a, nf_pred_a, self_pred_a, self_a, of_a, of_pred_a = mobil[6 * k : 6 * k + 6]
+            jerk = (
+                self_pred_a - self_a + p["POLITENESS"][fi] * (nf_pred_a - nf_a + of_pred_a - of_a)
+            )
             ok = np.zeros(n, dtype=bool)
-            ok[fi] = (sides[side] & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"][fi])
-                      & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"][fi]))
+            ok[fi] = (
+                sides[side]
+                & ~(nf_pred_a < -p["LANE_CHANGE_MAX_BRAKING_IMPOSED"][fi])
+                & ~(jerk < p["LANE_CHANGE_MIN_ACC_GAIN"][fi])
+            )
             mobil_ok[side] = ok
 
         # Lane-change policy in road order (an abort reads the targets set before it).
@@ -242,7 +311,11 @@ class VectorRoad(FastRoad):
                     d = x[j] - x[i]
                     dv = (vx[i] - vx[j]) * c[i] + (vy[i] - vy[j]) * s[i]
                     ab = -p["COMFORT_ACC_MAX"][i] * p["COMFORT_ACC_MIN"][i]
-                    d_star = p["DISTANCE_WANTED"][i] + sp[i] * p["TIME_WANTED"][i] + sp[i] * dv / (2 * np.sqrt(ab))
+                    d_star = (
+                        p["DISTANCE_WANTED"][i]
+                        + sp[i] * p["TIME_WANTED"][i]
+                        + sp[i] * dv / (2 * np.sqrt(ab))
+                    )
                     if ((0 < d) & (d < d_star)).any():
                         tgt[i] = lane_l[i]
                 continue
@@ -259,17 +332,23 @@ class VectorRoad(FastRoad):
         heading_ref = 0.0 + _clip(heading_cmd, -np.pi / 4, np.pi / 4)
         rate_cmd = p["KP_HEADING"] * (((heading_ref - h) + np.pi) % (2 * np.pi) - np.pi)
         slip = np.arcsin(_clip(p["LENGTH"] / 2 / _not_zero(sp) * rate_cmd, -1, 1))
-        steer = _clip(np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
+        steer = _clip(
+            np.arctan(2 * np.tan(slip)), -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"]
+        )
         steer = _clip(steer, -p["MAX_STEERING_ANGLE"], p["MAX_STEERING_ANGLE"])
         acc = acc_lane
         changing = np.flatnonzero(lane != tgt)
         if len(changing):
             acc = acc.copy()
-            acc[changing] = np.minimum(acc[changing], idm(changing, changing, front[tgt[changing], changing]))
+            acc[changing] = np.minimum(
+                acc[changing], idm(changing, changing, front[tgt[changing], changing])
+            )
         # A scripted target holds its speed instead (ControlledVehicle.speed_control).
         acc = np.where(p["hold"], p["KP_A"] * (tspeed - sp), acc)
         acc = _clip(acc, -p["ACC_MAX"], p["ACC_MAX"])
-        self.idm_accel = dict(zip(map(id, veh), _clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist()))
+        self.idm_accel = dict(
+            zip(map(id, veh), _clip(acc_lane, -p["ACC_MAX"], p["ACC_MAX"]).tolist())
+        )
 
         steer_l, acc_l, tgt_l, timer_l = steer.tolist(), acc.tolist(), tgt.tolist(), timer.tolist()
         for i in np.flatnonzero(act).tolist():
@@ -296,24 +375,46 @@ class VectorRoad(FastRoad):
             self._move(movers, pos, dt, lanes, _from, _to)
         collide(self, dt)
 
-    def _move(self, movers: list, pos: np.ndarray, dt: float, lanes: list, _from: str, _to: str) -> None:
+    def _move(
+        self, movers: list, pos: np.ndarray, dt: float, lanes: list, _from: str, _to: str
+    ) -> None:
         m = len(movers)
-        cols = np.array([(v.heading, v.speed, v.crashed, float(v.action["steering"]), float(v.action["acceleration"]))
-                         for v in movers], dtype=float).reshape(m, 5).T.copy()
+        cols = (
+            np.array(
+                [
+                    (
+                        v.heading,
+                        v.speed,
+                        v.crashed,
+                        float(v.action["steering"]),
+                        float(v.action["acceleration"]),
+                    )
+                    for v in movers
+                ],
+                dtype=float,
+            )
+            .reshape(m, 5)
+            .T.copy()
+        )
         h, sp, steer, acc = cols[0], cols[1], cols[3], cols[4]
         crashed = cols[2] != 0.0
         key = tuple(map(id, movers))
         if key != self._mover_key:  # fixed per set of vehicles
             self._mover_key, self._mover_objs = key, movers  # held: the ids stay theirs
-            self._mover_const = tuple(np.array([getattr(v, k) for v in movers], dtype=float)
-                                      for k in ("LENGTH", "MAX_SPEED", "MIN_SPEED"))
+            self._mover_const = tuple(
+                np.array([getattr(v, k) for v in movers], dtype=float)
+                for k in ("LENGTH", "MAX_SPEED", "MIN_SPEED")
+            )
         length, vmax, vmin = self._mover_const
         impact = [v.impact for v in movers]
         # Vehicle.clip_actions
         steer = np.where(crashed, 0.0, steer)
         acc = np.where(crashed, -1.0 * sp, acc)
-        acc = np.where(sp > vmax, np.minimum(acc, 1.0 * (vmax - sp)),
-                       np.where(sp < vmin, np.maximum(acc, 1.0 * (vmin - sp)), acc))
+        acc = np.where(
+            sp > vmax,
+            np.minimum(acc, 1.0 * (vmax - sp)),
+            np.where(sp < vmin, np.maximum(acc, 1.0 * (vmin - sp)), acc),
+        )
         # Vehicle.step
         beta = np.arctan(1 / 2 * np.tan(steer))
         pos[:, 0] += sp * np.cos(h + beta) * dt
@@ -350,4 +451,3 @@ class VectorRoad(FastRoad):
             if li != v.lane_index[2]:
                 v.lane_index = (_from, _to, li)
                 v.lane = lanes[li]
-

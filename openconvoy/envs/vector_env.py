@@ -76,7 +76,9 @@ def _paper_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def _emergency_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    braking = np.maximum(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
+    braking = np.maximum(
+        0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S)
+    )
     return np.where(t < EMERGENCY_BRAKE_AT_S, EMERGENCY_SPEED_MPS, braking)
 
 
@@ -95,7 +97,9 @@ class _LeaderDriver:
         if self.profile is None:
             probe = prof(0.0, 0.0)
             if not isinstance(probe, (int, float)):
-                raise ConfigError("VectorConvoyEnv: the scenario's speed profile must return a number")
+                raise ConfigError(
+                    "VectorConvoyEnv: the scenario's speed profile must return a number"
+                )
             self.profile = lambda t, s: np.vectorize(prof, otypes=[float])(t, s)  # noqa: E731
         self.B = num_envs
         self._a = path._a
@@ -148,7 +152,11 @@ class _LeaderDriver:
             ok = off < span[:, None]
         a = self._a[idx]
         d = self._dir[idx]
-        u = np.clip((x[:, None] - a[..., 0]) * d[..., 0] + (y[:, None] - a[..., 1]) * d[..., 1], 0.0, self._len[idx])
+        u = np.clip(
+            (x[:, None] - a[..., 0]) * d[..., 0] + (y[:, None] - a[..., 1]) * d[..., 1],
+            0.0,
+            self._len[idx],
+        )
         px = a[..., 0] + d[..., 0] * u
         py = a[..., 1] + d[..., 1] * u
         dist = np.where(ok, (px - x[:, None]) ** 2 + (py - y[:, None]) ** 2, np.inf)
@@ -227,11 +235,15 @@ class VectorConvoyEnv:
             raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
         presets = None
         if vehicle_presets is not None:
-            presets = [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets]
+            presets = [
+                p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets
+            ]
         if isinstance(scenario, str):
             scenario = make_scenario(scenario, n_followers, presets)
         if not isinstance(scenario, PathScenario):
-            raise ConfigError("VectorConvoyEnv supports path scenarios (paper, track, emergency-braking, track-file)")
+            raise ConfigError(
+                "VectorConvoyEnv supports path scenarios (paper, track, emergency-braking, track-file)"
+            )
         if scenario.n_vehicles < 2:
             raise ConfigError("a convoy needs a leader and at least one follower")
         self.losses = self._per_convoy_loss(loss, int(num_envs))
@@ -241,8 +253,12 @@ class VectorConvoyEnv:
         self._ge = probe if isinstance(probe, GilbertElliott) else None
         if self._ge is not None:
             # Per convoy: the chain for its PER (a PER of 0 is a perfect link, as ConvoyEnv's).
-            self._ge_good = np.array([c.mean_burst_s * (1.0 - c.per) / c.per if c.per > 0 else np.inf
-                                      for c in self.losses])
+            self._ge_good = np.array(
+                [
+                    c.mean_burst_s * (1.0 - c.per) / c.per if c.per > 0 else np.inf
+                    for c in self.losses
+                ]
+            )
         if self.loss.jitter_s > 0.0:
             raise ConfigError("VectorConvoyEnv does not support latency jitter yet (use ConvoyEnv)")
         self.scenario = scenario
@@ -260,7 +276,9 @@ class VectorConvoyEnv:
         if link_counters not in ("all", "kept"):
             raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
         self.link_counters = link_counters
-        if link_counters == "kept" and (self.loss.latency_s > 0.0 or (self.loss.per > 0.0 and self.loss.model != "bernoulli")):
+        if link_counters == "kept" and (
+            self.loss.latency_s > 0.0 or (self.loss.per > 0.0 and self.loss.model != "bernoulli")
+        ):
             raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
         self.control_rate_hz = float(control_rate_hz)
         self.dt = 1.0 / self.control_rate_hz
@@ -276,15 +294,23 @@ class VectorConvoyEnv:
         self._half_sum = 0.5 * (self.lengths[1:] + self.lengths[:-1])
         decel = np.array([p.decel_max_mps2 for p in self.presets], dtype=float)
         self._decel = np.where(decel > 0.0, decel, np.inf)
-        rules = [for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
-                 for p in self.presets[1:]]
+        rules = [
+            for_vehicle(
+                p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m
+            )
+            for p in self.presets[1:]
+        ]
         self._rule_decel = np.array([r.decel_mps2 for r in rules])
         self._rule_reaction = np.array([r.reaction_s for r in rules])
         self._rule_margin = np.array([r.margin_m for r in rules])
         f32 = np.float32
         self.action_low = np.array([[0.0, float(f32(-MAX_HEADING_CHANGE_RAD))]] * (N - 1))
-        self.action_high = np.array([[float(f32(p.max_speed_mps)), float(f32(MAX_HEADING_CHANGE_RAD))]
-                                     for p in self.presets[1:]])
+        self.action_high = np.array(
+            [
+                [float(f32(p.max_speed_mps)), float(f32(MAX_HEADING_CHANGE_RAD))]
+                for p in self.presets[1:]
+            ]
+        )
 
         self._build_links()
         self.plant = BicyclePlant(list(self.presets) * B, self.dt, vectorized=True)
@@ -298,7 +324,9 @@ class VectorConvoyEnv:
         self._alloc()
 
     @staticmethod
-    def _per_convoy_loss(loss: LossConfig | Sequence[LossConfig] | None, B: int) -> list[LossConfig]:
+    def _per_convoy_loss(
+        loss: LossConfig | Sequence[LossConfig] | None, B: int
+    ) -> list[LossConfig]:
         """One LossConfig per convoy; a sequence may differ only in ``per`` (a batched sweep)."""
         if loss is None or isinstance(loss, LossConfig):
             return [loss or LossConfig()] * B
@@ -308,7 +336,11 @@ class VectorConvoyEnv:
         first = out[0]
         for c in out[1:]:
             if (c.model, c.mean_burst_s, c.latency_s, c.jitter_s) != (
-                    first.model, first.mean_burst_s, first.latency_s, first.jitter_s):
+                first.model,
+                first.mean_burst_s,
+                first.latency_s,
+                first.jitter_s,
+            ):
                 raise ConfigError("loss: the convoys' LossConfigs may differ only in per")
         return out
 
@@ -342,7 +374,11 @@ class VectorConvoyEnv:
         nslots = len(lay.slots)
         self._slot_link = np.full((F, nslots), -1, dtype=np.int64)
         for i in range(1, N):
-            ids = [0, *[i - m if i - m >= 0 else None for m in range(1, lay.M + 1)], i + 1 if i + 1 < N else None]
+            ids = [
+                0,
+                *[i - m if i - m >= 0 else None for m in range(1, lay.M + 1)],
+                i + 1 if i + 1 < N else None,
+            ]
             for k, vid in enumerate(ids):
                 if vid is not None and (i, vid) in index:
                     self._slot_link[i - 1, k] = index[(i, vid)]
@@ -363,8 +399,11 @@ class VectorConvoyEnv:
         # Where each (pair, k, feature) lands in a (B, F*D) view of the observations.
         nf = 7
         within = np.arange(mc.k * nf).reshape(mc.k, nf)
-        self._slot_cols = (pairs[:, 0, None, None] * lay.size + pairs[:, 1, None, None] * lay.slot_size
-                           + within[None]).ravel()
+        self._slot_cols = (
+            pairs[:, 0, None, None] * lay.size
+            + pairs[:, 1, None, None] * lay.slot_size
+            + within[None]
+        ).ravel()
         self._leader_rows = np.flatnonzero(self._target_link[:, 0] >= 0)
         self._pred_link = np.array([index.get((i, i - 1), -1) for i in range(1, N)], dtype=np.int64)
 
@@ -446,18 +485,35 @@ class VectorConvoyEnv:
         p = self.plant
         if which.all():
             B = self.num_envs
-            p.reset(np.tile(init.x, B), np.tile(init.y, B), np.tile(init.heading, B), np.tile(init.speed, B))
+            p.reset(
+                np.tile(init.x, B),
+                np.tile(init.y, B),
+                np.tile(init.heading, B),
+                np.tile(init.speed, B),
+            )
         else:
             self._reset_plant_rows(which, init)
         self.leader.reset(which)
         w = which
         self.t[w] = 0.0
         self.step_count[w] = 0
-        for arr, value in ((self.next_check, -np.inf), (self.msgs_sent, 0), (self.broadcasts, 0),
-                           (self.delivered_to, 0), (self.lost_to, 0), (self.msgs_kept, 0),
-                           (self.hist_n, 0), (self.trail_n, 0), (self.hint, np.nan), (self.modes, COOP),
-                           (self.cmd_v, 0.0), (self.cmd_dh, 0.0), (self.estopped, False),
-                           (self.policy_failed, False), (self.policy_errors, 0)):
+        for arr, value in (
+            (self.next_check, -np.inf),
+            (self.msgs_sent, 0),
+            (self.broadcasts, 0),
+            (self.delivered_to, 0),
+            (self.lost_to, 0),
+            (self.msgs_kept, 0),
+            (self.hist_n, 0),
+            (self.trail_n, 0),
+            (self.hint, np.nan),
+            (self.modes, COOP),
+            (self.cmd_v, 0.0),
+            (self.cmd_dh, 0.0),
+            (self.estopped, False),
+            (self.policy_failed, False),
+            (self.policy_errors, 0),
+        ):
             arr[w] = value
         self.last_sent[:, w] = np.nan
         self.q_arrival[:, w] = np.inf
@@ -512,7 +568,17 @@ class VectorConvoyEnv:
         p = self.plant
         rows = np.flatnonzero(np.repeat(which, N))
         tile = lambda a: np.tile(a, int(which.sum()))  # noqa: E731
-        for name in ("x", "y", "heading", "speed", "accel", "yaw_rate", "_ramp", "_integ", "_rate_des"):
+        for name in (
+            "x",
+            "y",
+            "heading",
+            "speed",
+            "accel",
+            "yaw_rate",
+            "_ramp",
+            "_integ",
+            "_rate_des",
+        ):
             arr = getattr(p, name).copy()
             arr[rows] = tile(getattr(fresh, name))
             setattr(p, name, arr)
@@ -521,7 +587,9 @@ class VectorConvoyEnv:
         p._queue_h[:, rows] = tile(fresh.heading)[None, :]
         del B
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """One tick of every convoy with ``actions`` ``(B, N-1, 2)`` (SI, clipped)."""
         B, N = self.num_envs, self.n_vehicles
         a = np.asarray(actions, dtype=np.float32)
@@ -565,18 +633,32 @@ class VectorConvoyEnv:
         self._measure()
         A_new, YR_new = self.own_truth[4], self.own_truth[5]
         jerk = (A_new[:, 1:] - A_old[:, 1:]) * (1.0 / self.dt)
-        rewards = self._reward(self.gap - self.desired_gap[:, 1:], A_new[:, 1:], jerk, YR_new[:, 1:])
+        rewards = self._reward(
+            self.gap - self.desired_gap[:, 1:], A_new[:, 1:], jerk, YR_new[:, 1:]
+        )
         terminated = self.collided.any(axis=1)
         truncated = (self.step_count >= self.max_steps) & ~terminated
         infos = self._infos()
         done = terminated | truncated
         if self.autoreset and done.any():
             infos["final_observation"] = obs.copy()
-            kept = [a.copy() for a in (self.hint, self.desired_gap, self.spacing_error, self.pred_age, self.pred_est)]
+            kept = [
+                a.copy()
+                for a in (
+                    self.hint,
+                    self.desired_gap,
+                    self.spacing_error,
+                    self.pred_age,
+                    self.pred_est,
+                )
+            ]
             self._reset_convoys(done, [None] * B)
             fresh = self._tick(done)
             live = ~done
-            for arr, old in zip((self.hint, self.desired_gap, self.spacing_error, self.pred_age, self.pred_est), kept):
+            for arr, old in zip(
+                (self.hint, self.desired_gap, self.spacing_error, self.pred_age, self.pred_est),
+                kept,
+            ):
                 arr[..., live, :] = old[..., live, :]
             obs[done] = fresh[done]
             self._measure()
@@ -593,7 +675,9 @@ class VectorConvoyEnv:
         lad: LadderConfig = self.member_config.ladder
         age = self._needed_age(t)[:, 1:]
         if lad.enabled:
-            mode = np.where(age <= lad.degrade_after_s, COOP, np.where(age <= lad.stop_after_s, DEGRADED, STOP))
+            mode = np.where(
+                age <= lad.degrade_after_s, COOP, np.where(age <= lad.stop_after_s, DEGRADED, STOP)
+            )
         else:
             mode = np.zeros_like(a0, dtype=np.int64)
         v, dh = a0.copy(), a1.copy()
@@ -660,7 +744,12 @@ class VectorConvoyEnv:
     def _emergency(self, t: np.ndarray) -> None:
         """The braking-aware gap rule on each follower's estimate of its predecessor."""
         valid, ex, ey, es, eh, _ = self._estimate(self._pred_link, t)
-        ox, oy, ov, oh = self.own[0][:, 1:], self.own[1][:, 1:], self.own[2][:, 1:], self.own[3][:, 1:]
+        ox, oy, ov, oh = (
+            self.own[0][:, 1:],
+            self.own[1][:, 1:],
+            self.own[2][:, 1:],
+            self.own[3][:, 1:],
+        )
         dx, dy = ex - ox, ey - oy
         gap = np.hypot(dx, dy)
         vx = ov * np.cos(oh) - es * np.cos(eh)
@@ -670,7 +759,11 @@ class VectorConvoyEnv:
         gap = np.where(gap <= 0.0, 0.0, gap)
         bumper = gap - 0.5 * (self.lengths[1:] + self.lengths[:-1])
         closing = np.where(np.isfinite(closing), closing, 0.0)
-        stopping = np.where(closing > 0.0, closing * closing / (2.0 * self._rule_decel) + self._rule_reaction * closing, 0.0)
+        stopping = np.where(
+            closing > 0.0,
+            closing * closing / (2.0 * self._rule_decel) + self._rule_reaction * closing,
+            0.0,
+        )
         fire = valid & np.isfinite(bumper) & (bumper - stopping < self._rule_margin)
         fire = fire | self.estopped[:, 1:]
         self.estopped[:, 1:] = fire
@@ -713,7 +806,9 @@ class VectorConvoyEnv:
             px = lx + lv * np.cos(lh) * dt
             py = ly + lv * np.sin(lh) * dt
             silent = np.isnan(lt) | (tt - lt >= trig.max_silence_s - 1e-9)
-            moved = (np.hypot(ox - px, oy - py) > trig.threshold_m) | (np.abs(ov - lv) > trig.speed_threshold_mps)
+            moved = (np.hypot(ox - px, oy - py) > trig.threshold_m) | (
+                np.abs(ov - lv) > trig.speed_threshold_mps
+            )
             send = due & (silent | moved)
         self.last_sent[0] = np.where(send, tt, self.last_sent[0])
         for f, src in ((1, 0), (2, 1), (3, 2), (4, 3)):
@@ -726,8 +821,16 @@ class VectorConvoyEnv:
         B, N = self.num_envs, self.n_vehicles
         p = self.plant
         shape = (B, N)
-        own = np.stack([p.x.reshape(shape), p.y.reshape(shape), p.speed.reshape(shape),
-                        p.heading.reshape(shape), p.accel.reshape(shape), p.yaw_rate.reshape(shape)])
+        own = np.stack(
+            [
+                p.x.reshape(shape),
+                p.y.reshape(shape),
+                p.speed.reshape(shape),
+                p.heading.reshape(shape),
+                p.accel.reshape(shape),
+                p.yaw_rate.reshape(shape),
+            ]
+        )
         self.own = own
         t = self.t
         send = self._tx(t, which)
@@ -748,7 +851,9 @@ class VectorConvoyEnv:
         elif per > 0.0:
             s_idx = np.arange(N)[None, :, None]
             r_idx = np.arange(N)[None, None, :]
-            u = counter_uniform_array(self.keys[:, None, None], s_idx, r_idx, number[:, :, None], DRAW_LOSS)
+            u = counter_uniform_array(
+                self.keys[:, None, None], s_idx, r_idx, number[:, :, None], DRAW_LOSS
+            )
             lost = u < self._per[:, None, None]
         else:
             lost = np.zeros((B, N, N), dtype=bool)
@@ -763,7 +868,9 @@ class VectorConvoyEnv:
         S = self._slots
         rows = np.flatnonzero(which)
         slot = self.step_count[rows] % S
-        self.q_arrival[slot, rows] = np.where(send[rows], t[rows, None] + self.loss.latency_s, np.inf)
+        self.q_arrival[slot, rows] = np.where(
+            send[rows], t[rows, None] + self.loss.latency_s, np.inf
+        )
         self.q_state[slot, :, rows] = self.own[:, rows].transpose(1, 0, 2)
         self.q_t[slot, rows] = t[rows, None]
         self.q_lost[slot, rows] = lost[rows]
@@ -778,8 +885,11 @@ class VectorConvoyEnv:
             arrived = due[:, :, None] & ~self.q_lost[sl, rows] & offdiag
             self.delivered_to += arrived.sum(axis=1)
             self.q_arrival[sl, rows] = np.where(due, np.inf, arr)
-            self._push(arrived[:, self._link_s, self._link_r],
-                       self.q_state[sl, :, rows].transpose(1, 0, 2), self.q_t[sl, rows])
+            self._push(
+                arrived[:, self._link_s, self._link_r],
+                self.q_state[sl, :, rows].transpose(1, 0, 2),
+                self.q_t[sl, rows],
+            )
 
     def _channel_kept(self, send: np.ndarray, t: np.ndarray, number: np.ndarray) -> None:
         """The channel on the kept links only (``link_counters="kept"``, instant links):
@@ -788,7 +898,9 @@ class VectorConvoyEnv:
         ls, lr = self._link_s, self._link_r
         offered = send[:, ls]
         if self.loss.per > 0.0:
-            u = counter_uniform_array(self.keys[:, None], ls[None], lr[None], number[:, ls], DRAW_LOSS)
+            u = counter_uniform_array(
+                self.keys[:, None], ls[None], lr[None], number[:, ls], DRAW_LOSS
+            )
             lost = offered & (u < self._per[:, None])
         else:
             lost = np.zeros_like(offered)
@@ -803,7 +915,11 @@ class VectorConvoyEnv:
         if self.L == 0:
             return
         self.msgs_kept += self._per_receiver(got)
-        ts = t_sent[:, self._link_s] if np.ndim(t_sent) == 2 else np.broadcast_to(t_sent[:, None], got.shape)
+        ts = (
+            t_sent[:, self._link_s]
+            if np.ndim(t_sent) == 2
+            else np.broadcast_to(t_sent[:, None], got.shape)
+        )
         newer = (self.hist_n == 0) | (ts > self.hist[0, :, :, 0])
         push = got & newer
         if not push.any():
@@ -820,7 +936,9 @@ class VectorConvoyEnv:
         """Per-receiver totals (B, N) of a per-link (B, L) count."""
         B, N = self.num_envs, self.n_vehicles
         flat = (np.arange(B)[:, None] * N + self._link_r[None, :]).ravel()
-        return np.bincount(flat, weights=got.ravel(), minlength=B * N).reshape(B, N).astype(np.int64)
+        return (
+            np.bincount(flat, weights=got.ravel(), minlength=B * N).reshape(B, N).astype(np.int64)
+        )
 
     def _trail_add(self, push: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         tr, n = self.trail, self.trail_n
@@ -833,7 +951,15 @@ class VectorConvoyEnv:
         xs, ys = x[bb, ll], y[bb, ll]
         step = np.where(nn > 0, np.hypot(xs - px, ys - py), 0.0)
         keep = (nn == 0) | ~(step < self.member_config.trail_spacing_m)
-        bb, ll, nn, xs, ys, step, ps = bb[keep], ll[keep], nn[keep], xs[keep], ys[keep], step[keep], ps[keep]
+        bb, ll, nn, xs, ys, step, ps = (
+            bb[keep],
+            ll[keep],
+            nn[keep],
+            xs[keep],
+            ys[keep],
+            step[keep],
+            ps[keep],
+        )
         full = nn >= TRAIL_CAPACITY
         if full.any():
             half = TRAIL_CAPACITY // 2
@@ -906,6 +1032,7 @@ class VectorConvoyEnv:
                 if c.kind == "quadratic":
                     g = g + c.quadratic_s2_per_m * v * v
                 return g + 0.5 * (self.lengths[jj + 1] + self.lengths[jj])
+
         for m in range(1, ntg):
             acc = np.zeros((B, F))
             for q in range(m):
@@ -913,7 +1040,9 @@ class VectorConvoyEnv:
             desired[:, :, m] = acc
         if self.member_config.spacing.kind == "constant-distance":
             # Leader: sum of i pair gaps from vehicle 0 on (a sequential cumulative sum).
-            desired[:, :, 0] = np.cumsum(np.full((B, F), self.member_config.spacing.distance_m), axis=1)
+            desired[:, :, 0] = np.cumsum(
+                np.full((B, F), self.member_config.spacing.distance_m), axis=1
+            )
         else:
             c = self.member_config.spacing
             v = np.maximum(ev, 0.0)
@@ -958,8 +1087,17 @@ class VectorConvoyEnv:
         is_p1 = have & (ck == 1)
         self.pred_est[0][:, 1:] = np.where(is_p1, arc[bi, fi, ck], np.nan)
         self.pred_est[1][:, 1:] = np.where(is_p1, hv[bi, fi, ck] - ev, np.nan)
-        self._fill_path(obs, have, li[fi, ck], hx[bi, fi, ck], hy[bi, fi, ck], hh[bi, fi, ck],
-                        cross[bi, fi, ck], pheading[bi, fi, ck], ps[bi, fi, ck])
+        self._fill_path(
+            obs,
+            have,
+            li[fi, ck],
+            hx[bi, fi, ck],
+            hy[bi, fi, ck],
+            hh[bi, fi, ck],
+            cross[bi, fi, ck],
+            pheading[bi, fi, ck],
+            ps[bi, fi, ck],
+        )
 
     def _query(self, b, link, hx, hy, hh) -> dict[str, np.ndarray]:
         """Per-query trail data (``Trail`` queries on the path ending at the head
@@ -982,9 +1120,26 @@ class VectorConvoyEnv:
             bx = np.where(small, -np.cos(hh), -dx / d)
             by = np.where(small, -np.sin(hh), -dy / d)
         to_head = np.hypot(hx - lx, hy - ly)
-        return {"base": base, "n": n, "X": X, "Y": Y, "S": S, "hx": hx, "hy": hy, "hh": hh,
-                "x0": x0, "y0": y0, "s0": s0, "lx": lx, "ly": ly, "ls": ls, "bx": bx, "by": by,
-                "to_head": to_head, "s_head": ls + to_head}
+        return {
+            "base": base,
+            "n": n,
+            "X": X,
+            "Y": Y,
+            "S": S,
+            "hx": hx,
+            "hy": hy,
+            "hh": hh,
+            "x0": x0,
+            "y0": y0,
+            "s0": s0,
+            "lx": lx,
+            "ly": ly,
+            "ls": ls,
+            "bx": bx,
+            "by": by,
+            "to_head": to_head,
+            "s_head": ls + to_head,
+        }
 
     @staticmethod
     def _vertex(q: dict[str, np.ndarray], k: np.ndarray):
@@ -1010,7 +1165,7 @@ class VectorConvoyEnv:
         with np.errstate(divide="ignore", invalid="ignore"):
             u = np.minimum(np.maximum((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
             ex, ey = rx - u * dx, ry - u * dy
-            d2 = np.where(degenerate, rx ** 2 + ry ** 2, ex * ex + ey * ey)
+            d2 = np.where(degenerate, rx**2 + ry**2, ex * ex + ey * ey)
             s = np.where(degenerate, sa, sa + u * (sb - sa))
             cross = np.where(degenerate, 0.0, (dx * ry - dy * rx) / seg)
         heading = np.where(degenerate, q["hh"], np.arctan2(dy, dx))
@@ -1092,8 +1247,12 @@ class VectorConvoyEnv:
         f = (s - si) / (sj - si)
         mid_x = xi + f * (xj - xi)
         mid_y = yi + f * (yj - yi)
-        x = np.where(s >= s_head, ahead_x, np.where(s >= ls, tail_x, np.where(s <= s0, back_x, mid_x)))
-        y = np.where(s >= s_head, ahead_y, np.where(s >= ls, tail_y, np.where(s <= s0, back_y, mid_y)))
+        x = np.where(
+            s >= s_head, ahead_x, np.where(s >= ls, tail_x, np.where(s <= s0, back_x, mid_x))
+        )
+        y = np.where(
+            s >= s_head, ahead_y, np.where(s >= ls, tail_y, np.where(s <= s0, back_y, mid_y))
+        )
         return x, y
 
     def _fill_path(self, obs, have, link, hx, hy, hh, cross, pheading, ps) -> None:
@@ -1137,8 +1296,13 @@ class VectorConvoyEnv:
         a = accel / c.accel_scale_mps2
         j = jerk / c.jerk_scale_mps3
         w = yaw_rate / c.yaw_rate_scale_radps
-        return -(c.w_spacing * e + c.w_accel * a * a + c.w_jerk * j * j
-                 + c.w_yaw_rate * w * w + np.where(self.collided, c.collision_penalty, 0.0))
+        return -(
+            c.w_spacing * e
+            + c.w_accel * a * a
+            + c.w_jerk * j * j
+            + c.w_yaw_rate * w * w
+            + np.where(self.collided, c.collision_penalty, 0.0)
+        )
 
     def _infos(self) -> dict[str, Any]:
         """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus

@@ -33,10 +33,13 @@ class ConvoyVectorEnv(VectorEnv):
         self.per_convoy = env.n_vehicles - 1
         self.num_envs = env.num_envs * self.per_convoy
         self.single_observation_space = gymnasium.spaces.Box(
-            -np.inf, np.inf, shape=(env.layout.size,), dtype=np.float32)
+            -np.inf, np.inf, shape=(env.layout.size,), dtype=np.float32
+        )
         self.single_action_space = gymnasium.spaces.Box(
             low=env.action_low.min(axis=0).astype(np.float32),
-            high=env.action_high.max(axis=0).astype(np.float32), dtype=np.float32)
+            high=env.action_high.max(axis=0).astype(np.float32),
+            dtype=np.float32,
+        )
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
@@ -56,10 +59,17 @@ class ConvoyVectorEnv(VectorEnv):
         done = term | trunc
         if done.any():
             mask = np.repeat(done, per)
-            infos["final_obs"] = np.where(mask[:, None], info["final_observation"].reshape(self.num_envs, -1), 0.0)
+            infos["final_obs"] = np.where(
+                mask[:, None], info["final_observation"].reshape(self.num_envs, -1), 0.0
+            )
             infos["_final_obs"] = mask
-        return (obs.reshape(self.num_envs, -1), rewards.reshape(-1), np.repeat(term, per),
-                np.repeat(trunc, per), infos)
+        return (
+            obs.reshape(self.num_envs, -1),
+            rewards.reshape(-1),
+            np.repeat(term, per),
+            np.repeat(trunc, per),
+            infos,
+        )
 
     def close_extras(self, **kwargs: Any) -> None:
         pass

@@ -136,20 +136,42 @@ class VehiclePreset:
 
 VEHICLE_PRESETS: dict[str, VehiclePreset] = {
     "1/10": VehiclePreset(
-        name="1/10", length_m=0.779, width_m=0.29, wheelbase_m=0.33,
-        speed_lag_s=0.3, accel_max_mps2=1.0, decel_max_mps2=1.0,
-        turn_rate_max_radps=math.radians(45.0), actuation_delay_s=0.1, max_speed_mps=5.0,
+        name="1/10",
+        length_m=0.779,
+        width_m=0.29,
+        wheelbase_m=0.33,
+        speed_lag_s=0.3,
+        accel_max_mps2=1.0,
+        decel_max_mps2=1.0,
+        turn_rate_max_radps=math.radians(45.0),
+        actuation_delay_s=0.1,
+        max_speed_mps=5.0,
     ),
     "1/6": VehiclePreset(
-        name="1/6", length_m=0.97, width_m=0.49, wheelbase_m=0.57,
-        speed_lag_s=0.35, accel_max_mps2=1.0, decel_max_mps2=1.0,
-        turn_rate_max_radps=math.radians(45.0), actuation_delay_s=0.12, max_speed_mps=5.0,
+        name="1/6",
+        length_m=0.97,
+        width_m=0.49,
+        wheelbase_m=0.57,
+        speed_lag_s=0.35,
+        accel_max_mps2=1.0,
+        decel_max_mps2=1.0,
+        turn_rate_max_radps=math.radians(45.0),
+        actuation_delay_s=0.12,
+        max_speed_mps=5.0,
     ),
     "full-size": VehiclePreset(
-        name="full-size", length_m=4.8, width_m=1.9, wheelbase_m=2.9,
-        max_steer_rad=math.radians(35.0), speed_lag_s=0.4, accel_max_mps2=3.0,
-        decel_max_mps2=8.0, turn_rate_max_radps=math.radians(30.0), heading_lag_s=0.3,
-        actuation_delay_s=0.15, max_speed_mps=40.0,
+        name="full-size",
+        length_m=4.8,
+        width_m=1.9,
+        wheelbase_m=2.9,
+        max_steer_rad=math.radians(35.0),
+        speed_lag_s=0.4,
+        accel_max_mps2=3.0,
+        decel_max_mps2=8.0,
+        turn_rate_max_radps=math.radians(30.0),
+        heading_lag_s=0.3,
+        actuation_delay_s=0.15,
+        max_speed_mps=40.0,
     ),
 }
 
@@ -192,7 +214,9 @@ def preset_to_toml(preset: VehiclePreset) -> str:
             continue
         if isinstance(value, RangingSensor):
             continue
-        lines.append(f"{f.name} = {value!r}" if not isinstance(value, str) else f'{f.name} = "{value}"')
+        lines.append(
+            f"{f.name} = {value!r}" if not isinstance(value, str) else f'{f.name} = "{value}"'
+        )
     if preset.ranging is not None:
         lines.append("")
         lines.append("[vehicle.ranging]")
@@ -201,6 +225,4 @@ def preset_to_toml(preset: VehiclePreset) -> str:
     return "\n".join(lines) + "\n"
 
 
-VEHICLE_PRESETS.update(
-    (f.stem, load_vehicle_preset(f)) for f in sorted(PRESET_DIR.glob("*.toml"))
-)
+VEHICLE_PRESETS.update((f.stem, load_vehicle_preset(f)) for f in sorted(PRESET_DIR.glob("*.toml")))

@@ -57,8 +57,14 @@ class Truth:
 
     @classmethod
     def of(cls, plant: BicyclePlant) -> Truth:
-        return cls(plant.x.tolist(), plant.y.tolist(), plant.speed.tolist(), plant.heading.tolist(),
-                   plant.accel.tolist(), plant.yaw_rate.tolist())
+        return cls(
+            plant.x.tolist(),
+            plant.y.tolist(),
+            plant.speed.tolist(),
+            plant.heading.tolist(),
+            plant.accel.tolist(),
+            plant.yaw_rate.tolist(),
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,12 +133,16 @@ class ConvoyWorld:
         self.auth = Authentication(n, required=auth)
         self._forged = tuple(f for f in self.faults if f.forges)
         self._braking: list[BrakingGap | None] = [None] + [
-            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
+            for_vehicle(
+                p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m
+            )
             for p in self.presets[1:]
         ]
         self.plant = BicyclePlant(self.presets, dt)
         self.channel: Channel[VehicleState] = Channel(n, loss)
-        self.ranging_sensors = [(i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging]
+        self.ranging_sensors = [
+            (i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging
+        ]
         self.bounds = [member_tick.ActionBounds.float32(p.max_speed_mps) for p in self.presets]
         """The action space of each vehicle (the leader's unused), as ``core.tick`` clips."""
         self.t = 0.0
@@ -166,7 +176,9 @@ class ConvoyWorld:
         ranging = self.ranging_readings()
         for i in range(1, self.n_vehicles):
             reading = ranging.get(i) if ranging else None
-            d = member_tick.decide(self.members[i], self.frames[i], actions[i - 1], self.bounds[i], reading)
+            d = member_tick.decide(
+                self.members[i], self.frames[i], actions[i - 1], self.bounds[i], reading
+            )
             cmd_v[i], cmd_dh[i], modes[i] = d.speed_mps, d.heading_change_rad, d.mode
             if d.policy_error:
                 self._policy_error(i, t, d.policy_error)
@@ -200,8 +212,18 @@ class ConvoyWorld:
             noise = self._gps_rng.normal(0.0, self.gps_noise_m, size=(2, self.n_vehicles))
             xs, ys = (p.x + noise[0]).tolist(), (p.y + noise[1]).tolist()
         for i, m in enumerate(self.members):
-            st = VehicleState(i, t, xs[i], ys[i], tr.speed[i], tr.heading[i], tr.accel[i], tr.yaw_rate[i],
-                              self.lengths[i], self.widths[i])
+            st = VehicleState(
+                i,
+                t,
+                xs[i],
+                ys[i],
+                tr.speed[i],
+                tr.heading[i],
+                tr.accel[i],
+                tr.yaw_rate[i],
+                self.lengths[i],
+                self.widths[i],
+            )
             muted = bool(self._muted) and i in self._muted and self._fault_active(i, t, mutes=True)
             sent = member_tick.begin(m, st, t, may_send=not muted)
             if sent is not None:
@@ -241,8 +263,14 @@ class ConvoyWorld:
         p = self.plant
         for i, sensor in self.ranging_sensors:
             rng_m, rate = range_and_rate(
-                p.x[i], p.y[i], p.speed[i], p.heading[i],
-                p.x[i - 1], p.y[i - 1], p.speed[i - 1], p.heading[i - 1],
+                p.x[i],
+                p.y[i],
+                p.speed[i],
+                p.heading[i],
+                p.x[i - 1],
+                p.y[i - 1],
+                p.speed[i - 1],
+                p.heading[i - 1],
             )
             if rng_m > sensor.max_range_m or rng_m <= 0.0:
                 continue
@@ -260,16 +288,31 @@ class ConvoyWorld:
     def snapshot(self, record: TickRecord) -> TickSnapshot:
         """``record`` as the log reports it (lat/lon from the scenario's origin)."""
         tr = record.truth
-        lat, lon, _ = (np.asarray(v) for v in enu_to_geodetic(self.scenario.origin, np.array(tr.x), np.array(tr.y)))
+        lat, lon, _ = (
+            np.asarray(v)
+            for v in enu_to_geodetic(self.scenario.origin, np.array(tr.x), np.array(tr.y))
+        )
         f = record.frames
         return TickSnapshot(
-            t_s=record.t, x_m=tr.x, y_m=tr.y, lat_deg=lat.tolist(), lon_deg=lon.tolist(),
-            speed_mps=tr.speed, heading_rad=tr.heading, accel_mps2=tr.accel,
-            cmd_speed_mps=record.cmd_speed, cmd_heading_change_rad=record.cmd_heading_change,
-            mode=record.modes, gap_m=record.gaps,
-            desired_gap_m=[x.desired_gap_m for x in f], spacing_error_m=[x.spacing_error_m for x in f],
-            msgs_sent=record.msgs_sent, msgs_received=record.msgs_received, msgs_lost=record.msgs_lost,
-            pred_msg_age_s=[x.pred_msg_age_s for x in f], extra=record.extra,
+            t_s=record.t,
+            x_m=tr.x,
+            y_m=tr.y,
+            lat_deg=lat.tolist(),
+            lon_deg=lon.tolist(),
+            speed_mps=tr.speed,
+            heading_rad=tr.heading,
+            accel_mps2=tr.accel,
+            cmd_speed_mps=record.cmd_speed,
+            cmd_heading_change_rad=record.cmd_heading_change,
+            mode=record.modes,
+            gap_m=record.gaps,
+            desired_gap_m=[x.desired_gap_m for x in f],
+            spacing_error_m=[x.spacing_error_m for x in f],
+            msgs_sent=record.msgs_sent,
+            msgs_received=record.msgs_received,
+            msgs_lost=record.msgs_lost,
+            pred_msg_age_s=[x.pred_msg_age_s for x in f],
+            extra=record.extra,
         )
 
     @property
@@ -281,9 +324,17 @@ class ConvoyWorld:
 
     def _record(self, cmd_v: list[float], cmd_dh: list[float]) -> TickRecord:
         return TickRecord(
-            round(self.t, 9), self.truth, cmd_v, cmd_dh, list(self.modes), [math.nan, *self.gaps],
-            list(self.frames), [m.msgs_sent for m in self.members],
-            [int(v) for v in self.rx], [int(v) for v in self.lost], self.extra_columns(),
+            round(self.t, 9),
+            self.truth,
+            cmd_v,
+            cmd_dh,
+            list(self.modes),
+            [math.nan, *self.gaps],
+            list(self.frames),
+            [m.msgs_sent for m in self.members],
+            [int(v) for v in self.rx],
+            [int(v) for v in self.lost],
+            self.extra_columns(),
         )
 
     def _clear(self) -> None:
@@ -310,9 +361,20 @@ class ConvoyWorld:
         offered to every other member (verified when ``auth``)."""
         tr = self.truth
         claimed = [
-            VehicleState(f.vehicle, t, tr.x[f.vehicle], tr.y[f.vehicle], tr.speed[f.vehicle],
-                         tr.heading[f.vehicle], 0.0, 0.0, self.lengths[f.vehicle], self.widths[f.vehicle])
-            for f in self._forged if f.active(t)
+            VehicleState(
+                f.vehicle,
+                t,
+                tr.x[f.vehicle],
+                tr.y[f.vehicle],
+                tr.speed[f.vehicle],
+                tr.heading[f.vehicle],
+                0.0,
+                0.0,
+                self.lengths[f.vehicle],
+                self.widths[f.vehicle],
+            )
+            for f in self._forged
+            if f.active(t)
         ]
         self.auth.deliver_forgeries(claimed, inboxes)
 

@@ -14,55 +14,128 @@ from openconvoy.core.args import number as _num
 
 def run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     """Arguments shared by ``sim`` and ``experiment per-sweep`` (None = not given)."""
-    p.add_argument("--scenario", default=None, metavar="SPEC",
-                   help="paper (default), track, emergency-braking, track-file:PATH, or with the "
-                   "traffic extra highway-cut-in, highway-merge, highway-slow-traffic, "
-                   "highway-lane-drop (optionally :key=value,...)")
-    p.add_argument("--loss", choices=("bernoulli", "gilbert-elliott"), default=None if sweep else "bernoulli",
-                   help="loss model of every link (default bernoulli)")
-    p.add_argument("--burst", type=SECONDS_POS, default=None, metavar="S",
-                   help="mean loss burst of gilbert-elliott, seconds (default 1)")
-    p.add_argument("--duration", type=DURATION, default=None, metavar="S", help="run length (default: the scenario's)")
-    p.add_argument("--followers", type=_int(1, 1000), default=None, metavar="N", help="number of followers")
-    p.add_argument("--vehicle-preset", action="append", metavar="PRESET",
-                   help="vehicle preset name or .toml, repeated leader first (default: the scenario's)")
-    p.add_argument("--ranging", action="store_true",
-                   help="give followers a ranging sensor (used by the staleness ladder's degraded mode)")
-    p.add_argument("--ranging-range", type=_num(0.0, 10_000.0, lo_open=True), default=None if sweep else 20.0, metavar="M",
-                   help="that sensor's range in metres (default 20)")
+    p.add_argument(
+        "--scenario",
+        default=None,
+        metavar="SPEC",
+        help="paper (default), track, emergency-braking, track-file:PATH, or with the "
+        "traffic extra highway-cut-in, highway-merge, highway-slow-traffic, "
+        "highway-lane-drop (optionally :key=value,...)",
+    )
+    p.add_argument(
+        "--loss",
+        choices=("bernoulli", "gilbert-elliott"),
+        default=None if sweep else "bernoulli",
+        help="loss model of every link (default bernoulli)",
+    )
+    p.add_argument(
+        "--burst",
+        type=SECONDS_POS,
+        default=None,
+        metavar="S",
+        help="mean loss burst of gilbert-elliott, seconds (default 1)",
+    )
+    p.add_argument(
+        "--duration",
+        type=DURATION,
+        default=None,
+        metavar="S",
+        help="run length (default: the scenario's)",
+    )
+    p.add_argument(
+        "--followers", type=_int(1, 1000), default=None, metavar="N", help="number of followers"
+    )
+    p.add_argument(
+        "--vehicle-preset",
+        action="append",
+        metavar="PRESET",
+        help="vehicle preset name or .toml, repeated leader first (default: the scenario's)",
+    )
+    p.add_argument(
+        "--ranging",
+        action="store_true",
+        help="give followers a ranging sensor (used by the staleness ladder's degraded mode)",
+    )
+    p.add_argument(
+        "--ranging-range",
+        type=_num(0.0, 10_000.0, lo_open=True),
+        default=None if sweep else 20.0,
+        metavar="M",
+        help="that sensor's range in metres (default 20)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
 def executor_args(p: argparse.ArgumentParser) -> None:
     """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray)."""
-    p.add_argument("--executor", choices=("local", "ray"), default=None,
-                   help="where runs execute: local processes (default) or a Ray cluster (openconvoy[cluster])")
-    p.add_argument("--address", default=None, metavar="ADDR",
-                   help="Ray cluster to use, HOST:PORT or auto (default: a private cluster of this machine)")
-
+    p.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default=None,
+        help="where runs execute: local processes (default) or a Ray cluster (openconvoy[cluster])",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help="Ray cluster to use, HOST:PORT or auto (default: a private cluster of this machine)",
+    )
 
 
 def _add_sim(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sim", help="simulate one run: log, metrics and plots",
-                       description="Simulate a convoy and write DIR/log.csv, DIR/metrics.json, "
-                       "DIR/run.toml and plots (trajectories, gaps, speeds).")
-    p.add_argument("--policy", default="paper", metavar="SPEC",
-                   help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz")
+    p = sub.add_parser(
+        "sim",
+        help="simulate one run: log, metrics and plots",
+        description="Simulate a convoy and write DIR/log.csv, DIR/metrics.json, "
+        "DIR/run.toml and plots (trajectories, gaps, speeds).",
+    )
+    p.add_argument(
+        "--policy",
+        default="paper",
+        metavar="SPEC",
+        help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz",
+    )
     p.add_argument("--per", type=FRACTION, default=0.0, help="packet error rate 0..1 (default 0)")
     p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--out", default="runs/sim", metavar="DIR", help="output directory (default runs/sim)")
-    p.add_argument("--convoy", metavar="CONVOY.toml", help="convoy file: scenario, vehicles, origin")
-    p.add_argument("--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds")
-    p.add_argument("--jitter", type=_num(0.0, 60.0), default=0.0, metavar="S", help="uniform delay jitter, seconds")
-    p.add_argument("--gps-noise", type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std, metres")
-    p.add_argument("--fault", action="append", metavar="KIND:VEHICLE@T_S",
-                   help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
-                   "silent (stop broadcasting, keep driving), dead (both) or forge (a keyless "
-                   "station claims to be the vehicle, 1 km ahead), e.g. dead:0@30, forge:0@10")
-    p.add_argument("--auth", choices=("required", "off"), default=None,
-                   help="members authenticate messages, so forgeries are rejected (default "
-                   "required; a convoy file's [v2v] auth = \"off\" turns it off)")
+    p.add_argument(
+        "--out", default="runs/sim", metavar="DIR", help="output directory (default runs/sim)"
+    )
+    p.add_argument(
+        "--convoy", metavar="CONVOY.toml", help="convoy file: scenario, vehicles, origin"
+    )
+    p.add_argument(
+        "--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds"
+    )
+    p.add_argument(
+        "--jitter",
+        type=_num(0.0, 60.0),
+        default=0.0,
+        metavar="S",
+        help="uniform delay jitter, seconds",
+    )
+    p.add_argument(
+        "--gps-noise",
+        type=_num(0.0, 1000.0),
+        default=0.0,
+        metavar="M",
+        help="position noise std, metres",
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        metavar="KIND:VEHICLE@T_S",
+        help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
+        "silent (stop broadcasting, keep driving), dead (both) or forge (a keyless "
+        "station claims to be the vehicle, 1 km ahead), e.g. dead:0@30, forge:0@10",
+    )
+    p.add_argument(
+        "--auth",
+        choices=("required", "off"),
+        default=None,
+        help="members authenticate messages, so forgeries are rejected (default "
+        'required; a convoy file\'s [v2v] auth = "off" turns it off)',
+    )
     run_args(p, sweep=False)
 
     def _sim(args: argparse.Namespace) -> int:
@@ -72,13 +145,21 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_sim)
 
-    p = sub.add_parser("report", help="recompute metrics from a log or run directory",
-                       description="Recompute the metrics from a log file or a directory of "
-                       "(per-vehicle) logs, print them and write metrics.json.")
+    p = sub.add_parser(
+        "report",
+        help="recompute metrics from a log or run directory",
+        description="Recompute the metrics from a log file or a directory of "
+        "(per-vehicle) logs, print them and write metrics.json.",
+    )
     p.add_argument("path", metavar="DIR_OR_LOG")
-    p.add_argument("--convoy", metavar="CONVOY.toml",
-                   help="vehicle lengths for logs without a length_m column (vehicle runs)")
-    p.add_argument("--out", metavar="FILE", help="metrics file (default: metrics.json beside the log)")
+    p.add_argument(
+        "--convoy",
+        metavar="CONVOY.toml",
+        help="vehicle lengths for logs without a length_m column (vehicle runs)",
+    )
+    p.add_argument(
+        "--out", metavar="FILE", help="metrics file (default: metrics.json beside the log)"
+    )
     p.add_argument("--plots", action="store_true", help="also draw trajectories, gaps and speeds")
 
     def _report(args: argparse.Namespace) -> int:
@@ -98,23 +179,44 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_presets)
 
 
-
 def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="run experiments (per-sweep)")
     esub = p.add_subparsers(dest="experiment_command", metavar="EXPERIMENT", required=True)
-    p = esub.add_parser("per-sweep", help="sweep packet error rates over seeds and policies",
-                        description="Run a scenario for each PER and seed (and policy), in parallel; "
-                        "write summary.json, summary.csv, every run's log and the paper's figures. "
-                        "--config EXPERIMENT.toml describes it all; flags given override it.")
-    p.add_argument("--config", metavar="EXPERIMENT.toml", help="experiment file (a run directory's copy reruns it)")
-    p.add_argument("--policy", action="append", metavar="SPEC",
-                   help="policy spec; repeat to draw several (e.g. --policy paper --policy paper+ladder)")
+    p = esub.add_parser(
+        "per-sweep",
+        help="sweep packet error rates over seeds and policies",
+        description="Run a scenario for each PER and seed (and policy), in parallel; "
+        "write summary.json, summary.csv, every run's log and the paper's figures. "
+        "--config EXPERIMENT.toml describes it all; flags given override it.",
+    )
+    p.add_argument(
+        "--config",
+        metavar="EXPERIMENT.toml",
+        help="experiment file (a run directory's copy reruns it)",
+    )
+    p.add_argument(
+        "--policy",
+        action="append",
+        metavar="SPEC",
+        help="policy spec; repeat to draw several (e.g. --policy paper --policy paper+ladder)",
+    )
     p.add_argument("--pers", metavar="LIST", help="comma-separated PERs (default 0,0.1,...,0.6)")
-    p.add_argument("--seeds", type=_int(1, 100_000), default=None, metavar="N", help="seeds 0..N-1 per PER (default 3)")
+    p.add_argument(
+        "--seeds",
+        type=_int(1, 100_000),
+        default=None,
+        metavar="N",
+        help="seeds 0..N-1 per PER (default 3)",
+    )
     p.add_argument("--name", default=None, help="experiment name")
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--jobs", type=_int(1, 4096), default=None, metavar="N",
-                   help="runs at once (default: the cores available, or the Ray cluster's CPUs)")
+    p.add_argument(
+        "--jobs",
+        type=_int(1, 4096),
+        default=None,
+        metavar="N",
+        help="runs at once (default: the cores available, or the Ray cluster's CPUs)",
+    )
     executor_args(p)
     run_args(p, sweep=True)
 
@@ -125,12 +227,17 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_per_sweep)
 
-    p = sub.add_parser("compare", help="two runs or sweeps side by side, with differences",
-                       description="Metrics of two runs (log files or run directories, sim or "
-                       "vehicle) or two sweeps (directories with summary.json) side by side; B - A.")
+    p = sub.add_parser(
+        "compare",
+        help="two runs or sweeps side by side, with differences",
+        description="Metrics of two runs (log files or run directories, sim or "
+        "vehicle) or two sweeps (directories with summary.json) side by side; B - A.",
+    )
     p.add_argument("a", metavar="A")
     p.add_argument("b", metavar="B")
-    p.add_argument("--convoy", metavar="CONVOY.toml", help="vehicle lengths for logs without length_m")
+    p.add_argument(
+        "--convoy", metavar="CONVOY.toml", help="vehicle lengths for logs without length_m"
+    )
     p.add_argument("--out", metavar="FILE.json", help="also write the comparison as JSON")
 
     def _compare(args: argparse.Namespace) -> int:
@@ -139,7 +246,6 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
         return compare(args)
 
     p.set_defaults(handler=_compare)
-
 
 
 def _add_fit_plant(sub: argparse._SubParsersAction) -> None:
@@ -151,23 +257,44 @@ def _add_fit_plant(sub: argparse._SubParsersAction) -> None:
         "speed lag, acceleration/deceleration limits, turn-rate limit, heading lag and "
         "actuation delay; writes a preset TOML that sim and experiment accept.",
     )
-    p.add_argument("log", metavar="LOG_DIR", nargs="+",
-                   help="a run directory of per-vehicle logs, or one log; with --model pi also "
-                   "MAVLink recordings (.jsonl.gz, as in shared/sitl), several allowed")
-    p.add_argument("--model", choices=("lag", "pi"), default="lag",
-                   help="lag: first-order speed lag (default); pi: the autopilot's PI speed loop "
-                   "with its delay, accel ramp and static friction, and its heading loop")
-    p.add_argument("--source", choices=("telemetry", "truth"), default="telemetry",
-                   help="recordings: fit GLOBAL_POSITION_INT/ATTITUDE (default) or PX4 SIH's "
-                   "true state (HIL_STATE_QUATERNION)")
+    p.add_argument(
+        "log",
+        metavar="LOG_DIR",
+        nargs="+",
+        help="a run directory of per-vehicle logs, or one log; with --model pi also "
+        "MAVLink recordings (.jsonl.gz, as in shared/sitl), several allowed",
+    )
+    p.add_argument(
+        "--model",
+        choices=("lag", "pi"),
+        default="lag",
+        help="lag: first-order speed lag (default); pi: the autopilot's PI speed loop "
+        "with its delay, accel ramp and static friction, and its heading loop",
+    )
+    p.add_argument(
+        "--source",
+        choices=("telemetry", "truth"),
+        default="telemetry",
+        help="recordings: fit GLOBAL_POSITION_INT/ATTITUDE (default) or PX4 SIH's "
+        "true state (HIL_STATE_QUATERNION)",
+    )
     p.add_argument("--out", metavar="PRESET.toml", help="output file (default NAME.toml)")
     p.add_argument("--name", default="fitted", help="preset name (default fitted)")
-    p.add_argument("--base", default="1/10",
-                   help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)")
-    p.add_argument("--vehicle-id", type=_int(0, 254), help="which vehicle, when the logs hold several")
-    p.add_argument("--cmd-timing", choices=("after-state", "before-state"), default="after-state",
-                   help="a row's command was computed from its state (OpenConvoy's sim and "
-                   "vehicle logs) or led to it (some other tools' logs)")
+    p.add_argument(
+        "--base",
+        default="1/10",
+        help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)",
+    )
+    p.add_argument(
+        "--vehicle-id", type=_int(0, 254), help="which vehicle, when the logs hold several"
+    )
+    p.add_argument(
+        "--cmd-timing",
+        choices=("after-state", "before-state"),
+        default="after-state",
+        help="a row's command was computed from its state (OpenConvoy's sim and "
+        "vehicle logs) or led to it (some other tools' logs)",
+    )
 
     def _fit_plant(args: argparse.Namespace) -> int:
         from openconvoy.experiments.fitplant import run_fit_plant_cli

@@ -37,10 +37,14 @@ def format_metrics(metrics: dict[str, Any]) -> str:
     lines = []
     for k in mt.METRIC_KEYS + tuple(k for k in mt.TRAFFIC_METRIC_KEYS if k in metrics):
         v = metrics[k]
-        lines.append(f"{k:<28}{' ' * (len(k) >= 28)}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}")
+        lines.append(
+            f"{k:<28}{' ' * (len(k) >= 28)}{'nan' if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, '.4g')}"
+        )
     for f, values in metrics.get("per_follower", {}).items():
         v = values["p95_platooning_error_m"]
-        lines.append(f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}")
+        lines.append(
+            f"  follower {f} p95 error (m)  {format(v, '.4g') if v is not None else 'nan'}"
+        )
     return "\n".join(lines)
 
 
@@ -65,12 +69,23 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
     if args.burst is not None and args.loss != "gilbert-elliott":
         raise ConfigError("--burst applies to --loss gilbert-elliott")
     return RunConfig(
-        scenario=scenario or "paper", policy=args.policy, per=args.per, loss_model=args.loss,
+        scenario=scenario or "paper",
+        policy=args.policy,
+        per=args.per,
+        loss_model=args.loss,
         mean_burst_s=args.burst if args.burst is not None else 1.0,
-        latency_s=args.latency, jitter_s=args.jitter, seed=args.seed, duration_s=args.duration,
-        n_followers=args.followers, vehicles=vehicles, ranging=args.ranging,
-        ranging_max_range_m=args.ranging_range, gps_noise_m=args.gps_noise, origin=origin,
-        faults=tuple(getattr(args, "fault", None) or ()), auth=auth or "required",
+        latency_s=args.latency,
+        jitter_s=args.jitter,
+        seed=args.seed,
+        duration_s=args.duration,
+        n_followers=args.followers,
+        vehicles=vehicles,
+        ranging=args.ranging,
+        ranging_max_range_m=args.ranging_range,
+        gps_noise_m=args.gps_noise,
+        origin=origin,
+        faults=tuple(getattr(args, "fault", None) or ()),
+        auth=auth or "required",
     )
 
 
@@ -125,8 +140,10 @@ def standstill_warning(log: dict[str, Any]) -> str:
     fastest = float(np.nanmax(speed)) if np.isfinite(speed).any() else 0.0
     if fastest >= MOVED_SPEED_MPS or moved >= MOVED_DISTANCE_M:
         return ""
-    return (f"warning: no vehicle moved (fastest {fastest:.2f} m/s, farthest {moved:.2f} m from "
-            "its start): these metrics describe a convoy that stood still")
+    return (
+        f"warning: no vehicle moved (fastest {fastest:.2f} m/s, farthest {moved:.2f} m from "
+        "its start): these metrics describe a convoy that stood still"
+    )
 
 
 def report(args: argparse.Namespace) -> int:
@@ -141,8 +158,10 @@ def report(args: argparse.Namespace) -> int:
     log = read_log(path)
     lengths = _lengths_from_convoy(args.convoy)
     if lengths is None and "length_m" not in log:
-        print("note: the log has no vehicle lengths; pass --convoy to count collisions "
-              "against half lengths (now: centre distance < 0)")
+        print(
+            "note: the log has no vehicle lengths; pass --convoy to count collisions "
+            "against half lengths (now: centre distance < 0)"
+        )
     metrics = mt.compute_metrics(log, lengths)
     if mt.has_traffic_columns(log):
         metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
@@ -188,7 +207,11 @@ def presets(args: argparse.Namespace) -> int:
             f"{p.decel_max_mps2:g} m/s², turn rate {math.degrees(p.turn_rate_max_radps):.0f}°/s, "
             f"delay {p.actuation_delay_s:g} s, max {p.max_speed_mps:g} m/s"
             + (", the autopilot's PI speed loop" if p.speed_loop == "pi" else "")
-            + (f", no start from rest below {_start_threshold(p):.2g} m/s" if p.breakaway_mps else "")
+            + (
+                f", no start from rest below {_start_threshold(p):.2g} m/s"
+                if p.breakaway_mps
+                else ""
+            )
             + (", ranging sensor" if p.ranging else "")
         )
     return 0
@@ -203,7 +226,9 @@ def _floats(text: str) -> tuple[float, ...]:
     except ValueError:
         pers = ()
     if not pers or not all(0.0 <= p <= 1.0 for p in pers):
-        raise ConfigError(f"--pers: expected comma-separated packet error rates in [0, 1], got {text!r}")
+        raise ConfigError(
+            f"--pers: expected comma-separated packet error rates in [0, 1], got {text!r}"
+        )
     return pers
 
 
@@ -261,19 +286,24 @@ def per_sweep(args: argparse.Namespace) -> int:
     executor = with_flags(config.executor, args.executor, args.address, args.jobs)
     out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
     try:
-        result = run_experiment(config, out, progress=not args.quiet, figures=not args.no_plots,
-                                executor=executor)
+        result = run_experiment(
+            config, out, progress=not args.quiet, figures=not args.no_plots, executor=executor
+        )
     except TasksFailed as exc:
         print(f"openconvoy: error: {exc}", file=sys.stderr)
         return 1
-    print(f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}")
+    print(
+        f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}"
+    )
     for r in result.rows:
         print(
             f"{r['policy']:<24}{r['per']:>5.2f}{r['p95_platooning_error_m']['mean']:>13.3f}"
             f"{r['mean_speed_difference_mps']['mean']:>10.3f}{r['min_gap_m']['mean']:>13.2f}"
             f"{r['collisions']['mean']:>12.2f}{r['delivery_ratio']['mean']:>10.3f}"
         )
-    print(f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run logs to {out}")
+    print(
+        f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run logs to {out}"
+    )
     return 0
 
 

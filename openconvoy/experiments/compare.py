@@ -59,12 +59,21 @@ def compare(a: Side, b: Side) -> dict[str, Any]:
         out = {k: _triple(_num(a.metrics[k]), _num(b.metrics[k])) for k in mt.METRIC_KEYS}
         followers = sorted(set(a.metrics["per_follower"]) & set(b.metrics["per_follower"]), key=int)
         per_f = {
-            f: {"p95_platooning_error_m": _triple(
-                _num(a.metrics["per_follower"][f]["p95_platooning_error_m"]),
-                _num(b.metrics["per_follower"][f]["p95_platooning_error_m"]))}
+            f: {
+                "p95_platooning_error_m": _triple(
+                    _num(a.metrics["per_follower"][f]["p95_platooning_error_m"]),
+                    _num(b.metrics["per_follower"][f]["p95_platooning_error_m"]),
+                )
+            }
             for f in followers
         }
-        return {"kind": "run", "a": str(a.path), "b": str(b.path), "metrics": out, "per_follower": per_f}
+        return {
+            "kind": "run",
+            "a": str(a.path),
+            "b": str(b.path),
+            "metrics": out,
+            "per_follower": per_f,
+        }
     assert a.rows is not None and b.rows is not None
     pol_a = {r["policy"] for r in a.rows}
     pol_b = {r["policy"] for r in b.rows}
@@ -105,17 +114,25 @@ def format_comparison(result: dict[str, Any]) -> str:
             lines.append(f"{name:<28}{_f(t['a']):>12}{_f(t['b']):>12}{_f(t['diff']):>12}")
         return "\n".join(lines)
     short = {
-        "p95_platooning_error_m": "p95 err (m)", "mean_speed_difference_mps": "dv (m/s)",
-        "min_gap_m": "min gap (m)", "collisions": "collisions", "string_stability": "string",
+        "p95_platooning_error_m": "p95 err (m)",
+        "mean_speed_difference_mps": "dv (m/s)",
+        "min_gap_m": "min gap (m)",
+        "collisions": "collisions",
+        "string_stability": "string",
         "delivery_ratio": "delivery",
     }
     lines.append("means over seeds, A / B / B - A")
     header = f"{'policy A | B':<30}{'PER':>5}" + "".join(f"{short[k]:>28}" for k in mt.METRIC_KEYS)
     lines.append(header)
     for r in result["rows"]:
-        pols = r["policy_a"] if r["policy_a"] == r["policy_b"] else f"{r['policy_a']} | {r['policy_b']}"
+        pols = (
+            r["policy_a"]
+            if r["policy_a"] == r["policy_b"]
+            else f"{r['policy_a']} | {r['policy_b']}"
+        )
         cells = "".join(
-            f"{_f(r[k]['a']) + ' / ' + _f(r[k]['b']) + ' / ' + _f(r[k]['diff']):>28}" for k in mt.METRIC_KEYS
+            f"{_f(r[k]['a']) + ' / ' + _f(r[k]['b']) + ' / ' + _f(r[k]['diff']):>28}"
+            for k in mt.METRIC_KEYS
         )
         lines.append(f"{pols:<30}{r['per']:>5.2f}{cells}")
     return "\n".join(lines)

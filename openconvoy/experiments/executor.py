@@ -50,7 +50,9 @@ class ExecutorConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in EXECUTOR_KINDS:
-            raise ConfigError(f"unknown executor {self.kind!r}; expected one of {', '.join(EXECUTOR_KINDS)}")
+            raise ConfigError(
+                f"unknown executor {self.kind!r}; expected one of {', '.join(EXECUTOR_KINDS)}"
+            )
         if self.address is not None and self.kind != "ray":
             raise ConfigError("an executor address needs the ray executor (--executor ray)")
         if self.jobs is not None and self.jobs < 1:
@@ -83,7 +85,9 @@ class TaskFailure:
 class TasksFailed(RuntimeError):
     """Some tasks failed; the message has one line per failed task."""
 
-    def __init__(self, failures: Sequence[TaskFailure], total: int, kept: str = "", noun: str = "runs") -> None:
+    def __init__(
+        self, failures: Sequence[TaskFailure], total: int, kept: str = "", noun: str = "runs"
+    ) -> None:
         self.failures = list(failures)
         head = f"{len(self.failures)} of {total} {noun} failed" + (f"; {kept}" if kept else "")
         super().__init__("\n".join([head, *("  " + f.line() for f in self.failures)]))
@@ -223,7 +227,9 @@ class LocalExecutor(Executor):
     def wait_one(self) -> tuple[Task, Any]:
         if self.jobs == 1:
             task = self._queue.popleft()
-            return task, outcome(task, guarded(task.fn, task.arg, f"the driver, {worker_location()}"))
+            return task, outcome(
+                task, guarded(task.fn, task.arg, f"the driver, {worker_location()}")
+            )
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
@@ -244,8 +250,11 @@ class LocalExecutor(Executor):
                 except BrokenProcessPool as exc:
                     self._solo_pool.shutdown(wait=False, cancel_futures=True)
                     self._solo_pool = None
-                    return task, TaskFailure(task.label, "a local worker process, which died running it "
-                                             "(alone, on a second try)", error_line(exc, frame=False))
+                    return task, TaskFailure(
+                        task.label,
+                        "a local worker process, which died running it (alone, on a second try)",
+                        error_line(exc, frame=False),
+                    )
             task, pool = self._futures.pop(fut)
             try:
                 return task, outcome(task, fut.result())

@@ -68,7 +68,9 @@ def run_figures(log: mt.Columns, out_dir: str | Path, title: str = "") -> list[P
         ax.plot(np.asarray(log["x_m"])[r], np.asarray(log["y_m"])[r], label=_vehicle_label(vid))
     x_all, y_all = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
     if np.nanmax(y_all) - np.nanmin(y_all) > 0.05 * (np.nanmax(x_all) - np.nanmin(x_all)):
-        ax.set_aspect("equal", adjustable="datalim")  # curves undistorted; a straight road stays readable
+        ax.set_aspect(
+            "equal", adjustable="datalim"
+        )  # curves undistorted; a straight road stays readable
     ax.set_xlabel("east x (m)")
     ax.set_ylabel("north y (m)")
     ax.set_title(f"Trajectories {title}".strip())
@@ -81,7 +83,13 @@ def run_figures(log: mt.Columns, out_dir: str | Path, title: str = "") -> list[P
     for vid, (t, g) in gaps.items():
         line = ax.plot(t, g, label=f"{_vehicle_label(vid)} gap")[0]
         r = vid_all == vid
-        ax.plot(t_all[r], desired[r], "--", color=line.get_color(), label=f"{_vehicle_label(vid)} desired")
+        ax.plot(
+            t_all[r],
+            desired[r],
+            "--",
+            color=line.get_color(),
+            label=f"{_vehicle_label(vid)} desired",
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("gap to predecessor, centre to centre (m)")
     ax.set_title(f"Gaps {title}".strip())
@@ -119,14 +127,42 @@ def sweep_figures(result: SweepResult, out_dir: str | Path) -> list[Path]:
     seed = cfg.seeds[0]
     paths = [out / n for n in SWEEP_FIGURES]
     _trajectories(result, policies, pers, seed, paths[0])
-    _over_time(result, policies, pers, seed, "speed_diff",
-               "max − min speed over vehicles (m/s)", "Inter-vehicle speed difference", paths[1])
-    _over_time(result, policies, pers, seed, "max_error",
-               "max platooning error |gap − desired| (m)", "Maximum platooning error", paths[2])
-    _vs_per(result.rows, policies, "mean_speed_difference_mps", "mean speed difference (m/s)",
-            "Mean speed difference vs PER", paths[3])
-    _vs_per(result.rows, policies, "p95_platooning_error_m", "95th percentile platooning error (m)",
-            "Platooning error vs PER", paths[4])
+    _over_time(
+        result,
+        policies,
+        pers,
+        seed,
+        "speed_diff",
+        "max − min speed over vehicles (m/s)",
+        "Inter-vehicle speed difference",
+        paths[1],
+    )
+    _over_time(
+        result,
+        policies,
+        pers,
+        seed,
+        "max_error",
+        "max platooning error |gap − desired| (m)",
+        "Maximum platooning error",
+        paths[2],
+    )
+    _vs_per(
+        result.rows,
+        policies,
+        "mean_speed_difference_mps",
+        "mean speed difference (m/s)",
+        "Mean speed difference vs PER",
+        paths[3],
+    )
+    _vs_per(
+        result.rows,
+        policies,
+        "p95_platooning_error_m",
+        "95th percentile platooning error (m)",
+        "Platooning error vs PER",
+        paths[4],
+    )
     _min_gap(result, policies, pers, seed, paths[5])
     return paths
 
@@ -137,8 +173,9 @@ def _trajectories(result: SweepResult, policies, pers, seed, path: Path) -> None
     spacing breathes."""
     plt = _plt()
     ncols = len(pers)
-    fig, axes = plt.subplots(len(policies), ncols, figsize=(2.8 * ncols + 1, 2.6 * len(policies) + 0.6),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(policies), ncols, figsize=(2.8 * ncols + 1, 2.6 * len(policies) + 0.6), squeeze=False
+    )
     spans = [
         (np.nanmax(s["x"]) - np.nanmin(s["x"]), np.nanmax(s["y"]) - np.nanmin(s["y"]))
         for s in result.series.values()
@@ -165,10 +202,14 @@ def _trajectories(result: SweepResult, policies, pers, seed, path: Path) -> None
     _save(fig, path)
 
 
-def _over_time(result: SweepResult, policies, pers, seed, key: str, ylabel: str, title: str, path: Path) -> None:
+def _over_time(
+    result: SweepResult, policies, pers, seed, key: str, ylabel: str, title: str, path: Path
+) -> None:
     plt = _plt()
     colors = _per_colors(pers)
-    fig, axes = plt.subplots(len(policies), 1, figsize=(9, 3.4 * len(policies) + 0.4), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(
+        len(policies), 1, figsize=(9, 3.4 * len(policies) + 0.4), squeeze=False, sharex=True
+    )
     for i, label in enumerate(policies):
         ax = axes[i][0]
         for per in pers:
@@ -190,7 +231,9 @@ def _vs_per(rows, policies, key: str, ylabel: str, title: str, path: Path) -> No
         x = [r["per"] for r in sel]
         mean = [r[key]["mean"] for r in sel]
         std = [r[key]["std"] for r in sel]
-        ax.errorbar(x, mean, yerr=std, marker="o", capsize=3, label=f"{label} (mean ± std over seeds)")
+        ax.errorbar(
+            x, mean, yerr=std, marker="o", capsize=3, label=f"{label} (mean ± std over seeds)"
+        )
     ax.set_xlabel("packet error rate (PER)")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -208,10 +251,22 @@ def _min_gap(result: SweepResult, policies, pers, seed, path: Path) -> None:
     for label in policies:
         sel = [r for r in result.rows if r["policy"] == label]
         x = [r["per"] for r in sel]
-        bars = a1.errorbar(x, [r["min_gap_m"]["mean"] for r in sel], yerr=[r["min_gap_m"]["std"] for r in sel],
-                           marker="o", capsize=3, label=f"{label}: mean ± std")
-        a1.plot(x, [r["min_gap_m"]["min"] for r in sel], "v", ms=6, color=bars[0].get_color(),
-                label=f"{label}: worst seed")
+        bars = a1.errorbar(
+            x,
+            [r["min_gap_m"]["mean"] for r in sel],
+            yerr=[r["min_gap_m"]["std"] for r in sel],
+            marker="o",
+            capsize=3,
+            label=f"{label}: mean ± std",
+        )
+        a1.plot(
+            x,
+            [r["min_gap_m"]["min"] for r in sel],
+            "v",
+            ms=6,
+            color=bars[0].get_color(),
+            label=f"{label}: worst seed",
+        )
         s = result.series.get((label, worst))
         if s is not None:
             a2.plot(s["t"], s["closest_gap"], label=label)

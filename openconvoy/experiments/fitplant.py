@@ -69,7 +69,9 @@ def _select_vehicle(log: dict[str, np.ndarray], vehicle_id: int | None) -> np.nd
         vehicle_id = int(ids[0])
     mask = log["vehicle_id"] == vehicle_id
     if not mask.any():
-        raise InputFileError(f"no rows for vehicle {vehicle_id} in the log (has {', '.join(map(str, ids))})")
+        raise InputFileError(
+            f"no rows for vehicle {vehicle_id} in the log (has {', '.join(map(str, ids))})"
+        )
     return mask
 
 
@@ -83,7 +85,9 @@ def _resample(
     rows_on_grid = np.clip(np.round((t - t[0]) / _FINE_DT_S).astype(int), 0, n - 1)
     cmd_on_grid = np.round((t_cmd - t[0]) / _FINE_DT_S).astype(int)
     # Command k holds from its own grid point on (indices, not float comparisons).
-    row_of = np.clip(np.searchsorted(cmd_on_grid, np.arange(n), side="right") - 1, 0, len(t_cmd) - 1)
+    row_of = np.clip(
+        np.searchsorted(cmd_on_grid, np.arange(n), side="right") - 1, 0, len(t_cmd) - 1
+    )
     return grid, [x[row_of] for x in series], rows_on_grid
 
 
@@ -96,8 +100,13 @@ def _row_targets(n: int, rows: np.ndarray, measured: np.ndarray) -> list[list[fl
 
 
 def _replay_speed(
-    v0: float, cmd: np.ndarray, delay: np.ndarray, tau: np.ndarray, acc: np.ndarray,
-    dec: np.ndarray, at: list[list[float]],
+    v0: float,
+    cmd: np.ndarray,
+    delay: np.ndarray,
+    tau: np.ndarray,
+    acc: np.ndarray,
+    dec: np.ndarray,
+    at: list[list[float]],
 ) -> np.ndarray:
     """Mean squared speed error at the log rows for each candidate (vectorized)."""
     steps = np.round(delay / _FINE_DT_S).astype(int)
@@ -116,8 +125,14 @@ def _replay_speed(
 
 
 def _replay_heading(
-    h0: float, cmd: np.ndarray, speed: np.ndarray, kappa: float, delay_steps: int,
-    rate_max: np.ndarray, tau: np.ndarray, at: list[list[float]],
+    h0: float,
+    cmd: np.ndarray,
+    speed: np.ndarray,
+    kappa: float,
+    delay_steps: int,
+    rate_max: np.ndarray,
+    tau: np.ndarray,
+    at: list[list[float]],
 ) -> np.ndarray:
     """Mean squared (wrapped) heading error at the log rows for each candidate."""
     h = np.full(len(tau), h0)
@@ -136,8 +151,13 @@ def _replay_heading(
 
 
 def _refine(
-    score, bounds: list[tuple[float, float]], log_scale: list[bool], points: list[int],
-    step: list[float | None], rounds: int = 8, shrink: float = 0.5,
+    score,
+    bounds: list[tuple[float, float]],
+    log_scale: list[bool],
+    points: list[int],
+    step: list[float | None],
+    rounds: int = 8,
+    shrink: float = 0.5,
 ) -> tuple[np.ndarray, float]:
     """Grid search refined around the best point; ``score`` maps a (k, d) array of
     candidates to k costs. An axis with a ``step`` is discrete (the delay, in replay
@@ -200,9 +220,13 @@ def _load(log_path: str | Path, vehicle_id: int | None) -> tuple[np.ndarray, ...
     ok = np.all(np.isfinite(np.stack([t, speed, heading, cmd_v, cmd_dh])), axis=0)
     t, speed, heading, cmd_v, cmd_dh, age = (a[ok] for a in (t, speed, heading, cmd_v, cmd_dh, age))
     if len(t) < 50 or t[-1] - t[0] < 5.0:
-        raise InputFileError(f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)")
+        raise InputFileError(
+            f"{log_path}: too little data to fit ({len(t)} rows, need >= 50 over >= 5 s)"
+        )
     if np.ptp(cmd_v) < 0.2:
-        raise InputFileError(f"{log_path}: the commanded speed barely changes; drive speed steps to fit")
+        raise InputFileError(
+            f"{log_path}: the commanded speed barely changes; drive speed steps to fit"
+        )
     return t, speed, heading, cmd_v, cmd_dh, age
 
 
@@ -239,8 +263,11 @@ def _fit_speed(
         return cost(full)
 
     params_free, best = _refine(
-        cost_free, bounds=[bounds[i] for i in free], log_scale=[log_scale[i] for i in free],
-        points=[points[i] for i in free], step=[step[i] for i in free],
+        cost_free,
+        bounds=[bounds[i] for i in free],
+        log_scale=[log_scale[i] for i in free],
+        points=[points[i] for i in free],
+        step=[step[i] for i in free],
     )
     params = np.full(4, _LIFTED)
     params[free] = params_free
@@ -271,8 +298,9 @@ def fit_plant(
     # Does each limit matter? Lifting it must make the fit clearly worse; otherwise the run
     # never pushed against it: its value is only bounded from below by what was needed, and
     # the other parameters are refitted without it (a free limit would distort them).
-    def matters(cost_fn: Callable[[np.ndarray], np.ndarray], params: list[float], i: int,
-                best: float) -> bool:
+    def matters(
+        cost_fn: Callable[[np.ndarray], np.ndarray], params: list[float], i: int, best: float
+    ) -> bool:
         lifted = list(params)
         lifted[i] = _LIFTED
         return float(cost_fn(np.array([lifted]))[0]) > 1.2 * best + 1e-10
@@ -296,15 +324,21 @@ def fit_plant(
     turn_hit = False
     if np.ptp(np.unwrap(d.cmd_h)) > 0.2:
         (rate_max, tau_h), cost_h = _refine(
-            heading_cost, bounds=[(0.05, 6.0), (0.02, 2.0)], log_scale=[True, True],
-            points=[13, 11], step=[None, None],
+            heading_cost,
+            bounds=[(0.05, 6.0), (0.02, 2.0)],
+            log_scale=[True, True],
+            points=[13, 11],
+            step=[None, None],
         )
         rate_max, tau_h = float(rate_max), float(tau_h)
         turn_hit = matters(heading_cost, [rate_max, tau_h], 0, cost_h)
         if not turn_hit:  # refit the heading lag alone, the rate limit out of the way
             (tau_h,), cost_h = _refine(
                 lambda c: heading_cost(np.column_stack([np.full(len(c), _LIFTED), c[:, 0]])),
-                bounds=[(0.02, 2.0)], log_scale=[True], points=[25], step=[None],
+                bounds=[(0.02, 2.0)],
+                log_scale=[True],
+                points=[25],
+                step=[None],
             )
             tau_h = float(tau_h)
     else:  # no heading excitation: keep the base preset's heading loop
@@ -318,7 +352,9 @@ def fit_plant(
     idx = np.arange(len(cmd_v_f)) - delay_steps
     target_v = np.where(idx >= 0, cmd_v_f[np.maximum(idx, 0)], d.speed[0])
     want_v = (target_v - speed_f) / tau_v
-    want_h = _heading_rates_wanted(d.heading[0], cmd_h_f, speed_f, kappa, delay_steps, rate_max, tau_h)
+    want_h = _heading_rates_wanted(
+        d.heading[0], cmd_h_f, speed_f, kappa, delay_steps, rate_max, tau_h
+    )
     needed = {
         "accel_max_mps2": float(max(0.0, want_v.max())),
         "decel_max_mps2": float(max(0.0, -want_v.min())),
@@ -333,21 +369,33 @@ def fit_plant(
             values[key] = base_value if base_value >= needed[key] else round(needed[key], 4)
 
     preset = dataclasses.replace(
-        base_preset, name=name, speed_lag_s=round(tau_v, 4),
+        base_preset,
+        name=name,
+        speed_lag_s=round(tau_v, 4),
         accel_max_mps2=values["accel_max_mps2"],
         decel_max_mps2=values["decel_max_mps2"],
         turn_rate_max_radps=values["turn_rate_max_radps"],
-        heading_lag_s=round(tau_h, 4), actuation_delay_s=round(delay, 4),
+        heading_lag_s=round(tau_h, 4),
+        actuation_delay_s=round(delay, 4),
     )
     return PlantFit(
-        preset=preset, speed_rms_mps=math.sqrt(cost_v), heading_rms_rad=math.sqrt(cost_h),
-        samples=len(d.t), limits_hit=hit, cmd_timing=timing,
+        preset=preset,
+        speed_rms_mps=math.sqrt(cost_v),
+        heading_rms_rad=math.sqrt(cost_h),
+        samples=len(d.t),
+        limits_hit=hit,
+        cmd_timing=timing,
     )
 
 
 def _heading_rates_wanted(
-    h0: float, cmd: np.ndarray, speed: np.ndarray, kappa: float, delay_steps: int,
-    rate_max: float, tau: float,
+    h0: float,
+    cmd: np.ndarray,
+    speed: np.ndarray,
+    kappa: float,
+    delay_steps: int,
+    rate_max: float,
+    tau: float,
 ) -> np.ndarray:
     """|yaw rate| the heading loop asked for (before the turn-rate cap) along the replay,
     where the curvature cap did not bind harder; rad/s."""
@@ -395,20 +443,29 @@ def run_fit_plant_cli(args: object) -> int:
     check_output_file(args.out or f"{args.name}.toml", "--out")  # type: ignore[attr-defined]
     logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
     if getattr(args, "model", "lag") == "pi":
-        pi_fit = fit_pi_plant(logs, base=args.base, name=args.name,  # type: ignore[attr-defined]
-                              vehicle_id=args.vehicle_id, source=args.source,  # type: ignore[attr-defined]
-                              cmd_timing=getattr(args, "cmd_timing", "after-state"))
+        pi_fit = fit_pi_plant(
+            logs,
+            base=args.base,
+            name=args.name,  # type: ignore[attr-defined]
+            vehicle_id=args.vehicle_id,
+            source=args.source,  # type: ignore[attr-defined]
+            cmd_timing=getattr(args, "cmd_timing", "after-state"),
+        )
         print(format_pi_fit(pi_fit))
         preset = pi_fit.preset
     else:
         from openconvoy.experiments.recording import is_recording
 
         if len(logs) != 1 or is_recording(logs[0]):
-            raise ConfigError("the lag model fits one run's log; use --model pi for recordings "
-                             "or several inputs")
+            raise ConfigError(
+                "the lag model fits one run's log; use --model pi for recordings or several inputs"
+            )
         fit = fit_plant(
-            logs[0], base=args.base, name=args.name,  # type: ignore[attr-defined]
-            vehicle_id=args.vehicle_id, cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
+            logs[0],
+            base=args.base,
+            name=args.name,  # type: ignore[attr-defined]
+            vehicle_id=args.vehicle_id,
+            cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
         )
         print(format_fit(fit))
         preset = fit.preset
@@ -422,22 +479,51 @@ def run_fit_plant_cli(args: object) -> int:
 # --- The autopilot's PI speed loop (``speed_loop = "pi"``), from logs or recordings -------
 
 _PI_DT_S = 0.02  # the replay step: the plant's pi substep (PI_MAX_DT_S), the autopilots' loop
-_PI_SPEED_KEYS = ("actuation_delay_s", "accel_max_mps2", "decel_max_mps2", "speed_kp",
-                  "speed_ki", "speed_ff", "drive_lag_s", "breakaway_mps", "drive_drag_per_mps")
+_PI_SPEED_KEYS = (
+    "actuation_delay_s",
+    "accel_max_mps2",
+    "decel_max_mps2",
+    "speed_kp",
+    "speed_ki",
+    "speed_ff",
+    "drive_lag_s",
+    "breakaway_mps",
+    "drive_drag_per_mps",
+)
 # (low, high, log scale) per parameter; the search starts at the base preset when it has a
 # pi loop, else at a generic loop (unit gains and feed-forward, 1 s drive lag).
-_PI_SPEED_BOUNDS = ((0.0, 0.6, False), (0.2, 10.0, True), (0.2, 10.0, True),
-                    (1e-3, 20.0, True), (1e-3, 20.0, True), (0.3, 2.5, False),
-                    (0.05, 5.0, True), (0.0, 1.5, False), (0.0, 1.0, False))
+_PI_SPEED_BOUNDS = (
+    (0.0, 0.6, False),
+    (0.2, 10.0, True),
+    (0.2, 10.0, True),
+    (1e-3, 20.0, True),
+    (1e-3, 20.0, True),
+    (0.3, 2.5, False),
+    (0.05, 5.0, True),
+    (0.0, 1.5, False),
+    (0.0, 1.0, False),
+)
 _PI_SPEED_PRIOR = (0.1, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.0)
 _HEADING_ERR_CAP_RAD = math.radians(15.0)
 _SPEED_ERR_CAP_MPS = 0.3
 FRICTION_MATTERS = 1.2
 """A fitted static friction is kept only if dropping it raises the speed cost this much."""
-_PI_HEADING_KEYS = ("heading_delay_s", "heading_lag_s", "turn_rate_max_radps",
-                    "yaw_accel_max_radps2", "lateral_accel_max_mps2", "max_steer_rad")
-_PI_HEADING_BOUNDS = ((0.0, 0.5, False), (0.05, 2.0, True), (0.3, 6.0, True),
-                      (0.3, 60.0, True), (0.5, 30.0, True), (0.05, 1.2, True))
+_PI_HEADING_KEYS = (
+    "heading_delay_s",
+    "heading_lag_s",
+    "turn_rate_max_radps",
+    "yaw_accel_max_radps2",
+    "lateral_accel_max_mps2",
+    "max_steer_rad",
+)
+_PI_HEADING_BOUNDS = (
+    (0.0, 0.5, False),
+    (0.05, 2.0, True),
+    (0.3, 6.0, True),
+    (0.3, 60.0, True),
+    (0.5, 30.0, True),
+    (0.05, 1.2, True),
+)
 _PI_HEADING_PRIOR = (0.02, 0.5, 2.09, 2.09, 10.0, 0.35)
 
 
@@ -459,7 +545,9 @@ def _held(series: _Series, *values: np.ndarray) -> tuple[np.ndarray, list[np.nda
     t0 = series.t_cmd[0]
     n = int(round((series.t[-1] - t0) / _PI_DT_S)) + 1
     grid = t0 + _PI_DT_S * np.arange(n)
-    k = np.clip(np.searchsorted(series.t_cmd, grid + 1e-9, side="right") - 1, 0, len(series.t_cmd) - 1)
+    k = np.clip(
+        np.searchsorted(series.t_cmd, grid + 1e-9, side="right") - 1, 0, len(series.t_cmd) - 1
+    )
     rows = np.clip(np.round((series.t - t0) / _PI_DT_S).astype(int), 0, n - 1)
     return grid, [v[k] for v in values], rows
 
@@ -528,8 +616,13 @@ def _pi_heading_sse(series: _Series, c: np.ndarray, wheelbase_m: float) -> np.nd
 
 
 def _cem(
-    cost, prior: Sequence[float], bounds: Sequence[tuple[float, float, bool]],
-    rounds: int = 14, population: int = 160, elite: int = 16, seed: int = 0,
+    cost,
+    prior: Sequence[float],
+    bounds: Sequence[tuple[float, float, bool]],
+    rounds: int = 14,
+    population: int = 160,
+    elite: int = 16,
+    seed: int = 0,
 ) -> tuple[np.ndarray, float]:
     """Minimize ``cost`` ((k, d) candidates -> k costs) by the cross-entropy method: sample
     around the mean, refit mean and spread to the best, repeat. Deterministic (seeded);
@@ -581,8 +674,10 @@ def _series_from(
 
     if is_recording(path):
         rec = read_recording(path, source=source)
-        return [_Series(s.t, s.speed, s.heading, s.t_cmd, s.cmd_speed, s.cmd_heading)
-                for s in rec.segments], f"{rec.autopilot} recording"
+        return [
+            _Series(s.t, s.speed, s.heading, s.t_cmd, s.cmd_speed, s.cmd_heading)
+            for s in rec.segments
+        ], f"{rec.autopilot} recording"
     d = _align(*_load(path, vehicle_id), cmd_timing)
     t_meas = d.t - d.age  # a row's state is as old as its telemetry
     return [_Series(t_meas, d.speed, d.heading, d.t_cmd, d.cmd_v, d.cmd_h)], "log"
@@ -620,13 +715,16 @@ def fit_pi_plant(
     speed_rms = heading_rms = math.nan
     if speed_series:
         n = sum(len(s.t) for s in speed_series)
-        prior = ([getattr(base_preset, k) for k in _PI_SPEED_KEYS]
-                 if base_preset.speed_loop == "pi" else list(_PI_SPEED_PRIOR))
+        prior = (
+            [getattr(base_preset, k) for k in _PI_SPEED_KEYS]
+            if base_preset.speed_loop == "pi"
+            else list(_PI_SPEED_PRIOR)
+        )
+
         def speed_cost(c: np.ndarray) -> np.ndarray:
             return sum(_pi_speed_sse(s, c) for s in speed_series) / n
 
-        best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds,
-                          population=population)
+        best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds, population=population)
         # Static friction only where the data needs it: without it the fit must be clearly
         # worse (a vehicle that would not start), not just a shade off in a stop's tail.
         frictionless = best.copy()
@@ -640,12 +738,20 @@ def fit_pi_plant(
         speed_rms = math.sqrt(cost)
     if heading_series:
         n = sum(len(s.t) for s in heading_series)
-        prior = [base_preset.heading_delay if k == "heading_delay_s" else getattr(base_preset, k)
-                 for k in _PI_HEADING_KEYS]
+        prior = [
+            base_preset.heading_delay if k == "heading_delay_s" else getattr(base_preset, k)
+            for k in _PI_HEADING_KEYS
+        ]
         prior = [min(x, 1e3) for x in prior]
         best, cost = _cem(
-            lambda c: sum(_pi_heading_sse(s, c, base_preset.wheelbase_m) for s in heading_series) / n,
-            prior, _PI_HEADING_BOUNDS, rounds=rounds, population=population)
+            lambda c: (
+                sum(_pi_heading_sse(s, c, base_preset.wheelbase_m) for s in heading_series) / n
+            ),
+            prior,
+            _PI_HEADING_BOUNDS,
+            rounds=rounds,
+            population=population,
+        )
         values.update(zip(_PI_HEADING_KEYS, (float(x) for x in best)))
         values["heading_delay_s"] = round(values["heading_delay_s"] / _PI_DT_S) * _PI_DT_S
         heading_rms = math.sqrt(cost)
@@ -661,12 +767,16 @@ def fit_pi_plant(
 def format_pi_fit(fit: PiFit) -> str:
     """A short human summary of a pi fit."""
     p = fit.preset
-    lines = [f"fitted preset {p.name!r} (autopilot PI speed loop) from {fit.samples} samples "
-             f"({fit.source})"]
+    lines = [
+        f"fitted preset {p.name!r} (autopilot PI speed loop) from {fit.samples} samples "
+        f"({fit.source})"
+    ]
     for key in _PI_SPEED_KEYS + _PI_HEADING_KEYS:
         value = p.heading_delay if key == "heading_delay_s" else getattr(p, key)
         extra = f" ({math.degrees(value):.1f} deg/s)" if key == "turn_rate_max_radps" else ""
         lines.append(f"  {key:<24}{value:.4g}{extra}")
-    lines.append(f"  residual RMS: speed {fit.speed_rms_mps:.4f} m/s, heading "
-                 f"{math.degrees(fit.heading_rms_rad):.2f} deg")
+    lines.append(
+        f"  residual RMS: speed {fit.speed_rms_mps:.4f} m/s, heading "
+        f"{math.degrees(fit.heading_rms_rad):.2f} deg"
+    )
     return "\n".join(lines)

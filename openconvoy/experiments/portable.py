@@ -28,7 +28,7 @@ def spec_file(spec: str) -> str | None:
     if not spec:
         return None
     if spec.startswith(TRACK_PREFIX):
-        return spec[len(TRACK_PREFIX):]
+        return spec[len(TRACK_PREFIX) :]
     base = PolicySpec.parse(spec).base
     return base if base.endswith(FILE_SUFFIXES) else None
 
@@ -64,7 +64,7 @@ def relocate(spec: str, where: dict[str, str]) -> str:
         return spec
     if spec.startswith(TRACK_PREFIX):
         return TRACK_PREFIX + where[path]
-    return where[path] + spec[len(path):]
+    return where[path] + spec[len(path) :]
 
 
 @contextmanager

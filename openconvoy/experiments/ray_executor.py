@@ -40,7 +40,9 @@ def import_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise DependencyMissing(f"the ray executor needs Ray, which is not installed: {EXTRA_HINT}") from None
+        raise DependencyMissing(
+            f"the ray executor needs Ray, which is not installed: {EXTRA_HINT}"
+        ) from None
     return ray
 
 
@@ -65,7 +67,9 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
     except OSError as exc:
-        raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}") from None
+        raise LinkError(
+            f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}"
+        ) from None
 
 
 class RayExecutor(Executor):
@@ -75,7 +79,9 @@ class RayExecutor(Executor):
 
     kind = "ray"
 
-    def __init__(self, address: str | None = None, jobs: int | None = None, max_retries: int = 0) -> None:
+    def __init__(
+        self, address: str | None = None, jobs: int | None = None, max_retries: int = 0
+    ) -> None:
         ray = import_ray()
         self._ray = ray
         self._owns = False
@@ -87,14 +93,20 @@ class RayExecutor(Executor):
             else:
                 _check_reachable(address)
             try:
-                ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING, **kwargs)
+                ray.init(
+                    address=address, log_to_driver=False, logging_level=logging.WARNING, **kwargs
+                )
             except ConnectionError as exc:
-                raise LinkError(f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}") from None
+                raise LinkError(
+                    f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}"
+                ) from None
             self._owns = address == "local"
         self.address = ray.get_runtime_context().gcs_address
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self._slots = jobs or max(1, cpus)
-        self._remote = ray.remote(_run).options(num_returns="streaming", num_cpus=1, max_retries=max_retries)
+        self._remote = ray.remote(_run).options(
+            num_returns="streaming", num_cpus=1, max_retries=max_retries
+        )
         self._pending: dict[Any, Task] = {}
         self._where: dict[Any, str] = {}
 
@@ -114,11 +126,17 @@ class RayExecutor(Executor):
             try:
                 value = ray.get(next(gen))
             except StopIteration:  # ended without a result: cannot happen with _run
-                value = TaskFailure(task.label, self._where.get(gen, "a Ray worker"), "the task returned nothing")
+                value = TaskFailure(
+                    task.label, self._where.get(gen, "a Ray worker"), "the task returned nothing"
+                )
             except ray.exceptions.RayError as exc:
                 cause = getattr(exc, "cause", None)
                 where = self._where.get(gen, "a Ray worker that had not started the run")
-                error = error_line(cause) if isinstance(cause, BaseException) else error_line(exc, frame=False)
+                error = (
+                    error_line(cause)
+                    if isinstance(cause, BaseException)
+                    else error_line(exc, frame=False)
+                )
                 value = TaskFailure(task.label, where, error)
             else:
                 if gen not in self._where:

@@ -104,13 +104,19 @@ def read_recording(
         raise ConfigError(f"recording source must be telemetry or truth, got {source!r}")
     path = Path(path)
     opener = gzip.open if path.name.endswith(".gz") else open
-    wanted = ("HEARTBEAT", "SET_POSITION_TARGET", "ATTITUDE\"", "GLOBAL_POSITION_INT",
-              "HIL_STATE_QUATERNION")
+    wanted = (
+        "HEARTBEAT",
+        "SET_POSITION_TARGET",
+        'ATTITUDE"',
+        "GLOBAL_POSITION_INT",
+        "HIL_STATE_QUATERNION",
+    )
     try:
         with opener(path, "rt") as f:
             # Parse only the message types used (a recording holds ~20 others).
-            recs = [json.loads(line) for line in f
-                    if '"dir"' in line and any(w in line for w in wanted)]
+            recs = [
+                json.loads(line) for line in f if '"dir"' in line and any(w in line for w in wanted)
+            ]
     except (OSError, ValueError) as exc:
         raise InputFileError(f"{path}: not a readable MAVLink recording ({exc})") from None
     autopilot = "ardupilot"
@@ -142,8 +148,10 @@ def read_recording(
             vn, ve = fields["vx"] / 100.0, fields["vy"] / 100.0
             meas.append((r["t"], vn * math.cos(y) + ve * math.sin(y), _ned_yaw_to_enu(y)))
     if not meas or not cmds:
-        raise InputFileError(f"{path}: no {'telemetry' if source == 'telemetry' else 'SIH truth'} "
-                         "or no velocity setpoints in the recording")
+        raise InputFileError(
+            f"{path}: no {'telemetry' if source == 'telemetry' else 'SIH truth'} "
+            "or no velocity setpoints in the recording"
+        )
     return Recording(path, autopilot, _segments(meas, cmds, armed, max_gap_s))
 
 

@@ -79,7 +79,14 @@ class RunConfig:
     ranging: bool = False
     ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
     gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
-    origin: tuple[Annotated[float, Range(-90.0, 90.0)], Annotated[float, Range(-180.0, 180.0)], Annotated[float, Range(-1000.0, 10000.0)]] | None = None
+    origin: (
+        tuple[
+            Annotated[float, Range(-90.0, 90.0)],
+            Annotated[float, Range(-180.0, 180.0)],
+            Annotated[float, Range(-1000.0, 10000.0)],
+        ]
+        | None
+    ) = None
     start_at_policy_gap: bool = True
     faults: tuple[str, ...] = ()
     auth: str = "required"
@@ -100,8 +107,11 @@ class RunConfig:
     @property
     def loss(self) -> LossConfig:
         return LossConfig(
-            per=self.per, model=self.loss_model, mean_burst_s=self.mean_burst_s,
-            latency_s=self.latency_s, jitter_s=self.jitter_s,
+            per=self.per,
+            model=self.loss_model,
+            mean_burst_s=self.mean_burst_s,
+            latency_s=self.latency_s,
+            jitter_s=self.jitter_s,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -191,7 +201,9 @@ def run_sim(
     rows: list[dict[str, Any]] = []
     if out_dir is not None:
         writer = LogWriter(
-            Path(out_dir) / "log.csv", extra_columns=EXTRA_COLUMNS + env.LOG_EXTRA_COLUMNS, flush_every=500
+            Path(out_dir) / "log.csv",
+            extra_columns=EXTRA_COLUMNS + env.LOG_EXTRA_COLUMNS,
+            flush_every=500,
         )
 
     def emit(tick_rows: list[dict[str, Any]]) -> None:
@@ -206,7 +218,9 @@ def run_sim(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=env.max_steps, unit="tick", desc=f"sim {config.scenario}", delay=2.0, leave=False)
+        bar = tqdm(
+            total=env.max_steps, unit="tick", desc=f"sim {config.scenario}", delay=2.0, leave=False
+        )
     try:
         while env.agents:
             actions = {a: policies[a].act(obs[a]) for a in env.agents}
@@ -228,7 +242,8 @@ def run_sim(
     result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
     result.events += [  # what authentication stopped (forge faults)
         {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
-        for r, n in enumerate(env.forged_rejected) if n
+        for r, n in enumerate(env.forged_rejected)
+        if n
     ]
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)

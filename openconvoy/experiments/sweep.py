@@ -108,7 +108,9 @@ class LossSection:
 
     def __post_init__(self) -> None:
         if self.model not in ("bernoulli", "gilbert-elliott"):
-            raise ConfigError(f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')")
+            raise ConfigError(
+                f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
+            )
         if self.mean_burst_s <= 0:
             raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
 
@@ -122,7 +124,11 @@ class ExperimentConfig:
     scenario: str = "paper"
     policies: tuple[str, ...] = ("paper",)
     pers: tuple[Annotated[float, Range(0.0, 1.0)], ...] = DEFAULT_PERS
-    seeds: tuple[Annotated[int, Range(0, 4294967295)], ...] | Annotated[int, Range(1, 100000)] = (0, 1, 2)
+    seeds: tuple[Annotated[int, Range(0, 4294967295)], ...] | Annotated[int, Range(1, 100000)] = (
+        0,
+        1,
+        2,
+    )
     duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
     convoy: ConvoySection = field(default_factory=ConvoySection)
     loss: LossSection = field(default_factory=LossSection)
@@ -179,7 +185,9 @@ class ExperimentConfig:
     def from_tables(cls, data: dict[str, Any], where: str = "experiment") -> ExperimentConfig:
         unknown = set(data) - {"experiment", "convoy", "loss", "policy", "executor"}
         if unknown:
-            raise ConfigError(f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy, executor")
+            raise ConfigError(
+                f"{where}: unknown table(s) {', '.join(sorted(unknown))}; expected experiment, convoy, loss, policy, executor"
+            )
         if "experiment" not in data:
             raise ConfigError(f"{where}: missing the [experiment] table")
         table = dict(data["experiment"])
@@ -197,7 +205,9 @@ class ExperimentConfig:
 
     # --- runs ----------------------------------------------------------------------------
 
-    def run_configs(self, policy_specs: dict[str, str] | None = None) -> list[tuple[str, RunConfig]]:
+    def run_configs(
+        self, policy_specs: dict[str, str] | None = None
+    ) -> list[tuple[str, RunConfig]]:
         """Every run as ``(policy label, RunConfig)``, ordered by policy, PER, seed.
 
         ``policy_specs`` maps a label to the spec to load (inline policies become files).
@@ -207,15 +217,27 @@ class ExperimentConfig:
         for label in self.policies:
             for per in self.pers:
                 for seed in self.seeds:
-                    out.append((label, RunConfig(
-                        scenario=self.scenario, policy=specs[label], per=per,
-                        loss_model=self.loss.model, mean_burst_s=self.loss.mean_burst_s,
-                        latency_s=self.loss.latency_s, jitter_s=self.loss.jitter_s,
-                        seed=seed, duration_s=self.duration_s,
-                        n_followers=self.convoy.n_followers, vehicles=self.convoy.vehicles,
-                        ranging=self.convoy.ranging,
-                        ranging_max_range_m=self.convoy.ranging_max_range_m, gps_noise_m=self.convoy.gps_noise_m,
-                    )))
+                    out.append(
+                        (
+                            label,
+                            RunConfig(
+                                scenario=self.scenario,
+                                policy=specs[label],
+                                per=per,
+                                loss_model=self.loss.model,
+                                mean_burst_s=self.loss.mean_burst_s,
+                                latency_s=self.loss.latency_s,
+                                jitter_s=self.loss.jitter_s,
+                                seed=seed,
+                                duration_s=self.duration_s,
+                                n_followers=self.convoy.n_followers,
+                                vehicles=self.convoy.vehicles,
+                                ranging=self.convoy.ranging,
+                                ranging_max_range_m=self.convoy.ranging_max_range_m,
+                                gps_noise_m=self.convoy.gps_noise_m,
+                            ),
+                        )
+                    )
         return out
 
 
@@ -239,7 +261,9 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
         name = Path(base).stem
         table.setdefault("name", name)
         if name in PRESETS or (name in inline and inline[name] != table):
-            raise ConfigError(f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file")
+            raise ConfigError(
+                f"policy file {base}: its name {name!r} is taken by a preset or another policy; rename the file"
+            )
         inline[name] = table
         labels.append(str(spec.with_base(name)))
     if labels == list(config.policies):
@@ -274,7 +298,9 @@ def policy_dirname(label: str) -> str:
     """A directory name for a policy label (file specs: the file's stem)."""
     spec = PolicySpec.parse(label)
     base = spec.base
-    return Path(base).stem.replace(" ", "_") + spec.suffix if ("/" in base or "." in base) else label
+    return (
+        Path(base).stem.replace(" ", "_") + spec.suffix if ("/" in base or "." in base) else label
+    )
 
 
 # --- running -----------------------------------------------------------------------------
@@ -313,8 +339,12 @@ def run_series(log: mt.Columns, lengths: dict[int, float], max_points: int = 800
     step = max(1, int(math.ceil(len(t) / max_points)))
     sl = slice(None, None, step)
     return {
-        "t": t[sl], "speed_diff": speed_diff[sl], "max_error": max_err[sl],
-        "x": x[sl].T, "y": y[sl].T, "closest_gap": closest[sl],
+        "t": t[sl],
+        "speed_diff": speed_diff[sl],
+        "max_error": max_err[sl],
+        "x": x[sl].T,
+        "y": y[sl].T,
+        "closest_gap": closest[sl],
         "collision_gap": limit if math.isfinite(limit) else 0.0,
     }
 
@@ -366,10 +396,14 @@ def run_experiment(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.toml").write_text(config.to_toml(), encoding="utf-8")
-    write_json(out / "manifest.json", {
-        "openconvoy_version": __version__, "experiment": "experiment.toml",
-        "rerun": f"openconvoy experiment per-sweep --config {out / 'experiment.toml'} --out NEW_DIR",
-    })
+    write_json(
+        out / "manifest.json",
+        {
+            "openconvoy_version": __version__,
+            "experiment": "experiment.toml",
+            "rerun": f"openconvoy experiment per-sweep --config {out / 'experiment.toml'} --out NEW_DIR",
+        },
+    )
     specs = write_inline_policies(config, out)
     planned = config.run_configs(specs)
     first_seed = config.seeds[0]
@@ -400,7 +434,11 @@ def run_experiment(
     if failures:
         write_json(out / "failures.json", {"failures": [dataclasses.asdict(f) for f in failures]})
         if raise_on_failure:
-            raise TasksFailed(failures, len(tasks), f"the other {len(runs)} are in {out} (summary.csv covers only them)")
+            raise TasksFailed(
+                failures,
+                len(tasks),
+                f"the other {len(runs)} are in {out} (summary.csv covers only them)",
+            )
         return result
     if figures:
         from openconvoy.experiments import figures as figs
@@ -427,7 +465,12 @@ def stats(values: Sequence[float]) -> dict[str, float]:
     v = np.array([x for x in values if x is not None and math.isfinite(x)], dtype=float)
     if not len(v):
         return dict.fromkeys(STATS, math.nan)
-    return {"mean": float(v.mean()), "std": float(v.std()), "min": float(v.min()), "max": float(v.max())}
+    return {
+        "mean": float(v.mean()),
+        "std": float(v.std()),
+        "min": float(v.min()),
+        "max": float(v.max()),
+    }
 
 
 def summarize(
@@ -460,7 +503,10 @@ def summary_csv(rows: Sequence[dict[str, Any]]) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     for r in rows:
-        w.writerow([r["policy"], _fmt(r["per"]), r["runs"]] + [_fmt(r[k][s]) for k in mt.METRIC_KEYS for s in STATS])
+        w.writerow(
+            [r["policy"], _fmt(r["per"]), r["runs"]]
+            + [_fmt(r[k][s]) for k in mt.METRIC_KEYS for s in STATS]
+        )
     return buf.getvalue()
 
 
@@ -489,7 +535,8 @@ def with_overrides(config: ExperimentConfig, **changes: Any) -> ExperimentConfig
     loss = {k: v for k, v in changes.items() if k in loss_keys}
     top = {k: v for k, v in changes.items() if k not in convoy_keys | loss_keys}
     return dataclasses.replace(
-        config, **top,
+        config,
+        **top,
         convoy=dataclasses.replace(config.convoy, **convoy),
         loss=dataclasses.replace(config.loss, **loss),
     )

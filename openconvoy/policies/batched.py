@@ -42,7 +42,9 @@ class BatchedClassical:
         obs = np.asarray(observations, dtype=np.float32)
         lay, cfg = self.layout, self.config
         if obs.shape[-1] != lay.size:
-            raise ValueError(f"observations have {obs.shape[-1]} features, layout expects {lay.size}")
+            raise ValueError(
+                f"observations have {obs.shape[-1]} features, layout expects {lay.size}"
+            )
         shape = obs.shape[:-1]
         if self._integral is None or self._integral.shape != shape:
             self._integral = np.zeros(shape)
@@ -91,18 +93,26 @@ class BatchedClassical:
             error = fresh_sum / fresh_n
         if cfg.rear_weight > 0.0:
             f = newest["follower"]
-            rear = np.where(f[..., 6] < 0.5, 0.0, np.hypot(f[..., 0], f[..., 1]).astype(np.float64) - near_desired)
+            rear = np.where(
+                f[..., 6] < 0.5,
+                0.0,
+                np.hypot(f[..., 0], f[..., 1]).astype(np.float64) - near_desired,
+            )
             error = error - cfg.rear_weight * rear
         integral = self._integral
         if c.kind == "pid":
             lim = c.integral_limit
-            integral = np.where(have_fresh, np.minimum(np.maximum(integral + error * self.dt, -lim), lim), integral)
+            integral = np.where(
+                have_fresh, np.minimum(np.maximum(integral + error * self.dt, -lim), lim), integral
+            )
         de = v_ref - own
         pid = v_ref + c.kp * error + c.ki * integral + c.kd * de
         cap = near_speed + c.kp * near_err + c.kd * (near_speed - own)
         speed = np.where(have_fresh, np.minimum(pid, cap), np.inf)
         for is_stale, e, ts in stale_terms:
-            limit = np.minimum(v_ref + c.kp * e + c.kd * (v_ref - own), ts + c.kp * e + c.kd * (ts - own))
+            limit = np.minimum(
+                v_ref + c.kp * e + c.kd * (v_ref - own), ts + c.kp * e + c.kd * (ts - own)
+            )
             speed = np.where(is_stale, np.minimum(speed, limit), speed)
         speed = np.minimum(np.maximum(speed, 0.0), cfg.speed_limit_mps)
         stop = lost | ~any_valid

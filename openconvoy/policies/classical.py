@@ -117,14 +117,20 @@ class ClassicalPolicy:
             speed = self._speed(error, v_ref, v_ref - own)
             # Never faster than the nearest fresh predecessor alone asks.
             near = fresh[0]
-            speed = min(speed, near["speed"] + c.kp * near["spacing_error"] + c.kd * (near["speed"] - own))
+            speed = min(
+                speed, near["speed"] + c.kp * near["spacing_error"] + c.kd * (near["speed"] - own)
+            )
         else:
             self._speed.reset()
         for t in stale:
             # Each stale target caps the speed at its term of the mean (so leaving it out
             # of the mean cannot speed the follower up) and at what it alone asks.
             e = t["spacing_error"]
-            speed = min(speed, v_ref + c.kp * e + c.kd * (v_ref - own), t["speed"] + c.kp * e + c.kd * (t["speed"] - own))
+            speed = min(
+                speed,
+                v_ref + c.kp * e + c.kd * (v_ref - own),
+                t["speed"] + c.kp * e + c.kd * (t["speed"] - own),
+            )
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
         return make_action(speed, self._heading_change(view.path, own))
 
@@ -161,7 +167,9 @@ class ClassicalPolicy:
             return 0.0
         h = self.config.heading
         if h.kind == "stanley":
-            return stanley(path["heading_error"], path["cross_track"], speed, h.gain, h.softening_mps)
+            return stanley(
+                path["heading_error"], path["cross_track"], speed, h.gain, h.softening_mps
+            )
         # Pure pursuit: the lookahead point nearest the configured lookahead time.
         j = int(np.argmin([abs(t - h.lookahead_s) for t in LOOKAHEAD_S]))
         return pure_pursuit(path[f"la{j}_x"], path[f"la{j}_y"])

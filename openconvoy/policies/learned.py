@@ -101,14 +101,20 @@ class LearnedMeta:
 
     def __post_init__(self) -> None:
         if self.base is not None and self.base.member != self.member_config:
-            raise InputFileError("a residual policy's base must use the policy's member configuration")
+            raise InputFileError(
+                "a residual policy's base must use the policy's member configuration"
+            )
         if not (math.isfinite(self.control_rate_hz) and 0 < self.control_rate_hz <= 100):
-            raise InputFileError(f"control_rate_hz: {self.control_rate_hz!r} is out of range; allowed: (0, 100] Hz")
+            raise InputFileError(
+                f"control_rate_hz: {self.control_rate_hz!r} is out of range; allowed: (0, 100] Hz"
+            )
         size = int(self.layout["size"])
         for name in ("obs_mean", "obs_var"):
             arr = getattr(self, name)
             if arr is not None and np.shape(arr) != (size,):
-                raise InputFileError(f"{name} has shape {np.shape(arr)}, the layout has size {size}")
+                raise InputFileError(
+                    f"{name} has shape {np.shape(arr)}, the layout has size {size}"
+                )
         # The member config must describe the layout the policy records.
         self.member_config.layout.check_compatible(self.layout)
 
@@ -121,7 +127,9 @@ class LearnedMeta:
             "control_rate_hz": self.control_rate_hz,
             "action_low": list(self.action_low),
             "action_high": list(self.action_high),
-            "obs_mean": None if self.obs_mean is None else np.asarray(self.obs_mean, float).tolist(),
+            "obs_mean": None
+            if self.obs_mean is None
+            else np.asarray(self.obs_mean, float).tolist(),
             "obs_var": None if self.obs_var is None else np.asarray(self.obs_var, float).tolist(),
             "obs_clip": self.obs_clip,
             "obs_epsilon": self.obs_epsilon,
@@ -172,7 +180,9 @@ class LearnedMeta:
         """A fresh instance of the residual base (None for absolute actions)."""
         return None if self.base is None else ClassicalPolicy(self.base)
 
-    def to_si(self, normalized_action: np.ndarray, base_action: np.ndarray | None = None) -> np.ndarray:
+    def to_si(
+        self, normalized_action: np.ndarray, base_action: np.ndarray | None = None
+    ) -> np.ndarray:
         """Normalized action in [-1, 1]^2 (and the base's action, for residual policies)
         -> ``[speed_mps, heading_change_rad]``."""
         return compose_action(
@@ -203,7 +213,9 @@ def compose_action(
     if base_action is None:
         return scale_action(normalized_action, low, high)
     a = np.clip(np.asarray(normalized_action, dtype=np.float64), -1.0, 1.0)
-    si = np.asarray(base_action, dtype=np.float64) + a * np.asarray(residual_scale, dtype=np.float64)
+    si = np.asarray(base_action, dtype=np.float64) + a * np.asarray(
+        residual_scale, dtype=np.float64
+    )
     si = np.clip(si, np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64))
     return make_action(float(si[0]), float(si[1]))
 
@@ -217,7 +229,9 @@ class LearnedPolicy:
     so give every follower its own copy (``copy.deepcopy``), as for classical policies.
     """
 
-    def __init__(self, meta: LearnedMeta, forward: Callable[[np.ndarray], np.ndarray], source: str) -> None:
+    def __init__(
+        self, meta: LearnedMeta, forward: Callable[[np.ndarray], np.ndarray], source: str
+    ) -> None:
         self.meta = meta
         self.layout = meta.member_config.layout
         self._forward = forward
@@ -245,12 +259,18 @@ class LearnedPolicy:
         """The network's deterministic action in [-1, 1]^2 (before SI scaling)."""
         obs = np.asarray(observation)
         if obs.shape != (self.layout.size,):
-            raise InputFileError(f"observation has shape {obs.shape}, layout expects ({self.layout.size},)")
+            raise InputFileError(
+                f"observation has shape {obs.shape}, layout expects ({self.layout.size},)"
+            )
         return np.asarray(self._forward(self.meta.normalize(obs)), dtype=np.float64).reshape(-1)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         a = self.normalized_action(observation)
-        base = None if self._base is None else self._base.act(np.asarray(observation, dtype=np.float32))
+        base = (
+            None
+            if self._base is None
+            else self._base.act(np.asarray(observation, dtype=np.float32))
+        )
         return self.meta.to_si(a, base)
 
     def check_layout(self, layout: ObservationLayout) -> None:
@@ -262,20 +282,28 @@ class NumpyMLP:
     """The actor's forward pass in numpy: hidden layers with one activation, a linear
     output, then ``clip`` or ``tanh`` (see ``OUTPUTS``). Computes in float64."""
 
-    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], activation: str, output: str) -> None:
+    def __init__(
+        self, weights: list[np.ndarray], biases: list[np.ndarray], activation: str, output: str
+    ) -> None:
         if activation not in ACTIVATIONS:
-            raise InputFileError(f"unknown activation {activation!r}; expected one of {', '.join(ACTIVATIONS)}")
+            raise InputFileError(
+                f"unknown activation {activation!r}; expected one of {', '.join(ACTIVATIONS)}"
+            )
         if output not in OUTPUTS:
             raise InputFileError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
         if len(weights) != len(biases) or not weights:
-            raise InputFileError("an MLP needs as many bias vectors as weight matrices, at least one")
+            raise InputFileError(
+                "an MLP needs as many bias vectors as weight matrices, at least one"
+            )
         self.weights = [np.asarray(w, dtype=np.float64) for w in weights]
         self.biases = [np.asarray(b, dtype=np.float64) for b in biases]
         if not all(np.isfinite(a).all() for a in (*self.weights, *self.biases)):
             raise InputFileError("the network's weights are not all finite numbers (NaN or inf)")
         for i in range(1, len(self.weights)):
             if self.weights[i].shape[1] != self.weights[i - 1].shape[0]:
-                raise InputFileError(f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}")
+                raise InputFileError(
+                    f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}"
+                )
         self.activation = activation
         self.output = output
         self._act = ACTIVATIONS[activation]
@@ -332,7 +360,9 @@ def load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
 def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
     with np.load(Path(path), allow_pickle=False) as data:
         if "format" not in data or str(data["format"]) != NPZ_FORMAT:
-            raise InputFileError(f"{path}: not an OpenConvoy policy export (expected format {NPZ_FORMAT})")
+            raise InputFileError(
+                f"{path}: not an OpenConvoy policy export (expected format {NPZ_FORMAT})"
+            )
         meta = LearnedMeta.from_json(json.loads(str(data["meta"])), f"{path}")
         n = int(data["n_layers"])
         mlp = NumpyMLP(
@@ -342,7 +372,9 @@ def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
             str(data["output"]),
         )
     if mlp.n_inputs != meta.layout["size"]:
-        raise InputFileError(f"{path}: the network takes {mlp.n_inputs} inputs, the layout has {meta.layout['size']}")
+        raise InputFileError(
+            f"{path}: the network takes {mlp.n_inputs} inputs, the layout has {meta.layout['size']}"
+        )
     return meta, mlp
 
 
@@ -387,14 +419,18 @@ def load_sb3_model(path: str | Path, algo: str):
         ) from exc
     classes = {"ppo": sb3.PPO, "sac": sb3.SAC}
     if algo not in classes:
-        raise InputFileError(f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}")
+        raise InputFileError(
+            f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}"
+        )
     # Schedules are pickled closures; inference never needs them, and replacing them avoids
     # unpickling failures across Python/SB3 versions.
     custom = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
     try:
         return classes[algo].load(str(path), device="cpu", custom_objects=custom)
     except Exception as exc:  # noqa: BLE001 - SB3/torch raise anything on a corrupt archive
-        raise InputFileError(f"{path}: SB3 could not load the model ({type(exc).__name__}: {exc})") from None
+        raise InputFileError(
+            f"{path}: SB3 could not load the model ({type(exc).__name__}: {exc})"
+        ) from None
 
 
 def load_learned(

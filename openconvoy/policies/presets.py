@@ -21,10 +21,14 @@ from openconvoy.core.spacing import SpacingConfig
 from openconvoy.policies.classical import ClassicalConfig
 
 PERIODIC = TriggerConfig(kind="periodic", period_s=0.1)
-EVENT = TriggerConfig(kind="event", period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=1.0)
+EVENT = TriggerConfig(
+    kind="event", period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=1.0
+)
 CONSTANT_DISTANCE = SpacingConfig(kind="constant-distance", distance_m=15.0)
 CTH = SpacingConfig(kind="constant-time-headway", standstill_m=2.0, headway_s=0.6)
-QUADRATIC = SpacingConfig(kind="quadratic", standstill_m=2.0, headway_s=0.6, quadratic_s2_per_m=0.02)
+QUADRATIC = SpacingConfig(
+    kind="quadratic", standstill_m=2.0, headway_s=0.6, quadratic_s2_per_m=0.02
+)
 PD = SpeedControlConfig(kind="pd", kp=0.3, kd=1.1)
 STANLEY = HeadingControlConfig(kind="stanley", gain=0.2)
 
@@ -58,19 +62,89 @@ PRESETS: dict[str, ClassicalConfig] = {
         _preset(
             "paper",
             "OpenConvoy paper: all-predecessor IFT, 0.1 s broadcast, 15 m path-based spacing, PD (0.3, 1.1), Stanley 0.2, 5 m/s, 20 Hz",
-            "all-predecessors", PERIODIC, CONSTANT_DISTANCE, speed_limit_mps=5.0,
+            "all-predecessors",
+            PERIODIC,
+            CONSTANT_DISTANCE,
+            speed_limit_mps=5.0,
         ),
-        _preset("platoon-allpred", "constant-distance platooning, all-predecessors, time-triggered" + _MPC, "all-predecessors", PERIODIC, CONSTANT_DISTANCE),
-        _preset("platoon-allpred-event", "constant-distance platooning, all-predecessors, event-triggered" + _MPC, "all-predecessors", EVENT, CONSTANT_DISTANCE),
-        _preset("platoon-leader", "constant-distance platooning, leader-following, time-triggered" + _MPC, "leader", PERIODIC, CONSTANT_DISTANCE),
-        _preset("platoon-leader-event", "constant-distance platooning, leader-following, event-triggered" + _MPC, "leader", EVENT, CONSTANT_DISTANCE),
-        _preset("cacc-allpred", "CACC, constant time headway (2 m + 0.6 s), all-predecessors, time-triggered", "all-predecessors", PERIODIC, CTH),
-        _preset("cacc-allpred-event", "CACC, constant time headway, all-predecessors, event-triggered", "all-predecessors", EVENT, CTH),
-        _preset("cacc-lookahead1", "CACC, constant time headway, predecessor only (lookahead:1), time-triggered", "lookahead:1", PERIODIC, CTH),
-        _preset("cacc-lookahead1-event", "CACC, constant time headway, lookahead:1, event-triggered", "lookahead:1", EVENT, CTH),
-        _preset("cacc-lookaheadN", "CACC, constant time headway, every predecessor (lookahead:N), time-triggered", "lookahead:N", PERIODIC, CTH),
-        _preset("cacc-lookaheadN-event", "CACC, constant time headway, lookahead:N, event-triggered", "lookahead:N", EVENT, CTH),
-        _preset("mcacc", "M-CACC: quadratic spacing, bidirectional topology, time-triggered" + _MPC, "bidirectional", PERIODIC, QUADRATIC, rear_weight=0.3),
+        _preset(
+            "platoon-allpred",
+            "constant-distance platooning, all-predecessors, time-triggered" + _MPC,
+            "all-predecessors",
+            PERIODIC,
+            CONSTANT_DISTANCE,
+        ),
+        _preset(
+            "platoon-allpred-event",
+            "constant-distance platooning, all-predecessors, event-triggered" + _MPC,
+            "all-predecessors",
+            EVENT,
+            CONSTANT_DISTANCE,
+        ),
+        _preset(
+            "platoon-leader",
+            "constant-distance platooning, leader-following, time-triggered" + _MPC,
+            "leader",
+            PERIODIC,
+            CONSTANT_DISTANCE,
+        ),
+        _preset(
+            "platoon-leader-event",
+            "constant-distance platooning, leader-following, event-triggered" + _MPC,
+            "leader",
+            EVENT,
+            CONSTANT_DISTANCE,
+        ),
+        _preset(
+            "cacc-allpred",
+            "CACC, constant time headway (2 m + 0.6 s), all-predecessors, time-triggered",
+            "all-predecessors",
+            PERIODIC,
+            CTH,
+        ),
+        _preset(
+            "cacc-allpred-event",
+            "CACC, constant time headway, all-predecessors, event-triggered",
+            "all-predecessors",
+            EVENT,
+            CTH,
+        ),
+        _preset(
+            "cacc-lookahead1",
+            "CACC, constant time headway, predecessor only (lookahead:1), time-triggered",
+            "lookahead:1",
+            PERIODIC,
+            CTH,
+        ),
+        _preset(
+            "cacc-lookahead1-event",
+            "CACC, constant time headway, lookahead:1, event-triggered",
+            "lookahead:1",
+            EVENT,
+            CTH,
+        ),
+        _preset(
+            "cacc-lookaheadN",
+            "CACC, constant time headway, every predecessor (lookahead:N), time-triggered",
+            "lookahead:N",
+            PERIODIC,
+            CTH,
+        ),
+        _preset(
+            "cacc-lookaheadN-event",
+            "CACC, constant time headway, lookahead:N, event-triggered",
+            "lookahead:N",
+            EVENT,
+            CTH,
+        ),
+        _preset(
+            "mcacc",
+            "M-CACC: quadratic spacing, bidirectional topology, time-triggered" + _MPC,
+            "bidirectional",
+            PERIODIC,
+            QUADRATIC,
+            rear_weight=0.3,
+        ),
     )
 }
 
@@ -81,4 +155,6 @@ def with_ladder(config: ClassicalConfig, enabled: bool = True) -> ClassicalConfi
         config.member, ladder=dataclasses.replace(config.member.ladder, enabled=enabled)
     )
     suffix = "+ladder" if enabled else ""
-    return dataclasses.replace(config, member=member, name=config.name.removesuffix("+ladder") + suffix)
+    return dataclasses.replace(
+        config, member=member, name=config.name.removesuffix("+ladder") + suffix
+    )

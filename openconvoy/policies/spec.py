@@ -111,7 +111,9 @@ def classical_from_table(table: Any, name: str, where: str, source: str = "") ->
     base_name = table.pop("base", None)
     if base_name is not None:
         if base_name not in PRESETS:
-            raise ConfigError(f"{where}.base: unknown base preset {base_name!r}; expected one of {', '.join(PRESETS)}")
+            raise ConfigError(
+                f"{where}.base: unknown base preset {base_name!r}; expected one of {', '.join(PRESETS)}"
+            )
         inherited = to_dict(PRESETS[base_name])
         inherited["name"] = name
         inherited["description"] = f"{base_name} with changes from {source or name}"
@@ -140,9 +142,14 @@ def describe(config: ClassicalConfig) -> str:
     m = config.member
     return (
         f"{config.name}: {m.topology}, {m.trigger.kind}, {m.spacing.kind}, "
-        f"{config.speed.kind} + {config.heading.kind}"
-        + (", ladder" if m.ladder.enabled else "")
+        f"{config.speed.kind} + {config.heading.kind}" + (", ladder" if m.ladder.enabled else "")
     )
 
 
-__all__ = ["load_policy", "classical_config", "classical_from_toml", "classical_to_toml", "describe"]
+__all__ = [
+    "load_policy",
+    "classical_config",
+    "classical_from_toml",
+    "classical_to_toml",
+    "describe",
+]

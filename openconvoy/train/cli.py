@@ -13,36 +13,104 @@ from openconvoy.experiments.cli import executor_args
 
 
 def _add_train(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("train", help="train a follower policy (PPO/SAC, shared by all followers)",
-                       description="Train one policy for every follower with stable-baselines3 under "
-                       "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
-                       "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
-                       "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.")
-    p.add_argument("--config", metavar="TRAIN.toml", action="append",
-                   help="training config file; repeat for one run per config (OUT/<stem>)")
+    p = sub.add_parser(
+        "train",
+        help="train a follower policy (PPO/SAC, shared by all followers)",
+        description="Train one policy for every follower with stable-baselines3 under "
+        "domain randomization; write RUN_DIR/policy.zip (with its layout, member config "
+        "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
+        "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.",
+    )
+    p.add_argument(
+        "--config",
+        metavar="TRAIN.toml",
+        action="append",
+        help="training config file; repeat for one run per config (OUT/<stem>)",
+    )
     p.add_argument("--algo", choices=("ppo", "sac"), help="algorithm (default ppo)")
-    p.add_argument("--steps", type=_int(1, 10**12), metavar="N", help="agent steps (default 600000)")
-    p.add_argument("--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)")
+    p.add_argument(
+        "--steps", type=_int(1, 10**12), metavar="N", help="agent steps (default 600000)"
+    )
+    p.add_argument(
+        "--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)"
+    )
     p.add_argument("--seed", type=SEED, help="seed (default 0)")
-    p.add_argument("--seeds", type=SEED, nargs="+", metavar="S",
-                   help="one run per seed (OUT/seed_S), run as tasks of --executor")
-    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
-                   help="training runs at once (default: the cores available, or the cluster's CPUs)")
+    p.add_argument(
+        "--seeds",
+        type=SEED,
+        nargs="+",
+        metavar="S",
+        help="one run per seed (OUT/seed_S), run as tasks of --executor",
+    )
+    p.add_argument(
+        "--jobs",
+        type=_int(1, 4096),
+        metavar="N",
+        help="training runs at once (default: the cores available, or the cluster's CPUs)",
+    )
     executor_args(p)
-    p.add_argument("--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)")
-    p.add_argument("--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)")
-    p.add_argument("--base", metavar="SPEC", help="classical policy the network corrects (residual; "
-                   "default paper), or 'none' for absolute actions")
-    p.add_argument("--M", type=_int(1, 1000), help="observation: predecessors per observation (default: the base's)")
-    p.add_argument("--k", type=_int(1, 1000), help="observation: states per vehicle (default: the base's)")
-    p.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="control rate (default: the base's, 20)")
-    p.add_argument("--per-range", type=FRACTION, nargs=2, metavar=("A", "B"), help="PER drawn in [A, B] (default 0 0.6)")
-    p.add_argument("--burst-prob", type=FRACTION, metavar="P", help="chance of Gilbert-Elliott bursts per episode (default 0.3)")
-    p.add_argument("--latency-range", type=_num(0.0, 60.0), nargs=2, metavar=("A", "B"), help="latency, seconds (default 0 0.05)")
-    p.add_argument("--gps-noise-range", type=_num(0.0, 1000.0), nargs=2, metavar=("A", "B"), help="GPS noise std, metres (default 0 0.05)")
-    p.add_argument("--scenarios", nargs="+", metavar="SPEC", help="scenarios drawn per episode (default paper)")
-    p.add_argument("--vehicles", nargs="+", metavar="PRESET", help="vehicle presets or fitted preset .toml files drawn per vehicle (default 1/10 1/6)")
-    p.add_argument("--threads", type=_int(1, 1024), metavar="N", help="torch CPU threads (default 1)")
+    p.add_argument(
+        "--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)"
+    )
+    p.add_argument(
+        "--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)"
+    )
+    p.add_argument(
+        "--base",
+        metavar="SPEC",
+        help="classical policy the network corrects (residual; "
+        "default paper), or 'none' for absolute actions",
+    )
+    p.add_argument(
+        "--M",
+        type=_int(1, 1000),
+        help="observation: predecessors per observation (default: the base's)",
+    )
+    p.add_argument(
+        "--k", type=_int(1, 1000), help="observation: states per vehicle (default: the base's)"
+    )
+    p.add_argument(
+        "--rate", type=RATE_HZ, metavar="HZ", help="control rate (default: the base's, 20)"
+    )
+    p.add_argument(
+        "--per-range",
+        type=FRACTION,
+        nargs=2,
+        metavar=("A", "B"),
+        help="PER drawn in [A, B] (default 0 0.6)",
+    )
+    p.add_argument(
+        "--burst-prob",
+        type=FRACTION,
+        metavar="P",
+        help="chance of Gilbert-Elliott bursts per episode (default 0.3)",
+    )
+    p.add_argument(
+        "--latency-range",
+        type=_num(0.0, 60.0),
+        nargs=2,
+        metavar=("A", "B"),
+        help="latency, seconds (default 0 0.05)",
+    )
+    p.add_argument(
+        "--gps-noise-range",
+        type=_num(0.0, 1000.0),
+        nargs=2,
+        metavar=("A", "B"),
+        help="GPS noise std, metres (default 0 0.05)",
+    )
+    p.add_argument(
+        "--scenarios", nargs="+", metavar="SPEC", help="scenarios drawn per episode (default paper)"
+    )
+    p.add_argument(
+        "--vehicles",
+        nargs="+",
+        metavar="PRESET",
+        help="vehicle presets or fitted preset .toml files drawn per vehicle (default 1/10 1/6)",
+    )
+    p.add_argument(
+        "--threads", type=_int(1, 1024), metavar="N", help="torch CPU threads (default 1)"
+    )
     p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -55,26 +123,57 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_tune(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tune", help="tune a classical policy's parameters with Optuna",
-                       description="Search a classical policy's PD/PID gains, steering gain and spacing "
-                       "shape against the metrics over PERs and seeds; write the best as a policy "
-                       "TOML file (--policy accepts it) and OUT.json with the study's numbers.")
-    p.add_argument("--policy", default="paper", metavar="BASE", help="preset or policy .toml to start from")
+    p = sub.add_parser(
+        "tune",
+        help="tune a classical policy's parameters with Optuna",
+        description="Search a classical policy's PD/PID gains, steering gain and spacing "
+        "shape against the metrics over PERs and seeds; write the best as a policy "
+        "TOML file (--policy accepts it) and OUT.json with the study's numbers.",
+    )
+    p.add_argument(
+        "--policy", default="paper", metavar="BASE", help="preset or policy .toml to start from"
+    )
     p.add_argument("--trials", type=_int(1, 10**7), default=30, metavar="N")
     p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
-    p.add_argument("--per", type=FRACTION, nargs="+", default=[0.0, 0.3, 0.6], metavar="PER", help="PERs (default 0 0.3 0.6)")
-    p.add_argument("--seeds", type=SEED, nargs="+", default=[1000, 1001], metavar="S",
-                   help="seeds (default 1000 1001, apart from the 0.. of reports)")
+    p.add_argument(
+        "--per",
+        type=FRACTION,
+        nargs="+",
+        default=[0.0, 0.3, 0.6],
+        metavar="PER",
+        help="PERs (default 0 0.3 0.6)",
+    )
+    p.add_argument(
+        "--seeds",
+        type=SEED,
+        nargs="+",
+        default=[1000, 1001],
+        metavar="S",
+        help="seeds (default 1000 1001, apart from the 0.. of reports)",
+    )
     p.add_argument("--scenario", default="paper", metavar="SPEC")
-    p.add_argument("--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)")
-    p.add_argument("--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)")
+    p.add_argument(
+        "--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)"
+    )
+    p.add_argument(
+        "--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)"
+    )
     p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
-    p.add_argument("--storage", metavar="URL_OR_FILE",
-                   help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
-                   "or a journal file path; rerunning with it resumes the study")
-    p.add_argument("--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)")
-    p.add_argument("--jobs", type=_int(1, 4096), metavar="N",
-                   help="trials at once (default 1 locally, the cluster's CPUs on Ray)")
+    p.add_argument(
+        "--storage",
+        metavar="URL_OR_FILE",
+        help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+        "or a journal file path; rerunning with it resumes the study",
+    )
+    p.add_argument(
+        "--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)"
+    )
+    p.add_argument(
+        "--jobs",
+        type=_int(1, 4096),
+        metavar="N",
+        help="trials at once (default 1 locally, the cluster's CPUs on Ray)",
+    )
     executor_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -87,10 +186,13 @@ def _add_tune(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_export(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="export a trained policy to a numpy-only .npz",
-                       description="Turn RUN_DIR/policy.zip (or a .zip) into a .npz that runs without "
-                       "torch (weights, observation normalization, action scaling, layout, member "
-                       "config, control rate), and check its actions against SB3's predict.")
+    p = sub.add_parser(
+        "export",
+        help="export a trained policy to a numpy-only .npz",
+        description="Turn RUN_DIR/policy.zip (or a .zip) into a .npz that runs without "
+        "torch (weights, observation normalization, action scaling, layout, member "
+        "config, control rate), and check its actions against SB3's predict.",
+    )
     p.add_argument("run", metavar="RUN_DIR", help="run directory or SB3 .zip")
     p.add_argument("--out", required=True, metavar="FILE.npz")
 

@@ -18,15 +18,22 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         path = args.config[0]
     config = load_train_config(path) if path else TrainConfig()
     top: dict = {}
-    for flag, key in (("algo", "algo"), ("steps", "total_steps"), ("seed", "seed"),
-                      ("envs", "n_envs"), ("threads", "torch_threads")):
+    for flag, key in (
+        ("algo", "algo"),
+        ("steps", "total_steps"),
+        ("seed", "seed"),
+        ("envs", "n_envs"),
+        ("threads", "torch_threads"),
+    ):
         if getattr(args, flag) is not None:
             top[key] = getattr(args, flag)
     env = config.env
     env_changes: dict = {}
     if args.base is not None:
         # A new base brings its own member config and rate unless they are given too.
-        env_changes.update(base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None)
+        env_changes.update(
+            base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None
+        )
     if args.followers is not None:
         env_changes["n_followers"] = args.followers
     if args.rate is not None:
@@ -39,11 +46,20 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         env = dataclasses.replace(env, member=member)
     r = config.randomization
     r_changes: dict = {}
-    for flag, key in (("per_range", "per_range"), ("burst_prob", "burst_prob"),
-                      ("latency_range", "latency_s_range"), ("gps_noise_range", "gps_noise_m_range"),
-                      ("scenarios", "scenarios"), ("vehicles", "vehicles")):
+    for flag, key in (
+        ("per_range", "per_range"),
+        ("burst_prob", "burst_prob"),
+        ("latency_range", "latency_s_range"),
+        ("gps_noise_range", "gps_noise_m_range"),
+        ("scenarios", "scenarios"),
+        ("vehicles", "vehicles"),
+    ):
         if getattr(args, flag) is not None:
-            r_changes[key] = tuple(getattr(args, flag)) if isinstance(getattr(args, flag), list) else getattr(args, flag)
+            r_changes[key] = (
+                tuple(getattr(args, flag))
+                if isinstance(getattr(args, flag), list)
+                else getattr(args, flag)
+            )
     if r_changes:
         r = dataclasses.replace(r, **r_changes)
     return dataclasses.replace(config, env=env, randomization=r, **top)
@@ -65,7 +81,9 @@ def train_command(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
-    print(f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)")
+    print(
+        f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)"
+    )
     return 0
 
 
@@ -86,15 +104,21 @@ def _train_many(args: argparse.Namespace) -> int:
     configs = [(_stem(p) if p else "default", train_config_from_args(args, p)) for p in paths]
     runs = plan(configs, args.seeds)
     executor = make_executor(with_flags(ExecutorConfig(), args.executor, args.address, args.jobs))
-    print(f"training {len(runs)} runs on the {executor.kind} executor ({executor.slots} at once) -> {args.out}",
-          file=sys.stderr)
+    print(
+        f"training {len(runs)} runs on the {executor.kind} executor ({executor.slots} at once) -> {args.out}",
+        file=sys.stderr,
+    )
     try:
-        summary = train_many(runs, args.out, executor, progress=not args.no_progress, overwrite=args.overwrite)
+        summary = train_many(
+            runs, args.out, executor, progress=not args.no_progress, overwrite=args.overwrite
+        )
     except TasksFailed as exc:
         print(f"openconvoy: error: {exc}", file=sys.stderr)
         return 1
     for entry in summary:
-        print(f"{Path(args.out) / entry['policy']}  ({entry['steps']} steps in {entry['wall_s']:.0f} s on {entry['ran_on']})")
+        print(
+            f"{Path(args.out) / entry['policy']}  ({entry['steps']} steps in {entry['wall_s']:.0f} s on {entry['ran_on']})"
+        )
     return 0
 
 
@@ -108,23 +132,36 @@ def tune_command(args: argparse.Namespace) -> int:
     if args.study_name is not None and args.storage is None:
         raise ConfigError("--study-name needs --storage (an in-memory study cannot be resumed)")
     config = TuneConfig(
-        base=args.policy, trials=args.trials, pers=tuple(args.per), seeds=tuple(args.seeds),
-        scenario=args.scenario, duration_s=args.duration, params=tuple(args.params or ()),
-        seed=args.seed, name=_stem(args.out),
+        base=args.policy,
+        trials=args.trials,
+        pers=tuple(args.per),
+        seeds=tuple(args.seeds),
+        scenario=args.scenario,
+        duration_s=args.duration,
+        params=tuple(args.params or ()),
+        seed=args.seed,
+        name=_stem(args.out),
     )
     # Trials run one at a time in this process unless an executor or --jobs is asked for.
     jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
     executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
     try:
-        result = tune(config, progress_bar=not args.no_progress, executor=executor,
-                      study_name=args.study_name, storage=args.storage)
+        result = tune(
+            config,
+            progress_bar=not args.no_progress,
+            executor=executor,
+            study_name=args.study_name,
+            storage=args.storage,
+        )
     except TasksFailed as exc:
         print(f"openconvoy: error: {exc}", file=sys.stderr)
         return 1
     path = write_tuned(result, args.out)
     values = ", ".join(f"{k} = {v:.4g}" for k, v in result.best_params.items())
-    print(f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "
-          f"{len(result.history)} trials in study {result.study_name!r}, {result.evaluated} run now")
+    print(
+        f"{path}: objective {result.best_value:.4f} (base {result.base_value:.4f}); {values}; "
+        f"{len(result.history)} trials in study {result.study_name!r}, {result.evaluated} run now"
+    )
     if result.failures:
         print(f"openconvoy: error: {len(result.failures)} trials failed:", file=sys.stderr)
         for f in result.failures:
@@ -149,7 +186,9 @@ def export_command(args: argparse.Namespace) -> int:
     diff = max_action_difference(trained, exported, obs)
     print(f"{path}: max |action difference| vs SB3 predict = {diff:.2e} on {len(obs)} observations")
     if diff > 1e-5:
-        print("openconvoy: error: the export does not reproduce the trained policy", file=sys.stderr)
+        print(
+            "openconvoy: error: the export does not reproduce the trained policy", file=sys.stderr
+        )
         return 1
     return 0
 

@@ -49,9 +49,13 @@ class PPOConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
         if self.activation not in ACTIVATION_NAMES:
-            raise ConfigError(f"ppo.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}")
+            raise ConfigError(
+                f"ppo.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}"
+            )
         if self.lr_schedule not in ("linear", "constant"):
-            raise ConfigError(f"ppo.lr_schedule: unknown {self.lr_schedule!r}; expected linear or constant")
+            raise ConfigError(
+                f"ppo.lr_schedule: unknown {self.lr_schedule!r}; expected linear or constant"
+            )
         if self.n_steps < 2 or self.batch_size < 2 or self.n_epochs < 1:
             raise ConfigError("ppo: n_steps and batch_size must be >= 2, n_epochs >= 1")
 
@@ -74,7 +78,9 @@ class SACConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
         if self.activation not in ACTIVATION_NAMES:
-            raise ConfigError(f"sac.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}")
+            raise ConfigError(
+                f"sac.activation: unknown {self.activation!r}; expected one of {', '.join(ACTIVATION_NAMES)}"
+            )
 
 
 @dataclass(frozen=True)

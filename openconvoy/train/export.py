@@ -52,10 +52,14 @@ def _layers(modules, where: str) -> tuple[list[np.ndarray], list[np.ndarray], st
             biases.append(bias.astype(np.float64))
         elif type(m).__name__ in _ACTIVATION_CLASSES:
             if isinstance(m, nn.LeakyReLU) and m.negative_slope != 0.01:
-                raise InputFileError(f"{where}: LeakyReLU slope {m.negative_slope} is not exportable (0.01 is)")
+                raise InputFileError(
+                    f"{where}: LeakyReLU slope {m.negative_slope} is not exportable (0.01 is)"
+                )
             name = _ACTIVATION_CLASSES[type(m).__name__]
             if activation not in (None, name):
-                raise InputFileError(f"{where}: mixed activations {activation} and {name} are not exportable")
+                raise InputFileError(
+                    f"{where}: mixed activations {activation} and {name} are not exportable"
+                )
             activation = name
         elif isinstance(m, (nn.Flatten, nn.Identity)):
             continue
@@ -86,7 +90,9 @@ def actor_mlp(model) -> NumpyMLP:
         head = [actor.mu]
         output = "tanh"
     else:
-        raise InputFileError(f"cannot export a {type(model).__name__} model (PPO and SAC are exportable)")
+        raise InputFileError(
+            f"cannot export a {type(model).__name__} model (PPO and SAC are exportable)"
+        )
     w, b, activation = _layers(hidden, type(model).__name__)
     hw, hb, _ = _layers(head, type(model).__name__)
     return NumpyMLP(w + hw, b + hb, activation or "identity", output)
@@ -117,17 +123,23 @@ def max_action_difference(
 def verify_export(source: str | Path, npz: str | Path, observations: np.ndarray) -> float:
     """``max_action_difference`` of the trained ``.zip`` and its export on ``observations``."""
     load_npz(npz)  # a malformed file fails here with its own message
-    return max_action_difference(load_learned(resolve_policy_zip(source)), load_learned(npz), observations)
+    return max_action_difference(
+        load_learned(resolve_policy_zip(source)), load_learned(npz), observations
+    )
 
 
-def sample_observations(policy: LearnedPolicy, n: int = 400, seed: int = 0, per: float = 0.3) -> np.ndarray:
+def sample_observations(
+    policy: LearnedPolicy, n: int = 400, seed: int = 0, per: float = 0.3
+) -> np.ndarray:
     """``n`` observations from the ``paper`` scenario driven by ``policy`` at ``per``:
     real inputs (including stale and missing messages) to check an export on."""
     from openconvoy.comms.loss import LossConfig
     from openconvoy.envs import ConvoyEnv
 
     env = ConvoyEnv(
-        "paper", member_config=policy.member_config, loss=LossConfig(per=per),
+        "paper",
+        member_config=policy.member_config,
+        loss=LossConfig(per=per),
         control_rate_hz=policy.control_rate_hz,
     )
     obs, _ = env.reset(seed=seed)

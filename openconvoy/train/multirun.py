@@ -56,8 +56,10 @@ def plan(configs: Sequence[tuple[str, TrainConfig]], seeds: Sequence[int] | None
             runs.append(TrainRun(name, dataclasses.replace(config, seed=int(seed))))
     names = [r.name for r in runs]
     if len(set(names)) != len(names):
-        raise ConfigError(f"training runs would share a directory: {', '.join(sorted(names))}; "
-                         "give configs distinct file names and seeds distinct values")
+        raise ConfigError(
+            f"training runs would share a directory: {', '.join(sorted(names))}; "
+            "give configs distinct file names and seeds distinct values"
+        )
     return runs
 
 
@@ -70,10 +72,15 @@ def train_specs(config: TrainConfig) -> list[str]:
 def _relocated(config: TrainConfig, where: dict[str, str]) -> TrainConfig:
     if not where:
         return config
-    env = dataclasses.replace(config.env, base_policy=portable.relocate(config.env.base_policy, where))
+    env = dataclasses.replace(
+        config.env, base_policy=portable.relocate(config.env.base_policy, where)
+    )
     r = config.randomization
-    r = dataclasses.replace(r, vehicles=tuple(portable.relocate(v, where) for v in r.vehicles),
-                            scenarios=tuple(portable.relocate(s, where) for s in r.scenarios))
+    r = dataclasses.replace(
+        r,
+        vehicles=tuple(portable.relocate(v, where) for v in r.vehicles),
+        scenarios=tuple(portable.relocate(s, where) for s in r.scenarios),
+    )
     return dataclasses.replace(config, env=env, randomization=r)
 
 
@@ -94,9 +101,16 @@ def train_on_worker(args: tuple[TrainConfig, portable.Files]) -> dict[str, Any]:
             rel = path.relative_to(run_dir).as_posix()
             data = path.read_bytes()
             if rel in RELOCATED_FILES:
-                data = _replace_paths(data, {str(run_dir): "{RUN_DIR}", **{w: d for d, w in where.items()}})
+                data = _replace_paths(
+                    data, {str(run_dir): "{RUN_DIR}", **{w: d for d, w in where.items()}}
+                )
             out[rel] = data
-        return {"files": out, "steps": result.steps, "wall_s": result.wall_s, "where": worker_location()}
+        return {
+            "files": out,
+            "steps": result.steps,
+            "wall_s": result.wall_s,
+            "where": worker_location(),
+        }
 
 
 def _replace_paths(data: bytes, paths: dict[str, str]) -> bytes:
@@ -122,8 +136,13 @@ def train_many(
     out = Path(out_dir)
     for run in runs:
         if (out / run.name / POLICY_FILE).exists() and not overwrite:
-            raise OutputPathError(f"{out / run.name} already holds a trained policy; choose another --out or --overwrite")
-    tasks = [Task(run.name, train_on_worker, (run.config, portable.ship(train_specs(run.config)))) for run in runs]
+            raise OutputPathError(
+                f"{out / run.name} already holds a trained policy; choose another --out or --overwrite"
+            )
+    tasks = [
+        Task(run.name, train_on_worker, (run.config, portable.ship(train_specs(run.config))))
+        for run in runs
+    ]
     with executor:
         results = executor.map(tasks, progress, desc="train")
     summary, failures = [], []
@@ -140,11 +159,17 @@ def train_many(
                 if rel in RELOCATED_FILES:
                     data = _replace_paths(data, {"{RUN_DIR}": str(run_dir.resolve())})
                 path.write_bytes(data)
-            entry.update(steps=res["steps"], wall_s=round(res["wall_s"], 3), ran_on=res["where"],
-                         policy=(Path(run.name) / POLICY_FILE).as_posix())
+            entry.update(
+                steps=res["steps"],
+                wall_s=round(res["wall_s"], 3),
+                ran_on=res["where"],
+                policy=(Path(run.name) / POLICY_FILE).as_posix(),
+            )
         summary.append(entry)
     out.mkdir(parents=True, exist_ok=True)
     (out / "runs.json").write_text(json.dumps({"runs": summary}, indent=1) + "\n", encoding="utf-8")
     if failures:
-        raise TasksFailed(failures, len(runs), f"the other {len(runs) - len(failures)} are in {out}")
+        raise TasksFailed(
+            failures, len(runs), f"the other {len(runs) - len(failures)} are in {out}"
+        )
     return summary

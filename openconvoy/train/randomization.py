@@ -68,33 +68,61 @@ class Randomization:
     """
 
     scenarios: tuple[str, ...] = ("paper",)
-    per_range: tuple[Annotated[float, Range(0.0, 1.0)], Annotated[float, Range(0.0, 1.0)]] = (0.0, 0.6)
+    per_range: tuple[Annotated[float, Range(0.0, 1.0)], Annotated[float, Range(0.0, 1.0)]] = (
+        0.0,
+        0.6,
+    )
     burst_prob: Annotated[float, Range(0.0, 1.0)] = 0.3
-    mean_burst_s_range: tuple[Annotated[float, Range(0.0, 3600.0)], Annotated[float, Range(0.0, 3600.0)]] = (0.2, 1.0)
-    latency_s_range: tuple[Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]] = (0.0, 0.05)
-    jitter_s_range: tuple[Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]] = (0.0, 0.05)
-    gps_noise_m_range: tuple[Annotated[float, Range(0.0, 1000.0)], Annotated[float, Range(0.0, 1000.0)]] = (0.0, 0.05)
+    mean_burst_s_range: tuple[
+        Annotated[float, Range(0.0, 3600.0)], Annotated[float, Range(0.0, 3600.0)]
+    ] = (0.2, 1.0)
+    latency_s_range: tuple[
+        Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]
+    ] = (0.0, 0.05)
+    jitter_s_range: tuple[
+        Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]
+    ] = (0.0, 0.05)
+    gps_noise_m_range: tuple[
+        Annotated[float, Range(0.0, 1000.0)], Annotated[float, Range(0.0, 1000.0)]
+    ] = (0.0, 0.05)
     vehicles: tuple[str, ...] = ("1/10", "1/6")
     plant_jitter: Annotated[float, Range(0.0, 0.9)] = 0.2
 
     def __post_init__(self) -> None:
-        for name in ("scenarios", "vehicles", "per_range", "mean_burst_s_range", "latency_s_range",
-                     "jitter_s_range", "gps_noise_m_range"):
+        for name in (
+            "scenarios",
+            "vehicles",
+            "per_range",
+            "mean_burst_s_range",
+            "latency_s_range",
+            "jitter_s_range",
+            "gps_noise_m_range",
+        ):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if not self.scenarios:
             raise ConfigError("randomization.scenarios: give at least one scenario")
-        for name in ("per_range", "mean_burst_s_range", "latency_s_range", "jitter_s_range", "gps_noise_m_range"):
+        for name in (
+            "per_range",
+            "mean_burst_s_range",
+            "latency_s_range",
+            "jitter_s_range",
+            "gps_noise_m_range",
+        ):
             lo, hi = _pair(getattr(self, name), f"randomization.{name}")
             if lo < 0 or hi < lo:
                 raise ConfigError(f"randomization.{name}: need 0 <= low <= high, got ({lo}, {hi})")
         if self.per_range[1] > 0.95:
-            raise ConfigError(f"randomization.per_range: PER above 0.95 leaves nothing to learn from, got {self.per_range[1]}")
+            raise ConfigError(
+                f"randomization.per_range: PER above 0.95 leaves nothing to learn from, got {self.per_range[1]}"
+            )
         if self.mean_burst_s_range[0] <= 0:
             raise ConfigError("randomization.mean_burst_s_range: bursts must be longer than 0 s")
         if not 0.0 <= self.burst_prob <= 1.0:
             raise ConfigError(f"randomization.burst_prob must be in [0, 1], got {self.burst_prob}")
         if not 0.0 <= self.plant_jitter < 1.0:
-            raise ConfigError(f"randomization.plant_jitter must be in [0, 1), got {self.plant_jitter}")
+            raise ConfigError(
+                f"randomization.plant_jitter must be in [0, 1), got {self.plant_jitter}"
+            )
         for v in self.vehicles:
             vehicle_preset(v)  # an unknown preset or missing file fails now, not mid-training
 
@@ -190,15 +218,21 @@ class EnvSpec:
         if self.member is None:
             object.__setattr__(self, "member", base.member if base is not None else MemberConfig())
         if self.control_rate_hz is None:
-            object.__setattr__(self, "control_rate_hz", base.control_rate_hz if base is not None else 20.0)
+            object.__setattr__(
+                self, "control_rate_hz", base.control_rate_hz if base is not None else 20.0
+            )
         if len(self.residual_scale) != 2 or min(self.residual_scale) < 0:
-            raise ConfigError(f"residual_scale must be two non-negative numbers, got {self.residual_scale}")
+            raise ConfigError(
+                f"residual_scale must be two non-negative numbers, got {self.residual_scale}"
+            )
         if self.n_followers < 1:
             raise ConfigError(f"n_followers must be at least 1, got {self.n_followers}")
         if len(self.action_low) != 2 or len(self.action_high) != 2:
             raise ConfigError("action_low and action_high are [speed_mps, heading_change_rad]")
         if not all(lo < hi for lo, hi in zip(self.action_low, self.action_high)):
-            raise ConfigError(f"action_low {self.action_low} must lie below action_high {self.action_high}")
+            raise ConfigError(
+                f"action_low {self.action_low} must lie below action_high {self.action_high}"
+            )
         if max(abs(self.action_low[1]), abs(self.action_high[1])) > math.pi / 2:
             raise ConfigError("the heading-change range must lie within ±π/2")
         if self.control_rate_hz <= 0:
@@ -222,7 +256,9 @@ class EnvSpec:
         if not self.base_policy:
             return None
         return dataclasses.replace(
-            classical_config(self.base_policy), member=self.member_config, control_rate_hz=self.rate_hz
+            classical_config(self.base_policy),
+            member=self.member_config,
+            control_rate_hz=self.rate_hz,
         )
 
 
@@ -234,16 +270,24 @@ class RandomizedConvoyEnv(ParallelEnv):
     episode's draw, ``env`` the ConvoyEnv running it.
     """
 
-    metadata = {"name": "openconvoy_randomized_v0", "render_modes": ["rgb_array"], "is_parallelizable": True}
+    metadata = {
+        "name": "openconvoy_randomized_v0",
+        "render_modes": ["rgb_array"],
+        "is_parallelizable": True,
+    }
 
-    def __init__(self, spec: EnvSpec, randomization: Randomization, render_mode: str | None = None) -> None:
+    def __init__(
+        self, spec: EnvSpec, randomization: Randomization, render_mode: str | None = None
+    ) -> None:
         self.spec_ = spec
         self.randomization = randomization
         self.render_mode = render_mode
         self.possible_agents = [f"follower_{i}" for i in range(1, spec.n_followers + 1)]
         self.agents: list[str] = []
         base = spec.base_config()
-        self._bases = {a: ClassicalPolicy(base) for a in self.possible_agents} if base is not None else {}
+        self._bases = (
+            {a: ClassicalPolicy(base) for a in self.possible_agents} if base is not None else {}
+        )
         self._obs: dict[str, np.ndarray] = {}
         size = spec.member_config.layout.size
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)

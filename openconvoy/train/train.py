@@ -91,24 +91,45 @@ def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) 
         batch = min(p.batch_size, p.n_steps * venv.num_envs)
         lr = p.learning_rate
         return PPO(
-            "MlpPolicy", venv, n_steps=p.n_steps, batch_size=batch, n_epochs=p.n_epochs,
+            "MlpPolicy",
+            venv,
+            n_steps=p.n_steps,
+            batch_size=batch,
+            n_epochs=p.n_epochs,
             # SB3 passes the remaining progress, 1 -> 0.
-            learning_rate=(lambda remaining: lr * remaining) if p.lr_schedule == "linear" else lr, gamma=p.gamma, gae_lambda=p.gae_lambda,
-            clip_range=p.clip_range, ent_coef=p.ent_coef, max_grad_norm=p.max_grad_norm,
+            learning_rate=(lambda remaining: lr * remaining) if p.lr_schedule == "linear" else lr,
+            gamma=p.gamma,
+            gae_lambda=p.gae_lambda,
+            clip_range=p.clip_range,
+            ent_coef=p.ent_coef,
+            max_grad_norm=p.max_grad_norm,
             policy_kwargs={
                 "net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
                 "activation_fn": _activation(p.activation),
                 "log_std_init": p.log_std_init,
             },
-            seed=config.seed, device="cpu", tensorboard_log=tb, verbose=0,
+            seed=config.seed,
+            device="cpu",
+            tensorboard_log=tb,
+            verbose=0,
         )
     s = config.sac
     return SAC(
-        "MlpPolicy", venv, learning_rate=s.learning_rate, buffer_size=s.buffer_size,
-        learning_starts=s.learning_starts, batch_size=s.batch_size, tau=s.tau, gamma=s.gamma,
-        train_freq=s.train_freq, gradient_steps=s.gradient_steps,
+        "MlpPolicy",
+        venv,
+        learning_rate=s.learning_rate,
+        buffer_size=s.buffer_size,
+        learning_starts=s.learning_starts,
+        batch_size=s.batch_size,
+        tau=s.tau,
+        gamma=s.gamma,
+        train_freq=s.train_freq,
+        gradient_steps=s.gradient_steps,
         policy_kwargs={"net_arch": list(s.net_arch), "activation_fn": _activation(s.activation)},
-        seed=config.seed, device="cpu", tensorboard_log=tb, verbose=0,
+        seed=config.seed,
+        device="cpu",
+        tensorboard_log=tb,
+        verbose=0,
     )
 
 
@@ -117,7 +138,10 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
     mean = var = None
     clip, eps = 10.0, 1e-8
     if isinstance(venv, VecNormalize) and venv.norm_obs:
-        mean, var = np.array(venv.obs_rms.mean, dtype=np.float64), np.array(venv.obs_rms.var, dtype=np.float64)
+        mean, var = (
+            np.array(venv.obs_rms.mean, dtype=np.float64),
+            np.array(venv.obs_rms.var, dtype=np.float64),
+        )
         clip, eps = float(venv.clip_obs), float(venv.epsilon)
     spec = config.env
     return LearnedMeta(
@@ -199,8 +223,13 @@ class _ConvoyStats(BaseCallback):
 
 
 def _validate(config: TrainConfig, path: Path, steps: int) -> Validation:
-    return validate(path, config.validation_pers, config.validation_seeds, steps,
-                    duration_s=config.validation_duration_s)
+    return validate(
+        path,
+        config.validation_pers,
+        config.validation_seeds,
+        steps,
+        duration_s=config.validation_duration_s,
+    )
 
 
 class _Checkpoint(BaseCallback):
@@ -218,11 +247,11 @@ class _Checkpoint(BaseCallback):
     def _on_step(self) -> bool:
         if self.every and self.num_timesteps >= self._next:
             self.directory.mkdir(parents=True, exist_ok=True)
-            path = save_policy(self.model, self.config, self.directory / f"policy_{self.num_timesteps}_steps.zip")
+            path = save_policy(
+                self.model, self.config, self.directory / f"policy_{self.num_timesteps}_steps.zip"
+            )
             if self.config.validation_seeds:
-                self.validations.append(
-                    _validate(self.config, path, self.num_timesteps)
-                )
+                self.validations.append(_validate(self.config, path, self.num_timesteps))
                 self.logger.record("validation/objective", self.validations[-1].objective)
             self._next += self.every
         return True
@@ -247,7 +276,9 @@ def train(
     venv = make_vec_env(config)
     model = make_model(config, venv, run_dir / "tb")
     checkpoints = _Checkpoint(config, run_dir / "checkpoints", config.checkpoint_every)
-    callbacks = CallbackList([_Progress(config.total_steps, progress_bar), _ConvoyStats(), checkpoints])
+    callbacks = CallbackList(
+        [_Progress(config.total_steps, progress_bar), _ConvoyStats(), checkpoints]
+    )
     start = time.perf_counter()
     model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
     wall = time.perf_counter() - start
@@ -255,16 +286,23 @@ def train(
     policy = run_dir / POLICY_FILE
     if config.validation_seeds:
         last = save_policy(model, config, run_dir / LAST_FILE)
-        validations = [*checkpoints.validations,
-                       _validate(config, last, model.num_timesteps)]
+        validations = [*checkpoints.validations, _validate(config, last, model.num_timesteps)]
         # The earliest of equally good files wins (min keeps the first).
         best = min(validations, key=lambda v: v.objective)
         shutil.copyfile(best.path, policy)
-        (run_dir / "validation.json").write_text(json.dumps({
-            "pers": list(config.validation_pers), "seeds": list(config.validation_seeds),
-            "chosen": best.path, "chosen_steps": best.steps,
-            "validations": [v.to_json() for v in validations],
-        }, indent=1), encoding="utf-8")
+        (run_dir / "validation.json").write_text(
+            json.dumps(
+                {
+                    "pers": list(config.validation_pers),
+                    "seeds": list(config.validation_seeds),
+                    "chosen": best.path,
+                    "chosen_steps": best.steps,
+                    "validations": [v.to_json() for v in validations],
+                },
+                indent=1,
+            ),
+            encoding="utf-8",
+        )
     else:
         save_policy(model, config, policy)
     if isinstance(venv, VecNormalize):

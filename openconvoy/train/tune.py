@@ -81,11 +81,15 @@ def with_values(config: ClassicalConfig, values: dict[str, float], name: str) ->
 
 
 def _replace_path(obj: Any, parts: list[str], value: float) -> Any:
-    if not dataclasses.is_dataclass(obj) or parts[0] not in {f.name for f in dataclasses.fields(obj)}:
+    if not dataclasses.is_dataclass(obj) or parts[0] not in {
+        f.name for f in dataclasses.fields(obj)
+    }:
         raise ConfigError(f"unknown parameter path component {parts[0]!r}")
     if len(parts) == 1:
         return dataclasses.replace(obj, **{parts[0]: float(value)})
-    return dataclasses.replace(obj, **{parts[0]: _replace_path(getattr(obj, parts[0]), parts[1:], value)})
+    return dataclasses.replace(
+        obj, **{parts[0]: _replace_path(getattr(obj, parts[0]), parts[1:], value)}
+    )
 
 
 @dataclass(frozen=True)
@@ -126,7 +130,9 @@ class TuneConfig:
             raise ConfigError("tune needs at least one trial, one PER and one seed")
         unknown = [p for p in self.params if p not in PARAMETERS]
         if unknown:
-            raise ConfigError(f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}")
+            raise ConfigError(
+                f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}"
+            )
 
 
 @dataclass
@@ -174,10 +180,15 @@ def grid_evaluator(config: TuneConfig, workdir: Path) -> Evaluate:
         path = workdir / f"trial_{next(counter)}.toml"
         path.write_text(classical_to_toml(candidate), encoding="utf-8")
         metrics = [
-            run_sim(RunConfig(
-                scenario=config.scenario, policy=str(path), per=per, seed=seed,
-                duration_s=config.duration_s,
-            )).metrics
+            run_sim(
+                RunConfig(
+                    scenario=config.scenario,
+                    policy=str(path),
+                    per=per,
+                    seed=seed,
+                    duration_s=config.duration_s,
+                )
+            ).metrics
             for per in config.pers
             for seed in config.seeds
         ]
@@ -186,7 +197,9 @@ def grid_evaluator(config: TuneConfig, workdir: Path) -> Evaluate:
     return evaluate
 
 
-def evaluate_on_worker(config: TuneConfig, files: dict[str, bytes], candidate: ClassicalConfig) -> float:
+def evaluate_on_worker(
+    config: TuneConfig, files: dict[str, bytes], candidate: ClassicalConfig
+) -> float:
     """Task: ``candidate``'s objective over the grid, in a temporary directory of the
     worker (``files``: the scenario's track file, if any, shipped from the driver)."""
     from openconvoy.experiments import portable
@@ -199,8 +212,16 @@ def evaluate_on_worker(config: TuneConfig, files: dict[str, bytes], candidate: C
 
 
 # What a resumed study must share with the one it continues (the objective's definition).
-STUDY_KEYS = ("base", "pers", "seeds", "scenario", "duration_s", "params",
-              "collision_penalty_m", "speed_difference_weight")
+STUDY_KEYS = (
+    "base",
+    "pers",
+    "seeds",
+    "scenario",
+    "duration_s",
+    "params",
+    "collision_penalty_m",
+    "speed_difference_weight",
+)
 STUDY_ATTR = "openconvoy_tune"
 BASE_ATTR = "openconvoy_base_value"
 
@@ -223,13 +244,19 @@ def _sampler(config: TuneConfig, resumed_trials: int, parallel: bool) -> Any:
 
     # A resumed study must not redraw the first session's random trials: the same seed
     # would, so the sampler's seed also takes the number of trials already in the study.
-    seed = config.seed if not resumed_trials else int(np.random.SeedSequence([config.seed, resumed_trials]).generate_state(1)[0])
+    seed = (
+        config.seed
+        if not resumed_trials
+        else int(np.random.SeedSequence([config.seed, resumed_trials]).generate_state(1)[0])
+    )
     # constant_liar: trials in flight count as pessimistic guesses, so parallel workers
     # do not all sample the same region (Optuna's advice for distributed TPE).
     return optuna.samplers.TPESampler(seed=seed, constant_liar=parallel)
 
 
-def _open_study(config: TuneConfig, study_name: str, storage: Any, parallel: bool) -> tuple[Any, int]:
+def _open_study(
+    config: TuneConfig, study_name: str, storage: Any, parallel: bool
+) -> tuple[Any, int]:
     """The study (created, or loaded to resume) and how many trials it already held."""
     import optuna
 
@@ -240,15 +267,22 @@ def _open_study(config: TuneConfig, study_name: str, storage: Any, parallel: boo
             existing = len(optuna.load_study(study_name=study_name, storage=storage).trials)
         except KeyError:
             existing = 0
-    study = optuna.create_study(study_name=study_name, storage=storage, direction="minimize",
-                                sampler=_sampler(config, existing, parallel), load_if_exists=True)
+    study = optuna.create_study(
+        study_name=study_name,
+        storage=storage,
+        direction="minimize",
+        sampler=_sampler(config, existing, parallel),
+        load_if_exists=True,
+    )
     recorded = study.user_attrs.get(STUDY_ATTR)
     if recorded is None:
         study.set_user_attr(STUDY_ATTR, settings)
     elif recorded != settings:
         differ = ", ".join(k for k in STUDY_KEYS if recorded.get(k) != settings.get(k))
-        raise ConfigError(f"study {study_name!r} was made with other settings ({differ}); "
-                         "use another --study-name or the same settings")
+        raise ConfigError(
+            f"study {study_name!r} was made with other settings ({differ}); "
+            "use another --study-name or the same settings"
+        )
     return study, existing
 
 
@@ -315,9 +349,13 @@ def tune(
         requeued = _requeue_orphans(study)
         base_value = study.user_attrs.get(BASE_ATTR)
         if base_value is None:
-            task, value = _run_alone(executor, Task("base policy", fn, dataclasses.replace(base, name=config.name)))
+            task, value = _run_alone(
+                executor, Task("base policy", fn, dataclasses.replace(base, name=config.name))
+            )
             if isinstance(value, TaskFailure):
-                raise TasksFailed([value], 1, "the base policy's evaluation is the study's reference", "trials")
+                raise TasksFailed(
+                    [value], 1, "the base policy's evaluation is the study's reference", "trials"
+                )
             base_value = float(value)
             study.set_user_attr(BASE_ATTR, base_value)
         if not existing:
@@ -325,12 +363,20 @@ def tune(
             study.enqueue_trial({p: _get_path(base, p) for p in params if _in_range(base, p)})
         done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
         todo = max(0, config.trials - done)
-        evaluated = _ask_tell(study, executor, fn, base, params, config.name, todo, progress_bar, failures)
-    complete = sorted(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)), key=lambda t: t.number)
+        evaluated = _ask_tell(
+            study, executor, fn, base, params, config.name, todo, progress_bar, failures
+        )
+    complete = sorted(
+        study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)), key=lambda t: t.number
+    )
     if not complete:
-        raise TasksFailed(failures, len(failures), f"no trial of study {study_name!r} finished", "trials")
-    history = [{"trial": t.number, "value": float(t.value), **{p: float(v) for p, v in t.params.items()}}
-               for t in complete]
+        raise TasksFailed(
+            failures, len(failures), f"no trial of study {study_name!r} finished", "trials"
+        )
+    history = [
+        {"trial": t.number, "value": float(t.value), **{p: float(v) for p, v in t.params.items()}}
+        for t in complete
+    ]
     best_trial = min(complete, key=lambda t: (t.value, t.number))
     best_params = {k: float(v) for k, v in best_trial.params.items()}
     described = ", ".join(f"{k} {v:.4g}" for k, v in best_params.items())
@@ -339,8 +385,17 @@ def tune(
         description=f"{config.base} tuned by openconvoy tune ({len(complete)} trials, PER "
         f"{', '.join(f'{p:g}' for p in config.pers)}, {len(config.seeds)} seeds): {described}",
     )
-    return TuneResult(best, float(best_trial.value), best_params, float(base_value), history,
-                      study_name=study_name, evaluated=evaluated, requeued=requeued, failures=failures)
+    return TuneResult(
+        best,
+        float(best_trial.value),
+        best_params,
+        float(base_value),
+        history,
+        study_name=study_name,
+        evaluated=evaluated,
+        requeued=requeued,
+        failures=failures,
+    )
 
 
 def _run_alone(executor: Any, task: Any) -> tuple[Any, Any]:
@@ -348,8 +403,17 @@ def _run_alone(executor: Any, task: Any) -> tuple[Any, Any]:
     return executor.wait_one()
 
 
-def _ask_tell(study: Any, executor: Any, fn: Callable[[ClassicalConfig], float], base: ClassicalConfig,
-              params: list[str], name: str, todo: int, progress_bar: bool, failures: list[Any]) -> int:
+def _ask_tell(
+    study: Any,
+    executor: Any,
+    fn: Callable[[ClassicalConfig], float],
+    base: ClassicalConfig,
+    params: list[str],
+    name: str,
+    todo: int,
+    progress_bar: bool,
+    failures: list[Any],
+) -> int:
     """Ask ``todo`` trials, at most ``executor.slots`` in flight, telling each result as
     it comes; failed evaluations are told as failed and collected in ``failures``."""
     from tqdm import tqdm
@@ -363,7 +427,9 @@ def _ask_tell(study: Any, executor: Any, fn: Callable[[ClassicalConfig], float],
             while asked < todo and len(in_flight) < executor.slots:
                 trial = study.ask()
                 values = {
-                    p: trial.suggest_float(p, PARAMETERS[p].low, PARAMETERS[p].high, log=PARAMETERS[p].log)
+                    p: trial.suggest_float(
+                        p, PARAMETERS[p].low, PARAMETERS[p].high, log=PARAMETERS[p].log
+                    )
                     for p in params
                 }
                 task = Task(f"trial {trial.number}", fn, with_values(base, values, name))

@@ -50,7 +50,11 @@ def validate(
     from openconvoy.experiments.runs import RunConfig, run_sim
 
     metrics = tuple(
-        run_sim(RunConfig(scenario=scenario, policy=str(policy), per=per, seed=seed, duration_s=duration_s)).metrics
+        run_sim(
+            RunConfig(
+                scenario=scenario, policy=str(policy), per=per, seed=seed, duration_s=duration_s
+            )
+        ).metrics
         for per in pers
         for seed in seeds
     )

@@ -28,7 +28,9 @@ class VectorConvoyVecEnv(VecEnv):
             raise ValueError("VectorConvoyVecEnv needs a VectorConvoyEnv with autoreset=True")
         self.env = env
         self.per_convoy = env.n_vehicles - 1
-        obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(env.layout.size,), dtype=np.float32)
+        obs_space = gymnasium.spaces.Box(
+            -np.inf, np.inf, shape=(env.layout.size,), dtype=np.float32
+        )
         low = env.action_low.min(axis=0).astype(np.float32)
         high = env.action_high.max(axis=0).astype(np.float32)
         act_space = gymnasium.spaces.Box(low=low, high=high, dtype=np.float32)
@@ -47,7 +49,9 @@ class VectorConvoyVecEnv(VecEnv):
         return obs.reshape(self.num_envs, -1)
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions, dtype=np.float32).reshape(self.env.num_envs, self.per_convoy, 2)
+        self._actions = np.asarray(actions, dtype=np.float32).reshape(
+            self.env.num_envs, self.per_convoy, 2
+        )
 
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         assert self._actions is not None, "step_async first"
@@ -75,7 +79,9 @@ class VectorConvoyVecEnv(VecEnv):
     def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
         setattr(self.env, attr_name, value)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any
+    ) -> list[Any]:
         result = getattr(self.env, method_name)(*method_args, **method_kwargs)
         return [result] * len(self._get_indices(indices))
 

@@ -22,8 +22,13 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         return s.getsockname()[1]
 
 
-def run_for(link: MavlinkLink, seconds: float, speed: float | None = None,
-            heading: float | None = None, period: float = 0.05) -> None:
+def run_for(
+    link: MavlinkLink,
+    seconds: float,
+    speed: float | None = None,
+    heading: float | None = None,
+    period: float = 0.05,
+) -> None:
     """Poll the link (and send a setpoint when given) every ``period`` s for ``seconds``."""
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -33,7 +38,9 @@ def run_for(link: MavlinkLink, seconds: float, speed: float | None = None,
         time.sleep(period)
 
 
-def wait_for(predicate: Callable[[], bool], timeout: float, link: MavlinkLink | None = None) -> bool:
+def wait_for(
+    predicate: Callable[[], bool], timeout: float, link: MavlinkLink | None = None
+) -> bool:
     """Poll ``link`` until ``predicate`` holds or ``timeout`` s pass."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -51,8 +58,9 @@ def vehicle_and_link() -> Iterator[Callable[..., tuple[SimVehicle, MavlinkLink, 
     status lines); the link is connected over localhost UDP with real MAVLink bytes."""
     made: list[tuple[SimVehicle, MavlinkLink]] = []
 
-    def make(link_kwargs: dict[str, Any] | None = None, connect: bool = True,
-             **config: Any) -> tuple[SimVehicle, MavlinkLink, list[str]]:
+    def make(
+        link_kwargs: dict[str, Any] | None = None, connect: bool = True, **config: Any
+    ) -> tuple[SimVehicle, MavlinkLink, list[str]]:
         port = free_port()
         config.setdefault("ready_after_s", 0.0)
         # The link tests drive the 1/10 preset plant from a booted autopilot; the firmware

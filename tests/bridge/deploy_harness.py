@@ -161,26 +161,55 @@ def make_convoy(
     cars = []
     for i in range(n):
         port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
-        cfg = SimVehicleConfig(**{
-            "system_id": i + 1, "autopilot": autopilot, "home": origin,
-            "preset": presets[i].with_ranging(ranging[i]) if ranging and i in ranging else presets[i],
-            "start_x_m": float(init.x[i]), "start_y_m": float(init.y[i]),
-            "start_heading_rad": float(init.heading[i]), "ready_after_s": 0.0,
-            **(vehicle_config or {}),
-        })
-        vehicle = SimVehicle(f"{'tcpin' if tcp else 'udpin'}:127.0.0.1:{port}", cfg, world=world).start()
-        link = RecordingLink(MavlinkLink(
-            f"{'tcp' if tcp else 'udpout'}:127.0.0.1:{port}", origin, vehicle_id=i, length_m=presets[i].length_m,
-            on_status=lambda line: None,
-        ))
+        cfg = SimVehicleConfig(
+            **{
+                "system_id": i + 1,
+                "autopilot": autopilot,
+                "home": origin,
+                "preset": presets[i].with_ranging(ranging[i])
+                if ranging and i in ranging
+                else presets[i],
+                "start_x_m": float(init.x[i]),
+                "start_y_m": float(init.y[i]),
+                "start_heading_rad": float(init.heading[i]),
+                "ready_after_s": 0.0,
+                **(vehicle_config or {}),
+            }
+        )
+        vehicle = SimVehicle(
+            f"{'tcpin' if tcp else 'udpin'}:127.0.0.1:{port}", cfg, world=world
+        ).start()
+        link = RecordingLink(
+            MavlinkLink(
+                f"{'tcp' if tcp else 'udpout'}:127.0.0.1:{port}",
+                origin,
+                vehicle_id=i,
+                length_m=presets[i].length_m,
+                on_status=lambda line: None,
+            )
+        )
         v2v = v2v_factory(i, convoy) if v2v_factory is not None else LocalV2V(bus)
-        opts = RunnerOptions(**{"vehicle_id": i, "status_period_s": 0.0, "connect_timeout_s": 5.0,
-                                "arm_timeout_s": 10.0, **(options or {}).get(i, {})})
+        opts = RunnerOptions(
+            **{
+                "vehicle_id": i,
+                "status_period_s": 0.0,
+                "connect_timeout_s": 5.0,
+                "arm_timeout_s": 10.0,
+                **(options or {}).get(i, {}),
+            }
+        )
         pol = (policies or {}).get(i) or load_policy(policy)
         runner = DeployRunner(
-            opts, convoy, pol, link, v2v, leader=scenario if i == 0 else None,
-            lengths=[p.length_m for p in presets], decels=[p.decel_max_mps2 for p in presets],
-            log_dir=log_dir, on_status=lambda line: None,
+            opts,
+            convoy,
+            pol,
+            link,
+            v2v,
+            leader=scenario if i == 0 else None,
+            lengths=[p.length_m for p in presets],
+            decels=[p.decel_max_mps2 for p in presets],
+            log_dir=log_dir,
+            on_status=lambda line: None,
         )
         cars.append(Car(vehicle, link, runner, v2v, port))
     c = Convoy(cars, bus, log_dir, convoy)

@@ -236,9 +236,12 @@ class EdgeAutopilot:
                 self.mode = self.mode_after_arm or self.mode
             if t - t_hb >= 1.0 / self.heartbeat_hz:
                 t_hb = t
-                base = m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (m.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
-                self.mav.heartbeat_send(mp.MAV_TYPE_GROUND_ROVER, ap, base, self._custom_mode(),
-                                        m.MAV_STATE_ACTIVE)
+                base = m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (
+                    m.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0
+                )
+                self.mav.heartbeat_send(
+                    mp.MAV_TYPE_GROUND_ROVER, ap, base, self._custom_mode(), m.MAV_STATE_ACTIVE
+                )
             if t - t_tel >= 1.0 / self.rate_hz:
                 t_tel = t
                 ms = int(t * 1000)
@@ -246,10 +249,19 @@ class EdgeAutopilot:
                 vn, ve = self.speed_mps * math.cos(yaw), self.speed_mps * math.sin(yaw)
                 if self.send_position:
                     self.mav.global_position_int_send(
-                        ms, 286024000, -812001000, 0, 0, int(vn * 100), int(ve * 100), 0,
-                        int(round(self.heading_deg * 100)) % 36000)
-                self.mav.attitude_send(ms, 0.0, 0.0, math.atan2(math.sin(yaw), math.cos(yaw)),
-                                       0.0, 0.0, 0.0)
+                        ms,
+                        286024000,
+                        -812001000,
+                        0,
+                        0,
+                        int(vn * 100),
+                        int(ve * 100),
+                        0,
+                        int(round(self.heading_deg * 100)) % 36000,
+                    )
+                self.mav.attitude_send(
+                    ms, 0.0, 0.0, math.atan2(math.sin(yaw), math.cos(yaw)), 0.0, 0.0, 0.0
+                )
                 for send in self.extra:
                     send(self.mav, t)
             time.sleep(0.002)
@@ -266,13 +278,19 @@ class EdgeAutopilot:
         if msg.command == mp.CMD_DO_SET_MODE:
             if self.autopilot == "px4":
                 main, sub = int(msg.param2), int(msg.param3)
-                self.mode = mp.PX4_MODES.get((main, sub if main == mp.PX4_MAIN_AUTO else 0), self.mode)
+                self.mode = mp.PX4_MODES.get(
+                    (main, sub if main == mp.PX4_MAIN_AUTO else 0), self.mode
+                )
             else:
                 self.mode = mp.ROVER_MODES.get(int(msg.param2), self.mode)
             if self.mode not in ("HOLD", "LOITER") and self._switches_left > 0 and self.armed:
                 self._switches_left -= 1
                 self._switch_at = t + 0.15
-        elif msg.command == mp.CMD_COMPONENT_ARM_DISARM and msg.param1 > 0.5 and self.arm_refusals > 0:
+        elif (
+            msg.command == mp.CMD_COMPONENT_ARM_DISARM
+            and msg.param1 > 0.5
+            and self.arm_refusals > 0
+        ):
             self.arm_refusals -= 1
             self.arm_modes.append(self.mode)
             self.mav.statustext_send(2, b"Arm: Gyros inconsistent")

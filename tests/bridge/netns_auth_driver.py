@@ -50,15 +50,39 @@ def main(out: Path) -> dict:
     vehicles, procs = [], []
     for i, p in enumerate(presets):
         port = free_udp_port()
-        cfg = SimVehicleConfig(system_id=i + 1, preset=p, home=Origin(*origin),
-                               start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                               start_heading_rad=float(init.heading[i]), ready_after_s=0.5)
+        cfg = SimVehicleConfig(
+            system_id=i + 1,
+            preset=p,
+            home=Origin(*origin),
+            start_x_m=float(init.x[i]),
+            start_y_m=float(init.y[i]),
+            start_heading_rad=float(init.heading[i]),
+            ready_after_s=0.5,
+        )
         vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
-        cmd = [*CLI, "deploy", "--policy", "paper", "--vehicle-id", str(i), "--convoy",
-               str(convoy_path), "--mavlink", f"udpout:127.0.0.1:{port}", "--iface", iface,
-               "--log", str(out / "run"), "--duration", "120"]  # the abort ends it
-        procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
-                                      stderr=open(out / f"deploy_{i}.txt", "w")))
+        cmd = [
+            *CLI,
+            "deploy",
+            "--policy",
+            "paper",
+            "--vehicle-id",
+            str(i),
+            "--convoy",
+            str(convoy_path),
+            "--mavlink",
+            f"udpout:127.0.0.1:{port}",
+            "--iface",
+            iface,
+            "--log",
+            str(out / "run"),
+            "--duration",
+            "120",
+        ]  # the abort ends it
+        procs.append(
+            subprocess.Popen(
+                cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"deploy_{i}.txt", "w")
+            )
+        )
     result: dict = {}
     try:
         deadline = time.monotonic() + 60
@@ -70,13 +94,32 @@ def main(out: Path) -> dict:
         lead = vehicles[0].state()
         lat, lon, _ = enu_to_geodetic(Origin(*origin), lead.x + 1000.0, lead.y)
         leader_id = TempIds("demo", 3).id_of(0).hex()
-        send = [*CLI, "bsm", "send", "--iface", iface, "--id", leader_id, "--rate", "50",
-                "--count", str(FORGED), "--lat", str(lat), "--lon", str(lon), "--heading", "90"]
+        send = [
+            *CLI,
+            "bsm",
+            "send",
+            "--iface",
+            iface,
+            "--id",
+            leader_id,
+            "--rate",
+            "50",
+            "--count",
+            str(FORGED),
+            "--lat",
+            str(lat),
+            "--lon",
+            str(lon),
+            "--heading",
+            "90",
+        ]
         t_forge = time.time()
         forgers = [  # both at once
             subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-            for argv in ([*send, "--speed", "1.5"],
-                         [*send, "--speed", "160", "--key", str(foreign / "vehicle-0.key")])
+            for argv in (
+                [*send, "--speed", "1.5"],
+                [*send, "--speed", "160", "--key", str(foreign / "vehicle-0.key")],
+            )
         ]
         forger_err = [f.communicate(timeout=30)[1] for f in forgers]
         t_forged = time.time()
@@ -85,9 +128,21 @@ def main(out: Path) -> dict:
         time.sleep(2.0)
         running_after_unsigned = [p.poll() is None for p in procs]
         t_abort = time.time()
-        signed = subprocess.run([*CLI, "abort", "--iface", iface, "--convoy", str(convoy_path),
-                                 "--key", str(keys / "authority.key")], capture_output=True,
-                                text=True, timeout=20)
+        signed = subprocess.run(
+            [
+                *CLI,
+                "abort",
+                "--iface",
+                iface,
+                "--convoy",
+                str(convoy_path),
+                "--key",
+                str(keys / "authority.key"),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=20,
+        )
         result["abort"] = [signed.returncode, signed.stderr[-500:], time.time() - t_abort]
         codes = []
         for p in procs:
@@ -105,7 +160,9 @@ def main(out: Path) -> dict:
             forger_err=[e[-300:] for e in forger_err],
             exit_codes=codes,
             reasons=[m["exit_reason"] for m in metas],
-            t_end=[m.get("t_end_s") for m in metas], t_forge=t_forge, t_abort=t_abort,
+            t_end=[m.get("t_end_s") for m in metas],
+            t_forge=t_forge,
+            t_abort=t_abort,
             rejected=[m["v2v"]["auth"]["rejected"] for m in metas],
             running_after_unsigned=running_after_unsigned,
             speeds_during=speeds_during,

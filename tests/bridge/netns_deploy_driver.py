@@ -36,9 +36,15 @@ def main(action: str, out: Path) -> dict:
     vehicles, received, procs = [], [], []
     for i, p in enumerate(presets):
         port = free_udp_port()
-        cfg = SimVehicleConfig(system_id=i + 1, preset=p, home=Origin(*origin),
-                               start_x_m=float(init.x[i]), start_y_m=float(init.y[i]),
-                               start_heading_rad=float(init.heading[i]), ready_after_s=0.5)
+        cfg = SimVehicleConfig(
+            system_id=i + 1,
+            preset=p,
+            home=Origin(*origin),
+            start_x_m=float(init.x[i]),
+            start_y_m=float(init.y[i]),
+            start_heading_rad=float(init.heading[i]),
+            ready_after_s=0.5,
+        )
         v = SimVehicle(f"udpin:127.0.0.1:{port}", cfg)
         log: list[tuple[float, float]] = []
         orig = v.firmware.setpoint
@@ -51,12 +57,29 @@ def main(action: str, out: Path) -> dict:
         v.firmware.setpoint = record
         vehicles.append(v.start())
         received.append(log)
-        cmd = [sys.executable, "-m", "openconvoy.cli", "deploy", "--policy", "paper",
-               "--vehicle-id", str(i), "--convoy", str(convoy_path),
-               "--mavlink", f"udpout:127.0.0.1:{port}", "--iface", iface,
-               "--log", str(out / "run")]
-        procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
-                                      stderr=open(out / f"deploy_{i}.txt", "w")))
+        cmd = [
+            sys.executable,
+            "-m",
+            "openconvoy.cli",
+            "deploy",
+            "--policy",
+            "paper",
+            "--vehicle-id",
+            str(i),
+            "--convoy",
+            str(convoy_path),
+            "--mavlink",
+            f"udpout:127.0.0.1:{port}",
+            "--iface",
+            iface,
+            "--log",
+            str(out / "run"),
+        ]
+        procs.append(
+            subprocess.Popen(
+                cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"deploy_{i}.txt", "w")
+            )
+        )
     result: dict = {"action": action}
     try:
         deadline = time.monotonic() + 40
@@ -69,8 +92,11 @@ def main(action: str, out: Path) -> dict:
             for p in procs:
                 p.send_signal(signal.SIGTERM)
         else:
-            subprocess.run([sys.executable, "-m", "openconvoy.cli", "abort", "--iface", iface],
-                           check=True, timeout=20)
+            subprocess.run(
+                [sys.executable, "-m", "openconvoy.cli", "abort", "--iface", iface],
+                check=True,
+                timeout=20,
+            )
         codes = []
         for p in procs:
             try:
@@ -81,8 +107,14 @@ def main(action: str, out: Path) -> dict:
         # When each deploy detected the event (its metadata, on the shared wall clock).
         metas = [json.loads((out / "run" / f"vehicle_{i}.json").read_text()) for i in range(2)]
         # (a late tick on a loaded machine is an event of its own, not the detection)
-        t_det = [next(e["t_s"] for e in m["failsafe_events"] if not e["reason"].startswith("control loop late"))
-                 for m in metas]
+        t_det = [
+            next(
+                e["t_s"]
+                for e in m["failsafe_events"]
+                if not e["reason"].startswith("control loop late")
+            )
+            for m in metas
+        ]
         result.update(
             exit_codes=codes,
             reasons=[m["exit_reason"] for m in metas],
@@ -92,8 +124,10 @@ def main(action: str, out: Path) -> dict:
             log_rows=[sum(1 for _ in open(out / "run" / f"vehicle_{i}.csv")) - 1 for i in range(2)],
             # setpoint speeds each vehicle received more than 0.5 s after the detection
             late_speeds=[[s for ts, s in log if ts > td + 0.5] for log, td in zip(received, t_det)],
-            first_after=[next(((ts - td, s) for ts, s in log if ts > td), None)
-                         for log, td in zip(received, t_det)],
+            first_after=[
+                next(((ts - td, s) for ts, s in log if ts > td), None)
+                for log, td in zip(received, t_det)
+            ],
         )
     finally:
         stop_all(procs)

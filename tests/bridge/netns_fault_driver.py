@@ -53,6 +53,7 @@ def provoke(convoy, kind: str, v: int) -> threading.Event:
     elif kind == "silent":
         car.v2v.send = lambda state, now: False
     else:  # dead: nothing more from this deploy, not even a stop or a HOLD
+
         def dead_tick(now: float) -> str:
             released.wait()
             return "killed"
@@ -88,7 +89,9 @@ def main(kind: str, vehicle: int, policy: str, out: Path, fault_after_s: float) 
                     rest[j] = now
             time.sleep(0.05)
         result.update(
-            min_gap_m=min_gap, collisions=collisions, rest_s=rest,
+            min_gap_m=min_gap,
+            collisions=collisions,
+            rest_s=rest,
             speeds=[car.vehicle.state().speed for car in c.cars],
             modes=[car.vehicle.mode for car in c.cars],
             events=[[r for _, r in car.runner.failsafes.events] for car in c.cars],

@@ -71,7 +71,7 @@ def test_row_03_guided_during_init_is_overridden_by_initial_mode() -> None:
         assert acks(recs, 176, t_req, t_req + 0.3)[0][1] == 0, side
         by = run("boot_mode_race")["boot"] + 2.75
         modes = [m for _, m, _, _ in heartbeats(recs, t_req, by)]
-        assert 15 in modes and 0 in modes[modes.index(15):], (side, modes)
+        assert 15 in modes and 0 in modes[modes.index(15) :], (side, modes)
         ready = next(t for t, s in texts(recs) if s == "ArduPilot Ready")
         assert boot_s("boot_mode_race", ready) < 2.5 and ready < t_next, side
 
@@ -105,8 +105,12 @@ def _case(side: str, name: str) -> tuple[float, float, float, float]:
     recs = run("setpoint_semantics")[side]
     t0, _, _ = phase(recs, name)
     m = motion(recs, t0 + 3.0, t0 + 6.0)
-    return mean([v for _, v, _, _ in m]), circular_mean([h for _, _, h, _ in m]), \
-        circular_mean([c for _, _, _, c in m]), t0
+    return (
+        mean([v for _, v, _, _ in m]),
+        circular_mean([h for _, _, h, _ in m]),
+        circular_mean([c for _, _, _, c in m]),
+        t0,
+    )
 
 
 @pytest.mark.parametrize("heading", HEADINGS)
@@ -151,9 +155,14 @@ def test_row_09_velocity_only_heads_along_the_vector_and_never_reverses(heading:
         assert min(s for _, s, _, _ in motion(recs, t0, t0 + 6.0)) > -0.05, side
 
 
-@pytest.mark.parametrize("name,reverse", [
-    ("yawrate_vx1.5_r20.0", False), ("yawrate_vx1.5_r-30.0", False), ("yawrate_vx-1.0_r20.0", True),
-])
+@pytest.mark.parametrize(
+    "name,reverse",
+    [
+        ("yawrate_vx1.5_r20.0", False),
+        ("yawrate_vx1.5_r-30.0", False),
+        ("yawrate_vx-1.0_r20.0", True),
+    ],
+)
 def test_row_10_yaw_rate_mask_turns_at_the_firmware_rate(name: str, reverse: bool) -> None:
     rates = {}
     for side in SIDES:
@@ -174,9 +183,19 @@ def _speed_step(side: str, rec: str, name: str, v0: float, v1: float) -> dict[st
     return step_metrics([(t, v) for t, v, _, _ in motion(recs, t0, t1)], t0, v0, v1)
 
 
-@pytest.mark.parametrize("name,v0,v1", [("A_1_v1.0", 0, 1), ("A_2_v2.0", 1, 2), ("A_3_v1.0", 2, 1),
-                                        ("paper_1_v1.0", 0, 1), ("paper_2_v2.0", 1, 2)])
-def test_row_11_small_speed_steps_overshoot_like_the_firmware(name: str, v0: float, v1: float) -> None:
+@pytest.mark.parametrize(
+    "name,v0,v1",
+    [
+        ("A_1_v1.0", 0, 1),
+        ("A_2_v2.0", 1, 2),
+        ("A_3_v1.0", 2, 1),
+        ("paper_1_v1.0", 0, 1),
+        ("paper_2_v2.0", 1, 2),
+    ],
+)
+def test_row_11_small_speed_steps_overshoot_like_the_firmware(
+    name: str, v0: float, v1: float
+) -> None:
     m = {side: _speed_step(side, "speed_steps", name, v0, v1) for side in SIDES}
     for side in SIDES:
         assert 0.25 <= m[side]["overshoot"] <= 0.35, (side, m[side])
@@ -184,8 +203,15 @@ def test_row_11_small_speed_steps_overshoot_like_the_firmware(name: str, v0: flo
     assert abs(m["sim"]["t90"] - m["firmware"]["t90"]) <= 0.15, m
 
 
-@pytest.mark.parametrize("rec,name,v0", [("speed_steps", "A_4_v0.0", 1.0), ("speed_steps", "B_4_v0.0", 0.5),
-                                         ("speed_steps", "C_2_v0.0", 5.0), ("speed_cap", "cap_2_v0.0", 5.0)])
+@pytest.mark.parametrize(
+    "rec,name,v0",
+    [
+        ("speed_steps", "A_4_v0.0", 1.0),
+        ("speed_steps", "B_4_v0.0", 0.5),
+        ("speed_steps", "C_2_v0.0", 5.0),
+        ("speed_cap", "cap_2_v0.0", 5.0),
+    ],
+)
 def test_row_12_steps_to_zero_do_not_overshoot(rec: str, name: str, v0: float) -> None:
     m = {side: _speed_step(side, rec, name, v0, 0.0) for side in SIDES}
     for side in SIDES:
@@ -259,7 +285,10 @@ def test_row_18_steering_reacts_in_the_next_sample_throttle_soon_after() -> None
     for side in SIDES:
         recs = run("telemetry_timing")[side]
         for k in range(8):
-            for name, col, limit in ((f"lat_heading_left_{k}", 1, 0.07), (f"lat_speed_down_{k}", 2, 0.15)):
+            for name, col, limit in (
+                (f"lat_heading_left_{k}", 1, 0.07),
+                (f"lat_speed_down_{k}", 2, 0.15),
+            ):
                 t0, t1, _ = phase(recs, name)
                 before = servos(recs, t0 - 0.3, t0)[-1][col]
                 after = [(t, s[col]) for t, *rest in servos(recs, t0, t1) for s in [(t, *rest)]]
@@ -274,15 +303,24 @@ def test_row_19_silence_stops_after_3_s_and_stays_guided() -> None:
     for side in SIDES:
         recs = run("timeouts_and_stops")[side]
         t0, t1, _ = phase(recs, "silence")
-        last = max(r["t"] for r in recs if r["dir"] == "tx" and r["t"] < t0) if side == "firmware" \
-            else max(r["t"] for r in run("timeouts_and_stops")["firmware"] if r["dir"] == "tx" and r["t"] < t0)
+        last = (
+            max(r["t"] for r in recs if r["dir"] == "tx" and r["t"] < t0)
+            if side == "firmware"
+            else max(
+                r["t"]
+                for r in run("timeouts_and_stops")["firmware"]
+                if r["dir"] == "tx" and r["t"] < t0
+            )
+        )
         text = next(t for t, s in texts(recs, t0, t1) if s == TIMEOUT_TEXT)
         assert abs(text - last - 3.0) <= 0.1, (side, text - last)
         m = motion(recs, t0, t1)
         assert min(v for t, v, _, _ in m if t < last + 2.9) > 1.9, side
         stopped = next(t for t, v, _, _ in m if t > last + 3 and v < 0.2)
         assert stopped - last <= 5.5, (side, stopped - last)
-        assert {(mode, base & 128) for _, mode, base, _ in heartbeats(recs, t0, t1)} == {(15, 128)}, side
+        assert {(mode, base & 128) for _, mode, base, _ in heartbeats(recs, t0, t1)} == {
+            (15, 128)
+        }, side
 
 
 def _stop(side: str, name: str, k: int = 0) -> tuple[float, list, list]:
@@ -307,7 +345,10 @@ def test_row_21_zero_velocity_only_while_moving_swings_toward_north() -> None:
         h_start = [h for t, _, h, _ in m if t < t0][-1]
         h_end = m[-1][2]
         assert abs(angle_diff(h_start, 90.0)) < 2.0
-        assert angle_diff(h_start, h_end) > 45.0 and abs(angle_diff(h_end, 0.0)) < 45.0, (side, h_end)
+        assert angle_diff(h_start, h_end) > 45.0 and abs(angle_diff(h_end, 0.0)) < 45.0, (
+            side,
+            h_end,
+        )
 
 
 def test_row_22_zero_velocity_only_at_rest_steers_to_full_lock() -> None:
@@ -332,24 +373,41 @@ def test_row_23_hold_coasts_and_ignores_setpoints() -> None:
 # --- 24-27: acceptance, message rates ------------------------------------------------------
 
 
-@pytest.mark.parametrize("probe,k,accepted", [
-    ("probe_localned_pre_origin_0", 0, False), ("probe_globalint_control", 0, True),
-    ("probe_localned_post_origin_1", 0, True),
-])
-def test_rows_24_25_local_ned_needs_the_origin_global_int_does_not(probe: str, k: int, accepted: bool) -> None:
+@pytest.mark.parametrize(
+    "probe,k,accepted",
+    [
+        ("probe_localned_pre_origin_0", 0, False),
+        ("probe_globalint_control", 0, True),
+        ("probe_localned_post_origin_1", 0, True),
+    ],
+)
+def test_rows_24_25_local_ned_needs_the_origin_global_int_does_not(
+    probe: str, k: int, accepted: bool
+) -> None:
     for side in SIDES:
         recs = run("timeouts_and_stops")[side]
         t0, t1, _ = phase(recs, probe, k)
-        listen_end = phase(recs, "probe_listen", ["probe_localned_pre_origin_0", "probe_globalint_control",
-                                                  "probe_localned_post_origin_1"].index(probe))[1]
+        listen_end = phase(
+            recs,
+            "probe_listen",
+            [
+                "probe_localned_pre_origin_0",
+                "probe_globalint_control",
+                "probe_localned_post_origin_1",
+            ].index(probe),
+        )[1]
         fired = [t for t, s in texts(recs, t1, listen_end) if s == TIMEOUT_TEXT]
         assert bool(fired) == accepted, (side, probe, fired)
         if accepted:
             assert abs(fired[0] - t1 - 3.0) < 0.15, (side, fired[0] - t1)
 
 
-@pytest.mark.parametrize("hz,result,observed", [(10, 0, 10.0), (20, 0, 20.0), (50, 2, 20.0), (100, 2, 20.0)])
-def test_row_26_message_interval_acceptance_and_refusal(hz: int, result: int, observed: float) -> None:
+@pytest.mark.parametrize(
+    "hz,result,observed", [(10, 0, 10.0), (20, 0, 20.0), (50, 2, 20.0), (100, 2, 20.0)]
+)
+def test_row_26_message_interval_acceptance_and_refusal(
+    hz: int, result: int, observed: float
+) -> None:
     for side in SIDES:
         recs = run("timeouts_and_stops")[side]
         t_req, _, _ = phase(recs, f"interval_request_{hz}hz")
@@ -358,13 +416,19 @@ def test_row_26_message_interval_acceptance_and_refusal(hz: int, result: int, ob
         assert got == [result] * 5, (side, got)
         refusals = [s for _, s in texts(recs, t_req, t0 + 0.1) if "too fast" in s]
         if result == 2:
-            assert refusals == [f"Requested rate for message ID {m} too fast. Increase SCHED_LOOP_RATE"
-                                for m in (33, 30, 74, 32, 36)], side
+            assert refusals == [
+                f"Requested rate for message ID {m} too fast. Increase SCHED_LOOP_RATE"
+                for m in (33, 30, 74, 32, 36)
+            ], side
         else:
             assert not refusals, side
         for kind in ("GLOBAL_POSITION_INT", "ATTITUDE", "SERVO_OUTPUT_RAW"):
-            ms = [r["fields"]["time_boot_ms"] if "time_boot_ms" in r["fields"] else r["fields"]["time_usec"] // 1000
-                  for r in rx(recs, kind, t0 + 1.0, t1 - 0.5)]
+            ms = [
+                r["fields"]["time_boot_ms"]
+                if "time_boot_ms" in r["fields"]
+                else r["fields"]["time_usec"] // 1000
+                for r in rx(recs, kind, t0 + 1.0, t1 - 0.5)
+            ]
             rate = (len(ms) - 1) / ((ms[-1] - ms[0]) / 1000.0)
             assert abs(rate - observed) <= 0.5, (side, kind, rate)
 
@@ -378,6 +442,8 @@ def test_row_27_20_hz_telemetry_alternates_40_60_ms_in_one_burst() -> None:
         rate = (len(gpi) - 1) / ((gpi[-1] - gpi[0]) / 1000.0)
         assert abs(rate - 20.0) <= 0.1, (side, rate)
         gaps = [b - a for a, b in zip(gpi, gpi[1:])]
-        assert sum(1 for g in gaps if abs(g - 40) <= 1 or abs(g - 60) <= 1) >= 0.95 * len(gaps), side
+        assert sum(1 for g in gaps if abs(g - 40) <= 1 or abs(g - 60) <= 1) >= 0.95 * len(gaps), (
+            side
+        )
         assert sum(1 for ms in gpi if ms in att) >= 0.99 * len(gpi), side
         assert math.isclose(mean(gaps), 50.0, abs_tol=0.1), side

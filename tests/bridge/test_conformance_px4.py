@@ -96,7 +96,9 @@ def test_row_05_a_short_stream_admits_offboard_and_arming() -> None:
         _, t1, _ = phase(recs, "F3_arm")
         assert [r for _, r in acks(recs, 176, t0, t1)] == [0], side
         assert [r for _, r in acks(recs, 400, t0, t1)] == [0], side
-        assert any(b & 128 and m == OFFBOARD and b == 145 for _, m, b, _ in heartbeats(recs, t0, t1)), side
+        assert any(
+            b & 128 and m == OFFBOARD and b == 145 for _, m, b, _ in heartbeats(recs, t0, t1)
+        ), side
 
 
 def test_row_06_offboard_while_armed_needs_the_stream() -> None:
@@ -104,13 +106,17 @@ def test_row_06_offboard_while_armed_needs_the_stream() -> None:
         recs = run("boot_and_arm")[side]
         t0, t1, _ = phase(recs, "E2_offboard_armed_no_setpoints")
         assert [r for _, r in acks(recs, 176, t0, t1)] == [1], side
-        assert any(s.startswith("Switching to Offboard is currently not available")
-                   for _, s in texts(recs, t0, t1)), side
+        assert any(
+            s.startswith("Switching to Offboard is currently not available")
+            for _, s in texts(recs, t0, t1)
+        ), side
 
 
 @pytest.mark.parametrize("case", ["L3527", "L2503yaw+90", "G6_3527", "G6_2503yaw+90"])
 @pytest.mark.parametrize("direction", [0, 45, 90, 135, 180, 225, 270, 315])
-def test_row_07_velocity_sets_the_bearing_and_the_yaw_field_is_ignored(case: str, direction: int) -> None:
+def test_row_07_velocity_sets_the_bearing_and_the_yaw_field_is_ignored(
+    case: str, direction: int
+) -> None:
     for side in SIDES:
         recs = run("setpoint_semantics")[side]
         t0, t1, _ = phase(recs, f"{case}_dir{direction:03d}")
@@ -122,14 +128,20 @@ def test_row_10_local_offset_ned_is_rejected_with_a_text() -> None:
     for side in SIDES:
         recs = run("setpoint_semantics")[side]
         said = [s for _, s in texts(recs) if "coordinate frame 7 unsupported" in s]
-        assert said and said[0].startswith("SET_POSITION_TARGET_LOCAL_NED coordinate frame 7 unsupported"), side
+        assert said and said[0].startswith(
+            "SET_POSITION_TARGET_LOCAL_NED coordinate frame 7 unsupported"
+        ), side
 
 
 @pytest.mark.parametrize("name", ["L1_silence", "L2_silence"])
 def test_rows_16_17_offboard_loss_failsafe_and_return(name: str) -> None:
     fw = run("setpoint_loss")["firmware"]
     t0, t1, _ = phase(fw, name)
-    last = max(r["t"] for r in fw if r["dir"] == "tx" and r["type"].startswith("SET_POSITION") and r["t"] < t0 + 0.01)
+    last = max(
+        r["t"]
+        for r in fw
+        if r["dir"] == "tx" and r["type"].startswith("SET_POSITION") and r["t"] < t0 + 0.01
+    )
     for side in SIDES:
         recs = run("setpoint_loss")[side]
         fs = next(t for t, s in texts(recs, t0 - 0.2, t1) if s.startswith("Failsafe activated"))
@@ -143,8 +155,14 @@ def test_rows_16_17_offboard_loss_failsafe_and_return(name: str) -> None:
         assert any(m == OFFBOARD for _, m, _, _ in heartbeats(recs, r0, r0 + 1.5)), side
 
 
-@pytest.mark.parametrize("name,toward", [("S9_project_stop_yaw90.5", "south"), ("S10_project_stop_yaw89.5", "north"),
-                                         ("S2_zero_2503_yaw90", "north")])
+@pytest.mark.parametrize(
+    "name,toward",
+    [
+        ("S9_project_stop_yaw90.5", "south"),
+        ("S10_project_stop_yaw89.5", "north"),
+        ("S2_zero_2503_yaw90", "north"),
+    ],
+)
 def test_rows_20_21_signed_zero_stops_swing(name: str, toward: str) -> None:
     for side in SIDES:
         recs = run("stops")[side]
@@ -170,7 +188,9 @@ def test_row_24_the_sih_clock_runs_slow() -> None:
         recs = run("setpoint_loss")[side]
         att = rx(recs, "ATTITUDE", 20.0)
         a, b = att[0], att[-1]
-        ratio = (b["fields"]["time_boot_ms"] - a["fields"]["time_boot_ms"]) / 1000.0 / (b["t"] - a["t"])
+        ratio = (
+            (b["fields"]["time_boot_ms"] - a["fields"]["time_boot_ms"]) / 1000.0 / (b["t"] - a["t"])
+        )
         assert abs(ratio - 0.990) <= 0.003, (side, ratio)
 
 
@@ -200,7 +220,9 @@ def test_row_11_half_a_metre_per_second_does_not_start_it() -> None:
         assert max(v for _, v, _ in truth(side, recs, t0, t1)) < 0.05, side
 
 
-@pytest.mark.parametrize("name", ["A1_v1.0", "A2_v2.0", "A3_v1.0", "paper1_v1.0", "paper2_v2.0", "cap_v3.0"])
+@pytest.mark.parametrize(
+    "name", ["A1_v1.0", "A2_v2.0", "A3_v1.0", "paper1_v1.0", "paper2_v2.0", "cap_v3.0"]
+)
 def test_row_12_speed_steps_east(name: str) -> None:
     got = {}
     for side in SIDES:
@@ -223,11 +245,15 @@ def test_row_13_steady_speed_depends_on_the_direction(direction: int) -> None:
 
 # (leg, speed, table row's "within 5°" range s, peak yaw rate range °/s) for ±30/±90/180°.
 HEADING_LEGS = [
-    ("v1_01_brg120", 1, (0.57, 0.95), (76, 83)), ("v1_03_brg060", 1, (0.57, 0.95), (76, 83)),
-    ("v1_05_brg180", 1, (1.27, 1.62), (101, 105)), ("v1_07_brg000", 1, (1.27, 1.62), (101, 105)),
+    ("v1_01_brg120", 1, (0.57, 0.95), (76, 83)),
+    ("v1_03_brg060", 1, (0.57, 0.95), (76, 83)),
+    ("v1_05_brg180", 1, (1.27, 1.62), (101, 105)),
+    ("v1_07_brg000", 1, (1.27, 1.62), (101, 105)),
     ("v1_09_brg270", 1, (2.40, 2.58), (102, 102)),
-    ("v2_01_brg120", 2, (0.56, 0.94), (86, 89)), ("v2_03_brg060", 2, (0.56, 0.94), (86, 89)),
-    ("v2_05_brg180", 2, (1.03, 1.40), (141, 147)), ("v2_07_brg000", 2, (1.03, 1.40), (141, 147)),
+    ("v2_01_brg120", 2, (0.56, 0.94), (86, 89)),
+    ("v2_03_brg060", 2, (0.56, 0.94), (86, 89)),
+    ("v2_05_brg180", 2, (1.03, 1.40), (141, 147)),
+    ("v2_07_brg000", 2, (1.03, 1.40), (141, 147)),
     ("v2_09_brg270", 2, (1.98, 2.16), (145, 148)),
 ]
 
@@ -255,7 +281,9 @@ def test_row_18_the_gap_not_the_rate_trips_the_failsafe() -> None:
         assert len(trips) >= 5, (side, trips)
         assert mean([v for _, v, _ in truth(side, recs, t1 - 4.0, t1)]) > 1.2, side
         t0, t1, _ = phase(recs, "R_rate_1.0Hz")  # (from 1.5 s: the 0.8 Hz phase's last gap)
-        assert not [t for t, s in texts(recs, t0 + 1.5, t1) if s.startswith("Failsafe activated")], side
+        assert not [
+            t for t, s in texts(recs, t0 + 1.5, t1) if s.startswith("Failsafe activated")
+        ], side
 
 
 def test_row_19_loss_with_hold_action_loops_back_from_speed() -> None:

@@ -117,7 +117,12 @@ def test_stale_messages_stop_and_hold_for_good():
     f = Failsafes(envelope=Envelope(max_msg_age_s=3.0))
     assert f.decide(fresh(1.0, needed_age_s=2.9)).command == DRIVE
     v = f.decide(fresh(1.05, needed_age_s=3.1))
-    assert (v.command, v.hold, v.failsafe, v.reason) == (STOP, True, True, "messages needed are stale")
+    assert (v.command, v.hold, v.failsafe, v.reason) == (
+        STOP,
+        True,
+        True,
+        "messages needed are stale",
+    )
     assert f.decide(fresh(1.1, needed_age_s=0.1)).command == STOP  # latched
     assert f.decide(fresh(1.15, needed_age_s=0.1, held=True)).command == SILENT  # held: quiet
 
@@ -150,8 +155,10 @@ def test_braking_aware_gap_stops_before_the_bumpers_meet():
     assert (v.command, v.hold) == (STOP, True) and "after braking" in v.reason
 
 
-@pytest.mark.parametrize("bad", [dict(decel_mps2=0.0), dict(reaction_s=-1.0), dict(margin_m=math.nan),
-                                 dict(margin_m=math.inf)])
+@pytest.mark.parametrize(
+    "bad",
+    [dict(decel_mps2=0.0), dict(reaction_s=-1.0), dict(margin_m=math.nan), dict(margin_m=math.inf)],
+)
 def test_braking_gap_rejects_bad_numbers(bad):
     kw = dict(decel_mps2=1.0, reaction_s=0.5, margin_m=0.2) | bad
     with pytest.raises(ValueError, match="braking gap"):
@@ -197,7 +204,10 @@ def test_a_tick_over_two_periods_late_stops_and_is_one_event_per_episode():
     assert f.decide(fresh(1.1, late_periods=30.0)).command == STOP
     assert f.decide(fresh(1.15)).command == DRIVE  # on time again: not latched
     f.decide(fresh(2.0, late_periods=3.0))
-    assert [r for _, r in f.events] == ["control loop late (2.5 periods)", "control loop late (3.0 periods)"]
+    assert [r for _, r in f.events] == [
+        "control loop late (2.5 periods)",
+        "control loop late (3.0 periods)",
+    ]
 
 
 def test_signal_after_takeover_ends_the_run_without_commanding():

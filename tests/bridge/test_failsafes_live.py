@@ -64,7 +64,9 @@ def test_frozen_telemetry_stops_then_holds_when_it_returns(tmp_path):
         follower.vehicle.freeze(False)  # the link returns: HOLD, no more commands
         wait_until(lambda: follower.vehicle.mode == "HOLD", 4, "HOLD after the link returned")
         # The runner learns the mode from the next 1 Hz heartbeat, then goes quiet.
-        wait_until(lambda: follower.runner.vehicle.tel.mode == "HOLD", 2.5, "HOLD seen by the runner")
+        wait_until(
+            lambda: follower.runner.vehicle.tel.mode == "HOLD", 2.5, "HOLD seen by the runner"
+        )
         n_sent = len(follower.link.sent)
         time.sleep(0.5)
         assert len(follower.link.sent) - n_sent <= 2  # quiet once held
@@ -73,7 +75,9 @@ def test_frozen_telemetry_stops_then_holds_when_it_returns(tmp_path):
         c.stop()
     meta = assert_log_survived(c, 1)
     assert [e["reason"] for e in meta["failsafe_events"]][:2] == [
-        "autopilot link lost", "autopilot link returned after a loss"]
+        "autopilot link lost",
+        "autopilot link returned after a loss",
+    ]
 
 
 def test_killed_vehicle_stops_and_rebooted_one_is_left_alone(tmp_path):
@@ -94,12 +98,16 @@ def test_killed_vehicle_stops_and_rebooted_one_is_left_alone(tmp_path):
         reborn = SimVehicle(f"udpin:127.0.0.1:{follower.port}", cfg).start()
         c.extra.append(reborn)
         t_reborn = time.monotonic()
-        wait_until(lambda: follower.runner.failsafes.took_over, 6, "runner sees the rebooted vehicle")
+        wait_until(
+            lambda: follower.runner.failsafes.took_over, 6, "runner sees the rebooted vehicle"
+        )
         t_seen = follower.first_event("pilot took over")
         time.sleep(1.0)
         assert all(s[1] == 0.0 for s in follower.link.after(t_reborn))
         assert follower.link.after(t_seen) == []
-        assert reborn.mode == "MANUAL" and not reborn.armed and reborn.state().speed == 0.0  # INITIAL_MODE
+        assert (
+            reborn.mode == "MANUAL" and not reborn.armed and reborn.state().speed == 0.0
+        )  # INITIAL_MODE
     finally:
         c.stop()
     assert_log_survived(c, 1)
@@ -150,7 +158,9 @@ def test_silent_predecessor_ladder_degrades_then_stops_and_holds(tmp_path):
         leader.v2v.send = type(leader.v2v).send.__get__(leader.v2v)  # radio back
         wait_until(lambda: follower.runner.member.mode == "coop", 2, "member back to coop")
         time.sleep(0.5)
-        assert follower.vehicle.mode == "HOLD" and follower.vehicle.state().speed < 0.05  # stays held
+        assert (
+            follower.vehicle.mode == "HOLD" and follower.vehicle.state().speed < 0.05
+        )  # stays held
     finally:
         c.stop()
     log = read_log(c.log_dir / "vehicle_1.csv")
@@ -164,7 +174,9 @@ def test_silent_predecessor_without_ladder_hits_the_bridge_backstop(tmp_path):
         wait_until(lambda: moving(follower), 15, "follower moving")
         leader.v2v.send = lambda state, now: False
         t_silent = time.monotonic()
-        wait_until(lambda: follower.runner._last_reason == "messages needed are stale", 3, "backstop")
+        wait_until(
+            lambda: follower.runner._last_reason == "messages needed are stale", 3, "backstop"
+        )
         t_det = time.monotonic()
         assert t_det - t_silent <= 1.0 + 0.5
         time.sleep(0.8)
@@ -210,7 +222,8 @@ def test_policy_exception_stops_logs_and_keeps_looping(tmp_path):
         # The runner records the failsafe right after act() raised, on its own thread.
         wait_until(
             lambda: any(r.startswith("policy error") for _, r in follower.runner.failsafes.events),
-            1, "policy error recorded",
+            1,
+            "policy error recorded",
         )
         det = follower.first_event("policy error")
         ticks = follower.runner.timer.ticks
@@ -222,7 +235,9 @@ def test_policy_exception_stops_logs_and_keeps_looping(tmp_path):
         c.stop()
     meta = assert_log_survived(c, 1)
     assert meta["policy_errors"] >= 10
-    assert any(e["reason"] == "policy error: RuntimeError: policy bug" for e in meta["failsafe_events"])
+    assert any(
+        e["reason"] == "policy error: RuntimeError: policy bug" for e in meta["failsafe_events"]
+    )
 
 
 def test_geofence_holds_whatever_the_policy_says(tmp_path):
@@ -250,8 +265,14 @@ def test_measured_gap_below_minimum_is_an_emergency_stop(tmp_path):
         # The predecessor reports itself 0.6 m ahead of the follower (a real near-miss
         # would look the same to the follower).
         own = follower.runner.member.own
-        ghost = type(own)(vehicle_id=0, t=time.time(), x=own.x + 0.6, y=own.y, speed=own.speed,
-                          heading=own.heading)
+        ghost = type(own)(
+            vehicle_id=0,
+            t=time.time(),
+            x=own.x + 0.6,
+            y=own.y,
+            speed=own.speed,
+            heading=own.heading,
+        )
         c.bus.publish(leader.v2v._q, ghost)
         wait_until(lambda: follower.runner.failsafes.latched.startswith("gap"), 2, "e-stop")
         det = follower.first_event("gap")
@@ -406,8 +427,9 @@ def test_a_signal_while_waiting_to_arm_ends_the_run_cleanly(tmp_path):
 
 
 def test_arming_refused_until_timeout_names_the_autopilots_reason(tmp_path):
-    c = make_convoy(tmp_path, n=2, vehicle_config={"ready_after_s": 30.0},
-                    options={1: {"arm_timeout_s": 1.5}})
+    c = make_convoy(
+        tmp_path, n=2, vehicle_config={"ready_after_s": 30.0}, options={1: {"arm_timeout_s": 1.5}}
+    )
     try:
         res = c.cars[1].join(10.0)
         assert res.exit_code == 1

@@ -20,7 +20,10 @@ def run_driver(action: str, out: Path) -> dict:
     (r,) = run_in_netns([[sys.executable, str(DRIVER), action, str(out)]], timeout=90)
     assert r.returncode == 0, r.stderr[-3000:]
     result = json.loads(r.stdout.strip().splitlines()[-1])
-    assert "error" not in result, (result, [p.read_text()[-2000:] for p in out.glob("deploy_*.txt")])
+    assert "error" not in result, (
+        result,
+        [p.read_text()[-2000:] for p in out.glob("deploy_*.txt")],
+    )
     return result
 
 

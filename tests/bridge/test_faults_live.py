@@ -20,7 +20,9 @@ DRIVER = Path(__file__).with_name("netns_fault_driver.py")
 def run_fault(kind: str, vehicle: int, policy: str, out: Path) -> dict:
     reason = netns_unavailable_reason()
     assert reason is None, f"these tests need a private network namespace: {reason}"
-    (r,) = run_in_netns([[sys.executable, str(DRIVER), kind, str(vehicle), policy, str(out)]], timeout=120)
+    (r,) = run_in_netns(
+        [[sys.executable, str(DRIVER), kind, str(vehicle), policy, str(out)]], timeout=120
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     result = json.loads(r.stdout.strip().splitlines()[-1])
     assert "error" not in result, result
@@ -29,12 +31,15 @@ def run_fault(kind: str, vehicle: int, policy: str, out: Path) -> dict:
 
 @pytest.mark.e2e
 @pytest.mark.netns
-@pytest.mark.parametrize("kind, vehicle, policy", [
-    ("halt", 1, "paper"),           # follower 1's autopilot switched to HOLD from outside
-    ("silent", 0, "paper+ladder"),  # the leader's radio dies, it drives on
-    ("dead", 0, "paper"),           # the leader's deploy dies
-    ("dead", 1, "paper+ladder"),
-])
+@pytest.mark.parametrize(
+    "kind, vehicle, policy",
+    [
+        ("halt", 1, "paper"),  # follower 1's autopilot switched to HOLD from outside
+        ("silent", 0, "paper+ladder"),  # the leader's radio dies, it drives on
+        ("dead", 0, "paper"),  # the leader's deploy dies
+        ("dead", 1, "paper+ladder"),
+    ],
+)
 def test_fault_live_every_vehicle_behind_stops_safely(kind, vehicle, policy, tmp_path):
     r = run_fault(kind, vehicle, policy, tmp_path)
     assert r["collisions"] == 0

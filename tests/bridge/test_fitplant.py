@@ -22,18 +22,40 @@ from openconvoy.logs import LogWriter
 
 # A vehicle unlike the stock presets, so a fit cannot pass by echoing the base preset.
 TRUTH = dataclasses.replace(
-    VEHICLE_PRESETS["1/6"], name="truth", speed_lag_s=0.35, accel_max_mps2=1.2,
-    decel_max_mps2=1.8, turn_rate_max_radps=math.radians(40.0), heading_lag_s=0.25,
+    VEHICLE_PRESETS["1/6"],
+    name="truth",
+    speed_lag_s=0.35,
+    accel_max_mps2=1.2,
+    decel_max_mps2=1.8,
+    turn_rate_max_radps=math.radians(40.0),
+    heading_lag_s=0.25,
     actuation_delay_s=0.12,
 )
-FITTED = ("actuation_delay_s", "speed_lag_s", "accel_max_mps2", "decel_max_mps2",
-          "turn_rate_max_radps", "heading_lag_s")
+FITTED = (
+    "actuation_delay_s",
+    "speed_lag_s",
+    "accel_max_mps2",
+    "decel_max_mps2",
+    "turn_rate_max_radps",
+    "heading_lag_s",
+)
 
 # (end time s, speed m/s, heading deg): large steps reach the acceleration and turn-rate
 # limits, small ones (0.2 m/s, 6 deg) show the lags alone.
-_SCHEDULE = [(1, 0, 0), (4, 2.0, 0), (5.5, 2.2, 0), (7, 2.0, 0), (9.5, 2.0, 60), (11, 2.0, 66),
-             (12.5, 2.0, 60), (15, 2.0, -30), (17, 0.5, -30), (19.5, 1.5, 45), (22.5, 1.5, -60),
-             (24, 0.0, -60)]
+_SCHEDULE = [
+    (1, 0, 0),
+    (4, 2.0, 0),
+    (5.5, 2.2, 0),
+    (7, 2.0, 0),
+    (9.5, 2.0, 60),
+    (11, 2.0, 66),
+    (12.5, 2.0, 60),
+    (15, 2.0, -30),
+    (17, 0.5, -30),
+    (19.5, 1.5, 45),
+    (22.5, 1.5, -60),
+    (24, 0.0, -60),
+]
 DURATION_S = 24.0
 
 
@@ -45,18 +67,41 @@ def excitation(t: float) -> tuple[float, float]:
     return 0.0, math.radians(_SCHEDULE[-1][2])
 
 
-def row(t: float, vid: int, x: float, y: float, speed: float, heading: float,
-        cmd: tuple[float, float], ref_heading: float | None = None, **extra: float) -> dict:
+def row(
+    t: float,
+    vid: int,
+    x: float,
+    y: float,
+    speed: float,
+    heading: float,
+    cmd: tuple[float, float],
+    ref_heading: float | None = None,
+    **extra: float,
+) -> dict:
     """A log row; the heading change is relative to ``ref_heading`` (the heading when the
     command was computed; default the row's own)."""
     ref = heading if ref_heading is None else ref_heading
-    return dict(t_s=t, vehicle_id=vid, x_m=x, y_m=y, speed_mps=speed, heading_rad=heading,
-                cmd_speed_mps=cmd[0], cmd_heading_change_rad=math.remainder(cmd[1] - ref, 2 * math.pi),
-                mode="coop", **extra)
+    return dict(
+        t_s=t,
+        vehicle_id=vid,
+        x_m=x,
+        y_m=y,
+        speed_mps=speed,
+        heading_rad=heading,
+        cmd_speed_mps=cmd[0],
+        cmd_heading_change_rad=math.remainder(cmd[1] - ref, 2 * math.pi),
+        mode="coop",
+        **extra,
+    )
 
 
-def plant_log(path: Path, preset: VehiclePreset, vehicle_id: int = 1,
-              cmd_timing: str = "after-state", schedule=None) -> None:
+def plant_log(
+    path: Path,
+    preset: VehiclePreset,
+    vehicle_id: int = 1,
+    cmd_timing: str = "after-state",
+    schedule=None,
+) -> None:
     """Drive the plant (100 Hz) with the excitation, logging at 20 Hz: each row holds the
     state and the command computed from it (``after-state``, as ``deploy`` logs) or the
     state and the command that led to it (``before-state``, as ``sim`` logs)."""
@@ -74,8 +119,18 @@ def plant_log(path: Path, preset: VehiclePreset, vehicle_id: int = 1,
                 plant.step(np.array([cmd[0]]), np.array([cmd[1]]))
             if cmd_timing == "before-state":
                 after = plant.state(0, t + 0.05)
-                log.write(row(t + 0.05, vehicle_id, after.x, after.y, after.speed, after.heading,
-                              cmd, ref_heading=s.heading))
+                log.write(
+                    row(
+                        t + 0.05,
+                        vehicle_id,
+                        after.x,
+                        after.y,
+                        after.speed,
+                        after.heading,
+                        cmd,
+                        ref_heading=s.heading,
+                    )
+                )
 
 
 def assert_within(
@@ -121,8 +176,11 @@ def test_limits_a_run_never_reached_keep_the_base_values(tmp_path: Path) -> None
     plant_log(tmp_path / "run" / "v1.csv", TRUTH, schedule=schedule)
     fit = fit_plant(tmp_path / "run", base=base)
     # 0 -> 1 m/s at the start reaches the acceleration limit; nothing brakes or turns hard.
-    assert fit.limits_hit == {"accel_max_mps2": True, "decel_max_mps2": False,
-                              "turn_rate_max_radps": False}
+    assert fit.limits_hit == {
+        "accel_max_mps2": True,
+        "decel_max_mps2": False,
+        "turn_rate_max_radps": False,
+    }
     assert fit.preset.accel_max_mps2 == pytest.approx(TRUTH.accel_max_mps2, rel=0.05)
     assert fit.preset.decel_max_mps2 == base.decel_max_mps2
     assert fit.preset.turn_rate_max_radps == base.turn_rate_max_radps
@@ -137,11 +195,13 @@ def test_fit_recovers_the_vehicle_through_mavlink(tmp_path: Path) -> None:
     tick, which adds half a loop period to the delay a fit sees (real autopilots too; at
     the default 50 Hz that is ~0.01 s, 8 % of this vehicle's 0.12 s)."""
     port = free_port()
-    vehicle = SimVehicle(f"udpin:127.0.0.1:{port}",
-                         SimVehicleConfig(preset=TRUTH, ready_after_s=0.0, plant_hz=100.0))
+    vehicle = SimVehicle(
+        f"udpin:127.0.0.1:{port}", SimVehicleConfig(preset=TRUTH, ready_after_s=0.0, plant_hz=100.0)
+    )
     vehicle.start()
-    link = MavlinkLink(f"udpout:127.0.0.1:{port}", DEFAULT_HOME, telemetry_hz=40.0,
-                       on_status=lambda line: None)
+    link = MavlinkLink(
+        f"udpout:127.0.0.1:{port}", DEFAULT_HOME, telemetry_hz=40.0, on_status=lambda line: None
+    )
     try:
         link.connect(timeout_s=5.0)
         link.prepare_and_arm(timeout_s=10.0)
@@ -153,8 +213,9 @@ def test_fit_recovers_the_vehicle_through_mavlink(tmp_path: Path) -> None:
                 s = link.telemetry.state
                 cmd = excitation(t)
                 link.send_setpoint(*cmd)
-                log.write(row(t, 3, s.x, s.y, s.speed, s.heading, cmd,
-                              telemetry_age_s=time.time() - s.t))
+                log.write(
+                    row(t, 3, s.x, s.y, s.speed, s.heading, cmd, telemetry_age_s=time.time() - s.t)
+                )
                 k += 1
                 time.sleep(max(0.0, t0 + k * 0.05 - time.monotonic()))
     finally:
@@ -170,9 +231,22 @@ def test_cli_writes_a_preset_sim_can_load(tmp_path: Path) -> None:
     plant_log(tmp_path / "run" / "v1.csv", TRUTH)
     out = tmp_path / "presets" / "mycar.toml"
     result = subprocess.run(
-        [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(tmp_path / "run"),
-         "--out", str(out), "--name", "mycar", "--base", "1/6"],
-        capture_output=True, text=True, timeout=120,
+        [
+            sys.executable,
+            "-m",
+            "openconvoy.cli",
+            "fit-plant",
+            str(tmp_path / "run"),
+            "--out",
+            str(out),
+            "--name",
+            "mycar",
+            "--base",
+            "1/6",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert result.returncode == 0, result.stderr
     assert "speed_lag_s" in result.stdout and str(out) in result.stdout
@@ -187,10 +261,15 @@ def test_cli_errors_are_one_line(tmp_path: Path) -> None:
     plant_log(tmp_path / "two" / "v2.csv", TRUTH, vehicle_id=2)
     result = subprocess.run(
         [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(tmp_path / "two")],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert result.returncode == 2
-    assert result.stderr.strip() == "openconvoy: error: the log holds vehicles 1, 2: choose one with --vehicle-id"
+    assert (
+        result.stderr.strip()
+        == "openconvoy: error: the log holds vehicles 1, 2: choose one with --vehicle-id"
+    )
     with pytest.raises(ValueError, match="no rows for vehicle 5"):
         fit_plant(tmp_path / "two", vehicle_id=5)
 
@@ -218,8 +297,9 @@ def recording_excerpt(src: Path, dst: Path, t0: float, t1: float) -> Path:
     return dst
 
 
-def step_response(preset: VehiclePreset, v0: float, v1: float, seconds: float = 8.0,
-                  dt: float = 0.05) -> dict[str, float]:
+def step_response(
+    preset: VehiclePreset, v0: float, v1: float, seconds: float = 8.0, dt: float = 0.05
+) -> dict[str, float]:
     """A speed step in the simulator's plant at ``dt``, measured as shared/sitl/README.md
     §3 does: overshoot past ``v1`` in the step's direction (m/s), t90 from the step (s),
     final speed."""
@@ -232,9 +312,11 @@ def step_response(preset: VehiclePreset, v0: float, v1: float, seconds: float = 
     v = np.array(speeds)
     sign = 1.0 if v1 > v0 else -1.0
     t = dt * np.arange(1, len(v) + 1)
-    return {"overshoot": float(np.max(sign * (v - v1))),
-            "t90": float(t[np.argmax(sign * (v - v0) >= 0.9 * abs(v1 - v0))]),
-            "final": float(v[-1])}
+    return {
+        "overshoot": float(np.max(sign * (v - v1))),
+        "t90": float(t[np.argmax(sign * (v - v0) >= 0.9 * abs(v1 - v0))]),
+        "final": float(v[-1]),
+    }
 
 
 def test_pi_fit_from_an_ardupilot_recording_reproduces_its_speed_steps(tmp_path: Path) -> None:
@@ -286,8 +368,9 @@ def test_pi_fit_finds_the_px4_sih_dead_zone(tmp_path: Path) -> None:
     the fitted preset does not start at 0.5 m/s, starts at 0.8 and settles at 1 m/s where
     the firmware does (shared/sitl-px4/README.md rows 11-12)."""
     rec = recording_excerpt(SITL_PX4 / "speed_steps.jsonl.gz", tmp_path / "p.jsonl.gz", 94.0, 200.0)
-    fit = fit_pi_plant([rec], base="px4-sih-rover", name="px4", source="truth", rounds=8,
-                       population=96)
+    fit = fit_pi_plant(
+        [rec], base="px4-sih-rover", name="px4", source="truth", rounds=8, population=96
+    )
     print(format_pi_fit(fit))
     p = fit.preset
     assert p.breakaway_mps > 0.0
@@ -304,9 +387,24 @@ def test_pi_fit_from_a_firmware_deploy_log(tmp_path: Path) -> None:
         raise FileNotFoundError(f"{log} not found (expected ../shared next to the repo)")
     out = tmp_path / "leader.toml"
     result = subprocess.run(
-        [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(log), "--model", "pi",
-         "--base", "1/10", "--name", "leader", "--out", str(out)],
-        capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            "-m",
+            "openconvoy.cli",
+            "fit-plant",
+            str(log),
+            "--model",
+            "pi",
+            "--base",
+            "1/10",
+            "--name",
+            "leader",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert result.returncode == 0, result.stderr
     print(result.stdout)
@@ -321,8 +419,12 @@ def test_cli_lag_fit_of_a_recording_is_a_one_line_error(tmp_path: Path) -> None:
     rec = recording_excerpt(SITL / "speed_steps.jsonl.gz", tmp_path / "a.jsonl.gz", 43.0, 50.0)
     result = subprocess.run(
         [sys.executable, "-m", "openconvoy.cli", "fit-plant", str(rec)],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert result.returncode == 2
-    assert result.stderr.strip() == ("openconvoy: error: the lag model fits one run's log; "
-                                     "use --model pi for recordings or several inputs")
+    assert result.stderr.strip() == (
+        "openconvoy: error: the lag model fits one run's log; "
+        "use --model pi for recordings or several inputs"
+    )

@@ -25,8 +25,12 @@ BENCH = Path(__file__).parents[2] / "benchmarks" / "bench_flood.py"
 def test_a_flood_of_foreign_bsms_does_not_stall_the_loop(tmp_path):
     reason = netns_unavailable_reason()
     assert reason is None, f"this test needs a private network namespace: {reason}"
-    r = subprocess.run([sys.executable, str(BENCH), "--vehicles", "1", "--flood-s", "2.5",
-                        "--out", str(tmp_path)], capture_output=True, text=True, timeout=180)
+    r = subprocess.run(
+        [sys.executable, str(BENCH), "--vehicles", "1", "--flood-s", "2.5", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     res = json.loads(r.stdout.strip().splitlines()[-1])
     assert "error" not in res, (res, [p.read_text()[-2000:] for p in tmp_path.glob("deploy_*.txt")])

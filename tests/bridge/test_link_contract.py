@@ -16,10 +16,25 @@ from openconvoy.bridge.link import Telemetry, VehicleLink
 from openconvoy.bridge.mavlink import MavlinkLink
 from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 
-DECLARED = ("telemetry_timeout_s", "heartbeat_timeout_s", "telemetry_rates", "autopilot",
-            "pilot_took_over", "takeover_reason", "failsafe_took_over", "lost", "connect",
-            "poll", "prepare_and_arm", "send_setpoint", "stop_motion", "hold", "disarm",
-            "reconnect", "close")
+DECLARED = (
+    "telemetry_timeout_s",
+    "heartbeat_timeout_s",
+    "telemetry_rates",
+    "autopilot",
+    "pilot_took_over",
+    "takeover_reason",
+    "failsafe_took_over",
+    "lost",
+    "connect",
+    "poll",
+    "prepare_and_arm",
+    "send_setpoint",
+    "stop_motion",
+    "hold",
+    "disarm",
+    "reconnect",
+    "close",
+)
 
 
 @pytest.fixture(params=["mavlink", "ideal"])
@@ -28,9 +43,13 @@ def link(request) -> Iterator[VehicleLink]:
         yield IdealLink(time.monotonic, time.time, DEFAULT_HOME, vehicle_id=1, x=3.0, y=-4.0)
         return
     port = free_port()
-    vehicle = SimVehicle(f"udpin:127.0.0.1:{port}",
-                         SimVehicleConfig(ready_after_s=0.0, start_x_m=3.0, start_y_m=-4.0)).start()
-    mav = MavlinkLink(f"udpout:127.0.0.1:{port}", DEFAULT_HOME, vehicle_id=1, on_status=lambda line: None)
+    vehicle = SimVehicle(
+        f"udpin:127.0.0.1:{port}",
+        SimVehicleConfig(ready_after_s=0.0, start_x_m=3.0, start_y_m=-4.0),
+    ).start()
+    mav = MavlinkLink(
+        f"udpout:127.0.0.1:{port}", DEFAULT_HOME, vehicle_id=1, on_status=lambda line: None
+    )
     try:
         yield mav
     finally:
@@ -57,7 +76,9 @@ def test_every_declared_member_is_there_and_nothing_else_is_read(link: VehicleLi
     for name in DECLARED:
         assert hasattr(link, name), name
     # The protocol declares exactly what the runner uses: the list above.
-    declared = {n for n in dir(VehicleLink) if not n.startswith("_")} | set(VehicleLink.__annotations__)
+    declared = {n for n in dir(VehicleLink) if not n.startswith("_")} | set(
+        VehicleLink.__annotations__
+    )
     assert declared == set(DECLARED)
 
 
@@ -68,7 +89,9 @@ def test_connect_telemetry_arm_drive_stop_hold_close(link: VehicleLink) -> None:
     assert link.telemetry_timeout_s > 0 and link.heartbeat_timeout_s > 0
     tel = _telemetry(link)
     assert tel.state.vehicle_id == 1
-    assert tel.state.x == pytest.approx(3.0, abs=0.05) and tel.state.y == pytest.approx(-4.0, abs=0.05)
+    assert tel.state.x == pytest.approx(3.0, abs=0.05) and tel.state.y == pytest.approx(
+        -4.0, abs=0.05
+    )
     assert abs(tel.state.t - time.time()) < 1.0  # stamped on the wall clock
     assert not link.pilot_took_over and link.takeover_reason == "" and not link.failsafe_took_over
     link.prepare_and_arm(10.0)

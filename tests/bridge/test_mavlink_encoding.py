@@ -36,7 +36,9 @@ def same_angle(a: float, b: float, tol: float = 1e-6) -> bool:
 def edge():
     made: list[tuple[EdgeAutopilot, MavlinkLink]] = []
 
-    def make(connect: bool = True, link_kwargs: dict | None = None, **kw) -> tuple[EdgeAutopilot, MavlinkLink, list[str]]:
+    def make(
+        connect: bool = True, link_kwargs: dict | None = None, **kw
+    ) -> tuple[EdgeAutopilot, MavlinkLink, list[str]]:
         ap = EdgeAutopilot(**kw).start()
         lines: list[str] = []
         link = MavlinkLink(ap.url, DEFAULT_HOME, on_status=lines.append, **(link_kwargs or {}))
@@ -64,7 +66,10 @@ def test_ardupilot_setpoints_are_body_forward_in_every_quadrant(edge):
     for compass in COMPASS:
         assert link.send_setpoint(1.5, enu(compass))
         m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
-        assert (m.type_mask, m.coordinate_frame) == (2503, 6)  # velocity + yaw, GLOBAL_RELATIVE_ALT_INT
+        assert (m.type_mask, m.coordinate_frame) == (
+            2503,
+            6,
+        )  # velocity + yaw, GLOBAL_RELATIVE_ALT_INT
         assert m.vx == 1.5 and m.vy == 0.0, compass  # body-forward speed, never a NED vector
         assert m.vx > -FLT_EPSILON  # Rover reverses on is_negative(vx) alone: never here
         assert same_angle(m.yaw, math.radians(compass)), compass  # absolute yaw, NED
@@ -108,18 +113,35 @@ def test_our_ardupilot_setpoint_is_what_the_real_firmware_drove_forward_with(edg
         end = phases[k + 1][0] if k + 1 < len(phases) else len(recs)
         phase = recs[i:end]
         t_end = phase[-1]["t"]
-        att = {r["fields"]["time_boot_ms"]: r["fields"]["yaw"] for r in phase
-               if r["type"] == "ATTITUDE" and r["t"] > t_end - 2.0}
-        signed = [(g["vx"] * math.cos(att[g["time_boot_ms"]]) + g["vy"] * math.sin(att[g["time_boot_ms"]])) / 100
-                  for g in (r["fields"] for r in phase if r["type"] == "GLOBAL_POSITION_INT")
-                  if g["time_boot_ms"] in att]
+        att = {
+            r["fields"]["time_boot_ms"]: r["fields"]["yaw"]
+            for r in phase
+            if r["type"] == "ATTITUDE" and r["t"] > t_end - 2.0
+        }
+        signed = [
+            (
+                g["vx"] * math.cos(att[g["time_boot_ms"]])
+                + g["vy"] * math.sin(att[g["time_boot_ms"]])
+            )
+            / 100
+            for g in (r["fields"] for r in phase if r["type"] == "GLOBAL_POSITION_INT")
+            if g["time_boot_ms"] in att
+        ]
         speed = sum(signed) / len(signed)
-        tx = next(r["fields"] for r in phase if r["dir"] == "tx" and r["type"] == "SET_POSITION_TARGET_GLOBAL_INT")
+        tx = next(
+            r["fields"]
+            for r in phase
+            if r["dir"] == "tx" and r["type"] == "SET_POSITION_TARGET_GLOBAL_INT"
+        )
         if f["encoding"] == "body":
             link.send_setpoint(f["speed"], enu(f["yaw_deg"]))
             m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
             assert (m.type_mask, m.coordinate_frame, m.vx, m.vy) == (
-                tx["type_mask"], tx["coordinate_frame"], tx["vx"], tx["vy"])
+                tx["type_mask"],
+                tx["coordinate_frame"],
+                tx["vx"],
+                tx["vy"],
+            )
             assert same_angle(m.yaw, tx["yaw"])
             assert speed > 1.4, (mark["fields"]["name"], speed)  # the firmware drove forward
         else:
@@ -193,7 +215,9 @@ def test_ardupilot_mode_lost_after_arming_is_requested_again(edge):
     status: list[str] = []
     link.prepare_and_arm(timeout_s=5.0, on_status=status.append)
     assert ap.mode == "GUIDED" and ap.armed and link.mode == "GUIDED"
-    assert any("mode changed to MANUAL after arming" in s and "RC mode switch" in s for s in status), status
+    assert any(
+        "mode changed to MANUAL after arming" in s and "RC mode switch" in s for s in status
+    ), status
 
 
 def test_ardupilot_mode_that_will_not_stay_refuses_to_start_and_disarms(edge):
@@ -221,8 +245,10 @@ def test_attitude_alone_does_not_keep_the_telemetry_fresh(edge):
 
 def _distance(cm: float, orientation: int = 0, max_cm: int = 2000):
     def send(mav, t):
-        mav.distance_sensor_send(int(t * 1000), 10, max_cm, int(cm(t)) if callable(cm) else int(cm),
-                                 0, 0, orientation, 0)
+        mav.distance_sensor_send(
+            int(t * 1000), 10, max_cm, int(cm(t)) if callable(cm) else int(cm), 0, 0, orientation, 0
+        )
+
     return send
 
 
@@ -300,4 +326,6 @@ def test_ardupilot_mode_lost_while_waiting_to_arm_is_set_again_before_arming(edg
     link.prepare_and_arm(timeout_s=8.0, on_status=status.append)
     assert ap.armed and ap.mode == "GUIDED" and link.mode == "GUIDED"
     assert ap.arm_modes[-1] == "GUIDED" and "MANUAL" not in ap.arm_modes[-1:]
-    assert any("mode is MANUAL" in s and "requesting GUIDED again before arming" in s for s in status), status
+    assert any(
+        "mode is MANUAL" in s and "requesting GUIDED again before arming" in s for s in status
+    ), status

@@ -16,8 +16,14 @@ from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 
 
 def test_urls_are_checked() -> None:
-    for url in ("udpin:0.0.0.0:14550", "udpout:10.0.0.2:14550", "udp:127.0.0.1:1",
-                "tcp:192.168.1.5:5760", "tcpin:0.0.0.0:5760", "/dev/ttyUSB0"):
+    for url in (
+        "udpin:0.0.0.0:14550",
+        "udpout:10.0.0.2:14550",
+        "udp:127.0.0.1:1",
+        "tcp:192.168.1.5:5760",
+        "tcpin:0.0.0.0:5760",
+        "/dev/ttyUSB0",
+    ):
         assert check_url(url) == url
     for bad in ("udp:14550", "tcp:host:port", "http://x", "serial0"):
         with pytest.raises(ValueError, match="MAVLink URL"):
@@ -40,7 +46,10 @@ def test_identify_and_telemetry_in_enu(vehicle_and_link, autopilot) -> None:
     lat, lon, _ = enu_to_geodetic(DEFAULT_HOME, -100.0, -50.0)
     origin = Origin(lat, lon, 0.0)
     vehicle, link, _ = vehicle_and_link(
-        autopilot=autopilot, system_id=7, start_x_m=3.0, start_y_m=-4.0,
+        autopilot=autopilot,
+        system_id=7,
+        start_x_m=3.0,
+        start_y_m=-4.0,
         start_heading_rad=math.radians(30.0),
         link_kwargs=dict(origin=origin, vehicle_id=2, telemetry_hz=20.0, length_m=0.8),
     )
@@ -266,7 +275,9 @@ def test_link_listens_for_a_vehicle_that_sends_first() -> None:
 FLT_EPSILON = 1.1920929e-07
 
 
-def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_firmware_did(vehicle_and_link) -> None:
+def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_firmware_did(
+    vehicle_and_link,
+) -> None:
     """Against the simulated ArduPilot, over MAVLink: MavlinkLink's setpoints drive forward
     at headings in all four quadrants; the old encoding (NED (vx, vy) with yaw, e9a5f3e)
     reverses exactly where real Rover 4.7 did (shared/sitl row 7: vx <= -FLT_EPSILON)."""
@@ -292,7 +303,8 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
 
         def old(vn=vn, ve=ve, yaw=yaw) -> None:
             link._conn.mav.set_position_target_global_int_send(
-                0, ts, tc, 6, 2503, 0, 0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, yaw, 0.0)
+                0, ts, tc, 6, 2503, 0, 0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, yaw, 0.0
+            )
 
         speed = drive(old)
         assert (speed < -0.3) if vn <= -FLT_EPSILON else (speed > 0.3), (compass, speed)

@@ -99,16 +99,29 @@ class ReplayV2V:
     def close(self) -> None: ...
 
 
-def runner_for(vehicle_id: int, policy: Any, convoy: ConvoyConfig | None = None,
-               lengths: list[float] | None = None, decels: list[float] | None = None):
+def runner_for(
+    vehicle_id: int,
+    policy: Any,
+    convoy: ConvoyConfig | None = None,
+    lengths: list[float] | None = None,
+    decels: list[float] | None = None,
+):
     clock = [100.0]
     wall = [0.0]
     link, v2v = ReplayLink(clock), ReplayV2V()
     convoy = convoy or ConvoyConfig(name="x", vehicles=VEHICLES)
     runner = DeployRunner(
-        RunnerOptions(vehicle_id=vehicle_id, duration_s=1000.0, status_period_s=0), convoy, policy, link, v2v,
-        lengths=lengths, decels=decels, clock=lambda: clock[0], sleep=lambda s: None,
-        wall_clock=lambda: wall[0], on_status=lambda line: None,
+        RunnerOptions(vehicle_id=vehicle_id, duration_s=1000.0, status_period_s=0),
+        convoy,
+        policy,
+        link,
+        v2v,
+        lengths=lengths,
+        decels=decels,
+        clock=lambda: clock[0],
+        sleep=lambda s: None,
+        wall_clock=lambda: wall[0],
+        on_status=lambda line: None,
     )
     return runner, link, v2v, clock, wall
 
@@ -147,7 +160,9 @@ def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_pap
         inboxes.append([])
         obs, _, _, _, infos = env.step(actions)
         info = infos[f"follower_{me}"]
-        applied = np.array([info["cmd_speed_mps"], info["cmd_heading_change_rad"]], dtype=np.float32)
+        applied = np.array(
+            [info["cmd_speed_mps"], info["cmd_heading_change_rad"]], dtype=np.float32
+        )
         sim.append((own, box, frame_obs, applied, info["mode"]))
     assert len(sim) == 1200
     lost = env.channel.lost_to[me]
@@ -156,7 +171,9 @@ def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_pap
     scenario = make_scenario("paper")
     lengths = [p.length_m for p in scenario.presets]
     decels = [p.decel_max_mps2 for p in scenario.presets]
-    runner, link, v2v, clock, wall = runner_for(me, load_policy("paper"), lengths=lengths, decels=decels)
+    runner, link, v2v, clock, wall = runner_for(
+        me, load_policy("paper"), lengths=lengths, decels=decels
+    )
     link.state = sim[0][0]
     runner.start()
     for k, (own, box, o, applied, mode) in enumerate(sim):
@@ -172,7 +189,9 @@ def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_pap
 
 
 def _sim_decide(env: ConvoyEnv, i: int, action, ranging=None) -> member_tick.Decision:
-    return member_tick.decide(env.members[i], env.sim.frames[i], np.asarray(action), env.sim.bounds[i], ranging)
+    return member_tick.decide(
+        env.members[i], env.sim.frames[i], np.asarray(action), env.sim.bounds[i], ranging
+    )
 
 
 def test_row_clip_before_supervise_in_both_worlds():
@@ -191,7 +210,9 @@ def test_row_clip_before_supervise_in_both_worlds():
     assert d is not None and d.mode == "coop"
     space = env.action_space("follower_1")
     top = env.presets[1].max_speed_mps  # the 1/6-scale car's
-    assert d.action.tolist() == space.high.tolist() == [top, pytest.approx(math.pi / 2)] and top < 99.0
+    assert (
+        d.action.tolist() == space.high.tolist() == [top, pytest.approx(math.pi / 2)] and top < 99.0
+    )
     assert _sim_decide(env, 1, [99.0, 3.0]).action.tobytes() == d.action.tobytes()
     assert _sim_decide(env, 1, [-5.0, -3.0]).action.tolist() == space.low.tolist()
 
@@ -212,7 +233,9 @@ def test_row_a_non_finite_action_is_a_counted_policy_error_and_a_stop_in_both_wo
     assert (infos["follower_1"]["cmd_speed_mps"], infos["follower_1"]["mode"]) == (0.0, "failsafe")
     assert infos["follower_2"]["policy_errors"] == 0
 
-    runner, link, v2v, clock, wall = runner_for(1, _Fixed(policy, np.array([math.nan, 0.0], dtype=np.float32)))
+    runner, link, v2v, clock, wall = runner_for(
+        1, _Fixed(policy, np.array([math.nan, 0.0], dtype=np.float32))
+    )
     link.state = VehicleState(1, 0.0, -15.0, 0.0, 0.0, 0.0)
     v2v.inbox = [VehicleState(0, 0.0, 0.0, 0.0, 0.0, 0.0)]
     runner.start()
@@ -225,7 +248,9 @@ def test_row_a_non_finite_action_is_a_counted_policy_error_and_a_stop_in_both_wo
 
 
 def test_row_a_policy_without_member_config_gets_the_scenario_spacing_in_both_worlds():
-    policy = _Fixed(load_policy("paper"), np.array([1.0, 0.0], dtype=np.float32), member_config=None)
+    policy = _Fixed(
+        load_policy("paper"), np.array([1.0, 0.0], dtype=np.float32), member_config=None
+    )
     convoy = ConvoyConfig(name="e", scenario="emergency-braking", vehicles=("full-size",) * 3)
     runner, *_ = runner_for(1, policy, convoy=convoy)
     env = ConvoyEnv("emergency-braking", member_config=policy.member_config)
@@ -237,16 +262,22 @@ def test_row_ranging_reaches_the_ladder_in_both_worlds():
     from openconvoy.core.ladder import LadderConfig
     from openconvoy.core.spacing import SpacingConfig
 
-    cfg = MemberConfig(spacing=SpacingConfig("constant-distance", distance_m=20.0),
-                       ladder=LadderConfig(enabled=True))
-    env = ConvoyEnv("emergency-braking", member_config=cfg, vehicle_presets=["full-size", "full-size"])
+    cfg = MemberConfig(
+        spacing=SpacingConfig("constant-distance", distance_m=20.0),
+        ladder=LadderConfig(enabled=True),
+    )
+    env = ConvoyEnv(
+        "emergency-braking", member_config=cfg, vehicle_presets=["full-size", "full-size"]
+    )
     env.reset(seed=0)
     cut_in = (8.0, 0.0)  # something 8 m ahead, the predecessor heard 20+ m ahead
     assert _sim_decide(env, 1, [25.0, 0.0], cut_in).mode == "degraded"
     assert _sim_decide(env, 1, [25.0, 0.0]).mode == "coop"
     # The vehicle: the same cut-in seen by its rangefinder (3.2 m bumper to bumper between
     # two 4.8 m cars = 8 m centre to centre) reaches the ladder too.
-    policy = _Fixed(load_policy("paper"), np.array([25.0, 0.0], dtype=np.float32), member_config=cfg)
+    policy = _Fixed(
+        load_policy("paper"), np.array([25.0, 0.0], dtype=np.float32), member_config=cfg
+    )
     convoy = ConvoyConfig(name="e", scenario="emergency-braking", vehicles=("full-size",) * 2)
     runner, link, v2v, clock, wall = runner_for(1, policy, convoy=convoy, lengths=env.sim.lengths)
     link.state = env.members[1].own
@@ -258,7 +289,10 @@ def test_row_ranging_reaches_the_ladder_in_both_worlds():
     clock[0] += 0.05
     runner.tick(clock[0])
     assert runner.decision.mode == "degraded"
-    assert runner.decision.action.tobytes() == _sim_decide(env, 1, [25.0, 0.0], cut_in).action.tobytes()
+    assert (
+        runner.decision.action.tobytes()
+        == _sim_decide(env, 1, [25.0, 0.0], cut_in).action.tobytes()
+    )
 
 
 class _Fixed:

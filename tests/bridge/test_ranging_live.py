@@ -45,17 +45,28 @@ def test_car_without_v2v_cutting_in_is_followed_by_ranging(tmp_path) -> None:
         s = follower.vehicle.state()
         wall, t_cut = time.time(), time.monotonic()
         p = VEHICLE_PRESETS["1/10"]
-        car = SimVehicle(f"udpin:127.0.0.1:{free_port()}", SimVehicleConfig(
-            system_id=9, preset=p, start_x_m=s.x + 8.0 * math.cos(s.heading),
-            start_y_m=s.y + 8.0 * math.sin(s.heading), start_heading_rad=s.heading,
-        ), world=follower.vehicle._world)
+        car = SimVehicle(
+            f"udpin:127.0.0.1:{free_port()}",
+            SimVehicleConfig(
+                system_id=9,
+                preset=p,
+                start_x_m=s.x + 8.0 * math.cos(s.heading),
+                start_y_m=s.y + 8.0 * math.sin(s.heading),
+                start_heading_rad=s.heading,
+            ),
+            world=follower.vehicle._world,
+        )
         gaps = _watch(c, 1.0, car)
         assert follower.runner.member.mode == "degraded"
-        t_rest = wait_until(lambda: abs(follower.vehicle.state().speed) < 0.05, 10, "follower at rest")
+        t_rest = wait_until(
+            lambda: abs(follower.vehicle.state().speed) < 0.05, 10, "follower at rest"
+        )
         gaps += _watch(c, 1.0, car)
         tel = follower.link.telemetry
         lengths = follower.runner.member.lengths
-        assert abs(tel.range_m - (gaps[-1] - 0.5 * (lengths[1] + p.length_m))) < 0.25  # noise 0.05 m
+        assert (
+            abs(tel.range_m - (gaps[-1] - 0.5 * (lengths[1] + p.length_m))) < 0.25
+        )  # noise 0.05 m
         events = [r for _, r in follower.runner.failsafes.events]
         wall_end = time.time()  # then the test's stop request: the log's last rows say failsafe
     finally:
@@ -89,8 +100,14 @@ def test_silent_leader_degrades_then_stops_as_in_sim(tmp_path) -> None:
     assert min(gaps) >= 7.5
     assert events == ["staleness ladder stop"]
     t, mode = _modes_after(tmp_path / "run", wall)
-    print("mode changes (s after the radio died):",
-          [(round(float(t[i]), 2), str(mode[i])) for i in range(len(t)) if i == 0 or mode[i] != mode[i - 1]])
+    print(
+        "mode changes (s after the radio died):",
+        [
+            (round(float(t[i]), 2), str(mode[i]))
+            for i in range(len(t))
+            if i == 0 or mode[i] != mode[i - 1]
+        ],
+    )
     # Ages run from the last BSM's own time (up to one 0.1 s BSM period before ``wall``).
     first = {m: float(t[mode == m][0]) for m in ("degraded", "failsafe")}
     assert set(mode[t < first["degraded"]]) == {"coop"}

@@ -47,8 +47,16 @@ class FakeLink:
     takeover_reason = ""
     failsafe_took_over = False
 
-    def __init__(self, clock: FakeClock, origin: Origin, vehicle_id: int, x: float, y: float,
-                 heading: float = 0.0, move: bool = True) -> None:
+    def __init__(
+        self,
+        clock: FakeClock,
+        origin: Origin,
+        vehicle_id: int,
+        x: float,
+        y: float,
+        heading: float = 0.0,
+        move: bool = True,
+    ) -> None:
         self.clock, self.origin, self.vehicle_id = clock, origin, vehicle_id
         self.x, self.y, self.heading, self.speed = x, y, heading, 0.0
         self.move = move
@@ -71,7 +79,9 @@ class FakeLink:
             self.y += self.speed * math.sin(self.heading) * dt
         self._t = now
         lat, lon, _ = enu_to_geodetic(self.origin, self.x, self.y)
-        st = VehicleState(self.vehicle_id, self.clock.wall(), self.x, self.y, self.speed, self.heading)
+        st = VehicleState(
+            self.vehicle_id, self.clock.wall(), self.x, self.y, self.speed, self.heading
+        )
         return Telemetry(st, lat, lon, "GUIDED", self.armed, now, now)
 
     def prepare_and_arm(self, timeout_s: float, on_status=None) -> None:
@@ -101,8 +111,14 @@ class FakeLink:
 class FixedPolicy:
     """Always the same action; counts calls; optionally burns clock time on one call."""
 
-    def __init__(self, speed: float, change: float, clock: FakeClock | None = None,
-                 slow_call: int = -1, slow_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        speed: float,
+        change: float,
+        clock: FakeClock | None = None,
+        slow_call: int = -1,
+        slow_s: float = 0.0,
+    ) -> None:
         self.action = make_action(speed, change)
         self.member_config = load_policy("paper").member_config
         self.control_rate_hz = 20.0
@@ -129,8 +145,15 @@ def follower_setup(tmp_path, policy, rate_hz=20.0, duration_s=2.0, safety=None):
     link = FakeLink(clock, origin, 1, x=-15.0, y=0.0, move=False)
     runner = DeployRunner(
         RunnerOptions(vehicle_id=1, rate_hz=rate_hz, duration_s=duration_s, status_period_s=0),
-        convoy, policy, link, LocalV2V(bus), clock=clock, sleep=clock.sleep,
-        wall_clock=clock.wall, log_dir=tmp_path, on_status=lambda line: None,
+        convoy,
+        policy,
+        link,
+        LocalV2V(bus),
+        clock=clock,
+        sleep=clock.sleep,
+        wall_clock=clock.wall,
+        log_dir=tmp_path,
+        on_status=lambda line: None,
     )
     # The leader is heard once, just now (fresh enough for a 2 s run).
     leader.send(VehicleState(0, clock.wall(), 0.0, 0.0, 1.0, 0.0), clock.wall())
@@ -165,14 +188,17 @@ def test_fixed_rate_absolute_yaw_and_log(tmp_path):
 
 
 def test_fifty_hertz(tmp_path):
-    clock, link, runner = follower_setup(tmp_path, FixedPolicy(1.0, 0.0), rate_hz=50.0, duration_s=1.0)
+    clock, link, runner = follower_setup(
+        tmp_path, FixedPolicy(1.0, 0.0), rate_hz=50.0, duration_s=1.0
+    )
     assert runner.run().ticks == 51
     assert np.allclose(np.diff([s[0] for s in link.sent[1:-1]]), 0.02)
 
 
 def test_speed_cap_holds_whatever_the_policy_says(tmp_path):
     clock, link, runner = follower_setup(
-        tmp_path, FixedPolicy(4.5, 0.0), safety=SafetyConfig(speed_cap_mps=2.0))
+        tmp_path, FixedPolicy(4.5, 0.0), safety=SafetyConfig(speed_cap_mps=2.0)
+    )
     runner.run()
     speeds = [s[1] for s in link.sent[1:-1]]
     assert speeds and max(speeds) == pytest.approx(2.0)
@@ -211,8 +237,12 @@ def test_the_policy_object_is_used_as_given(tmp_path):
     assert link.sent[1][1] == pytest.approx(2.1, abs=0.05)
 
 
-def leader_setup(tmp_path, scenario_spec: str, convoy_origin: tuple[float, float, float],
-                 start_xy: tuple[float, float] | None = None):
+def leader_setup(
+    tmp_path,
+    scenario_spec: str,
+    convoy_origin: tuple[float, float, float],
+    start_xy: tuple[float, float] | None = None,
+):
     clock = FakeClock()
     convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"), origin=convoy_origin)
     origin = Origin(*convoy.origin)
@@ -226,10 +256,20 @@ def leader_setup(tmp_path, scenario_spec: str, convoy_origin: tuple[float, float
         x, y, _ = geodetic_to_enu(origin, lat, lon)  # the same spot in the convoy's frame
     link = FakeLink(clock, origin, 0, x=float(x), y=float(y), heading=float(init.heading[0]))
     runner = DeployRunner(
-        RunnerOptions(vehicle_id=0, duration_s=3.0, status_period_s=0, leader_waits_for_convoy=False),
-        convoy, load_policy("paper"), link, LocalV2V(LocalBus()), leader=scenario,
-        leader_origin=leader_origin, clock=clock, sleep=clock.sleep, wall_clock=clock.wall,
-        log_dir=tmp_path, on_status=lambda line: None,
+        RunnerOptions(
+            vehicle_id=0, duration_s=3.0, status_period_s=0, leader_waits_for_convoy=False
+        ),
+        convoy,
+        load_policy("paper"),
+        link,
+        LocalV2V(LocalBus()),
+        leader=scenario,
+        leader_origin=leader_origin,
+        clock=clock,
+        sleep=clock.sleep,
+        wall_clock=clock.wall,
+        log_dir=tmp_path,
+        on_status=lambda line: None,
     )
     return link, runner
 
@@ -266,8 +306,15 @@ def test_passive_leader_broadcasts_but_commands_nothing(tmp_path):
     link = FakeLink(clock, Origin(*convoy.origin), 0, x=0.0, y=0.0)
     runner = DeployRunner(
         RunnerOptions(vehicle_id=0, passive=True, duration_s=1.0, status_period_s=0),
-        convoy, load_policy("paper"), link, LocalV2V(bus), clock=clock, sleep=clock.sleep,
-        wall_clock=clock.wall, log_dir=tmp_path, on_status=lambda line: None,
+        convoy,
+        load_policy("paper"),
+        link,
+        LocalV2V(bus),
+        clock=clock,
+        sleep=clock.sleep,
+        wall_clock=clock.wall,
+        log_dir=tmp_path,
+        on_status=lambda line: None,
     )
     assert runner.run().reason == "duration reached"
     assert link.sent == [] and not link.armed and link.holds == 0
@@ -294,18 +341,32 @@ def test_connect_timeout_names_the_users_timeout_not_one_attempts(tmp_path):
     convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
     link = Silent(clock, Origin(*convoy.origin), 1, x=-15.0, y=0.0)
     runner = DeployRunner(
-        RunnerOptions(vehicle_id=1, connect_timeout_s=5.0, status_period_s=0), convoy,
-        FixedPolicy(1.0, 0.0), link, LocalV2V(LocalBus()), clock=clock, sleep=clock.sleep,
-        wall_clock=clock.wall, on_status=lambda line: None,
+        RunnerOptions(vehicle_id=1, connect_timeout_s=5.0, status_period_s=0),
+        convoy,
+        FixedPolicy(1.0, 0.0),
+        link,
+        LocalV2V(LocalBus()),
+        clock=clock,
+        sleep=clock.sleep,
+        wall_clock=clock.wall,
+        on_status=lambda line: None,
     )
     result = runner.run()
     assert result.exit_code != 0 and link.sent == []
     assert "within --connect-timeout 5 s" in result.reason and "within 1 s" not in result.reason
 
 
-@pytest.mark.parametrize("field, value", [("rate_hz", math.nan), ("rate_hz", 1e6), ("rate_hz", math.inf),
-                                          ("connect_timeout_s", math.nan), ("arm_timeout_s", -1.0),
-                                          ("duration_s", -5.0)])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("rate_hz", math.nan),
+        ("rate_hz", 1e6),
+        ("rate_hz", math.inf),
+        ("connect_timeout_s", math.nan),
+        ("arm_timeout_s", -1.0),
+        ("duration_s", -5.0),
+    ],
+)
 def test_options_that_would_busy_loop_or_wait_forever_are_refused(field, value):
     # found (issue 10, "What was found" 3): --rate nan flooded the autopilot at ~14 kHz
     with pytest.raises(ValueError, match="out of range"):

@@ -27,8 +27,14 @@ def convoy_file(tmp_path):
 
 
 def args(convoy: str, **kw) -> DeployArgs:
-    base = dict(policy="paper", vehicle_id=1, convoy=convoy, mavlink="udpout:127.0.0.1:14999",
-                iface="lo", quiet=True)
+    base = dict(
+        policy="paper",
+        vehicle_id=1,
+        convoy=convoy,
+        mavlink="udpout:127.0.0.1:14999",
+        iface="lo",
+        quiet=True,
+    )
     base.update(kw)
     return DeployArgs(**base)
 
@@ -63,20 +69,35 @@ def test_leader_follows_the_convoy_scenario_or_a_track(convoy_file):
         r.v2v.close()
     r = build_runner(args(convoy_file, vehicle_id=0, track="example"))
     try:
-        assert r.leader.name.startswith("track-file:") and r.leader.name.endswith("example_oval.json")
+        assert r.leader.name.startswith("track-file:") and r.leader.name.endswith(
+            "example_oval.json"
+        )
         assert r.leader_origin is not None  # steered in the track's own frame
     finally:
         r.v2v.close()
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--vehicle-id", "3"], "vehicles 0..2"),
-    (["--vehicle-id", "1", "--passive"], "passive"),
-    (["--vehicle-id", "1", "--policy", "nonsense"], "unknown policy"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--vehicle-id", "3"], "vehicles 0..2"),
+        (["--vehicle-id", "1", "--passive"], "passive"),
+        (["--vehicle-id", "1", "--policy", "nonsense"], "unknown policy"),
+    ],
+)
 def test_bad_arguments_are_one_line_errors(convoy_file, capsys, extra, message):
-    argv = ["deploy", "--policy", "paper", "--convoy", convoy_file,
-            "--mavlink", "udpout:127.0.0.1:14999", "--iface", "lo", *extra]
+    argv = [
+        "deploy",
+        "--policy",
+        "paper",
+        "--convoy",
+        convoy_file,
+        "--mavlink",
+        "udpout:127.0.0.1:14999",
+        "--iface",
+        "lo",
+        *extra,
+    ]
     # argparse keeps the last --policy/--vehicle-id given
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()

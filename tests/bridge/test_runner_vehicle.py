@@ -30,9 +30,19 @@ class ScriptedLink(FakeLink):
     """FakeLink plus what MavlinkLink reports: a takeover at a time, telemetry that freezes
     at a time, a rangefinder reading, finite braking, and a record of holds and disarms."""
 
-    def __init__(self, *args, takeover_at=math.inf, failsafe=False, freeze_at=math.inf,
-                 range_m=math.nan, range_rate=math.nan, decel=math.inf, speed=0.0,
-                 refuse_at=math.inf, **kw):
+    def __init__(
+        self,
+        *args,
+        takeover_at=math.inf,
+        failsafe=False,
+        freeze_at=math.inf,
+        range_m=math.nan,
+        range_rate=math.nan,
+        decel=math.inf,
+        speed=0.0,
+        refuse_at=math.inf,
+        **kw,
+    ):
         super().__init__(*args, **kw)
         self.refuse_at = refuse_at  # from then on send_setpoint refuses (PX4 stream ended)
         self.takeover_at, self.failsafe, self.freeze_at = takeover_at, failsafe, freeze_at
@@ -56,8 +66,11 @@ class ScriptedLink(FakeLink):
 
     @property
     def takeover_reason(self) -> str:
-        return "mode changed from GUIDED to MANUAL, set by not this link (the RC mode switch)" \
-            if self.pilot_took_over else ""
+        return (
+            "mode changed from GUIDED to MANUAL, set by not this link (the RC mode switch)"
+            if self.pilot_took_over
+            else ""
+        )
 
     def poll(self) -> Telemetry:
         now = self.clock()
@@ -97,11 +110,20 @@ def runner_for(tmp_path, link_kw=None, leader_heard=True, duration_s=2.0, safety
     convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"), safety=safety or SafetyConfig())
     bus = LocalBus()
     leader, ear = LocalV2V(bus), LocalV2V(bus)
-    link = ScriptedLink(clock, Origin(*convoy.origin), 1, x=-15.0, y=0.0, move=False, **(link_kw or {}))
+    link = ScriptedLink(
+        clock, Origin(*convoy.origin), 1, x=-15.0, y=0.0, move=False, **(link_kw or {})
+    )
     runner = DeployRunner(
         RunnerOptions(vehicle_id=1, duration_s=duration_s, status_period_s=0),
-        convoy, policy or FixedPolicy(1.0, 0.0), link, LocalV2V(bus), clock=clock, sleep=clock.sleep,
-        wall_clock=clock.wall, log_dir=tmp_path, on_status=lambda line: None,
+        convoy,
+        policy or FixedPolicy(1.0, 0.0),
+        link,
+        LocalV2V(bus),
+        clock=clock,
+        sleep=clock.sleep,
+        wall_clock=clock.wall,
+        log_dir=tmp_path,
+        on_status=lambda line: None,
     )
     if leader_heard:
         leader.send(VehicleState(0, clock.wall(), 0.0, 0.0, 1.0, 0.0), clock.wall())
@@ -124,8 +146,9 @@ def test_a_completed_run_and_a_signal_exit_0(tmp_path):
 
 def test_takeover_before_the_convoy_drove_ends_the_run_nonzero_and_disarms(tmp_path):
     # Nobody heard: the follower waits, armed and still; at t = 100.5 s the mode changes.
-    clock, link, runner, _ = runner_for(tmp_path, {"takeover_at": 100.5}, leader_heard=False,
-                                        duration_s=None)
+    clock, link, runner, _ = runner_for(
+        tmp_path, {"takeover_at": 100.5}, leader_heard=False, duration_s=None
+    )
     res = runner.run()
     assert res.exit_code == 1
     assert res.reason.startswith("pilot took over before the convoy drove")
@@ -180,7 +203,9 @@ def test_rangefinder_reading_reaches_the_ladder_centre_to_centre(tmp_path):
     runner.member.supervise = spy
     runner.run()
     lengths = runner.member.lengths
-    assert seen and all(r == pytest.approx((12.0 + 0.5 * (lengths[0] + lengths[1]), -0.3)) for r in seen)
+    assert seen and all(
+        r == pytest.approx((12.0 + 0.5 * (lengths[0] + lengths[1]), -0.3)) for r in seen
+    )
     _, _, runner, _ = runner_for(tmp_path / "none", duration_s=0.5)  # no rangefinder
     seen.clear()
     real = runner.member.supervise
@@ -193,8 +218,11 @@ def test_hold_waits_until_the_stop_setpoints_have_braked_the_vehicle(tmp_path):
     # Moving at 2 m/s, braking at 1 m/s²; the geofence (10 m, it starts 15 m out) latches
     # a stop with HOLD: HOLD only once slower than 0.1 m/s (PX4's Hold would loop back).
     clock, link, runner, _ = runner_for(
-        tmp_path, {"speed": 2.0, "decel": 1.0}, safety=SafetyConfig(geofence_radius_m=10.0),
-        duration_s=4.0)
+        tmp_path,
+        {"speed": 2.0, "decel": 1.0},
+        safety=SafetyConfig(geofence_radius_m=10.0),
+        duration_s=4.0,
+    )
     runner.run()
     first_t, first_v = link.hold_log[0]
     assert first_v < HOLD_BELOW_MPS
@@ -231,7 +259,9 @@ def test_a_signal_while_arming_ends_in_hold(tmp_path):
 def test_a_signal_after_the_arm_was_accepted_disarms(tmp_path):
     """Armed, then the RC switch sets MANUAL and a signal arrives while GUIDED is asked
     for again: the vehicle is armed although ``prepare_and_arm`` never returned."""
-    ap = EdgeAutopilot(autopilot="ardupilot", mode_after_arm="MANUAL", mode_switch_repeats=10).start()
+    ap = EdgeAutopilot(
+        autopilot="ardupilot", mode_after_arm="MANUAL", mode_switch_repeats=10
+    ).start()
     convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
     link = MavlinkLink(ap.url, Origin(*convoy.origin), vehicle_id=1, on_status=lambda line: None)
     runner = None
@@ -240,8 +270,14 @@ def test_a_signal_after_the_arm_was_accepted_disarms(tmp_path):
         if "after arming" in line:
             runner.request_stop("SIGINT")  # the signal lands right now
 
-    runner = DeployRunner(RunnerOptions(vehicle_id=1, status_period_s=0, arm_timeout_s=5.0),
-                          convoy, FixedPolicy(1.0, 0.0), link, LocalV2V(LocalBus()), on_status=status)
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=1, status_period_s=0, arm_timeout_s=5.0),
+        convoy,
+        FixedPolicy(1.0, 0.0),
+        link,
+        LocalV2V(LocalBus()),
+        on_status=status,
+    )
     try:
         res = runner.run()
         assert (res.exit_code, res.reason) == (0, "SIGINT")
@@ -255,6 +291,7 @@ def test_a_signal_after_the_arm_was_accepted_disarms(tmp_path):
 def test_distance_sensor_bytes_reach_the_ladder_through_link_and_runner(tmp_path):
     """DISTANCE_SENSOR (forward, 9.00 m) from the autopilot over MAVLink, through
     MavlinkLink and the runner, into the member's ``supervise``, centre to centre."""
+
     def rangefinder(mav, t):
         mav.distance_sensor_send(int(t * 1000), 10, 2000, 900, 0, 0, 0, 0)
 
@@ -262,8 +299,14 @@ def test_distance_sensor_bytes_reach_the_ladder_through_link_and_runner(tmp_path
     convoy = ConvoyConfig(name="t", vehicles=("1/10", "1/10"))
     bus = LocalBus()
     link = MavlinkLink(ap.url, Origin(*convoy.origin), vehicle_id=1, on_status=lambda line: None)
-    runner = DeployRunner(RunnerOptions(vehicle_id=1, status_period_s=0, duration_s=1.0),
-                          convoy, FixedPolicy(0.0, 0.0), link, LocalV2V(bus), on_status=lambda line: None)
+    runner = DeployRunner(
+        RunnerOptions(vehicle_id=1, status_period_s=0, duration_s=1.0),
+        convoy,
+        FixedPolicy(0.0, 0.0),
+        link,
+        LocalV2V(bus),
+        on_status=lambda line: None,
+    )
     seen = []
     real = runner.member.supervise
 
@@ -282,4 +325,7 @@ def test_distance_sensor_bytes_reach_the_ladder_through_link_and_runner(tmp_path
     lengths = runner.member.lengths
     got = [r for r in seen if r is not None]
     assert len(got) >= 0.8 * len(seen) > 10
-    assert all(r[0] == pytest.approx(9.0 + 0.5 * (lengths[0] + lengths[1])) and abs(r[1]) < 1e-6 for r in got)
+    assert all(
+        r[0] == pytest.approx(9.0 + 0.5 * (lengths[0] + lengths[1])) and abs(r[1]) < 1e-6
+        for r in got
+    )

@@ -59,12 +59,27 @@ class Gcs:
             )
         else:
             self.conn.mav.set_position_target_global_int_send(
-                0, self.sysid, 1, mp.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mask, 0, 0, 0,
-                vn, ve, 0, 0, 0, 0, yaw, 0,
+                0,
+                self.sysid,
+                1,
+                mp.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                mask,
+                0,
+                0,
+                0,
+                vn,
+                ve,
+                0,
+                0,
+                0,
+                0,
+                yaw,
+                0,
             )
 
-    def stream(self, seconds: float, vn: float, ve: float, yaw: float, mask: int,
-               local: bool = False) -> None:
+    def stream(
+        self, seconds: float, vn: float, ve: float, yaw: float, mask: int, local: bool = False
+    ) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             self.velocity(vn, ve, yaw, mask, local)
@@ -107,8 +122,9 @@ def test_heartbeat_identifies_the_autopilot(sim, autopilot) -> None:
 
 
 def test_ardupilot_setpoint_rules(sim) -> None:
-    vehicle, gcs = sim(ready_after_s=0.0, ekf_origin_after_s=2.5, wp_speed_mps=1.0,
-                       preset=VEHICLE_PRESETS["1/10"])
+    vehicle, gcs = sim(
+        ready_after_s=0.0, ekf_origin_after_s=2.5, wp_speed_mps=1.0, preset=VEHICLE_PRESETS["1/10"]
+    )
     east = math.pi / 2  # NED yaw of east
     assert gcs.command(mp.CMD_COMPONENT_ARM_DISARM, 1) == mp.RESULT_ACCEPTED
     # Outside GUIDED (MANUAL): ignored.

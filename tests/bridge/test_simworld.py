@@ -24,12 +24,28 @@ def _pair(world: SimWorld, gap_m: float, ahead_heading: float = 0.0, **ego):
     """An ego at the origin facing east with a rangefinder, and a vehicle whose rear
     bumper is ``gap_m`` ahead of the ego's front bumper (not running: it just stands there)."""
     port = free_port()
-    ego_v = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(
-        system_id=2, preset=EXACT, ready_after_s=0.0, init_s=0.0, rc_mode_switch=False, **ego,
-    ), world=world)
-    ahead = SimVehicle(f"udpin:127.0.0.1:{free_port()}", SimVehicleConfig(
-        system_id=1, preset=P, start_x_m=gap_m + P.length_m, start_heading_rad=ahead_heading,
-    ), world=world)
+    ego_v = SimVehicle(
+        f"udpin:127.0.0.1:{port}",
+        SimVehicleConfig(
+            system_id=2,
+            preset=EXACT,
+            ready_after_s=0.0,
+            init_s=0.0,
+            rc_mode_switch=False,
+            **ego,
+        ),
+        world=world,
+    )
+    ahead = SimVehicle(
+        f"udpin:127.0.0.1:{free_port()}",
+        SimVehicleConfig(
+            system_id=1,
+            preset=P,
+            start_x_m=gap_m + P.length_m,
+            start_heading_rad=ahead_heading,
+        ),
+        world=world,
+    )
     return ego_v.start(), ahead, port
 
 
@@ -85,7 +101,9 @@ def test_distance_sensor_on_the_wire_at_its_rate() -> None:
 
 def test_no_world_no_rangefinder() -> None:
     port = free_port()
-    v = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(preset=EXACT, ready_after_s=0.0)).start()
+    v = SimVehicle(
+        f"udpin:127.0.0.1:{port}", SimVehicleConfig(preset=EXACT, ready_after_s=0.0)
+    ).start()
     try:
         assert "DISTANCE_SENSOR" not in v.message_rates_hz
     finally:
@@ -95,14 +113,18 @@ def test_no_world_no_rangefinder() -> None:
 def test_mavlink_link_reads_the_range_and_loses_it_when_nothing_is_ahead() -> None:
     world = SimWorld()
     ego, ahead, port = _pair(world, 10.0)
-    link = MavlinkLink(f"udpout:127.0.0.1:{port}", DEFAULT_HOME, vehicle_id=1, on_status=lambda line: None)
+    link = MavlinkLink(
+        f"udpout:127.0.0.1:{port}", DEFAULT_HOME, vehicle_id=1, on_status=lambda line: None
+    )
     try:
         link.connect(timeout_s=5.0)
 
         def tel():
             return link.telemetry
 
-        assert wait_for(lambda: tel() is not None and math.isfinite(tel().range_rate_mps), 3.0, link)
+        assert wait_for(
+            lambda: tel() is not None and math.isfinite(tel().range_rate_mps), 3.0, link
+        )
         t = tel()
         assert t.range_m == pytest.approx(10.0, abs=0.005)
         assert t.range_rate_mps == pytest.approx(0.0, abs=1e-6)

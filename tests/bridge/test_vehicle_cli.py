@@ -16,13 +16,32 @@ from openconvoy.comms.geodesy import Origin
 def test_vehicle_process_answers_and_obeys_signals() -> None:
     port = free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "openconvoy.cli", "vehicle", "--sim", "--id", "9",
-         "--mavlink", f"udpin:127.0.0.1:{port}", "--autopilot", "ardupilot",
-         "--home", "47.0,8.0,400", "--start", "10,20,90", "--ready-after", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "openconvoy.cli",
+            "vehicle",
+            "--sim",
+            "--id",
+            "9",
+            "--mavlink",
+            f"udpin:127.0.0.1:{port}",
+            "--autopilot",
+            "ardupilot",
+            "--home",
+            "47.0,8.0,400",
+            "--start",
+            "10,20,90",
+            "--ready-after",
+            "0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
-    link = MavlinkLink(f"udpout:127.0.0.1:{port}", Origin(47.0, 8.0, 400.0),
-                       on_status=lambda line: None)
+    link = MavlinkLink(
+        f"udpout:127.0.0.1:{port}", Origin(47.0, 8.0, 400.0), on_status=lambda line: None
+    )
     try:
         ready = proc.stdout.readline()
         assert "vehicle 9" in ready and "ardupilot" in ready
@@ -59,9 +78,22 @@ def test_vehicle_process_answers_and_obeys_signals() -> None:
 
 def test_vehicle_cli_rejects_bad_arguments() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "openconvoy.cli", "vehicle", "--sim", "--id", "1",
-         "--mavlink", "udpin:127.0.0.1:1", "--home", "47.0"],
-        capture_output=True, text=True, timeout=30,
+        [
+            sys.executable,
+            "-m",
+            "openconvoy.cli",
+            "vehicle",
+            "--sim",
+            "--id",
+            "1",
+            "--mavlink",
+            "udpin:127.0.0.1:1",
+            "--home",
+            "47.0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()

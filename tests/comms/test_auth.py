@@ -126,7 +126,11 @@ def test_forgeries_are_rejected_by_reason():
     for data in (unsigned, foreign_digest_only, foreign_frame, impostor, bytes(good)):
         assert rx.handle(data, T0 + 0.02) is None
     assert _rejected(rx) == {
-        "unsigned": 1, "bad_certificate": 1, "unknown_signer": 1, "wrong_sender": 1, "bad_signature": 1,
+        "unsigned": 1,
+        "bad_certificate": 1,
+        "unknown_signer": 1,
+        "wrong_sender": 1,
+        "bad_signature": 1,
     }
     assert rx.counters.rejected == 5 and rx.counters.received == 0
     # a flood of the foreign certificate costs no more signature checks: remembered as bad
@@ -146,7 +150,14 @@ def test_own_signed_frames_are_echoes_and_garbage_is_malformed():
 def test_unsigned_abort_is_ignored_and_a_signed_one_is_obeyed():
     bus = MemoryBus()
     links = [
-        V2V(LinkConfig("mem"), IDS, ORIGIN, i, transport=bus.endpoint(f"v{i}"), auth=Authenticator(creds(i)))
+        V2V(
+            LinkConfig("mem"),
+            IDS,
+            ORIGIN,
+            i,
+            transport=bus.endpoint(f"v{i}"),
+            auth=Authenticator(creds(i)),
+        )
         for i in range(3)
     ]
     bus.inject(cj.make_abort(T0), "operator")  # `openconvoy abort` without a key
@@ -172,8 +183,15 @@ def test_unsigned_abort_is_ignored_and_a_signed_one_is_obeyed():
 
 def test_compat_cannot_be_signed():
     with pytest.raises(ValueError, match="cannot be signed"):
-        V2V(LinkConfig("mem", compat=True), IDS, ORIGIN, 0, transport=MemoryBus().endpoint(),
-            compat_transport=MemoryBus().endpoint(), auth=Authenticator(creds(0)))
+        V2V(
+            LinkConfig("mem", compat=True),
+            IDS,
+            ORIGIN,
+            0,
+            transport=MemoryBus().endpoint(),
+            compat_transport=MemoryBus().endpoint(),
+            auth=Authenticator(creds(0)),
+        )
 
 
 def test_without_auth_signed_frames_are_read_unverified():

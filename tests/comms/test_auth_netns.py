@@ -26,7 +26,8 @@ def test_listen_verifies_and_counts_per_sender(tmp_path):
 
     old = Authenticator(ks.load_vehicle(keys, 1, now)).sign(
         j.encode_frame(j.BsmCore(0, DEFAULT_SEND_ID, 0, 286000000, -812000000, speed=0, heading=0)),
-        PSID_BSM, now - 30.0,
+        PSID_BSM,
+        now - 30.0,
     )
     cli = [sys.executable, "-m", "openconvoy.cli"]
     send = [*cli, "bsm", "send", "--iface", "oc0", "--count", "5", "--rate", "50", "--lat", "28.6",
@@ -38,8 +39,19 @@ def test_listen_verifies_and_counts_per_sender(tmp_path):
 
     listen, member, forger, foreign, replay = run_in_netns(
         [
-            [*cli, "bsm", "listen", "--iface", "oc0", "--convoy", str(convoy),
-             "--count", "18", "--timeout", "40"],
+            [
+                *cli,
+                "bsm",
+                "listen",
+                "--iface",
+                "oc0",
+                "--convoy",
+                str(convoy),
+                "--count",
+                "18",
+                "--timeout",
+                "40",
+            ],
             after(3.0, [*send, "--key", str(keys / "vehicle-1.key")]),
             after(5.0, [*send, "--speed", "160"]),
             after(7.0, [*send, "--key", str(other / "vehicle-1.key")]),

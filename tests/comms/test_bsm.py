@@ -234,7 +234,9 @@ def test_two_octet_value_lengths_and_truncation():
     big = max((bytes.fromhex(v["hex"]) for v in VECTORS), key=len)
     assert big[2] & 0xC0 == 0x80  # a 2-octet length determinant (value >= 128 octets)
     frame_t, bsm_t = j._spec()
-    assert decode_frame(big).core == j._from_asn(bsm_t.decode(frame_t.decode(big)["value"])["coreData"])
+    assert decode_frame(big).core == j._from_asn(
+        bsm_t.decode(frame_t.decode(big)["value"])["coreData"]
+    )
     for cut in (3, 4, 100, len(big) - 1):
         with pytest.raises(BsmDecodeError):
             decode_frame(big[:cut])

@@ -63,7 +63,13 @@ def test_signed_bsm_decodes_identically_with_pycrate(frames):
         ours = sp.decode_signed(data)
         assert header["psid"] == 0x20 == ours.psid
         assert header["generationTime"] == ours.generation_time
-        assert abs(c.unix_of_time64(ours.generation_time) - (T0 if signer == "certificate" else T0 + 0.1)) < 1e-6
+        assert (
+            abs(
+                c.unix_of_time64(ours.generation_time)
+                - (T0 if signer == "certificate" else T0 + 0.1)
+            )
+            < 1e-6
+        )
         sig_kind, sig = sd["signature"]
         assert sig_kind == "ecdsaNistP256Signature"
         assert sig["rSig"] == ("x-only", ours.r) and sig["sSig"] == ours.s
@@ -85,7 +91,10 @@ def test_signed_bsm_decodes_identically_with_pycrate(frames):
 
 def test_certificates_decode_identically_with_pycrate():
     cr = creds(2)
-    for cert, issuer in ((cr.authority, ("self", "sha256")), (cr.certificate, ("sha256AndDigest", cr.authority.digest))):
+    for cert, issuer in (
+        (cr.authority, ("self", "sha256")),
+        (cr.certificate, ("sha256AndDigest", cr.authority.digest)),
+    ):
         v = _pycrate("CertificateBase", "Ieee1609Dot2", cert.coer)
         assert v["version"] == 3 and v["type"] == "explicit"
         assert v["issuer"] == issuer
@@ -108,16 +117,29 @@ def test_pycrate_built_spdu_decodes_with_ours():
     # The other direction: an SPDU composed by pycrate from the published modules.
     cr = creds(0)
     payload = j.encode_frame(j.BsmCore(1, b"\x01\x02\x03\x04", 500, 0, 0, speed=0, heading=0))
-    tbs_v = {"payload": {"data": {"protocolVersion": 3, "content": ("unsecuredData", payload)}},
-             "headerInfo": {"psid": 32, "generationTime": c.time64(T0)}}
+    tbs_v = {
+        "payload": {"data": {"protocolVersion": 3, "content": ("unsecuredData", payload)}},
+        "headerInfo": {"psid": 32, "generationTime": c.time64(T0)},
+    }
     tbs_t = M.Ieee1609Dot2.ToBeSignedData
     tbs_t.set_val(tbs_v)
     tbs = tbs_t.to_oer()
     r, s = c.sign(cr.key, tbs, cr.certificate.coer)
     d = M.Ieee1609Dot2.Ieee1609Dot2Data
-    d.set_val({"protocolVersion": 3, "content": ("signedData", {
-        "hashId": "sha256", "tbsData": tbs_v, "signer": ("digest", cr.certificate.digest),
-        "signature": ("ecdsaNistP256Signature", {"rSig": ("x-only", r), "sSig": s})})})
+    d.set_val(
+        {
+            "protocolVersion": 3,
+            "content": (
+                "signedData",
+                {
+                    "hashId": "sha256",
+                    "tbsData": tbs_v,
+                    "signer": ("digest", cr.certificate.digest),
+                    "signature": ("ecdsaNistP256Signature", {"rSig": ("x-only", r), "sSig": s}),
+                },
+            ),
+        }
+    )
     ours = sp.decode_signed(d.to_oer())
     assert ours.payload == payload and ours.tbs == tbs and ours.digest == cr.certificate.digest
     assert c.verify(cr.certificate.public_key, ours.r, ours.s, ours.tbs, cr.certificate.coer)
@@ -146,8 +168,13 @@ def test_time64_is_tai_microseconds_since_2004():
 def test_the_direct_reading_equals_asn1tools(payload, psid, t, request, full):
     cr = creds(1)
     data = sp.encode_signed(
-        payload, psid=psid, generation_time=c.time64(T0 + t), key=cr.key, certificate=cr.certificate,
-        include_certificate=full, p2pcd_request=(b"abc",) if request else (),
+        payload,
+        psid=psid,
+        generation_time=c.time64(T0 + t),
+        key=cr.key,
+        certificate=cr.certificate,
+        include_certificate=full,
+        p2pcd_request=(b"abc",) if request else (),
     )
     slow = sp.decode_signed_asn1(data)
     assert sp.decode_signed(data) == slow
@@ -165,16 +192,24 @@ def test_the_direct_reading_equals_asn1tools(payload, psid, t, request, full):
 # PcapDecoderTests, UDP_FRAME and WSMP_FRAME): the SPDU octets start at "038100400380".
 # (hex, psid, capture time: the pcap's frame.time_epoch, s)
 CAPTURED = [
-    ("038100400380630014604edee641a6f6c566d3144e145c1cb823de1d9415ba70005510fdfa1fa1007fff8000"
-     "a02801009cc061002dbfcd500019b81002bbecb6ffc1fca0fe713456efde2ab20fe36af550fce334afffec80"
-     "2107c0009000014e9b5fbfffc7ffff28000040012000022b029e7fa620807eee4644feddb2898080f9cc5b0e"
-     "1fdf0341a83402f32ed81815bd20f6af31e46d907d255ab1e2bb544cf5420c3a91211db23249119980d24ed3"
-     "5f0fea3270309d118328a129f52189f9", 0x20, 1683155397.59677),
-    ("0381004003804d00134a42b3c30180c7ce400302b3c3dd6007001043425c1a5c1801021a130b530b400c10d0"
-     "9dbe9dbe00808c84b014b45005043425c1a5c1803021a13155315401c10c095bc01008c84ae64b4450018200"
-     "022b02ed6e026a18095de9bd6aaa9d38f6809127648f49b09c018082cad6384a78c2345441b13fd1c899e115"
-     "9493bce677e94b0097749787def147bd4ecff7e31f436d5ba48358e391c4e8cfe9c96c036bcab2a3744cb5cb"
-     "734e6d06", 0x82, 1683156721.857857),
+    (
+        "038100400380630014604edee641a6f6c566d3144e145c1cb823de1d9415ba70005510fdfa1fa1007fff8000"
+        "a02801009cc061002dbfcd500019b81002bbecb6ffc1fca0fe713456efde2ab20fe36af550fce334afffec80"
+        "2107c0009000014e9b5fbfffc7ffff28000040012000022b029e7fa620807eee4644feddb2898080f9cc5b0e"
+        "1fdf0341a83402f32ed81815bd20f6af31e46d907d255ab1e2bb544cf5420c3a91211db23249119980d24ed3"
+        "5f0fea3270309d118328a129f52189f9",
+        0x20,
+        1683155397.59677,
+    ),
+    (
+        "0381004003804d00134a42b3c30180c7ce400302b3c3dd6007001043425c1a5c1801021a130b530b400c10d0"
+        "9dbe9dbe00808c84b014b45005043425c1a5c1803021a13155315401c10c095bc01008c84ae64b4450018200"
+        "022b02ed6e026a18095de9bd6aaa9d38f6809127648f49b09c018082cad6384a78c2345441b13fd1c899e115"
+        "9493bce677e94b0097749787def147bd4ecff7e31f436d5ba48358e391c4e8cfe9c96c036bcab2a3744cb5cb"
+        "734e6d06",
+        0x82,
+        1683156721.857857,
+    ),
 ]
 
 
@@ -190,7 +225,10 @@ def test_captured_spdus_from_a_deployed_stack(hex_, psid, t_capture):
     assert sd["signer"] == ("digest", ours.digest)
     assert sd["tbsData"]["payload"]["data"]["content"] == ("unsecuredData", ours.payload)
     sig_kind, sig = sd["signature"]
-    assert sig_kind == "ecdsaNistP256Signature" and (sig["rSig"][1], sig["sSig"]) == (ours.r, ours.s)
+    assert sig_kind == "ecdsaNistP256Signature" and (sig["rSig"][1], sig["sSig"]) == (
+        ours.r,
+        ours.s,
+    )
     # Time64 is TAI: generated ~0.1 s before it was captured only with the 5 leap seconds
     # (read as UTC it would be 5 s after the capture)
     assert 0.0 < t_capture - c.unix_of_time64(ours.generation_time) < 0.2
@@ -240,14 +278,25 @@ def test_our_module_restates_the_published_types_component_for_component():
             if t["type"] == "SEQUENCE":
                 for m in root:
                     p = pub._cont[m["name"]]
-                    assert ("optional" in m or "default" in m) == bool(p._opt or p._def is not None), (name, m["name"])
+                    assert ("optional" in m or "default" in m) == bool(
+                        p._opt or p._def is not None
+                    ), (name, m["name"])
         assert (ext is None) == (pub._ext is None), name
         if ext is not None:
             assert ext == list(pub._ext)[: len(ext)], name
         compared.append(name)
     assert len(compared) >= 45, compared
-    for must in ("Ieee1609Dot2Data", "SignedData", "ToBeSignedData", "HeaderInfo", "SignerIdentifier",
-                 "CertificateBase", "ToBeSignedCertificate", "EccP256CurvePoint", "Signature"):
+    for must in (
+        "Ieee1609Dot2Data",
+        "SignedData",
+        "ToBeSignedData",
+        "HeaderInfo",
+        "SignerIdentifier",
+        "CertificateBase",
+        "ToBeSignedCertificate",
+        "EccP256CurvePoint",
+        "Signature",
+    ):
         assert must in compared
 
 

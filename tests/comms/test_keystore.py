@@ -32,7 +32,11 @@ def test_init_and_issue_write_0600_files_and_turn_auth_on(convoy, capsys):
         assert main(["keys", "issue", "--convoy", str(convoy), "--vehicle-id", str(i)]) == 0
     d = convoy.with_name("lab.keys")
     names = sorted(p.name for p in d.iterdir())
-    assert names == sorted(f"{s}.{e}" for s in ("authority", "vehicle-0", "vehicle-1", "vehicle-2") for e in ("key", "cert"))
+    assert names == sorted(
+        f"{s}.{e}"
+        for s in ("authority", "vehicle-0", "vehicle-1", "vehicle-2")
+        for e in ("key", "cert")
+    )
     for p in d.iterdir():
         assert stat.S_IMODE(p.stat().st_mode) == 0o600, p
     cfg = load_convoy(convoy)
@@ -101,8 +105,22 @@ def test_missing_unreadable_and_mismatched_keys_are_one_line_errors(convoy, tmp_
 def test_deploy_with_keys_but_without_the_vehicles_key_fails_in_one_line(convoy, capsys):
     main(["keys", "init", "--convoy", str(convoy)])
     capsys.readouterr()
-    rc = main(["deploy", "--policy", "paper", "--vehicle-id", "1", "--convoy", str(convoy),
-               "--mavlink", "udpout:127.0.0.1:9", "--iface", "lo", "--quiet"])
+    rc = main(
+        [
+            "deploy",
+            "--policy",
+            "paper",
+            "--vehicle-id",
+            "1",
+            "--convoy",
+            str(convoy),
+            "--mavlink",
+            "udpout:127.0.0.1:9",
+            "--iface",
+            "lo",
+            "--quiet",
+        ]
+    )
     assert rc == 2
     line = _err(capsys)
     assert "no key for vehicle 1" in line and "keys issue --vehicle-id 1" in line

@@ -46,7 +46,9 @@ def _state(i, t, x=None):
 
 
 def _balanced(c: Counters) -> bool:
-    return c.datagrams == (c.received + c.malformed + c.filtered + c.echoes + c.duplicates + c.rejected + c.lost)
+    return c.datagrams == (
+        c.received + c.malformed + c.filtered + c.echoes + c.duplicates + c.rejected + c.lost
+    )
 
 
 def test_temp_ids_default_override_and_collision():
@@ -384,12 +386,18 @@ def test_link_config_from_the_convoy_config():
 
 
 def _foreign_frames(n: int, temp_id: bytes = b"\xde\xad\xbe\xef") -> list[bytes]:
-    frames = [j.encode_frame(state_to_core(_state(0, 10.0), ORIGIN, temp_id, k)) for k in range(128)]
+    frames = [
+        j.encode_frame(state_to_core(_state(0, 10.0), ORIGIN, temp_id, k)) for k in range(128)
+    ]
     return [frames[k % 128] for k in range(n)]
 
 
-@given(cnt=st.integers(0, 127), temp_id=st.binary(min_size=4, max_size=4),
-       speed=st.integers(0, 8191), part_ii=st.none() | st.integers(0, 300))
+@given(
+    cnt=st.integers(0, 127),
+    temp_id=st.binary(min_size=4, max_size=4),
+    speed=st.integers(0, 8191),
+    part_ii=st.none() | st.integers(0, 300),
+)
 @settings(max_examples=60, deadline=None)
 def test_peek_temp_id_reads_the_id_asn1tools_encoded(cnt, temp_id, speed, part_ii):
     # with and without Part II, whose size moves the BSM behind a 1- or 2-octet length
@@ -406,7 +414,7 @@ def test_peek_temp_id_reads_the_id_asn1tools_encoded(cnt, temp_id, speed, part_i
 def test_peek_temp_id_of_non_frames_is_none():
     assert j.peek_temp_id(b"") is None and j.peek_temp_id(b"\x00\x14") is None
     assert j.peek_temp_id(b"\x00\x14\x05\x01") is None  # too short for an id
-    assert j.peek_temp_id(b"{\"car\": 1}") is None and j.peek_temp_id(b"\x00\x13" + bytes(20)) is None
+    assert j.peek_temp_id(b'{"car": 1}') is None and j.peek_temp_id(b"\x00\x13" + bytes(20)) is None
 
 
 def test_foreign_bsms_are_dropped_without_a_full_decode(monkeypatch):
@@ -473,11 +481,15 @@ def test_unavailable_heading_keeps_position_and_speed_and_takes_a_known_heading(
     assert rx.handle(j.encode_frame(core(_state(1, 10.0))._replace(**blind)), 10.1) is None
     assert rx.counters.malformed == 1
     moving = replace(_state(1, 10.0), heading=0.3, speed=0.0)
-    assert rx.handle(j.encode_frame(core(moving)), 10.1).state.heading == pytest.approx(0.3, abs=1e-3)
+    assert rx.handle(j.encode_frame(core(moving)), 10.1).state.heading == pytest.approx(
+        0.3, abs=1e-3
+    )
     # standing still, heading unavailable: the last heading it sent
     r = rx.handle(j.encode_frame(core(replace(moving, t=10.2))._replace(**blind)), 10.25)
     assert r is not None and r.state.heading == pytest.approx(0.3, abs=1e-3)
-    assert (r.state.x, r.state.y, r.state.speed) == pytest.approx((moving.x, moving.y, 0.0), abs=0.02)
+    assert (r.state.x, r.state.y, r.state.speed) == pytest.approx(
+        (moving.x, moving.y, 0.0), abs=0.02
+    )
     # it moved 2 m north (heading still unavailable): the direction of its trail
     north = replace(moving, t=10.3, y=moving.y + 2.0, speed=1.0)
     r = rx.handle(j.encode_frame(core(north)._replace(**blind)), 10.35)
@@ -486,8 +498,11 @@ def test_unavailable_heading_keeps_position_and_speed_and_takes_a_known_heading(
 
 
 def test_interop_frames_with_unavailable_heading_are_delivered_once_a_heading_is_known():
-    blind = [bytes.fromhex(v["hex"]) for v in load_vectors()
-             if v["decoded_core_fields"]["heading"] == j.HEADING_UNAVAILABLE]
+    blind = [
+        bytes.fromhex(v["hex"])
+        for v in load_vectors()
+        if v["decoded_core_fields"]["heading"] == j.HEADING_UNAVAILABLE
+    ]
     assert len(blind) == 8
     delivered = 0
     for data in blind:

@@ -53,7 +53,9 @@ def test_periodic_sends_on_a_fixed_grid_despite_tick_jitter():
 
 
 def test_event_trigger_sends_on_deviation_and_after_max_silence():
-    cfg = TriggerConfig("event", period_s=0.1, threshold_m=0.5, speed_threshold_mps=10, max_silence_s=1.0)
+    cfg = TriggerConfig(
+        "event", period_s=0.1, threshold_m=0.5, speed_threshold_mps=10, max_silence_s=1.0
+    )
     gate = TxGate(cfg)
     # Constant speed: others extrapolate perfectly, so only the first message and the
     # max-silence refreshes go out.

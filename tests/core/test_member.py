@@ -38,7 +38,9 @@ def test_observation_on_a_straight_road_at_the_desired_gaps():
     view = m.layout.view(obs)
     p1 = view.target("pred_1")
     # Dead-reckoned 0.1 s at 1 m/s: exactly 15 m ahead along the path.
-    assert p1["arc_gap"] == pytest.approx(15.0) and p1["spacing_error"] == pytest.approx(0.0, abs=1e-6)
+    assert p1["arc_gap"] == pytest.approx(15.0) and p1["spacing_error"] == pytest.approx(
+        0.0, abs=1e-6
+    )
     assert view.target("pred_2")["desired_gap"] == pytest.approx(30.0)
     assert view.target("leader")["valid"] == 0.0  # leader already is pred_2
     assert view.states("pred_1")[0, :2] == pytest.approx([14.9, 0.0])
@@ -75,7 +77,12 @@ def test_history_keeps_last_k_newest_first():
 def test_ladder_rungs():
     cfg = LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0)
     assert [rung(a, cfg) for a in (0.0, 0.5, 0.51, 2.0, 2.01, math.inf)] == [
-        "coop", "coop", "degraded", "degraded", "stop", "stop"
+        "coop",
+        "coop",
+        "degraded",
+        "degraded",
+        "stop",
+        "stop",
     ]
     assert rung(math.inf, LadderConfig(enabled=False)) == "coop"
     with pytest.raises(ValueError):
@@ -92,8 +99,13 @@ def test_acc_speed_widens_the_gap():
 
 
 def test_member_ladder_degrades_stops_and_recovers():
-    m = ConvoyMember(1, 2, MemberConfig(ladder=LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0)),
-                     lengths=[0.8, 0.8], decels=[1.0, 1.0])
+    m = ConvoyMember(
+        1,
+        2,
+        MemberConfig(ladder=LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0)),
+        lengths=[0.8, 0.8],
+        decels=[1.0, 1.0],
+    )
     m.observe_own(S(1, 0.0, 0.0, v=2.0))
     act = np.array([3.0, 0.1], dtype=np.float32)
     # Never heard: stop.
@@ -108,7 +120,11 @@ def test_member_ladder_degrades_stops_and_recovers():
     a, mode = m.supervise(act, f)
     # Degraded: ACC on the predecessor dead-reckoned as braking at 1 m/s² since its
     # message 1 s ago (1.5 m on, 1 m/s): 16.5 m ahead, wanted 15 + 2 = 17 m.
-    assert mode == "degraded" and a[0] == pytest.approx(1.0 + 0.5 * (16.5 - 17.0)) and a[1] == pytest.approx(0.1)
+    assert (
+        mode == "degraded"
+        and a[0] == pytest.approx(1.0 + 0.5 * (16.5 - 17.0))
+        and a[1] == pytest.approx(0.1)
+    )
     # A ranging sensor reading takes precedence over the estimate.
     a, _ = m.supervise(act, f, ranging=(17.0, 0.0))
     assert a[0] == pytest.approx(2.0)
@@ -138,7 +154,11 @@ def test_dead_reckoning_is_bounded_and_old_targets_are_dropped():
     est = m.estimate(0, 0.4)
     assert (est.x, est.speed, est.stale) == (pytest.approx(15.8), 2.0, False)  # constant speed
     est = m.estimate(0, 1.5)  # stale: as if braking at 1 m/s² since the message
-    assert (est.x, est.speed, est.stale) == (pytest.approx(15.0 + 3.0 - 1.125), pytest.approx(0.5), True)
+    assert (est.x, est.speed, est.stale) == (
+        pytest.approx(15.0 + 3.0 - 1.125),
+        pytest.approx(0.5),
+        True,
+    )
     assert m.estimate(0, 2.0).x == pytest.approx(17.0)  # stopped after 2 m
     assert m.estimate(0, 2.01) is None  # older than the stop age: no target at all
     m.observe_own(S(1, 2.01, 0.0, v=2.0))

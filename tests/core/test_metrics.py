@@ -13,9 +13,20 @@ from openconvoy.core import metrics as m
 def make_log(t, xs, speeds, desired=15.0, gap_logged=True, received=None, lost=None):
     """A straight-road log: ``xs[i]``, ``speeds[i]`` are vehicle i's arrays over ``t``."""
     n = len(xs)
-    cols: dict[str, list] = {c: [] for c in (
-        "t_s", "vehicle_id", "x_m", "y_m", "speed_mps", "gap_m", "desired_gap_m",
-        "msgs_received", "msgs_lost")}
+    cols: dict[str, list] = {
+        c: []
+        for c in (
+            "t_s",
+            "vehicle_id",
+            "x_m",
+            "y_m",
+            "speed_mps",
+            "gap_m",
+            "desired_gap_m",
+            "msgs_received",
+            "msgs_lost",
+        )
+    }
     for k, tk in enumerate(t):
         for i in range(n):
             cols["t_s"].append(tk)
@@ -123,7 +134,9 @@ def test_delivery_ratio_from_cumulative_counters():
     ticks = np.arange(len(T))
     received = [np.zeros_like(ticks), 3 * ticks, 2 * ticks]
     lost = [np.zeros_like(ticks), ticks, 2 * ticks]
-    log = make_log(T, [lead, lead - 15, lead - 30], [np.ones_like(T)] * 3, received=received, lost=lost)
+    log = make_log(
+        T, [lead, lead - 15, lead - 30], [np.ones_like(T)] * 3, received=received, lost=lost
+    )
     # Finals: received 57 + 38, lost 19 + 38.
     assert m.delivery_ratio(log) == pytest.approx(95 / 152)
 

@@ -19,7 +19,9 @@ def test_constant_time_headway_is_bumper_gap_plus_half_lengths():
 
 
 def test_quadratic_adds_a_speed_squared_term():
-    p = SpacingPolicy(SpacingConfig("quadratic", standstill_m=2.0, headway_s=0.6, quadratic_s2_per_m=0.02))
+    p = SpacingPolicy(
+        SpacingConfig("quadratic", standstill_m=2.0, headway_s=0.6, quadratic_s2_per_m=0.02)
+    )
     assert p.pair_gap(10.0, 0.0, 0.0) == pytest.approx(2.0 + 6.0 + 2.0)
 
 

@@ -17,9 +17,22 @@ def _log(n_ticks: int = 41) -> dict[str, np.ndarray]:
     in at 5 s (8 m ahead, closing at 2 m/s) until 8 s; its gap is 30 m from 8 s and
     closes 1 m per tick after 10 s to 20 m at 15 s."""
     t = np.arange(n_ticks) * DT
-    rows: dict[str, list] = {k: [] for k in ("t_s", "vehicle_id", "x_m", "y_m", "desired_gap_m", "gap_m",
-                                             "ahead_gap_m", "ahead_closing_mps", "ahead_length_m",
-                                             "ahead_traffic", "traffic_collision")}
+    rows: dict[str, list] = {
+        k: []
+        for k in (
+            "t_s",
+            "vehicle_id",
+            "x_m",
+            "y_m",
+            "desired_gap_m",
+            "gap_m",
+            "ahead_gap_m",
+            "ahead_closing_mps",
+            "ahead_length_m",
+            "ahead_traffic",
+            "traffic_collision",
+        )
+    }
     for tk in t:
         gap1 = 20.0 if tk < 8.0 else (30.0 if tk < 10.0 else max(20.0, 30.0 - (tk - 10.0) * 2.0))
         xs = [20.0 * tk, 20.0 * tk - gap1, 20.0 * tk - gap1 - 20.0]
@@ -31,7 +44,9 @@ def _log(n_ticks: int = 41) -> dict[str, np.ndarray]:
             rows["y_m"].append(0.0)
             rows["desired_gap_m"].append(math.nan if vid == 0 else 20.0)
             rows["gap_m"].append(math.nan if vid == 0 else xs[vid - 1] - xs[vid])
-            rows["ahead_gap_m"].append(math.nan if vid == 0 else (8.0 if cut else xs[vid - 1] - xs[vid]))
+            rows["ahead_gap_m"].append(
+                math.nan if vid == 0 else (8.0 if cut else xs[vid - 1] - xs[vid])
+            )
             rows["ahead_closing_mps"].append(math.nan if vid == 0 else (2.0 if cut else 0.0))
             rows["ahead_length_m"].append(math.nan if vid == 0 else (5.0 if cut else 4.8))
             rows["ahead_traffic"].append(math.nan if vid == 0 else (1.0 if cut else 0.0))
@@ -73,5 +88,7 @@ def test_traffic_collisions_count_vehicles() -> None:
     log = _log()
     log["traffic_collision"][(log["vehicle_id"] == 2) & (log["t_s"] >= 19.0)] = 1.0
     assert mt.traffic_collisions(log) == 1
-    no_traffic = {k: v for k, v in log.items() if not k.startswith("ahead") and k != "traffic_collision"}
+    no_traffic = {
+        k: v for k, v in log.items() if not k.startswith("ahead") and k != "traffic_collision"
+    }
     assert not mt.has_traffic_columns(no_traffic) and mt.traffic_collisions(no_traffic) == 0

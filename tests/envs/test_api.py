@@ -86,7 +86,9 @@ def _rollout(env: ConvoyEnv, seed: int, actions_seed: int) -> list:
     trace = [(obs, infos)]
     while env.agents:
         actions = {
-            a: np.array([1.0 + 0.5 * rng.standard_normal(), 0.05 * rng.standard_normal()], dtype=np.float32)
+            a: np.array(
+                [1.0 + 0.5 * rng.standard_normal(), 0.05 * rng.standard_normal()], dtype=np.float32
+            )
             for a in env.agents
         }
         trace.append(env.step(actions))
@@ -109,7 +111,9 @@ def _same(a, b) -> bool:
     "loss",
     [
         LossConfig(per=0.4),
-        LossConfig(per=0.4, model="gilbert-elliott", mean_burst_s=0.3, latency_s=0.01, jitter_s=0.04),
+        LossConfig(
+            per=0.4, model="gilbert-elliott", mean_burst_s=0.3, latency_s=0.01, jitter_s=0.04
+        ),
     ],
     ids=["bernoulli", "gilbert-elliott+latency"],
 )

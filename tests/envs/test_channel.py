@@ -80,7 +80,9 @@ def _run_lengths(lost: list[bool]) -> list[int]:
 
 def test_gilbert_elliott_loses_in_bursts_at_the_configured_rate() -> None:
     per, burst_s, period = 0.3, 1.0, 0.1
-    ch: Channel[int] = Channel(2, LossConfig(per=per, model="gilbert-elliott", mean_burst_s=burst_s))
+    ch: Channel[int] = Channel(
+        2, LossConfig(per=per, model="gilbert-elliott", mean_burst_s=burst_s)
+    )
     ch.reset(np.random.default_rng(3))
     lost = []
     for k in range(30000):

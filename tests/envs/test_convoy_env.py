@@ -71,8 +71,14 @@ def test_standing_followers_and_moving_leader_give_growing_errors_and_rewards() 
 
 def test_reward_formula() -> None:
     c = RewardConfig()
-    r = reward(c, [2.5, float("nan"), 100.0], [0.5, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 0.785, 0.0],
-               [False, False, True])
+    r = reward(
+        c,
+        [2.5, float("nan"), 100.0],
+        [0.5, 0.0, 0.0],
+        [5.0, 0.0, 0.0],
+        [0.0, 0.785, 0.0],
+        [False, False, True],
+    )
     assert r[0] == pytest.approx(-(0.5 + 0.05 * 0.25 + 0.01 * 1.0))
     assert r[1] == pytest.approx(-0.02)
     assert r[2] == pytest.approx(-(1.0 + 100.0))  # the spacing term saturates
@@ -84,7 +90,10 @@ def test_collision_terminates_everybody() -> None:
     steps = 0
     while env.agents:
         # follower_1 stands; follower_2 drives into it at 3 m/s.
-        actions = {"follower_1": np.array([0.0, 0.0], np.float32), "follower_2": np.array([3.0, 0.0], np.float32)}
+        actions = {
+            "follower_1": np.array([0.0, 0.0], np.float32),
+            "follower_2": np.array([3.0, 0.0], np.float32),
+        }
         _, rewards, terms, truncs, infos = env.step(actions)
         steps += 1
     assert terms == {"follower_1": True, "follower_2": True}
@@ -138,14 +147,19 @@ def test_log_rows_have_the_design_columns_and_geodesy(tmp_path) -> None:
     assert (last[1]["x_m"], last[1]["speed_mps"], last[1]["t_s"]) == pytest.approx(before)
     assert [r["vehicle_id"] for r in last] == [0, 1, 2]
     assert last[1]["cmd_speed_mps"] == pytest.approx(1.0)
-    assert last[1]["gap_m"] == pytest.approx(math.hypot(last[0]["x_m"] - last[1]["x_m"], last[0]["y_m"] - last[1]["y_m"]))
+    assert last[1]["gap_m"] == pytest.approx(
+        math.hypot(last[0]["x_m"] - last[1]["x_m"], last[0]["y_m"] - last[1]["y_m"])
+    )
     assert last[2]["mode"] == "coop" and last[0]["mode"] == "coop"
     final = env.final_log_rows()  # the state the episode ended in, without a command
     assert final[1]["t_s"] == pytest.approx(2.0) and math.isnan(final[1]["cmd_speed_mps"])
     assert final[1]["x_m"] == pytest.approx(float(env.plant.x[1]))
     # lat/lon round-trip to the ENU position around the scenario's origin.
     x, y, _ = geodetic_to_enu(env.scenario.origin, last[2]["lat_deg"], last[2]["lon_deg"])
-    assert (x, y) == (pytest.approx(last[2]["x_m"], abs=1e-6), pytest.approx(last[2]["y_m"], abs=1e-6))
+    assert (x, y) == (
+        pytest.approx(last[2]["x_m"], abs=1e-6),
+        pytest.approx(last[2]["y_m"], abs=1e-6),
+    )
     # Loss shows in the counters: received + lost = what the others sent to this vehicle.
     sent_by_others = sum(r["msgs_sent"] for r in last if r["vehicle_id"] != 1)
     assert last[1]["msgs_received"] + last[1]["msgs_lost"] == sent_by_others
@@ -167,10 +181,14 @@ def test_gps_noise_moves_what_members_see_not_the_truth() -> None:
 
 
 def _degraded_run(presets) -> tuple[set, list[float]]:
-    ladder_cfg = MemberConfig().ladder.__class__(enabled=True, degrade_after_s=0.3, stop_after_s=30.0)
+    ladder_cfg = MemberConfig().ladder.__class__(
+        enabled=True, degrade_after_s=0.3, stop_after_s=30.0
+    )
     cfg = MemberConfig(ladder=ladder_cfg)
     # Every message arrives 1 s late: older than degrade_after_s, so the ladder degrades.
-    env = ConvoyEnv(member_config=cfg, vehicle_presets=presets, loss=LossConfig(latency_s=1.0), max_time_s=4.0)
+    env = ConvoyEnv(
+        member_config=cfg, vehicle_presets=presets, loss=LossConfig(latency_s=1.0), max_time_s=4.0
+    )
     env.reset(seed=0)
     modes, cmds = set(), []
     while env.agents:
@@ -209,7 +227,9 @@ def test_long_convoy_runs() -> None:
     assert 0.7 < env.delivery_ratio < 0.9
 
 
-@pytest.mark.parametrize("bad", [{"control_rate_hz": 0.0}, {"gps_noise_m": -1.0}, {"render_mode": "human"}])
+@pytest.mark.parametrize(
+    "bad", [{"control_rate_hz": 0.0}, {"gps_noise_m": -1.0}, {"render_mode": "human"}]
+)
 def test_bad_arguments_are_named(bad) -> None:
     with pytest.raises(ValueError, match=next(iter(bad))):
         ConvoyEnv(**bad)
@@ -220,7 +240,9 @@ def test_event_trigger_sends_less_than_periodic_at_steady_speed() -> None:
 
     counts = {}
     for kind in ("periodic", "event"):
-        trigger = TriggerConfig(kind=kind, period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=1.0)
+        trigger = TriggerConfig(
+            kind=kind, period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=1.0
+        )
         env = ConvoyEnv(member_config=MemberConfig(trigger=trigger), max_time_s=10.0)
         env.reset(seed=0)
         while env.agents:

@@ -34,20 +34,34 @@ def test_paper_convoy_stops_safely_behind_any_fault(policy, vehicle, kind):
     # Issue 10, row 1: with the leader dead or follower 1 halted, follower 2 once drove on
     # and closed to 0.48 m (a phantom leader dead-reckoned forever, averaged into σ).
     spec = f"{kind}:{vehicle}@{FAULT_T_S:g}"
-    r = run_sim(RunConfig(scenario="paper", policy=policy, faults=(spec,),
-                          duration_s=FAULT_T_S + REST_WITHIN_S + 0.5))
+    r = run_sim(
+        RunConfig(
+            scenario="paper",
+            policy=policy,
+            faults=(spec,),
+            duration_s=FAULT_T_S + REST_WITHIN_S + 0.5,
+        )
+    )
     assert r.metrics["collisions"] == 0
     assert r.metrics["min_gap_m"] >= MIN_GAP_M
     for behind in range(vehicle + 1, 3):
         assert rest_time(r.log, behind, FAULT_T_S) <= REST_WITHIN_S, (behind, spec)
-    assert r.events[0] == {"t_s": pytest.approx(FAULT_T_S), "vehicle_id": vehicle, "reason": f"fault {spec}"}
+    assert r.events[0] == {
+        "t_s": pytest.approx(FAULT_T_S),
+        "vehicle_id": vehicle,
+        "reason": f"fault {spec}",
+    }
     if kind == "silent":  # the silent vehicle kept driving; its followers did not follow
         assert rest_time(r.log, vehicle, FAULT_T_S) > REST_WITHIN_S or vehicle == 1
 
 
-@pytest.mark.parametrize("fault", ["halt:0@3", "silent:0@3", "dead:0@3", "halt:1@3", "silent:1@3", "dead:1@3"])
+@pytest.mark.parametrize(
+    "fault", ["halt:0@3", "silent:0@3", "dead:0@3", "halt:1@3", "silent:1@3", "dead:1@3"]
+)
 def test_emergency_braking_cacc_with_ladder_survives_any_fault(fault):
-    r = run_sim(RunConfig(scenario="emergency-braking", policy="cacc-allpred+ladder", faults=(fault,)))
+    r = run_sim(
+        RunConfig(scenario="emergency-braking", policy="cacc-allpred+ladder", faults=(fault,))
+    )
     assert r.metrics["collisions"] == 0
     assert r.metrics["min_gap_m"] > 4.8  # more than a car length between centres
 
@@ -55,9 +69,14 @@ def test_emergency_braking_cacc_with_ladder_survives_any_fault(fault):
 def test_fault_specs_parse_and_bad_ones_say_what_is_wrong():
     assert parse_fault("dead:0@30") == Fault("dead", 0, 30.0)
     assert str(parse_fault(" halt:2@1.5 ")) == "halt:2@1.5"
-    for bad, why in [("boom:0@1", "unknown fault kind 'boom'"), ("dead0@1", "missing"),
-                     ("dead:x@1", "invalid literal"), ("dead:0@nan", "finite"), ("dead:-1@1", "index"),
-                     ("dead:0", "missing")]:
+    for bad, why in [
+        ("boom:0@1", "unknown fault kind 'boom'"),
+        ("dead0@1", "missing"),
+        ("dead:x@1", "invalid literal"),
+        ("dead:0@nan", "finite"),
+        ("dead:-1@1", "index"),
+        ("dead:0", "missing"),
+    ]:
         with pytest.raises(ValueError, match=why) as exc:
             parse_fault(bad)
         assert "\n" not in str(exc.value) and "KIND:VEHICLE@T_S" in str(exc.value)
@@ -73,7 +92,7 @@ def test_fault_kinds_do_what_they_say():
     sent_at_1s = None
     hold = np.array([1.0, 0.0], dtype=np.float32)
     while env.t < 6.0:
-        obs, *_ , infos = env.step({a: hold for a in env.agents})
+        obs, *_, infos = env.step({a: hold for a in env.agents})
         if sent_at_1s is None and env.t >= 1.0:
             sent_at_1s = env.members[1].msgs_sent
     assert env.members[1].msgs_sent == sent_at_1s  # silent: nothing more sent
@@ -93,8 +112,11 @@ def test_braking_aware_emergency_stop_whatever_the_policy_says(ranging):
     if ranging:
         from openconvoy.envs.vehicles import vehicle_preset
 
-        env = ConvoyEnv("paper", vehicle_presets=[vehicle_preset("1/10"), vehicle_preset("1/6").with_ranging()],
-                        faults=["halt:0@0"])
+        env = ConvoyEnv(
+            "paper",
+            vehicle_presets=[vehicle_preset("1/10"), vehicle_preset("1/6").with_ranging()],
+            faults=["halt:0@0"],
+        )
     env.reset(seed=0)
     push = np.array([2.0, 0.0], dtype=np.float32)
     gaps, modes = [], []
@@ -103,7 +125,7 @@ def test_braking_aware_emergency_stop_whatever_the_policy_says(ranging):
         gaps.append(infos["follower_1"]["gap_m"])
         modes.append(infos["follower_1"]["mode"])
     assert not any(term.values())
-    (t, vid, reason), = [e for e in env.safety_events if e[2].startswith("emergency stop")]
+    ((t, vid, reason),) = [e for e in env.safety_events if e[2].startswith("emergency stop")]
     assert vid == 1 and "between bumpers" in reason and "after braking" in reason
     assert modes[-1] == "failsafe" and env.plant.speed[1] == pytest.approx(0.0, abs=1e-3)
     bumpers = min(gaps) - 0.5 * (0.779 + 0.97)

@@ -27,8 +27,9 @@ LATENCY_S = "0.05"
 
 def _convoy_dir() -> Path:
     if not (CONVOY_DIR / "convoy.toml").is_file():
-        raise FileNotFoundError(f"firmware convoy logs not found at {CONVOY_DIR} "
-                                "(expected ../shared next to the repo)")
+        raise FileNotFoundError(
+            f"firmware convoy logs not found at {CONVOY_DIR} (expected ../shared next to the repo)"
+        )
     return CONVOY_DIR
 
 
@@ -39,12 +40,30 @@ def sim_run(tmp_path_factory) -> Path:
     convoy = tmp / "convoy.toml"
     recorded = (_convoy_dir() / "convoy.toml").read_text()
     origin = next(line for line in recorded.splitlines() if line.startswith("origin"))
-    convoy.write_text('[convoy]\nname = "sitl-sim"\nscenario = "paper"\n'
-                      'vehicles = ["ardupilot-rover", "ardupilot-rover", "ardupilot-rover"]\n'
-                      f"{origin}\n")
+    convoy.write_text(
+        '[convoy]\nname = "sitl-sim"\nscenario = "paper"\n'
+        'vehicles = ["ardupilot-rover", "ardupilot-rover", "ardupilot-rover"]\n'
+        f"{origin}\n"
+    )
     out = tmp / "sim"
-    assert main(["sim", "--convoy", str(convoy), "--policy", "paper", "--latency", LATENCY_S,
-                 "--out", str(out), "--quiet", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "--convoy",
+                str(convoy),
+                "--policy",
+                "paper",
+                "--latency",
+                LATENCY_S,
+                "--out",
+                str(out),
+                "--quiet",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -70,12 +89,28 @@ def test_sim_p95_and_string_stability_match_the_firmware_convoy(
     recorded = _convoy_dir() / run
     lengths = str(_convoy_dir() / "convoy.toml")
     # The firmware run's figures, as `openconvoy report` measures them.
-    assert main(["report", str(recorded), "--convoy", lengths,
-                 "--out", str(tmp_path / "metrics.json")]) == 0
+    assert (
+        main(
+            ["report", str(recorded), "--convoy", lengths, "--out", str(tmp_path / "metrics.json")]
+        )
+        == 0
+    )
     reported = json.loads((tmp_path / "metrics.json").read_text())
     capsys.readouterr()
-    assert main(["compare", str(recorded), str(sim_run), "--convoy", lengths,
-                 "--out", str(tmp_path / "cmp.json")]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                str(recorded),
+                str(sim_run),
+                "--convoy",
+                lengths,
+                "--out",
+                str(tmp_path / "cmp.json"),
+            ]
+        )
+        == 0
+    )
     print(capsys.readouterr().out)
     m = json.loads((tmp_path / "cmp.json").read_text())["metrics"]
     p95, ss = m["p95_platooning_error_m"], m["string_stability"]

@@ -33,12 +33,22 @@ def test_without_authentication_the_forged_leader_is_chased():
     assert not any("forged" in e["reason"] for e in attacked.events)
     late = attacked.log["t_s"] > 10.0
     followers = attacked.log["vehicle_id"] > 0
-    assert attacked.log["speed_mps"][late & followers].max() > 1.5 * clean.log["speed_mps"][late & followers].max()
+    assert (
+        attacked.log["speed_mps"][late & followers].max()
+        > 1.5 * clean.log["speed_mps"][late & followers].max()
+    )
     assert attacked.metrics["min_gap_m"] < clean.metrics["min_gap_m"] - 5.0
 
 
 def test_forge_fault_syntax():
     f = parse_fault("forge:0@12.5")
-    assert (f.kind, f.vehicle, f.t_s, f.forges, f.brakes, f.mutes) == ("forge", 0, 12.5, True, False, False)
+    assert (f.kind, f.vehicle, f.t_s, f.forges, f.brakes, f.mutes) == (
+        "forge",
+        0,
+        12.5,
+        True,
+        False,
+        False,
+    )
     with pytest.raises(ConfigError, match="auth must be"):
         RunConfig(auth="maybe")

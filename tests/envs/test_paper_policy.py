@@ -17,7 +17,9 @@ def run_paper(per: float, seed: int) -> dict:
     """One paper-scenario episode with every follower on the paper policy."""
     probe = load_policy("paper")
     env = ConvoyEnv(
-        "paper", member_config=probe.member_config, control_rate_hz=probe.control_rate_hz,
+        "paper",
+        member_config=probe.member_config,
+        control_rate_hz=probe.control_rate_hz,
         loss=LossConfig(per=per),
     )
     policies = {a: load_policy("paper") for a in env.possible_agents}
@@ -56,7 +58,9 @@ def test_paper_policy_at_per_0_platoons_tightly() -> None:
         leader = run["speeds"][last5, 0]
         for follower in range(1, run["speeds"].shape[1]):
             diff = np.abs(run["speeds"][last5, follower] - leader)
-            assert diff.max() < 0.2, f"follower {follower} off by {diff.max():.3f} m/s in phase ending {end} s"
+            assert diff.max() < 0.2, (
+                f"follower {follower} off by {diff.max():.3f} m/s in phase ending {end} s"
+            )
     assert run["lost"] == 0
 
 

@@ -20,7 +20,9 @@ def _plant(preset=SMALL, speed: float = 0.0, heading: float = 0.0) -> BicyclePla
     return p
 
 
-def _run(p: BicyclePlant, cmd_speed: float, cmd_heading: float, steps: int) -> list[tuple[float, float, float]]:
+def _run(
+    p: BicyclePlant, cmd_speed: float, cmd_heading: float, steps: int
+) -> list[tuple[float, float, float]]:
     out = []
     for _ in range(steps):
         p.step(np.array([cmd_speed]), np.array([cmd_heading]))
@@ -68,7 +70,9 @@ def test_deceleration_limit_of_a_full_size_car() -> None:
     assert decel.max() == pytest.approx(car.decel_max_mps2, rel=1e-9)
     # Rate-limited until the lag takes over (below decel * tau = 3.2 m/s), then exponential.
     t_32 = (np.argmax(speeds <= car.decel_max_mps2 * car.speed_lag_s)) * DT
-    assert t_32 == pytest.approx(car.actuation_delay_s + (25.0 - 3.2) / car.decel_max_mps2, abs=0.06)
+    assert t_32 == pytest.approx(
+        car.actuation_delay_s + (25.0 - 3.2) / car.decel_max_mps2, abs=0.06
+    )
     assert speeds[-1] < 0.01 and speeds.min() >= 0.0
 
 
@@ -195,7 +199,9 @@ def test_lag_presets_ignore_the_pi_state() -> None:
 def test_static_friction_holds_a_vehicle_at_rest() -> None:
     import dataclasses
 
-    sticky = dataclasses.replace(ROVER, speed_kp=0.0, speed_ki=0.0, speed_ff=1.0, breakaway_mps=0.75)
+    sticky = dataclasses.replace(
+        ROVER, speed_kp=0.0, speed_ki=0.0, speed_ff=1.0, breakaway_mps=0.75
+    )
     below = _plant(sticky)
     _run(below, 0.7, 0.0, 100)
     assert float(below.speed[0]) == 0.0 and float(below.x[0]) == 0.0
@@ -217,7 +223,9 @@ def test_integrator_breaks_a_vehicle_loose_after_a_while() -> None:
     # moves (PX4 SIH at 0.7 m/s starts after seconds).
     import dataclasses
 
-    sticky = dataclasses.replace(ROVER, speed_kp=0.0, speed_ki=0.01, speed_ff=1.0, breakaway_mps=0.75)
+    sticky = dataclasses.replace(
+        ROVER, speed_kp=0.0, speed_ki=0.01, speed_ff=1.0, breakaway_mps=0.75
+    )
     p = _plant(sticky)
     moved_at = next((k * DT for k, (s, _, _) in enumerate(_run(p, 0.72, 0.0, 400)) if s > 0), None)
     assert moved_at is not None and moved_at > 1.0
@@ -248,11 +256,17 @@ def test_lateral_acceleration_caps_the_yaw_rate_at_speed() -> None:
 def test_scalar_and_vectorized_steps_agree_with_every_model() -> None:
     import dataclasses
 
-    sticky = dataclasses.replace(ROVER, name="sticky", breakaway_mps=0.75, speed_ki=0.5,
-                                 drive_drag_per_mps=0.3)
-    lagged = dataclasses.replace(SMALL, name="lagged", breakaway_mps=0.3,
-                                 lateral_accel_max_mps2=2.0, yaw_accel_max_radps2=3.0,
-                                 heading_delay_s=0.2)
+    sticky = dataclasses.replace(
+        ROVER, name="sticky", breakaway_mps=0.75, speed_ki=0.5, drive_drag_per_mps=0.3
+    )
+    lagged = dataclasses.replace(
+        SMALL,
+        name="lagged",
+        breakaway_mps=0.3,
+        lateral_accel_max_mps2=2.0,
+        yaw_accel_max_radps2=3.0,
+        heading_delay_s=0.2,
+    )
     presets = [ROVER, sticky, lagged, SMALL, VEHICLE_PRESETS["full-size"]]
     rng = np.random.default_rng(5)
     plants = [BicyclePlant(presets, 0.05, vectorized=v) for v in (False, True)]

@@ -30,8 +30,9 @@ def _drive_leader(scenario, seconds: float) -> dict[str, np.ndarray]:
     rec: dict[str, list[float]] = {k: [] for k in ("t", "x", "y", "v", "h", "cmd")}
     for k in range(int(round(seconds / DT))):
         t = k * DT
-        v, h = scenario.leader_command(t, float(plant.x[0]), float(plant.y[0]),
-                                       float(plant.heading[0]), float(plant.speed[0]))
+        v, h = scenario.leader_command(
+            t, float(plant.x[0]), float(plant.y[0]), float(plant.heading[0]), float(plant.speed[0])
+        )
         plant.step(np.array([v]), np.array([h]))
         rec["t"].append(t + DT)
         rec["x"].append(float(plant.x[0]))
@@ -100,8 +101,12 @@ def test_track_oval_closes_and_leader_follows_it() -> None:
     cruising = rec["t"] > 5.0
     assert rec["v"][cruising] == pytest.approx(1.5, abs=0.02)
     # Stays on the oval: distance to the path stays small, and it comes back round.
-    off = [math.hypot(x - path.point_at(path.project(x, y))[0], y - path.point_at(path.project(x, y))[1])
-           for x, y in zip(rec["x"][::10], rec["y"][::10])]
+    off = [
+        math.hypot(
+            x - path.point_at(path.project(x, y))[0], y - path.point_at(path.project(x, y))[1]
+        )
+        for x, y in zip(rec["x"][::10], rec["y"][::10])
+    ]
     assert max(off) < 0.3
     start = sc.initial_state()
     d_start = np.hypot(rec["x"] - start.x[0], rec["y"] - start.y[0])
@@ -134,7 +139,9 @@ def test_emergency_braking_decelerates_at_6_mps2_to_a_stop() -> None:
     assert rec["x"][-1] - x_brake == pytest.approx(expected, rel=0.05)
 
 
-def _track_json(points: dict[str, tuple[float, float]], origin: Origin, closed: bool | None = None) -> dict:
+def _track_json(
+    points: dict[str, tuple[float, float]], origin: Origin, closed: bool | None = None
+) -> dict:
     def ll(name: str) -> dict[str, float]:
         lat, lon, _ = enu_to_geodetic(origin, *points[name])
         return {"lat": lat, "lon": lon}
@@ -185,8 +192,18 @@ def test_track_file_right_turns_and_open_track() -> None:
         s["start"], s["end"] = s["end"], s["start"]
     data["straights"].reverse()
     data["turns"] = [
-        {"start": data["straights"][0]["end"], "end": data["straights"][1]["start"], "speed": 0.5, "direction": "right"},
-        {"start": data["straights"][1]["end"], "end": data["straights"][0]["start"], "speed": 0.5, "direction": "right"},
+        {
+            "start": data["straights"][0]["end"],
+            "end": data["straights"][1]["start"],
+            "speed": 0.5,
+            "direction": "right",
+        },
+        {
+            "start": data["straights"][1]["end"],
+            "end": data["straights"][0]["start"],
+            "speed": 0.5,
+            "direction": "right",
+        },
     ]
     track = parse_track(data)
     assert track.path.length == pytest.approx(60.0 + 2 * math.pi * 5.0, rel=2e-3)
@@ -200,8 +217,12 @@ def test_track_file_with_quarter_turns_closes() -> None:
     # A rectangle with rounded corners, as lab garage loops are drawn: four straights and
     # four 90° left turns of radius 3 m (chord 3√2 m).
     r = 3.0
-    corners = [((-10.0, -5.0 - r), (10.0, -5.0 - r)), ((10.0 + r, -5.0), (10.0 + r, 5.0)),
-               ((10.0, 5.0 + r), (-10.0, 5.0 + r)), ((-10.0 - r, 5.0), (-10.0 - r, -5.0))]
+    corners = [
+        ((-10.0, -5.0 - r), (10.0, -5.0 - r)),
+        ((10.0 + r, -5.0), (10.0 + r, 5.0)),
+        ((10.0, 5.0 + r), (-10.0, 5.0 + r)),
+        ((-10.0 - r, 5.0), (-10.0 - r, -5.0)),
+    ]
 
     def ll(p: tuple[float, float]) -> dict[str, float]:
         lat, lon, _ = enu_to_geodetic(ORIGIN, *p)
@@ -211,7 +232,12 @@ def test_track_file_with_quarter_turns_closes() -> None:
         "name": "rounded_rectangle",
         "straights": [{"start": ll(a), "end": ll(b), "speed": 1.0} for a, b in corners],
         "turns": [
-            {"start": ll(corners[i][1]), "end": ll(corners[(i + 1) % 4][0]), "speed": 0.5, "direction": "left"}
+            {
+                "start": ll(corners[i][1]),
+                "end": ll(corners[(i + 1) % 4][0]),
+                "speed": 0.5,
+                "direction": "left",
+            }
             for i in range(4)
         ],
         "center": {"lat": ORIGIN.lat_deg, "lon": ORIGIN.lon_deg},

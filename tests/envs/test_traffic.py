@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("highway_env", reason="needs the traffic extra: pip install 'openconvoy[traffic]'")
+pytest.importorskip(
+    "highway_env", reason="needs the traffic extra: pip install 'openconvoy[traffic]'"
+)
 
 from highway_env.road.road import Road, RoadNetwork  # noqa: E402
 from highway_env.vehicle.behavior import IDMVehicle  # noqa: E402
@@ -33,7 +35,9 @@ def test_frame_mapping_is_one_function_and_its_inverse() -> None:
     f = HighwayFrame(300.0, 4.0)
     # ENU north (left of an eastbound car) is highway-env's lower lane index (its -y).
     assert enu_to_highway(f, 10.0, 4.0, 0.3) == (310.0, 0.0, -0.3)
-    assert highway_to_enu(f, *enu_to_highway(f, -7.5, 2.5, -1.2)) == pytest.approx((-7.5, 2.5, -1.2))
+    assert highway_to_enu(f, *enu_to_highway(f, -7.5, 2.5, -1.2)) == pytest.approx(
+        (-7.5, 2.5, -1.2)
+    )
     # On the road: ENU y = -4 m is the lane to the right of the convoy's.
     world = TrafficWorld(f, [4.8], [1.9], 25.0)
     world.reset(Road(RoadNetwork.straight_road_network(3, length=2000.0)), [])
@@ -45,7 +49,9 @@ def test_frame_mapping_is_one_function_and_its_inverse() -> None:
 
 
 def _world_with_car_behind(gap_m: float) -> tuple[TrafficWorld, IDMVehicle]:
-    road = Road(RoadNetwork.straight_road_network(3, length=2000.0), np_random=np.random.RandomState(0))
+    road = Road(
+        RoadNetwork.straight_road_network(3, length=2000.0), np_random=np.random.RandomState(0)
+    )
     lane = road.network.get_lane(("0", "1", 1))
     car = IDMVehicle(road, lane.position(300.0 - gap_m, 0.0), 0.0, 25.0, target_speed=25.0)
     world = TrafficWorld(HighwayFrame(300.0, 4.0), [4.8], [1.9], 25.0)
@@ -175,7 +181,9 @@ def test_cut_in_degrades_to_ranging_and_restores_the_gap() -> None:
     t_in = log["t_s"][intruded]
     assert 1.0 < t_in.min() < 1.6 and 3.0 < t_in.max() < 3.8
     assert set(log["mode"][intruded]) == {"degraded"}
-    assert log["mode"][f1 & (log["t_s"] > 5.0)].tolist() == ["coop"] * int((f1 & (log["t_s"] > 5.0)).sum())
+    assert log["mode"][f1 & (log["t_s"] > 5.0)].tolist() == ["coop"] * int(
+        (f1 & (log["t_s"] > 5.0)).sum()
+    )
     # No collision, with the cut-in's closest approach reported.
     assert m["traffic_collisions"] == 0 and m["collisions"] == 0
     assert 1.5 < m["min_ttc_s"] < 2.5
@@ -224,8 +232,10 @@ def test_slow_traffic_leader_follows_it_by_idm() -> None:
     from openconvoy.policies import load_policy
 
     policy = load_policy("cacc-allpred+ladder")
-    env = TrafficConvoyEnv("highway-slow-traffic:duration_s=20,slow_ahead_m=80,traffic=4",
-                           member_config=policy.member_config)
+    env = TrafficConvoyEnv(
+        "highway-slow-traffic:duration_s=20,slow_ahead_m=80,traffic=4",
+        member_config=policy.member_config,
+    )
     pols = {a: load_policy("cacc-allpred+ladder") for a in env.possible_agents}
     obs, _ = env.reset(seed=1)
     while env.agents:
@@ -273,16 +283,32 @@ def test_metrics_json_has_the_traffic_metrics(tmp_path) -> None:
     from openconvoy.cli import main
 
     out = tmp_path / "run"
-    assert main(["sim", "--scenario", "highway-cut-in:duration_s=2,traffic=2", "--policy", "cacc-allpred+ladder",
-                 "--out", str(out), "--quiet", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "--scenario",
+                "highway-cut-in:duration_s=2,traffic=2",
+                "--policy",
+                "cacc-allpred+ladder",
+                "--out",
+                str(out),
+                "--quiet",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     import json
 
     data = json.loads((out / "metrics.json").read_text())
     for k in mt.TRAFFIC_METRIC_KEYS:
         assert k in data
     log_head = (out / "log.csv").read_text().splitlines()[0].split(",")
-    assert log_head[-len(TRAFFIC_LOG_COLUMNS):] == list(TRAFFIC_LOG_COLUMNS)
+    assert log_head[-len(TRAFFIC_LOG_COLUMNS) :] == list(TRAFFIC_LOG_COLUMNS)
     # report recomputes the same traffic metrics from the log alone.
     assert main(["report", str(out), "--out", str(tmp_path / "again.json")]) == 0
     again = json.loads((tmp_path / "again.json").read_text())
-    assert {k: again[k] for k in mt.TRAFFIC_METRIC_KEYS} == {k: data[k] for k in mt.TRAFFIC_METRIC_KEYS}
+    assert {k: again[k] for k in mt.TRAFFIC_METRIC_KEYS} == {
+        k: data[k] for k in mt.TRAFFIC_METRIC_KEYS
+    }

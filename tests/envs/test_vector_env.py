@@ -26,18 +26,37 @@ from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
 
 
-def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3, latency_s: float = 0.0,
-             steps: int | None = None, n_followers: int | None = None, member: dict | None = None,
-             model: str = "bernoulli", corrupt=None, **kwargs) -> Counter:
+def _compare(
+    scenario: str = "paper",
+    B: int = 2,
+    per: float | list[float] = 0.3,
+    latency_s: float = 0.0,
+    steps: int | None = None,
+    n_followers: int | None = None,
+    member: dict | None = None,
+    model: str = "bernoulli",
+    corrupt=None,
+    **kwargs,
+) -> Counter:
     """Run both worlds; assert they agree at every tick; return the modes seen."""
     mc = load_policy("paper").member_config
     if member:
         mc = dataclasses.replace(mc, **member)
     pers = per if isinstance(per, list) else [per] * B
     losses = [LossConfig(per=p, latency_s=latency_s, model=model, mean_burst_s=0.4) for p in pers]
-    vec = VectorConvoyEnv(B, scenario, n_followers=n_followers, member_config=mc, loss=losses,
-                          autoreset=False, **kwargs)
-    envs = [ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=c, **kwargs) for c in losses]
+    vec = VectorConvoyEnv(
+        B,
+        scenario,
+        n_followers=n_followers,
+        member_config=mc,
+        loss=losses,
+        autoreset=False,
+        **kwargs,
+    )
+    envs = [
+        ConvoyEnv(scenario, n_followers=n_followers, member_config=mc, loss=c, **kwargs)
+        for c in losses
+    ]
     agents = envs[0].possible_agents
     policies = [[load_policy("paper") for _ in agents] for _ in envs]
     obs = [e.reset(seed=10 + b)[0] for b, e in enumerate(envs)]
@@ -48,20 +67,30 @@ def _compare(scenario: str = "paper", B: int = 2, per: float | list[float] = 0.3
         actions = np.zeros((B, N - 1, 2), np.float32)
         for b in range(B):
             for j, a in enumerate(agents):
-                np.testing.assert_allclose(vobs[b, j], obs[b][a], rtol=0, atol=1e-5, err_msg=f"tick {k}")
+                np.testing.assert_allclose(
+                    vobs[b, j], obs[b][a], rtol=0, atol=1e-5, err_msg=f"tick {k}"
+                )
                 actions[b, j] = policies[b][j].act(vobs[b, j])
         if corrupt is not None:
             actions = corrupt(k, actions)
         vobs, vrew, vterm, vtrunc, vinfo = vec.step(actions)
         for b, env in enumerate(envs):
-            obs[b], rew, term, trunc, info = env.step({a: actions[b, j] for j, a in enumerate(agents)})
+            obs[b], rew, term, trunc, info = env.step(
+                {a: actions[b, j] for j, a in enumerate(agents)}
+            )
             x, y = vec.plant.x.reshape(B, N)[b], vec.plant.y.reshape(B, N)[b]
             assert np.abs(env.plant.x - x).max() <= 1e-9 and np.abs(env.plant.y - y).max() <= 1e-9
             for j, a in enumerate(agents):
                 i = info[a]
                 assert i["mode"] == MODES[vinfo["mode"][b, j]], (k, b, a)
                 modes[i["mode"]] += 1
-                for key in ("msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors"):
+                for key in (
+                    "msgs_sent",
+                    "msgs_received",
+                    "msgs_kept",
+                    "msgs_lost",
+                    "policy_errors",
+                ):
                     assert i[key] == vinfo[key][b, j], (k, b, a, key)
                 assert rew[a] == pytest.approx(vrew[b, j], abs=1e-9)
                 for key in ("gap_m", "speed_mps"):
@@ -87,8 +116,18 @@ def test_paper_scenario_whole_episode_under_loss() -> None:
     assert set(modes) == {"coop"}
 
 
-@pytest.mark.parametrize("topology", ["predecessor", "all-predecessors", "lookahead:2", "leader",
-                                      "leader-predecessor", "bidirectional", "all"])
+@pytest.mark.parametrize(
+    "topology",
+    [
+        "predecessor",
+        "all-predecessors",
+        "lookahead:2",
+        "leader",
+        "leader-predecessor",
+        "bidirectional",
+        "all",
+    ],
+)
 def test_every_topology(topology: str) -> None:
     _compare("paper", B=1, per=0.3, n_followers=4, member={"topology": topology}, steps=80)
 
@@ -117,11 +156,20 @@ def test_one_per_per_convoy_for_batched_sweeps(model: str) -> None:
 
 @pytest.mark.parametrize("kind", ["constant-time-headway", "quadratic"])
 def test_spacing_policies(kind: str) -> None:
-    _compare("paper", B=1, per=0.2, n_followers=3, member={"spacing": SpacingConfig(kind=kind)}, steps=150)
+    _compare(
+        "paper",
+        B=1,
+        per=0.2,
+        n_followers=3,
+        member={"spacing": SpacingConfig(kind=kind)},
+        steps=150,
+    )
 
 
 def test_staleness_ladder_under_heavy_loss() -> None:
-    modes = _compare("paper", B=1, per=0.9, member={"ladder": LadderConfig(enabled=True)}, steps=300)
+    modes = _compare(
+        "paper", B=1, per=0.9, member={"ladder": LadderConfig(enabled=True)}, steps=300
+    )
     assert modes["degraded"] > 0 and modes["stop"] > 0  # the ladder's rungs were exercised
 
 
@@ -133,6 +181,7 @@ def test_faults_and_emergency_stop() -> None:
 def test_a_non_finite_action_stops_the_follower_as_in_convoy_env() -> None:
     """The one-tick rule in the batched world too: NaN is a counted policy error and a
     latched stop (failsafe), never a command to the plant."""
+
     def corrupt(k: int, actions: np.ndarray) -> np.ndarray:
         if k in (200, 201):
             actions = actions.copy()
@@ -169,16 +218,24 @@ def test_unsupported_options_are_config_errors() -> None:
 
 def _pid_pure_pursuit() -> ClassicalPolicy:
     base = load_policy("paper").config
-    return ClassicalPolicy(dataclasses.replace(
-        base, speed=SpeedControlConfig(kind="pid", ki=0.2), heading=HeadingControlConfig(kind="pure-pursuit")))
+    return ClassicalPolicy(
+        dataclasses.replace(
+            base,
+            speed=SpeedControlConfig(kind="pid", ki=0.2),
+            heading=HeadingControlConfig(kind="pure-pursuit"),
+        )
+    )
 
 
-@pytest.mark.parametrize("make,per", [
-    (lambda: load_policy("paper"), 0.3),
-    (lambda: load_policy("paper"), 0.8),
-    (lambda: load_policy("mcacc"), 0.3),
-    (_pid_pure_pursuit, 0.5),
-])
+@pytest.mark.parametrize(
+    "make,per",
+    [
+        (lambda: load_policy("paper"), 0.3),
+        (lambda: load_policy("paper"), 0.8),
+        (lambda: load_policy("mcacc"), 0.3),
+        (_pid_pure_pursuit, 0.5),
+    ],
+)
 def test_batched_policy_matches_one_policy_per_vehicle(make, per: float) -> None:
     B = 3
     probe = make()
@@ -197,8 +254,12 @@ def test_batched_policy_matches_one_policy_per_vehicle(make, per: float) -> None
 
 def test_kept_link_counters_give_the_same_run() -> None:
     mc = dataclasses.replace(load_policy("paper").member_config, topology="lookahead:1")
-    envs = [VectorConvoyEnv(2, "paper", n_followers=5, member_config=mc, loss=LossConfig(per=0.4),
-                            link_counters=c) for c in ("all", "kept")]
+    envs = [
+        VectorConvoyEnv(
+            2, "paper", n_followers=5, member_config=mc, loss=LossConfig(per=0.4), link_counters=c
+        )
+        for c in ("all", "kept")
+    ]
     obs = [e.reset(seed=1)[0] for e in envs]
     policy = load_policy("paper")
     for _ in range(150):
@@ -246,8 +307,12 @@ def test_autoreset_continues_each_convoys_seed_like_convoy_env_reset() -> None:
         for _ in range(vec.max_steps):
             vobs, _, _, vtrunc, vinfo = vec.step(actions)
             for b, e in enumerate(envs):
-                obs[b], _, _, trunc, info = e.step({a: actions[b, j] for j, a in enumerate(e.possible_agents)})
-                assert [info[a]["msgs_lost"] for a in e.possible_agents] == vinfo["msgs_lost"][b].tolist()
+                obs[b], _, _, trunc, info = e.step(
+                    {a: actions[b, j] for j, a in enumerate(e.possible_agents)}
+                )
+                assert [info[a]["msgs_lost"] for a in e.possible_agents] == vinfo["msgs_lost"][
+                    b
+                ].tolist()
         assert vtrunc.all()
         obs = [e.reset()[0] for e in envs]
         for b, e in enumerate(envs):

@@ -52,12 +52,20 @@ def test_decoded_ardupilot_setpoints_match_what_the_firmware_did() -> None:
         got = float(np.mean(speed[sel]))
         assert math.copysign(1.0, got) == math.copysign(1.0, v), f["name"]
         assert abs(got) == pytest.approx(abs(v), abs=0.1), f["name"]
-        assert math.degrees(abs(math.remainder(float(np.mean(heading[sel])) - h, 2 * math.pi))) < 2.0
+        assert (
+            math.degrees(abs(math.remainder(float(np.mean(heading[sel])) - h, 2 * math.pi))) < 2.0
+        )
         if v < 0:
             reversing.append(f["name"])
     # The firmware's rule: NED vx <= -FLT_EPSILON reverses (README §2), plus deliberate reverses.
-    assert reversing == ["ned_h135", "ned_h180", "ned_h225", "ned_h90.01",
-                         "reverse_yaw_current", "reverse_yaw_plus90"]
+    assert reversing == [
+        "ned_h135",
+        "ned_h180",
+        "ned_h225",
+        "ned_h90.01",
+        "reverse_yaw_current",
+        "reverse_yaw_plus90",
+    ]
 
 
 def test_px4_setpoints_ignore_yaw_and_never_reverse() -> None:
@@ -81,7 +89,9 @@ def test_px4_recording_reads_the_sih_truth() -> None:
     t0 = next(t for t, f in _phases(path) if f.get("speed") == 0.5)
     sel = (seg.t > t0) & (seg.t < t0 + 8.0)
     assert np.abs(seg.speed[sel]).max() < 0.05
-    assert np.isin(np.round(seg.cmd_speed, 3), [0.001, 0.5, 0.7, 0.8, 0.9, 1.0, 2.0, 3.0, 5.0]).all()
+    assert np.isin(
+        np.round(seg.cmd_speed, 3), [0.001, 0.5, 0.7, 0.8, 0.9, 1.0, 2.0, 3.0, 5.0]
+    ).all()
 
 
 def test_a_file_that_is_not_a_recording_is_one_clear_error(tmp_path: Path) -> None:

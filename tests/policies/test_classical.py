@@ -53,11 +53,18 @@ def test_a_predecessor_heard_but_too_old_stops_the_follower():
     pred_v=st.floats(0.0, 3.0),
     own_v=st.floats(0.0, 3.0),
 )
-def test_a_stale_leader_never_makes_the_follower_faster_than_a_fresh_one(age, lead_x, lead_v, pred_x, pred_v, own_v):
+def test_a_stale_leader_never_makes_the_follower_faster_than_a_fresh_one(
+    age, lead_x, lead_v, pred_x, pred_v, own_v
+):
     p = load_policy("paper")
     now = 30.0
     fresh = follower2(p, [(0, now, lead_x, lead_v), (1, now, pred_x, pred_v)], now, own_v=own_v)
     # The same leader state, heard ``age`` s ago at the position it would have had then.
-    old = follower2(p, [(0, now - age, lead_x - lead_v * age, lead_v), (1, now, pred_x, pred_v)], now, own_v=own_v)
+    old = follower2(
+        p,
+        [(0, now - age, lead_x - lead_v * age, lead_v), (1, now, pred_x, pred_v)],
+        now,
+        own_v=own_v,
+    )
     assert speed(p, old) <= speed(p, fresh) + 1e-4
     assert np.isfinite(speed(p, old))

@@ -50,8 +50,12 @@ def _meta(member: MemberConfig | None = None, base=None, **kw) -> LearnedMeta:
 def _mlp(size: int, output: str = "clip", activation: str = "tanh", seed: int = 0) -> NumpyMLP:
     rng = np.random.default_rng(seed)
     shapes = [(16, size), (16, 16), (2, 16)]
-    return NumpyMLP([rng.normal(scale=0.3, size=s) for s in shapes],
-                    [rng.normal(scale=0.1, size=s[0]) for s in shapes], activation, output)
+    return NumpyMLP(
+        [rng.normal(scale=0.3, size=s) for s in shapes],
+        [rng.normal(scale=0.1, size=s[0]) for s in shapes],
+        activation,
+        output,
+    )
 
 
 @pytest.fixture
@@ -110,9 +114,15 @@ def test_absolute_actions_span_the_recorded_range() -> None:
 def test_residual_actions_correct_the_base_within_bounds() -> None:
     low, high, scale = (0.0, -1.5), (5.0, 1.5), (0.5, 0.1)
     base = np.array([2.0, 0.2])
-    np.testing.assert_allclose(compose_action(np.zeros(2), low, high, base, scale), [2.0, 0.2], atol=1e-7)
-    np.testing.assert_allclose(compose_action(np.array([1.0, -1.0]), low, high, base, scale), [2.5, 0.1], atol=1e-7)
-    np.testing.assert_allclose(compose_action(np.array([-1.0, 0.0]), low, high, np.array([0.2, 0.0]), scale), [0.0, 0.0])
+    np.testing.assert_allclose(
+        compose_action(np.zeros(2), low, high, base, scale), [2.0, 0.2], atol=1e-7
+    )
+    np.testing.assert_allclose(
+        compose_action(np.array([1.0, -1.0]), low, high, base, scale), [2.5, 0.1], atol=1e-7
+    )
+    np.testing.assert_allclose(
+        compose_action(np.array([-1.0, 0.0]), low, high, np.array([0.2, 0.0]), scale), [0.0, 0.0]
+    )
 
 
 def test_residual_policy_with_zero_network_is_its_base(tmp_path: Path) -> None:
@@ -130,9 +140,13 @@ def test_residual_policy_with_zero_network_is_its_base(tmp_path: Path) -> None:
 
 def test_layout_mismatch_is_refused_with_a_clear_message(npz: Path) -> None:
     other = MemberConfig(M=3, k=3)
-    with pytest.raises(ValueError, match=r"observation layout \(M 2 vs 3, size 111 vs 137 in this convoy config\)"):
+    with pytest.raises(
+        ValueError, match=r"observation layout \(M 2 vs 3, size 111 vs 137 in this convoy config\)"
+    ):
         load_learned(npz, member_config=other)
-    with pytest.raises(ValueError, match=r"policy.npz: policy was trained for another observation layout"):
+    with pytest.raises(
+        ValueError, match=r"policy.npz: policy was trained for another observation layout"
+    ):
         load_learned(npz, layout=ObservationLayout(M=2, k=5))
     policy = load_learned(npz, layout=ObservationLayout(M=2, k=3))  # the same layout loads
     with pytest.raises(ValueError, match="k 3 vs 4"):
@@ -145,9 +159,14 @@ def test_layout_mismatch_is_refused_with_a_clear_message(npz: Path) -> None:
 def test_metadata_whose_member_config_disagrees_with_its_layout_is_refused() -> None:
     member = PRESETS["paper"].member
     with pytest.raises(ValueError, match="another observation layout"):
-        LearnedMeta(algo="ppo", layout={"version": 1, "M": 3, "k": 3, "size": 137},
-                    member_config=member, control_rate_hz=20.0,
-                    action_low=(0.0, -0.5), action_high=(5.0, 0.5))
+        LearnedMeta(
+            algo="ppo",
+            layout={"version": 1, "M": 3, "k": 3, "size": 137},
+            member_config=member,
+            control_rate_hz=20.0,
+            action_low=(0.0, -0.5),
+            action_high=(5.0, 0.5),
+        )
 
 
 def test_not_a_policy_export_is_refused(tmp_path: Path) -> None:
@@ -183,6 +202,8 @@ def test_npz_loads_and_acts_with_torch_absent(npz: Path) -> None:
         assert "torch" not in {{k for k, v in sys.modules.items() if v is not None}}
         print("ok", p.control_rate_hz, p.layout.describe()["size"])
     """)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["ok", "20.0", "111"]

@@ -18,7 +18,9 @@ def test_paper_preset_has_the_published_defaults():
 
 
 def test_table_one_presets_cover_topologies_and_triggers():
-    combos = {(p.member.topology, p.member.trigger.kind, p.member.spacing.kind) for p in PRESETS.values()}
+    combos = {
+        (p.member.topology, p.member.trigger.kind, p.member.spacing.kind) for p in PRESETS.values()
+    }
     for topo in ("all-predecessors", "leader"):
         for trig in ("periodic", "event"):
             assert (topo, trig, "constant-distance") in combos
@@ -69,7 +71,13 @@ def test_the_spec_grammar_is_parsed_in_one_place() -> None:
     from openconvoy.policies.spec import PolicySpec
 
     p = PolicySpec.parse("dir/fast.toml+ladder")
-    assert (p.base, p.ladder, p.toml, p.learned, p.suffix) == ("dir/fast.toml", True, True, False, "+ladder")
+    assert (p.base, p.ladder, p.toml, p.learned, p.suffix) == (
+        "dir/fast.toml",
+        True,
+        True,
+        False,
+        "+ladder",
+    )
     assert str(p.with_base("fast")) == "fast+ladder" and str(p) == "dir/fast.toml+ladder"
     assert PolicySpec.parse("run/model.zip").learned and PolicySpec.parse("p.npz").learned
     # A learned policy takes no ladder suffix: that spec is a (bad) classical one.

@@ -33,10 +33,16 @@ def test_sb3_check_env_passes_on_the_single_agent_view() -> None:
         check_env(env, warn=True, skip_render_check=True)
 
 
-def _vec(n_envs: int = 3, max_time_s: float = 1.0, n_followers: int = 2,
-         randomization: Randomization | None = None):
+def _vec(
+    n_envs: int = 3,
+    max_time_s: float = 1.0,
+    n_followers: int = 2,
+    randomization: Randomization | None = None,
+):
     spec = EnvSpec(n_followers=n_followers, max_time_s=max_time_s)
-    return shared_policy_vec_env(lambda: RandomizedConvoyEnv(spec, randomization or Randomization()), n_envs)
+    return shared_policy_vec_env(
+        lambda: RandomizedConvoyEnv(spec, randomization or Randomization()), n_envs
+    )
 
 
 def _rollout(venv, seed: int, steps: int, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -103,12 +109,21 @@ def test_seeding_reproduces_and_distinguishes_rollouts() -> None:
 def test_residual_env_with_zero_actions_runs_the_base_policy() -> None:
     """A zero network output means the base's own action: the randomized env then drives
     exactly like a ConvoyEnv in which every follower runs ``paper``."""
-    r = Randomization(scenarios=("paper",), per_range=(0.3, 0.3), burst_prob=0.0,
-                      latency_s_range=(0.0, 0.0), jitter_s_range=(0.0, 0.0),
-                      gps_noise_m_range=(0.0, 0.0), vehicles=(), plant_jitter=0.0)
+    r = Randomization(
+        scenarios=("paper",),
+        per_range=(0.3, 0.3),
+        burst_prob=0.0,
+        latency_s_range=(0.0, 0.0),
+        jitter_s_range=(0.0, 0.0),
+        gps_noise_m_range=(0.0, 0.0),
+        vehicles=(),
+        plant_jitter=0.0,
+    )
     env = RandomizedConvoyEnv(EnvSpec(max_time_s=5.0), r)
     obs, _ = env.reset(seed=4)
-    ref = ConvoyEnv("paper", member_config=PRESETS["paper"].member, loss=LossConfig(per=0.3), max_time_s=5.0)
+    ref = ConvoyEnv(
+        "paper", member_config=PRESETS["paper"].member, loss=LossConfig(per=0.3), max_time_s=5.0
+    )
     # Same episode seed as the randomized env drew for its ConvoyEnv.
     rng = np.random.default_rng(4)
     draw_world(r, 2, rng)
@@ -125,9 +140,15 @@ def test_world_draws_stay_in_their_ranges(tmp_path) -> None:
     fitted = dataclasses.replace(VEHICLE_PRESETS["1/10"], name="fitted-car", speed_lag_s=0.5)
     path = tmp_path / "fitted.toml"
     path.write_text(preset_to_toml(fitted))
-    r = Randomization(scenarios=("paper", "track"), per_range=(0.1, 0.5), burst_prob=0.5,
-                      latency_s_range=(0.02, 0.04), gps_noise_m_range=(0.0, 0.1),
-                      vehicles=(str(path),), plant_jitter=0.1)
+    r = Randomization(
+        scenarios=("paper", "track"),
+        per_range=(0.1, 0.5),
+        burst_prob=0.5,
+        latency_s_range=(0.02, 0.04),
+        gps_noise_m_range=(0.0, 0.1),
+        vehicles=(str(path),),
+        plant_jitter=0.1,
+    )
     rng = np.random.default_rng(0)
     worlds = [draw_world(r, 2, rng) for _ in range(200)]
     pers = np.array([w.loss.per for w in worlds])

@@ -40,10 +40,25 @@ def ppo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     tmp = tmp_path_factory.mktemp("train")
     (tmp / "fast.toml").write_text(FAST)
     run = tmp / "run"
-    code = main([
-        "train", "--config", str(tmp / "fast.toml"), "--steps", str(STEPS), "--out", str(run),
-        "--envs", "2", "--seed", "3", "--per-range", "0.1", "0.4", "--no-progress",
-    ])
+    code = main(
+        [
+            "train",
+            "--config",
+            str(tmp / "fast.toml"),
+            "--steps",
+            str(STEPS),
+            "--out",
+            str(run),
+            "--envs",
+            "2",
+            "--seed",
+            "3",
+            "--per-range",
+            "0.1",
+            "0.4",
+            "--no-progress",
+        ]
+    )
     assert code == 0
     return run
 
@@ -56,12 +71,21 @@ def ppo_npz(ppo_run: Path) -> Path:
 
 
 def test_training_writes_a_complete_run_directory(ppo_run: Path) -> None:
-    for name in ("config.toml", "policy.zip", "last.zip", "policy.json", "vecnormalize.pkl",
-                 "train.json", "validation.json"):
+    for name in (
+        "config.toml",
+        "policy.zip",
+        "last.zip",
+        "policy.json",
+        "vecnormalize.pkl",
+        "train.json",
+        "validation.json",
+    ):
         assert (ppo_run / name).is_file(), name
     assert list((ppo_run / "tb").rglob("events.out.tfevents.*")), "no TensorBoard events"
     assert sorted(p.name for p in (ppo_run / "checkpoints").iterdir()) == [
-        "policy_1024_steps.zip", "policy_2048_steps.zip"]
+        "policy_1024_steps.zip",
+        "policy_2048_steps.zip",
+    ]
     # policy.zip is the best-validated of the checkpoints and the final network.
     validation = json.loads((ppo_run / "validation.json").read_text())
     objectives = [v["objective"] for v in validation["validations"]]
@@ -90,7 +114,19 @@ def test_training_writes_a_complete_run_directory(ppo_run: Path) -> None:
 def test_a_run_config_reproduces_the_run(ppo_run: Path, tmp_path: Path) -> None:
     """The same config.toml gives the same network (seeded end to end)."""
     again = tmp_path / "again"
-    assert main(["train", "--config", str(ppo_run / "config.toml"), "--out", str(again), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--config",
+                str(ppo_run / "config.toml"),
+                "--out",
+                str(again),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     a, b = load_learned(ppo_run / "policy.zip"), load_learned(again / "policy.zip")
     np.testing.assert_array_equal(a.meta.obs_mean, b.meta.obs_mean)
     obs = sample_observations(a, n=50)
@@ -125,8 +161,16 @@ def test_export_matches_sb3_predict(ppo_run: Path, ppo_npz: Path, tmp_path: Path
     chosen = PPO.load(str(ppo_run / "policy.zip"), device="cpu")
     npz = load_learned(ppo_npz)
     worst = max(
-        float(np.max(np.abs(npz.normalized_action(o)
-                            - chosen.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0])))
+        float(
+            np.max(
+                np.abs(
+                    npz.normalized_action(o)
+                    - chosen.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[
+                        0
+                    ]
+                )
+            )
+        )
         for o in obs
     )
     assert worst <= 1e-5
@@ -151,25 +195,49 @@ def test_sac_export_matches_sb3_predict(tmp_path: Path) -> None:
 
     run = tmp_path / "sac"
     cfg = tmp_path / "sac.toml"
-    cfg.write_text("algo = \"sac\"\ntotal_steps = 400\nn_envs = 1\ncheckpoint_every = 0\nvalidation_seeds = []\n"
-                   "[sac]\nlearning_starts = 100\nbatch_size = 32\nnet_arch = [32, 32]\n")
+    cfg.write_text(
+        'algo = "sac"\ntotal_steps = 400\nn_envs = 1\ncheckpoint_every = 0\nvalidation_seeds = []\n'
+        "[sac]\nlearning_starts = 100\nbatch_size = 32\nnet_arch = [32, 32]\n"
+    )
     assert main(["train", "--config", str(cfg), "--out", str(run), "--no-progress"]) == 0
     npz = load_learned(export_policy(run, tmp_path / "sac.npz"))
     model = SAC.load(str(run / "policy.zip"), device="cpu")
     assert npz.meta.algo == "sac"
     obs = sample_observations(npz, n=200)
     worst = max(
-        float(np.max(np.abs(npz.normalized_action(o) - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0])))
+        float(
+            np.max(
+                np.abs(
+                    npz.normalized_action(o)
+                    - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0]
+                )
+            )
+        )
         for o in obs
     )
     assert worst <= 1e-5
 
 
 @pytest.mark.parametrize("artifact", ["policy.zip", "policy.npz"])
-def test_sim_runs_the_trained_policy(ppo_run: Path, ppo_npz: Path, artifact: str, tmp_path: Path) -> None:
+def test_sim_runs_the_trained_policy(
+    ppo_run: Path, ppo_npz: Path, artifact: str, tmp_path: Path
+) -> None:
     out = tmp_path / "sim"
-    code = main(["sim", "--policy", str(ppo_run / artifact), "--per", "0.3", "--duration", "8",
-                 "--out", str(out), "--quiet", "--no-plots"])
+    code = main(
+        [
+            "sim",
+            "--policy",
+            str(ppo_run / artifact),
+            "--per",
+            "0.3",
+            "--duration",
+            "8",
+            "--out",
+            str(out),
+            "--quiet",
+            "--no-plots",
+        ]
+    )
     assert code == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["collisions"] == 0
@@ -180,13 +248,19 @@ def test_sim_runs_the_trained_policy(ppo_run: Path, ppo_npz: Path, artifact: str
 def test_zip_and_npz_drive_the_same_sim(ppo_run: Path, ppo_npz: Path, tmp_path: Path) -> None:
     from openconvoy.experiments.runs import RunConfig, run_sim
 
-    runs = [run_sim(RunConfig(policy=str(ppo_run / f), per=0.3, seed=1, duration_s=6.0)) for f in ("policy.zip", "policy.npz")]
+    runs = [
+        run_sim(RunConfig(policy=str(ppo_run / f), per=0.3, seed=1, duration_s=6.0))
+        for f in ("policy.zip", "policy.npz")
+    ]
     np.testing.assert_allclose(runs[0].log["x_m"], runs[1].log["x_m"], atol=1e-4)
     np.testing.assert_allclose(runs[0].log["speed_mps"], runs[1].log["speed_mps"], atol=1e-4)
 
 
 def test_layout_mismatch_is_refused_for_a_trained_zip(ppo_run: Path) -> None:
-    with pytest.raises(ValueError, match=r"policy.zip: policy was trained for another observation layout \(M 2 vs 1"):
+    with pytest.raises(
+        ValueError,
+        match=r"policy.zip: policy was trained for another observation layout \(M 2 vs 1",
+    ):
         load_learned(ppo_run / "policy.zip", member_config=MemberConfig(M=1))
 
 
@@ -195,11 +269,35 @@ def test_layout_choice_reaches_the_trained_policy(tmp_path: Path) -> None:
     run = tmp_path / "m3"
     cfg = tmp_path / "m3.toml"
     cfg.write_text("validation_seeds = []\n")
-    assert main(["train", "--config", str(cfg), "--steps", "512", "--envs", "1", "--M", "3", "--k", "2",
-                 "--out", str(run), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--config",
+                str(cfg),
+                "--steps",
+                "512",
+                "--envs",
+                "1",
+                "--M",
+                "3",
+                "--k",
+                "2",
+                "--out",
+                str(run),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert not (run / "last.zip").exists()  # no validation: policy.zip is the final network
     policy = load_policy(str(run / "policy.zip"))
-    assert policy.meta.layout == {"version": 1, "M": 3, "k": 2, "size": MemberConfig(M=3, k=2).layout.size}
+    assert policy.meta.layout == {
+        "version": 1,
+        "M": 3,
+        "k": 2,
+        "size": MemberConfig(M=3, k=2).layout.size,
+    }
     with pytest.raises(ValueError, match="M 3 vs 2"):
         load_learned(run / "policy.zip", member_config=PRESETS["paper"].member)
 
@@ -237,22 +335,52 @@ def test_deploy_runs_the_trained_policy_on_a_simulated_vehicle(
     try:
         for i in range(2):
             port = _free_port()
-            vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", SimVehicleConfig(
-                system_id=i + 1, preset=presets[i], home=origin, start_x_m=float(init.x[i]),
-                start_y_m=float(init.y[i]), start_heading_rad=float(init.heading[i]), ready_after_s=0.0,
-            )).start()
+            vehicle = SimVehicle(
+                f"udpin:127.0.0.1:{port}",
+                SimVehicleConfig(
+                    system_id=i + 1,
+                    preset=presets[i],
+                    home=origin,
+                    start_x_m=float(init.x[i]),
+                    start_y_m=float(init.y[i]),
+                    start_heading_rad=float(init.heading[i]),
+                    ready_after_s=0.0,
+                ),
+            ).start()
             vehicles.append(vehicle)
-            link = MavlinkLink(f"udpout:127.0.0.1:{port}", origin, vehicle_id=i,
-                               length_m=presets[i].length_m, on_status=lambda line: None)
-            runners.append(DeployRunner(
-                RunnerOptions(vehicle_id=i, rate_hz=policies[i].control_rate_hz, duration_s=4.0,
-                              status_period_s=0.0, connect_timeout_s=5.0, arm_timeout_s=10.0),
-                convoy, policies[i], link, LocalV2V(bus), leader=scenario if i == 0 else None,
-                lengths=[p.length_m for p in presets], log_dir=tmp_path / "deploy",
+            link = MavlinkLink(
+                f"udpout:127.0.0.1:{port}",
+                origin,
+                vehicle_id=i,
+                length_m=presets[i].length_m,
                 on_status=lambda line: None,
-            ))
-        threads = [threading.Thread(target=lambda i=i: results.__setitem__(i, runners[i].run()), daemon=True)
-                   for i in range(2)]
+            )
+            runners.append(
+                DeployRunner(
+                    RunnerOptions(
+                        vehicle_id=i,
+                        rate_hz=policies[i].control_rate_hz,
+                        duration_s=4.0,
+                        status_period_s=0.0,
+                        connect_timeout_s=5.0,
+                        arm_timeout_s=10.0,
+                    ),
+                    convoy,
+                    policies[i],
+                    link,
+                    LocalV2V(bus),
+                    leader=scenario if i == 0 else None,
+                    lengths=[p.length_m for p in presets],
+                    log_dir=tmp_path / "deploy",
+                    on_status=lambda line: None,
+                )
+            )
+        threads = [
+            threading.Thread(
+                target=lambda i=i: results.__setitem__(i, runners[i].run()), daemon=True
+            )
+            for i in range(2)
+        ]
         for t in threads:
             t.start()
         deadline = time.monotonic() + 30.0
@@ -298,10 +426,29 @@ def test_default_config_is_residual_on_the_paper_controller() -> None:
 def test_base_none_trains_absolute_actions(tmp_path: Path) -> None:
     """``--base none``: no classical base; the network's action spans the recorded range."""
     cfg = tmp_path / "abs.toml"
-    cfg.write_text("validation_seeds = []\n[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
+    cfg.write_text(
+        "validation_seeds = []\n[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n"
+    )
     run = tmp_path / "abs"
-    assert main(["train", "--config", str(cfg), "--base", "none", "--steps", "512", "--envs", "1",
-                 "--out", str(run), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--config",
+                str(cfg),
+                "--base",
+                "none",
+                "--steps",
+                "512",
+                "--envs",
+                "1",
+                "--out",
+                str(run),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     policy = load_learned(run / "policy.zip")
     assert policy.meta.base is None and policy.meta.residual_scale == (0.0, 0.0)
     assert policy.meta.action_low == (0.0, -0.5) and policy.meta.action_high == (5.0, 0.5)
@@ -310,12 +457,35 @@ def test_base_none_trains_absolute_actions(tmp_path: Path) -> None:
     assert np.all(np.abs(actions[:, 1]) <= 0.5 + 1e-6)
 
 
-def test_per_sweep_compares_learned_and_classical(ppo_run: Path, ppo_npz: Path, tmp_path: Path) -> None:
+def test_per_sweep_compares_learned_and_classical(
+    ppo_run: Path, ppo_npz: Path, tmp_path: Path
+) -> None:
     """One sweep with the .zip, the .npz and the paper controller side by side."""
     out = tmp_path / "sweep"
-    code = main(["experiment", "per-sweep", "--policy", str(ppo_run / "policy.zip"), "--policy", str(ppo_npz),
-                 "--policy", "paper", "--pers", "0,0.3", "--seeds", "1", "--duration", "4",
-                 "--out", str(out), "--jobs", "1", "--quiet", "--no-plots"])
+    code = main(
+        [
+            "experiment",
+            "per-sweep",
+            "--policy",
+            str(ppo_run / "policy.zip"),
+            "--policy",
+            str(ppo_npz),
+            "--policy",
+            "paper",
+            "--pers",
+            "0,0.3",
+            "--seeds",
+            "1",
+            "--duration",
+            "4",
+            "--out",
+            str(out),
+            "--jobs",
+            "1",
+            "--quiet",
+            "--no-plots",
+        ]
+    )
     assert code == 0
     rows = json.loads((out / "summary.json").read_text())["rows"]
     assert len(rows) == 6
@@ -324,5 +494,6 @@ def test_per_sweep_compares_learned_and_classical(ppo_run: Path, ppo_npz: Path, 
         zip_row, npz_row = by[(str(ppo_run / "policy.zip"), per)], by[(str(ppo_npz), per)]
         # The same network, two artifacts: the same numbers.
         assert zip_row["p95_platooning_error_m"]["mean"] == pytest.approx(
-            npz_row["p95_platooning_error_m"]["mean"], abs=1e-4)
+            npz_row["p95_platooning_error_m"]["mean"], abs=1e-4
+        )
         assert zip_row["collisions"]["max"] == 0

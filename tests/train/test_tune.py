@@ -54,8 +54,12 @@ def test_parameters_follow_the_policy_kind() -> None:
     assert applicable(PRESETS["paper"]) == ["speed.kp", "speed.kd", "heading.gain"]
     cacc = applicable(PRESETS["cacc-allpred"])
     assert "member.spacing.headway_s" in cacc and "member.spacing.standstill_m" in cacc
-    changed = with_values(PRESETS["cacc-allpred"], {"member.spacing.headway_s": 1.2, "speed.kp": 0.9}, "x")
-    assert changed.member.spacing.headway_s == 1.2 and changed.speed.kp == 0.9 and changed.name == "x"
+    changed = with_values(
+        PRESETS["cacc-allpred"], {"member.spacing.headway_s": 1.2, "speed.kp": 0.9}, "x"
+    )
+    assert (
+        changed.member.spacing.headway_s == 1.2 and changed.speed.kp == 0.9 and changed.name == "x"
+    )
     with pytest.raises(ValueError, match="unknown tuning parameter"):
         TuneConfig(params=("speed.kq",))
 
@@ -72,17 +76,50 @@ def test_objective_weighs_collisions_above_spacing() -> None:
 def test_tune_cli_writes_a_policy_that_sim_accepts(tmp_path: Path) -> None:
     """Real simulated runs (short), through the command line end to end."""
     out = tmp_path / "tuned.toml"
-    code = main(["tune", "--policy", "paper", "--trials", "2", "--per", "0.3", "--seeds", "0",
-                 "--duration", "6", "--out", str(out), "--no-progress"])
+    code = main(
+        [
+            "tune",
+            "--policy",
+            "paper",
+            "--trials",
+            "2",
+            "--per",
+            "0.3",
+            "--seeds",
+            "0",
+            "--duration",
+            "6",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert code == 0
     tuned = classical_config(str(out))
     assert tuned.name == "tuned" and tuned.member == PRESETS["paper"].member
-    assert tuned.description.startswith("paper tuned by openconvoy tune (2 trials, PER 0.3, 1 seeds): speed.kp")
+    assert tuned.description.startswith(
+        "paper tuned by openconvoy tune (2 trials, PER 0.3, 1 seeds): speed.kp"
+    )
     summary = json.loads(out.with_suffix(".json").read_text())
     assert len(summary["trials"]) == 2 and summary["best_value"] <= summary["base_value"] + 1e-12
     assert isinstance(load_policy(str(out)), ClassicalPolicy)
     sim = tmp_path / "sim"
-    assert main(["sim", "--policy", str(out), "--duration", "5", "--out", str(sim), "--quiet", "--no-plots"]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "--policy",
+                str(out),
+                "--duration",
+                "5",
+                "--out",
+                str(sim),
+                "--quiet",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     assert json.loads((sim / "metrics.json").read_text())["collisions"] == 0
 
 
@@ -121,10 +158,17 @@ def test_a_stored_study_resumes_without_repeating_finished_trials(tmp_path: Path
     assert (second.evaluated, second.requeued, second.base_value) == (3, 1, first.base_value)
     assert second.history[:4] == first.history
     assert len(second.history) == 7 and len({h["speed.kp"] for h in second.history}) == 7
-    states = [t.state for t in optuna.load_study(study_name="s", storage=open_storage(journal)).trials]
+    states = [
+        t.state for t in optuna.load_study(study_name="s", storage=open_storage(journal)).trials
+    ]
     assert states.count(TrialState.FAIL) == 1 and states.count(TrialState.COMPLETE) == 7
     evaluated.clear()
-    assert tune(TuneConfig(trials=7, seed=2), evaluate=evaluate, storage=journal, study_name="s").evaluated == 0
+    assert (
+        tune(
+            TuneConfig(trials=7, seed=2), evaluate=evaluate, storage=journal, study_name="s"
+        ).evaluated
+        == 0
+    )
     assert evaluated == []
     with pytest.raises(ValueError, match=r"study 's' was made with other settings \(pers\)"):
         tune(TuneConfig(trials=8, pers=(0.5,)), evaluate=evaluate, storage=journal, study_name="s")

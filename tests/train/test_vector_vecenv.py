@@ -33,8 +33,11 @@ def test_slots_are_followers_and_episodes_restart() -> None:
 
 
 def test_ppo_trains_on_it_without_nans() -> None:
-    venv = VecNormalize(VecCheckNan(VectorConvoyVecEnv(VectorConvoyEnv(8, "paper", max_time_s=5.0)),
-                                    raise_exception=True))
+    venv = VecNormalize(
+        VecCheckNan(
+            VectorConvoyVecEnv(VectorConvoyEnv(8, "paper", max_time_s=5.0)), raise_exception=True
+        )
+    )
     model = PPO("MlpPolicy", venv, n_steps=32, batch_size=128, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=2 * 32 * venv.num_envs)
     assert model.num_timesteps >= 2 * 32 * venv.num_envs

@@ -112,7 +112,7 @@ def inside(args: argparse.Namespace) -> dict:
     from openconvoy.comms import netns
     from openconvoy.comms.geodesy import Origin
     from openconvoy.convoy import ConvoyConfig
-    from openconvoy.demo import free_udp_port, stop_all, write_convoy_toml
+    from openconvoy.demo import deploy_argv, free_udp_port, stop_all, write_convoy_toml
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
 
@@ -154,27 +154,10 @@ def inside(args: argparse.Namespace) -> dict:
                 seed=i,
             )
             vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
-            cmd = [
-                sys.executable,
-                "-m",
-                "openconvoy.cli",
-                "deploy",
-                "--policy",
-                "paper",
-                "--vehicle-id",
-                str(i),
-                "--convoy",
-                str(convoy_path),
-                "--iface",
-                iface,
-                "--mavlink",
-                f"udpout:127.0.0.1:{port}",
-                "--log",
-                str(out / "run"),
-                "--rate",
-                repr(args.loop_hz),
-                "--quiet",
-            ]
+            cmd = deploy_argv(
+                i, convoy_path, f"udpout:127.0.0.1:{port}", iface, out / "run",
+                "--rate", repr(args.loop_hz), "--quiet",
+            )  # fmt: skip
             if args.vehicles == 1:
                 cmd.append("--dry-run")
             errs.append(open(out / f"deploy_{i}.txt", "w"))

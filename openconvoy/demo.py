@@ -214,28 +214,11 @@ def run_inside(opts: DemoOptions) -> int:
             urls.append(f"udpout:127.0.0.1:{port}")
         deploy_dir.mkdir(parents=True, exist_ok=True)
         for i, url in enumerate(urls):
-            cmd = [
-                sys.executable,
-                "-m",
-                "openconvoy.cli",
-                "deploy",
-                "--policy",
-                opts.policy,
-                "--vehicle-id",
-                str(i),
-                "--convoy",
-                str(convoy_path),
-                "--mavlink",
-                url,
-                "--iface",
-                iface,
-                "--log",
-                str(deploy_dir),
-                "--per",
-                repr(opts.per),
-                "--seed",
-                "0",
-            ]
+            cmd = deploy_argv(
+                i, convoy_path, url, iface, deploy_dir,
+                "--per", repr(opts.per), "--seed", "0",
+                policy=opts.policy,
+            )  # fmt: skip
             if opts.duration_s is not None and i == 0:
                 cmd += ["--duration", repr(duration)]
             err = open(out / f"deploy_{i}.txt", "w")
@@ -322,6 +305,29 @@ def _status_line(t: float, vehicles: list[Any]) -> str:
         gap = states[i].distance_to(states[i - 1])
         parts.append(f"v{i} {states[i].speed:4.2f} m/s gap {gap:5.2f} m {vehicles[i].mode}")
     return " | ".join(parts)
+
+
+def deploy_argv(
+    vehicle_id: int,
+    convoy_path: Path,
+    mavlink_url: str,
+    iface: str,
+    log_dir: Path,
+    *extra: str,
+    policy: str = "paper",
+) -> list[str]:
+    """The ``openconvoy deploy`` command line for one vehicle of a local convoy (this
+    Python, the installed package), ``extra`` flags appended."""
+    return [
+        sys.executable, "-m", "openconvoy.cli", "deploy",
+        "--policy", policy,
+        "--vehicle-id", str(vehicle_id),
+        "--convoy", str(convoy_path),
+        "--mavlink", mavlink_url,
+        "--iface", iface,
+        "--log", str(log_dir),
+        *extra,
+    ]  # fmt: skip
 
 
 def stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:

@@ -22,7 +22,7 @@ from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.comms.tempids import TempIds
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import metrics as mt
-from openconvoy.demo import free_udp_port, stop_all, write_convoy_toml
+from openconvoy.demo import deploy_argv, free_udp_port, stop_all, write_convoy_toml
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.logs import read_log
@@ -60,24 +60,9 @@ def main(out: Path) -> dict:
             ready_after_s=0.5,
         )
         vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
-        cmd = [
-            *CLI,
-            "deploy",
-            "--policy",
-            "paper",
-            "--vehicle-id",
-            str(i),
-            "--convoy",
-            str(convoy_path),
-            "--mavlink",
-            f"udpout:127.0.0.1:{port}",
-            "--iface",
-            iface,
-            "--log",
-            str(out / "run"),
-            "--duration",
-            "120",
-        ]  # the abort ends it
+        cmd = deploy_argv(
+            i, convoy_path, f"udpout:127.0.0.1:{port}", iface, out / "run", "--duration", "120"
+        )  # the abort ends it
         procs.append(
             subprocess.Popen(
                 cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"deploy_{i}.txt", "w")

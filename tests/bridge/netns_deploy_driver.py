@@ -20,7 +20,7 @@ from pathlib import Path
 from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
-from openconvoy.demo import free_udp_port, stop_all, write_convoy_toml
+from openconvoy.demo import deploy_argv, free_udp_port, stop_all, write_convoy_toml
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 
@@ -57,24 +57,7 @@ def main(action: str, out: Path) -> dict:
         v.firmware.setpoint = record
         vehicles.append(v.start())
         received.append(log)
-        cmd = [
-            sys.executable,
-            "-m",
-            "openconvoy.cli",
-            "deploy",
-            "--policy",
-            "paper",
-            "--vehicle-id",
-            str(i),
-            "--convoy",
-            str(convoy_path),
-            "--mavlink",
-            f"udpout:127.0.0.1:{port}",
-            "--iface",
-            iface,
-            "--log",
-            str(out / "run"),
-        ]
+        cmd = deploy_argv(i, convoy_path, f"udpout:127.0.0.1:{port}", iface, out / "run")
         procs.append(
             subprocess.Popen(
                 cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"deploy_{i}.txt", "w")

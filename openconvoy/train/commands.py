@@ -24,6 +24,8 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         ("seed", "seed"),
         ("envs", "n_envs"),
         ("threads", "torch_threads"),
+        ("vec_env", "vec_env"),
+        ("worlds", "n_worlds"),
     ):
         if getattr(args, flag) is not None:
             top[key] = getattr(args, flag)
@@ -31,9 +33,10 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
     env_changes: dict = {}
     if args.base is not None:
         # A new base brings its own member config and rate unless they are given too.
-        env_changes.update(
-            base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None
-        )
+        base = "" if args.base == "none" else args.base
+        env_changes.update(base_policy=base, member=None, control_rate_hz=None)
+        if bool(base) != bool(env.base_policy):  # residual <-> absolute: their action bounds
+            env_changes.update(action_low=None, action_high=None)
     if args.followers is not None:
         env_changes["n_followers"] = args.followers
     if args.rate is not None:

@@ -21,6 +21,7 @@ from openconvoy.core.errors import ConfigError
 from openconvoy.train.randomization import EnvSpec, Randomization
 
 ALGOS = ("ppo", "sac")
+VEC_ENVS = ("auto", "batched", "supersuit")
 ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
 
 
@@ -108,6 +109,13 @@ class TrainConfig:
         validation_duration_s: length of the validation runs (None: the scenario's).
         torch_threads: torch CPU threads (the environments run in this process too).
         name: the policy's label in logs and reports.
+        vec_env: the simulator: ``batched`` (``envs.VectorConvoyEnv``, all convoys in
+            arrays: ``train.batched``), ``supersuit`` (one ``ConvoyEnv`` per convoy through
+            SuperSuit: ``train.vec``), or ``auto``: batched unless the randomization asks
+            for what it does not model (GPS noise, latency jitter, ranging, traffic), then
+            SuperSuit, with one line on stderr saying so.
+        n_worlds: batched: groups of convoys that share a drawn world (vehicles, burst
+            model, latency); each convoy draws its own PER.
     """
 
     algo: str = "ppo"
@@ -126,12 +134,18 @@ class TrainConfig:
     validation_duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
     torch_threads: Annotated[int, Range(1, 1024)] = 1
     name: str = "learned"
+    vec_env: str = "auto"
+    n_worlds: Annotated[int, Range(1, 1024)] = 4
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "validation_pers", tuple(float(p) for p in self.validation_pers))
         object.__setattr__(self, "validation_seeds", tuple(int(s) for s in self.validation_seeds))
         if self.validation_seeds and not self.validation_pers:
             raise ConfigError("validation_seeds need validation_pers")
+        if self.vec_env not in VEC_ENVS:
+            raise ConfigError(
+                f"vec_env: unknown {self.vec_env!r}; expected one of {', '.join(VEC_ENVS)}"
+            )
         if self.algo not in ALGOS:
             raise ConfigError(f"algo: unknown {self.algo!r}; expected one of {', '.join(ALGOS)}")
         if self.total_steps < 1 or self.n_envs < 1:

@@ -61,6 +61,8 @@ class Randomization:
         latency_s_range: base delivery delay, seconds, uniform.
         jitter_s_range: extra uniform delay jitter bound, seconds, uniform.
         gps_noise_m_range: position noise standard deviation per axis, metres, uniform.
+            Jitter and GPS noise are off by default: the batched simulator does not model
+            them yet, and asking for them trains on SuperSuit's per-convoy path.
         vehicles: preset names or fitted-preset ``.toml`` paths; each vehicle (leader
             included) is drawn from them. Empty: the scenario's own vehicles.
         plant_jitter: relative jitter of each drawn vehicle's autopilot response
@@ -81,10 +83,10 @@ class Randomization:
     ] = (0.0, 0.05)
     jitter_s_range: tuple[
         Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]
-    ] = (0.0, 0.05)
+    ] = (0.0, 0.0)
     gps_noise_m_range: tuple[
         Annotated[float, Range(0.0, 1000.0)], Annotated[float, Range(0.0, 1000.0)]
-    ] = (0.0, 0.05)
+    ] = (0.0, 0.0)
     vehicles: tuple[str, ...] = ("1/10", "1/6")
     plant_jitter: Annotated[float, Range(0.0, 0.9)] = 0.2
 
@@ -181,6 +183,15 @@ weights the learner traded spacing accuracy for smoothness and ended worse than 
 on p95 platooning error."""
 
 
+RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))
+"""Residual actions: the sum may use the whole action range (DESIGN.md, Action)."""
+ABSOLUTE_ACTION_BOUNDS = ((0.0, -0.3), (3.0, 0.3))
+"""Absolute actions (``--base none``): what the normalized actions ±1 mean. A range
+sized to the task (the leader drives 1-2 m/s; a path correction needs tenths of a
+radian) makes the initial policy's exploration noise a speed and steering noise a
+follower survives, instead of swerves of up to ±π/2."""
+
+
 @dataclass(frozen=True)
 class EnvSpec:
     """The fixed part of the training environments.
@@ -196,7 +207,8 @@ class EnvSpec:
         control_rate_hz: control and plant rate, Hz; None: the base policy's, else 20.
         action_low, action_high: absolute actions: SI values of the normalized actions -1
             and +1; residual actions: the SI bounds of the sum
-            (``[speed_mps, heading_change_rad]``).
+            (``[speed_mps, heading_change_rad]``). None: ``RESIDUAL_ACTION_BOUNDS`` with
+            a base, ``ABSOLUTE_ACTION_BOUNDS`` without.
         max_time_s: episode length cap, seconds (None: the scenario's duration).
         reward: the reward's weights (``openconvoy.envs.reward``).
     """
@@ -206,12 +218,16 @@ class EnvSpec:
     residual_scale: tuple[float, float] = (1.0, 0.1)
     member: MemberConfig | None = None
     control_rate_hz: Annotated[float, Range(0.0, 100.0, lo_open=True)] | None = None
-    action_low: tuple[float, float] = (0.0, -math.pi / 2)
-    action_high: tuple[float, float] = (5.0, math.pi / 2)
+    action_low: tuple[float, float] | None = None
+    action_high: tuple[float, float] | None = None
     max_time_s: Annotated[float, Range(0.0, 7 * 86400.0, lo_open=True)] | None = None
     reward: RewardConfig = field(default_factory=lambda: TRAIN_REWARD)
 
     def __post_init__(self) -> None:
+        bounds = RESIDUAL_ACTION_BOUNDS if self.base_policy else ABSOLUTE_ACTION_BOUNDS
+        for name, default in zip(("action_low", "action_high"), bounds):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default)
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         base = classical_config(self.base_policy) if self.base_policy else None
@@ -243,6 +259,12 @@ class EnvSpec:
         """The resolved member configuration (never None after construction)."""
         assert self.member is not None
         return self.member
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The resolved ``(action_low, action_high)``."""
+        assert self.action_low is not None and self.action_high is not None
+        return self.action_low, self.action_high
 
     @property
     def rate_hz(self) -> float:
@@ -335,7 +357,7 @@ class RandomizedConvoyEnv(ParallelEnv):
         si = {}
         for a, act in actions.items():
             base = self._bases[a].act(self._obs[a]) if self._bases else None
-            si[a] = compose_action(act, s.action_low, s.action_high, base, s.residual_scale)
+            si[a] = compose_action(act, *s.bounds, base, s.residual_scale)
         out = self.env.step(si)
         self._obs = out[0]
         self.agents = list(self.env.agents)

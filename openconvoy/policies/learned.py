@@ -375,7 +375,7 @@ def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as fh:
-        np.savez(fh, **arrays)
+        np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as allow_pickle
     return path
 
 
@@ -455,7 +455,9 @@ def load_sb3_model(path: str | Path, algo: str):
             f"{path}: loading an SB3 .zip needs the train extra (pip install 'openconvoy[train]'); "
             "export it to .npz with `openconvoy export` to run without torch"
         ) from exc
-    classes = {"ppo": sb3.PPO, "sac": sb3.SAC}
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    classes: dict[str, type[BaseAlgorithm]] = {"ppo": sb3.PPO, "sac": sb3.SAC}
     if algo not in classes:
         raise InputFileError(
             f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}"
@@ -485,14 +487,17 @@ def load_learned(
     if not path.is_file():
         raise MissingFileError(f"policy file not found: {path}")
     if path.suffix == ".npz":
-        meta, forward = load_npz(path)
+        meta, mlp = load_npz(path)
+        forward: Callable[[np.ndarray], np.ndarray] = mlp
     elif path.suffix == ".zip":
         meta = read_zip_meta(path)
         model = load_sb3_model(path, meta.algo)
 
-        def forward(obs: np.ndarray) -> np.ndarray:
+        def predict(obs: np.ndarray) -> np.ndarray:
             action, _ = model.predict(obs.astype(np.float32), deterministic=True)
             return action
+
+        forward = predict
 
     else:
         raise InputFileError(f"{path}: a learned policy is a .zip (SB3) or .npz (export) file")

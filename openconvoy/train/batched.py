@@ -69,10 +69,14 @@ def group_env(
 def batched_refusal(spec: EnvSpec, r: Randomization) -> str | None:
     """Why ``VectorConvoyEnv`` cannot run the worlds ``r`` draws (None: it can run them):
     it is asked for the widest draw of every scenario and vehicle preset."""
-    models = [m for m, p in (("bernoulli", r.burst_prob < 1), ("gilbert-elliott", r.burst_prob > 0)) if p]
+    models = [
+        m for m, p in (("bernoulli", r.burst_prob < 1), ("gilbert-elliott", r.burst_prob > 0)) if p
+    ]
     for scenario in r.scenarios:
         for preset in r.vehicles or (None,):
-            vehicles = None if preset is None else (vehicle_preset(preset),) * (spec.n_followers + 1)
+            vehicles = (
+                None if preset is None else (vehicle_preset(preset),) * (spec.n_followers + 1)
+            )
             for model in models:
                 loss = LossConfig(
                     per=r.per_range[1],
@@ -145,6 +149,7 @@ class RandomizedVectorVecEnv(VectorConvoyVecEnv):
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = super().step_wait()
+        assert isinstance(obs, np.ndarray)
         start = 0
         for g, env in enumerate(self.envs):
             n = env.num_envs * self.per_convoy

@@ -243,15 +243,14 @@ class EnvSpec:
             )
         if self.n_followers < 1:
             raise ConfigError(f"n_followers must be at least 1, got {self.n_followers}")
-        if len(self.action_low) != 2 or len(self.action_high) != 2:
+        low, high = self.bounds
+        if len(low) != 2 or len(high) != 2:
             raise ConfigError("action_low and action_high are [speed_mps, heading_change_rad]")
-        if not all(lo < hi for lo, hi in zip(self.action_low, self.action_high)):
-            raise ConfigError(
-                f"action_low {self.action_low} must lie below action_high {self.action_high}"
-            )
-        if max(abs(self.action_low[1]), abs(self.action_high[1])) > math.pi / 2:
+        if not all(lo < hi for lo, hi in zip(low, high)):
+            raise ConfigError(f"action_low {low} must lie below action_high {high}")
+        if max(abs(low[1]), abs(high[1])) > math.pi / 2:
             raise ConfigError("the heading-change range must lie within ±π/2")
-        if self.control_rate_hz <= 0:
+        if self.rate_hz <= 0:
             raise ConfigError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
 
     @property

@@ -35,6 +35,7 @@ import numpy as np
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from openconvoy.core.errors import ConfigError
@@ -66,7 +67,7 @@ class TrainResult:
 
 def make_vec_env(config: TrainConfig) -> VecEnv:
     """The training VecEnv: parameter-sharing slots, episode statistics, VecNormalize."""
-    venv = VecMonitor(simulator_vec_env(config))
+    venv: VecEnv = VecMonitor(simulator_vec_env(config))
     if config.normalize_obs or config.normalize_reward:
         gamma = config.ppo.gamma if config.algo == "ppo" else config.sac.gamma
         venv = VecNormalize(
@@ -159,10 +160,9 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
     mean = var = None
     clip, eps = 10.0, 1e-8
     if isinstance(venv, VecNormalize) and venv.norm_obs:
-        mean, var = (
-            np.array(venv.obs_rms.mean, dtype=np.float64),
-            np.array(venv.obs_rms.var, dtype=np.float64),
-        )
+        rms = venv.obs_rms
+        assert isinstance(rms, RunningMeanStd)  # a Box observation space: one statistic
+        mean, var = np.array(rms.mean, dtype=np.float64), np.array(rms.var, dtype=np.float64)
         clip, eps = float(venv.clip_obs), float(venv.epsilon)
     spec = config.env
     return LearnedMeta(

@@ -87,13 +87,15 @@ def batched_metrics(
     run; None when the policy or the scenario cannot run batched."""
     from openconvoy.comms.loss import LossConfig
     from openconvoy.envs import VectorConvoyEnv
-    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.scenarios import PathScenario, make_scenario
     from openconvoy.policies import load_policy
 
     p = load_policy(policy)
     if not hasattr(p, "act_batch"):
         return None
     scene = make_scenario(scenario)
+    if not isinstance(scene, PathScenario):
+        return None
     if p.member_config is not None:  # run_sim starts the vehicles at the policy's gaps
         scene = scene.with_changes(spacing=p.member_config.spacing)
     try:

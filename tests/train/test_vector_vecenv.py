@@ -96,7 +96,9 @@ def test_zero_residual_drives_like_the_base_and_worlds_last_one_episode() -> Non
         obs, rewards, dones, infos = venv.step(zero)
         ref_obs, ref_rewards, *_ = ref.step(driver.act_batch(ref_obs))
         np.testing.assert_array_equal(rewards, ref_rewards.reshape(-1).astype(np.float32))
-        assert dones.all() == (k == ref.max_steps - 1) and math.isfinite(infos[0]["platooning_error_m"])
+        assert dones.all() == (k == ref.max_steps - 1) and math.isfinite(
+            infos[0]["platooning_error_m"]
+        )
     assert all(i["TimeLimit.truncated"] and "terminal_observation" in i for i in infos)
     assert not np.array_equal(obs, ref_obs.reshape(6, -1))  # a new world, new seeds
 

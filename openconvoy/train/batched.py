@@ -6,7 +6,8 @@ with their jittered autopilot response, burst model and length, latency), and ev
 convoy in it draws its own PER (``VectorConvoyEnv`` takes one PER per convoy). A group's
 world lasts one episode length: then it is redrawn, and convoys that restarted within it
 (after a collision) are cut there (``TimeLimit.truncated``), so the worlds keep changing
-as ``RandomizedConvoyEnv``'s do at every episode. Actions are normalized, composed with
+as ``RandomizedConvoyEnv``'s do at every episode. The groups' first worlds are cut short
+by different amounts, so the groups run out of phase. Actions are normalized, composed with
 the residual base (batched, each convoy's controller state its own) exactly as
 ``RandomizedConvoyEnv`` composes them (``policies.learned.compose_actions``).
 
@@ -136,6 +137,11 @@ class RandomizedVectorVecEnv(VectorConvoyVecEnv):
             self._rng = np.random.default_rng(self._seed)
             self._seed = None
         self._obs = [self._restart(g) for g in range(len(self.envs))]
+        # Stagger the groups: group g's first world is cut g/G of an episode early, so a
+        # rollout holds every phase of the episode, not one phase of all of them.
+        G = len(self.envs)
+        for g, env in enumerate(self.envs):
+            self._age[g] = (g * env.max_steps) // G
         return self._flat(self._obs)
 
     def _to_si(self, g: int, actions: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ that must hold for any trained network, not the quality of the follower.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import socket
@@ -24,6 +25,7 @@ from openconvoy.policies.learned import load_learned, read_zip_meta
 from openconvoy.policies.presets import PRESETS
 from openconvoy.train.config import TrainConfig, load_train_config
 from openconvoy.train.export import export_policy, sample_observations
+from openconvoy.train.validate import validate
 
 STEPS = 2048
 
@@ -497,3 +499,23 @@ def test_per_sweep_compares_learned_and_classical(
             npz_row["p95_platooning_error_m"]["mean"], abs=1e-4
         )
         assert zip_row["collisions"]["max"] == 0
+
+
+def test_trained_zip_acts_batched_and_validates_as_run_by_run(ppo_run: Path) -> None:
+    """One SB3 forward pass over a batch gives each row's ``act``; the batched validation
+    of the trained file gives ``run_sim``'s numbers."""
+    policy = load_learned(ppo_run / "policy.zip")
+    obs = sample_observations(policy, n=64)
+    rows = np.array([copy.deepcopy(policy).act(o) for o in obs])
+    np.testing.assert_allclose(
+        policy.act_batch(obs.reshape(16, 4, -1)).reshape(64, 2), rows, atol=1e-6
+    )
+    args = (ppo_run / "policy.zip", (0.0, 0.6), (1000,))
+    batched, single = (
+        validate(*args, duration_s=4.0),
+        validate(*args, duration_s=4.0, batched=False),
+    )
+    for b, s in zip(batched.metrics, single.metrics):
+        assert b["collisions"] == s["collisions"]
+        for key in ("p95_platooning_error_m", "mean_speed_difference_mps", "min_gap_m"):
+            assert b[key] == pytest.approx(s[key], abs=1e-6), key

@@ -95,7 +95,7 @@ class _GeodeticCache:
         a = self._anchor
         if a is None or abs(east - a[0]) > self.span_m or abs(north - a[1]) > self.span_m:
             self._reanchor(east, north)
-            a = self._anchor
+            a = (east, north)
         lat0, lon0, alt0, dlat_e, dlat_n, dlon_e, dlon_n = self._map
         de, dn = east - a[0], north - a[1]
         return lat0 + dlat_e * de + dlat_n * dn, lon0 + dlon_e * de + dlon_n * dn, alt0
@@ -501,9 +501,9 @@ class SimVehicle:
         value = float(msg.param_value)
         if msg.param_type in (1, 2, 3, 4, 5, 6):  # integers travel as their raw bytes
             value = float(struct.unpack("<i", struct.pack("<f", value))[0])
-        value = setter(name, value) if setter else None
-        if value is not None and not self._frozen:
-            self._conn.mav.param_value_send(name.encode(), value, msg.param_type, 0, 0)
+        stored = setter(name, value) if setter else None
+        if stored is not None and not self._frozen:
+            self._conn.mav.param_value_send(name.encode(), stored, msg.param_type, 0, 0)
 
     def _ack(self, msg: Any, result: int) -> None:
         if self._frozen:

@@ -210,7 +210,11 @@ def decode(data: bytes) -> CompatMessage:
     lon = _number(obj, "longitude", required=not abort)
     if (lat is None) != (lon is None):
         raise CompatDecodeError("latitude and longitude must both be given")
-    if lat is not None and lon is not None and not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+    if (
+        lat is not None
+        and lon is not None
+        and not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0)
+    ):
         raise CompatDecodeError(f"position out of range: {lat}, {lon}")
     speed = _number(obj, "speed", required=not abort)
     heading = _number(obj, "heading", required=not abort)

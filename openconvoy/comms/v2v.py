@@ -465,9 +465,7 @@ class Receiver:
         if core.heading == j.HEADING_UNAVAILABLE:
             heading = self._known_heading(sender, state)
             if heading is None:
-                self._malformed(
-                    source, f"BSM of vehicle {sender} lacks heading (none known yet)"
-                )
+                self._malformed(source, f"BSM of vehicle {sender} lacks heading (none known yet)")
                 return None
             state = replace(state, heading=heading)
         self._remember_heading(sender, state)

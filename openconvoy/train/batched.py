@@ -63,6 +63,7 @@ def group_env(
         max_time_s=spec.max_time_s,
         vehicle_presets=world.vehicles,
         reward_config=spec.reward,
+        emergency_stop=bool(spec.emergency_stop),
         autoreset=autoreset,
     )
 

@@ -35,8 +35,8 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         # A new base brings its own member config and rate unless they are given too.
         base = "" if args.base == "none" else args.base
         env_changes.update(base_policy=base, member=None, control_rate_hz=None)
-        if bool(base) != bool(env.base_policy):  # residual <-> absolute: their action bounds
-            env_changes.update(action_low=None, action_high=None)
+        if bool(base) != bool(env.base_policy):  # residual <-> absolute: their defaults
+            env_changes.update(action_low=None, action_high=None, emergency_stop=None)
     if args.followers is not None:
         env_changes["n_followers"] = args.followers
     if args.rate is not None:

@@ -211,6 +211,12 @@ class EnvSpec:
             a base, ``ABSOLUTE_ACTION_BOUNDS`` without.
         max_time_s: episode length cap, seconds (None: the scenario's duration).
         reward: the reward's weights (``openconvoy.envs.reward``).
+        emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
+            follower about to hit its predecessor) during training; None: on with a base,
+            off without. Learning from scratch, a policy whose exploration trips the
+            latched stop sits stopped for the rest of the episode whatever it does, and
+            learns only to creep; without it, a collision ends the episode with its
+            penalty, a signal it can learn from. Sim and deploy keep the stop on.
     """
 
     n_followers: Annotated[int, Range(1, 1000)] = 2
@@ -222,12 +228,15 @@ class EnvSpec:
     action_high: tuple[float, float] | None = None
     max_time_s: Annotated[float, Range(0.0, 7 * 86400.0, lo_open=True)] | None = None
     reward: RewardConfig = field(default_factory=lambda: TRAIN_REWARD)
+    emergency_stop: bool | None = None
 
     def __post_init__(self) -> None:
         bounds = RESIDUAL_ACTION_BOUNDS if self.base_policy else ABSOLUTE_ACTION_BOUNDS
         for name, default in zip(("action_low", "action_high"), bounds):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, default)
+        if self.emergency_stop is None:
+            object.__setattr__(self, "emergency_stop", bool(self.base_policy))
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         base = classical_config(self.base_policy) if self.base_policy else None
@@ -341,6 +350,7 @@ class RandomizedConvoyEnv(ParallelEnv):
             render_mode=self.render_mode,
             vehicle_presets=w.vehicles,
             reward_config=s.reward,
+            emergency_stop=bool(s.emergency_stop),
         )
         obs, infos = self.env.reset(seed=int(self._rng.integers(2**31 - 1)), options=options)
         for b in self._bases.values():

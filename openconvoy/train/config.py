@@ -31,7 +31,9 @@ class PPOConfig:
     VecEnv slot; ``lr_schedule`` ``linear`` decays ``learning_rate`` to 0 over the run
     (late updates then refine instead of swinging the policy), ``constant`` keeps it;
     ``log_std_init`` is the initial log standard deviation of the normalized
-    actions (-1: std 0.37, enough to explore, not so much that a car swerves off the road)."""
+    actions (-1: std 0.37, enough to explore, not so much that a car swerves off the road);
+    ``use_sde``: generalized state-dependent exploration (noise that changes every
+    ``sde_sample_freq`` steps, -1: once per rollout, instead of white noise every tick)."""
 
     n_steps: Annotated[int, Range(1, 10000000)] = 256
     batch_size: Annotated[int, Range(1, 10000000)] = 512
@@ -46,6 +48,8 @@ class PPOConfig:
     net_arch: tuple[Annotated[int, Range(1, 100_000)], ...] = (64, 64)
     activation: str = "tanh"
     log_std_init: Annotated[float, Range(-20.0, 5.0)] = -1.0
+    use_sde: bool = False
+    sde_sample_freq: Annotated[int, Range(-1, 1000000)] = -1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))

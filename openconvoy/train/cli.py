@@ -86,7 +86,7 @@ def _train_env_args(p: argparse.ArgumentParser) -> None:
         "--worlds",
         type=_int(1, 1024),
         metavar="N",
-        help="batched: groups of convoys sharing a drawn world (default 1)",
+        help="batched: groups of convoys sharing a drawn world (default 2)",
     )
     p.add_argument(
         "--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)"

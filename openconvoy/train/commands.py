@@ -6,9 +6,15 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import Any
 
 from openconvoy.core.errors import ConfigError
 from openconvoy.train.config import TrainConfig, load_train_config
+from openconvoy.train.randomization import (
+    ABSOLUTE_ACTION_BOUNDS,
+    RESIDUAL_ACTION_BOUNDS,
+    EnvSpec,
+)
 
 
 def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
@@ -35,8 +41,7 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         # A new base brings its own member config and rate unless they are given too.
         base = "" if args.base == "none" else args.base
         env_changes.update(base_policy=base, member=None, control_rate_hz=None)
-        if bool(base) != bool(env.base_policy):  # residual <-> absolute: their defaults
-            env_changes.update(action_low=None, action_high=None, emergency_stop=None)
+        env_changes.update(_kind_defaults(env, bool(base)))
     if args.followers is not None:
         env_changes["n_followers"] = args.followers
     if args.rate is not None:
@@ -66,6 +71,20 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
     if r_changes:
         r = dataclasses.replace(r, **r_changes)
     return dataclasses.replace(config, env=env, randomization=r, **top)
+
+
+def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
+    """Changes that give ``env`` the defaults of residual (or absolute) actions where it
+    holds the defaults of the other kind (values a config chose stay)."""
+    if residual == bool(env.base_policy):
+        return {}
+    changes: dict[str, Any] = {}
+    old = RESIDUAL_ACTION_BOUNDS if env.base_policy else ABSOLUTE_ACTION_BOUNDS
+    if env.bounds == old:
+        changes.update(action_low=None, action_high=None)
+    if env.emergency_stop == bool(env.base_policy):
+        changes["emergency_stop"] = None
+    return changes
 
 
 def train_command(args: argparse.Namespace) -> int:

@@ -35,7 +35,7 @@ class PPOConfig:
     ``use_sde``: generalized state-dependent exploration (noise that changes every
     ``sde_sample_freq`` steps, -1: once per rollout, instead of white noise every tick)."""
 
-    n_steps: Annotated[int, Range(1, 10000000)] = 256
+    n_steps: Annotated[int, Range(1, 10000000)] = 64
     batch_size: Annotated[int, Range(1, 10000000)] = 512
     n_epochs: Annotated[int, Range(1, 1000)] = 5
     learning_rate: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 3e-4
@@ -124,7 +124,7 @@ class TrainConfig:
 
     algo: str = "ppo"
     total_steps: Annotated[int, Range(1, 1000000000000)] = 600_000
-    n_envs: Annotated[int, Range(1, 1024)] = 4
+    n_envs: Annotated[int, Range(1, 1024)] = 32
     seed: Annotated[int, Range(0, 4294967295)] = 0
     env: EnvSpec = field(default_factory=EnvSpec)
     randomization: Randomization = field(default_factory=Randomization)
@@ -139,7 +139,7 @@ class TrainConfig:
     torch_threads: Annotated[int, Range(1, 1024)] = 1
     name: str = "learned"
     vec_env: str = "auto"
-    n_worlds: Annotated[int, Range(1, 1024)] = 4
+    n_worlds: Annotated[int, Range(1, 1024)] = 2
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "validation_pers", tuple(float(p) for p in self.validation_pers))

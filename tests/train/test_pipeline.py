@@ -519,3 +519,20 @@ def test_trained_zip_acts_batched_and_validates_as_run_by_run(ppo_run: Path) -> 
         assert b["collisions"] == s["collisions"]
         for key in ("p95_platooning_error_m", "mean_speed_difference_mps", "min_gap_m"):
             assert b[key] == pytest.approx(s[key], abs=1e-6), key
+
+
+def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
+    """``--base none`` switches to absolute actions with their own defaults (action range,
+    no latched emergency stop while training); what a config chose stays."""
+    from openconvoy.cli import build_parser
+    from openconvoy.train.commands import train_config_from_args
+    from openconvoy.train.randomization import ABSOLUTE_ACTION_BOUNDS
+
+    parse = build_parser().parse_args
+    scratch = train_config_from_args(parse(["train", "--base", "none"])).env
+    assert scratch.base_policy == "" and scratch.bounds == ABSOLUTE_ACTION_BOUNDS
+    assert scratch.emergency_stop is False and TrainConfig().env.emergency_stop is True
+    cfg = tmp_path / "chosen.toml"
+    cfg.write_text("[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
+    chosen = train_config_from_args(parse(["train", "--config", str(cfg), "--base", "none"])).env
+    assert chosen.bounds == ((0.0, -0.5), (5.0, 0.5))

@@ -96,7 +96,7 @@ def test_training_writes_a_complete_run_directory(ppo_run: Path) -> None:
     assert validation["chosen"] == best["path"]
     assert (ppo_run / "policy.zip").read_bytes() == Path(best["path"]).read_bytes()
     summary = json.loads((ppo_run / "train.json").read_text())
-    # SB3 rounds up to whole rollouts: 2 envs x 2 followers x n_steps 256 = 1024 per rollout.
+    # SB3 rounds up to whole rollouts: 2 envs x 2 followers x n_steps 64 = 256 per rollout.
     assert summary["steps"] == 2048 and summary["n_slots"] == 4
     config = load_train_config(ppo_run / "config.toml")
     assert config.total_steps == STEPS and config.seed == 3 and config.n_envs == 2

@@ -13,6 +13,8 @@ from openconvoy.train.config import TrainConfig, load_train_config
 from openconvoy.train.randomization import (
     ABSOLUTE_ACTION_BOUNDS,
     RESIDUAL_ACTION_BOUNDS,
+    SCRATCH_REWARD,
+    TRAIN_REWARD,
     EnvSpec,
 )
 
@@ -70,7 +72,12 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
             )
     if r_changes:
         r = dataclasses.replace(r, **r_changes)
-    return dataclasses.replace(config, env=env, randomization=r, **top)
+    ppo = config.ppo
+    if bool(env.base_policy) != bool(config.env.base_policy) and ppo.use_sde == (
+        not config.env.base_policy
+    ):  # the other kind's exploration default
+        ppo = dataclasses.replace(ppo, use_sde=None)
+    return dataclasses.replace(config, env=env, randomization=r, ppo=ppo, **top)
 
 
 def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
@@ -84,6 +91,8 @@ def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
         changes.update(action_low=None, action_high=None)
     if env.emergency_stop == bool(env.base_policy):
         changes["emergency_stop"] = None
+    if env.reward == (TRAIN_REWARD if env.base_policy else SCRATCH_REWARD):
+        changes["reward"] = None
     return changes
 
 

@@ -12,6 +12,7 @@ The defaults are sized for a 2-core machine: a working follower in under 15 minu
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -33,7 +34,10 @@ class PPOConfig:
     ``log_std_init`` is the initial log standard deviation of the normalized
     actions (-1: std 0.37, enough to explore, not so much that a car swerves off the road);
     ``use_sde``: generalized state-dependent exploration (noise that changes every
-    ``sde_sample_freq`` steps, -1: once per rollout, instead of white noise every tick)."""
+    ``sde_sample_freq`` steps, -1: once per rollout, instead of white noise every tick);
+    None: on learning from scratch (``TrainConfig`` resolves it from the base), where a
+    white-noise speed setpoint at 20 Hz is filtered away by the vehicle's lag and teaches
+    nothing, off for residual policies."""
 
     n_steps: Annotated[int, Range(1, 10000000)] = 64
     batch_size: Annotated[int, Range(1, 10000000)] = 512
@@ -48,8 +52,8 @@ class PPOConfig:
     net_arch: tuple[Annotated[int, Range(1, 100_000)], ...] = (64, 64)
     activation: str = "tanh"
     log_std_init: Annotated[float, Range(-20.0, 5.0)] = -1.0
-    use_sde: bool = False
-    sde_sample_freq: Annotated[int, Range(-1, 1000000)] = -1
+    use_sde: bool | None = None
+    sde_sample_freq: Annotated[int, Range(-1, 1000000)] = 8
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -146,6 +150,9 @@ class TrainConfig:
         object.__setattr__(self, "validation_seeds", tuple(int(s) for s in self.validation_seeds))
         if self.validation_seeds and not self.validation_pers:
             raise ConfigError("validation_seeds need validation_pers")
+        if self.ppo.use_sde is None:
+            sde = not self.env.base_policy
+            object.__setattr__(self, "ppo", dataclasses.replace(self.ppo, use_sde=sde))
         if self.vec_env not in VEC_ENVS:
             raise ConfigError(
                 f"vec_env: unknown {self.vec_env!r}; expected one of {', '.join(VEC_ENVS)}"

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import gymnasium
@@ -183,6 +183,12 @@ weights the learner traded spacing accuracy for smoothness and ended worse than 
 on p95 platooning error."""
 
 
+SCRATCH_REWARD = RewardConfig(spacing_scale_m=30.0, w_accel=0.0, w_jerk=0.0, w_yaw_rate=0.0)
+"""The reward learning from scratch (no base): the spacing error alone, saturating only at
+30 m. With ``TRAIN_REWARD``'s 2 m a follower that fell behind sees no gradient back, and
+the comfort terms pay an exploring policy to creep (a slow car turns and accelerates
+less)."""
+
 RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))
 """Residual actions: the sum may use the whole action range (DESIGN.md, Action)."""
 ABSOLUTE_ACTION_BOUNDS = ((0.0, -0.3), (3.0, 0.3))
@@ -210,7 +216,8 @@ class EnvSpec:
             (``[speed_mps, heading_change_rad]``). None: ``RESIDUAL_ACTION_BOUNDS`` with
             a base, ``ABSOLUTE_ACTION_BOUNDS`` without.
         max_time_s: episode length cap, seconds (None: the scenario's duration).
-        reward: the reward's weights (``openconvoy.envs.reward``).
+        reward: the reward's weights (``openconvoy.envs.reward``); None: ``TRAIN_REWARD``
+            with a base, ``SCRATCH_REWARD`` without.
         emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
             follower about to hit its predecessor) during training; None: on with a base,
             off without. Learning from scratch, a policy whose exploration trips the
@@ -227,7 +234,7 @@ class EnvSpec:
     action_low: tuple[float, float] | None = None
     action_high: tuple[float, float] | None = None
     max_time_s: Annotated[float, Range(0.0, 7 * 86400.0, lo_open=True)] | None = None
-    reward: RewardConfig = field(default_factory=lambda: TRAIN_REWARD)
+    reward: RewardConfig | None = None
     emergency_stop: bool | None = None
 
     def __post_init__(self) -> None:
@@ -235,6 +242,8 @@ class EnvSpec:
         for name, default in zip(("action_low", "action_high"), bounds):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, default)
+        if self.reward is None:
+            object.__setattr__(self, "reward", TRAIN_REWARD if self.base_policy else SCRATCH_REWARD)
         if self.emergency_stop is None:
             object.__setattr__(self, "emergency_stop", bool(self.base_policy))
         for name in ("action_low", "action_high", "residual_scale"):

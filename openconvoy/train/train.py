@@ -125,7 +125,7 @@ def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) 
             clip_range=p.clip_range,
             ent_coef=p.ent_coef,
             max_grad_norm=p.max_grad_norm,
-            use_sde=p.use_sde,
+            use_sde=bool(p.use_sde),
             sde_sample_freq=p.sde_sample_freq,
             policy_kwargs={
                 "net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},

@@ -526,12 +526,19 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     no latched emergency stop while training); what a config chose stays."""
     from openconvoy.cli import build_parser
     from openconvoy.train.commands import train_config_from_args
-    from openconvoy.train.randomization import ABSOLUTE_ACTION_BOUNDS
+    from openconvoy.train.randomization import (
+        ABSOLUTE_ACTION_BOUNDS,
+        SCRATCH_REWARD,
+        TRAIN_REWARD,
+    )
 
     parse = build_parser().parse_args
     scratch = train_config_from_args(parse(["train", "--base", "none"])).env
     assert scratch.base_policy == "" and scratch.bounds == ABSOLUTE_ACTION_BOUNDS
     assert scratch.emergency_stop is False and TrainConfig().env.emergency_stop is True
+    assert scratch.reward == SCRATCH_REWARD and TrainConfig().env.reward == TRAIN_REWARD
+    assert train_config_from_args(parse(["train", "--base", "none"])).ppo.use_sde is True
+    assert TrainConfig().ppo.use_sde is False
     cfg = tmp_path / "chosen.toml"
     cfg.write_text("[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
     chosen = train_config_from_args(parse(["train", "--config", str(cfg), "--base", "none"])).env

@@ -113,7 +113,7 @@ def test_groups_draw_their_own_worlds_and_convoys_their_own_per() -> None:
     pers = [c.per for e in venv.envs for c in e.losses]
     assert len(set(pers)) == 7 and 0.0 <= min(pers) and max(pers) <= 0.6
     # The groups run out of phase: the second one's first world lasts half an episode.
-    for k in range(10):
+    for _ in range(10):
         _, _, dones, _ = venv.step(np.zeros((14, 2), np.float32))
     assert not dones[:8].any() and dones[8:].all()
     # A curriculum caps the PERs of the next draws.

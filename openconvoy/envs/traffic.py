@@ -223,7 +223,8 @@ class FastRoad(Road):
         finally:
             self._cache = None
 
-    def _coords(self, lane_index) -> tuple[np.ndarray, np.ndarray]:
+    def _coords(self, lane_index: tuple) -> tuple[np.ndarray, np.ndarray]:
+        assert self._cache is not None, "only during act"
         got = self._cache.get(lane_index)
         if got is None:
             lane = self.network.get_lane(lane_index)
@@ -419,6 +420,10 @@ class TrafficWorld:
         self._objects()
         return self._traffic
 
+    def _road(self) -> Road:
+        assert self.road is not None, "reset() first"
+        return self.road
+
     def _objects(self) -> None:
         if self.road is not None:
             self.road.vehicles  # noqa: B018  (reading them brings a VectorRoad's objects up to date)
@@ -461,12 +466,12 @@ class TrafficWorld:
         """Scripted events due at ``t``, then traffic decides on the state at ``t``."""
         for v in self._scripted:
             v.update(t)
-        self.road.act()
+        self._road().act()
 
     def step(self, dt: float) -> None:
         """Traffic moves ``dt`` seconds (convoy vehicles were placed already) and highway-env
         checks collisions."""
-        self.road.step(dt)
+        self._road().step(dt)
         self.t += dt
 
     def traffic_hits(self) -> list[bool]:
@@ -536,6 +541,6 @@ class TrafficWorld:
             if known is not None:
                 return known
         self._objects()
-        front, _ = self.road.neighbour_vehicles(lead, lead.lane_index)
+        front, _ = self._road().neighbour_vehicles(lead, lead.lane_index)
         a = lead.acceleration(ego_vehicle=lead, front_vehicle=front)
         return float(np.clip(a, -lead.ACC_MAX, lead.ACC_MAX))

@@ -12,7 +12,7 @@ targets of the cars before it in ``road.vehicles``, as in highway-env's loop.
 from __future__ import annotations
 
 import numpy as np
-from numpy._core.umath import clip as _clip  # np.clip's own ufunc, without its wrapper
+from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]  # np.clip's ufunc
 
 from openconvoy.envs.traffic_state import (
     AMAX,

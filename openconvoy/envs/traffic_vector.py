@@ -71,7 +71,7 @@ class VectorRoad(FastRoad):
         plain = not (self.neighbour_vehicles_connected_lanes or self.record_history)
         self._edge = StraightEdge.of(self.network.graph) if plain else None
 
-    @property  # type: ignore[override]
+    @property
     def vehicles(self) -> list:
         """highway-env's vehicle objects, brought up to date (and read again next tick)."""
         if self._st is not None and not self._objects_ok:

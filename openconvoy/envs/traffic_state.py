@@ -105,8 +105,12 @@ class StraightEdge:
         """Lane ids ``RoadNetwork.get_closest_lane_index`` picks for vehicles at ``(x, y)``
         (m) with ``heading`` (rad): its ``distance_with_heading``, term by term."""
         angle = np.abs((heading + np.pi) % (2 * np.pi) - np.pi)  # every lane heads along +x
-        along = np.maximum(x - self.length, 0) + np.maximum(0 - x, 0)
-        dist = np.abs(y[:, None] - self.lane_y) + along[:, None] + 1.0 * angle[:, None]
+        r = np.abs(y[:, None] - self.lane_y)
+        if 0 <= x.min() and x.max() <= self.length:  # then both end terms are 0
+            dist = r + angle[:, None]
+        else:
+            along = np.maximum(x - self.length, 0) + np.maximum(0 - x, 0)
+            dist = r + along[:, None] + angle[:, None]
         return np.argmin(dist, axis=1)
 
 

@@ -371,6 +371,17 @@ class InPath:
     is_traffic: bool
 
 
+_DIAGONALS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index arrays of an n x n diagonal (cached)."""
+    got = _DIAGONALS.get(n)
+    if got is None:
+        got = _DIAGONALS[n] = (np.arange(n), np.arange(n))
+    return got
+
+
 class TrafficWorld:
     """highway-env's ``Road`` with our convoy on it (see the module doc).
 
@@ -476,8 +487,9 @@ class TrafficWorld:
         st = road.vector_state(self._all) if isinstance(road, FastRoad) else None
         if st is not None:
             st.trig()
+            got = (st.x, st.y, st.h, st.sp, st.width, st.length, st.c, st.s)
             m = len(self._all)
-            return tuple(a[:m] for a in (st.x, st.y, st.h, st.sp, st.width, st.length, st.c, st.s))
+            return got if m == st.n else tuple(a[:m] for a in got)
         rows = [
             (o.position[0], o.position[1], o.heading, o.speed, o.WIDTH, o.LENGTH) for o in self._all
         ]
@@ -499,7 +511,7 @@ class TrafficWorld:
             & (np.abs(-dx * sn + dy * cn) < half_w + half_w[:n, None])
             & (lon < self.max_look_m)
         )
-        ok[np.arange(n), np.arange(n)] = False
+        ok[_diagonal(n)] = False
         nearest = np.argmin(np.where(ok, lon, np.inf), axis=1).tolist()
         seen = ok.any(axis=1).tolist()
         vx, vy = (spd * c).tolist(), (spd * s).tolist()

@@ -31,6 +31,7 @@ from openconvoy.envs.traffic_state import (
 _EPS = 1e-2  # highway_env.utils.not_zero
 _GHOST_X = 1e300  # "no vehicle": IDM's interaction term behind it rounds to exactly 0
 _CACHE: dict[tuple, np.ndarray] = {}
+_SIDES = np.array([[-1], [1]])
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
@@ -102,17 +103,18 @@ def _mobil_queries(
     the old follower after/before. Also the side lanes (2, nf) and which are possible."""
     lanes = len(st.edge.lanes)
     lane_f = st.lane[fi]
-    side = np.array((lane_f - 1, lane_f + 1))  # (2, nf)
+    side = lane_f + _SIDES  # (2, nf): left, right
     sc = _clip(side, 0, lanes - 1)
     xf = st.x[fi]
+    e = st.edge
     possible = (
         (side == sc)
-        & (np.abs(st.y[fi] - st.edge.lane_y[sc]) <= st.edge.reach_w[sc])
-        & ((0 <= xf) & (xf < st.edge.length + st.edge.vlen) & (np.abs(st.sp[fi]) >= 1))
+        & (np.abs(st.y[fi] - e.lane_y[sc]) <= e.reach_w[sc])
+        & ((0 <= xf) & (xf < e.length + e.vlen) & (np.abs(st.sp[fi]) >= 1))
     )
     (np0, np1), (nf0, nf1) = front[sc, fi], rear[sc, fi]
     old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
-    me = np.tile(fi, 8)
+    me = np.concatenate((fi,) * 8)
     ego = np.concatenate((nf0, nf0, old_fol, old_fol, nf1, nf1, old_fol, old_fol))
     fr = np.concatenate((np0, fi, fi, old_pre, np1, fi, fi, old_pre))
     return me, ego, fr, sc, possible

@@ -314,7 +314,7 @@ def touching_pairs(
     dx, dy = x[:, None] - x, y[:, None] - y
     # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
     r = reach + (np.abs(speed) * dt + 1e-6)[:, None]
-    ii, jj = np.nonzero((dx * dx + dy * dy <= r * r) & pairs)
+    ii, jj = ((dx * dx + dy * dy <= r * r) & pairs).nonzero()
     if not len(ii):
         return []
     g = np.array((x, y, c, s, half[:, 0], half[:, 1], speed * c * dt, speed * s * dt))
@@ -337,7 +337,7 @@ def touching_pairs(
     now = (np.abs(proj) - ext > 1e-9).any(axis=0)
     # i's interval stretched by vp (highway-env's will_intersect), then the gap to j's.
     later = np.maximum(proj - ext - np.maximum(vp, 0.0), np.minimum(vp, 0.0) - proj - ext)
-    maybe = np.flatnonzero(~(now & (later > 1e-9).any(axis=0)))
+    maybe = (~(now & (later > 1e-9).any(axis=0))).nonzero()[0]
     return list(zip(ii[maybe].tolist(), jj[maybe].tolist()))
 
 
@@ -512,7 +512,7 @@ class TrafficWorld:
             & (lon < self.max_look_m)
         )
         ok[_diagonal(n)] = False
-        nearest = np.argmin(np.where(ok, lon, np.inf), axis=1).tolist()
+        nearest = np.where(ok, lon, np.inf).argmin(axis=1).tolist()
         seen = ok.any(axis=1).tolist()
         vx, vy = (spd * c).tolist(), (spd * s).tolist()
         out: list[InPath | None] = []

@@ -58,9 +58,9 @@ def neighbours(st: TrafficState) -> tuple[np.ndarray, np.ndarray]:
     ge = x >= x[:, None]  # [i, j]: j is not behind i
     ahead = on[:, None, :] & (ge & _cached("not_self", n, 0))
     behind = on[:, None, :] & ~ge
-    front = n - 1 - np.argmin(np.where(ahead, x, np.inf)[:, :, ::-1], axis=2)
+    front = n - 1 - np.where(ahead, x, np.inf)[:, :, ::-1].argmin(axis=2)
     front[~ahead.any(axis=2)] = -1
-    rear = np.argmax(np.where(behind, x, -np.inf), axis=2)
+    rear = np.where(behind, x, -np.inf).argmax(axis=2)
     rear[~behind.any(axis=2)] = -1
     return front, rear
 
@@ -141,7 +141,7 @@ def _aborts(
     changing into the same lane is ahead of it within its IDM desired gap; ``starts``: the
     cars that begin a change this tick (their new targets count from their turn on)."""
     moving = st.lane != tgt
-    changers = np.flatnonzero(acting & moving).tolist()
+    changers = (acting & moving).nonzero()[0].tolist()
     if not changers:
         for k, t in starts.items():
             tgt[k] = t
@@ -188,7 +188,7 @@ def decide(st: TrafficState) -> np.ndarray:
     kin = kinematics(st)
     front, rear = neighbours(st)
     acting = st.traffic & ~st.crashed
-    fi = np.flatnonzero(acting & st.lc & (lane == st.tgt) & (p[DELAY] < st.timer))
+    fi = (acting & st.lc & (lane == st.tgt) & (p[DELAY] < st.timer)).nonzero()[0]
     every = _cached("tile", n, lanes)
     if len(fi):
         mq, eq, fq, sc, possible = _mobil_queries(st, front, rear, fi)

@@ -111,7 +111,7 @@ class StraightEdge:
         else:
             along = np.maximum(x - self.length, 0) + np.maximum(0 - x, 0)
             dist = r + along[:, None] + angle[:, None]
-        return np.argmin(dist, axis=1)
+        return dist.argmin(axis=1)
 
 
 def vectorizable(vehicles: list) -> bool:

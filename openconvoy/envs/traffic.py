@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -358,8 +358,7 @@ def collide(road: Road, dt: float) -> None:
         items[i].handle_collisions(items[j], dt)
 
 
-@dataclass(frozen=True)
-class InPath:
+class InPath(NamedTuple):  # a NamedTuple: built three times a tick, 4x cheaper than a dataclass
     """The nearest vehicle in a convoy vehicle's path, ahead of it (ground truth):
     centre-to-centre range (m), range rate (m/s, negative = closing), its length (m), its
     id (convoy id, or ``TRAFFIC_ID_BASE + k`` for traffic) and whether it is traffic."""

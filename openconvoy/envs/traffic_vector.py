@@ -134,7 +134,11 @@ class VectorRoad(FastRoad):
         st = self._state()
         if st is None:
             return False
-        ks = st.rows_of(vehicles)
+        try:
+            ks = st.rows_of(vehicles)
+        except KeyError:  # not all on this road's list: the caller sets the objects
+            self.vehicles  # noqa: B018  (brings the objects up to date, read back next tick)
+            return False
         st.x[ks], st.y[ks], st.h[ks], st.sp[ks] = hx, hy, heading, speed
         st.hit[ks] = False
         st.trig_ok = False

@@ -1,0 +1,143 @@
+"""The leaders' driver, batched: ``PathScenario.leader_command`` for B leaders at once
+(the same arithmetic; the path search and pure pursuit compiled, the speed profile an
+array function of time s and arc length m)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from openconvoy.core.errors import ConfigError
+from openconvoy.envs.scenarios import (
+    EMERGENCY_BRAKE_AT_S,
+    EMERGENCY_DECEL_MPS2,
+    EMERGENCY_SPEED_MPS,
+    PathScenario,
+    emergency_speed,
+    paper_speed,
+)
+from openconvoy.envs.vector_jit import kernel
+
+WINDOW_M = 20.0
+"""``Path.project``'s search window around the last arc length (m)."""
+
+
+def _paper_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    return np.where((t >= 20.0) & (t < 40.0), 2.0, 1.0)
+
+
+def _emergency_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    braking = np.maximum(
+        0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S)
+    )
+    return np.where(t < EMERGENCY_BRAKE_AT_S, EMERGENCY_SPEED_MPS, braking)
+
+
+_ARRAY_PROFILES = {paper_speed: _paper_speed, emergency_speed: _emergency_speed}
+
+
+class LeaderDriver:
+    """The drivers of ``num_envs`` leaders on ``scenario``'s path."""
+
+    def __init__(self, scenario: PathScenario, num_envs: int) -> None:
+        self.sc = sc = scenario
+        path = scenario.path
+        prof = scenario.speed_profile
+        profile = _ARRAY_PROFILES.get(prof)
+        if profile is None:
+            if not isinstance(prof(0.0, 0.0), (int, float)):
+                raise ConfigError(
+                    "VectorConvoyEnv: the scenario's speed profile must return a number"
+                )
+            profile = lambda t, s: np.vectorize(prof, otypes=[float])(t, s)  # noqa: E731
+        self.profile: Callable[[np.ndarray, np.ndarray], np.ndarray] = profile
+        self.closed = bool(path.closed)
+        self.length = float(path.length)
+        self.seg = np.concatenate([path._a, path._seg_dir, path._seg_len[:, None]], axis=1)
+        self.seg_s = np.asarray(path._s, dtype=float)
+        self.params = np.array(
+            [sc.ramp_accel_mps2, sc.ramp_decel_mps2, sc.lookahead_min_m, sc.lookahead_time_s]
+        )
+        self.s = np.zeros(num_envs)
+        self.cmd = np.zeros(num_envs)
+        self.t_last = np.full(num_envs, np.nan)
+
+    def reset(self, which: np.ndarray) -> None:
+        sc = self.sc
+        self.s[which] = sc.leader_start_s % self.length if self.closed else sc.leader_start_s
+        self.cmd[which] = float(sc.start_speed_mps)
+        self.t_last[which] = np.nan
+
+    def command(
+        self, t: np.ndarray, x: np.ndarray, y: np.ndarray, speed: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Setpoints (speed m/s, absolute heading rad) of every leader at ``t`` (B,)."""
+        _project(x, y, self.s, self.seg, self.seg_s, self.closed, self.length)
+        target = np.asarray(self.profile(t, self.s), dtype=float) * np.ones_like(t)
+        heading = np.empty_like(t)
+        _drive(t, x, y, speed, self.s, target, self.cmd, self.t_last, self.params, self.seg,
+               self.seg_s, self.closed, self.length, heading)  # fmt: skip
+        return self.cmd.copy(), heading
+
+
+@kernel
+def _segment(seg_s, n, s):  # pragma: no cover - compiled
+    """The segment holding arc length ``s`` (``Path._segment``)."""
+    return min(max(np.searchsorted(seg_s, s, side="right") - 1, 0), n - 1)
+
+
+@kernel
+def _project(x, y, s_arr, seg, seg_s, closed, length):  # pragma: no cover - compiled
+    """``Path.project`` of each leader near its last arc length; updates ``s_arr``."""
+    n = seg.shape[0]
+    for b in range(len(x)):
+        if n == 1:
+            u = (x[b] - seg[0, 0]) * seg[0, 2] + (y[b] - seg[0, 1]) * seg[0, 3]
+            s_arr[b] = min(max(u, 0.0), length)
+            continue
+        i0, span = 0, n
+        if n > 2:
+            lo, hi = s_arr[b] - WINDOW_M, s_arr[b] + WINDOW_M
+            if closed:
+                i0 = _segment(seg_s, n, lo % length)
+                span = min((_segment(seg_s, n, hi % length) - i0) % n + 1, n)
+            else:
+                i0 = _segment(seg_s, n, max(lo, 0.0))
+                span = _segment(seg_s, n, min(hi, length)) - i0 + 1
+        best, s_best = np.inf, 0.0
+        for off in range(span):
+            i = (i0 + off) % n if closed else min(i0 + off, n - 1)
+            u = (x[b] - seg[i, 0]) * seg[i, 2] + (y[b] - seg[i, 1]) * seg[i, 3]
+            u = min(max(u, 0.0), seg[i, 4])
+            px, py = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
+            d = (px - x[b]) ** 2 + (py - y[b]) ** 2
+            if d < best:
+                best, s_best = d, seg_s[i] + u
+        s_arr[b] = s_best % length if closed else s_best
+
+
+@kernel
+def _drive(
+    t, x, y, speed, s_arr, target, cmd, t_last, p, seg, seg_s, closed, length, heading
+):  # pragma: no cover - compiled
+    """The speed ramp towards ``target`` and pure pursuit one look-ahead ahead."""
+    n = seg.shape[0]
+    for b in range(len(t)):
+        s = s_arr[b]
+        tgt = target[b]
+        if not closed:  # stop at the end of an open road, braking at the leader's limit
+            tgt = min(tgt, math.sqrt(2.0 * p[1] * max(length - s, 0.0)))
+        dt = 0.0 if math.isnan(t_last[b]) else max(t[b] - t_last[b], 0.0)
+        t_last[b] = t[b]
+        if dt > 0.0:
+            cmd[b] = cmd[b] + min(max(tgt - cmd[b], -p[1] * dt), p[0] * dt)
+        look = max(p[2], p[3] * max(speed[b], 0.0))
+        ahead = (s + look) % length if closed else s + look
+        if closed:
+            ahead = ahead % length
+        i = _segment(seg_s, n, ahead)
+        u = ahead - seg_s[i]
+        tx, ty = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
+        heading[b] = math.atan2(ty - y[b], tx - x[b])

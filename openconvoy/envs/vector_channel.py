@@ -33,6 +33,7 @@ from openconvoy.envs.channel import DRAW_LOSS
 from openconvoy.envs.vector_jit import kernel
 from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_rx import RxBuffers, push_one
+from openconvoy.envs.vector_trail import norm
 
 _G, _K1, _K2 = np.uint64(_GOLDEN), np.uint64(_M1), np.uint64(_M2)
 _S11, _S27, _S30, _S31 = np.uint64(11), np.uint64(27), np.uint64(30), np.uint64(31)
@@ -229,7 +230,7 @@ def _tx_gate(
                     lv, lh, dt = last[3, b, i], last[4, b, i], tt - lt
                     px = last[1, b, i] + lv * math.cos(lh) * dt
                     py = last[2, b, i] + lv * math.sin(lh) * dt
-                    if not (math.hypot(ox - px, oy - py) > thr or abs(ov - lv) > sthr):
+                    if not (norm(ox - px, oy - py) > thr or abs(ov - lv) > sthr):
                         continue
             send[b, i] = True
             last[0, b, i], last[1, b, i], last[2, b, i] = tt, ox, oy

@@ -90,17 +90,16 @@ def _scenario(
         presets = [
             p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in vehicle_presets
         ]
-    if isinstance(scenario, str):
-        scenario = make_scenario(scenario, n_followers, presets)
-    if not isinstance(scenario, PathScenario):
+    built = make_scenario(scenario, n_followers, presets) if isinstance(scenario, str) else scenario
+    if not isinstance(built, PathScenario):
         raise ConfigError(
             "VectorConvoyEnv supports path scenarios (paper, track, emergency-braking, track-file)"
         )
-    if scenario.n_vehicles < 2:
+    if built.n_vehicles < 2:
         raise ConfigError("a convoy needs a leader and at least one follower")
-    if any(p.ranging for p in scenario.presets[1:]):
+    if any(p.ranging for p in built.presets[1:]):
         raise ConfigError("VectorConvoyEnv does not model ranging sensors yet (use ConvoyEnv)")
-    return scenario
+    return built
 
 
 class VectorConvoyEnv:
@@ -170,7 +169,7 @@ class VectorConvoyEnv:
         )
         self.rx = RxBuffers(B, self.L, mc.k, mc.trail_spacing_m)
         self._seed_seqs: list[np.random.SeedSequence | None] = [None] * B
-        self.t = np.zeros(B)
+        self.t: np.ndarray = np.zeros(B)
         self.step_count = np.zeros(B, dtype=np.int64)
         self._alloc()
 
@@ -256,7 +255,7 @@ class VectorConvoyEnv:
 
     def _reset_convoys(self, which: np.ndarray, seeds: Sequence[int | None]) -> None:
         # Per-convoy seeding: a loop over the convoys being reset (episode starts only).
-        for b in np.flatnonzero(which):
+        for b in np.flatnonzero(which).tolist():
             s = seeds[b]
             if s is not None:
                 self._seed_seqs[b] = np.random.SeedSequence(s)
@@ -302,7 +301,7 @@ class VectorConvoyEnv:
         rewards = np.empty((B, N - 1))
         reward(self.gap, self.desired_gap, accel_old, own, self.collided, 1.0 / self.dt,
                self._reward_c, rewards)  # fmt: skip
-        terminated = self.collided.any(axis=1)
+        terminated = np.asarray(self.collided.any(axis=1))
         truncated = (self.step_count >= self.max_steps) & ~terminated
         info = infos(self)
         done = terminated | truncated
@@ -344,7 +343,7 @@ class VectorConvoyEnv:
         own, lk, rx = self.own, self.links, self.rx
         self.channel.transmit(self.t, self.step_count, own, which, rx)
         observe(
-            obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.hint,
+            obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.hint, rx.hint_k,
             lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
             self._spacing, self.member_config.ladder.stop_after_s,
             self.member_config.fresh_age_s, self._geom, self.desired_gap, self.spacing_error,

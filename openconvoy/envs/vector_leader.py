@@ -35,7 +35,11 @@ def _emergency_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.where(t < EMERGENCY_BRAKE_AT_S, EMERGENCY_SPEED_MPS, braking)
 
 
-_ARRAY_PROFILES = {paper_speed: _paper_speed, emergency_speed: _emergency_speed}
+ArrayProfile = Callable[[np.ndarray, np.ndarray], np.ndarray]
+_ARRAY_PROFILES: dict[Callable[[float, float], float], ArrayProfile] = {
+    paper_speed: _paper_speed,
+    emergency_speed: _emergency_speed,
+}
 
 
 class LeaderDriver:
@@ -52,7 +56,7 @@ class LeaderDriver:
                     "VectorConvoyEnv: the scenario's speed profile must return a number"
                 )
             profile = lambda t, s: np.vectorize(prof, otypes=[float])(t, s)  # noqa: E731
-        self.profile: Callable[[np.ndarray, np.ndarray], np.ndarray] = profile
+        self.profile: ArrayProfile = profile
         self.closed = bool(path.closed)
         self.length = float(path.length)
         self.seg = np.concatenate([path._a, path._seg_dir, path._seg_len[:, None]], axis=1)

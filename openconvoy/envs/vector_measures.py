@@ -10,6 +10,7 @@ import numpy as np
 
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_trail import norm
 
 
 def pack_reward(c: RewardConfig) -> np.ndarray:
@@ -25,7 +26,7 @@ def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
     """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions."""
     for b in range(gap.shape[0]):
         for f in range(gap.shape[1]):
-            g = math.hypot(own[0, b, f] - own[0, b, f + 1], own[1, b, f] - own[1, b, f + 1])
+            g = norm(own[0, b, f] - own[0, b, f + 1], own[1, b, f] - own[1, b, f + 1])
             gap[b, f] = g
             collided[b, f] = g < half_sum[f]
 

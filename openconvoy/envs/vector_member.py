@@ -17,6 +17,7 @@ import numpy as np
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_trail import norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
@@ -58,7 +59,7 @@ def link_age(hist, hist_n, b, ln, t):  # pragma: no cover - compiled
     """Age (s) of link ``ln``'s newest state at ``t``; inf when none."""
     if hist_n[b, ln] == 0:
         return np.inf
-    return max(0.0, t - hist[0, b, ln, 0])
+    return max(0.0, t - hist[b, ln, 0, 0])
 
 
 @kernel
@@ -67,8 +68,8 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
     (valid, x m, y m, speed m/s, heading rad, age s). Fresh: dead-reckoned at its speed;
     stale: braking at its limit since the message."""
     li = ln if ln >= 0 else 0
-    lt, lx, ly = hist[0, b, li, 0], hist[1, b, li, 0], hist[2, b, li, 0]
-    lv, lh = hist[3, b, li, 0], hist[4, b, li, 0]
+    lt, lx, ly = hist[b, li, 0, 0], hist[b, li, 0, 1], hist[b, li, 0, 2]
+    lv, lh = hist[b, li, 0, 3], hist[b, li, 0, 4]
     age = max(t - lt, 0.0)
     valid = ln >= 0 and hist_n[b, li] > 0 and not age > stop_after
     if age <= fresh_age:
@@ -100,8 +101,8 @@ def decide(
                 errors[b, i] += 1
                 failed[b, i] = True
                 a0, a1 = np.float32(0.0), np.float32(0.0)
-            v = np.float64(np.float32(min(max(np.float64(a0), low[f, 0]), high[f, 0])))
-            dh = np.float64(np.float32(min(max(np.float64(a1), low[f, 1]), high[f, 1])))
+            v = float(np.float32(min(max(np.float64(a0), low[f, 0]), high[f, 0])))
+            dh = float(np.float32(min(max(np.float64(a1), low[f, 1]), high[f, 1])))
             mode = COOP
             if lad[0] != 0.0:
                 age = 0.0
@@ -132,8 +133,8 @@ def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # prag
             ego_v = own[2, b, i]
             target = pair_gap(sp, ego_v, lengths[i], lengths[i - 1]) + lad[3] * max(ego_v, 0.0)
             acc_v = max(0.0, ego_v + est_closing + lad[4] * (est_gap - target))
-            v = np.float64(np.float32(min(v, acc_v)))
-            dh = np.float64(np.float32(min(max(dh, -max_dh), max_dh)))
+            v = float(np.float32(min(v, acc_v)))
+            dh = float(np.float32(min(max(dh, -max_dh), max_dh)))
     if mode == STOP:
         v, dh = 0.0, 0.0
     return v, dh, mode
@@ -149,7 +150,7 @@ def _fires(
         return False
     ox, oy, ov, oh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
     dx, dy = ex - ox, ey - oy
-    gap = math.hypot(dx, dy)
+    gap = norm(dx, dy)
     vx = ov * math.cos(oh) - es * math.cos(eh)
     vy = ov * math.sin(oh) - es * math.sin(eh)
     if gap <= 0.0:

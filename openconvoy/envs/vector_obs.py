@@ -31,8 +31,14 @@ def pack_layout(lay: ObservationLayout) -> np.ndarray:
 
 @kernel
 def wrap(a):  # pragma: no cover - compiled
-    """An angle (rad) into [-π, π)."""
-    return (a + math.pi) % TWO_PI - math.pi
+    """An angle (rad) into [-π, π): ``np.remainder(a + π, 2π) - π``, the same rounding
+    (fmod is exact; without a wrap, or one turn below, there is nothing to divide)."""
+    x = a + math.pi
+    if 0.0 <= x < TWO_PI:
+        return x - math.pi
+    if -TWO_PI <= x < 0.0:
+        return (x + TWO_PI) - math.pi
+    return x % TWO_PI - math.pi
 
 
 @kernel
@@ -47,13 +53,13 @@ def _slots(obs, b, f, t, own, hist, hist_n, slot_link, geom):  # pragma: no cove
             continue
         for j in range(hist_n[b, link]):
             o = k * geom[1] + j * 7
-            dx, dy = hist[1, b, link, j] - ex, hist[2, b, link, j] - ey
+            dx, dy = hist[b, link, j, 1] - ex, hist[b, link, j, 2] - ey
             obs[b, f, o] = c * dx + s * dy
             obs[b, f, o + 1] = c * dy - s * dx
-            obs[b, f, o + 2] = wrap(hist[4, b, link, j] - eh)
-            obs[b, f, o + 3] = hist[3, b, link, j]
-            obs[b, f, o + 4] = hist[5, b, link, j]
-            obs[b, f, o + 5] = min(max(t - hist[0, b, link, j], 0.0), MAX_AGE_S)
+            obs[b, f, o + 2] = wrap(hist[b, link, j, 4] - eh)
+            obs[b, f, o + 3] = hist[b, link, j, 3]
+            obs[b, f, o + 4] = hist[b, link, j, 5]
+            obs[b, f, o + 5] = min(max(t - hist[b, link, j, 0], 0.0), MAX_AGE_S)
             obs[b, f, o + 6] = 1.0
 
 
@@ -75,7 +81,7 @@ def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
 
 @kernel
 def _path(
-    obs, b, f, own, trail, trail_n, link, hx, hy, hh, cross, pheading, ps, o
+    obs, b, f, own, trail, trail_n, link, hx, hy, hh, cross, pheading, ps, o, guess
 ):  # pragma: no cover
     """The path features: cross track, heading error, lookahead points in the ego frame."""
     i = f + 1
@@ -85,7 +91,7 @@ def _path(
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
     for j in range(len(LOOKAHEAD)):
-        px, py = point_at(trail, trail_n, b, link, hx, hy, hh, ps + LOOKAHEAD[j] * scale)
+        px, py = point_at(trail, trail_n, b, link, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess)
         dx, dy = px - ex, py - ey
         obs[b, f, o + 2 + 2 * j] = c * dx + s * dy
         obs[b, f, o + 3 + 2 * j] = -s * dx + c * dy
@@ -94,15 +100,15 @@ def _path(
 
 @kernel
 def observe(
-    obs, rows, t, own, hist, hist_n, trail, trail_n, hint, slot_link, target_link, pred_link,
+    obs, rows, t, own, hist, hist_n, trail, trail_n, hint, hint_k, slot_link, target_link, pred_link,
     link_decel, lengths, sp, stop_after, fresh_age, geom, desired_gap, spacing_error,
     pred_age, pred_est,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Fill ``obs`` (B, F, D) float32 for convoys ``rows`` and the spacing measures."""
     B, F = obs.shape[0], obs.shape[1]
     ntg = geom[5]
-    # Per target: valid, x, y, speed, heading, arc, cross, path heading, s, desired.
-    tg = np.zeros((10, ntg))
+    # Per target: valid, x, y, speed, heading, arc, cross, path heading, s, desired, segment.
+    tg = np.zeros((11, ntg))
     for b in range(B):
         if not rows[b]:
             continue
@@ -117,7 +123,7 @@ def observe(
             desired_gap[b, i] = pair_gap(sp, ev, lengths[i], lengths[i - 1])
             age = link_age(hist, hist_n, b, pred_link[f], tb) if pred_link[f] >= 0 else np.inf
             pred_age[b, i] = np.nan if math.isinf(age) else age
-            chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, trail_n, hint,
+            chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, trail_n, hint, hint_k,
                               target_link, link_decel, lengths, sp, stop_after, fresh_age,
                               geom, F)  # fmt: skip
             spacing_error[b, i] = np.nan
@@ -130,12 +136,12 @@ def observe(
                 pred_est[0, b, i], pred_est[1, b, i] = tg[5, 1], tg[3, 1] - ev
             _path(obs, b, f, own, trail, trail_n, target_link[f, chosen], tg[1, chosen],
                   tg[2, chosen], tg[4, chosen], tg[6, chosen], tg[7, chosen], tg[8, chosen],
-                  geom[4])  # fmt: skip
+                  geom[4], int(tg[10, chosen]) + 1)  # fmt: skip
 
 
 @kernel
 def _targets(
-    obs, tg, b, f, t, own, hist, hist_n, trail, trail_n, hint, target_link, link_decel,
+    obs, tg, b, f, t, own, hist, hist_n, trail, trail_n, hint, hint_k, target_link, link_decel,
     lengths, sp, stop_after, fresh_age, geom, F,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Estimate and project every target of follower ``f + 1`` (results in ``tg``), write
@@ -155,15 +161,15 @@ def _targets(
             continue
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
         desired = _desired(f, m, ev, sp, lengths, F)
-        arc, cross, pheading, s = project(
-            trail, trail_n, b, link, hx, hy, hh, ex, ey, desired, hint[b, link]
+        arc, cross, pheading, s, k = project(
+            trail, trail_n, b, link, hx, hy, hh, ex, ey, desired, hint[b, link], hint_k[b, link]
         )
-        hint[b, link] = s
+        hint[b, link], hint_k[b, link] = s, max(k, 0)
         tg[5, m], tg[6, m], tg[7, m], tg[8, m] = arc, cross, pheading, s
         o = geom[3] + m * 5
         obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = arc, desired, arc - desired
         obs[b, f, o + 3], obs[b, f, o + 4] = hv, 1.0
-        tg[9, m] = desired
+        tg[9, m], tg[10, m] = desired, max(k, 0)
         if m >= 1 and chosen < 0:
             chosen = m
     if chosen < 0 and tg[0, 0] != 0.0:

@@ -32,8 +32,8 @@ from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import DRAW_LOSS
 from openconvoy.envs.vector_jit import kernel
 from openconvoy.envs.vector_links import LinkTables
+from openconvoy.envs.vector_math import norm
 from openconvoy.envs.vector_rx import RxBuffers, push_one
-from openconvoy.envs.vector_trail import norm
 
 _G, _K1, _K2 = np.uint64(_GOLDEN), np.uint64(_M1), np.uint64(_M2)
 _S11, _S27, _S30, _S31 = np.uint64(11), np.uint64(27), np.uint64(30), np.uint64(31)

@@ -24,7 +24,6 @@ latency jitter, traffic scenarios.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -220,6 +219,10 @@ class VectorConvoyEnv:
         self.pred_age = np.full((B, N), np.nan)
         self.pred_est = np.full((2, B, N), np.nan)  # arc to head, closing
         self._has_cmd = np.zeros(B, dtype=bool)
+        self._own = self.plant.state.reshape(6, B, N)  # views, for the kernels
+        self._cmd_v_flat, self._cmd_dh_flat = self.cmd_v.reshape(-1), self.cmd_dh.reshape(-1)
+        self._everyone = np.ones(B, dtype=bool)
+        self._fresh_age_s = self.member_config.fresh_age_s
         self.gap = np.zeros((B, N - 1))
         self.collided = np.zeros((B, N - 1), dtype=bool)
 
@@ -228,7 +231,7 @@ class VectorConvoyEnv:
     @property
     def own(self) -> np.ndarray:
         """The plant state (6, B, N): x, y, speed, heading, accel, yaw rate (a view)."""
-        return self.plant.state.reshape(6, self.num_envs, self.n_vehicles)
+        return self._own
 
     @property
     def own_truth(self) -> tuple[np.ndarray, ...]:
@@ -293,9 +296,8 @@ class VectorConvoyEnv:
         accel_old = self._command(a)
         self.step_count += 1
         self.t = self.step_count * self.dt
-        everyone = np.ones(B, dtype=bool)
         obs = np.empty((B, N - 1, self.layout.size), dtype=np.float32)
-        self._tick(everyone, obs)
+        self._tick(self._everyone, obs)
         own = self.own
         measure(own, self._half_sum, self.gap, self.collided)
         rewards = np.empty((B, N - 1))
@@ -319,14 +321,11 @@ class VectorConvoyEnv:
         decide(
             a, self.action_low, self.action_high, t, own, rx.hist, rx.hist_n, lk.needed,
             lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
-            self.member_config.fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
+            self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
             self._rule, self.cmd_v, self.cmd_dh, self.modes,
         )  # fmt: skip
-        x, y, v, h = own[0], own[1], own[2], own[3]
-        v0, h0 = self.leader.command(t, x[:, 0], y[:, 0], v[:, 0])
-        self.cmd_v[:, 0] = v0
-        self.cmd_dh[:, 0] = np.remainder(h0 - h[:, 0] + math.pi, 2.0 * math.pi) - math.pi
+        self.leader.command(t, own, self.cmd_v, self.cmd_dh)
         for vehicle, t_from in self._brakes:
             on = t >= t_from
             self.cmd_v[on, vehicle] = 0.0
@@ -334,7 +333,7 @@ class VectorConvoyEnv:
             self.modes[on, vehicle] = STOP
         self._has_cmd[:] = True
         accel_old = own[4].copy()
-        self.plant.step(self.cmd_v.ravel(), (h + self.cmd_dh).ravel())
+        self.plant.step(self._cmd_v_flat, self._cmd_dh_flat)
         return accel_old
 
     def _tick(self, which: np.ndarray, obs: np.ndarray) -> None:
@@ -346,6 +345,6 @@ class VectorConvoyEnv:
             obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.hint, rx.hint_k,
             lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
             self._spacing, self.member_config.ladder.stop_after_s,
-            self.member_config.fresh_age_s, self._geom, self.desired_gap, self.spacing_error,
+            self._fresh_age_s, self._geom, self.desired_gap, self.spacing_error,
             self.pred_age, self.pred_est,
         )  # fmt: skip

@@ -19,6 +19,7 @@ from openconvoy.envs.scenarios import (
     paper_speed,
 )
 from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_math import wrap
 
 WINDOW_M = 20.0
 """``Path.project``'s search window around the last arc length (m)."""
@@ -57,6 +58,9 @@ class LeaderDriver:
                 )
             profile = lambda t, s: np.vectorize(prof, otypes=[float])(t, s)  # noqa: E731
         self.profile: ArrayProfile = profile
+        # The built-in profiles run in the kernel (1 paper, 2 emergency braking); 0: numpy.
+        self.kind = {_paper_speed: 1, _emergency_speed: 2}.get(profile, 0)
+        self.target = np.zeros(num_envs)
         self.closed = bool(path.closed)
         self.length = float(path.length)
         self.seg = np.concatenate([path._a, path._seg_dir, path._seg_len[:, None]], axis=1)
@@ -75,15 +79,15 @@ class LeaderDriver:
         self.t_last[which] = np.nan
 
     def command(
-        self, t: np.ndarray, x: np.ndarray, y: np.ndarray, speed: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Setpoints (speed m/s, absolute heading rad) of every leader at ``t`` (B,)."""
-        _project(x, y, self.s, self.seg, self.seg_s, self.closed, self.length)
-        target = np.asarray(self.profile(t, self.s), dtype=float) * np.ones_like(t)
-        heading = np.empty_like(t)
-        _drive(t, x, y, speed, self.s, target, self.cmd, self.t_last, self.params, self.seg,
-               self.seg_s, self.closed, self.length, heading)  # fmt: skip
-        return self.cmd.copy(), heading
+        self, t: np.ndarray, own: np.ndarray, cmd_v: np.ndarray, cmd_dh: np.ndarray
+    ) -> None:
+        """The leaders' setpoints at ``t`` (B,) from their states ``own[:, :, 0]``: speed
+        (m/s) into ``cmd_v[:, 0]``, heading change (rad) into ``cmd_dh[:, 0]``."""
+        _project(own, self.s, self.seg, self.seg_s, self.closed, self.length)
+        if self.kind == 0:
+            self.target[:] = self.profile(t, self.s)
+        _drive(t, own, self.s, self.kind, self.target, self.cmd, self.t_last, self.params,
+               self.seg, self.seg_s, self.closed, self.length, cmd_v, cmd_dh)  # fmt: skip
 
 
 @kernel
@@ -93,9 +97,10 @@ def _segment(seg_s, n, s):  # pragma: no cover - compiled
 
 
 @kernel
-def _project(x, y, s_arr, seg, seg_s, closed, length):  # pragma: no cover - compiled
+def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - compiled
     """``Path.project`` of each leader near its last arc length; updates ``s_arr``."""
     n = seg.shape[0]
+    x, y = own[0, :, 0], own[1, :, 0]
     for b in range(len(x)):
         if n == 1:
             u = (x[b] - seg[0, 0]) * seg[0, 2] + (y[b] - seg[0, 1]) * seg[0, 3]
@@ -123,25 +128,38 @@ def _project(x, y, s_arr, seg, seg_s, closed, length):  # pragma: no cover - com
 
 
 @kernel
+def _profile(kind, t, s, target):  # pragma: no cover - compiled
+    """The built-in speed profiles (``scenarios.paper_speed``, ``emergency_speed``)."""
+    if kind == 1:
+        return 2.0 if 20.0 <= t < 40.0 else 1.0
+    if kind == 2:
+        if t < EMERGENCY_BRAKE_AT_S:
+            return EMERGENCY_SPEED_MPS
+        return max(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
+    return target
+
+
+@kernel
 def _drive(
-    t, x, y, speed, s_arr, target, cmd, t_last, p, seg, seg_s, closed, length, heading
+    t, own, s_arr, kind, target, cmd, t_last, p, seg, seg_s, closed, length, cmd_v, cmd_dh
 ):  # pragma: no cover - compiled
-    """The speed ramp towards ``target`` and pure pursuit one look-ahead ahead."""
+    """The speed ramp towards the profile and pure pursuit one look-ahead ahead."""
     n = seg.shape[0]
     for b in range(len(t)):
         s = s_arr[b]
-        tgt = target[b]
+        tgt = _profile(kind, t[b], s, target[b])
         if not closed:  # stop at the end of an open road, braking at the leader's limit
             tgt = min(tgt, math.sqrt(2.0 * p[1] * max(length - s, 0.0)))
         dt = 0.0 if math.isnan(t_last[b]) else max(t[b] - t_last[b], 0.0)
         t_last[b] = t[b]
         if dt > 0.0:
             cmd[b] = cmd[b] + min(max(tgt - cmd[b], -p[1] * dt), p[0] * dt)
-        look = max(p[2], p[3] * max(speed[b], 0.0))
+        look = max(p[2], p[3] * max(own[2, b, 0], 0.0))
         ahead = (s + look) % length if closed else s + look
         if closed:
             ahead = ahead % length
         i = _segment(seg_s, n, ahead)
         u = ahead - seg_s[i]
         tx, ty = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
-        heading[b] = math.atan2(ty - y[b], tx - x[b])
+        cmd_v[b, 0] = cmd[b]
+        cmd_dh[b, 0] = wrap(math.atan2(ty - own[1, b, 0], tx - own[0, b, 0]) - own[3, b, 0])

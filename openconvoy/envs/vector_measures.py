@@ -10,7 +10,7 @@ import numpy as np
 
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.vector_jit import kernel
-from openconvoy.envs.vector_trail import norm
+from openconvoy.envs.vector_math import norm
 
 
 def pack_reward(c: RewardConfig) -> np.ndarray:
@@ -46,28 +46,46 @@ def reward(gap, desired, accel_old, own, collided, inv_dt, c, out):  # pragma: n
             out[b, f] = -(c[4] * e + c[5] * a * a + c[6] * j * j + c[7] * w * w + pen)
 
 
+FLOAT_KEYS = (
+    "gap_m", "desired_gap_m", "platooning_error_m", "spacing_error_m", "speed_mps",
+    "accel_mps2", "cmd_speed_mps", "cmd_heading_change_rad", "pred_msg_age_s",
+)  # fmt: skip
+INT_KEYS = ("mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+
+
 def infos(env: Any) -> dict[str, np.ndarray]:
     """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus ``mode``
-    codes (``vector_env.MODES``), ``t_s`` (B,)."""
-    nan_cmd = ~env._has_cmd[:, None]
+    codes (``vector_env.MODES``); ``t_s`` and ``leader_speed_mps`` (B,)."""
+    B, F = env.gap.shape
+    fl = np.empty((len(FLOAT_KEYS), B, F))
+    it = np.empty((len(INT_KEYS), B, F), dtype=np.int64)
     ch = env.channel
-    return {
-        "t_s": env.t.copy(),
-        "gap_m": env.gap.copy(),
-        "desired_gap_m": env.desired_gap[:, 1:].copy(),
-        "platooning_error_m": np.abs(env.gap - env.desired_gap[:, 1:]),
-        "spacing_error_m": env.spacing_error[:, 1:].copy(),
-        "speed_mps": env.own[2][:, 1:].copy(),
-        "accel_mps2": env.own[4][:, 1:].copy(),
-        "leader_speed_mps": env.own[2][:, 0].copy(),
-        "cmd_speed_mps": np.where(nan_cmd, np.nan, env.cmd_v[:, 1:]),
-        "cmd_heading_change_rad": np.where(nan_cmd, np.nan, env.cmd_dh[:, 1:]),
-        "mode": env.modes[:, 1:].copy(),
-        "collision": env.collided.copy(),
-        "msgs_sent": ch.msgs_sent[:, 1:].copy(),
-        "msgs_received": ch.delivered_to[:, 1:].copy(),
-        "msgs_kept": ch.msgs_kept[:, 1:].copy(),
-        "msgs_lost": ch.lost_to[:, 1:].copy(),
-        "pred_msg_age_s": env.pred_age[:, 1:].copy(),
-        "policy_errors": env.policy_errors[:, 1:].copy(),
-    }
+    _fill(
+        env.gap, env.desired_gap, env.spacing_error, env.own, env.cmd_v, env.cmd_dh,
+        env._has_cmd, env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to, ch.msgs_kept,
+        ch.lost_to, env.policy_errors, fl, it,
+    )  # fmt: skip
+    out = dict(zip(FLOAT_KEYS, fl))
+    out.update(zip(INT_KEYS, it))
+    out["t_s"] = env.t.copy()
+    out["leader_speed_mps"] = env.own[2][:, 0].copy()
+    out["collision"] = env.collided.copy()
+    return out
+
+
+@kernel
+def _fill(
+    gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes, sent, received,
+    kept, lost, errors, fl, it,
+):  # pragma: no cover - compiled  # fmt: skip
+    for b in range(gap.shape[0]):
+        for f in range(gap.shape[1]):
+            i = f + 1
+            fl[0, b, f], fl[1, b, f] = gap[b, f], desired[b, i]
+            fl[2, b, f], fl[3, b, f] = abs(gap[b, f] - desired[b, i]), spacing_error[b, i]
+            fl[4, b, f], fl[5, b, f] = own[2, b, i], own[4, b, i]
+            fl[6, b, f] = cmd_v[b, i] if has_cmd[b] else np.nan
+            fl[7, b, f] = cmd_dh[b, i] if has_cmd[b] else np.nan
+            fl[8, b, f] = pred_age[b, i]
+            it[0, b, f], it[1, b, f], it[2, b, f] = modes[b, i], sent[b, i], received[b, i]
+            it[3, b, f], it[4, b, f], it[5, b, f] = kept[b, i], lost[b, i], errors[b, i]

@@ -17,7 +17,7 @@ import numpy as np
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector_jit import kernel
-from openconvoy.envs.vector_trail import norm
+from openconvoy.envs.vector_math import norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")

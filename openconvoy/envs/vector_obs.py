@@ -14,10 +14,10 @@ import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
 from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector_trail import point_at, project
 
-TWO_PI = 2.0 * math.pi
 LOOKAHEAD = np.array(LOOKAHEAD_S)
 
 
@@ -27,18 +27,6 @@ def pack_layout(lay: ObservationLayout) -> np.ndarray:
         [lay.k, lay.slot_size, lay.own_offset, lay.derived_offset, lay.path_offset,
          len(lay.targets)], dtype=np.int64,
     )  # fmt: skip
-
-
-@kernel
-def wrap(a):  # pragma: no cover - compiled
-    """An angle (rad) into [-π, π): ``np.remainder(a + π, 2π) - π``, the same rounding
-    (fmod is exact; without a wrap, or one turn below, there is nothing to divide)."""
-    x = a + math.pi
-    if 0.0 <= x < TWO_PI:
-        return x - math.pi
-    if -TWO_PI <= x < 0.0:
-        return (x + TWO_PI) - math.pi
-    return x % TWO_PI - math.pi
 
 
 @kernel

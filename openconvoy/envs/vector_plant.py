@@ -69,11 +69,12 @@ class VectorPlant:
         self.queue[0][:, rows] = v
         self.queue[1][:, rows] = st[HEADING, rows]
 
-    def step(self, cmd_speed: np.ndarray, cmd_heading: np.ndarray) -> None:
-        """Advance ``dt`` with setpoints (speed m/s, absolute heading rad), shape (n,)."""
+    def step(self, cmd_speed: np.ndarray, cmd_turn: np.ndarray) -> None:
+        """Advance ``dt`` with setpoints, shape (n,): speed (m/s) and heading as a change
+        from the present heading (rad; the setpoint is heading + change)."""
         _plant_step(
             self.state, self.inner, self.queue, self.head, self.params, self.pi, self.pi_sub,
-            self.delay, self.hdelay, cmd_speed, cmd_heading, self.dt,
+            self.delay, self.hdelay, cmd_speed, cmd_turn, self.dt,
         )  # fmt: skip
 
 
@@ -111,7 +112,7 @@ def _plant_step(
     two_pi = 2.0 * math.pi
     for i in range(st.shape[1]):
         queue[0, head, i] = cmd_v[i]
-        queue[1, head, i] = cmd_h[i]
+        queue[1, head, i] = st[HEADING, i] + cmd_h[i]
         vmax = p[VMAX, i]
         v_cmd = min(max(queue[0, (head - delay[i]) % depth, i], -vmax), vmax)
         h_cmd = queue[1, (head - hdelay[i]) % depth, i]

@@ -12,18 +12,12 @@ from __future__ import annotations
 import math
 
 from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_math import norm
 
 CAPACITY = 1024
 """Breadcrumbs per trail, as ``core.trail.Trail`` (the oldest half dropped when full)."""
 FAR_M = 1e4
 """Length of the straight extension behind the oldest breadcrumb (``Trail._vertex``)."""
-
-
-@kernel
-def norm(dx, dy):  # pragma: no cover - compiled
-    """Euclidean length of (dx, dy): sqrt(dx² + dy²) (within an ulp of ``math.hypot``,
-    a tenth of its cost; no overflow at vehicle distances)."""
-    return math.sqrt(dx * dx + dy * dy)
 
 
 @kernel

@@ -5,7 +5,6 @@ array function of time s and arc length m)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 
@@ -15,6 +14,7 @@ from openconvoy.envs.scenarios import (
     EMERGENCY_DECEL_MPS2,
     EMERGENCY_SPEED_MPS,
     PathScenario,
+    SpeedProfile,
     emergency_speed,
     paper_speed,
 )
@@ -25,22 +25,8 @@ WINDOW_M = 20.0
 """``Path.project``'s search window around the last arc length (m)."""
 
 
-def _paper_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    return np.where((t >= 20.0) & (t < 40.0), 2.0, 1.0)
-
-
-def _emergency_speed(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    braking = np.maximum(
-        0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S)
-    )
-    return np.where(t < EMERGENCY_BRAKE_AT_S, EMERGENCY_SPEED_MPS, braking)
-
-
-ArrayProfile = Callable[[np.ndarray, np.ndarray], np.ndarray]
-_ARRAY_PROFILES: dict[Callable[[float, float], float], ArrayProfile] = {
-    paper_speed: _paper_speed,
-    emergency_speed: _emergency_speed,
-}
+_KERNEL_PROFILES: dict[SpeedProfile, int] = {paper_speed: 1, emergency_speed: 2}
+"""Speed profiles the kernel computes itself (``_profile``); others are called per tick."""
 
 
 class LeaderDriver:
@@ -50,16 +36,10 @@ class LeaderDriver:
         self.sc = sc = scenario
         path = scenario.path
         prof = scenario.speed_profile
-        profile = _ARRAY_PROFILES.get(prof)
-        if profile is None:
-            if not isinstance(prof(0.0, 0.0), (int, float)):
-                raise ConfigError(
-                    "VectorConvoyEnv: the scenario's speed profile must return a number"
-                )
-            profile = lambda t, s: np.vectorize(prof, otypes=[float])(t, s)  # noqa: E731
-        self.profile: ArrayProfile = profile
-        # The built-in profiles run in the kernel (1 paper, 2 emergency braking); 0: numpy.
-        self.kind = {_paper_speed: 1, _emergency_speed: 2}.get(profile, 0)
+        self.kind = _KERNEL_PROFILES.get(prof, 0)
+        if self.kind == 0 and not isinstance(prof(0.0, 0.0), (int, float)):
+            raise ConfigError("VectorConvoyEnv: the scenario's speed profile must return a number")
+        self.profile = np.vectorize(prof, otypes=[float])
         self.target = np.zeros(num_envs)
         self.closed = bool(path.closed)
         self.length = float(path.length)

@@ -144,22 +144,29 @@ class ExperimentConfig:
         if isinstance(seeds, int):  # ``seeds = 3`` means seeds 0, 1, 2
             seeds = tuple(range(seeds))
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
+        seeds = self.seed_values
         if not self.policies:
             raise ConfigError("an experiment needs at least one policy")
         if len(set(self.policies)) != len(self.policies):
             raise ConfigError(f"policies repeat: {', '.join(self.policies)}")
-        if not self.pers or not self.seeds:
+        if not self.pers or not seeds:
             raise ConfigError("an experiment needs at least one PER and one seed")
         for p in self.pers:
             if not 0.0 <= p <= 1.0:
                 raise ConfigError(f"PER must be in [0, 1], got {p}")
-        if len(set(self.pers)) != len(self.pers) or len(set(self.seeds)) != len(self.seeds):
+        if len(set(self.pers)) != len(self.pers) or len(set(seeds)) != len(seeds):
             raise ConfigError("PERs and seeds must not repeat")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration_s must be positive, got {self.duration_s}")
         for name, table in self.policy.items():
             if not isinstance(table, dict):
                 raise ConfigError(f"[policy.{name}] must be a table")
+
+    @property
+    def seed_values(self) -> tuple[int, ...]:
+        """The seeds as a tuple (``seeds = N`` in a file, 0..N-1, is one once built)."""
+        assert isinstance(self.seeds, tuple)
+        return self.seeds
 
     # --- TOML ----------------------------------------------------------------------------
 
@@ -213,7 +220,7 @@ class ExperimentConfig:
         out = []
         for label in self.policies:
             for per in self.pers:
-                for seed in self.seeds:
+                for seed in self.seed_values:
                     out.append(
                         (
                             label,
@@ -368,16 +375,11 @@ def run_experiment(
     ``raise_on_failure``, the result lists them)."""
     config = freeze(config)
     _check_policies(config)
+    chosen, batched = _executor(config, executor, jobs)  # Ray: reached before any write
     out = _start_run_dir(config, Path(out_dir))
     planned = config.run_configs(write_inline_policies(config, out))
     dirs = [run_dirname(label, rc) for label, rc in planned]
-    series = [rc.seed == config.seeds[0] for _, rc in planned]
-    chosen = (
-        executor if isinstance(executor, Executor) else _executor_config(config, executor, jobs)
-    )
-    batched = chosen.batched if isinstance(chosen, ExecutorConfig) else config.executor.batched
-    if isinstance(chosen, ExecutorConfig) and chosen.kind == "ray":
-        chosen = make_executor(chosen)
+    series = [rc.seed == config.seed_values[0] for _, rc in planned]
     slots = chosen.slots if isinstance(chosen, Executor) else chosen.jobs or available_cores()
     tasks = batched_sweep.plan(planned, dirs, series, slots, batched, run_logs)
     if say is None and progress:
@@ -404,13 +406,17 @@ def _check_policies(config: ExperimentConfig) -> None:
             classical_config(label)
 
 
-def _executor_config(
-    config: ExperimentConfig, executor: ExecutorConfig | None, jobs: int | None
-) -> ExecutorConfig:
+def _executor(
+    config: ExperimentConfig, executor: ExecutorConfig | Executor | None, jobs: int | None
+) -> tuple[ExecutorConfig | Executor, bool | None]:
+    """The executor (Ray's made now; local processes once the tasks are known) and the
+    ``batched`` setting."""
+    if isinstance(executor, Executor):
+        return executor, config.executor.batched
     chosen = executor or config.executor
     if jobs is not None and chosen.jobs is None:
         chosen = dataclasses.replace(chosen, jobs=jobs)
-    return chosen
+    return (make_executor(chosen) if chosen.kind == "ray" else chosen), chosen.batched
 
 
 def _stderr_line(line: str) -> None:

@@ -31,9 +31,9 @@ def round6(values: np.ndarray) -> np.ndarray:
     scaled value is not within ``_NEAR_HALF`` of a half; those few, and magnitudes
     beyond ``_EXACT_BELOW``, go through Python's ``round``."""
     v = np.asarray(values, dtype=np.float64)
-    scaled = v * 1e6
-    out = np.rint(scaled) / 1e6
-    with np.errstate(invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):  # the huge ones go through round()
+        scaled = v * 1e6
+        out = np.rint(scaled) / 1e6
         near_half = np.abs(scaled - np.floor(scaled) - 0.5) < _NEAR_HALF
         odd = near_half | ~(np.abs(v) < _EXACT_BELOW)
     odd &= np.isfinite(v)

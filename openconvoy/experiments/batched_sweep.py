@@ -28,19 +28,20 @@ MAX_BATCH_CELLS = 2_000_000
 many 8-byte values (the paper scenario: 555 convoys, 256 MB)."""
 
 
-def run_one(args: tuple[RunConfig, Files, bool]) -> dict[str, Any]:
-    """Task: one run in a temporary directory of its worker; returns its files as bytes,
-    its metrics and (``keep_series``) the figure series. The driver writes the files."""
+def run_one(args: tuple[RunConfig, Files, bool, bool]) -> dict[str, Any]:
+    """Task: one run in a temporary directory of its worker; returns its files as bytes
+    (``logs``: with its ``log.csv``), its metrics and (``keep_series``) the figure series.
+    The driver writes the files."""
     from openconvoy.experiments.sweep import run_series
 
-    config, files, keep_series = args
+    config, files, keep_series, logs = args
     with tempfile.TemporaryDirectory(prefix="openconvoy-run-") as tmp:
         where = portable.land(files, tmp)
         out = Path(tmp) / "run"
         with portable.driver_names(where):
             result = run_sim(portable.relocate_run(config, where), out)
         return {
-            "files": {name: (out / name).read_bytes() for name in RUN_FILES},
+            "files": {name: (out / name).read_bytes() for name in RUN_FILES[1 - logs :]},
             "metrics": result.metrics,
             "series": run_series(result.log, result.lengths) if keep_series else None,
         }
@@ -93,7 +94,7 @@ def plan(
         for i in range(first, first + n):
             rc = planned[i][1]
             out.tasks.append(
-                Task(dirs[i], run_one, (rc, portable.ship(portable.run_specs(rc)), series[i]))
+                Task(dirs[i], run_one, (rc, portable.ship(portable.run_specs(rc)), series[i], logs))
             )
             out.spans.append((i, 1))
     return out

@@ -28,9 +28,12 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from openconvoy.bridge.link import Autopilot
 
 ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
 READY_AFTER_S = 3.0
@@ -49,7 +52,7 @@ class DemoOptions:
 
     policy: str = "paper"
     per: float = 0.0
-    autopilot: str = "ardupilot"
+    autopilot: Autopilot = "ardupilot"
     duration_s: float | None = None
     out: str | None = None
     json: bool = False

@@ -22,7 +22,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -43,7 +43,7 @@ class DeployArgs:
     mavlink: str
     iface: str
     per: float = 0.0
-    drop_at: str = "receiver"
+    drop_at: Literal["receiver", "sender"] = "receiver"
     log: str | None = None
     rate: float | None = None
     dry_run: bool = False
@@ -171,7 +171,7 @@ def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int) -> Any:
 def run_deploy(a: DeployArgs) -> int:
     """Build, install signal handlers, run; the exit status (0 after a clean stop)."""
     runner = build_runner(a)
-    previous: dict[int, Any] = {}
+    previous: dict[signal.Signals, Any] = {}
 
     def on_signal(signum: int, frame: Any) -> None:
         runner.request_stop(signal.Signals(signum).name)

@@ -186,7 +186,7 @@ def replay(
 def _receive(gcs: Any, sock: socket.socket, keep_ids: set[int] | None) -> list[Any]:
     """Every datagram waiting on the recorder's socket (one MAVLink 2 message each, as
     pymavlink sends them), decoded by pymavlink when its id is wanted."""
-    out = []
+    out: list[Any] = []
     while True:
         try:
             data, _ = sock.recvfrom(65535)

@@ -125,10 +125,10 @@ def verify_datagram(data: bytes, t_rx: float, auth: Authenticator, tally: Tally)
             return f"REJECTED malformed: {sender}"
         msg_cnt = j.decode_frame(spdu.payload).core.msg_cnt
         line = described
-    reason = auth.admit(spdu, t_rx, msg_cnt)
-    if reason is not None:
-        tally.reject(sender, reason)
-        return f"REJECTED {reason}: {sender}"
+    refused = auth.admit(spdu, t_rx, msg_cnt)
+    if refused is not None:
+        tally.reject(sender, refused)
+        return f"REJECTED {refused}: {sender}"
     tally.accept(sender)
     return f"[{cert.name}] {line}"
 

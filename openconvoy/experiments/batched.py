@@ -90,7 +90,7 @@ def _vector_env(configs: Sequence[RunConfig], env: Any) -> Any:
         len(configs),
         env.scenario,
         member_config=env.member_config,
-        loss=[rc.loss for rc in configs],
+        loss=[rc.loss_config for rc in configs],
         control_rate_hz=env.control_rate_hz,
         gps_noise_m=env.gps_noise_m,
         max_time_s=env.max_time_s,

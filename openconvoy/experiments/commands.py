@@ -53,7 +53,7 @@ def format_metrics(metrics: dict[str, Any]) -> str:
 
 def run_config_from_args(args: argparse.Namespace) -> Any:
     """The RunConfig that ``openconvoy sim``'s arguments describe."""
-    from openconvoy.experiments.runs import RunConfig
+    from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
@@ -72,17 +72,21 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario=scenario or "paper",
         policy=args.policy,
         per=args.per,
-        loss_model=args.loss,
-        mean_burst_s=args.burst if args.burst is not None else 1.0,
-        latency_s=args.latency,
-        jitter_s=args.jitter,
         seed=args.seed,
         duration_s=args.duration,
-        n_followers=args.followers,
-        vehicles=vehicles,
-        ranging=args.ranging,
-        ranging_max_range_m=args.ranging_range,
-        gps_noise_m=args.gps_noise,
+        convoy=ConvoySection(
+            vehicles=vehicles,
+            n_followers=args.followers,
+            ranging=args.ranging,
+            ranging_max_range_m=args.ranging_range,
+            gps_noise_m=args.gps_noise,
+        ),
+        loss=LossSection(
+            model=args.loss,
+            mean_burst_s=args.burst if args.burst is not None else 1.0,
+            latency_s=args.latency,
+            jitter_s=args.jitter,
+        ),
         origin=origin,
         faults=tuple(getattr(args, "fault", None) or ()),
         auth=auth or "required",

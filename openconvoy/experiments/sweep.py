@@ -72,44 +72,12 @@ from openconvoy.experiments.executor import (
     make_executor,
 )
 from openconvoy.experiments.executor import available_cores as available_cores  # re-export
-from openconvoy.experiments.runs import RunConfig, write_json
+from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig, write_json
 from openconvoy.policies.spec import LADDER_SUFFIX as LADDER_SUFFIX  # re-export
 from openconvoy.policies.spec import PolicySpec
 
 DEFAULT_PERS: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
 STATS = ("mean", "std", "min", "max")
-
-
-@dataclass(frozen=True)
-class ConvoySection:
-    """The convoy of an experiment: presets (leader first), size, ranging, GPS noise (m)."""
-
-    vehicles: tuple[str, ...] = ()
-    n_followers: Annotated[int, Range(1, 1000)] | None = None
-    ranging: bool = False
-    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
-    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "vehicles", tuple(self.vehicles))
-
-
-@dataclass(frozen=True)
-class LossSection:
-    """The link model of every run; the PER comes from the sweep (s for times)."""
-
-    model: str = "bernoulli"
-    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
-    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
-    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
-
-    def __post_init__(self) -> None:
-        if self.model not in ("bernoulli", "gilbert-elliott"):
-            raise ConfigError(
-                f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
-            )
-        if self.mean_burst_s <= 0:
-            raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
 
 
 @dataclass(frozen=True)
@@ -228,17 +196,10 @@ class ExperimentConfig:
                                 scenario=self.scenario,
                                 policy=specs[label],
                                 per=per,
-                                loss_model=self.loss.model,
-                                mean_burst_s=self.loss.mean_burst_s,
-                                latency_s=self.loss.latency_s,
-                                jitter_s=self.loss.jitter_s,
                                 seed=seed,
                                 duration_s=self.duration_s,
-                                n_followers=self.convoy.n_followers,
-                                vehicles=self.convoy.vehicles,
-                                ranging=self.convoy.ranging,
-                                ranging_max_range_m=self.convoy.ranging_max_range_m,
-                                gps_noise_m=self.convoy.gps_noise_m,
+                                convoy=self.convoy,
+                                loss=self.loss,
                             ),
                         )
                     )

@@ -12,7 +12,7 @@ from openconvoy.cli import main
 from openconvoy.experiments import batched_sweep
 from openconvoy.experiments.batched import refusal
 from openconvoy.experiments.executor import ExecutorConfig, TaskFailure
-from openconvoy.experiments.runs import RunConfig
+from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
 from openconvoy.experiments.sweep import ExperimentConfig, read_summary, run_experiment
 from openconvoy.policies.spec import classical_config
 from openconvoy.train.tune import TuneConfig, grid_batched, grid_evaluator, with_values
@@ -81,9 +81,11 @@ def test_a_tune_trials_objective_is_the_same_on_both_paths(tmp_path: Path):
 def test_what_the_batched_env_refuses_runs_per_run_in_one_line(tmp_path: Path):
     run = RunConfig(policy="paper", per=0.2, duration_s=2.0)
     assert refusal(run) is None
-    assert "gps_noise_m" in refusal(dataclasses.replace(run, gps_noise_m=0.2))
-    assert "jitter" in refusal(dataclasses.replace(run, latency_s=0.1, jitter_s=0.05))
-    assert "ranging" in refusal(dataclasses.replace(run, ranging=True))
+    assert "gps_noise_m" in refusal(dataclasses.replace(run, convoy=ConvoySection(gps_noise_m=0.2)))
+    assert "jitter" in refusal(
+        dataclasses.replace(run, loss=LossSection(latency_s=0.1, jitter_s=0.05))
+    )
+    assert "ranging" in refusal(dataclasses.replace(run, convoy=ConvoySection(ranging=True)))
     assert "forge" in refusal(dataclasses.replace(run, faults=("forge:1@1",)))
     assert "highway" in refusal(dataclasses.replace(run, scenario="highway-cut-in"))
     learned = dataclasses.replace(run, policy=str(tmp_path / "p.zip"))

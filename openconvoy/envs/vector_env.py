@@ -1306,7 +1306,8 @@ class VectorConvoyEnv:
 
     def _infos(self) -> dict[str, Any]:
         """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus
-        ``mode`` codes (``MODES``)."""
+        ``mode`` codes (``MODES``); ``leader_*`` (B,): the leader's values of the keys a
+        log row has (``experiments.batched`` writes the leader's rows from them)."""
         nan_cmd = ~self._has_cmd[:, None]
         cmd_v = np.where(nan_cmd, np.nan, self.cmd_v[:, 1:])
         cmd_dh = np.where(nan_cmd, np.nan, self.cmd_dh[:, 1:])
@@ -1329,4 +1330,10 @@ class VectorConvoyEnv:
             "msgs_lost": self.lost_to[:, 1:].copy(),
             "pred_msg_age_s": self.pred_age[:, 1:].copy(),
             "policy_errors": self.policy_errors[:, 1:].copy(),
+            "leader_cmd_speed_mps": np.where(nan_cmd[:, 0], np.nan, self.cmd_v[:, 0]),
+            "leader_cmd_heading_change_rad": np.where(nan_cmd[:, 0], np.nan, self.cmd_dh[:, 0]),
+            "leader_mode": self.modes[:, 0].copy(),
+            "leader_msgs_sent": self.msgs_sent[:, 0].copy(),
+            "leader_msgs_received": self.delivered_to[:, 0].copy(),
+            "leader_msgs_lost": self.lost_to[:, 0].copy(),
         }

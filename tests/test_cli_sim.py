@@ -9,8 +9,10 @@ from pathlib import Path
 import pytest
 
 from openconvoy.cli import main
+from openconvoy.core.config import load_toml
 from openconvoy.core.metrics import METRIC_KEYS
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
+from openconvoy.experiments.runs import LossSection, RunConfig
 from openconvoy.policies.presets import PRESETS
 
 
@@ -141,8 +143,11 @@ def test_sim_with_convoy_file_burst_loss_and_duration(tmp_path: Path):
         ]
     )
     assert rc == 0
-    run = (out / "run.toml").read_text()
-    assert 'loss_model = "gilbert-elliott"' in run and "mean_burst_s = 0.5" in run
+    run = RunConfig.from_dict(load_toml(out / "run.toml")["run"])  # run.toml reloads
+    assert run.loss == LossSection(model="gilbert-elliott", mean_burst_s=0.5)
+    assert (run.per, run.seed, run.duration_s) == (0.3, 7, 5.0)
+    assert run.convoy.vehicles == ("1/10", "1/10", "1/6", "1/10")
+    assert run.origin == (52.0, 4.37, 0.0)
     with (out / "log.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert {r["vehicle_id"] for r in rows} == {"0", "1", "2", "3"}

@@ -14,7 +14,7 @@ from openconvoy.core.member import ConvoyMember
 from openconvoy.core.state import VehicleState
 from openconvoy.experiments import RunConfig, run_sim
 from openconvoy.experiments.figures import SWEEP_FIGURES
-from openconvoy.experiments.runs import build_env
+from openconvoy.experiments.runs import ConvoySection, build_env
 from openconvoy.experiments.sweep import ExperimentConfig, read_summary, run_experiment
 from openconvoy.policies.presets import PRESETS
 
@@ -178,6 +178,24 @@ def test_experiment_files_are_strict_and_round_trip(tmp_path: Path):
         ExperimentConfig.from_toml(bad)
 
 
+def test_a_run_is_one_point_of_its_experiment_with_convoy_and_loss_nested():
+    cfg = ExperimentConfig.from_toml(EXAMPLES / "emergency-braking-ladder.toml")
+    label, run = cfg.run_configs()[-1]
+    assert (run.convoy, run.loss) == (cfg.convoy, cfg.loss)
+    assert (run.per, run.seed) == (cfg.pers[-1], cfg.seeds[-1])
+    assert run.loss_config.per == run.per and run.loss_config.model == cfg.loss.model
+    table = run.to_dict()
+    assert table["loss"]["model"] == "gilbert-elliott" and "loss_model" not in table
+    assert RunConfig.from_dict(table) == run
+    with pytest.raises(ValueError, match=r"^run\.convoy\.ranging: expected true or false"):
+        RunConfig.from_dict({"convoy": {"ranging": "yes"}})
+    # a run table of the older flat form names where its key lives now
+    with pytest.raises(ValueError, match=r"^run\.toml: loss_model: now loss\.model \("):
+        RunConfig.from_dict({"per": 0.1, "loss_model": "bernoulli"}, "run.toml")
+    with pytest.raises(ValueError, match="per must be in"):
+        RunConfig(per=1.5)
+
+
 # --- presets -----------------------------------------------------------------------------
 
 
@@ -260,7 +278,10 @@ def test_event_triggered_members_send_less_on_a_steady_road(periodic: str):
 
 def test_ranging_option_gives_followers_a_sensor():
     env, policies = build_env(
-        RunConfig(scenario="emergency-braking", ranging=True, ranging_max_range_m=150.0)
+        RunConfig(
+            scenario="emergency-braking",
+            convoy=ConvoySection(ranging=True, ranging_max_range_m=150.0),
+        )
     )
     assert env.presets[0].ranging is None
     assert [p.ranging.max_range_m for p in env.presets[1:]] == [150.0, 150.0]

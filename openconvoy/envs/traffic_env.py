@@ -61,7 +61,7 @@ class TrafficConvoyWorld(ConvoyWorld):
 
     def before_sense(self) -> None:
         world, p = self.traffic, self.plant
-        world.place(p.x.tolist(), p.y.tolist(), p.heading.tolist(), p.speed.tolist())
+        world.place(p.x, p.y, p.heading, p.speed)
         if self.step_count > 0:
             world.step(self.dt)
         world.act(self.t)

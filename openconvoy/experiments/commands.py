@@ -53,7 +53,7 @@ def format_metrics(metrics: dict[str, Any]) -> str:
 
 def run_config_from_args(args: argparse.Namespace) -> Any:
     """The RunConfig that ``openconvoy sim``'s arguments describe."""
-    from openconvoy.experiments.runs import RunConfig
+    from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
 
     _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
@@ -72,17 +72,21 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
         scenario=scenario or "paper",
         policy=args.policy,
         per=args.per,
-        loss_model=args.loss,
-        mean_burst_s=args.burst if args.burst is not None else 1.0,
-        latency_s=args.latency,
-        jitter_s=args.jitter,
         seed=args.seed,
         duration_s=args.duration,
-        n_followers=args.followers,
-        vehicles=vehicles,
-        ranging=args.ranging,
-        ranging_max_range_m=args.ranging_range,
-        gps_noise_m=args.gps_noise,
+        convoy=ConvoySection(
+            vehicles=vehicles,
+            n_followers=args.followers,
+            ranging=args.ranging,
+            ranging_max_range_m=args.ranging_range,
+            gps_noise_m=args.gps_noise,
+        ),
+        loss=LossSection(
+            model=args.loss,
+            mean_burst_s=args.burst if args.burst is not None else 1.0,
+            latency_s=args.latency,
+            jitter_s=args.jitter,
+        ),
         origin=origin,
         faults=tuple(getattr(args, "fault", None) or ()),
         auth=auth or "required",
@@ -283,11 +287,16 @@ def per_sweep(args: argparse.Namespace) -> int:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
     from openconvoy.outputs import check_output_dir
 
-    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs, args.batched)
     out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
     try:
         result = run_experiment(
-            config, out, progress=not args.quiet, figures=not args.no_plots, executor=executor
+            config,
+            out,
+            progress=not args.quiet,
+            figures=not args.no_plots,
+            executor=executor,
+            run_logs=not args.no_run_logs,
         )
     except TasksFailed as exc:
         print(f"openconvoy: error: {exc}", file=sys.stderr)
@@ -302,7 +311,8 @@ def per_sweep(args: argparse.Namespace) -> int:
             f"{r['collisions']['mean']:>12.2f}{r['delivery_ratio']['mean']:>10.3f}"
         )
     print(
-        f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run logs to {out}"
+        f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run "
+        f"{'logs' if not args.no_run_logs else 'metrics'} to {out}"
     )
     return 0
 

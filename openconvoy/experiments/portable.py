@@ -90,7 +90,7 @@ def driver_names(where: dict[str, str]) -> Iterator[None]:
 
 def run_specs(config: Any) -> list[str]:
     """The specs of a ``RunConfig`` that may name files."""
-    return [config.policy, config.scenario, *config.vehicles]
+    return [config.policy, config.scenario, *config.convoy.vehicles]
 
 
 def relocate_run(config: Any, where: dict[str, str]) -> Any:
@@ -101,5 +101,7 @@ def relocate_run(config: Any, where: dict[str, str]) -> Any:
         config,
         policy=relocate(config.policy, where),
         scenario=relocate(config.scenario, where),
-        vehicles=tuple(relocate(v, where) for v in config.vehicles),
+        convoy=dataclasses.replace(
+            config.convoy, vehicles=tuple(relocate(v, where) for v in config.convoy.vehicles)
+        ),
     )

@@ -17,7 +17,7 @@ import dataclasses
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -26,7 +26,7 @@ import numpy as np
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
-from openconvoy.core.config import Range, from_dict, to_dict
+from openconvoy.core.config import Range, child, from_dict, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import parse_fault
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
@@ -35,8 +35,87 @@ EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
 
 
 @dataclass(frozen=True)
+class ConvoySection:
+    """The convoy of a run or experiment (``[convoy]``): vehicle presets (leader first),
+    size, ranging and GPS noise.
+
+    Attributes:
+        vehicles: vehicle presets (names or preset ``.toml`` files), leader first; empty =
+            the scenario's.
+        n_followers: convoy size; None = the scenario's (or ``vehicles``').
+        ranging: give every follower without one a ranging sensor (range and range rate
+            to the vehicle ahead, ``RangingSensor``'s noise), used by the degraded mode of
+            the staleness ladder.
+        ranging_max_range_m: that sensor's range, metres (20 m suits the small cars; a
+            car's radar sees 150 m and more).
+        gps_noise_m: standard deviation of the position noise members see, metres.
+    """
+
+    vehicles: tuple[str, ...] = ()
+    n_followers: Annotated[int, Range(1, 1000)] | None = None
+    ranging: bool = False
+    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
+    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        if self.gps_noise_m < 0:
+            raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
+
+
+@dataclass(frozen=True)
+class LossSection:
+    """The link model of a run or experiment (``[loss]``), all but the PER (which a run
+    sets and a sweep varies); times in seconds.
+
+    Attributes:
+        model: ``bernoulli`` or ``gilbert-elliott``.
+        mean_burst_s: mean loss burst of the Gilbert–Elliott model.
+        latency_s, jitter_s: delivery delay and its uniform jitter.
+    """
+
+    model: str = "bernoulli"
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+
+    def __post_init__(self) -> None:
+        if self.model not in ("bernoulli", "gilbert-elliott"):
+            raise ConfigError(
+                f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
+            )
+        if self.mean_burst_s <= 0:
+            raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
+
+    def at(self, per: float) -> LossConfig:
+        """The channel's ``LossConfig`` for this section at packet error rate ``per``."""
+        return LossConfig(
+            per=per,
+            model=self.model,
+            mean_burst_s=self.mean_burst_s,
+            latency_s=self.latency_s,
+            jitter_s=self.jitter_s,
+        )
+
+
+# Keys a run config had before it nested [convoy] and [loss]: where each lives now.
+_MOVED_KEYS: dict[str, str] = {
+    "loss_model": "loss.model",
+    "mean_burst_s": "loss.mean_burst_s",
+    "latency_s": "loss.latency_s",
+    "jitter_s": "loss.jitter_s",
+    "n_followers": "convoy.n_followers",
+    "vehicles": "convoy.vehicles",
+    "ranging": "convoy.ranging",
+    "ranging_max_range_m": "convoy.ranging_max_range_m",
+    "gps_noise_m": "convoy.gps_noise_m",
+}
+
+
+@dataclass(frozen=True)
 class RunConfig:
-    """Everything that determines one simulated run (SI units).
+    """Everything that determines one simulated run (SI units): one point of an
+    experiment, with the experiment file's ``[convoy]`` and ``[loss]`` tables nested.
 
     Attributes:
         scenario: scenario spec (``paper``, ``track``, ``emergency-braking``,
@@ -44,20 +123,10 @@ class RunConfig:
         policy: policy spec (preset name, optionally ``+ladder``; ``.toml``, ``.zip``,
             ``.npz`` file).
         per: packet error rate of every link, 0..1.
-        loss_model: ``bernoulli`` or ``gilbert-elliott``.
-        mean_burst_s: mean loss burst of the Gilbert–Elliott model, seconds.
-        latency_s, jitter_s: delivery delay and its uniform jitter, seconds.
         seed: seeds the channel, GPS noise and ranging noise.
         duration_s: run length; None = the scenario's.
-        n_followers: convoy size; None = the scenario's (or ``vehicles``').
-        vehicles: vehicle presets (names or preset ``.toml`` files), leader first; empty =
-            the scenario's.
-        ranging: give every follower without one a ranging sensor (range and range rate
-            to the vehicle ahead, ``RangingSensor``'s noise), used by the degraded mode of
-            the staleness ladder.
-        ranging_max_range_m: that sensor's range, metres (20 m suits the small cars; a
-            car's radar sees 150 m and more).
-        gps_noise_m: standard deviation of the position noise members see, metres.
+        convoy: the vehicles, their number, ranging and GPS noise (``ConvoySection``).
+        loss: the link model but its PER (``LossSection``).
         origin: convoy origin (latitude deg, longitude deg, altitude m); None = scenario's.
         start_at_policy_gap: place vehicles at the policy's desired gaps (else the
             scenario's).
@@ -68,17 +137,10 @@ class RunConfig:
     scenario: str = "paper"
     policy: str = "paper"
     per: Annotated[float, Range(0.0, 1.0)] = 0.0
-    loss_model: str = "bernoulli"
-    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
-    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
-    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     seed: Annotated[int, Range(0, 4294967295)] = 0
     duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
-    n_followers: Annotated[int, Range(1, 1000)] | None = None
-    vehicles: tuple[str, ...] = ()
-    ranging: bool = False
-    ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
-    gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+    convoy: ConvoySection = field(default_factory=ConvoySection)
+    loss: LossSection = field(default_factory=LossSection)
     origin: (
         tuple[
             Annotated[float, Range(-90.0, 90.0)],
@@ -92,38 +154,33 @@ class RunConfig:
     auth: str = "required"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "vehicles", tuple(self.vehicles))
         object.__setattr__(self, "faults", tuple(str(parse_fault(f)) for f in self.faults))
         if self.origin is not None:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
-        self.loss  # validates model and PER  # noqa: B018
+        self.loss_config  # validates the PER  # noqa: B018
         if self.auth not in ("required", "off"):
             raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration must be positive, got {self.duration_s} s")
-        if self.gps_noise_m < 0:
-            raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
 
     @property
-    def loss(self) -> LossConfig:
-        return LossConfig(
-            per=self.per,
-            model=self.loss_model,
-            mean_burst_s=self.mean_burst_s,
-            latency_s=self.latency_s,
-            jitter_s=self.jitter_s,
-        )
+    def loss_config(self) -> LossConfig:
+        """The channel's ``LossConfig``: ``loss`` at this run's ``per``."""
+        return self.loss.at(self.per)
 
     def to_dict(self) -> dict[str, Any]:
         return to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "run") -> RunConfig:
-        data = dict(data)
-        for key in ("vehicles", "faults"):
-            if key in data:
-                data[key] = tuple(data[key])
-        return from_dict(cls, data, where)
+        """A run config from its table (``convoy`` and ``loss`` nested), strictly; a key
+        of the older flat form is an error naming where it lives now."""
+        for key in data:
+            if key in _MOVED_KEYS:
+                raise ConfigError(
+                    f"{child(where, key)}: now {_MOVED_KEYS[key]} (a run nests its convoy and loss tables)"
+                )
+        return from_dict(cls, dict(data), where)
 
 
 @dataclass
@@ -147,15 +204,16 @@ def build_env(config: RunConfig):
     from openconvoy.policies import load_policy
 
     policy = load_policy(config.policy)
-    presets = [vehicle_preset(v) for v in config.vehicles] or None
-    scenario = make_scenario(config.scenario, config.n_followers, presets)
+    convoy = config.convoy
+    presets = [vehicle_preset(v) for v in convoy.vehicles] or None
+    scenario = make_scenario(config.scenario, convoy.n_followers, presets)
     member_config = policy.member_config
     changes: dict[str, Any] = {}
     if member_config is not None and config.start_at_policy_gap:
         # The scenario places its vehicles at the desired gaps of its ``spacing``.
         changes["spacing"] = member_config.spacing
-    if config.ranging:
-        sensor = RangingSensor(max_range_m=config.ranging_max_range_m)
+    if convoy.ranging:
+        sensor = RangingSensor(max_range_m=convoy.ranging_max_range_m)
         changes["presets"] = tuple(
             p if i == 0 or p.ranging is not None else p.with_ranging(sensor)
             for i, p in enumerate(scenario.presets)
@@ -167,9 +225,9 @@ def build_env(config: RunConfig):
     env = ConvoyEnv(
         scenario,
         member_config=member_config,
-        loss=config.loss,
+        loss=config.loss_config,
         control_rate_hz=float(policy.control_rate_hz),
-        gps_noise_m=config.gps_noise_m,
+        gps_noise_m=convoy.gps_noise_m,
         max_time_s=config.duration_s,
         faults=config.faults,
         auth=config.auth == "required",

@@ -27,10 +27,15 @@ __all__ = [
     "make_scenario",
 ]
 
+from typing import TYPE_CHECKING, Any
+
 import gymnasium as _gymnasium
 
+if TYPE_CHECKING:
+    from openconvoy.envs.vector_env import VectorConvoyEnv
 
-def __getattr__(name: str) -> object:
+
+def __getattr__(name: str) -> Any:
     # VectorConvoyEnv needs numba (the ``batched`` extra): imported on first use, so the
     # rest of the simulator (and a vehicle's runtime) does not need it.
     if name == "VectorConvoyEnv":

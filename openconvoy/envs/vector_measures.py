@@ -51,22 +51,29 @@ FLOAT_KEYS = (
     "accel_mps2", "cmd_speed_mps", "cmd_heading_change_rad", "pred_msg_age_s",
 )  # fmt: skip
 INT_KEYS = ("mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+LEADER_FLOAT_KEYS = ("leader_cmd_speed_mps", "leader_cmd_heading_change_rad")
+LEADER_INT_KEYS = ("leader_mode", "leader_msgs_sent", "leader_msgs_received", "leader_msgs_lost")
 
 
 def infos(env: Any) -> dict[str, np.ndarray]:
     """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus ``mode``
-    codes (``vector_env.MODES``); ``t_s`` and ``leader_speed_mps`` (B,)."""
+    codes (``vector_env.MODES``); ``t_s`` and ``leader_*`` (B,): the leader's values of
+    the keys a log row has (``experiments.batched`` writes the leader's rows from them)."""
     B, F = env.gap.shape
     fl = np.empty((len(FLOAT_KEYS), B, F))
     it = np.empty((len(INT_KEYS), B, F), dtype=np.int64)
+    lf = np.empty((len(LEADER_FLOAT_KEYS), B))
+    li = np.empty((len(LEADER_INT_KEYS), B), dtype=np.int64)
     ch = env.channel
     _fill(
         env.gap, env.desired_gap, env.spacing_error, env.own, env.cmd_v, env.cmd_dh,
         env._has_cmd, env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to, ch.msgs_kept,
-        ch.lost_to, env.policy_errors, fl, it,
+        ch.lost_to, env.policy_errors, fl, it, lf, li,
     )  # fmt: skip
     out = dict(zip(FLOAT_KEYS, fl))
     out.update(zip(INT_KEYS, it))
+    out.update(zip(LEADER_FLOAT_KEYS, lf))
+    out.update(zip(LEADER_INT_KEYS, li))
     out["t_s"] = env.t.copy()
     out["leader_speed_mps"] = env.own[2][:, 0].copy()
     out["collision"] = env.collided.copy()
@@ -76,9 +83,12 @@ def infos(env: Any) -> dict[str, np.ndarray]:
 @kernel
 def _fill(
     gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes, sent, received,
-    kept, lost, errors, fl, it,
+    kept, lost, errors, fl, it, lf, li,
 ):  # pragma: no cover - compiled  # fmt: skip
     for b in range(gap.shape[0]):
+        lf[0, b] = cmd_v[b, 0] if has_cmd[b] else np.nan
+        lf[1, b] = cmd_dh[b, 0] if has_cmd[b] else np.nan
+        li[0, b], li[1, b], li[2, b], li[3, b] = modes[b, 0], sent[b, 0], received[b, 0], lost[b, 0]
         for f in range(gap.shape[1]):
             i = f + 1
             fl[0, b, f], fl[1, b, f] = gap[b, f], desired[b, i]

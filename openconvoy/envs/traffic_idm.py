@@ -31,6 +31,7 @@ from openconvoy.envs.traffic_state import (
 _EPS = 1e-2  # highway_env.utils.not_zero
 _GHOST_X = 1e300  # "no vehicle": IDM's interaction term behind it rounds to exactly 0
 _CACHE: dict[tuple, np.ndarray] = {}
+_SIDES = np.array([[-1], [1]])
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
@@ -57,9 +58,9 @@ def neighbours(st: TrafficState) -> tuple[np.ndarray, np.ndarray]:
     ge = x >= x[:, None]  # [i, j]: j is not behind i
     ahead = on[:, None, :] & (ge & _cached("not_self", n, 0))
     behind = on[:, None, :] & ~ge
-    front = n - 1 - np.argmin(np.where(ahead, x, np.inf)[:, :, ::-1], axis=2)
+    front = n - 1 - np.where(ahead, x, np.inf)[:, :, ::-1].argmin(axis=2)
     front[~ahead.any(axis=2)] = -1
-    rear = np.argmax(np.where(behind, x, -np.inf), axis=2)
+    rear = np.where(behind, x, -np.inf).argmax(axis=2)
     rear[~behind.any(axis=2)] = -1
     return front, rear
 
@@ -102,17 +103,18 @@ def _mobil_queries(
     the old follower after/before. Also the side lanes (2, nf) and which are possible."""
     lanes = len(st.edge.lanes)
     lane_f = st.lane[fi]
-    side = np.array((lane_f - 1, lane_f + 1))  # (2, nf)
+    side = lane_f + _SIDES  # (2, nf): left, right
     sc = _clip(side, 0, lanes - 1)
     xf = st.x[fi]
+    e = st.edge
     possible = (
         (side == sc)
-        & (np.abs(st.y[fi] - st.edge.lane_y[sc]) <= st.edge.reach_w[sc])
-        & ((0 <= xf) & (xf < st.edge.length + st.edge.vlen) & (np.abs(st.sp[fi]) >= 1))
+        & (np.abs(st.y[fi] - e.lane_y[sc]) <= e.reach_w[sc])
+        & ((0 <= xf) & (xf < e.length + e.vlen) & (np.abs(st.sp[fi]) >= 1))
     )
     (np0, np1), (nf0, nf1) = front[sc, fi], rear[sc, fi]
     old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
-    me = np.tile(fi, 8)
+    me = np.concatenate((fi,) * 8)
     ego = np.concatenate((nf0, nf0, old_fol, old_fol, nf1, nf1, old_fol, old_fol))
     fr = np.concatenate((np0, fi, fi, old_pre, np1, fi, fi, old_pre))
     return me, ego, fr, sc, possible
@@ -139,7 +141,7 @@ def _aborts(
     changing into the same lane is ahead of it within its IDM desired gap; ``starts``: the
     cars that begin a change this tick (their new targets count from their turn on)."""
     moving = st.lane != tgt
-    changers = np.flatnonzero(acting & moving).tolist()
+    changers = (acting & moving).nonzero()[0].tolist()
     if not changers:
         for k, t in starts.items():
             tgt[k] = t
@@ -186,7 +188,7 @@ def decide(st: TrafficState) -> np.ndarray:
     kin = kinematics(st)
     front, rear = neighbours(st)
     acting = st.traffic & ~st.crashed
-    fi = np.flatnonzero(acting & st.lc & (lane == st.tgt) & (p[DELAY] < st.timer))
+    fi = (acting & st.lc & (lane == st.tgt) & (p[DELAY] < st.timer)).nonzero()[0]
     every = _cached("tile", n, lanes)
     if len(fi):
         mq, eq, fq, sc, possible = _mobil_queries(st, front, rear, fi)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from openconvoy.core.args import TIMEOUT, Flags, add_command
 from openconvoy.core.args import integer as _int
@@ -119,6 +120,11 @@ DECODE_FLAGS: Flags = (
 """``bsm decode``'s flags."""
 
 
+def _group_port(args: argparse.Namespace) -> dict[str, Any]:
+    """``--group`` and ``--port`` as the BSM tools' keywords."""
+    return {"group": args.group, "port": args.port}
+
+
 def _add_listen(cmds: argparse._SubParsersAction) -> None:
     add_command(
         cmds,
@@ -137,8 +143,7 @@ def _listen(args: argparse.Namespace) -> int:
 
     tools.listen(
         args.iface,
-        group=args.group,
-        port=args.port,
+        **_group_port(args),
         compat_enabled=args.compat,
         count=args.count,
         timeout_s=args.timeout,
@@ -182,8 +187,7 @@ def _send(args: argparse.Namespace) -> int:
     auth = _signer(args.key, args.convoy)
     n = tools.send(
         args.iface,
-        group=args.group,
-        port=args.port,
+        **_group_port(args),
         hop_limit=args.hop_limit,
         count=args.count,
         rate_hz=args.rate,

@@ -183,7 +183,7 @@ def _add_tune(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="trials at once (default 1 locally, the cluster's CPUs on Ray)",
     )
-    executor_args(p)
+    executor_args(p, batched=True)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     def _tune(args: argparse.Namespace) -> int:

@@ -175,7 +175,7 @@ def tune_command(args: argparse.Namespace) -> int:
     )
     # Trials run one at a time in this process unless an executor or --jobs is asked for.
     jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
-    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
+    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs, args.batched)
     try:
         result = tune(
             config,

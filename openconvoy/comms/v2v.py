@@ -529,6 +529,38 @@ class Receiver:
         return state
 
 
+def _open_transports(
+    config: LinkConfig, transport: Transport | None, compat_transport: Transport | None
+) -> tuple[Transport, Transport | None]:
+    """The IPv6 multicast socket and, with ``config.compat``, the IPv4 one (each unless
+    injected); nothing stays open when the second cannot be opened."""
+    tx = (
+        transport
+        if transport is not None
+        else Ipv6Multicast(
+            config.iface,
+            config.group,
+            config.port,
+            config.hop_limit,
+            rcvbuf_bytes=V2V_RCVBUF_BYTES,
+        )
+    )
+    if compat_transport is not None or not config.compat:
+        return tx, compat_transport
+    try:
+        tx4 = Ipv4Multicast(
+            config.iface,
+            config.compat_group,
+            config.compat_port,
+            config.compat_ttl,
+            rcvbuf_bytes=V2V_RCVBUF_BYTES,
+        )
+    except (OSError, LinkError):
+        tx.close()
+        raise
+    return tx, tx4
+
+
 class V2V:
     """A vehicle's V2V link: J2735 BSMs over IPv6 multicast (+ compat JSON over IPv4).
 
@@ -599,30 +631,7 @@ class V2V:
             counters=self.counters,
             auth=auth,
         )
-        self._tx = (
-            transport
-            if transport is not None
-            else Ipv6Multicast(
-                config.iface,
-                config.group,
-                config.port,
-                config.hop_limit,
-                rcvbuf_bytes=V2V_RCVBUF_BYTES,
-            )
-        )
-        self._tx4: Transport | None = compat_transport
-        if self._tx4 is None and config.compat:
-            try:
-                self._tx4 = Ipv4Multicast(
-                    config.iface,
-                    config.compat_group,
-                    config.compat_port,
-                    config.compat_ttl,
-                    rcvbuf_bytes=V2V_RCVBUF_BYTES,
-                )
-            except (OSError, LinkError):
-                self._tx.close()
-                raise
+        self._tx, self._tx4 = _open_transports(config, transport, compat_transport)
         self._warned_send = False
         # Compile the ASN.1 spec now, not on the first message (it takes ~0.2 s).
         j.warm_up()

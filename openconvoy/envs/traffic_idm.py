@@ -1,0 +1,219 @@
+"""highway-env's ``IDMVehicle.act`` for every vehicle of a ``TrafficState`` at once.
+
+What each traffic car decides, as highway-env's per-vehicle code does (the same
+operations in the same order, on arrays): MOBIL lane changes (``change_lane_policy``,
+``mobil``), the lane-keeping steering law (``steering_control``) and IDM acceleration
+(``acceleration``) on the current and target lane; a scripted car holds its speed
+(``speed_control``). Neighbours are ``Road.neighbour_vehicles``'s (ties: the last equal
+one ahead, the first equal one behind). A car's abort of a lane change looks at the
+targets of the cars before it in ``road.vehicles``, as in highway-env's loop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]  # np.clip's ufunc
+
+from openconvoy.envs.traffic_state import (
+    AMAX,
+    BRAKE,
+    DELAY,
+    GAIN,
+    KP_A,
+    KP_HEAD,
+    KP_LAT,
+    LENGTH,
+    MAX_STEER,
+    POLITE,
+    TrafficState,
+)
+
+_EPS = 1e-2  # highway_env.utils.not_zero
+_GHOST_X = 1e300  # "no vehicle": IDM's interaction term behind it rounds to exactly 0
+_CACHE: dict[tuple, np.ndarray] = {}
+_SIDES = np.array([[-1], [1]])
+
+
+def _not_zero(x: np.ndarray) -> np.ndarray:
+    return np.where(np.abs(x) > _EPS, x, np.where(x >= 0, _EPS, -_EPS))
+
+
+def _cached(kind: str, n: int, lanes: int) -> np.ndarray:
+    """Index patterns fixed per (n, lanes): ``not_self`` (n, n): True off the diagonal;
+    ``tile``: 0..n-1 once per lane."""
+    key = (kind, n, lanes)
+    got = _CACHE.get(key)
+    if got is None:
+        got = ~np.eye(n, dtype=bool) if kind == "not_self" else np.tile(np.arange(n), lanes)
+        _CACHE[key] = got
+    return got
+
+
+def neighbours(st: TrafficState) -> tuple[np.ndarray, np.ndarray]:
+    """``(front, rear)``, each (lanes, n): on every lane, the index of the vehicle ahead of
+    / behind each vehicle (-1: none), as ``Road.neighbour_vehicles`` finds them."""
+    e, x, n = st.edge, st.x, st.n
+    inside = (-e.vlen <= x) & (x < e.length + e.vlen)
+    on = (np.abs(st.y - e.lane_y[:, None]) <= e.on_half_w[:, None]) & inside  # (lanes, n)
+    ge = x >= x[:, None]  # [i, j]: j is not behind i
+    ahead = on[:, None, :] & (ge & _cached("not_self", n, 0))
+    behind = on[:, None, :] & ~ge
+    front = n - 1 - np.where(ahead, x, np.inf)[:, :, ::-1].argmin(axis=2)
+    front[~ahead.any(axis=2)] = -1
+    rear = np.where(behind, x, -np.inf).argmax(axis=2)
+    rear[~behind.any(axis=2)] = -1
+    return front, rear
+
+
+def kinematics(st: TrafficState) -> np.ndarray:
+    """(7, n + 1): speed, speed over the target speed clipped to the lane's limit (IDM's
+    free-road ratio), vx, vy, cos h, sin h, x; the last column a ghost far ahead that
+    index -1 (no vehicle) picks."""
+    sp, c, s = st.sp, st.c, st.s
+    tlimit = _clip(st.tspeed, 0, st.edge.limit[st.lane])
+    ratio = np.maximum(sp, 0) / np.maximum(tlimit, _EPS)  # abs(not_zero(.)) of a speed >= 0
+    kin = np.empty((7, st.n + 1))
+    kin[:, :-1] = (sp, ratio, sp * c, sp * s, c, s, st.x)
+    kin[:, -1] = (0.0, 0.0, 0.0, 0.0, 1.0, 0.0, _GHOST_X)
+    return kin
+
+
+def idm(
+    st: TrafficState, kin: np.ndarray, me: np.ndarray, ego: np.ndarray, fr: np.ndarray
+) -> np.ndarray:
+    """``IDMVehicle.acceleration`` (m/s²) with ``me``'s parameters for ``ego`` behind ``fr``
+    (index arrays; -1 = none: no ego gives 0, no front the free-road term; ``kin`` from
+    ``kinematics``)."""
+    amax, delta, d0, tau, root = st.idm_p[:, me]
+    ke, kf = kin[:, ego], kin[:, fr]
+    sp = ke[0]
+    acc = amax * (1 - np.power(ke[1], delta))
+    dv = (ke[2] - kf[2]) * ke[4] + (ke[3] - kf[3]) * ke[5]
+    d_star = d0 + sp * tau + sp * dv / root
+    # A front vehicle is never behind: the gap is >= 0 and not_zero is max(gap, eps).
+    acc = acc - amax * np.power(d_star / np.maximum(kf[6] - ke[6], _EPS), 2)
+    return np.where(ego >= 0, acc, 0.0)
+
+
+def _mobil_queries(
+    st: TrafficState, front: np.ndarray, rear: np.ndarray, fi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The IDM queries (me, ego, front) MOBIL needs beyond every vehicle on every lane, for
+    the cars ``fi`` whose timer fired: per side (left, right) the new follower before/after,
+    the old follower after/before. Also the side lanes (2, nf) and which are possible."""
+    lanes = len(st.edge.lanes)
+    lane_f = st.lane[fi]
+    side = lane_f + _SIDES  # (2, nf): left, right
+    sc = _clip(side, 0, lanes - 1)
+    xf = st.x[fi]
+    e = st.edge
+    possible = (
+        (side == sc)
+        & (np.abs(st.y[fi] - e.lane_y[sc]) <= e.reach_w[sc])
+        & ((0 <= xf) & (xf < e.length + e.vlen) & (np.abs(st.sp[fi]) >= 1))
+    )
+    (np0, np1), (nf0, nf1) = front[sc, fi], rear[sc, fi]
+    old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
+    me = np.concatenate((fi,) * 8)
+    ego = np.concatenate((nf0, nf0, old_fol, old_fol, nf1, nf1, old_fol, old_fol))
+    fr = np.concatenate((np0, fi, fi, old_pre, np1, fi, fi, old_pre))
+    return me, ego, fr, sc, possible
+
+
+def _mobil(
+    st: TrafficState, a_all: np.ndarray, extra: np.ndarray, fi: np.ndarray, sc: np.ndarray
+) -> np.ndarray:
+    """(2, nf): does MOBIL recommend the left / right lane? ``a_all`` (lanes, n): each
+    vehicle's IDM on each lane; ``extra``: the answers to ``_mobil_queries``."""
+    p = st.params[:, fi]
+    q = extra.reshape(2, 4, len(fi))
+    nf_a, nf_pred_a, of_a, of_pred_a = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    self_pred_a = a_all[sc, fi]
+    self_a = a_all[st.lane[fi], fi]
+    jerk = self_pred_a - self_a + p[POLITE] * (nf_pred_a - nf_a + of_pred_a - of_a)
+    return ~(nf_pred_a < -p[BRAKE]) & ~(jerk < p[GAIN])
+
+
+def _aborts(
+    st: TrafficState, kin: np.ndarray, tgt: np.ndarray, starts: dict[int, int], acting: np.ndarray
+) -> None:
+    """``change_lane_policy`` in road order: a car changing lane gives up when another car
+    changing into the same lane is ahead of it within its IDM desired gap; ``starts``: the
+    cars that begin a change this tick (their new targets count from their turn on)."""
+    moving = st.lane != tgt
+    changers = (acting & moving).nonzero()[0].tolist()
+    if not changers:
+        for k, t in starts.items():
+            tgt[k] = t
+        return
+    lane_l, tgt_l = st.lane.tolist(), tgt.tolist()
+    mates = sorted(set(np.flatnonzero(moving).tolist()) | set(starts))
+    sp, vx, vy, c, s, x = (kin[k].tolist() for k in (0, 2, 3, 4, 5, 6))
+    for i in sorted(set(changers) | set(starts)):
+        if i in starts:
+            tgt_l[i] = starts[i]
+            continue
+        ti = tgt_l[i]
+        _, _, d0, tau, root = st.idm_p[:, i].tolist()
+        for j in mates:
+            if j == i or lane_l[j] == ti or tgt_l[j] != ti:
+                continue
+            d = x[j] - x[i]
+            dv = (vx[i] - vx[j]) * c[i] + (vy[i] - vy[j]) * s[i]
+            if 0 < d < d0 + sp[i] * tau + sp[i] * dv / root:
+                tgt_l[i] = lane_l[i]
+                break
+    tgt[:] = tgt_l
+
+
+def _steering(st: TrafficState, nz_speed: np.ndarray) -> np.ndarray:
+    """``steering_control`` onto each vehicle's target lane, clipped (rad)."""
+    p = st.params
+    lat = st.y - st.edge.lane_y[st.tgt]
+    heading_cmd = np.arcsin(_clip(-p[KP_LAT] * lat / nz_speed, -1, 1))
+    heading_ref = 0.0 + _clip(heading_cmd, -np.pi / 4, np.pi / 4)
+    rate_cmd = p[KP_HEAD] * (((heading_ref - st.h) + np.pi) % (2 * np.pi) - np.pi)
+    slip = np.arcsin(_clip(p[LENGTH] / 2 / nz_speed * rate_cmd, -1, 1))
+    return _clip(np.arctan(2 * np.tan(slip)), -p[MAX_STEER], p[MAX_STEER])
+
+
+def decide(st: TrafficState) -> np.ndarray:
+    """Every acting traffic car's decision, into ``st`` (``tgt``, ``timer``, ``steer``,
+    ``acc``). Returns every vehicle's IDM acceleration on its lane, clipped (m/s²)."""
+    n, p, lane = st.n, st.params, st.lane
+    lanes = len(st.edge.lanes)
+    st.read_scripts()
+    st.trig()
+    nz_speed = _not_zero(st.sp)
+    kin = kinematics(st)
+    front, rear = neighbours(st)
+    acting = st.traffic & ~st.crashed
+    fi = (acting & st.lc & (lane == st.tgt) & (p[DELAY] < st.timer)).nonzero()[0]
+    every = _cached("tile", n, lanes)
+    if len(fi):
+        mq, eq, fq, sc, possible = _mobil_queries(st, front, rear, fi)
+        me, ego, fr = (
+            np.concatenate(pair) for pair in ((every, mq), (every, eq), (front.ravel(), fq))
+        )
+    else:
+        me, ego, fr = every, every, front.ravel()
+    a = idm(st, kin, me, ego, fr)
+    a_all = a[: lanes * n].reshape(lanes, n)
+    starts: dict[int, int] = {}
+    if len(fi):
+        ok = possible & _mobil(st, a_all, a[lanes * n :], fi, sc)
+        # Both sides pass: the right one, tried last, wins (as in highway-env's loop).
+        new = np.where(ok[1], sc[1], np.where(ok[0], sc[0], lane[fi]))
+        st.timer[fi] = 0.0
+        starts = {k: t for k, t in zip(fi.tolist(), new.tolist()) if t != lane[k]}
+    tgt = st.tgt.copy()
+    _aborts(st, kin, tgt, starts, acting & st.lc)
+    st.tgt = tgt
+    idx = st.arange
+    a_lane = a_all[lane, idx]
+    acc = np.where(lane != tgt, np.minimum(a_lane, a_all[tgt, idx]), a_lane)
+    acc = np.where(st.hold, p[KP_A] * (st.tspeed - st.sp), acc)
+    amax = p[AMAX]
+    st.steer = np.where(acting, _steering(st, nz_speed), st.steer)
+    st.acc = np.where(acting, _clip(acc, -amax, amax), st.acc)
+    return _clip(a_lane, -amax, amax)

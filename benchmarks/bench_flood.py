@@ -115,7 +115,7 @@ def inside(args: argparse.Namespace) -> dict:
         deploy_argv,
         sim_vehicle_configs,
         start_local_sim_vehicles,
-        stop_all,
+        stop_convoy,
         write_convoy_toml,
     )
     from openconvoy.envs.scenarios import make_scenario
@@ -196,9 +196,7 @@ def inside(args: argparse.Namespace) -> dict:
         result["flood_rate_achieved_per_s"] = sent["sent"] / (t1 - t0)
         result["moving_at_end"] = [round(v.state().speed, 3) for v in vehicles]
     finally:
-        result["exit_codes"] = stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        result["exit_codes"] = stop_convoy(procs, vehicles)
         for f in errs:
             f.close()
     per_vehicle = {}

@@ -324,9 +324,7 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
         _say("interrupted: stopping the convoy")
         code = 130
     finally:
-        stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        stop_convoy(procs, vehicles)
         for f in logs:
             f.close()
     return code
@@ -413,6 +411,15 @@ def stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int
         except subprocess.TimeoutExpired:
             p.kill()
             codes.append(p.wait())
+    return codes
+
+
+def stop_convoy(procs: list[subprocess.Popen], vehicles: Sequence[Any]) -> list[int]:
+    """Stop a local convoy: its deploys first (``stop_all``: they stop and HOLD their
+    vehicles), then the simulated vehicles; the deploys' exit statuses."""
+    codes = stop_all(procs)
+    for v in vehicles:
+        v.stop()
     return codes
 
 

@@ -13,7 +13,7 @@ from openconvoy.core.args import (
     SEED,
     TIMEOUT,
     Flags,
-    add_flags,
+    add_command,
     lazy_handler,
 )
 from openconvoy.core.args import integer as _int
@@ -173,24 +173,30 @@ ABORT_FLAGS: Flags = (
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this package's commands to ``openconvoy``'s subparsers (handlers import lazily)."""
-    p = sub.add_parser(
+    add_command(
+        sub,
         "vehicle",
+        VEHICLE_FLAGS,
+        lazy_handler("openconvoy.bridge.simvehicle", "run_vehicle_cli"),
         help="run a simulated MAVLink vehicle (ArduPilot Rover or PX4)",
         description="A simulated vehicle speaking MAVLink like ArduPilot Rover (GUIDED) or PX4 "
         "(OFFBOARD), driven by the simulator's plant. SIGUSR1: a person switches to MANUAL; "
         "SIGUSR2: toggle a telemetry freeze; SIGTERM/SIGINT: exit.",
     )
-    add_flags(p, VEHICLE_FLAGS)
-    p.set_defaults(handler=lazy_handler("openconvoy.bridge.simvehicle", "run_vehicle_cli"))
-    p = sub.add_parser(
+    add_command(
+        sub,
         "deploy",
+        DEPLOY_FLAGS,
+        lazy_handler("openconvoy.bridge.deploy", "deploy_from_namespace"),
         help="drive a vehicle with a policy over MAVLink, talking V2V over IPv6 multicast",
         description="The real-time loop on a vehicle: telemetry -> convoy member -> policy -> "
         "setpoints, with BSMs over IPv6 multicast, failsafes and a safety envelope. "
         "SIGINT/SIGTERM: stop, HOLD, save the log, exit 0.",
     )
-    add_flags(p, DEPLOY_FLAGS)
-    p.set_defaults(handler=lazy_handler("openconvoy.bridge.deploy", "deploy_from_namespace"))
-    p = sub.add_parser("abort", help="broadcast a convoy-wide stop that every deploy obeys")
-    add_flags(p, ABORT_FLAGS)
-    p.set_defaults(handler=lazy_handler("openconvoy.bridge.deploy", "abort_from_namespace"))
+    add_command(
+        sub,
+        "abort",
+        ABORT_FLAGS,
+        lazy_handler("openconvoy.bridge.deploy", "abort_from_namespace"),
+        help="broadcast a convoy-wide stop that every deploy obeys",
+    )

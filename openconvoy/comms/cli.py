@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
-from openconvoy.core.args import TIMEOUT, Flags, add_flags
+from openconvoy.core.args import TIMEOUT, Flags, add_command
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 from openconvoy.core.errors import ConfigError
@@ -119,16 +120,22 @@ DECODE_FLAGS: Flags = (
 """``bsm decode``'s flags."""
 
 
+def _group_port(args: argparse.Namespace) -> dict[str, Any]:
+    """``--group`` and ``--port`` as the BSM tools' keywords."""
+    return {"group": args.group, "port": args.port}
+
+
 def _add_listen(cmds: argparse._SubParsersAction) -> None:
-    p = cmds.add_parser(
+    add_command(
+        cmds,
         "listen",
+        LISTEN_FLAGS,
+        _listen,
         help="print BSMs heard on an interface, one line each",
         description="Prints every BSM heard (anyone's, not only a convoy's): temporary id, "
         "msgCnt, latitude and longitude (degrees), speed (m/s), heading (compass degrees), "
         "age (s, from secMark and this host's clock). Ctrl-C stops.",
     )
-    add_flags(p, LISTEN_FLAGS)
-    p.set_defaults(handler=_listen)
 
 
 def _listen(args: argparse.Namespace) -> int:
@@ -136,8 +143,7 @@ def _listen(args: argparse.Namespace) -> int:
 
     tools.listen(
         args.iface,
-        group=args.group,
-        port=args.port,
+        **_group_port(args),
         compat_enabled=args.compat,
         count=args.count,
         timeout_s=args.timeout,
@@ -147,14 +153,15 @@ def _listen(args: argparse.Namespace) -> int:
 
 
 def _add_send(cmds: argparse._SubParsersAction) -> None:
-    p = cmds.add_parser(
+    add_command(
+        cmds,
         "send",
+        SEND_FLAGS,
+        _send,
         help="send test BSMs",
         description="Sends COUNT BSMs at RATE Hz from a test vehicle starting at LAT, LON "
         "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise).",
     )
-    add_flags(p, SEND_FLAGS)
-    p.set_defaults(handler=_send)
 
 
 def _signer(key: str | None, convoy: str | None):
@@ -180,8 +187,7 @@ def _send(args: argparse.Namespace) -> int:
     auth = _signer(args.key, args.convoy)
     n = tools.send(
         args.iface,
-        group=args.group,
-        port=args.port,
+        **_group_port(args),
         hop_limit=args.hop_limit,
         count=args.count,
         rate_hz=args.rate,
@@ -200,14 +206,15 @@ def _send(args: argparse.Namespace) -> int:
 
 
 def _add_decode(cmds: argparse._SubParsersAction) -> None:
-    p = cmds.add_parser(
+    add_command(
+        cmds,
         "decode",
+        DECODE_FLAGS,
+        _decode,
         help="print one UPER MessageFrame's BSM core in physical units",
         description="Decodes a hex-encoded J2735 MessageFrame (messageId 20) and prints the "
         "core fields in physical units (latitude and longitude in degrees).",
     )
-    add_flags(p, DECODE_FLAGS)
-    p.set_defaults(handler=_decode)
 
 
 def _decode(args: argparse.Namespace) -> int:

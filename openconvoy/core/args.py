@@ -76,3 +76,18 @@ def lazy_handler(module: str, name: str) -> Callable[[argparse.Namespace], int]:
 
     handler.__name__ = name
     return handler
+
+
+def add_command(
+    sub: argparse._SubParsersAction,
+    name: str,
+    flags: Flags,
+    handler: Callable[[argparse.Namespace], int],
+    **parser_kwargs: Any,
+) -> argparse.ArgumentParser:
+    """A subcommand ``name`` (``help``, ``description``, ... in ``parser_kwargs``) with its
+    ``flags``, run by ``handler``; returns its parser."""
+    parser = sub.add_parser(name, **parser_kwargs)
+    add_flags(parser, flags)
+    parser.set_defaults(handler=handler)
+    return parser

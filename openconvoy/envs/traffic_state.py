@@ -105,9 +105,13 @@ class StraightEdge:
         """Lane ids ``RoadNetwork.get_closest_lane_index`` picks for vehicles at ``(x, y)``
         (m) with ``heading`` (rad): its ``distance_with_heading``, term by term."""
         angle = np.abs((heading + np.pi) % (2 * np.pi) - np.pi)  # every lane heads along +x
-        along = np.maximum(x - self.length, 0) + np.maximum(0 - x, 0)
-        dist = np.abs(y[:, None] - self.lane_y) + along[:, None] + 1.0 * angle[:, None]
-        return np.argmin(dist, axis=1)
+        r = np.abs(y[:, None] - self.lane_y)
+        if 0 <= x.min() and x.max() <= self.length:  # then both end terms are 0
+            dist = r + angle[:, None]
+        else:
+            along = np.maximum(x - self.length, 0) + np.maximum(0 - x, 0)
+            dist = r + along[:, None] + angle[:, None]
+        return dist.argmin(axis=1)
 
 
 def vectorizable(vehicles: list) -> bool:
@@ -129,6 +133,7 @@ class TrafficState:
         self.edge = edge
         n = self.n = len(vehicles)
         self.index = {id(v): k for k, v in enumerate(vehicles)}
+        self._rows: dict[int, tuple[list, slice | np.ndarray, np.ndarray]] = {}
         self.params = np.array(
             [[float(getattr(v, k)) for v in vehicles] for k in PARAM_NAMES], dtype=float
         ).reshape(len(PARAM_NAMES), n)
@@ -149,6 +154,12 @@ class TrafficState:
         self.speed_range = np.array(
             [[v.MIN_SPEED for v in vehicles], [v.MAX_SPEED for v in vehicles]], dtype=float
         ).reshape(2, n)
+        # Speeds inside (min of MIN_SPEED, max of MAX_SPEED) need no clipping (m/s).
+        self.speed_bounds = (
+            (float(self.speed_range[0].max()), float(self.speed_range[1].min()))
+            if n
+            else (0.0, 0.0)
+        )
         # Collision pre-check constants: half (length, width), half the diagonals' sum, pairs.
         self.half = 0.5 * np.array([(v.LENGTH, v.WIDTH) for v in vehicles], dtype=float)
         self.reach = 0.5 * (self.diagonal[:, None] + self.diagonal[None, :])
@@ -187,6 +198,16 @@ class TrafficState:
         for k, v in enumerate(self.objs):
             if v.impact is not None:
                 self.impact[k], self.hit[k] = v.impact, True
+
+    def rows_of(self, vehicles: list) -> slice | np.ndarray:
+        """The rows of ``vehicles`` (a slice when they are a block), cached per list."""
+        got = self._rows.get(id(vehicles))
+        if got is None or got[0] is not vehicles or len(got[2]) != len(vehicles):
+            ks = np.array([self.index[id(v)] for v in vehicles], dtype=np.intp)
+            block = len(ks) > 0 and bool(np.all(ks == np.arange(ks[0], ks[0] + len(ks))))
+            rows = slice(int(ks[0]), int(ks[0]) + len(ks)) if block else ks
+            got = self._rows[id(vehicles)] = (vehicles, rows, ks)
+        return got[1]
 
     def trig(self) -> None:
         """``c``, ``s``: cos and sin of every heading (computed once per change of ``h``)."""

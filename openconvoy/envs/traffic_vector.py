@@ -25,22 +25,24 @@ import numpy as np
 
 from openconvoy.envs.traffic import FastRoad, StraightLane, touching_pairs
 from openconvoy.envs.traffic_idm import decide
-from openconvoy.envs.traffic_state import LENGTH, StraightEdge, TrafficState, vectorizable
+from openconvoy.envs.traffic_state import StraightEdge, TrafficState, vectorizable
 
 
 def move(st: TrafficState, dt: float) -> None:
     """``IDMVehicle.step`` for every traffic car (timer, ``clip_actions``, the kinematic
     bicycle over ``dt`` s, a pending impact, the closest lane)."""
     m = st.movers
-    h, sp, crashed = st.h[m], st.sp[m], st.crashed[m]
-    steer = np.where(crashed, 0.0, st.steer[m])
-    acc = np.where(crashed, -1.0 * sp, st.acc[m])
+    h, sp, steer, acc = st.h[m], st.sp[m], st.steer[m], st.acc[m]
+    crashed = st.crashed[m]
+    if crashed.any():  # erratic steering and braking until complete stop
+        steer, acc = np.where(crashed, 0.0, steer), np.where(crashed, -1.0 * sp, acc)
     vmin, vmax = st.speed_range[:, m]
-    acc = np.where(
-        sp > vmax,
-        np.minimum(acc, 1.0 * (vmax - sp)),
-        np.where(sp < vmin, np.maximum(acc, 1.0 * (vmin - sp)), acc),
-    )
+    if sp.max() > st.speed_bounds[1] or sp.min() < st.speed_bounds[0]:
+        acc = np.where(
+            sp > vmax,
+            np.minimum(acc, 1.0 * (vmax - sp)),
+            np.where(sp < vmin, np.maximum(acc, 1.0 * (vmin - sp)), acc),
+        )
     st.steer[m], st.acc[m] = steer, acc
     beta = np.arctan(1 / 2 * np.tan(steer))
     x = st.x[m] + sp * np.cos(h + beta) * dt
@@ -51,7 +53,7 @@ def move(st: TrafficState, dt: float) -> None:
         x, y = np.where(hit, x + imp[:, 0], x), np.where(hit, y + imp[:, 1], y)
         st.crashed[m] = crashed | hit
         st.hit[m] = False
-    h = h + sp * np.sin(beta) / (st.params[LENGTH, m] / 2) * dt
+    h = h + sp * np.sin(beta) / st.half[m, 0] * dt
     st.x[m], st.y[m], st.h[m], st.sp[m] = x, y, h, sp + acc * dt
     st.lane[m] = st.edge.closest(x, y, h)
     st.timer[m] += dt
@@ -132,7 +134,11 @@ class VectorRoad(FastRoad):
         st = self._state()
         if st is None:
             return False
-        ks = [st.index[id(v)] for v in vehicles]
+        try:
+            ks = st.rows_of(vehicles)
+        except KeyError:  # not all on this road's list: the caller sets the objects
+            self.vehicles  # noqa: B018  (brings the objects up to date, read back next tick)
+            return False
         st.x[ks], st.y[ks], st.h[ks], st.sp[ks] = hx, hy, heading, speed
         st.hit[ks] = False
         st.trig_ok = False

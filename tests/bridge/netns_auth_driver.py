@@ -25,7 +25,7 @@ from openconvoy.demo import (
     deploy_argv,
     sim_vehicle_configs,
     start_local_sim_vehicles,
-    stop_all,
+    stop_convoy,
     write_convoy_toml,
 )
 from openconvoy.envs.scenarios import make_scenario
@@ -154,9 +154,7 @@ def main(out: Path) -> dict:
             log_rows=[int((vid == i).sum()) for i in range(3)],
         )
     finally:
-        stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        stop_convoy(procs, vehicles)
     return result
 
 

@@ -24,7 +24,7 @@ from openconvoy.demo import (
     deploy_argv,
     sim_vehicle_configs,
     start_local_sim_vehicles,
-    stop_all,
+    stop_convoy,
     write_convoy_toml,
 )
 from openconvoy.envs.scenarios import make_scenario
@@ -112,9 +112,7 @@ def main(action: str, out: Path) -> dict:
             ],
         )
     finally:
-        stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        stop_convoy(procs, vehicles)
     return result
 
 

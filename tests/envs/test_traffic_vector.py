@@ -76,3 +76,40 @@ def test_objects_read_from_a_vector_road_are_current() -> None:
     assert np.array_equal(objects, states[:, [0, 1, 3]])
     lead = world.convoy[0]
     assert lead.position[0] == pytest.approx(100.0 + 22.0 * DT * 29) and lead.lane_index[2] == 1
+
+
+def test_touching_pairs_keeps_every_pair_highway_env_acts_on() -> None:
+    """The numpy pre-filter skips a pair only when highway-env's own test
+    (``_is_colliding``: intersecting now, or will intersect within dt) finds neither."""
+    from highway_env.vehicle.kinematics import Vehicle
+
+    from openconvoy.envs.traffic import touching_pairs
+
+    rs = np.random.RandomState(3)
+    road = Road(RoadNetwork.straight_road_network(2))
+    upper = np.array([[False, True], [False, False]])
+    counts = {"acted": 0, "skipped": 0, "kept_idle": 0}
+    for _ in range(600):
+        a = Vehicle(road, rs.uniform(-3, 3, 2), rs.uniform(-0.8, 0.8), rs.uniform(0, 30))
+        offset = np.array([rs.choice([-6.0, 0.0, 6.0]), rs.choice([-4.0, 0.0, 4.0])])
+        b = Vehicle(road, rs.uniform(-3, 3, 2) + offset, rs.uniform(-0.8, 0.8), rs.uniform(0, 30))
+        h = np.array([a.heading, b.heading])
+        kept = touching_pairs(
+            np.array([a.position[0], b.position[0]]),
+            np.array([a.position[1], b.position[1]]),
+            np.cos(h),
+            np.sin(h),
+            np.array([a.speed, b.speed]),
+            np.full((2, 2), 0.5 * (a.diagonal + b.diagonal)),
+            0.5 * np.array([(a.LENGTH, a.WIDTH), (b.LENGTH, b.WIDTH)]),
+            upper,
+            0.5,
+        )
+        intersecting, will_intersect, _ = a._is_colliding(b, 0.5)
+        if intersecting or will_intersect:
+            assert kept == [(0, 1)]
+            counts["acted"] += 1
+        else:
+            counts["skipped" if not kept else "kept_idle"] += 1
+    # Both outcomes occur, and the filter drops most of the idle pairs.
+    assert counts["acted"] > 50 and counts["skipped"] > 5 * counts["kept_idle"]

@@ -10,13 +10,15 @@ Numba checks a cached kernel against its own source file only, but kernels call 
 of other ``vector_*`` modules: the cache lives in a directory named for a digest of all
 of them (and numba's version), so a change to any kernel recompiles every one.
 ``NUMBA_CACHE_DIR`` (numba's setting) moves that directory's parent; default
-``~/.cache/openconvoy`` (``XDG_CACHE_HOME``).
+``~/.cache/openconvoy`` (``XDG_CACHE_HOME``; the temporary directory when not writable).
+Compiling all kernels takes ~25 CPU-seconds, loading them from the cache ~1.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -35,7 +37,13 @@ def _cache_dir() -> Path:
         digest.update(path.name.encode() + path.read_bytes())
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
-    return Path(base) / f"vector-kernels-{digest.hexdigest()[:16]}"
+    path = Path(base) / f"vector-kernels-{digest.hexdigest()[:16]}"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:  # a read-only home: cache in the temporary directory instead
+        path = Path(tempfile.gettempdir()) / "openconvoy" / path.name
+        path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 CACHE_DIR = _cache_dir()

@@ -23,8 +23,6 @@ from openconvoy.envs.traffic_state import (
     GAIN,
     KP_A,
     KP_HEAD,
-    KP_LAT,
-    LENGTH,
     MAX_STEER,
     POLITE,
     TrafficState,
@@ -90,11 +88,16 @@ def idm(
 
 def _queries(
     st: TrafficState, fi: np.ndarray, mv: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The (lane, vehicle) neighbour queries of a tick: every vehicle on its lane, the cars
     changing lane (``mv``) on their target lane, the cars whose timer fired (``fi``) on the
-    lane to their left and right. Also those side lanes (2, nf) and which MOBIL may try."""
+    lane to their left and right. Also those side lanes (2, nf) and which MOBIL may try
+    (None without ``fi``)."""
     lane = st.lane
+    if not len(fi):
+        if not len(mv):
+            return lane, st.arange, None, None
+        return np.concatenate((lane, st.tgt[mv])), np.concatenate((st.arange, mv)), None, None
     side = lane[fi] + _SIDES  # (2, nf): left, right
     sc = _clip(side, 0, len(st.edge.lanes) - 1)
     xf, e = st.x[fi], st.edge
@@ -173,11 +176,12 @@ def _steering(st: TrafficState, nz_speed: np.ndarray) -> np.ndarray:
     """``steering_control`` onto each vehicle's target lane, clipped (rad)."""
     p = st.params
     lat = st.y - st.edge.lane_y[st.tgt]
-    heading_cmd = np.arcsin(_clip(-p[KP_LAT] * lat / nz_speed, -1, 1))
-    heading_ref = 0.0 + _clip(heading_cmd, -np.pi / 4, np.pi / 4)
+    heading_cmd = np.arcsin(_clip(st.neg_kp_lat * lat / nz_speed, -1, 1))
+    # (highway-env adds the lane's heading, 0.0: that changes no result below.)
+    heading_ref = _clip(heading_cmd, -np.pi / 4, np.pi / 4)
     rate_cmd = p[KP_HEAD] * (((heading_ref - st.h) + np.pi) % (2 * np.pi) - np.pi)
-    slip = np.arcsin(_clip(p[LENGTH] / 2 / nz_speed * rate_cmd, -1, 1))
-    return _clip(np.arctan(2 * np.tan(slip)), -p[MAX_STEER], p[MAX_STEER])
+    slip = np.arcsin(_clip(st.half[:, 0] / nz_speed * rate_cmd, -1, 1))
+    return _clip(np.arctan(2 * np.tan(slip)), st.neg_max_steer, p[MAX_STEER])
 
 
 def decide(st: TrafficState) -> np.ndarray:
@@ -202,7 +206,7 @@ def decide(st: TrafficState) -> np.ndarray:
     a_target = a_lane.copy()  # each car's IDM on the lane it will target
     a_target[mv] = a[n:base]
     starts: dict[int, int] = {}
-    if len(fi):
+    if sc is not None and possible is not None:
         q = len(q_lane)
         self_pred = a[base:q].reshape(2, len(fi))
         ok = possible & _mobil(st, a_lane, self_pred, a[q:], fi)

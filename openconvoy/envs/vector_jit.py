@@ -52,12 +52,13 @@ CACHE_DIR = _cache_dir()
 
 
 def kernel(fn: Callable[..., Any]) -> Any:
-    """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath)."""
+    """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
+    error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
     # numba reads its cache directory when a function is decorated: set it for ours only.
     config: Any = _numba.config
     saved = config.CACHE_DIR
     config.CACHE_DIR = str(CACHE_DIR)
     try:
-        return _numba.njit(cache=True, nogil=True)(fn)
+        return _numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
     finally:
         config.CACHE_DIR = saved

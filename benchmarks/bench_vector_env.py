@@ -46,12 +46,17 @@ def _timed(step, seconds: float) -> tuple[int, float, float]:
             return n, dt, time.process_time() - c0
 
 
+def _sig(x: float) -> float:
+    """Whole numbers from 100 up, three significant digits below."""
+    return round(x) if x >= 100 else float(f"{x:.3g}")
+
+
 def _rates(n: int, wall: float, cpu: float, B: int, vehicles: int) -> dict:
     return {
-        "env_steps_per_s": round(n * B / wall),
-        "vehicle_steps_per_s": round(n * B * vehicles / wall),
-        "env_steps_per_cpu_s": round(n * B / cpu),
-        "vehicle_steps_per_cpu_s": round(n * B * vehicles / cpu),
+        "env_steps_per_s": _sig(n * B / wall),
+        "vehicle_steps_per_s": _sig(n * B * vehicles / wall),
+        "env_steps_per_cpu_s": _sig(n * B / cpu),
+        "vehicle_steps_per_cpu_s": _sig(n * B * vehicles / cpu),
     }
 
 

@@ -5,7 +5,9 @@ operations in the same order, on arrays): MOBIL lane changes (``change_lane_poli
 ``mobil``), the lane-keeping steering law (``steering_control``) and IDM acceleration
 (``acceleration``) on the current and target lane; a scripted car holds its speed
 (``speed_control``). Neighbours are ``Road.neighbour_vehicles``'s (ties: the last equal
-one ahead, the first equal one behind). A car's abort of a lane change looks at the
+one ahead, the first equal one behind), searched only for the (lane, vehicle) pairs a tick
+needs: every car on its lane, a changing car on its target lane, a car whose lane-change
+timer fired on its side lanes. A car's abort of a lane change looks at the
 targets of the cars before it in ``road.vehicles``, as in highway-env's loop.
 """
 
@@ -21,8 +23,6 @@ from openconvoy.envs.traffic_state import (
     GAIN,
     KP_A,
     KP_HEAD,
-    KP_LAT,
-    LENGTH,
     MAX_STEER,
     POLITE,
     TrafficState,
@@ -30,7 +30,6 @@ from openconvoy.envs.traffic_state import (
 
 _EPS = 1e-2  # highway_env.utils.not_zero
 _GHOST_X = 1e300  # "no vehicle": IDM's interaction term behind it rounds to exactly 0
-_CACHE: dict[tuple, np.ndarray] = {}
 _SIDES = np.array([[-1], [1]])
 
 
@@ -38,30 +37,22 @@ def _not_zero(x: np.ndarray) -> np.ndarray:
     return np.where(np.abs(x) > _EPS, x, np.where(x >= 0, _EPS, -_EPS))
 
 
-def _cached(kind: str, n: int, lanes: int) -> np.ndarray:
-    """Index patterns fixed per (n, lanes): ``not_self`` (n, n): True off the diagonal;
-    ``tile``: 0..n-1 once per lane."""
-    key = (kind, n, lanes)
-    got = _CACHE.get(key)
-    if got is None:
-        got = ~np.eye(n, dtype=bool) if kind == "not_self" else np.tile(np.arange(n), lanes)
-        _CACHE[key] = got
-    return got
-
-
-def neighbours(st: TrafficState) -> tuple[np.ndarray, np.ndarray]:
-    """``(front, rear)``, each (lanes, n): on every lane, the index of the vehicle ahead of
-    / behind each vehicle (-1: none), as ``Road.neighbour_vehicles`` finds them."""
+def neighbours(
+    st: TrafficState, q_lane: np.ndarray, q_ego: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(front, rear)``: for each query, the index of the vehicle ahead of / behind vehicle
+    ``q_ego`` on lane ``q_lane`` (-1: none), as ``Road.neighbour_vehicles`` finds them."""
     e, x, n = st.edge, st.x, st.n
     inside = (-e.vlen <= x) & (x < e.length + e.vlen)
     on = (np.abs(st.y - e.lane_y[:, None]) <= e.on_half_w[:, None]) & inside  # (lanes, n)
-    ge = x >= x[:, None]  # [i, j]: j is not behind i
-    ahead = on[:, None, :] & (ge & _cached("not_self", n, 0))
-    behind = on[:, None, :] & ~ge
-    front = n - 1 - np.where(ahead, x, np.inf)[:, :, ::-1].argmin(axis=2)
-    front[~ahead.any(axis=2)] = -1
-    rear = np.where(behind, x, -np.inf).argmax(axis=2)
-    rear[~behind.any(axis=2)] = -1
+    onq = on[q_lane]
+    ge = x >= x[q_ego][:, None]  # [q, j]: j is not behind the query's vehicle
+    ahead = onq & ge & (q_ego[:, None] != st.arange)
+    behind = onq & ~ge
+    front = n - 1 - np.where(ahead, x, np.inf)[:, ::-1].argmin(axis=1)
+    front[~ahead.any(axis=1)] = -1
+    rear = np.where(behind, x, -np.inf).argmax(axis=1)
+    rear[~behind.any(axis=1)] = -1
     return front, rear
 
 
@@ -95,42 +86,57 @@ def idm(
     return np.where(ego >= 0, acc, 0.0)
 
 
-def _mobil_queries(
-    st: TrafficState, front: np.ndarray, rear: np.ndarray, fi: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The IDM queries (me, ego, front) MOBIL needs beyond every vehicle on every lane, for
-    the cars ``fi`` whose timer fired: per side (left, right) the new follower before/after,
-    the old follower after/before. Also the side lanes (2, nf) and which are possible."""
-    lanes = len(st.edge.lanes)
-    lane_f = st.lane[fi]
-    side = lane_f + _SIDES  # (2, nf): left, right
-    sc = _clip(side, 0, lanes - 1)
-    xf = st.x[fi]
-    e = st.edge
+def _queries(
+    st: TrafficState, fi: np.ndarray, mv: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The (lane, vehicle) neighbour queries of a tick: every vehicle on its lane, the cars
+    changing lane (``mv``) on their target lane, the cars whose timer fired (``fi``) on the
+    lane to their left and right. Also those side lanes (2, nf) and which MOBIL may try
+    (None without ``fi``)."""
+    lane = st.lane
+    if not len(fi):
+        if not len(mv):
+            return lane, st.arange, None, None
+        return np.concatenate((lane, st.tgt[mv])), np.concatenate((st.arange, mv)), None, None
+    side = lane[fi] + _SIDES  # (2, nf): left, right
+    sc = _clip(side, 0, len(st.edge.lanes) - 1)
+    xf, e = st.x[fi], st.edge
     possible = (
         (side == sc)
         & (np.abs(st.y[fi] - e.lane_y[sc]) <= e.reach_w[sc])
         & ((0 <= xf) & (xf < e.length + e.vlen) & (np.abs(st.sp[fi]) >= 1))
     )
-    (np0, np1), (nf0, nf1) = front[sc, fi], rear[sc, fi]
-    old_pre, old_fol = front[lane_f, fi], rear[lane_f, fi]
+    q_lane = np.concatenate((lane, st.tgt[mv], sc[0], sc[1]))
+    q_ego = np.concatenate((st.arange, mv, fi, fi))
+    return q_lane, q_ego, sc, possible
+
+
+def _mobil_rows(
+    front: np.ndarray, rear: np.ndarray, fi: np.ndarray, base: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The IDM queries (me, ego, front) MOBIL needs beyond the neighbour queries' own, per
+    side (left, right): the new follower before/after, the old follower after/before. The
+    side-lane queries start at row ``base``."""
+    nf = len(fi)
+    np0, np1 = front[base : base + nf], front[base + nf :]
+    nf0, nf1 = rear[base : base + nf], rear[base + nf :]
+    old_pre, old_fol = front[fi], rear[fi]
     me = np.concatenate((fi,) * 8)
     ego = np.concatenate((nf0, nf0, old_fol, old_fol, nf1, nf1, old_fol, old_fol))
     fr = np.concatenate((np0, fi, fi, old_pre, np1, fi, fi, old_pre))
-    return me, ego, fr, sc, possible
+    return me, ego, fr
 
 
 def _mobil(
-    st: TrafficState, a_all: np.ndarray, extra: np.ndarray, fi: np.ndarray, sc: np.ndarray
+    st: TrafficState, a_lane: np.ndarray, self_pred: np.ndarray, extra: np.ndarray, fi: np.ndarray
 ) -> np.ndarray:
-    """(2, nf): does MOBIL recommend the left / right lane? ``a_all`` (lanes, n): each
-    vehicle's IDM on each lane; ``extra``: the answers to ``_mobil_queries``."""
+    """(2, nf): does MOBIL recommend the left / right lane? ``a_lane``: every vehicle's IDM
+    on its lane, ``self_pred`` (2, nf): the cars' own on each side, ``extra``: the answers
+    to ``_mobil_rows``."""
     p = st.params[:, fi]
     q = extra.reshape(2, 4, len(fi))
     nf_a, nf_pred_a, of_a, of_pred_a = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    self_pred_a = a_all[sc, fi]
-    self_a = a_all[st.lane[fi], fi]
-    jerk = self_pred_a - self_a + p[POLITE] * (nf_pred_a - nf_a + of_pred_a - of_a)
+    jerk = self_pred - a_lane[fi] + p[POLITE] * (nf_pred_a - nf_a + of_pred_a - of_a)
     return ~(nf_pred_a < -p[BRAKE]) & ~(jerk < p[GAIN])
 
 
@@ -170,50 +176,51 @@ def _steering(st: TrafficState, nz_speed: np.ndarray) -> np.ndarray:
     """``steering_control`` onto each vehicle's target lane, clipped (rad)."""
     p = st.params
     lat = st.y - st.edge.lane_y[st.tgt]
-    heading_cmd = np.arcsin(_clip(-p[KP_LAT] * lat / nz_speed, -1, 1))
-    heading_ref = 0.0 + _clip(heading_cmd, -np.pi / 4, np.pi / 4)
+    heading_cmd = np.arcsin(_clip(st.neg_kp_lat * lat / nz_speed, -1, 1))
+    # (highway-env adds the lane's heading, 0.0: that changes no result below.)
+    heading_ref = _clip(heading_cmd, -np.pi / 4, np.pi / 4)
     rate_cmd = p[KP_HEAD] * (((heading_ref - st.h) + np.pi) % (2 * np.pi) - np.pi)
-    slip = np.arcsin(_clip(p[LENGTH] / 2 / nz_speed * rate_cmd, -1, 1))
-    return _clip(np.arctan(2 * np.tan(slip)), -p[MAX_STEER], p[MAX_STEER])
+    slip = np.arcsin(_clip(st.half[:, 0] / nz_speed * rate_cmd, -1, 1))
+    return _clip(np.arctan(2 * np.tan(slip)), st.neg_max_steer, p[MAX_STEER])
 
 
 def decide(st: TrafficState) -> np.ndarray:
     """Every acting traffic car's decision, into ``st`` (``tgt``, ``timer``, ``steer``,
     ``acc``). Returns every vehicle's IDM acceleration on its lane, clipped (m/s²)."""
     n, p, lane = st.n, st.params, st.lane
-    lanes = len(st.edge.lanes)
     st.read_scripts()
     st.trig()
-    nz_speed = _not_zero(st.sp)
-    kin = kinematics(st)
-    front, rear = neighbours(st)
     acting = st.traffic & ~st.crashed
     fi = (acting & st.lc & (lane == st.tgt) & (p[DELAY] < st.timer)).nonzero()[0]
-    every = _cached("tile", n, lanes)
+    mv = (lane != st.tgt).nonzero()[0]
+    q_lane, q_ego, sc, possible = _queries(st, fi, mv)
+    front, rear = neighbours(st, q_lane, q_ego)
+    base = n + len(mv)  # the side-lane queries' first row
+    me, ego, fr = q_ego, q_ego, front
     if len(fi):
-        mq, eq, fq, sc, possible = _mobil_queries(st, front, rear, fi)
-        me, ego, fr = (
-            np.concatenate(pair) for pair in ((every, mq), (every, eq), (front.ravel(), fq))
-        )
-    else:
-        me, ego, fr = every, every, front.ravel()
+        mq, eq, fq = _mobil_rows(front, rear, fi, base)
+        me, ego, fr = np.concatenate((me, mq)), np.concatenate((ego, eq)), np.concatenate((fr, fq))
+    kin = kinematics(st)
     a = idm(st, kin, me, ego, fr)
-    a_all = a[: lanes * n].reshape(lanes, n)
+    a_lane = a[:n]
+    a_target = a_lane.copy()  # each car's IDM on the lane it will target
+    a_target[mv] = a[n:base]
     starts: dict[int, int] = {}
-    if len(fi):
-        ok = possible & _mobil(st, a_all, a[lanes * n :], fi, sc)
+    if sc is not None and possible is not None:
+        q = len(q_lane)
+        self_pred = a[base:q].reshape(2, len(fi))
+        ok = possible & _mobil(st, a_lane, self_pred, a[q:], fi)
         # Both sides pass: the right one, tried last, wins (as in highway-env's loop).
         new = np.where(ok[1], sc[1], np.where(ok[0], sc[0], lane[fi]))
+        a_target[fi] = np.where(ok[1], self_pred[1], self_pred[0])
         st.timer[fi] = 0.0
         starts = {k: t for k, t in zip(fi.tolist(), new.tolist()) if t != lane[k]}
     tgt = st.tgt.copy()
     _aborts(st, kin, tgt, starts, acting & st.lc)
     st.tgt = tgt
-    idx = st.arange
-    a_lane = a_all[lane, idx]
-    acc = np.where(lane != tgt, np.minimum(a_lane, a_all[tgt, idx]), a_lane)
+    acc = np.where(lane != tgt, np.minimum(a_lane, a_target), a_lane)
     acc = np.where(st.hold, p[KP_A] * (st.tspeed - st.sp), acc)
     amax = p[AMAX]
-    st.steer = np.where(acting, _steering(st, nz_speed), st.steer)
+    st.steer = np.where(acting, _steering(st, _not_zero(st.sp)), st.steer)
     st.acc = np.where(acting, _clip(acc, -amax, amax), st.acc)
     return _clip(a_lane, -amax, amax)

@@ -144,6 +144,7 @@ class TrafficState:
             (p[CAM], p[DELTA], p[DW], p[TW], 2 * np.sqrt(-p[CAM] * p[CAMIN]))
         ).reshape(5, n)
         self.arange = np.arange(n)
+        self.neg_kp_lat, self.neg_max_steer = -p[KP_LAT], -p[MAX_STEER]
         self.traffic = np.array([type(v) is not ConvoyVehicle for v in vehicles], dtype=bool)
         self.lc = np.array([bool(v.enable_lane_change) for v in vehicles], dtype=bool)
         self.hold = np.array([type(v) is ScriptedLaneChanger for v in vehicles], dtype=bool)

@@ -63,7 +63,9 @@ class VectorChannel:
             [c.mean_burst_s * (1.0 - c.per) / c.per if c.per > 0 else np.inf for c in losses]
         )
         if all_pairs:
-            s, r = np.nonzero(~np.eye(N, dtype=bool))
+            # Receiver-major, as the links are numbered: deliveries walk the R^i buffers
+            # in memory order (the draws do not depend on the order).
+            r, s = np.nonzero(~np.eye(N, dtype=bool))
             self.pair_s, self.pair_r = s.astype(np.int64), r.astype(np.int64)
             self.pair_link = links.link_of[s, r]
         else:

@@ -290,7 +290,7 @@ class VectorConvoyEnv:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """One tick of every convoy with ``actions`` ``(B, N-1, 2)`` (SI, clipped)."""
         B, N = self.num_envs, self.n_vehicles
-        a = np.asarray(actions, dtype=np.float32)
+        a = np.ascontiguousarray(actions, dtype=np.float32)  # one compiled layout
         if a.shape != (B, N - 1, 2):
             raise ValueError(f"actions must have shape {(B, N - 1, 2)}, got {a.shape}")
         accel_old = self._command(a)

@@ -71,7 +71,8 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
     lt, lx, ly = hist[b, li, 0, 0], hist[b, li, 0, 1], hist[b, li, 0, 2]
     lv, lh = hist[b, li, 0, 3], hist[b, li, 0, 4]
     age = max(t - lt, 0.0)
-    valid = ln >= 0 and hist_n[b, li] > 0 and not age > stop_after
+    if not (ln >= 0 and hist_n[b, li] > 0 and not age > stop_after):
+        return False, 0.0, 0.0, 0.0, 0.0, age  # invalid: the rest is never read
     if age <= fresh_age:
         d, speed = lv * age, lv
     else:
@@ -81,7 +82,9 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
             tau = min(age, lv / a)
             d = lv * tau - 0.5 * a * tau * tau
             speed = max(lv - a * age, 0.0)
-    return valid, lx + d * math.cos(lh), ly + d * math.sin(lh), speed, lh, age
+    if d == 0.0:  # not moved since the message: no trigonometry
+        return True, lx + d, ly + d, speed, lh, age
+    return True, lx + d * math.cos(lh), ly + d * math.sin(lh), speed, lh, age
 
 
 @kernel

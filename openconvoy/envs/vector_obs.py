@@ -30,11 +30,11 @@ def pack_layout(lay: ObservationLayout) -> np.ndarray:
 
 
 @kernel
-def _slots(obs, b, f, t, own, hist, hist_n, slot_link, geom):  # pragma: no cover
-    """The state slots: each kept sender's last k states in the ego frame."""
+def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: no cover
+    """The state slots: each kept sender's last k states in the ego frame (``c``, ``s``:
+    cosine and sine of the ego heading)."""
     i = f + 1
     ex, ey, eh = own[0, b, i], own[1, b, i], own[3, b, i]
-    c, s = math.cos(eh), math.sin(eh)
     for k in range(slot_link.shape[1]):
         link = slot_link[f, k]
         if link < 0:
@@ -69,12 +69,11 @@ def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
 
 @kernel
 def _path(
-    obs, b, f, own, trail, trail_n, link, hx, hy, hh, cross, pheading, ps, o, guess
+    obs, b, f, own, c, s, trail, trail_n, link, hx, hy, hh, cross, pheading, ps, o, guess
 ):  # pragma: no cover
     """The path features: cross track, heading error, lookahead points in the ego frame."""
     i = f + 1
     ex, ey, ev, eh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
-    c, s = math.cos(eh), math.sin(eh)
     obs[b, f, o] = -cross
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
@@ -104,7 +103,8 @@ def observe(
         for f in range(F):
             i = f + 1
             obs[b, f, :] = 0.0
-            _slots(obs, b, f, tb, own, hist, hist_n, slot_link, geom)
+            c, s = math.cos(own[3, b, i]), math.sin(own[3, b, i])
+            _slots(obs, b, f, tb, own, c, s, hist, hist_n, slot_link, geom)
             ev = own[2, b, i]
             o = geom[2]
             obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = ev, own[4, b, i], own[5, b, i]
@@ -122,7 +122,7 @@ def observe(
             spacing_error[b, i] = np.float64(np.float32(err))
             if chosen == 1:
                 pred_est[0, b, i], pred_est[1, b, i] = tg[5, 1], tg[3, 1] - ev
-            _path(obs, b, f, own, trail, trail_n, target_link[f, chosen], tg[1, chosen],
+            _path(obs, b, f, own, c, s, trail, trail_n, target_link[f, chosen], tg[1, chosen],
                   tg[2, chosen], tg[4, chosen], tg[6, chosen], tg[7, chosen], tg[8, chosen],
                   geom[4], int(tg[10, chosen]) + 1)  # fmt: skip
 

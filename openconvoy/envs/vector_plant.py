@@ -15,6 +15,7 @@ import numpy as np
 
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vehicles import VehiclePreset
 
 X, Y, SPEED, HEADING, ACCEL, YAW_RATE = range(6)
@@ -109,7 +110,6 @@ def _plant_step(
 ):  # pragma: no cover - compiled
     depth = queue.shape[1]
     head = head_arr[0]
-    two_pi = 2.0 * math.pi
     for i in range(st.shape[1]):
         queue[0, head, i] = cmd_v[i]
         queue[1, head, i] = st[HEADING, i] + cmd_h[i]
@@ -127,7 +127,7 @@ def _plant_step(
                 dv = 0.0
         v_new = v + dv
         hd = st[HEADING, i]
-        err = (h_cmd - hd + math.pi) % two_pi - math.pi
+        err = wrap(h_cmd - hd)
         v_mid = 0.5 * (v + v_new)
         rmax = p[RATE, i]
         wanted = min(max(err / max(p[TAU_H, i], dt), -rmax), rmax)
@@ -141,7 +141,7 @@ def _plant_step(
         h_mid = hd + 0.5 * rate * dt
         st[X, i] = st[X, i] + v_mid * math.cos(h_mid) * dt
         st[Y, i] = st[Y, i] + v_mid * math.sin(h_mid) * dt
-        st[HEADING, i] = (hd + rate * dt + math.pi) % two_pi - math.pi
+        st[HEADING, i] = wrap(hd + rate * dt)
         st[ACCEL, i] = dv / dt
         st[YAW_RATE, i] = rate
         st[SPEED, i] = v_new

@@ -67,9 +67,19 @@ def run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
-def executor_args(p: argparse.ArgumentParser, batched: bool = False) -> None:
+def executor_args(
+    p: argparse.ArgumentParser, batched: bool = False, run_logs: bool = False
+) -> None:
     """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray); with
-    ``batched``, ``--batched/--no-batched`` (issue 14: sweeps and tune)."""
+    ``batched``, ``--batched/--no-batched`` (issue 14: sweeps and tune); with
+    ``run_logs``, ``--no-run-logs`` (sweeps)."""
+    if run_logs:
+        p.add_argument(
+            "--no-run-logs",
+            action="store_true",
+            help="write each run's metrics.json but not its log.csv (the summary is the same; "
+            "writing the logs is much of a batched sweep's time)",
+        )
     if batched:
         p.add_argument(
             "--batched",
@@ -227,13 +237,7 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="runs at once (default: the cores available, or the Ray cluster's CPUs)",
     )
-    executor_args(p, batched=True)
-    p.add_argument(
-        "--no-run-logs",
-        action="store_true",
-        help="write each run's metrics.json but not its log.csv (the summary is the same; "
-        "writing the logs is most of a batched sweep's time)",
-    )
+    executor_args(p, batched=True, run_logs=True)
     run_args(p, sweep=True)
 
     def _per_sweep(args: argparse.Namespace) -> int:

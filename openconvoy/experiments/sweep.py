@@ -31,6 +31,7 @@ One TOML file fully describes an experiment::
     [executor]                               # optional: where the runs execute
     kind = "ray"                             # default "local" (processes on this machine)
     address = "10.0.0.5:6379"                # see openconvoy.experiments.executor
+    batched = false                          # default: batched where exact (see below)
 
 An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
 name it (with ``+ladder`` too); policy files named in ``policies`` are inlined the same way
@@ -42,7 +43,10 @@ inline policies as files, ``summary.json`` (DESIGN.md's shape, one row per polic
 byte-identical ``summary.csv``: every run is seeded, results are ordered by (policy, PER,
 seed) whatever order the processes finish in, and numbers are written with fixed format.
 The executor does not change a number: each run is a task that ships its log and metrics
-back as bytes, and only this process writes the run directory. A run that fails leaves
+back as bytes, and only this process writes the run directory. Nor does batching: a
+policy's runs are a few tasks of one ``VectorConvoyEnv`` each (``batched_sweep``) where
+the batched env takes them and the policy's ``act_batch`` is its ``act`` to the bit
+(classical policies), and those tasks return the very files the per-run tasks would. A run that fails leaves
 the others written, ``failures.json`` naming it, and a summary of the runs that finished.
 """
 

@@ -19,12 +19,13 @@ Parameters the log cannot show (size, steering lock, speed cap) come from a base
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -170,8 +171,9 @@ def _refine(
     for r in range(rounds):
         axes = []
         for i, (a, b, p) in enumerate(zip(lo, hi, points)):
-            if step[i] is not None and best is not None:
-                values = best[i] + step[i] * np.arange(-4, 5)
+            step_i = step[i]
+            if step_i is not None and best is not None:
+                values = best[i] + step_i * np.arange(-4, 5)
                 axes.append(values[(values >= full_lo[i] - 1e-12) & (values <= full_hi[i] + 1e-12)])
             else:
                 axes.append(np.linspace(a, b, p if r == 0 else max(5, p // 2 + 1)))
@@ -208,7 +210,11 @@ class _Data:
     cmd_h: np.ndarray  # absolute heading setpoints
 
 
-def _load(log_path: str | Path, vehicle_id: int | None) -> tuple[np.ndarray, ...]:
+_Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""A vehicle's log columns: t, speed, heading, commanded speed and heading change, age."""
+
+
+def _load(log_path: str | Path, vehicle_id: int | None) -> _Columns:
     log = read_log(log_path)
     mask = _select_vehicle(log, vehicle_id)
     cols = ("t_s", "speed_mps", "heading_rad", "cmd_speed_mps", "cmd_heading_change_rad")
@@ -435,20 +441,20 @@ def format_fit(fit: PlantFit) -> str:
     return "\n".join(lines)
 
 
-def run_fit_plant_cli(args: object) -> int:
+def run_fit_plant_cli(args: argparse.Namespace) -> int:
     """``openconvoy fit-plant LOG_DIR... [--model lag|pi] [--out preset.toml] [--name] [--base]
     [--vehicle-id] [--source]``."""
     from openconvoy.outputs import check_output_file
 
-    check_output_file(args.out or f"{args.name}.toml", "--out")  # type: ignore[attr-defined]
-    logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
+    check_output_file(args.out or f"{args.name}.toml", "--out")
+    logs = args.log if isinstance(args.log, list) else [args.log]
     if getattr(args, "model", "lag") == "pi":
         pi_fit = fit_pi_plant(
             logs,
             base=args.base,
-            name=args.name,  # type: ignore[attr-defined]
+            name=args.name,
             vehicle_id=args.vehicle_id,
-            source=args.source,  # type: ignore[attr-defined]
+            source=args.source,
             cmd_timing=getattr(args, "cmd_timing", "after-state"),
         )
         print(format_pi_fit(pi_fit))
@@ -463,13 +469,13 @@ def run_fit_plant_cli(args: object) -> int:
         fit = fit_plant(
             logs[0],
             base=args.base,
-            name=args.name,  # type: ignore[attr-defined]
+            name=args.name,
             vehicle_id=args.vehicle_id,
-            cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
+            cmd_timing=getattr(args, "cmd_timing", "after-state"),
         )
         print(format_fit(fit))
         preset = fit.preset
-    out = Path(args.out or f"{args.name}.toml")  # type: ignore[attr-defined]
+    out = Path(args.out or f"{args.name}.toml")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(preset_to_toml(preset))
     print(f"wrote {out}")
@@ -631,7 +637,7 @@ def _cem(
     rng = np.random.default_rng(seed)
     raw_cost = cost
 
-    def cost(x: np.ndarray) -> np.ndarray:  # unstable candidates overflow: never the best
+    def safe_cost(x: np.ndarray) -> np.ndarray:  # unstable candidates overflow: never the best
         with np.errstate(all="ignore"):
             c = raw_cost(x)
         return np.where(np.isfinite(c), c, np.inf)
@@ -639,15 +645,20 @@ def _cem(
     lo = np.array([math.log(b[0]) if b[2] else b[0] for b in bounds])
     hi = np.array([math.log(b[1]) if b[2] else b[1] for b in bounds])
     logs = np.array([b[2] for b in bounds])
-    to_z = lambda x: np.where(logs, np.log(np.maximum(x, 1e-12)), x)  # noqa: E731
-    from_z = lambda z: np.where(logs, np.exp(z), z)  # noqa: E731
+
+    def to_z(x: np.ndarray) -> np.ndarray:
+        return np.where(logs, np.log(np.maximum(x, 1e-12)), x)
+
+    def from_z(z: np.ndarray) -> np.ndarray:
+        return np.where(logs, np.exp(z), z)
+
     mean = np.clip(to_z(np.asarray(prior, dtype=float)), lo, hi)
     spread = (hi - lo) / 4.0
-    best_z, best_cost = mean.copy(), float(cost(from_z(mean[None, :]))[0])
+    best_z, best_cost = mean.copy(), float(safe_cost(from_z(mean[None, :]))[0])
     for _ in range(rounds):
         z = np.clip(mean + spread * rng.standard_normal((population, len(mean))), lo, hi)
         z[0] = best_z  # keep the best so far
-        costs = cost(from_z(z))
+        costs = safe_cost(from_z(z))
         order = np.argsort(costs)[:elite]
         if costs[order[0]] < best_cost:
             best_z, best_cost = z[order[0]].copy(), float(costs[order[0]])
@@ -722,7 +733,7 @@ def fit_pi_plant(
         )
 
         def speed_cost(c: np.ndarray) -> np.ndarray:
-            return sum(_pi_speed_sse(s, c) for s in speed_series) / n
+            return cast(np.ndarray, sum(_pi_speed_sse(s, c) for s in speed_series)) / n
 
         best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds, population=population)
         # Static friction only where the data needs it: without it the fit must be clearly
@@ -759,7 +770,7 @@ def fit_pi_plant(
         raise InputFileError("nothing to fit: no stretch changes the commanded speed or heading")
     # An unfitted heading loop keeps the base's heading delay, whatever the speed delay is.
     values.setdefault("heading_delay_s", base_preset.heading_delay)
-    rounded = {k: round(v, 4) for k, v in values.items()}
+    rounded: dict[str, Any] = {k: round(v, 4) for k, v in values.items()}
     preset = dataclasses.replace(base_preset, name=name, speed_loop="pi", **rounded)
     return PiFit(preset, speed_rms, heading_rms, samples, " + ".join(sorted(set(kinds))))
 

@@ -136,14 +136,14 @@ def child(spec: dict) -> int:
         )
         v = SimVehicle(f"udpin:127.0.0.1:{spec['mav'][i]}", cfg)
         if i == 1:
-            orig = v._send_telemetry
+            orig = v._streams.send_telemetry
 
             def send(mav, msg_id, t, orig=orig):
                 orig(mav, msg_id, t)
                 if msg_id in (33, 30):  # GLOBAL_POSITION_INT, ATTITUDE
                     sent.append(time.monotonic())
 
-            v._send_telemetry = send
+            v._streams.send_telemetry = send
         vehicles.append(v.start())
     print("ready", flush=True)
     leader = _runner(

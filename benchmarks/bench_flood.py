@@ -108,11 +108,16 @@ def inside(args: argparse.Namespace) -> dict:
     """The inside half: vehicles, deploys, flood, figures."""
     import tempfile
 
-    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
     from openconvoy.comms import netns
     from openconvoy.comms.geodesy import Origin
     from openconvoy.convoy import ConvoyConfig
-    from openconvoy.demo import deploy_argv, free_udp_port, stop_all, write_convoy_toml
+    from openconvoy.demo import (
+        deploy_argv,
+        sim_vehicle_configs,
+        start_local_sim_vehicles,
+        stop_convoy,
+        write_convoy_toml,
+    )
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
 
@@ -141,21 +146,12 @@ def inside(args: argparse.Namespace) -> dict:
         "cpus": os.cpu_count(),
     }
     try:
-        for i in ids:
-            port = free_udp_port()
-            cfg = SimVehicleConfig(
-                system_id=i + 1,
-                preset=presets[i],
-                home=Origin(*defaults.origin),
-                start_x_m=float(init.x[i]),
-                start_y_m=float(init.y[i]),
-                start_heading_rad=float(init.heading[i]),
-                ready_after_s=0.5,
-                seed=i,
-            )
-            vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
+        origin = Origin(*defaults.origin)
+        configs = sim_vehicle_configs(init, origin, presets, ids, ready_after_s=0.5)
+        for i, (vehicle, url) in zip(ids, start_local_sim_vehicles(configs)):
+            vehicles.append(vehicle)
             cmd = deploy_argv(
-                i, convoy_path, f"udpout:127.0.0.1:{port}", iface, out / "run",
+                i, convoy_path, url, iface, out / "run",
                 "--rate", repr(args.loop_hz), "--quiet",
             )  # fmt: skip
             if args.vehicles == 1:
@@ -200,9 +196,7 @@ def inside(args: argparse.Namespace) -> dict:
         result["flood_rate_achieved_per_s"] = sent["sent"] / (t1 - t0)
         result["moving_at_end"] = [round(v.state().speed, 3) for v in vehicles]
     finally:
-        result["exit_codes"] = stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        result["exit_codes"] = stop_convoy(procs, vehicles)
         for f in errs:
             f.close()
     per_vehicle = {}

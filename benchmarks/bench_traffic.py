@@ -16,7 +16,9 @@ Cases, for 10, 30 and 50 traffic cars on a 4-lane highway:
   15 Hz / 1 Hz (15 simulation steps per env step) for reference.
 
 An episode that ends (a collision, the time limit) is reset outside the timing. One
-process, one core.
+process, one core. Each case reports steps/s by wall clock and by the process's CPU time,
+the ratio of ``vector`` to ``highway-v0`` (20 Hz) in the same minutes, and the 1-minute load
+average (the machine is shared).
 
     python benchmarks/bench_traffic.py [--seconds 3] [--counts 10,30,50]
 """
@@ -25,27 +27,31 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 
 import numpy as np
 
 
-def _time_steps(step, reset, seconds: float) -> float:
-    """Steps per second of ``step()`` over about ``seconds`` s (resets not counted)."""
+def _time_steps(step, reset, seconds: float) -> tuple[float, float]:
+    """Steps per second of ``step()`` over about ``seconds`` s of wall time, by wall clock
+    and by this process's CPU time (which counts only while the process runs, so it
+    says less about the machine's load; resets not counted)."""
     reset()
-    steps, busy = 0, 0.0
+    steps, busy, cpu = 0, 0.0, 0.0
     while busy < seconds:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         done = step()
         busy += time.perf_counter() - t0
+        cpu += time.process_time() - c0
         steps += 1
         if done:
             reset()
-    return steps / busy
+    return steps / busy, steps / cpu
 
 
-def bench_openconvoy(count: int, road: str, seconds: float) -> float:
+def bench_openconvoy(count: int, road: str, seconds: float) -> tuple[float, float]:
     from openconvoy.envs.traffic_env import TrafficConvoyEnv
 
     spec = f"highway-cut-in:lanes=4,traffic={count - 1},duration_s=60,road={road}"
@@ -64,7 +70,9 @@ def bench_openconvoy(count: int, road: str, seconds: float) -> float:
     return _time_steps(step, reset, seconds)
 
 
-def bench_highway_v0(count: int, sim_hz: int, policy_hz: int, seconds: float) -> float:
+def bench_highway_v0(
+    count: int, sim_hz: int, policy_hz: int, seconds: float
+) -> tuple[float, float]:
     import gymnasium
     import highway_env  # noqa: F401  (registers highway-v0)
 
@@ -106,23 +114,24 @@ def main() -> None:
     counts = [int(c) for c in args.counts.split(",")]
     rows = []
     for n in counts:
-        rows.append(
-            {
-                "traffic_cars": n,
-                "openconvoy_vector_steps_per_s": round(
-                    bench_openconvoy(n, "vector", args.seconds), 1
-                ),
-                "openconvoy_fast_steps_per_s": round(bench_openconvoy(n, "fast", args.seconds), 1),
-                "openconvoy_highway_env_road_steps_per_s": round(
-                    bench_openconvoy(n, "highway-env", args.seconds), 1
-                ),
-                "highway_v0_20hz_steps_per_s": round(bench_highway_v0(n, 20, 20, args.seconds), 1),
-                "highway_v0_default_15hz_1hz_steps_per_s": round(
-                    bench_highway_v0(n, 15, 1, args.seconds), 1
-                ),
-            }
+        row: dict = {"traffic_cars": n}
+        cases = {
+            "openconvoy_vector": (bench_openconvoy, (n, "vector")),
+            "openconvoy_fast": (bench_openconvoy, (n, "fast")),
+            "openconvoy_highway_env_road": (bench_openconvoy, (n, "highway-env")),
+            "highway_v0_20hz": (bench_highway_v0, (n, 20, 20)),
+            "highway_v0_default_15hz_1hz": (bench_highway_v0, (n, 15, 1)),
+        }
+        for name, (bench, case) in cases.items():
+            wall, cpu = bench(*case, args.seconds)
+            row[f"{name}_steps_per_s"] = round(wall, 1)
+            row[f"{name}_cpu_steps_per_s"] = round(cpu, 1)
+        row["vector_over_highway_v0_20hz"] = round(
+            row["openconvoy_vector_steps_per_s"] / row["highway_v0_20hz_steps_per_s"], 1
         )
-        print(json.dumps(rows[-1]), flush=True)
+        row["load_average_1min"] = os.getloadavg()[0]
+        rows.append(row)
+        print(json.dumps(row), flush=True)
     print(
         json.dumps(
             {

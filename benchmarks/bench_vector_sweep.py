@@ -1,80 +1,108 @@
-"""A PER sweep of the ``paper`` policy in one batched run: every (PER, seed) is a convoy.
+"""The paper's PER sweep and a tuning study, batched and per run, timed side by side.
 
-7 PERs (0 to 0.6) × ``--seeds`` seeds of the 60 s paper scenario in one
-``VectorConvoyEnv`` (Bernoulli loss, one PER per convoy), the policy acting through
-``act_batch``. Prints JSON: the wall time, and per PER the pooled 95th-percentile
-platooning error (|gap − desired gap| over every follower and tick, reset tick and final
-tick included, as a run's log has them), collisions and delivery ratio. Each convoy is
-the run ``experiment per-sweep`` makes for that PER and seed (same seeds, bit-equal
-states; ``tests/envs/test_vector_env.py``); the sweep's own metrics are computed from
-its written CSV logs, so its digits may differ in the last places.
+``openconvoy experiment per-sweep --policy paper --seeds N`` (7 PERs × N seeds of the 60 s
+paper scenario, figures included) on the per-run path (one ``ConvoyEnv`` task per run,
+``--no-batched``) and the batched path (the default: the runs as a few
+``VectorConvoyEnv`` tasks, ``experiments.batched``), with every run's log written, and
+batched without the run logs (``--no-run-logs``); each on ``--jobs`` processes (default:
+the cores available). Then an ``openconvoy tune`` study of ``--trials`` trials (its
+default grid: PER 0, 0.3, 0.6 × 2 seeds; trials one at a time) on both paths. Prints one
+JSON line: wall times, per-run and per-trial seconds, and whether the batched
+``summary.csv`` and the studies' objectives equal the per-run path's.
 
-    python benchmarks/bench_vector_sweep.py [--seeds 100]
+    python benchmarks/bench_vector_sweep.py [--seeds 100] [--jobs N] [--trials 4]
+        [--paths per-run,batched,batched-no-logs,tune] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
+import shutil
+import tempfile
 import time
+from pathlib import Path
+from typing import Any
 
-import numpy as np
+from openconvoy import __version__
+from openconvoy.experiments.executor import ExecutorConfig, available_cores
+from openconvoy.experiments.sweep import ExperimentConfig, run_experiment
+from openconvoy.train.tune import TuneConfig, tune
 
-from openconvoy.comms.loss import LossConfig
-from openconvoy.envs import VectorConvoyEnv
-from openconvoy.policies.spec import load_policy
+PATHS = ("per-run", "batched", "batched-no-logs", "tune")
 
-PERS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
+
+def _sweep(seeds: int, jobs: int, path: str, out: Path) -> dict[str, Any]:
+    config = ExperimentConfig(name=path, policies=("paper",), seeds=seeds)
+    executor = ExecutorConfig(jobs=jobs, batched=path != "per-run")
+    start = time.perf_counter()
+    result = run_experiment(
+        config, out / path, executor=executor, progress=False, run_logs=path != "batched-no-logs"
+    )
+    wall = time.perf_counter() - start
+    n = len(result.runs)
+    return {"wall_s": round(wall, 1), "runs": n, "s_per_run": round(wall / n, 4)}
+
+
+def _tune(trials: int, batched: bool) -> dict[str, Any]:
+    start = time.perf_counter()
+    result = tune(TuneConfig(trials=trials), executor=ExecutorConfig(jobs=1, batched=batched))
+    wall = time.perf_counter() - start
+    return {
+        "wall_s": round(wall, 1),
+        "s_per_trial": round(wall / (trials + 1), 2),  # the base policy's evaluation too
+        "values": [h["value"] for h in result.history],
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=100)
+    ap.add_argument("--jobs", type=int, default=None)
+    ap.add_argument("--trials", type=int, default=4)
+    ap.add_argument("--paths", default=",".join(PATHS), help=f"some of {', '.join(PATHS)}")
+    ap.add_argument(
+        "--out",
+        metavar="DIR",
+        help="keep the sweeps in DIR/<path> (a later call compares with those already there)",
+    )
     args = ap.parse_args()
-    start = time.perf_counter()
-    policy = load_policy("paper")
-    runs = [(per, seed) for per in PERS for seed in range(args.seeds)]
-    env = VectorConvoyEnv(
-        len(runs),
-        "paper",
-        member_config=policy.member_config,
-        control_rate_hz=policy.control_rate_hz,
-        loss=[LossConfig(per=per) for per, _ in runs],
-        autoreset=False,
+    paths = [p for p in args.paths.split(",") if p]
+    jobs = args.jobs or available_cores()
+    out: dict[str, Any] = {"benchmark": "vector_sweep", "seeds": args.seeds, "jobs": jobs}
+    with tempfile.TemporaryDirectory() as tmp:
+        where = Path(args.out or tmp)
+        for path in (p for p in paths if p != "tune"):
+            shutil.rmtree(where / path, ignore_errors=True)
+            out[path] = _sweep(args.seeds, jobs, path, where)
+        summaries = {
+            p: (where / p / "summary.csv").read_bytes()
+            for p in PATHS
+            if (where / p / "summary.csv").is_file()
+        }
+    if "per-run" in summaries:
+        out["summary_identical"] = {
+            p: s == summaries["per-run"] for p, s in summaries.items() if p != "per-run"
+        }
+    if "per-run" in out and "batched" in out:
+        out["sweep_speedup"] = round(out["per-run"]["wall_s"] / out["batched"]["wall_s"], 1)
+    if "tune" in paths:
+        per_run, batched = _tune(args.trials, False), _tune(args.trials, True)
+        out["tune"] = {
+            "trials": args.trials,
+            "per_run_s_per_trial": per_run["s_per_trial"],
+            "batched_s_per_trial": batched["s_per_trial"],
+            "objectives_identical": per_run["values"] == batched["values"],
+        }
+    out.update(
+        openconvoy=__version__,
+        python=platform.python_version(),
+        machine=platform.machine(),
+        cpus=os.cpu_count(),
     )
-    obs, info = env.reset(seed=[seed for _, seed in runs])
-    errors = [info["platooning_error_m"]]
-    alive = np.ones(len(runs), dtype=bool)
-    collided = np.zeros(len(runs), dtype=bool)
-    for _ in range(env.max_steps):
-        obs, _, term, _, info = env.step(policy.act_batch(obs))
-        errors.append(np.where(alive[:, None], info["platooning_error_m"], np.nan))
-        collided |= term & alive
-        alive &= ~term
-    err = np.stack(errors, axis=1)  # (runs, ticks, followers)
-    delivered = info["msgs_received"].sum(axis=1)
-    lost = info["msgs_lost"].sum(axis=1)
-    wall = time.perf_counter() - start
-    per_arr = np.array([p for p, _ in runs])
-    rows = []
-    for per in PERS:
-        sel = per_arr == per
-        p95 = [float(np.nanpercentile(e, 95.0)) for e in err[sel]]
-        ratio = delivered[sel] / np.maximum(delivered[sel] + lost[sel], 1)
-        rows.append(
-            {
-                "per": per,
-                "p95_platooning_error_m_mean": round(float(np.mean(p95)), 4),
-                "p95_platooning_error_m_max": round(float(np.max(p95)), 4),
-                "collisions": int(collided[sel].sum()),
-                "delivery_ratio_mean": round(float(np.mean(ratio)), 4),
-            }
-        )
-    print(
-        json.dumps(
-            {"runs": len(runs), "ticks": env.max_steps + 1, "wall_s": round(wall, 1), "rows": rows}
-        )
-    )
+    print(json.dumps(out))
 
 
 if __name__ == "__main__":

@@ -26,11 +26,16 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from openconvoy.bridge.link import Autopilot
+    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
 
 ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
 READY_AFTER_S = 3.0
@@ -49,7 +54,7 @@ class DemoOptions:
 
     policy: str = "paper"
     per: float = 0.0
-    autopilot: str = "ardupilot"
+    autopilot: Autopilot = "ardupilot"
     duration_s: float | None = None
     out: str | None = None
     json: bool = False
@@ -148,10 +153,68 @@ def write_convoy_toml(
     )
 
 
-def run_inside(opts: DemoOptions) -> int:
-    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
-    from openconvoy.comms.geodesy import Origin
-    from openconvoy.convoy import load_convoy
+def sim_vehicle_configs(
+    init: Any,
+    origin: Any,
+    presets: Sequence[Any],
+    ids: Sequence[int] | None = None,
+    **common: Any,
+) -> list[SimVehicleConfig]:
+    """A simulated vehicle's config for each convoy position ``i`` in ``ids`` (default:
+    all): MAVLink system id i + 1, home at ``origin`` (an ``Origin``), the pose the
+    scenario's initial state ``init`` gives vehicle i, ``presets[i]`` (None: the
+    firmware's own loops and vehicle model), seed i; ``common`` (``SimVehicleConfig``
+    fields) for all."""
+    from openconvoy.bridge.simvehicle import SimVehicleConfig
+
+    return [
+        SimVehicleConfig(
+            system_id=i + 1,
+            preset=presets[i],
+            home=origin,
+            start_x_m=float(init.x[i]),
+            start_y_m=float(init.y[i]),
+            start_heading_rad=float(init.heading[i]),
+            seed=i,
+            **common,
+        )
+        for i in (range(len(presets)) if ids is None else ids)
+    ]
+
+
+def start_local_sim_vehicles(
+    configs: Sequence[SimVehicleConfig],
+    before_start: Callable[[SimVehicle], None] | None = None,
+) -> Iterator[tuple[SimVehicle, str]]:
+    """Start a simulated vehicle per config, each on a free localhost UDP port (taken just
+    before it binds), ``before_start`` applied first; yields each started vehicle with the
+    MAVLink URL its deploy reaches it by."""
+    from openconvoy.bridge.simvehicle import SimVehicle
+
+    for cfg in configs:
+        port = free_udp_port()
+        vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", cfg)
+        if before_start is not None:
+            before_start(vehicle)
+        yield vehicle.start(), f"udpout:127.0.0.1:{port}"
+
+
+@dataclass(frozen=True)
+class _DemoRun:
+    """What one demo run drives: where, which convoy, how long."""
+
+    iface: str
+    out: Path
+    convoy_path: Path
+    convoy: Any
+    n_vehicles: int
+    init: Any
+    duration_s: float
+
+
+def _prepare(opts: DemoOptions) -> _DemoRun:
+    """The network, the run directory, the convoy file and the scenario the demo runs."""
+    from openconvoy.convoy import ConvoyConfig, load_convoy
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
     from openconvoy.policies import load_policy
@@ -159,10 +222,7 @@ def run_inside(opts: DemoOptions) -> int:
     iface = _setup_network()
     out = Path(opts.out) if opts.out else Path(tempfile.mkdtemp(prefix="openconvoy-demo-"))
     out.mkdir(parents=True, exist_ok=True)
-    deploy_dir, sim_dir = out / "deploy", out / "sim"
     convoy_path = out / "convoy.toml"
-    from openconvoy.convoy import ConvoyConfig
-
     defaults = ConvoyConfig()
     write_convoy_toml(convoy_path, defaults.vehicles, defaults.origin)
     convoy = load_convoy(convoy_path)
@@ -174,78 +234,31 @@ def run_inside(opts: DemoOptions) -> int:
         scenario = scenario.with_changes(
             spacing=member_config.spacing
         )  # the policy's gaps, as `sim`
-    init = scenario.initial_state()
     duration = float(opts.duration_s or scenario.duration_s)
-    origin = Origin(*convoy.origin)
-    _say(
-        f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles, policy "
-        f"{opts.policy}, PER {opts.per:g}, {duration:g} s, V2V over IPv6 multicast on {iface} "
-        f"(private network namespace); run in {out}"
+    return _DemoRun(
+        iface, out, convoy_path, convoy, len(presets), scenario.initial_state(), duration
     )
 
-    vehicles: list[SimVehicle] = []
-    procs: list[subprocess.Popen] = []
-    logs: list[Any] = []
-    code = 1
 
-    def on_term(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt  # SIGTERM cleans up like Ctrl-C: no orphaned deploys
-
-    signal.signal(signal.SIGTERM, on_term)
-    try:
-        urls = []
-        for i in range(len(presets)):
-            port = free_udp_port()
-            # The firmware's own loops and vehicle model (preset=None), RC switch at boot.
-            cfg = SimVehicleConfig(
-                system_id=i + 1,
-                autopilot=opts.autopilot,
-                home=origin,
-                start_x_m=float(init.x[i]),
-                start_y_m=float(init.y[i]),
-                start_heading_rad=float(init.heading[i]),
-                ready_after_s=READY_AFTER_S,
-                init_s=INIT_S,
-                rc_mode_switch=True,
-                boot_on_connect=True,
-                seed=i,
-            )
-            vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
-            urls.append(f"udpout:127.0.0.1:{port}")
-        deploy_dir.mkdir(parents=True, exist_ok=True)
-        for i, url in enumerate(urls):
-            cmd = deploy_argv(
-                i, convoy_path, url, iface, deploy_dir,
-                "--per", repr(opts.per), "--seed", "0",
-                policy=opts.policy,
-            )  # fmt: skip
-            if opts.duration_s is not None and i == 0:
-                cmd += ["--duration", repr(duration)]
-            err = open(out / f"deploy_{i}.txt", "w")
-            logs.append(err)
-            procs.append(subprocess.Popen(cmd, stdout=err, stderr=subprocess.STDOUT))
-        code = _watch(procs, vehicles, duration)
-    except KeyboardInterrupt:
-        # Further Ctrl-C / SIGTERM must not cut the cleanup short.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        _say("interrupted: stopping the convoy")
-        code = 130
-    finally:
-        stop_all(procs)
-        for v in vehicles:
-            v.stop()
-        for f in logs:
-            f.close()
+def run_inside(opts: DemoOptions) -> int:
+    run = _prepare(opts)
+    convoy, out = run.convoy, run.out
+    deploy_dir, sim_dir = out / "deploy", out / "sim"
+    _say(
+        f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles, policy "
+        f"{opts.policy}, PER {opts.per:g}, {run.duration_s:g} s, V2V over IPv6 multicast on "
+        f"{run.iface} (private network namespace); run in {out}"
+    )
+    code = _drive(opts, run, deploy_dir)
     if code == 130:
         return code
     if code != 0:
-        for i in range(len(procs)):
+        for i in range(run.n_vehicles):
             tail = (out / f"deploy_{i}.txt").read_text(errors="replace").splitlines()[-8:]
             _say(f"--- deploy {i} (last lines) ---\n" + "\n".join(tail))
         return code
     _say("running the pure simulation of the same scenario ...")
-    report = compare_with_sim(deploy_dir, sim_dir, opts, duration, convoy.origin)
+    report = compare_with_sim(deploy_dir, sim_dir, opts, run.duration_s, convoy.origin)
     from openconvoy.experiments.compare import format_comparison
 
     _say(
@@ -259,6 +272,62 @@ def run_inside(opts: DemoOptions) -> int:
     if opts.json:
         print(json.dumps(report, default=_json_default), flush=True)
     return 0
+
+
+def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
+    """Start the simulated vehicles and their deploys, watch the run, clean up; the exit
+    status (130 when interrupted)."""
+    from openconvoy.comms.geodesy import Origin
+
+    vehicles: list[SimVehicle] = []
+    procs: list[subprocess.Popen] = []
+    logs: list[Any] = []
+    code = 1
+
+    def on_term(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt  # SIGTERM cleans up like Ctrl-C: no orphaned deploys
+
+    signal.signal(signal.SIGTERM, on_term)
+    try:
+        # The firmware's own loops and vehicle model (preset None), RC switch at boot.
+        configs = sim_vehicle_configs(
+            run.init,
+            Origin(*run.convoy.origin),
+            [None] * run.n_vehicles,
+            autopilot=opts.autopilot,
+            ready_after_s=READY_AFTER_S,
+            init_s=INIT_S,
+            rc_mode_switch=True,
+            boot_on_connect=True,
+        )
+        urls = []
+        for vehicle, url in start_local_sim_vehicles(configs):
+            vehicles.append(vehicle)
+            urls.append(url)
+        deploy_dir.mkdir(parents=True, exist_ok=True)
+        for i, url in enumerate(urls):
+            cmd = deploy_argv(
+                i, run.convoy_path, url, run.iface, deploy_dir,
+                "--per", repr(opts.per), "--seed", "0",
+                policy=opts.policy,
+            )  # fmt: skip
+            if opts.duration_s is not None and i == 0:
+                cmd += ["--duration", repr(run.duration_s)]
+            err = open(run.out / f"deploy_{i}.txt", "w")
+            logs.append(err)
+            procs.append(subprocess.Popen(cmd, stdout=err, stderr=subprocess.STDOUT))
+        code = _watch(procs, vehicles, run.duration_s)
+    except KeyboardInterrupt:
+        # Further Ctrl-C / SIGTERM must not cut the cleanup short.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        _say("interrupted: stopping the convoy")
+        code = 130
+    finally:
+        stop_convoy(procs, vehicles)
+        for f in logs:
+            f.close()
+    return code
 
 
 def _json_default(v: Any) -> Any:
@@ -342,6 +411,15 @@ def stop_all(procs: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int
         except subprocess.TimeoutExpired:
             p.kill()
             codes.append(p.wait())
+    return codes
+
+
+def stop_convoy(procs: list[subprocess.Popen], vehicles: Sequence[Any]) -> list[int]:
+    """Stop a local convoy: its deploys first (``stop_all``: they stop and HOLD their
+    vehicles), then the simulated vehicles; the deploys' exit statuses."""
+    codes = stop_all(procs)
+    for v in vehicles:
+        v.stop()
     return codes
 
 

@@ -20,7 +20,12 @@ import pytest
 ray = pytest.importorskip("ray", reason="the cluster extra (openconvoy[cluster]) is not installed")
 
 from openconvoy.cli import main  # noqa: E402
-from openconvoy.experiments.executor import Executor, Task, TasksFailed  # noqa: E402
+from openconvoy.experiments.executor import (  # noqa: E402
+    Executor,
+    ExecutorConfig,
+    Task,
+    TasksFailed,
+)
 from openconvoy.experiments.ray_executor import RayExecutor  # noqa: E402
 from openconvoy.experiments.sweep import ExperimentConfig, read_summary, run_experiment  # noqa: E402
 
@@ -115,7 +120,8 @@ class _KillOne(Executor):
 
 def test_a_worker_killed_mid_sweep_loses_only_its_run(cluster: str, tmp_path: Path):
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # _ExitOn is test code
-    cfg = _experiment(tmp_path)
+    # One task per run (not batched), so that one run's worker is the one killed.
+    cfg = dataclasses.replace(_experiment(tmp_path), executor=ExecutorConfig(batched=False))
     victim = "runs/gentle/per_0.50/seed_0"
     out = tmp_path / "killed"
     with pytest.raises(TasksFailed) as info:

@@ -20,6 +20,7 @@ class ConvoyStart:
         leader_waits: whether a leader waits for the convoy (not passive, and
             ``leader_waits_for_convoy``); wait_s: the longest such wait (s).
         clock: the runner's monotonic clock (s).
+        on_start: called once, when the start is recorded.
     """
 
     def __init__(
@@ -31,6 +32,7 @@ class ConvoyStart:
         leader_waits: bool,
         wait_s: float,
         clock: Callable[[], float],
+        on_start: Callable[[], None] | None = None,
     ) -> None:
         self.vehicle_id = vehicle_id
         self.n_vehicles = n_vehicles
@@ -38,6 +40,7 @@ class ConvoyStart:
         self.leader_waits = leader_waits
         self.wait_s = wait_s
         self.clock = clock
+        self.on_start = on_start
         self.heard: set[int] = set()
         self.t_start: float | None = None
         """Monotonic time (s) the convoy started moving; None before."""
@@ -72,4 +75,6 @@ class ConvoyStart:
         waiting = bool(self.waiting_for(t_loop_start))
         if not waiting and self.t_start is None:
             self.t_start, self.t_start_wall = now, wall
+            if self.on_start is not None:
+                self.on_start()
         return waiting

@@ -20,9 +20,10 @@ import argparse
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -43,7 +44,7 @@ class DeployArgs:
     mavlink: str
     iface: str
     per: float = 0.0
-    drop_at: str = "receiver"
+    drop_at: Literal["receiver", "sender"] = "receiver"
     log: str | None = None
     rate: float | None = None
     dry_run: bool = False
@@ -68,10 +69,6 @@ def _status(quiet: bool):
 
 def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRunner:
     """Everything ``deploy`` runs, not yet connected (sockets opened, no message sent)."""
-    from openconvoy.bridge.mavlink import MavlinkLink
-    from openconvoy.comms.tempids import TempIds
-    from openconvoy.comms.v2v import V2V, LinkConfig
-    from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
     from openconvoy.outputs import check_output_dir
     from openconvoy.policies import load_policy
@@ -85,14 +82,8 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     origin = Origin(*convoy.origin)
     rate = a.rate if a.rate is not None else float(policy.control_rate_hz)
     status = _status(a.quiet)
-    leader = None
-    leader_origin = None
     spec = f"track-file:{a.track}" if a.track else convoy.scenario
-    if a.vehicle_id == 0 and not a.passive:
-        leader = make_scenario(spec, presets=presets)
-        if spec.startswith("track-file:"):
-            leader_origin = leader.origin  # the track's own frame, reached through lat/lon
-    me = presets[a.vehicle_id]
+    leader, leader_origin = _leader_driver(a, spec, presets)
     options = RunnerOptions(  # checks rate and timeouts before any socket opens
         vehicle_id=a.vehicle_id,
         rate_hz=rate,
@@ -111,28 +102,8 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
             f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates"
         )
-    link = MavlinkLink(
-        a.mavlink,
-        origin,
-        a.baud,
-        vehicle_id=a.vehicle_id,
-        telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
-        length_m=me.length_m,
-        width_m=me.width_m,
-        on_status=status,
-    )
-    temp_ids = TempIds(convoy.name, n, dict(enumerate(convoy.v2v.temp_ids)) or None)
-    loss = LossConfig(per=a.per) if a.per > 0 else None
-    v2v = V2V(
-        LinkConfig.from_v2v(convoy.v2v, a.iface),
-        temp_ids,
-        origin,
-        a.vehicle_id,
-        loss=loss,
-        drop_at=a.drop_at,
-        rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
-        auth=auth,
-    )
+    link = _make_link(a, origin, presets[a.vehicle_id], rate, status)
+    v2v = _make_v2v(a, convoy, origin, auth)  # opens the sockets
     return DeployRunner(
         options,
         convoy,
@@ -156,6 +127,56 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     )
 
 
+def _make_link(
+    a: DeployArgs, origin: Origin, preset: Any, rate: float, status: Callable[[str], None]
+) -> Any:
+    """The autopilot link (not yet connected); telemetry at the control rate within
+    10..50 Hz unless ``telemetry_hz`` says otherwise."""
+    from openconvoy.bridge.mavlink import MavlinkLink
+
+    return MavlinkLink(
+        a.mavlink,
+        origin,
+        a.baud,
+        vehicle_id=a.vehicle_id,
+        telemetry_hz=a.telemetry_hz or min(max(rate, 10.0), 50.0),
+        length_m=preset.length_m,
+        width_m=preset.width_m,
+        on_status=status,
+    )
+
+
+def _leader_driver(a: DeployArgs, spec: str, presets: list[Any]) -> tuple[Any, Origin | None]:
+    """The leader's scenario or track driver and the track's own origin (None, None for a
+    follower or a passive leader; origin None for a scenario, which uses the convoy's)."""
+    if a.vehicle_id != 0 or a.passive:
+        return None, None
+    from openconvoy.envs.scenarios import make_scenario
+
+    leader = make_scenario(spec, presets=presets)
+    # A track has its own frame, reached through lat/lon.
+    return leader, (leader.origin if spec.startswith("track-file:") else None)
+
+
+def _make_v2v(a: DeployArgs, convoy: ConvoyConfig, origin: Origin, auth: Any) -> Any:
+    """The vehicle's V2V endpoint (its sockets open), with the emulated loss of ``--per``."""
+    from openconvoy.comms.tempids import TempIds
+    from openconvoy.comms.v2v import V2V, LinkConfig
+
+    temp_ids = TempIds(convoy.name, convoy.n_vehicles, dict(enumerate(convoy.v2v.temp_ids)) or None)
+    loss = LossConfig(per=a.per) if a.per > 0 else None
+    return V2V(
+        LinkConfig.from_v2v(convoy.v2v, a.iface),
+        temp_ids,
+        origin,
+        a.vehicle_id,
+        loss=loss,
+        drop_at=a.drop_at,
+        rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
+        auth=auth,
+    )
+
+
 def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int) -> Any:
     """The vehicle's ``Authenticator`` when the convoy signs its messages, else None
     (``KeyFileError``, one line, when its keys are missing or do not match)."""
@@ -171,7 +192,7 @@ def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int) -> Any:
 def run_deploy(a: DeployArgs) -> int:
     """Build, install signal handlers, run; the exit status (0 after a clean stop)."""
     runner = build_runner(a)
-    previous: dict[int, Any] = {}
+    previous: dict[signal.Signals, Any] = {}
 
     def on_signal(signum: int, frame: Any) -> None:
         runner.request_stop(signal.Signals(signum).name)

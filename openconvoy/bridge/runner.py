@@ -22,8 +22,10 @@ and stop behind it), then holds and ends.
 
 The parts: ``bridge.vehicle`` (connect, arm, setpoints and HOLD, the safe finish),
 ``bridge.convoystart`` (the wait for the convoy), ``bridge.leaderdrive`` (the leader's
-commands, the run's length), ``bridge.exchange`` (V2V send and receive), ``bridge.runlog``
-(log rows, status lines, metadata); ``DeployRunner`` schedules them and owns the tick.
+commands, the run's length), ``bridge.exchange`` (V2V send and receive), ``bridge.intent``
+(the policy's or the leader's command), ``bridge.safetygate`` (the failsafes' verdict),
+``bridge.runlog`` (log rows, status lines, metadata); ``DeployRunner`` schedules them and
+owns the tick.
 """
 
 from __future__ import annotations
@@ -40,17 +42,16 @@ from typing import Any, Protocol
 from openconvoy.bridge.convoystart import ConvoyStart
 from openconvoy.bridge.exchange import RECEIVE_BUDGET, Exchange
 from openconvoy.bridge.failsafes import (
-    DRIVE,
     Envelope,
     Failsafes,
     LinkWatchdog,
     LoopTimer,
-    TickInputs,
-    Verdict,
 )
+from openconvoy.bridge.intent import ControllerIntent
 from openconvoy.bridge.leaderdrive import FINISH_TIMEOUT_S, LeaderDriver, LeaderDriving
-from openconvoy.bridge.link import Telemetry, VehicleLink, VehicleLinkError
+from openconvoy.bridge.link import VehicleLink, VehicleLinkError
 from openconvoy.bridge.runlog import EXTRA_COLUMNS, RunLog
+from openconvoy.bridge.safetygate import SafetyGate
 from openconvoy.bridge.vehicle import HOLD_BELOW_MPS, HOLD_MODES, StopRequested, VehicleHandler
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
@@ -78,9 +79,6 @@ __all__ = [  # the parts' names stay importable from here
     "V2VEndpoint",
     "envelope_from",
 ]
-
-RANGE_MAX_AGE_S = 0.5
-"""A rangefinder reading older than this (s) is not passed to the staleness ladder."""
 
 
 class V2VEndpoint(Protocol):
@@ -243,21 +241,6 @@ def make_member(
     return ConvoyMember(vehicle_id, convoy.n_vehicles, member_config, lengths, decels)
 
 
-def ranging_ahead(
-    tel: Telemetry, lengths: list[float], vehicle_id: int, now: float
-) -> tuple[float, float] | None:
-    """(range, range rate) to the vehicle ahead for the staleness ladder, centre to centre
-    (m, m/s) as in ``sim``: the rangefinder reads from the front bumper to the predecessor's
-    rear, so half of each length is added. None for the leader or without a fresh reading
-    (older than ``RANGE_MAX_AGE_S`` at monotonic ``now``)."""
-    r, rate = tel.range_m, tel.range_rate_mps
-    if vehicle_id == 0 or not (math.isfinite(r) and math.isfinite(rate)):
-        return None
-    if now - tel.t_range > RANGE_MAX_AGE_S:
-        return None
-    return r + 0.5 * (lengths[vehicle_id] + lengths[vehicle_id - 1]), rate
-
-
 def gap_ahead(member: ConvoyMember, wall: float) -> tuple[float, float]:
     """Measured gap to the immediate predecessor (m, centre to centre) and its closing speed
     (m/s): the member's estimate from its messages (bounded dead-reckoning, as in
@@ -277,36 +260,12 @@ def failure_code(failsafes: Failsafes, started: bool, autopilot_failsafe: bool) 
     return 0
 
 
-def follower_decision(
-    policy: ConvoyPolicy,
-    member: ConvoyMember,
-    frame: Frame,
-    bounds: member_tick.ActionBounds,
-    ranging: tuple[float, float] | None,
-    wall: float,
-    first_error: bool,
-) -> member_tick.Decision:
-    """``policy.act`` on the frame's observation, then the member's decision
-    (``core.tick.decide``); a policy that raises gets a stop decision naming the error (the
-    traceback is logged for the ``first_error`` only)."""
-    try:
-        action = policy.act(frame.observation)
-    except Exception as exc:  # the policy is foreign code: stop, log, keep looping
-        if first_error:
-            log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
-        return member_tick.stop(f"{type(exc).__name__}: {exc}")
-    return member_tick.decide(member, frame, action, bounds, ranging)
-
-
 class DeployRunner:
     """One vehicle's real-time loop. ``run()`` connects, arms, loops and returns a
     ``RunResult``; ``request_stop(name)`` (signal handlers) ends it cleanly.
 
-    Its parts: ``vehicle`` (``bridge.vehicle``: connect, arm, setpoints and HOLD, the safe
-    finish), ``start_gate`` (``bridge.convoystart``: waiting for the vehicles the topology
-    needs), ``leading`` (``bridge.leaderdrive``: the leader's commands and the run's length)
-    ``exchange`` (``bridge.exchange``: V2V broadcast and receive) and ``runlog``
-    (``bridge.runlog``: the CSV log, status lines and the metadata JSON).
+    Its parts (see the module docstring): ``vehicle``, ``start_gate``, ``leading``,
+    ``exchange``, ``intent``, ``gate`` and ``runlog``.
 
     Args:
         options: see ``RunnerOptions``.
@@ -381,8 +340,6 @@ class DeployRunner:
         )
         self.frame: Frame = Frame(math.nan, self.member.layout.zeros())
         """The member's latest frame (its observation and derived values)."""
-        self.decision: member_tick.Decision | None = None
-        """The member's latest decision (None for a leader, or while waiting to start)."""
         self.failsafes = Failsafes(
             envelope=envelope or envelope_from(convoy, options.vehicle_id),
             watchdog=LinkWatchdog(link.telemetry_timeout_s, link.heartbeat_timeout_s),
@@ -417,6 +374,7 @@ class DeployRunner:
             leader_waits=not o.passive and o.leader_waits_for_convoy,
             wait_s=o.convoy_wait_s,
             clock=self.clock,
+            on_start=lambda: status(f"vehicle {o.vehicle_id}: convoy complete, starting"),
         )
         self.leading = LeaderDriving(
             self.leader,
@@ -431,9 +389,14 @@ class DeployRunner:
             self.member, self.v2v, self.start_gate, rate_hz=o.rate_hz, on_status=status
         )
         self.runlog = RunLog(self.log_dir, o.vehicle_id, o.status_period_s, status)
+        self.intent = ControllerIntent(
+            self.member, self.bounds, self.leading, self.start_gate, self.failsafes
+        )
+        self.gate = SafetyGate(
+            self.failsafes, self.link, self.member, self.exchange, lambda: self.commanding, status
+        )
         self.timer: LoopTimer | None = None
         self._late_periods = 0.0
-        self._last_reason = ""
         self.t_begin_wall = self.wall()
 
     # ------------------------------------------------------------------ control
@@ -441,6 +404,11 @@ class DeployRunner:
     def request_stop(self, reason: str = "stop requested") -> None:
         """Ask the loop to stop, HOLD, flush the log and return (safe from signal handlers)."""
         self._stop_requested = reason
+
+    @property
+    def decision(self) -> member_tick.Decision | None:
+        """The member's latest decision (None for a leader, or while waiting to start)."""
+        return self.intent.decision
 
     @property
     def commanding(self) -> bool:
@@ -527,28 +495,24 @@ class DeployRunner:
             now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost
         )
         self.frame = frame = self.exchange.step(own, wall, known)  # τ, receive, ρ
-        waiting = self._waiting(now, wall)
+        waiting = self.start_gate.update(now, wall, self.timer.start if self.timer else None)
         # What the controller wants (the member's decision, or the leader's driver) ...
-        speed, change, mode, policy_error = self._intent(
+        want = self.intent.want(self.policy, tel, own, frame, waiting, (now, wall))
+        gap, closing = gap_ahead(self.member, wall)
+        heading_cmd = wrap_angle(own.heading + want[1])
+        # ... and what the failsafes and the envelope let through.
+        verdict = self.gate.decide(
+            (now, wall),
             tel,
             own,
-            frame,
-            waiting,
-            now,
-            wall,
-            ranging_ahead(tel, self.member.lengths, self.options.vehicle_id, now),
+            want,
+            waiting=waiting,
+            heading_cmd=heading_cmd,
+            gap=(gap, closing),
+            stop_requested=self._stop_requested,
+            late_periods=self._late_periods,
         )
-        gap, closing = gap_ahead(self.member, wall)
-        heading_cmd = wrap_angle(own.heading + change)
-        # ... and what the failsafes and the envelope let through.
-        verdict = self._verdict(
-            now, wall, tel, own, waiting, heading_cmd, speed, gap, closing, policy_error
-        )
-        if verdict.command == DRIVE:
-            speed = self.failsafes.envelope.cap(speed)
-        else:
-            speed, heading_cmd = 0.0, own.heading
-            mode = "failsafe" if verdict.failsafe else "stop"
+        speed, heading_cmd, mode = self.gate.let_through(verdict, want, own, heading_cmd)
         t_sent = self.vehicle.actuate(now, tel, own, verdict, speed, heading_cmd)
         if self.options.record_timing:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
@@ -568,60 +532,6 @@ class DeployRunner:
 
     # ------------------------------------------------------------------ tick phases
 
-    def _waiting(self, now: float, wall: float) -> bool:
-        """Whether this vehicle still waits for the convoy (``bridge.convoystart``)."""
-        started = self.start_gate.t_start is not None
-        waiting = self.start_gate.update(now, wall, self.timer.start if self.timer else None)
-        if not waiting and not started:
-            self.on_status(f"vehicle {self.options.vehicle_id}: convoy complete, starting")
-        return waiting
-
-    def _verdict(
-        self,
-        now: float,
-        wall: float,
-        tel: Telemetry,
-        own: VehicleState,
-        waiting: bool,
-        heading_cmd: float,
-        speed: float,
-        gap: float,
-        closing: float,
-        policy_error: str,
-    ) -> Verdict:
-        """The failsafes' and the envelope's decision this tick (status line on a change)."""
-        following = not self.is_leader and not waiting
-        verdict = self.failsafes.decide(
-            TickInputs(
-                now=now,
-                t_telemetry=tel.t_telemetry,
-                t_heartbeat=tel.t_heartbeat,
-                link_open=not self.link.lost,
-                pilot_took_over=self.commanding and self.link.pilot_took_over,
-                stop_requested=self._stop_requested,
-                abort=self.exchange.abort,
-                x=own.x,
-                y=own.y,
-                heading=heading_cmd,
-                speed_cmd=speed if not waiting else 0.0,
-                gap_m=gap,
-                closing_mps=closing,
-                needed_age_s=self.member.needed_age(wall) if following else 0.0,
-                policy_error=policy_error,
-                stale_stop=following and self.member.mode == "stop",
-                held=tel.mode in HOLD_MODES,
-                late_periods=self._late_periods,
-            )
-        )
-        if verdict.reason and verdict.reason != self._last_reason:
-            why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
-            self.on_status(
-                f"vehicle {self.options.vehicle_id}: {verdict.reason}"
-                + (f" ({why})" if why else "")
-            )
-        self._last_reason = verdict.reason
-        return verdict
-
     def _end_reason(self, now: float, own: VehicleState) -> str:
         """Why the run ends after this tick ("" = it goes on): a takeover before the convoy
         drove, or the duration (a scenario-driven leader first brakes to rest)."""
@@ -632,35 +542,6 @@ class DeployRunner:
         if t_start is None:
             return ""
         return "duration reached" if self.leading.over(now, t_start, own.speed) else ""
-
-    def _intent(
-        self,
-        tel: Telemetry,
-        own: VehicleState,
-        frame: Frame,
-        waiting: bool,
-        now: float,
-        wall: float,
-        ranging: tuple[float, float] | None = None,
-    ) -> tuple[float, float, str, str]:
-        """What the controller wants before the failsafes: (speed m/s, heading change rad,
-        mode, policy error message or "")."""
-        if waiting:  # armed and still, yaw at the current heading
-            return 0.0, 0.0, "stop", ""
-        if self.is_leader:
-            t_start = self.start_gate.t_start
-            assert t_start is not None  # not waiting: started
-            return self.leading.command(tel, own, now, t_start)
-        self.decision = d = follower_decision(
-            self.policy,
-            self.member,
-            frame,
-            self.bounds,
-            ranging,
-            wall,
-            first_error=not self.failsafes.policy_errors,
-        )
-        return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error
 
     # ------------------------------------------------------------------ helpers
 

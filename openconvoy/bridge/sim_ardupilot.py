@@ -459,6 +459,7 @@ class ArduPilotRover:
             self.motion.step(throttle, steering, h)
 
     def _drive_preset(self, speed: float, yaw: float, rate: float | None) -> None:
+        assert isinstance(self.motion, PresetMotion)  # called only for preset motion
         if rate is not None:
             yaw = self.state.yaw + rate * 0.5  # aim a short way ahead
         n = max(1, int(round(self.loop_dt / self.motion.dt)))

@@ -166,7 +166,7 @@ class PresetMotion:
     def drive(self, speed: float, yaw_ned: float) -> None:
         """One plant step (the plant's dt) toward ``speed`` (m/s) and NED ``yaw_ned``."""
         p = self._plant
-        p.step(np.array([speed]), np.array([wrap_pi(math.pi / 2 - yaw_ned)]))
+        p.step([speed], [wrap_pi(math.pi / 2 - yaw_ned)])
         s = self.state
         s.east, s.north = float(p.x[0]), float(p.y[0])
         s.yaw = wrap_pi(math.pi / 2 - float(p.heading[0]))

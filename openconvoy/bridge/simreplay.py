@@ -130,15 +130,7 @@ def replay(
     dropped by message id, unparsed)."""
     config = replay_config(meta, records, **overrides)
     t_boot = boot_time(meta, records)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", config).open()
-    gcs = mp.mavutil.mavlink_connection(
-        f"udpout:127.0.0.1:{port}",
-        source_system=int(meta.get("source_system", 255)),
-        source_component=int(meta.get("source_component", 190)),
-    )
+    vehicle, gcs = _open_pair(meta, config)
     mav = mp.mav()
     keep_ids = None
     if rx_types is not None:
@@ -164,18 +156,7 @@ def replay(
             if any_sent:
                 vehicle.wait_readable(0.05)
             vehicle.advance_to(t - t_boot)
-            for msg in _receive(gcs, sock, keep_ids):
-                d = msg.to_dict()
-                d.pop("mavpackettype", None)
-                out.append(
-                    {
-                        "t": t,
-                        "dir": "rx",
-                        "type": msg.get_type(),
-                        "src": [msg.get_srcSystem(), msg.get_srcComponent()],
-                        "fields": d,
-                    }
-                )
+            out.extend(_as_record(msg, t) for msg in _receive(gcs, sock, keep_ids))
     finally:
         gcs.close()
         vehicle.close()
@@ -183,10 +164,38 @@ def replay(
     return out
 
 
+def _open_pair(meta: dict[str, Any], config: SimVehicleConfig) -> tuple[SimVehicle, Any]:
+    """A lockstep simulated vehicle on a free local UDP port, and the recorder's side of
+    the link (the recording's own MAVLink ids)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    vehicle = SimVehicle(f"udpin:127.0.0.1:{port}", config).open()
+    gcs = mp.mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{port}",
+        source_system=int(meta.get("source_system", 255)),
+        source_component=int(meta.get("source_component", 190)),
+    )
+    return vehicle, gcs
+
+
+def _as_record(msg: Any, t: float) -> Record:
+    """A received message as a recording's ``rx`` record at recorder time ``t`` (s)."""
+    d = msg.to_dict()
+    d.pop("mavpackettype", None)
+    return {
+        "t": t,
+        "dir": "rx",
+        "type": msg.get_type(),
+        "src": [msg.get_srcSystem(), msg.get_srcComponent()],
+        "fields": d,
+    }
+
+
 def _receive(gcs: Any, sock: socket.socket, keep_ids: set[int] | None) -> list[Any]:
     """Every datagram waiting on the recorder's socket (one MAVLink 2 message each, as
     pymavlink sends them), decoded by pymavlink when its id is wanted."""
-    out = []
+    out: list[Any] = []
     while True:
         try:
             data, _ = sock.recvfrom(65535)

@@ -8,10 +8,10 @@ rules; the motion under it is pluggable (``simmotion``): by default the firmware
 loops drive the vehicle model its recordings were made with (SITL rover, SIH rover), or,
 with ``preset=``, the simulator's plant with that vehicle preset.
 
-This module is the shell: the MAVLink connection, the heartbeat and telemetry streams
-(on the firmware's 50 Hz scheduler, so 20 Hz comes as alternating 40/60 ms intervals,
-all messages in one burst), COMMAND_ACKs and STATUSTEXTs (split into 50-character
-chunks), and the clock:
+This module is the shell: the MAVLink connection, COMMAND_ACKs, and the clock; the
+heartbeat and telemetry streams (on the firmware's 50 Hz scheduler, so 20 Hz comes as
+alternating 40/60 ms intervals, all messages in one burst) and STATUSTEXTs (split into
+50-character chunks) are ``simstreams``:
 
 - real time in a background thread (``start``), optionally ``speedup`` times faster;
 - lockstep (``open`` then ``advance(dt)``): the caller moves the vehicle's clock, so a
@@ -25,7 +25,7 @@ mode switch at boot (MANUAL 0.42 s after "ArduPilot Ready") is on by default.
 With a ``world`` (``simworld.SimWorld``) and a preset carrying a ranging sensor, the
 vehicle streams DISTANCE_SENSOR as a forward rangefinder would (orientation 0, laser, cm
 from the front bumper to the nearest vehicle ahead, max + 1 m when nothing is in range)
-at ``RANGE_HZ``; without a world it has no rangefinder.
+at ``simstreams.RANGE_HZ``; without a world it has no rangefinder.
 
 Test hooks: ``freeze`` (stop sending), ``stop`` (a killed vehicle), ``pilot_set_mode``
 (a person flips the mode switch); in the process form SIGUSR1 switches to MANUAL and
@@ -49,57 +49,12 @@ from openconvoy.bridge import mavproto as mp
 from openconvoy.bridge.sim_ardupilot import ArduPilotRover, ArduPilotTiming
 from openconvoy.bridge.sim_px4 import Px4Rover, Px4Timing
 from openconvoy.bridge.simmotion import MotionState, PresetMotion
-from openconvoy.bridge.simworld import SimWorld, distance_sensor_cm
-from openconvoy.comms.geodesy import Origin, enu_to_geodetic
+from openconvoy.bridge.simstreams import MSG_HEARTBEAT, SimStreams
+from openconvoy.bridge.simworld import SimWorld
+from openconvoy.comms.geodesy import Origin
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState, wrap_angle
 from openconvoy.envs.vehicles import VehiclePreset
-
-MSG_HEARTBEAT = 0
-MSG_RC_CHANNELS = 65
-MSG_SERVO_OUTPUT_RAW = 36
-MSG_DISTANCE_SENSOR = 132
-RANGE_HZ = 20.0
-"""DISTANCE_SENSOR rate (Hz): a lidar at ArduPilot's usual 20 Hz stream rate."""
-MAV_DISTANCE_SENSOR_LASER = 0
-_STREAMS = (
-    mp.MSG_GLOBAL_POSITION_INT,
-    mp.MSG_ATTITUDE,
-    mp.MSG_VFR_HUD,
-    mp.MSG_LOCAL_POSITION_NED,
-    MSG_SERVO_OUTPUT_RAW,
-    MSG_RC_CHANNELS,
-)
-_TEXT_CHUNK = 50
-
-
-class _GeodeticCache:
-    """ENU -> geodetic through a linear map re-anchored (with pymap3d) every ``span_m``:
-    within 25 m of an anchor the map's error is below 0.1 mm, and it costs a few µs
-    instead of pymap3d's ~1.5 ms per GLOBAL_POSITION_INT."""
-
-    def __init__(self, home: Origin, span_m: float = 25.0) -> None:
-        self.home = home
-        self.span_m = span_m
-        self._anchor: tuple[float, float] | None = None
-        self._map = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-
-    def _reanchor(self, east: float, north: float) -> None:
-        lat0, lon0, alt0 = enu_to_geodetic(self.home, east, north, 0.0)
-        lat_e, lon_e, _ = enu_to_geodetic(self.home, east + 1.0, north, 0.0)
-        lat_n, lon_n, _ = enu_to_geodetic(self.home, east, north + 1.0, 0.0)
-        self._anchor = (east, north)
-        self._map = (lat0, lon0, alt0, lat_e - lat0, lat_n - lat0, lon_e - lon0, lon_n - lon0)
-
-    def __call__(self, east: float, north: float) -> tuple[float, float, float]:
-        a = self._anchor
-        if a is None or abs(east - a[0]) > self.span_m or abs(north - a[1]) > self.span_m:
-            self._reanchor(east, north)
-            a = self._anchor
-        lat0, lon0, alt0, dlat_e, dlat_n, dlon_e, dlon_n = self._map
-        de, dn = east - a[0], north - a[1]
-        return lat0 + dlat_e * de + dlat_n * dn, lon0 + dlon_e * de + dlon_n * dn, alt0
-
 
 DEFAULT_HOME = Origin(52.0, 4.37, 0.0)
 """Home position used when none is given (an open field; any would do)."""
@@ -263,21 +218,17 @@ class SimVehicle:
         self._conn: Any = None
         self._frozen = False
         self._pending_mode: str | None = None  # set from other threads (pilot, signals)
-        default_iv = 1.0 / c.default_message_hz
-        self._intervals: dict[int, float] = {m: default_iv for m in _STREAMS}
-        self._intervals[MSG_HEARTBEAT] = 1.0
-        self._due: dict[int, float] = {}
         self._t = 0.0  # vehicle time since boot (s): the loop's clock
         self._t_wall0 = 0.0
         self._heard_peer = False
-        self._text_id = 0
-        self._geodetic = _GeodeticCache(c.home)
         self._world = world
-        self._sensor = c.preset.ranging if c.preset is not None and world is not None else None
+        sensor = c.preset.ranging if c.preset is not None and world is not None else None
         if world is not None:
             world.register(c.system_id, self.state, c.preset.length_m if c.preset else 0.0)
-        if self._sensor is not None:
-            self._intervals[MSG_DISTANCE_SENSOR] = 1.0 / RANGE_HZ
+        ranging = (sensor, world) if sensor is not None and world is not None else None
+        self._streams = SimStreams(
+            c, self.firmware, self.motion_state, self._lock, self._rng, ranging
+        )
 
     # ----------------------------------------------------------------- lifecycle
 
@@ -395,9 +346,7 @@ class SimVehicle:
     @property
     def message_rates_hz(self) -> dict[str, float]:
         """Current telemetry rate per message name (0 = disabled)."""
-        return {
-            mp.message_name(m): (0.0 if iv <= 0 else 1.0 / iv) for m, iv in self._intervals.items()
-        }
+        return self._streams.rates_hz()
 
     # ----------------------------------------------------------------- the loop
 
@@ -446,7 +395,7 @@ class SimVehicle:
                 self._t += dt
             self._flush_texts()
             if not self._frozen and self._t >= self.firmware.first_heartbeat_s:
-                self._send_due(self._t)
+                self._streams.send_due(self._conn.mav, self._t)
 
     # ----------------------------------------------------------------- receiving
 
@@ -471,7 +420,7 @@ class SimVehicle:
                 # A listening (udpin/tcpin) vehicle can only answer once it heard someone:
                 # send the first heartbeat now rather than up to 1 s later.
                 self._heard_peer = True
-                self._due.pop(MSG_HEARTBEAT, None)
+                self._streams.due.pop(MSG_HEARTBEAT, None)
             if kind == "COMMAND_LONG":
                 if msg.target_system in (0, self.config.system_id):
                     self._on_command(msg)
@@ -501,9 +450,9 @@ class SimVehicle:
         value = float(msg.param_value)
         if msg.param_type in (1, 2, 3, 4, 5, 6):  # integers travel as their raw bytes
             value = float(struct.unpack("<i", struct.pack("<f", value))[0])
-        value = setter(name, value) if setter else None
-        if value is not None and not self._frozen:
-            self._conn.mav.param_value_send(name.encode(), value, msg.param_type, 0, 0)
+        stored = setter(name, value) if setter else None
+        if stored is not None and not self._frozen:
+            self._conn.mav.param_value_send(name.encode(), stored, msg.param_type, 0, 0)
 
     def _ack(self, msg: Any, result: int) -> None:
         if self._frozen:
@@ -516,19 +465,8 @@ class SimVehicle:
         texts = self.firmware.texts
         while texts:
             severity, text = texts.pop(0)
-            self._text(severity, text)
-
-    def _text(self, severity: int, text: str) -> None:
-        """STATUSTEXT, split into 50-byte chunks with an id as ArduPilot and PX4 do."""
-        if self._frozen or self._conn is None:
-            return
-        data = text.encode()
-        if len(data) <= _TEXT_CHUNK:
-            self._conn.mav.statustext_send(severity, data, 0, 0)
-            return
-        self._text_id = self._text_id % 0xFFFF + 1
-        for seq, i in enumerate(range(0, len(data), _TEXT_CHUNK)):
-            self._conn.mav.statustext_send(severity, data[i : i + _TEXT_CHUNK], self._text_id, seq)
+            if not self._frozen and self._conn is not None:
+                self._streams.text(self._conn.mav, severity, text)
 
     def _on_command(self, msg: Any) -> None:
         cmd = msg.command
@@ -545,130 +483,11 @@ class SimVehicle:
             return  # not running yet: nothing answers
         with self._lock:
             if cmd == mp.CMD_SET_MESSAGE_INTERVAL:
-                result = self._on_interval(int(msg.param1), msg.param2)
+                result = self._streams.set_interval(self._t, int(msg.param1), msg.param2)
             else:
                 result = self.firmware.command(self._t, cmd, params)
         self._ack(msg, result)
         self._flush_texts()
-
-    def _on_interval(self, msg_id: int, interval_us: float) -> int:
-        if msg_id not in self._intervals:
-            return mp.RESULT_FAILED
-        if interval_us < 0:
-            self._intervals[msg_id] = 0.0  # disabled
-        elif interval_us == 0:
-            self._intervals[msg_id] = (
-                1.0 if msg_id == MSG_HEARTBEAT else 1.0 / self.config.default_message_hz
-            )
-        else:
-            hz = 1e6 / interval_us
-            limit = self.config.max_message_hz
-            if limit is not None and hz > limit + 1e-9:
-                self.firmware.texts.append(
-                    (
-                        6,
-                        f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE",
-                    )
-                )
-                return mp.RESULT_DENIED
-            result = self.firmware.interval(msg_id, hz)
-            if result != mp.RESULT_ACCEPTED:
-                return result  # the previous rate is kept
-            self._intervals[msg_id] = interval_us * 1e-6
-        iv = self._intervals[msg_id]
-        # On a grid from boot: streams at one rate go out in the same burst, as ArduPilot's.
-        self._due[msg_id] = math.ceil(self._t / iv + 1e-9) * iv if iv > 0 else 0.0
-        return mp.RESULT_ACCEPTED
-
-    # ----------------------------------------------------------------- sending
-
-    def _send_due(self, t: float) -> None:
-        """Streams on the loop's ticks: a message goes out on the first tick within half a
-        tick of its due time, so 20 Hz on a 50 Hz loop alternates 40 and 60 ms."""
-        mav = self._conn.mav
-        half = 0.5 * self.firmware.loop_dt
-        if self.firmware.heartbeat_now:
-            self.firmware.heartbeat_now = False
-            self._heartbeat(mav, t)
-        for msg_id, interval in self._intervals.items():
-            if interval <= 0:
-                continue
-            due = self._due.get(msg_id, t)
-            if t + half < due:
-                continue
-            self._due[msg_id] = due + interval if t - due < interval else t + interval
-            if msg_id == MSG_HEARTBEAT:
-                self._heartbeat(mav, t)
-            else:
-                self._send_telemetry(mav, msg_id, t)
-
-    def _heartbeat(self, mav: Any, t: float) -> None:
-        base, custom, status = self.firmware.heartbeat(t)
-        mav.heartbeat_send(
-            mp.MAV_TYPE_GROUND_ROVER, self.firmware.autopilot_id, base, custom, status
-        )
-
-    def _send_telemetry(self, mav: Any, msg_id: int, t: float) -> bool:
-        fw = self.firmware
-        with self._lock:
-            s = self.motion_state
-            north, east, yaw, v, yaw_rate = s.north, s.east, s.yaw, s.speed, s.yaw_rate
-        t_ms = int(t * fw.clock_ratio * 1000) & 0xFFFFFFFF
-        vn, ve = v * math.cos(yaw), v * math.sin(yaw)
-        if msg_id == mp.MSG_GLOBAL_POSITION_INT:
-            if self.config.gps_noise_m > 0:
-                north += float(self._rng.normal(0.0, self.config.gps_noise_m))
-                east += float(self._rng.normal(0.0, self.config.gps_noise_m))
-            lat, lon, alt = self._geodetic(east, north)
-            mav.global_position_int_send(
-                t_ms,
-                int(round(lat * 1e7)),
-                int(round(lon * 1e7)),
-                int(round(alt * 1000)),
-                0,
-                int(round(vn * 100)),
-                int(round(ve * 100)),
-                0,
-                int(round(math.degrees(yaw) * 100)) % 36000,
-            )
-        elif msg_id == mp.MSG_ATTITUDE:
-            mav.attitude_send(t_ms, 0.0, 0.0, yaw, 0.0, 0.0, yaw_rate)
-        elif msg_id == mp.MSG_VFR_HUD:
-            thr = fw.servo_pwm()[1]
-            mav.vfr_hud_send(
-                abs(v),
-                abs(v),
-                int(round(math.degrees(yaw))) % 360,
-                int(max(0, (thr - 1500) / 5)),
-                0.0,
-                0.0,
-            )
-        elif msg_id == mp.MSG_LOCAL_POSITION_NED:
-            if not fw.position_flowing(t):
-                return False
-            mav.local_position_ned_send(t_ms, north, east, 0.0, vn, ve, 0.0)
-        elif msg_id == MSG_SERVO_OUTPUT_RAW:
-            steer, thr = fw.servo_pwm()
-            mav.servo_output_raw_send(
-                int(t * fw.clock_ratio * 1e6) & 0xFFFFFFFF, 0, steer, 1500, thr, 1500, 0, 0, 0, 0
-            )
-        elif msg_id == MSG_DISTANCE_SENSOR:
-            self._send_range(mav, t_ms)
-        elif msg_id == MSG_RC_CHANNELS:
-            ch = fw.rc_channels()
-            mav.rc_channels_send(t_ms, 8 if ch[0] else 0, *ch, *([0] * 10), 255)
-        return True
-
-    def _send_range(self, mav: Any, t_ms: int) -> None:
-        """DISTANCE_SENSOR from the world's true geometry plus the sensor's noise."""
-        sensor, world = self._sensor, self._world
-        if sensor is None or world is None:
-            return
-        reading = world.forward_range(self.config.system_id, sensor.max_range_m)
-        lo, hi, cm = distance_sensor_cm(
-            reading, sensor.max_range_m, sensor.range_noise_m, lambda: float(self._rng.normal())
-        )
-        mav.distance_sensor_send(t_ms, lo, hi, cm, MAV_DISTANCE_SENSOR_LASER, 0, 0, 0)
 
 
 # --------------------------------------------------------------------- process form (CLI)

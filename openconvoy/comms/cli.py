@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
-from openconvoy.core.args import TIMEOUT
+from openconvoy.core.args import TIMEOUT, Flags, add_command
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 from openconvoy.core.errors import ConfigError
@@ -30,175 +31,203 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         add(cmds)
 
 
-def net_args(p: argparse.ArgumentParser) -> None:
-    """``--iface``, ``--group``, ``--port`` of the BSM tools."""
-    p.add_argument("--iface", required=True, help="network interface, e.g. wlan0")
-    p.add_argument(
-        "--group", default=DEFAULT_GROUP, help=f"IPv6 multicast group (default {DEFAULT_GROUP})"
-    )
-    p.add_argument(
+NET_FLAGS: Flags = (
+    ("--iface", dict(required=True, help="network interface, e.g. wlan0")),
+    (
+        "--group",
+        dict(default=DEFAULT_GROUP, help=f"IPv6 multicast group (default {DEFAULT_GROUP})"),
+    ),
+    (
         "--port",
-        type=_int(1, 65535),
-        default=DEFAULT_PORT,
-        help=f"UDP port (default {DEFAULT_PORT})",
-    )
+        dict(type=_int(1, 65535), default=DEFAULT_PORT, help=f"UDP port (default {DEFAULT_PORT})"),
+    ),
+)
+"""``--iface``, ``--group``, ``--port`` of the BSM tools."""
+
+LISTEN_FLAGS: Flags = NET_FLAGS + (
+    (
+        "--compat",
+        dict(
+            action="store_true", help="also listen for the original JSON format on 224.0.0.1:5004"
+        ),
+    ),
+    ("--count", dict(type=_int(1, 10**12), metavar="N", help="exit after N messages")),
+    ("--timeout", dict(type=TIMEOUT, metavar="S", help="exit after S seconds")),
+    (
+        "--convoy",
+        dict(
+            metavar="CONVOY.toml",
+            help="verify signed BSMs with this convoy's certificates (its keys directory); "
+            "prints accepted/rejected per sender and a summary at exit",
+        ),
+    ),
+)
+"""``bsm listen``'s flags."""
+
+SEND_FLAGS: Flags = NET_FLAGS + (
+    ("--hop-limit", dict(type=_int(1, 255), default=1, help="IPv6 hop limit (default 1)")),
+    ("--count", dict(type=_int(0, 10**12), default=10, help="messages to send (default 10)")),
+    (
+        "--rate",
+        dict(
+            type=_num(0.0, 100_000.0, lo_open=True), default=10.0, metavar="HZ", help="default 10"
+        ),
+    ),
+    ("--lat", dict(type=_num(-90.0, 90.0), default=28.6024, help="start latitude, degrees")),
+    ("--lon", dict(type=_num(-180.0, 180.0), default=-81.2001, help="start longitude, degrees")),
+    (
+        "--elev",
+        dict(type=_num(-1000.0, 10_000.0), default=0.0, help="elevation, metres (default 0)"),
+    ),
+    ("--speed", dict(type=_num(0.0, 163.8), default=0.0, help="m/s (default 0)")),
+    (
+        "--heading",
+        dict(
+            type=_num(0.0, 360.0, hi_open=True),
+            default=0.0,
+            help="compass degrees, 0 = north, clockwise (default 0)",
+        ),
+    ),
+    ("--id", dict(metavar="HEX", help="temporary id, 8 hex digits")),
+    (
+        "--compat-car",
+        dict(
+            type=_int(0, 254),
+            metavar="N",
+            help="also send the original JSON format as convoy position N (IPv4)",
+        ),
+    ),
+    (
+        "--key",
+        dict(
+            metavar="KEY",
+            help="sign as IEEE 1609.2 SPDUs with this key (its .cert beside it; a foreign "
+            "convoy's key makes a forger that has a key)",
+        ),
+    ),
+    (
+        "--convoy",
+        dict(metavar="CONVOY.toml", help="the authority for --key (default: the key's directory)"),
+    ),
+    ("--frame", dict(metavar="HEX", help="replay this captured datagram COUNT times")),
+)
+"""``bsm send``'s flags."""
+
+DECODE_FLAGS: Flags = (
+    ("hex", dict(nargs="+", metavar="HEX", help="the frame, hex (spaces allowed)")),
+    ("--json", dict(action="store_true", help="one JSON object instead of lines")),
+)
+"""``bsm decode``'s flags."""
+
+
+def _group_port(args: argparse.Namespace) -> dict[str, Any]:
+    """``--group`` and ``--port`` as the BSM tools' keywords."""
+    return {"group": args.group, "port": args.port}
 
 
 def _add_listen(cmds: argparse._SubParsersAction) -> None:
-    p = cmds.add_parser(
+    add_command(
+        cmds,
         "listen",
+        LISTEN_FLAGS,
+        _listen,
         help="print BSMs heard on an interface, one line each",
         description="Prints every BSM heard (anyone's, not only a convoy's): temporary id, "
         "msgCnt, latitude and longitude (degrees), speed (m/s), heading (compass degrees), "
         "age (s, from secMark and this host's clock). Ctrl-C stops.",
     )
-    net_args(p)
-    p.add_argument(
-        "--compat",
-        action="store_true",
-        help="also listen for the original JSON format on 224.0.0.1:5004",
+
+
+def _listen(args: argparse.Namespace) -> int:
+    from openconvoy.comms import tools
+
+    tools.listen(
+        args.iface,
+        **_group_port(args),
+        compat_enabled=args.compat,
+        count=args.count,
+        timeout_s=args.timeout,
+        auth=_verifier(args.convoy),
     )
-    p.add_argument("--count", type=_int(1, 10**12), metavar="N", help="exit after N messages")
-    p.add_argument("--timeout", type=TIMEOUT, metavar="S", help="exit after S seconds")
-    p.add_argument(
-        "--convoy",
-        metavar="CONVOY.toml",
-        help="verify signed BSMs with this convoy's certificates (its keys directory); "
-        "prints accepted/rejected per sender and a summary at exit",
-    )
-
-    def _listen(args: argparse.Namespace) -> int:
-        from openconvoy.comms import tools
-
-        tools.listen(
-            args.iface,
-            group=args.group,
-            port=args.port,
-            compat_enabled=args.compat,
-            count=args.count,
-            timeout_s=args.timeout,
-            auth=_verifier(args.convoy),
-        )
-        return 0
-
-    p.set_defaults(handler=_listen)
+    return 0
 
 
 def _add_send(cmds: argparse._SubParsersAction) -> None:
-    p = cmds.add_parser(
+    add_command(
+        cmds,
         "send",
+        SEND_FLAGS,
+        _send,
         help="send test BSMs",
         description="Sends COUNT BSMs at RATE Hz from a test vehicle starting at LAT, LON "
         "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise).",
     )
-    net_args(p)
-    p.add_argument("--hop-limit", type=_int(1, 255), default=1, help="IPv6 hop limit (default 1)")
-    p.add_argument(
-        "--count", type=_int(0, 10**12), default=10, help="messages to send (default 10)"
-    )
-    p.add_argument(
-        "--rate",
-        type=_num(0.0, 100_000.0, lo_open=True),
-        default=10.0,
-        metavar="HZ",
-        help="default 10",
-    )
-    p.add_argument("--lat", type=_num(-90.0, 90.0), default=28.6024, help="start latitude, degrees")
-    p.add_argument(
-        "--lon", type=_num(-180.0, 180.0), default=-81.2001, help="start longitude, degrees"
-    )
-    p.add_argument(
-        "--elev", type=_num(-1000.0, 10_000.0), default=0.0, help="elevation, metres (default 0)"
-    )
-    p.add_argument("--speed", type=_num(0.0, 163.8), default=0.0, help="m/s (default 0)")
-    p.add_argument(
-        "--heading",
-        type=_num(0.0, 360.0, hi_open=True),
-        default=0.0,
-        help="compass degrees, 0 = north, clockwise (default 0)",
-    )
-    p.add_argument("--id", metavar="HEX", help="temporary id, 8 hex digits")
-    p.add_argument(
-        "--compat-car",
-        type=_int(0, 254),
-        metavar="N",
-        help="also send the original JSON format as convoy position N (IPv4)",
-    )
-    p.add_argument(
-        "--key",
-        metavar="KEY",
-        help="sign as IEEE 1609.2 SPDUs with this key (its .cert beside it; a foreign "
-        "convoy's key makes a forger that has a key)",
-    )
-    p.add_argument(
-        "--convoy",
-        metavar="CONVOY.toml",
-        help="the authority for --key (default: the key's directory)",
-    )
-    p.add_argument("--frame", metavar="HEX", help="replay this captured datagram COUNT times")
 
-    def _send(args: argparse.Namespace) -> int:
-        import time
 
-        from openconvoy.comms import tools
+def _signer(key: str | None, convoy: str | None):
+    """``bsm send --key``'s signer (None without a key)."""
+    if not key:
+        return None
+    import time
 
-        auth = None
-        if args.key:
-            from openconvoy.comms.auth import Authenticator
-            from openconvoy.comms.keystore import signer_of_key
+    from openconvoy.comms.auth import Authenticator
+    from openconvoy.comms.keystore import signer_of_key
 
-            keys = None
-            if args.convoy:
-                from openconvoy.convoy import load_convoy
+    keys = None
+    if convoy:
+        from openconvoy.convoy import load_convoy
 
-                keys = load_convoy(args.convoy).v2v.keys
-            auth = Authenticator(signer_of_key(args.key, keys, time.time()))
-        n = tools.send(
-            args.iface,
-            group=args.group,
-            port=args.port,
-            hop_limit=args.hop_limit,
-            count=args.count,
-            rate_hz=args.rate,
-            lat_deg=args.lat,
-            lon_deg=args.lon,
-            elev_m=args.elev,
-            speed_mps=args.speed,
-            heading_deg=args.heading,
-            temp_id=tools.temp_id_arg(args.id) if args.id else tools.DEFAULT_SEND_ID,
-            compat_car=args.compat_car,
-            auth=auth,
-            frame=tools.parse_hex(args.frame) if args.frame else None,
-        )
-        print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
-        return 0
+        keys = load_convoy(convoy).v2v.keys
+    return Authenticator(signer_of_key(key, keys, time.time()))
 
-    p.set_defaults(handler=_send)
+
+def _send(args: argparse.Namespace) -> int:
+    from openconvoy.comms import tools
+
+    auth = _signer(args.key, args.convoy)
+    n = tools.send(
+        args.iface,
+        **_group_port(args),
+        hop_limit=args.hop_limit,
+        count=args.count,
+        rate_hz=args.rate,
+        lat_deg=args.lat,
+        lon_deg=args.lon,
+        elev_m=args.elev,
+        speed_mps=args.speed,
+        heading_deg=args.heading,
+        temp_id=tools.temp_id_arg(args.id) if args.id else tools.DEFAULT_SEND_ID,
+        compat_car=args.compat_car,
+        auth=auth,
+        frame=tools.parse_hex(args.frame) if args.frame else None,
+    )
+    print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
+    return 0
 
 
 def _add_decode(cmds: argparse._SubParsersAction) -> None:
-    p = cmds.add_parser(
+    add_command(
+        cmds,
         "decode",
+        DECODE_FLAGS,
+        _decode,
         help="print one UPER MessageFrame's BSM core in physical units",
         description="Decodes a hex-encoded J2735 MessageFrame (messageId 20) and prints the "
         "core fields in physical units (latitude and longitude in degrees).",
     )
-    p.add_argument("hex", nargs="+", metavar="HEX", help="the frame, hex (spaces allowed)")
-    p.add_argument("--json", action="store_true", help="one JSON object instead of lines")
 
-    def _decode(args: argparse.Namespace) -> int:
-        from openconvoy.comms import tools
 
-        data = tools.parse_hex(" ".join(args.hex))
-        tools.require_codec()
-        try:
-            lines = tools.decode_lines(data, as_json=args.json)
-        except ValueError as exc:
-            raise ConfigError(f"not a valid J2735 BSM frame: {exc}") from None
-        print("\n".join(lines))
-        return 0
+def _decode(args: argparse.Namespace) -> int:
+    from openconvoy.comms import tools
 
-    p.set_defaults(handler=_decode)
+    data = tools.parse_hex(" ".join(args.hex))
+    tools.require_codec()
+    try:
+        lines = tools.decode_lines(data, as_json=args.json)
+    except ValueError as exc:
+        raise ConfigError(f"not a valid J2735 BSM frame: {exc}") from None
+    print("\n".join(lines))
+    return 0
 
 
 def _verifier(convoy_path: str | None):

@@ -131,7 +131,7 @@ def encode_state(
     ``car`` defaults to ``state.vehicle_id``. NaN fields are sent as null (JSON has no NaN).
     """
     lat, lon, alt = enu_to_geodetic(origin, state.x, state.y, 0.0)
-    msg = {
+    msg: dict[str, Any] = {
         "time": state.t,
         "latitude": _finite(lat),
         "longitude": _finite(lon),
@@ -204,12 +204,17 @@ def decode(data: bytes) -> CompatMessage:
     if not isinstance(abort, bool):
         raise CompatDecodeError(f"event_flags.abort is not a boolean: {abort!r}")
     t = _number(obj, "time", required=True)
+    assert t is not None  # required: _number raised otherwise
     # an abort needs no position; a state message does
     lat = _number(obj, "latitude", required=not abort)
     lon = _number(obj, "longitude", required=not abort)
     if (lat is None) != (lon is None):
         raise CompatDecodeError("latitude and longitude must both be given")
-    if lat is not None and not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+    if (
+        lat is not None
+        and lon is not None
+        and not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0)
+    ):
         raise CompatDecodeError(f"position out of range: {lat}, {lon}")
     speed = _number(obj, "speed", required=not abort)
     heading = _number(obj, "heading", required=not abort)

@@ -10,6 +10,7 @@ and returns the same kind.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 import pymap3d
@@ -54,6 +55,14 @@ def _out(v: Num) -> Num:
     return float(a) if a.ndim == 0 else a
 
 
+@overload
+def enu_to_geodetic(
+    origin: Origin, x: float, y: float, z: float = 0.0
+) -> tuple[float, float, float]: ...
+@overload
+def enu_to_geodetic(
+    origin: Origin, x: np.ndarray, y: Num, z: Num = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 def enu_to_geodetic(origin: Origin, x: Num, y: Num, z: Num = 0.0) -> tuple[Num, Num, Num]:
     """Local ENU (metres east, north, up of ``origin``) -> (lat_deg, lon_deg, alt_m)."""
     lat, lon, alt = pymap3d.enu2geodetic(
@@ -62,6 +71,14 @@ def enu_to_geodetic(origin: Origin, x: Num, y: Num, z: Num = 0.0) -> tuple[Num, 
     return _out(lat), _out(lon), _out(alt)
 
 
+@overload
+def geodetic_to_enu(
+    origin: Origin, lat_deg: float, lon_deg: float, alt_m: float | None = None
+) -> tuple[float, float, float]: ...
+@overload
+def geodetic_to_enu(
+    origin: Origin, lat_deg: np.ndarray, lon_deg: Num, alt_m: Num | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 def geodetic_to_enu(
     origin: Origin, lat_deg: Num, lon_deg: Num, alt_m: Num | None = None
 ) -> tuple[Num, Num, Num]:

@@ -195,32 +195,8 @@ def decode_signed_asn1(data: bytes) -> SignedSpdu:
         r, s = c.signature_parts(sd["signature"])
     except c.CertificateError as exc:
         raise SpduDecodeError(str(exc)) from None
-    # What the signature covers is the tbsData as sent: it ends where the signer begins.
-    # The signature is 1 + 33 + 32 octets (x-only or compressed r); the signer is a
-    # digest (1 + 8) or one certificate (1 + 2 + its length).
     sig_len = 66
-    signer_kind, signer = sd["signer"]
-    cert_bytes: bytes | None = None
-    cert_value: dict[str, Any] | None = None
-    if signer_kind == "digest":
-        digest = bytes(signer)
-        end = len(data) - sig_len - 9
-        if data[end : end + 9] != b"\x80" + digest:
-            raise SpduDecodeError("trailing octets after the signature")
-    elif signer_kind == "certificate":
-        if len(signer) != 1:
-            raise SpduDecodeError(f"signer is a chain of {len(signer)} certificates, expected 1")
-        cert_value = signer[0]
-        cert_bytes = c.spec().encode("CertificateBase", cert_value)
-        end = len(data) - sig_len - 3 - len(cert_bytes)
-        if (
-            data[end : end + 3] != b"\x81\x01\x01"
-            or data[end + 3 : len(data) - sig_len] != cert_bytes
-        ):
-            raise SpduDecodeError("signer certificate is not canonical OER")
-        digest = c.hashed_id8(cert_bytes)
-    else:
-        raise SpduDecodeError(f"signer is {signer_kind}")
+    end, digest, cert_bytes, cert_value = _signer_span(data, sd["signer"], sig_len)
     if end <= _TBS_OFFSET or len(data) - end - sig_len < 0:
         raise SpduDecodeError("truncated")
     return SignedSpdu(
@@ -235,6 +211,33 @@ def decode_signed_asn1(data: bytes) -> SignedSpdu:
         s=s,
         p2pcd_request=tuple(bytes(h) for h in header.get("inlineP2pcdRequest", ())),
     )
+
+
+def _signer_span(
+    data: bytes, signer_choice: tuple[str, Any], sig_len: int
+) -> tuple[int, bytes, bytes | None, dict[str, Any] | None]:
+    """Where the signed tbsData ends in ``data`` (the signer begins there), the signer's
+    digest, and its certificate (OER bytes and value) when it is one; the SPDU must be
+    canonical OER. The signer is a digest (1 + 8 octets) or one certificate (1 + 2 + its
+    length), followed by the ``sig_len``-octet signature (1 + 33 + 32: x-only or
+    compressed r)."""
+    signer_kind, signer = signer_choice
+    if signer_kind == "digest":
+        digest = bytes(signer)
+        end = len(data) - sig_len - 9
+        if data[end : end + 9] != b"\x80" + digest:
+            raise SpduDecodeError("trailing octets after the signature")
+        return end, digest, None, None
+    if signer_kind != "certificate":
+        raise SpduDecodeError(f"signer is {signer_kind}")
+    if len(signer) != 1:
+        raise SpduDecodeError(f"signer is a chain of {len(signer)} certificates, expected 1")
+    cert_value = signer[0]
+    cert_bytes = c.spec().encode("CertificateBase", cert_value)
+    end = len(data) - sig_len - 3 - len(cert_bytes)
+    if data[end : end + 3] != b"\x81\x01\x01" or data[end + 3 : len(data) - sig_len] != cert_bytes:
+        raise SpduDecodeError("signer certificate is not canonical OER")
+    return end, c.hashed_id8(cert_bytes), cert_bytes, cert_value
 
 
 def is_signed(data: bytes) -> bool:

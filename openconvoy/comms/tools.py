@@ -125,10 +125,10 @@ def verify_datagram(data: bytes, t_rx: float, auth: Authenticator, tally: Tally)
             return f"REJECTED malformed: {sender}"
         msg_cnt = j.decode_frame(spdu.payload).core.msg_cnt
         line = described
-    reason = auth.admit(spdu, t_rx, msg_cnt)
-    if reason is not None:
-        tally.reject(sender, reason)
-        return f"REJECTED {reason}: {sender}"
+    refused = auth.admit(spdu, t_rx, msg_cnt)
+    if refused is not None:
+        tally.reject(sender, refused)
+        return f"REJECTED {refused}: {sender}"
     tally.accept(sender)
     return f"[{cert.name}] {line}"
 
@@ -269,21 +269,9 @@ def send(
             if k:
                 sleep(max(0.0, t0 + k / rate_hz - clock()))
             now = clock()
-            d = speed_mps * (now - t0)
-            state = VehicleState(
-                0 if compat_car is None else compat_car,
-                now,
-                d * math.cos(heading_enu),
-                d * math.sin(heading_enu),
-                speed_mps,
-                heading_enu,
-            )
-            if frame is None:
-                core = state_to_core(state, start, temp_id, k % 128, alt_m=elev_m)
-                data = j.encode_frame(core)
-                data = data if auth is None else auth.sign(data, c.PSID_BSM, now)
-            else:
-                data = frame
+            vehicle_id = 0 if compat_car is None else compat_car
+            state = _straight_line(vehicle_id, now - t0, now, speed_mps, heading_enu)
+            data = frame if frame is not None else _bsm(state, start, temp_id, k, auth)
             try:
                 sock.send(data)
             except OSError as exc:
@@ -297,6 +285,32 @@ def send(
         if sock4 is not None:
             sock4.close()
     return count
+
+
+def _straight_line(
+    vehicle_id: int, elapsed_s: float, now: float, speed_mps: float, heading_enu: float
+) -> VehicleState:
+    """The test vehicle ``elapsed_s`` after starting at the ENU origin at ``speed_mps``
+    along ``heading_enu`` (rad), stamped ``now``."""
+    d = speed_mps * elapsed_s
+    return VehicleState(
+        vehicle_id,
+        now,
+        d * math.cos(heading_enu),
+        d * math.sin(heading_enu),
+        speed_mps,
+        heading_enu,
+    )
+
+
+def _bsm(
+    state: VehicleState, start: Origin, temp_id: bytes, k: int, auth: Authenticator | None
+) -> bytes:
+    """The ``k``-th test BSM's datagram for ``state`` (signed at ``state.t`` with ``auth``);
+    the elevation is the start's."""
+    core = state_to_core(state, start, temp_id, k % 128, alt_m=start.alt_m)
+    data = j.encode_frame(core)
+    return data if auth is None else auth.sign(data, c.PSID_BSM, state.t)
 
 
 def parse_hex(text: str) -> bytes:

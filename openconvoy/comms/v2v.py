@@ -304,16 +304,19 @@ class Receiver:
             if data[:2] == sp.SIGNED_PREFIX:
                 return self._handle_signed(data, t_rx, source)
             if self.auth is not None:
-                return self._unsigned(data, source)
+                self._unsigned(data, source)
+                return None
             if data[:2] == j.BSM_FRAME_PREFIX:
                 if self._foreign(data):
                     return None
                 return self._handle_j2735(data, t_rx, source)
             if data.lstrip()[:1] == b"{":
                 return self._handle_compat(data, t_rx, source)
-            return self._malformed(source, "neither a J2735 MessageFrame nor JSON")
+            self._malformed(source, "neither a J2735 MessageFrame nor JSON")
+            return None
         except Exception as exc:  # defensive: no network input may escape as an exception
-            return self._malformed(source, f"unexpected {type(exc).__name__}: {exc}")
+            self._malformed(source, f"unexpected {type(exc).__name__}: {exc}")
+            return None
 
     def _foreign(self, frame: bytes) -> bool:
         """A BSM frame whose id (read without decoding) is not the convoy's: counted as
@@ -338,21 +341,26 @@ class Receiver:
 
     def _unsigned(self, data: bytes, source: str) -> None:
         if data[:2] != j.BSM_FRAME_PREFIX and data.lstrip()[:1] != b"{":
-            return self._malformed(source, "neither a signed SPDU, a J2735 MessageFrame nor JSON")
+            self._malformed(source, "neither a signed SPDU, a J2735 MessageFrame nor JSON")
+            return None
         abort = False
         if data.lstrip()[:1] == b"{":
             try:
                 abort = cj.decode(data).abort
             except cj.CompatDecodeError:
-                return self._malformed(source, "invalid compatibility message")
+                self._malformed(source, "invalid compatibility message")
+                return None
+        assert self.auth is not None  # handle() calls this only when verifying
         self.auth.reject("unsigned")
-        return self._rejected(source, "unsigned", abort)
+        self._rejected(source, "unsigned", abort)
+        return None
 
     def _handle_signed(self, data: bytes, t_rx: float, source: str) -> Received | None:
         try:
             spdu = sp.decode_signed(data)
         except sp.SpduDecodeError as exc:
-            return self._malformed(source, str(exc))
+            self._malformed(source, str(exc))
+            return None
         auth = self.auth
         abort = spdu.psid == PSID_ABORT
         if not abort and self._foreign(spdu.payload):
@@ -365,12 +373,14 @@ class Receiver:
         else:
             cert = auth.check(spdu, t_rx)
             if isinstance(cert, str):
-                return self._rejected(source, cert, abort)
+                self._rejected(source, cert, abort)
+                return None
             signed = (spdu, cert)
         if abort:
             return self._handle_signed_abort(spdu, signed, t_rx, source)
         if spdu.psid != PSID_BSM or spdu.payload[:2] != j.BSM_FRAME_PREFIX:
-            return self._malformed(source, f"signed PSID {spdu.psid:#x} payload is not a BSM")
+            self._malformed(source, f"signed PSID {spdu.psid:#x} payload is not a BSM")
+            return None
         return self._handle_j2735(spdu.payload, t_rx, source, signed)
 
     def _handle_signed_abort(
@@ -379,15 +389,19 @@ class Receiver:
         try:
             msg = cj.decode(spdu.payload)
         except cj.CompatDecodeError as exc:
-            return self._malformed(source, f"signed abort: {exc}")
+            self._malformed(source, f"signed abort: {exc}")
+            return None
         if not msg.abort:
-            return self._malformed(source, "signed abort without the abort flag")
+            self._malformed(source, "signed abort without the abort flag")
+            return None
         sender = msg.car
         if signed is not None:
+            assert self.auth is not None  # signed is only set when verifying
             vehicle = vehicle_of(signed[1])
             sender = -1 if vehicle is None else vehicle
             if self.auth.admit(spdu, t_rx) is not None:
-                return self._rejected(source, "replayed abort", abort=True)
+                self._rejected(source, "replayed abort", abort=True)
+                return None
         self.counters.received += 1
         self.counters.aborts += 1
         return Received(None, t_rx, True, "j2735", sender)
@@ -405,7 +419,8 @@ class Receiver:
         try:
             msg = j.decode_frame(data)
         except j.BsmDecodeError as exc:
-            return self._malformed(source, str(exc))
+            self._malformed(source, str(exc))
+            return None
         core = msg.core
         if core.temp_id == self.own_id:
             self.counters.echoes += 1
@@ -415,12 +430,15 @@ class Receiver:
             self.counters.filtered += 1
             return None
         if signed is not None:
+            assert self.auth is not None  # signed is only set when verifying
             spdu, cert = signed
             if vehicle_of(cert) != sender:  # a member may only speak for itself
                 self.auth.reject("wrong_sender")
-                return self._rejected(source, f"{cert.name} signed vehicle {sender}'s BSM")
+                self._rejected(source, f"{cert.name} signed vehicle {sender}'s BSM")
+                return None
             if self.auth.admit(spdu, t_rx, core.msg_cnt) is not None:
-                return self._rejected(source, f"vehicle {sender}'s BSM replayed")
+                self._rejected(source, f"vehicle {sender}'s BSM replayed")
+                return None
         # A member's BSM without position, speed or time is no use to the convoy (NaN
         # would reach the controllers, an unknown age would look fresh forever): treated
         # as not received, so the staleness ladder sees the gap. An unavailable heading
@@ -435,7 +453,8 @@ class Receiver:
             if absent
         ]
         if missing:
-            return self._malformed(source, f"BSM of vehicle {sender} lacks {', '.join(missing)}")
+            self._malformed(source, f"BSM of vehicle {sender} lacks {', '.join(missing)}")
+            return None
         # Heard over J2735 (before emulated loss: the radio did deliver it), so this
         # vehicle's compat twins are duplicates, whatever the loss model decides here.
         self._last_j2735[sender] = t_rx
@@ -446,9 +465,8 @@ class Receiver:
         if core.heading == j.HEADING_UNAVAILABLE:
             heading = self._known_heading(sender, state)
             if heading is None:
-                return self._malformed(
-                    source, f"BSM of vehicle {sender} lacks heading (none known yet)"
-                )
+                self._malformed(source, f"BSM of vehicle {sender} lacks heading (none known yet)")
+                return None
             state = replace(state, heading=heading)
         self._remember_heading(sender, state)
         self.counters.received += 1
@@ -478,7 +496,8 @@ class Receiver:
         try:
             msg = cj.decode(data)
         except cj.CompatDecodeError as exc:
-            return self._malformed(source, str(exc))
+            self._malformed(source, str(exc))
+            return None
         if msg.car == self.vehicle_index:
             self.counters.echoes += 1
             return None
@@ -508,6 +527,38 @@ class Receiver:
         if not state.t <= t_rx:  # clock ahead (or NaN): age 0, never negative
             state = replace(state, t=t_rx)
         return state
+
+
+def _open_transports(
+    config: LinkConfig, transport: Transport | None, compat_transport: Transport | None
+) -> tuple[Transport, Transport | None]:
+    """The IPv6 multicast socket and, with ``config.compat``, the IPv4 one (each unless
+    injected); nothing stays open when the second cannot be opened."""
+    tx = (
+        transport
+        if transport is not None
+        else Ipv6Multicast(
+            config.iface,
+            config.group,
+            config.port,
+            config.hop_limit,
+            rcvbuf_bytes=V2V_RCVBUF_BYTES,
+        )
+    )
+    if compat_transport is not None or not config.compat:
+        return tx, compat_transport
+    try:
+        tx4 = Ipv4Multicast(
+            config.iface,
+            config.compat_group,
+            config.compat_port,
+            config.compat_ttl,
+            rcvbuf_bytes=V2V_RCVBUF_BYTES,
+        )
+    except (OSError, LinkError):
+        tx.close()
+        raise
+    return tx, tx4
 
 
 class V2V:
@@ -580,30 +631,7 @@ class V2V:
             counters=self.counters,
             auth=auth,
         )
-        self._tx = (
-            transport
-            if transport is not None
-            else Ipv6Multicast(
-                config.iface,
-                config.group,
-                config.port,
-                config.hop_limit,
-                rcvbuf_bytes=V2V_RCVBUF_BYTES,
-            )
-        )
-        self._tx4: Transport | None = compat_transport
-        if self._tx4 is None and config.compat:
-            try:
-                self._tx4 = Ipv4Multicast(
-                    config.iface,
-                    config.compat_group,
-                    config.compat_port,
-                    config.compat_ttl,
-                    rcvbuf_bytes=V2V_RCVBUF_BYTES,
-                )
-            except (OSError, LinkError):
-                self._tx.close()
-                raise
+        self._tx, self._tx4 = _open_transports(config, transport, compat_transport)
         self._warned_send = False
         # Compile the ASN.1 spec now, not on the first message (it takes ~0.2 s).
         j.warm_up()

@@ -52,3 +52,42 @@ RATE_HZ = number(0.0, 100.0, lo_open=True)  # control rates: above 100 Hz no aut
 DURATION = number(0.0, 7 * 86400.0, lo_open=True)  # seconds
 TIMEOUT = number(0.0, 86400.0, lo_open=True)  # seconds
 SECONDS_POS = number(0.0, 3600.0, lo_open=True)
+
+
+Flags = tuple[tuple[str, dict[str, Any]], ...]
+"""A command's flags as data: (name, ``add_argument`` keywords) pairs, in help order."""
+
+
+def add_flags(parser: argparse.ArgumentParser, flags: Flags) -> None:
+    """Add every flag of ``flags`` to ``parser``, in order."""
+    for name, kwargs in flags:
+        parser.add_argument(name, **kwargs)
+
+
+def lazy_handler(module: str, name: str) -> Callable[[argparse.Namespace], int]:
+    """A command handler that imports ``module`` only when the command runs (so that
+    ``openconvoy --help`` loads no heavy dependency) and returns ``module.name(args)``."""
+
+    def handler(args: argparse.Namespace) -> int:
+        import importlib
+
+        result: int = getattr(importlib.import_module(module), name)(args)
+        return result
+
+    handler.__name__ = name
+    return handler
+
+
+def add_command(
+    sub: argparse._SubParsersAction,
+    name: str,
+    flags: Flags,
+    handler: Callable[[argparse.Namespace], int],
+    **parser_kwargs: Any,
+) -> argparse.ArgumentParser:
+    """A subcommand ``name`` (``help``, ``description``, ... in ``parser_kwargs``) with its
+    ``flags``, run by ``handler``; returns its parser."""
+    parser = sub.add_parser(name, **parser_kwargs)
+    add_flags(parser, flags)
+    parser.set_defaults(handler=handler)
+    return parser

@@ -1,7 +1,7 @@
 """The simulator: plant, scenarios, channel, and the PettingZoo convoy environment.
 
 ``ConvoyEnv`` (PettingZoo parallel API; ``ConvoyEnv()`` is the ``paper`` scenario),
-``convoy_aec_env`` (its AEC version), ``VectorConvoyEnv`` (many convoys batched in numpy), and the single-agent Gymnasium view registered as
+``convoy_aec_env`` (its AEC version), ``VectorConvoyEnv`` (many convoys batched, compiled kernels; the ``batched`` extra), and the single-agent Gymnasium view registered as
 ``OpenConvoy-v0`` (``openconvoy.envs.single_agent``).
 """
 
@@ -10,7 +10,6 @@ from openconvoy.envs.convoy_env import INFO_KEYS, ConvoyEnv, convoy_aec_env
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import SCENARIO_NAMES, Scenario, make_scenario
 from openconvoy.envs.track import Track, load_track
-from openconvoy.envs.vector_env import VectorConvoyEnv
 
 __all__ = [
     "INFO_KEYS",
@@ -28,7 +27,23 @@ __all__ = [
     "make_scenario",
 ]
 
+from typing import TYPE_CHECKING, Any
+
 import gymnasium as _gymnasium
+
+if TYPE_CHECKING:
+    from openconvoy.envs.vector_env import VectorConvoyEnv
+
+
+def __getattr__(name: str) -> Any:
+    # VectorConvoyEnv needs numba (the ``batched`` extra): imported on first use, so the
+    # rest of the simulator (and a vehicle's runtime) does not need it.
+    if name == "VectorConvoyEnv":
+        from openconvoy.envs.vector_env import VectorConvoyEnv
+
+        return VectorConvoyEnv
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 SINGLE_AGENT_ID = "OpenConvoy-v0"
 """Gymnasium id of the single-agent view (``openconvoy.envs.single_agent``)."""

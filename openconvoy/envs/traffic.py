@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -61,6 +62,8 @@ __all__ = [
     "highway_to_enu",
 ]
 
+F = TypeVar("F", float, np.ndarray)
+
 TRAFFIC_ID_BASE = 1000
 """Traffic vehicle k is reported as id ``TRAFFIC_ID_BASE + k`` (convoy ids are 0..n-1)."""
 
@@ -73,20 +76,17 @@ class HighwayFrame:
     y0: float = 0.0
 
 
-def enu_to_highway(
-    frame: HighwayFrame, x: float, y: float, heading: float
-) -> tuple[float, float, float]:
-    """ENU position (m) and heading (rad, CCW from east) -> highway-env's x, y, heading.
+def enu_to_highway(frame: HighwayFrame, x: F, y: F, heading: F) -> tuple[F, F, F]:
+    """ENU position (m) and heading (rad, CCW from east) -> highway-env's x, y, heading
+    (floats, or arrays of them).
 
     highway-env's y grows to the right of travel (its lane 0 is the leftmost lane), so the
     lateral axis and the heading change sign."""
     return frame.x0 + x, frame.y0 - y, -heading
 
 
-def highway_to_enu(
-    frame: HighwayFrame, hx: float, hy: float, heading: float
-) -> tuple[float, float, float]:
-    """The inverse of ``enu_to_highway``."""
+def highway_to_enu(frame: HighwayFrame, hx: F, hy: F, heading: F) -> tuple[F, F, F]:
+    """The inverse of ``enu_to_highway`` (floats or arrays, as it)."""
     return hx - frame.x0, frame.y0 - hy, -heading
 
 
@@ -198,8 +198,21 @@ class FastRoad(Road):
     (the parity test runs both on the same seeds)."""
 
     _cache: dict | None = None
-    idm_accel: dict[int, float] = {}
-    """Filled by ``VectorRoad.act``; empty here."""
+
+    # Seams for ``traffic_vector.VectorRoad`` (state in arrays); here: use the objects.
+    def vector_state(self, vehicles: list) -> Any:
+        """The vehicles' state as arrays (``TrafficState``), None: read the objects."""
+        return None
+
+    def place_vehicles(
+        self, vehicles: list, hx: np.ndarray, hy: np.ndarray, heading: np.ndarray, speed: np.ndarray
+    ) -> bool:
+        """Set convoy vehicles' states on the arrays; False: set the objects instead."""
+        return False
+
+    def known_idm_accel(self, vehicle: Any) -> float | None:
+        """The IDM acceleration (m/s², clipped) ``act`` computed for ``vehicle``, if any."""
+        return None
 
     def act(self) -> None:
         self._cache = {}
@@ -210,7 +223,8 @@ class FastRoad(Road):
         finally:
             self._cache = None
 
-    def _coords(self, lane_index) -> tuple[np.ndarray, np.ndarray]:
+    def _coords(self, lane_index: tuple) -> tuple[np.ndarray, np.ndarray]:
+        assert self._cache is not None, "only during act"
         got = self._cache.get(lane_index)
         if got is None:
             lane = self.network.get_lane(lane_index)
@@ -257,81 +271,94 @@ class FastRoad(Road):
         collide(self, dt)
 
 
-_NEXT_CORNER = np.array([1, 2, 3, 0])
 _shape_key: tuple = ()
 _shape_val: tuple = ()
 _shape_items: list = []  # held so that the ids in the key stay theirs
 
 
-def _shapes(items: list) -> tuple[np.ndarray, np.ndarray]:
-    """Diagonals (m) and half (length, width) (m) of ``items``, read once per set of objects."""
+def _shapes(items: list, n_v: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Half the diagonals' sums (m, n x n), half (length, width) (m) of ``items`` and the
+    pairs to test (i < j, i one of the first ``n_v``), read once per set of objects."""
     global _shape_key, _shape_val, _shape_items
-    key = tuple(map(id, items))
+    key = (n_v, *map(id, items))
     if key != _shape_key:
         _shape_key, _shape_items = key, items
+        diag = np.array([o.diagonal for o in items])
+        upper = np.triu(np.ones((len(items), len(items)), dtype=bool), 1)
+        upper[n_v:, :] = False
         _shape_val = (
-            np.array([o.diagonal for o in items]),
+            0.5 * (diag[:, None] + diag[None, :]),
             0.5 * np.array([(o.LENGTH, o.WIDTH) for o in items], dtype=float),
+            upper,
         )
     return _shape_val
+
+
+def touching_pairs(
+    x: np.ndarray,
+    y: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    speed: np.ndarray,
+    reach: np.ndarray,
+    half: np.ndarray,
+    pairs: np.ndarray,
+    dt: float,
+) -> list[tuple[int, int]]:
+    """The pairs among ``pairs`` (n x n mask) for which highway-env's ``handle_collisions``
+    may find a touch, in its (row-major) order: all but those failing its spherical
+    pre-check (``reach``: half the diagonals' sum, m) and those its separating-axis test
+    (``are_polygons_intersecting``, on the rectangles' edge normals) finds apart both now
+    and after ``dt`` s, with a 1e-9 m margin. Positions (m), cos and sin of the headings,
+    speeds (m/s), ``half``: half (length, width) (m)."""
+    dx, dy = x[:, None] - x, y[:, None] - y
+    # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
+    r = reach + (np.abs(speed) * dt + 1e-6)[:, None]
+    ii, jj = ((dx * dx + dy * dy <= r * r) & pairs).nonzero()
+    if not len(ii):
+        return []
+    g = np.array((x, y, c, s, half[:, 0], half[:, 1], speed * c * dt, speed * s * dt))
+    xi, yi, ci, si, li, wi, ui, vi = g[:, ii]
+    xj, yj, cj, sj, lj, wj, uj, vj = g[:, jj]
+    # The four axes: each rectangle's heading and its normal. On axis u a rectangle spans
+    # its centre's projection +- (l |u.d| + w |u.n|); |cos|, |sin| of the heading difference.
+    ac, as_ = np.abs(ci * cj + si * sj), np.abs(si * cj - ci * sj)
+    ux, uy = np.array((ci, -si, cj, -sj)), np.array((si, ci, sj, cj))
+    ext = np.array(
+        (
+            li + lj * ac + wj * as_,
+            wi + lj * as_ + wj * ac,
+            lj + li * ac + wi * as_,
+            wj + li * as_ + wi * ac,
+        )
+    )
+    proj = (xj - xi) * ux + (yj - yi) * uy  # j's centre relative to i's
+    vp = (ui - uj) * ux + (vi - vj) * uy  # i's displacement relative to j's, as highway-env
+    now = (np.abs(proj) - ext > 1e-9).any(axis=0)
+    # i's interval stretched by vp (highway-env's will_intersect), then the gap to j's.
+    later = np.maximum(proj - ext - np.maximum(vp, 0.0), np.minimum(vp, 0.0) - proj - ext)
+    maybe = (~(now & (later > 1e-9).any(axis=0))).nonzero()[0]
+    return list(zip(ii[maybe].tolist(), jj[maybe].tolist()))
 
 
 def collide(road: Road, dt: float) -> None:
     """``Road.step``'s collision pass with the same outcome: highway-env's
     ``handle_collisions`` runs, in its order, for every vehicle–vehicle and vehicle–object
-    pair except those that numpy shows cannot touch: pairs failing its spherical
-    pre-check, and pairs its separating-axis test (``are_polygons_intersecting``, done here
-    for all pairs at once) finds apart both now and after ``dt`` (with a 1e-9 m margin)."""
+    pair except those that numpy shows cannot touch (``touching_pairs``)."""
     items = road.vehicles + road.objects
     n_v = len(road.vehicles)
     if len(items) < 2:
         return
     pos = np.array([o.position for o in items], dtype=float)
-    diag, half = _shapes(items)
+    reach, half, pairs = _shapes(items, n_v)
     speed = np.array([float(o.speed) if k < n_v else 0.0 for k, o in enumerate(items)])
-    dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
-    # highway-env skips a pair when dist > (d_i + d_j)/2 + speed_i * dt; keep a margin.
-    near = dist <= 0.5 * (diag[:, None] + diag[None, :]) + np.abs(speed)[:, None] * dt + 1e-6
-    near[n_v:, :] = False
-    ii, jj = np.nonzero(near)
-    upper = ii < jj  # each pair once, in np.triu's row-major order
-    ii, jj = ii[upper], jj[upper]
-    if not len(ii):
-        return
     heading = np.array([float(o.heading) for o in items])
     c, s = np.cos(heading), np.sin(heading)
-    # Corners in RoadObject.polygon's order: (-l,-w), (-l,+w), (+l,+w), (+l,-w).
-    sl, sw = np.array([-1, -1, 1, 1]), np.array([-1, 1, 1, -1])
-    lx, wy = sl[None, :] * half[:, 0:1], sw[None, :] * half[:, 1:2]
-    corners = np.stack(
-        (
-            c[:, None] * lx - s[:, None] * wy + pos[:, 0:1],
-            s[:, None] * lx + c[:, None] * wy + pos[:, 1:2],
-        ),
-        axis=-1,
-    )  # (n, 4, 2)
-    edges = corners[:, _NEXT_CORNER] - corners
-    normals = np.stack((-edges[..., 1], edges[..., 0]), axis=-1)
-    normals /= np.sqrt(
-        normals[..., 0:1] * normals[..., 0:1] + normals[..., 1:2] * normals[..., 1:2]
-    )
-    vel = speed[:, None] * np.stack((c, s), axis=1) * dt
-    a, b = corners[ii], corners[jj]  # (k, 4, 2)
-    axes = np.concatenate((normals[ii], normals[jj]), axis=1)  # (k, 8, 2)
-    pa = np.einsum("kpd,kad->kap", a, axes)
-    pb = np.einsum("kpd,kad->kap", b, axes)
-    min_a, max_a, min_b, max_b = pa.min(-1), pa.max(-1), pb.min(-1), pb.max(-1)
-    apart_now = np.where(min_a < min_b, min_b - max_a, min_a - max_b) > 1e-9
-    vp = np.einsum("kad,kd->ka", axes, vel[ii] - vel[jj])
-    min_a2, max_a2 = min_a + np.minimum(vp, 0.0), max_a + np.maximum(vp, 0.0)
-    apart_later = np.where(min_a2 < min_b, min_b - max_a2, min_a2 - max_b) > 1e-9
-    maybe = ~(apart_now.any(axis=1) & apart_later.any(axis=1))
-    for i, j in zip(ii[maybe].tolist(), jj[maybe].tolist()):
+    for i, j in touching_pairs(pos[:, 0], pos[:, 1], c, s, speed, reach, half, pairs, dt):
         items[i].handle_collisions(items[j], dt)
 
 
-@dataclass(frozen=True)
-class InPath:
+class InPath(NamedTuple):  # a NamedTuple: built three times a tick, 4x cheaper than a dataclass
     """The nearest vehicle in a convoy vehicle's path, ahead of it (ground truth):
     centre-to-centre range (m), range rate (m/s, negative = closing), its length (m), its
     id (convoy id, or ``TRAFFIC_ID_BASE + k`` for traffic) and whether it is traffic."""
@@ -343,12 +370,24 @@ class InPath:
     is_traffic: bool
 
 
+_DIAGONALS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index arrays of an n x n diagonal (cached)."""
+    got = _DIAGONALS.get(n)
+    if got is None:
+        got = _DIAGONALS[n] = (np.arange(n), np.arange(n))
+    return got
+
+
 class TrafficWorld:
     """highway-env's ``Road`` with our convoy on it (see the module doc).
 
     ``reset`` takes a built road (traffic already on it) and the convoy's proxies are put
     first in ``road.vehicles`` (so every convoy–traffic pair is tested by the convoy
-    vehicle's ``handle_collisions``)."""
+    vehicle's ``handle_collisions``). On a ``VectorRoad`` the state lives in its arrays;
+    ``convoy`` and ``traffic`` give the highway-env objects brought up to date."""
 
     def __init__(
         self,
@@ -364,84 +403,126 @@ class TrafficWorld:
         self.cruise_speed_mps = cruise_speed_mps
         self.max_look_m = max_look_m
         self.road: Road | None = None
-        self.convoy: list[ConvoyVehicle] = []
-        self.traffic: list[IDMVehicle] = []
+        self._convoy: list[ConvoyVehicle] = []
+        self._traffic: list[IDMVehicle] = []
+        self._all: list[Vehicle] = []
+        self._scripted: list[ScriptedLaneChanger] = []
         self.t = 0.0
+
+    @property
+    def convoy(self) -> list[ConvoyVehicle]:
+        """The convoy's highway-env vehicles (up to date; changes to them count)."""
+        self._objects()
+        return self._convoy
+
+    @property
+    def traffic(self) -> list[IDMVehicle]:
+        """The traffic's highway-env vehicles (up to date; changes to them count)."""
+        self._objects()
+        return self._traffic
+
+    def _road(self) -> Road:
+        assert self.road is not None, "reset() first"
+        return self.road
+
+    def _objects(self) -> None:
+        if self.road is not None:
+            self.road.vehicles  # noqa: B018  (reading them brings a VectorRoad's objects up to date)
 
     def reset(self, road: Road, traffic: Sequence[IDMVehicle]) -> None:
         self.road = road
-        self.convoy = [
+        self._convoy = [
             ConvoyVehicle(road, i, length, width, self.cruise_speed_mps)
             for i, (length, width) in enumerate(zip(self.lengths, self.widths))
         ]
-        self.traffic = list(traffic)
-        road.vehicles = [*self.convoy, *self.traffic]
+        self._traffic = list(traffic)
+        self._scripted = [v for v in self._traffic if isinstance(v, ScriptedLaneChanger)]
+        self._all = [*self._convoy, *self._traffic]
+        road.vehicles = self._all
         self.t = 0.0
 
     def place(
         self,
-        x: Sequence[float],
-        y: Sequence[float],
-        heading: Sequence[float],
-        speed: Sequence[float],
+        x: Sequence[float] | np.ndarray,
+        y: Sequence[float] | np.ndarray,
+        heading: Sequence[float] | np.ndarray,
+        speed: Sequence[float] | np.ndarray,
     ) -> None:
         """Set every convoy vehicle from ENU states (m, rad, m/s)."""
         f = self.frame
-        for v, xi, yi, hi, si in zip(self.convoy, x, y, heading, speed):
-            hx, hy, hh = enu_to_highway(f, xi, yi, hi)
-            v.set_state(hx, hy, hh, si)
+        hx, hy, hh = enu_to_highway(
+            f,
+            np.asarray(x, dtype=float),
+            np.asarray(y, dtype=float),
+            np.asarray(heading, dtype=float),
+        )
+        sp = np.asarray(speed, dtype=float)
+        road = self.road
+        if isinstance(road, FastRoad) and road.place_vehicles(self._convoy, hx, hy, hh, sp):
+            return
+        for k, v in enumerate(self._convoy):
+            v.set_state(float(hx[k]), float(hy[k]), float(hh[k]), float(sp[k]))
 
     def act(self, t: float) -> None:
         """Scripted events due at ``t``, then traffic decides on the state at ``t``."""
-        for v in self.traffic:
-            if isinstance(v, ScriptedLaneChanger):
-                v.update(t)
-        self.road.act()
+        for v in self._scripted:
+            v.update(t)
+        self._road().act()
 
     def step(self, dt: float) -> None:
         """Traffic moves ``dt`` seconds (convoy vehicles were placed already) and highway-env
         checks collisions."""
-        self.road.step(dt)
+        self._road().step(dt)
         self.t += dt
 
     def traffic_hits(self) -> list[bool]:
         """Per convoy vehicle: has it touched a traffic vehicle (ever, this episode)?"""
-        return [v.traffic_hit for v in self.convoy]
+        return [v.traffic_hit for v in self._convoy]
+
+    def _arrays(self) -> tuple[np.ndarray, ...]:
+        """Convoy then traffic: x, y, heading, speed, width, length, cos and sin of the
+        heading (highway-env frame)."""
+        road = self.road
+        st = road.vector_state(self._all) if isinstance(road, FastRoad) else None
+        if st is not None:
+            st.trig()
+            got = (st.x, st.y, st.h, st.sp, st.width, st.length, st.c, st.s)
+            m = len(self._all)
+            return got if m == st.n else tuple(a[:m] for a in got)
+        rows = [
+            (o.position[0], o.position[1], o.heading, o.speed, o.WIDTH, o.LENGTH) for o in self._all
+        ]
+        x, y, h, sp, w, length = np.array(rows, dtype=float).reshape(len(rows), 6).T
+        return x, y, h, sp, w, length, np.cos(h), np.sin(h)
 
     def in_path(self) -> list[InPath | None]:
         """For each convoy vehicle, the nearest vehicle ahead whose body overlaps its path
         (the corridor of its own width straight ahead), within ``max_look_m``."""
-        objs = [*self.convoy, *self.traffic]
-        pos = np.array([o.position for o in objs])
-        head = np.array([o.heading for o in objs])
-        spd = np.array([o.speed for o in objs], dtype=float)
-        vel = spd[:, None] * np.stack((np.cos(head), np.sin(head)), axis=1)
-        half_w = 0.5 * np.array([o.WIDTH for o in objs])
-        lengths = np.array([o.LENGTH for o in objs])
-        n = len(self.convoy)
+        x, y, _, spd, width, lengths, c, s = self._arrays()
+        n = len(self._convoy)
+        half_w = 0.5 * width
         # Every convoy vehicle at once: rows = convoy vehicle i, columns = every object.
-        c = np.array([math.cos(h) for h in head[:n].tolist()])
-        s = np.array([math.sin(h) for h in head[:n].tolist()])
-        d = pos[None, :, :] - pos[:n, None, :]
-        lon = d[:, :, 0] * c[:, None] + d[:, :, 1] * s[:, None]
-        lat = -d[:, :, 0] * s[:, None] + d[:, :, 1] * c[:, None]
+        dx, dy = x - x[:n, None], y - y[:n, None]
+        cn, sn = c[:n, None], s[:n, None]
+        lon = dx * cn + dy * sn
         ok = (
             (lon > 0.0)
-            & (np.abs(lat) < half_w[None, :] + half_w[:n, None])
+            & (np.abs(-dx * sn + dy * cn) < half_w + half_w[:n, None])
             & (lon < self.max_look_m)
         )
-        ok[np.arange(n), np.arange(n)] = False
-        nearest = np.argmin(np.where(ok, lon, np.inf), axis=1).tolist()
+        ok[_diagonal(n)] = False
+        nearest = np.where(ok, lon, np.inf).argmin(axis=1).tolist()
         seen = ok.any(axis=1).tolist()
+        vx, vy = (spd * c).tolist(), (spd * s).tolist()
         out: list[InPath | None] = []
         for i in range(n):
             if not seen[i]:
                 out.append(None)
                 continue
             j = nearest[i]
-            rng = float(math.hypot(d[i, j, 0], d[i, j, 1]))
-            dv = vel[j] - vel[i]
-            rate = float((d[i, j, 0] * dv[0] + d[i, j, 1] * dv[1]) / rng) if rng > 0 else 0.0
+            dxi, dyi = float(dx[i, j]), float(dy[i, j])
+            rng = math.hypot(dxi, dyi)
+            rate = (dxi * (vx[j] - vx[i]) + dyi * (vy[j] - vy[i])) / rng if rng > 0 else 0.0
             traffic = j >= n
             tid = TRAFFIC_ID_BASE + (j - n) if traffic else j
             out.append(InPath(rng, rate, float(lengths[j]), tid, traffic))
@@ -449,22 +530,19 @@ class TrafficWorld:
 
     def traffic_states_enu(self) -> np.ndarray:
         """Traffic as rows ``(x, y, heading, speed, length, width)`` in ENU."""
-        rows = []
-        for v in self.traffic:
-            x, y, h = highway_to_enu(
-                self.frame, float(v.position[0]), float(v.position[1]), float(v.heading)
-            )
-            rows.append((x, y, h, float(v.speed), v.LENGTH, v.WIDTH))
-        return np.array(rows, dtype=float).reshape(-1, 6)
+        x, y, h, sp, w, length, _, _ = (a[len(self._convoy) :] for a in self._arrays())
+        ex, ey, eh = highway_to_enu(self.frame, x, y, h)
+        return np.stack((ex, ey, eh, sp, length, w), axis=1).reshape(-1, 6)
 
     def leader_idm_accel(self) -> float:
         """highway-env's IDM acceleration (m/s²) for the leader behind whatever is ahead of
         it on its lane (traffic or obstacle), towards the cruise speed."""
-        lead = self.convoy[0]
+        lead = self._convoy[0]
         if isinstance(self.road, FastRoad):
-            known = self.road.idm_accel.get(id(lead))  # VectorRoad computed it in act
+            known = self.road.known_idm_accel(lead)  # VectorRoad computed it in act
             if known is not None:
                 return known
-        front, _ = self.road.neighbour_vehicles(lead, lead.lane_index)
+        self._objects()
+        front, _ = self._road().neighbour_vehicles(lead, lead.lane_index)
         a = lead.acceleration(ego_vehicle=lead, front_vehicle=front)
         return float(np.clip(a, -lead.ACC_MAX, lead.ACC_MAX))

@@ -61,7 +61,7 @@ class TrafficConvoyWorld(ConvoyWorld):
 
     def before_sense(self) -> None:
         world, p = self.traffic, self.plant
-        world.place(p.x.tolist(), p.y.tolist(), p.heading.tolist(), p.speed.tolist())
+        world.place(p.x, p.y, p.heading, p.speed)
         if self.step_count > 0:
             world.step(self.dt)
         world.act(self.t)
@@ -77,17 +77,22 @@ class TrafficConvoyWorld(ConvoyWorld):
 
     def ranging_readings(self) -> dict[int, tuple[float, float]]:
         """The forward sensor sees the nearest vehicle in the path (convoy or traffic)."""
-        out: dict[int, tuple[float, float]] = {}
+        seen = []
         for i, sensor in self.ranging_sensors:
             target = self.in_path[i]
-            if target is None or target.range_m > sensor.max_range_m:
-                continue
-            n1, n2 = self._ranging_rng.normal(size=2)
-            out[i] = (
+            if target is not None and target.range_m <= sensor.max_range_m:
+                seen.append((i, sensor, target))
+        if not seen:
+            return {}
+        # One draw for all (the same numbers, in the same order, as one draw per sensor).
+        noise = self._ranging_rng.normal(size=(len(seen), 2)).tolist()
+        return {
+            i: (
                 target.range_m + sensor.range_noise_m * n1,
                 target.range_rate_mps + sensor.range_rate_noise_mps * n2,
             )
-        return out
+            for (i, sensor, target), (n1, n2) in zip(seen, noise)
+        }
 
     def extra_columns(self) -> dict[str, list[Any]]:
         values = [_ahead_values(a) + (1.0 if h else 0.0,) for a, h in zip(self.in_path, self.hits)]

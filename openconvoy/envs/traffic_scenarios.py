@@ -35,6 +35,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -130,7 +131,7 @@ def parse_spec(spec: str) -> tuple[str, HighwayConfig]:
             f"unknown scenario {name!r}; highway scenarios: {', '.join(HIGHWAY_SCENARIOS)}"
         )
     fields = {f.name: f for f in dataclasses.fields(HighwayConfig)}
-    values: dict[str, object] = {}
+    values: dict[str, Any] = {}  # each value of its field's type
     for item in filter(None, params.split(",")):
         key, eq, text = item.partition("=")
         key = key.strip().replace("-", "_")
@@ -240,6 +241,7 @@ class HighwayScenario:
         """highway-env's IDM acceleration turned into a speed setpoint for our first-order
         speed loop (``v + a * lag``), heading onto the lane's centre line (y = 0)."""
         lead = self.presets[0]
+        assert self.world is not None, "reset() first"
         a = self.world.leader_idm_accel()
         v_cmd = max(0.0, speed + a * max(lead.speed_lag_s, 0.1))
         look = max(5.0, 1.0 * speed)

@@ -67,8 +67,28 @@ def run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
 
 
-def executor_args(p: argparse.ArgumentParser) -> None:
-    """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray)."""
+def executor_args(
+    p: argparse.ArgumentParser, batched: bool = False, run_logs: bool = False
+) -> None:
+    """``--executor`` and ``--address`` (issue 15: sweeps, tune and train on Ray); with
+    ``batched``, ``--batched/--no-batched`` (issue 14: sweeps and tune); with
+    ``run_logs``, ``--no-run-logs`` (sweeps)."""
+    if run_logs:
+        p.add_argument(
+            "--no-run-logs",
+            action="store_true",
+            help="write each run's metrics.json but not its log.csv (the summary is the same; "
+            "writing the logs is much of a batched sweep's time)",
+        )
+    if batched:
+        p.add_argument(
+            "--batched",
+            action=argparse.BooleanOptionalAction,
+            default=None,
+            help="run a policy's runs as a few batches of one VectorConvoyEnv each (default: "
+            "where the numbers are the per-run path's to the bit, i.e. classical policies; "
+            "--batched also learned ones; --no-batched one ConvoyEnv per run)",
+        )
     p.add_argument(
         "--executor",
         choices=("local", "ray"),
@@ -217,7 +237,7 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="runs at once (default: the cores available, or the Ray cluster's CPUs)",
     )
-    executor_args(p)
+    executor_args(p, batched=True, run_logs=True)
     run_args(p, sweep=True)
 
     def _per_sweep(args: argparse.Namespace) -> int:

@@ -287,11 +287,16 @@ def per_sweep(args: argparse.Namespace) -> int:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
     from openconvoy.outputs import check_output_dir
 
-    executor = with_flags(config.executor, args.executor, args.address, args.jobs)
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs, args.batched)
     out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
     try:
         result = run_experiment(
-            config, out, progress=not args.quiet, figures=not args.no_plots, executor=executor
+            config,
+            out,
+            progress=not args.quiet,
+            figures=not args.no_plots,
+            executor=executor,
+            run_logs=not args.no_run_logs,
         )
     except TasksFailed as exc:
         print(f"openconvoy: error: {exc}", file=sys.stderr)
@@ -306,7 +311,8 @@ def per_sweep(args: argparse.Namespace) -> int:
             f"{r['collisions']['mean']:>12.2f}{r['delivery_ratio']['mean']:>10.3f}"
         )
     print(
-        f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run logs to {out}"
+        f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run "
+        f"{'logs' if not args.no_run_logs else 'metrics'} to {out}"
     )
     return 0
 

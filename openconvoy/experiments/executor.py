@@ -21,6 +21,13 @@ In an experiment file the executor is the optional ``[executor]`` table::
     address = "10.0.0.5:6379"
     jobs = 64          # tasks in flight at once (default: the cluster's CPUs)
     max_retries = 0    # Ray: reruns of a task whose worker died (default 0)
+    batched = true     # sweeps and tune: a policy's runs as batches (default: where exact)
+
+``batched`` (``--batched/--no-batched``) groups a sweep's or a trial's runs of one policy
+into a few tasks, each a ``VectorConvoyEnv`` of many convoys (``experiments.batched``):
+unset, wherever the results are the per-run path's to the bit (classical policies);
+``true`` also for policies whose ``act_batch`` is only close to their ``act``; ``false``
+one ``ConvoyEnv`` task per run. Configurations the batched env refuses run per run.
 """
 
 from __future__ import annotations
@@ -47,6 +54,7 @@ class ExecutorConfig:
     address: str | None = None
     jobs: int | None = None
     max_retries: int = 0
+    batched: bool | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in EXECUTOR_KINDS:
@@ -161,13 +169,15 @@ class Executor(ABC):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def map(self, tasks: Sequence[Task], progress: bool = True, desc: str = "") -> list[Any]:
+    def map(
+        self, tasks: Sequence[Task], progress: bool = True, desc: str = "", unit: str = "run"
+    ) -> list[Any]:
         """Every task's result (or TaskFailure), in task order, whatever order they end in;
-        a progress bar over tasks on stderr with ``progress``."""
+        a progress bar over tasks (counted in ``unit``s) on stderr with ``progress``."""
         index = {id(t): i for i, t in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         todo = deque(tasks)
-        bar = _bar(len(tasks), progress, desc)
+        bar = _bar(len(tasks), progress, desc, unit)
         in_flight = failed = 0
         try:
             while todo or in_flight:
@@ -186,10 +196,10 @@ class Executor(ABC):
         return results
 
 
-def _bar(total: int, enabled: bool, desc: str) -> Any:
+def _bar(total: int, enabled: bool, desc: str, unit: str = "run") -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="run", desc=desc or None, disable=not enabled)
+    return tqdm(total=total, unit=unit, desc=desc or None, disable=not enabled)
 
 
 class LocalExecutor(Executor):
@@ -283,10 +293,15 @@ def _process_pool(workers: int) -> Any:
 
 
 def with_flags(
-    config: ExecutorConfig | None, kind: str | None, address: str | None, jobs: int | None
+    config: ExecutorConfig | None,
+    kind: str | None,
+    address: str | None,
+    jobs: int | None,
+    batched: bool | None = None,
 ) -> ExecutorConfig:
     """``config`` (an experiment file's ``[executor]``, or the default) with the command
-    line's ``--executor``, ``--address`` and ``--jobs`` on top (None: not given)."""
+    line's ``--executor``, ``--address``, ``--jobs`` and ``--batched`` on top (None: not
+    given)."""
     import dataclasses
 
     config = config or ExecutorConfig()
@@ -297,6 +312,8 @@ def with_flags(
         changes["address"] = address
     if jobs is not None:
         changes["jobs"] = jobs
+    if batched is not None:
+        changes["batched"] = batched
     return dataclasses.replace(config, **changes) if changes else config
 
 

@@ -31,6 +31,7 @@ One TOML file fully describes an experiment::
     [executor]                               # optional: where the runs execute
     kind = "ray"                             # default "local" (processes on this machine)
     address = "10.0.0.5:6379"                # see openconvoy.experiments.executor
+    batched = false                          # default: batched where exact (see below)
 
 An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
 name it (with ``+ladder`` too); policy files named in ``policies`` are inlined the same way
@@ -42,7 +43,10 @@ inline policies as files, ``summary.json`` (DESIGN.md's shape, one row per polic
 byte-identical ``summary.csv``: every run is seeded, results are ordered by (policy, PER,
 seed) whatever order the processes finish in, and numbers are written with fixed format.
 The executor does not change a number: each run is a task that ships its log and metrics
-back as bytes, and only this process writes the run directory. A run that fails leaves
+back as bytes, and only this process writes the run directory. Nor does batching: a
+policy's runs are a few tasks of one ``VectorConvoyEnv`` each (``batched_sweep``) where
+the batched env takes them and the policy's ``act_batch`` is its ``act`` to the bit
+(classical policies), and those tasks return the very files the per-run tasks would. A run that fails leaves
 the others written, ``failures.json`` naming it, and a summary of the runs that finished.
 """
 
@@ -53,8 +57,7 @@ import dataclasses
 import io
 import json
 import math
-import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -64,18 +67,16 @@ import numpy as np
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
-from openconvoy.experiments import portable
+from openconvoy.experiments import batched_sweep
 from openconvoy.experiments.executor import (
     Executor,
     ExecutorConfig,
-    Task,
     TaskFailure,
     TasksFailed,
     make_executor,
 )
 from openconvoy.experiments.executor import available_cores as available_cores  # re-export
-from openconvoy.experiments.portable import Files
-from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig, run_sim, write_json
+from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig, write_json
 from openconvoy.policies.spec import LADDER_SUFFIX as LADDER_SUFFIX  # re-export
 from openconvoy.policies.spec import PolicySpec
 
@@ -115,22 +116,29 @@ class ExperimentConfig:
         if isinstance(seeds, int):  # ``seeds = 3`` means seeds 0, 1, 2
             seeds = tuple(range(seeds))
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
+        seeds = self.seed_values
         if not self.policies:
             raise ConfigError("an experiment needs at least one policy")
         if len(set(self.policies)) != len(self.policies):
             raise ConfigError(f"policies repeat: {', '.join(self.policies)}")
-        if not self.pers or not self.seeds:
+        if not self.pers or not seeds:
             raise ConfigError("an experiment needs at least one PER and one seed")
         for p in self.pers:
             if not 0.0 <= p <= 1.0:
                 raise ConfigError(f"PER must be in [0, 1], got {p}")
-        if len(set(self.pers)) != len(self.pers) or len(set(self.seeds)) != len(self.seeds):
+        if len(set(self.pers)) != len(self.pers) or len(set(seeds)) != len(seeds):
             raise ConfigError("PERs and seeds must not repeat")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration_s must be positive, got {self.duration_s}")
         for name, table in self.policy.items():
             if not isinstance(table, dict):
                 raise ConfigError(f"[policy.{name}] must be a table")
+
+    @property
+    def seed_values(self) -> tuple[int, ...]:
+        """The seeds as a tuple (``seeds = N`` in a file, 0..N-1, is one once built)."""
+        assert isinstance(self.seeds, tuple)
+        return self.seeds
 
     # --- TOML ----------------------------------------------------------------------------
 
@@ -184,7 +192,7 @@ class ExperimentConfig:
         out = []
         for label in self.policies:
             for per in self.pers:
-                for seed in self.seeds:
+                for seed in self.seed_values:
                     out.append(
                         (
                             label,
@@ -266,23 +274,7 @@ def policy_dirname(label: str) -> str:
 
 # --- running -----------------------------------------------------------------------------
 
-RUN_FILES = ("log.csv", "metrics.json")
-
-
-def _run_one(args: tuple[RunConfig, Files, bool]) -> dict[str, Any]:
-    """Task: one run in a temporary directory of its worker; returns its files as bytes,
-    its metrics and (``keep_series``) the figure series. The driver writes the files."""
-    config, files, keep_series = args
-    with tempfile.TemporaryDirectory(prefix="openconvoy-run-") as tmp:
-        where = portable.land(files, tmp)
-        out = Path(tmp) / "run"
-        with portable.driver_names(where):
-            result = run_sim(portable.relocate_run(config, where), out)
-        return {
-            "files": {name: (out / name).read_bytes() for name in RUN_FILES},
-            "metrics": result.metrics,
-            "series": run_series(result.log, result.lengths) if keep_series else None,
-        }
+RUN_FILES = batched_sweep.RUN_FILES
 
 
 def run_series(log: mt.Columns, lengths: dict[int, float], max_points: int = 800) -> dict[str, Any]:
@@ -313,7 +305,8 @@ def run_series(log: mt.Columns, lengths: dict[int, float], max_points: int = 800
 @dataclass
 class SweepResult:
     """A finished sweep: its config, summary rows, per-run metrics and figure series
-    (only the runs that finished; ``failures`` names the others)."""
+    (only the runs that finished; ``failures`` names the others; ``per_run``: policy
+    label -> why its runs were not batched)."""
 
     config: ExperimentConfig
     rows: list[dict[str, Any]]
@@ -321,6 +314,7 @@ class SweepResult:
     series: dict[tuple[str, float], dict[str, Any]]
     out_dir: Path
     failures: list[TaskFailure] = field(default_factory=list)
+    per_run: dict[str, str] = field(default_factory=dict)
 
 
 def run_experiment(
@@ -331,30 +325,75 @@ def run_experiment(
     figures: bool = True,
     executor: ExecutorConfig | Executor | None = None,
     raise_on_failure: bool = True,
+    run_logs: bool = True,
+    say: Callable[[str], None] | None = None,
 ) -> SweepResult:
     """Run every (policy, PER, seed) of ``config`` and write the run directory (see the
     module docstring). The runs are tasks of ``executor`` (default: ``config.executor``,
-    the local processes, ``jobs`` of them if given). When runs fail, the others' results
-    are written all the same, ``summary.*`` covers them, ``failures.json`` names the lost
-    runs, and ``TasksFailed`` is raised (or, without ``raise_on_failure``, the result
-    lists them)."""
-    from openconvoy import __version__
+    the local processes, ``jobs`` of them if given): a policy's runs in a few batched
+    tasks where its ``batched`` setting and the batched env allow (``batched_sweep``),
+    else one task per run; ``say`` gets one line per policy not batched and why
+    (default: stderr, with ``progress``). ``run_logs``: write every run's ``log.csv``
+    (else only its ``metrics.json``; the summary is the same). When runs fail, the
+    others' results are written all the same, ``summary.*`` covers them,
+    ``failures.json`` names the lost runs, and ``TasksFailed`` is raised (or, without
+    ``raise_on_failure``, the result lists them)."""
+    config = freeze(config)
+    _check_policies(config)
+    chosen, batched = _executor(config, executor, jobs)  # Ray: reached before any write
+    out = _start_run_dir(config, Path(out_dir))
+    planned = config.run_configs(write_inline_policies(config, out))
+    dirs = [run_dirname(label, rc) for label, rc in planned]
+    series = [rc.seed == config.seed_values[0] for _, rc in planned]
+    slots = chosen.slots if isinstance(chosen, Executor) else chosen.jobs or available_cores()
+    tasks = batched_sweep.plan(planned, dirs, series, slots, batched, run_logs)
+    if say is None and progress:
+        say = _stderr_line
+    batched_sweep.say_per_run(tasks, say or (lambda line: None))
+    if isinstance(chosen, ExecutorConfig):  # local: no more processes than tasks
+        chosen = make_executor(dataclasses.replace(chosen, jobs=min(slots, len(tasks.tasks))))
+    with chosen:
+        unit = "run" if len(tasks.tasks) == len(planned) else "task"
+        results = chosen.map(tasks.tasks, progress, desc=config.name, unit=unit)
+    per_run = batched_sweep.expand(tasks, results, dirs)
+    runs, failures, kept = _write_runs(out, planned, dirs, per_run)
+    result = SweepResult(config, [], runs, kept, out, failures, tasks.per_run)
+    return _finish(result, figures, raise_on_failure)
+
+
+def _check_policies(config: ExperimentConfig) -> None:
+    """Fail before anything is written on a classical policy that does not load."""
     from openconvoy.policies.spec import classical_config
 
-    config = freeze(config)
-    for label in config.policies:  # fail before anything is written
+    for label in config.policies:
         spec = PolicySpec.parse(label)
         if spec.base not in config.policy and not spec.learned:
             classical_config(label)
-    if not isinstance(executor, Executor):
-        chosen = executor or config.executor
-        if jobs is not None and chosen.jobs is None:
-            chosen = dataclasses.replace(chosen, jobs=jobs)
-        if chosen.kind == "local":  # no more processes than runs (one: in this process)
-            n_runs = len(config.policies) * len(config.pers) * len(config.seeds)
-            chosen = dataclasses.replace(chosen, jobs=min(chosen.jobs or available_cores(), n_runs))
-        executor = make_executor(chosen)
-    out = Path(out_dir)
+
+
+def _executor(
+    config: ExperimentConfig, executor: ExecutorConfig | Executor | None, jobs: int | None
+) -> tuple[ExecutorConfig | Executor, bool | None]:
+    """The executor (Ray's made now; local processes once the tasks are known) and the
+    ``batched`` setting."""
+    if isinstance(executor, Executor):
+        return executor, config.executor.batched
+    chosen = executor or config.executor
+    if jobs is not None and chosen.jobs is None:
+        chosen = dataclasses.replace(chosen, jobs=jobs)
+    return (make_executor(chosen) if chosen.kind == "ray" else chosen), chosen.batched
+
+
+def _stderr_line(line: str) -> None:
+    import sys
+
+    print(line, file=sys.stderr)
+
+
+def _start_run_dir(config: ExperimentConfig, out: Path) -> Path:
+    """The run directory with the experiment's copy and the manifest."""
+    from openconvoy import __version__
+
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.toml").write_text(config.to_toml(), encoding="utf-8")
     write_json(
@@ -365,19 +404,20 @@ def run_experiment(
             "rerun": f"openconvoy experiment per-sweep --config {out / 'experiment.toml'} --out NEW_DIR",
         },
     )
-    specs = write_inline_policies(config, out)
-    planned = config.run_configs(specs)
-    first_seed = config.seeds[0]
-    dirs = [run_dirname(label, rc) for label, rc in planned]
-    tasks = [
-        Task(d, _run_one, (rc, portable.ship(portable.run_specs(rc)), rc.seed == first_seed))
-        for d, (label, rc) in zip(dirs, planned)
-    ]
-    with executor:
-        results = executor.map(tasks, progress, desc=config.name)
+    return out
+
+
+def _write_runs(
+    out: Path, planned: Sequence[tuple[str, RunConfig]], dirs: Sequence[str], per_run: Sequence[Any]
+) -> tuple[
+    list[tuple[str, RunConfig, dict[str, Any]]],
+    list[TaskFailure],
+    dict[tuple[str, float], dict[str, Any]],
+]:
+    """Write each finished run's files; its metrics, the failures, the figure series."""
     runs, failures = [], []
     series = {}
-    for d, (label, rc), res in zip(dirs, planned, results):
+    for d, (label, rc), res in zip(dirs, planned, per_run):
         if isinstance(res, TaskFailure):
             failures.append(res)
             continue
@@ -388,17 +428,22 @@ def run_experiment(
         runs.append((label, rc, res["metrics"]))
         if res["series"] is not None:
             series[(label, rc.per)] = res["series"]
-    rows = summarize(runs, config.policies, config.pers)
-    write_json(out / "summary.json", {"rows": rows})
-    (out / "summary.csv").write_text(summary_csv(rows), encoding="utf-8")
-    result = SweepResult(config, rows, runs, series, out, failures)
+    return runs, failures, series
+
+
+def _finish(result: SweepResult, figures: bool, raise_on_failure: bool) -> SweepResult:
+    """Summaries, ``failures.json`` (raising ``TasksFailed``) or the figures."""
+    config, out, failures = result.config, result.out_dir, result.failures
+    result.rows = summarize(result.runs, config.policies, config.pers)
+    write_json(out / "summary.json", {"rows": result.rows})
+    (out / "summary.csv").write_text(summary_csv(result.rows), encoding="utf-8")
     if failures:
         write_json(out / "failures.json", {"failures": [dataclasses.asdict(f) for f in failures]})
         if raise_on_failure:
             raise TasksFailed(
                 failures,
-                len(tasks),
-                f"the other {len(runs)} are in {out} (summary.csv covers only them)",
+                len(failures) + len(result.runs),
+                f"the other {len(result.runs)} are in {out} (summary.csv covers only them)",
             )
         return result
     if figures:

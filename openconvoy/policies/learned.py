@@ -45,7 +45,7 @@ from openconvoy.core.errors import (
 )
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
-from openconvoy.core.policy import make_action
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD, make_action
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 
 META_MEMBER = "openconvoy.json"
@@ -201,6 +201,28 @@ def scale_action(
     return make_action(float(si[0]), float(si[1]))
 
 
+def compose_actions(
+    normalized_actions: np.ndarray,
+    low: tuple[float, float],
+    high: tuple[float, float],
+    base_actions: np.ndarray | None = None,
+    residual_scale: tuple[float, float] = (0.0, 0.0),
+) -> np.ndarray:
+    """``compose_action`` on arrays: ``(..., 2)`` normalized actions (and base actions)
+    -> ``(..., 2)`` float32 SI actions, row for row the same numbers."""
+    a = np.clip(np.asarray(normalized_actions, dtype=np.float64), -1.0, 1.0)
+    lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    if base_actions is None:
+        si = lo + 0.5 * (a + 1.0) * (hi - lo)
+    else:
+        si = np.asarray(base_actions, dtype=np.float64) + a * np.asarray(
+            residual_scale, dtype=np.float64
+        )
+        si = np.clip(si, lo, hi)
+    si[..., 1] = np.clip(si[..., 1], -MAX_HEADING_CHANGE_RAD, MAX_HEADING_CHANGE_RAD)
+    return si.astype(np.float32)
+
+
 def compose_action(
     normalized_action: np.ndarray,
     low: tuple[float, float],
@@ -273,6 +295,22 @@ class LearnedPolicy:
         )
         return self.meta.to_si(a, base)
 
+    def act_batch(self, observations: np.ndarray) -> np.ndarray:
+        """``act`` for a batch ``(..., D)`` -> ``(..., 2)`` float32: one forward pass of the
+        network over every row; a residual base acts batched too, each row keeping its
+        own controller state (``ClassicalPolicy.act_batch``; ``reset`` clears it)."""
+        obs = np.asarray(observations)
+        if obs.ndim < 1 or obs.shape[-1] != self.layout.size:
+            raise InputFileError(
+                f"observations have shape {obs.shape}, layout expects (..., {self.layout.size})"
+            )
+        rows = obs.reshape(-1, self.layout.size)
+        a = np.asarray(self._forward(self.meta.normalize(rows)), dtype=np.float64)
+        a = a.reshape(obs.shape[:-1] + (2,))
+        base = None if self._base is None else self._base.act_batch(obs.astype(np.float32))
+        m = self.meta
+        return compose_actions(a, m.action_low, m.action_high, base, m.residual_scale)
+
     def check_layout(self, layout: ObservationLayout) -> None:
         """Raise ValueError if this policy was trained for another layout than ``layout``."""
         layout.check_compatible(self.meta.layout)
@@ -337,7 +375,7 @@ def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as fh:
-        np.savez(fh, **arrays)
+        np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as allow_pickle
     return path
 
 
@@ -417,7 +455,9 @@ def load_sb3_model(path: str | Path, algo: str):
             f"{path}: loading an SB3 .zip needs the train extra (pip install 'openconvoy[train]'); "
             "export it to .npz with `openconvoy export` to run without torch"
         ) from exc
-    classes = {"ppo": sb3.PPO, "sac": sb3.SAC}
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    classes: dict[str, type[BaseAlgorithm]] = {"ppo": sb3.PPO, "sac": sb3.SAC}
     if algo not in classes:
         raise InputFileError(
             f"{path}: unknown algorithm {algo!r}; expected one of {', '.join(classes)}"
@@ -447,14 +487,17 @@ def load_learned(
     if not path.is_file():
         raise MissingFileError(f"policy file not found: {path}")
     if path.suffix == ".npz":
-        meta, forward = load_npz(path)
+        meta, mlp = load_npz(path)
+        forward: Callable[[np.ndarray], np.ndarray] = mlp
     elif path.suffix == ".zip":
         meta = read_zip_meta(path)
         model = load_sb3_model(path, meta.algo)
 
-        def forward(obs: np.ndarray) -> np.ndarray:
+        def predict(obs: np.ndarray) -> np.ndarray:
             action, _ = model.predict(obs.astype(np.float32), deterministic=True)
             return action
+
+        forward = predict
 
     else:
         raise InputFileError(f"{path}: a learned policy is a .zip (SB3) or .npz (export) file")
@@ -473,6 +516,7 @@ __all__ = [
     "NumpyMLP",
     "scale_action",
     "compose_action",
+    "compose_actions",
     "load_learned",
     "load_npz",
     "save_npz",

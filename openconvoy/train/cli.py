@@ -21,6 +21,20 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
         "and control rate), config.toml, checkpoints/ and TensorBoard logs (tb/). "
         "--config TRAIN.toml (a run's config.toml) describes it all; flags override it.",
     )
+    _train_run_args(p)
+    _train_env_args(p)
+    _train_randomization_args(p)
+
+    def _train(args: argparse.Namespace) -> int:
+        from openconvoy.train.commands import train_command
+
+        return train_command(args)
+
+    p.set_defaults(handler=_train)
+
+
+def _train_run_args(p: argparse.ArgumentParser) -> None:
+    """What runs, where, and on what: config, algorithm, budget, seeds, executor."""
     p.add_argument(
         "--config",
         metavar="TRAIN.toml",
@@ -50,7 +64,29 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     )
     executor_args(p)
     p.add_argument(
-        "--envs", type=_int(1, 1024), metavar="N", help="environments stepped together (default 4)"
+        "--threads", type=_int(1, 1024), metavar="N", help="torch CPU threads (default 1)"
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _train_env_args(p: argparse.ArgumentParser) -> None:
+    """The simulator, the convoys and the policy's inputs and outputs."""
+    p.add_argument(
+        "--vec-env",
+        choices=("auto", "batched", "supersuit"),
+        help="simulator: batched (all convoys in arrays), supersuit (one ConvoyEnv per "
+        "convoy), auto (default: batched unless the configuration needs what only "
+        "ConvoyEnv models)",
+    )
+    p.add_argument(
+        "--envs", type=_int(1, 1024), metavar="N", help="convoys stepped together (default 32)"
+    )
+    p.add_argument(
+        "--worlds",
+        type=_int(1, 1024),
+        metavar="N",
+        help="batched: groups of convoys sharing a drawn world (default 2)",
     )
     p.add_argument(
         "--followers", type=_int(1, 1000), metavar="N", help="followers per environment (default 2)"
@@ -72,6 +108,10 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--rate", type=RATE_HZ, metavar="HZ", help="control rate (default: the base's, 20)"
     )
+
+
+def _train_randomization_args(p: argparse.ArgumentParser) -> None:
+    """What every episode redraws."""
     p.add_argument(
         "--per-range",
         type=FRACTION,
@@ -97,7 +137,7 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
         type=_num(0.0, 1000.0),
         nargs=2,
         metavar=("A", "B"),
-        help="GPS noise std, metres (default 0 0.05)",
+        help="GPS noise std, metres (default 0 0; > 0 trains on SuperSuit's path)",
     )
     p.add_argument(
         "--scenarios", nargs="+", metavar="SPEC", help="scenarios drawn per episode (default paper)"
@@ -108,18 +148,6 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
         metavar="PRESET",
         help="vehicle presets or fitted preset .toml files drawn per vehicle (default 1/10 1/6)",
     )
-    p.add_argument(
-        "--threads", type=_int(1, 1024), metavar="N", help="torch CPU threads (default 1)"
-    )
-    p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-    def _train(args: argparse.Namespace) -> int:
-        from openconvoy.train.commands import train_command
-
-        return train_command(args)
-
-    p.set_defaults(handler=_train)
 
 
 def _add_tune(sub: argparse._SubParsersAction) -> None:
@@ -135,6 +163,39 @@ def _add_tune(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--trials", type=_int(1, 10**7), default=30, metavar="N")
     p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
+    _tune_grid_args(p)
+    p.add_argument(
+        "--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)"
+    )
+    p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
+    p.add_argument(
+        "--storage",
+        metavar="URL_OR_FILE",
+        help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
+        "or a journal file path; rerunning with it resumes the study",
+    )
+    p.add_argument(
+        "--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)"
+    )
+    p.add_argument(
+        "--jobs",
+        type=_int(1, 4096),
+        metavar="N",
+        help="trials at once (default 1 locally, the cluster's CPUs on Ray)",
+    )
+    executor_args(p, batched=True)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    def _tune(args: argparse.Namespace) -> int:
+        from openconvoy.train.commands import tune_command
+
+        return tune_command(args)
+
+    p.set_defaults(handler=_tune)
+
+
+def _tune_grid_args(p: argparse.ArgumentParser) -> None:
+    """The runs every trial is scored on: PERs x seeds of a scenario."""
     p.add_argument(
         "--per",
         type=FRACTION,
@@ -155,34 +216,6 @@ def _add_tune(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)"
     )
-    p.add_argument(
-        "--params", nargs="+", metavar="PATH", help="parameters (default: those the policy uses)"
-    )
-    p.add_argument("--seed", type=SEED, default=0, help="sampler seed")
-    p.add_argument(
-        "--storage",
-        metavar="URL_OR_FILE",
-        help="keep the study: an Optuna RDB URL (sqlite:///study.db, postgresql://...) "
-        "or a journal file path; rerunning with it resumes the study",
-    )
-    p.add_argument(
-        "--study-name", metavar="NAME", help="the study in --storage (default: OUT's stem)"
-    )
-    p.add_argument(
-        "--jobs",
-        type=_int(1, 4096),
-        metavar="N",
-        help="trials at once (default 1 locally, the cluster's CPUs on Ray)",
-    )
-    executor_args(p)
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-    def _tune(args: argparse.Namespace) -> int:
-        from openconvoy.train.commands import tune_command
-
-        return tune_command(args)
-
-    p.set_defaults(handler=_tune)
 
 
 def _add_export(sub: argparse._SubParsersAction) -> None:

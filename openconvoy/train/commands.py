@@ -6,9 +6,17 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import Any
 
 from openconvoy.core.errors import ConfigError
 from openconvoy.train.config import TrainConfig, load_train_config
+from openconvoy.train.randomization import (
+    ABSOLUTE_ACTION_BOUNDS,
+    RESIDUAL_ACTION_BOUNDS,
+    SCRATCH_REWARD,
+    TRAIN_REWARD,
+    EnvSpec,
+)
 
 
 def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
@@ -24,6 +32,8 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         ("seed", "seed"),
         ("envs", "n_envs"),
         ("threads", "torch_threads"),
+        ("vec_env", "vec_env"),
+        ("worlds", "n_worlds"),
     ):
         if getattr(args, flag) is not None:
             top[key] = getattr(args, flag)
@@ -31,9 +41,9 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
     env_changes: dict = {}
     if args.base is not None:
         # A new base brings its own member config and rate unless they are given too.
-        env_changes.update(
-            base_policy="" if args.base == "none" else args.base, member=None, control_rate_hz=None
-        )
+        base = "" if args.base == "none" else args.base
+        env_changes.update(base_policy=base, member=None, control_rate_hz=None)
+        env_changes.update(_kind_defaults(env, bool(base)))
     if args.followers is not None:
         env_changes["n_followers"] = args.followers
     if args.rate is not None:
@@ -62,7 +72,28 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
             )
     if r_changes:
         r = dataclasses.replace(r, **r_changes)
-    return dataclasses.replace(config, env=env, randomization=r, **top)
+    ppo = config.ppo
+    if bool(env.base_policy) != bool(config.env.base_policy) and ppo.use_sde == (
+        not config.env.base_policy
+    ):  # the other kind's exploration default
+        ppo = dataclasses.replace(ppo, use_sde=None)
+    return dataclasses.replace(config, env=env, randomization=r, ppo=ppo, **top)
+
+
+def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
+    """Changes that give ``env`` the defaults of residual (or absolute) actions where it
+    holds the defaults of the other kind (values a config chose stay)."""
+    if residual == bool(env.base_policy):
+        return {}
+    changes: dict[str, Any] = {}
+    old = RESIDUAL_ACTION_BOUNDS if env.base_policy else ABSOLUTE_ACTION_BOUNDS
+    if env.bounds == old:
+        changes.update(action_low=None, action_high=None)
+    if env.emergency_stop == bool(env.base_policy):
+        changes["emergency_stop"] = None
+    if env.reward == (TRAIN_REWARD if env.base_policy else SCRATCH_REWARD):
+        changes["reward"] = None
+    return changes
 
 
 def train_command(args: argparse.Namespace) -> int:
@@ -144,7 +175,7 @@ def tune_command(args: argparse.Namespace) -> int:
     )
     # Trials run one at a time in this process unless an executor or --jobs is asked for.
     jobs = args.jobs if args.jobs is not None else (None if args.executor == "ray" else 1)
-    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs)
+    executor = with_flags(ExecutorConfig(), args.executor, args.address, jobs, args.batched)
     try:
         result = tune(
             config,

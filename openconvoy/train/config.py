@@ -12,6 +12,7 @@ The defaults are sized for a 2-core machine: a working follower in under 15 minu
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -21,6 +22,7 @@ from openconvoy.core.errors import ConfigError
 from openconvoy.train.randomization import EnvSpec, Randomization
 
 ALGOS = ("ppo", "sac")
+VEC_ENVS = ("auto", "batched", "supersuit")
 ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
 
 
@@ -30,9 +32,14 @@ class PPOConfig:
     VecEnv slot; ``lr_schedule`` ``linear`` decays ``learning_rate`` to 0 over the run
     (late updates then refine instead of swinging the policy), ``constant`` keeps it;
     ``log_std_init`` is the initial log standard deviation of the normalized
-    actions (-1: std 0.37, enough to explore, not so much that a car swerves off the road)."""
+    actions (-1: std 0.37, enough to explore, not so much that a car swerves off the road);
+    ``use_sde``: generalized state-dependent exploration (noise that changes every
+    ``sde_sample_freq`` steps, -1: once per rollout, instead of white noise every tick);
+    None: on learning from scratch (``TrainConfig`` resolves it from the base), where a
+    white-noise speed setpoint at 20 Hz is filtered away by the vehicle's lag and teaches
+    nothing, off for residual policies."""
 
-    n_steps: Annotated[int, Range(1, 10000000)] = 256
+    n_steps: Annotated[int, Range(1, 10000000)] = 64
     batch_size: Annotated[int, Range(1, 10000000)] = 512
     n_epochs: Annotated[int, Range(1, 1000)] = 5
     learning_rate: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 3e-4
@@ -45,6 +52,8 @@ class PPOConfig:
     net_arch: tuple[Annotated[int, Range(1, 100_000)], ...] = (64, 64)
     activation: str = "tanh"
     log_std_init: Annotated[float, Range(-20.0, 5.0)] = -1.0
+    use_sde: bool | None = None
+    sde_sample_freq: Annotated[int, Range(-1, 1000000)] = 8
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -108,11 +117,18 @@ class TrainConfig:
         validation_duration_s: length of the validation runs (None: the scenario's).
         torch_threads: torch CPU threads (the environments run in this process too).
         name: the policy's label in logs and reports.
+        vec_env: the simulator: ``batched`` (``envs.VectorConvoyEnv``, all convoys in
+            arrays: ``train.batched``), ``supersuit`` (one ``ConvoyEnv`` per convoy through
+            SuperSuit: ``train.vec``), or ``auto``: batched unless the randomization asks
+            for what it does not model (GPS noise, latency jitter, ranging, traffic), then
+            SuperSuit, with one line on stderr saying so.
+        n_worlds: batched: groups of convoys that share a drawn world (vehicles, burst
+            model, latency); each convoy draws its own PER.
     """
 
     algo: str = "ppo"
     total_steps: Annotated[int, Range(1, 1000000000000)] = 600_000
-    n_envs: Annotated[int, Range(1, 1024)] = 4
+    n_envs: Annotated[int, Range(1, 1024)] = 32
     seed: Annotated[int, Range(0, 4294967295)] = 0
     env: EnvSpec = field(default_factory=EnvSpec)
     randomization: Randomization = field(default_factory=Randomization)
@@ -126,12 +142,21 @@ class TrainConfig:
     validation_duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
     torch_threads: Annotated[int, Range(1, 1024)] = 1
     name: str = "learned"
+    vec_env: str = "auto"
+    n_worlds: Annotated[int, Range(1, 1024)] = 2
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "validation_pers", tuple(float(p) for p in self.validation_pers))
         object.__setattr__(self, "validation_seeds", tuple(int(s) for s in self.validation_seeds))
         if self.validation_seeds and not self.validation_pers:
             raise ConfigError("validation_seeds need validation_pers")
+        if self.ppo.use_sde is None:
+            sde = not self.env.base_policy
+            object.__setattr__(self, "ppo", dataclasses.replace(self.ppo, use_sde=sde))
+        if self.vec_env not in VEC_ENVS:
+            raise ConfigError(
+                f"vec_env: unknown {self.vec_env!r}; expected one of {', '.join(VEC_ENVS)}"
+            )
         if self.algo not in ALGOS:
             raise ConfigError(f"algo: unknown {self.algo!r}; expected one of {', '.join(ALGOS)}")
         if self.total_steps < 1 or self.n_envs < 1:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import gymnasium
@@ -61,6 +61,8 @@ class Randomization:
         latency_s_range: base delivery delay, seconds, uniform.
         jitter_s_range: extra uniform delay jitter bound, seconds, uniform.
         gps_noise_m_range: position noise standard deviation per axis, metres, uniform.
+            Jitter and GPS noise are off by default: the batched simulator does not model
+            them yet, and asking for them trains on SuperSuit's per-convoy path.
         vehicles: preset names or fitted-preset ``.toml`` paths; each vehicle (leader
             included) is drawn from them. Empty: the scenario's own vehicles.
         plant_jitter: relative jitter of each drawn vehicle's autopilot response
@@ -81,10 +83,10 @@ class Randomization:
     ] = (0.0, 0.05)
     jitter_s_range: tuple[
         Annotated[float, Range(0.0, 60.0)], Annotated[float, Range(0.0, 60.0)]
-    ] = (0.0, 0.05)
+    ] = (0.0, 0.0)
     gps_noise_m_range: tuple[
         Annotated[float, Range(0.0, 1000.0)], Annotated[float, Range(0.0, 1000.0)]
-    ] = (0.0, 0.05)
+    ] = (0.0, 0.0)
     vehicles: tuple[str, ...] = ("1/10", "1/6")
     plant_jitter: Annotated[float, Range(0.0, 0.9)] = 0.2
 
@@ -181,6 +183,21 @@ weights the learner traded spacing accuracy for smoothness and ended worse than 
 on p95 platooning error."""
 
 
+SCRATCH_REWARD = RewardConfig(spacing_scale_m=30.0, w_accel=0.0, w_jerk=0.0, w_yaw_rate=0.0)
+"""The reward learning from scratch (no base): the spacing error alone, saturating only at
+30 m. With ``TRAIN_REWARD``'s 2 m a follower that fell behind sees no gradient back, and
+the comfort terms pay an exploring policy to creep (a slow car turns and accelerates
+less)."""
+
+RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))
+"""Residual actions: the sum may use the whole action range (DESIGN.md, Action)."""
+ABSOLUTE_ACTION_BOUNDS = ((0.0, -0.3), (3.0, 0.3))
+"""Absolute actions (``--base none``): what the normalized actions ±1 mean. A range
+sized to the task (the leader drives 1-2 m/s; a path correction needs tenths of a
+radian) makes the initial policy's exploration noise a speed and steering noise a
+follower survives, instead of swerves of up to ±π/2."""
+
+
 @dataclass(frozen=True)
 class EnvSpec:
     """The fixed part of the training environments.
@@ -196,9 +213,17 @@ class EnvSpec:
         control_rate_hz: control and plant rate, Hz; None: the base policy's, else 20.
         action_low, action_high: absolute actions: SI values of the normalized actions -1
             and +1; residual actions: the SI bounds of the sum
-            (``[speed_mps, heading_change_rad]``).
+            (``[speed_mps, heading_change_rad]``). None: ``RESIDUAL_ACTION_BOUNDS`` with
+            a base, ``ABSOLUTE_ACTION_BOUNDS`` without.
         max_time_s: episode length cap, seconds (None: the scenario's duration).
-        reward: the reward's weights (``openconvoy.envs.reward``).
+        reward: the reward's weights (``openconvoy.envs.reward``); None: ``TRAIN_REWARD``
+            with a base, ``SCRATCH_REWARD`` without.
+        emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
+            follower about to hit its predecessor) during training; None: on with a base,
+            off without. Learning from scratch, a policy whose exploration trips the
+            latched stop sits stopped for the rest of the episode whatever it does, and
+            learns only to creep; without it, a collision ends the episode with its
+            penalty, a signal it can learn from. Sim and deploy keep the stop on.
     """
 
     n_followers: Annotated[int, Range(1, 1000)] = 2
@@ -206,12 +231,21 @@ class EnvSpec:
     residual_scale: tuple[float, float] = (1.0, 0.1)
     member: MemberConfig | None = None
     control_rate_hz: Annotated[float, Range(0.0, 100.0, lo_open=True)] | None = None
-    action_low: tuple[float, float] = (0.0, -math.pi / 2)
-    action_high: tuple[float, float] = (5.0, math.pi / 2)
+    action_low: tuple[float, float] | None = None
+    action_high: tuple[float, float] | None = None
     max_time_s: Annotated[float, Range(0.0, 7 * 86400.0, lo_open=True)] | None = None
-    reward: RewardConfig = field(default_factory=lambda: TRAIN_REWARD)
+    reward: RewardConfig | None = None
+    emergency_stop: bool | None = None
 
     def __post_init__(self) -> None:
+        bounds = RESIDUAL_ACTION_BOUNDS if self.base_policy else ABSOLUTE_ACTION_BOUNDS
+        for name, default in zip(("action_low", "action_high"), bounds):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default)
+        if self.reward is None:
+            object.__setattr__(self, "reward", TRAIN_REWARD if self.base_policy else SCRATCH_REWARD)
+        if self.emergency_stop is None:
+            object.__setattr__(self, "emergency_stop", bool(self.base_policy))
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         base = classical_config(self.base_policy) if self.base_policy else None
@@ -227,15 +261,14 @@ class EnvSpec:
             )
         if self.n_followers < 1:
             raise ConfigError(f"n_followers must be at least 1, got {self.n_followers}")
-        if len(self.action_low) != 2 or len(self.action_high) != 2:
+        low, high = self.bounds
+        if len(low) != 2 or len(high) != 2:
             raise ConfigError("action_low and action_high are [speed_mps, heading_change_rad]")
-        if not all(lo < hi for lo, hi in zip(self.action_low, self.action_high)):
-            raise ConfigError(
-                f"action_low {self.action_low} must lie below action_high {self.action_high}"
-            )
-        if max(abs(self.action_low[1]), abs(self.action_high[1])) > math.pi / 2:
+        if not all(lo < hi for lo, hi in zip(low, high)):
+            raise ConfigError(f"action_low {low} must lie below action_high {high}")
+        if max(abs(low[1]), abs(high[1])) > math.pi / 2:
             raise ConfigError("the heading-change range must lie within ±π/2")
-        if self.control_rate_hz <= 0:
+        if self.rate_hz <= 0:
             raise ConfigError(f"control_rate_hz must be positive, got {self.control_rate_hz}")
 
     @property
@@ -243,6 +276,12 @@ class EnvSpec:
         """The resolved member configuration (never None after construction)."""
         assert self.member is not None
         return self.member
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The resolved ``(action_low, action_high)``."""
+        assert self.action_low is not None and self.action_high is not None
+        return self.action_low, self.action_high
 
     @property
     def rate_hz(self) -> float:
@@ -320,6 +359,7 @@ class RandomizedConvoyEnv(ParallelEnv):
             render_mode=self.render_mode,
             vehicle_presets=w.vehicles,
             reward_config=s.reward,
+            emergency_stop=bool(s.emergency_stop),
         )
         obs, infos = self.env.reset(seed=int(self._rng.integers(2**31 - 1)), options=options)
         for b in self._bases.values():
@@ -335,7 +375,7 @@ class RandomizedConvoyEnv(ParallelEnv):
         si = {}
         for a, act in actions.items():
             base = self._bases[a].act(self._obs[a]) if self._bases else None
-            si[a] = compose_action(act, s.action_low, s.action_high, base, s.residual_scale)
+            si[a] = compose_action(act, *s.bounds, base, s.residual_scale)
         out = self.env.step(si)
         self._obs = out[0]
         self.agents = list(self.env.agents)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,10 +35,12 @@ import numpy as np
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from openconvoy.core.errors import ConfigError
 from openconvoy.policies.learned import LearnedMeta, read_zip_meta, write_zip_meta
+from openconvoy.train.batched import RandomizedVectorVecEnv, batched_refusal
 from openconvoy.train.config import TrainConfig, dumps_train_config
 from openconvoy.train.randomization import RandomizedConvoyEnv
 from openconvoy.train.validate import Validation, validate
@@ -64,16 +67,35 @@ class TrainResult:
 
 def make_vec_env(config: TrainConfig) -> VecEnv:
     """The training VecEnv: parameter-sharing slots, episode statistics, VecNormalize."""
-    venv: VecEnv = shared_policy_vec_env(
-        lambda: RandomizedConvoyEnv(config.env, config.randomization), config.n_envs
-    )
-    venv = VecMonitor(venv)
+    venv: VecEnv = VecMonitor(simulator_vec_env(config))
     if config.normalize_obs or config.normalize_reward:
         gamma = config.ppo.gamma if config.algo == "ppo" else config.sac.gamma
         venv = VecNormalize(
             venv, norm_obs=config.normalize_obs, norm_reward=config.normalize_reward, gamma=gamma
         )
     return venv
+
+
+def simulator_vec_env(config: TrainConfig) -> VecEnv:
+    """The randomized convoys, one slot per follower: batched (``train.batched``) unless
+    ``config.vec_env`` says ``supersuit`` or, with ``auto``, the batched simulator refuses
+    the configuration (one line on stderr says why)."""
+    if config.vec_env != "supersuit":
+        why = batched_refusal(config.env, config.randomization)
+        if why is None:
+            return RandomizedVectorVecEnv(
+                config.env, config.randomization, config.n_envs, config.n_worlds
+            )
+        if config.vec_env == "batched":
+            raise ConfigError(f"vec_env = batched: {why}")
+        print(
+            f"openconvoy train: the batched simulator cannot run this configuration ({why}); "
+            "training on SuperSuit's per-convoy path",
+            file=sys.stderr,
+        )
+    return shared_policy_vec_env(
+        lambda: RandomizedConvoyEnv(config.env, config.randomization), config.n_envs
+    )
 
 
 def _activation(name: str):
@@ -103,6 +125,8 @@ def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) 
             clip_range=p.clip_range,
             ent_coef=p.ent_coef,
             max_grad_norm=p.max_grad_norm,
+            use_sde=bool(p.use_sde),
+            sde_sample_freq=p.sde_sample_freq,
             policy_kwargs={
                 "net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
                 "activation_fn": _activation(p.activation),
@@ -138,10 +162,9 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
     mean = var = None
     clip, eps = 10.0, 1e-8
     if isinstance(venv, VecNormalize) and venv.norm_obs:
-        mean, var = (
-            np.array(venv.obs_rms.mean, dtype=np.float64),
-            np.array(venv.obs_rms.var, dtype=np.float64),
-        )
+        rms = venv.obs_rms
+        assert isinstance(rms, RunningMeanStd)  # a Box observation space: one statistic
+        mean, var = np.array(rms.mean, dtype=np.float64), np.array(rms.var, dtype=np.float64)
         clip, eps = float(venv.clip_obs), float(venv.epsilon)
     spec = config.env
     return LearnedMeta(
@@ -149,8 +172,8 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
         layout=spec.member_config.layout.describe(),
         member_config=spec.member_config,
         control_rate_hz=spec.rate_hz,
-        action_low=spec.action_low,
-        action_high=spec.action_high,
+        action_low=spec.bounds[0],
+        action_high=spec.bounds[1],
         base=spec.base_config(),
         residual_scale=spec.residual_scale if spec.base_policy else (0.0, 0.0),
         obs_mean=mean,
@@ -283,41 +306,48 @@ def train(
     model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
     wall = time.perf_counter() - start
 
-    policy = run_dir / POLICY_FILE
-    if config.validation_seeds:
-        last = save_policy(model, config, run_dir / LAST_FILE)
-        validations = [*checkpoints.validations, _validate(config, last, model.num_timesteps)]
-        # The earliest of equally good files wins (min keeps the first).
-        best = min(validations, key=lambda v: v.objective)
-        shutil.copyfile(best.path, policy)
-        (run_dir / "validation.json").write_text(
-            json.dumps(
-                {
-                    "pers": list(config.validation_pers),
-                    "seeds": list(config.validation_seeds),
-                    "chosen": best.path,
-                    "chosen_steps": best.steps,
-                    "validations": [v.to_json() for v in validations],
-                },
-                indent=1,
-            ),
-            encoding="utf-8",
-        )
-    else:
-        save_policy(model, config, policy)
+    policy = _choose_policy(model, config, run_dir, checkpoints.validations)
     if isinstance(venv, VecNormalize):
         venv.save(str(run_dir / VECNORM_FILE))
     meta = read_zip_meta(policy)
     (run_dir / "policy.json").write_text(json.dumps(meta.to_json(), indent=1), encoding="utf-8")
     result = TrainResult(run_dir, policy, int(model.num_timesteps), wall)
+    _write_summary(config, result, run_dir / "train.json")
+    venv.close()
+    return result
+
+
+def _choose_policy(
+    model: BaseAlgorithm, config: TrainConfig, run_dir: Path, validations: list[Validation]
+) -> Path:
+    """Write ``policy.zip``: the best-validated of the checkpoints and the final network
+    (``last.zip``), with ``validation.json``; without validation, the final network."""
+    policy = run_dir / POLICY_FILE
+    if not config.validation_seeds:
+        return save_policy(model, config, policy)
+    last = save_policy(model, config, run_dir / LAST_FILE)
+    validations = [*validations, _validate(config, last, model.num_timesteps)]
+    # The earliest of equally good files wins (min keeps the first).
+    best = min(validations, key=lambda v: v.objective)
+    shutil.copyfile(best.path, policy)
+    report = {
+        "pers": list(config.validation_pers),
+        "seeds": list(config.validation_seeds),
+        "chosen": best.path,
+        "chosen_steps": best.steps,
+        "validations": [v.to_json() for v in validations],
+    }
+    (run_dir / "validation.json").write_text(json.dumps(report, indent=1), encoding="utf-8")
+    return policy
+
+
+def _write_summary(config: TrainConfig, result: TrainResult, path: Path) -> None:
     summary: dict[str, Any] = {
         "algo": config.algo,
         "steps": result.steps,
-        "wall_s": round(wall, 3),
+        "wall_s": round(result.wall_s, 3),
         "steps_per_s": round(result.steps_per_s, 1),
         "torch_threads": config.torch_threads,
         "n_slots": config.n_slots,
     }
-    (run_dir / "train.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
-    venv.close()
-    return result
+    path.write_text(json.dumps(summary, indent=1), encoding="utf-8")

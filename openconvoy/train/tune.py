@@ -81,9 +81,11 @@ def with_values(config: ClassicalConfig, values: dict[str, float], name: str) ->
 
 
 def _replace_path(obj: Any, parts: list[str], value: float) -> Any:
-    if not dataclasses.is_dataclass(obj) or parts[0] not in {
-        f.name for f in dataclasses.fields(obj)
-    }:
+    if (
+        not dataclasses.is_dataclass(obj)
+        or isinstance(obj, type)
+        or parts[0] not in {f.name for f in dataclasses.fields(obj)}
+    ):
         raise ConfigError(f"unknown parameter path component {parts[0]!r}")
     if len(parts) == 1:
         return dataclasses.replace(obj, **{parts[0]: float(value)})
@@ -170,35 +172,47 @@ def objective_of(metrics: Sequence[dict[str, Any]], config: TuneConfig) -> float
     )
 
 
-def grid_evaluator(config: TuneConfig, workdir: Path) -> Evaluate:
-    """Evaluate a candidate with ``run_sim`` over ``config``'s PER x seed grid."""
-    from openconvoy.experiments.runs import RunConfig, run_sim
+def grid_runs(config: TuneConfig, policy: str) -> list[Any]:
+    """The evaluation grid's ``RunConfig``s for ``policy`` (a spec), by PER then seed."""
+    from openconvoy.experiments.runs import RunConfig
+
+    return [
+        RunConfig(
+            scenario=config.scenario,
+            policy=policy,
+            per=per,
+            seed=seed,
+            duration_s=config.duration_s,
+        )
+        for per in config.pers
+        for seed in config.seeds
+    ]
+
+
+def grid_evaluator(config: TuneConfig, workdir: Path, batched: bool = False) -> Evaluate:
+    """Evaluate a candidate over ``config``'s PER x seed grid: ``run_sim`` on each run,
+    or (``batched``) all of them in one ``VectorConvoyEnv`` (``experiments.batched``;
+    the same metrics, to the bit, for the classical policies tuned here)."""
+    from openconvoy.experiments.batched import run_batch
+    from openconvoy.experiments.runs import run_sim
 
     counter = iter(range(1_000_000))
 
     def evaluate(candidate: ClassicalConfig) -> float:
         path = workdir / f"trial_{next(counter)}.toml"
         path.write_text(classical_to_toml(candidate), encoding="utf-8")
-        metrics = [
-            run_sim(
-                RunConfig(
-                    scenario=config.scenario,
-                    policy=str(path),
-                    per=per,
-                    seed=seed,
-                    duration_s=config.duration_s,
-                )
-            ).metrics
-            for per in config.pers
-            for seed in config.seeds
-        ]
+        runs = grid_runs(config, str(path))
+        if batched:
+            metrics = [r["metrics"] for r in run_batch(runs, read_back=False, logs=False)]
+        else:
+            metrics = [run_sim(rc).metrics for rc in runs]
         return objective_of(metrics, config)
 
     return evaluate
 
 
 def evaluate_on_worker(
-    config: TuneConfig, files: dict[str, bytes], candidate: ClassicalConfig
+    config: TuneConfig, files: dict[str, bytes], candidate: ClassicalConfig, batched: bool = False
 ) -> float:
     """Task: ``candidate``'s objective over the grid, in a temporary directory of the
     worker (``files``: the scenario's track file, if any, shipped from the driver)."""
@@ -208,7 +222,18 @@ def evaluate_on_worker(
         where = portable.land(files, tmp)
         local = dataclasses.replace(config, scenario=portable.relocate(config.scenario, where))
         with portable.driver_names(where):
-            return grid_evaluator(local, Path(tmp))(candidate)
+            return grid_evaluator(local, Path(tmp), batched)(candidate)
+
+
+def grid_batched(config: TuneConfig, batched: bool | None = None) -> tuple[bool, str | None]:
+    """Whether trials run their grid batched (``batched``: None = where exact, the
+    ``[executor] batched`` setting) and, when they might have but do not, why not."""
+    from openconvoy.experiments.batched import refusal
+
+    if batched is False:
+        return False, None
+    why = refusal(grid_runs(config, config.base)[0], exact=batched is None)
+    return why is None, why
 
 
 # What a resumed study must share with the one it continues (the objective's definition).
@@ -306,58 +331,33 @@ def tune(
     executor: Any = None,
     study_name: str | None = None,
     storage: str | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> TuneResult:
     """Run the study until it holds ``config.trials`` finished trials.
 
     Each trial is a task of ``executor`` (an ``ExecutorConfig`` or ``Executor``; default:
-    in this process), with up to its ``slots`` trials in flight; ``evaluate`` (an
+    in this process), with up to its ``slots`` trials in flight, its grid batched unless
+    the executor config's ``batched`` is False or the batched env refuses it (``say``
+    gets one line why; default stderr, with ``progress_bar``); ``evaluate`` (an
     in-process callable, for tests) replaces the simulated grid and runs here. With
     ``storage`` (see ``open_storage``) the study persists under ``study_name`` (default
     ``config.name``): a later call with the same name and storage resumes it, running only
     the trials still missing (those a stopped driver left running are evaluated again).
     """
-    import functools
-
     import optuna
     from optuna.trial import TrialState
-
-    from openconvoy.experiments import portable
-    from openconvoy.experiments.executor import (
-        Executor,
-        LocalExecutor,
-        Task,
-        TaskFailure,
-        TasksFailed,
-        make_executor,
-    )
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     base = classical_config(config.base)
     params = list(config.params) or applicable(base)
-    if evaluate is not None or executor is None:
-        executor = LocalExecutor(jobs=1)
-    elif not isinstance(executor, Executor):
-        executor = make_executor(executor)
-    if evaluate is not None:
-        fn: Callable[[ClassicalConfig], float] = evaluate
-    else:
-        fn = functools.partial(evaluate_on_worker, config, portable.ship([config.scenario]))
+    fn = evaluate or _grid_task(config, executor, say or (_stderr if progress_bar else None))
+    executor = _executor_for(executor, evaluate is not None)
     study_name = study_name or config.name
-    failures: list[TaskFailure] = []
+    failures: list[Any] = []
     with executor:
         study, existing = _open_study(config, study_name, open_storage(storage), executor.slots > 1)
         requeued = _requeue_orphans(study)
-        base_value = study.user_attrs.get(BASE_ATTR)
-        if base_value is None:
-            task, value = _run_alone(
-                executor, Task("base policy", fn, dataclasses.replace(base, name=config.name))
-            )
-            if isinstance(value, TaskFailure):
-                raise TasksFailed(
-                    [value], 1, "the base policy's evaluation is the study's reference", "trials"
-                )
-            base_value = float(value)
-            study.set_user_attr(BASE_ATTR, base_value)
+        base_value = _base_value(study, executor, fn, base, config.name)
         if not existing:
             # The base's own values first: the study can only improve on the starting point.
             study.enqueue_trial({p: _get_path(base, p) for p in params if _in_range(base, p)})
@@ -366,6 +366,71 @@ def tune(
         evaluated = _ask_tell(
             study, executor, fn, base, params, config.name, todo, progress_bar, failures
         )
+    result = _result(study, base, config, study_name, base_value, failures)
+    result.evaluated, result.requeued, result.failures = evaluated, requeued, failures
+    return result
+
+
+def _stderr(line: str) -> None:
+    import sys
+
+    print(line, file=sys.stderr)
+
+
+def _grid_task(
+    config: TuneConfig, executor: Any, say: Callable[[str], None] | None
+) -> Callable[[ClassicalConfig], float]:
+    """The trials' task function: the grid on a worker, batched where it may be."""
+    import functools
+
+    from openconvoy.experiments import portable
+    from openconvoy.experiments.executor import ExecutorConfig
+
+    asked = executor.batched if isinstance(executor, ExecutorConfig) else None
+    batched, why = grid_batched(config, asked)
+    if why is not None and say is not None:
+        say(f"tune: one ConvoyEnv per run of each trial ({why})")
+    files = portable.ship([config.scenario])
+    return functools.partial(evaluate_on_worker, config, files, batched=batched)
+
+
+def _executor_for(executor: Any, in_process: bool) -> Any:
+    from openconvoy.experiments.executor import Executor, LocalExecutor, make_executor
+
+    if in_process or executor is None:
+        return LocalExecutor(jobs=1)
+    return executor if isinstance(executor, Executor) else make_executor(executor)
+
+
+def _base_value(study: Any, executor: Any, fn: Any, base: ClassicalConfig, name: str) -> float:
+    """The base policy's objective: the study's record of it, or evaluated now."""
+    from openconvoy.experiments.executor import Task, TaskFailure, TasksFailed
+
+    recorded = study.user_attrs.get(BASE_ATTR)
+    if recorded is not None:
+        return float(recorded)
+    _, value = _run_alone(executor, Task("base policy", fn, dataclasses.replace(base, name=name)))
+    if isinstance(value, TaskFailure):
+        raise TasksFailed(
+            [value], 1, "the base policy's evaluation is the study's reference", "trials"
+        )
+    study.set_user_attr(BASE_ATTR, float(value))
+    return float(value)
+
+
+def _result(
+    study: Any,
+    base: ClassicalConfig,
+    config: TuneConfig,
+    study_name: str,
+    base_value: float,
+    failures: list[Any],
+) -> TuneResult:
+    """The study's best trial as a policy, with the history of every finished trial."""
+    from optuna.trial import TrialState
+
+    from openconvoy.experiments.executor import TasksFailed
+
     complete = sorted(
         study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)), key=lambda t: t.number
     )
@@ -386,15 +451,7 @@ def tune(
         f"{', '.join(f'{p:g}' for p in config.pers)}, {len(config.seeds)} seeds): {described}",
     )
     return TuneResult(
-        best,
-        float(best_trial.value),
-        best_params,
-        float(base_value),
-        history,
-        study_name=study_name,
-        evaluated=evaluated,
-        requeued=requeued,
-        failures=failures,
+        best, float(best_trial.value), best_params, float(base_value), history, study_name
     )
 
 

@@ -6,6 +6,12 @@ The same runs ``openconvoy sim --policy FILE`` makes (the experiments' ``run_sim
 per collision per run, plus the mean speed difference). Training validates every
 checkpoint this way and keeps the best, as SB3's EvalCallback keeps a best model; the
 seeds are kept apart from those reports use, so the selection does not see the test runs.
+
+All runs of the grid step together in one ``VectorConvoyEnv`` (convoy ``b`` is run ``b``:
+the same seed, PER and start as ``run_sim``'s, bit-equal states), the policy acting through
+``act_batch`` (one forward pass per tick for a learned policy); the metrics come from the
+same ``core.metrics`` functions on the same rows a run's log holds. A policy without
+``act_batch`` or a scenario the batched simulator refuses runs run by run (``run_sim``).
 """
 
 from __future__ import annotations
@@ -15,7 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from openconvoy.core import metrics as mt
+from openconvoy.core.errors import ConfigError
 from openconvoy.train.tune import TuneConfig, objective_of
+
+KEYS = ("p95_platooning_error_m", "mean_speed_difference_mps", "collisions", "min_gap_m")
+"""The metrics a validation keeps per run."""
 
 
 @dataclass(frozen=True)
@@ -44,18 +57,114 @@ def validate(
     steps: int = 0,
     scenario: str = "paper",
     duration_s: float | None = None,
+    batched: bool = True,
 ) -> Validation:
     """Run ``policy`` (any spec) on the grid (runs of ``duration_s``, default the
-    scenario's) and score it; ``steps`` is recorded with the result."""
+    scenario's) and score it; ``steps`` is recorded with the result. ``batched=False``
+    runs ``run_sim`` run by run (the reference the batched path is tested against)."""
+    runs = [(float(per), int(seed)) for per in pers for seed in seeds]
+    metrics = batched_metrics(str(policy), runs, scenario, duration_s) if batched else None
+    if metrics is None:
+        metrics = [_run_metrics(str(policy), per, seed, scenario, duration_s) for per, seed in runs]
+    return Validation(str(policy), int(steps), objective_of(metrics, TuneConfig()), tuple(metrics))
+
+
+def _run_metrics(
+    policy: str, per: float, seed: int, scenario: str, duration_s: float | None
+) -> dict[str, Any]:
     from openconvoy.experiments.runs import RunConfig, run_sim
 
-    metrics = tuple(
-        run_sim(
-            RunConfig(
-                scenario=scenario, policy=str(policy), per=per, seed=seed, duration_s=duration_s
-            )
-        ).metrics
-        for per in pers
-        for seed in seeds
-    )
-    return Validation(str(policy), int(steps), objective_of(metrics, TuneConfig()), metrics)
+    m = run_sim(
+        RunConfig(scenario=scenario, policy=policy, per=per, seed=seed, duration_s=duration_s)
+    ).metrics
+    return {k: m[k] for k in KEYS}
+
+
+def batched_metrics(
+    policy: str, runs: Sequence[tuple[float, int]], scenario: str, duration_s: float | None
+) -> list[dict[str, Any]] | None:
+    """The metrics of ``run_sim`` for every (PER, seed) in ``runs``, from one batched
+    run; None when the policy or the scenario cannot run batched."""
+    from openconvoy.comms.loss import LossConfig
+    from openconvoy.envs import VectorConvoyEnv
+    from openconvoy.envs.scenarios import PathScenario, make_scenario
+    from openconvoy.policies import load_policy
+
+    p = load_policy(policy)
+    if not hasattr(p, "act_batch"):
+        return None
+    scene = make_scenario(scenario)
+    if not isinstance(scene, PathScenario):
+        return None
+    if p.member_config is not None:  # run_sim starts the vehicles at the policy's gaps
+        scene = scene.with_changes(spacing=p.member_config.spacing)
+    try:
+        env = VectorConvoyEnv(
+            len(runs),
+            scene,
+            member_config=p.member_config,
+            loss=[LossConfig(per=per) for per, _ in runs],
+            control_rate_hz=float(p.control_rate_hz),
+            max_time_s=duration_s,
+            autoreset=False,
+        )
+    except ConfigError:
+        return None
+    p.reset()
+    ticks = _rollout(env, p, [seed for _, seed in runs])
+    lengths = {i: float(v) for i, v in enumerate(env.lengths)}
+    return [_convoy_metrics(ticks, b, lengths) for b in range(len(runs))]
+
+
+def _rollout(env: Any, policy: Any, seeds: list[int]) -> dict[str, np.ndarray]:
+    """Every convoy's state at every tick until its run ends (a run's log rows):
+    ``x, y, speed`` (T, B, N), ``gap, desired`` (T, B, N-1), ``ticks`` (B,) rows kept."""
+    obs, info = env.reset(seed=seeds)
+    B = env.num_envs
+    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "speed", "gap", "desired")}
+
+    def record(info: dict[str, Any]) -> None:
+        x, y, speed = env.own_truth[0], env.own_truth[1], env.own_truth[2]
+        for key, value in (
+            ("x", x),
+            ("y", y),
+            ("speed", speed),
+            ("gap", info["gap_m"]),
+            ("desired", info["desired_gap_m"]),
+        ):
+            rows[key].append(np.array(value, dtype=float))
+
+    record(info)
+    ticks = np.ones(B, dtype=np.int64)
+    alive = np.ones(B, dtype=bool)
+    for _ in range(env.max_steps):
+        obs, _, term, trunc, info = env.step(policy.act_batch(obs))
+        record(info)
+        ticks += alive
+        alive &= ~(term | trunc)
+        if not alive.any():
+            break
+    out = {k: np.stack(v) for k, v in rows.items()}
+    out["ticks"] = ticks
+    out["t"] = np.arange(len(rows["x"])) * env.dt
+    return out
+
+
+def _convoy_metrics(ticks: dict[str, np.ndarray], b: int, lengths: dict[int, float]) -> dict:
+    """``core.metrics`` on convoy ``b``'s rows, as ``run_sim`` computes them from its log."""
+    T = int(ticks["ticks"][b])
+    N = ticks["x"].shape[2]
+    nan = np.full((T, 1), np.nan)
+    log = {
+        "t_s": np.repeat(ticks["t"][:T], N),
+        "vehicle_id": np.tile(np.arange(N), T),
+        "x_m": ticks["x"][:T, b].ravel(),
+        "y_m": ticks["y"][:T, b].ravel(),
+        "speed_mps": ticks["speed"][:T, b].ravel(),
+        "gap_m": np.hstack([nan, ticks["gap"][:T, b]]).ravel(),
+        "desired_gap_m": np.hstack([nan, ticks["desired"][:T, b]]).ravel(),
+        "msgs_received": np.full(T * N, -1),
+        "msgs_lost": np.full(T * N, -1),
+    }
+    m = mt.compute_metrics(log, lengths)
+    return {k: m[k] for k in KEYS}

@@ -16,13 +16,18 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
 from openconvoy.comms import keystore as ks
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.comms.tempids import TempIds
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import metrics as mt
-from openconvoy.demo import deploy_argv, free_udp_port, stop_all, write_convoy_toml
+from openconvoy.demo import (
+    deploy_argv,
+    sim_vehicle_configs,
+    start_local_sim_vehicles,
+    stop_convoy,
+    write_convoy_toml,
+)
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.logs import read_log
@@ -48,20 +53,11 @@ def main(out: Path) -> dict:
     presets = [vehicle_preset(v) for v in names]
     init = make_scenario("paper", presets=presets).initial_state()
     vehicles, procs = [], []
-    for i, p in enumerate(presets):
-        port = free_udp_port()
-        cfg = SimVehicleConfig(
-            system_id=i + 1,
-            preset=p,
-            home=Origin(*origin),
-            start_x_m=float(init.x[i]),
-            start_y_m=float(init.y[i]),
-            start_heading_rad=float(init.heading[i]),
-            ready_after_s=0.5,
-        )
-        vehicles.append(SimVehicle(f"udpin:127.0.0.1:{port}", cfg).start())
+    configs = sim_vehicle_configs(init, Origin(*origin), presets, ready_after_s=0.5)
+    for i, (v, url) in enumerate(start_local_sim_vehicles(configs)):
+        vehicles.append(v)
         cmd = deploy_argv(
-            i, convoy_path, f"udpout:127.0.0.1:{port}", iface, out / "run", "--duration", "120"
+            i, convoy_path, url, iface, out / "run", "--duration", "120"
         )  # the abort ends it
         procs.append(
             subprocess.Popen(
@@ -158,9 +154,7 @@ def main(out: Path) -> dict:
             log_rows=[int((vid == i).sum()) for i in range(3)],
         )
     finally:
-        stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        stop_convoy(procs, vehicles)
     return result
 
 

@@ -17,10 +17,16 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+from openconvoy.bridge.simvehicle import SimVehicle
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
-from openconvoy.demo import deploy_argv, free_udp_port, stop_all, write_convoy_toml
+from openconvoy.demo import (
+    deploy_argv,
+    sim_vehicle_configs,
+    start_local_sim_vehicles,
+    stop_convoy,
+    write_convoy_toml,
+)
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 
@@ -34,30 +40,23 @@ def main(action: str, out: Path) -> dict:
     presets = [vehicle_preset(v) for v in names]
     init = make_scenario("paper", presets=presets).initial_state()
     vehicles, received, procs = [], [], []
-    for i, p in enumerate(presets):
-        port = free_udp_port()
-        cfg = SimVehicleConfig(
-            system_id=i + 1,
-            preset=p,
-            home=Origin(*origin),
-            start_x_m=float(init.x[i]),
-            start_y_m=float(init.y[i]),
-            start_heading_rad=float(init.heading[i]),
-            ready_after_s=0.5,
-        )
-        v = SimVehicle(f"udpin:127.0.0.1:{port}", cfg)
+
+    def record_setpoints(v: SimVehicle) -> None:
+        """Every setpoint the simulated autopilot receives, with its wall time."""
         log: list[tuple[float, float]] = []
         orig = v.firmware.setpoint
 
-        def record(t, local, frame, mask, vx, vy, yaw, yaw_rate, orig=orig, log=log):
+        def record(t, local, frame, mask, vx, vy, yaw, yaw_rate):
             orig(t, local, frame, mask, vx, vy, yaw, yaw_rate)
             log.append((time.time(), math.hypot(vx, vy)))
 
-        # Every setpoint the simulated autopilot receives, with its wall time.
         v.firmware.setpoint = record
-        vehicles.append(v.start())
         received.append(log)
-        cmd = deploy_argv(i, convoy_path, f"udpout:127.0.0.1:{port}", iface, out / "run")
+
+    configs = sim_vehicle_configs(init, Origin(*origin), presets, ready_after_s=0.5)
+    for i, (v, url) in enumerate(start_local_sim_vehicles(configs, record_setpoints)):
+        vehicles.append(v)
+        cmd = deploy_argv(i, convoy_path, url, iface, out / "run")
         procs.append(
             subprocess.Popen(
                 cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"deploy_{i}.txt", "w")
@@ -113,9 +112,7 @@ def main(action: str, out: Path) -> dict:
             ],
         )
     finally:
-        stop_all(procs)
-        for v in vehicles:
-            v.stop()
+        stop_convoy(procs, vehicles)
     return result
 
 

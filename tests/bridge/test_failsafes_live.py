@@ -175,7 +175,7 @@ def test_silent_predecessor_without_ladder_hits_the_bridge_backstop(tmp_path):
         leader.v2v.send = lambda state, now: False
         t_silent = time.monotonic()
         wait_until(
-            lambda: follower.runner._last_reason == "messages needed are stale", 3, "backstop"
+            lambda: follower.runner.gate.last_reason == "messages needed are stale", 3, "backstop"
         )
         t_det = time.monotonic()
         assert t_det - t_silent <= 1.0 + 0.5

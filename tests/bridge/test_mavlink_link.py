@@ -283,7 +283,7 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
     reverses exactly where real Rover 4.7 did (shared/sitl row 7: vx <= -FLT_EPSILON)."""
     vehicle, link, _ = vehicle_and_link(start_heading_rad=0.0)
     link.prepare_and_arm(timeout_s=10.0)
-    ts, tc = link._target
+    ts, tc = link._watch.target
 
     def drive(send, seconds: float = 1.5) -> float:
         end = time.monotonic() + seconds
@@ -302,7 +302,7 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
         vn, ve = math.cos(yaw), math.sin(yaw)
 
         def old(vn=vn, ve=ve, yaw=yaw) -> None:
-            link._conn.mav.set_position_target_global_int_send(
+            link._link.conn.mav.set_position_target_global_int_send(
                 0, ts, tc, 6, 2503, 0, 0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, yaw, 0.0
             )
 

@@ -12,7 +12,8 @@ from conftest import free_port, wait_for
 
 from openconvoy.bridge import mavproto as mp
 from openconvoy.bridge.mavlink import MavlinkLink
-from openconvoy.bridge.simvehicle import DEFAULT_HOME, RANGE_HZ, SimVehicle, SimVehicleConfig
+from openconvoy.bridge.simstreams import RANGE_HZ
+from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.bridge.simworld import SimWorld, distance_sensor_cm
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor
 

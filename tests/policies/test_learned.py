@@ -207,3 +207,43 @@ def test_npz_loads_and_acts_with_torch_absent(npz: Path) -> None:
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["ok", "20.0", "111"]
+
+
+def _rollout_observations(member: MemberConfig, steps: int = 40) -> np.ndarray:
+    """Observations ``(steps, B, N-1, D)`` of 3 batched paper convoys under loss, driven by
+    the paper controller (real member output: fresh, stale and lost targets)."""
+    from openconvoy.comms.loss import LossConfig
+    from openconvoy.envs import VectorConvoyEnv
+
+    env = VectorConvoyEnv(3, "paper", member_config=member, loss=LossConfig(per=0.5))
+    driver = load_policy("paper")
+    obs, _ = env.reset(seed=4)
+    out = []
+    for _ in range(steps):
+        out.append(obs)
+        obs, *_ = env.step(driver.act_batch(obs))
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("residual", [False, True])
+def test_act_batch_equals_act_row_by_row(tmp_path: Path, residual: bool) -> None:
+    """One forward pass over (B, N-1, D) gives every row's ``act``, a residual base keeping
+    each row's controller state across calls as one policy per vehicle does."""
+    import copy
+
+    base = PRESETS["paper"] if residual else None
+    meta = _meta(base=base)
+    policy = load_learned(save_npz(tmp_path / "p.npz", meta, _mlp(meta.layout["size"])))
+    frames = _rollout_observations(meta.member_config)
+    rows = [[copy.deepcopy(policy) for _ in range(frames.shape[2])] for _ in range(frames.shape[1])]
+    batched = copy.deepcopy(policy)
+    for obs in frames:
+        got = batched.act_batch(obs)
+        assert got.shape == obs.shape[:-1] + (2,) and got.dtype == np.float32
+        want = np.array([[p.act(o) for p, o in zip(ps, os)] for ps, os in zip(rows, obs)])
+        np.testing.assert_array_equal(got, want)
+    # A flat (B, D) batch and a single row work too.
+    flat = frames[-1].reshape(-1, meta.layout["size"])
+    assert batched.act_batch(flat).shape == (flat.shape[0], 2)
+    with pytest.raises(ValueError, match="layout expects"):
+        batched.act_batch(flat[:, :-1])

@@ -7,6 +7,7 @@ that must hold for any trained network, not the quality of the follower.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import socket
@@ -24,6 +25,7 @@ from openconvoy.policies.learned import load_learned, read_zip_meta
 from openconvoy.policies.presets import PRESETS
 from openconvoy.train.config import TrainConfig, load_train_config
 from openconvoy.train.export import export_policy, sample_observations
+from openconvoy.train.validate import validate
 
 STEPS = 2048
 
@@ -94,7 +96,7 @@ def test_training_writes_a_complete_run_directory(ppo_run: Path) -> None:
     assert validation["chosen"] == best["path"]
     assert (ppo_run / "policy.zip").read_bytes() == Path(best["path"]).read_bytes()
     summary = json.loads((ppo_run / "train.json").read_text())
-    # SB3 rounds up to whole rollouts: 2 envs x 2 followers x n_steps 256 = 1024 per rollout.
+    # SB3 rounds up to whole rollouts: 2 envs x 2 followers x n_steps 64 = 256 per rollout.
     assert summary["steps"] == 2048 and summary["n_slots"] == 4
     config = load_train_config(ppo_run / "config.toml")
     assert config.total_steps == STEPS and config.seed == 3 and config.n_envs == 2
@@ -497,3 +499,47 @@ def test_per_sweep_compares_learned_and_classical(
             npz_row["p95_platooning_error_m"]["mean"], abs=1e-4
         )
         assert zip_row["collisions"]["max"] == 0
+
+
+def test_trained_zip_acts_batched_and_validates_as_run_by_run(ppo_run: Path) -> None:
+    """One SB3 forward pass over a batch gives each row's ``act``; the batched validation
+    of the trained file gives ``run_sim``'s numbers."""
+    policy = load_learned(ppo_run / "policy.zip")
+    obs = sample_observations(policy, n=64)
+    rows = np.array([copy.deepcopy(policy).act(o) for o in obs])
+    np.testing.assert_allclose(
+        policy.act_batch(obs.reshape(16, 4, -1)).reshape(64, 2), rows, atol=1e-6
+    )
+    args = (ppo_run / "policy.zip", (0.0, 0.6), (1000,))
+    batched, single = (
+        validate(*args, duration_s=4.0),
+        validate(*args, duration_s=4.0, batched=False),
+    )
+    for b, s in zip(batched.metrics, single.metrics):
+        assert b["collisions"] == s["collisions"]
+        for key in ("p95_platooning_error_m", "mean_speed_difference_mps", "min_gap_m"):
+            assert b[key] == pytest.approx(s[key], abs=1e-6), key
+
+
+def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
+    """``--base none`` switches to absolute actions with their own defaults (action range,
+    no latched emergency stop while training); what a config chose stays."""
+    from openconvoy.cli import build_parser
+    from openconvoy.train.commands import train_config_from_args
+    from openconvoy.train.randomization import (
+        ABSOLUTE_ACTION_BOUNDS,
+        SCRATCH_REWARD,
+        TRAIN_REWARD,
+    )
+
+    parse = build_parser().parse_args
+    scratch = train_config_from_args(parse(["train", "--base", "none"])).env
+    assert scratch.base_policy == "" and scratch.bounds == ABSOLUTE_ACTION_BOUNDS
+    assert scratch.emergency_stop is False and TrainConfig().env.emergency_stop is True
+    assert scratch.reward == SCRATCH_REWARD and TrainConfig().env.reward == TRAIN_REWARD
+    assert train_config_from_args(parse(["train", "--base", "none"])).ppo.use_sde is True
+    assert TrainConfig().ppo.use_sde is False
+    cfg = tmp_path / "chosen.toml"
+    cfg.write_text("[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
+    chosen = train_config_from_args(parse(["train", "--config", str(cfg), "--base", "none"])).env
+    assert chosen.bounds == ((0.0, -0.5), (5.0, 0.5))

@@ -1,0 +1,169 @@
+"""The member's decisions, batched: ``ConvoyMember.estimate``, the staleness ladder
+(``supervise``), the policy-error latch and the braking-aware emergency stop, for every
+follower of every convoy in one compiled loop.
+
+``spacing`` packs ``SpacingConfig`` as (kind code, distance m, standstill m, headway s,
+quadratic s²/m); ``ladder`` packs ``LadderConfig`` as (enabled, degrade after s, stop
+after s, extra headway s, gap gain 1/s); ``rule`` the emergency rule per follower as
+(decel m/s², reaction s, margin m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from openconvoy.core.ladder import LadderConfig
+from openconvoy.core.spacing import SpacingConfig
+from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_math import norm
+
+COOP, DEGRADED, STOP, FAILSAFE = range(4)
+SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
+
+
+def pack_spacing(c: SpacingConfig) -> np.ndarray:
+    """``SpacingConfig`` as the kernels' array."""
+    kind = float(SPACING_KINDS.index(c.kind))
+    return np.array([kind, c.distance_m, c.standstill_m, c.headway_s, c.quadratic_s2_per_m])
+
+
+def pack_ladder(c: LadderConfig) -> np.ndarray:
+    """``LadderConfig`` as the kernels' array."""
+    return np.array(
+        [float(c.enabled), c.degrade_after_s, c.stop_after_s, c.extra_headway_s, c.gap_gain]
+    )
+
+
+@kernel
+def speed_gap(sp, v):  # pragma: no cover - compiled
+    """The speed-dependent part of a pair gap (m) at ``v`` (not constant-distance)."""
+    vv = max(v, 0.0)
+    g = sp[2] + sp[3] * vv
+    if sp[0] == 2.0:
+        g = g + sp[4] * vv * vv
+    return g
+
+
+@kernel
+def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
+    """Desired centre-to-centre gap (m) of a vehicle to the one ahead at speed ``v``."""
+    if sp[0] == 0.0:
+        return sp[1]
+    return speed_gap(sp, v) + 0.5 * (len_behind + len_ahead)
+
+
+@kernel
+def link_age(hist, hist_n, b, ln, t):  # pragma: no cover - compiled
+    """Age (s) of link ``ln``'s newest state at ``t``; inf when none."""
+    if hist_n[b, ln] == 0:
+        return np.inf
+    return max(0.0, t - hist[b, ln, 0, 0])
+
+
+@kernel
+def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # pragma: no cover
+    """``ConvoyMember.estimate`` of link ``ln``'s sender (``ln`` < 0: none):
+    (valid, x m, y m, speed m/s, heading rad, age s). Fresh: dead-reckoned at its speed;
+    stale: braking at its limit since the message."""
+    li = ln if ln >= 0 else 0
+    lt, lx, ly = hist[b, li, 0, 0], hist[b, li, 0, 1], hist[b, li, 0, 2]
+    lv, lh = hist[b, li, 0, 3], hist[b, li, 0, 4]
+    age = max(t - lt, 0.0)
+    if not (ln >= 0 and hist_n[b, li] > 0 and not age > stop_after):
+        return False, 0.0, 0.0, 0.0, 0.0, age  # invalid: the rest is never read
+    if age <= fresh_age:
+        d, speed = lv * age, lv
+    else:
+        a = link_decel[li]
+        d, speed = 0.0, 0.0
+        if lv > 0.0 and not math.isinf(a):
+            tau = min(age, lv / a)
+            d = lv * tau - 0.5 * a * tau * tau
+            speed = max(lv - a * age, 0.0)
+    if d == 0.0:  # not moved since the message: no trigonometry
+        return True, lx + d, ly + d, speed, lh, age
+    return True, lx + d * math.cos(lh), ly + d * math.sin(lh), speed, lh, age
+
+
+@kernel
+def decide(
+    act, low, high, t, own, hist, hist_n, needed, pred_link, link_decel, lengths, sp, lad,
+    fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
+):  # pragma: no cover - compiled  # fmt: skip
+    """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
+    latched policy error), clipped and float32, through the ladder, then the latch and
+    the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N) and ``modes``."""
+    B, F = act.shape[0], act.shape[1]
+    for b in range(B):
+        for f in range(F):
+            i = f + 1
+            a0, a1 = act[b, f, 0], act[b, f, 1]
+            if not (np.isfinite(a0) and np.isfinite(a1)):
+                errors[b, i] += 1
+                failed[b, i] = True
+                a0, a1 = np.float32(0.0), np.float32(0.0)
+            v = float(np.float32(min(max(np.float64(a0), low[f, 0]), high[f, 0])))
+            dh = float(np.float32(min(max(np.float64(a1), low[f, 1]), high[f, 1])))
+            mode = COOP
+            if lad[0] != 0.0:
+                age = 0.0
+                for ln in needed[i]:
+                    if ln >= 0:
+                        age = max(age, link_age(hist, hist_n, b, ln, t[b]))
+                mode = COOP if age <= lad[1] else (DEGRADED if age <= lad[2] else STOP)
+                v, dh, mode = _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh)
+            if failed[b, i]:
+                v, dh, mode = 0.0, 0.0, FAILSAFE
+            if emergency:
+                if _fires(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths, lad,
+                          fresh_age, rule[:, f], t[b]) or estopped[b, i]:  # fmt: skip
+                    estopped[b, i] = True
+                    v, dh, mode = 0.0, 0.0, FAILSAFE
+            cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
+
+
+@kernel
+def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # pragma: no cover
+    """``ConvoyMember.supervise``'s rungs: degraded follows the ACC fallback on the
+    predecessor estimate (none: stop), stop commands zero."""
+    if mode == DEGRADED:
+        est_gap, est_closing = pred_est[0, b, i], pred_est[1, b, i]
+        if math.isnan(est_gap):
+            mode = STOP
+        else:
+            ego_v = own[2, b, i]
+            target = pair_gap(sp, ego_v, lengths[i], lengths[i - 1]) + lad[3] * max(ego_v, 0.0)
+            acc_v = max(0.0, ego_v + est_closing + lad[4] * (est_gap - target))
+            v = float(np.float32(min(v, acc_v)))
+            dh = float(np.float32(min(max(dh, -max_dh), max_dh)))
+    if mode == STOP:
+        v, dh = 0.0, 0.0
+    return v, dh, mode
+
+
+@kernel
+def _fires(
+    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t
+):  # pragma: no cover - compiled
+    """The braking-aware gap rule on the estimate of the predecessor: True to stop."""
+    valid, ex, ey, es, eh, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
+    if not valid:
+        return False
+    ox, oy, ov, oh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
+    dx, dy = ex - ox, ey - oy
+    gap = norm(dx, dy)
+    vx = ov * math.cos(oh) - es * math.cos(eh)
+    vy = ov * math.sin(oh) - es * math.sin(eh)
+    if gap <= 0.0:
+        closing, gap = max(ov - es, 0.0), 0.0
+    else:
+        closing = (dx * vx + dy * vy) / gap
+    bumper = gap - 0.5 * (lengths[i] + lengths[i - 1])
+    if not np.isfinite(closing):
+        closing = 0.0
+    stopping = 0.0
+    if closing > 0.0:
+        stopping = closing * closing / (2.0 * rule[0]) + rule[1] * closing
+    return np.isfinite(bumper) and bumper - stopping < rule[2]

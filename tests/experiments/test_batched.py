@@ -1,0 +1,131 @@
+"""The batched path of sweeps and tuning against the per-run path (one ``ConvoyEnv`` per
+run): the same run directory byte for byte, the same trial objective to the bit, and the
+configurations the batched env refuses run per run, saying so in one line."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from openconvoy.cli import main
+from openconvoy.experiments import batched_sweep
+from openconvoy.experiments.batched import refusal
+from openconvoy.experiments.executor import ExecutorConfig, TaskFailure
+from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
+from openconvoy.experiments.sweep import ExperimentConfig, read_summary, run_experiment
+from openconvoy.policies.spec import classical_config
+from openconvoy.train.tune import TuneConfig, grid_batched, grid_evaluator, with_values
+
+# 25 s: past the leader's first speed change.
+SWEEP = ExperimentConfig(
+    name="b", policies=("paper",), pers=(0.0, 0.3, 0.6), seeds=3, duration_s=25.0
+)
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes()
+        for p in sorted(root.rglob("*"))
+        if p.is_file() and p.name != "manifest.json"  # names its own directory
+    }
+
+
+def test_a_batched_sweep_writes_the_per_run_sweeps_directory_byte_for_byte(tmp_path: Path):
+    said: list[str] = []
+    per_run = run_experiment(
+        SWEEP,
+        tmp_path / "per_run",
+        progress=False,
+        figures=False,
+        executor=ExecutorConfig(jobs=1, batched=False),
+    )
+    batched = run_experiment(
+        SWEEP, tmp_path / "batched", progress=False, figures=False, jobs=1, say=said.append
+    )
+    assert said == [] and batched.per_run == {}
+    a, b = _files(tmp_path / "per_run"), _files(tmp_path / "batched")
+    assert len([name for name in a if name.endswith("log.csv")]) == 9
+    assert sorted(a) == sorted(b)
+    for name in a:
+        assert a[name] == b[name], name
+    assert per_run.rows == batched.rows
+    # Not vacuous: PER 0.6 lost messages and moved the numbers.
+    rows = read_summary(tmp_path / "batched")
+    assert rows[2]["delivery_ratio"]["mean"] < 0.5 < rows[0]["delivery_ratio"]["mean"]
+    assert rows[2]["p95_platooning_error_m"]["mean"] > rows[0]["p95_platooning_error_m"]["mean"]
+    # The 9 runs were 1 batched task (9 with the per-run path).
+    planned = SWEEP.run_configs()
+    dirs = [str(i) for i in range(len(planned))]
+    tasks = batched_sweep.plan(planned, dirs, [False] * len(planned), slots=1)
+    assert tasks.spans == [(0, 9)]
+    # Without the run logs: the same summary, each run's metrics.json and no log.csv.
+    run_experiment(SWEEP, tmp_path / "no_logs", progress=False, figures=False, run_logs=False)
+    c = _files(tmp_path / "no_logs")
+    assert c["summary.csv"] == a["summary.csv"] and not any(n.endswith("log.csv") for n in c)
+    assert {n for n in c if n.endswith("metrics.json")} == {
+        n for n in a if n.endswith("metrics.json")
+    }
+
+
+def test_a_tune_trials_objective_is_the_same_on_both_paths(tmp_path: Path):
+    config = TuneConfig(pers=(0.0, 0.5), seeds=(1000, 1001), duration_s=25.0)
+    assert grid_batched(config) == (True, None)
+    base = classical_config("paper")
+    candidate = with_values(base, {"speed.kp": 0.6, "heading.gain": 0.3}, "trial")
+    one = grid_evaluator(config, tmp_path, batched=False)(candidate)
+    assert grid_evaluator(config, tmp_path, batched=True)(candidate) == one
+    assert grid_evaluator(config, tmp_path, batched=True)(base) != one  # its own number
+
+
+def test_what_the_batched_env_refuses_runs_per_run_in_one_line(tmp_path: Path):
+    run = RunConfig(policy="paper", per=0.2, duration_s=2.0)
+    assert refusal(run) is None
+    assert "gps_noise_m" in refusal(dataclasses.replace(run, convoy=ConvoySection(gps_noise_m=0.2)))
+    assert "jitter" in refusal(
+        dataclasses.replace(run, loss=LossSection(latency_s=0.1, jitter_s=0.05))
+    )
+    assert "ranging" in refusal(dataclasses.replace(run, convoy=ConvoySection(ranging=True)))
+    assert "forge" in refusal(dataclasses.replace(run, faults=("forge:1@1",)))
+    assert "highway" in refusal(dataclasses.replace(run, scenario="highway-cut-in"))
+    learned = dataclasses.replace(run, policy=str(tmp_path / "p.zip"))
+    assert "bit-equal" in refusal(learned)  # not loaded: the per-run runs report it
+    noisy = ExperimentConfig(policies=("paper", "paper+ladder"), pers=(0.2,), seeds=1)
+    noisy = dataclasses.replace(noisy, duration_s=2.0)
+    noisy = dataclasses.replace(noisy, convoy=dataclasses.replace(noisy.convoy, gps_noise_m=0.1))
+    said: list[str] = []
+    result = run_experiment(
+        noisy, tmp_path / "noisy", progress=False, figures=False, say=said.append
+    )
+    assert said == [
+        f"{label}: one ConvoyEnv per run (the batched env does not support gps_noise_m yet)"
+        for label in ("paper", "paper+ladder")
+    ]
+    assert [r["runs"] for r in result.rows] == [1, 1]
+
+
+def test_a_failed_batch_fails_each_of_its_runs_by_name():
+    tasks = batched_sweep.SweepTasks(spans=[(0, 1), (1, 2)])
+    lost = TaskFailure("runs/a .. runs/c (batch of 2)", "pid 1 on h", "MemoryError")
+    out = batched_sweep.expand(tasks, [{"ok": 1}, lost], ["runs/a", "runs/b", "runs/c"])
+    assert out[0] == {"ok": 1}
+    assert out[1:] == [TaskFailure(d, "pid 1 on h", "MemoryError") for d in ("runs/b", "runs/c")]
+
+
+def test_the_cli_flags(tmp_path: Path, capsys):
+    argv = ["experiment", "per-sweep", "--pers", "0.2", "--seeds", "1", "--duration", "2"]
+    argv += ["--no-plots", "--jobs", "1", "--no-run-logs", "--out"]
+    assert main([*argv, str(tmp_path / "a"), "--no-batched"]) == 0
+    assert main([*argv, str(tmp_path / "b"), "--batched"]) == 0
+    assert "1 run metrics" in capsys.readouterr().out
+    a, b = _files(tmp_path / "a"), _files(tmp_path / "b")
+    assert a == b and not any(n.endswith("log.csv") for n in a)
+    # tune: the base policy and its own values as the one trial, on both paths.
+    objectives = []
+    for flag in ("--no-batched", "--batched"):
+        out = tmp_path / f"tuned{flag}.toml"
+        tune = ["tune", "--trials", "1", "--per", "0.4", "--seeds", "1000", "--duration", "4"]
+        assert main([*tune, "--out", str(out), "--no-progress", flag]) == 0
+        summary = json.loads(out.with_suffix(".json").read_text())
+        objectives.append((summary["base_value"], summary["best_value"]))
+    assert objectives[0] == objectives[1] and objectives[0][0] == objectives[0][1]

@@ -7,8 +7,11 @@ paper scenario, figures included) on the per-run path (one ``ConvoyEnv`` task pe
 batched without the run logs (``--no-run-logs``); each on ``--jobs`` processes (default:
 the cores available). Then an ``openconvoy tune`` study of ``--trials`` trials (its
 default grid: PER 0, 0.3, 0.6 × 2 seeds; trials one at a time) on both paths. Prints one
-JSON line: wall times, per-run and per-trial seconds, and whether the batched
-``summary.csv`` and the studies' objectives equal the per-run path's.
+JSON line: wall and CPU seconds (this process and its workers: on a shared machine CPU
+time is the steadier figure), per run and per trial, the load average before and after,
+and whether the batched ``summary.csv`` and the studies' objectives equal the per-run
+path's (``--seeds`` may differ between calls: ``--out`` keeps each sweep, so the per-run
+path can be measured on fewer seeds and compared per run).
 
     python benchmarks/bench_vector_sweep.py [--seeds 100] [--jobs N] [--trials 4]
         [--paths per-run,batched,batched-no-logs,tune] [--out DIR]
@@ -20,6 +23,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import tempfile
 import time
@@ -34,25 +38,40 @@ from openconvoy.train.tune import TuneConfig, tune
 PATHS = ("per-run", "batched", "batched-no-logs", "tune")
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (the sweep's workers)."""
+    me, kids = (
+        resource.getrusage(resource.RUSAGE_SELF),
+        resource.getrusage(resource.RUSAGE_CHILDREN),
+    )
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def _sweep(seeds: int, jobs: int, path: str, out: Path) -> dict[str, Any]:
     config = ExperimentConfig(name=path, policies=("paper",), seeds=seeds)
     executor = ExecutorConfig(jobs=jobs, batched=path != "per-run")
-    start = time.perf_counter()
+    start, cpu, load = time.perf_counter(), _cpu_s(), os.getloadavg()[0]
     result = run_experiment(
         config, out / path, executor=executor, progress=False, run_logs=path != "batched-no-logs"
     )
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, _cpu_s() - cpu
     n = len(result.runs)
-    return {"wall_s": round(wall, 1), "runs": n, "s_per_run": round(wall / n, 4)}
+    return {
+        "runs": n,
+        "wall_s": round(wall, 1),
+        "cpu_s": round(cpu, 1),
+        "cpu_s_per_run": round(cpu / n, 4),
+        "load_average": [round(load, 1), round(os.getloadavg()[0], 1)],
+    }
 
 
 def _tune(trials: int, batched: bool) -> dict[str, Any]:
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), _cpu_s()
     result = tune(TuneConfig(trials=trials), executor=ExecutorConfig(jobs=1, batched=batched))
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, _cpu_s() - cpu
     return {
-        "wall_s": round(wall, 1),
         "s_per_trial": round(wall / (trials + 1), 2),  # the base policy's evaluation too
+        "cpu_s_per_trial": round(cpu / (trials + 1), 2),
         "values": [h["value"] for h in result.history],
     }
 
@@ -87,13 +106,14 @@ def main() -> None:
             p: s == summaries["per-run"] for p, s in summaries.items() if p != "per-run"
         }
     if "per-run" in out and "batched" in out:
-        out["sweep_speedup"] = round(out["per-run"]["wall_s"] / out["batched"]["wall_s"], 1)
+        a, b = out["per-run"], out["batched"]
+        out["cpu_per_run_speedup"] = round(a["cpu_s_per_run"] / b["cpu_s_per_run"], 1)
     if "tune" in paths:
         per_run, batched = _tune(args.trials, False), _tune(args.trials, True)
         out["tune"] = {
             "trials": args.trials,
-            "per_run_s_per_trial": per_run["s_per_trial"],
-            "batched_s_per_trial": batched["s_per_trial"],
+            "per_run": {k: v for k, v in per_run.items() if k != "values"},
+            "batched": {k: v for k, v in batched.items() if k != "values"},
             "objectives_identical": per_run["values"] == batched["values"],
         }
     out.update(

@@ -8,7 +8,7 @@ arithmetic, so they agree with ``ConvoyEnv``.
 
 Numba checks a cached kernel against its own source file only, but kernels call kernels
 of other ``vector_*`` modules: the cache lives in a directory named for a digest of all
-of them (and numba's version), so a change to any kernel recompiles every one.
+the modules with kernels (and numba's version), so a change to any kernel recompiles every one.
 ``NUMBA_CACHE_DIR`` (numba's setting) moves that directory's parent; default
 ``~/.cache/openconvoy`` (``XDG_CACHE_HOME``; the temporary directory when not writable).
 Compiling all kernels takes ~25 CPU-seconds, loading them from the cache ~1.
@@ -34,7 +34,9 @@ except ImportError as exc:  # pragma: no cover - the extra is installed by `make
 def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("vector_*.py")):
-        digest.update(path.name.encode() + path.read_bytes())
+        text = path.read_bytes()
+        if b"@kernel" in text or path.name == "vector_jit.py":  # the modules with kernels
+            digest.update(path.name.encode() + text)
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
     path = Path(base) / f"vector-kernels-{digest.hexdigest()[:16]}"
@@ -50,12 +52,13 @@ CACHE_DIR = _cache_dir()
 
 
 def kernel(fn: Callable[..., Any]) -> Any:
-    """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath)."""
+    """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
+    error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
     # numba reads its cache directory when a function is decorated: set it for ours only.
     config: Any = _numba.config
     saved = config.CACHE_DIR
     config.CACHE_DIR = str(CACHE_DIR)
     try:
-        return _numba.njit(cache=True, nogil=True)(fn)
+        return _numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
     finally:
         config.CACHE_DIR = saved

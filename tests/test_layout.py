@@ -1,0 +1,92 @@
+"""DESIGN.md's import rule, checked on the source (every import, lazy ones inside functions too).
+
+Imports point one way: ``core`` imports nothing of ours; ``logs``, ``comms`` import ``core``;
+``envs`` imports ``core``, ``comms``, ``logs``; ``policies`` import ``core`` only; ``experiments``
+imports ``envs``, ``policies``, ``logs``; ``bridge`` imports ``core``, ``comms``, ``logs``,
+``policies`` and the plant of ``envs``; ``train`` imports ``envs``, ``policies``, ``experiments``;
+``cli.py`` and ``demo.py`` sit on top. ``convoy.py`` (the convoy config shared by sim and deploy)
+and ``outputs.py`` (output-path checks) are leaf modules beside ``logs``: they import ``core`` only.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "openconvoy"
+
+LEAVES = {"core", "logs", "convoy", "outputs"}  # what any layer above the leaves may import
+ALLOWED: dict[str, set[str]] = {
+    "core": set(),
+    "logs": {"core"},
+    "convoy": {"core"},
+    "outputs": {"core"},
+    "comms": {"core"},
+    "policies": {"core"},
+    "envs": LEAVES | {"comms"},
+    "experiments": LEAVES | {"comms", "envs", "policies"},
+    "bridge": LEAVES | {"comms", "policies", "envs"},
+    "train": LEAVES | {"comms", "envs", "policies", "experiments"},
+}
+# Module-level exceptions, each with its reason; anything else breaking the rule fails the test.
+EXCEPTIONS: dict[tuple[str, str], str] = {
+    # The single-agent Gymnasium env drives the other followers with a policy spec (lazily).
+    ("openconvoy.envs.single_agent", "openconvoy.policies.spec"): "co-followers' policy",
+    # The BSM tools (`bsm send`/`listen`) read the convoy file at the CLI edge.
+    ("openconvoy.comms.cli", "openconvoy.convoy"): "CLI reads the convoy config",
+}
+# bridge may import only these parts of envs: the plant, the vehicle presets, the leader scenarios.
+BRIDGE_ENVS = {"openconvoy.envs.plant", "openconvoy.envs.vehicles", "openconvoy.envs.scenarios"}
+
+
+def _module(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> set[str]:
+    module = _module(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                found.add(".".join(base + ([node.module] if node.module else [])))
+            else:
+                found.add(node.module or "")
+    return {name for name in found if name.startswith("openconvoy.")}
+
+
+def _layer(module: str) -> str:
+    return module.split(".")[1] if "." in module else ""
+
+
+SOURCES = sorted(PACKAGE.rglob("*.py"))
+
+
+def test_every_layer_is_known() -> None:
+    layers = {_layer(_module(p)) for p in SOURCES} - {"", "cli", "demo"}
+    assert layers == set(ALLOWED), layers ^ set(ALLOWED)
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_point_down(path: Path) -> None:
+    module = _module(path)
+    layer = _layer(module)
+    if layer in ("", "cli", "demo"):
+        return  # the top: imports what a subcommand needs
+    wrong = []
+    for target in sorted(_imports(path)):
+        to = _layer(target)
+        if to == layer or (module, target) in EXCEPTIONS:
+            continue
+        if to not in ALLOWED[layer]:
+            wrong.append(target)
+        elif layer == "bridge" and to == "envs" and target not in BRIDGE_ENVS:
+            wrong.append(target)
+    assert not wrong, f"{module} imports {wrong}, against DESIGN.md's import rule"

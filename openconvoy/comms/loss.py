@@ -43,6 +43,22 @@ def counter_uniform(key: int, *words: int) -> float:
     return (z >> 11) * _UNIT
 
 
+def counter_state(key: int, *words: int) -> int:
+    """The 64-bit state ``counter_uniform`` reaches after ``words``, to go on from with
+    ``counter_uniform_from`` (or as ``counter_uniform_array``'s key): a caller drawing
+    for every message of a link hashes the link's words once.
+    ``counter_uniform(k, *a, *b) == counter_uniform_from(counter_state(k, *a), *b)``."""
+    z = key & _MASK
+    for w in words:
+        z = _mix((z + _GOLDEN + (int(w) & _MASK)) & _MASK)
+    return z
+
+
+def counter_uniform_from(state: int, *words: int) -> float:
+    """``counter_uniform`` continued from ``counter_state``'s ``state``."""
+    return (counter_state(state, *words) >> 11) * _UNIT
+
+
 def _mix_array(z: np.ndarray) -> np.ndarray:
     z = (z ^ (z >> np.uint64(30))) * np.uint64(_M1)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(_M2)

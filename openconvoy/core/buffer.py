@@ -7,6 +7,7 @@ sender's measurement time), as DESIGN.md defines message age.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable, Sequence
 
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
@@ -23,10 +24,12 @@ class StateBuffer:
         self.trail_spacing_m = trail_spacing_m
         self._states: dict[int, deque[VehicleState]] = {}
         self._trails: dict[int, Trail] = {}
+        self._newest_t: dict[int, float] = {}  # each sender's newest time stamp
 
     def clear(self) -> None:
         self._states.clear()
         self._trails.clear()
+        self._newest_t.clear()
 
     def push(self, state: VehicleState) -> None:
         """Store a received state. Out-of-order (older than the newest) states are ignored."""
@@ -37,6 +40,7 @@ class StateBuffer:
         elif q and state.t <= q[0].t:
             return
         q.appendleft(state)
+        self._newest_t[state.vehicle_id] = state.t
         self._trails[state.vehicle_id].add(state.x, state.y)
 
     def heard(self) -> list[int]:
@@ -50,6 +54,18 @@ class StateBuffer:
     def history(self, vehicle_id: int) -> list[VehicleState]:
         """Stored states of a vehicle, newest first (at most ``k``)."""
         return list(self._states.get(vehicle_id, ()))
+
+    def states(self, vehicle_id: int) -> Sequence[VehicleState]:
+        """``history`` without the copy (read only): empty when never heard."""
+        return self._states.get(vehicle_id, ())
+
+    def oldest_newest_t(self, vehicle_ids: Iterable[int]) -> float | None:
+        """The oldest of the newest time stamps (s) of ``vehicle_ids`` (one at least),
+        None if one of them was never heard."""
+        try:
+            return min(map(self._newest_t.__getitem__, vehicle_ids))
+        except KeyError:
+            return None
 
     def trail(self, vehicle_id: int) -> Trail | None:
         return self._trails.get(vehicle_id)

@@ -194,20 +194,7 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
     if hint is Any or hint is object:
         return value
     if isinstance(hint, types.UnionType) or origin is typing.Union:
-        args = typing.get_args(hint)
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for arg in (a for a in args if a is not type(None)):
-            try:
-                return _convert(
-                    value, typing.Annotated[arg, rng] if rng is not FINITE else arg, where
-                )
-            except ConfigError as exc:
-                errors.append(exc)
-        if len(errors) == 1:
-            raise errors[0]
-        raise ConfigError(f"{where}: expected {_type_name(hint)}, got {_describe(value)}")
+        return _convert_union(value, hint, rng, where)
     if dataclasses.is_dataclass(hint):
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             return value
@@ -219,24 +206,7 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected {_type_name(hint)}, got {_describe(value)}")
         return value
     if origin in (tuple, list):
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected {_type_name(hint)}, got {_describe(value)}")
-        args = typing.get_args(hint)
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            if len(value) != len(args):
-                raise ConfigError(
-                    f"{where}: expected {len(args)} values ({_type_name(hint)}), got {len(value)}"
-                )
-            items = [
-                _convert(v, typing.Annotated[a, rng] if rng is not FINITE else a, f"{where}[{i}]")
-                for i, (v, a) in enumerate(zip(value, args))
-            ]
-        else:
-            inner = args[0] if args else Any
-            if rng is not FINITE:
-                inner = typing.Annotated[inner, rng]
-            items = [_convert(v, inner, f"{where}[{i}]") for i, v in enumerate(value)]
-        return tuple(items) if origin is tuple else items
+        return _convert_sequence(value, hint, rng, where)
     if hint is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: expected true or false, got {_describe(value)}")
@@ -250,6 +220,46 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a string, got {_describe(value)}")
         return value
     return value
+
+
+def _convert_union(value: Any, hint: Any, rng: Range, where: str) -> Any:
+    """``value`` for the first member of union ``hint`` it fits (None for ``X | None``)."""
+    args = typing.get_args(hint)
+    if value is None and type(None) in args:
+        return None
+    errors = []
+    for arg in (a for a in args if a is not type(None)):
+        try:
+            return _convert(value, typing.Annotated[arg, rng] if rng is not FINITE else arg, where)
+        except ConfigError as exc:
+            errors.append(exc)
+    if len(errors) == 1:
+        raise errors[0]
+    raise ConfigError(f"{where}: expected {_type_name(hint)}, got {_describe(value)}")
+
+
+def _convert_sequence(value: Any, hint: Any, rng: Range, where: str) -> Any:
+    """``value`` as the list or tuple ``hint`` wants, each item checked (``rng`` applies
+    to every item)."""
+    origin = typing.get_origin(hint)
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{where}: expected {_type_name(hint)}, got {_describe(value)}")
+    args = typing.get_args(hint)
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        if len(value) != len(args):
+            raise ConfigError(
+                f"{where}: expected {len(args)} values ({_type_name(hint)}), got {len(value)}"
+            )
+        items = [
+            _convert(v, typing.Annotated[a, rng] if rng is not FINITE else a, f"{where}[{i}]")
+            for i, (v, a) in enumerate(zip(value, args))
+        ]
+    else:
+        inner = args[0] if args else Any
+        if rng is not FINITE:
+            inner = typing.Annotated[inner, rng]
+        items = [_convert(v, inner, f"{where}[{i}]") for i, v in enumerate(value)]
+    return tuple(items) if origin is tuple else items
 
 
 def to_dict(obj: Any) -> dict[str, Any]:

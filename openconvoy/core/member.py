@@ -14,7 +14,7 @@ written once in ``core.tick``::
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Annotated
 
@@ -23,6 +23,7 @@ import numpy as np
 from openconvoy.core import ladder as ladder_mod
 from openconvoy.core.buffer import StateBuffer
 from openconvoy.core.config import Range
+from openconvoy.core.estimate import TargetEstimate, dead_reckon, gap_and_closing
 from openconvoy.core.gates import RxGate, TriggerConfig, TxGate
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.observation import (
@@ -33,12 +34,13 @@ from openconvoy.core.observation import (
     ObservationLayout,
 )
 from openconvoy.core.policy import make_action
-from openconvoy.core.spacing import SpacingConfig, SpacingPolicy
+from openconvoy.core.spacing import GapChain, SpacingConfig, SpacingPolicy
 from openconvoy.core.state import VehicleState, wrap_angle
 from openconvoy.core.trail import Projection, Trail
 
 _NF = len(STATE_FEATURES)
 _ND = len(DERIVED_FEATURES)
+_TWO_PI = 2.0 * math.pi  # as ``wrap_angle`` computes it
 
 
 @dataclass(frozen=True)
@@ -95,19 +97,6 @@ class Frame:
     pred_gap: tuple[float, float] | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class TargetEstimate:
-    """Where a heard vehicle is now by its newest message: ENU position (m), speed (m/s),
-    heading (rad), message age (s), and ``stale`` (older than ``MemberConfig.fresh_age_s``)."""
-
-    x: float
-    y: float
-    speed: float
-    heading: float
-    age: float
-    stale: bool
-
-
 class ConvoyMember:
     """One vehicle's cooperative state and gates. ``lengths[i]`` is vehicle i's length (m);
     ``decels[i]`` its braking limit (m/s²), used to bound where a silent vehicle can be
@@ -138,6 +127,28 @@ class ConvoyMember:
         self.tx = TxGate(config.trigger)
         self.spacing = SpacingPolicy(config.spacing)
         self.buffer = StateBuffer(config.k, config.trail_spacing_m)
+        # What the gates, the layout and σ say is fixed for the member's life; computed
+        # once, because every tick reads it for every message and target.
+        self._keeps = [self.rx.keeps(j) for j in range(n_vehicles)]
+        self._needed = tuple(self.rx.needed())
+        self._gaps = GapChain(self.spacing, self.lengths)
+        self._fresh_age_s = config.fresh_age_s
+        self._stop_after_s = config.ladder.stop_after_s
+        lay = self.layout
+        self._slots = [
+            (lay.slot_offset(slot), vid)
+            for slot, vid in zip(lay.slots, self._slot_ids())
+            if vid is not None
+        ]
+        targets = self._slot_ids()[: len(lay.targets)]
+        preds_in_slots = set(targets[1:])
+        self._targets = [
+            (name, vid, lay.target_offset(name))
+            for name, vid in zip(lay.targets, targets)
+            if vid is not None and not (name == "leader" and vid in preds_in_slots)
+        ]
+        """(target name, vehicle id, offset) of every target slot with a vehicle in it."""
+        self._nearest_first = (*lay.targets[1:], "leader")
         self.reset()
 
     def reset(self) -> None:
@@ -150,6 +161,9 @@ class ConvoyMember:
         self.msgs_filtered = 0
         self.mode = ladder_mod.COOP  # the last mode ``supervise`` decided
         self._last_s: dict[int, float] = {}  # last projection on each trail: a warm start
+        # The last estimate of each target with the message and time it was made for:
+        # the frame and the safety rule ask for the same one within a tick.
+        self._estimates: dict[int, tuple[VehicleState, float, TargetEstimate | None]] = {}
 
     # --- the tick --------------------------------------------------------------------
 
@@ -167,12 +181,29 @@ class ConvoyMember:
 
     def receive(self, msg: VehicleState, now: float) -> bool:
         """ρ: keep ``msg`` in R^i if the topology wants its sender. Returns True if kept."""
-        if msg.vehicle_id == self.vehicle_id or not self.rx.keeps(msg.vehicle_id):
+        j = msg.vehicle_id
+        keeps = self._keeps
+        if not (keeps[j] if 0 <= j < len(keeps) else self.rx.keeps(j)):
             self.msgs_filtered += 1
             return False
         self.buffer.push(msg)
         self.msgs_received += 1
         return True
+
+    def receive_all(self, inbox: Iterable[VehicleState], now: float) -> None:
+        """``receive`` for every message of ``inbox``, in order."""
+        keeps, n = self._keeps, len(self._keeps)
+        push = self.buffer.push
+        kept = filtered = 0
+        for msg in inbox:
+            j = msg.vehicle_id
+            if keeps[j] if 0 <= j < n else self.rx.keeps(j):
+                push(msg)
+                kept += 1
+            else:
+                filtered += 1
+        self.msgs_received += kept
+        self.msgs_filtered += filtered
 
     def observation(self, now: float) -> np.ndarray:
         """The observation array at ``now`` (``sense(now).observation``)."""
@@ -184,32 +215,35 @@ class ConvoyMember:
         reads (it takes the frame)."""
         if self.own is None:
             raise RuntimeError("observe_own() must be called before sense()")
-        lay = self.layout
-        obs = lay.zeros()
+        # Built as Python floats and made a float32 array once (the same rounding as
+        # writing each value into the array; far fewer numpy calls).
+        obs = [0.0] * self.layout.size
         ego = self.own
         c, s = math.cos(ego.heading), math.sin(ego.heading)
-        slot_ids = self._slot_ids()
-        for slot, vid in zip(lay.slots, slot_ids):
-            if vid is None:
+        ex, ey, eh = ego.x, ego.y, ego.heading
+        states = self.buffer.states
+        pi = math.pi
+        for base, vid in self._slots:
+            history = states(vid)
+            if not history:
                 continue
             vals: list[float] = []
-            for st in self.buffer.history(vid):
-                dx, dy = st.x - ego.x, st.y - ego.y
+            for st in history:
+                dx, dy = st.x - ex, st.y - ey
                 age = now - st.t
                 vals += (
                     c * dx + s * dy,
                     -s * dx + c * dy,
-                    wrap_angle(st.heading - ego.heading),
+                    (st.heading - eh + pi) % _TWO_PI - pi,  # wrap_angle, inlined
                     st.speed,
                     st.accel,
                     MAX_AGE_S if age > MAX_AGE_S else (age if age > 0.0 else 0.0),
                     1.0,
                 )
-            base = lay.slot_offset(slot)
             obs[base : base + len(vals)] = vals
-        o = lay.own_offset
+        o = self.layout.own_offset
         obs[o : o + 3] = (ego.speed, ego.accel, ego.yaw_rate)
-        return self._fill_targets(obs, slot_ids, now)
+        return self._fill_targets(obs, now)
 
     def supervise(
         self,
@@ -224,7 +258,11 @@ class ConvoyMember:
         centre, from a ranging sensor when the vehicle has one. Returns the action to
         apply and the mode (``coop``, ``degraded``, ``stop``).
         """
-        mode = ladder_mod.rung(self.needed_age(frame.t), self.config.ladder)
+        ladder = self.config.ladder
+        # (``rung`` is COOP whatever the age with the ladder off: no age to compute then.)
+        mode = (
+            ladder_mod.rung(self.needed_age(frame.t), ladder) if ladder.enabled else ladder_mod.COOP
+        )
         if mode == ladder_mod.COOP and self._ranging_override(ranging, frame):
             mode = ladder_mod.DEGRADED
         self.mode = mode
@@ -246,7 +284,10 @@ class ConvoyMember:
     def needed_age(self, now: float) -> float:
         """Age (s) of the oldest newest-message among the vehicles the topology needs
         (every kept predecessor; inf if one is unheard; 0 for the leader)."""
-        return max((self.buffer.age(v, now) for v in self.rx.needed()), default=0.0)
+        if not self._needed:
+            return 0.0
+        oldest = self.buffer.oldest_newest_t(self._needed)
+        return math.inf if oldest is None else max(0.0, now - oldest)
 
     def estimate(self, vehicle_id: int, now: float) -> TargetEstimate | None:
         """Where ``vehicle_id`` is at ``now`` by its newest message (see the class doc);
@@ -254,24 +295,14 @@ class ConvoyMember:
         latest = self.buffer.latest(vehicle_id)
         if latest is None:
             return None
-        ladder = self.config.ladder
-        age = max(now - latest.t, 0.0)
-        if age > ladder.stop_after_s:
-            return None
-        v, h = latest.speed, latest.heading
-        if age <= self.config.fresh_age_s:
-            d, speed, stale = v * age, v, False
-        else:
-            a = self._decel(vehicle_id)
-            if v <= 0.0 or math.isinf(a):
-                d, speed = 0.0, 0.0
-            else:
-                tau = min(age, v / a)
-                d, speed = v * tau - 0.5 * a * tau * tau, max(v - a * age, 0.0)
-            stale = True
-        return TargetEstimate(
-            latest.x + d * math.cos(h), latest.y + d * math.sin(h), speed, h, age, stale
+        cached = self._estimates.get(vehicle_id)
+        if cached is not None and cached[0] is latest and cached[1] == now:
+            return cached[2]
+        est = dead_reckon(
+            latest, now, self._fresh_age_s, self._stop_after_s, self._decel(vehicle_id)
         )
+        self._estimates[vehicle_id] = (latest, now, est)
+        return est
 
     def gap_estimate(self, now: float) -> tuple[float, float] | None:
         """``(gap_m, closing_mps)`` to the immediate predecessor from its messages: centre
@@ -282,15 +313,7 @@ class ConvoyMember:
         est = self.estimate(i - 1, now)
         if est is None:
             return None
-        own = self.own
-        dx, dy = est.x - own.x, est.y - own.y
-        gap = math.hypot(dx, dy)
-        if gap <= 0.0:
-            return 0.0, max(own.speed - est.speed, 0.0)
-        # Velocities projected on the line between the two: the range rate, negated.
-        vx = own.speed * math.cos(own.heading) - est.speed * math.cos(est.heading)
-        vy = own.speed * math.sin(own.heading) - est.speed * math.sin(est.heading)
-        return gap, (dx * vx + dy * vy) / gap
+        return gap_and_closing(self.own, est)
 
     # --- helpers ---------------------------------------------------------------------
 
@@ -319,10 +342,9 @@ class ConvoyMember:
         ]
         return [0 if i > 0 else None, *preds, i + 1 if i + 1 < n else None]
 
-    def _fill_targets(self, obs: np.ndarray, slot_ids: list[int | None], now: float) -> Frame:
-        """Derived and path features into ``obs``; the frame with the logged desired gap,
-        spacing error and message age."""
-        lay = self.layout
+    def _fill_targets(self, obs: list[float], now: float) -> Frame:
+        """Derived and path features into ``obs``; the frame with the observation (as
+        float32) and the logged desired gap, spacing error and message age."""
         ego = self.own
         assert ego is not None
         i = self.vehicle_id
@@ -336,16 +358,12 @@ class ConvoyMember:
             pred_age = math.nan
         spacing_error = math.nan
         pred_gap: tuple[float, float] | None = None
-        targets = slot_ids[: len(lay.targets)]
-        preds_in_slots = set(targets[1:])
-        found: dict[str, tuple[Trail, tuple[float, float], float, float, Projection]] = {}
-        for name, vid in zip(lay.targets, targets):
-            if vid is None or (name == "leader" and vid in preds_in_slots):
-                continue
+        found: dict[str, tuple[Trail, tuple[float, float], float, float, Projection, int]] = {}
+        for name, vid, o in self._targets:
             est = self.estimate(vid, now)
             if est is None:  # unheard, or too old to say where it is
                 continue
-            desired = self.spacing.gap_to(i, vid, ego.speed, self.lengths)
+            desired = self._gaps.gap_to(i, vid, ego.speed)
             trail = self.buffer.trail(vid)
             assert trail is not None
             head = (est.x, est.y)
@@ -354,41 +372,42 @@ class ConvoyMember:
             )
             self._last_s[vid] = projection.s
             arc = projection.arc_to_head
-            o = lay.target_offset(name)
             obs[o : o + _ND] = (arc, desired, arc - desired, est.speed, 1.0)
-            found[name] = (trail, head, est.heading, est.speed - ego.speed, projection)
+            found[name] = (trail, head, est.heading, est.speed - ego.speed, projection, o)
         # The nearest heard predecessor gives the path to steer on and the logged error.
-        for name in (*lay.targets[1:], "leader"):
+        for name in self._nearest_first:
             if name in found:
-                trail, head, heading, closing, projection = found[name]
-                o = lay.target_offset(name)
-                spacing_error = float(obs[o + 2])
+                trail, head, heading, closing, projection, o = found[name]
+                spacing_error = float(np.float32(obs[o + 2]))  # as the observation holds it
                 if name == "pred_1":
                     pred_gap = (projection.arc_to_head, closing)
-                self._fill_path(obs, trail, head, heading, projection)
+                fill_path(obs, self.layout.path_offset, ego, trail, head, heading, projection)
                 break
-        return Frame(now, obs, desired_gap, spacing_error, pred_age, pred_gap)
+        observation = np.array(obs, dtype=np.float32)
+        return Frame(now, observation, desired_gap, spacing_error, pred_age, pred_gap)
 
-    def _fill_path(
-        self,
-        obs: np.ndarray,
-        trail: Trail,
-        head: tuple[float, float],
-        heading: float,
-        projection: Projection,
-    ) -> None:
-        ego = self.own
-        assert ego is not None
-        c, s = math.cos(ego.heading), math.sin(ego.heading)
-        o = self.layout.path_offset
-        # The projection gives the ego's offset from the path; the path's offset from the
-        # ego (what a steering law corrects) is its negative.
-        obs[o] = -projection.cross_track
-        obs[o + 1] = wrap_angle(projection.heading - ego.heading)
-        scale = max(1.0, abs(ego.speed))
-        for j, t in enumerate(LOOKAHEAD_S):
-            px, py = trail.point_at(head, heading, projection.s + t * scale)
-            dx, dy = px - ego.x, py - ego.y
-            obs[o + 2 + 2 * j] = c * dx + s * dy
-            obs[o + 3 + 2 * j] = -s * dx + c * dy
-        obs[o + 8] = 1.0
+
+def fill_path(
+    obs: list[float],
+    o: int,
+    ego: VehicleState,
+    trail: Trail,
+    head: tuple[float, float],
+    heading: float,
+    projection: Projection,
+) -> None:
+    """The path features (``PATH_FEATURES``, at offset ``o`` of ``obs``) of the trail the
+    ego steers on: its offset and heading error there and the lookahead points."""
+    c, s = math.cos(ego.heading), math.sin(ego.heading)
+    # The projection gives the ego's offset from the path; the path's offset from the
+    # ego (what a steering law corrects) is its negative.
+    obs[o] = -projection.cross_track
+    obs[o + 1] = wrap_angle(projection.heading - ego.heading)
+    scale = max(1.0, abs(ego.speed))
+    s_head = trail.head_s(head)
+    for j, t in enumerate(LOOKAHEAD_S):
+        px, py = trail.point_at(head, heading, projection.s + t * scale, s_head)
+        dx, dy = px - ego.x, py - ego.y
+        obs[o + 2 + 2 * j] = c * dx + s * dy
+        obs[o + 3 + 2 * j] = -s * dx + c * dy
+    obs[o + 8] = 1.0

@@ -59,3 +59,34 @@ class SpacingPolicy:
         """Desired arc-length gap (m) from vehicle ``ego`` to vehicle ``target`` ahead of it
         (``target`` < ``ego``): the sum of the pair gaps between them at ``speed``."""
         return sum(self.pair_gap(speed, lengths[j + 1], lengths[j]) for j in range(target, ego))
+
+
+class GapChain:
+    """``SpacingPolicy.gap_to`` for one convoy's fixed ``lengths``: the same sums, with the
+    speed-free parts (half lengths; whole sums for ``constant-distance``) computed once,
+    because a member asks for them every tick for every target."""
+
+    def __init__(self, policy: SpacingPolicy, lengths: Sequence[float]) -> None:
+        self.policy = policy
+        self.lengths = list(lengths)
+        self._halves = [
+            0.5 * (self.lengths[j + 1] + self.lengths[j]) for j in range(len(lengths) - 1)
+        ]
+        self._constant: dict[tuple[int, int], float] = {}
+
+    def gap_to(self, ego: int, target: int, speed: float) -> float:
+        """Desired arc-length gap (m) from ``ego`` to ``target`` ahead of it at ``speed`` (m/s)."""
+        c = self.policy.config
+        if not 0 <= target <= ego <= len(self._halves):
+            return self.policy.gap_to(ego, target, speed, self.lengths)
+        if c.kind == "constant-distance":
+            gap = self._constant.get((ego, target))
+            if gap is None:
+                d = c.distance_m
+                gap = self._constant[(ego, target)] = sum(d for _ in range(target, ego))
+            return gap
+        v = max(speed, 0.0)
+        base = c.standstill_m + c.headway_s * v
+        if c.kind == "quadratic":
+            base += c.quadratic_s2_per_m * v * v
+        return sum(base + h for h in self._halves[target:ego])

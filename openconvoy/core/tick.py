@@ -100,8 +100,7 @@ def begin(
 
 def sense(member: ConvoyMember, inbox: Iterable[VehicleState], now: float) -> Frame:
     """Step 2: ρ on each message received, then the frame at ``now``."""
-    for msg in inbox:
-        member.receive(msg, now)
+    member.receive_all(inbox, now)
     return member.sense(now)
 
 

@@ -103,20 +103,12 @@ class Trail:
         """Project (x, y) on segment k (vertex k → k+1): ``(dist², s, cross, heading, len)``."""
         ax, ay, sa = self._vertex(k, head, heading)
         bx, by, sb = self._vertex(k + 1, head, heading)
-        dx, dy = bx - ax, by - ay
-        seg = math.hypot(dx, dy)
-        if seg < 1e-12:
-            return (x - ax) ** 2 + (y - ay) ** 2, sa, 0.0, heading, 0.0
-        rx, ry = x - ax, y - ay
-        u = min(max((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
-        ex, ey = rx - u * dx, ry - u * dy
-        return (
-            ex * ex + ey * ey,
-            sa + u * (sb - sa),
-            (dx * ry - dy * rx) / seg,
-            math.atan2(dy, dx),
-            seg,
-        )
+        return _segment(ax, ay, sa, bx, by, sb, heading, x, y)
+
+    def head_s(self, head: tuple[float, float]) -> float:
+        """Arc coordinate (m) of the head: the newest breadcrumb's, plus the straight
+        distance from it to ``head``."""
+        return self._s[-1] + math.hypot(head[0] - self._x[-1], head[1] - self._y[-1])
 
     def project(
         self,
@@ -131,47 +123,115 @@ class Trail:
         coordinate ``hint_s`` (the last projection's ``s``) or, without one, where the
         point is expected (``expected_arc`` metres behind the head), and walks to the
         nearest segment: a few segments per tick for a vehicle moving along the path."""
-        if not self._x:
+        xs, ys, ss = self._x, self._y, self._s
+        if not xs:
             raise ValueError("cannot project on an empty trail")
-        n = len(self._x)
-        last = n - 1 if math.hypot(head[0] - self._x[-1], head[1] - self._y[-1]) > 1e-9 else n - 2
-        s_head = self._vertex(n, head, heading)[2]
+        n = len(xs)
+        hx, hy = head
+        last = n - 1 if math.hypot(hx - xs[-1], hy - ys[-1]) > 1e-9 else n - 2
+        s_head = self.head_s(head)
+        back: tuple[float, float, float] | None = None
+
+        def vertex(k: int) -> tuple[float, float, float]:
+            # ``_vertex``, with the head's and the extension's vertices computed once.
+            nonlocal back
+            if 0 <= k < n:
+                return xs[k], ys[k], ss[k]
+            if k >= n:
+                return hx, hy, s_head
+            if back is None:
+                back = self._vertex(-1, head, heading)
+            return back
+
+        def dist2(k: int) -> float:
+            ax, ay, _ = vertex(k)
+            bx, by, _ = vertex(k + 1)
+            return _segment_dist2(ax, ay, bx, by, x, y)
+
         start = hint_s if hint_s is not None else s_head - expected_arc
-        k = min(max(bisect_right(self._s, start) - 1, -1), last)
-        best = self._segment(k, head, heading, x, y)
+        k = min(max(bisect_right(ss, start) - 1, -1), last)
+        best_d2 = dist2(k)
         for step in (1, -1):
             j = k + step
             while -1 <= j <= last:
-                cand = self._segment(j, head, heading, x, y)
-                if cand[0] >= best[0]:
+                d2 = dist2(j)
+                if d2 >= best_d2:
                     break
-                best, k = cand, j
+                best_d2, k = d2, j
                 j += step
-        d2, s, cross, path_heading, _ = best
-        return Projection(arc_to_head=s_head - s, cross_track=cross, heading=path_heading, s=s)
+        ax, ay, sa = vertex(k)
+        bx, by, sb = vertex(k + 1)
+        _, s_proj, cross, path_heading, _ = _segment(ax, ay, sa, bx, by, sb, heading, x, y)
+        return Projection(
+            arc_to_head=s_head - s_proj, cross_track=cross, heading=path_heading, s=s_proj
+        )
 
-    def point_at(self, head: tuple[float, float], heading: float, s: float) -> tuple[float, float]:
-        """The path point at arc coordinate ``s`` (beyond the head: straight on)."""
-        n = len(self._x)
-        s_head = self._vertex(n, head, heading)[2]
+    def point_at(
+        self,
+        head: tuple[float, float],
+        heading: float,
+        s: float,
+        s_head: float | None = None,
+    ) -> tuple[float, float]:
+        """The path point at arc coordinate ``s`` (beyond the head: straight on);
+        ``s_head`` is ``head_s(head)`` when the caller has it."""
+        if s_head is None:
+            s_head = self.head_s(head)
+        xs, ys, ss = self._x, self._y, self._s
         if s >= s_head:
-            if s_head - self._s[-1] > 1e-9:
-                ax, ay = self._x[-1], self._y[-1]
-                f = (s - self._s[-1]) / (s_head - self._s[-1])
+            if s_head - ss[-1] > 1e-9:
+                ax, ay = xs[-1], ys[-1]
+                f = (s - ss[-1]) / (s_head - ss[-1])
                 return ax + f * (head[0] - ax), ay + f * (head[1] - ay)
             return head[0] + (s - s_head) * math.cos(heading), head[1] + (s - s_head) * math.sin(
                 heading
             )
-        if s >= self._s[-1]:
-            f = (s - self._s[-1]) / (s_head - self._s[-1])
-            return self._x[-1] + f * (head[0] - self._x[-1]), self._y[-1] + f * (
-                head[1] - self._y[-1]
-            )
-        if s <= self._s[0]:
+        if s >= ss[-1]:
+            f = (s - ss[-1]) / (s_head - ss[-1])
+            return xs[-1] + f * (head[0] - xs[-1]), ys[-1] + f * (head[1] - ys[-1])
+        if s <= ss[0]:
             bx, by = self._back_direction(head, heading)
-            return self._x[0] - (s - self._s[0]) * bx, self._y[0] - (s - self._s[0]) * by
-        i = bisect_right(self._s, s) - 1
-        f = (s - self._s[i]) / (self._s[i + 1] - self._s[i])
-        return self._x[i] + f * (self._x[i + 1] - self._x[i]), self._y[i] + f * (
-            self._y[i + 1] - self._y[i]
-        )
+            return xs[0] - (s - ss[0]) * bx, ys[0] - (s - ss[0]) * by
+        i = bisect_right(ss, s) - 1
+        f = (s - ss[i]) / (ss[i + 1] - ss[i])
+        return xs[i] + f * (xs[i + 1] - xs[i]), ys[i] + f * (ys[i + 1] - ys[i])
+
+
+def _segment_dist2(ax: float, ay: float, bx: float, by: float, x: float, y: float) -> float:
+    """``_segment``'s squared distance alone (the walk compares only that)."""
+    dx, dy = bx - ax, by - ay
+    seg = math.hypot(dx, dy)
+    if seg < 1e-12:
+        return (x - ax) ** 2 + (y - ay) ** 2
+    rx, ry = x - ax, y - ay
+    u = min(max((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
+    ex, ey = rx - u * dx, ry - u * dy
+    return ex * ex + ey * ey
+
+
+def _segment(
+    ax: float,
+    ay: float,
+    sa: float,
+    bx: float,
+    by: float,
+    sb: float,
+    heading: float,
+    x: float,
+    y: float,
+) -> tuple[float, float, float, float, float]:
+    """Project (x, y) on the segment a → b: ``(dist², s, cross, heading, len)``."""
+    dx, dy = bx - ax, by - ay
+    seg = math.hypot(dx, dy)
+    if seg < 1e-12:
+        return (x - ax) ** 2 + (y - ay) ** 2, sa, 0.0, heading, 0.0
+    rx, ry = x - ax, y - ay
+    u = min(max((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
+    ex, ey = rx - u * dx, ry - u * dy
+    return (
+        ex * ex + ey * ey,
+        sa + u * (sb - sa),
+        (dx * ry - dy * rx) / seg,
+        math.atan2(dy, dx),
+        seg,
+    )

@@ -19,13 +19,25 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from openconvoy.comms.loss import Bernoulli, LossConfig, LossModel, NoLoss, counter_uniform
+from openconvoy.comms.loss import (
+    Bernoulli,
+    LossConfig,
+    LossModel,
+    NoLoss,
+    counter_state,
+    counter_uniform_array,
+    counter_uniform_from,
+)
 from openconvoy.core.errors import ConfigError
 
 M = TypeVar("M")
 
 DRAW_LOSS, DRAW_JITTER = 0, 1
 """Purpose words of the channel's counter-based draws."""
+
+DRAW_BLOCK = 64
+"""Broadcasts per sender whose Bernoulli loss draws are made at once, as one array
+operation (the same numbers as one ``counter_uniform`` per link and message)."""
 
 
 class Channel(Generic[M]):
@@ -81,6 +93,13 @@ class Channel(Generic[M]):
         self._queue.clear()
         self._ready.clear()
         self._seq = 0
+        # Each link's draws are keyed by (channel key, sender, receiver, ...): those words
+        # hashed once per episode, the message number and purpose per broadcast.
+        self._link_state = [
+            [counter_state(self.key, s, r) for r in o] for s, o in enumerate(self._others)
+        ]
+        self._link_state_array = [np.array(row, dtype=np.uint64) for row in self._link_state]
+        self._dropped: list[tuple[int, list[list[bool]]]] = [(-DRAW_BLOCK, [])] * n
 
     @property
     def sent(self) -> np.ndarray:
@@ -102,16 +121,18 @@ class Channel(Generic[M]):
         others = self._others[sender]
         number = self._broadcasts[sender]
         self._broadcasts[sender] += 1
-        key = self.key
         per = self._bernoulli_per
         lost_row = self._lost[sender]
         lost_to = self.lost_to
         if per == 0.0:
             receivers = others
         elif per is not None:
+            first, block = self._dropped[sender]
+            if not 0 <= number - first < DRAW_BLOCK:
+                first, block = self._dropped[sender] = (number, self._draw_block(sender, number))
             receivers = []
-            for r in others:
-                if counter_uniform(key, sender, r, number, DRAW_LOSS) < per:
+            for r, dropped in zip(others, block[number - first]):
+                if dropped:
                     lost_row[r] += 1
                     lost_to[r] += 1
                 else:
@@ -132,9 +153,18 @@ class Channel(Generic[M]):
         for r in receivers:
             arrival = t + lat.base_s
             if lat.jitter_s > 0.0:
-                arrival += counter_uniform(key, sender, r, number, DRAW_JITTER) * lat.jitter_s
+                state = self._link_state[sender][r - (r > sender)]
+                arrival += counter_uniform_from(state, number, DRAW_JITTER) * lat.jitter_s
             heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg))
             self._seq += 1
+
+    def _draw_block(self, sender: int, first: int) -> list[list[bool]]:
+        """Whether each link of ``sender`` drops its broadcasts ``first`` ..
+        ``first + DRAW_BLOCK - 1``: ``[broadcast - first][receiver index]`` (Bernoulli)."""
+        numbers = np.arange(first, first + DRAW_BLOCK, dtype=np.uint64)
+        states = self._link_state_array[sender]
+        u = counter_uniform_array(states[None, :], numbers[:, None], DRAW_LOSS)
+        return (u < self._bernoulli_per).tolist()
 
     def deliver(self, now: float) -> list[tuple[int, int, M]]:
         """Messages due by ``now`` (s), as ``(receiver, sender, msg)`` in arrival order."""

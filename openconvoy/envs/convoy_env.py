@@ -350,39 +350,46 @@ class ConvoyEnv(ParallelEnv):
         return {a: frames[i].observation for i, a in enumerate(self.agents, start=1)}
 
     def _infos(self) -> dict[str, dict[str, Any]]:
-        sim = self.sim
-        speed, accel = sim.truth.speed, sim.truth.accel
-        gap, desired = sim.gaps, sim.desired
-        record = sim.record
-        if record is None:  # right after reset: nothing applied yet
-            cmd_v = cmd_dh = [math.nan] * self.n_vehicles
-        else:
-            cmd_v, cmd_dh = record.cmd_speed, record.cmd_heading_change
-        errors = sim.policy_errors
-        out = {}
-        for i, a in enumerate(self.agents, start=1):
-            m, f = sim.members[i], sim.frames[i]
-            out[a] = {
-                "t_s": sim.t,
-                "gap_m": gap[i - 1],
-                "desired_gap_m": _opt(desired[i - 1]),
-                "platooning_error_m": _opt(abs(gap[i - 1] - desired[i - 1])),
-                "spacing_error_m": _opt(f.spacing_error_m),
-                "speed_mps": speed[i],
-                "accel_mps2": accel[i],
-                "leader_speed_mps": speed[0],
-                "cmd_speed_mps": _opt(cmd_v[i]),
-                "cmd_heading_change_rad": _opt(cmd_dh[i]),
-                "mode": sim.modes[i],
-                "collision": sim.collided[i - 1],
-                "msgs_sent": m.msgs_sent,
-                "msgs_received": sim.rx[i],
-                "msgs_kept": m.msgs_received,
-                "msgs_lost": sim.lost[i],
-                "pred_msg_age_s": _opt(f.pred_msg_age_s),
-                "policy_errors": errors[i],
-            }
-        return out
+        return agent_infos(self.sim, self.agents, self.n_vehicles)
+
+
+def agent_infos(
+    sim: ConvoyWorld, agents: Sequence[str], n_vehicles: int
+) -> dict[str, dict[str, Any]]:
+    """The ``INFO_KEYS`` of every live agent (follower ``i`` is ``agents[i - 1]``) at the
+    world's present tick."""
+    speed, accel = sim.truth.speed, sim.truth.accel
+    gap, desired = sim.gaps, sim.desired
+    record = sim.record
+    if record is None:  # right after reset: nothing applied yet
+        cmd_v = cmd_dh = [math.nan] * n_vehicles
+    else:
+        cmd_v, cmd_dh = record.cmd_speed, record.cmd_heading_change
+    errors = sim.policy_errors
+    out = {}
+    for i, a in enumerate(agents, start=1):
+        m, f = sim.members[i], sim.frames[i]
+        out[a] = {
+            "t_s": sim.t,
+            "gap_m": gap[i - 1],
+            "desired_gap_m": _opt(desired[i - 1]),
+            "platooning_error_m": _opt(abs(gap[i - 1] - desired[i - 1])),
+            "spacing_error_m": _opt(f.spacing_error_m),
+            "speed_mps": speed[i],
+            "accel_mps2": accel[i],
+            "leader_speed_mps": speed[0],
+            "cmd_speed_mps": _opt(cmd_v[i]),
+            "cmd_heading_change_rad": _opt(cmd_dh[i]),
+            "mode": sim.modes[i],
+            "collision": sim.collided[i - 1],
+            "msgs_sent": m.msgs_sent,
+            "msgs_received": sim.rx[i],
+            "msgs_kept": m.msgs_received,
+            "msgs_lost": sim.lost[i],
+            "pred_msg_age_s": _opt(f.pred_msg_age_s),
+            "policy_errors": errors[i],
+        }
+    return out
 
 
 def _resolve_scenario(

@@ -53,6 +53,28 @@ class BicyclePlant:
         self.presets = list(presets)
         self.dt = dt
         n = len(self.presets)
+        self._columns(dt)
+        self.x = np.zeros(n)
+        self.y = np.zeros(n)
+        self.heading = np.zeros(n)
+        self.speed = np.zeros(n)
+        self.accel = np.zeros(n)
+        self.yaw_rate = np.zeros(n)
+        # Inner-loop state: the ramped speed setpoint and the PI integrator (``pi``), and the
+        # heading loop's slewed desired yaw rate.
+        self._ramp = np.zeros(n)
+        self._integ = np.zeros(n)
+        self._rate_des = np.zeros(n)
+        self._queue_v = np.zeros((self._depth, n))
+        self._queue_h = np.zeros((self._depth, n))
+        self._head = 0
+        self._idx = np.arange(n)
+        self._vectorized = n > SCALAR_MAX_VEHICLES if vectorized is None else vectorized
+        self._scalar_copies()
+
+    def _columns(self, dt: float) -> None:
+        """The presets' parameters as arrays (one entry per vehicle), delays in steps."""
+        n = len(self.presets)
         col = lambda attr: np.array([getattr(p, attr) for p in self.presets], dtype=float)  # noqa: E731
         self._tau_v = np.maximum(col("speed_lag_s"), 1e-6)
         self._tau_h = np.maximum(col("heading_lag_s"), 1e-6)
@@ -77,23 +99,10 @@ class BicyclePlant:
         self._delay_steps = steps(p.actuation_delay_s for p in self.presets)
         self._hdelay_steps = steps(p.heading_delay for p in self.presets)
         self._depth = int(max(self._delay_steps.max(), self._hdelay_steps.max())) + 1 if n else 1
-        self.x = np.zeros(n)
-        self.y = np.zeros(n)
-        self.heading = np.zeros(n)
-        self.speed = np.zeros(n)
-        self.accel = np.zeros(n)
-        self.yaw_rate = np.zeros(n)
-        # Inner-loop state: the ramped speed setpoint and the PI integrator (``pi``), and the
-        # heading loop's slewed desired yaw rate.
-        self._ramp = np.zeros(n)
-        self._integ = np.zeros(n)
-        self._rate_des = np.zeros(n)
-        self._queue_v = np.zeros((self._depth, n))
-        self._queue_h = np.zeros((self._depth, n))
-        self._head = 0
-        self._idx = np.arange(n)
-        self._vectorized = n > SCALAR_MAX_VEHICLES if vectorized is None else vectorized
-        # The scalar step's copies of the parameters and of the setpoint queue.
+
+    def _scalar_copies(self) -> None:
+        """The scalar step's copies of the parameters and of the setpoint queue."""
+        n = len(self.presets)
         self._params = list(
             zip(
                 self._tau_v.tolist(),
@@ -235,12 +244,7 @@ class BicyclePlant:
         self._qh[head] = [float(h) for h in cmd_heading]
         self._head = (head + 1) % depth
         two_pi, pi = 2.0 * math.pi, math.pi
-        xs, ys, hs, vs = (
-            self.x.tolist(),
-            self.y.tolist(),
-            self.heading.tolist(),
-            self.speed.tolist(),
-        )
+        xs, ys, hs, vs = (a.tolist() for a in (self.x, self.y, self.heading, self.speed))
         ramp, integ, rate_des = self._ramp_l, self._integ_l, self._rate_des_l
         acc_out, rate_out = [0.0] * len(vs), [0.0] * len(vs)
         for i, (
@@ -262,31 +266,12 @@ class BicyclePlant:
             v_cmd = min(max(self._qv[(head - delay) % depth][i], -vmax), vmax)
             v = vs[i]
             if is_pi:
-                kp, ki, ff, tau_d, stop, drag = self._pi_params[i]
-                r, acc_i, vs_ = ramp[i], integ[i], v
-                for _ in range(n_sub):
-                    lim = (acc if abs(v_cmd) > abs(r) else dec) * h_sub
-                    r += min(max(v_cmd - r, -lim), lim)
-                    err = r - vs_
-                    stopped = r == 0.0 and abs(vs_) <= stop
-                    if stopped:
-                        acc_i = drive = 0.0
-                    else:
-                        acc_i += ki * err * h_sub
-                        drive = ff * r + kp * err + acc_i
-                    d = (drive - vs_ - drag * vs_ * abs(vs_)) / tau_d * h_sub
-                    if abs(drive) < brk and (vs_ == 0.0 or (vs_ + d) * vs_ < 0.0 or stopped):
-                        vs_ = 0.0  # at rest it stays; slowing down it stops at zero
-                    else:
-                        vs_ += d
-                ramp[i], integ[i] = r, acc_i
+                vs_, ramp[i], integ[i] = _pi_scalar(
+                    v_cmd, v, ramp[i], integ[i], self._pi_params[i], acc, dec, brk, n_sub, h_sub
+                )
                 dv = vs_ - v
             else:
-                dv = min(max((v_cmd - v) / tau_v, -dec), acc) * dt
-                if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
-                    dv = v_cmd - v
-                if v == 0.0 and abs(v_cmd) < brk:
-                    dv = 0.0
+                dv = _lag_dv_scalar(v_cmd, v, tau_v, acc, dec, brk, dt)
             v_new = v + dv
             err_h = (self._qh[(head - hdelay) % depth][i] - hs[i] + pi) % two_pi - pi
             v_mid = 0.5 * (v + v_new)
@@ -294,12 +279,9 @@ class BicyclePlant:
                 cap = min(rate_max, abs(v_mid) * kappa)
                 rate = min(max(err_h / max(tau_h, dt), -cap), cap)
             else:
-                wanted = min(max(err_h / max(tau_h, dt), -rate_max), rate_max)
-                slew = yaw_acc * dt
-                rd = rate_des[i] = min(max(wanted, rate_des[i] - slew), rate_des[i] + slew)
-                speed_mid = abs(v_mid)
-                cap = min(speed_mid * kappa, alat / max(speed_mid, 1e-9))
-                rate = min(max(rd, -cap), cap)
+                rate, rate_des[i] = _slewed_rate_scalar(
+                    err_h, v_mid, rate_des[i], tau_h, rate_max, kappa, yaw_acc, alat, dt
+                )
             h_mid = hs[i] + 0.5 * rate * dt
             xs[i] += v_mid * math.cos(h_mid) * dt
             ys[i] += v_mid * math.sin(h_mid) * dt
@@ -332,3 +314,70 @@ class BicyclePlant:
             length=p.length_m,
             width=p.width_m,
         )
+
+
+def _lag_dv_scalar(
+    v_cmd: float, v: float, tau_v: float, acc: float, dec: float, brk: float, dt: float
+) -> float:
+    """The ``lag`` speed loop's speed change over one step for one vehicle on floats."""
+    dv = min(max((v_cmd - v) / tau_v, -dec), acc) * dt
+    if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
+        dv = v_cmd - v
+    if v == 0.0 and abs(v_cmd) < brk:
+        dv = 0.0
+    return dv
+
+
+def _pi_scalar(
+    v_cmd: float,
+    v: float,
+    r: float,
+    acc_i: float,
+    pi_params: tuple[float, float, float, float, float, float],
+    acc: float,
+    dec: float,
+    brk: float,
+    n_sub: int,
+    h_sub: float,
+) -> tuple[float, float, float]:
+    """One step of the ``pi`` speed loop for one vehicle on floats (``_pi_dv``'s
+    equations): the new speed, ramped setpoint and integrator."""
+    kp, ki, ff, tau_d, stop, drag = pi_params
+    vs_ = v
+    for _ in range(n_sub):
+        lim = (acc if abs(v_cmd) > abs(r) else dec) * h_sub
+        r += min(max(v_cmd - r, -lim), lim)
+        err = r - vs_
+        stopped = r == 0.0 and abs(vs_) <= stop
+        if stopped:
+            acc_i = drive = 0.0
+        else:
+            acc_i += ki * err * h_sub
+            drive = ff * r + kp * err + acc_i
+        d = (drive - vs_ - drag * vs_ * abs(vs_)) / tau_d * h_sub
+        if abs(drive) < brk and (vs_ == 0.0 or (vs_ + d) * vs_ < 0.0 or stopped):
+            vs_ = 0.0  # at rest it stays; slowing down it stops at zero
+        else:
+            vs_ += d
+    return vs_, r, acc_i
+
+
+def _slewed_rate_scalar(
+    err_h: float,
+    v_mid: float,
+    rate_des: float,
+    tau_h: float,
+    rate_max: float,
+    kappa: float,
+    yaw_acc: float,
+    alat: float,
+    dt: float,
+) -> tuple[float, float]:
+    """The heading loop's yaw rate for one vehicle on floats, slewed and capped by
+    curvature and lateral acceleration: ``(rate, new desired rate)``."""
+    wanted = min(max(err_h / max(tau_h, dt), -rate_max), rate_max)
+    slew = yaw_acc * dt
+    rd = min(max(wanted, rate_des - slew), rate_des + slew)
+    speed_mid = abs(v_mid)
+    cap = min(speed_mid * kappa, alat / max(speed_mid, 1e-9))
+    return min(max(rd, -cap), cap), rd

@@ -86,7 +86,9 @@ class Scenario(Protocol):
     origin: Origin
     duration_s: float
     spacing: SpacingConfig
-    path: Path | None
+
+    @property
+    def path(self) -> Path | None: ...  # read-only: a scenario's road may be a ``Path``
 
     @property
     def n_vehicles(self) -> int: ...

@@ -146,6 +146,39 @@ def parse_track(
     ``closed_loop`` overrides the file's optional ``closed_loop`` (default true, as the
     original beacon's default). ``step_m`` is the arc sampling step, metres.
     """
+    origin, closed, straights, turns = _header(data, closed_loop, source)
+    segs = _straights(straights, origin, source)
+    headings = [math.atan2(b[1] - a[1], b[0] - a[0]) for a, b, _ in segs]
+    if closed and len(segs) > 1:
+        pairs = [(headings[i], headings[(i + 1) % len(segs)]) for i in range(len(segs))]
+    else:
+        pairs = [(headings[i], headings[i + 1]) for i in range(len(segs) - 1)]
+    n_turns = min(len(turns), len(pairs))
+    line = _Polyline()
+    for i, (a, b, v) in enumerate(segs):
+        line.section(v, start_at_zero=not line.points)
+        line.add(tuple(a))
+        line.add(tuple(b))
+        if i < n_turns:
+            ta, tb, left, speed = _turn(turns[i], origin, f"{source}: turns[{i}]")
+            line.section(speed)
+            line.add(tuple(ta))
+            h0, h1 = pairs[i]
+            for p in _arc(ta, h0, h1, tb, left, step_m):
+                line.add(p)
+    return Track(
+        name=str(data["name"]),
+        origin=origin,
+        path=Path(np.array(line.points), closed=closed),
+        speed_s=np.array(line.starts),
+        speed_mps=np.array(line.speeds),
+    )
+
+
+def _header(
+    data: dict[str, Any], closed_loop: bool | None, source: str
+) -> tuple[Origin, bool, list[Any], list[Any]]:
+    """The file's top level checked: origin, whether the track closes, straights, turns."""
     _check_keys(data, _TOP_KEYS, {"name", "center", "straights", "turns"}, source)
     origin = Origin(*_latlon(data["center"], f"{source}: center"))
     if not isinstance(data["name"], str):
@@ -161,6 +194,13 @@ def parse_track(
             raise InputFileError(f"{source}: {key}: expected a list, got {value!r}")
     if not straights:
         raise InputFileError(f"{source}: a track needs at least one straight")
+    return origin, closed, straights, turns
+
+
+def _straights(
+    straights: list[Any], origin: Origin, source: str
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Each straight checked: ENU start and end (m) and its speed (m/s)."""
     segs = []
     for i, st in enumerate(straights):
         where = f"{source}: straights[{i}]"
@@ -170,57 +210,44 @@ def parse_track(
         if np.hypot(*(b - a)) < 1e-6:
             raise InputFileError(f"{where}: start and end coincide")
         segs.append((a, b, _number(st, "speed", where, 0.0, MAX_SPEED_MPS, lo_open=True)))
-    headings = [math.atan2(b[1] - a[1], b[0] - a[0]) for a, b, _ in segs]
-    if closed and len(segs) > 1:
-        pairs = [(headings[i], headings[(i + 1) % len(segs)]) for i in range(len(segs))]
-    else:
-        pairs = [(headings[i], headings[i + 1]) for i in range(len(segs) - 1)]
-    n_turns = min(len(turns), len(pairs))
+    return segs
 
-    points: list[tuple[float, float]] = []
-    starts: list[float] = []
-    speeds: list[float] = []
 
-    def arc_length() -> float:
-        if len(points) < 2:
+def _turn(tn: Any, origin: Origin, where: str) -> tuple[np.ndarray, np.ndarray, bool, float]:
+    """A turn checked: ENU start and end (m), whether it turns left, its speed (m/s)."""
+    _check_keys(tn, _TURN_KEYS, _TURN_KEYS, where)
+    direction = tn["direction"]
+    if direction not in ("left", "right"):
+        raise InputFileError(f"{where}: direction must be 'left' or 'right', got {direction!r}")
+    ta = _point(tn["start"], origin, f"{where}.start")
+    tb = _point(tn["end"], origin, f"{where}.end")
+    speed = _number(tn, "speed", where, 0.0, MAX_SPEED_MPS, lo_open=True)
+    return ta, tb, direction == "left", speed
+
+
+class _Polyline:
+    """The track's points (ENU m, no repeats) and its speed sections (start arc m, m/s)."""
+
+    def __init__(self) -> None:
+        self.points: list[tuple[float, float]] = []
+        self.starts: list[float] = []
+        self.speeds: list[float] = []
+
+    def arc_length(self) -> float:
+        if len(self.points) < 2:
             return 0.0
-        p = np.asarray(points)
+        p = np.asarray(self.points)
         return float(np.hypot(*np.diff(p, axis=0).T).sum())
 
-    def add(pt: tuple[float, float]) -> None:
+    def section(self, speed: float, start_at_zero: bool = False) -> None:
+        """A speed section starting here (at 0 for the first)."""
+        self.starts.append(0.0 if start_at_zero else self.arc_length())
+        self.speeds.append(speed)
+
+    def add(self, pt: tuple[float, float]) -> None:
+        points = self.points
         if not points or math.hypot(pt[0] - points[-1][0], pt[1] - points[-1][1]) > 1e-6:
             points.append((float(pt[0]), float(pt[1])))
-
-    for i, (a, b, v) in enumerate(segs):
-        starts.append(arc_length() if points else 0.0)
-        speeds.append(v)
-        add(tuple(a))
-        add(tuple(b))
-        if i < n_turns:
-            tn = turns[i]
-            where = f"{source}: turns[{i}]"
-            _check_keys(tn, _TURN_KEYS, _TURN_KEYS, where)
-            direction = tn["direction"]
-            if direction not in ("left", "right"):
-                raise InputFileError(
-                    f"{where}: direction must be 'left' or 'right', got {direction!r}"
-                )
-            ta = _point(tn["start"], origin, f"{where}.start")
-            tb = _point(tn["end"], origin, f"{where}.end")
-            starts.append(arc_length())
-            speeds.append(_number(tn, "speed", where, 0.0, MAX_SPEED_MPS, lo_open=True))
-            add(tuple(ta))
-            h0, h1 = pairs[i]
-            for p in _arc(ta, h0, h1, tb, direction == "left", step_m):
-                add(p)
-    path = Path(np.array(points), closed=closed)
-    return Track(
-        name=str(data["name"]),
-        origin=origin,
-        path=path,
-        speed_s=np.array(starts),
-        speed_mps=np.array(speeds),
-    )
 
 
 def load_track(path: str | FilePath, closed_loop: bool | None = None) -> Track:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from openconvoy.comms.geodesy import enu_to_geodetic
+from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import tick as member_tick
 from openconvoy.core.faults import Fault, check_faults
@@ -287,33 +287,7 @@ class ConvoyWorld:
 
     def snapshot(self, record: TickRecord) -> TickSnapshot:
         """``record`` as the log reports it (lat/lon from the scenario's origin)."""
-        tr = record.truth
-        lat, lon, _ = (
-            np.asarray(v)
-            for v in enu_to_geodetic(self.scenario.origin, np.array(tr.x), np.array(tr.y))
-        )
-        f = record.frames
-        return TickSnapshot(
-            t_s=record.t,
-            x_m=tr.x,
-            y_m=tr.y,
-            lat_deg=lat.tolist(),
-            lon_deg=lon.tolist(),
-            speed_mps=tr.speed,
-            heading_rad=tr.heading,
-            accel_mps2=tr.accel,
-            cmd_speed_mps=record.cmd_speed,
-            cmd_heading_change_rad=record.cmd_heading_change,
-            mode=record.modes,
-            gap_m=record.gaps,
-            desired_gap_m=[x.desired_gap_m for x in f],
-            spacing_error_m=[x.spacing_error_m for x in f],
-            msgs_sent=record.msgs_sent,
-            msgs_received=record.msgs_received,
-            msgs_lost=record.msgs_lost,
-            pred_msg_age_s=[x.pred_msg_age_s for x in f],
-            extra=record.extra,
-        )
+        return record_snapshot(record, self.scenario.origin)
 
     @property
     def policy_errors(self) -> list[int]:
@@ -359,23 +333,8 @@ class ConvoyWorld:
     def _forge(self, t: float, inboxes: list[list[VehicleState]]) -> None:
         """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
         offered to every other member (verified when ``auth``)."""
-        tr = self.truth
-        claimed = [
-            VehicleState(
-                f.vehicle,
-                t,
-                tr.x[f.vehicle],
-                tr.y[f.vehicle],
-                tr.speed[f.vehicle],
-                tr.heading[f.vehicle],
-                0.0,
-                0.0,
-                self.lengths[f.vehicle],
-                self.widths[f.vehicle],
-            )
-            for f in self._forged
-            if f.active(t)
-        ]
+        active = [f.vehicle for f in self._forged if f.active(t)]
+        claimed = forged_states(active, t, self.truth, self.lengths, self.widths)
         self.auth.deliver_forgeries(claimed, inboxes)
 
     def _fault_active(self, i: int, t: float, mutes: bool = False, brakes: bool = False) -> bool:
@@ -424,3 +383,57 @@ class ConvoyWorld:
         self._estopped[i] = True
         self.safety_events.append((t, i, "emergency stop: " + rule.reason(bumper, closing)))
         return True
+
+
+def record_snapshot(record: TickRecord, origin: Origin) -> TickSnapshot:
+    """``record`` as the log reports it, lat/lon from the convoy ``origin``."""
+    tr = record.truth
+    lat, lon, _ = (np.asarray(v) for v in enu_to_geodetic(origin, np.array(tr.x), np.array(tr.y)))
+    f = record.frames
+    return TickSnapshot(
+        t_s=record.t,
+        x_m=tr.x,
+        y_m=tr.y,
+        lat_deg=lat.tolist(),
+        lon_deg=lon.tolist(),
+        speed_mps=tr.speed,
+        heading_rad=tr.heading,
+        accel_mps2=tr.accel,
+        cmd_speed_mps=record.cmd_speed,
+        cmd_heading_change_rad=record.cmd_heading_change,
+        mode=record.modes,
+        gap_m=record.gaps,
+        desired_gap_m=[x.desired_gap_m for x in f],
+        spacing_error_m=[x.spacing_error_m for x in f],
+        msgs_sent=record.msgs_sent,
+        msgs_received=record.msgs_received,
+        msgs_lost=record.msgs_lost,
+        pred_msg_age_s=[x.pred_msg_age_s for x in f],
+        extra=record.extra,
+    )
+
+
+def forged_states(
+    vehicles: Sequence[int],
+    t: float,
+    truth: Truth,
+    lengths: Sequence[float],
+    widths: Sequence[float],
+) -> list[VehicleState]:
+    """What a forger in the name of each of ``vehicles`` claims at ``t`` (s): its true
+    position, speed and heading, no acceleration or yaw rate."""
+    return [
+        VehicleState(
+            v,
+            t,
+            truth.x[v],
+            truth.y[v],
+            truth.speed[v],
+            truth.heading[v],
+            0.0,
+            0.0,
+            lengths[v],
+            widths[v],
+        )
+        for v in vehicles
+    ]

@@ -124,6 +124,21 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--convoy", metavar="CONVOY.toml", help="convoy file: scenario, vehicles, origin"
     )
+    _sim_world_args(p)
+    run_args(p, sweep=False)
+
+    def _sim(args: argparse.Namespace) -> int:
+        from openconvoy.experiments.commands import sim
+
+        return sim(args)
+
+    p.set_defaults(handler=_sim)
+    _add_report(sub)
+    _add_presets(sub)
+
+
+def _sim_world_args(p: argparse.ArgumentParser) -> None:
+    """``sim``'s link delays, GPS noise, faults and authentication."""
     p.add_argument(
         "--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds"
     )
@@ -156,15 +171,9 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
         help="members authenticate messages, so forgeries are rejected (default "
         'required; a convoy file\'s [v2v] auth = "off" turns it off)',
     )
-    run_args(p, sweep=False)
 
-    def _sim(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.commands import sim
 
-        return sim(args)
-
-    p.set_defaults(handler=_sim)
-
+def _add_report(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "report",
         help="recompute metrics from a log or run directory",
@@ -189,6 +198,8 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_report)
 
+
+def _add_presets(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("presets", help="list policy and vehicle presets")
 
     def _presets(args: argparse.Namespace) -> int:
@@ -202,6 +213,11 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
 def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="run experiments (per-sweep)")
     esub = p.add_subparsers(dest="experiment_command", metavar="EXPERIMENT", required=True)
+    _add_per_sweep(esub)
+    _add_compare(sub)
+
+
+def _add_per_sweep(esub: argparse._SubParsersAction) -> None:
     p = esub.add_parser(
         "per-sweep",
         help="sweep packet error rates over seeds and policies",
@@ -247,6 +263,8 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
 
     p.set_defaults(handler=_per_sweep)
 
+
+def _add_compare(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
         help="two runs or sweeps side by side, with differences",

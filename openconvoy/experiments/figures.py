@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -124,7 +124,7 @@ def sweep_figures(result: SweepResult, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     cfg = result.config
     policies, pers = list(cfg.policies), list(cfg.pers)
-    seed = cfg.seeds[0]
+    seed = cast(tuple[int, ...], cfg.seeds)[0]  # a tuple once built
     paths = [out / n for n in SWEEP_FIGURES]
     _trajectories(result, policies, pers, seed, paths[0])
     _over_time(

@@ -19,12 +19,13 @@ Parameters the log cannot show (size, steering lock, speed cap) come from a base
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -170,8 +171,9 @@ def _refine(
     for r in range(rounds):
         axes = []
         for i, (a, b, p) in enumerate(zip(lo, hi, points)):
-            if step[i] is not None and best is not None:
-                values = best[i] + step[i] * np.arange(-4, 5)
+            step_i = step[i]
+            if step_i is not None and best is not None:
+                values = best[i] + step_i * np.arange(-4, 5)
                 axes.append(values[(values >= full_lo[i] - 1e-12) & (values <= full_hi[i] + 1e-12)])
             else:
                 axes.append(np.linspace(a, b, p if r == 0 else max(5, p // 2 + 1)))
@@ -208,7 +210,11 @@ class _Data:
     cmd_h: np.ndarray  # absolute heading setpoints
 
 
-def _load(log_path: str | Path, vehicle_id: int | None) -> tuple[np.ndarray, ...]:
+_Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""A vehicle's log columns: t, speed, heading, commanded speed and heading change, age."""
+
+
+def _load(log_path: str | Path, vehicle_id: int | None) -> _Columns:
     log = read_log(log_path)
     mask = _select_vehicle(log, vehicle_id)
     cols = ("t_s", "speed_mps", "heading_rad", "cmd_speed_mps", "cmd_heading_change_rad")
@@ -287,29 +293,9 @@ def fit_plant(
     A limit the run never reached cannot be measured, only bounded from below: the
     result then keeps the base preset's value, or the bound if that is higher."""
     base_preset = vehicle_preset(base) if isinstance(base, str) else base
-    raw = _load(log_path, vehicle_id)
     timing = cmd_timing
-    if timing not in ("after-state", "before-state"):
-        raise InputFileError(f"command timing must be after-state or before-state, got {timing!r}")
-    d = _align(*raw, timing)
-    speed_params, cost_v, (grid, rows, measured_at), speed_cost = _fit_speed(d)
-    delay, tau_v, acc, dec = (float(x) for x in speed_params)
-
-    # Does each limit matter? Lifting it must make the fit clearly worse; otherwise the run
-    # never pushed against it: its value is only bounded from below by what was needed, and
-    # the other parameters are refitted without it (a free limit would distort them).
-    def matters(
-        cost_fn: Callable[[np.ndarray], np.ndarray], params: list[float], i: int, best: float
-    ) -> bool:
-        lifted = list(params)
-        lifted[i] = _LIFTED
-        return float(cost_fn(np.array([lifted]))[0]) > 1.2 * best + 1e-10
-
-    unused = frozenset(i for i in (2, 3) if not matters(speed_cost, list(speed_params), i, cost_v))
-    if unused:
-        speed_params, cost_v, _, _ = _fit_speed(d, lifted=unused)
-        delay, tau_v, acc, dec = (float(x) for x in speed_params)
-
+    d = _aligned(log_path, vehicle_id, timing)
+    (delay, tau_v, acc, dec), cost_v, grid, measured_at, unused = _fit_speed_limits(d)
     _, (cmd_v_f, cmd_h_f), _ = _resample(d.t, d.t_cmd, d.cmd_v, d.cmd_h)
     speed_f = np.interp(grid, d.t, d.speed)
     at_heading = _row_targets(len(grid), measured_at, d.heading)
@@ -321,53 +307,20 @@ def fit_plant(
             d.heading[0], cmd_h_f, speed_f, kappa, delay_steps, c[:, 0], c[:, 1], at_heading
         )
 
-    turn_hit = False
     if np.ptp(np.unwrap(d.cmd_h)) > 0.2:
-        (rate_max, tau_h), cost_h = _refine(
-            heading_cost,
-            bounds=[(0.05, 6.0), (0.02, 2.0)],
-            log_scale=[True, True],
-            points=[13, 11],
-            step=[None, None],
-        )
-        rate_max, tau_h = float(rate_max), float(tau_h)
-        turn_hit = matters(heading_cost, [rate_max, tau_h], 0, cost_h)
-        if not turn_hit:  # refit the heading lag alone, the rate limit out of the way
-            (tau_h,), cost_h = _refine(
-                lambda c: heading_cost(np.column_stack([np.full(len(c), _LIFTED), c[:, 0]])),
-                bounds=[(0.02, 2.0)],
-                log_scale=[True],
-                points=[25],
-                step=[None],
-            )
-            tau_h = float(tau_h)
+        rate_max, tau_h, cost_h, turn_hit = _fit_heading(heading_cost)
     else:  # no heading excitation: keep the base preset's heading loop
         rate_max, tau_h = base_preset.turn_rate_max_radps, base_preset.heading_lag_s
-        cost_h = float(heading_cost(np.array([[rate_max, tau_h]]))[0])
-    hit = {
-        "accel_max_mps2": 2 not in unused,
-        "decel_max_mps2": 3 not in unused,
-        "turn_rate_max_radps": turn_hit,
-    }
+        cost_h, turn_hit = float(heading_cost(np.array([[rate_max, tau_h]]))[0]), False
+    hit = dict(zip(_LIMIT_KEYS, (2 not in unused, 3 not in unused, turn_hit)))
     idx = np.arange(len(cmd_v_f)) - delay_steps
     target_v = np.where(idx >= 0, cmd_v_f[np.maximum(idx, 0)], d.speed[0])
     want_v = (target_v - speed_f) / tau_v
     want_h = _heading_rates_wanted(
         d.heading[0], cmd_h_f, speed_f, kappa, delay_steps, rate_max, tau_h
     )
-    needed = {
-        "accel_max_mps2": float(max(0.0, want_v.max())),
-        "decel_max_mps2": float(max(0.0, -want_v.min())),
-        "turn_rate_max_radps": float(want_h.max()),
-    }
-    values = {"accel_max_mps2": acc, "decel_max_mps2": dec, "turn_rate_max_radps": rate_max}
-    for key, was_hit in hit.items():
-        if was_hit:
-            values[key] = round(values[key], 4)
-        else:  # unmeasured: the base value unless the run needed more
-            base_value = getattr(base_preset, key)
-            values[key] = base_value if base_value >= needed[key] else round(needed[key], 4)
-
+    fitted = {"accel_max_mps2": acc, "decel_max_mps2": dec, "turn_rate_max_radps": rate_max}
+    values = _limits(fitted, hit, want_v, want_h, base_preset)
     preset = dataclasses.replace(
         base_preset,
         name=name,
@@ -386,6 +339,95 @@ def fit_plant(
         limits_hit=hit,
         cmd_timing=timing,
     )
+
+
+_LIMIT_KEYS = ("accel_max_mps2", "decel_max_mps2", "turn_rate_max_radps")
+
+
+def _aligned(log_path: str | Path, vehicle_id: int | None, timing: str) -> _Data:
+    """One vehicle's log, its commands aligned with the states as ``timing`` says."""
+    raw = _load(log_path, vehicle_id)
+    if timing not in ("after-state", "before-state"):
+        raise InputFileError(f"command timing must be after-state or before-state, got {timing!r}")
+    return _align(*raw, timing)
+
+
+def _fit_speed_limits(
+    d: _Data,
+) -> tuple[tuple[float, float, float, float], float, np.ndarray, Any, frozenset[int]]:
+    """(delay s, lag s, accel and decel limits m/s²) fitted, their cost, the replay grid
+    and where rows were measured, and the limits the run never hit (2 accel, 3 decel),
+    which are refitted out of the way."""
+    speed_params, cost_v, (grid, rows, measured_at), speed_cost = _fit_speed(d)
+    unused = frozenset(
+        i for i in (2, 3) if not _limit_matters(speed_cost, list(speed_params), i, cost_v)
+    )
+    if unused:
+        speed_params, cost_v, _, _ = _fit_speed(d, lifted=unused)
+    delay, tau_v, acc, dec = (float(x) for x in speed_params)
+    return (delay, tau_v, acc, dec), cost_v, grid, measured_at, unused
+
+
+def _limit_matters(
+    cost_fn: Callable[[np.ndarray], np.ndarray], params: list[float], i: int, best: float
+) -> bool:
+    """Does limit ``i`` matter? Lifting it must make the fit clearly worse; otherwise the
+    run never pushed against it: its value is only bounded from below by what was needed,
+    and the other parameters are refitted without it (a free limit would distort them)."""
+    lifted = list(params)
+    lifted[i] = _LIFTED
+    return float(cost_fn(np.array([lifted]))[0]) > 1.2 * best + 1e-10
+
+
+def _fit_heading(
+    heading_cost: Callable[[np.ndarray], np.ndarray],
+) -> tuple[float, float, float, bool]:
+    """Turn-rate limit (rad/s) and heading lag (s) fitted: ``(rate, lag, cost, hit)``; an
+    unhit rate limit is left out and the lag refitted alone."""
+    (rate_max, tau_h), cost_h = _refine(
+        heading_cost,
+        bounds=[(0.05, 6.0), (0.02, 2.0)],
+        log_scale=[True, True],
+        points=[13, 11],
+        step=[None, None],
+    )
+    rate_max, tau_h = float(rate_max), float(tau_h)
+    turn_hit = _limit_matters(heading_cost, [rate_max, tau_h], 0, cost_h)
+    if not turn_hit:  # refit the heading lag alone, the rate limit out of the way
+        (tau_h,), cost_h = _refine(
+            lambda c: heading_cost(np.column_stack([np.full(len(c), _LIFTED), c[:, 0]])),
+            bounds=[(0.02, 2.0)],
+            log_scale=[True],
+            points=[25],
+            step=[None],
+        )
+        tau_h = float(tau_h)
+    return rate_max, tau_h, cost_h, turn_hit
+
+
+def _limits(
+    fitted: dict[str, float],
+    hit: dict[str, bool],
+    want_v: np.ndarray,
+    want_h: np.ndarray,
+    base_preset: VehiclePreset,
+) -> dict[str, float]:
+    """The limits to keep: fitted where the run hit them, else the base preset's unless
+    the run needed more (the speed changes ``want_v`` m/s² and rates ``want_h`` rad/s it
+    asked for)."""
+    needed = {
+        "accel_max_mps2": float(max(0.0, want_v.max())),
+        "decel_max_mps2": float(max(0.0, -want_v.min())),
+        "turn_rate_max_radps": float(want_h.max()),
+    }
+    values = dict(fitted)
+    for key, was_hit in hit.items():
+        if was_hit:
+            values[key] = round(values[key], 4)
+        else:  # unmeasured: the base value unless the run needed more
+            base_value = getattr(base_preset, key)
+            values[key] = base_value if base_value >= needed[key] else round(needed[key], 4)
+    return values
 
 
 def _heading_rates_wanted(
@@ -435,20 +477,20 @@ def format_fit(fit: PlantFit) -> str:
     return "\n".join(lines)
 
 
-def run_fit_plant_cli(args: object) -> int:
+def run_fit_plant_cli(args: argparse.Namespace) -> int:
     """``openconvoy fit-plant LOG_DIR... [--model lag|pi] [--out preset.toml] [--name] [--base]
     [--vehicle-id] [--source]``."""
     from openconvoy.outputs import check_output_file
 
-    check_output_file(args.out or f"{args.name}.toml", "--out")  # type: ignore[attr-defined]
-    logs = args.log if isinstance(args.log, list) else [args.log]  # type: ignore[attr-defined]
+    check_output_file(args.out or f"{args.name}.toml", "--out")
+    logs = args.log if isinstance(args.log, list) else [args.log]
     if getattr(args, "model", "lag") == "pi":
         pi_fit = fit_pi_plant(
             logs,
             base=args.base,
-            name=args.name,  # type: ignore[attr-defined]
+            name=args.name,
             vehicle_id=args.vehicle_id,
-            source=args.source,  # type: ignore[attr-defined]
+            source=args.source,
             cmd_timing=getattr(args, "cmd_timing", "after-state"),
         )
         print(format_pi_fit(pi_fit))
@@ -463,13 +505,13 @@ def run_fit_plant_cli(args: object) -> int:
         fit = fit_plant(
             logs[0],
             base=args.base,
-            name=args.name,  # type: ignore[attr-defined]
+            name=args.name,
             vehicle_id=args.vehicle_id,
-            cmd_timing=getattr(args, "cmd_timing", "after-state"),  # type: ignore[attr-defined]
+            cmd_timing=getattr(args, "cmd_timing", "after-state"),
         )
         print(format_fit(fit))
         preset = fit.preset
-    out = Path(args.out or f"{args.name}.toml")  # type: ignore[attr-defined]
+    out = Path(args.out or f"{args.name}.toml")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(preset_to_toml(preset))
     print(f"wrote {out}")
@@ -631,7 +673,7 @@ def _cem(
     rng = np.random.default_rng(seed)
     raw_cost = cost
 
-    def cost(x: np.ndarray) -> np.ndarray:  # unstable candidates overflow: never the best
+    def safe_cost(x: np.ndarray) -> np.ndarray:  # unstable candidates overflow: never the best
         with np.errstate(all="ignore"):
             c = raw_cost(x)
         return np.where(np.isfinite(c), c, np.inf)
@@ -639,15 +681,20 @@ def _cem(
     lo = np.array([math.log(b[0]) if b[2] else b[0] for b in bounds])
     hi = np.array([math.log(b[1]) if b[2] else b[1] for b in bounds])
     logs = np.array([b[2] for b in bounds])
-    to_z = lambda x: np.where(logs, np.log(np.maximum(x, 1e-12)), x)  # noqa: E731
-    from_z = lambda z: np.where(logs, np.exp(z), z)  # noqa: E731
+
+    def to_z(x: np.ndarray) -> np.ndarray:
+        return np.where(logs, np.log(np.maximum(x, 1e-12)), x)
+
+    def from_z(z: np.ndarray) -> np.ndarray:
+        return np.where(logs, np.exp(z), z)
+
     mean = np.clip(to_z(np.asarray(prior, dtype=float)), lo, hi)
     spread = (hi - lo) / 4.0
-    best_z, best_cost = mean.copy(), float(cost(from_z(mean[None, :]))[0])
+    best_z, best_cost = mean.copy(), float(safe_cost(from_z(mean[None, :]))[0])
     for _ in range(rounds):
         z = np.clip(mean + spread * rng.standard_normal((population, len(mean))), lo, hi)
         z[0] = best_z  # keep the best so far
-        costs = cost(from_z(z))
+        costs = safe_cost(from_z(z))
         order = np.argsort(costs)[:elite]
         if costs[order[0]] < best_cost:
             best_z, best_cost = z[order[0]].copy(), float(costs[order[0]])
@@ -714,54 +761,68 @@ def fit_pi_plant(
     samples = sum(len(s.t) for s in series)
     speed_rms = heading_rms = math.nan
     if speed_series:
-        n = sum(len(s.t) for s in speed_series)
-        prior = (
-            [getattr(base_preset, k) for k in _PI_SPEED_KEYS]
-            if base_preset.speed_loop == "pi"
-            else list(_PI_SPEED_PRIOR)
-        )
-
-        def speed_cost(c: np.ndarray) -> np.ndarray:
-            return sum(_pi_speed_sse(s, c) for s in speed_series) / n
-
-        best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds, population=population)
-        # Static friction only where the data needs it: without it the fit must be clearly
-        # worse (a vehicle that would not start), not just a shade off in a stop's tail.
-        frictionless = best.copy()
-        frictionless[7] = 0.0
-        with np.errstate(all="ignore"):
-            cost_free = float(speed_cost(frictionless[None, :])[0])
-        if cost_free <= FRICTION_MATTERS * cost:
-            best, cost = frictionless, cost_free
-        values.update(zip(_PI_SPEED_KEYS, (float(x) for x in best)))
-        values["actuation_delay_s"] = round(values["actuation_delay_s"] / _PI_DT_S) * _PI_DT_S
-        speed_rms = math.sqrt(cost)
+        fitted, speed_rms = _fit_pi_speed(speed_series, base_preset, rounds, population)
+        values.update(fitted)
     if heading_series:
-        n = sum(len(s.t) for s in heading_series)
-        prior = [
-            base_preset.heading_delay if k == "heading_delay_s" else getattr(base_preset, k)
-            for k in _PI_HEADING_KEYS
-        ]
-        prior = [min(x, 1e3) for x in prior]
-        best, cost = _cem(
-            lambda c: (
-                sum(_pi_heading_sse(s, c, base_preset.wheelbase_m) for s in heading_series) / n
-            ),
-            prior,
-            _PI_HEADING_BOUNDS,
-            rounds=rounds,
-            population=population,
-        )
-        values.update(zip(_PI_HEADING_KEYS, (float(x) for x in best)))
-        values["heading_delay_s"] = round(values["heading_delay_s"] / _PI_DT_S) * _PI_DT_S
-        heading_rms = math.sqrt(cost)
+        fitted, heading_rms = _fit_pi_heading(heading_series, base_preset, rounds, population)
+        values.update(fitted)
     if not values:
         raise InputFileError("nothing to fit: no stretch changes the commanded speed or heading")
     # An unfitted heading loop keeps the base's heading delay, whatever the speed delay is.
     values.setdefault("heading_delay_s", base_preset.heading_delay)
-    rounded = {k: round(v, 4) for k, v in values.items()}
+    rounded: dict[str, Any] = {k: round(v, 4) for k, v in values.items()}
     preset = dataclasses.replace(base_preset, name=name, speed_loop="pi", **rounded)
     return PiFit(preset, speed_rms, heading_rms, samples, " + ".join(sorted(set(kinds))))
+
+
+def _fit_pi_speed(
+    speed_series: list[_Series], base_preset: VehiclePreset, rounds: int, population: int
+) -> tuple[dict[str, float], float]:
+    """The PI speed loop's parameters fitted on ``speed_series``, and the RMS error (m/s)."""
+    n = sum(len(s.t) for s in speed_series)
+    prior = (
+        [getattr(base_preset, k) for k in _PI_SPEED_KEYS]
+        if base_preset.speed_loop == "pi"
+        else list(_PI_SPEED_PRIOR)
+    )
+
+    def speed_cost(c: np.ndarray) -> np.ndarray:
+        return cast(np.ndarray, sum(_pi_speed_sse(s, c) for s in speed_series)) / n
+
+    best, cost = _cem(speed_cost, prior, _PI_SPEED_BOUNDS, rounds=rounds, population=population)
+    # Static friction only where the data needs it: without it the fit must be clearly
+    # worse (a vehicle that would not start), not just a shade off in a stop's tail.
+    frictionless = best.copy()
+    frictionless[7] = 0.0
+    with np.errstate(all="ignore"):
+        cost_free = float(speed_cost(frictionless[None, :])[0])
+    if cost_free <= FRICTION_MATTERS * cost:
+        best, cost = frictionless, cost_free
+    values = dict(zip(_PI_SPEED_KEYS, (float(x) for x in best)))
+    values["actuation_delay_s"] = round(values["actuation_delay_s"] / _PI_DT_S) * _PI_DT_S
+    return values, math.sqrt(cost)
+
+
+def _fit_pi_heading(
+    heading_series: list[_Series], base_preset: VehiclePreset, rounds: int, population: int
+) -> tuple[dict[str, float], float]:
+    """The heading loop's parameters fitted on ``heading_series``, and the RMS error (rad)."""
+    n = sum(len(s.t) for s in heading_series)
+    prior = [
+        base_preset.heading_delay if k == "heading_delay_s" else getattr(base_preset, k)
+        for k in _PI_HEADING_KEYS
+    ]
+    prior = [min(x, 1e3) for x in prior]
+    best, cost = _cem(
+        lambda c: sum(_pi_heading_sse(s, c, base_preset.wheelbase_m) for s in heading_series) / n,
+        prior,
+        _PI_HEADING_BOUNDS,
+        rounds=rounds,
+        population=population,
+    )
+    values = dict(zip(_PI_HEADING_KEYS, (float(x) for x in best)))
+    values["heading_delay_s"] = round(values["heading_delay_s"] / _PI_DT_S) * _PI_DT_S
+    return values, math.sqrt(cost)
 
 
 def format_pi_fit(fit: PiFit) -> str:

@@ -174,7 +174,7 @@ def _segments(meas, cmds, armed, max_gap_s: float) -> list[Segment]:
                 runs.append(run)
             run = []
         if ok:
-            run.append(c)  # type: ignore[arg-type]
+            run.append(c)
     if len(run) > 1:
         runs.append(run)
     out = []

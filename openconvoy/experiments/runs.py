@@ -272,13 +272,7 @@ def run_sim(
             else:
                 rows.append(r)
 
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(
-            total=env.max_steps, unit="tick", desc=f"sim {config.scenario}", delay=2.0, leave=False
-        )
+    bar = _progress_bar(env.max_steps, config.scenario) if progress else None
     try:
         while env.agents:
             actions = {a: policies[a].act(obs[a]) for a in env.agents}
@@ -293,21 +287,41 @@ def run_sim(
         if writer is not None:
             writer.close()
     log = read_log(writer.path) if writer is not None else rows_to_log(rows)
-    metrics = mt.compute_metrics(log, lengths)
-    if mt.has_traffic_columns(log):
-        metrics.update(mt.traffic_metrics(log, lengths))
+    metrics = run_metrics(log, lengths)
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)
-    result.events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
-    result.events += [  # what authentication stopped (forge faults)
-        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
-        for r, n in enumerate(env.forged_rejected)
-        if n
-    ]
+    result.events = run_events(env)
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)
         if result.events:
             write_json(Path(out_dir) / "events.json", result.events)
     return result
+
+
+def run_metrics(log: Log, lengths: dict[int, float]) -> dict[str, Any]:
+    """DESIGN.md's metrics of a run's log (and the traffic ones where it has traffic)."""
+    metrics = mt.compute_metrics(log, lengths)
+    if mt.has_traffic_columns(log):
+        metrics.update(mt.traffic_metrics(log, lengths))
+    return metrics
+
+
+def _progress_bar(steps: int, scenario: str) -> Any:
+    """A tqdm bar on stderr, shown when the run lasts more than a couple of seconds."""
+    from tqdm import tqdm
+
+    return tqdm(total=steps, unit="tick", desc=f"sim {scenario}", delay=2.0, leave=False)
+
+
+def run_events(env: Any) -> list[dict[str, Any]]:
+    """A finished run's events: injected faults, refused actions, emergency stops, and
+    what authentication stopped (forge faults), as ``{"t_s", "vehicle_id", "reason"}``."""
+    events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
+    events += [
+        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
+        for r, n in enumerate(env.forged_rejected)
+        if n
+    ]
+    return events
 
 
 def rows_to_log(rows: Sequence[dict[str, Any]]) -> Log:

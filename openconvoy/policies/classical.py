@@ -36,11 +36,22 @@ from openconvoy.core.controllers import (
 )
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
-from openconvoy.core.observation import LOOKAHEAD_S
+from openconvoy.core.observation import (
+    DERIVED_FEATURES,
+    LOOKAHEAD_S,
+    PATH_FEATURES,
+    STATE_FEATURES,
+)
 from openconvoy.core.policy import make_action
 
 if TYPE_CHECKING:
     from openconvoy.policies.batched import BatchedClassical
+
+_NF, _ND = len(STATE_FEATURES), len(DERIVED_FEATURES)
+_AGE, _HEARD = STATE_FEATURES.index("age"), STATE_FEATURES.index("valid")
+_DESIRED, _ERROR = DERIVED_FEATURES.index("desired_gap"), DERIVED_FEATURES.index("spacing_error")
+_SPEED, _VALID = DERIVED_FEATURES.index("speed"), DERIVED_FEATURES.index("valid")
+_PATH_VALID = PATH_FEATURES.index("valid")
 
 
 @dataclass(frozen=True)
@@ -71,6 +82,16 @@ class ClassicalPolicy:
         self.layout = config.member.layout
         self._speed = PIDSpeed(config.speed, 1.0 / config.control_rate_hz)
         self._batched: BatchedClassical | None = None
+        lay = self.layout
+        self._target_slots = [
+            (name, lay.slot_offset(name), lay.target_offset(name))
+            for name in (*lay.targets[1:], "leader")
+        ]
+        """Nearest first: (name, offset of its newest state, offset of its derived features)."""
+        self._pred_states = [lay.slot_offset(p) for p in lay.targets[1:]]
+        self._stale_limits: dict[np.dtype, float] = {}
+        # Pure pursuit's lookahead point: the one nearest the configured lookahead time.
+        self._lookahead = int(np.argmin([abs(t - config.heading.lookahead_s) for t in LOOKAHEAD_S]))
 
     @property
     def member_config(self) -> MemberConfig:
@@ -98,78 +119,93 @@ class ClassicalPolicy:
         return self._batched.act_batch(observations)
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        view = self.layout.view(observation)
-        targets, lost = self._targets(view)
+        lay = self.layout
+        if observation.shape != (lay.size,):
+            raise ValueError(
+                f"observation has shape {observation.shape}, layout expects ({lay.size},)"
+            )
+        obs = observation.tolist()  # plain floats: cheaper to read one by one than numpy's
+        targets, lost = self._targets(obs, self._stale_after(observation.dtype))
         if lost or not targets:
             self._speed.reset()
             return make_action(0.0, 0.0)
-        own = view.own_speed
-        v_ref = targets[0][0]["speed"]  # the nearest predecessor's, as in the paper
+        own = obs[lay.own_offset]
+        v_ref = targets[0][0][_SPEED]  # the nearest predecessor's, as in the paper
         fresh = [t for t, stale in targets if not stale]
         stale = [t for t, is_stale in targets if is_stale]
         c = self.config.speed
         speed = math.inf
         if fresh:
-            error = sum(t["spacing_error"] for t in fresh) / len(fresh)
+            error = sum(t[_ERROR] for t in fresh) / len(fresh)
             if self.config.rear_weight > 0.0:
-                error -= self.config.rear_weight * self._rear_error(view, fresh[0]["desired_gap"])
+                error -= self.config.rear_weight * self._rear_error(observation, fresh[0][_DESIRED])
             # The spacing error grows at the speed difference along the path.
             speed = self._speed(error, v_ref, v_ref - own)
             # Never faster than the nearest fresh predecessor alone asks.
             near = fresh[0]
-            speed = min(
-                speed, near["speed"] + c.kp * near["spacing_error"] + c.kd * (near["speed"] - own)
-            )
+            speed = min(speed, near[_SPEED] + c.kp * near[_ERROR] + c.kd * (near[_SPEED] - own))
         else:
             self._speed.reset()
         for t in stale:
             # Each stale target caps the speed at its term of the mean (so leaving it out
             # of the mean cannot speed the follower up) and at what it alone asks.
-            e = t["spacing_error"]
+            e = t[_ERROR]
             speed = min(
                 speed,
                 v_ref + c.kp * e + c.kd * (v_ref - own),
-                t["speed"] + c.kp * e + c.kd * (t["speed"] - own),
+                t[_SPEED] + c.kp * e + c.kd * (t[_SPEED] - own),
             )
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
-        return make_action(speed, self._heading_change(view.path, own))
+        return make_action(speed, self._heading_change(obs, own))
 
-    def _targets(self, view) -> tuple[list[tuple[dict[str, float], bool]], bool]:
-        """Valid targets nearest first, each with whether it is stale (older than
-        ``MemberConfig.fresh_age_s``), and whether a predecessor heard before is now too
-        old to be a target (lost)."""
-        degrade = self.config.member.fresh_age_s
-        out: list[tuple[dict[str, float], bool]] = []
+    def _stale_after(self, dtype: np.dtype) -> float:
+        """``MemberConfig.fresh_age_s`` as an observation of ``dtype`` holds it: an age
+        compares with it as numpy compares an array element with a Python float."""
+        limit = self._stale_limits.get(dtype)
+        if limit is None:
+            fresh = self.config.member.fresh_age_s
+            limit = float(dtype.type(fresh)) if dtype.kind == "f" else fresh
+            self._stale_limits[dtype] = limit
+        return limit
+
+    def _targets(
+        self, obs: list[float], stale_after: float
+    ) -> tuple[list[tuple[list[float], bool]], bool]:
+        """Valid targets nearest first (their ``DERIVED_FEATURES``), each with whether it
+        is stale (its newest message older than ``MemberConfig.fresh_age_s``), and whether
+        a predecessor heard before is now too old to be a target (lost)."""
+        out: list[tuple[list[float], bool]] = []
         lost = False
-        for name in (*self.layout.targets[1:], "leader"):
-            newest = view.states(name)[0]
-            target = view.target(name)
-            if target["valid"] > 0.5:
-                out.append((target, bool(newest[5] > degrade)))
-            elif newest[6] > 0.5 and (name != "leader" or not self._leader_in_preds(view, newest)):
+        for name, state, target in self._target_slots:
+            derived = obs[target : target + _ND]
+            if derived[_VALID] > 0.5:
+                out.append((derived, obs[state + _AGE] > stale_after))
+            elif obs[state + _HEARD] > 0.5 and (
+                name != "leader" or not self._leader_in_preds(obs, state)
+            ):
                 lost = True  # heard, but older than the stop age (the member dropped it)
         return out, lost
 
-    def _leader_in_preds(self, view, newest: np.ndarray) -> bool:
+    def _leader_in_preds(self, obs: list[float], leader: int) -> bool:
         """The leader slot repeats a predecessor slot (a follower within M of the leader)."""
-        return any(np.array_equal(newest, view.states(p)[0]) for p in self.layout.targets[1:])
+        newest = obs[leader : leader + _NF]
+        return any(newest == obs[p : p + _NF] for p in self._pred_states)
 
-    def _rear_error(self, view, desired_gap: float) -> float:
+    def _rear_error(self, observation: np.ndarray, desired_gap: float) -> float:
         """How much farther behind than desired the immediate follower is (m), 0 if unheard.
         Slowing a little for a lagging follower is what makes the string bidirectional."""
-        newest = view.states("follower")[0]
+        newest = self.layout.view(observation).states("follower")[0]
         if newest[6] < 0.5:
             return 0.0
         return float(np.hypot(newest[0], newest[1])) - desired_gap
 
-    def _heading_change(self, path: dict[str, float], speed: float) -> float:
-        if path["valid"] < 0.5:
+    def _heading_change(self, obs: list[float], speed: float) -> float:
+        o = self.layout.path_offset
+        if obs[o + _PATH_VALID] < 0.5:
             return 0.0
         h = self.config.heading
         if h.kind == "stanley":
-            return stanley(
-                path["heading_error"], path["cross_track"], speed, h.gain, h.softening_mps
-            )
+            return stanley(obs[o + 1], obs[o], speed, h.gain, h.softening_mps)
         # Pure pursuit: the lookahead point nearest the configured lookahead time.
-        j = int(np.argmin([abs(t - h.lookahead_s) for t in LOOKAHEAD_S]))
-        return pure_pursuit(path[f"la{j}_x"], path[f"la{j}_y"])
+        j = self._lookahead
+        return pure_pursuit(obs[o + 2 + 2 * j], obs[o + 3 + 2 * j])

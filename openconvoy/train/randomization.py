@@ -183,11 +183,12 @@ weights the learner traded spacing accuracy for smoothness and ended worse than 
 on p95 platooning error."""
 
 
-SCRATCH_REWARD = RewardConfig(spacing_scale_m=30.0, w_accel=0.0, w_jerk=0.0, w_yaw_rate=0.0)
-"""The reward learning from scratch (no base): the spacing error alone, saturating only at
-30 m. With ``TRAIN_REWARD``'s 2 m a follower that fell behind sees no gradient back, and
-the comfort terms pay an exploring policy to creep (a slow car turns and accelerates
-less)."""
+SCRATCH_REWARD = RewardConfig(spacing_scale_m=30.0, w_accel=0.005, w_jerk=0.0, w_yaw_rate=0.0)
+"""The reward learning from scratch (no base): the spacing error, saturating only at 30 m,
+and a light acceleration term. With ``TRAIN_REWARD``'s 2 m a follower that fell behind
+sees no gradient back, and its comfort terms pay an exploring policy to creep (a slow car
+turns and accelerates less); the light acceleration term damps the speed oscillation of
+a spacing-only reward (p95 2.46 -> 1.89 m at PER 0)."""
 
 RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))
 """Residual actions: the sum may use the whole action range (DESIGN.md, Action)."""

@@ -210,19 +210,24 @@ def test_npz_loads_and_acts_with_torch_absent(npz: Path) -> None:
 
 
 def _rollout_observations(member: MemberConfig, steps: int = 40) -> np.ndarray:
-    """Observations ``(steps, B, N-1, D)`` of 3 batched paper convoys under loss, driven by
-    the paper controller (real member output: fresh, stale and lost targets)."""
-    from openconvoy.comms.loss import LossConfig
-    from openconvoy.envs import VectorConvoyEnv
+    """Observations ``(steps, B, N-1, D)`` of 3 paper convoys under loss (seeds 4, 5, 6),
+    driven by the paper controller (real member output: fresh, stale and lost targets)."""
+    import copy
 
-    env = VectorConvoyEnv(3, "paper", member_config=member, loss=LossConfig(per=0.5))
-    driver = load_policy("paper")
-    obs, _ = env.reset(seed=4)
-    out = []
-    for _ in range(steps):
-        out.append(obs)
-        obs, *_ = env.step(driver.act_batch(obs))
-    return np.stack(out)
+    from openconvoy.comms.loss import LossConfig
+    from openconvoy.envs import ConvoyEnv
+
+    convoys = []
+    for seed in (4, 5, 6):
+        env = ConvoyEnv("paper", member_config=member, loss=LossConfig(per=0.5))
+        obs, _ = env.reset(seed=seed)
+        drivers = {a: copy.deepcopy(load_policy("paper")) for a in env.agents}
+        frames = []
+        for _ in range(steps):
+            frames.append(np.stack([obs[a] for a in env.possible_agents]))
+            obs, *_ = env.step({a: drivers[a].act(o) for a, o in obs.items()})
+        convoys.append(frames)
+    return np.array(convoys).transpose(1, 0, 2, 3)
 
 
 @pytest.mark.parametrize("residual", [False, True])

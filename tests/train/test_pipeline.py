@@ -543,3 +543,8 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     cfg.write_text("[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
     chosen = train_config_from_args(parse(["train", "--config", str(cfg), "--base", "none"])).env
     assert chosen.bounds == ((0.0, -0.5), (5.0, 0.5))
+    # The README's from-scratch run: these defaults, written out, at its budget.
+    example = Path(__file__).parents[2] / "openconvoy/train/examples/from-scratch.toml"
+    run = load_train_config(example)
+    assert run.env.reward == SCRATCH_REWARD and run.ppo.use_sde and not run.env.emergency_stop
+    assert run.env.bounds == ABSOLUTE_ACTION_BOUNDS and run.total_steps == 1_500_000

@@ -47,6 +47,16 @@ class ConvoyPolicy(Policy, Protocol):
     def name(self) -> str: ...
 
 
+@runtime_checkable
+class BatchPolicy(Protocol):
+    """A policy that also acts on many vehicles at once (the batched simulator, batched
+    sweeps and training use it when a policy declares it): ``act_batch`` takes observations
+    ``(..., D)`` and returns actions ``(..., 2)`` float32 in SI units (speed m/s, heading
+    change rad), one row per vehicle, each row's controller memory kept apart."""
+
+    def act_batch(self, observations: np.ndarray) -> np.ndarray: ...
+
+
 CONVOY_POLICY_ATTRIBUTES = ("reset", "act", "member_config", "control_rate_hz", "name")
 
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from openconvoy.core import metrics as mt
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.policy import BatchPolicy
 from openconvoy.experiments import batched_log
 from openconvoy.experiments.runs import EXTRA_COLUMNS, RunConfig, build_env
 from openconvoy.logs import COLUMNS, Log
@@ -61,7 +62,7 @@ def refusal(config: RunConfig, exact: bool = True) -> str | None:
     except Exception as exc:  # noqa: BLE001 - the per-run tasks report it, run by run
         return f"it does not load here: {error_line(exc, frame=False)}"
     policy = next(iter(policies.values()))
-    if not callable(getattr(policy, "act_batch", None)):
+    if not isinstance(policy, BatchPolicy):
         return f"policy {config.policy} has no act_batch"
     if exact and not isinstance(policy, ClassicalPolicy):
         return f"policy {config.policy}'s act_batch is not known to be bit-equal to its act"

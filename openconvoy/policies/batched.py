@@ -9,6 +9,8 @@ integrator kept separately. The per-vehicle ``act`` is unchanged (vehicles use i
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, STATE_FEATURES
@@ -16,6 +18,33 @@ from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.policies.classical import ClassicalConfig
 
 _NF = len(STATE_FEATURES)
+
+
+@dataclass
+class _Targets:
+    """Per-row accumulators of one pass over the targets (arrays of the batch shape)."""
+
+    follower: np.ndarray  # the immediate follower's newest state slot
+    lost: np.ndarray
+    any_valid: np.ndarray
+    have_fresh: np.ndarray
+    v_ref: np.ndarray
+    fresh_sum: np.ndarray
+    fresh_n: np.ndarray
+    near_speed: np.ndarray
+    near_err: np.ndarray
+    near_desired: np.ndarray
+    stale_terms: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    @classmethod
+    def empty(cls, shape: tuple[int, ...], follower: np.ndarray) -> _Targets:
+        def no() -> np.ndarray:
+            return np.zeros(shape, dtype=bool)
+
+        def zero() -> np.ndarray:
+            return np.zeros(shape)
+
+        return cls(follower, no(), no(), no(), zero(), zero(), zero(), zero(), zero(), zero())
 
 
 class BatchedClassical:
@@ -40,33 +69,39 @@ class BatchedClassical:
     def act_batch(self, observations: np.ndarray) -> np.ndarray:
         """Actions ``(..., 2)`` float32 (SI: speed m/s, heading change rad)."""
         obs = np.asarray(observations, dtype=np.float32)
-        lay, cfg = self.layout, self.config
-        if obs.shape[-1] != lay.size:
+        if obs.shape[-1] != self.layout.size:
             raise ValueError(
-                f"observations have {obs.shape[-1]} features, layout expects {lay.size}"
+                f"observations have {obs.shape[-1]} features, layout expects {self.layout.size}"
             )
         shape = obs.shape[:-1]
         if self._integral is None or self._integral.shape != shape:
             self._integral = np.zeros(shape)
         o = obs.astype(np.float64)
-        c = cfg.speed
-        degrade = cfg.member.fresh_age_s
-        names = (*lay.targets[1:], "leader")
+        own = o[..., self.layout.own_offset]
+        t = self._scan_targets(obs, o)
+        speed, integral = self._speed(t, own)
+        stop = t.lost | ~t.any_valid
+        # The controller's memory resets where it did not run on fresh targets.
+        self._integral = np.where(stop | ~t.have_fresh, 0.0, integral)
+        heading = self._heading(o, own)
+        out = np.empty(shape + (2,), dtype=np.float32)
+        out[..., 0] = np.where(stop, 0.0, speed)
+        h = np.minimum(np.maximum(heading, -MAX_HEADING_CHANGE_RAD), MAX_HEADING_CHANGE_RAD)
+        out[..., 1] = np.where(stop, 0.0, h)
+        return out
+
+    def _scan_targets(self, obs: np.ndarray, o: np.ndarray) -> _Targets:
+        """Walk the targets nearest first (predecessors, then the leader), as
+        ``ClassicalPolicy`` does, collecting what the speed law needs per row."""
+        lay = self.layout
+        shape = obs.shape[:-1]
+        degrade = self.config.member.fresh_age_s
         newest = {n: obs[..., lay.slot_offset(n) : lay.slot_offset(n) + _NF] for n in lay.slots}
         leader_dup = np.zeros(shape, dtype=bool)
         for p in lay.targets[1:]:
             leader_dup |= np.all(newest["leader"] == newest[p], axis=-1)
-        lost = np.zeros(shape, dtype=bool)
-        any_valid = np.zeros(shape, dtype=bool)
-        v_ref = np.zeros(shape)
-        fresh_sum = np.zeros(shape)
-        fresh_n = np.zeros(shape)
-        near_speed = np.zeros(shape)
-        near_err = np.zeros(shape)
-        near_desired = np.zeros(shape)
-        have_fresh = np.zeros(shape, dtype=bool)
-        stale_terms = []
-        for name in names:
+        t = _Targets.empty(shape, newest["follower"])
+        for name in (*lay.targets[1:], "leader"):
             t0 = lay.target_offset(name)
             valid = o[..., t0 + 4] > 0.5
             err, speed, desired = o[..., t0 + 2], o[..., t0 + 3], o[..., t0 + 1]
@@ -75,55 +110,56 @@ class BatchedClassical:
             gone = ~valid & heard
             if name == "leader":
                 gone &= ~leader_dup
-            lost |= gone
-            first = valid & ~any_valid
-            v_ref = np.where(first, speed, v_ref)
-            any_valid |= valid
+            t.lost |= gone
+            first = valid & ~t.any_valid
+            t.v_ref = np.where(first, speed, t.v_ref)
+            t.any_valid |= valid
             fresh = valid & ~stale
-            fresh_sum = fresh_sum + np.where(fresh, err, 0.0)
-            fresh_n += fresh
-            first_fresh = fresh & ~have_fresh
-            near_speed = np.where(first_fresh, speed, near_speed)
-            near_err = np.where(first_fresh, err, near_err)
-            near_desired = np.where(first_fresh, desired, near_desired)
-            have_fresh |= fresh
-            stale_terms.append((valid & stale, err, speed))
-        own = o[..., lay.own_offset]
+            t.fresh_sum = t.fresh_sum + np.where(fresh, err, 0.0)
+            t.fresh_n += fresh
+            first_fresh = fresh & ~t.have_fresh
+            t.near_speed = np.where(first_fresh, speed, t.near_speed)
+            t.near_err = np.where(first_fresh, err, t.near_err)
+            t.near_desired = np.where(first_fresh, desired, t.near_desired)
+            t.have_fresh |= fresh
+            t.stale_terms.append((valid & stale, err, speed))
+        return t
+
+    def _speed(self, t: _Targets, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The speed setpoint (m/s) and the PID integrator's next value, per row: the
+        controller on the mean fresh error, capped by the nearest fresh target's law, lowered
+        (never raised) by each stale target's."""
+        cfg = self.config
+        c = cfg.speed
         with np.errstate(invalid="ignore", divide="ignore"):
-            error = fresh_sum / fresh_n
+            error = t.fresh_sum / t.fresh_n
         if cfg.rear_weight > 0.0:
-            f = newest["follower"]
+            f = t.follower
             rear = np.where(
                 f[..., 6] < 0.5,
                 0.0,
-                np.hypot(f[..., 0], f[..., 1]).astype(np.float64) - near_desired,
+                np.hypot(f[..., 0], f[..., 1]).astype(np.float64) - t.near_desired,
             )
             error = error - cfg.rear_weight * rear
         integral = self._integral
+        assert integral is not None
         if c.kind == "pid":
             lim = c.integral_limit
             integral = np.where(
-                have_fresh, np.minimum(np.maximum(integral + error * self.dt, -lim), lim), integral
+                t.have_fresh,
+                np.minimum(np.maximum(integral + error * self.dt, -lim), lim),
+                integral,
             )
-        de = v_ref - own
-        pid = v_ref + c.kp * error + c.ki * integral + c.kd * de
-        cap = near_speed + c.kp * near_err + c.kd * (near_speed - own)
-        speed = np.where(have_fresh, np.minimum(pid, cap), np.inf)
-        for is_stale, e, ts in stale_terms:
+        de = t.v_ref - own
+        pid = t.v_ref + c.kp * error + c.ki * integral + c.kd * de
+        cap = t.near_speed + c.kp * t.near_err + c.kd * (t.near_speed - own)
+        speed = np.where(t.have_fresh, np.minimum(pid, cap), np.inf)
+        for is_stale, e, ts in t.stale_terms:
             limit = np.minimum(
-                v_ref + c.kp * e + c.kd * (v_ref - own), ts + c.kp * e + c.kd * (ts - own)
+                t.v_ref + c.kp * e + c.kd * (t.v_ref - own), ts + c.kp * e + c.kd * (ts - own)
             )
             speed = np.where(is_stale, np.minimum(speed, limit), speed)
-        speed = np.minimum(np.maximum(speed, 0.0), cfg.speed_limit_mps)
-        stop = lost | ~any_valid
-        # The controller's memory resets where it did not run on fresh targets.
-        self._integral = np.where(stop | ~have_fresh, 0.0, integral)
-        heading = self._heading(o, own)
-        out = np.empty(shape + (2,), dtype=np.float32)
-        out[..., 0] = np.where(stop, 0.0, speed)
-        h = np.minimum(np.maximum(heading, -MAX_HEADING_CHANGE_RAD), MAX_HEADING_CHANGE_RAD)
-        out[..., 1] = np.where(stop, 0.0, h)
-        return out
+        return np.minimum(np.maximum(speed, 0.0), cfg.speed_limit_mps), integral
 
     def _heading(self, o: np.ndarray, own: np.ndarray) -> np.ndarray:
         p = self.layout.path_offset

@@ -25,6 +25,7 @@ import numpy as np
 
 from openconvoy.core import metrics as mt
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.policy import BatchPolicy
 from openconvoy.train.tune import TuneConfig, objective_of
 
 KEYS = ("p95_platooning_error_m", "mean_speed_difference_mps", "collisions", "min_gap_m")
@@ -91,7 +92,7 @@ def batched_metrics(
     from openconvoy.policies import load_policy
 
     p = load_policy(policy)
-    if not hasattr(p, "act_batch"):
+    if not isinstance(p, BatchPolicy):
         return None
     scene = make_scenario(scenario)
     if not isinstance(scene, PathScenario):

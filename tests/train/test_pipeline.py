@@ -10,7 +10,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import socket
 import threading
 import time
 from pathlib import Path
@@ -304,12 +303,6 @@ def test_layout_choice_reaches_the_trained_policy(tmp_path: Path) -> None:
         load_learned(run / "policy.zip", member_config=PRESETS["paper"].member)
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.parametrize("artifact", ["policy.zip", "policy.npz"])
 def test_deploy_runs_the_trained_policy_on_a_simulated_vehicle(
     ppo_run: Path, ppo_npz: Path, artifact: str, tmp_path: Path
@@ -319,9 +312,9 @@ def test_deploy_runs_the_trained_policy_on_a_simulated_vehicle(
     from openconvoy.bridge.localv2v import LocalBus, LocalV2V
     from openconvoy.bridge.mavlink import MavlinkLink
     from openconvoy.bridge.runner import DeployRunner, RunnerOptions
-    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
     from openconvoy.comms.geodesy import Origin
     from openconvoy.convoy import ConvoyConfig
+    from openconvoy.demo import sim_vehicle_configs, start_local_sim_vehicles
     from openconvoy.envs.scenarios import make_scenario
     from openconvoy.envs.vehicles import vehicle_preset
 
@@ -335,23 +328,11 @@ def test_deploy_runs_the_trained_policy_on_a_simulated_vehicle(
     bus = LocalBus()
     vehicles, runners, results = [], [], {}
     try:
-        for i in range(2):
-            port = _free_port()
-            vehicle = SimVehicle(
-                f"udpin:127.0.0.1:{port}",
-                SimVehicleConfig(
-                    system_id=i + 1,
-                    preset=presets[i],
-                    home=origin,
-                    start_x_m=float(init.x[i]),
-                    start_y_m=float(init.y[i]),
-                    start_heading_rad=float(init.heading[i]),
-                    ready_after_s=0.0,
-                ),
-            ).start()
+        configs = sim_vehicle_configs(init, origin, presets, ready_after_s=0.0)
+        for i, (vehicle, url) in enumerate(start_local_sim_vehicles(configs)):
             vehicles.append(vehicle)
             link = MavlinkLink(
-                f"udpout:127.0.0.1:{port}",
+                url,
                 origin,
                 vehicle_id=i,
                 length_m=presets[i].length_m,

@@ -23,12 +23,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import DependencyMissing
 
 try:
     import numba as _numba
 except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
-    raise ConfigError("VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'") from exc
+    raise DependencyMissing("VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'") from exc
 
 
 def _cache_dir() -> Path:

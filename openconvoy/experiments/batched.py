@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core import metrics as mt
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, DependencyMissing
 from openconvoy.core.policy import BatchPolicy
 from openconvoy.experiments import batched_log
 from openconvoy.experiments.runs import EXTRA_COLUMNS, RunConfig, build_env
@@ -68,7 +68,7 @@ def refusal(config: RunConfig, exact: bool = True) -> str | None:
         return f"policy {config.policy}'s act_batch is not known to be bit-equal to its act"
     try:
         _vector_env([config], env)
-    except ConfigError as exc:
+    except (ConfigError, DependencyMissing) as exc:
         return (
             str(exc).replace("VectorConvoyEnv", "the batched env").replace(" (use ConvoyEnv)", "")
         )

@@ -26,7 +26,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from openconvoy.comms.loss import LossConfig
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, DependencyMissing
 from openconvoy.envs.vector_env import VectorConvoyEnv
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.policies.batched import BatchedClassical
@@ -90,7 +90,7 @@ def batched_refusal(spec: EnvSpec, r: Randomization) -> str | None:
                 world = EpisodeWorld(scenario, loss, r.gps_noise_m_range[1], vehicles)
                 try:
                     group_env(spec, world, [loss.per])
-                except ConfigError as exc:
+                except (ConfigError, DependencyMissing) as exc:
                     return str(exc)
     return None
 

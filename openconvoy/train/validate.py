@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core import metrics as mt
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, DependencyMissing
 from openconvoy.core.policy import BatchPolicy
 from openconvoy.train.tune import TuneConfig, objective_of
 
@@ -87,7 +87,6 @@ def batched_metrics(
     """The metrics of ``run_sim`` for every (PER, seed) in ``runs``, from one batched
     run; None when the policy or the scenario cannot run batched."""
     from openconvoy.comms.loss import LossConfig
-    from openconvoy.envs import VectorConvoyEnv
     from openconvoy.envs.scenarios import PathScenario, make_scenario
     from openconvoy.policies import load_policy
 
@@ -100,6 +99,8 @@ def batched_metrics(
     if p.member_config is not None:  # run_sim starts the vehicles at the policy's gaps
         scene = scene.with_changes(spacing=p.member_config.spacing)
     try:
+        from openconvoy.envs import VectorConvoyEnv  # needs numba (the batched extra)
+
         env = VectorConvoyEnv(
             len(runs),
             scene,
@@ -109,7 +110,7 @@ def batched_metrics(
             max_time_s=duration_s,
             autoreset=False,
         )
-    except ConfigError:
+    except (ConfigError, DependencyMissing):
         return None
     p.reset()
     ticks = _rollout(env, p, [seed for _, seed in runs])

@@ -14,6 +14,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
+pytest.importorskip("numba", reason="the batched extra (openconvoy[batched]) is not installed")
+
 from openconvoy.comms.loss import LossConfig, counter_uniform, counter_uniform_array
 from openconvoy.core.controllers import HeadingControlConfig, SpeedControlConfig
 from openconvoy.core.errors import ConfigError

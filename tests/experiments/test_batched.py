@@ -8,6 +8,10 @@ import dataclasses
 import json
 from pathlib import Path
 
+import pytest
+
+pytest.importorskip("numba", reason="the batched extra (openconvoy[batched]) is not installed")
+
 from openconvoy.cli import main
 from openconvoy.experiments import batched_sweep
 from openconvoy.experiments.batched import refusal

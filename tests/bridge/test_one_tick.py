@@ -5,6 +5,7 @@ rows where they had drifted (clip, ranging, a non-finite action, no member confi
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -138,13 +139,14 @@ def test_sim_and_runner_give_bit_equal_observations_actions_and_modes_over_a_pap
             break
     inboxes: list[list[VehicleState]] = []
     member = env.members[me]
-    receive = member.receive
+    receive_all = member.receive_all
 
-    def recording_receive(msg: VehicleState, now: float) -> bool:
-        inboxes[-1].append(msg)
-        return receive(msg, now)
+    def recording_receive_all(inbox: Iterable[VehicleState], now: float) -> None:
+        box = list(inbox)
+        inboxes[-1].extend(box)
+        receive_all(box, now)
 
-    member.receive = recording_receive  # type: ignore[method-assign]
+    member.receive_all = recording_receive_all  # type: ignore[method-assign]
     policies = {a: load_policy("paper") for a in env.possible_agents}
     for p in policies.values():
         p.reset(0)

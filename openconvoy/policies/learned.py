@@ -109,8 +109,7 @@ class LearnedMeta:
                 f"control_rate_hz: {self.control_rate_hz!r} is out of range; allowed: (0, 100] Hz"
             )
         size = int(self.layout["size"])
-        for name in ("obs_mean", "obs_var"):
-            arr = getattr(self, name)
+        for name, arr in (("obs_mean", self.obs_mean), ("obs_var", self.obs_var)):
             if arr is not None and np.shape(arr) != (size,):
                 raise InputFileError(
                     f"{name} has shape {np.shape(arr)}, the layout has size {size}"

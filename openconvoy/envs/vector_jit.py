@@ -28,7 +28,9 @@ from openconvoy.core.errors import DependencyMissing
 try:
     import numba as _numba
 except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
-    raise DependencyMissing("VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'") from exc
+    raise DependencyMissing(
+        "VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'"
+    ) from exc
 
 
 def _cache_dir() -> Path:

@@ -15,7 +15,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from openconvoy.core.args import DURATION, FRACTION
+from openconvoy.core.args import DURATION, FRACTION, lazy_handler
 from openconvoy.core.errors import ConfigError, OpenConvoyError
 
 
@@ -54,12 +54,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="keep the run here (default a temporary dir)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
 
-    def _demo(args: argparse.Namespace) -> int:
-        from openconvoy.demo import demo_from_namespace
-
-        return demo_from_namespace(args)
-
-    p.set_defaults(handler=_demo)
+    p.set_defaults(handler=lazy_handler("openconvoy.demo", "demo_from_namespace"))
 
 
 def build_parser() -> argparse.ArgumentParser:

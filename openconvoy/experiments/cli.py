@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from openconvoy.core.args import DURATION, FRACTION, SECONDS_POS, SEED
+from openconvoy.core.args import DURATION, FRACTION, SECONDS_POS, SEED, lazy_handler
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 
@@ -127,12 +127,7 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     _sim_world_args(p)
     run_args(p, sweep=False)
 
-    def _sim(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.commands import sim
-
-        return sim(args)
-
-    p.set_defaults(handler=_sim)
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "sim"))
     _add_report(sub)
     _add_presets(sub)
 
@@ -191,23 +186,13 @@ def _add_report(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--plots", action="store_true", help="also draw trajectories, gaps and speeds")
 
-    def _report(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.commands import report
-
-        return report(args)
-
-    p.set_defaults(handler=_report)
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "report"))
 
 
 def _add_presets(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("presets", help="list policy and vehicle presets")
 
-    def _presets(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.commands import presets
-
-        return presets(args)
-
-    p.set_defaults(handler=_presets)
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "presets"))
 
 
 def _add_experiments(sub: argparse._SubParsersAction) -> None:
@@ -256,12 +241,7 @@ def _add_per_sweep(esub: argparse._SubParsersAction) -> None:
     executor_args(p, batched=True, run_logs=True)
     run_args(p, sweep=True)
 
-    def _per_sweep(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.commands import per_sweep
-
-        return per_sweep(args)
-
-    p.set_defaults(handler=_per_sweep)
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "per_sweep"))
 
 
 def _add_compare(sub: argparse._SubParsersAction) -> None:
@@ -278,12 +258,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", metavar="FILE.json", help="also write the comparison as JSON")
 
-    def _compare(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.commands import compare
-
-        return compare(args)
-
-    p.set_defaults(handler=_compare)
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "compare"))
 
 
 def _add_fit_plant(sub: argparse._SubParsersAction) -> None:
@@ -334,12 +309,7 @@ def _add_fit_plant(sub: argparse._SubParsersAction) -> None:
         "vehicle logs) or led to it (some other tools' logs)",
     )
 
-    def _fit_plant(args: argparse.Namespace) -> int:
-        from openconvoy.experiments.fitplant import run_fit_plant_cli
-
-        return run_fit_plant_cli(args)
-
-    p.set_defaults(handler=_fit_plant)
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.fitplant", "run_fit_plant_cli"))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from openconvoy.core.args import DURATION, FRACTION, RATE_HZ, SEED
+from openconvoy.core.args import DURATION, FRACTION, RATE_HZ, SEED, lazy_handler
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 from openconvoy.experiments.cli import executor_args
@@ -25,12 +25,7 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     _train_env_args(p)
     _train_randomization_args(p)
 
-    def _train(args: argparse.Namespace) -> int:
-        from openconvoy.train.commands import train_command
-
-        return train_command(args)
-
-    p.set_defaults(handler=_train)
+    p.set_defaults(handler=lazy_handler("openconvoy.train.commands", "train_command"))
 
 
 def _train_run_args(p: argparse.ArgumentParser) -> None:
@@ -186,12 +181,7 @@ def _add_tune(sub: argparse._SubParsersAction) -> None:
     executor_args(p, batched=True)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    def _tune(args: argparse.Namespace) -> int:
-        from openconvoy.train.commands import tune_command
-
-        return tune_command(args)
-
-    p.set_defaults(handler=_tune)
+    p.set_defaults(handler=lazy_handler("openconvoy.train.commands", "tune_command"))
 
 
 def _tune_grid_args(p: argparse.ArgumentParser) -> None:
@@ -229,12 +219,7 @@ def _add_export(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run", metavar="RUN_DIR", help="run directory or SB3 .zip")
     p.add_argument("--out", required=True, metavar="FILE.npz")
 
-    def _export(args: argparse.Namespace) -> int:
-        from openconvoy.train.commands import export_command
-
-        return export_command(args)
-
-    p.set_defaults(handler=_export)
+    p.set_defaults(handler=lazy_handler("openconvoy.train.commands", "export_command"))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -98,6 +98,7 @@ class VectorChannel:
             self.q_state = np.zeros((S, 6, B, N))
             self.q_t = np.zeros((S, B, N))
             self.q_lost = np.zeros((S, B, P), dtype=bool)
+            self._due = np.zeros(N, dtype=bool)
 
     def reset(self, rows: np.ndarray) -> None:
         """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
@@ -147,15 +148,16 @@ class VectorChannel:
         instant = self.slots == 0
         _deliver(
             self.send, self.lost, self.pair_s, self.pair_r, self.pair_link, rows, t, own,
-            self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.trail,
-            rx.trail_n, rx.spacing_m, instant,
+            self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
+            rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m, instant,
         )  # fmt: skip
         if not instant:
             self._enqueue(t, step, own, rows)
             _arrive(
                 step, t, self.q_arrival, self.q_state, self.q_t, self.q_lost,
                 self.pair_s, self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept,
-                rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.spacing_m,
+                rx.hist, rx.hist_n, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.trail_of, rx.spacing_m, self._due,
             )  # fmt: skip
 
     def _enqueue(self, t: np.ndarray, step: np.ndarray, own: np.ndarray, rows: np.ndarray) -> None:
@@ -257,7 +259,7 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
 @kernel
 def _deliver(
     send, lost, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to, kept,
-    hist, hist_n, trail, trail_n, spacing, instant,
+    hist, hist_n, keeps, trail, tail, trail_n, trail_of, spacing, instant,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Count the losses of this tick's broadcasts; instant links also deliver now."""
     for b in range(send.shape[0]):
@@ -275,17 +277,17 @@ def _deliver(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(hist, hist_n, trail, trail_n, b, link, t[b], own, s, spacing)
+                    push_one(hist, hist_n, keeps, trail, tail, trail_n, trail_of, b, link, t[b],
+                             own, s, spacing)  # fmt: skip
 
 
 @kernel
 def _arrive(
     step, t, q_arrival, q_state, q_t, q_lost, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, trail, trail_n, spacing,
+    hist, hist_n, keeps, trail, tail, trail_n, trail_of, spacing, due,
 ):  # pragma: no cover - compiled  # fmt: skip
-    """Deliver the messages due by ``t``, oldest send slot first."""
+    """Deliver the messages due by ``t``, oldest send slot first (``due`` (N,): scratch)."""
     S, B, N = q_arrival.shape
-    due = np.zeros(N, dtype=np.bool_)
     for b in range(B):
         for back in range(S - 1, -1, -1):
             sl = (step[b] - back) % S
@@ -304,18 +306,8 @@ def _arrive(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(
-                        hist,
-                        hist_n,
-                        trail,
-                        trail_n,
-                        b,
-                        link,
-                        q_t[sl, b, s],
-                        q_state[sl],
-                        s,
-                        spacing,
-                    )
+                    push_one(hist, hist_n, keeps, trail, tail, trail_n, trail_of, b, link,
+                             q_t[sl, b, s], q_state[sl], s, spacing)  # fmt: skip
             for s in range(N):
                 if due[s]:
                     q_arrival[sl, b, s] = np.inf

@@ -166,7 +166,7 @@ class VectorConvoyEnv:
         self.channel = VectorChannel(
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
         )
-        self.rx = RxBuffers(B, self.L, mc.k, mc.trail_spacing_m)
+        self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m)
         self._seed_seqs: list[np.random.SeedSequence | None] = [None] * B
         self.t: np.ndarray = np.zeros(B)
         self.step_count = np.zeros(B, dtype=np.int64)
@@ -223,6 +223,7 @@ class VectorConvoyEnv:
         self._cmd_v_flat, self._cmd_dh_flat = self.cmd_v.reshape(-1), self.cmd_dh.reshape(-1)
         self._everyone = np.ones(B, dtype=bool)
         self._fresh_age_s = self.member_config.fresh_age_s
+        self._targets_scratch = np.zeros((11, len(self.layout.targets)))
         self.gap = np.zeros((B, N - 1))
         self.collided = np.zeros((B, N - 1), dtype=bool)
 
@@ -342,9 +343,9 @@ class VectorConvoyEnv:
         own, lk, rx = self.own, self.links, self.rx
         self.channel.transmit(self.t, self.step_count, own, which, rx)
         observe(
-            obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.hint, rx.hint_k,
-            lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
+            obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.tail, rx.trail_n, lk.trail_of,
+            rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
             self._spacing, self.member_config.ladder.stop_after_s,
             self._fresh_age_s, self._geom, self.desired_gap, self.spacing_error,
-            self.pred_age, self.pred_est,
+            self.pred_age, self.pred_est, self._targets_scratch,
         )  # fmt: skip

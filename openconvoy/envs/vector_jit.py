@@ -37,7 +37,7 @@ def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("vector_*.py")):
         text = path.read_bytes()
-        if b"@kernel" in text or path.name == "vector_jit.py":  # the modules with kernels
+        if b"@kernel" in text or b"@inlined" in text or path.name == "vector_jit.py":
             digest.update(path.name.encode() + text)
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
@@ -56,11 +56,24 @@ CACHE_DIR = _cache_dir()
 def kernel(fn: Callable[..., Any]) -> Any:
     """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
     error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
+    return _compile(fn, "never")
+
+
+def inlined(fn: Callable[..., Any]) -> Any:
+    """A ``kernel`` that other kernels inline (numba's ``inline="always"``): a call of a
+    compiled function with array arguments costs a reference count up and down per
+    array, which for the small per-link helpers is more than their work."""
+    return _compile(fn, "always")
+
+
+def _compile(fn: Callable[..., Any], inline: str) -> Any:
     # numba reads its cache directory when a function is decorated: set it for ours only.
     config: Any = _numba.config
     saved = config.CACHE_DIR
     config.CACHE_DIR = str(CACHE_DIR)
     try:
-        return _numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+        return _numba.njit(
+            cache=True, nogil=True, error_model="numpy", inline=inline, _nrt=False
+        )(fn)
     finally:
         config.CACHE_DIR = saved

@@ -1,7 +1,9 @@
 """Trails as ring arrays: ``core.trail.Trail``'s add, project and point_at, compiled.
 
-A trail is row ``(b, ln)`` of ``tr`` (3, B, L, C): breadcrumb x, y (m) and arc coordinate
-s (m), ``n[b, ln]`` of them, the oldest half dropped when full. A query's path is the
+A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
+s (m), ``n[b, ln]`` of them, the oldest half dropped when full; ``tail[b, ln]`` (3,) is
+its newest breadcrumb again, packed with the other trails' (every add and query reads
+it: one cache line for many trails instead of one each). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
 heading ``hh`` (the sender's dead-reckoned position): the same vertices, segments and
 walk as ``Trail``, so the same numbers.
@@ -21,14 +23,14 @@ FAR_M = 1e4
 
 
 @kernel
-def trail_add(tr, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
+def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     """``Trail.add``: record (x, y) when ``spacing`` m from the last breadcrumb."""
     nn = n[b, ln]
     step = 0.0
     ps = 0.0
     if nn > 0:
-        ps = tr[b, ln, nn - 1, 2]
-        step = norm(x - tr[b, ln, nn - 1, 0], y - tr[b, ln, nn - 1, 1])
+        ps = tail[b, ln, 2]
+        step = norm(x - tail[b, ln, 0], y - tail[b, ln, 1])
         if step < spacing:
             return
     cap = tr.shape[2]
@@ -38,9 +40,9 @@ def trail_add(tr, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
             for f in range(3):
                 tr[b, ln, j, f] = tr[b, ln, j + half, f]
         nn -= half
-    tr[b, ln, nn, 0] = x
-    tr[b, ln, nn, 1] = y
-    tr[b, ln, nn, 2] = ps + step if nn > 0 else 0.0
+    s = ps + step if nn > 0 else 0.0
+    tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
+    tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
     n[b, ln] = nn + 1
 
 
@@ -117,13 +119,13 @@ def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - c
 
 
 @kernel
-def project(tr, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
+def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
     """``Trail.project`` from ``hint`` (NaN: ``expected`` m behind the head; ``hint_k``
     where to look for it): (arc to head, cross track, path heading, s, segment)."""
     n = n_arr[b, ln]
-    to_head = norm(hx - tr[b, ln, n - 1, 0], hy - tr[b, ln, n - 1, 1])
+    to_head = norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
     last = n - 1 if to_head > 1e-9 else n - 2
-    s_head = tr[b, ln, n - 1, 2] + to_head
+    s_head = tail[b, ln, 2] + to_head
     start = s_head - expected if math.isnan(hint) else hint
     k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
     best = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
@@ -142,11 +144,11 @@ def project(tr, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # prag
 
 
 @kernel
-def point_at(tr, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover - compiled
+def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover - compiled
     """``Trail.point_at``: the path point at arc coordinate ``s`` (beyond the head: on);
     ``guess``: a breadcrumb index near it."""
     n = n_arr[b, ln]
-    lx, ly, ls = tr[b, ln, n - 1, 0], tr[b, ln, n - 1, 1], tr[b, ln, n - 1, 2]
+    lx, ly, ls = tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2]
     s_head = ls + norm(hx - lx, hy - ly)
     if s >= s_head and not s_head - ls > 1e-9:
         return hx + (s - s_head) * math.cos(hh), hy + (s - s_head) * math.sin(hh)

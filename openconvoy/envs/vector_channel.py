@@ -71,6 +71,10 @@ class VectorChannel:
         else:
             self.pair_s, self.pair_r = links.link_s, links.link_r
             self.pair_link = np.arange(links.L, dtype=np.int64)
+        # The pairs by sender (the draws do not depend on the order): a tick's work
+        # follows its broadcasts.
+        self.by_sender = np.argsort(self.pair_s, kind="stable").astype(np.int64)
+        self.sender_start = np.searchsorted(self.pair_s[self.by_sender], np.arange(N + 1))
         mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
@@ -139,6 +143,14 @@ class VectorChannel:
             c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps,
             c.max_silence_s, self.send,
         )  # fmt: skip
+        if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
+            _bernoulli_deliver(
+                self.keys, self.broadcasts, self.send, self.per, self.by_sender,
+                self.sender_start, self.pair_r, self.pair_link, rows, t, own, self.lost_to,
+                self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.newest,
+                rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m,
+            )  # fmt: skip
+            return
         if self.ge is not None:
             self.lost[:] = self._ge_lost(self.send, t)[:, self.pair_s, self.pair_r]
         else:
@@ -149,14 +161,15 @@ class VectorChannel:
         _deliver(
             self.send, self.lost, self.pair_s, self.pair_r, self.pair_link, rows, t, own,
             self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
-            rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m, instant,
+            rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
+            rx.spacing_m, instant,
         )  # fmt: skip
         if not instant:
             self._enqueue(t, step, own, rows)
             _arrive(
                 step, t, self.q_arrival, self.q_state, self.q_t, self.q_lost,
                 self.pair_s, self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept,
-                rx.hist, rx.hist_n, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
                 rx.trail_of, rx.spacing_m, self._due,
             )  # fmt: skip
 
@@ -257,9 +270,39 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
 
 
 @kernel
+def _bernoulli_deliver(
+    keys, number, send, per, by_sender, start, pair_r, pair_link, rows, t, own, lost_to,
+    delivered_to, kept, hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing,
+):  # pragma: no cover - compiled  # fmt: skip
+    """``_bernoulli`` and ``_deliver`` of instant links in one walk over each
+    broadcast's pairs; counts the broadcasts."""
+    for b in range(send.shape[0]):
+        if not rows[b]:
+            continue
+        p_loss, key = per[b], keys[b]
+        for s in range(send.shape[1]):
+            if not send[b, s]:
+                continue
+            nb = number[b, s]
+            for q in range(start[s], start[s + 1]):
+                p = by_sender[q]
+                r = pair_r[p]
+                if p_loss > 0.0 and counter_uniform4(key, s, r, nb, DRAW_LOSS) < p_loss:
+                    lost_to[b, r] += 1
+                    continue
+                delivered_to[b, r] += 1
+                link = pair_link[p]
+                if link >= 0:
+                    kept[b, r] += 1
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
+                             link, t[b], own, s, spacing)  # fmt: skip
+            number[b, s] = nb + 1
+
+
+@kernel
 def _deliver(
     send, lost, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to, kept,
-    hist, hist_n, keeps, trail, tail, trail_n, trail_of, spacing, instant,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, instant,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Count the losses of this tick's broadcasts; instant links also deliver now."""
     for b in range(send.shape[0]):
@@ -277,14 +320,14 @@ def _deliver(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(hist, hist_n, keeps, trail, tail, trail_n, trail_of, b, link, t[b],
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link, t[b],
                              own, s, spacing)  # fmt: skip
 
 
 @kernel
 def _arrive(
     step, t, q_arrival, q_state, q_t, q_lost, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, keeps, trail, tail, trail_n, trail_of, spacing, due,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, due,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Deliver the messages due by ``t``, oldest send slot first (``due`` (N,): scratch)."""
     S, B, N = q_arrival.shape
@@ -306,7 +349,7 @@ def _arrive(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(hist, hist_n, keeps, trail, tail, trail_n, trail_of, b, link,
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link,
                              q_t[sl, b, s], q_state[sl], s, spacing)  # fmt: skip
             for s in range(N):
                 if due[s]:

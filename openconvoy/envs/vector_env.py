@@ -320,7 +320,7 @@ class VectorConvoyEnv:
         returns the accelerations before the move (B, N)."""
         t, own, lk, rx = self.t, self.own, self.links, self.rx
         decide(
-            a, self.action_low, self.action_high, t, own, rx.hist, rx.hist_n, lk.needed,
+            a, self.action_low, self.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
             lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
             self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
@@ -343,7 +343,7 @@ class VectorConvoyEnv:
         own, lk, rx = self.own, self.links, self.rx
         self.channel.transmit(self.t, self.step_count, own, which, rx)
         observe(
-            obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.tail, rx.trail_n, lk.trail_of,
+            obs, which, self.t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n, lk.trail_of,
             rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
             self._spacing, self.member_config.ladder.stop_after_s,
             self._fresh_age_s, self._geom, self.desired_gap, self.spacing_error,

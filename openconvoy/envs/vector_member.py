@@ -55,11 +55,10 @@ def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
 
 
 @kernel
-def link_age(hist, hist_n, b, ln, t):  # pragma: no cover - compiled
-    """Age (s) of link ``ln``'s newest state at ``t``; inf when none."""
-    if hist_n[b, ln] == 0:
-        return np.inf
-    return max(0.0, t - hist[b, ln, 0, 0])
+def link_age(newest, b, ln, t):  # pragma: no cover - compiled
+    """Age (s) of link ``ln``'s newest message at ``t`` (``newest``: its time, -inf when
+    none); inf when none."""
+    return max(0.0, t - newest[b, ln])
 
 
 @kernel
@@ -89,7 +88,7 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
 
 @kernel
 def decide(
-    act, low, high, t, own, hist, hist_n, needed, pred_link, link_decel, lengths, sp, lad,
+    act, low, high, t, own, hist, hist_n, newest, needed, pred_link, link_decel, lengths, sp, lad,
     fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
 ):  # pragma: no cover - compiled  # fmt: skip
     """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
@@ -111,7 +110,7 @@ def decide(
                 age = 0.0
                 for ln in needed[i]:
                     if ln >= 0:
-                        age = max(age, link_age(hist, hist_n, b, ln, t[b]))
+                        age = max(age, link_age(newest, b, ln, t[b]))
                 mode = COOP if age <= lad[1] else (DEGRADED if age <= lad[2] else STOP)
                 v, dh, mode = _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh)
             if failed[b, i]:

@@ -89,7 +89,7 @@ def _path(
 
 @kernel
 def observe(
-    obs, rows, t, own, hist, hist_n, trail, tail, trail_n, trail_of, hint, hint_k, slot_link,
+    obs, rows, t, own, hist, hist_n, newest, trail, tail, trail_n, trail_of, hint, hint_k, slot_link,
     target_link, pred_link, link_decel, lengths, sp, stop_after, fresh_age, geom, desired_gap, spacing_error,
     pred_age, pred_est, tg,
 ):  # pragma: no cover - compiled  # fmt: skip
@@ -110,7 +110,7 @@ def observe(
             o = geom[2]
             obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = ev, own[4, b, i], own[5, b, i]
             desired_gap[b, i] = pair_gap(sp, ev, lengths[i], lengths[i - 1])
-            age = link_age(hist, hist_n, b, pred_link[f], tb) if pred_link[f] >= 0 else np.inf
+            age = link_age(newest, b, pred_link[f], tb) if pred_link[f] >= 0 else np.inf
             pred_age[b, i] = np.nan if math.isinf(age) else age
             chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, tail, trail_n,
                               trail_of, hint, hint_k, target_link, link_decel, lengths, sp, stop_after, fresh_age,

@@ -2,7 +2,7 @@
 
 Per kept link ``ln`` (receiver, sender) of convoy ``b``: ``hist[b, ln]`` (k, 6) the last
 ``k`` states, newest first (t s, x m, y m, speed m/s, heading rad, accel m/s²),
-``hist_n`` how many. Only what the receiver reads is kept (``LinkTables``): the states of
+``hist_n`` how many, ``newest[b, ln]`` the newest one's time (-inf: none). Only what the receiver reads is kept (``LinkTables``): the states of
 the links in its observation slots and targets, of the others only the newest time (the
 ladder's age; the same ages, so the same run). Per target link, row ``trail_of[ln]`` of
 the trails: the sender's trail (``vector_trail``); ``hint`` the last projection's arc
@@ -33,6 +33,7 @@ class RxBuffers:
         L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
         self.hist = np.zeros((B, L, k, 6))
         self.hist_n = np.zeros((B, L), dtype=np.int64)
+        self.newest = np.full((B, L), -np.inf)
         # Untouched pages of a trail are never committed (calloc): memory grows with
         # the breadcrumbs actually laid.
         self.trail = np.zeros((B, T, CAPACITY, 3))
@@ -44,6 +45,7 @@ class RxBuffers:
     def reset(self, rows: np.ndarray) -> None:
         """Empty the buffers of convoys ``rows`` (bool (B,))."""
         self.hist_n[rows] = 0
+        self.newest[rows] = -np.inf
         self.trail_n[rows] = 0
         self.tail[rows] = 0.0
         self.hint[rows] = np.nan
@@ -52,18 +54,17 @@ class RxBuffers:
 
 @kernel
 def push_one(
-    hist, hist_n, keeps, trail, tail, trail_n, trail_of, b, ln, ts, st, s, spacing
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, ln, ts, st, s, spacing
 ):  # pragma: no cover - compiled
     """``StateBuffer.push`` of sender ``s``'s state ``st[:, b, s]`` sent at ``ts`` onto
     link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``;
     only the time where the link ``keeps`` no states."""
-    n = hist_n[b, ln]
-    if n > 0 and not ts > hist[b, ln, 0, T]:
+    if not ts > newest[b, ln]:
         return
+    newest[b, ln] = ts
     k = hist.shape[2]
-    hist_n[b, ln] = min(n + 1, k)
+    hist_n[b, ln] = min(hist_n[b, ln] + 1, k)
     if not keeps[ln]:
-        hist[b, ln, 0, T] = ts
         return
     for j in range(k - 1, 0, -1):
         for f in range(6):

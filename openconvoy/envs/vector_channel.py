@@ -226,6 +226,15 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
 
 
 @kernel
+def _draw(zs, w1, w2):  # pragma: no cover - compiled
+    """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``."""
+    z = _mix(zs + _G + np.uint64(w1))
+    z = _mix(z + _G + np.uint64(w2))
+    z = _mix(z + _G + np.uint64(DRAW_LOSS))
+    return np.float64(z >> _S11) * _UNIT
+
+
+@kernel
 def _tx_gate(
     t, rows, own, nc, last, sent, mute_from, period, event, thr, sthr, max_silence, send
 ):  # pragma: no cover - compiled
@@ -279,15 +288,17 @@ def _bernoulli_deliver(
     for b in range(send.shape[0]):
         if not rows[b]:
             continue
-        p_loss, key = per[b], keys[b]
+        p_loss = per[b]
         for s in range(send.shape[1]):
             if not send[b, s]:
                 continue
             nb = number[b, s]
+            # counter_uniform4(key, s, r, nb, DRAW_LOSS), its sender's round once
+            zs = _mix(keys[b] + _G + np.uint64(s))
             for q in range(start[s], start[s + 1]):
                 p = by_sender[q]
                 r = pair_r[p]
-                if p_loss > 0.0 and counter_uniform4(key, s, r, nb, DRAW_LOSS) < p_loss:
+                if p_loss > 0.0 and _draw(zs, r, nb) < p_loss:
                     lost_to[b, r] += 1
                     continue
                 delivered_to[b, r] += 1

@@ -27,6 +27,10 @@ from openconvoy.core.errors import DependencyMissing
 
 try:
     import numba as _numba
+    from llvmlite import ir as _ir
+    from numba import types as _types
+    from numba.core import cgutils as _cgutils
+    from numba.extending import intrinsic as _intrinsic
 except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
     raise DependencyMissing(
         "VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'"
@@ -77,3 +81,29 @@ def _compile(fn: Callable[..., Any], inline: str) -> Any:
         )(fn)
     finally:
         config.CACHE_DIR = saved
+
+
+@_intrinsic
+def prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragma: no cover
+    """Hint the cache to fetch ``arr[b, ln, j]`` (a 4-D array's row; no effect on values):
+    the batched kernels touch each convoy's trails once per tick, too far apart for the
+    hardware to guess, so a kernel asks for the next convoys' rows while it works."""
+    sig = _types.void(arr, b, ln, j)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [
+            context.cast(builder, v, t, _types.intp)
+            for v, t in zip(args[1:], signature.args[1:])
+        ]
+        idx += [_ir.Constant(_ir.IntType(64), 0)] * (aryty.ndim - len(idx))
+        ptr = _cgutils.get_item_pointer(context, builder, aryty, ary, idx)
+        i8p, i32 = _ir.IntType(8).as_pointer(), _ir.IntType(32)
+        fnty = _ir.FunctionType(_ir.VoidType(), [i8p, i32, i32, i32])
+        fn = _cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        # read, high locality, data cache
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen

@@ -13,12 +13,17 @@ import math
 import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import kernel, prefetch
 from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector_trail import point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
+AHEAD = 4
+"""Convoys ahead whose trails and states ``observe`` asks the cache for (``_warm``)."""
+WARM_CRUMBS = 24
+"""Breadcrumbs from the last projection's segment on that ``_warm`` fetches (the
+projection walks a few, the path points reach a few metres further)."""
 
 
 def pack_layout(lay: ObservationLayout) -> np.ndarray:
@@ -98,6 +103,8 @@ def observe(
     path heading, s, desired, segment."""
     B, F = obs.shape[0], obs.shape[1]
     for b in range(B):
+        if b + AHEAD < B and rows[b + AHEAD]:
+            _warm(b + AHEAD, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link)
         if not rows[b]:
             continue
         tb = t[b]
@@ -127,6 +134,28 @@ def observe(
                   tg[1, chosen],
                   tg[2, chosen], tg[4, chosen], tg[6, chosen], tg[7, chosen], tg[8, chosen],
                   geom[4], int(tg[10, chosen]) + 1)  # fmt: skip
+
+
+@kernel
+def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  # pragma: no cover
+    """Prefetch what ``observe`` will read of convoy ``b``: its followers' slot states and
+    the target trails around the last projections. Only a hint to the cache: without
+    it, each convoy's first reads wait on memory in turn."""
+    F = slot_link.shape[0]
+    for f in range(F):
+        for k in range(slot_link.shape[1]):
+            link = slot_link[f, k]
+            if link >= 0:
+                for j in range(hist.shape[2]):
+                    prefetch(hist, b, link, j)
+        for m in range(target_link.shape[1]):
+            link = target_link[f, m]
+            if link < 0:
+                continue
+            tl = trail_of[link]
+            lo = hint_k[b, tl]
+            for j in range(lo, min(lo + WARM_CRUMBS, trail_n[b, tl]), 2):
+                prefetch(trail, b, tl, j)
 
 
 @kernel

@@ -11,7 +11,7 @@ of other ``vector_*`` modules: the cache lives in a directory named for a digest
 the modules with kernels (and numba's version), so a change to any kernel recompiles every one.
 ``NUMBA_CACHE_DIR`` (numba's setting) moves that directory's parent; default
 ``~/.cache/openconvoy`` (``XDG_CACHE_HOME``; the temporary directory when not writable).
-Compiling all kernels takes ~25 CPU-seconds, loading them from the cache ~1.
+Compiling all kernels takes ~30 CPU-seconds, loading them from the cache ~1.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("vector_*.py")):
         text = path.read_bytes()
-        if b"@kernel" in text or b"@inlined" in text or path.name == "vector_jit.py":
+        if b"@kernel" in text or path.name == "vector_jit.py":  # the modules with kernels
             digest.update(path.name.encode() + text)
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
@@ -57,34 +57,32 @@ def _cache_dir() -> Path:
 CACHE_DIR = _cache_dir()
 
 
+_OPTIONS: dict[str, Any] = {
+    "cache": True,
+    "nogil": True,
+    "error_model": "numpy",
+    # No reference counting in the kernels (numba's ``_nrt``): they allocate nothing, and
+    # a call of a kernel with array arguments would otherwise count each array up and
+    # down (atomic, out of line), which for the per-link helpers cost more than their work.
+    "_nrt": False,
+}
+
+
 def kernel(fn: Callable[..., Any]) -> Any:
     """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
-    error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
-    return _compile(fn, "never")
-
-
-def inlined(fn: Callable[..., Any]) -> Any:
-    """A ``kernel`` that other kernels inline (numba's ``inline="always"``): a call of a
-    compiled function with array arguments costs a reference count up and down per
-    array, which for the small per-link helpers is more than their work."""
-    return _compile(fn, "always")
-
-
-def _compile(fn: Callable[..., Any], inline: str) -> Any:
+    error model: a division by zero gives inf/NaN as the array code did, unchecked;
+    no allocation: scratch arrays come from the caller)."""
     # numba reads its cache directory when a function is decorated: set it for ours only.
     config: Any = _numba.config
     saved = config.CACHE_DIR
     config.CACHE_DIR = str(CACHE_DIR)
     try:
-        return _numba.njit(
-            cache=True, nogil=True, error_model="numpy", inline=inline, _nrt=False
-        )(fn)
+        return _numba.njit(**_OPTIONS)(fn)
     finally:
         config.CACHE_DIR = saved
 
 
-@_intrinsic
-def prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragma: no cover
+def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragma: no cover
     """Hint the cache to fetch ``arr[b, ln, j]`` (a 4-D array's row; no effect on values):
     the batched kernels touch each convoy's trails once per tick, too far apart for the
     hardware to guess, so a kernel asks for the next convoys' rows while it works."""
@@ -94,8 +92,7 @@ def prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragm
         aryty = signature.args[0]
         ary = context.make_array(aryty)(context, builder, args[0])
         idx = [
-            context.cast(builder, v, t, _types.intp)
-            for v, t in zip(args[1:], signature.args[1:])
+            context.cast(builder, v, t, _types.intp) for v, t in zip(args[1:], signature.args[1:])
         ]
         idx += [_ir.Constant(_ir.IntType(64), 0)] * (aryty.ndim - len(idx))
         ptr = _cgutils.get_item_pointer(context, builder, aryty, ary, idx)
@@ -107,3 +104,6 @@ def prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragm
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+prefetch: Any = _intrinsic(_prefetch)

@@ -83,9 +83,7 @@ def _path(
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
     for j in range(len(LOOKAHEAD)):
-        px, py = point_at(
-            trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess
-        )
+        px, py = point_at(trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess)
         dx, dy = px - ex, py - ey
         obs[b, f, o + 2 + 2 * j] = c * dx + s * dy
         obs[b, f, o + 3 + 2 * j] = -s * dx + c * dy

@@ -30,7 +30,7 @@ from openconvoy.comms.loss import (
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import DRAW_LOSS
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_math import norm
 from openconvoy.envs.vector_rx import RxBuffers, push_one
@@ -208,14 +208,14 @@ class VectorChannel:
         return lost
 
 
-@kernel
+@bare_kernel
 def _mix(z):  # pragma: no cover - compiled
     z = (z ^ (z >> _S30)) * _K1
     z = (z ^ (z >> _S27)) * _K2
     return z ^ (z >> _S31)
 
 
-@kernel
+@bare_kernel
 def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     """``comms.loss.counter_uniform(key, w0, w1, w2, w3)``, bit for bit."""
     z = _mix(key + _G + np.uint64(w0))
@@ -225,7 +225,7 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     return np.float64(z >> _S11) * _UNIT
 
 
-@kernel
+@bare_kernel
 def _draw(zs, w1, w2):  # pragma: no cover - compiled
     """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``."""
     z = _mix(zs + _G + np.uint64(w1))
@@ -234,7 +234,7 @@ def _draw(zs, w1, w2):  # pragma: no cover - compiled
     return np.float64(z >> _S11) * _UNIT
 
 
-@kernel
+@bare_kernel
 def _tx_gate(
     t, rows, own, nc, last, sent, mute_from, period, event, thr, sthr, max_silence, send
 ):  # pragma: no cover - compiled
@@ -264,7 +264,7 @@ def _tx_gate(
             sent[b, i] += 1
 
 
-@kernel
+@bare_kernel
 def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: no cover
     """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``)."""
     for b in range(lost.shape[0]):
@@ -278,7 +278,7 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
             )
 
 
-@kernel
+@bare_kernel
 def _bernoulli_deliver(
     keys, number, send, per, by_sender, start, pair_r, pair_link, rows, t, own, lost_to,
     delivered_to, kept, hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing,
@@ -310,7 +310,7 @@ def _bernoulli_deliver(
             number[b, s] = nb + 1
 
 
-@kernel
+@bare_kernel
 def _deliver(
     send, lost, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to, kept,
     hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, instant,
@@ -335,7 +335,7 @@ def _deliver(
                              own, s, spacing)  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def _arrive(
     step, t, q_arrival, q_state, q_t, q_lost, pair_s, pair_r, pair_link, delivered_to, kept,
     hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, due,

@@ -41,7 +41,7 @@ def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("vector_*.py")):
         text = path.read_bytes()
-        if b"@kernel" in text or path.name == "vector_jit.py":  # the modules with kernels
+        if b"@bare_kernel" in text or b"@kernel" in text or path.name == "vector_jit.py":
             digest.update(path.name.encode() + text)
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
@@ -57,27 +57,30 @@ def _cache_dir() -> Path:
 CACHE_DIR = _cache_dir()
 
 
-_OPTIONS: dict[str, Any] = {
-    "cache": True,
-    "nogil": True,
-    "error_model": "numpy",
-    # No reference counting in the kernels (numba's ``_nrt``): they allocate nothing, and
-    # a call of a kernel with array arguments would otherwise count each array up and
-    # down (atomic, out of line), which for the per-link helpers cost more than their work.
-    "_nrt": False,
-}
+_OPTIONS: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
 def kernel(fn: Callable[..., Any]) -> Any:
     """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
-    error model: a division by zero gives inf/NaN as the array code did, unchecked;
-    no allocation: scratch arrays come from the caller)."""
+    error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
+    return _compile(fn, _OPTIONS)
+
+
+def bare_kernel(fn: Callable[..., Any]) -> Any:
+    """A ``kernel`` without reference counting (numba's ``_nrt=False``): it allocates no
+    array and returns none (scratch comes from the caller). A call of a kernel with
+    array arguments otherwise counts each array up and down (atomic, out of line),
+    which for the per-link helpers costs more than their work."""
+    return _compile(fn, {**_OPTIONS, "_nrt": False})
+
+
+def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:
     # numba reads its cache directory when a function is decorated: set it for ours only.
     config: Any = _numba.config
     saved = config.CACHE_DIR
     config.CACHE_DIR = str(CACHE_DIR)
     try:
-        return _numba.njit(**_OPTIONS)(fn)
+        return _numba.njit(**options)(fn)
     finally:
         config.CACHE_DIR = saved
 

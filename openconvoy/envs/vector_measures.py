@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.envs.reward import RewardConfig
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_math import norm
 
 
@@ -21,7 +21,7 @@ def pack_reward(c: RewardConfig) -> np.ndarray:
     )  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
     """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions."""
     for b in range(gap.shape[0]):
@@ -31,7 +31,7 @@ def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
             collided[b, f] = g < half_sum[f]
 
 
-@kernel
+@bare_kernel
 def reward(out, gap, desired, accel_old, own, collided, inv_dt, c):  # pragma: no cover
     """``envs.reward``: spacing, acceleration, jerk, yaw rate and collision terms."""
     for b in range(gap.shape[0]):
@@ -89,7 +89,7 @@ def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, n
     return out
 
 
-@kernel
+@bare_kernel
 def fill_infos(
     fl, it, lf, li, gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes,
     sent, received, kept, lost, errors,

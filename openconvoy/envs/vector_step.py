@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from openconvoy.envs.vector_channel import _bernoulli_deliver, _tx_gate
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_leader import _drive, _project
 from openconvoy.envs.vector_measures import fill_infos, measure, reward
 from openconvoy.envs.vector_member import decide
@@ -69,7 +69,7 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     )  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def fused_step(
     act, obs, rewards, terminated, truncated, info, member, lead_project, lead_drive, plant,
     clock, tx, deliver, view, meas, score, fill,

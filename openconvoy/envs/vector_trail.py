@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_math import norm
 
 CAPACITY = 1024
@@ -46,7 +46,7 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     n[b, ln] = nn + 1
 
 
-@bare_kernel
+@bare_inline
 def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
     """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
     from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
@@ -77,7 +77,7 @@ def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
     return lo
 
 
-@bare_kernel
+@bare_inline
 def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb."""
     if n >= 2:
@@ -90,7 +90,7 @@ def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     return -dx / d, -dy / d
 
 
-@bare_kernel
+@bare_inline
 def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     """``Trail._vertex``: -1 the far end of the extension, 0..n-1 breadcrumbs, n the head
     (at arc coordinate ``s_head``)."""
@@ -102,7 +102,7 @@ def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     return tr[b, ln, 0, 0] + FAR_M * bx, tr[b, ln, 0, 1] + FAR_M * by, tr[b, ln, 0, 2] - FAR_M
 
 
-@bare_kernel
+@bare_inline
 def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``Trail._segment`` of (x, y) on segment k -> k+1: (dist², s, dx, dy, seg, rx, ry),
     the cross track and heading left to ``_finish`` (only the nearest needs them)."""

@@ -123,7 +123,7 @@ def decide(
             cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
 
 
-@bare_kernel
+@bare_inline
 def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # pragma: no cover
     """``ConvoyMember.supervise``'s rungs: degraded follows the ACC fallback on the
     predecessor estimate (none: stop), stop commands zero."""
@@ -142,7 +142,7 @@ def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # prag
     return v, dh, mode
 
 
-@bare_kernel
+@bare_inline
 def _fires(
     own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t
 ):  # pragma: no cover - compiled

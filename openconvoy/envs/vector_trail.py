@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from openconvoy.envs.vector_jit import bare_inline, bare_kernel
+from openconvoy.envs.vector_jit import bare_inline
 from openconvoy.envs.vector_math import norm
 
 CAPACITY = 1024
@@ -22,7 +22,7 @@ FAR_M = 1e4
 """Length of the straight extension behind the oldest breadcrumb (``Trail._vertex``)."""
 
 
-@bare_kernel
+@bare_inline
 def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     """``Trail.add``: record (x, y) when ``spacing`` m from the last breadcrumb."""
     nn = n[b, ln]
@@ -118,7 +118,7 @@ def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - c
     return ex * ex + ey * ey, sa + u * (sb - sa), dx, dy, seg, rx, ry
 
 
-@bare_kernel
+@bare_inline
 def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
     """``Trail.project`` from ``hint`` (NaN: ``expected`` m behind the head; ``hint_k``
     where to look for it): (arc to head, cross track, path heading, s, segment)."""
@@ -143,7 +143,7 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     return s_head - s, (dx * ry - dy * rx) / seg, math.atan2(dy, dx), s, k
 
 
-@bare_kernel
+@bare_inline
 def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover - compiled
     """``Trail.point_at``: the path point at arc coordinate ``s`` (beyond the head: on);
     ``guess``: a breadcrumb index near it."""

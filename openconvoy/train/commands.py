@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core.errors import ConfigError
-from openconvoy.train.config import TrainConfig, load_train_config
+from openconvoy.train.config import TrainConfig, load_train_config, run_defaults
 from openconvoy.train.randomization import (
     ABSOLUTE_ACTION_BOUNDS,
     RESIDUAL_ACTION_BOUNDS,
@@ -34,6 +34,7 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         ("threads", "torch_threads"),
         ("vec_env", "vec_env"),
         ("worlds", "n_worlds"),
+        ("budget", "budget_s"),
     ):
         if getattr(args, flag) is not None:
             top[key] = getattr(args, flag)
@@ -73,11 +74,24 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
     if r_changes:
         r = dataclasses.replace(r, **r_changes)
     ppo = config.ppo
-    if bool(env.base_policy) != bool(config.env.base_policy) and ppo.use_sde == (
-        not config.env.base_policy
-    ):  # the other kind's exploration default
-        ppo = dataclasses.replace(ppo, use_sde=None)
+    if bool(env.base_policy) != bool(config.env.base_policy):
+        if ppo.use_sde == (not config.env.base_policy):  # the other kind's exploration
+            ppo = dataclasses.replace(ppo, use_sde=None)
+        run, ppo_changes = _run_kind_defaults(config, bool(env.base_policy))
+        ppo = dataclasses.replace(ppo, **ppo_changes)
+        top = {**run, **top}  # flags given win
     return dataclasses.replace(config, env=env, randomization=r, ppo=ppo, **top)
+
+
+def _run_kind_defaults(
+    config: TrainConfig, residual: bool
+) -> tuple[dict[str, object], dict[str, object]]:
+    """The run size and PPO changes to the ``residual`` kind's defaults where ``config``
+    holds the other kind's (``config.run_defaults``; values a config chose stay)."""
+    (old_top, old_ppo), (new_top, new_ppo) = run_defaults(not residual), run_defaults(residual)
+    top = {k: v for k, v in new_top.items() if getattr(config, k) == old_top[k]}
+    ppo = {k: v for k, v in new_ppo.items() if getattr(config.ppo, k) == old_ppo[k]}
+    return top, ppo
 
 
 def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:

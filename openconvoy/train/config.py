@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
@@ -179,7 +179,7 @@ class TrainConfig:
         return self.n_envs * self.env.n_followers
 
 
-SCRATCH_RUN: dict[str, object] = {
+SCRATCH_RUN: dict[str, Any] = {
     "total_steps": 6_000_000,
     "n_envs": 64,
     "n_worlds": 4,
@@ -191,11 +191,11 @@ SCRATCH_RUN: dict[str, object] = {
 64 convoys in 4 worlds, validated every 250k steps, learning until 6M steps or 14
 minutes of wall clock (the whole run, its final validation included, within 15
 minutes on a 2-core machine, whatever else runs on it)."""
-SCRATCH_PPO: dict[str, object] = {"n_steps": 32, "batch_size": 1024}
+SCRATCH_PPO: dict[str, Any] = {"n_steps": 32, "batch_size": 1024}
 """PPO settings ``--base none`` brings: 32-step rollouts of 128 slots, 4 minibatches."""
 
 
-def run_defaults(residual: bool) -> tuple[dict[str, object], dict[str, object]]:
+def run_defaults(residual: bool) -> tuple[dict[str, Any], dict[str, Any]]:
     """The defaults of a run's size and of PPO of each kind (residual or from scratch),
     over the keys the kinds differ in: ``(top-level, ppo)``."""
     if not residual:

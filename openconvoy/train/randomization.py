@@ -191,7 +191,7 @@ sees no gradient back, and its comfort terms pay an exploring policy to creep (a
 turns and accelerates less); the light acceleration term damps the speed oscillation of
 a spacing-only reward (p95 2.46 -> 1.89 m at PER 0)."""
 
-SCRATCH_SHAPING = Shaping(w_precision=1.0, precision_scale_m=1.0, w_path=1.0, path_scale_m=4.0)
+SCRATCH_SHAPING = Shaping(weight=1.0, gap_scale_m=1.0, path_scale_m=2.0, heading_scale_rad=0.5)
 """The terms learning from scratch adds to ``SCRATCH_REWARD`` (``train.shaping``)."""
 
 RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))

@@ -325,9 +325,7 @@ def train(
         venv.save(str(run_dir / VECNORM_FILE))
     meta = read_zip_meta(policy)
     (run_dir / "policy.json").write_text(json.dumps(meta.to_json(), indent=1), encoding="utf-8")
-    result = TrainResult(
-        run_dir, policy, int(model.num_timesteps), wall, schedule.stopped_by_clock
-    )
+    result = TrainResult(run_dir, policy, int(model.num_timesteps), wall, schedule.stopped_by_clock)
     _write_summary(config, result, run_dir / "train.json", schedule.per_high)
     venv.close()
     return result

@@ -77,10 +77,11 @@ def validate(
 
 
 def validation_objective(metrics: Sequence[dict[str, Any]]) -> float:
-    """The tuning objective (``objective_of``) plus the mean ``PATH_KEY`` (m)."""
+    """The tuning objective (``objective_of``) plus the mean ``PATH_KEY`` (m; 0 for a
+    scenario without a path)."""
     path = [m.get(PATH_KEY) for m in metrics]
-    path = [v if v is not None and np.isfinite(v) else 1e3 for v in path]
-    return objective_of(metrics, TuneConfig()) + float(np.mean(path))
+    finite = [float(v) if v is not None and np.isfinite(v) else 0.0 for v in path]
+    return objective_of(metrics, TuneConfig()) + float(np.mean(finite))
 
 
 def path_error_p95(log: dict[str, np.ndarray], scenario: Any) -> float:

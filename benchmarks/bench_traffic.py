@@ -6,7 +6,8 @@ Cases, for 10, 30 and 50 traffic cars on a 4-lane highway:
 - ``openconvoy``: ``TrafficConvoyEnv("highway-cut-in:lanes=4,...")`` (the cut-in car counts
   as one of the traffic cars), leader + 2 followers, fixed actions (the environment alone),
   one step = one 0.05 s tick; with each traffic path (``HighwayConfig.road``): ``vector``
-  (``VectorRoad``: highway-env's IDM/MOBIL for all cars at once with numpy), ``fast``
+  (``VectorRoad``: highway-env's IDM/MOBIL on arrays, compiled by numba), ``vector_numpy``
+  (the same road run as numpy calls, its fallback without numba), ``fast``
   (``FastRoad``: highway-env's vehicles, neighbour search and collision pre-check done once
   per step) and ``highway-env`` (its ``Road`` as is).
 - ``highway-v0``: ``gymnasium.make("highway-v0")`` with 3 controlled vehicles
@@ -53,9 +54,15 @@ def _time_steps(step, reset, seconds: float) -> tuple[float, float]:
 
 def bench_openconvoy(count: int, road: str, seconds: float) -> tuple[float, float]:
     from openconvoy.envs.traffic_env import TrafficConvoyEnv
+    from openconvoy.envs.traffic_vector import VectorRoad
 
+    compiled = VectorRoad.compiled
+    if road == "vector_numpy":
+        road, VectorRoad.compiled = "vector", False
     spec = f"highway-cut-in:lanes=4,traffic={count - 1},duration_s=60,road={road}"
     env = TrafficConvoyEnv(spec)
+    env.reset(seed=0)  # (a first step compiles or loads the kernels: not timed)
+    env.step({a: np.array([25.0, 0.0], dtype=np.float32) for a in env.agents})
     action = np.array([25.0, 0.0], dtype=np.float32)
     seed = [0]
 
@@ -67,7 +74,10 @@ def bench_openconvoy(count: int, road: str, seconds: float) -> tuple[float, floa
         env.step({a: action for a in env.agents})
         return not env.agents
 
-    return _time_steps(step, reset, seconds)
+    try:
+        return _time_steps(step, reset, seconds)
+    finally:
+        VectorRoad.compiled = compiled
 
 
 def bench_highway_v0(
@@ -117,6 +127,7 @@ def main() -> None:
         row: dict = {"traffic_cars": n}
         cases = {
             "openconvoy_vector": (bench_openconvoy, (n, "vector")),
+            "openconvoy_vector_numpy": (bench_openconvoy, (n, "vector_numpy")),
             "openconvoy_fast": (bench_openconvoy, (n, "fast")),
             "openconvoy_highway_env_road": (bench_openconvoy, (n, "highway-env")),
             "highway_v0_20hz": (bench_highway_v0, (n, 20, 20)),

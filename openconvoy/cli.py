@@ -11,6 +11,7 @@ line and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn
@@ -103,6 +104,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(handler(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # The reader left (`openconvoy presets | head`): stop quietly, as `cat` does. Python's
+        # documented recipe: point stdout at devnull so the exit-time flush does not raise.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by the pipe
     except OpenConvoyError as exc:  # what a user can get wrong; anything else is a bug
         print(f"openconvoy: error: {exc}", file=sys.stderr)
         return 2

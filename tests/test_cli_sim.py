@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -188,6 +191,23 @@ def test_presets_lists_every_policy_and_vehicle_preset(capsys):
     assert listed == [*PRESETS, *VEHICLE_PRESETS]
     event_line = next(ln for ln in lines if ln.split()[0] == "cacc-lookahead1-event")
     assert "lookahead:1, event, constant-time-headway" in event_line
+
+
+def test_presets_into_a_pipe_the_reader_left_ends_quietly():
+    """`openconvoy presets | head -1`: writing into a pipe nobody reads; no traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the first write, as after `head` exits
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "openconvoy.cli", "presets"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            timeout=60,
+        )
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141
+    assert proc.stderr == b""
 
 
 def test_compare_two_runs_shows_differences(paper_run: Path, tmp_path: Path, capsys):

@@ -214,6 +214,14 @@ class FastRoad(Road):
         """The IDM acceleration (m/s², clipped) ``act`` computed for ``vehicle``, if any."""
         return None
 
+    def nearest_in_path(
+        self, vehicles: list, n: int, max_look_m: float
+    ) -> tuple[list[int], list[float], list[float], np.ndarray] | None:
+        """``TrafficWorld.in_path``'s search for the first ``n`` of ``vehicles`` (the road's
+        list), done on the arrays: per car the index of the one in its path (-1: none),
+        range (m), range rate (m/s), and every car's length (m); None: not done here."""
+        return None
+
     def act(self) -> None:
         self._cache = {}
         self._objs = [v for v in self.vehicles + self.objects if not isinstance(v, Landmark)]
@@ -498,6 +506,29 @@ class TrafficWorld:
     def in_path(self) -> list[InPath | None]:
         """For each convoy vehicle, the nearest vehicle ahead whose body overlaps its path
         (the corridor of its own width straight ahead), within ``max_look_m``."""
+        n = len(self._convoy)
+        road = self.road
+        found = (
+            road.nearest_in_path(self._all, n, self.max_look_m)
+            if isinstance(road, FastRoad)
+            else None
+        )
+        if found is None:
+            found = self._nearest_in_path()
+        nearest, rngs, rates, lengths = found
+        out: list[InPath | None] = []
+        for i in range(n):
+            j = nearest[i]
+            if j < 0:
+                out.append(None)
+                continue
+            traffic = j >= n
+            tid = TRAFFIC_ID_BASE + (j - n) if traffic else j
+            out.append(InPath(rngs[i], rates[i], float(lengths[j]), tid, traffic))
+        return out
+
+    def _nearest_in_path(self) -> tuple[list[int], list[float], list[float], np.ndarray]:
+        """``FastRoad.nearest_in_path`` with numpy, on any road."""
         x, y, _, spd, width, lengths, c, s = self._arrays()
         n = len(self._convoy)
         half_w = 0.5 * width
@@ -514,19 +545,16 @@ class TrafficWorld:
         nearest = np.where(ok, lon, np.inf).argmin(axis=1).tolist()
         seen = ok.any(axis=1).tolist()
         vx, vy = (spd * c).tolist(), (spd * s).tolist()
-        out: list[InPath | None] = []
+        rngs, rates = [0.0] * n, [0.0] * n
         for i in range(n):
             if not seen[i]:
-                out.append(None)
+                nearest[i] = -1
                 continue
             j = nearest[i]
             dxi, dyi = float(dx[i, j]), float(dy[i, j])
-            rng = math.hypot(dxi, dyi)
-            rate = (dxi * (vx[j] - vx[i]) + dyi * (vy[j] - vy[i])) / rng if rng > 0 else 0.0
-            traffic = j >= n
-            tid = TRAFFIC_ID_BASE + (j - n) if traffic else j
-            out.append(InPath(rng, rate, float(lengths[j]), tid, traffic))
-        return out
+            rng = rngs[i] = math.hypot(dxi, dyi)
+            rates[i] = (dxi * (vx[j] - vx[i]) + dyi * (vy[j] - vy[i])) / rng if rng > 0 else 0.0
+        return nearest, rngs, rates, lengths
 
     def traffic_states_enu(self) -> np.ndarray:
         """Traffic as rows ``(x, y, heading, speed, length, width)`` in ENU."""

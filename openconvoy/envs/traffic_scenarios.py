@@ -69,8 +69,9 @@ HIGHWAY_SCENARIOS: tuple[str, ...] = (
 
 LANE_WIDTH_M = StraightLane.DEFAULT_WIDTH
 ROADS: tuple[str, ...] = ("vector", "fast", "highway-env")
-"""Traffic paths (``HighwayConfig.road``): ``vector`` (``traffic_vector.VectorRoad``: all
-cars at once with numpy on straight roads, ``fast`` elsewhere), ``fast`` (``FastRoad``:
+"""Traffic paths (``HighwayConfig.road``): ``vector`` (``traffic_vector.VectorRoad``: the
+cars' state in arrays, the tick compiled by numba, on straight roads; ``fast`` elsewhere),
+``fast`` (``FastRoad``:
 highway-env's vehicles, its neighbour search and collision pre-check done once per step),
 ``highway-env`` (its ``Road`` as is)."""
 RADAR = RangingSensor(max_range_m=150.0, range_noise_m=0.1, range_rate_noise_mps=0.1)

@@ -68,6 +68,7 @@ class StraightEdge:
     limit: np.ndarray  # speed limit (m/s)
     length: float  # lane length (m)
     vlen: float  # highway-env's VEHICLE_LENGTH (m), its margin at lane ends
+    geo: np.ndarray  # (3, lanes): lane_y, reach_w, on_half_w (``traffic_jit.decide``'s)
 
     @classmethod
     def of(cls, graph: dict) -> StraightEdge | None:
@@ -89,16 +90,20 @@ class StraightEdge:
                 or ln.length != lanes[0].length
             ):
                 return None
+        lane_y = np.array([ln.start[1] for ln in lanes], dtype=float)
+        on_half_w = np.array([ln.width / 2 + 1.0 for ln in lanes], dtype=float)
+        reach_w = np.array([2 * ln.width for ln in lanes], dtype=float)
         return cls(
             start,
             end,
             tuple(lanes),
-            np.array([ln.start[1] for ln in lanes], dtype=float),
-            np.array([ln.width / 2 + 1.0 for ln in lanes]),
-            np.array([2 * ln.width for ln in lanes]),
+            lane_y,
+            on_half_w,
+            reach_w,
             np.array([ln.speed_limit for ln in lanes], dtype=float),
             float(lanes[0].length),
             float(lanes[0].VEHICLE_LENGTH),
+            np.array((lane_y, reach_w, on_half_w)).reshape(3, len(lanes)),
         )
 
     def closest(self, x: np.ndarray, y: np.ndarray, heading: np.ndarray) -> np.ndarray:
@@ -163,11 +168,17 @@ class TrafficState:
         )
         # Collision pre-check constants: half (length, width), half the diagonals' sum, pairs.
         self.half = 0.5 * np.array([(v.LENGTH, v.WIDTH) for v in vehicles], dtype=float)
+        self.half_len = self.half[:, 0].copy()
         self.reach = 0.5 * (self.diagonal[:, None] + self.diagonal[None, :])
         self.upper = np.triu(np.ones((n, n), dtype=bool), 1)
         first = int(np.argmax(self.traffic)) if self.traffic.any() else n
         block = not self.traffic[:first].any() and self.traffic[first:].all()
         self.movers: slice | np.ndarray = slice(first, n) if block else np.flatnonzero(self.traffic)
+        self.mover_rows = np.flatnonzero(self.traffic)
+        # What ``traffic_jit.decide`` runs for each car: 0 nothing (convoy), 1 IDM, 2 IDM
+        # and MOBIL, 3 a scripted car's speed control.
+        self.kind = np.where(self.hold, 3, np.where(self.lc, 2, 1) * self.traffic).astype(np.intp)
+        self.idm_out = np.zeros(n)
         self.load()
 
     def load(self) -> None:
@@ -193,7 +204,8 @@ class TrafficState:
         self.lane, self.tgt = cols[4].astype(np.intp), cols[5].astype(np.intp)
         self.timer, self.crashed, self.tspeed = cols[6], cols[7] != 0.0, cols[8]
         self.steer, self.acc = cols[9], cols[10]
-        self.trig_ok = False
+        self.c, self.s = np.cos(self.h), np.sin(self.h)
+        self.trig_ok = True
         self.impact = np.zeros((self.n, 2))
         self.hit = np.zeros(self.n, dtype=bool)  # an impact is pending (``impact is not None``)
         for k, v in enumerate(self.objs):
@@ -202,13 +214,20 @@ class TrafficState:
 
     def rows_of(self, vehicles: list) -> slice | np.ndarray:
         """The rows of ``vehicles`` (a slice when they are a block), cached per list."""
+        return self._rows_entry(vehicles)[1]
+
+    def row_array(self, vehicles: list) -> np.ndarray:
+        """The rows of ``vehicles`` as an index array, cached per list."""
+        return self._rows_entry(vehicles)[2]
+
+    def _rows_entry(self, vehicles: list) -> tuple[list, slice | np.ndarray, np.ndarray]:
         got = self._rows.get(id(vehicles))
         if got is None or got[0] is not vehicles or len(got[2]) != len(vehicles):
             ks = np.array([self.index[id(v)] for v in vehicles], dtype=np.intp)
             block = len(ks) > 0 and bool(np.all(ks == np.arange(ks[0], ks[0] + len(ks))))
             rows = slice(int(ks[0]), int(ks[0]) + len(ks)) if block else ks
             got = self._rows[id(vehicles)] = (vehicles, rows, ks)
-        return got[1]
+        return got
 
     def trig(self) -> None:
         """``c``, ``s``: cos and sin of every heading (computed once per change of ``h``)."""

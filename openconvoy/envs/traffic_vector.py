@@ -1,31 +1,47 @@
 """Vectorized traffic on straight multi-lane roads: highway-env's IDM/MOBIL, all cars at once.
 
 ``VectorRoad`` is a highway-env ``Road`` that keeps its vehicles' state in numpy arrays for
-the whole episode (``traffic_state.TrafficState``) and computes what every ``IDMVehicle`` on
-it would (``traffic_idm.decide``: ``IDMVehicle.act``; ``move``: ``Vehicle.step``) on them,
-instead of vehicle by vehicle. highway-env's vehicle objects stay the public face: reading
+the whole episode (``traffic_state.TrafficState``) and computes on them what every
+``IDMVehicle`` on it would (``IDMVehicle.act``, ``Vehicle.step``), instead of vehicle by
+vehicle: compiled (``traffic_jit``'s numba kernels, car by car in road order, the default)
+or, without numba, with numpy calls over all cars (``traffic_idm.decide``, ``move``; one
+log line says so). highway-env's vehicle objects stay the public face: reading
 ``road.vehicles`` (the renderer, highway-env's own code, ``TrafficWorld.convoy``) first
 writes the arrays back into the objects, and the next tick reads the objects again (so
 what a caller changed in them counts). Collisions are highway-env's ``handle_collisions``,
-called on the objects of the pairs numpy cannot rule out.
+called on the objects of the pairs the arrays cannot rule out.
 
 It applies to one road edge of parallel straight lanes along +x from x = 0
 (``highway-cut-in``, ``highway-slow-traffic``) with plain ``IDMVehicle`` traffic (no
 routes), ``ScriptedLaneChanger`` s and our ``ConvoyVehicle`` s, before any car reaches the
 lane's end; anything else falls back to ``FastRoad`` (highway-env's per-vehicle code).
-The parity test holds trajectories to 1e-9 m of highway-env's own (they agree bit for bit
-on this machine: the same operations in the same order, on arrays).
+The parity tests hold both ways' trajectories to 1e-9 m of highway-env's own over whole
+scenarios (they agree bit for bit on this machine: the same operations in the same order).
 """
 
 from __future__ import annotations
 
+import logging
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 
+from openconvoy.core.errors import DependencyMissing
 from openconvoy.envs.traffic import FastRoad, StraightLane, touching_pairs
 from openconvoy.envs.traffic_idm import decide
 from openconvoy.envs.traffic_state import StraightEdge, TrafficState, vectorizable
+
+_jit: ModuleType | None
+_told = False  # the one line about a missing numba was logged
+try:
+    from openconvoy.envs import traffic_jit as _jit
+except DependencyMissing:  # numba comes with the traffic extra
+    _jit = None
+_NO_JIT = (
+    "traffic road=vector: numba is missing, the traffic runs as numpy calls (~2x slower); "
+    "pip install 'openconvoy[traffic]'"
+)
 
 
 def move(st: TrafficState, dt: float) -> None:
@@ -61,9 +77,16 @@ def move(st: TrafficState, dt: float) -> None:
 
 
 class VectorRoad(FastRoad):
-    """See the module doc."""
+    """See the module doc. ``compiled``: run the tick as ``traffic_jit``'s kernels (numba;
+    the default where it is installed), else as numpy calls (``traffic_idm``, ``move``)."""
+
+    compiled: bool = _jit is not None
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
+        global _told
+        if _jit is None and not _told:
+            logging.getLogger(__name__).warning("%s", _NO_JIT)
+            _told = True
         self._veh: list = []
         self._st: TrafficState | None = None
         self._arrays_ok = False  # the arrays hold the current state
@@ -139,10 +162,17 @@ class VectorRoad(FastRoad):
         except KeyError:  # not all on this road's list: the caller sets the objects
             self.vehicles  # noqa: B018  (brings the objects up to date, read back next tick)
             return False
-        st.x[ks], st.y[ks], st.h[ks], st.sp[ks] = hx, hy, heading, speed
-        st.hit[ks] = False
+        if self.compiled and _jit is not None:
+            e = st.edge
+            _jit.place(
+                st.row_array(vehicles), hx, hy, heading, speed, st.x, st.y, st.h, st.sp,
+                st.hit, st.lane, st.tgt, e.lane_y, e.length,
+            )  # fmt: skip
+        else:
+            st.x[ks], st.y[ks], st.h[ks], st.sp[ks] = hx, hy, heading, speed
+            st.hit[ks] = False
+            st.lane[ks] = st.tgt[ks] = st.edge.closest(st.x[ks], st.y[ks], st.h[ks])
         st.trig_ok = False
-        st.lane[ks] = st.tgt[ks] = st.edge.closest(st.x[ks], st.y[ks], st.h[ks])
         self._objects_ok = False
         return True
 
@@ -153,9 +183,33 @@ class VectorRoad(FastRoad):
         k = st.index.get(id(vehicle))
         return None if k is None else float(self._idm[k])
 
+    def nearest_in_path(
+        self, vehicles: list, n: int, max_look_m: float
+    ) -> tuple[list[int], list[float], list[float], np.ndarray] | None:
+        st = self._state() if vehicles is self._veh else None
+        if st is None or not self.compiled or _jit is None:
+            return None
+        st.trig()
+        target, rng, rate = np.empty(n, dtype=np.intp), np.zeros(n), np.zeros(n)
+        _jit.nearest_in_path(
+            n, st.x, st.y, st.sp, st.c, st.s, st.width, max_look_m, target, rng, rate
+        )
+        return target.tolist(), rng.tolist(), rate.tolist(), st.length
+
     def act(self) -> None:
         self._idm = None
         st = self._state()
+        if st is not None and self.compiled and _jit is not None:
+            st.read_scripts()
+            e = st.edge
+            if _jit.decide(
+                st.x, st.y, st.h, st.sp, st.c, st.s, st.lane, st.tgt, st.timer, st.crashed,
+                st.tspeed, st.kind, st.params, st.idm_p, st.half_len, e.geo, e.limit,
+                e.length, e.vlen, st.steer, st.acc, st.idm_out,
+            ):  # fmt: skip
+                self._idm, self._objects_ok, st.trig_ok = st.idm_out, False, True
+                return
+            st = None  # follow_road would switch lanes: highway-env's code
         end = None if self._edge is None else self._edge.length - self._edge.vlen / 2
         if st is None or (st.traffic & (st.x > end)).any():  # follow_road would switch lanes
             super().act()
@@ -168,10 +222,20 @@ class VectorRoad(FastRoad):
         if st is None:
             super().step(dt)
             return
-        move(st, dt)
         self._objects_ok = False
-        st.trig()
-        pairs = touching_pairs(st.x, st.y, st.c, st.s, st.sp, st.reach, st.half, st.upper, dt)
+        if self.compiled and _jit is not None:
+            e = st.edge
+            found = _jit.step(
+                st.mover_rows, dt, st.x, st.y, st.h, st.sp, st.c, st.s, st.steer, st.acc,
+                st.crashed, st.hit, st.impact, st.speed_range, st.half, st.timer, st.lane,
+                e.lane_y, e.length, st.reach,
+            )  # fmt: skip
+            st.trig_ok = True
+            pairs = [(int(i), int(j)) for i, j in found] if len(found) else []
+        else:
+            move(st, dt)
+            st.trig()
+            pairs = touching_pairs(st.x, st.y, st.c, st.s, st.sp, st.reach, st.half, st.upper, dt)
         if pairs:
             ks = sorted({k for pair in pairs for k in pair})
             st.sync(ks)

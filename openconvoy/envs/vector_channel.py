@@ -30,7 +30,7 @@ from openconvoy.comms.loss import (
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import DRAW_LOSS
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_math import norm
 from openconvoy.envs.vector_rx import RxBuffers, push_one
@@ -71,6 +71,10 @@ class VectorChannel:
         else:
             self.pair_s, self.pair_r = links.link_s, links.link_r
             self.pair_link = np.arange(links.L, dtype=np.int64)
+        # The pairs by sender (the draws do not depend on the order): a tick's work
+        # follows its broadcasts.
+        self.by_sender = np.argsort(self.pair_s, kind="stable").astype(np.int64)
+        self.sender_start = np.searchsorted(self.pair_s[self.by_sender], np.arange(N + 1))
         mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
@@ -98,6 +102,7 @@ class VectorChannel:
             self.q_state = np.zeros((S, 6, B, N))
             self.q_t = np.zeros((S, B, N))
             self.q_lost = np.zeros((S, B, P), dtype=bool)
+            self._due = np.zeros(N, dtype=bool)
 
     def reset(self, rows: np.ndarray) -> None:
         """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
@@ -138,6 +143,14 @@ class VectorChannel:
             c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps,
             c.max_silence_s, self.send,
         )  # fmt: skip
+        if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
+            _bernoulli_deliver(
+                self.keys, self.broadcasts, self.send, self.per, self.by_sender,
+                self.sender_start, self.pair_r, self.pair_link, rows, t, own, self.lost_to,
+                self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.newest,
+                rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m,
+            )  # fmt: skip
+            return
         if self.ge is not None:
             self.lost[:] = self._ge_lost(self.send, t)[:, self.pair_s, self.pair_r]
         else:
@@ -147,15 +160,17 @@ class VectorChannel:
         instant = self.slots == 0
         _deliver(
             self.send, self.lost, self.pair_s, self.pair_r, self.pair_link, rows, t, own,
-            self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.trail,
-            rx.trail_n, rx.spacing_m, instant,
+            self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
+            rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
+            rx.spacing_m, instant,
         )  # fmt: skip
         if not instant:
             self._enqueue(t, step, own, rows)
             _arrive(
                 step, t, self.q_arrival, self.q_state, self.q_t, self.q_lost,
                 self.pair_s, self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept,
-                rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.spacing_m,
+                rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.trail_of, rx.spacing_m, self._due,
             )  # fmt: skip
 
     def _enqueue(self, t: np.ndarray, step: np.ndarray, own: np.ndarray, rows: np.ndarray) -> None:
@@ -193,14 +208,14 @@ class VectorChannel:
         return lost
 
 
-@kernel
+@bare_kernel
 def _mix(z):  # pragma: no cover - compiled
     z = (z ^ (z >> _S30)) * _K1
     z = (z ^ (z >> _S27)) * _K2
     return z ^ (z >> _S31)
 
 
-@kernel
+@bare_kernel
 def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     """``comms.loss.counter_uniform(key, w0, w1, w2, w3)``, bit for bit."""
     z = _mix(key + _G + np.uint64(w0))
@@ -210,7 +225,16 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     return np.float64(z >> _S11) * _UNIT
 
 
-@kernel
+@bare_kernel
+def _draw(zs, w1, w2):  # pragma: no cover - compiled
+    """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``."""
+    z = _mix(zs + _G + np.uint64(w1))
+    z = _mix(z + _G + np.uint64(w2))
+    z = _mix(z + _G + np.uint64(DRAW_LOSS))
+    return np.float64(z >> _S11) * _UNIT
+
+
+@bare_kernel
 def _tx_gate(
     t, rows, own, nc, last, sent, mute_from, period, event, thr, sthr, max_silence, send
 ):  # pragma: no cover - compiled
@@ -240,7 +264,7 @@ def _tx_gate(
             sent[b, i] += 1
 
 
-@kernel
+@bare_kernel
 def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: no cover
     """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``)."""
     for b in range(lost.shape[0]):
@@ -254,10 +278,42 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
             )
 
 
-@kernel
+@bare_kernel
+def _bernoulli_deliver(
+    keys, number, send, per, by_sender, start, pair_r, pair_link, rows, t, own, lost_to,
+    delivered_to, kept, hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing,
+):  # pragma: no cover - compiled  # fmt: skip
+    """``_bernoulli`` and ``_deliver`` of instant links in one walk over each
+    broadcast's pairs; counts the broadcasts."""
+    for b in range(send.shape[0]):
+        if not rows[b]:
+            continue
+        p_loss = per[b]
+        for s in range(send.shape[1]):
+            if not send[b, s]:
+                continue
+            nb = number[b, s]
+            # counter_uniform4(key, s, r, nb, DRAW_LOSS), its sender's round once
+            zs = _mix(keys[b] + _G + np.uint64(s))
+            for q in range(start[s], start[s + 1]):
+                p = by_sender[q]
+                r = pair_r[p]
+                if p_loss > 0.0 and _draw(zs, r, nb) < p_loss:
+                    lost_to[b, r] += 1
+                    continue
+                delivered_to[b, r] += 1
+                link = pair_link[p]
+                if link >= 0:
+                    kept[b, r] += 1
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
+                             link, t[b], own, s, spacing)  # fmt: skip
+            number[b, s] = nb + 1
+
+
+@bare_kernel
 def _deliver(
     send, lost, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to, kept,
-    hist, hist_n, trail, trail_n, spacing, instant,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, instant,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Count the losses of this tick's broadcasts; instant links also deliver now."""
     for b in range(send.shape[0]):
@@ -275,17 +331,17 @@ def _deliver(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(hist, hist_n, trail, trail_n, b, link, t[b], own, s, spacing)
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link, t[b],
+                             own, s, spacing)  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def _arrive(
     step, t, q_arrival, q_state, q_t, q_lost, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, trail, trail_n, spacing,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, due,
 ):  # pragma: no cover - compiled  # fmt: skip
-    """Deliver the messages due by ``t``, oldest send slot first."""
+    """Deliver the messages due by ``t``, oldest send slot first (``due`` (N,): scratch)."""
     S, B, N = q_arrival.shape
-    due = np.zeros(N, dtype=np.bool_)
     for b in range(B):
         for back in range(S - 1, -1, -1):
             sl = (step[b] - back) % S
@@ -304,18 +360,8 @@ def _arrive(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(
-                        hist,
-                        hist_n,
-                        trail,
-                        trail_n,
-                        b,
-                        link,
-                        q_t[sl, b, s],
-                        q_state[sl],
-                        s,
-                        spacing,
-                    )
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link,
+                             q_t[sl, b, s], q_state[sl], s, spacing)  # fmt: skip
             for s in range(N):
                 if due[s]:
                     q_arrival[sl, b, s] = np.inf

@@ -41,11 +41,12 @@ from openconvoy.envs.scenarios import PathScenario, make_scenario
 from openconvoy.envs.vector_channel import VectorChannel
 from openconvoy.envs.vector_leader import LeaderDriver
 from openconvoy.envs.vector_links import build_links
-from openconvoy.envs.vector_measures import infos, measure, pack_reward, reward
+from openconvoy.envs.vector_measures import info_arrays, infos, measure, pack_reward, reward
 from openconvoy.envs.vector_member import COOP, FAILSAFE, STOP, decide, pack_ladder, pack_spacing
 from openconvoy.envs.vector_obs import observe, pack_layout
 from openconvoy.envs.vector_plant import VectorPlant
 from openconvoy.envs.vector_rx import RxBuffers
+from openconvoy.envs.vector_step import fused_step, pack
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 MODES = ("coop", "degraded", "stop", "failsafe")
@@ -166,11 +167,14 @@ class VectorConvoyEnv:
         self.channel = VectorChannel(
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
         )
-        self.rx = RxBuffers(B, self.L, mc.k, mc.trail_spacing_m)
+        self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m)
         self._seed_seqs: list[np.random.SeedSequence | None] = [None] * B
         self.t: np.ndarray = np.zeros(B)
         self.step_count = np.zeros(B, dtype=np.int64)
         self._alloc()
+        # One compiled call per tick where every stage has a kernel (vector_step).
+        fusable = self.channel.ge is None and self.channel.slots == 0 and self.leader.kind != 0
+        self._fused = pack(self) if fusable and not self._brakes else None
 
     def _check_loss(self, link_counters: str) -> None:
         if self.loss.jitter_s > 0.0:
@@ -223,6 +227,9 @@ class VectorConvoyEnv:
         self._cmd_v_flat, self._cmd_dh_flat = self.cmd_v.reshape(-1), self.cmd_dh.reshape(-1)
         self._everyone = np.ones(B, dtype=bool)
         self._fresh_age_s = self.member_config.fresh_age_s
+        self._targets_scratch = np.zeros((11, len(self.layout.targets)))
+        self._accel_old = np.zeros((B, N))
+        self.max_heading_change = MAX_HEADING_CHANGE_RAD
         self.gap = np.zeros((B, N - 1))
         self.collided = np.zeros((B, N - 1), dtype=bool)
 
@@ -293,19 +300,15 @@ class VectorConvoyEnv:
         a = np.ascontiguousarray(actions, dtype=np.float32)  # one compiled layout
         if a.shape != (B, N - 1, 2):
             raise ValueError(f"actions must have shape {(B, N - 1, 2)}, got {a.shape}")
-        accel_old = self._command(a)
-        self.step_count += 1
-        self.t = self.step_count * self.dt
         obs = np.empty((B, N - 1, self.layout.size), dtype=np.float32)
-        self._tick(self._everyone, obs)
-        own = self.own
-        measure(own, self._half_sum, self.gap, self.collided)
         rewards = np.empty((B, N - 1))
-        reward(self.gap, self.desired_gap, accel_old, own, self.collided, 1.0 / self.dt,
-               self._reward_c, rewards)  # fmt: skip
-        terminated = np.asarray(self.collided.any(axis=1))
-        truncated = (self.step_count >= self.max_steps) & ~terminated
-        info = infos(self)
+        if self._fused is not None:
+            terminated, truncated = np.empty(B, dtype=bool), np.empty(B, dtype=bool)
+            filled = info_arrays(B, N - 1)
+            fused_step(a, obs, rewards, terminated, truncated, filled, *self._fused)
+            info = infos(self, filled)
+        else:
+            terminated, truncated, info = self._staged_step(a, obs, rewards)
         done = terminated | truncated
         if self.autoreset and done.any():
             info["final_observation"] = obs.copy()
@@ -314,12 +317,28 @@ class VectorConvoyEnv:
             measure(self.own, self._half_sum, self.gap, self.collided)
         return obs, rewards, terminated, truncated, info
 
+    def _staged_step(
+        self, a: np.ndarray, obs: np.ndarray, rewards: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+        """``fused_step``'s stages one call each (what a kernel cannot do is here)."""
+        accel_old = self._command(a)
+        self.step_count += 1
+        np.multiply(self.step_count, self.dt, out=self.t)
+        self._tick(self._everyone, obs)
+        own = self.own
+        measure(own, self._half_sum, self.gap, self.collided)
+        reward(rewards, self.gap, self.desired_gap, accel_old, own, self.collided,
+               1.0 / self.dt, self._reward_c)  # fmt: skip
+        terminated = np.asarray(self.collided.any(axis=1))
+        truncated = (self.step_count >= self.max_steps) & ~terminated
+        return terminated, truncated, infos(self)
+
     def _command(self, a: np.ndarray) -> np.ndarray:
         """The members decide, the leaders drive, faults act, the plant moves ``dt``;
         returns the accelerations before the move (B, N)."""
         t, own, lk, rx = self.t, self.own, self.links, self.rx
         decide(
-            a, self.action_low, self.action_high, t, own, rx.hist, rx.hist_n, lk.needed,
+            a, self.action_low, self.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
             lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
             self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
@@ -332,7 +351,8 @@ class VectorConvoyEnv:
             self.cmd_dh[on, vehicle] = 0.0
             self.modes[on, vehicle] = STOP
         self._has_cmd[:] = True
-        accel_old = own[4].copy()
+        accel_old = self._accel_old
+        accel_old[:] = own[4]
         self.plant.step(self._cmd_v_flat, self._cmd_dh_flat)
         return accel_old
 
@@ -342,9 +362,9 @@ class VectorConvoyEnv:
         own, lk, rx = self.own, self.links, self.rx
         self.channel.transmit(self.t, self.step_count, own, which, rx)
         observe(
-            obs, which, self.t, own, rx.hist, rx.hist_n, rx.trail, rx.trail_n, rx.hint, rx.hint_k,
-            lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
+            obs, which, self.t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n, lk.trail_of,
+            rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
             self._spacing, self.member_config.ladder.stop_after_s,
             self._fresh_age_s, self._geom, self.desired_gap, self.spacing_error,
-            self.pred_age, self.pred_est,
+            self.pred_age, self.pred_est, self._targets_scratch,
         )  # fmt: skip

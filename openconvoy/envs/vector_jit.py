@@ -11,7 +11,7 @@ of other ``vector_*`` modules: the cache lives in a directory named for a digest
 the modules with kernels (and numba's version), so a change to any kernel recompiles every one.
 ``NUMBA_CACHE_DIR`` (numba's setting) moves that directory's parent; default
 ``~/.cache/openconvoy`` (``XDG_CACHE_HOME``; the temporary directory when not writable).
-Compiling all kernels takes ~25 CPU-seconds, loading them from the cache ~1.
+Compiling all kernels takes ~30 CPU-seconds, loading them from the cache ~1.
 """
 
 from __future__ import annotations
@@ -27,6 +27,10 @@ from openconvoy.core.errors import DependencyMissing
 
 try:
     import numba as _numba
+    from llvmlite import ir as _ir
+    from numba import types as _types
+    from numba.core import cgutils as _cgutils
+    from numba.extending import intrinsic as _intrinsic
 except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
     raise DependencyMissing(
         "VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'"
@@ -37,7 +41,7 @@ def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("vector_*.py")):
         text = path.read_bytes()
-        if b"@kernel" in text or path.name == "vector_jit.py":  # the modules with kernels
+        if b"@bare_kernel" in text or b"@kernel" in text or path.name == "vector_jit.py":
             digest.update(path.name.encode() + text)
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
@@ -53,14 +57,56 @@ def _cache_dir() -> Path:
 CACHE_DIR = _cache_dir()
 
 
+_OPTIONS: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
 def kernel(fn: Callable[..., Any]) -> Any:
     """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
     error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
+    return _compile(fn, _OPTIONS)
+
+
+def bare_kernel(fn: Callable[..., Any]) -> Any:
+    """A ``kernel`` without reference counting (numba's ``_nrt=False``): it allocates no
+    array and returns none (scratch comes from the caller). A call of a kernel with
+    array arguments otherwise counts each array up and down (atomic, out of line),
+    which for the per-link helpers costs more than their work."""
+    return _compile(fn, {**_OPTIONS, "_nrt": False})
+
+
+def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:
     # numba reads its cache directory when a function is decorated: set it for ours only.
     config: Any = _numba.config
     saved = config.CACHE_DIR
     config.CACHE_DIR = str(CACHE_DIR)
     try:
-        return _numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+        return _numba.njit(**options)(fn)
     finally:
         config.CACHE_DIR = saved
+
+
+def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragma: no cover
+    """Hint the cache to fetch ``arr[b, ln, j]`` (a 4-D array's row; no effect on values):
+    the batched kernels touch each convoy's trails once per tick, too far apart for the
+    hardware to guess, so a kernel asks for the next convoys' rows while it works."""
+    sig = _types.void(arr, b, ln, j)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [
+            context.cast(builder, v, t, _types.intp) for v, t in zip(args[1:], signature.args[1:])
+        ]
+        idx += [_ir.Constant(_ir.IntType(64), 0)] * (aryty.ndim - len(idx))
+        ptr = _cgutils.get_item_pointer(context, builder, aryty, ary, idx)
+        i8p, i32 = _ir.IntType(8).as_pointer(), _ir.IntType(32)
+        fnty = _ir.FunctionType(_ir.VoidType(), [i8p, i32, i32, i32])
+        fn = _cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        # read, high locality, data cache
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+prefetch: Any = _intrinsic(_prefetch)

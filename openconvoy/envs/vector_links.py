@@ -19,6 +19,9 @@ class LinkTables:
     ``r``'s ladder rung, padded with -1; ``slot_link[f, slot]``, ``target_link[f, target]``
     (follower ``f + 1``, layout order): link or -1 (the leader as a target only when
     not a predecessor slot); ``pred_link[f]``: the link to the immediate predecessor.
+    What a link's receiver reads of it: ``keeps_states[ln]``, its last ``k`` states (a
+    slot, a target or the predecessor), else only the newest message's time (the
+    ladder's age); ``trail_of[ln]``, its trail's row (a target), else -1, of ``T``.
     """
 
     N: int
@@ -30,6 +33,9 @@ class LinkTables:
     slot_link: np.ndarray
     target_link: np.ndarray
     pred_link: np.ndarray
+    keeps_states: np.ndarray
+    trail_of: np.ndarray
+    T: int
 
 
 def build_links(mc: MemberConfig, N: int) -> LinkTables:
@@ -61,6 +67,13 @@ def build_links(mc: MemberConfig, N: int) -> LinkTables:
             vid = 0 if k == 0 else i - k
             if vid >= 0 and not (k == 0 and i <= lay.M):
                 target_link[i - 1, k] = link_of[vid, i]
+    pred_link = np.array([link_of[i - 1, i] for i in range(1, N)], dtype=np.int64)
+    keeps_states = np.zeros(max(len(links), 1), dtype=bool)
+    for table in (slot_link, target_link, pred_link):
+        keeps_states[table[table >= 0]] = True
+    trail_of = np.full(max(len(links), 1), -1, dtype=np.int64)
+    targets = np.unique(target_link[target_link >= 0])
+    trail_of[targets] = np.arange(len(targets))
     return LinkTables(
         N=N,
         L=len(links),
@@ -70,5 +83,8 @@ def build_links(mc: MemberConfig, N: int) -> LinkTables:
         needed=need,
         slot_link=slot_link,
         target_link=target_link,
-        pred_link=np.array([link_of[i - 1, i] for i in range(1, N)], dtype=np.int64),
+        pred_link=pred_link,
+        keeps_states=keeps_states,
+        trail_of=trail_of,
+        T=len(targets),
     )

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.envs.reward import RewardConfig
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_math import norm
 
 
@@ -21,7 +21,7 @@ def pack_reward(c: RewardConfig) -> np.ndarray:
     )  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
     """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions."""
     for b in range(gap.shape[0]):
@@ -31,8 +31,8 @@ def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
             collided[b, f] = g < half_sum[f]
 
 
-@kernel
-def reward(gap, desired, accel_old, own, collided, inv_dt, c, out):  # pragma: no cover
+@bare_kernel
+def reward(out, gap, desired, accel_old, own, collided, inv_dt, c):  # pragma: no cover
     """``envs.reward``: spacing, acceleration, jerk, yaw rate and collision terms."""
     for b in range(gap.shape[0]):
         for f in range(gap.shape[1]):
@@ -55,21 +55,30 @@ LEADER_FLOAT_KEYS = ("leader_cmd_speed_mps", "leader_cmd_heading_change_rad")
 LEADER_INT_KEYS = ("leader_mode", "leader_msgs_sent", "leader_msgs_received", "leader_msgs_lost")
 
 
-def infos(env: Any) -> dict[str, np.ndarray]:
+def info_arrays(B: int, F: int) -> tuple[np.ndarray, ...]:
+    """``fill_infos``'s outputs for ``B`` convoys of ``F`` followers, uninitialized."""
+    return (
+        np.empty((len(FLOAT_KEYS), B, F)),
+        np.empty((len(INT_KEYS), B, F), dtype=np.int64),
+        np.empty((len(LEADER_FLOAT_KEYS), B)),
+        np.empty((len(LEADER_INT_KEYS), B), dtype=np.int64),
+    )
+
+
+def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, np.ndarray]:
     """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus ``mode``
     codes (``vector_env.MODES``); ``t_s`` and ``leader_*`` (B,): the leader's values of
-    the keys a log row has (``experiments.batched`` writes the leader's rows from them)."""
-    B, F = env.gap.shape
-    fl = np.empty((len(FLOAT_KEYS), B, F))
-    it = np.empty((len(INT_KEYS), B, F), dtype=np.int64)
-    lf = np.empty((len(LEADER_FLOAT_KEYS), B))
-    li = np.empty((len(LEADER_INT_KEYS), B), dtype=np.int64)
-    ch = env.channel
-    _fill(
-        env.gap, env.desired_gap, env.spacing_error, env.own, env.cmd_v, env.cmd_dh,
-        env._has_cmd, env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to, ch.msgs_kept,
-        ch.lost_to, env.policy_errors, fl, it, lf, li,
-    )  # fmt: skip
+    the keys a log row has (``experiments.batched`` writes the leader's rows from them).
+    ``filled``: ``info_arrays`` that ``fill_infos`` has filled this tick already."""
+    if filled is None:
+        filled = info_arrays(*env.gap.shape)
+        ch = env.channel
+        fill_infos(
+            *filled, env.gap, env.desired_gap, env.spacing_error, env.own, env.cmd_v,
+            env.cmd_dh, env._has_cmd, env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to,
+            ch.msgs_kept, ch.lost_to, env.policy_errors,
+        )  # fmt: skip
+    fl, it, lf, li = filled
     out = dict(zip(FLOAT_KEYS, fl))
     out.update(zip(INT_KEYS, it))
     out.update(zip(LEADER_FLOAT_KEYS, lf))
@@ -80,10 +89,10 @@ def infos(env: Any) -> dict[str, np.ndarray]:
     return out
 
 
-@kernel
-def _fill(
-    gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes, sent, received,
-    kept, lost, errors, fl, it, lf, li,
+@bare_kernel
+def fill_infos(
+    fl, it, lf, li, gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes,
+    sent, received, kept, lost, errors,
 ):  # pragma: no cover - compiled  # fmt: skip
     for b in range(gap.shape[0]):
         lf[0, b] = cmd_v[b, 0] if has_cmd[b] else np.nan

@@ -16,7 +16,7 @@ import numpy as np
 
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_math import norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
@@ -36,7 +36,7 @@ def pack_ladder(c: LadderConfig) -> np.ndarray:
     )
 
 
-@kernel
+@bare_kernel
 def speed_gap(sp, v):  # pragma: no cover - compiled
     """The speed-dependent part of a pair gap (m) at ``v`` (not constant-distance)."""
     vv = max(v, 0.0)
@@ -46,7 +46,7 @@ def speed_gap(sp, v):  # pragma: no cover - compiled
     return g
 
 
-@kernel
+@bare_kernel
 def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
     """Desired centre-to-centre gap (m) of a vehicle to the one ahead at speed ``v``."""
     if sp[0] == 0.0:
@@ -54,15 +54,14 @@ def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
     return speed_gap(sp, v) + 0.5 * (len_behind + len_ahead)
 
 
-@kernel
-def link_age(hist, hist_n, b, ln, t):  # pragma: no cover - compiled
-    """Age (s) of link ``ln``'s newest state at ``t``; inf when none."""
-    if hist_n[b, ln] == 0:
-        return np.inf
-    return max(0.0, t - hist[b, ln, 0, 0])
+@bare_kernel
+def link_age(newest, b, ln, t):  # pragma: no cover - compiled
+    """Age (s) of link ``ln``'s newest message at ``t`` (``newest``: its time, -inf when
+    none); inf when none."""
+    return max(0.0, t - newest[b, ln])
 
 
-@kernel
+@bare_kernel
 def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # pragma: no cover
     """``ConvoyMember.estimate`` of link ``ln``'s sender (``ln`` < 0: none):
     (valid, x m, y m, speed m/s, heading rad, age s). Fresh: dead-reckoned at its speed;
@@ -87,9 +86,9 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
     return True, lx + d * math.cos(lh), ly + d * math.sin(lh), speed, lh, age
 
 
-@kernel
+@bare_kernel
 def decide(
-    act, low, high, t, own, hist, hist_n, needed, pred_link, link_decel, lengths, sp, lad,
+    act, low, high, t, own, hist, hist_n, newest, needed, pred_link, link_decel, lengths, sp, lad,
     fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
 ):  # pragma: no cover - compiled  # fmt: skip
     """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
@@ -111,7 +110,7 @@ def decide(
                 age = 0.0
                 for ln in needed[i]:
                     if ln >= 0:
-                        age = max(age, link_age(hist, hist_n, b, ln, t[b]))
+                        age = max(age, link_age(newest, b, ln, t[b]))
                 mode = COOP if age <= lad[1] else (DEGRADED if age <= lad[2] else STOP)
                 v, dh, mode = _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh)
             if failed[b, i]:
@@ -124,7 +123,7 @@ def decide(
             cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
 
 
-@kernel
+@bare_kernel
 def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # pragma: no cover
     """``ConvoyMember.supervise``'s rungs: degraded follows the ACC fallback on the
     predecessor estimate (none: stop), stop commands zero."""
@@ -143,7 +142,7 @@ def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # prag
     return v, dh, mode
 
 
-@kernel
+@bare_kernel
 def _fires(
     own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t
 ):  # pragma: no cover - compiled

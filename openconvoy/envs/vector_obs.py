@@ -13,12 +13,17 @@ import math
 import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel, prefetch
 from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector_trail import point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
+AHEAD = 4
+"""Convoys ahead whose trails and states ``observe`` asks the cache for (``_warm``)."""
+WARM_CRUMBS = 24
+"""Breadcrumbs from the last projection's segment on that ``_warm`` fetches (the
+projection walks a few, the path points reach a few metres further)."""
 
 
 def pack_layout(lay: ObservationLayout) -> np.ndarray:
@@ -29,7 +34,7 @@ def pack_layout(lay: ObservationLayout) -> np.ndarray:
     )  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: no cover
     """The state slots: each kept sender's last k states in the ego frame (``c``, ``s``:
     cosine and sine of the ego heading)."""
@@ -51,7 +56,7 @@ def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: n
             obs[b, f, o + 6] = 1.0
 
 
-@kernel
+@bare_kernel
 def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
     """Desired arc gap (m) of follower ``f + 1`` to target ``m`` (0 leader, m pred_m),
     summed pair by pair in ``ConvoyMember``'s order."""
@@ -67,9 +72,9 @@ def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
     return acc
 
 
-@kernel
+@bare_kernel
 def _path(
-    obs, b, f, own, c, s, trail, trail_n, link, hx, hy, hh, cross, pheading, ps, o, guess
+    obs, b, f, own, c, s, trail, tail, trail_n, tl, hx, hy, hh, cross, pheading, ps, o, guess
 ):  # pragma: no cover
     """The path features: cross track, heading error, lookahead points in the ego frame."""
     i = f + 1
@@ -78,25 +83,26 @@ def _path(
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
     for j in range(len(LOOKAHEAD)):
-        px, py = point_at(trail, trail_n, b, link, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess)
+        px, py = point_at(trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess)
         dx, dy = px - ex, py - ey
         obs[b, f, o + 2 + 2 * j] = c * dx + s * dy
         obs[b, f, o + 3 + 2 * j] = -s * dx + c * dy
     obs[b, f, o + 8] = 1.0
 
 
-@kernel
+@bare_kernel
 def observe(
-    obs, rows, t, own, hist, hist_n, trail, trail_n, hint, hint_k, slot_link, target_link, pred_link,
-    link_decel, lengths, sp, stop_after, fresh_age, geom, desired_gap, spacing_error,
-    pred_age, pred_est,
+    obs, rows, t, own, hist, hist_n, newest, trail, tail, trail_n, trail_of, hint, hint_k, slot_link,
+    target_link, pred_link, link_decel, lengths, sp, stop_after, fresh_age, geom, desired_gap, spacing_error,
+    pred_age, pred_est, tg,
 ):  # pragma: no cover - compiled  # fmt: skip
-    """Fill ``obs`` (B, F, D) float32 for convoys ``rows`` and the spacing measures."""
+    """Fill ``obs`` (B, F, D) float32 for convoys ``rows`` and the spacing measures;
+    ``tg`` (11, targets): scratch, per target: valid, x, y, speed, heading, arc, cross,
+    path heading, s, desired, segment."""
     B, F = obs.shape[0], obs.shape[1]
-    ntg = geom[5]
-    # Per target: valid, x, y, speed, heading, arc, cross, path heading, s, desired, segment.
-    tg = np.zeros((11, ntg))
     for b in range(B):
+        if b + AHEAD < B and rows[b + AHEAD]:
+            _warm(b + AHEAD, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link)
         if not rows[b]:
             continue
         tb = t[b]
@@ -109,10 +115,10 @@ def observe(
             o = geom[2]
             obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = ev, own[4, b, i], own[5, b, i]
             desired_gap[b, i] = pair_gap(sp, ev, lengths[i], lengths[i - 1])
-            age = link_age(hist, hist_n, b, pred_link[f], tb) if pred_link[f] >= 0 else np.inf
+            age = link_age(newest, b, pred_link[f], tb) if pred_link[f] >= 0 else np.inf
             pred_age[b, i] = np.nan if math.isinf(age) else age
-            chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, trail_n, hint, hint_k,
-                              target_link, link_decel, lengths, sp, stop_after, fresh_age,
+            chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, tail, trail_n,
+                              trail_of, hint, hint_k, target_link, link_decel, lengths, sp, stop_after, fresh_age,
                               geom, F)  # fmt: skip
             spacing_error[b, i] = np.nan
             pred_est[0, b, i], pred_est[1, b, i] = np.nan, np.nan
@@ -122,15 +128,38 @@ def observe(
             spacing_error[b, i] = np.float64(np.float32(err))
             if chosen == 1:
                 pred_est[0, b, i], pred_est[1, b, i] = tg[5, 1], tg[3, 1] - ev
-            _path(obs, b, f, own, c, s, trail, trail_n, target_link[f, chosen], tg[1, chosen],
+            _path(obs, b, f, own, c, s, trail, tail, trail_n, trail_of[target_link[f, chosen]],
+                  tg[1, chosen],
                   tg[2, chosen], tg[4, chosen], tg[6, chosen], tg[7, chosen], tg[8, chosen],
                   geom[4], int(tg[10, chosen]) + 1)  # fmt: skip
 
 
-@kernel
+@bare_kernel
+def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  # pragma: no cover
+    """Prefetch what ``observe`` will read of convoy ``b``: its followers' slot states and
+    the target trails around the last projections. Only a hint to the cache: without
+    it, each convoy's first reads wait on memory in turn."""
+    F = slot_link.shape[0]
+    for f in range(F):
+        for k in range(slot_link.shape[1]):
+            link = slot_link[f, k]
+            if link >= 0:
+                for j in range(hist.shape[2]):
+                    prefetch(hist, b, link, j)
+        for m in range(target_link.shape[1]):
+            link = target_link[f, m]
+            if link < 0:
+                continue
+            tl = trail_of[link]
+            lo = hint_k[b, tl]
+            for j in range(lo, min(lo + WARM_CRUMBS, trail_n[b, tl]), 2):
+                prefetch(trail, b, tl, j)
+
+
+@bare_kernel
 def _targets(
-    obs, tg, b, f, t, own, hist, hist_n, trail, trail_n, hint, hint_k, target_link, link_decel,
-    lengths, sp, stop_after, fresh_age, geom, F,
+    obs, tg, b, f, t, own, hist, hist_n, trail, tail, trail_n, trail_of, hint, hint_k,
+    target_link, link_decel, lengths, sp, stop_after, fresh_age, geom, F,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Estimate and project every target of follower ``f + 1`` (results in ``tg``), write
     the derived features; returns the nearest heard target (pred_1..pred_M, then the
@@ -149,10 +178,11 @@ def _targets(
             continue
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
         desired = _desired(f, m, ev, sp, lengths, F)
+        tl = trail_of[link]
         arc, cross, pheading, s, k = project(
-            trail, trail_n, b, link, hx, hy, hh, ex, ey, desired, hint[b, link], hint_k[b, link]
+            trail, tail, trail_n, b, tl, hx, hy, hh, ex, ey, desired, hint[b, tl], hint_k[b, tl]
         )
-        hint[b, link], hint_k[b, link] = s, max(k, 0)
+        hint[b, tl], hint_k[b, tl] = s, max(k, 0)
         tg[5, m], tg[6, m], tg[7, m], tg[8, m] = arc, cross, pheading, s
         o = geom[3] + m * 5
         obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = arc, desired, arc - desired

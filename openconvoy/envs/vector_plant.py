@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from openconvoy.envs.plant import BicyclePlant
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vehicles import VehiclePreset
 
@@ -79,7 +79,7 @@ class VectorPlant:
         )  # fmt: skip
 
 
-@kernel
+@bare_kernel
 def _pi_dv(p, i, inner, v_cmd, v0, dt, n_sub):  # pragma: no cover - compiled
     """``BicyclePlant._pi_dv`` for vehicle ``i``: the speed change; updates its state."""
     h = dt / n_sub
@@ -104,7 +104,7 @@ def _pi_dv(p, i, inner, v_cmd, v0, dt, n_sub):  # pragma: no cover - compiled
     return v - v0
 
 
-@kernel
+@bare_kernel
 def _plant_step(
     st, inner, queue, head_arr, p, pi, n_sub, delay, hdelay, cmd_v, cmd_h, dt
 ):  # pragma: no cover - compiled

@@ -2,16 +2,21 @@
 
 Per kept link ``ln`` (receiver, sender) of convoy ``b``: ``hist[b, ln]`` (k, 6) the last
 ``k`` states, newest first (t s, x m, y m, speed m/s, heading rad, accel m/s²),
-``hist_n`` how many; the sender's trail (``vector_trail``); ``hint`` the last
-projection's arc coordinate on it (NaN: none) and ``hint_k`` its segment (where the next
-search starts). A link's data is contiguous: a push touches a few cache lines. ``StateBuffer.push`` + ``Trail.add``.
+``hist_n`` how many, ``newest[b, ln]`` the newest one's time (-inf: none). Only what the receiver reads is kept (``LinkTables``): the states of
+the links in its observation slots and targets, of the others only the newest time (the
+ladder's age; the same ages, so the same run). Per target link, row ``trail_of[ln]`` of
+the trails: the sender's trail (``vector_trail``); ``hint`` the last projection's arc
+coordinate on it (NaN: none) and ``hint_k`` its segment (where the next search starts).
+A link's data is contiguous: a push touches a few cache lines. ``StateBuffer.push`` +
+``Trail.add``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_trail import CAPACITY, trail_add
 
 T, HX, HY, HV, HH, HA = range(6)
@@ -19,41 +24,54 @@ T, HX, HY, HV, HH, HA = range(6)
 
 
 class RxBuffers:
-    """R^i buffers, trails and projection hints of ``L`` kept links in ``B`` convoys."""
+    """R^i buffers of ``links.L`` kept links, trails and projection hints of ``links.T``
+    target links, in ``B`` convoys."""
 
-    def __init__(self, B: int, L: int, k: int, spacing_m: float) -> None:
+    def __init__(self, B: int, links: LinkTables, k: int, spacing_m: float) -> None:
         self.k, self.spacing_m = k, spacing_m
-        L = max(L, 1)  # a placeholder link keeps the kernels' "no link" reads in bounds
+        self.keeps_states, self.trail_of = links.keeps_states, links.trail_of
+        L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
         self.hist = np.zeros((B, L, k, 6))
         self.hist_n = np.zeros((B, L), dtype=np.int64)
+        self.newest = np.full((B, L), -np.inf)
         # Untouched pages of a trail are never committed (calloc): memory grows with
         # the breadcrumbs actually laid.
-        self.trail = np.zeros((B, L, CAPACITY, 3))
-        self.trail_n = np.zeros((B, L), dtype=np.int64)
-        self.hint = np.full((B, L), np.nan)
-        self.hint_k = np.zeros((B, L), dtype=np.int64)
+        self.trail = np.zeros((B, T, CAPACITY, 3))
+        self.tail = np.zeros((B, T, 3))
+        self.trail_n = np.zeros((B, T), dtype=np.int64)
+        self.hint = np.full((B, T), np.nan)
+        self.hint_k = np.zeros((B, T), dtype=np.int64)
 
     def reset(self, rows: np.ndarray) -> None:
         """Empty the buffers of convoys ``rows`` (bool (B,))."""
         self.hist_n[rows] = 0
+        self.newest[rows] = -np.inf
         self.trail_n[rows] = 0
+        self.tail[rows] = 0.0
         self.hint[rows] = np.nan
         self.hint_k[rows] = 0
 
 
-@kernel
-def push_one(hist, hist_n, trail, trail_n, b, ln, ts, st, s, spacing):  # pragma: no cover
+@bare_kernel
+def push_one(
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, ln, ts, st, s, spacing
+):  # pragma: no cover - compiled
     """``StateBuffer.push`` of sender ``s``'s state ``st[:, b, s]`` sent at ``ts`` onto
-    link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``."""
-    n = hist_n[b, ln]
-    if n > 0 and not ts > hist[b, ln, 0, T]:
+    link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``;
+    only the time where the link ``keeps`` no states."""
+    if not ts > newest[b, ln]:
         return
+    newest[b, ln] = ts
     k = hist.shape[2]
+    hist_n[b, ln] = min(hist_n[b, ln] + 1, k)
+    if not keeps[ln]:
+        return
     for j in range(k - 1, 0, -1):
         for f in range(6):
             hist[b, ln, j, f] = hist[b, ln, j - 1, f]
     hist[b, ln, 0, T] = ts
     for f in range(5):  # x, y, speed, heading, accel: the plant's rows 0..4
         hist[b, ln, 0, f + 1] = st[f, b, s]
-    hist_n[b, ln] = min(n + 1, k)
-    trail_add(trail, trail_n, b, ln, st[0, b, s], st[1, b, s], spacing)
+    tl = trail_of[ln]
+    if tl >= 0:
+        trail_add(trail, tail, trail_n, b, tl, st[0, b, s], st[1, b, s], spacing)

@@ -1,7 +1,9 @@
 """Trails as ring arrays: ``core.trail.Trail``'s add, project and point_at, compiled.
 
-A trail is row ``(b, ln)`` of ``tr`` (3, B, L, C): breadcrumb x, y (m) and arc coordinate
-s (m), ``n[b, ln]`` of them, the oldest half dropped when full. A query's path is the
+A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
+s (m), ``n[b, ln]`` of them, the oldest half dropped when full; ``tail[b, ln]`` (3,) is
+its newest breadcrumb again, packed with the other trails' (every add and query reads
+it: one cache line for many trails instead of one each). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
 heading ``hh`` (the sender's dead-reckoned position): the same vertices, segments and
 walk as ``Trail``, so the same numbers.
@@ -11,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from openconvoy.envs.vector_jit import kernel
+from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_math import norm
 
 CAPACITY = 1024
@@ -20,15 +22,15 @@ FAR_M = 1e4
 """Length of the straight extension behind the oldest breadcrumb (``Trail._vertex``)."""
 
 
-@kernel
-def trail_add(tr, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
+@bare_kernel
+def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     """``Trail.add``: record (x, y) when ``spacing`` m from the last breadcrumb."""
     nn = n[b, ln]
     step = 0.0
     ps = 0.0
     if nn > 0:
-        ps = tr[b, ln, nn - 1, 2]
-        step = norm(x - tr[b, ln, nn - 1, 0], y - tr[b, ln, nn - 1, 1])
+        ps = tail[b, ln, 2]
+        step = norm(x - tail[b, ln, 0], y - tail[b, ln, 1])
         if step < spacing:
             return
     cap = tr.shape[2]
@@ -38,13 +40,13 @@ def trail_add(tr, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
             for f in range(3):
                 tr[b, ln, j, f] = tr[b, ln, j + half, f]
         nn -= half
-    tr[b, ln, nn, 0] = x
-    tr[b, ln, nn, 1] = y
-    tr[b, ln, nn, 2] = ps + step if nn > 0 else 0.0
+    s = ps + step if nn > 0 else 0.0
+    tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
+    tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
     n[b, ln] = nn + 1
 
 
-@kernel
+@bare_kernel
 def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
     """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
     from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
@@ -75,7 +77,7 @@ def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
     return lo
 
 
-@kernel
+@bare_kernel
 def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb."""
     if n >= 2:
@@ -88,7 +90,7 @@ def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     return -dx / d, -dy / d
 
 
-@kernel
+@bare_kernel
 def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     """``Trail._vertex``: -1 the far end of the extension, 0..n-1 breadcrumbs, n the head
     (at arc coordinate ``s_head``)."""
@@ -100,7 +102,7 @@ def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     return tr[b, ln, 0, 0] + FAR_M * bx, tr[b, ln, 0, 1] + FAR_M * by, tr[b, ln, 0, 2] - FAR_M
 
 
-@kernel
+@bare_kernel
 def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``Trail._segment`` of (x, y) on segment k -> k+1: (dist², s, dx, dy, seg, rx, ry),
     the cross track and heading left to ``_finish`` (only the nearest needs them)."""
@@ -116,14 +118,14 @@ def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - c
     return ex * ex + ey * ey, sa + u * (sb - sa), dx, dy, seg, rx, ry
 
 
-@kernel
-def project(tr, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
+@bare_kernel
+def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
     """``Trail.project`` from ``hint`` (NaN: ``expected`` m behind the head; ``hint_k``
     where to look for it): (arc to head, cross track, path heading, s, segment)."""
     n = n_arr[b, ln]
-    to_head = norm(hx - tr[b, ln, n - 1, 0], hy - tr[b, ln, n - 1, 1])
+    to_head = norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
     last = n - 1 if to_head > 1e-9 else n - 2
-    s_head = tr[b, ln, n - 1, 2] + to_head
+    s_head = tail[b, ln, 2] + to_head
     start = s_head - expected if math.isnan(hint) else hint
     k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
     best = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
@@ -141,12 +143,12 @@ def project(tr, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # prag
     return s_head - s, (dx * ry - dy * rx) / seg, math.atan2(dy, dx), s, k
 
 
-@kernel
-def point_at(tr, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover - compiled
+@bare_kernel
+def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover - compiled
     """``Trail.point_at``: the path point at arc coordinate ``s`` (beyond the head: on);
     ``guess``: a breadcrumb index near it."""
     n = n_arr[b, ln]
-    lx, ly, ls = tr[b, ln, n - 1, 0], tr[b, ln, n - 1, 1], tr[b, ln, n - 1, 2]
+    lx, ly, ls = tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2]
     s_head = ls + norm(hx - lx, hy - ly)
     if s >= s_head and not s_head - ls > 1e-9:
         return hx + (s - s_head) * math.cos(hh), hy + (s - s_head) * math.sin(hh)

@@ -118,6 +118,12 @@ class ClassicalPolicy:
             self._batched = BatchedClassical(self.config)
         return self._batched.act_batch(observations)
 
+    def reset_rows(self, rows: np.ndarray) -> None:
+        """Forget the batched controller state of the rows where ``rows`` (bool, the batch
+        shape of ``act_batch``) is True: convoys that started a new episode."""
+        if self._batched is not None:
+            self._batched.reset_rows(rows)
+
     def act(self, observation: np.ndarray) -> np.ndarray:
         lay = self.layout
         if observation.shape != (lay.size,):

@@ -149,7 +149,7 @@ def test_whole_episode_determinism(spec: str) -> None:
 @pytest.mark.parametrize("spec", ["highway-cut-in:traffic=10", "highway-slow-traffic:traffic=10"])
 def test_faster_traffic_paths_match_highway_env_road(spec: str) -> None:
     """The faster traffic paths give highway-env's trajectories: ``fast`` bit for bit,
-    ``vector`` within 1e-9 m (bit for bit here; numpy on arrays may round the last bits
+    ``vector`` (compiled) within 1e-9 m (bit for bit here; compiled code may round the last bits
     differently elsewhere)."""
     ref = _rollout(f"{spec},duration_s=3,road=highway-env", seed=3)
     fast = _rollout(f"{spec},duration_s=3,road=fast", seed=3)

@@ -254,6 +254,24 @@ def test_batched_policy_matches_one_policy_per_vehicle(make, per: float) -> None
         obs, *_ = vec.step(got)
 
 
+def test_classical_reset_rows_forgets_only_those_rows() -> None:
+    """A convoy whose episode restarts gets a fresh PID integrator; the other keeps its own.
+    On the track the integrator wound up before tick 200 moves the speed from tick ~820 on,
+    so a reset that did nothing would fail the comparison there."""
+    vec = VectorConvoyEnv(2, "track", n_followers=2, loss=LossConfig(per=0.2))
+    batched = _pid_pure_pursuit()
+    singles = [[_pid_pure_pursuit() for _ in range(2)] for _ in range(2)]
+    obs, _ = vec.reset(seed=8)
+    for t in range(900):
+        if t == 200:
+            batched.reset_rows(np.array([[False, False], [True, True]]))
+            singles[1] = [_pid_pure_pursuit() for _ in range(2)]
+        got = batched.act_batch(obs)
+        want = np.array([[singles[b][j].act(obs[b, j]) for j in range(2)] for b in range(2)])
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+        obs, *_ = vec.step(got)
+
+
 def test_kept_link_counters_give_the_same_run() -> None:
     mc = dataclasses.replace(load_policy("paper").member_config, topology="lookahead:1")
     envs = [

@@ -16,10 +16,11 @@ a straight-line distance, blind to where a follower is beside its predecessor: l
 from scratch, a policy paid only for that gap kept it within 1 m while drifting off the
 road, 15-30 m sideways by the end of an episode (a circle around the predecessor has the
 right gap everywhere). So the bonus pays only on the predecessor's trail, heading along
-it, as the paper's Stanley controller drives. The factors multiply: an additive trail
-bonus paid a follower to sit 20 m behind on the road (it earned more than the spacing
-term cost). A bonus, not a penalty: with every tick's reward negative, ending the episode
-in a collision (its penalty once) can be worth more than driving on from far behind.
+it, as the paper's Stanley controller drives (an additive trail term saturating at 1 m
+still let the followers drift 4-5 m). The factors multiply, so the trail pays only in
+place, not a follower sitting far behind on the road. A bonus, not a penalty: with every
+tick's reward negative, ending the episode in a collision (its penalty once) can be worth
+more than driving on from far behind.
 """
 
 from __future__ import annotations

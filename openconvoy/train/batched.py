@@ -20,6 +20,7 @@ batched simulator models them), so training falls back to ``RandomizedConvoyEnv`
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -31,7 +32,12 @@ from openconvoy.envs.vector_env import VectorConvoyEnv
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.policies.batched import BatchedClassical
 from openconvoy.policies.learned import compose_actions
-from openconvoy.train.randomization import EnvSpec, EpisodeWorld, Randomization, draw_world
+from openconvoy.train.randomization import (
+    EnvSpec,
+    EpisodeWorld,
+    Randomization,
+    draw_world,
+)
 from openconvoy.train.vector import VectorConvoyVecEnv
 
 
@@ -149,6 +155,18 @@ class RandomizedVectorVecEnv(VectorConvoyVecEnv):
         s = self.spec_
         base = self._bases[g].act_batch(self._obs[g]) if self._bases else None
         return compose_actions(actions, *s.bounds, base, s.residual_scale)
+
+    def _reward(
+        self, g: int, rewards: np.ndarray, obs: np.ndarray, info: dict[str, Any]
+    ) -> np.ndarray:
+        extra = self.spec_.extra
+        if not extra.active:
+            return rewards
+        # Convoys that restarted: the bonus is that of the tick that ended the episode.
+        final = info.get("final_observation")
+        after = obs if final is None else final
+        layout = self.envs[g].layout
+        return rewards + extra.bonus(layout, info["platooning_error_m"], after)
 
     def _after_step(self, g: int, done: np.ndarray) -> None:
         if self._bases and done.any():

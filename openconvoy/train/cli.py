@@ -43,6 +43,13 @@ def _train_run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", default="runs/train", metavar="RUN_DIR", help="run directory (default runs/train)"
     )
+    p.add_argument(
+        "--budget",
+        type=wall_clock,
+        metavar="TIME",
+        help="wall-clock budget of the run (900, 900s, 15m, 1h): learning stops in time "
+        "to validate and write the run (default: none, or 14m with --base none)",
+    )
     p.add_argument("--seed", type=SEED, help="seed (default 0)")
     p.add_argument(
         "--seeds",
@@ -63,6 +70,22 @@ def _train_run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--overwrite", action="store_true", help="replace a policy already in RUN_DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def wall_clock(text: str) -> float:
+    """A duration ``N``, ``Ns``, ``Nm`` or ``Nh`` as seconds (``--budget``)."""
+    units = {"s": 1.0, "m": 60.0, "h": 3600.0}
+    t = text.strip().lower()
+    scale = units.get(t[-1:], None)
+    try:
+        value = float(t[:-1] if scale else t) * (scale or 1.0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a duration (e.g. 900, 900s, 15m, 1h)"
+        ) from None
+    if not 0.0 < value <= 7 * 86400.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a duration in (0 s, 7 days]")
+    return value
 
 
 def _train_env_args(p: argparse.ArgumentParser) -> None:

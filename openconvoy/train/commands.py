@@ -9,14 +9,16 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core.errors import ConfigError
-from openconvoy.train.config import TrainConfig, load_train_config
+from openconvoy.train.config import PPOConfig, TrainConfig, load_train_config, run_defaults
 from openconvoy.train.randomization import (
     ABSOLUTE_ACTION_BOUNDS,
     RESIDUAL_ACTION_BOUNDS,
     SCRATCH_REWARD,
+    SCRATCH_SHAPING,
     TRAIN_REWARD,
     EnvSpec,
 )
+from openconvoy.train.shaping import Shaping
 
 
 def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
@@ -34,6 +36,7 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
         ("threads", "torch_threads"),
         ("vec_env", "vec_env"),
         ("worlds", "n_worlds"),
+        ("budget", "budget_s"),
     ):
         if getattr(args, flag) is not None:
             top[key] = getattr(args, flag)
@@ -72,12 +75,27 @@ def train_config_from_args(args: argparse.Namespace, path: str | None = None) ->
             )
     if r_changes:
         r = dataclasses.replace(r, **r_changes)
-    ppo = config.ppo
-    if bool(env.base_policy) != bool(config.env.base_policy) and ppo.use_sde == (
-        not config.env.base_policy
-    ):  # the other kind's exploration default
-        ppo = dataclasses.replace(ppo, use_sde=None)
+    ppo, top = _switch_kind(config, env, top)
     return dataclasses.replace(config, env=env, randomization=r, ppo=ppo, **top)
+
+
+def _switch_kind(
+    config: TrainConfig, env: EnvSpec, top: dict[str, Any]
+) -> tuple[PPOConfig, dict[str, Any]]:
+    """``config``'s PPO settings and the top-level changes ``top`` for ``env``: where
+    ``env`` is of the other kind (residual or from scratch) than ``config.env``, the run
+    size and PPO settings that hold the other kind's defaults take this kind's
+    (``config.run_defaults``; values a config chose, and flags given, stay)."""
+    ppo = config.ppo
+    residual = bool(env.base_policy)
+    if residual == bool(config.env.base_policy):
+        return ppo, top
+    if ppo.use_sde == residual:  # the other kind's exploration (gSDE from scratch)
+        ppo = dataclasses.replace(ppo, use_sde=None)
+    (old_top, old_ppo), (new_top, new_ppo) = run_defaults(not residual), run_defaults(residual)
+    run = {k: v for k, v in new_top.items() if getattr(config, k) == old_top[k]}
+    ppo_changes = {k: v for k, v in new_ppo.items() if getattr(ppo, k) == old_ppo[k]}
+    return dataclasses.replace(ppo, **ppo_changes), {**run, **top}
 
 
 def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
@@ -93,6 +111,8 @@ def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
         changes["emergency_stop"] = None
     if env.reward == (TRAIN_REWARD if env.base_policy else SCRATCH_REWARD):
         changes["reward"] = None
+    if env.shaping == (Shaping() if env.base_policy else SCRATCH_SHAPING):
+        changes["shaping"] = None
     return changes
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
@@ -115,6 +115,13 @@ class TrainConfig:
             keeps a best model; ``last.zip`` is the final network. Empty seeds: no
             validation, ``policy.zip`` is the final network.
         validation_duration_s: length of the validation runs (None: the scenario's).
+        budget_s: wall-clock budget of the whole run, seconds (None: none): learning
+            stops when what is left is what the final validation and the run directory
+            need (``train.schedule.RunClock``), and the learning rate and the curriculum
+            follow the clock where it is further along than the steps.
+        per_curriculum: the fraction of the run over which the training PER cap rises
+            linearly from ``randomization.per_range[0]`` to ``per_range[1]`` (0: the
+            whole range from the start; the batched simulator only).
         torch_threads: torch CPU threads (the environments run in this process too).
         name: the policy's label in logs and reports.
         vec_env: the simulator: ``batched`` (``envs.VectorConvoyEnv``, all convoys in
@@ -137,9 +144,11 @@ class TrainConfig:
     normalize_obs: bool = True
     normalize_reward: bool = True
     checkpoint_every: Annotated[int, Range(0, 1000000000000)] = 100_000
-    validation_pers: tuple[Annotated[float, Range(0.0, 1.0)], ...] = (0.3, 0.6)
+    validation_pers: tuple[Annotated[float, Range(0.0, 1.0)], ...] = (0.0, 0.3, 0.6)
     validation_seeds: tuple[Annotated[int, Range(0, 2**32 - 1)], ...] = (1000, 1001, 1002)
     validation_duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    budget_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    per_curriculum: Annotated[float, Range(0.0, 1.0)] = 0.0
     torch_threads: Annotated[int, Range(1, 1024)] = 1
     name: str = "learned"
     vec_env: str = "auto"
@@ -168,6 +177,32 @@ class TrainConfig:
     def n_slots(self) -> int:
         """VecEnv slots: one per follower per environment."""
         return self.n_envs * self.env.n_followers
+
+
+SCRATCH_RUN: dict[str, Any] = {
+    "total_steps": 6_000_000,
+    "n_envs": 64,
+    "n_worlds": 4,
+    "checkpoint_every": 250_000,
+    "budget_s": 840.0,
+    "per_curriculum": 0.0,
+}
+"""The run ``--base none`` brings (where the config holds the residual run's values):
+64 convoys in 4 worlds, validated every 250k steps, learning until 6M steps or 14
+minutes of wall clock (the whole run, its final validation included, within 15
+minutes on a 2-core machine, whatever else runs on it)."""
+SCRATCH_PPO: dict[str, Any] = {"n_steps": 32, "batch_size": 1024}
+"""PPO settings ``--base none`` brings: 32-step rollouts of 128 slots, 4 minibatches."""
+
+
+def run_defaults(residual: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The defaults of a run's size and of PPO of each kind (residual or from scratch),
+    over the keys the kinds differ in: ``(top-level, ppo)``."""
+    if not residual:
+        return SCRATCH_RUN, SCRATCH_PPO
+    top = {f.name: f.default for f in dataclasses.fields(TrainConfig) if f.name in SCRATCH_RUN}
+    ppo = {f.name: f.default for f in dataclasses.fields(PPOConfig) if f.name in SCRATCH_PPO}
+    return top, ppo
 
 
 def load_train_config(path: str | Path) -> TrainConfig:

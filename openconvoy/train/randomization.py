@@ -34,6 +34,7 @@ from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.learned import compose_action
 from openconvoy.policies.spec import classical_config
+from openconvoy.train.shaping import Shaping
 
 PLANT_JITTER_FIELDS = (
     "speed_lag_s",
@@ -190,6 +191,9 @@ sees no gradient back, and its comfort terms pay an exploring policy to creep (a
 turns and accelerates less); the light acceleration term damps the speed oscillation of
 a spacing-only reward (p95 2.46 -> 1.89 m at PER 0)."""
 
+SCRATCH_SHAPING = Shaping(weight=1.0, gap_scale_m=1.0, path_scale_m=2.0, heading_scale_rad=0.5)
+"""The terms learning from scratch adds to ``SCRATCH_REWARD`` (``train.shaping``)."""
+
 RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))
 """Residual actions: the sum may use the whole action range (DESIGN.md, Action)."""
 ABSOLUTE_ACTION_BOUNDS = ((0.0, -0.3), (3.0, 0.3))
@@ -219,6 +223,9 @@ class EnvSpec:
         max_time_s: episode length cap, seconds (None: the scenario's duration).
         reward: the reward's weights (``openconvoy.envs.reward``); None: ``TRAIN_REWARD``
             with a base, ``SCRATCH_REWARD`` without.
+        shaping: the training environments' terms on top of ``reward``
+            (``train.shaping``: the last metre of the gap, the offset from the
+            predecessor's trail); None: ``SCRATCH_SHAPING`` without a base, none with one.
         emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
             follower about to hit its predecessor) during training; None: on with a base,
             off without. Learning from scratch, a policy whose exploration trips the
@@ -236,6 +243,7 @@ class EnvSpec:
     action_high: tuple[float, float] | None = None
     max_time_s: Annotated[float, Range(0.0, 7 * 86400.0, lo_open=True)] | None = None
     reward: RewardConfig | None = None
+    shaping: Shaping | None = None
     emergency_stop: bool | None = None
 
     def __post_init__(self) -> None:
@@ -247,6 +255,9 @@ class EnvSpec:
             object.__setattr__(self, "reward", TRAIN_REWARD if self.base_policy else SCRATCH_REWARD)
         if self.emergency_stop is None:
             object.__setattr__(self, "emergency_stop", bool(self.base_policy))
+        if self.shaping is None:
+            shaping = Shaping() if self.base_policy else SCRATCH_SHAPING
+            object.__setattr__(self, "shaping", shaping)
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         base = classical_config(self.base_policy) if self.base_policy else None
@@ -283,6 +294,12 @@ class EnvSpec:
         """The resolved ``(action_low, action_high)``."""
         assert self.action_low is not None and self.action_high is not None
         return self.action_low, self.action_high
+
+    @property
+    def extra(self) -> Shaping:
+        """The resolved ``shaping``."""
+        assert self.shaping is not None
+        return self.shaping
 
     @property
     def rate_hz(self) -> float:
@@ -377,10 +394,16 @@ class RandomizedConvoyEnv(ParallelEnv):
         for a, act in actions.items():
             base = self._bases[a].act(self._obs[a]) if self._bases else None
             si[a] = compose_action(act, *s.bounds, base, s.residual_scale)
-        out = self.env.step(si)
-        self._obs = out[0]
+        obs, rewards, term, trunc, infos = self.env.step(si)
+        if s.extra.active:
+            layout = s.member_config.layout
+            for a in rewards:
+                err = infos[a].get("platooning_error_m")
+                e = np.nan if err is None else err
+                rewards[a] += float(s.extra.bonus(layout, np.array(e), obs[a]))
+        self._obs = obs
         self.agents = list(self.env.agents)
-        return out
+        return obs, rewards, term, trunc, infos
 
     def render(self) -> np.ndarray | None:
         return None if self.env is None else self.env.render()

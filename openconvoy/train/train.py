@@ -15,7 +15,8 @@ A run directory holds::
                        resume training; every .zip carries its own statistics)
     checkpoints/       policy_<steps>_steps.zip, each loadable like policy.zip
     tb/                TensorBoard event files (rollout/ep_rew_mean, rollout/platooning_error_m, ...)
-    train.json         steps, wall time, steps per second
+    train.json         steps, wall time (of learning), steps per second, whether the
+                       wall-clock budget stopped learning, the PER curriculum's steps
 
 ``openconvoy export RUN_DIR --out policy.npz`` turns it into the numpy-only artifact.
 """
@@ -43,6 +44,7 @@ from openconvoy.policies.learned import LearnedMeta, read_zip_meta, write_zip_me
 from openconvoy.train.batched import RandomizedVectorVecEnv, batched_refusal
 from openconvoy.train.config import TrainConfig, dumps_train_config
 from openconvoy.train.randomization import RandomizedConvoyEnv
+from openconvoy.train.schedule import RunClock, Schedule, linear_schedule
 from openconvoy.train.validate import Validation, validate
 from openconvoy.train.vec import shared_policy_vec_env
 
@@ -59,6 +61,7 @@ class TrainResult:
     policy_path: Path
     steps: int
     wall_s: float
+    stopped_by_budget: bool = False
 
     @property
     def steps_per_s(self) -> float:
@@ -104,13 +107,20 @@ def _activation(name: str):
     return {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[name]
 
 
-def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) -> BaseAlgorithm:
-    """The SB3 model for ``config`` on ``venv`` (CPU)."""
+def make_model(
+    config: TrainConfig,
+    venv: VecEnv,
+    tensorboard_dir: Path | None,
+    clock: RunClock | None = None,
+) -> BaseAlgorithm:
+    """The SB3 model for ``config`` on ``venv`` (CPU); ``clock``: the run's progress
+    (a linear learning rate follows it; default: steps only)."""
     tb = None if tensorboard_dir is None else str(tensorboard_dir)
     if config.algo == "ppo":
         p = config.ppo
         # Keep a minibatch within one rollout: SB3 warns (and wastes data) otherwise.
         batch = min(p.batch_size, p.n_steps * venv.num_envs)
+        clock = clock or RunClock(config.total_steps, None)
         lr = p.learning_rate
         return PPO(
             "MlpPolicy",
@@ -118,8 +128,7 @@ def make_model(config: TrainConfig, venv: VecEnv, tensorboard_dir: Path | None) 
             n_steps=p.n_steps,
             batch_size=batch,
             n_epochs=p.n_epochs,
-            # SB3 passes the remaining progress, 1 -> 0.
-            learning_rate=(lambda remaining: lr * remaining) if p.lr_schedule == "linear" else lr,
+            learning_rate=linear_schedule(lr, clock) if p.lr_schedule == "linear" else lr,
             gamma=p.gamma,
             gae_lambda=p.gae_lambda,
             clip_range=p.clip_range,
@@ -259,16 +268,18 @@ class _Checkpoint(BaseCallback):
     """Every ``every`` agent steps, a loadable ``policy_<steps>_steps.zip``, validated
     when the config asks (``validations`` collects the results)."""
 
-    def __init__(self, config: TrainConfig, directory: Path, every: int) -> None:
+    def __init__(self, config: TrainConfig, directory: Path, every: int, clock: RunClock) -> None:
         super().__init__()
         self.config = config
         self.directory = directory
         self.every = every
+        self.clock = clock
         self._next = every
         self.validations: list[Validation] = []
 
     def _on_step(self) -> bool:
         if self.every and self.num_timesteps >= self._next:
+            start = time.perf_counter()
             self.directory.mkdir(parents=True, exist_ok=True)
             path = save_policy(
                 self.model, self.config, self.directory / f"policy_{self.num_timesteps}_steps.zip"
@@ -276,6 +287,7 @@ class _Checkpoint(BaseCallback):
             if self.config.validation_seeds:
                 self.validations.append(_validate(self.config, path, self.num_timesteps))
                 self.logger.record("validation/objective", self.validations[-1].objective)
+            self.clock.timed_validation(time.perf_counter() - start)
             self._next += self.every
         return True
 
@@ -296,11 +308,13 @@ def train(
     (run_dir / "config.toml").write_text(dumps_train_config(config), encoding="utf-8")
     torch.set_num_threads(config.torch_threads)
 
+    clock = RunClock(config.total_steps, config.budget_s, validates=bool(config.validation_seeds))
     venv = make_vec_env(config)
-    model = make_model(config, venv, run_dir / "tb")
-    checkpoints = _Checkpoint(config, run_dir / "checkpoints", config.checkpoint_every)
+    model = make_model(config, venv, run_dir / "tb", clock)
+    checkpoints = _Checkpoint(config, run_dir / "checkpoints", config.checkpoint_every, clock)
+    schedule = Schedule(clock, config.randomization.per_range, config.per_curriculum)
     callbacks = CallbackList(
-        [_Progress(config.total_steps, progress_bar), _ConvoyStats(), checkpoints]
+        [_Progress(config.total_steps, progress_bar), _ConvoyStats(), checkpoints, schedule]
     )
     start = time.perf_counter()
     model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
@@ -311,8 +325,8 @@ def train(
         venv.save(str(run_dir / VECNORM_FILE))
     meta = read_zip_meta(policy)
     (run_dir / "policy.json").write_text(json.dumps(meta.to_json(), indent=1), encoding="utf-8")
-    result = TrainResult(run_dir, policy, int(model.num_timesteps), wall)
-    _write_summary(config, result, run_dir / "train.json")
+    result = TrainResult(run_dir, policy, int(model.num_timesteps), wall, schedule.stopped_by_clock)
+    _write_summary(config, result, run_dir / "train.json", schedule.per_high)
     venv.close()
     return result
 
@@ -341,10 +355,15 @@ def _choose_policy(
     return policy
 
 
-def _write_summary(config: TrainConfig, result: TrainResult, path: Path) -> None:
+def _write_summary(
+    config: TrainConfig, result: TrainResult, path: Path, per_high: list[tuple[int, float]]
+) -> None:
     summary: dict[str, Any] = {
         "algo": config.algo,
         "steps": result.steps,
+        "stopped_by_budget": result.stopped_by_budget,
+        "budget_s": config.budget_s,
+        "per_high": [[steps, round(v, 4)] for steps, v in per_high],
         "wall_s": round(result.wall_s, 3),
         "steps_per_s": round(result.steps_per_s, 1),
         "torch_threads": config.torch_threads,

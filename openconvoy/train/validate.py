@@ -3,7 +3,8 @@
 The same runs ``openconvoy sim --policy FILE`` makes (the experiments' ``run_sim``) on the
 ``paper`` scenario for every (PER, seed) of a grid, scored with the tuning objective
 (``openconvoy.train.tune.objective_of``: mean p95 platooning error in metres, plus 100 m
-per collision per run, plus the mean speed difference). Training validates every
+per collision per run, plus the mean speed difference) plus the mean p95 distance of the
+followers from the scenario's path (``PATH_KEY``). Training validates every
 checkpoint this way and keeps the best, as SB3's EvalCallback keeps a best model; the
 seeds are kept apart from those reports use, so the selection does not see the test runs.
 
@@ -29,7 +30,12 @@ from openconvoy.core.policy import BatchPolicy
 from openconvoy.train.tune import TuneConfig, objective_of
 
 KEYS = ("p95_platooning_error_m", "mean_speed_difference_mps", "collisions", "min_gap_m")
-"""The metrics a validation keeps per run."""
+"""The metrics a validation keeps per run (with ``PATH_KEY``)."""
+PATH_KEY = "p95_path_error_m"
+"""The 95th percentile over followers and ticks of the distance (m) from the scenario's
+path. The platooning error is a straight-line gap, blind to a follower beside its
+predecessor; a validation scores this too (added to the objective), so a policy that
+keeps its gap while leaving the road is not the one kept."""
 
 
 @dataclass(frozen=True)
@@ -42,7 +48,7 @@ class Validation:
     metrics: tuple[dict[str, Any], ...]
 
     def to_json(self) -> dict[str, Any]:
-        keys = ("p95_platooning_error_m", "mean_speed_difference_mps", "collisions")
+        keys = ("p95_platooning_error_m", "mean_speed_difference_mps", "collisions", PATH_KEY)
         return {
             "path": self.path,
             "steps": self.steps,
@@ -67,18 +73,45 @@ def validate(
     metrics = batched_metrics(str(policy), runs, scenario, duration_s) if batched else None
     if metrics is None:
         metrics = [_run_metrics(str(policy), per, seed, scenario, duration_s) for per, seed in runs]
-    return Validation(str(policy), int(steps), objective_of(metrics, TuneConfig()), tuple(metrics))
+    return Validation(str(policy), int(steps), validation_objective(metrics), tuple(metrics))
+
+
+def validation_objective(metrics: Sequence[dict[str, Any]]) -> float:
+    """The tuning objective (``objective_of``) plus the mean ``PATH_KEY`` (m; 0 for a
+    scenario without a path)."""
+    path = [m.get(PATH_KEY) for m in metrics]
+    finite = [float(v) if v is not None and np.isfinite(v) else 0.0 for v in path]
+    return objective_of(metrics, TuneConfig()) + float(np.mean(finite))
+
+
+def path_error_p95(log: dict[str, np.ndarray], scenario: Any) -> float:
+    """``PATH_KEY`` of a run's log rows (``x_m``, ``y_m``, ``vehicle_id``; the leader is
+    vehicle 0) on ``scenario``'s path (sampled every 0.25 m; NaN without one)."""
+    path = getattr(scenario, "path", None)
+    if path is None:
+        return float("nan")
+    points = path.sample(0.25)
+    follower = log["vehicle_id"] != 0
+    xy = np.stack([log["x_m"][follower], log["y_m"][follower]], axis=1)
+    nearest = np.empty(len(xy))
+    for i in range(0, len(xy), 512):  # bounded memory: 512 rows x path points at a time
+        d = xy[i : i + 512, None, :] - points[None, :, :]
+        nearest[i : i + 512] = np.sqrt((d * d).sum(axis=2).min(axis=1))
+    return float(np.percentile(nearest, 95)) if len(nearest) else float("nan")
 
 
 def _run_metrics(
     policy: str, per: float, seed: int, scenario: str, duration_s: float | None
 ) -> dict[str, Any]:
+    from openconvoy.envs.scenarios import make_scenario
     from openconvoy.experiments.runs import RunConfig, run_sim
 
-    m = run_sim(
+    run = run_sim(
         RunConfig(scenario=scenario, policy=policy, per=per, seed=seed, duration_s=duration_s)
-    ).metrics
-    return {k: m[k] for k in KEYS}
+    )
+    out = {k: run.metrics[k] for k in KEYS}
+    out[PATH_KEY] = path_error_p95(run.log, make_scenario(scenario))
+    return out
 
 
 def batched_metrics(
@@ -115,7 +148,7 @@ def batched_metrics(
     p.reset()
     ticks = _rollout(env, p, [seed for _, seed in runs])
     lengths = {i: float(v) for i, v in enumerate(env.lengths)}
-    return [_convoy_metrics(ticks, b, lengths) for b in range(len(runs))]
+    return [_convoy_metrics(ticks, b, lengths, scene) for b in range(len(runs))]
 
 
 def _rollout(env: Any, policy: Any, seeds: list[int]) -> dict[str, np.ndarray]:
@@ -152,7 +185,9 @@ def _rollout(env: Any, policy: Any, seeds: list[int]) -> dict[str, np.ndarray]:
     return out
 
 
-def _convoy_metrics(ticks: dict[str, np.ndarray], b: int, lengths: dict[int, float]) -> dict:
+def _convoy_metrics(
+    ticks: dict[str, np.ndarray], b: int, lengths: dict[int, float], scene: Any
+) -> dict:
     """``core.metrics`` on convoy ``b``'s rows, as ``run_sim`` computes them from its log."""
     T = int(ticks["ticks"][b])
     N = ticks["x"].shape[2]
@@ -169,4 +204,6 @@ def _convoy_metrics(ticks: dict[str, np.ndarray], b: int, lengths: dict[int, flo
         "msgs_lost": np.full(T * N, -1),
     }
     m = mt.compute_metrics(log, lengths)
-    return {k: m[k] for k in KEYS}
+    out = {k: m[k] for k in KEYS}
+    out[PATH_KEY] = path_error_p95(log, scene)
+    return out

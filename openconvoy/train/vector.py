@@ -84,6 +84,13 @@ class VectorConvoyVecEnv(VecEnv):
         """Group ``g``'s actions ``(B_g, N-1, 2)`` as the environment takes them."""
         return actions
 
+    def _reward(
+        self, g: int, rewards: np.ndarray, obs: np.ndarray, info: dict[str, Any]
+    ) -> np.ndarray:
+        """Group ``g``'s rewards ``(B_g, N-1)`` as the learner sees them (here: the
+        environment's); ``obs`` the step's observations."""
+        return rewards
+
     def _after_step(self, g: int, done: np.ndarray) -> None:
         """Called after group ``g`` stepped; ``done`` (B_g,) marks convoys that restarted."""
 
@@ -117,7 +124,7 @@ class VectorConvoyVecEnv(VecEnv):
             done = term | trunc
             self._obs[g] = obs
             self._after_step(g, done)
-            rewards.append(r.reshape(-1))
+            rewards.append(self._reward(g, r, obs, info).reshape(-1))
             dones.append(np.repeat(done, self.per_convoy))
             infos += _slot_infos(info, done, trunc, info.get("final_observation"))
         return (

@@ -510,6 +510,7 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     from openconvoy.train.randomization import (
         ABSOLUTE_ACTION_BOUNDS,
         SCRATCH_REWARD,
+        SCRATCH_SHAPING,
         TRAIN_REWARD,
     )
 
@@ -518,14 +519,22 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     assert scratch.base_policy == "" and scratch.bounds == ABSOLUTE_ACTION_BOUNDS
     assert scratch.emergency_stop is False and TrainConfig().env.emergency_stop is True
     assert scratch.reward == SCRATCH_REWARD and TrainConfig().env.reward == TRAIN_REWARD
+    assert scratch.shaping == SCRATCH_SHAPING and not TrainConfig().env.extra.active
     assert train_config_from_args(parse(["train", "--base", "none"])).ppo.use_sde is True
     assert TrainConfig().ppo.use_sde is False
     cfg = tmp_path / "chosen.toml"
     cfg.write_text("[env]\naction_low = [0.0, -0.5]\naction_high = [5.0, 0.5]\n")
     chosen = train_config_from_args(parse(["train", "--config", str(cfg), "--base", "none"])).env
     assert chosen.bounds == ((0.0, -0.5), (5.0, 0.5))
-    # The README's from-scratch run: these defaults, written out, at its budget.
+    # The run size and PPO settings of the kind come with it; flags given win.
+    run = train_config_from_args(parse(["train", "--base", "none"]))
+    assert (run.n_envs, run.budget_s, run.ppo.n_steps) == (64, 840.0, 32)
+    assert (
+        train_config_from_args(parse(["train", "--base", "none", "--budget", "1m"])).budget_s == 60
+    )
+    assert TrainConfig().budget_s is None and TrainConfig().n_envs == 32
+    # The README's from-scratch run: `--base none`, written out.
     example = Path(__file__).parents[2] / "openconvoy/train/examples/from-scratch.toml"
-    run = load_train_config(example)
+    assert load_train_config(example) == run
     assert run.env.reward == SCRATCH_REWARD and run.ppo.use_sde and not run.env.emergency_stop
-    assert run.env.bounds == ABSOLUTE_ACTION_BOUNDS and run.total_steps == 1_500_000
+    assert run.env.bounds == ABSOLUTE_ACTION_BOUNDS

@@ -30,7 +30,7 @@ from openconvoy.comms.loss import (
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import DRAW_LOSS
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_math import norm
 from openconvoy.envs.vector_rx import RxBuffers, push_one
@@ -208,14 +208,14 @@ class VectorChannel:
         return lost
 
 
-@bare_kernel
+@bare_inline
 def _mix(z):  # pragma: no cover - compiled
     z = (z ^ (z >> _S30)) * _K1
     z = (z ^ (z >> _S27)) * _K2
     return z ^ (z >> _S31)
 
 
-@bare_kernel
+@bare_inline
 def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     """``comms.loss.counter_uniform(key, w0, w1, w2, w3)``, bit for bit."""
     z = _mix(key + _G + np.uint64(w0))
@@ -225,7 +225,7 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     return np.float64(z >> _S11) * _UNIT
 
 
-@bare_kernel
+@bare_inline
 def _draw(zs, w1, w2):  # pragma: no cover - compiled
     """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``."""
     z = _mix(zs + _G + np.uint64(w1))
@@ -303,10 +303,15 @@ def _bernoulli_deliver(
                     continue
                 delivered_to[b, r] += 1
                 link = pair_link[p]
-                if link >= 0:
-                    kept[b, r] += 1
+                if link < 0:
+                    continue
+                kept[b, r] += 1
+                if keeps[link]:
                     push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
                              link, t[b], own, s, spacing)  # fmt: skip
+                elif t[b] > newest[b, link]:  # push_one of a time-only link, without a call
+                    newest[b, link] = t[b]
+                    hist_n[b, link] = min(hist_n[b, link] + 1, hist.shape[2])
             number[b, s] = nb + 1
 
 

@@ -41,7 +41,7 @@ def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("vector_*.py")):
         text = path.read_bytes()
-        if b"@bare_kernel" in text or b"@kernel" in text or path.name == "vector_jit.py":
+        if b"@bare_" in text or b"@kernel" in text or path.name == "vector_jit.py":
             digest.update(path.name.encode() + text)
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
@@ -72,6 +72,13 @@ def bare_kernel(fn: Callable[..., Any]) -> Any:
     array arguments otherwise counts each array up and down (atomic, out of line),
     which for the per-link helpers costs more than their work."""
     return _compile(fn, {**_OPTIONS, "_nrt": False})
+
+
+def bare_inline(fn: Callable[..., Any]) -> Any:
+    """A ``bare_kernel`` that LLVM inlines into its callers (``forceinline``): the small
+    helpers called per link or per trail segment, whose arguments (each array several
+    words) cost more to pass than the work."""
+    return _compile(fn, {**_OPTIONS, "_nrt": False, "forceinline": True})
 
 
 def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:

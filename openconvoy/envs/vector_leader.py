@@ -18,7 +18,7 @@ from openconvoy.envs.scenarios import (
     emergency_speed,
     paper_speed,
 )
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_math import wrap
 
 WINDOW_M = 20.0
@@ -70,7 +70,7 @@ class LeaderDriver:
                self.seg, self.seg_s, self.closed, self.length, cmd_v, cmd_dh)  # fmt: skip
 
 
-@bare_kernel
+@bare_inline
 def _segment(seg_s, n, s):  # pragma: no cover - compiled
     """The segment holding arc length ``s`` (``Path._segment``)."""
     return min(max(np.searchsorted(seg_s, s, side="right") - 1, 0), n - 1)
@@ -107,7 +107,7 @@ def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - comp
         s_arr[b] = s_best % length if closed else s_best
 
 
-@bare_kernel
+@bare_inline
 def _profile(kind, t, s, target):  # pragma: no cover - compiled
     """The built-in speed profiles (``scenarios.paper_speed``, ``emergency_speed``)."""
     if kind == 1:

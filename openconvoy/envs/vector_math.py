@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import math
 
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline
 
 TWO_PI = 2.0 * math.pi
 
 
-@bare_kernel
+@bare_inline
 def norm(dx, dy):  # pragma: no cover - compiled
     """Euclidean length of (dx, dy): sqrt(dx² + dy²) (within an ulp of ``math.hypot``,
     a tenth of its cost; no overflow at vehicle distances)."""
     return math.sqrt(dx * dx + dy * dy)
 
 
-@bare_kernel
+@bare_inline
 def wrap(a):  # pragma: no cover - compiled
     """An angle (rad) into [-π, π): ``np.remainder(a + π, 2π) - π``, the same rounding
     (fmod is exact; without a wrap, or one turn below, there is nothing to divide)."""

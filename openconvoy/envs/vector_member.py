@@ -16,7 +16,7 @@ import numpy as np
 
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_math import norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
@@ -36,7 +36,7 @@ def pack_ladder(c: LadderConfig) -> np.ndarray:
     )
 
 
-@bare_kernel
+@bare_inline
 def speed_gap(sp, v):  # pragma: no cover - compiled
     """The speed-dependent part of a pair gap (m) at ``v`` (not constant-distance)."""
     vv = max(v, 0.0)
@@ -46,7 +46,7 @@ def speed_gap(sp, v):  # pragma: no cover - compiled
     return g
 
 
-@bare_kernel
+@bare_inline
 def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
     """Desired centre-to-centre gap (m) of a vehicle to the one ahead at speed ``v``."""
     if sp[0] == 0.0:
@@ -54,14 +54,14 @@ def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
     return speed_gap(sp, v) + 0.5 * (len_behind + len_ahead)
 
 
-@bare_kernel
+@bare_inline
 def link_age(newest, b, ln, t):  # pragma: no cover - compiled
     """Age (s) of link ``ln``'s newest message at ``t`` (``newest``: its time, -inf when
     none); inf when none."""
     return max(0.0, t - newest[b, ln])
 
 
-@bare_kernel
+@bare_inline
 def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # pragma: no cover
     """``ConvoyMember.estimate`` of link ``ln``'s sender (``ln`` < 0: none):
     (valid, x m, y m, speed m/s, heading rad, age s). Fresh: dead-reckoned at its speed;
@@ -123,7 +123,7 @@ def decide(
             cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
 
 
-@bare_kernel
+@bare_inline
 def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # pragma: no cover
     """``ConvoyMember.supervise``'s rungs: degraded follows the ACC fallback on the
     predecessor estimate (none: stop), stop commands zero."""
@@ -142,7 +142,7 @@ def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # prag
     return v, dh, mode
 
 
-@bare_kernel
+@bare_inline
 def _fires(
     own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t
 ):  # pragma: no cover - compiled

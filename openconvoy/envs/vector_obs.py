@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
-from openconvoy.envs.vector_jit import bare_kernel, prefetch
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel, prefetch
 from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector_trail import point_at, project
@@ -34,7 +34,7 @@ def pack_layout(lay: ObservationLayout) -> np.ndarray:
     )  # fmt: skip
 
 
-@bare_kernel
+@bare_inline
 def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: no cover
     """The state slots: each kept sender's last k states in the ego frame (``c``, ``s``:
     cosine and sine of the ego heading)."""
@@ -56,7 +56,7 @@ def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: n
             obs[b, f, o + 6] = 1.0
 
 
-@bare_kernel
+@bare_inline
 def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
     """Desired arc gap (m) of follower ``f + 1`` to target ``m`` (0 leader, m pred_m),
     summed pair by pair in ``ConvoyMember``'s order."""
@@ -72,7 +72,7 @@ def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
     return acc
 
 
-@bare_kernel
+@bare_inline
 def _path(
     obs, b, f, own, c, s, trail, tail, trail_n, tl, hx, hy, hh, cross, pheading, ps, o, guess
 ):  # pragma: no cover
@@ -134,7 +134,7 @@ def observe(
                   geom[4], int(tg[10, chosen]) + 1)  # fmt: skip
 
 
-@bare_kernel
+@bare_inline
 def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  # pragma: no cover
     """Prefetch what ``observe`` will read of convoy ``b``: its followers' slot states and
     the target trails around the last projections. Only a hint to the cache: without
@@ -156,7 +156,7 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
                 prefetch(trail, b, tl, j)
 
 
-@bare_kernel
+@bare_inline
 def _targets(
     obs, tg, b, f, t, own, hist, hist_n, trail, tail, trail_n, trail_of, hint, hint_k,
     target_link, link_decel, lengths, sp, stop_after, fresh_age, geom, F,

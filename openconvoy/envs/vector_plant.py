@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from openconvoy.envs.plant import BicyclePlant
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vehicles import VehiclePreset
 
@@ -79,7 +79,7 @@ class VectorPlant:
         )  # fmt: skip
 
 
-@bare_kernel
+@bare_inline
 def _pi_dv(p, i, inner, v_cmd, v0, dt, n_sub):  # pragma: no cover - compiled
     """``BicyclePlant._pi_dv`` for vehicle ``i``: the speed change; updates its state."""
     h = dt / n_sub

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline
 from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_trail import CAPACITY, trail_add
 
@@ -52,7 +52,7 @@ class RxBuffers:
         self.hint_k[rows] = 0
 
 
-@bare_kernel
+@bare_inline
 def push_one(
     hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, ln, ts, st, s, spacing
 ):  # pragma: no cover - compiled

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline
 from openconvoy.envs.vector_math import norm
 
 CAPACITY = 1024
@@ -22,7 +22,7 @@ FAR_M = 1e4
 """Length of the straight extension behind the oldest breadcrumb (``Trail._vertex``)."""
 
 
-@bare_kernel
+@bare_inline
 def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     """``Trail.add``: record (x, y) when ``spacing`` m from the last breadcrumb."""
     nn = n[b, ln]
@@ -46,7 +46,7 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     n[b, ln] = nn + 1
 
 
-@bare_kernel
+@bare_inline
 def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
     """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
     from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
@@ -77,7 +77,7 @@ def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
     return lo
 
 
-@bare_kernel
+@bare_inline
 def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb."""
     if n >= 2:
@@ -90,7 +90,7 @@ def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     return -dx / d, -dy / d
 
 
-@bare_kernel
+@bare_inline
 def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     """``Trail._vertex``: -1 the far end of the extension, 0..n-1 breadcrumbs, n the head
     (at arc coordinate ``s_head``)."""
@@ -102,7 +102,7 @@ def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     return tr[b, ln, 0, 0] + FAR_M * bx, tr[b, ln, 0, 1] + FAR_M * by, tr[b, ln, 0, 2] - FAR_M
 
 
-@bare_kernel
+@bare_inline
 def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``Trail._segment`` of (x, y) on segment k -> k+1: (dist², s, dx, dy, seg, rx, ry),
     the cross track and heading left to ``_finish`` (only the nearest needs them)."""
@@ -118,7 +118,7 @@ def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - c
     return ex * ex + ey * ey, sa + u * (sb - sa), dx, dy, seg, rx, ry
 
 
-@bare_kernel
+@bare_inline
 def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
     """``Trail.project`` from ``hint`` (NaN: ``expected`` m behind the head; ``hint_k``
     where to look for it): (arc to head, cross track, path heading, s, segment)."""
@@ -143,7 +143,7 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     return s_head - s, (dx * ry - dy * rx) / seg, math.atan2(dy, dx), s, k
 
 
-@bare_kernel
+@bare_inline
 def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover - compiled
     """``Trail.point_at``: the path point at arc coordinate ``s`` (beyond the head: on);
     ``guess``: a breadcrumb index near it."""

@@ -10,6 +10,7 @@ integrator kept separately. The per-vehicle ``act`` is unchanged (vehicles use i
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import EllipsisType
 
 import numpy as np
 
@@ -47,6 +48,17 @@ class _Targets:
         return cls(follower, no(), no(), no(), zero(), zero(), zero(), zero(), zero(), zero())
 
 
+class _Float64Columns:
+    """``obs.astype(np.float64)`` column by column, as read: the policy reads ~30 of the
+    layout's ~100 features, so converting them all would be most of its work."""
+
+    def __init__(self, obs: np.ndarray) -> None:
+        self.obs = obs
+
+    def __getitem__(self, key: tuple[EllipsisType, int]) -> np.ndarray:
+        return self.obs[key].astype(np.float64)
+
+
 class BatchedClassical:
     """The classical policy of ``config`` for a batch of vehicles (rows)."""
 
@@ -76,7 +88,7 @@ class BatchedClassical:
         shape = obs.shape[:-1]
         if self._integral is None or self._integral.shape != shape:
             self._integral = np.zeros(shape)
-        o = obs.astype(np.float64)
+        o = _Float64Columns(obs)
         own = o[..., self.layout.own_offset]
         t = self._scan_targets(obs, o)
         speed, integral = self._speed(t, own)
@@ -90,7 +102,7 @@ class BatchedClassical:
         out[..., 1] = np.where(stop, 0.0, h)
         return out
 
-    def _scan_targets(self, obs: np.ndarray, o: np.ndarray) -> _Targets:
+    def _scan_targets(self, obs: np.ndarray, o: _Float64Columns) -> _Targets:
         """Walk the targets nearest first (predecessors, then the leader), as
         ``ClassicalPolicy`` does, collecting what the speed law needs per row."""
         lay = self.layout
@@ -161,7 +173,7 @@ class BatchedClassical:
             speed = np.where(is_stale, np.minimum(speed, limit), speed)
         return np.minimum(np.maximum(speed, 0.0), cfg.speed_limit_mps), integral
 
-    def _heading(self, o: np.ndarray, own: np.ndarray) -> np.ndarray:
+    def _heading(self, o: _Float64Columns, own: np.ndarray) -> np.ndarray:
         p = self.layout.path_offset
         h = self.config.heading
         valid = o[..., p + 8] >= 0.5

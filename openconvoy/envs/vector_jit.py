@@ -92,11 +92,11 @@ def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:
         config.CACHE_DIR = saved
 
 
-def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any) -> Any:  # pragma: no cover
-    """Hint the cache to fetch ``arr[b, ln, j]`` (a 4-D array's row; no effect on values):
+def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any, m: Any) -> Any:  # pragma: no cover
+    """Hint the cache to fetch ``arr[b, ln, j, m]`` (a 4-D array; no effect on values):
     the batched kernels touch each convoy's trails once per tick, too far apart for the
     hardware to guess, so a kernel asks for the next convoys' rows while it works."""
-    sig = _types.void(arr, b, ln, j)
+    sig = _types.void(arr, b, ln, j, m)
 
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         aryty = signature.args[0]

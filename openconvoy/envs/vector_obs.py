@@ -145,15 +145,16 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
             link = slot_link[f, k]
             if link >= 0:
                 for j in range(hist.shape[2]):
-                    prefetch(hist, b, link, j)
+                    prefetch(hist, b, link, j, 0)
         for m in range(target_link.shape[1]):
             link = target_link[f, m]
             if link < 0:
                 continue
             tl = trail_of[link]
             lo = hint_k[b, tl]
-            for j in range(lo, min(lo + WARM_CRUMBS, trail_n[b, tl]), 2):
-                prefetch(trail, b, tl, j)
+            hi = min(lo + WARM_CRUMBS, trail_n[b, tl])
+            for q in range(3 * lo, 3 * hi, 8):  # a cache line (8 doubles) at a time
+                prefetch(trail, b, tl, q // 3, q % 3)
 
 
 @bare_inline

@@ -37,7 +37,7 @@ class RxBuffers:
         # Untouched pages of a trail are never committed (calloc): memory grows with
         # the breadcrumbs actually laid.
         self.trail = np.zeros((B, T, CAPACITY, 3))
-        self.tail = np.zeros((B, T, 3))
+        self.tail = np.zeros((B, T, 4))
         self.trail_n = np.zeros((B, T), dtype=np.int64)
         self.hint = np.full((B, T), np.nan)
         self.hint_k = np.zeros((B, T), dtype=np.int64)

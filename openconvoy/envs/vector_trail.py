@@ -1,9 +1,10 @@
 """Trails as ring arrays: ``core.trail.Trail``'s add, project and point_at, compiled.
 
 A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
-s (m), ``n[b, ln]`` of them, the oldest half dropped when full; ``tail[b, ln]`` (3,) is
-its newest breadcrumb again, packed with the other trails' (every add and query reads
-it: one cache line for many trails instead of one each). A query's path is the
+s (m), ``n[b, ln]`` of them, the oldest half dropped when full; ``tail[b, ln]`` (4,) is
+its newest breadcrumb again and the oldest one's arc coordinate, packed with the
+other trails' (every add and query reads them: one cache line for many trails instead of
+two each). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
 heading ``hh`` (the sender's dead-reckoned position): the same vertices, segments and
 walk as ``Trail``, so the same numbers.
@@ -40,9 +41,12 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
             for f in range(3):
                 tr[b, ln, j, f] = tr[b, ln, j + half, f]
         nn -= half
+        tail[b, ln, 3] = tr[b, ln, 0, 2]
     s = ps + step if nn > 0 else 0.0
     tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
     tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
+    if nn == 0:
+        tail[b, ln, 3] = s
     n[b, ln] = nn + 1
 
 
@@ -155,7 +159,7 @@ def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess):  # pragma: no cover 
     if s >= ls:
         f = (s - ls) / (s_head - ls)
         return lx + f * (hx - lx), ly + f * (hy - ly)
-    s0 = tr[b, ln, 0, 2]
+    s0 = tail[b, ln, 3]
     if s <= s0:
         bx, by = _back(tr, b, ln, n, hx, hy, hh)
         return tr[b, ln, 0, 0] - (s - s0) * bx, tr[b, ln, 0, 1] - (s - s0) * by

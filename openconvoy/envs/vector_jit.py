@@ -28,6 +28,7 @@ from openconvoy.core.errors import DependencyMissing
 try:
     import numba as _numba
     from llvmlite import ir as _ir
+    from llvmlite.binding import llvm_version_info as _llvm_version
     from numba import types as _types
     from numba.core import cgutils as _cgutils
     from numba.extending import intrinsic as _intrinsic
@@ -92,6 +93,10 @@ def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:
         config.CACHE_DIR = saved
 
 
+# The intrinsic's name carries its pointer type: opaque pointers from LLVM 15 on.
+_PREFETCH = "llvm.prefetch.p0" if _llvm_version[0] >= 15 else "llvm.prefetch.p0i8"
+
+
 def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any, m: Any) -> Any:  # pragma: no cover
     """Hint the cache to fetch ``arr[b, ln, j, m]`` (a 4-D array; no effect on values):
     the batched kernels touch each convoy's trails once per tick, too far apart for the
@@ -108,7 +113,7 @@ def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any, m: Any) -> Any:
         ptr = _cgutils.get_item_pointer(context, builder, aryty, ary, idx)
         i8p, i32 = _ir.IntType(8).as_pointer(), _ir.IntType(32)
         fnty = _ir.FunctionType(_ir.VoidType(), [i8p, i32, i32, i32])
-        fn = _cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        fn = _cgutils.get_or_insert_function(builder.module, fnty, _PREFETCH)
         # read, high locality, data cache
         builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
         return context.get_dummy_value()

@@ -14,11 +14,9 @@ from openconvoy.train.randomization import (
     ABSOLUTE_ACTION_BOUNDS,
     RESIDUAL_ACTION_BOUNDS,
     SCRATCH_REWARD,
-    SCRATCH_SHAPING,
     TRAIN_REWARD,
     EnvSpec,
 )
-from openconvoy.train.shaping import Shaping
 
 
 def train_config_from_args(args: argparse.Namespace, path: str | None = None) -> TrainConfig:
@@ -111,8 +109,6 @@ def _kind_defaults(env: EnvSpec, residual: bool) -> dict[str, Any]:
         changes["emergency_stop"] = None
     if env.reward == (TRAIN_REWARD if env.base_policy else SCRATCH_REWARD):
         changes["reward"] = None
-    if env.shaping == (Shaping() if env.base_policy else SCRATCH_SHAPING):
-        changes["shaping"] = None
     return changes
 
 

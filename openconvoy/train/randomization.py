@@ -191,8 +191,11 @@ sees no gradient back, and its comfort terms pay an exploring policy to creep (a
 turns and accelerates less); the light acceleration term damps the speed oscillation of
 a spacing-only reward (p95 2.46 -> 1.89 m at PER 0)."""
 
-SCRATCH_SHAPING = Shaping(weight=1.0, gap_scale_m=1.0, path_scale_m=2.0, heading_scale_rad=0.5)
-"""The terms learning from scratch adds to ``SCRATCH_REWARD`` (``train.shaping``)."""
+TRAIN_SHAPING = Shaping(weight=1.0, gap_scale_m=1.0, path_scale_m=2.0, heading_scale_rad=0.5)
+"""The terms training adds to the reward (``train.shaping``), with or without a base: from
+scratch it is what made the followers keep the road; on the ``paper`` base the default
+600k-step residual run went from p95 0.660 / 0.637 / 0.907 m to 0.122 / 0.174 / 0.438 m at
+PER 0 / 0.3 / 0.6 (held-out seeds 0-4, seed 0 run, 0 collisions both)."""
 
 RESIDUAL_ACTION_BOUNDS = ((0.0, -math.pi / 2), (5.0, math.pi / 2))
 """Residual actions: the sum may use the whole action range (DESIGN.md, Action)."""
@@ -225,7 +228,7 @@ class EnvSpec:
             with a base, ``SCRATCH_REWARD`` without.
         shaping: the training environments' terms on top of ``reward``
             (``train.shaping``: the last metre of the gap, the offset from the
-            predecessor's trail); None: ``SCRATCH_SHAPING`` without a base, none with one.
+            predecessor's trail); None: ``TRAIN_SHAPING``.
         emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
             follower about to hit its predecessor) during training; None: on with a base,
             off without. Learning from scratch, a policy whose exploration trips the
@@ -256,8 +259,7 @@ class EnvSpec:
         if self.emergency_stop is None:
             object.__setattr__(self, "emergency_stop", bool(self.base_policy))
         if self.shaping is None:
-            shaping = Shaping() if self.base_policy else SCRATCH_SHAPING
-            object.__setattr__(self, "shaping", shaping)
+            object.__setattr__(self, "shaping", TRAIN_SHAPING)
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         base = classical_config(self.base_policy) if self.base_policy else None

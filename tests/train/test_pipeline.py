@@ -510,8 +510,8 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     from openconvoy.train.randomization import (
         ABSOLUTE_ACTION_BOUNDS,
         SCRATCH_REWARD,
-        SCRATCH_SHAPING,
         TRAIN_REWARD,
+        TRAIN_SHAPING,
     )
 
     parse = build_parser().parse_args
@@ -519,7 +519,7 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     assert scratch.base_policy == "" and scratch.bounds == ABSOLUTE_ACTION_BOUNDS
     assert scratch.emergency_stop is False and TrainConfig().env.emergency_stop is True
     assert scratch.reward == SCRATCH_REWARD and TrainConfig().env.reward == TRAIN_REWARD
-    assert scratch.shaping == SCRATCH_SHAPING and not TrainConfig().env.extra.active
+    assert scratch.shaping == TRAIN_SHAPING == TrainConfig().env.shaping  # one bonus for both
     assert train_config_from_args(parse(["train", "--base", "none"])).ppo.use_sde is True
     assert TrainConfig().ppo.use_sde is False
     cfg = tmp_path / "chosen.toml"

@@ -16,7 +16,7 @@ from openconvoy.train.batched import RandomizedVectorVecEnv
 from openconvoy.train.cli import wall_clock
 from openconvoy.train.config import TrainConfig
 from openconvoy.train.randomization import (
-    SCRATCH_SHAPING,
+    TRAIN_SHAPING,
     EnvSpec,
     Randomization,
     RandomizedConvoyEnv,
@@ -47,7 +47,7 @@ def test_bonus_pays_for_the_last_metre_on_the_trail() -> None:
 def test_both_training_paths_add_the_bonus_to_the_simulators_reward() -> None:
     r = Randomization(vehicles=())
     shaped, plain = (
-        EnvSpec(base_policy="", max_time_s=5.0, shaping=sh) for sh in (SCRATCH_SHAPING, Shaping())
+        EnvSpec(base_policy="", max_time_s=5.0, shaping=sh) for sh in (TRAIN_SHAPING, Shaping())
     )
     envs = [RandomizedVectorVecEnv(spec, r, n_convoys=3, n_worlds=1) for spec in (shaped, plain)]
     for env in envs:
@@ -57,7 +57,7 @@ def test_both_training_paths_add_the_bonus_to_the_simulators_reward() -> None:
     for _ in range(20):
         (obs, r_s, _, info), (_, r_p, _, _) = (env.step(act) for env in envs)
         err = np.array([i["platooning_error_m"] for i in info])
-        assert r_s - r_p == pytest.approx(SCRATCH_SHAPING.bonus(LAYOUT, err, obs), abs=1e-5)
+        assert r_s - r_p == pytest.approx(TRAIN_SHAPING.bonus(LAYOUT, err, obs), abs=1e-5)
     assert (r_s - r_p).max() > 0.1  # the bonus is there, not zero
     # The per-convoy path (SuperSuit's) does the same.
     single = [RandomizedConvoyEnv(spec, r) for spec in (shaped, plain)]
@@ -65,15 +65,15 @@ def test_both_training_paths_add_the_bonus_to_the_simulators_reward() -> None:
     a = {agent: np.array([0.2, 0.0], np.float32) for agent in obs_d}
     (obs_d, rew_s, _, _, infos), (_, rew_p, _, _, _) = (e.step(a) for e in single)
     for agent in obs_d:
-        expected = SCRATCH_SHAPING.bonus(
+        expected = TRAIN_SHAPING.bonus(
             LAYOUT, np.array(infos[agent]["platooning_error_m"]), obs_d[agent]
         )
         assert rew_s[agent] - rew_p[agent] == pytest.approx(float(expected), abs=1e-9)
 
 
-def test_scratch_brings_the_shaping_residual_does_not() -> None:
-    assert EnvSpec(base_policy="").shaping == SCRATCH_SHAPING
-    assert EnvSpec().shaping == Shaping() and not EnvSpec().extra.active
+def test_both_kinds_train_with_the_bonus_unless_a_config_turns_it_off() -> None:
+    assert EnvSpec(base_policy="").shaping == TRAIN_SHAPING == EnvSpec().shaping
+    assert EnvSpec().extra.active and not EnvSpec(shaping=Shaping()).extra.active
 
 
 def test_default_validation_scores_per_zero_too() -> None:

@@ -20,6 +20,7 @@ from openconvoy.policies.presets import PRESETS
 from openconvoy.train.batched import RandomizedVectorVecEnv, draw_group
 from openconvoy.train.config import TrainConfig
 from openconvoy.train.randomization import TRAIN_REWARD, EnvSpec, Randomization
+from openconvoy.train.shaping import Shaping
 from openconvoy.train.train import simulator_vec_env
 from openconvoy.train.validate import validate
 from openconvoy.train.vec import SharedPolicyVecEnv
@@ -73,7 +74,9 @@ def test_zero_residual_drives_like_the_base_and_worlds_last_one_episode() -> Non
     """Batched training env, zero network output: every convoy is a VectorConvoyEnv convoy
     driven by ``paper``; after one episode length the world is redrawn and every slot
     restarts, with its terminal observation."""
-    venv = RandomizedVectorVecEnv(EnvSpec(max_time_s=1.0), FIXED, n_convoys=3, n_worlds=1)
+    # No shaping bonus: the rewards are the simulator's (test_shaping checks the bonus).
+    spec = EnvSpec(max_time_s=1.0, shaping=Shaping())
+    venv = RandomizedVectorVecEnv(spec, FIXED, n_convoys=3, n_worlds=1)
     assert venv.num_envs == 6 and venv.action_space.shape == (2,)
     venv.seed(5)
     obs = venv.reset()

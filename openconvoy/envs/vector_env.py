@@ -19,7 +19,7 @@ on the kept links only.
 Arrays: observations ``(B, N-1, D)`` float32 (followers in order), actions
 ``(B, N-1, 2)``; rewards ``(B, N-1)``; ``terminated``/``truncated`` ``(B,)``. Not yet
 supported (a ConfigError says so): GPS noise, ranging sensors, ``forge`` faults,
-latency jitter, traffic scenarios.
+traffic scenarios.
 """
 
 from __future__ import annotations
@@ -177,12 +177,12 @@ class VectorConvoyEnv:
         self._fused = pack(self) if fusable and not self._brakes else None
 
     def _check_loss(self, link_counters: str) -> None:
-        if self.loss.jitter_s > 0.0:
-            raise ConfigError("VectorConvoyEnv does not support latency jitter yet (use ConvoyEnv)")
         if link_counters not in ("all", "kept"):
             raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
         if link_counters == "kept" and (
-            self.loss.latency_s > 0.0 or (self.loss.per > 0.0 and self.loss.model != "bernoulli")
+            self.loss.latency_s > 0.0
+            or self.loss.jitter_s > 0.0
+            or (self.loss.per > 0.0 and self.loss.model != "bernoulli")
         ):
             raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
 

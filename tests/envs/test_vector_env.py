@@ -33,6 +33,7 @@ def _compare(
     B: int = 2,
     per: float | list[float] = 0.3,
     latency_s: float = 0.0,
+    jitter_s: float = 0.0,
     steps: int | None = None,
     n_followers: int | None = None,
     member: dict | None = None,
@@ -45,7 +46,10 @@ def _compare(
     if member:
         mc = dataclasses.replace(mc, **member)
     pers = per if isinstance(per, list) else [per] * B
-    losses = [LossConfig(per=p, latency_s=latency_s, model=model, mean_burst_s=0.4) for p in pers]
+    losses = [
+        LossConfig(per=p, latency_s=latency_s, jitter_s=jitter_s, model=model, mean_burst_s=0.4)
+        for p in pers
+    ]
     vec = VectorConvoyEnv(
         B,
         scenario,
@@ -147,6 +151,25 @@ def test_latency_and_per_convoy_seeds() -> None:
     _compare("paper", B=3, per=0.2, latency_s=0.12, steps=120)
 
 
+def test_latency_jitter_reorders_messages_as_convoy_env() -> None:
+    # Jitter 0.2 s > the 0.1 s send period: later broadcasts overtake earlier ones.
+    modes = _compare("paper", B=2, per=0.2, latency_s=0.05, jitter_s=0.2, n_followers=3, steps=200)
+    assert modes["coop"] > 0
+
+
+def test_jitter_without_base_latency_and_with_bursts() -> None:
+    _compare("paper", B=1, per=0.3, jitter_s=0.08, steps=150)
+    _compare(
+        "paper", B=2, per=0.4, model="gilbert-elliott", latency_s=0.1, jitter_s=0.15, steps=150
+    )
+
+
+def test_jittered_channel_is_staged_not_fused() -> None:
+    vec = VectorConvoyEnv(1, loss=LossConfig(per=0.1, jitter_s=0.05))
+    assert vec._fused is None and vec.channel.slots == 1 + 3
+    assert VectorConvoyEnv(1, loss=LossConfig(per=0.1))._fused is not None
+
+
 def test_gilbert_elliott_bursts() -> None:
     _compare("paper", B=2, per=0.4, model="gilbert-elliott", n_followers=3, steps=200)
 
@@ -212,8 +235,8 @@ def test_autoreset_starts_the_next_episode_in_the_same_step() -> None:
 def test_unsupported_options_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="gps_noise_m"):
         VectorConvoyEnv(2, gps_noise_m=0.5)
-    with pytest.raises(ConfigError, match="jitter"):
-        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05))
+    with pytest.raises(ConfigError, match="instant Bernoulli"):
+        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05), link_counters="kept")
     with pytest.raises(ConfigError, match="num_envs"):
         VectorConvoyEnv(0)
 

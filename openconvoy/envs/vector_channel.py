@@ -102,6 +102,8 @@ class VectorChannel:
             self.ge_t = np.full((B, N, N), np.nan)
         if S:  # in flight: per send slot, each pair's arrival time (inf: none), sender state
             self.q_arrival = np.full((S, B, P), np.inf)
+            self.q_first = np.full((S, B), np.inf)  # a slot's earliest pending arrival
+            self._due_slots = np.zeros(S, dtype=np.int64)
             self.q_state = np.zeros((S, 6, B, N))
             self.q_t = np.zeros((S, B, N))
 
@@ -114,6 +116,7 @@ class VectorChannel:
         self.last_sent[:, rows] = np.nan
         if self.slots:
             self.q_arrival[:, rows] = np.inf
+            self.q_first[:, rows] = np.inf
 
     def seed(self, b: int, rng: np.random.Generator) -> None:
         """Convoy ``b``'s channel keys from its channel generator, as ``Channel.reset``."""
@@ -162,7 +165,7 @@ class VectorChannel:
             _enqueue(
                 self.keys, self.broadcasts, self.send, self.lost, self.pair_s, self.pair_r,
                 rows, t, step, own, self.latency_s, self.jitter_s, self.q_arrival,
-                self.q_state, self.q_t,
+                self.q_first, self.q_state, self.q_t,
             )  # fmt: skip
         self.broadcasts += self.send
         _deliver(
@@ -173,10 +176,10 @@ class VectorChannel:
         )  # fmt: skip
         if not instant:
             _arrive(
-                step, t, self.q_arrival, self.q_state, self.q_t, self.pair_s, self.pair_r,
-                self.pair_link, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
-                rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
-                rx.spacing_m,
+                step, t, self.q_arrival, self.q_first, self.q_state, self.q_t, self.pair_s,
+                self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
+                rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.trail_of, rx.spacing_m, self._due_slots,
             )  # fmt: skip
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -339,17 +342,18 @@ def _deliver(
 @bare_kernel
 def _enqueue(
     keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, q_arrival,
-    q_state, q_t,
+    q_first, q_state, q_t,
 ):  # pragma: no cover - compiled  # fmt: skip
     """This tick's broadcasts into send slot ``step % S``: the senders' states, and each
     pair's arrival time (``Channel.send``'s, jitter drawn on broadcast ``number``;
-    inf where not sent or lost)."""
+    inf where not sent or lost), and the slot's earliest arrival ``q_first``."""
     S, B, P = q_arrival.shape
     N = q_t.shape[2]
     for b in range(B):
         if not rows[b]:
             continue
         sl = step[b] % S
+        q_first[sl, b] = np.inf
         for s in range(N):
             q_t[sl, b, s] = t[b]
             for f in range(6):
@@ -364,27 +368,37 @@ def _enqueue(
                 u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
                 arrival += u * jitter
             q_arrival[sl, b, p] = arrival
+            q_first[sl, b] = min(q_first[sl, b], arrival)
 
 
 @bare_kernel
 def _arrive(
-    step, t, q_arrival, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing,
+    step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
-    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake."""
+    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake.
+    Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
+    scratch)."""
     S, B, P = q_arrival.shape
     for b in range(B):
         due = t[b] + 1e-9
+        n_due = 0
+        for back in range(S - 1, -1, -1):  # oldest send slot first
+            sl = (step[b] - back) % S
+            if q_first[sl, b] <= due:
+                slots[n_due] = sl
+                n_due += 1
+        if n_due == 0:
+            continue
         for p in range(P):
             s, r, link = pair_s[p], pair_r[p], pair_link[p]
             while True:
                 first, first_arrival = -1, np.inf
-                for back in range(S - 1, -1, -1):  # oldest send slot first
-                    sl = (step[b] - back) % S
-                    a = q_arrival[sl, b, p]
+                for k in range(n_due):
+                    a = q_arrival[slots[k], b, p]
                     if a <= due and a < first_arrival:
-                        first, first_arrival = sl, a
+                        first, first_arrival = slots[k], a
                 if first < 0:
                     break
                 q_arrival[first, b, p] = np.inf
@@ -393,3 +407,8 @@ def _arrive(
                     kept[b, r] += 1
                     push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link,
                              q_t[first, b, s], q_state[first], s, spacing)  # fmt: skip
+        for k in range(n_due):
+            sl, pending = slots[k], np.inf
+            for p in range(P):
+                pending = min(pending, q_arrival[sl, b, p])
+            q_first[sl, b] = pending

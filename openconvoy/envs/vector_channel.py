@@ -4,7 +4,9 @@ The same draws as ``envs.channel.Channel``: a Bernoulli loss is
 ``counter_uniform(key, sender, receiver, broadcast number, DRAW_LOSS) < per`` (compiled
 here, bit-identical to ``comms.loss.counter_uniform``), a Gilbert-Elliott link keeps its
 chain per ordered link (numpy, as ``GilbertElliott``), and a latency holds messages in a
-ring of send slots until due. Loss is drawn on ``pairs``: every ordered pair
+ring of send slots until due, each pair's arrival ``t + latency + jitter * counter_uniform(key,
+sender, receiver, broadcast number, DRAW_JITTER)`` (``Channel.send``), delivered in arrival
+order. Loss is drawn on ``pairs``: every ordered pair
 (``link_counters="all"``, the counters ``ConvoyEnv`` reports) or the kept links only.
 """
 
@@ -29,7 +31,7 @@ from openconvoy.comms.loss import (
 )
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
-from openconvoy.envs.channel import DRAW_LOSS
+from openconvoy.envs.channel import DRAW_JITTER, DRAW_LOSS
 from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_links import LinkTables
 from openconvoy.envs.vector_math import norm
@@ -78,8 +80,9 @@ class VectorChannel:
         mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
-        lat = self.loss.latency_s
-        self.slots = 0 if lat <= 0.0 else int(math.ceil(lat / dt)) + 3
+        self.latency_s, self.jitter_s = self.loss.latency_s, self.loss.jitter_s
+        delay = self.latency_s + self.jitter_s  # the longest a message is in flight
+        self.slots = 0 if delay <= 0.0 else int(math.ceil(delay / dt)) + 3
         self._alloc()
 
     def _alloc(self) -> None:
@@ -97,12 +100,12 @@ class VectorChannel:
             self.ge_bad = np.zeros((B, N, N), dtype=bool)
             self.ge_n = np.zeros((B, N, N), dtype=np.int64)
             self.ge_t = np.full((B, N, N), np.nan)
-        if S:  # in flight: per send slot, arrival time and sender state, and loss
-            self.q_arrival = np.full((S, B, N), np.inf)
+        if S:  # in flight: per send slot, each pair's arrival time (inf: none), sender state
+            self.q_arrival = np.full((S, B, P), np.inf)
+            self.q_first = np.full((S, B), np.inf)  # a slot's earliest pending arrival
+            self._due_slots = np.zeros(S, dtype=np.int64)
             self.q_state = np.zeros((S, 6, B, N))
             self.q_t = np.zeros((S, B, N))
-            self.q_lost = np.zeros((S, B, P), dtype=bool)
-            self._due = np.zeros(N, dtype=bool)
 
     def reset(self, rows: np.ndarray) -> None:
         """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
@@ -113,6 +116,7 @@ class VectorChannel:
         self.last_sent[:, rows] = np.nan
         if self.slots:
             self.q_arrival[:, rows] = np.inf
+            self.q_first[:, rows] = np.inf
 
     def seed(self, b: int, rng: np.random.Generator) -> None:
         """Convoy ``b``'s channel keys from its channel generator, as ``Channel.reset``."""
@@ -156,8 +160,14 @@ class VectorChannel:
         else:
             _bernoulli(self.keys, self.broadcasts, self.send, self.per, self.pair_s, self.pair_r,
                        rows, self.lost)  # fmt: skip
-        self.broadcasts += self.send
         instant = self.slots == 0
+        if not instant:  # before the broadcasts are counted: the jitter draws' numbers
+            _enqueue(
+                self.keys, self.broadcasts, self.send, self.lost, self.pair_s, self.pair_r,
+                rows, t, step, own, self.latency_s, self.jitter_s, self.q_arrival,
+                self.q_first, self.q_state, self.q_t,
+            )  # fmt: skip
+        self.broadcasts += self.send
         _deliver(
             self.send, self.lost, self.pair_s, self.pair_r, self.pair_link, rows, t, own,
             self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
@@ -165,23 +175,12 @@ class VectorChannel:
             rx.spacing_m, instant,
         )  # fmt: skip
         if not instant:
-            self._enqueue(t, step, own, rows)
             _arrive(
-                step, t, self.q_arrival, self.q_state, self.q_t, self.q_lost,
-                self.pair_s, self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept,
-                rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
-                rx.trail_of, rx.spacing_m, self._due,
+                step, t, self.q_arrival, self.q_first, self.q_state, self.q_t, self.pair_s,
+                self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
+                rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.trail_of, rx.spacing_m, self._due_slots,
             )  # fmt: skip
-
-    def _enqueue(self, t: np.ndarray, step: np.ndarray, own: np.ndarray, rows: np.ndarray) -> None:
-        S = self.slots
-        idx = np.flatnonzero(rows)
-        slot = step[idx] % S
-        lat = self.loss.latency_s
-        self.q_arrival[slot, idx] = np.where(self.send[idx], t[idx, None] + lat, np.inf)
-        self.q_state[slot, :, idx] = own[:, idx].transpose(1, 0, 2)
-        self.q_t[slot, idx] = t[idx, None]
-        self.q_lost[slot, idx] = self.lost[idx]
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``GilbertElliott.lost`` on every link whose sender broadcasts now, (B, N, N)."""
@@ -341,32 +340,75 @@ def _deliver(
 
 
 @bare_kernel
-def _arrive(
-    step, t, q_arrival, q_state, q_t, q_lost, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, due,
+def _enqueue(
+    keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, q_arrival,
+    q_first, q_state, q_t,
 ):  # pragma: no cover - compiled  # fmt: skip
-    """Deliver the messages due by ``t``, oldest send slot first (``due`` (N,): scratch)."""
-    S, B, N = q_arrival.shape
+    """This tick's broadcasts into send slot ``step % S``: the senders' states, and each
+    pair's arrival time (``Channel.send``'s, jitter drawn on broadcast ``number``;
+    inf where not sent or lost), and the slot's earliest arrival ``q_first``."""
+    S, B, P = q_arrival.shape
+    N = q_t.shape[2]
     for b in range(B):
-        for back in range(S - 1, -1, -1):
-            sl = (step[b] - back) % S
-            anyd = False
-            for s in range(N):
-                due[s] = q_arrival[sl, b, s] <= t[b] + 1e-9
-                anyd |= due[s]
-            if not anyd:
+        if not rows[b]:
+            continue
+        sl = step[b] % S
+        q_first[sl, b] = np.inf
+        for s in range(N):
+            q_t[sl, b, s] = t[b]
+            for f in range(6):
+                q_state[sl, f, b, s] = own[f, b, s]
+        for p in range(P):
+            s = pair_s[p]
+            if not send[b, s] or lost[b, p]:
+                q_arrival[sl, b, p] = np.inf
                 continue
-            for p in range(len(pair_s)):
-                s = pair_s[p]
-                if not due[s] or q_lost[sl, b, p]:
-                    continue
-                r = pair_r[p]
+            arrival = t[b] + latency
+            if jitter > 0.0:
+                u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
+                arrival += u * jitter
+            q_arrival[sl, b, p] = arrival
+            q_first[sl, b] = min(q_first[sl, b], arrival)
+
+
+@bare_kernel
+def _arrive(
+    step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
+    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake.
+    Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
+    scratch)."""
+    S, B, P = q_arrival.shape
+    for b in range(B):
+        due = t[b] + 1e-9
+        n_due = 0
+        for back in range(S - 1, -1, -1):  # oldest send slot first
+            sl = (step[b] - back) % S
+            if q_first[sl, b] <= due:
+                slots[n_due] = sl
+                n_due += 1
+        if n_due == 0:
+            continue
+        for p in range(P):
+            s, r, link = pair_s[p], pair_r[p], pair_link[p]
+            while True:
+                first, first_arrival = -1, np.inf
+                for k in range(n_due):
+                    a = q_arrival[slots[k], b, p]
+                    if a <= due and a < first_arrival:
+                        first, first_arrival = slots[k], a
+                if first < 0:
+                    break
+                q_arrival[first, b, p] = np.inf
                 delivered_to[b, r] += 1
-                link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
                     push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link,
-                             q_t[sl, b, s], q_state[sl], s, spacing)  # fmt: skip
-            for s in range(N):
-                if due[s]:
-                    q_arrival[sl, b, s] = np.inf
+                             q_t[first, b, s], q_state[first], s, spacing)  # fmt: skip
+        for k in range(n_due):
+            sl, pending = slots[k], np.inf
+            for p in range(P):
+                pending = min(pending, q_arrival[sl, b, p])
+            q_first[sl, b] = pending

@@ -17,9 +17,10 @@ is drawn on every ordered pair (``link_counters="all"``, ``ConvoyEnv``'s counter
 on the kept links only.
 
 Arrays: observations ``(B, N-1, D)`` float32 (followers in order), actions
-``(B, N-1, 2)``; rewards ``(B, N-1)``; ``terminated``/``truncated`` ``(B,)``. Not yet
-supported (a ConfigError says so): GPS noise, ranging sensors, ``forge`` faults,
-latency jitter, traffic scenarios.
+``(B, N-1, 2)``; rewards ``(B, N-1)``; ``terminated``/``truncated`` ``(B,)``. GPS noise
+(``vector_gps``): the members see and send ``sensed``, the plant state with noisy
+positions. Not yet supported (a ConfigError says so): ranging sensors, ``forge`` faults,
+traffic scenarios.
 """
 
 from __future__ import annotations
@@ -36,9 +37,11 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
+from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import PathScenario, make_scenario
 from openconvoy.envs.vector_channel import VectorChannel
+from openconvoy.envs.vector_gps import sense
 from openconvoy.envs.vector_leader import LeaderDriver
 from openconvoy.envs.vector_links import build_links
 from openconvoy.envs.vector_measures import info_arrays, infos, measure, pack_reward, reward
@@ -74,8 +77,8 @@ def _check_args(
         raise ConfigError(f"num_envs must be at least 1, got {num_envs}")
     if control_rate_hz <= 0:
         raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
-    if gps_noise_m != 0.0:
-        raise ConfigError("VectorConvoyEnv does not support gps_noise_m yet (use ConvoyEnv)")
+    if gps_noise_m < 0.0:
+        raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
     if render_mode is not None:
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
 
@@ -151,6 +154,7 @@ class VectorConvoyEnv:
         self.presets = tuple(sc.presets)
         self.autoreset, self.link_counters, self.render_mode = autoreset, link_counters, None
         self.control_rate_hz = float(control_rate_hz)
+        self.gps_noise_m = float(gps_noise_m)
         self.dt = 1.0 / self.control_rate_hz
         self.max_time_s = float(sc.duration_s if max_time_s is None else max_time_s)
         self.max_steps = max(1, int(round(self.max_time_s / self.dt)))
@@ -174,15 +178,16 @@ class VectorConvoyEnv:
         self._alloc()
         # One compiled call per tick where every stage has a kernel (vector_step).
         fusable = self.channel.ge is None and self.channel.slots == 0 and self.leader.kind != 0
+        fusable = fusable and self.gps_noise_m == 0.0
         self._fused = pack(self) if fusable and not self._brakes else None
 
     def _check_loss(self, link_counters: str) -> None:
-        if self.loss.jitter_s > 0.0:
-            raise ConfigError("VectorConvoyEnv does not support latency jitter yet (use ConvoyEnv)")
         if link_counters not in ("all", "kept"):
             raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
         if link_counters == "kept" and (
-            self.loss.latency_s > 0.0 or (self.loss.per > 0.0 and self.loss.model != "bernoulli")
+            self.loss.latency_s > 0.0
+            or self.loss.jitter_s > 0.0
+            or (self.loss.per > 0.0 and self.loss.model != "bernoulli")
         ):
             raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
 
@@ -224,6 +229,9 @@ class VectorConvoyEnv:
         self.pred_est = np.full((2, B, N), np.nan)  # arc to head, closing
         self._has_cmd = np.zeros(B, dtype=bool)
         self._own = self.plant.state.reshape(6, B, N)  # views, for the kernels
+        # What the members measure of themselves: the plant state, or a noisy copy.
+        self._sensed = self._own if self.gps_noise_m == 0.0 else np.zeros((6, B, N))
+        self._gps_keys = np.zeros(B, dtype=np.uint64)
         self._cmd_v_flat, self._cmd_dh_flat = self.cmd_v.reshape(-1), self.cmd_dh.reshape(-1)
         self._everyone = np.ones(B, dtype=bool)
         self._fresh_age_s = self.member_config.fresh_age_s
@@ -273,7 +281,9 @@ class VectorConvoyEnv:
                 self._seed_seqs[b] = np.random.SeedSequence()
             seq = self._seed_seqs[b]
             assert seq is not None
-            self.channel.seed(b, np.random.default_rng(seq.spawn(4)[0]))
+            ss_channel, ss_gps = seq.spawn(4)[:2]  # ConvoyWorld.reset's spawn
+            self.channel.seed(b, np.random.default_rng(ss_channel))
+            self._gps_keys[b] = np.uint64(gps_key(np.random.default_rng(ss_gps)))
         init = self.scenario.initial_state()
         N, n = self.n_vehicles, int(which.sum())
         rows = np.flatnonzero(np.repeat(which, N))
@@ -337,9 +347,9 @@ class VectorConvoyEnv:
         """The members decide, the leaders drive, faults act, the plant moves ``dt``;
         returns the accelerations before the move (B, N)."""
         t, own, lk, rx = self.t, self.own, self.links, self.rx
-        decide(
-            a, self.action_low, self.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
-            lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
+        decide(  # on what the members measured of themselves at the last tick
+            a, self.action_low, self.action_high, t, self._sensed, rx.hist, rx.hist_n,
+            rx.newest, lk.needed, lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
             self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
             self._rule, self.cmd_v, self.cmd_dh, self.modes,
@@ -359,7 +369,9 @@ class VectorConvoyEnv:
     def _tick(self, which: np.ndarray, obs: np.ndarray) -> None:
         """Own states -> Tx -> channel -> Rx -> observations ``obs`` at ``self.t``, for
         the convoys ``which``."""
-        own, lk, rx = self.own, self.links, self.rx
+        own, lk, rx = self._sensed, self.links, self.rx
+        if own is not self._own:
+            sense(self._own, self.step_count, self._gps_keys, self.gps_noise_m, which, own)
         self.channel.transmit(self.t, self.step_count, own, which, rx)
         observe(
             obs, which, self.t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n, lk.trail_of,

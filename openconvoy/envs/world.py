@@ -6,7 +6,7 @@ One tick (``dt`` s): ``decide`` takes every follower's action through its member
 reading), then the braking-aware emergency stop and a refused action's stop (both latched,
 mode ``failsafe``), the leader's scenario command and the faults; ``advance`` records the
 tick (``TickRecord``), steps the plant and senses at the new time: every member's own
-state (optional GPS noise), τ, the channel, forged messages, ρ and its ``Frame``.
+state (optional GPS noise, ``envs.gps``: counter-based), τ, the channel, forged messages, ρ and its ``Frame``.
 
 Safety, as on vehicles: a follower whose braking-aware gap rule fires (``core.safety``:
 the gap between bumpers, less what braking at its limit from the closing speed takes, is
@@ -36,6 +36,7 @@ from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
 from openconvoy.envs.forgery import Authentication
+from openconvoy.envs.gps import gps_key, gps_noise, vehicle_states
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.scenarios import Scenario
 from openconvoy.logs import TickSnapshot
@@ -154,7 +155,7 @@ class ConvoyWorld:
     def reset(self, seed_seq: np.random.SeedSequence) -> None:
         """Start an episode: scenario, channel, plant and members reset, sensed at t = 0."""
         ss_channel, ss_gps, ss_ranging, ss_scenario = seed_seq.spawn(4)
-        self._gps_rng = np.random.default_rng(ss_gps)
+        self._gps_states = vehicle_states(gps_key(np.random.default_rng(ss_gps)), self.n_vehicles)
         self._ranging_rng = np.random.default_rng(ss_ranging)
         self.scenario.reset(np.random.default_rng(ss_scenario))
         self.channel.reset(np.random.default_rng(ss_channel))
@@ -209,8 +210,9 @@ class ConvoyWorld:
         self.truth = tr = Truth.of(p)
         xs, ys = tr.x, tr.y
         if self.gps_noise_m > 0.0:
-            noise = self._gps_rng.normal(0.0, self.gps_noise_m, size=(2, self.n_vehicles))
-            xs, ys = (p.x + noise[0]).tolist(), (p.y + noise[1]).tolist()
+            dx, dy = gps_noise(self._gps_states, self.gps_noise_m, self.step_count)
+            xs = [float(x) + d for x, d in zip(p.x, dx)]
+            ys = [float(y) + d for y, d in zip(p.y, dy)]
         for i, m in enumerate(self.members):
             st = VehicleState(
                 i,

@@ -10,8 +10,8 @@ its seed (``tests/envs/test_vector_env.py``), and a classical policy's ``act_bat
 its ``act`` on arrays, so the numbers are the per-run path's to the bit
 (``tests/experiments/test_batched.py`` holds the files byte-identical).
 
-``refusal`` says why runs cannot be batched (the env refuses the configuration — GPS
-noise, latency jitter, ranging sensors, forge faults, highway scenarios — or the policy
+``refusal`` says why runs cannot be batched (the env refuses the configuration — ranging
+sensors, forge faults, highway scenarios — or the policy
 has no ``act_batch``, or only an inexact one); callers then run one ``ConvoyEnv`` per run.
 """
 

@@ -62,8 +62,7 @@ class Randomization:
         latency_s_range: base delivery delay, seconds, uniform.
         jitter_s_range: extra uniform delay jitter bound, seconds, uniform.
         gps_noise_m_range: position noise standard deviation per axis, metres, uniform.
-            Jitter and GPS noise are off by default: the batched simulator does not model
-            them yet, and asking for them trains on SuperSuit's per-convoy path.
+            Jitter and GPS noise are off by default.
         vehicles: preset names or fitted-preset ``.toml`` paths; each vehicle (leader
             included) is drawn from them. Empty: the scenario's own vehicles.
         plant_jitter: relative jitter of each drawn vehicle's autopilot response

@@ -23,7 +23,9 @@ from openconvoy.core.gates import TriggerConfig
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs import ConvoyEnv, VectorConvoyEnv
+from openconvoy.envs.gps import gps_noise, vehicle_states
 from openconvoy.envs.vector_env import MODES
+from openconvoy.envs.vehicles import VEHICLE_PRESETS
 from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
 
@@ -33,6 +35,7 @@ def _compare(
     B: int = 2,
     per: float | list[float] = 0.3,
     latency_s: float = 0.0,
+    jitter_s: float = 0.0,
     steps: int | None = None,
     n_followers: int | None = None,
     member: dict | None = None,
@@ -45,7 +48,10 @@ def _compare(
     if member:
         mc = dataclasses.replace(mc, **member)
     pers = per if isinstance(per, list) else [per] * B
-    losses = [LossConfig(per=p, latency_s=latency_s, model=model, mean_burst_s=0.4) for p in pers]
+    losses = [
+        LossConfig(per=p, latency_s=latency_s, jitter_s=jitter_s, model=model, mean_burst_s=0.4)
+        for p in pers
+    ]
     vec = VectorConvoyEnv(
         B,
         scenario,
@@ -147,6 +153,50 @@ def test_latency_and_per_convoy_seeds() -> None:
     _compare("paper", B=3, per=0.2, latency_s=0.12, steps=120)
 
 
+def test_latency_jitter_reorders_messages_as_convoy_env() -> None:
+    # Jitter 0.2 s > the 0.1 s send period: later broadcasts overtake earlier ones.
+    modes = _compare("paper", B=2, per=0.2, latency_s=0.05, jitter_s=0.2, n_followers=3, steps=200)
+    assert modes["coop"] > 0
+
+
+def test_jitter_without_base_latency_and_with_bursts() -> None:
+    _compare("paper", B=1, per=0.3, jitter_s=0.08, steps=150)
+    _compare(
+        "paper", B=2, per=0.4, model="gilbert-elliott", latency_s=0.1, jitter_s=0.15, steps=150
+    )
+
+
+def test_jittered_channel_is_staged_not_fused() -> None:
+    vec = VectorConvoyEnv(1, loss=LossConfig(per=0.1, jitter_s=0.05))
+    assert vec._fused is None and vec.channel.slots == 1 + 3
+    assert VectorConvoyEnv(1, loss=LossConfig(per=0.1))._fused is not None
+
+
+def test_gps_noise_draws_are_the_same_in_both_envs() -> None:
+    modes = _compare("paper", B=2, per=0.2, gps_noise_m=0.3, n_followers=3, steps=200)
+    assert modes["coop"] > 0
+
+
+@pytest.mark.parametrize("trigger", ["periodic", "event"])
+def test_gps_noise_with_latency_jitter_and_track(trigger: str) -> None:
+    member = {"trigger": TriggerConfig(kind=trigger)}
+    _compare("track", B=2, per=0.2, latency_s=0.05, jitter_s=0.1, gps_noise_m=0.2,
+             member=member, steps=150)  # fmt: skip
+
+
+def test_gps_noise_is_standard_normal_and_moves_only_what_members_see() -> None:
+    states = vehicle_states(2**62 + 7, 50)
+    z = np.array([gps_noise(states, 1.0, k) for k in range(400)])  # (ticks, axis, vehicle)
+    assert abs(z.mean()) < 0.02 and abs(z.std() - 1.0) < 0.02
+    assert abs(np.corrcoef(z[:, 0].ravel(), z[:, 1].ravel())[0, 1]) < 0.03
+    vec = VectorConvoyEnv(2, gps_noise_m=0.5)
+    vec.reset(seed=3)
+    truth = np.array(vec.own_truth)
+    off = vec._sensed[:2] - truth[:2]
+    assert 0.0 < np.abs(off).max() < 5 * 0.5 and (vec._sensed[2:] == truth[2:]).all()
+    assert vec._fused is None and VectorConvoyEnv(2)._fused is not None
+
+
 def test_gilbert_elliott_bursts() -> None:
     _compare("paper", B=2, per=0.4, model="gilbert-elliott", n_followers=3, steps=200)
 
@@ -211,9 +261,15 @@ def test_autoreset_starts_the_next_episode_in_the_same_step() -> None:
 
 def test_unsupported_options_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="gps_noise_m"):
-        VectorConvoyEnv(2, gps_noise_m=0.5)
-    with pytest.raises(ConfigError, match="jitter"):
-        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05))
+        VectorConvoyEnv(2, gps_noise_m=-0.5)
+    with pytest.raises(ConfigError, match="ranging"):
+        VectorConvoyEnv(2, vehicle_presets=[VEHICLE_PRESETS["1/10"].with_ranging()] * 3)
+    with pytest.raises(ConfigError, match="forge"):
+        VectorConvoyEnv(2, faults=["forge:1@1"])
+    with pytest.raises(ConfigError, match="render"):
+        VectorConvoyEnv(2, render_mode="rgb_array")
+    with pytest.raises(ConfigError, match="instant Bernoulli"):
+        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05), link_counters="kept")
     with pytest.raises(ConfigError, match="num_envs"):
         VectorConvoyEnv(0)
 

@@ -72,6 +72,24 @@ def test_a_batched_sweep_writes_the_per_run_sweeps_directory_byte_for_byte(tmp_p
     }
 
 
+def test_gps_noise_and_latency_jitter_sweep_batched_byte_for_byte(tmp_path: Path):
+    noisy = ExperimentConfig(name="n", policies=("paper",), pers=(0.0, 0.4), seeds=2,
+                             duration_s=10.0)  # fmt: skip
+    noisy = dataclasses.replace(
+        noisy,
+        convoy=dataclasses.replace(noisy.convoy, gps_noise_m=0.2),
+        loss=dataclasses.replace(noisy.loss, latency_s=0.05, jitter_s=0.1),
+    )
+    said: list[str] = []
+    one = ExecutorConfig(jobs=1, batched=False)
+    run_experiment(noisy, tmp_path / "per_run", progress=False, figures=False, executor=one)
+    run_experiment(noisy, tmp_path / "batched", progress=False, figures=False, say=said.append)
+    a, b = _files(tmp_path / "per_run"), _files(tmp_path / "batched")
+    assert said == [] and sorted(a) == sorted(b)
+    for name in a:
+        assert a[name] == b[name], name
+
+
 def test_a_tune_trials_objective_is_the_same_on_both_paths(tmp_path: Path):
     config = TuneConfig(pers=(0.0, 0.5), seeds=(1000, 1001), duration_s=25.0)
     assert grid_batched(config) == (True, None)
@@ -85,10 +103,8 @@ def test_a_tune_trials_objective_is_the_same_on_both_paths(tmp_path: Path):
 def test_what_the_batched_env_refuses_runs_per_run_in_one_line(tmp_path: Path):
     run = RunConfig(policy="paper", per=0.2, duration_s=2.0)
     assert refusal(run) is None
-    assert "gps_noise_m" in refusal(dataclasses.replace(run, convoy=ConvoySection(gps_noise_m=0.2)))
-    assert "jitter" in refusal(
-        dataclasses.replace(run, loss=LossSection(latency_s=0.1, jitter_s=0.05))
-    )
+    assert refusal(dataclasses.replace(run, convoy=ConvoySection(gps_noise_m=0.2))) is None
+    assert refusal(dataclasses.replace(run, loss=LossSection(latency_s=0.1, jitter_s=0.05))) is None
     assert "ranging" in refusal(dataclasses.replace(run, convoy=ConvoySection(ranging=True)))
     assert "forge" in refusal(dataclasses.replace(run, faults=("forge:1@1",)))
     assert "highway" in refusal(dataclasses.replace(run, scenario="highway-cut-in"))
@@ -96,13 +112,13 @@ def test_what_the_batched_env_refuses_runs_per_run_in_one_line(tmp_path: Path):
     assert "bit-equal" in refusal(learned)  # not loaded: the per-run runs report it
     noisy = ExperimentConfig(policies=("paper", "paper+ladder"), pers=(0.2,), seeds=1)
     noisy = dataclasses.replace(noisy, duration_s=2.0)
-    noisy = dataclasses.replace(noisy, convoy=dataclasses.replace(noisy.convoy, gps_noise_m=0.1))
+    noisy = dataclasses.replace(noisy, convoy=dataclasses.replace(noisy.convoy, ranging=True))
     said: list[str] = []
     result = run_experiment(
         noisy, tmp_path / "noisy", progress=False, figures=False, say=said.append
     )
     assert said == [
-        f"{label}: one ConvoyEnv per run (the batched env does not support gps_noise_m yet)"
+        f"{label}: one ConvoyEnv per run (the batched env does not model ranging sensors yet)"
         for label in ("paper", "paper+ladder")
     ]
     assert [r["runs"] for r in result.rows] == [1, 1]

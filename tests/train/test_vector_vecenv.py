@@ -126,13 +126,17 @@ def test_groups_draw_their_own_worlds_and_convoys_their_own_per() -> None:
 
 
 def test_auto_falls_back_to_supersuit_with_one_line(capsys: pytest.CaptureFixture) -> None:
-    noisy = TrainConfig(n_envs=2, randomization=Randomization(gps_noise_m_range=(0.0, 0.05)))
-    venv = simulator_vec_env(noisy)
+    traffic = TrainConfig(n_envs=2, randomization=Randomization(scenarios=("highway-cut-in",)))
+    venv = simulator_vec_env(traffic)
     assert isinstance(venv, SharedPolicyVecEnv) and venv.num_envs == 4
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "gps_noise" in err[0] and "SuperSuit" in err[0]
-    with pytest.raises(ConfigError, match="gps_noise"):
-        simulator_vec_env(dataclasses.replace(noisy, vec_env="batched"))
+    assert len(err) == 1 and "path scenarios" in err[0] and "SuperSuit" in err[0]
+    with pytest.raises(ConfigError, match="path scenarios"):
+        simulator_vec_env(dataclasses.replace(traffic, vec_env="batched"))
+    # GPS noise and latency jitter run batched now.
+    noisy = Randomization(gps_noise_m_range=(0.0, 0.05), jitter_s_range=(0.0, 0.05))
+    assert isinstance(simulator_vec_env(TrainConfig(n_envs=2, randomization=noisy)),
+                      RandomizedVectorVecEnv)  # fmt: skip
     assert isinstance(simulator_vec_env(TrainConfig(n_envs=2)), RandomizedVectorVecEnv)
     assert capsys.readouterr().err == ""
 

@@ -1,0 +1,39 @@
+"""GPS noise of the batched simulator: ``envs.gps``'s draws in a compiled kernel.
+
+``sense`` writes what the members measure of themselves: the plant state with each
+position off by ``envs.gps.gps_noise`` of its convoy's key, vehicle and tick (the same
+numbers, libm's log, cos and sin on both sides).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from openconvoy.comms.loss import _GOLDEN, _UNIT
+from openconvoy.envs.vector_channel import _mix
+from openconvoy.envs.vector_jit import bare_kernel
+
+_G, _S11 = np.uint64(_GOLDEN), np.uint64(11)
+
+
+@bare_kernel
+def sense(own, step, keys, sigma, rows, sensed):  # pragma: no cover - compiled
+    """``sensed`` (6, B, N): ``own`` with GPS noise of std ``sigma`` (m) on x and y, at
+    tick ``step[b]`` of convoy ``b`` keyed ``keys[b]``, for the convoys ``rows``."""
+    _, B, N = own.shape
+    for b in range(B):
+        if not rows[b]:
+            continue
+        for i in range(N):
+            for f in range(6):
+                sensed[f, b, i] = own[f, b, i]
+            z = _mix(keys[b] + _G + np.uint64(i))
+            z = _mix(z + _G + np.uint64(step[b]))
+            u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * _UNIT
+            u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * _UNIT
+            r = math.sqrt(-2.0 * math.log(1.0 - u1))
+            angle = 2.0 * math.pi * u2
+            sensed[0, b, i] += sigma * (r * math.cos(angle))
+            sensed[1, b, i] += sigma * (r * math.sin(angle))

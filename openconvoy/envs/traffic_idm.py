@@ -14,7 +14,11 @@ targets of the cars before it in ``road.vehicles``, as in highway-env's loop.
 from __future__ import annotations
 
 import numpy as np
-from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]  # np.clip's ufunc
+
+try:  # np.clip's ufunc, called directly (np.clip's Python wrapper costs more than the work)
+    from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]  # numpy >= 2
+except ImportError:  # numpy 1.x, which pyproject allows
+    from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
 
 from openconvoy.envs.traffic_state import (
     AMAX,

@@ -10,6 +10,7 @@ import ast
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -39,6 +40,22 @@ def test_a_dying_pool_worker_loses_only_its_own_run():
     lost = results[3]
     assert isinstance(lost, TaskFailure) and lost.label == "task 3"
     assert lost.error.startswith("BrokenProcessPool") and "alone, on a second try" in lost.where
+
+
+def test_a_task_submitted_after_the_pool_broke_runs_on_a_fresh_pool():
+    """The race the test above can hit: a worker dies after the last result was taken and
+    before the next submit, so the pool is already broken when the task is handed over."""
+    with LocalExecutor(jobs=2) as ex:
+        ex.submit(Task("task 3", square_or_die, 3))
+        broken = ex._pool
+        deadline = time.monotonic() + 60
+        while not broken._broken and time.monotonic() < deadline:  # the pool noticed
+            time.sleep(0.01)
+        assert broken._broken
+        ex.submit(Task("task 4", square_or_die, 4))
+        got = {task.label: value for task, value in (ex.wait_one(), ex.wait_one())}
+    assert got["task 4"] == 16
+    assert isinstance(got["task 3"], TaskFailure) and "alone" in got["task 3"].where
 
 
 def _sweep(tmp_path: Path) -> ExperimentConfig:

@@ -230,9 +230,20 @@ class LocalExecutor(Executor):
         if self.jobs == 1:
             self._queue.append(task)
             return
+        from concurrent.futures.process import BrokenProcessPool
+
         if self._pool is None:
             self._pool = _process_pool(self.jobs)
-        self._futures[self._pool.submit(guarded, task.fn, task.arg)] = (task, self._pool)
+        try:
+            future = self._pool.submit(guarded, task.fn, task.arg)
+        except BrokenProcessPool:
+            # A worker died after the last result was taken and before this submit: the
+            # tasks still in flight with the old pool come back broken in wait_one (and run
+            # again alone); this one goes to a fresh pool.
+            self._pool.shutdown(wait=False)  # (not cancel_futures: wait_one reads them)
+            self._pool = _process_pool(self.jobs)
+            future = self._pool.submit(guarded, task.fn, task.arg)
+        self._futures[future] = (task, self._pool)
 
     def wait_one(self) -> tuple[Task, Any]:
         if self.jobs == 1:

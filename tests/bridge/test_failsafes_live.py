@@ -435,7 +435,16 @@ def test_arming_refused_until_timeout_names_the_autopilots_reason(tmp_path):
     try:
         res = c.cars[1].join(10.0)
         assert res.exit_code == 1
-        assert "MAV_CMD_COMPONENT_ARM_DISARM" in res.reason and "AHRS" in res.reason
+        assert "MAV_CMD_COMPONENT_ARM_DISARM" in res.reason
+        # The firmware's refusal text: its IMU checks while they last, then the AHRS one until
+        # 30 s; which one the last attempt met depends on how fast a loaded machine booted
+        # the simulated vehicle (a clean CI run once saw "Accels inconsistent").
+        texts = (
+            "AHRS: not using configured AHRS type",
+            "Accels inconsistent",
+            "Gyros inconsistent",
+        )
+        assert any(f"Arm: {t}" in res.reason for t in texts), res.reason
         assert c.cars[1].link.sent == []  # nothing was commanded
     finally:
         c.stop()

@@ -311,17 +311,21 @@ def _open_study(
     return study, existing
 
 
-def _requeue_orphans(study: Any) -> int:
-    """Trials left running by a driver that was stopped: failed, and their parameters
-    queued again, so the candidate is evaluated once and finished trials are never
-    repeated. Assumes one driver per study at a time."""
+def _requeue_orphans(study: Any, params: list[str]) -> int:
+    """Trials left running by a driver that was stopped: failed, and the candidates among
+    them queued again, so each is evaluated once and finished trials are never repeated.
+    A trial stopped before all its ``params`` were drawn was never sent for evaluation,
+    so it is only failed. Returns how many were queued again. Assumes one driver per
+    study at a time."""
     from optuna.trial import TrialState
 
-    orphans = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
-    for t in orphans:
+    requeued = 0
+    for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
         study.tell(t.number, state=TrialState.FAIL)
-        study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
-    return len(orphans)
+        if set(params) <= set(t.params):
+            study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
+            requeued += 1
+    return requeued
 
 
 def tune(
@@ -342,7 +346,8 @@ def tune(
     in-process callable, for tests) replaces the simulated grid and runs here. With
     ``storage`` (see ``open_storage``) the study persists under ``study_name`` (default
     ``config.name``): a later call with the same name and storage resumes it, running only
-    the trials still missing (those a stopped driver left running are evaluated again).
+    the trials still missing (those a stopped driver left running are evaluated again
+    once, if their parameters were all drawn).
     """
     import optuna
     from optuna.trial import TrialState
@@ -356,7 +361,7 @@ def tune(
     failures: list[Any] = []
     with executor:
         study, existing = _open_study(config, study_name, open_storage(storage), executor.slots > 1)
-        requeued = _requeue_orphans(study)
+        requeued = _requeue_orphans(study, params)
         base_value = _base_value(study, executor, fn, base, config.name)
         if not existing:
             # The base's own values first: the study can only improve on the starting point.

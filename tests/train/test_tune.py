@@ -177,3 +177,26 @@ def test_a_stored_study_resumes_without_repeating_finished_trials(tmp_path: Path
 def test_tune_cli_storage_flags(tmp_path: Path, capsys) -> None:
     assert main(["tune", "--study-name", "x", "--out", str(tmp_path / "t.toml")]) == 2
     assert "--study-name needs --storage" in capsys.readouterr().err
+
+
+def test_a_trial_stopped_before_its_parameters_were_drawn_is_failed_not_requeued(
+    tmp_path: Path,
+) -> None:
+    """A driver killed between ``ask`` and its last ``suggest`` never evaluated that trial:
+    the resumed study fails it and draws afresh (a partial candidate is no candidate)."""
+    import optuna
+    from optuna.trial import TrialState
+
+    from openconvoy.train.tune import open_storage
+
+    journal = str(tmp_path / "study.journal")
+    evaluate = lambda c: (c.speed.kp - 0.8) ** 2  # noqa: E731
+    tune(TuneConfig(trials=2, seed=3), evaluate=evaluate, storage=journal, study_name="s")
+    study = optuna.load_study(study_name="s", storage=open_storage(journal))
+    partial = study.ask()
+    partial.suggest_float("speed.kp", 0.05, 5.0, log=True)
+    second = tune(TuneConfig(trials=4, seed=3), evaluate=evaluate, storage=journal, study_name="s")
+    assert (second.evaluated, second.requeued) == (2, 0)
+    trials = optuna.load_study(study_name="s", storage=open_storage(journal)).trials
+    assert trials[partial.number].state == TrialState.FAIL
+    assert not any(t.user_attrs.get("requeued_from") is not None for t in trials)

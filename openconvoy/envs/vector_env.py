@@ -228,7 +228,8 @@ class VectorConvoyEnv:
         self.pred_age = np.full((B, N), np.nan)
         self.pred_est = np.full((2, B, N), np.nan)  # arc to head, closing
         self._has_cmd = np.zeros(B, dtype=bool)
-        self._own = self.plant.state.reshape(6, B, N)  # views, for the kernels
+        # A view, for the kernels: with the heading's cosine and sine (vector_plant).
+        self._own = self.plant.state.reshape(-1, B, N)
         # What the members measure of themselves: the plant state, or a noisy copy.
         self._sensed = self._own if self.gps_noise_m == 0.0 else np.zeros((6, B, N))
         self._gps_keys = np.zeros(B, dtype=np.uint64)
@@ -246,7 +247,7 @@ class VectorConvoyEnv:
     @property
     def own(self) -> np.ndarray:
         """The plant state (6, B, N): x, y, speed, heading, accel, yaw rate (a view)."""
-        return self._own
+        return self._own[:6]
 
     @property
     def own_truth(self) -> tuple[np.ndarray, ...]:

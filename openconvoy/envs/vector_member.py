@@ -83,7 +83,8 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
             speed = max(lv - a * age, 0.0)
     if d == 0.0:  # not moved since the message: no trigonometry
         return True, lx + d, ly + d, speed, lh, age
-    return True, lx + d * math.cos(lh), ly + d * math.sin(lh), speed, lh, age
+    # the heading's cosine and sine as pushed (vector_rx): libm's of the same heading
+    return True, lx + d * hist[b, li, 0, 6], ly + d * hist[b, li, 0, 7], speed, lh, age
 
 
 @bare_kernel

@@ -14,9 +14,9 @@ import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
 from openconvoy.envs.vector_jit import bare_inline, bare_kernel, prefetch
-from openconvoy.envs.vector_math import wrap
+from openconvoy.envs.vector_math import cos_sin, wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
-from openconvoy.envs.vector_trail import point_at, project
+from openconvoy.envs.vector_trail import head_s, point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
 AHEAD = 4
@@ -82,8 +82,11 @@ def _path(
     obs[b, f, o] = -cross
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
+    s_head = head_s(tail, b, tl, hx, hy)
     for j in range(len(LOOKAHEAD)):
-        px, py = point_at(trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess)
+        px, py = point_at(
+            trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess, s_head
+        )
         dx, dy = px - ex, py - ey
         obs[b, f, o + 2 + 2 * j] = c * dx + s * dy
         obs[b, f, o + 3 + 2 * j] = -s * dx + c * dy
@@ -109,7 +112,7 @@ def observe(
         for f in range(F):
             i = f + 1
             obs[b, f, :] = 0.0
-            c, s = math.cos(own[3, b, i]), math.sin(own[3, b, i])
+            c, s = cos_sin(own, b, i)
             _slots(obs, b, f, tb, own, c, s, hist, hist_n, slot_link, geom)
             ev = own[2, b, i]
             o = geom[2]
@@ -153,8 +156,8 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
             tl = trail_of[link]
             lo = hint_k[b, tl]
             hi = min(lo + WARM_CRUMBS, trail_n[b, tl])
-            for q in range(3 * lo, 3 * hi, 8):  # a cache line (8 doubles) at a time
-                prefetch(trail, b, tl, q // 3, q % 3)
+            for q in range(lo, hi, 2):  # a cache line (2 breadcrumbs) at a time
+                prefetch(trail, b, tl, q, 0)
 
 
 @bare_inline

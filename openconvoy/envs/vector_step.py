@@ -29,7 +29,7 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     observation, measures, reward, infos."""
     t, own, lk, rx, ch, ld, pl = (
         env.t,
-        env.own,
+        env._own,  # with the heading's cosine and sine
         env.links,
         env.rx,
         env.channel,

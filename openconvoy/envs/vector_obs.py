@@ -57,14 +57,17 @@ def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: n
 
 
 @bare_inline
-def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
+def _desired(f, m, ev, sp, lengths, F, lead):  # pragma: no cover - compiled
     """Desired arc gap (m) of follower ``f + 1`` to target ``m`` (0 leader, m pred_m),
-    summed pair by pair in ``ConvoyMember``'s order."""
+    summed pair by pair in ``ConvoyMember``'s order (``lead``: the leader's under
+    constant distance, the same sum carried from follower to follower)."""
     acc = 0.0
     if m == 0:
-        g = sp[1] if sp[0] == 0.0 else speed_gap(sp, ev)
+        if sp[0] == 0.0:
+            return lead
+        g = speed_gap(sp, ev)
         for q in range(f + 1):
-            acc += g if sp[0] == 0.0 else g + 0.5 * (lengths[q + 1] + lengths[q])
+            acc += g + 0.5 * (lengths[q + 1] + lengths[q])
         return acc
     for q in range(m):
         jj = min(max(f + 1 - m + q, 0), F - 1)
@@ -109,8 +112,10 @@ def observe(
         if not rows[b]:
             continue
         tb = t[b]
+        lead = 0.0  # the leader's desired gap under constant distance: sp[1] summed f + 1 times
         for f in range(F):
             i = f + 1
+            lead += sp[1]
             obs[b, f, :] = 0.0
             c, s = cos_sin(own, b, i)
             _slots(obs, b, f, tb, own, c, s, hist, hist_n, slot_link, geom)
@@ -122,7 +127,7 @@ def observe(
             pred_age[b, i] = np.nan if math.isinf(age) else age
             chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, tail, trail_n,
                               trail_of, hint, hint_k, target_link, link_decel, lengths, sp, stop_after, fresh_age,
-                              geom, F)  # fmt: skip
+                              geom, F, lead)  # fmt: skip
             spacing_error[b, i] = np.nan
             pred_est[0, b, i], pred_est[1, b, i] = np.nan, np.nan
             if chosen < 0:
@@ -163,7 +168,7 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
 @bare_inline
 def _targets(
     obs, tg, b, f, t, own, hist, hist_n, trail, tail, trail_n, trail_of, hint, hint_k,
-    target_link, link_decel, lengths, sp, stop_after, fresh_age, geom, F,
+    target_link, link_decel, lengths, sp, stop_after, fresh_age, geom, F, lead,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Estimate and project every target of follower ``f + 1`` (results in ``tg``), write
     the derived features; returns the nearest heard target (pred_1..pred_M, then the
@@ -181,7 +186,7 @@ def _targets(
         if not valid:
             continue
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
-        desired = _desired(f, m, ev, sp, lengths, F)
+        desired = _desired(f, m, ev, sp, lengths, F, lead)
         tl = trail_of[link]
         arc, cross, pheading, s, k = project(
             trail, tail, trail_n, b, tl, hx, hy, hh, ex, ey, desired, hint[b, tl], hint_k[b, tl]

@@ -312,23 +312,48 @@ def _bernoulli_deliver(
             q0, q1 = start[s], start[s + 1]
             # counter_uniform4(key, s, r, nb, DRAW_LOSS), its sender's round once
             zs = _mix(keys[b] + _G + np.uint64(s))
+            N = send.shape[1]
+            if not drawn:
+                lost[: q1 - q0] = 0
+            elif q1 - q0 == N - 1:  # every other vehicle, in order: r = j or j + 1
+                for j in range(N - 1):
+                    lost[j] = _draw_bits(zs, j + (j >= s), nb) < thr
+            else:
+                for q in range(q0, q1):
+                    lost[q - q0] = _draw_bits(zs, recv[q], nb) < thr
+            if q1 - q0 == N - 1:  # every other vehicle, in order: counted in two runs
+                _count(lost_to, delivered_to, kept, b, 0, s, 0, lost, links, q0)
+                _count(lost_to, delivered_to, kept, b, s + 1, N, s, lost, links, q0)
+            else:
+                for q in range(q0, q1):
+                    r, miss = recv[q], lost[q - q0]
+                    lost_to[b, r] += miss
+                    delivered_to[b, r] += 1 - miss
+                    kept[b, r] += (1 - miss) * (links[q] >= 0)
             for q in range(q0, q1):
-                lost[q - q0] = drawn and _draw_bits(zs, recv[q], nb) < thr
-            for q in range(q0, q1):
-                r = recv[q]
-                miss = lost[q - q0]
-                lost_to[b, r] += miss
-                delivered_to[b, r] += 1 - miss
                 link = links[q]
-                if miss or link < 0:
+                if link < 0:
                     continue
-                kept[b, r] += 1
-                if keeps[link]:
+                if not keeps[link]:  # push_one of a time-only link (its count is never
+                    # read), inline and without a branch on the draw
+                    was = newest[b, link]
+                    newest[b, link] = was if lost[q - q0] else max(was, tb)
+                elif not lost[q - q0]:
                     push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
                              link, tb, own, s, spacing)  # fmt: skip
-                else:  # push_one of a time-only link (its count is never read), inline
-                    newest[b, link] = max(newest[b, link], tb)
             number[b, s] = nb + 1
+
+
+@bare_inline
+def _count(lost_to, delivered_to, kept, b, r0, r1, j0, lost, links, q0):  # pragma: no cover
+    """The counters of receivers ``r0..r1-1``, pairs ``j0..`` of a broadcast (``lost``,
+    ``links`` from ``q0``): contiguous, so the compiler vectorizes it."""
+    for r in range(r0, r1):
+        j = r - r0 + j0
+        miss = np.int64(lost[j])
+        lost_to[b, r] += miss
+        delivered_to[b, r] += 1 - miss
+        kept[b, r] += (1 - miss) * (links[q0 + j] >= 0)
 
 
 @bare_kernel

@@ -49,7 +49,7 @@ from openconvoy.envs.vector_member import COOP, FAILSAFE, STOP, decide, pack_lad
 from openconvoy.envs.vector_obs import observe, pack_layout
 from openconvoy.envs.vector_plant import VectorPlant
 from openconvoy.envs.vector_rx import RxBuffers
-from openconvoy.envs.vector_step import fused_step, pack
+from openconvoy.envs.vector_step import FusedCall, pack
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 MODES = ("coop", "degraded", "stop", "failsafe")
@@ -180,6 +180,7 @@ class VectorConvoyEnv:
         fusable = self.channel.ge is None and self.channel.slots == 0 and self.leader.kind != 0
         fusable = fusable and self.gps_noise_m == 0.0
         self._fused = pack(self) if fusable and not self._brakes else None
+        self._fused_call = FusedCall()
 
     def _check_loss(self, link_counters: str) -> None:
         if link_counters not in ("all", "kept"):
@@ -316,7 +317,7 @@ class VectorConvoyEnv:
         if self._fused is not None:
             terminated, truncated = np.empty(B, dtype=bool), np.empty(B, dtype=bool)
             filled = info_arrays(B, N - 1)
-            fused_step(a, obs, rewards, terminated, truncated, filled, *self._fused)
+            self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
             info = infos(self, filled)
         else:
             terminated, truncated, info = self._staged_step(a, obs, rewards)

@@ -137,14 +137,30 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     start = s_head - expected if math.isnan(hint) else hint
     k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
     best = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
-    for step in (1, -1):
-        j = k + step
-        while -1 <= j <= last:
+    # Trail.project's walk: forwards while closer, then backwards while closer. Both
+    # neighbours are evaluated at once (independent: they overlap; out of range they
+    # are still defined, and unused). Once the walk has moved forwards, its first step
+    # back is onto a segment it left for a closer one, so it stops there.
+    fwd = _segment(tr, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
+    bwd = _segment(tr, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
+    if k + 1 <= last and fwd[0] < best[0]:
+        best, k = fwd, k + 1
+        j = k + 1
+        while j <= last:
             cand = _segment(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
             if cand[0] >= best[0]:
                 break
             best, k = cand, j
-            j += step
+            j += 1
+    elif k - 1 >= -1 and bwd[0] < best[0]:
+        best, k = bwd, k - 1
+        j = k - 1
+        while j >= -1:
+            cand = _segment(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            if cand[0] >= best[0]:
+                break
+            best, k = cand, j
+            j -= 1
     _, s, dx, dy, seg, rx, ry = best
     if seg < 1e-12:
         return s_head - s, 0.0, hh, s, k

@@ -180,7 +180,6 @@ class VectorConvoyEnv:
         fusable = self.channel.ge is None and self.channel.slots == 0 and self.leader.kind != 0
         fusable = fusable and self.gps_noise_m == 0.0
         self._fused = pack(self) if fusable and not self._brakes else None
-        self._fused_call = FusedCall()
 
     def _check_loss(self, link_counters: str) -> None:
         if link_counters not in ("all", "kept"):
@@ -236,6 +235,7 @@ class VectorConvoyEnv:
         self._gps_keys = np.zeros(B, dtype=np.uint64)
         self._cmd_v_flat, self._cmd_dh_flat = self.cmd_v.reshape(-1), self.cmd_dh.reshape(-1)
         self._everyone = np.ones(B, dtype=bool)
+        self._fused_call = FusedCall()
         self._fresh_age_s = self.member_config.fresh_age_s
         self._targets_scratch = np.zeros((11, len(self.layout.targets)))
         self._accel_old = np.zeros((B, N))

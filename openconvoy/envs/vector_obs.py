@@ -161,8 +161,8 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
             tl = trail_of[link]
             lo = hint_k[b, tl]
             hi = min(lo + WARM_CRUMBS, trail_n[b, tl])
-            for q in range(lo, hi, 2):  # a cache line (2 breadcrumbs) at a time
-                prefetch(trail, b, tl, q, 0)
+            for q in range(3 * lo, 3 * hi, 8):  # a cache line (8 doubles) at a time
+                prefetch(trail, b, tl, q // 3, q % 3)
 
 
 @bare_inline

@@ -48,7 +48,7 @@ class RxBuffers:
         self.newest = np.full((B, L), -np.inf)
         # Untouched pages of a trail are never committed (calloc): memory grows with
         # the breadcrumbs actually laid.
-        self.trail = aligned_zeros((B, T, CAPACITY, 4))
+        self.trail = np.zeros((B, T, CAPACITY, 3))
         self.tail = np.zeros((B, T, 4))
         self.trail_n = np.zeros((B, T), dtype=np.int64)
         self.hint = np.full((B, T), np.nan)

@@ -1,10 +1,9 @@
 """Trails as ring arrays: ``core.trail.Trail``'s add, project and point_at, compiled.
 
-A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 4): breadcrumb x, y (m), arc coordinate
-s (m) and the heading (rad) of the segment to the next breadcrumb (set when that one is
-laid: ``atan2`` once per segment, not once per query), ``n[b, ln]`` of them, the oldest
-half dropped when full; ``tail[b, ln]`` (4,) is
-its newest breadcrumb again and the oldest one's arc coordinate, packed with the
+A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
+s (m), ``n[b, ln]`` of them, the oldest half dropped when full (a fourth field, each
+segment's heading laid once instead of an atan2 per query, measured slower: more cache
+lines per query); ``tail[b, ln]`` (4,) is its newest breadcrumb again and the oldest one's arc coordinate, packed with the
 other trails' (every add and query reads them: one cache line for many trails instead of
 two each). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
@@ -40,13 +39,11 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
     if nn >= cap:
         half = cap // 2
         for j in range(cap - half):
-            for f in range(4):
+            for f in range(3):
                 tr[b, ln, j, f] = tr[b, ln, j + half, f]
         nn -= half
         tail[b, ln, 3] = tr[b, ln, 0, 2]
     s = ps + step if nn > 0 else 0.0
-    if nn > 0:  # the segment from the last breadcrumb: Trail._segment's dx, dy
-        tr[b, ln, nn - 1, 3] = math.atan2(y - tr[b, ln, nn - 1, 1], x - tr[b, ln, nn - 1, 0])
     tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
     tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
     if nn == 0:
@@ -164,9 +161,7 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     _, s, dx, dy, seg, rx, ry = best
     if seg < 1e-12:
         return s_head - s, 0.0, hh, s, k
-    # between two breadcrumbs: the heading laid with the second (the same atan2)
-    heading = tr[b, ln, k, 3] if 0 <= k < n - 1 else math.atan2(dy, dx)
-    return s_head - s, (dx * ry - dy * rx) / seg, heading, s, k
+    return s_head - s, (dx * ry - dy * rx) / seg, math.atan2(dy, dx), s, k
 
 
 @bare_inline

@@ -16,9 +16,10 @@ from openconvoy.comms.loss import counter_state, counter_uniform_from
 from openconvoy.envs.gps import box_muller, gps_key
 
 
-def ranging_key(rng: np.random.Generator) -> int:
-    """An episode's ranging key, drawn from its ranging generator."""
-    return gps_key(rng)
+def ranging_key(seq: np.random.SeedSequence) -> int:
+    """An episode's ranging key, drawn from a fresh generator of its ranging seed sequence
+    (the traffic world draws its noise from another one, unchanged)."""
+    return gps_key(np.random.default_rng(seq))
 
 
 def ranging_normals(vehicle_state: int, tick: int) -> tuple[float, float]:

@@ -158,8 +158,7 @@ class ConvoyWorld:
         ss_channel, ss_gps, ss_ranging, ss_scenario = seed_seq.spawn(4)
         self._gps_states = vehicle_states(gps_key(np.random.default_rng(ss_gps)), self.n_vehicles)
         self._ranging_rng = np.random.default_rng(ss_ranging)  # a traffic world's draws
-        key = ranging_key(np.random.default_rng(ss_ranging))
-        self._ranging_states = vehicle_states(key, self.n_vehicles)
+        self._ranging_states = vehicle_states(ranging_key(ss_ranging), self.n_vehicles)
         self.scenario.reset(np.random.default_rng(ss_scenario))
         self.channel.reset(np.random.default_rng(ss_channel))
         self.auth.reset()
@@ -263,9 +262,8 @@ class ConvoyWorld:
         return {}
 
     def ranging_readings(self) -> dict[int, Ranging]:
-        """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor in
-        range of it, with the sensor's noise (``envs.ranging_noise``: counter-based, keyed
-        by the episode's ranging key, the vehicle and the tick)."""
+        """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor,
+        in range, with its noise (``envs.ranging_noise``: keyed by episode, vehicle, tick)."""
         out: dict[int, Ranging] = {}
         p = self.plant
         for i, sensor in self.ranging_sensors:

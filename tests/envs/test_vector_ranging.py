@@ -97,6 +97,14 @@ def test_the_ranging_override_resists_a_forged_predecessor() -> None:
     assert modes["degraded"] > 0 and "failsafe" not in modes
 
 
+def test_the_emergency_rule_fires_on_the_sensors_closing_speed() -> None:
+    """A forged leader chased (authentication off): the followers close in on the real
+    one and the braking-aware rule stops them on what the sensor reads, at the same tick."""
+    modes = _compare("paper", B=2, per=0.2, vehicle_presets=_sensing("1/10"),
+                     faults=["forge:0@5"], auth=False, steps=400)  # fmt: skip
+    assert modes["failsafe"] > 0
+
+
 def test_readings_are_noisy_and_keyed_per_episode() -> None:
     """The batched reading is ConvoyWorld's reading (its noise included) at tick 0 of
     two seeds, and differs between them."""

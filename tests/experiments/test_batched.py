@@ -149,7 +149,7 @@ def test_forge_runs_batched_are_run_sims_files(tmp_path: Path, auth: str):
     base = RunConfig(policy="paper", duration_s=15.0, faults=("forge:0@4",), auth=auth)
     configs = [dataclasses.replace(base, per=p, seed=s) for p, s in ((0.0, 1), (0.4, 2))]
     configs.append(dataclasses.replace(configs[1], convoy=ConvoySection(ranging=True)))
-    got = [r["files"] for r in run_batch(configs[:2])] + [r["files"] for r in run_batch(configs[2:])]
+    got = [r["files"] for part in (configs[:2], configs[2:]) for r in run_batch(part)]
     for i, config in enumerate(configs):
         run_sim(config, tmp_path / str(i))
         for name in ("log.csv", "metrics.json"):

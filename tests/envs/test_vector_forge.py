@@ -29,6 +29,12 @@ def test_authenticated_members_reject_and_count_every_forgery() -> None:
     for _ in range(300):  # t = 15 s: ticks 100..300 of the first, 200..300 of the second
         vec.step(np.ones((2, 2, 2), np.float32))
     assert vec.forged_rejected.tolist() == [[101, 201 + 101, 201]] * 2
+    # An autoreset starts the count again, as ConvoyEnv.reset() does.
+    vec = VectorConvoyEnv(1, faults=["forge:0@0"], max_time_s=1.0)
+    vec.reset(seed=0)
+    for _ in range(25):  # 20 ticks, the reset, 5 more
+        vec.step(np.ones((1, 2, 2), np.float32))
+    assert vec.forged_rejected.tolist() == [[0, 6, 6]]
 
 
 def test_without_authentication_the_forged_leader_is_chased_alike() -> None:
@@ -52,7 +58,9 @@ def test_several_forgers_and_topologies(topology: str) -> None:
 
 
 def test_forgery_on_the_track_and_in_emergency_braking() -> None:
-    _compare("track", B=1, per=0.2, faults=["forge:1@4"], auth=False, steps=300)
+    """On the track with GPS noise: the forger copies the claimed vehicle's true state,
+    not its noisy fix."""
+    _compare("track", B=1, per=0.2, faults=["forge:1@4"], auth=False, gps_noise_m=0.3, steps=300)
     _compare("emergency-braking", B=1, per=0.2, faults=["forge:0@3"], auth=False)
 
 

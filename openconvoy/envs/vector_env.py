@@ -39,6 +39,7 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
+from openconvoy.envs.convoy_env import check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import PathScenario, make_scenario
@@ -79,10 +80,7 @@ def _check_args(
 ) -> None:
     if num_envs < 1:
         raise ConfigError(f"num_envs must be at least 1, got {num_envs}")
-    if control_rate_hz <= 0:
-        raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
-    if gps_noise_m < 0.0:
-        raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+    check_rate_and_noise(control_rate_hz, gps_noise_m)
     if render_mode is not None:
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
 

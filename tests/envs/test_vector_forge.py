@@ -60,7 +60,7 @@ def test_several_forgers_and_topologies(topology: str) -> None:
 def test_forgery_on_the_track_and_in_emergency_braking() -> None:
     """On the track with GPS noise: the forger copies the claimed vehicle's true state,
     not its noisy fix."""
-    _compare("track", B=1, per=0.2, faults=["forge:1@4"], auth=False, gps_noise_m=0.3, steps=300)
+    _compare("track", B=1, per=0.2, faults=["forge:1@4"], auth=False, gps_noise_m=0.3)
     _compare("emergency-braking", B=1, per=0.2, faults=["forge:0@3"], auth=False)
 
 

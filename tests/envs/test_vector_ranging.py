@@ -69,7 +69,7 @@ def test_paper_ladder_follows_the_ranging_reading_under_heavy_loss() -> None:
 def test_full_size_cars_on_the_track_under_loss_and_gps_noise() -> None:
     """The sensor measures the true gap, whatever the GPS fixes say."""
     modes = _compare("track", B=1, per=0.9, member=LADDER, vehicle_presets=_sensing("full-size"),
-                     gps_noise_m=0.5, steps=400)  # fmt: skip
+                     gps_noise_m=0.5)  # fmt: skip
     assert modes["degraded"] > 0
 
 

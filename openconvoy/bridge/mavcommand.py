@@ -16,6 +16,7 @@ from openconvoy.bridge.link import CommandRefused, LinkTimeout, StatusCallback
 from openconvoy.bridge.mavconn import MavConnection
 from openconvoy.bridge.mavwatch import VehicleWatch
 
+_REASON_BURST_S = 0.03  # after a refusal's first text, how long its other texts may take
 _RATE_LADDER_HZ = (50.0, 40.0, 25.0, 20.0, 15.0, 10.0, 5.0, 4.0, 2.0, 1.0)
 TELEMETRY_MESSAGES = (mp.MSG_GLOBAL_POSITION_INT, mp.MSG_ATTITUDE)
 """The messages whose intervals are requested (position and attitude)."""
@@ -78,9 +79,12 @@ class Commander:
                 result = watch.acks[command][0]
                 reason = ""
                 if result != mp.RESULT_ACCEPTED:
-                    # The reason usually precedes the ACK; give a late one a moment.
-                    self.wait_until(lambda: bool(watch.reason(t_sent)), 0.1)
-                    reason = watch.reason(t_sent - 0.5)
+                    # ArduPilot sends its reasons just after the ACK, one text per failed
+                    # check within a millisecond (shared/sitl): wait for the first, then
+                    # a moment for the rest of the burst.
+                    if self.wait_until(lambda: bool(watch.reason(t_sent)), 0.1):
+                        self.wait_until(lambda: False, _REASON_BURST_S)
+                    reason = watch.refusal(t_sent - 0.5)
                 return result, reason
         link = self._link
         raise LinkTimeout(

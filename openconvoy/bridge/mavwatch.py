@@ -16,6 +16,8 @@ from openconvoy.bridge import mavproto as mp
 from openconvoy.bridge.link import Autopilot, LinkTimeout
 
 _FAILSAFE_TEXT_S = 3.0  # a "failsafe" STATUSTEXT this recent explains a mode change
+_TEXT_CHUNK = 50  # STATUSTEXT's text field, bytes: a shorter chunk is a text's last
+_CHUNK_WAIT_S = 1.0  # a chunked text still unfinished this long is kept as it stands
 
 
 class VehicleWatch:
@@ -29,7 +31,9 @@ class VehicleWatch:
         t_heartbeat: clock (s) of the latest heartbeat.
         heartbeats: heartbeats counted (to wait for one after now).
         acks: command id -> (result, clock s) of its latest final COMMAND_ACK.
-        texts: recent (clock s, severity, text) STATUSTEXTs, oldest first.
+        texts: recent (clock s, severity, text) STATUSTEXTs, oldest first; a text the
+            autopilot sent in chunks (longer than 50 bytes: PX4's "Arming denied: ..."
+            comes as two) is kept once, whole.
     """
 
     def __init__(self, clock: Callable[[], float]) -> None:
@@ -46,6 +50,7 @@ class VehicleWatch:
         self.heartbeats = 0
         self.acks: dict[int, tuple[int, float]] = {}
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=32)
+        self._chunks: dict[int, tuple[float, int, str]] = {}  # id -> (clock s, severity, so far)
 
     def autopilot(self) -> Autopilot:
         """``"ardupilot"`` or ``"px4"``; raises ``LinkTimeout`` before identification."""
@@ -75,9 +80,31 @@ class VehicleWatch:
         return src == self.target
 
     def on_text(self, msg: Any) -> None:
-        """Keep a STATUSTEXT."""
-        text = msg.text if isinstance(msg.text, str) else msg.text.decode(errors="replace")
-        self.texts.append((self._clock(), msg.severity, text.rstrip("\x00")))
+        """Keep a STATUSTEXT, joining the chunks of a long one (MAVLink's ``id`` and
+        ``chunk_seq``: the chunk shorter than 50 bytes ends the text)."""
+        raw = msg.text if isinstance(msg.text, str) else msg.text.decode(errors="replace")
+        text, now = raw.rstrip("\x00"), self._clock()
+        chunk_id = int(getattr(msg, "id", 0) or 0)
+        if chunk_id == 0 or int(getattr(msg, "chunk_seq", 0) or 0) == 0:
+            # Texts come one after another: an unfinished one lost its end.
+            self._flush_chunks(math.inf)
+        else:
+            self._flush_chunks(now - _CHUNK_WAIT_S)
+        if chunk_id == 0:
+            self.texts.append((now, msg.severity, text.rstrip()))  # PX4 ends texts with a tab
+            return
+        t0, severity, so_far = self._chunks.pop(chunk_id, (now, msg.severity, ""))
+        if len(text.encode()) < _TEXT_CHUNK:
+            self.texts.append((t0, severity, (so_far + text).rstrip()))
+        else:
+            self._chunks[chunk_id] = (t0, severity, so_far + text)
+
+    def _flush_chunks(self, before: float) -> None:
+        """Keep, as they stand, unfinished chunked texts begun before ``before`` (clock s)."""
+        for chunk_id, (t0, severity, so_far) in list(self._chunks.items()):
+            if t0 < before:
+                del self._chunks[chunk_id]
+                self.texts.append((t0, severity, so_far.rstrip()))
 
     def on_ack(self, msg: Any) -> bool:
         """Keep a final COMMAND_ACK; True when it is a refusal (IN_PROGRESS is skipped)."""
@@ -91,6 +118,15 @@ class VehicleWatch:
         if self.texts and self.texts[-1][0] >= since:
             return self.texts[-1][2]
         return ""
+
+    def refusal(self, since: float) -> str:
+        """Why the autopilot refused a command sent after ``since`` (clock s): its
+        warnings and errors since then, oldest first, each once and joined by "; "
+        (ArduPilot sends one text per failed arming check: "Arm: Gyros inconsistent",
+        then "Arm: AHRS: not using configured AHRS type"); else its newest text since."""
+        warning = mp.mav().MAV_SEVERITY_WARNING
+        found = [text for t, sev, text in self.texts if t >= since and sev <= warning]
+        return "; ".join(dict.fromkeys(found)) or self.reason(since)
 
     def who_set_mode(self) -> str:
         """Who changed the mode, as far as MAVLink tells: a recent failsafe STATUSTEXT

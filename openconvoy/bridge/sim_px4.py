@@ -176,7 +176,7 @@ class Px4Rover:
             if name is None:
                 return mp.RESULT_DENIED
             if name == "OFFBOARD" and self.armed and not self.signal(t):
-                self.texts.append((3, _OFFBOARD_UNAVAILABLE))
+                self.texts.append((2, _OFFBOARD_UNAVAILABLE))
                 return mp.RESULT_TEMPORARILY_REJECTED
             self._enter(name)
             return mp.RESULT_ACCEPTED
@@ -190,7 +190,7 @@ class Px4Rover:
             if self.armed:
                 return mp.RESULT_ACCEPTED
             if t < self.timing.armable_s or (self.mode == "OFFBOARD" and not self.signal(t)):
-                self.texts.append((3, _ARMING_DENIED))
+                self.texts.append((2, _ARMING_DENIED))
                 return mp.RESULT_TEMPORARILY_REJECTED
             self.armed = True
             self.texts.append((6, "Armed by external command"))
@@ -219,7 +219,7 @@ class Px4Rover:
         yaw_rate: float,
     ) -> None:
         if local and frame == 7:
-            self.texts.append((3, "SET_POSITION_TARGET_LOCAL_NED coordinate frame 7 unsupported"))
+            self.texts.append((2, "SET_POSITION_TARGET_LOCAL_NED coordinate frame 7 unsupported"))
             self.setpoints_ignored += 1
             return
         self._t_sp = t

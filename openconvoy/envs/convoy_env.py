@@ -25,6 +25,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core.config import Range, check_number
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, parse_fault
 from openconvoy.core.member import MemberConfig, member_config_for
@@ -69,6 +70,20 @@ never NaN, so infos compare equal between identical runs."""
 
 def _opt(v: float) -> float | None:
     return None if v != v else v  # NaN -> None
+
+
+def check_rate_and_noise(control_rate_hz: float, gps_noise_m: float) -> None:
+    """``ConfigError`` naming the argument unless the control rate (Hz) is positive and
+    finite and the GPS noise (m, one sigma) finite and >= 0."""
+    for name, value, allowed in (
+        ("control_rate_hz", control_rate_hz, Range(lo=0.0, lo_open=True)),
+        ("gps_noise_m", gps_noise_m, Range(lo=0.0)),
+    ):
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{name}: expected a number, got {value!r}") from None
+        check_number(number, name, allowed)
 
 
 def agent_name(vehicle_id: int) -> str:
@@ -143,10 +158,7 @@ class ConvoyEnv(ParallelEnv):
         emergency_stop: bool = True,
         auth: bool = True,
     ) -> None:
-        if control_rate_hz <= 0:
-            raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
-        if gps_noise_m < 0:
-            raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+        check_rate_and_noise(control_rate_hz, gps_noise_m)
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         scenario = _resolve_scenario(scenario, n_followers, vehicle_presets)

@@ -139,6 +139,22 @@ class TrafficState:
         n = self.n = len(vehicles)
         self.index = {id(v): k for k, v in enumerate(vehicles)}
         self._rows: dict[int, tuple[list, slice | np.ndarray, np.ndarray]] = {}
+        self.arange = np.arange(n)
+        self.traffic = np.array([type(v) is not ConvoyVehicle for v in vehicles], dtype=bool)
+        self.hold = np.array([type(v) is ScriptedLaneChanger for v in vehicles], dtype=bool)
+        self.scripted = np.flatnonzero(self.hold).tolist()
+        self.upper = np.triu(np.ones((n, n), dtype=bool), 1)
+        first = int(np.argmax(self.traffic)) if self.traffic.any() else n
+        block = not self.traffic[:first].any() and self.traffic[first:].all()
+        self.movers: slice | np.ndarray = slice(first, n) if block else np.flatnonzero(self.traffic)
+        self.mover_rows = np.flatnonzero(self.traffic)
+        self.idm_out = np.zeros(n)
+        self.load()
+
+    def _read_parameters(self) -> None:
+        """The vehicles' parameters (highway-env's class attributes, which a caller may set
+        on an object: ``randomize_behavior``, ``enable_lane_change``, ...)."""
+        vehicles, n = self.objs, self.n
         self.params = np.array(
             [[float(getattr(v, k)) for v in vehicles] for k in PARAM_NAMES], dtype=float
         ).reshape(len(PARAM_NAMES), n)
@@ -148,12 +164,8 @@ class TrafficState:
         self.idm_p = np.array(
             (p[CAM], p[DELTA], p[DW], p[TW], 2 * np.sqrt(-p[CAM] * p[CAMIN]))
         ).reshape(5, n)
-        self.arange = np.arange(n)
         self.neg_kp_lat, self.neg_max_steer = -p[KP_LAT], -p[MAX_STEER]
-        self.traffic = np.array([type(v) is not ConvoyVehicle for v in vehicles], dtype=bool)
         self.lc = np.array([bool(v.enable_lane_change) for v in vehicles], dtype=bool)
-        self.hold = np.array([type(v) is ScriptedLaneChanger for v in vehicles], dtype=bool)
-        self.scripted = np.flatnonzero(self.hold).tolist()
         self.width = np.array([v.WIDTH for v in vehicles], dtype=float)
         self.length = np.array([v.LENGTH for v in vehicles], dtype=float)
         self.diagonal = np.array([v.diagonal for v in vehicles], dtype=float)
@@ -166,23 +178,18 @@ class TrafficState:
             if n
             else (0.0, 0.0)
         )
-        # Collision pre-check constants: half (length, width), half the diagonals' sum, pairs.
-        self.half = 0.5 * np.array([(v.LENGTH, v.WIDTH) for v in vehicles], dtype=float)
+        # Collision pre-check constants: half (length, width), half the diagonals' sum.
+        half = np.array([(v.LENGTH, v.WIDTH) for v in vehicles], dtype=float).reshape(n, 2)
+        self.half = 0.5 * half
         self.half_len = self.half[:, 0].copy()
         self.reach = 0.5 * (self.diagonal[:, None] + self.diagonal[None, :])
-        self.upper = np.triu(np.ones((n, n), dtype=bool), 1)
-        first = int(np.argmax(self.traffic)) if self.traffic.any() else n
-        block = not self.traffic[:first].any() and self.traffic[first:].all()
-        self.movers: slice | np.ndarray = slice(first, n) if block else np.flatnonzero(self.traffic)
-        self.mover_rows = np.flatnonzero(self.traffic)
         # What ``traffic_jit.decide`` runs for each car: 0 nothing (convoy), 1 IDM, 2 IDM
         # and MOBIL, 3 a scripted car's speed control.
         self.kind = np.where(self.hold, 3, np.where(self.lc, 2, 1) * self.traffic).astype(np.intp)
-        self.idm_out = np.zeros(n)
-        self.load()
 
     def load(self) -> None:
-        """Read every vehicle's dynamic state from its highway-env object."""
+        """Read every vehicle's state and parameters from its highway-env object."""
+        self._read_parameters()
         rows = [
             (
                 v.position[0],

@@ -48,6 +48,8 @@ def move(st: TrafficState, dt: float) -> None:
     """``IDMVehicle.step`` for every traffic car (timer, ``clip_actions``, the kinematic
     bicycle over ``dt`` s, a pending impact, the closest lane)."""
     m = st.movers
+    if not st.mover_rows.size:  # only convoy vehicles: nothing moves, nothing to reduce
+        return
     h, sp, steer, acc = st.h[m], st.sp[m], st.steer[m], st.acc[m]
     crashed = st.crashed[m]
     if crashed.any():  # erratic steering and braking until complete stop

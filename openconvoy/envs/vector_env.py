@@ -19,8 +19,10 @@ on the kept links only.
 Arrays: observations ``(B, N-1, D)`` float32 (followers in order), actions
 ``(B, N-1, 2)``; rewards ``(B, N-1)``; ``terminated``/``truncated`` ``(B,)``. GPS noise
 (``vector_gps``): the members see and send ``sensed``, the plant state with noisy
-positions. Not yet supported (a ConfigError says so): ranging sensors, ``forge`` faults,
-traffic scenarios.
+positions. Ranging sensors (``vector_ranging``: the same counter-based noise as
+``ConvoyEnv``) feed the ladder and the emergency rule; ``forge`` faults (``vector_forge``)
+are rejected and counted (``forged_rejected``) or, with ``auth=False``, delivered into R^i.
+Not supported (a ConfigError says so): traffic scenarios, rendering.
 """
 
 from __future__ import annotations
@@ -37,10 +39,12 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
+from openconvoy.envs.convoy_env import check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import PathScenario, make_scenario
 from openconvoy.envs.vector_channel import VectorChannel
+from openconvoy.envs.vector_forge import Forgers
 from openconvoy.envs.vector_gps import sense
 from openconvoy.envs.vector_leader import LeaderDriver
 from openconvoy.envs.vector_links import build_links
@@ -48,6 +52,7 @@ from openconvoy.envs.vector_measures import info_arrays, infos, measure, pack_re
 from openconvoy.envs.vector_member import COOP, FAILSAFE, STOP, decide, pack_ladder, pack_spacing
 from openconvoy.envs.vector_obs import observe, pack_layout
 from openconvoy.envs.vector_plant import VectorPlant
+from openconvoy.envs.vector_ranging import RangingSensors
 from openconvoy.envs.vector_rx import RxBuffers
 from openconvoy.envs.vector_step import FusedCall, pack
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
@@ -75,10 +80,7 @@ def _check_args(
 ) -> None:
     if num_envs < 1:
         raise ConfigError(f"num_envs must be at least 1, got {num_envs}")
-    if control_rate_hz <= 0:
-        raise ConfigError(f"control_rate_hz must be positive, got {control_rate_hz}")
-    if gps_noise_m < 0.0:
-        raise ConfigError(f"gps_noise_m must be >= 0, got {gps_noise_m}")
+    check_rate_and_noise(control_rate_hz, gps_noise_m)
     if render_mode is not None:
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
 
@@ -100,8 +102,6 @@ def _scenario(
         )
     if built.n_vehicles < 2:
         raise ConfigError("a convoy needs a leader and at least one follower")
-    if any(p.ranging for p in built.presets[1:]):
-        raise ConfigError("VectorConvoyEnv does not model ranging sensors yet (use ConvoyEnv)")
     return built
 
 
@@ -148,8 +148,6 @@ class VectorConvoyEnv:
         self.loss = max(self.losses, key=lambda c: c.per)
         self._check_loss(link_counters)
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
-        if any(f.forges for f in self.faults):
-            raise ConfigError("VectorConvoyEnv does not model forge faults (use ConvoyEnv)")
         check_faults(self.faults, N)
         self.presets = tuple(sc.presets)
         self.autoreset, self.link_counters, self.render_mode = autoreset, link_counters, None
@@ -172,14 +170,24 @@ class VectorConvoyEnv:
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
         )
         self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m)
+        self.ranging = RangingSensors(self.presets, B)
+        self.forgers = Forgers(self.faults, B, N, self.dt, bool(auth))
         self._seed_seqs: list[np.random.SeedSequence | None] = [None] * B
         self.t: np.ndarray = np.zeros(B)
         self.step_count = np.zeros(B, dtype=np.int64)
         self._alloc()
-        # One compiled call per tick where every stage has a kernel (vector_step).
-        fusable = self.channel.ge is None and self.channel.slots == 0 and self.leader.kind != 0
-        fusable = fusable and self.gps_noise_m == 0.0
-        self._fused = pack(self) if fusable and not self._brakes else None
+        self._fused = pack(self) if self._fusable() else None
+
+    def _fusable(self) -> bool:
+        """Every stage has a kernel: one compiled call per tick (``vector_step``)."""
+        ch, extras = self.channel, self.ranging.any or self.forgers.delivers or self._brakes
+        return (
+            ch.ge is None
+            and ch.slots == 0
+            and self.leader.kind != 0
+            and not extras
+            and (self.gps_noise_m == 0.0)
+        )
 
     def _check_loss(self, link_counters: str) -> None:
         if link_counters not in ("all", "kept"):
@@ -251,6 +259,11 @@ class VectorConvoyEnv:
         return self._own[:6]
 
     @property
+    def forged_rejected(self) -> np.ndarray:
+        """Forged messages each member rejected so far (B, N) (``ConvoyEnv.forged_rejected``)."""
+        return self.forgers.rejected(self.step_count)
+
+    @property
     def own_truth(self) -> tuple[np.ndarray, ...]:
         """x, y, speed, heading, accel, yaw rate, each (B, N), a snapshot."""
         return tuple(self.own.copy())
@@ -283,9 +296,10 @@ class VectorConvoyEnv:
                 self._seed_seqs[b] = np.random.SeedSequence()
             seq = self._seed_seqs[b]
             assert seq is not None
-            ss_channel, ss_gps = seq.spawn(4)[:2]  # ConvoyWorld.reset's spawn
+            ss_channel, ss_gps, ss_ranging, _ = seq.spawn(4)  # ConvoyWorld.reset's spawn
             self.channel.seed(b, np.random.default_rng(ss_channel))
             self._gps_keys[b] = np.uint64(gps_key(np.random.default_rng(ss_gps)))
+            self.ranging.seed(b, ss_ranging)
         init = self.scenario.initial_state()
         N, n = self.n_vehicles, int(which.sum())
         rows = np.flatnonzero(np.repeat(which, N))
@@ -349,12 +363,13 @@ class VectorConvoyEnv:
         """The members decide, the leaders drive, faults act, the plant moves ``dt``;
         returns the accelerations before the move (B, N)."""
         t, own, lk, rx = self.t, self.own, self.links, self.rx
+        self.ranging.read(own, self.step_count)  # the true state, before the plant moves
         decide(  # on what the members measured of themselves at the last tick
             a, self.action_low, self.action_high, t, self._sensed, rx.hist, rx.hist_n,
             rx.newest, lk.needed, lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
             self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
-            self._rule, self.cmd_v, self.cmd_dh, self.modes,
+            self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
         )  # fmt: skip
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
         for vehicle, t_from in self._brakes:
@@ -375,6 +390,7 @@ class VectorConvoyEnv:
         if own is not self._own:
             sense(self._own, self.step_count, self._gps_keys, self.gps_noise_m, which, own)
         self.channel.transmit(self.t, self.step_count, own, which, rx)
+        self.forgers.deliver(self.t, which, self._own, lk, self.channel.msgs_kept, rx)
         observe(
             obs, which, self.t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n, lk.trail_of,
             rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,

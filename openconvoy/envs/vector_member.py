@@ -4,8 +4,11 @@ follower of every convoy in one compiled loop.
 
 ``spacing`` packs ``SpacingConfig`` as (kind code, distance m, standstill m, headway s,
 quadratic s²/m); ``ladder`` packs ``LadderConfig`` as (enabled, degrade after s, stop
-after s, extra headway s, gap gain 1/s); ``rule`` the emergency rule per follower as
-(decel m/s², reaction s, margin m).
+after s, extra headway s, gap gain 1/s, intruder margin m); ``rule`` the emergency rule
+per follower as (decel m/s², reaction s, margin m); ``ranging`` (2, B, N) each vehicle's
+ranging reading this tick (range m, range rate m/s; NaN range: none, ``vector_ranging``),
+which the ladder's ACC fallback, the ranging override and the emergency rule take
+before the estimate from messages (``ConvoyMember.supervise``, ``ConvoyWorld._emergency``).
 """
 
 from __future__ import annotations
@@ -32,7 +35,14 @@ def pack_spacing(c: SpacingConfig) -> np.ndarray:
 def pack_ladder(c: LadderConfig) -> np.ndarray:
     """``LadderConfig`` as the kernels' array."""
     return np.array(
-        [float(c.enabled), c.degrade_after_s, c.stop_after_s, c.extra_headway_s, c.gap_gain]
+        [
+            float(c.enabled),
+            c.degrade_after_s,
+            c.stop_after_s,
+            c.extra_headway_s,
+            c.gap_gain,
+            c.intruder_margin_m,
+        ]
     )
 
 
@@ -91,10 +101,12 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
 def decide(
     act, low, high, t, own, hist, hist_n, newest, needed, pred_link, link_decel, lengths, sp, lad,
     fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
+    ranging,
 ):  # pragma: no cover - compiled  # fmt: skip
     """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
-    latched policy error), clipped and float32, through the ladder, then the latch and
-    the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N) and ``modes``."""
+    latched policy error), clipped and float32, through the ladder (with the ranging
+    reading), then the latch and the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N)
+    and ``modes``."""
     B, F = act.shape[0], act.shape[1]
     for b in range(B):
         for f in range(F):
@@ -113,23 +125,41 @@ def decide(
                     if ln >= 0:
                         age = max(age, link_age(newest, b, ln, t[b]))
                 mode = COOP if age <= lad[1] else (DEGRADED if age <= lad[2] else STOP)
-                v, dh, mode = _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh)
+                if mode == COOP and _overridden(own, b, i, lengths, sp, lad, pred_est, ranging):
+                    mode = DEGRADED
+                v, dh, mode = _ladder(own, b, i, lengths, sp, lad, pred_est, ranging, v, dh,
+                                      mode, max_dh)  # fmt: skip
             if failed[b, i]:
                 v, dh, mode = 0.0, 0.0, FAILSAFE
             if emergency:
                 if _fires(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths, lad,
-                          fresh_age, rule[:, f], t[b]) or estopped[b, i]:  # fmt: skip
+                          fresh_age, rule[:, f], t[b], ranging) or estopped[b, i]:  # fmt: skip
                     estopped[b, i] = True
                     v, dh, mode = 0.0, 0.0, FAILSAFE
             cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
 
 
 @bare_inline
-def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # pragma: no cover
+def _overridden(own, b, i, lengths, sp, lad, pred_est, ranging):  # pragma: no cover
+    """``ConvoyMember._ranging_override``: the ranging target is closer by the intruder
+    margin than the predecessor by its messages or the desired gap."""
+    rng_m, v2v_gap = ranging[0, b, i], pred_est[0, b, i]
+    if math.isnan(rng_m) or math.isnan(v2v_gap):
+        return False
+    desired = pair_gap(sp, own[2, b, i], lengths[i], lengths[i - 1])
+    return rng_m < max(v2v_gap, desired) - lad[5]
+
+
+@bare_inline
+def _ladder(
+    own, b, i, lengths, sp, lad, pred_est, ranging, v, dh, mode, max_dh
+):  # pragma: no cover
     """``ConvoyMember.supervise``'s rungs: degraded follows the ACC fallback on the
-    predecessor estimate (none: stop), stop commands zero."""
+    ranging reading, else the predecessor estimate (neither: stop), stop commands zero."""
     if mode == DEGRADED:
         est_gap, est_closing = pred_est[0, b, i], pred_est[1, b, i]
+        if not math.isnan(ranging[0, b, i]):
+            est_gap, est_closing = ranging[0, b, i], ranging[1, b, i]
         if math.isnan(est_gap):
             mode = STOP
         else:
@@ -145,21 +175,17 @@ def _ladder(own, b, i, lengths, sp, lad, pred_est, v, dh, mode, max_dh):  # prag
 
 @bare_inline
 def _fires(
-    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t
+    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t, ranging
 ):  # pragma: no cover - compiled
-    """The braking-aware gap rule on the estimate of the predecessor: True to stop."""
-    valid, ex, ey, es, eh, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
-    if not valid:
-        return False
-    ox, oy, ov, oh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
-    dx, dy = ex - ox, ey - oy
-    gap = norm(dx, dy)
-    vx = ov * math.cos(oh) - es * math.cos(eh)
-    vy = ov * math.sin(oh) - es * math.sin(eh)
-    if gap <= 0.0:
-        closing, gap = max(ov - es, 0.0), 0.0
+    """The braking-aware gap rule on the ranging reading, else on the estimate of the
+    predecessor: True to stop."""
+    if not math.isnan(ranging[0, b, i]):
+        gap, closing = ranging[0, b, i], -ranging[1, b, i]
     else:
-        closing = (dx * vx + dy * vy) / gap
+        valid, ex, ey, es, eh, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
+        if not valid:
+            return False
+        gap, closing = _gap_and_closing(own, b, i, ex, ey, es, eh)
     bumper = gap - 0.5 * (lengths[i] + lengths[i - 1])
     if not np.isfinite(closing):
         closing = 0.0
@@ -167,3 +193,17 @@ def _fires(
     if closing > 0.0:
         stopping = closing * closing / (2.0 * rule[0]) + rule[1] * closing
     return np.isfinite(bumper) and bumper - stopping < rule[2]
+
+
+@bare_inline
+def _gap_and_closing(own, b, i, ex, ey, es, eh):  # pragma: no cover - compiled
+    """``core.estimate.gap_and_closing`` of vehicle ``i`` to the estimate (x, y, speed,
+    heading): centre-to-centre gap (m) and closing speed (m/s, positive = closing)."""
+    ox, oy, ov, oh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
+    dx, dy = ex - ox, ey - oy
+    gap = norm(dx, dy)
+    vx = ov * math.cos(oh) - es * math.cos(eh)
+    vy = ov * math.sin(oh) - es * math.sin(eh)
+    if gap <= 0.0:
+        return 0.0, max(ov - es, 0.0)
+    return gap, (dx * vx + dy * vy) / gap

@@ -38,6 +38,7 @@ from openconvoy.envs.channel import Channel
 from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.gps import gps_key, gps_noise, vehicle_states
 from openconvoy.envs.plant import BicyclePlant
+from openconvoy.envs.ranging_noise import ranging_key, ranging_normals
 from openconvoy.envs.scenarios import Scenario
 from openconvoy.logs import TickSnapshot
 
@@ -156,7 +157,8 @@ class ConvoyWorld:
         """Start an episode: scenario, channel, plant and members reset, sensed at t = 0."""
         ss_channel, ss_gps, ss_ranging, ss_scenario = seed_seq.spawn(4)
         self._gps_states = vehicle_states(gps_key(np.random.default_rng(ss_gps)), self.n_vehicles)
-        self._ranging_rng = np.random.default_rng(ss_ranging)
+        self._ranging_rng = np.random.default_rng(ss_ranging)  # a traffic world's draws
+        self._ranging_states = vehicle_states(ranging_key(ss_ranging), self.n_vehicles)
         self.scenario.reset(np.random.default_rng(ss_scenario))
         self.channel.reset(np.random.default_rng(ss_channel))
         self.auth.reset()
@@ -260,7 +262,8 @@ class ConvoyWorld:
         return {}
 
     def ranging_readings(self) -> dict[int, Ranging]:
-        """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor."""
+        """Range (m) and range rate (m/s) to the vehicle ahead for vehicles with a sensor,
+        in range, with its noise (``envs.ranging_noise``: keyed by episode, vehicle, tick)."""
         out: dict[int, Ranging] = {}
         p = self.plant
         for i, sensor in self.ranging_sensors:
@@ -276,7 +279,7 @@ class ConvoyWorld:
             )
             if rng_m > sensor.max_range_m or rng_m <= 0.0:
                 continue
-            n1, n2 = self._ranging_rng.normal(size=2)
+            n1, n2 = ranging_normals(self._ranging_states[i], self.step_count)
             out[i] = (rng_m + sensor.range_noise_m * n1, rate + sensor.range_rate_noise_mps * n2)
         return out
 

@@ -10,9 +10,10 @@ its seed (``tests/envs/test_vector_env.py``), and a classical policy's ``act_bat
 its ``act`` on arrays, so the numbers are the per-run path's to the bit
 (``tests/experiments/test_batched.py`` holds the files byte-identical).
 
-``refusal`` says why runs cannot be batched (the env refuses the configuration — ranging
-sensors, forge faults, highway scenarios — or the policy
-has no ``act_batch``, or only an inexact one); callers then run one ``ConvoyEnv`` per run.
+``refusal`` says why runs cannot be batched (the env refuses the configuration — highway
+scenarios — or the policy has no ``act_batch``, or only an inexact one); callers then run
+one ``ConvoyEnv`` per run. Ranging sensors and ``forge`` faults (either ``auth``) run
+batched with the same files (``tests/experiments/test_batched.py``).
 """
 
 from __future__ import annotations

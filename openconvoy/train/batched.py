@@ -13,8 +13,8 @@ the residual base (batched, each convoy's controller state its own) exactly as
 
 ``per_high`` (settable through ``VecEnv.set_attr``) caps the PERs of the next draws: a
 curriculum raises it over training. ``batched_refusal`` says why a configuration cannot
-run batched (ranging sensors, traffic scenarios, until the batched simulator models
-them), so training falls back to ``RandomizedConvoyEnv``.
+run batched (traffic scenarios, until the batched simulator models them), so training
+falls back to ``RandomizedConvoyEnv``.
 """
 
 from __future__ import annotations

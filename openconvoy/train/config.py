@@ -127,7 +127,7 @@ class TrainConfig:
         vec_env: the simulator: ``batched`` (``envs.VectorConvoyEnv``, all convoys in
             arrays: ``train.batched``), ``supersuit`` (one ``ConvoyEnv`` per convoy through
             SuperSuit: ``train.vec``), or ``auto``: batched unless the randomization asks
-            for what it does not model (ranging, traffic), then
+            for what it does not model (traffic), then
             SuperSuit, with one line on stderr saying so.
         n_worlds: batched: groups of convoys that share a drawn world (vehicles, burst
             model, latency); each convoy draws its own PER.

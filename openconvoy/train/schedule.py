@@ -6,7 +6,9 @@ A run has a step budget (``total_steps``) and, optionally, a wall-clock budget
 final validation and the run directory still fit (``RunClock.reserve_s``: twice the
 longest checkpoint validation seen, plus a margin). Progress is the further of the two,
 0 -> 1, so a run cut by its clock still decays its learning rate to (nearly) 0 and
-finishes its curriculum, as a run of the steps it managed would have.
+finishes its curriculum, as a run of the steps it managed would have. Progress never goes
+back: when a timed validation shrinks the reserve (the first one is a guess), the clock's
+share waits until the longer learning budget catches up with it.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ class RunClock:
         self.clock = clock
         self.start = clock()
         self.longest_validation_s = 0.0
+        self._time_progress = 0.0  # the furthest time_progress so far
 
     def elapsed_s(self) -> float:
         return self.clock() - self.start
@@ -61,11 +64,14 @@ class RunClock:
         return max(0.0, self.budget_s - self.reserve_s)
 
     def time_progress(self) -> float:
-        """How far the clock is through the learning budget, 0 -> 1 (0 without one)."""
+        """How far the clock is through the learning budget, 0 -> 1 (0 without one),
+        never less than before (a shrinking reserve lengthens the budget)."""
         learn = self.learn_budget_s()
         if learn is None:
             return 0.0
-        return min(1.0, self.elapsed_s() / learn) if learn > 0 else 1.0
+        now = min(1.0, self.elapsed_s() / learn) if learn > 0 else 1.0
+        self._time_progress = max(self._time_progress, now)
+        return self._time_progress
 
     def progress(self, steps: int) -> float:
         """How far the run is, 0 -> 1: the further of steps and (with a budget) time."""
@@ -121,6 +127,12 @@ class Schedule(BaseCallback):
         self.stopped_by_clock = False
         self.per_high: list[tuple[int, float]] = []
         """(steps, per_high) at every change, for the run's record."""
+
+    def prime(self, venv: VecEnv) -> None:
+        """Before ``learn``: set ``venv``'s PER cap to the curriculum's start, so that the
+        worlds ``learn``'s first reset draws (before any callback runs) follow it."""
+        if self.span > 0 and hasattr(_unwrapped(venv), "per_high"):
+            venv.set_attr("per_high", curriculum_per_high(0.0, self.per_range, self.span))
 
     def _on_training_start(self) -> None:
         if self.span > 0 and not hasattr(_unwrapped(self.training_env), "per_high"):

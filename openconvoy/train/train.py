@@ -316,6 +316,7 @@ def train(
     callbacks = CallbackList(
         [_Progress(config.total_steps, progress_bar), _ConvoyStats(), checkpoints, schedule]
     )
+    schedule.prime(venv)
     start = time.perf_counter()
     model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
     wall = time.perf_counter() - start

@@ -309,3 +309,21 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
         speed = drive(old)
         assert (speed < -0.3) if vn <= -FLT_EPSILON else (speed > 0.3), (compass, speed)
         drive(link.stop_motion, 1.2)
+
+
+@pytest.mark.parametrize(
+    ("autopilot", "reasons"),
+    [
+        # PX4's refusal is longer than one STATUSTEXT: it comes in two chunks (shared/sitl-px4).
+        ("px4", ["Arming denied: Resolve system health failures first"]),
+        # ArduPilot in GUIDED early in boot fails two checks and sends a text for each.
+        ("ardupilot", ["Arm: Accels inconsistent", "Arm: AHRS: not using configured AHRS type"]),
+    ],
+)
+def test_an_arming_refusal_names_the_autopilots_whole_reasons(
+    vehicle_and_link, autopilot: str, reasons: list[str]
+) -> None:
+    _, link, _ = vehicle_and_link(autopilot=autopilot, ready_after_s=100.0)
+    with pytest.raises(CommandRefused) as err:
+        link.prepare_and_arm(timeout_s=2.5, on_status=lambda line: None)
+    assert err.value.reason == "; ".join(reasons)

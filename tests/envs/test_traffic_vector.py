@@ -222,3 +222,54 @@ def test_touching_pairs_keeps_every_pair_highway_env_acts_on() -> None:
             counts["skipped" if not kept else "kept_idle"] += 1
     # Both outcomes occur, and the filter drops most of the idle pairs.
     assert counts["acted"] > 50 and counts["skipped"] > 5 * counts["kept_idle"]
+
+
+def _drive_edited(world: TrafficWorld, ticks: int) -> np.ndarray:
+    """Traffic states per tick; at tick 20 every car's parameters are edited through its
+    highway-env object (highway-env's own ``randomize_behavior``, no lane changes, a lower
+    top speed, softer IDM, slower steering, one car lengthened)."""
+    out = []
+    for k in range(ticks):
+        world.place([22.0 * DT * k], [0.0], [0.0], [22.0])
+        if k:
+            world.step(DT)
+        if k == 20:
+            for j, car in enumerate(world.traffic):
+                (
+                    car.randomize_behavior,
+                    lambda c=car: setattr(c, "enable_lane_change", False),
+                    lambda c=car: setattr(c, "MAX_SPEED", 18.0),
+                    lambda c=car: setattr(c, "COMFORT_ACC_MAX", 1.0),
+                    lambda c=car: setattr(c, "KP_HEADING", 1.0),
+                )[j % 5]()
+            car = world.traffic[3]
+            car.LENGTH, car.diagonal = 9.0, float(np.hypot(9.0, car.WIDTH))
+        world.act(DT * k)
+        out.append(world.traffic_states_enu())
+    return np.array(out)
+
+
+@COMPILED
+def test_vector_road_reads_parameters_edited_on_the_objects(compiled: bool) -> None:
+    ref = _drive_edited(_world(Road, 5000.0), 160)
+    got = _drive_edited(_world(VectorRoad, 5000.0, compiled), 160)
+    assert np.max(np.abs(got - ref)) < 1e-9
+    # The edits changed the run (else this test could not fail).
+    plain = _drive(_world(Road, 5000.0), 160)
+    assert np.max(np.abs(plain[:, :, :2] - ref[:, :, :2])) > 1.0
+
+
+@COMPILED
+def test_vector_road_with_no_traffic_runs(compiled: bool) -> None:
+    """Only convoy vehicles on the road (no car for ``step`` to move)."""
+    net = RoadNetwork.straight_road_network(3, start=0.0, length=1000.0, speed_limit=40.0)
+    world = TrafficWorld(HighwayFrame(100.0, 4.0), [4.8, 4.8], [1.9, 1.9], 25.0)
+    world.reset(_road(VectorRoad, net, compiled), [])
+    for k in range(5):
+        world.place([10.0 + k, -5.0 + k], [0.0, 0.0], [0.0, 0.0], [20.0, 20.0])
+        if k:
+            world.step(DT)
+        world.act(DT * k)
+    assert world.road.vector_state(world._all) is not None
+    ahead = world.in_path()[1]
+    assert ahead is not None and ahead.target_id == 0 and ahead.range_m == pytest.approx(15.0)

@@ -25,7 +25,6 @@ from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs import ConvoyEnv, VectorConvoyEnv
 from openconvoy.envs.gps import gps_noise, vehicle_states
 from openconvoy.envs.vector_env import MODES
-from openconvoy.envs.vehicles import VEHICLE_PRESETS
 from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
 
@@ -104,6 +103,7 @@ def _compare(
                 for key in ("gap_m", "speed_mps"):
                     assert i[key] == pytest.approx(vinfo[key][b, j], abs=1e-9)
             assert term[agents[0]] == bool(vterm[b]) and trunc[agents[0]] == bool(vtrunc[b]), k
+            assert env.forged_rejected == vec.forged_rejected[b].tolist(), k
         if not envs[0].agents:
             break
     return modes
@@ -262,10 +262,8 @@ def test_autoreset_starts_the_next_episode_in_the_same_step() -> None:
 def test_unsupported_options_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="gps_noise_m"):
         VectorConvoyEnv(2, gps_noise_m=-0.5)
-    with pytest.raises(ConfigError, match="ranging"):
-        VectorConvoyEnv(2, vehicle_presets=[VEHICLE_PRESETS["1/10"].with_ranging()] * 3)
-    with pytest.raises(ConfigError, match="forge"):
-        VectorConvoyEnv(2, faults=["forge:1@1"])
+    with pytest.raises(ConfigError, match="path scenarios"):
+        VectorConvoyEnv(2, "highway-cut-in")
     with pytest.raises(ConfigError, match="render"):
         VectorConvoyEnv(2, render_mode="rgb_array")
     with pytest.raises(ConfigError, match="instant Bernoulli"):

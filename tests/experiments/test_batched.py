@@ -105,23 +105,57 @@ def test_what_the_batched_env_refuses_runs_per_run_in_one_line(tmp_path: Path):
     assert refusal(run) is None
     assert refusal(dataclasses.replace(run, convoy=ConvoySection(gps_noise_m=0.2))) is None
     assert refusal(dataclasses.replace(run, loss=LossSection(latency_s=0.1, jitter_s=0.05))) is None
-    assert "ranging" in refusal(dataclasses.replace(run, convoy=ConvoySection(ranging=True)))
-    assert "forge" in refusal(dataclasses.replace(run, faults=("forge:1@1",)))
+    assert refusal(dataclasses.replace(run, convoy=ConvoySection(ranging=True))) is None
+    assert refusal(dataclasses.replace(run, faults=("forge:1@1",), auth="off")) is None
     assert "highway" in refusal(dataclasses.replace(run, scenario="highway-cut-in"))
     learned = dataclasses.replace(run, policy=str(tmp_path / "p.zip"))
     assert "bit-equal" in refusal(learned)  # not loaded: the per-run runs report it
-    noisy = ExperimentConfig(policies=("paper", "paper+ladder"), pers=(0.2,), seeds=1)
-    noisy = dataclasses.replace(noisy, duration_s=2.0)
-    noisy = dataclasses.replace(noisy, convoy=dataclasses.replace(noisy.convoy, ranging=True))
+    mixed = ExperimentConfig(policies=("paper", "paper+ladder"), pers=(0.2,), seeds=1)
+    mixed = dataclasses.replace(mixed, duration_s=2.0, scenario="highway-cut-in")
     said: list[str] = []
-    result = run_experiment(
-        noisy, tmp_path / "noisy", progress=False, figures=False, say=said.append
-    )
+    plan = batched_sweep.plan(mixed.run_configs(), ["a", "b"], [False, False], slots=1)
+    batched_sweep.say_per_run(plan, said.append)
     assert said == [
-        f"{label}: one ConvoyEnv per run (the batched env does not model ranging sensors yet)"
+        f"{label}: one ConvoyEnv per run (the batched env has no traffic (highway scenarios))"
         for label in ("paper", "paper+ladder")
     ]
-    assert [r["runs"] for r in result.rows] == [1, 1]
+
+
+def test_ranging_sweep_batched_byte_for_byte(tmp_path: Path):
+    """Followers with a ranging sensor, the ladder on: the reading and its noise are the
+    same on both paths, so are the files."""
+    sweep = ExperimentConfig(name="r", policies=("paper+ladder",), pers=(0.0, 0.8), seeds=2,
+                             duration_s=20.0)  # fmt: skip
+    sweep = dataclasses.replace(sweep, convoy=dataclasses.replace(sweep.convoy, ranging=True))
+    said: list[str] = []
+    one = ExecutorConfig(jobs=1, batched=False)
+    run_experiment(sweep, tmp_path / "per_run", progress=False, figures=False, executor=one)
+    run_experiment(sweep, tmp_path / "batched", progress=False, figures=False, say=said.append)
+    a, b = _files(tmp_path / "per_run"), _files(tmp_path / "batched")
+    assert said == [] and sorted(a) == sorted(b)
+    for name in a:
+        assert a[name] == b[name], name
+    logs = [a[n] for n in a if n.endswith("log.csv")]
+    assert len(logs) == 4 and any(b"degraded" in log for log in logs)
+
+
+@pytest.mark.parametrize("auth", ["required", "off"])
+def test_forge_runs_batched_are_run_sims_files(tmp_path: Path, auth: str):
+    """``run_batch`` of runs with a forger (and a ranging sensor) gives ``run_sim``'s
+    ``log.csv`` and ``metrics.json`` byte for byte, with authentication on and off."""
+    from openconvoy.experiments.batched import run_batch
+    from openconvoy.experiments.runs import run_sim
+
+    base = RunConfig(policy="paper", duration_s=15.0, faults=("forge:0@4",), auth=auth)
+    configs = [dataclasses.replace(base, per=p, seed=s) for p, s in ((0.0, 1), (0.4, 2))]
+    configs.append(dataclasses.replace(configs[1], convoy=ConvoySection(ranging=True)))
+    got = [r["files"] for part in (configs[:2], configs[2:]) for r in run_batch(part)]
+    for i, config in enumerate(configs):
+        run_sim(config, tmp_path / str(i))
+        for name in ("log.csv", "metrics.json"):
+            assert got[i][name] == (tmp_path / str(i) / name).read_bytes(), (i, name)
+    chased = json.loads(got[0]["metrics.json"])["min_gap_m"] < 10.0
+    assert chased == (auth == "off")
 
 
 def test_a_failed_batch_fails_each_of_its_runs_by_name():

@@ -61,6 +61,22 @@ def test_learning_rate_decays_with_the_clock_when_it_is_ahead() -> None:
     assert lr(0.9) == 0.0
 
 
+def test_progress_never_goes_back_when_a_timed_validation_shrinks_the_reserve() -> None:
+    t = FakeClock()
+    clock = RunClock(10**6, budget_s=100.0, clock=t)
+    lr = linear_schedule(1e-3, clock)
+    t.now += 40.0  # 40 s of a 65 s learning budget (the first reserve is a guess)
+    progress, rate = clock.progress(0), lr(1.0)
+    cap = curriculum_per_high(progress, (0.0, 0.6), 1.0)
+    clock.timed_validation(1.0)  # the reserve drops to 7 s: 93 s to learn
+    assert clock.progress(0) >= progress and lr(1.0) <= rate
+    assert curriculum_per_high(clock.progress(0), (0.0, 0.6), 1.0) >= cap
+    t.now += 53.0 - 1e-9  # just before the new learning budget ends: still going, nearly 1
+    assert not clock.out_of_time() and 0.99 < clock.progress(0) < 1.0
+    t.now += 1e-6
+    assert clock.out_of_time() and clock.progress(0) == 1.0 and lr(1.0) == 0.0
+
+
 def test_curriculum_raises_the_per_cap_linearly_then_holds() -> None:
     r = (0.0, 0.6)
     assert [curriculum_per_high(p, r, 0.5) for p in (0.0, 0.25, 0.5, 0.9)] == pytest.approx(
@@ -82,8 +98,21 @@ def _tiny(**changes) -> TrainConfig:
     return TrainConfig(**{**base, **changes})
 
 
-def test_curriculum_raises_per_high_during_training(tmp_path: Path) -> None:
-    """A real PPO run: the training env's PER cap follows the schedule, step by step."""
+def test_curriculum_raises_per_high_during_training(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A real PPO run: the training env's PER cap follows the schedule, step by step,
+    from the first worlds it trains on."""
+    from openconvoy.train import batched
+
+    caps_drawn: list[float] = []  # the cap of every world the env drew
+    draw = batched.draw_group
+
+    def recorded(*args, **kwargs):
+        caps_drawn.append(args[-1])
+        return draw(*args, **kwargs)
+
+    monkeypatch.setattr(batched, "draw_group", recorded)
     config = _tiny(
         total_steps=2048,
         per_curriculum=0.5,
@@ -99,6 +128,9 @@ def test_curriculum_raises_per_high_during_training(tmp_path: Path) -> None:
     for s, v in record:  # on schedule: linear over the first half of the run
         assert v == pytest.approx(curriculum_per_high(s / 2048, (0.1, 0.5), 0.5), abs=1e-4)
     assert any(0.1 < v < 0.5 for v in caps)
+    # The constructor's world (full range) is redrawn by learn()'s first reset: the
+    # worlds trained on start at the bottom of the range and rise.
+    assert caps_drawn[1] == pytest.approx(0.1) and caps_drawn[1:] == sorted(caps_drawn[1:])
 
 
 def test_budget_stops_learning_in_time(tmp_path: Path) -> None:

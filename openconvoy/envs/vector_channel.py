@@ -77,6 +77,9 @@ class VectorChannel:
         # follows its broadcasts.
         self.by_sender = np.argsort(self.pair_s, kind="stable").astype(np.int64)
         self.sender_start = np.searchsorted(self.pair_s[self.by_sender], np.arange(N + 1))
+        # ... and their receivers and links in that order: read in sequence.
+        self.sender_r = self.pair_r[self.by_sender]
+        self.sender_link = self.pair_link[self.by_sender]
         mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
@@ -94,6 +97,7 @@ class VectorChannel:
             np.zeros((B, N), dtype=np.int64) for _ in range(5)
         )
         self.send = np.zeros((B, N), dtype=bool)
+        self._lost_scratch = np.zeros(max(N - 1, 1), dtype=np.uint8)  # one broadcast's
         self.lost = np.zeros((B, P), dtype=bool)
         if self.ge is not None:  # per ordered link: key, state, packets offered, last time
             self.ge_key = np.zeros((B, N, N), dtype=np.uint64)
@@ -149,10 +153,11 @@ class VectorChannel:
         )  # fmt: skip
         if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
             _bernoulli_deliver(
-                self.keys, self.broadcasts, self.send, self.per, self.by_sender,
-                self.sender_start, self.pair_r, self.pair_link, rows, t, own, self.lost_to,
+                self.keys, self.broadcasts, self.send, self.per, self.sender_start,
+                self.sender_r, self.sender_link, rows, t, own, self.lost_to,
                 self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.newest,
                 rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m,
+                self._lost_scratch,
             )  # fmt: skip
             return
         if self.ge is not None:
@@ -225,12 +230,20 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _draw(zs, w1, w2):  # pragma: no cover - compiled
-    """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``."""
+def _draw_bits(zs, w1, w2):  # pragma: no cover - compiled
+    """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``:
+    the uniform's 53 bits ``m`` (the uniform is ``m * 2**-53``)."""
     z = _mix(zs + _G + np.uint64(w1))
     z = _mix(z + _G + np.uint64(w2))
     z = _mix(z + _G + np.uint64(DRAW_LOSS))
-    return np.float64(z >> _S11) * _UNIT
+    return z >> _S11
+
+
+@bare_inline
+def loss_threshold(per):  # pragma: no cover - compiled
+    """The integer ``c`` with ``m * 2**-53 < per`` exactly when ``m < c`` (``m`` an integer
+    below 2**53; ``per * 2**53`` is exact): a loss draw compared without floats."""
+    return np.uint64(math.ceil(per * 9007199254740992.0))
 
 
 @bare_kernel
@@ -279,39 +292,68 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
 
 @bare_kernel
 def _bernoulli_deliver(
-    keys, number, send, per, by_sender, start, pair_r, pair_link, rows, t, own, lost_to,
-    delivered_to, kept, hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing,
+    keys, number, send, per, start, recv, links, rows, t, own, lost_to, delivered_to, kept,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, lost,
 ):  # pragma: no cover - compiled  # fmt: skip
     """``_bernoulli`` and ``_deliver`` of instant links in one walk over each
-    broadcast's pairs; counts the broadcasts."""
+    broadcast's pairs (``start``: each sender's first in ``recv``, ``links``); counts the
+    broadcasts. A broadcast's draws come first, without branches (``lost``: scratch),
+    then its deliveries."""
     for b in range(send.shape[0]):
         if not rows[b]:
             continue
-        p_loss = per[b]
+        drawn = per[b] > 0.0
+        thr = loss_threshold(per[b]) if drawn else np.uint64(0)
+        tb = t[b]
         for s in range(send.shape[1]):
             if not send[b, s]:
                 continue
             nb = number[b, s]
+            q0, q1 = start[s], start[s + 1]
             # counter_uniform4(key, s, r, nb, DRAW_LOSS), its sender's round once
             zs = _mix(keys[b] + _G + np.uint64(s))
-            for q in range(start[s], start[s + 1]):
-                p = by_sender[q]
-                r = pair_r[p]
-                if p_loss > 0.0 and _draw(zs, r, nb) < p_loss:
-                    lost_to[b, r] += 1
-                    continue
-                delivered_to[b, r] += 1
-                link = pair_link[p]
+            N = send.shape[1]
+            if not drawn:
+                lost[: q1 - q0] = 0
+            elif q1 - q0 == N - 1:  # every other vehicle, in order: r = j or j + 1
+                for j in range(N - 1):
+                    lost[j] = _draw_bits(zs, j + (j >= s), nb) < thr
+            else:
+                for q in range(q0, q1):
+                    lost[q - q0] = _draw_bits(zs, recv[q], nb) < thr
+            if q1 - q0 == N - 1:  # every other vehicle, in order: counted in two runs
+                _count(lost_to, delivered_to, kept, b, 0, s, 0, lost, links, q0)
+                _count(lost_to, delivered_to, kept, b, s + 1, N, s, lost, links, q0)
+            else:
+                for q in range(q0, q1):
+                    r, miss = recv[q], lost[q - q0]
+                    lost_to[b, r] += miss
+                    delivered_to[b, r] += 1 - miss
+                    kept[b, r] += (1 - miss) * (links[q] >= 0)
+            for q in range(q0, q1):
+                link = links[q]
                 if link < 0:
                     continue
-                kept[b, r] += 1
-                if keeps[link]:
+                if not keeps[link]:  # push_one of a time-only link (its count is never
+                    # read), inline and without a branch on the draw
+                    was = newest[b, link]
+                    newest[b, link] = was if lost[q - q0] else max(was, tb)
+                elif not lost[q - q0]:
                     push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                             link, t[b], own, s, spacing)  # fmt: skip
-                elif t[b] > newest[b, link]:  # push_one of a time-only link, without a call
-                    newest[b, link] = t[b]
-                    hist_n[b, link] = min(hist_n[b, link] + 1, hist.shape[2])
+                             link, tb, own, s, spacing)  # fmt: skip
             number[b, s] = nb + 1
+
+
+@bare_inline
+def _count(lost_to, delivered_to, kept, b, r0, r1, j0, lost, links, q0):  # pragma: no cover
+    """The counters of receivers ``r0..r1-1``, pairs ``j0..`` of a broadcast (``lost``,
+    ``links`` from ``q0``): contiguous, so the compiler vectorizes it."""
+    for r in range(r0, r1):
+        j = r - r0 + j0
+        miss = np.int64(lost[j])
+        lost_to[b, r] += miss
+        delivered_to[b, r] += 1 - miss
+        kept[b, r] += (1 - miss) * (links[q0 + j] >= 0)
 
 
 @bare_kernel

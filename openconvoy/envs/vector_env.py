@@ -54,7 +54,7 @@ from openconvoy.envs.vector_obs import observe, pack_layout
 from openconvoy.envs.vector_plant import VectorPlant
 from openconvoy.envs.vector_ranging import RangingSensors
 from openconvoy.envs.vector_rx import RxBuffers
-from openconvoy.envs.vector_step import fused_step, pack
+from openconvoy.envs.vector_step import FusedCall, pack
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 MODES = ("coop", "degraded", "stop", "failsafe")
@@ -236,12 +236,14 @@ class VectorConvoyEnv:
         self.pred_age = np.full((B, N), np.nan)
         self.pred_est = np.full((2, B, N), np.nan)  # arc to head, closing
         self._has_cmd = np.zeros(B, dtype=bool)
-        self._own = self.plant.state.reshape(6, B, N)  # views, for the kernels
+        # A view, for the kernels: with the heading's cosine and sine (vector_plant).
+        self._own = self.plant.state.reshape(-1, B, N)
         # What the members measure of themselves: the plant state, or a noisy copy.
         self._sensed = self._own if self.gps_noise_m == 0.0 else np.zeros((6, B, N))
         self._gps_keys = np.zeros(B, dtype=np.uint64)
         self._cmd_v_flat, self._cmd_dh_flat = self.cmd_v.reshape(-1), self.cmd_dh.reshape(-1)
         self._everyone = np.ones(B, dtype=bool)
+        self._fused_call = FusedCall()
         self._fresh_age_s = self.member_config.fresh_age_s
         self._targets_scratch = np.zeros((11, len(self.layout.targets)))
         self._accel_old = np.zeros((B, N))
@@ -254,7 +256,7 @@ class VectorConvoyEnv:
     @property
     def own(self) -> np.ndarray:
         """The plant state (6, B, N): x, y, speed, heading, accel, yaw rate (a view)."""
-        return self._own
+        return self._own[:6]
 
     @property
     def forged_rejected(self) -> np.ndarray:
@@ -329,7 +331,7 @@ class VectorConvoyEnv:
         if self._fused is not None:
             terminated, truncated = np.empty(B, dtype=bool), np.empty(B, dtype=bool)
             filled = info_arrays(B, N - 1)
-            fused_step(a, obs, rewards, terminated, truncated, filled, *self._fused)
+            self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
             info = infos(self, filled)
         else:
             terminated, truncated, info = self._staged_step(a, obs, rewards)

@@ -57,6 +57,9 @@ def _cache_dir() -> Path:
 
 CACHE_DIR = _cache_dir()
 
+typeof: Callable[[Any], Any] = _numba.typeof
+"""numba's type of a Python value (what a kernel is compiled for)."""
+
 
 _OPTIONS: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy"}
 

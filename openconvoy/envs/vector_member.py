@@ -20,7 +20,7 @@ import numpy as np
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector_jit import bare_inline, bare_kernel
-from openconvoy.envs.vector_math import norm
+from openconvoy.envs.vector_math import cos_sin, norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
@@ -93,7 +93,8 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
             speed = max(lv - a * age, 0.0)
     if d == 0.0:  # not moved since the message: no trigonometry
         return True, lx + d, ly + d, speed, lh, age
-    return True, lx + d * math.cos(lh), ly + d * math.sin(lh), speed, lh, age
+    # the heading's cosine and sine as pushed (vector_rx): libm's of the same heading
+    return True, lx + d * hist[b, li, 0, 6], ly + d * hist[b, li, 0, 7], speed, lh, age
 
 
 @bare_kernel
@@ -181,10 +182,12 @@ def _fires(
     if not math.isnan(ranging[0, b, i]):
         gap, closing = ranging[0, b, i], -ranging[1, b, i]
     else:
-        valid, ex, ey, es, eh, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
+        valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
         if not valid:
             return False
-        gap, closing = _gap_and_closing(own, b, i, ex, ey, es, eh)
+        # the estimate's heading is the message's: its cosine and sine as pushed (vector_rx)
+        gap, closing = _gap_and_closing(own, b, i, ex, ey, es, hist[b, link, 0, 6],
+                                        hist[b, link, 0, 7])  # fmt: skip
     bumper = gap - 0.5 * (lengths[i] + lengths[i - 1])
     if not np.isfinite(closing):
         closing = 0.0
@@ -195,14 +198,16 @@ def _fires(
 
 
 @bare_inline
-def _gap_and_closing(own, b, i, ex, ey, es, eh):  # pragma: no cover - compiled
+def _gap_and_closing(own, b, i, ex, ey, es, ce, se):  # pragma: no cover - compiled
     """``core.estimate.gap_and_closing`` of vehicle ``i`` to the estimate (x, y, speed,
-    heading): centre-to-centre gap (m) and closing speed (m/s, positive = closing)."""
-    ox, oy, ov, oh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
+    and its heading's cosine and sine): centre-to-centre gap (m) and closing speed (m/s,
+    positive = closing)."""
+    ox, oy, ov = own[0, b, i], own[1, b, i], own[2, b, i]
+    co, so = cos_sin(own, b, i)
     dx, dy = ex - ox, ey - oy
     gap = norm(dx, dy)
-    vx = ov * math.cos(oh) - es * math.cos(eh)
-    vy = ov * math.sin(oh) - es * math.sin(eh)
+    vx = ov * co - es * ce
+    vy = ov * so - es * se
     if gap <= 0.0:
         return 0.0, max(ov - es, 0.0)
     return gap, (dx * vx + dy * vy) / gap

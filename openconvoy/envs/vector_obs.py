@@ -14,9 +14,9 @@ import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
 from openconvoy.envs.vector_jit import bare_inline, bare_kernel, prefetch
-from openconvoy.envs.vector_math import wrap
+from openconvoy.envs.vector_math import cos_sin, wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
-from openconvoy.envs.vector_trail import point_at, project
+from openconvoy.envs.vector_trail import head_s, point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
 AHEAD = 4
@@ -57,14 +57,17 @@ def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: n
 
 
 @bare_inline
-def _desired(f, m, ev, sp, lengths, F):  # pragma: no cover - compiled
+def _desired(f, m, ev, sp, lengths, F, lead):  # pragma: no cover - compiled
     """Desired arc gap (m) of follower ``f + 1`` to target ``m`` (0 leader, m pred_m),
-    summed pair by pair in ``ConvoyMember``'s order."""
+    summed pair by pair in ``ConvoyMember``'s order (``lead``: the leader's under
+    constant distance, the same sum carried from follower to follower)."""
     acc = 0.0
     if m == 0:
-        g = sp[1] if sp[0] == 0.0 else speed_gap(sp, ev)
+        if sp[0] == 0.0:
+            return lead
+        g = speed_gap(sp, ev)
         for q in range(f + 1):
-            acc += g if sp[0] == 0.0 else g + 0.5 * (lengths[q + 1] + lengths[q])
+            acc += g + 0.5 * (lengths[q + 1] + lengths[q])
         return acc
     for q in range(m):
         jj = min(max(f + 1 - m + q, 0), F - 1)
@@ -82,8 +85,11 @@ def _path(
     obs[b, f, o] = -cross
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
+    s_head = head_s(tail, b, tl, hx, hy)
     for j in range(len(LOOKAHEAD)):
-        px, py = point_at(trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess)
+        px, py = point_at(
+            trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess, s_head
+        )
         dx, dy = px - ex, py - ey
         obs[b, f, o + 2 + 2 * j] = c * dx + s * dy
         obs[b, f, o + 3 + 2 * j] = -s * dx + c * dy
@@ -106,10 +112,12 @@ def observe(
         if not rows[b]:
             continue
         tb = t[b]
+        lead = 0.0  # the leader's desired gap under constant distance: sp[1] summed f + 1 times
         for f in range(F):
             i = f + 1
+            lead += sp[1]
             obs[b, f, :] = 0.0
-            c, s = math.cos(own[3, b, i]), math.sin(own[3, b, i])
+            c, s = cos_sin(own, b, i)
             _slots(obs, b, f, tb, own, c, s, hist, hist_n, slot_link, geom)
             ev = own[2, b, i]
             o = geom[2]
@@ -119,7 +127,7 @@ def observe(
             pred_age[b, i] = np.nan if math.isinf(age) else age
             chosen = _targets(obs, tg, b, f, tb, own, hist, hist_n, trail, tail, trail_n,
                               trail_of, hint, hint_k, target_link, link_decel, lengths, sp, stop_after, fresh_age,
-                              geom, F)  # fmt: skip
+                              geom, F, lead)  # fmt: skip
             spacing_error[b, i] = np.nan
             pred_est[0, b, i], pred_est[1, b, i] = np.nan, np.nan
             if chosen < 0:
@@ -160,7 +168,7 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
 @bare_inline
 def _targets(
     obs, tg, b, f, t, own, hist, hist_n, trail, tail, trail_n, trail_of, hint, hint_k,
-    target_link, link_decel, lengths, sp, stop_after, fresh_age, geom, F,
+    target_link, link_decel, lengths, sp, stop_after, fresh_age, geom, F, lead,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Estimate and project every target of follower ``f + 1`` (results in ``tg``), write
     the derived features; returns the nearest heard target (pred_1..pred_M, then the
@@ -178,7 +186,7 @@ def _targets(
         if not valid:
             continue
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
-        desired = _desired(f, m, ev, sp, lengths, F)
+        desired = _desired(f, m, ev, sp, lengths, F, lead)
         tl = trail_of[link]
         arc, cross, pheading, s, k = project(
             trail, tail, trail_n, b, tl, hx, hy, hh, ex, ey, desired, hint[b, tl], hint_k[b, tl]

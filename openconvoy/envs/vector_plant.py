@@ -3,7 +3,10 @@
 ``VectorPlant`` takes its parameters from a ``BicyclePlant`` (one derivation of the
 presets' columns) and steps all vehicles in one compiled loop, the same arithmetic as
 ``BicyclePlant.step`` vehicle by vehicle. State rows of ``state`` (6, n): x, y (m, ENU),
-speed (m/s), heading (rad), accel (m/s²), yaw rate (rad/s).
+speed (m/s), heading (rad), accel (m/s²), yaw rate (rad/s), then the heading's cosine and
+sine (``COS_H``, ``SIN_H``): libm's, computed once per vehicle and tick where the heading
+changes, for every kernel that needs them (the ego frame, the broadcast, the emergency
+rule) instead of once per reader.
 """
 
 from __future__ import annotations
@@ -18,7 +21,9 @@ from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_math import wrap
 from openconvoy.envs.vehicles import VehiclePreset
 
-X, Y, SPEED, HEADING, ACCEL, YAW_RATE = range(6)
+X, Y, SPEED, HEADING, ACCEL, YAW_RATE, COS_H, SIN_H = range(8)
+ROWS = 8
+"""Rows of ``VectorPlant.state``."""
 _PARAMS = (
     "_tau_v", "_tau_h", "_acc", "_dec", "_rate", "_vmax", "_kappa", "_kp", "_ki", "_ff",
     "_tau_d", "_drag", "_stop", "_brk", "_yaw_acc", "_alat",
@@ -41,7 +46,8 @@ class VectorPlant:
         self.delay = ref._delay_steps.astype(np.int64)
         self.hdelay = ref._hdelay_steps.astype(np.int64)
         self.depth = ref._depth
-        self.state = np.zeros((6, n))
+        self.state = np.zeros((ROWS, n))
+        self.state[COS_H] = 1.0
         self.inner = np.zeros((3, n))  # ramped setpoint, PI integrator, slewed yaw rate
         self.queue = np.zeros((2, self.depth, n))  # speed, heading setpoints
         self.head = np.zeros(1, dtype=np.int64)
@@ -69,6 +75,8 @@ class VectorPlant:
         self.inner[2, rows] = 0.0
         self.queue[0][:, rows] = v
         self.queue[1][:, rows] = st[HEADING, rows]
+        idx = np.asarray(rows)
+        _trig_rows(st, (np.flatnonzero(idx) if idx.dtype == bool else idx).astype(np.int64))
 
     def step(self, cmd_speed: np.ndarray, cmd_turn: np.ndarray) -> None:
         """Advance ``dt`` with setpoints, shape (n,): speed (m/s) and heading as a change
@@ -77,6 +85,13 @@ class VectorPlant:
             self.state, self.inner, self.queue, self.head, self.params, self.pi, self.pi_sub,
             self.delay, self.hdelay, cmd_speed, cmd_turn, self.dt,
         )  # fmt: skip
+
+
+@bare_kernel
+def _trig_rows(st, rows):  # pragma: no cover - compiled
+    """The heading's cosine and sine of vehicles ``rows`` (indices)."""
+    for i in rows:
+        st[COS_H, i], st[SIN_H, i] = math.cos(st[HEADING, i]), math.sin(st[HEADING, i])
 
 
 @bare_inline
@@ -141,7 +156,9 @@ def _plant_step(
         h_mid = hd + 0.5 * rate * dt
         st[X, i] = st[X, i] + v_mid * math.cos(h_mid) * dt
         st[Y, i] = st[Y, i] + v_mid * math.sin(h_mid) * dt
-        st[HEADING, i] = wrap(hd + rate * dt)
+        h_new = wrap(hd + rate * dt)
+        st[HEADING, i] = h_new
+        st[COS_H, i], st[SIN_H, i] = math.cos(h_new), math.sin(h_new)
         st[ACCEL, i] = dv / dt
         st[YAW_RATE, i] = rate
         st[SPEED, i] = v_new

@@ -1,7 +1,8 @@
 """The receivers' side of the batched simulator: R^i buffers and trails per kept link.
 
 Per kept link ``ln`` (receiver, sender) of convoy ``b``: ``hist[b, ln]`` (k, 6) the last
-``k`` states, newest first (t s, x m, y m, speed m/s, heading rad, accel m/s²),
+``k`` states, newest first (t s, x m, y m, speed m/s, heading rad, accel m/s², and the
+heading's cosine and sine: one cache line a state, no trigonometry per reader),
 ``hist_n`` how many, ``newest[b, ln]`` the newest one's time (-inf: none). Only what the receiver reads is kept (``LinkTables``): the states of
 the links in its observation slots and targets, of the others only the newest time (the
 ladder's age; the same ages, so the same run). Per target link, row ``trail_of[ln]`` of
@@ -17,10 +18,21 @@ import numpy as np
 
 from openconvoy.envs.vector_jit import bare_inline
 from openconvoy.envs.vector_links import LinkTables
+from openconvoy.envs.vector_math import cos_sin
 from openconvoy.envs.vector_trail import CAPACITY, trail_add
 
-T, HX, HY, HV, HH, HA = range(6)
-"""Fields of ``hist``'s first axis."""
+T, HX, HY, HV, HH, HA, HC, HS = range(8)
+"""Fields of ``hist``'s last axis."""
+FIELDS = 8
+
+
+def aligned_zeros(shape: tuple[int, ...]) -> np.ndarray:
+    """Zeros (float64) starting on a cache line (64 bytes): a state (8 doubles) or two
+    breadcrumbs (4 each) then fill one line, not two."""
+    n = int(np.prod(shape))
+    raw = np.zeros(n + 8)
+    start = (-raw.ctypes.data % 64) // 8
+    return raw[start : start + n].reshape(shape)
 
 
 class RxBuffers:
@@ -31,7 +43,7 @@ class RxBuffers:
         self.k, self.spacing_m = k, spacing_m
         self.keeps_states, self.trail_of = links.keeps_states, links.trail_of
         L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
-        self.hist = np.zeros((B, L, k, 6))
+        self.hist = aligned_zeros((B, L, k, FIELDS))
         self.hist_n = np.zeros((B, L), dtype=np.int64)
         self.newest = np.full((B, L), -np.inf)
         # Untouched pages of a trail are never committed (calloc): memory grows with
@@ -58,7 +70,8 @@ def push_one(
 ):  # pragma: no cover - compiled
     """``StateBuffer.push`` of sender ``s``'s state ``st[:, b, s]`` sent at ``ts`` onto
     link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``;
-    only the time where the link ``keeps`` no states."""
+    only the time where the link ``keeps`` no states. ``st``'s rows: the plant's (with
+    the heading's cosine and sine, ``vector_plant``) or its first six (computed here)."""
     if not ts > newest[b, ln]:
         return
     newest[b, ln] = ts
@@ -67,11 +80,12 @@ def push_one(
     if not keeps[ln]:
         return
     for j in range(k - 1, 0, -1):
-        for f in range(6):
+        for f in range(FIELDS):
             hist[b, ln, j, f] = hist[b, ln, j - 1, f]
     hist[b, ln, 0, T] = ts
     for f in range(5):  # x, y, speed, heading, accel: the plant's rows 0..4
         hist[b, ln, 0, f + 1] = st[f, b, s]
+    hist[b, ln, 0, HC], hist[b, ln, 0, HS] = cos_sin(st, b, s)
     tl = trail_of[ln]
     if tl >= 0:
         trail_add(trail, tail, trail_n, b, tl, st[0, b, s], st[1, b, s], spacing)

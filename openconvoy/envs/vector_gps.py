@@ -13,9 +13,22 @@ import numpy as np
 
 from openconvoy.comms.loss import _GOLDEN, _UNIT
 from openconvoy.envs.vector_channel import _mix
-from openconvoy.envs.vector_jit import bare_kernel
+from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 
 _G, _S11 = np.uint64(_GOLDEN), np.uint64(11)
+
+
+@bare_inline
+def counter_normals(key, vehicle, tick):  # pragma: no cover - compiled
+    """``envs.gps.box_muller`` of the counter uniforms ``(key, vehicle, tick, 0)`` and
+    ``(..., 1)`` (``comms.loss.counter_uniform``): two independent standard normals."""
+    z = _mix(key + _G + np.uint64(vehicle))
+    z = _mix(z + _G + np.uint64(tick))
+    u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * _UNIT
+    u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * _UNIT
+    r = math.sqrt(-2.0 * math.log(1.0 - u1))
+    angle = 2.0 * math.pi * u2
+    return r * math.cos(angle), r * math.sin(angle)
 
 
 @bare_kernel
@@ -29,11 +42,6 @@ def sense(own, step, keys, sigma, rows, sensed):  # pragma: no cover - compiled
         for i in range(N):
             for f in range(6):
                 sensed[f, b, i] = own[f, b, i]
-            z = _mix(keys[b] + _G + np.uint64(i))
-            z = _mix(z + _G + np.uint64(step[b]))
-            u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * _UNIT
-            u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * _UNIT
-            r = math.sqrt(-2.0 * math.log(1.0 - u1))
-            angle = 2.0 * math.pi * u2
-            sensed[0, b, i] += sigma * (r * math.cos(angle))
-            sensed[1, b, i] += sigma * (r * math.sin(angle))
+            nx, ny = counter_normals(keys[b], i, step[b])
+            sensed[0, b, i] += sigma * nx
+            sensed[1, b, i] += sigma * ny

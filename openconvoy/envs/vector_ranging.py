@@ -16,14 +16,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from openconvoy.comms.loss import _GOLDEN, _UNIT
 from openconvoy.envs.ranging_noise import ranging_key
-from openconvoy.envs.vector_channel import _mix
+from openconvoy.envs.vector_gps import counter_normals
 from openconvoy.envs.vector_jit import bare_kernel
 from openconvoy.envs.vector_math import norm
 from openconvoy.envs.vehicles import VehiclePreset
-
-_G, _S11 = np.uint64(_GOLDEN), np.uint64(11)
 
 
 class RangingSensors:
@@ -76,11 +73,6 @@ def _read(own, step, keys, params, out):  # pragma: no cover - compiled
             dvx = av * math.cos(ah) - ev * math.cos(eh)
             dvy = av * math.sin(ah) - ev * math.sin(eh)
             rate = (dx * dvx + dy * dvy) / rng_m
-            z = _mix(keys[b] + _G + np.uint64(i))
-            z = _mix(z + _G + np.uint64(step[b]))
-            u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * _UNIT
-            u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * _UNIT
-            r = math.sqrt(-2.0 * math.log(1.0 - u1))
-            angle = 2.0 * math.pi * u2
-            out[0, b, i] = rng_m + params[1, i] * (r * math.cos(angle))
-            out[1, b, i] = rate + params[2, i] * (r * math.sin(angle))
+            n_range, n_rate = counter_normals(keys[b], i, step[b])
+            out[0, b, i] = rng_m + params[1, i] * n_range
+            out[1, b, i] = rate + params[2, i] * n_rate

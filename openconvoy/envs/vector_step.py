@@ -86,7 +86,8 @@ class FusedCall:
         fused_step(*args)
         sig = tuple(typeof(a) for a in args)
         found = fused_step.overloads.get(sig)
-        self._entry = fused_step if found is None else found.entry_point
+        # (``entry_point``: numba's compiled wrapper; the dispatcher stays if it is absent)
+        self._entry = getattr(found, "entry_point", None) or fused_step
 
 
 @bare_kernel

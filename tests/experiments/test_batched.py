@@ -35,6 +35,20 @@ def _files(root: Path) -> dict[str, bytes]:
     }
 
 
+def _same_files_on_both_paths(config: ExperimentConfig, tmp_path: Path) -> dict[str, bytes]:
+    """Run ``config`` per run and batched (which must not fall back, saying why); assert
+    the two trees' files are byte-identical and return them."""
+    said: list[str] = []
+    one = ExecutorConfig(jobs=1, batched=False)
+    run_experiment(config, tmp_path / "per_run", progress=False, figures=False, executor=one)
+    run_experiment(config, tmp_path / "batched", progress=False, figures=False, say=said.append)
+    a, b = _files(tmp_path / "per_run"), _files(tmp_path / "batched")
+    assert said == [] and sorted(a) == sorted(b)
+    for name in a:
+        assert a[name] == b[name], name
+    return a
+
+
 def test_a_batched_sweep_writes_the_per_run_sweeps_directory_byte_for_byte(tmp_path: Path):
     said: list[str] = []
     per_run = run_experiment(
@@ -80,14 +94,7 @@ def test_gps_noise_and_latency_jitter_sweep_batched_byte_for_byte(tmp_path: Path
         convoy=dataclasses.replace(noisy.convoy, gps_noise_m=0.2),
         loss=dataclasses.replace(noisy.loss, latency_s=0.05, jitter_s=0.1),
     )
-    said: list[str] = []
-    one = ExecutorConfig(jobs=1, batched=False)
-    run_experiment(noisy, tmp_path / "per_run", progress=False, figures=False, executor=one)
-    run_experiment(noisy, tmp_path / "batched", progress=False, figures=False, say=said.append)
-    a, b = _files(tmp_path / "per_run"), _files(tmp_path / "batched")
-    assert said == [] and sorted(a) == sorted(b)
-    for name in a:
-        assert a[name] == b[name], name
+    _same_files_on_both_paths(noisy, tmp_path)
 
 
 def test_a_tune_trials_objective_is_the_same_on_both_paths(tmp_path: Path):
@@ -127,14 +134,7 @@ def test_ranging_sweep_batched_byte_for_byte(tmp_path: Path):
     sweep = ExperimentConfig(name="r", policies=("paper+ladder",), pers=(0.0, 0.8), seeds=2,
                              duration_s=20.0)  # fmt: skip
     sweep = dataclasses.replace(sweep, convoy=dataclasses.replace(sweep.convoy, ranging=True))
-    said: list[str] = []
-    one = ExecutorConfig(jobs=1, batched=False)
-    run_experiment(sweep, tmp_path / "per_run", progress=False, figures=False, executor=one)
-    run_experiment(sweep, tmp_path / "batched", progress=False, figures=False, say=said.append)
-    a, b = _files(tmp_path / "per_run"), _files(tmp_path / "batched")
-    assert said == [] and sorted(a) == sorted(b)
-    for name in a:
-        assert a[name] == b[name], name
+    a = _same_files_on_both_paths(sweep, tmp_path)
     logs = [a[n] for n in a if n.endswith("log.csv")]
     assert len(logs) == 4 and any(b"degraded" in log for log in logs)
 

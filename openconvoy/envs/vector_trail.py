@@ -160,12 +160,13 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     s_head = tail[b, ln, 2] + to_head
     start = s_head - expected if math.isnan(hint) else hint
     k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
-    best = _dist2(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    best, k0 = near[0], k
     # Trail.project's walk: forwards while closer, then backwards while closer. Both
     # neighbours are evaluated at once (independent: they overlap; out of range they
     # are still defined, and unused). Once the walk has moved forwards, its first step
     # back is onto a segment it left for a closer one, so it stops there. The walk
-    # compares distances only; the nearest segment's projection is computed once, after.
+    # compares distances only (the start's projection kept: the walk seldom moves).
     fwd = _dist2(tr, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
     bwd = _dist2(tr, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
     if k + 1 <= last and fwd < best:
@@ -186,7 +187,9 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
                 break
             best, k = cand, j
             j -= 1
-    _, s, dx, dy, seg, rx, ry = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    if k != k0:
+        near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    _, s, dx, dy, seg, rx, ry = near
     return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg
 
 

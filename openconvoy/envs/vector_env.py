@@ -245,7 +245,7 @@ class VectorConvoyEnv:
         self._everyone = np.ones(B, dtype=bool)
         self._fused_call = FusedCall()
         self._fresh_age_s = self.member_config.fresh_age_s
-        self._targets_scratch = np.zeros((11, len(self.layout.targets)))
+        self._targets_scratch = np.zeros((13, len(self.layout.targets)))
         self._accel_old = np.zeros((B, N))
         self.max_heading_change = MAX_HEADING_CHANGE_RAD
         self.gap = np.zeros((B, N - 1))

@@ -16,7 +16,7 @@ from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayou
 from openconvoy.envs.vector_jit import bare_inline, bare_kernel, prefetch
 from openconvoy.envs.vector_math import cos_sin, wrap
 from openconvoy.envs.vector_member import estimate, link_age, pair_gap, speed_gap
-from openconvoy.envs.vector_trail import head_s, point_at, project
+from openconvoy.envs.vector_trail import finish, head_s, point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
 AHEAD = 4
@@ -103,8 +103,9 @@ def observe(
     pred_age, pred_est, tg,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Fill ``obs`` (B, F, D) float32 for convoys ``rows`` and the spacing measures;
-    ``tg`` (11, targets): scratch, per target: valid, x, y, speed, heading, arc, cross,
-    path heading, s, desired, segment."""
+    ``tg`` (13, targets): scratch, per target: valid, x, y, speed, heading, arc, cross
+    track × segment length, segment dx, s, desired, segment, segment dy, segment length
+    (``project``'s; ``finish`` turns them into cross track and path heading)."""
     B, F = obs.shape[0], obs.shape[1]
     for b in range(B):
         if b + AHEAD < B and rows[b + AHEAD]:
@@ -136,9 +137,10 @@ def observe(
             spacing_error[b, i] = np.float64(np.float32(err))
             if chosen == 1:
                 pred_est[0, b, i], pred_est[1, b, i] = tg[5, 1], tg[3, 1] - ev
+            cross, pheading = finish(tg[6, chosen], tg[7, chosen], tg[11, chosen],
+                                     tg[12, chosen], tg[4, chosen])  # fmt: skip
             _path(obs, b, f, own, c, s, trail, tail, trail_n, trail_of[target_link[f, chosen]],
-                  tg[1, chosen],
-                  tg[2, chosen], tg[4, chosen], tg[6, chosen], tg[7, chosen], tg[8, chosen],
+                  tg[1, chosen], tg[2, chosen], tg[4, chosen], cross, pheading, tg[8, chosen],
                   geom[4], int(tg[10, chosen]) + 1)  # fmt: skip
 
 
@@ -188,11 +190,12 @@ def _targets(
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
         desired = _desired(f, m, ev, sp, lengths, F, lead)
         tl = trail_of[link]
-        arc, cross, pheading, s, k = project(
+        arc, s, k, cross_seg, dx, dy, seg = project(
             trail, tail, trail_n, b, tl, hx, hy, hh, ex, ey, desired, hint[b, tl], hint_k[b, tl]
         )
         hint[b, tl], hint_k[b, tl] = s, max(k, 0)
-        tg[5, m], tg[6, m], tg[7, m], tg[8, m] = arc, cross, pheading, s
+        tg[5, m], tg[6, m], tg[7, m], tg[8, m] = arc, cross_seg, dx, s
+        tg[11, m], tg[12, m] = dy, seg
         o = geom[3] + m * 5
         obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = arc, desired, arc - desired
         obs[b, f, o + 3], obs[b, f, o + 4] = hv, 1.0

@@ -124,44 +124,82 @@ def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - c
 
 
 @bare_inline
+def _dist2(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
+    """``_segment``'s squared distance alone, the same bits: where the clamp of ``u`` to
+    0 or 1 is certain (the point before the segment's start, or well past its end, as
+    the walk's neighbours mostly are) without the sqrt and the division."""
+    ax, ay, _ = _vertex(tr, b, ln, n, k, hx, hy, hh, s_head)
+    bx, by, _ = _vertex(tr, b, ln, n, k + 1, hx, hy, hh, s_head)
+    dx, dy = bx - ax, by - ay
+    rx, ry = x - ax, y - ay
+    dot = rx * dx + ry * dy
+    if dot <= 0.0:  # u = 0, or a degenerate segment: the distance to a either way
+        return rx * rx + ry * ry
+    q = dx * dx + dy * dy
+    # seg >= 1e-12 and dot / (seg * seg) > 1 for certain (seg * seg is q within 3 ulps): u = 1
+    if q > 2e-24 and dot > q * (1.0 + 1e-12):
+        ex, ey = rx - dx, ry - dy
+        return ex * ex + ey * ey
+    seg = norm(dx, dy)
+    if seg < 1e-12:
+        return rx * rx + ry * ry
+    u = min(max(dot / (seg * seg), 0.0), 1.0)
+    ex, ey = rx - u * dx, ry - u * dy
+    return ex * ex + ey * ey
+
+
+@bare_inline
 def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
     """``Trail.project`` from ``hint`` (NaN: ``expected`` m behind the head; ``hint_k``
-    where to look for it): (arc to head, cross track, path heading, s, segment)."""
+    where to look for it): (arc to head, s, segment, cross track × seg, dx, dy, seg); the
+    cross track and path heading from the last four by ``finish`` (only the target the
+    observation uses needs them: an atan2 and a division saved for the others)."""
     n = n_arr[b, ln]
     to_head = norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
     last = n - 1 if to_head > 1e-9 else n - 2
     s_head = tail[b, ln, 2] + to_head
     start = s_head - expected if math.isnan(hint) else hint
     k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
-    best = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    best, k0 = near[0], k
     # Trail.project's walk: forwards while closer, then backwards while closer. Both
     # neighbours are evaluated at once (independent: they overlap; out of range they
     # are still defined, and unused). Once the walk has moved forwards, its first step
-    # back is onto a segment it left for a closer one, so it stops there.
-    fwd = _segment(tr, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
-    bwd = _segment(tr, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
-    if k + 1 <= last and fwd[0] < best[0]:
+    # back is onto a segment it left for a closer one, so it stops there. The walk
+    # compares distances only (the start's projection kept: the walk seldom moves).
+    fwd = _dist2(tr, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
+    bwd = _dist2(tr, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
+    if k + 1 <= last and fwd < best:
         best, k = fwd, k + 1
         j = k + 1
         while j <= last:
-            cand = _segment(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
-            if cand[0] >= best[0]:
+            cand = _dist2(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            if cand >= best:
                 break
             best, k = cand, j
             j += 1
-    elif k - 1 >= -1 and bwd[0] < best[0]:
+    elif k - 1 >= -1 and bwd < best:
         best, k = bwd, k - 1
         j = k - 1
         while j >= -1:
-            cand = _segment(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
-            if cand[0] >= best[0]:
+            cand = _dist2(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            if cand >= best:
                 break
             best, k = cand, j
             j -= 1
-    _, s, dx, dy, seg, rx, ry = best
+    if k != k0:
+        near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    _, s, dx, dy, seg, rx, ry = near
+    return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg
+
+
+@bare_inline
+def finish(cross_seg, dx, dy, seg, hh):  # pragma: no cover - compiled
+    """A ``project`` result's cross track (m) and path heading (rad; ``hh``, the head's
+    heading, on a degenerate segment), as ``Trail._segment``."""
     if seg < 1e-12:
-        return s_head - s, 0.0, hh, s, k
-    return s_head - s, (dx * ry - dy * rx) / seg, math.atan2(dy, dx), s, k
+        return 0.0, hh
+    return cross_seg / seg, math.atan2(dy, dx)
 
 
 @bare_inline

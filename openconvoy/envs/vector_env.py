@@ -180,13 +180,13 @@ class VectorConvoyEnv:
 
     def _fusable(self) -> bool:
         """Every stage has a kernel: one compiled call per tick (``vector_step``)."""
-        ch, extras = self.channel, self.ranging.any or self.forgers.delivers or self._brakes
+        instant_bernoulli = self.channel.ge is None and self.channel.slots == 0
+        staged_only = self.ranging.any or self.forgers.delivers or bool(self._brakes)
         return (
-            ch.ge is None
-            and ch.slots == 0
+            instant_bernoulli
             and self.leader.kind != 0
-            and not extras
-            and (self.gps_noise_m == 0.0)
+            and self.gps_noise_m == 0.0
+            and not staged_only
         )
 
     def _check_loss(self, link_counters: str) -> None:

@@ -151,11 +151,17 @@ def _sim_world_args(p: argparse.ArgumentParser) -> None:
         metavar="M",
         help="position noise std, metres",
     )
+    fault_args(p, 'required; a convoy file\'s [v2v] auth = "off" turns it off')
+
+
+def fault_args(p: argparse.ArgumentParser, auth_default: str, every: str = "") -> None:
+    """``--fault`` (repeatable) and ``--auth`` (None = not given), for ``sim``, sweeps
+    and ``tune``; ``every``: what the faults apply to, for the help."""
     p.add_argument(
         "--fault",
         action="append",
         metavar="KIND:VEHICLE@T_S",
-        help="inject a fault (repeatable): halt (brake to rest, keep broadcasting), "
+        help=f"inject a fault{every} (repeatable): halt (brake to rest, keep broadcasting), "
         "silent (stop broadcasting, keep driving), dead (both) or forge (a keyless "
         "station claims to be the vehicle, 1 km ahead), e.g. dead:0@30, forge:0@10",
     )
@@ -163,8 +169,7 @@ def _sim_world_args(p: argparse.ArgumentParser) -> None:
         "--auth",
         choices=("required", "off"),
         default=None,
-        help="members authenticate messages, so forgeries are rejected (default "
-        'required; a convoy file\'s [v2v] auth = "off" turns it off)',
+        help=f"members authenticate messages, so forgeries are rejected (default {auth_default})",
     )
 
 
@@ -240,6 +245,11 @@ def _add_per_sweep(esub: argparse._SubParsersAction) -> None:
     )
     executor_args(p, batched=True, run_logs=True)
     run_args(p, sweep=True)
+    fault_args(
+        p,
+        "the experiment file's auth, else required",
+        " in every run, replacing the experiment file's faults",
+    )
 
     p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "per_sweep"))
 

@@ -269,6 +269,10 @@ def experiment_from_args(args: argparse.Namespace) -> Any:
         changes["ranging"] = True
     if args.ranging_range is not None:
         changes["ranging_max_range_m"] = args.ranging_range
+    if args.fault:
+        changes["faults"] = tuple(args.fault)
+    if args.auth is not None:
+        changes["auth"] = args.auth
     config = with_overrides(config, **changes) if changes else config
     # Re-validate the result (dataclasses.replace runs __post_init__ too).
     return config

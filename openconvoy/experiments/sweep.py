@@ -10,6 +10,8 @@ One TOML file fully describes an experiment::
     pers = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
     seeds = [0, 1, 2]
     duration_s = 60.0                        # optional: default the scenario's
+    faults = ["halt:1@30"]                   # optional: KIND:VEHICLE@T_S, in every run
+    auth = "required"                        # optional: or "off" (forge faults get through)
 
     [convoy]                                 # optional
     vehicles = ["1/10", "1/6", "1/10"]       # presets or preset files, leader first
@@ -35,7 +37,11 @@ One TOML file fully describes an experiment::
 
 An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
 name it (with ``+ladder`` too); policy files named in ``policies`` are inlined the same way
-under their file's stem. The run directory keeps ``experiment.toml`` (the complete
+under their file's stem. ``faults`` (``openconvoy.core.faults``: ``halt``, ``silent``,
+``dead``, ``forge``) and ``auth`` are every run's, as ``openconvoy sim --fault/--auth``
+takes them: a robustness study sweeps PERs × seeds under, say, a braking predecessor
+(``halt:1@30``) or a forged leader with authentication off (``forge:0@10``, ``auth =
+"off"``). The run directory keeps ``experiment.toml`` (the complete
 resolved experiment, every default written out, policy files inlined), ``manifest.json`` (package version), the
 inline policies as files, ``summary.json`` (DESIGN.md's shape, one row per policy and PER),
 ``summary.csv``, every run's ``log.csv`` and ``metrics.json`` under
@@ -67,6 +73,7 @@ import numpy as np
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.faults import check_faults, parse_fault
 from openconvoy.experiments import batched_sweep
 from openconvoy.experiments.executor import (
     Executor,
@@ -99,6 +106,10 @@ class ExperimentConfig:
         2,
     )
     duration_s: Annotated[float, Range(0.0, 604800.0, lo_open=True)] | None = None
+    faults: tuple[str, ...] = ()
+    """Injected faults of every run, ``KIND:VEHICLE@T_S`` (``core.faults``)."""
+    auth: str = "required"
+    """``"required"`` (members reject forged messages) or ``"off"``."""
     convoy: ConvoySection = field(default_factory=ConvoySection)
     loss: LossSection = field(default_factory=LossSection)
     policy: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -133,6 +144,18 @@ class ExperimentConfig:
         for name, table in self.policy.items():
             if not isinstance(table, dict):
                 raise ConfigError(f"[policy.{name}] must be a table")
+        self._check_faults()
+
+    def _check_faults(self) -> None:
+        """Normalize ``faults`` (``halt:1@30.0`` -> ``halt:1@30``, as ``RunConfig`` does)
+        and check them and ``auth``, each error one line naming the key and the value."""
+        try:
+            faults = tuple(str(parse_fault(f)) for f in self.faults)
+        except ConfigError as exc:
+            raise ConfigError(f"faults: {exc}") from None
+        object.__setattr__(self, "faults", faults)
+        if self.auth not in ("required", "off"):
+            raise ConfigError(f"auth: must be 'required' or 'off', got {self.auth!r}")
 
     @property
     def seed_values(self) -> tuple[int, ...]:
@@ -204,6 +227,8 @@ class ExperimentConfig:
                                 duration_s=self.duration_s,
                                 convoy=self.convoy,
                                 loss=self.loss,
+                                faults=self.faults,
+                                auth=self.auth,
                             ),
                         )
                     )
@@ -340,6 +365,7 @@ def run_experiment(
     ``raise_on_failure``, the result lists them)."""
     config = freeze(config)
     _check_policies(config)
+    _check_fault_vehicles(config)
     chosen, batched = _executor(config, executor, jobs)  # Ray: reached before any write
     out = _start_run_dir(config, Path(out_dir))
     planned = config.run_configs(write_inline_policies(config, out))
@@ -369,6 +395,18 @@ def _check_policies(config: ExperimentConfig) -> None:
         spec = PolicySpec.parse(label)
         if spec.base not in config.policy and not spec.learned:
             classical_config(label)
+
+
+def _check_fault_vehicles(config: ExperimentConfig) -> None:
+    """Fail before anything is written on a fault naming a vehicle the convoy lacks."""
+    if not config.faults:
+        return
+    from openconvoy.envs.scenarios import make_scenario
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    presets = [vehicle_preset(v) for v in config.convoy.vehicles] or None
+    scenario = make_scenario(config.scenario, config.convoy.n_followers, presets)
+    check_faults(tuple(parse_fault(f) for f in config.faults), scenario.n_vehicles)
 
 
 def _executor(

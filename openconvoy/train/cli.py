@@ -9,7 +9,7 @@ import argparse
 from openconvoy.core.args import DURATION, FRACTION, RATE_HZ, SEED, lazy_handler
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
-from openconvoy.experiments.cli import executor_args
+from openconvoy.experiments.cli import executor_args, fault_args
 
 
 def _add_train(sub: argparse._SubParsersAction) -> None:
@@ -229,6 +229,7 @@ def _tune_grid_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--duration", type=DURATION, metavar="S", help="run length (default: the scenario's)"
     )
+    fault_args(p, "required", " in every run of every trial")
 
 
 def _add_export(sub: argparse._SubParsersAction) -> None:

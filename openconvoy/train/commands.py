@@ -185,6 +185,8 @@ def tune_command(args: argparse.Namespace) -> int:
         seeds=tuple(args.seeds),
         scenario=args.scenario,
         duration_s=args.duration,
+        faults=tuple(args.fault or ()),
+        auth=args.auth or "required",
         params=tuple(args.params or ()),
         seed=args.seed,
         name=_stem(args.out),

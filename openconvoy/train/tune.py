@@ -8,7 +8,9 @@ objective, to minimize, is
     mean over runs of p95_platooning_error_m  +  collision_penalty_m * collisions per run
     + speed_difference_weight * mean over runs of mean_speed_difference_mps
 
-so a collision outweighs any spacing gain. The best trial is written as a TOML policy
+so a collision outweighs any spacing gain. Every grid run may carry injected faults and
+an ``auth`` setting (``--fault``, ``--auth``; ``TuneConfig.faults``), so a controller can be
+tuned for robustness to, say, a predecessor braking hard (``halt:1@30``). The best trial is written as a TOML policy
 file (``classical_to_toml``) that ``--policy`` accepts.
 
 Parameters (``PARAMETERS``; names are dotted ClassicalConfig paths): the speed
@@ -33,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.faults import parse_fault
 from openconvoy.policies.classical import ClassicalConfig
 from openconvoy.policies.spec import classical_config, classical_to_toml
 
@@ -106,6 +109,9 @@ class TuneConfig:
             seeds reports use (0..), so a tuned policy is not scored on its own training runs.
         scenario: scenario spec the runs use.
         duration_s: run length (None: the scenario's).
+        faults: injected faults of every run, ``KIND:VEHICLE@T_S`` (``core.faults``): a
+            controller tuned for robustness to, say, a braking predecessor (``halt:1@30``).
+        auth: ``"required"`` (members reject forged messages) or ``"off"``.
         params: parameters to search (default: ``applicable(base)``).
         collision_penalty_m: objective cost of one collision, metres of p95 error.
         speed_difference_weight: objective weight of the mean speed difference (s).
@@ -119,6 +125,8 @@ class TuneConfig:
     seeds: tuple[int, ...] = (1000, 1001)
     scenario: str = "paper"
     duration_s: float | None = None
+    faults: tuple[str, ...] = ()
+    auth: str = "required"
     params: tuple[str, ...] = ()
     collision_penalty_m: float = 100.0
     speed_difference_weight: float = 1.0
@@ -128,6 +136,9 @@ class TuneConfig:
     def __post_init__(self) -> None:
         for name in ("pers", "seeds", "params"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
+        object.__setattr__(self, "faults", tuple(str(parse_fault(f)) for f in self.faults))
+        if self.auth not in ("required", "off"):
+            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
         if self.trials < 1 or not self.pers or not self.seeds:
             raise ConfigError("tune needs at least one trial, one PER and one seed")
         unknown = [p for p in self.params if p not in PARAMETERS]
@@ -183,6 +194,8 @@ def grid_runs(config: TuneConfig, policy: str) -> list[Any]:
             per=per,
             seed=seed,
             duration_s=config.duration_s,
+            faults=config.faults,
+            auth=config.auth,
         )
         for per in config.pers
         for seed in config.seeds
@@ -225,6 +238,14 @@ def evaluate_on_worker(
             return grid_evaluator(local, Path(tmp), batched)(candidate)
 
 
+def check_grid(config: TuneConfig) -> None:
+    """Fail before any trial on a grid run that does not load (a fault naming a vehicle
+    the convoy lacks, say): one ConfigError line, not a failed study."""
+    from openconvoy.experiments.runs import build_env
+
+    build_env(grid_runs(config, config.base)[0])
+
+
 def grid_batched(config: TuneConfig, batched: bool | None = None) -> tuple[bool, str | None]:
     """Whether trials run their grid batched (``batched``: None = where exact, the
     ``[executor] batched`` setting) and, when they might have but do not, why not."""
@@ -243,10 +264,14 @@ STUDY_KEYS = (
     "seeds",
     "scenario",
     "duration_s",
+    "faults",
+    "auth",
     "params",
     "collision_penalty_m",
     "speed_difference_weight",
 )
+# Settings a study recorded before they existed: the values it then ran with.
+STUDY_DEFAULTS: dict[str, Any] = {"faults": [], "auth": "required"}
 STUDY_ATTR = "openconvoy_tune"
 BASE_ATTR = "openconvoy_base_value"
 
@@ -300,6 +325,8 @@ def _open_study(
         load_if_exists=True,
     )
     recorded = study.user_attrs.get(STUDY_ATTR)
+    if recorded is not None:
+        recorded = {**STUDY_DEFAULTS, **recorded}
     if recorded is None:
         study.set_user_attr(STUDY_ATTR, settings)
     elif recorded != settings:
@@ -354,6 +381,8 @@ def tune(
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     base = classical_config(config.base)
+    if evaluate is None and config.faults:
+        check_grid(config)
     params = list(config.params) or applicable(base)
     fn = evaluate or _grid_task(config, executor, say or (_stderr if progress_bar else None))
     executor = _executor_for(executor, evaluate is not None)
@@ -453,11 +482,18 @@ def _result(
     best = dataclasses.replace(
         with_values(base, best_params, config.name),
         description=f"{config.base} tuned by openconvoy tune ({len(complete)} trials, PER "
-        f"{', '.join(f'{p:g}' for p in config.pers)}, {len(config.seeds)} seeds): {described}",
+        f"{', '.join(f'{p:g}' for p in config.pers)}, {len(config.seeds)} seeds{_under(config)}): "
+        f"{described}",
     )
     return TuneResult(
         best, float(best_trial.value), best_params, float(base_value), history, study_name
     )
+
+
+def _under(config: TuneConfig) -> str:
+    """``", faults halt:1@30, auth off"``: what the grid ran under, for the description."""
+    out = f", faults {' '.join(config.faults)}" if config.faults else ""
+    return out + (", auth off" if config.auth == "off" else "")
 
 
 def _run_alone(executor: Any, task: Any) -> tuple[Any, Any]:

@@ -158,6 +158,66 @@ def test_forge_runs_batched_are_run_sims_files(tmp_path: Path, auth: str):
     assert chased == (auth == "off")
 
 
+# A fault sweep: PERs x seeds of the paper scenario, 20 s (the fault well inside it).
+FAULTED = ExperimentConfig(name="f", policies=("paper",), pers=(0.0, 0.4), seeds=2,
+                           duration_s=20.0)  # fmt: skip
+
+
+def _summary_without_faults(tmp_path: Path) -> list[dict]:
+    run_experiment(FAULTED, tmp_path / "healthy", progress=False, figures=False, jobs=1)
+    return read_summary(tmp_path / "healthy")
+
+
+def _means(rows: list[dict], key: str) -> list[float]:
+    return [r[key]["mean"] for r in rows]
+
+
+@pytest.mark.parametrize("fault", ["halt:1@8", "silent:1@6", "dead:0@6"])
+def test_a_fault_sweep_batched_byte_for_byte(tmp_path: Path, fault: str):
+    """Vehicle 1 braking to rest (``halt``), its radio dead (``silent``), the leader
+    braking and mute (``dead``): the batched sweep writes the per-run sweep's files, and
+    the fault moved the numbers (a sweep without it is another summary)."""
+    sweep = dataclasses.replace(FAULTED, faults=(fault,))
+    a = _same_files_on_both_paths(sweep, tmp_path)
+    assert f'faults = ["{fault}"]' in a["experiment.toml"].decode()
+    healthy = _summary_without_faults(tmp_path)
+    faulted = read_summary(tmp_path / "batched")
+    assert _means(faulted, "p95_platooning_error_m") != _means(healthy, "p95_platooning_error_m")
+    if fault.startswith("halt"):  # the leader drives on from the stopped vehicle 1
+        assert min(_means(faulted, "p95_platooning_error_m")) > 5.0
+        assert max(_means(healthy, "p95_platooning_error_m")) < 0.5
+
+
+def test_a_forged_leader_sweep_batched_byte_for_byte(tmp_path: Path):
+    """A forger claiming to be the leader, 1 km ahead of it, from 4 s: with ``auth``
+    off the followers chase it (min gap 15 m -> under 2 m) on both paths alike; with
+    authentication it is rejected and the summary is the healthy sweep's."""
+    sweep = dataclasses.replace(FAULTED, faults=("forge:0@4",), auth="off")
+    a = _same_files_on_both_paths(sweep, tmp_path)
+    assert 'auth = "off"' in a["experiment.toml"].decode()
+    healthy = _summary_without_faults(tmp_path)
+    forged = read_summary(tmp_path / "batched")
+    assert max(_means(forged, "min_gap_m")) < 2.0 < 14.0 < min(_means(healthy, "min_gap_m"))
+    rejected = dataclasses.replace(sweep, auth="required")
+    run_experiment(rejected, tmp_path / "rejected", progress=False, figures=False, jobs=1)
+    assert (tmp_path / "rejected" / "summary.csv").read_bytes() == (
+        tmp_path / "healthy" / "summary.csv"
+    ).read_bytes()
+
+
+def test_a_tune_trials_objective_under_a_fault_is_the_same_on_both_paths(tmp_path: Path):
+    """Tuning for a braking predecessor: the trial's grid runs the fault on both paths
+    to the same objective, and it is not the healthy grid's."""
+    config = TuneConfig(pers=(0.0, 0.5), seeds=(1000, 1001), duration_s=20.0,
+                        faults=("halt:1@8",))  # fmt: skip
+    assert grid_batched(config) == (True, None)
+    candidate = with_values(classical_config("paper"), {"speed.kp": 0.6}, "trial")
+    one = grid_evaluator(config, tmp_path, batched=False)(candidate)
+    assert grid_evaluator(config, tmp_path, batched=True)(candidate) == one
+    healthy = dataclasses.replace(config, faults=())
+    assert grid_evaluator(healthy, tmp_path, batched=True)(candidate) < one
+
+
 def test_a_failed_batch_fails_each_of_its_runs_by_name():
     tasks = batched_sweep.SweepTasks(spans=[(0, 1), (1, 2)])
     lost = TaskFailure("runs/a .. runs/c (batch of 2)", "pid 1 on h", "MemoryError")

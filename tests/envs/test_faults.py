@@ -8,8 +8,8 @@ import pytest
 
 from openconvoy.core.faults import Fault, parse_fault
 from openconvoy.envs import ConvoyEnv
-from openconvoy.policies.spec import load_policy
 from openconvoy.experiments.runs import RunConfig, run_sim
+from openconvoy.policies.spec import load_policy
 
 FAULT_T_S = 30.0
 REST_WITHIN_S = 10.0

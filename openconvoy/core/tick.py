@@ -85,6 +85,11 @@ class TickResult:
     decision: Decision | None
 
 
+def non_finite_reason(speed: float, change: float) -> str:
+    """Why an action ``[speed, change]`` with a NaN or infinite value is refused."""
+    return f"non-finite action {speed}, {change}"
+
+
 def stop(policy_error: str = "") -> Decision:
     """Speed 0, heading held: the ``stop`` decision."""
     return Decision(np.zeros(2, dtype=np.float32), ladder.STOP, policy_error)
@@ -117,7 +122,7 @@ def decide(
     except (TypeError, ValueError, IndexError) as exc:
         return stop(f"action {action!r} is not [speed, heading change]: {exc}")
     if not (math.isfinite(speed) and math.isfinite(change)):
-        return stop(f"non-finite action {speed}, {change}")
+        return stop(non_finite_reason(speed, change))
     clipped = np.array(bounds.clip(speed, change), dtype=np.float32)
     applied, mode = member.supervise(clipped, frame, ranging)
     return Decision(applied, mode)

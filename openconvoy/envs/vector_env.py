@@ -11,7 +11,8 @@ terminations, and states within float rounding (``tests/envs/test_vector_env.py`
 The parts: ``vector_links`` (which links a topology keeps, index tables),
 ``vector_plant``, ``vector_leader``, ``vector_channel`` (Tx gates, loss, latency),
 ``vector_rx`` (R^i buffers) and ``vector_trail``, ``vector_member`` (estimate, ladder,
-emergency stop), ``vector_obs``, ``vector_measures`` (gaps, reward, infos).
+emergency stop), ``vector_obs``, ``vector_measures`` (gaps, reward, infos),
+``vector_events`` (``safety_events(b)``: ``ConvoyEnv``'s list, built when asked).
 Per-vehicle work follows the kept links, so a ``lookahead:K`` convoy costs O(N·K); loss
 is drawn on every ordered pair (``link_counters="all"``, ``ConvoyEnv``'s counters) or
 on the kept links only.
@@ -28,7 +29,7 @@ Not supported (a ConfigError says so): traffic scenarios, rendering.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -44,6 +45,7 @@ from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import PathScenario, make_scenario
 from openconvoy.envs.vector_channel import VectorChannel
+from openconvoy.envs.vector_events import Event, SafetyEvents
 from openconvoy.envs.vector_forge import Forgers
 from openconvoy.envs.vector_gps import sense
 from openconvoy.envs.vector_leader import LeaderDriver
@@ -85,6 +87,19 @@ def _check_args(
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
 
 
+def _check_loss(loss: LossConfig, link_counters: str) -> None:
+    """``link_counters`` is ``all``, or ``kept`` with instant Bernoulli links (``loss``:
+    the batch's widest)."""
+    if link_counters not in ("all", "kept"):
+        raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
+    if link_counters == "kept" and (
+        loss.latency_s > 0.0
+        or loss.jitter_s > 0.0
+        or (loss.per > 0.0 and loss.model != "bernoulli")
+    ):
+        raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
+
+
 def _scenario(
     scenario: str | PathScenario,
     n_followers: int | None,
@@ -113,7 +128,8 @@ class VectorConvoyEnv:
     ``autoreset``: a convoy whose episode ended is reset within the same ``step``
     (its seed sequence continued, as ``ConvoyEnv.reset()`` without a seed) and the
     observation returned is the new episode's first; the final one is in
-    ``infos["final_observation"]``.
+    ``infos["final_observation"]``, and ``infos["final_safety_events"][b]`` is each ended
+    convoy's ``safety_events(b)``.
     ``link_counters``: ``"all"`` (default) draws loss on every ordered pair, as
     ``ConvoyEnv``, so the message counters match it; ``"kept"`` only on the links the
     topology keeps (the same deliveries into R^i, hence the same run; counters then
@@ -146,7 +162,7 @@ class VectorConvoyEnv:
         self.n_vehicles = N = sc.n_vehicles
         self.losses = _per_convoy_loss(loss, B)
         self.loss = max(self.losses, key=lambda c: c.per)
-        self._check_loss(link_counters)
+        _check_loss(self.loss, link_counters)
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         check_faults(self.faults, N)
         self.presets = tuple(sc.presets)
@@ -189,16 +205,6 @@ class VectorConvoyEnv:
             and not staged_only
         )
 
-    def _check_loss(self, link_counters: str) -> None:
-        if link_counters not in ("all", "kept"):
-            raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
-        if link_counters == "kept" and (
-            self.loss.latency_s > 0.0
-            or self.loss.jitter_s > 0.0
-            or (self.loss.per > 0.0 and self.loss.model != "bernoulli")
-        ):
-            raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
-
     def _constants(self, gap_margin_m: float | None) -> None:
         """The kernels' per-vehicle constants and packed configs."""
         P, mc = self.presets, self.member_config
@@ -206,7 +212,7 @@ class VectorConvoyEnv:
         self._half_sum = 0.5 * (self.lengths[1:] + self.lengths[:-1])
         decel = np.array([p.decel_max_mps2 for p in P], dtype=float)
         self._decel = np.where(decel > 0.0, decel, np.inf)
-        rules = [
+        self._rules = rules = [
             for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
             for p in P[1:]
         ]  # fmt: skip
@@ -231,6 +237,7 @@ class VectorConvoyEnv:
         self.estopped = np.zeros((B, N), dtype=bool)
         self.policy_failed = np.zeros((B, N), dtype=bool)
         self.policy_errors = np.zeros((B, N), dtype=np.int64)
+        self.events = SafetyEvents(self.faults, self._rules, B, N, self.dt)
         self.desired_gap = np.full((B, N), np.nan)
         self.spacing_error = np.full((B, N), np.nan)
         self.pred_age = np.full((B, N), np.nan)
@@ -267,6 +274,11 @@ class VectorConvoyEnv:
     def own_truth(self) -> tuple[np.ndarray, ...]:
         """x, y, speed, heading, accel, yaw rate, each (B, N), a snapshot."""
         return tuple(self.own.copy())
+
+    def safety_events(self, b: int) -> list[Event]:
+        """Convoy ``b``'s ``ConvoyEnv.safety_events`` (t s, vehicle, reason) this episode,
+        built when asked (``vector_events``); see ``autoreset`` for a finished one's."""
+        return self.events.of(b, int(self.step_count[b]))
 
     def reset(self, seed: int | Sequence[int] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every convoy: convoy ``b`` gets ``seed + b`` (or ``seed[b]``)."""
@@ -317,6 +329,7 @@ class VectorConvoyEnv:
             (self.policy_failed, False), (self.policy_errors, 0), (self._has_cmd, False),
         ):  # fmt: skip
             arr[which] = value
+        self.events.reset(which)
 
     def step(
         self, actions: np.ndarray
@@ -332,12 +345,13 @@ class VectorConvoyEnv:
             terminated, truncated = np.empty(B, dtype=bool), np.empty(B, dtype=bool)
             filled = info_arrays(B, N - 1)
             self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
-            info = infos(self, filled)
+            info: dict[str, Any] = cast(dict[str, Any], infos(self, filled))  # more keys below
         else:
             terminated, truncated, info = self._staged_step(a, obs, rewards)
         done = terminated | truncated
         if self.autoreset and done.any():
             info["final_observation"] = obs.copy()
+            info["final_safety_events"] = self.events.finished(done, self.step_count)
             self._reset_convoys(done, [None] * B)
             self._tick(done, obs)
             measure(self.own, self._half_sum, self.gap, self.collided)
@@ -370,6 +384,7 @@ class VectorConvoyEnv:
             self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
             self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
+            self.events.record, self.events.count,
         )  # fmt: skip
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
         for vehicle, t_from in self._brakes:

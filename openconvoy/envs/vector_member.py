@@ -23,6 +23,11 @@ from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.envs.vector_math import cos_sin, norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
+EVENT_ROWS = ("error_t_s", "error_speed", "error_change", "estop_t_s", "estop_bumper_m",
+              "estop_closing_mps")  # fmt: skip
+"""``decide``'s event record, per follower and episode (NaN until it happens): when the
+first refused action came and its two values; when the emergency stop latched, with the
+bumper gap and closing speed it read."""
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
 
@@ -101,12 +106,13 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
 def decide(
     act, low, high, t, own, hist, hist_n, newest, needed, pred_link, link_decel, lengths, sp, lad,
     fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
-    ranging,
+    ranging, events, n_events,
 ):  # pragma: no cover - compiled  # fmt: skip
     """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
     latched policy error), clipped and float32, through the ladder (with the ranging
     reading), then the latch and the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N)
-    and ``modes``."""
+    and ``modes``. A latch that ``ConvoyWorld`` records in ``safety_events`` is written
+    to ``events`` (``EVENT_ROWS``, (6, B, N)) and counted in ``n_events`` (B,)."""
     B, F = act.shape[0], act.shape[1]
     for b in range(B):
         for f in range(F):
@@ -114,6 +120,9 @@ def decide(
             a0, a1 = act[b, f, 0], act[b, f, 1]
             if not (np.isfinite(a0) and np.isfinite(a1)):
                 errors[b, i] += 1
+                if not failed[b, i]:  # the first refusal of the episode: an event
+                    events[0, b, i], events[1, b, i], events[2, b, i] = t[b], a0, a1
+                    n_events[b] += 1
                 failed[b, i] = True
                 a0, a1 = np.float32(0.0), np.float32(0.0)
             v = float(np.float32(min(max(np.float64(a0), low[f, 0]), high[f, 0])))
@@ -134,6 +143,10 @@ def decide(
             if emergency:
                 if _fires(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths, lad,
                           fresh_age, rule[:, f], t[b], ranging) or estopped[b, i]:  # fmt: skip
+                    if not (estopped[b, i] or failed[b, i]):  # it latches: an event
+                        # (a failed follower's rule is not consulted in ConvoyWorld: no event)
+                        _record_stop(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths,
+                                     lad, fresh_age, t[b], ranging, events, n_events)  # fmt: skip
                     estopped[b, i] = True
                     v, dh, mode = 0.0, 0.0, FAILSAFE
             cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
@@ -174,21 +187,45 @@ def _ladder(
 
 
 @bare_inline
-def _fires(
-    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t, ranging
+def _rule_gap(
+    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, t, ranging
 ):  # pragma: no cover - compiled
-    """The braking-aware gap rule on the ranging reading, else on the estimate of the
-    predecessor: True to stop."""
+    """What the braking-aware gap rule reads: (known, bumper gap m, closing speed m/s),
+    from the ranging reading, else from the estimate of the predecessor."""
     if not math.isnan(ranging[0, b, i]):
         gap, closing = ranging[0, b, i], -ranging[1, b, i]
     else:
         valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
         if not valid:
-            return False
+            return False, 0.0, 0.0
         # the estimate's heading is the message's: its cosine and sine as pushed (vector_rx)
         gap, closing = _gap_and_closing(own, b, i, ex, ey, es, hist[b, link, 0, 6],
                                         hist[b, link, 0, 7])  # fmt: skip
-    bumper = gap - 0.5 * (lengths[i] + lengths[i - 1])
+    return True, gap - 0.5 * (lengths[i] + lengths[i - 1]), closing
+
+
+@bare_kernel
+def _record_stop(
+    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, t, ranging, events,
+    n_events,
+):  # pragma: no cover - compiled  # fmt: skip
+    """An emergency stop latched at ``t``: its time and what the rule read, into
+    ``events`` (``EVENT_ROWS`` 3-5). Out of line: the rare branch keeps the loop small."""
+    _, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
+                                   fresh_age, t, ranging)  # fmt: skip
+    events[3, b, i], events[4, b, i], events[5, b, i] = t, bumper, closing
+    n_events[b] += 1
+
+
+@bare_inline
+def _fires(
+    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t, ranging
+):  # pragma: no cover - compiled
+    """The braking-aware gap rule on ``_rule_gap``'s reading: True to stop."""
+    known, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
+                                       fresh_age, t, ranging)  # fmt: skip
+    if not known:
+        return False
     if not np.isfinite(closing):
         closing = 0.0
     stopping = 0.0

@@ -42,7 +42,7 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
          lk.pred_link, env._link_decel, env.lengths, env._spacing, env._ladder, env._fresh_age_s,
          env.max_heading_change, env.pred_est, env.policy_errors, env.policy_failed,
          env.estopped, env.emergency_stop, env._rule, env.cmd_v, env.cmd_dh, env.modes,
-         env.ranging.reading),
+         env.ranging.reading, env.events.record, env.events.count),
         (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
         (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
          ld.closed, ld.length, env.cmd_v, env.cmd_dh),

@@ -5,7 +5,8 @@ convoys of one ``envs.VectorConvoyEnv``, the policy acting on every follower of 
 convoy at once through its ``act_batch``, and returns for each run what ``run_sim`` would
 give: its log (the same rows, from the env's infos and ``own_truth``), the metrics
 computed from it, and, with ``logs``, the bytes of the ``log.csv`` and ``metrics.json``
-that ``run_sim(config, out_dir)`` writes. Each convoy reproduces the ``ConvoyEnv`` run of
+that ``run_sim(config, out_dir)`` writes, and of its ``events.json`` when it had events
+(the env's ``safety_events`` and ``forged_rejected`` when the run ended). Each convoy reproduces the ``ConvoyEnv`` run of
 its seed (``tests/envs/test_vector_env.py``), and a classical policy's ``act_batch`` is
 its ``act`` on arrays, so the numbers are the per-run path's to the bit
 (``tests/experiments/test_batched.py`` holds the files byte-identical).
@@ -29,7 +30,7 @@ from openconvoy.core import metrics as mt
 from openconvoy.core.errors import ConfigError, DependencyMissing
 from openconvoy.core.policy import BatchPolicy
 from openconvoy.experiments import batched_log
-from openconvoy.experiments.runs import EXTRA_COLUMNS, RunConfig, build_env
+from openconvoy.experiments.runs import EVENTS_FILE, EXTRA_COLUMNS, RunConfig, build_env, events_of
 from openconvoy.logs import COLUMNS, Log
 
 LOG_COLUMNS: tuple[str, ...] = COLUMNS + EXTRA_COLUMNS
@@ -112,7 +113,8 @@ class Recorder:
     """Every tick of every convoy of a batched run, as a run's log rows report them:
     ``state(k, ...)`` the state, members' values and counters at tick ``k``;
     ``decision(k, ...)`` the commands and modes decided at tick ``k`` (known after the
-    step). Arrays ``(ticks, B, N)``, the leader in column 0."""
+    step). Arrays ``(ticks, B, N)``, the leader in column 0; ``events[b]``: run ``b``'s
+    ``runs.run_events`` (``ended``)."""
 
     def __init__(self, ticks: int, B: int, N: int) -> None:
         shape = (ticks, B, N)
@@ -120,6 +122,16 @@ class Recorder:
         self.i = {k: np.zeros(shape, dtype=np.int64) for k in _COUNTERS}
         self.mode = np.zeros(shape, dtype=np.int8)
         self.t = np.zeros(ticks)
+        self.events: list[list[dict[str, Any]]] = [[] for _ in range(B)]
+
+    def ended(self, venv: Any, which: np.ndarray) -> None:
+        """The runs ``which`` (B,) ended at this tick of ``venv`` (a ``VectorConvoyEnv``):
+        their events now (the batch steps on while other runs go on)."""
+        rejected = venv.forged_rejected
+        for b in np.flatnonzero(which).tolist():
+            self.events[b] = events_of(
+                venv.safety_events(b), float(venv.t[b]), rejected[b].tolist()
+            )
 
     def state(self, k: int, info: dict[str, Any], truth: Sequence[np.ndarray]) -> None:
         for name, values in zip(_STATE, truth):
@@ -182,7 +194,10 @@ def simulate(configs: Sequence[RunConfig]) -> tuple[Recorder, np.ndarray, Any]:
         rec.decision(k, info)
         k += 1
         rec.state(k, info, venv.own_truth)
-        end[(term | trunc) & (end < 0)] = k
+        ended = (term | trunc) & (end < 0)
+        if ended.any():
+            end[ended] = k
+            rec.ended(venv, ended)
     return rec, end, env
 
 
@@ -195,7 +210,8 @@ def run_batch(
     """Run ``configs`` batched; per run ``{"metrics", "files", "series"}`` as a sweep's
     task returns them. ``read_back``: metrics from the log as written and read back
     (``run_sim`` with an output directory; else from the values in memory, as without
-    one); ``logs``: ``files`` holds ``log.csv`` too (else only ``metrics.json``);
+    one); ``logs``: ``files`` holds ``log.csv`` too (else only ``metrics.json``; and
+    ``events.json`` either way when the run had events);
     ``series[i]``: run ``i`` also returns its figure series (``sweep.run_series``)."""
     from openconvoy.comms.geodesy import enu_to_geodetic
     from openconvoy.experiments.sweep import run_series
@@ -217,6 +233,8 @@ def run_batch(
         files = {"metrics.json": _json_bytes(metrics)}
         if logs:
             files = {"log.csv": batched_log.csv_bytes(log, LOG_COLUMNS), **files}
+        if rec.events[b]:
+            files[EVENTS_FILE] = _json_bytes(rec.events[b])
         keep = b < len(series) and series[b]
         out.append(
             {"files": files, "metrics": metrics, "series": run_series(log, by_id) if keep else None}

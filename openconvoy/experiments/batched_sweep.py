@@ -20,7 +20,7 @@ from typing import Any
 from openconvoy.experiments import portable
 from openconvoy.experiments.executor import Task, TaskFailure
 from openconvoy.experiments.portable import Files
-from openconvoy.experiments.runs import RunConfig, run_sim
+from openconvoy.experiments.runs import EVENTS_FILE, RunConfig, run_sim
 
 RUN_FILES = ("log.csv", "metrics.json")
 MAX_BATCH_CELLS = 2_000_000
@@ -30,8 +30,8 @@ many 8-byte values (the paper scenario: 555 convoys, 256 MB)."""
 
 def run_one(args: tuple[RunConfig, Files, bool, bool]) -> dict[str, Any]:
     """Task: one run in a temporary directory of its worker; returns its files as bytes
-    (``logs``: with its ``log.csv``), its metrics and (``keep_series``) the figure series.
-    The driver writes the files."""
+    (``logs``: with its ``log.csv``; ``events.json`` when it had events), its metrics and
+    (``keep_series``) the figure series. The driver writes the files."""
     from openconvoy.experiments.sweep import run_series
 
     config, files, keep_series, logs = args
@@ -40,8 +40,9 @@ def run_one(args: tuple[RunConfig, Files, bool, bool]) -> dict[str, Any]:
         out = Path(tmp) / "run"
         with portable.driver_names(where):
             result = run_sim(portable.relocate_run(config, where), out)
+        names = RUN_FILES[1 - logs :] + ((EVENTS_FILE,) if result.events else ())
         return {
-            "files": {name: (out / name).read_bytes() for name in RUN_FILES[1 - logs :]},
+            "files": {name: (out / name).read_bytes() for name in names},
             "metrics": result.metrics,
             "series": run_series(result.log, result.lengths) if keep_series else None,
         }

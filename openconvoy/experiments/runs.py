@@ -32,6 +32,8 @@ from openconvoy.core.faults import parse_fault
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
+EVENTS_FILE = "events.json"
+"""A run's events (``run_events``), written only when it had any."""
 
 
 @dataclass(frozen=True)
@@ -293,7 +295,7 @@ def run_sim(
     if out_dir is not None:
         write_json(Path(out_dir) / "metrics.json", metrics)
         if result.events:
-            write_json(Path(out_dir) / "events.json", result.events)
+            write_json(Path(out_dir) / EVENTS_FILE, result.events)
     return result
 
 
@@ -315,10 +317,18 @@ def _progress_bar(steps: int, scenario: str) -> Any:
 def run_events(env: Any) -> list[dict[str, Any]]:
     """A finished run's events: injected faults, refused actions, emergency stops, and
     what authentication stopped (forge faults), as ``{"t_s", "vehicle_id", "reason"}``."""
-    events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in env.safety_events]
+    return events_of(env.safety_events, env.t, env.forged_rejected)
+
+
+def events_of(
+    safety_events: Sequence[tuple[float, int, str]], t_s: float, forged_rejected: Sequence[int]
+) -> list[dict[str, Any]]:
+    """``run_events`` of a run that ended at ``t_s`` (s) with these ``safety_events``
+    (``ConvoyEnv.safety_events``) and forged messages rejected per vehicle."""
+    events = [{"t_s": t, "vehicle_id": v, "reason": r} for t, v, r in safety_events]
     events += [
-        {"t_s": env.t, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
-        for r, n in enumerate(env.forged_rejected)
+        {"t_s": t_s, "vehicle_id": r, "reason": f"rejected {n} forged messages"}
+        for r, n in enumerate(forged_rejected)
         if n
     ]
     return events

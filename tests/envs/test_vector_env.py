@@ -2,8 +2,8 @@
 
 Each case runs B convoys in one ``VectorConvoyEnv`` and B ``ConvoyEnv``s side by side, the
 ``paper`` policy acting on the batched observations and both worlds taking those actions.
-Deliveries, counters, modes, rewards and terminations must be identical, plant states
-within 1e-9 m, observations within float32 rounding.
+Deliveries, counters, modes, rewards, terminations and safety events must be identical,
+plant states within 1e-9 m, observations within float32 rounding.
 """
 
 from __future__ import annotations
@@ -40,9 +40,11 @@ def _compare(
     member: dict | None = None,
     model: str = "bernoulli",
     corrupt=None,
+    events_out: list | None = None,
     **kwargs,
 ) -> Counter:
-    """Run both worlds; assert they agree at every tick; return the modes seen."""
+    """Run both worlds; assert they agree at every tick; return the modes seen (and
+    append each convoy's last safety events to ``events_out``)."""
     mc = load_policy("paper").member_config
     if member:
         mc = dataclasses.replace(mc, **member)
@@ -104,8 +106,11 @@ def _compare(
                     assert i[key] == pytest.approx(vinfo[key][b, j], abs=1e-9)
             assert term[agents[0]] == bool(vterm[b]) and trunc[agents[0]] == bool(vtrunc[b]), k
             assert env.forged_rejected == vec.forged_rejected[b].tolist(), k
+            assert env.safety_events == vec.safety_events(b), k
         if not envs[0].agents:
             break
+    if events_out is not None:
+        events_out.extend(vec.safety_events(b) for b in range(B))
     return modes
 
 

@@ -139,6 +139,28 @@ def test_ranging_sweep_batched_byte_for_byte(tmp_path: Path):
     assert len(logs) == 4 and any(b"degraded" in log for log in logs)
 
 
+def test_emergency_stops_sweep_batched_writes_run_sims_events_json(tmp_path: Path):
+    """Event-triggered CACC of full-size cars at PER 0.9 brakes too late: emergency stops
+    (and a collision). Each run directory has ``events.json`` exactly when the run had
+    events, the same bytes on both paths (the per-run path's is ``run_sim``'s)."""
+    sweep = ExperimentConfig(name="e", scenario="emergency-braking",
+                             policies=("cacc-allpred-event",), pers=(0.0, 0.9), seeds=2)  # fmt: skip
+    a = _same_files_on_both_paths(sweep, tmp_path)
+    runs = {n.rsplit("/", 1)[0] for n in a if n.endswith("metrics.json")}
+    with_events = {n.rsplit("/", 1)[0] for n in a if n.endswith("events.json")}
+    assert len(runs) == 4 and with_events == {r for r in runs if "per_0.90" in r}
+    for run in with_events:
+        events = json.loads(a[f"{run}/events.json"])
+        assert events and all(e["reason"].startswith("emergency stop: gap") for e in events)
+    # Without run logs, the events are still written (and the summary is unchanged).
+    run_experiment(sweep, tmp_path / "no_logs", progress=False, figures=False, run_logs=False)
+    c = _files(tmp_path / "no_logs")
+    assert {n: c[n] for n in c if n.endswith("events.json")} == {
+        n: a[n] for n in a if n.endswith("events.json")
+    }
+    assert c["summary.csv"] == a["summary.csv"]
+
+
 @pytest.mark.parametrize("auth", ["required", "off"])
 def test_forge_runs_batched_are_run_sims_files(tmp_path: Path, auth: str):
     """``run_batch`` of runs with a forger (and a ranging sensor) gives ``run_sim``'s
@@ -152,8 +174,12 @@ def test_forge_runs_batched_are_run_sims_files(tmp_path: Path, auth: str):
     got = [r["files"] for part in (configs[:2], configs[2:]) for r in run_batch(part)]
     for i, config in enumerate(configs):
         run_sim(config, tmp_path / str(i))
-        for name in ("log.csv", "metrics.json"):
+        assert sorted(got[i]) == ["events.json", "log.csv", "metrics.json"]
+        for name in got[i]:
             assert got[i][name] == (tmp_path / str(i) / name).read_bytes(), (i, name)
+    assert json.loads(got[0]["events.json"])[0] == {
+        "t_s": 4.0, "vehicle_id": 0, "reason": "fault forge:0@4"
+    }  # fmt: skip
     chased = json.loads(got[0]["metrics.json"])["min_gap_m"] < 10.0
     assert chased == (auth == "off")
 

@@ -5,20 +5,32 @@ example ``(B, N-1, D)`` from ``envs.VectorConvoyEnv``) and returns actions ``(..
 float32, equal to what one ``ClassicalPolicy`` per row would return for the same
 sequence of observations: the same arithmetic in the same order, with each row's PID
 integrator kept separately. The per-vehicle ``act`` is unchanged (vehicles use it).
+
+With numba (the ``batched`` extra) the batch runs as one compiled loop over rows
+(``policies.batched_jit``, bit-equal to ``act``); without it, as the numpy code here
+(~100 array calls per batch, ~6x slower: ~260 µs against ~40 µs for 1,024 x 2 rows),
+with the same results.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from types import EllipsisType
+from types import EllipsisType, ModuleType
 
 import numpy as np
 
+from openconvoy.core.errors import DependencyMissing
 from openconvoy.core.observation import LOOKAHEAD_S, STATE_FEATURES
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.policies.classical import ClassicalConfig
 
 _NF = len(STATE_FEATURES)
+
+_jit: ModuleType | None
+try:
+    from openconvoy.policies import batched_jit as _jit
+except DependencyMissing:  # numba comes with the batched extra; numpy does the same work
+    _jit = None
 
 
 @dataclass
@@ -60,13 +72,20 @@ class _Float64Columns:
 
 
 class BatchedClassical:
-    """The classical policy of ``config`` for a batch of vehicles (rows)."""
+    """The classical policy of ``config`` for a batch of vehicles (rows). ``compiled``:
+    act through ``batched_jit``'s kernel (None: when numba is importable)."""
 
-    def __init__(self, config: ClassicalConfig) -> None:
+    def __init__(self, config: ClassicalConfig, compiled: bool | None = None) -> None:
         self.config = config
         self.layout = config.member.layout
         self.dt = 1.0 / config.control_rate_hz
         self._integral: np.ndarray | None = None
+        if compiled and _jit is None:
+            raise DependencyMissing(
+                "compiled act_batch needs numba: pip install 'openconvoy[batched]'"
+            )
+        self.compiled = _jit is not None if compiled is None else compiled
+        self._packed = _jit.pack(config) if self.compiled and _jit is not None else None
 
     def reset(self, seed: int | None = None) -> None:
         """Forget every row's controller state."""
@@ -88,6 +107,8 @@ class BatchedClassical:
         shape = obs.shape[:-1]
         if self._integral is None or self._integral.shape != shape:
             self._integral = np.zeros(shape)
+        if self._packed is not None and _jit is not None:
+            return self._act_compiled(obs)
         o = _Float64Columns(obs)
         own = o[..., self.layout.own_offset]
         t = self._scan_targets(obs, o)
@@ -102,12 +123,24 @@ class BatchedClassical:
         out[..., 1] = np.where(stop, 0.0, h)
         return out
 
+    def _act_compiled(self, obs: np.ndarray) -> np.ndarray:
+        """``act_batch`` as ``batched_jit.act_rows`` over the rows of ``obs``."""
+        assert self._packed is not None and self._integral is not None and _jit is not None
+        shape = obs.shape[:-1]
+        rows = np.ascontiguousarray(obs.reshape(-1, obs.shape[-1]))
+        integral = self._integral.reshape(-1)  # a view: the kernel updates it in place
+        out = np.empty((rows.shape[0], 2), dtype=np.float32)
+        _jit.act_rows(rows, integral, *self._packed, out)
+        return out.reshape(shape + (2,))
+
     def _scan_targets(self, obs: np.ndarray, o: _Float64Columns) -> _Targets:
         """Walk the targets nearest first (predecessors, then the leader), as
         ``ClassicalPolicy`` does, collecting what the speed law needs per row."""
         lay = self.layout
         shape = obs.shape[:-1]
-        degrade = self.config.member.fresh_age_s
+        # As ``act`` compares a float32 age with it (``ClassicalPolicy._stale_after``): the
+        # limit rounded to float32, or an age of exactly float32(limit) would count as stale.
+        degrade = float(np.float32(self.config.member.fresh_age_s))
         newest = {n: obs[..., lay.slot_offset(n) : lay.slot_offset(n) + _NF] for n in lay.slots}
         leader_dup = np.zeros(shape, dtype=bool)
         for p in lay.targets[1:]:

@@ -306,13 +306,22 @@ class ConvoyMember:
 
     def gap_estimate(self, now: float) -> tuple[float, float] | None:
         """``(gap_m, closing_mps)`` to the immediate predecessor from its messages: centre
-        to centre, and how fast it shrinks (positive = closing); None when unknown."""
+        to centre, and how fast it shrinks (positive = closing); None when never heard.
+
+        Unlike a target, this estimate does not expire at the ladder's stop age: a
+        predecessor silent for longer got no further than braking at its limit takes it
+        (and a stopped car stays put), so the braking rule, which reads it, keeps seeing
+        it there. Expiring it let a policy drive into a dead predecessor unchecked."""
         i = self.vehicle_id
         if i == 0 or self.own is None:
             return None
-        est = self.estimate(i - 1, now)
-        if est is None:
+        latest = self.buffer.latest(i - 1)
+        if latest is None:
             return None
+        est = self.estimate(i - 1, now)  # the target's (cached); None once it expired
+        if est is None:
+            est = dead_reckon(latest, now, self._fresh_age_s, math.inf, self._decel(i - 1))
+            assert est is not None
         return gap_and_closing(self.own, est)
 
     # --- helpers ---------------------------------------------------------------------

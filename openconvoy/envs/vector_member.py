@@ -195,7 +195,9 @@ def _rule_gap(
     if not math.isnan(ranging[0, b, i]):
         gap, closing = ranging[0, b, i], -ranging[1, b, i]
     else:
-        valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, lad[2], fresh_age)
+        # no stop age: a predecessor silent for longer is still no further than braking at
+        # its limit takes it (``ConvoyMember.gap_estimate``)
+        valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, np.inf, fresh_age)
         if not valid:
             return False, 0.0, 0.0
         # the estimate's heading is the message's: its cosine and sine as pushed (vector_rx)

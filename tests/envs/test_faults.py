@@ -9,6 +9,7 @@ import pytest
 from openconvoy.core.faults import Fault, parse_fault
 from openconvoy.envs import ConvoyEnv
 from openconvoy.experiments.runs import RunConfig, run_sim
+from openconvoy.policies.spec import load_policy
 
 FAULT_T_S = 30.0
 REST_WITHIN_S = 10.0
@@ -137,3 +138,28 @@ def test_nominal_runs_never_fire_the_emergency_stop():
     for scenario, policy in (("paper", "paper"), ("emergency-braking", "cacc-allpred")):
         r = run_sim(RunConfig(scenario=scenario, policy=policy, per=0.3, seed=1))
         assert r.events == [] and r.metrics["collisions"] == 0
+
+
+def test_a_policy_creeping_into_a_dead_predecessor_is_stopped():
+    # Follower 1 dies at 3 s (brakes to rest, goes silent); follower 2's policy creeps on
+    # at 2 m/s over what the paper policy says. Its predecessor estimate expires as a
+    # target after the stop age (2 s), but the braking rule keeps it where braking at its
+    # limit took it: the e-stop fires before the bumpers meet (it once did not: collision
+    # at tick 199, no event).
+    pol = load_policy("paper")
+    env = ConvoyEnv("emergency-braking", member_config=pol.member_config, faults=["dead:1@3"])
+    obs, _ = env.reset(seed=0)
+    policies = {a: load_policy("paper") for a in env.possible_agents}
+    creep = np.array([2.0, 0.0], dtype=np.float32)
+    gaps = []
+    while env.agents:
+        acts = {a: policies[a].act(obs[a]) for a in env.agents}
+        acts["follower_2"] = acts["follower_2"] + creep
+        obs, _, term, _, infos = env.step(acts)
+        gaps.append(infos["follower_2"]["gap_m"])
+    assert not any(term.values())
+    stops = [e for e in env.safety_events if e[2].startswith("emergency stop")]
+    assert [(v, r.split(" gap")[0]) for _, v, r in stops] == [(2, "emergency stop:")]
+    assert stops[0][0] > 3.0 + 2.0  # after follower 1's estimate expired as a target
+    assert infos["follower_2"]["mode"] == "failsafe"
+    assert min(gaps) - 0.5 * (env.presets[1].length_m + env.presets[2].length_m) > 1.0

@@ -131,3 +131,15 @@ def test_a_faults_first_tick_is_the_worlds() -> None:
         f = parse_fault(spec)
         assert first_active_step(f, dt) == k, spec
         assert f.active(k * dt) and (k == 0 or not f.active((k - 1) * dt))
+
+
+def test_a_dead_predecessor_still_stops_a_creeping_follower() -> None:
+    """Follower 1 dead at 3 s, the followers creeping 2 m/s over the policy: past the stop
+    age the braking rule still sees it (``ConvoyMember.gap_estimate``), in both worlds."""
+    seen: list = []
+    creep = np.array([2.0, 0.0], np.float32)
+    _compare("emergency-braking", B=2, per=[0.0, 0.3], faults=["dead:1@3"], events_out=seen,
+             corrupt=lambda k, a: a + creep)  # fmt: skip
+    for events in seen:
+        assert _kinds(events) == [(1, "fault dead"), (2, "emergency stop")]
+        assert events[1][0] > 5.0  # after the estimate expired as a target (stop age 2 s)

@@ -9,22 +9,46 @@ with ``act`` bit for bit
 (``tests/policies/test_batched_jit.py``), each row keeping its own PID integrator.
 
 The configuration and the layout's offsets go in as two arrays packed once per policy
-(``pack``), not as globals, so one compiled kernel serves every preset. Compiled by
-``envs.vector_jit.bare_kernel`` (cached on disk); this kernel calls no kernel of another
-module, so numba's own check of this file keeps its cache right. Importing this module
-without numba raises ``DependencyMissing`` and ``BatchedClassical`` runs its numpy code.
+(``pack``), not as globals, so one compiled kernel serves every preset. Compiled with
+``envs.vector_jit``'s options (no reference counting, cached on disk by numba) but not
+through it: policies import ``core`` only (DESIGN.md's import rule). This kernel calls no
+kernel of another module, so numba's own check of this file keeps its cache right.
+Importing this module without numba raises ``DependencyMissing`` and ``BatchedClassical``
+runs its numpy code.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from openconvoy.core.errors import DependencyMissing
 from openconvoy.core.observation import LOOKAHEAD_S
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
-from openconvoy.envs.vector_jit import bare_inline, bare_kernel
 from openconvoy.policies.classical import ClassicalConfig
+
+try:
+    import numba as _numba
+except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
+    raise DependencyMissing(
+        "a compiled act_batch needs numba: pip install 'openconvoy[batched]'"
+    ) from exc
+
+_OPTIONS: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy", "_nrt": False}
+
+
+def bare_kernel(fn: Callable[..., Any]) -> Any:
+    """``fn`` compiled without reference counting (it allocates no array), no fastmath."""
+    return _numba.njit(**_OPTIONS)(fn)
+
+
+def bare_inline(fn: Callable[..., Any]) -> Any:
+    """A ``bare_kernel`` that LLVM inlines into its callers."""
+    return _numba.njit(**_OPTIONS, forceinline=True)(fn)
+
 
 # Where each entry sits in the packed arrays (the layout of ``pack``'s output).
 _I_OWN, _I_PATH, _I_FOLLOWER, _I_LOOKAHEAD, _I_PID, _I_STANLEY, _I_NT, _I_TARGETS = range(8)

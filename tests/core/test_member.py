@@ -165,7 +165,10 @@ def test_dead_reckoning_is_bounded_and_old_targets_are_dropped():
     view = m.layout.view(m.observation(2.01))
     assert view.target("pred_1")["valid"] == 0.0 and view.valid_targets() == []
     assert view.states("pred_1")[0, 5] == pytest.approx(2.01)  # the state slot keeps its age
-    assert m.gap_estimate(2.01) is None
+    # The braking rule's gap does not expire: the sender is still no further than braking
+    # at its limit took it (stopped at 17 m), and the ego closes on it at 2 m/s.
+    assert m.gap_estimate(2.01) == (pytest.approx(17.0), pytest.approx(2.0))
+    assert m.gap_estimate(60.0) == m.gap_estimate(2.01)
     # Without a braking limit a silent sender is taken to have stopped where last heard.
     m2 = member(vid=1, n=2)
     m2.receive(S(0, 0.0, 15.0, v=2.0), 0.0)

@@ -15,6 +15,7 @@ into the run, for good. Kinds:
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from openconvoy.core.errors import ConfigError
@@ -90,3 +91,19 @@ def check_faults(faults: tuple[Fault, ...], n_vehicles: int) -> None:
             raise ConfigError(
                 f"fault {f}: no vehicle {f.vehicle} in a convoy of {n_vehicles} (0..{n_vehicles - 1})"
             )
+
+
+AUTH_MODES = ("required", "off")
+"""Whether members authenticate messages (``required``: forged ones are rejected)."""
+
+
+def fault_specs(specs: Iterable[str]) -> tuple[str, ...]:
+    """Fault specs normalized (``halt:1@30.0`` -> ``halt:1@30``), as every config keeps
+    them; a bad one raises ``parse_fault``'s ConfigError."""
+    return tuple(str(parse_fault(f)) for f in specs)
+
+
+def check_auth(auth: str, key: str = "auth") -> None:
+    """Raise ConfigError (one line naming ``key``) unless ``auth`` is in ``AUTH_MODES``."""
+    if auth not in AUTH_MODES:
+        raise ConfigError(f"{key} must be 'required' or 'off', got {auth!r}")

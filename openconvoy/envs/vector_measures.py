@@ -65,7 +65,7 @@ def info_arrays(B: int, F: int) -> tuple[np.ndarray, ...]:
     )
 
 
-def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, np.ndarray]:
+def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, Any]:
     """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus ``mode``
     codes (``vector_env.MODES``); ``t_s`` and ``leader_*`` (B,): the leader's values of
     the keys a log row has (``experiments.batched`` writes the leader's rows from them).

@@ -28,7 +28,7 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, child, from_dict, to_dict
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.faults import parse_fault
+from openconvoy.core.faults import check_auth, fault_specs
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
@@ -156,12 +156,11 @@ class RunConfig:
     auth: str = "required"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "faults", tuple(str(parse_fault(f)) for f in self.faults))
+        object.__setattr__(self, "faults", fault_specs(self.faults))
         if self.origin is not None:
             object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         self.loss_config  # validates the PER  # noqa: B018
-        if self.auth not in ("required", "off"):
-            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
+        check_auth(self.auth)
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"duration must be positive, got {self.duration_s} s")
 

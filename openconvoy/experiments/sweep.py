@@ -73,7 +73,7 @@ import numpy as np
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.faults import check_faults, parse_fault
+from openconvoy.core.faults import check_auth, check_faults, fault_specs, parse_fault
 from openconvoy.experiments import batched_sweep
 from openconvoy.experiments.executor import (
     Executor,
@@ -150,12 +150,11 @@ class ExperimentConfig:
         """Normalize ``faults`` (``halt:1@30.0`` -> ``halt:1@30``, as ``RunConfig`` does)
         and check them and ``auth``, each error one line naming the key and the value."""
         try:
-            faults = tuple(str(parse_fault(f)) for f in self.faults)
+            faults = fault_specs(self.faults)
         except ConfigError as exc:
             raise ConfigError(f"faults: {exc}") from None
         object.__setattr__(self, "faults", faults)
-        if self.auth not in ("required", "off"):
-            raise ConfigError(f"auth: must be 'required' or 'off', got {self.auth!r}")
+        check_auth(self.auth, key="auth:")
 
     @property
     def seed_values(self) -> tuple[int, ...]:

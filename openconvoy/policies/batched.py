@@ -84,8 +84,13 @@ class BatchedClassical:
             raise DependencyMissing(
                 "compiled act_batch needs numba: pip install 'openconvoy[batched]'"
             )
-        self.compiled = _jit is not None if compiled is None else compiled
-        self._packed = _jit.pack(config) if self.compiled and _jit is not None else None
+        use = _jit is not None if compiled is None else compiled
+        self._packed = _jit.pack(config) if use and _jit is not None else None
+
+    @property
+    def compiled(self) -> bool:
+        """Whether ``act_batch`` runs the compiled kernel."""
+        return self._packed is not None
 
     def reset(self, seed: int | None = None) -> None:
         """Forget every row's controller state."""
@@ -107,7 +112,7 @@ class BatchedClassical:
         shape = obs.shape[:-1]
         if self._integral is None or self._integral.shape != shape:
             self._integral = np.zeros(shape)
-        if self._packed is not None and _jit is not None:
+        if self._packed is not None:
             return self._act_compiled(obs)
         o = _Float64Columns(obs)
         own = o[..., self.layout.own_offset]

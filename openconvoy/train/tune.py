@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.faults import parse_fault
+from openconvoy.core.faults import check_auth, fault_specs
 from openconvoy.policies.classical import ClassicalConfig
 from openconvoy.policies.spec import classical_config, classical_to_toml
 
@@ -136,9 +136,8 @@ class TuneConfig:
     def __post_init__(self) -> None:
         for name in ("pers", "seeds", "params"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
-        object.__setattr__(self, "faults", tuple(str(parse_fault(f)) for f in self.faults))
-        if self.auth not in ("required", "off"):
-            raise ConfigError(f"auth must be 'required' or 'off', got {self.auth!r}")
+        object.__setattr__(self, "faults", fault_specs(self.faults))
+        check_auth(self.auth)
         if self.trials < 1 or not self.pers or not self.seeds:
             raise ConfigError("tune needs at least one trial, one PER and one seed")
         unknown = [p for p in self.params if p not in PARAMETERS]

@@ -28,11 +28,11 @@ import time
 from importlib.metadata import version
 
 from openconvoy.comms import bsm as j
-from openconvoy.comms import keystore as ks
-from openconvoy.comms import spdu as sp
-from openconvoy.comms.auth import Authenticator
-from openconvoy.comms.certs import PSID_BSM
 from openconvoy.comms.geodesy import Origin
+from openconvoy.comms.security import keystore as ks
+from openconvoy.comms.security import spdu as sp
+from openconvoy.comms.security.auth import Authenticator
+from openconvoy.comms.security.certs import PSID_BSM
 from openconvoy.comms.tempids import TempIds
 from openconvoy.comms.v2v import Receiver, Sender
 from openconvoy.core.state import VehicleState
@@ -93,14 +93,14 @@ def main() -> None:
             signer.sign(payload, PSID_BSM, now + 0.2 + k * 1e-3)
 
     def verify(m: int) -> None:
-        from openconvoy.comms.certs import verify as ecdsa_verify
+        from openconvoy.comms.security.certs import verify as ecdsa_verify
 
         for _ in range(m):
             x = sp.decode_signed(one)
             ecdsa_verify(cert.public_key, x.r, x.s, x.tbs, cert.coer)
 
     def pairs(m: int) -> None:
-        from openconvoy.comms.certs import verify as ecdsa_verify
+        from openconvoy.comms.security.certs import verify as ecdsa_verify
 
         for k in range(m):
             x = sp.decode_signed(signer.sign(payload, PSID_BSM, now + 0.2 + k * 1e-3))

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.runner import DeployRunner, RunnerOptions
-from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.multicast import Datagram
 from openconvoy.comms.tempids import TempIds

@@ -1,7 +1,7 @@
 """A datagram flood against deployed vehicles: does the control loop keep its rate?
 
 Inside a private network namespace (``comms.netns``; nothing leaves the machine): simulated
-ArduPilot vehicles (``bridge.simvehicle``, real MAVLink over loopback UDP) driven by real
+ArduPilot vehicles (``bridge.simvehicle.vehicle``, real MAVLink over loopback UDP) driven by real
 ``openconvoy deploy`` processes exchanging J2735 BSMs over real IPv6 multicast, while a
 separate process sends valid BSMs from a foreign temporary id to the convoy's group at
 ``--rate`` per second for ``--flood-s`` seconds (the flood that once dropped every deploy

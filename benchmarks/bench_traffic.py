@@ -53,8 +53,8 @@ def _time_steps(step, reset, seconds: float) -> tuple[float, float]:
 
 
 def bench_openconvoy(count: int, road: str, seconds: float) -> tuple[float, float]:
-    from openconvoy.envs.traffic_env import TrafficConvoyEnv
-    from openconvoy.envs.traffic_vector import VectorRoad
+    from openconvoy.envs.traffic.env import TrafficConvoyEnv
+    from openconvoy.envs.traffic.road import VectorRoad
 
     compiled = VectorRoad.compiled
     if road == "vector_numpy":

@@ -3,7 +3,7 @@
 ``openconvoy experiment per-sweep --policy paper --seeds N`` (7 PERs × N seeds of the 60 s
 paper scenario, figures included) on the per-run path (one ``ConvoyEnv`` task per run,
 ``--no-batched``) and the batched path (the default: the runs as a few
-``VectorConvoyEnv`` tasks, ``experiments.batched``), with every run's log written, and
+``VectorConvoyEnv`` tasks, ``experiments.batched.run``), with every run's log written, and
 batched without the run logs (``--no-run-logs``); each on ``--jobs`` processes (default:
 the cores available). Then an ``openconvoy tune`` study of ``--trials`` trials (its
 default grid: PER 0, 0.3, 0.6 × 2 seeds; trials one at a time) on both paths. Prints one

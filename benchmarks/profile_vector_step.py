@@ -1,5 +1,5 @@
 """Where a fused ``VectorConvoyEnv`` tick spends its time: the stages of
-``vector_step.fused_step`` called one by one in its order, each timed, over whole
+``vector.step.fused_step`` called one by one in its order, each timed, over whole
 stretches of an episode (one core; per-CPU-second figures are the process's CPU time).
 
 Prints one JSON line per configuration: ns per tick and per env-step of each stage, the
@@ -50,12 +50,12 @@ def _env(case: dict):
 
 def _staged(env, act, bufs, clock_stages: dict) -> None:
     """``fused_step``'s body, stage by stage from Python, each stage timed."""
-    from openconvoy.envs.vector_channel import _bernoulli_deliver, _tx_gate
-    from openconvoy.envs.vector_leader import _drive, _project
-    from openconvoy.envs.vector_measures import fill_infos, measure, reward
-    from openconvoy.envs.vector_member import decide
-    from openconvoy.envs.vector_obs import observe
-    from openconvoy.envs.vector_plant import _plant_step
+    from openconvoy.envs.vector.channel import _bernoulli_deliver, _tx_gate
+    from openconvoy.envs.vector.leader import _drive, _project
+    from openconvoy.envs.vector.measures import fill_infos, measure, reward
+    from openconvoy.envs.vector.member import decide
+    from openconvoy.envs.vector.observation import observe
+    from openconvoy.envs.vector.plant import _plant_step
 
     (member, lead_project, lead_drive, plant, clock, tx, deliver, view, meas, score, fill) = (
         env._fused
@@ -90,9 +90,9 @@ def _staged(env, act, bufs, clock_stages: dict) -> None:
 
 
 def profile(name: str, ticks: int) -> dict:
-    from openconvoy.envs.vector_jit import bare_kernel
-    from openconvoy.envs.vector_measures import info_arrays
-    from openconvoy.envs.vector_step import fused_step
+    from openconvoy.envs.vector.jit import bare_kernel
+    from openconvoy.envs.vector.measures import info_arrays
+    from openconvoy.envs.vector.step import fused_step
 
     @bare_kernel
     def _empty(*args):  # pragma: no cover - compiled

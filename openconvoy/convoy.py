@@ -49,7 +49,7 @@ AUTH_MODES = ("required", "off")
 class V2VConfig:
     """Where and how convoy members talk (see ``openconvoy.comms``).
 
-    ``auth``: ``"required"`` (sign every BSM and abort as IEEE 1609.2 SPDUs, deliver only
+    ``security.auth``: ``"required"`` (sign every BSM and abort as IEEE 1609.2 SPDUs, deliver only
     verified ones), ``"off"``, or ``""`` (the default: required when ``keys`` holds a
     convoy authority). ``keys``: the keys directory (``load_convoy`` makes a relative
     one relative to the convoy file, and defaults it to ``NAME.keys`` beside it).

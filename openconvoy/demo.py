@@ -1,6 +1,6 @@
 """``openconvoy demo``: the whole sim2real path on one machine, in one command.
 
-Three simulated MAVLink vehicles (``bridge.simvehicle``, ArduPilot Rover by default, with
+Three simulated MAVLink vehicles (``bridge.simvehicle.vehicle``, ArduPilot Rover by default, with
 the recorded firmware's loops, vehicle model and boot sequence) start at the ``paper``
 scenario's initial positions, and three ``openconvoy deploy`` processes
 (leader + two followers, the ``paper`` policy) drive them over MAVLink (UDP on loopback)
@@ -35,7 +35,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from openconvoy.bridge.link import Autopilot
-    from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+    from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
 
 ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
 READY_AFTER_S = 3.0
@@ -165,7 +165,7 @@ def sim_vehicle_configs(
     scenario's initial state ``init`` gives vehicle i, ``presets[i]`` (None: the
     firmware's own loops and vehicle model), seed i; ``common`` (``SimVehicleConfig``
     fields) for all."""
-    from openconvoy.bridge.simvehicle import SimVehicleConfig
+    from openconvoy.bridge.simvehicle.vehicle import SimVehicleConfig
 
     return [
         SimVehicleConfig(
@@ -189,7 +189,7 @@ def start_local_sim_vehicles(
     """Start a simulated vehicle per config, each on a free localhost UDP port (taken just
     before it binds), ``before_start`` applied first; yields each started vehicle with the
     MAVLink URL its deploy reaches it by."""
-    from openconvoy.bridge.simvehicle import SimVehicle
+    from openconvoy.bridge.simvehicle.vehicle import SimVehicle
 
     for cfg in configs:
         port = free_udp_port()

@@ -177,7 +177,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         sub,
         "vehicle",
         VEHICLE_FLAGS,
-        lazy_handler("openconvoy.bridge.simvehicle", "run_vehicle_cli"),
+        lazy_handler("openconvoy.bridge.simvehicle.vehicle", "run_vehicle_cli"),
         help="run a simulated MAVLink vehicle (ArduPilot Rover or PX4)",
         description="A simulated vehicle speaking MAVLink like ArduPilot Rover (GUIDED) or PX4 "
         "(OFFBOARD), driven by the simulator's plant. SIGUSR1: a person switches to MANUAL; "

@@ -132,7 +132,7 @@ def _make_link(
 ) -> Any:
     """The autopilot link (not yet connected); telemetry at the control rate within
     10..50 Hz unless ``telemetry_hz`` says otherwise."""
-    from openconvoy.bridge.mavlink import MavlinkLink
+    from openconvoy.bridge.mavlink.link import MavlinkLink
 
     return MavlinkLink(
         a.mavlink,
@@ -182,8 +182,8 @@ def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int) -> Any:
     (``KeyFileError``, one line, when its keys are missing or do not match)."""
     if not convoy.v2v.auth_required:
         return None
-    from openconvoy.comms.auth import Authenticator
-    from openconvoy.comms.keystore import load_vehicle
+    from openconvoy.comms.security.auth import Authenticator
+    from openconvoy.comms.security.keystore import load_vehicle
 
     creds = load_vehicle(convoy.v2v.keys, vehicle_id, time.time())
     return Authenticator(creds, window_s=convoy.v2v.replay_window_s)
@@ -254,7 +254,7 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
 def abort_authenticator(key_path: str, keys_dir: Path | None) -> Any:
     """An ``Authenticator`` signing with ``key_path`` (its certificate beside it), trusting
     the authority of ``keys_dir`` (default: the key's own directory)."""
-    from openconvoy.comms.auth import Authenticator
-    from openconvoy.comms.keystore import signer_of_key
+    from openconvoy.comms.security.auth import Authenticator
+    from openconvoy.comms.security.keystore import signer_of_key
 
     return Authenticator(signer_of_key(key_path, keys_dir, time.time()))

@@ -1,7 +1,7 @@
 """The vehicle link: what the real-time runner needs from an autopilot connection.
 
 A small protocol so that the runner (``deploy``) does not care whether it talks MAVLink
-through pymavlink (``bridge.mavlink.MavlinkLink``) or, later, ROS/MAVROS. Everything here is
+through pymavlink (``bridge.mavlink.link.MavlinkLink``) or, later, ROS/MAVROS. Everything here is
 in the internal conventions (DESIGN.md): SI units, ENU around the convoy origin, heading
 0 = east counter-clockwise in radians. MAVLink's NED and its integer encodings never leave
 the implementation.

@@ -1,5 +1,5 @@
 """The ``openconvoy`` commands of the V2V layer: ``bsm listen | send | decode`` and ``keys init |
-issue`` (their work is in ``tools`` and ``keystore``, imported when a command runs).
+issue`` (their work is in ``tools`` and ``security.keystore``, imported when a command runs).
 """
 
 from __future__ import annotations
@@ -170,8 +170,8 @@ def _signer(key: str | None, convoy: str | None):
         return None
     import time
 
-    from openconvoy.comms.auth import Authenticator
-    from openconvoy.comms.keystore import signer_of_key
+    from openconvoy.comms.security.auth import Authenticator
+    from openconvoy.comms.security.keystore import signer_of_key
 
     keys = None
     if convoy:
@@ -234,8 +234,8 @@ def _verifier(convoy_path: str | None):
     """``bsm listen --convoy``'s verifier: the convoy authority's certificate only."""
     if not convoy_path:
         return None
-    from openconvoy.comms.auth import Authenticator, Credentials
-    from openconvoy.comms.keystore import load_authority
+    from openconvoy.comms.security.auth import Authenticator, Credentials
+    from openconvoy.comms.security.keystore import load_authority
     from openconvoy.convoy import load_convoy
 
     v2v = load_convoy(convoy_path).v2v
@@ -244,7 +244,7 @@ def _verifier(convoy_path: str | None):
 
 
 def _add_keys(sub: argparse._SubParsersAction) -> None:
-    """``keys init | issue`` (the work is in ``openconvoy.comms.keystore``)."""
+    """``keys init | issue`` (the work is in ``openconvoy.comms.security.keystore``)."""
     keys = sub.add_parser(
         "keys",
         help="the convoy's signing keys: authority and vehicle certificates",
@@ -268,7 +268,7 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
 def _keys_handler(args: argparse.Namespace) -> int:
     import time
 
-    from openconvoy.comms import keystore
+    from openconvoy.comms.security import keystore
     from openconvoy.convoy import load_convoy
 
     convoy = load_convoy(args.convoy)

@@ -35,7 +35,7 @@ def counter_uniform(key: int, *words: int) -> float:
 
     The channel keys its draws by (convoy seed, sender, receiver, message number) so a
     link's draws do not depend on the order the simulator visits links in: the batched
-    simulator (``envs.vector_env``) makes the same draws with ``counter_uniform_array``.
+    simulator (``envs.vector.env``) makes the same draws with ``counter_uniform_array``.
     """
     z = key & _MASK
     for w in words:
@@ -157,7 +157,7 @@ class GilbertElliott:
     def reset(self, rng: np.random.Generator) -> None:
         # Counter-based draws keyed by one number from rng: packet n's draws are
         # ``counter_uniform(key, n, GE_ADVANCE | GE_LOSS)``, so the batched simulator
-        # (``envs.vector_env``) can make them for every link at once.
+        # (``envs.vector.env``) can make them for every link at once.
         self.key = int(rng.integers(2**63))
         self._n = 0
         p_bad = self.mean_bad_s / (self.mean_good_s + self.mean_bad_s)

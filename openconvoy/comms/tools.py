@@ -22,13 +22,13 @@ from collections.abc import Callable
 from typing import Any, TextIO
 
 from openconvoy.comms import bsm as j
-from openconvoy.comms import certs as c
-from openconvoy.comms import compat as cj
-from openconvoy.comms import spdu as sp
-from openconvoy.comms.auth import Authenticator
+from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.mapping import reconstruct_send_time, state_to_core
 from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast
+from openconvoy.comms.security import certs as c
+from openconvoy.comms.security import spdu as sp
+from openconvoy.comms.security.auth import Authenticator
 from openconvoy.comms.tempids import derive_temp_id, parse_temp_id
 from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
@@ -187,7 +187,7 @@ def listen(
 ) -> int:
     """Print messages heard on ``iface`` until ``count`` messages or ``timeout_s`` seconds.
 
-    With ``auth`` (a verifier holding the convoy's authority certificate) every datagram
+    With ``security.auth`` (a verifier holding the convoy's authority certificate) every datagram
     is verified and its line says so, and a per-sender summary is printed at the end,
     Ctrl-C included. Returns the number of messages printed.
     """
@@ -250,7 +250,7 @@ def send(
     ``lon_deg`` and moving at ``speed_mps`` along compass ``heading_deg``.
 
     With ``compat_car`` set, each state also goes out as a compatibility message from that
-    convoy position on the IPv4 group. With ``auth`` each BSM is a signed SPDU. With
+    convoy position on the IPv4 group. With ``security.auth`` each BSM is a signed SPDU. With
     ``frame`` that datagram is sent as it is, ``count`` times (a replay). Returns the
     number of BSMs sent.
     """
@@ -306,7 +306,7 @@ def _straight_line(
 def _bsm(
     state: VehicleState, start: Origin, temp_id: bytes, k: int, auth: Authenticator | None
 ) -> bytes:
-    """The ``k``-th test BSM's datagram for ``state`` (signed at ``state.t`` with ``auth``);
+    """The ``k``-th test BSM's datagram for ``state`` (signed at ``state.t`` with ``security.auth``);
     the elevation is the start's."""
     core = state_to_core(state, start, temp_id, k % 128, alt_m=start.alt_m)
     data = j.encode_frame(core)

@@ -15,7 +15,7 @@ The pure parts, ``Sender`` (state -> datagrams) and ``Receiver`` (datagram -> ``
 do no I/O and take time as an argument; ``V2V`` adds the sockets (``multicast``).
 
 Receiving dispatches on content: a UPER MessageFrame starts ``00 14``, a compatibility
-message (``compat``) starts ``{``. Both give the same ``Received``. Every datagram handled
+message (``legacy_json``) starts ``{``. Both give the same ``Received``. Every datagram handled
 is counted exactly once:
 
     datagrams == received + malformed + filtered + echoes + duplicates + rejected + lost_rx
@@ -27,8 +27,8 @@ OpenConvoy implementation did), and ``lost`` counts messages never transmitted.
 Network input never raises: anything that is not a valid message is counted as
 ``malformed`` and dropped with a debug log line.
 
-Authentication (``auth``): with an ``Authenticator`` every BSM and abort goes out as a
-signed IEEE 1609.2 SPDU (``spdu``, starting ``03 81``) and only verified ones are
+Authentication (``security.auth``): with an ``Authenticator`` every BSM and abort goes out as a
+signed IEEE 1609.2 SPDU (``security.spdu``, starting ``03 81``) and only verified ones are
 delivered; the rest are ``rejected``, by reason in ``Authenticator.counters``
 (unsigned, unknown signer, bad signature, stale, duplicate, ...). Without one, signed
 SPDUs from others are still understood (their payload is used unverified).
@@ -46,10 +46,7 @@ from typing import Any, Literal
 import numpy as np
 
 from openconvoy.comms import bsm as j
-from openconvoy.comms import compat as cj
-from openconvoy.comms import spdu as sp
-from openconvoy.comms.auth import Authenticator, vehicle_of
-from openconvoy.comms.certs import PSID_ABORT, PSID_BSM
+from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig, LossModel, NoLoss
 from openconvoy.comms.mapping import (
@@ -67,6 +64,9 @@ from openconvoy.comms.multicast import (
     Ipv6Multicast,
     Transport,
 )
+from openconvoy.comms.security import spdu as sp
+from openconvoy.comms.security.auth import Authenticator, vehicle_of
+from openconvoy.comms.security.certs import PSID_ABORT, PSID_BSM
 from openconvoy.comms.tempids import TempIds
 from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
@@ -112,7 +112,7 @@ class LinkConfig:
     @classmethod
     def from_v2v(cls, v2v: Any, iface: str) -> LinkConfig:
         """From a convoy config's ``[v2v]`` table object (``group``, ``port``,
-        ``hop_limit``, ``compat`` attributes, e.g. ``openconvoy.convoy.V2VConfig``)."""
+        ``hop_limit``, ``legacy_json`` attributes, e.g. ``openconvoy.convoy.V2VConfig``)."""
         return cls(
             iface=iface,
             group=v2v.group,
@@ -577,7 +577,7 @@ class V2V:
         transport, compat_transport: injected sockets (tests); by default opened on
             ``config.iface`` (the IPv4 one only when ``config.compat``).
         clock: monotonic clock (s) that times ``poll``'s budget.
-        auth: sign what is sent and deliver only verified messages (``comms.auth``);
+        auth: sign what is sent and deliver only verified messages (``comms.security.auth``);
             None: unsigned (``[v2v] auth = "off"``).
     """
 
@@ -772,7 +772,7 @@ def send_abort(
     vehicles) and, with ``compat_enabled``, to the IPv4 group (vehicles running the
     original implementation). Sent ``repeat`` times ``interval_s`` apart, since multicast
     has no acknowledgement. ``now`` (seconds, default the system clock) stamps the message.
-    With ``auth`` the abort is a signed SPDU (PSID ``PSID_ABORT``; each repeat has its own
+    With ``security.auth`` the abort is a signed SPDU (PSID ``PSID_ABORT``; each repeat has its own
     generation time), and only on the IPv6 group. Returns the number of datagrams sent.
     """
     if repeat < 1:

@@ -104,6 +104,6 @@ def fault_specs(specs: Iterable[str]) -> tuple[str, ...]:
 
 
 def check_auth(auth: str, key: str = "auth") -> None:
-    """Raise ConfigError (one line naming ``key``) unless ``auth`` is in ``AUTH_MODES``."""
+    """Raise ConfigError (one line naming ``key``) unless ``security.auth`` is in ``AUTH_MODES``."""
     if auth not in AUTH_MODES:
         raise ConfigError(f"{key} must be 'required' or 'off', got {auth!r}")

@@ -311,7 +311,7 @@ TRAFFIC_METRIC_KEYS: tuple[str, ...] = (
     "traffic_collisions",
 )
 """The traffic metrics of ``metrics.json`` (runs whose log has the ``ahead_*`` columns of
-``openconvoy.envs.traffic_env.TRAFFIC_LOG_COLUMNS``); definitions in ``traffic_metrics``."""
+``openconvoy.envs.traffic.env.TRAFFIC_LOG_COLUMNS``); definitions in ``traffic_metrics``."""
 
 RESTORE_TOLERANCE_M = 1.0
 RESTORE_TOLERANCE_FRACTION = 0.1

@@ -1,7 +1,7 @@
 """A forward ranging sensor's true reading: range and range rate between two vehicles.
 
 Pure geometry, shared by the simulator (``envs.world``) and the simulated MAVLink vehicle
-(``bridge.simworld``) so both worlds see the same sensor. Positions in metres (ENU),
+(``bridge.simvehicle.world``) so both worlds see the same sensor. Positions in metres (ENU),
 speeds in m/s along the heading, headings in radians (ENU, counter-clockwise from east).
 """
 

@@ -32,14 +32,14 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as _gymnasium
 
 if TYPE_CHECKING:
-    from openconvoy.envs.vector_env import VectorConvoyEnv
+    from openconvoy.envs.vector.env import VectorConvoyEnv
 
 
 def __getattr__(name: str) -> Any:
     # VectorConvoyEnv needs numba (the ``batched`` extra): imported on first use, so the
     # rest of the simulator (and a vehicle's runtime) does not need it.
     if name == "VectorConvoyEnv":
-        from openconvoy.envs.vector_env import VectorConvoyEnv
+        from openconvoy.envs.vector.env import VectorConvoyEnv
 
         return VectorConvoyEnv
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -8,7 +8,7 @@ The loss models are the shared classes of ``openconvoy.comms.loss`` that vehicle
 the receiver with ``deploy --per``. All randomness comes from the Generator given to
 ``reset``, so a seed fixes the run. Bernoulli losses and latency jitter are counter-based
 draws (``comms.loss.counter_uniform``) keyed by (channel key, sender, receiver, the
-sender's broadcast number, purpose), so the batched simulator (``envs.vector_env``)
+sender's broadcast number, purpose), so the batched simulator (``envs.vector.env``)
 reproduces them with array operations.
 """
 

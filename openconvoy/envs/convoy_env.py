@@ -136,7 +136,7 @@ class ConvoyEnv(ParallelEnv):
         # Highway scenarios bring traffic: ``ConvoyEnv("highway-cut-in")`` is a
         # TrafficConvoyEnv (needs the ``traffic`` extra).
         if cls is ConvoyEnv and is_traffic_scenario(scenario):
-            from openconvoy.envs.traffic_env import TrafficConvoyEnv
+            from openconvoy.envs.traffic.env import TrafficConvoyEnv
 
             cls = TrafficConvoyEnv
         return super().__new__(cls)
@@ -352,7 +352,7 @@ class ConvoyEnv(ParallelEnv):
 
     @property
     def forged_rejected(self) -> list[int]:
-        """Forged messages each member rejected so far (``forge`` faults, ``auth`` on)."""
+        """Forged messages each member rejected so far (``forge`` faults, ``security.auth`` on)."""
         return list(self.sim.auth.rejected)
 
     # --- internals ---------------------------------------------------------------------

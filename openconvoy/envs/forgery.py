@@ -6,9 +6,9 @@ vehicle ``ID``, ``FORGED_AHEAD_M`` ahead of where that vehicle really is, along 
 heading, at its speed (what a forged "leader 1 km ahead" looks like).
 
 Authentication is modelled, not computed: on vehicles each message is an ECDSA-signed
-IEEE 1609.2 SPDU that a forger cannot produce (``comms.auth``); here each received message
+IEEE 1609.2 SPDU that a forger cannot produce (``comms.security.auth``); here each received message
 is verified by ``Authentication.verify``, which a forged message fails and a member's
-passes, and the failures are counted per receiver, as ``comms.auth`` counts them. With
+passes, and the failures are counted per receiver, as ``comms.security.auth`` counts them. With
 authentication off (``[v2v] auth = "off"``, ``sim --auth off``) forged messages are
 delivered, so an experiment can show what the attack does.
 """

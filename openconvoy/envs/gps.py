@@ -4,7 +4,7 @@ Each vehicle's position fix at tick ``k`` is off by ``sigma * (z_x, z_y)``, two
 independent standard normals from one Box-Muller pair of counter-based uniforms
 (``comms.loss.counter_uniform(key, vehicle, k, j)``, ``j = 0, 1``). The draws depend only on
 (key, vehicle, tick), not on the order vehicles or convoys are visited in, so the batched
-simulator (``envs.vector_gps``) makes the same ones in a compiled kernel.
+simulator (``envs.vector.gps``) makes the same ones in a compiled kernel.
 """
 
 from __future__ import annotations

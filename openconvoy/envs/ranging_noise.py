@@ -5,7 +5,7 @@ range and ``range_rate_noise_mps * z_2`` in range rate: two independent standard
 from one Box-Muller pair of counter-based uniforms (``comms.loss.counter_uniform(key,
 vehicle, k, j)``, ``j = 0, 1``) under the episode's ranging key. The draws depend only on
 (key, vehicle, tick), not on which other sensors see a target at that tick, so the batched
-simulator (``envs.vector_ranging``) makes the same ones in a compiled kernel.
+simulator (``envs.vector.ranging``) makes the same ones in a compiled kernel.
 """
 
 from __future__ import annotations

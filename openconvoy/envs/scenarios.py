@@ -48,7 +48,7 @@ DEFAULT_ORIGIN = Origin(28.6024, -81.2001, 0.0)
 SCENARIO_NAMES: tuple[str, ...] = ("paper", "track", "emergency-braking", "track-file:PATH")
 TRAFFIC_PREFIX = "highway-"
 """Specs starting with this are highway scenarios with traffic
-(``openconvoy.envs.traffic_scenarios``, the ``traffic`` extra)."""
+(``openconvoy.envs.traffic.scenarios``, the ``traffic`` extra)."""
 
 
 def is_traffic_scenario(scenario: str | Scenario) -> bool:
@@ -391,7 +391,7 @@ def make_scenario(
 
     ``presets`` (leader first) replaces the scenario's vehicles and sets the convoy size.
     ``track-file:example`` loads the example track shipped with the package; ``highway-*``
-    specs make ``traffic_scenarios.HighwayScenario`` objects (the ``traffic`` extra).
+    specs make ``traffic.scenarios.HighwayScenario`` objects (the ``traffic`` extra).
     """
     if presets is not None:
         presets = tuple(presets)
@@ -410,7 +410,7 @@ def make_scenario(
     if spec == "emergency-braking":
         return emergency_braking_scenario(n, presets)
     if is_traffic_scenario(spec):
-        from openconvoy.envs.traffic_scenarios import make_highway_scenario  # needs [traffic]
+        from openconvoy.envs.traffic.scenarios import make_highway_scenario  # needs [traffic]
 
         return make_highway_scenario(spec, n, presets)
     if spec.startswith("track-file:"):

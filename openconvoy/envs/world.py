@@ -337,7 +337,7 @@ class ConvoyWorld:
 
     def _forge(self, t: float, inboxes: list[list[VehicleState]]) -> None:
         """The forgers' broadcasts this tick: one forged state per active ``forge`` fault,
-        offered to every other member (verified when ``auth``)."""
+        offered to every other member (verified when ``security.auth``)."""
         active = [f.vehicle for f in self._forged if f.active(t)]
         claimed = forged_states(active, t, self.truth, self.lengths, self.widths)
         self.auth.deliver_forgeries(claimed, inboxes)

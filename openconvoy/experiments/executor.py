@@ -24,7 +24,7 @@ In an experiment file the executor is the optional ``[executor]`` table::
     batched = true     # sweeps and tune: a policy's runs as batches (default: where exact)
 
 ``batched`` (``--batched/--no-batched``) groups a sweep's or a trial's runs of one policy
-into a few tasks, each a ``VectorConvoyEnv`` of many convoys (``experiments.batched``):
+into a few tasks, each a ``VectorConvoyEnv`` of many convoys (``experiments.batched.run``):
 unset, wherever the results are the per-run path's to the bit (classical policies);
 ``true`` also for policies whose ``act_batch`` is only close to their ``act``; ``false``
 one ``ConvoyEnv`` task per run. Configurations the batched env refuses run per run.

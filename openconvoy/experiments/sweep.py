@@ -38,7 +38,7 @@ One TOML file fully describes an experiment::
 An inline ``[policy.NAME]`` table is a policy file's ``[policy]`` table; ``policies`` may
 name it (with ``+ladder`` too); policy files named in ``policies`` are inlined the same way
 under their file's stem. ``faults`` (``openconvoy.core.faults``: ``halt``, ``silent``,
-``dead``, ``forge``) and ``auth`` are every run's, as ``openconvoy sim --fault/--auth``
+``dead``, ``forge``) and ``security.auth`` are every run's, as ``openconvoy sim --fault/--auth``
 takes them: a robustness study sweeps PERs × seeds under, say, a braking predecessor
 (``halt:1@30``) or a forged leader with authentication off (``forge:0@10``, ``auth =
 "off"``). The run directory keeps ``experiment.toml`` (the complete
@@ -50,7 +50,7 @@ byte-identical ``summary.csv``: every run is seeded, results are ordered by (pol
 seed) whatever order the processes finish in, and numbers are written with fixed format.
 The executor does not change a number: each run is a task that ships its log and metrics
 back as bytes, and only this process writes the run directory. Nor does batching: a
-policy's runs are a few tasks of one ``VectorConvoyEnv`` each (``batched_sweep``) where
+policy's runs are a few tasks of one ``VectorConvoyEnv`` each (``batched.tasks``) where
 the batched env takes them and the policy's ``act_batch`` is its ``act`` to the bit
 (classical policies), and those tasks return the very files the per-run tasks would. A run that fails leaves
 the others written, ``failures.json`` naming it, and a summary of the runs that finished.
@@ -74,7 +74,7 @@ from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import check_auth, check_faults, fault_specs, parse_fault
-from openconvoy.experiments import batched_sweep
+from openconvoy.experiments.batched import tasks as batched_sweep
 from openconvoy.experiments.executor import (
     Executor,
     ExecutorConfig,
@@ -148,7 +148,7 @@ class ExperimentConfig:
 
     def _check_faults(self) -> None:
         """Normalize ``faults`` (``halt:1@30.0`` -> ``halt:1@30``, as ``RunConfig`` does)
-        and check them and ``auth``, each error one line naming the key and the value."""
+        and check them and ``security.auth``, each error one line naming the key and the value."""
         try:
             faults = fault_specs(self.faults)
         except ConfigError as exc:
@@ -355,7 +355,7 @@ def run_experiment(
     """Run every (policy, PER, seed) of ``config`` and write the run directory (see the
     module docstring). The runs are tasks of ``executor`` (default: ``config.executor``,
     the local processes, ``jobs`` of them if given): a policy's runs in a few batched
-    tasks where its ``batched`` setting and the batched env allow (``batched_sweep``),
+    tasks where its ``batched`` setting and the batched env allow (``batched.tasks``),
     else one task per run; ``say`` gets one line per policy not batched and why
     (default: stderr, with ``progress``). ``run_logs``: write every run's ``log.csv``
     (else only its ``metrics.json``; the summary is the same). When runs fail, the

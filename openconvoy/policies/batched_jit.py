@@ -10,7 +10,7 @@ with ``act`` bit for bit
 
 The configuration and the layout's offsets go in as two arrays packed once per policy
 (``pack``), not as globals, so one compiled kernel serves every preset. Compiled with
-``envs.vector_jit``'s options (no reference counting, cached on disk by numba) but not
+``envs.vector.jit``'s options (no reference counting, cached on disk by numba) but not
 through it: policies import ``core`` only (DESIGN.md's import rule). This kernel calls no
 kernel of another module, so numba's own check of this file keeps its cache right.
 Importing this module without numba raises ``DependencyMissing`` and ``BatchedClassical``

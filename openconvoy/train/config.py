@@ -125,8 +125,8 @@ class TrainConfig:
         torch_threads: torch CPU threads (the environments run in this process too).
         name: the policy's label in logs and reports.
         vec_env: the simulator: ``batched`` (``envs.VectorConvoyEnv``, all convoys in
-            arrays: ``train.batched``), ``supersuit`` (one ``ConvoyEnv`` per convoy through
-            SuperSuit: ``train.vec``), or ``auto``: batched unless the randomization asks
+            arrays: ``train.vecenv.randomized``), ``supersuit`` (one ``ConvoyEnv`` per convoy through
+            SuperSuit: ``train.vecenv.shared``), or ``auto``: batched unless the randomization asks
             for what it does not model (traffic), then
             SuperSuit, with one line on stderr saying so.
         n_worlds: batched: groups of convoys that share a drawn world (vehicles, burst

@@ -41,12 +41,12 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from openconvoy.core.errors import ConfigError
 from openconvoy.policies.learned import LearnedMeta, read_zip_meta, write_zip_meta
-from openconvoy.train.batched import RandomizedVectorVecEnv, batched_refusal
 from openconvoy.train.config import TrainConfig, dumps_train_config
 from openconvoy.train.randomization import RandomizedConvoyEnv
 from openconvoy.train.schedule import RunClock, Schedule, linear_schedule
 from openconvoy.train.validate import Validation, validate
-from openconvoy.train.vec import shared_policy_vec_env
+from openconvoy.train.vecenv.randomized import RandomizedVectorVecEnv, batched_refusal
+from openconvoy.train.vecenv.shared import shared_policy_vec_env
 
 POLICY_FILE = "policy.zip"
 LAST_FILE = "last.zip"
@@ -80,7 +80,7 @@ def make_vec_env(config: TrainConfig) -> VecEnv:
 
 
 def simulator_vec_env(config: TrainConfig) -> VecEnv:
-    """The randomized convoys, one slot per follower: batched (``train.batched``) unless
+    """The randomized convoys, one slot per follower: batched (``train.vecenv.randomized``) unless
     ``config.vec_env`` says ``supersuit`` or, with ``auto``, the batched simulator refuses
     the configuration (one line on stderr says why)."""
     if config.vec_env != "supersuit":

@@ -9,7 +9,7 @@ objective, to minimize, is
     + speed_difference_weight * mean over runs of mean_speed_difference_mps
 
 so a collision outweighs any spacing gain. Every grid run may carry injected faults and
-an ``auth`` setting (``--fault``, ``--auth``; ``TuneConfig.faults``), so a controller can be
+an ``security.auth`` setting (``--fault``, ``--auth``; ``TuneConfig.faults``), so a controller can be
 tuned for robustness to, say, a predecessor braking hard (``halt:1@30``). The best trial is written as a TOML policy
 file (``classical_to_toml``) that ``--policy`` accepts.
 
@@ -203,9 +203,9 @@ def grid_runs(config: TuneConfig, policy: str) -> list[Any]:
 
 def grid_evaluator(config: TuneConfig, workdir: Path, batched: bool = False) -> Evaluate:
     """Evaluate a candidate over ``config``'s PER x seed grid: ``run_sim`` on each run,
-    or (``batched``) all of them in one ``VectorConvoyEnv`` (``experiments.batched``;
+    or (``batched``) all of them in one ``VectorConvoyEnv`` (``experiments.batched.run``;
     the same metrics, to the bit, for the classical policies tuned here)."""
-    from openconvoy.experiments.batched import run_batch
+    from openconvoy.experiments.batched.run import run_batch
     from openconvoy.experiments.runs import run_sim
 
     counter = iter(range(1_000_000))
@@ -248,7 +248,7 @@ def check_grid(config: TuneConfig) -> None:
 def grid_batched(config: TuneConfig, batched: bool | None = None) -> tuple[bool, str | None]:
     """Whether trials run their grid batched (``batched``: None = where exact, the
     ``[executor] batched`` setting) and, when they might have but do not, why not."""
-    from openconvoy.experiments.batched import refusal
+    from openconvoy.experiments.batched.run import refusal
 
     if batched is False:
         return False, None

@@ -10,8 +10,8 @@ from typing import Any
 
 import pytest
 
-from openconvoy.bridge.mavlink import MavlinkLink
-from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.bridge.mavlink.link import MavlinkLink
+from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
 
 

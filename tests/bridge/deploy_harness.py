@@ -19,10 +19,10 @@ from typing import Any
 from conftest import free_port
 
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
-from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
-from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
-from openconvoy.bridge.simworld import SimWorld
+from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
+from openconvoy.bridge.simvehicle.world import SimWorld
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.envs.scenarios import make_scenario

@@ -2,7 +2,7 @@
 and parser) over a UDP socket, a TCP socket or a pseudo-terminal, with behaviour set by the
 test (which mode arming ends in, whether commands are answered, what it streams).
 
-It is not a vehicle model (``bridge.simvehicle`` is): it records every message the link
+It is not a vehicle model (``bridge.simvehicle.vehicle`` is): it records every message the link
 sends, so tests can check the fields byte for byte, and it can do things a model should not
 (never answer a command, switch mode right after arming like ArduPilot's RC mode switch).
 """
@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from openconvoy.bridge import mavproto as mp
+from openconvoy.bridge.mavlink import protocol as mp
 
 
 class _UdpPort:

@@ -16,8 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.comms import keystore as ks
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
+from openconvoy.comms.security import keystore as ks
 from openconvoy.comms.tempids import TempIds
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import metrics as mt

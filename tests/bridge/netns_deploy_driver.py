@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from openconvoy.bridge.simvehicle import SimVehicle
+from openconvoy.bridge.simvehicle.vehicle import SimVehicle
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.demo import (

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from deploy_harness import make_convoy, replace_safety, wait_until
 
-from openconvoy.bridge.simvehicle import SimVehicle
+from openconvoy.bridge.simvehicle.vehicle import SimVehicle
 from openconvoy.logs import read_log
 from openconvoy.policies import load_policy
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from conftest import free_port
 
-from openconvoy.bridge.mavlink import MavlinkLink
-from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.bridge.mavlink.link import MavlinkLink
+from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset, vehicle_preset
 from openconvoy.experiments.fitplant import fit_pi_plant, fit_plant, format_pi_fit

@@ -13,8 +13,8 @@ from conftest import free_port, wait_for
 
 from openconvoy.bridge.ideallink import IdealLink
 from openconvoy.bridge.link import Telemetry, VehicleLink
-from openconvoy.bridge.mavlink import MavlinkLink
-from openconvoy.bridge.simvehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.bridge.mavlink.link import MavlinkLink
+from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 
 DECLARED = (
     "telemetry_timeout_s",

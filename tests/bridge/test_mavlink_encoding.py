@@ -15,8 +15,8 @@ from conftest import wait_for
 from mavlink_edge import EdgeAutopilot
 
 from openconvoy.bridge.link import ModeLost
-from openconvoy.bridge.mavlink import MavlinkLink
-from openconvoy.bridge.simvehicle import DEFAULT_HOME
+from openconvoy.bridge.mavlink.link import MavlinkLink
+from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME
 
 SHARED = Path(__file__).resolve().parents[3] / "shared"
 FLT_EPSILON = 1.1920929e-07  # ArduPilot's is_negative(x): x <= -FLT_EPSILON

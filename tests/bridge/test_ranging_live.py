@@ -11,7 +11,7 @@ import numpy as np
 from conftest import free_port
 from deploy_harness import make_convoy, wait_until
 
-from openconvoy.bridge.simvehicle import SimVehicle, SimVehicleConfig
+from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor
 from openconvoy.logs import read_log
 

@@ -18,7 +18,7 @@ from test_runner import WALL0, FakeClock, FakeLink, FixedPolicy
 
 from openconvoy.bridge.link import Telemetry
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
-from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.runner import HOLD_BELOW_MPS, DeployRunner, RunnerOptions
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig

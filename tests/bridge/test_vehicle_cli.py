@@ -9,7 +9,7 @@ import time
 
 from conftest import free_port, run_for, wait_for
 
-from openconvoy.bridge.mavlink import MavlinkLink
+from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.comms.geodesy import Origin
 
 

@@ -7,8 +7,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from openconvoy.comms import keystore as ks
-from openconvoy.comms.auth import Credentials
+from openconvoy.comms.security import keystore as ks
+from openconvoy.comms.security.auth import Credentials
 
 #: Certificates start an hour before this and last a year: any test clock near it works.
 T0 = time.time()

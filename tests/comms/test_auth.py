@@ -7,14 +7,14 @@ import pytest
 from auth_testdata import T0, creds, keys_dir
 
 from openconvoy.comms import bsm as j
-from openconvoy.comms import certs as c
-from openconvoy.comms import compat as cj
-from openconvoy.comms import keystore as ks
-from openconvoy.comms import spdu as sp
-from openconvoy.comms.auth import Authenticator
+from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.mapping import state_to_core
 from openconvoy.comms.multicast import MemoryBus
+from openconvoy.comms.security import certs as c
+from openconvoy.comms.security import keystore as ks
+from openconvoy.comms.security import spdu as sp
+from openconvoy.comms.security.auth import Authenticator
 from openconvoy.comms.tempids import TempIds
 from openconvoy.comms.v2v import V2V, LinkConfig, Receiver, Sender
 from openconvoy.core.state import VehicleState

@@ -10,7 +10,8 @@ from comms_testdata import load_vectors
 
 from openconvoy import cli
 from openconvoy.comms import bsm as j
-from openconvoy.comms import compat, multicast, tools
+from openconvoy.comms import legacy_json as compat
+from openconvoy.comms import multicast, tools
 from openconvoy.comms.geodesy import Origin
 from openconvoy.core.state import VehicleState
 

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from openconvoy.comms import compat
+from openconvoy.comms import legacy_json as compat
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.core.state import VehicleState
 

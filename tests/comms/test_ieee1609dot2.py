@@ -24,9 +24,9 @@ from hypothesis import strategies as st
 from pycrate_asn1dir import ITS_IEEE1609_2 as M
 
 from openconvoy.comms import bsm as j
-from openconvoy.comms import certs as c
-from openconvoy.comms import spdu as sp
-from openconvoy.comms.auth import Authenticator
+from openconvoy.comms.security import certs as c
+from openconvoy.comms.security import spdu as sp
+from openconvoy.comms.security.auth import Authenticator
 
 
 def _pycrate(type_name: str, module: str, data: bytes):

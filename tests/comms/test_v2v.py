@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from openconvoy.comms import bsm as j
-from openconvoy.comms import compat
+from openconvoy.comms import legacy_json as compat
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.comms.mapping import state_to_core

@@ -2,7 +2,7 @@
 
 Usage: v2v_peer.py INDEX N_VEHICLES BARRIER_DIR DURATION_S RATE_HZ PER SEED DROP_AT [MODE]
 
-MODE is ``j2735`` (default), ``compat`` (J2735 plus the compatibility twin on IPv4) or
+MODE is ``j2735`` (default), ``legacy_json`` (J2735 plus the compatibility twin on IPv4) or
 ``legacy`` (a vehicle running the original implementation: compatibility JSON on IPv4
 only). Peers first meet at a barrier (a ready file each in BARRIER_DIR, written once
 their sockets are joined), then all start at the same instant.
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from openconvoy.comms import compat as cj
+from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.loss import LossConfig
 from openconvoy.comms.multicast import Ipv4Multicast

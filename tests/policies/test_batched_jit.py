@@ -3,7 +3,7 @@
 Whole episodes of ``VectorConvoyEnv`` under loss, driven by the per-row ``act``: at every
 tick the compiled batch, the numpy fallback and one ``ClassicalPolicy`` per row give the
 same float32 bits, through autoresets and through ``reset_rows`` mid-episode.
-``experiments.batched.refusal`` trusts classical ``act_batch`` as exact because of these.
+``experiments.batched.run.refusal`` trusts classical ``act_batch`` as exact because of these.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from openconvoy.train.randomization import (
     RandomizedConvoyEnv,
     draw_world,
 )
-from openconvoy.train.vec import shared_policy_vec_env
+from openconvoy.train.vecenv.shared import shared_policy_vec_env
 from tests.pinned_warnings import GYMNASIUM_ALLOWED, pinned
 
 

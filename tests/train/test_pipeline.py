@@ -310,7 +310,7 @@ def test_deploy_runs_the_trained_policy_on_a_simulated_vehicle(
     """A leader (paper scenario) and a follower driven by the trained file: real MAVLink
     to simulated vehicles, V2V on an in-process bus, the deploy runner's real-time loop."""
     from openconvoy.bridge.localv2v import LocalBus, LocalV2V
-    from openconvoy.bridge.mavlink import MavlinkLink
+    from openconvoy.bridge.mavlink.link import MavlinkLink
     from openconvoy.bridge.runner import DeployRunner, RunnerOptions
     from openconvoy.comms.geodesy import Origin
     from openconvoy.convoy import ConvoyConfig

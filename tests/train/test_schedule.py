@@ -103,7 +103,7 @@ def test_curriculum_raises_per_high_during_training(
 ) -> None:
     """A real PPO run: the training env's PER cap follows the schedule, step by step,
     from the first worlds it trains on."""
-    from openconvoy.train import batched
+    from openconvoy.train.vecenv import randomized as batched
 
     caps_drawn: list[float] = []  # the cap of every world the env drew
     draw = batched.draw_group

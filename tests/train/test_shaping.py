@@ -12,7 +12,6 @@ import pytest
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import PATH_FEATURES
 from openconvoy.envs.scenarios import make_scenario
-from openconvoy.train.batched import RandomizedVectorVecEnv
 from openconvoy.train.cli import wall_clock
 from openconvoy.train.config import TrainConfig
 from openconvoy.train.randomization import (
@@ -23,6 +22,7 @@ from openconvoy.train.randomization import (
 )
 from openconvoy.train.shaping import Shaping
 from openconvoy.train.validate import PATH_KEY, path_error_p95
+from openconvoy.train.vecenv.randomized import RandomizedVectorVecEnv
 
 LAYOUT = MemberConfig().layout
 XT = LAYOUT.path_offset + PATH_FEATURES.index("cross_track")

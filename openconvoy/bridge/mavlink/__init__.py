@@ -1,0 +1,1 @@
+"""The MAVLink vehicle link: connection, modes, commands, setpoints, telemetry, watch."""

@@ -1,0 +1,1 @@
+"""Simulated ArduPilot and PX4 autopilots (firmware models checked against recordings)."""

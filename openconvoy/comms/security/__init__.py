@@ -1,0 +1,1 @@
+"""IEEE 1609.2 security: SPDUs, certificates, the keystore, and verification."""

@@ -1,0 +1,1 @@
+"""highway-env roads, IDM/MOBIL traffic, and ``TrafficConvoyEnv``."""

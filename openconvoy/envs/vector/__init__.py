@@ -1,0 +1,1 @@
+"""``VectorConvoyEnv``: the convoy rules compiled for B convoys (numba), and its adapters."""

@@ -1,0 +1,456 @@
+"""The batched channel: Tx gates, loss, latency and delivery into the R^i buffers.
+
+The same draws as ``envs.channel.Channel``: a Bernoulli loss is
+``counter_uniform(key, sender, receiver, broadcast number, DRAW_LOSS) < per`` (compiled
+here, bit-identical to ``comms.loss.counter_uniform``), a Gilbert-Elliott link keeps its
+chain per ordered link (numpy, as ``GilbertElliott``), and a latency holds messages in a
+ring of send slots until due, each pair's arrival ``t + latency + jitter * counter_uniform(key,
+sender, receiver, broadcast number, DRAW_JITTER)`` (``Channel.send``), delivered in arrival
+order. Loss is drawn on ``pairs``: every ordered pair
+(``link_counters="all"``, the counters ``ConvoyEnv`` reports) or the kept links only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from openconvoy.comms.loss import (
+    _GOLDEN,
+    _M1,
+    _M2,
+    _UNIT,
+    GE_ADVANCE,
+    GE_INIT,
+    GE_LOSS,
+    GilbertElliott,
+    LossConfig,
+    counter_uniform_array,
+)
+from openconvoy.core.faults import Fault
+from openconvoy.core.gates import TriggerConfig
+from openconvoy.envs.channel import DRAW_JITTER, DRAW_LOSS
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.links import LinkTables
+from openconvoy.envs.vector.math import norm
+from openconvoy.envs.vector.rx import RxBuffers, push_one
+
+_G, _K1, _K2 = np.uint64(_GOLDEN), np.uint64(_M1), np.uint64(_M2)
+_S11, _S27, _S30, _S31 = np.uint64(11), np.uint64(27), np.uint64(30), np.uint64(31)
+
+
+class VectorChannel:
+    """Tx gates, message counters and loss of ``B`` convoys of ``N`` vehicles."""
+
+    def __init__(
+        self,
+        B: int,
+        links: LinkTables,
+        losses: Sequence[LossConfig],
+        trigger: TriggerConfig,
+        faults: Sequence[Fault],
+        dt: float,
+        all_pairs: bool,
+    ) -> None:
+        N = links.N
+        self.B, self.N, self.trigger = B, N, trigger
+        self.per = np.array([c.per for c in losses])
+        self.loss = max(losses, key=lambda c: c.per)
+        probe = self.loss.make()
+        self.ge = probe if isinstance(probe, GilbertElliott) else None
+        # Per convoy: the chain's mean good sojourn for its PER (PER 0: a perfect link).
+        self.ge_good = np.array(
+            [c.mean_burst_s * (1.0 - c.per) / c.per if c.per > 0 else np.inf for c in losses]
+        )
+        if all_pairs:
+            # Receiver-major, as the links are numbered: deliveries walk the R^i buffers
+            # in memory order (the draws do not depend on the order).
+            r, s = np.nonzero(~np.eye(N, dtype=bool))
+            self.pair_s, self.pair_r = s.astype(np.int64), r.astype(np.int64)
+            self.pair_link = links.link_of[s, r]
+        else:
+            self.pair_s, self.pair_r = links.link_s, links.link_r
+            self.pair_link = np.arange(links.L, dtype=np.int64)
+        # The pairs by sender (the draws do not depend on the order): a tick's work
+        # follows its broadcasts.
+        self.by_sender = np.argsort(self.pair_s, kind="stable").astype(np.int64)
+        self.sender_start = np.searchsorted(self.pair_s[self.by_sender], np.arange(N + 1))
+        # ... and their receivers and links in that order: read in sequence.
+        self.sender_r = self.pair_r[self.by_sender]
+        self.sender_link = self.pair_link[self.by_sender]
+        mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
+                for i in range(N)]  # fmt: skip
+        self.mute_from = np.array(mute, dtype=float)
+        self.latency_s, self.jitter_s = self.loss.latency_s, self.loss.jitter_s
+        delay = self.latency_s + self.jitter_s  # the longest a message is in flight
+        self.slots = 0 if delay <= 0.0 else int(math.ceil(delay / dt)) + 3
+        self._alloc()
+
+    def _alloc(self) -> None:
+        B, N, P, S = self.B, self.N, len(self.pair_s), self.slots
+        self.keys = np.zeros(B, dtype=np.uint64)
+        self.next_check = np.full((B, N), -np.inf)
+        self.last_sent = np.full((5, B, N), np.nan)  # t, x, y, speed, heading
+        self.msgs_sent, self.broadcasts, self.delivered_to, self.lost_to, self.msgs_kept = (
+            np.zeros((B, N), dtype=np.int64) for _ in range(5)
+        )
+        self.send = np.zeros((B, N), dtype=bool)
+        self._lost_scratch = np.zeros(max(N - 1, 1), dtype=np.uint8)  # one broadcast's
+        self.lost = np.zeros((B, P), dtype=bool)
+        if self.ge is not None:  # per ordered link: key, state, packets offered, last time
+            self.ge_key = np.zeros((B, N, N), dtype=np.uint64)
+            self.ge_bad = np.zeros((B, N, N), dtype=bool)
+            self.ge_n = np.zeros((B, N, N), dtype=np.int64)
+            self.ge_t = np.full((B, N, N), np.nan)
+        if S:  # in flight: per send slot, each pair's arrival time (inf: none), sender state
+            self.q_arrival = np.full((S, B, P), np.inf)
+            self.q_first = np.full((S, B), np.inf)  # a slot's earliest pending arrival
+            self._due_slots = np.zeros(S, dtype=np.int64)
+            self.q_state = np.zeros((S, 6, B, N))
+            self.q_t = np.zeros((S, B, N))
+
+    def reset(self, rows: np.ndarray) -> None:
+        """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
+        self.next_check[rows] = -np.inf
+        for arr in (self.msgs_sent, self.broadcasts, self.delivered_to, self.lost_to):
+            arr[rows] = 0
+        self.msgs_kept[rows] = 0
+        self.last_sent[:, rows] = np.nan
+        if self.slots:
+            self.q_arrival[:, rows] = np.inf
+            self.q_first[:, rows] = np.inf
+
+    def seed(self, b: int, rng: np.random.Generator) -> None:
+        """Convoy ``b``'s channel keys from its channel generator, as ``Channel.reset``."""
+        self.keys[b] = np.uint64(int(rng.integers(2**63)))
+        if self.ge is None:
+            return
+        # Gilbert-Elliott: one seed per ordered link, the chain's key from that seed.
+        N = self.N
+        seeds = rng.integers(2**63, size=N * (N - 1)).tolist()
+        keys = np.zeros((N, N), dtype=np.uint64)
+        pairs = [(s, r) for s in range(N) for r in range(N) if r != s]
+        for (s, r), seed in zip(pairs, seeds):
+            keys[s, r] = np.uint64(int(np.random.default_rng(seed).integers(2**63)))
+        p_bad = self.ge.mean_bad_s / (self.ge_good[b] + self.ge.mean_bad_s)
+        self.ge_key[b] = keys
+        self.ge_bad[b] = counter_uniform_array(keys, GE_INIT) < p_bad
+        self.ge_n[b] = 0
+        self.ge_t[b] = np.nan
+
+    def transmit(
+        self, t: np.ndarray, step: np.ndarray, own: np.ndarray, rows: np.ndarray, rx: RxBuffers
+    ) -> None:
+        """Tx gates, loss and delivery at ``t`` (B,), tick ``step`` (B,), of the own states
+        ``own`` (6, B, N) for convoys ``rows``: what arrives now is pushed into ``rx``."""
+        c = self.trigger
+        _tx_gate(
+            t, rows, own, self.next_check, self.last_sent, self.msgs_sent, self.mute_from,
+            c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps,
+            c.max_silence_s, self.send,
+        )  # fmt: skip
+        if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
+            _bernoulli_deliver(
+                self.keys, self.broadcasts, self.send, self.per, self.sender_start,
+                self.sender_r, self.sender_link, rows, t, own, self.lost_to,
+                self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.newest,
+                rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m,
+                self._lost_scratch,
+            )  # fmt: skip
+            return
+        if self.ge is not None:
+            self.lost[:] = self._ge_lost(self.send, t)[:, self.pair_s, self.pair_r]
+        else:
+            _bernoulli(self.keys, self.broadcasts, self.send, self.per, self.pair_s, self.pair_r,
+                       rows, self.lost)  # fmt: skip
+        instant = self.slots == 0
+        if not instant:  # before the broadcasts are counted: the jitter draws' numbers
+            _enqueue(
+                self.keys, self.broadcasts, self.send, self.lost, self.pair_s, self.pair_r,
+                rows, t, step, own, self.latency_s, self.jitter_s, self.q_arrival,
+                self.q_first, self.q_state, self.q_t,
+            )  # fmt: skip
+        self.broadcasts += self.send
+        _deliver(
+            self.send, self.lost, self.pair_s, self.pair_r, self.pair_link, rows, t, own,
+            self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
+            rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
+            rx.spacing_m, instant,
+        )  # fmt: skip
+        if not instant:
+            _arrive(
+                step, t, self.q_arrival, self.q_first, self.q_state, self.q_t, self.pair_s,
+                self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
+                rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.trail_of, rx.spacing_m, self._due_slots,
+            )  # fmt: skip
+
+    def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """``GilbertElliott.lost`` on every link whose sender broadcasts now, (B, N, N)."""
+        ge = self.ge
+        assert ge is not None
+        N = self.N
+        offered = send[:, :, None] & ~np.eye(N, dtype=bool)
+        n = self.ge_n
+        tt = t[:, None, None]
+        last = self.ge_t
+        offered &= (self.per > 0.0)[:, None, None]  # PER 0: a perfect link, no chain
+        step = offered & ~np.isnan(last) & (tt > last)
+        a, b = (1.0 / self.ge_good)[:, None, None], 1.0 / ge.mean_bad_s
+        p_inf = a / (a + b)
+        with np.errstate(invalid="ignore"):
+            decay = np.exp(-(a + b) * (tt - last))
+        p_bad = p_inf + (np.where(self.ge_bad, 1.0, 0.0) - p_inf) * decay
+        moved = counter_uniform_array(self.ge_key, n, GE_ADVANCE) < p_bad
+        self.ge_bad = np.where(step, moved, self.ge_bad)
+        self.ge_t = np.where(offered, np.where(np.isnan(last), tt, np.fmax(last, tt)), last)
+        p = np.where(self.ge_bad, ge.loss_bad, ge.loss_good)
+        lost = offered & (p > 0.0) & (counter_uniform_array(self.ge_key, n, GE_LOSS) < p)
+        self.ge_n = n + offered
+        return lost
+
+
+@bare_inline
+def _mix(z):  # pragma: no cover - compiled
+    z = (z ^ (z >> _S30)) * _K1
+    z = (z ^ (z >> _S27)) * _K2
+    return z ^ (z >> _S31)
+
+
+@bare_inline
+def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
+    """``comms.loss.counter_uniform(key, w0, w1, w2, w3)``, bit for bit."""
+    z = _mix(key + _G + np.uint64(w0))
+    z = _mix(z + _G + np.uint64(w1))
+    z = _mix(z + _G + np.uint64(w2))
+    z = _mix(z + _G + np.uint64(w3))
+    return np.float64(z >> _S11) * _UNIT
+
+
+@bare_inline
+def _draw_bits(zs, w1, w2):  # pragma: no cover - compiled
+    """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``:
+    the uniform's 53 bits ``m`` (the uniform is ``m * 2**-53``)."""
+    z = _mix(zs + _G + np.uint64(w1))
+    z = _mix(z + _G + np.uint64(w2))
+    z = _mix(z + _G + np.uint64(DRAW_LOSS))
+    return z >> _S11
+
+
+@bare_inline
+def loss_threshold(per):  # pragma: no cover - compiled
+    """The integer ``c`` with ``m * 2**-53 < per`` exactly when ``m < c`` (``m`` an integer
+    below 2**53; ``per * 2**53`` is exact): a loss draw compared without floats."""
+    return np.uint64(math.ceil(per * 9007199254740992.0))
+
+
+@bare_kernel
+def _tx_gate(
+    t, rows, own, nc, last, sent, mute_from, period, event, thr, sthr, max_silence, send
+):  # pragma: no cover - compiled
+    """``TxGate.should_send`` for every vehicle: who broadcasts now (``send``)."""
+    for b in range(nc.shape[0]):
+        tt = t[b]
+        for i in range(nc.shape[1]):
+            send[b, i] = False
+            if not rows[b] or tt + 1e-9 < nc[b, i] or tt >= mute_from[i]:
+                continue
+            if nc[b, i] == -np.inf:
+                nc[b, i] = tt
+            while nc[b, i] <= tt + 1e-9:
+                nc[b, i] += period
+            ox, oy, ov = own[0, b, i], own[1, b, i], own[2, b, i]
+            if event:
+                lt = last[0, b, i]
+                if not (math.isnan(lt) or tt - lt >= max_silence - 1e-9):
+                    lv, lh, dt = last[3, b, i], last[4, b, i], tt - lt
+                    px = last[1, b, i] + lv * math.cos(lh) * dt
+                    py = last[2, b, i] + lv * math.sin(lh) * dt
+                    if not (norm(ox - px, oy - py) > thr or abs(ov - lv) > sthr):
+                        continue
+            send[b, i] = True
+            last[0, b, i], last[1, b, i], last[2, b, i] = tt, ox, oy
+            last[3, b, i], last[4, b, i] = ov, own[3, b, i]
+            sent[b, i] += 1
+
+
+@bare_kernel
+def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: no cover
+    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``)."""
+    for b in range(lost.shape[0]):
+        for p in range(lost.shape[1]):
+            s = pair_s[p]
+            lost[b, p] = (
+                rows[b]
+                and per[b] > 0.0
+                and send[b, s]
+                and counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_LOSS) < per[b]
+            )
+
+
+@bare_kernel
+def _bernoulli_deliver(
+    keys, number, send, per, start, recv, links, rows, t, own, lost_to, delivered_to, kept,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, lost,
+):  # pragma: no cover - compiled  # fmt: skip
+    """``_bernoulli`` and ``_deliver`` of instant links in one walk over each
+    broadcast's pairs (``start``: each sender's first in ``recv``, ``links``); counts the
+    broadcasts. A broadcast's draws come first, without branches (``lost``: scratch),
+    then its deliveries."""
+    for b in range(send.shape[0]):
+        if not rows[b]:
+            continue
+        drawn = per[b] > 0.0
+        thr = loss_threshold(per[b]) if drawn else np.uint64(0)
+        tb = t[b]
+        for s in range(send.shape[1]):
+            if not send[b, s]:
+                continue
+            nb = number[b, s]
+            q0, q1 = start[s], start[s + 1]
+            # counter_uniform4(key, s, r, nb, DRAW_LOSS), its sender's round once
+            zs = _mix(keys[b] + _G + np.uint64(s))
+            N = send.shape[1]
+            if not drawn:
+                lost[: q1 - q0] = 0
+            elif q1 - q0 == N - 1:  # every other vehicle, in order: r = j or j + 1
+                for j in range(N - 1):
+                    lost[j] = _draw_bits(zs, j + (j >= s), nb) < thr
+            else:
+                for q in range(q0, q1):
+                    lost[q - q0] = _draw_bits(zs, recv[q], nb) < thr
+            if q1 - q0 == N - 1:  # every other vehicle, in order: counted in two runs
+                _count(lost_to, delivered_to, kept, b, 0, s, 0, lost, links, q0)
+                _count(lost_to, delivered_to, kept, b, s + 1, N, s, lost, links, q0)
+            else:
+                for q in range(q0, q1):
+                    r, miss = recv[q], lost[q - q0]
+                    lost_to[b, r] += miss
+                    delivered_to[b, r] += 1 - miss
+                    kept[b, r] += (1 - miss) * (links[q] >= 0)
+            for q in range(q0, q1):
+                link = links[q]
+                if link < 0:
+                    continue
+                if not keeps[link]:  # push_one of a time-only link (its count is never
+                    # read), inline and without a branch on the draw
+                    was = newest[b, link]
+                    newest[b, link] = was if lost[q - q0] else max(was, tb)
+                elif not lost[q - q0]:
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
+                             link, tb, own, s, spacing)  # fmt: skip
+            number[b, s] = nb + 1
+
+
+@bare_inline
+def _count(lost_to, delivered_to, kept, b, r0, r1, j0, lost, links, q0):  # pragma: no cover
+    """The counters of receivers ``r0..r1-1``, pairs ``j0..`` of a broadcast (``lost``,
+    ``links`` from ``q0``): contiguous, so the compiler vectorizes it."""
+    for r in range(r0, r1):
+        j = r - r0 + j0
+        miss = np.int64(lost[j])
+        lost_to[b, r] += miss
+        delivered_to[b, r] += 1 - miss
+        kept[b, r] += (1 - miss) * (links[q0 + j] >= 0)
+
+
+@bare_kernel
+def _deliver(
+    send, lost, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to, kept,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, instant,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Count the losses of this tick's broadcasts; instant links also deliver now."""
+    for b in range(send.shape[0]):
+        if not rows[b]:
+            continue
+        for p in range(len(pair_s)):
+            s = pair_s[p]
+            if not send[b, s]:
+                continue
+            r = pair_r[p]
+            if lost[b, p]:
+                lost_to[b, r] += 1
+            elif instant:
+                delivered_to[b, r] += 1
+                link = pair_link[p]
+                if link >= 0:
+                    kept[b, r] += 1
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link, t[b],
+                             own, s, spacing)  # fmt: skip
+
+
+@bare_kernel
+def _enqueue(
+    keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, q_arrival,
+    q_first, q_state, q_t,
+):  # pragma: no cover - compiled  # fmt: skip
+    """This tick's broadcasts into send slot ``step % S``: the senders' states, and each
+    pair's arrival time (``Channel.send``'s, jitter drawn on broadcast ``number``;
+    inf where not sent or lost), and the slot's earliest arrival ``q_first``."""
+    S, B, P = q_arrival.shape
+    N = q_t.shape[2]
+    for b in range(B):
+        if not rows[b]:
+            continue
+        sl = step[b] % S
+        q_first[sl, b] = np.inf
+        for s in range(N):
+            q_t[sl, b, s] = t[b]
+            for f in range(6):
+                q_state[sl, f, b, s] = own[f, b, s]
+        for p in range(P):
+            s = pair_s[p]
+            if not send[b, s] or lost[b, p]:
+                q_arrival[sl, b, p] = np.inf
+                continue
+            arrival = t[b] + latency
+            if jitter > 0.0:
+                u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
+                arrival += u * jitter
+            q_arrival[sl, b, p] = arrival
+            q_first[sl, b] = min(q_first[sl, b], arrival)
+
+
+@bare_kernel
+def _arrive(
+    step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
+    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake.
+    Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
+    scratch)."""
+    S, B, P = q_arrival.shape
+    for b in range(B):
+        due = t[b] + 1e-9
+        n_due = 0
+        for back in range(S - 1, -1, -1):  # oldest send slot first
+            sl = (step[b] - back) % S
+            if q_first[sl, b] <= due:
+                slots[n_due] = sl
+                n_due += 1
+        if n_due == 0:
+            continue
+        for p in range(P):
+            s, r, link = pair_s[p], pair_r[p], pair_link[p]
+            while True:
+                first, first_arrival = -1, np.inf
+                for k in range(n_due):
+                    a = q_arrival[slots[k], b, p]
+                    if a <= due and a < first_arrival:
+                        first, first_arrival = slots[k], a
+                if first < 0:
+                    break
+                q_arrival[first, b, p] = np.inf
+                delivered_to[b, r] += 1
+                if link >= 0:
+                    kept[b, r] += 1
+                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link,
+                             q_t[first, b, s], q_state[first], s, spacing)  # fmt: skip
+        for k in range(n_due):
+            sl, pending = slots[k], np.inf
+            for p in range(P):
+                pending = min(pending, q_arrival[sl, b, p])
+            q_first[sl, b] = pending

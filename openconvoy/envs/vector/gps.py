@@ -1,0 +1,47 @@
+"""GPS noise of the batched simulator: ``envs.gps``'s draws in a compiled kernel.
+
+``sense`` writes what the members measure of themselves: the plant state with each
+position off by ``envs.gps.gps_noise`` of its convoy's key, vehicle and tick (the same
+numbers, libm's log, cos and sin on both sides).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from openconvoy.comms.loss import _GOLDEN, _UNIT
+from openconvoy.envs.vector.channel import _mix
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+
+_G, _S11 = np.uint64(_GOLDEN), np.uint64(11)
+
+
+@bare_inline
+def counter_normals(key, vehicle, tick):  # pragma: no cover - compiled
+    """``envs.gps.box_muller`` of the counter uniforms ``(key, vehicle, tick, 0)`` and
+    ``(..., 1)`` (``comms.loss.counter_uniform``): two independent standard normals."""
+    z = _mix(key + _G + np.uint64(vehicle))
+    z = _mix(z + _G + np.uint64(tick))
+    u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * _UNIT
+    u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * _UNIT
+    r = math.sqrt(-2.0 * math.log(1.0 - u1))
+    angle = 2.0 * math.pi * u2
+    return r * math.cos(angle), r * math.sin(angle)
+
+
+@bare_kernel
+def sense(own, step, keys, sigma, rows, sensed):  # pragma: no cover - compiled
+    """``sensed`` (6, B, N): ``own`` with GPS noise of std ``sigma`` (m) on x and y, at
+    tick ``step[b]`` of convoy ``b`` keyed ``keys[b]``, for the convoys ``rows``."""
+    _, B, N = own.shape
+    for b in range(B):
+        if not rows[b]:
+            continue
+        for i in range(N):
+            for f in range(6):
+                sensed[f, b, i] = own[f, b, i]
+            nx, ny = counter_normals(keys[b], i, step[b])
+            sensed[0, b, i] += sigma * nx
+            sensed[1, b, i] += sigma * ny

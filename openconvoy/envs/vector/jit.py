@@ -1,0 +1,127 @@
+"""The batched simulator's compiler: numba's ``njit``, cached on disk.
+
+The ``VectorConvoyEnv`` kernels are loops over convoys and vehicles compiled to machine
+code (numba, the ``batched`` extra), not Python loops: one call per stage of the tick
+instead of ~1,000 numpy calls. The compiled code is cached, so only the first process
+after an install or a change pays the compile. No ``fastmath``: the kernels keep IEEE
+arithmetic, so they agree with ``ConvoyEnv``.
+
+Numba checks a cached kernel against its own source file only, but kernels call kernels
+of other ``vector_*`` modules: the cache lives in a directory named for a digest of all
+the modules with kernels (and numba's version), so a change to any kernel recompiles every one.
+``NUMBA_CACHE_DIR`` (numba's setting) moves that directory's parent; default
+``~/.cache/openconvoy`` (``XDG_CACHE_HOME``; the temporary directory when not writable).
+Compiling all kernels takes ~30 CPU-seconds, loading them from the cache ~1.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from openconvoy.core.errors import DependencyMissing
+
+try:
+    import numba as _numba
+    from llvmlite import ir as _ir
+    from llvmlite.binding import llvm_version_info as _llvm_version
+    from numba import types as _types
+    from numba.core import cgutils as _cgutils
+    from numba.extending import intrinsic as _intrinsic
+except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
+    raise DependencyMissing(
+        "VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'"
+    ) from exc
+
+
+def _cache_dir() -> Path:
+    digest = hashlib.sha256(_numba.__version__.encode())
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        text = path.read_bytes()
+        if b"@bare_" in text or b"@kernel" in text or path.name == "jit.py":
+            digest.update(path.name.encode() + text)
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
+    path = Path(base) / f"vector-kernels-{digest.hexdigest()[:16]}"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:  # a read-only home: cache in the temporary directory instead
+        path = Path(tempfile.gettempdir()) / "openconvoy" / path.name
+        path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+CACHE_DIR = _cache_dir()
+
+typeof: Callable[[Any], Any] = _numba.typeof
+"""numba's type of a Python value (what a kernel is compiled for)."""
+
+
+_OPTIONS: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
+def kernel(fn: Callable[..., Any]) -> Any:
+    """Compile ``fn`` in nopython mode, cached in ``CACHE_DIR`` (no fastmath; numpy's
+    error model: a division by zero gives inf/NaN as the array code did, unchecked)."""
+    return _compile(fn, _OPTIONS)
+
+
+def bare_kernel(fn: Callable[..., Any]) -> Any:
+    """A ``kernel`` without reference counting (numba's ``_nrt=False``): it allocates no
+    array and returns none (scratch comes from the caller). A call of a kernel with
+    array arguments otherwise counts each array up and down (atomic, out of line),
+    which for the per-link helpers costs more than their work."""
+    return _compile(fn, {**_OPTIONS, "_nrt": False})
+
+
+def bare_inline(fn: Callable[..., Any]) -> Any:
+    """A ``bare_kernel`` that LLVM inlines into its callers (``forceinline``): the small
+    helpers called per link or per trail segment, whose arguments (each array several
+    words) cost more to pass than the work."""
+    return _compile(fn, {**_OPTIONS, "_nrt": False, "forceinline": True})
+
+
+def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:
+    # numba reads its cache directory when a function is decorated: set it for ours only.
+    config: Any = _numba.config
+    saved = config.CACHE_DIR
+    config.CACHE_DIR = str(CACHE_DIR)
+    try:
+        return _numba.njit(**options)(fn)
+    finally:
+        config.CACHE_DIR = saved
+
+
+# The intrinsic's name carries its pointer type: opaque pointers from LLVM 15 on.
+_PREFETCH = "llvm.prefetch.p0" if _llvm_version[0] >= 15 else "llvm.prefetch.p0i8"
+
+
+def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any, m: Any) -> Any:  # pragma: no cover
+    """Hint the cache to fetch ``arr[b, ln, j, m]`` (a 4-D array; no effect on values):
+    the batched kernels touch each convoy's trails once per tick, too far apart for the
+    hardware to guess, so a kernel asks for the next convoys' rows while it works."""
+    sig = _types.void(arr, b, ln, j, m)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [
+            context.cast(builder, v, t, _types.intp) for v, t in zip(args[1:], signature.args[1:])
+        ]
+        idx += [_ir.Constant(_ir.IntType(64), 0)] * (aryty.ndim - len(idx))
+        ptr = _cgutils.get_item_pointer(context, builder, aryty, ary, idx)
+        i8p, i32 = _ir.IntType(8).as_pointer(), _ir.IntType(32)
+        fnty = _ir.FunctionType(_ir.VoidType(), [i8p, i32, i32, i32])
+        fn = _cgutils.get_or_insert_function(builder.module, fnty, _PREFETCH)
+        # read, high locality, data cache
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+prefetch: Any = _intrinsic(_prefetch)

@@ -1,0 +1,145 @@
+"""The leaders' driver, batched: ``PathScenario.leader_command`` for B leaders at once
+(the same arithmetic; the path search and pure pursuit compiled, the speed profile an
+array function of time s and arc length m)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from openconvoy.core.errors import ConfigError
+from openconvoy.envs.scenarios import (
+    EMERGENCY_BRAKE_AT_S,
+    EMERGENCY_DECEL_MPS2,
+    EMERGENCY_SPEED_MPS,
+    PathScenario,
+    SpeedProfile,
+    emergency_speed,
+    paper_speed,
+)
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.math import wrap
+
+WINDOW_M = 20.0
+"""``Path.project``'s search window around the last arc length (m)."""
+
+
+_KERNEL_PROFILES: dict[SpeedProfile, int] = {paper_speed: 1, emergency_speed: 2}
+"""Speed profiles the kernel computes itself (``_profile``); others are called per tick."""
+
+
+class LeaderDriver:
+    """The drivers of ``num_envs`` leaders on ``scenario``'s path."""
+
+    def __init__(self, scenario: PathScenario, num_envs: int) -> None:
+        self.sc = sc = scenario
+        path = scenario.path
+        prof = scenario.speed_profile
+        self.kind = _KERNEL_PROFILES.get(prof, 0)
+        if self.kind == 0 and not isinstance(prof(0.0, 0.0), (int, float)):
+            raise ConfigError("VectorConvoyEnv: the scenario's speed profile must return a number")
+        self.profile = np.vectorize(prof, otypes=[float])
+        self.target = np.zeros(num_envs)
+        self.closed = bool(path.closed)
+        self.length = float(path.length)
+        self.seg = np.concatenate([path._a, path._seg_dir, path._seg_len[:, None]], axis=1)
+        self.seg_s = np.asarray(path._s, dtype=float)
+        self.params = np.array(
+            [sc.ramp_accel_mps2, sc.ramp_decel_mps2, sc.lookahead_min_m, sc.lookahead_time_s]
+        )
+        self.s = np.zeros(num_envs)
+        self.cmd = np.zeros(num_envs)
+        self.t_last = np.full(num_envs, np.nan)
+
+    def reset(self, which: np.ndarray) -> None:
+        sc = self.sc
+        self.s[which] = sc.leader_start_s % self.length if self.closed else sc.leader_start_s
+        self.cmd[which] = float(sc.start_speed_mps)
+        self.t_last[which] = np.nan
+
+    def command(
+        self, t: np.ndarray, own: np.ndarray, cmd_v: np.ndarray, cmd_dh: np.ndarray
+    ) -> None:
+        """The leaders' setpoints at ``t`` (B,) from their states ``own[:, :, 0]``: speed
+        (m/s) into ``cmd_v[:, 0]``, heading change (rad) into ``cmd_dh[:, 0]``."""
+        _project(own, self.s, self.seg, self.seg_s, self.closed, self.length)
+        if self.kind == 0:
+            self.target[:] = self.profile(t, self.s)
+        _drive(t, own, self.s, self.kind, self.target, self.cmd, self.t_last, self.params,
+               self.seg, self.seg_s, self.closed, self.length, cmd_v, cmd_dh)  # fmt: skip
+
+
+@bare_inline
+def _segment(seg_s, n, s):  # pragma: no cover - compiled
+    """The segment holding arc length ``s`` (``Path._segment``)."""
+    return min(max(np.searchsorted(seg_s, s, side="right") - 1, 0), n - 1)
+
+
+@bare_kernel
+def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - compiled
+    """``Path.project`` of each leader near its last arc length; updates ``s_arr``."""
+    n = seg.shape[0]
+    x, y = own[0, :, 0], own[1, :, 0]
+    for b in range(len(x)):
+        if n == 1:
+            u = (x[b] - seg[0, 0]) * seg[0, 2] + (y[b] - seg[0, 1]) * seg[0, 3]
+            s_arr[b] = min(max(u, 0.0), length)
+            continue
+        i0, span = 0, n
+        if n > 2:
+            lo, hi = s_arr[b] - WINDOW_M, s_arr[b] + WINDOW_M
+            if closed:
+                i0 = _segment(seg_s, n, lo % length)
+                span = min((_segment(seg_s, n, hi % length) - i0) % n + 1, n)
+            else:
+                i0 = _segment(seg_s, n, max(lo, 0.0))
+                span = _segment(seg_s, n, min(hi, length)) - i0 + 1
+        best, s_best = np.inf, 0.0
+        for off in range(span):
+            i = (i0 + off) % n if closed else min(i0 + off, n - 1)
+            u = (x[b] - seg[i, 0]) * seg[i, 2] + (y[b] - seg[i, 1]) * seg[i, 3]
+            u = min(max(u, 0.0), seg[i, 4])
+            px, py = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
+            d = (px - x[b]) ** 2 + (py - y[b]) ** 2
+            if d < best:
+                best, s_best = d, seg_s[i] + u
+        s_arr[b] = s_best % length if closed else s_best
+
+
+@bare_inline
+def _profile(kind, t, s, target):  # pragma: no cover - compiled
+    """The built-in speed profiles (``scenarios.paper_speed``, ``emergency_speed``)."""
+    if kind == 1:
+        return 2.0 if 20.0 <= t < 40.0 else 1.0
+    if kind == 2:
+        if t < EMERGENCY_BRAKE_AT_S:
+            return EMERGENCY_SPEED_MPS
+        return max(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
+    return target
+
+
+@bare_kernel
+def _drive(
+    t, own, s_arr, kind, target, cmd, t_last, p, seg, seg_s, closed, length, cmd_v, cmd_dh
+):  # pragma: no cover - compiled
+    """The speed ramp towards the profile and pure pursuit one look-ahead ahead."""
+    n = seg.shape[0]
+    for b in range(len(t)):
+        s = s_arr[b]
+        tgt = _profile(kind, t[b], s, target[b])
+        if not closed:  # stop at the end of an open road, braking at the leader's limit
+            tgt = min(tgt, math.sqrt(2.0 * p[1] * max(length - s, 0.0)))
+        dt = 0.0 if math.isnan(t_last[b]) else max(t[b] - t_last[b], 0.0)
+        t_last[b] = t[b]
+        if dt > 0.0:
+            cmd[b] = cmd[b] + min(max(tgt - cmd[b], -p[1] * dt), p[0] * dt)
+        look = max(p[2], p[3] * max(own[2, b, 0], 0.0))
+        ahead = (s + look) % length if closed else s + look
+        if closed:
+            ahead = ahead % length
+        i = _segment(seg_s, n, ahead)
+        u = ahead - seg_s[i]
+        tx, ty = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
+        cmd_v[b, 0] = cmd[b]
+        cmd_dh[b, 0] = wrap(math.atan2(ty - own[1, b, 0], tx - own[0, b, 0]) - own[3, b, 0])

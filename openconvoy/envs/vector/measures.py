@@ -1,0 +1,110 @@
+"""The batched env's per-tick measures: gaps, collisions, rewards (``envs.reward``'s
+terms, the same order of operations) and the info arrays."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from openconvoy.envs.reward import RewardConfig
+from openconvoy.envs.vector.jit import bare_kernel
+from openconvoy.envs.vector.math import norm
+
+
+def pack_reward(c: RewardConfig) -> np.ndarray:
+    """``RewardConfig`` as the kernel's array."""
+    return np.array(
+        [c.spacing_scale_m, c.accel_scale_mps2, c.jerk_scale_mps3, c.yaw_rate_scale_radps,
+         c.w_spacing, c.w_accel, c.w_jerk, c.w_yaw_rate, c.collision_penalty],
+    )  # fmt: skip
+
+
+@bare_kernel
+def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
+    """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions."""
+    for b in range(gap.shape[0]):
+        for f in range(gap.shape[1]):
+            g = norm(own[0, b, f] - own[0, b, f + 1], own[1, b, f] - own[1, b, f + 1])
+            gap[b, f] = g
+            collided[b, f] = g < half_sum[f]
+
+
+@bare_kernel
+def reward(out, gap, desired, accel_old, own, collided, inv_dt, c):  # pragma: no cover
+    """``envs.reward``: spacing, acceleration, jerk, yaw rate and collision terms."""
+    for b in range(gap.shape[0]):
+        for f in range(gap.shape[1]):
+            i = f + 1
+            e = abs(gap[b, f] - desired[b, i]) / c[0]
+            e = 0.0 if math.isnan(e) else min(e, 1.0)
+            a = own[4, b, i] / c[1]
+            j = (own[4, b, i] - accel_old[b, i]) * inv_dt / c[2]
+            w = own[5, b, i] / c[3]
+            pen = c[8] if collided[b, f] else 0.0
+            out[b, f] = -(c[4] * e + c[5] * a * a + c[6] * j * j + c[7] * w * w + pen)
+
+
+FLOAT_KEYS = (
+    "gap_m", "desired_gap_m", "platooning_error_m", "spacing_error_m", "speed_mps",
+    "accel_mps2", "cmd_speed_mps", "cmd_heading_change_rad", "pred_msg_age_s",
+)  # fmt: skip
+INT_KEYS = ("mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+LEADER_FLOAT_KEYS = ("leader_cmd_speed_mps", "leader_cmd_heading_change_rad")
+LEADER_INT_KEYS = ("leader_mode", "leader_msgs_sent", "leader_msgs_received", "leader_msgs_lost")
+
+
+def info_arrays(B: int, F: int) -> tuple[np.ndarray, ...]:
+    """``fill_infos``'s outputs for ``B`` convoys of ``F`` followers, uninitialized."""
+    return (
+        np.empty((len(FLOAT_KEYS), B, F)),
+        np.empty((len(INT_KEYS), B, F), dtype=np.int64),
+        np.empty((len(LEADER_FLOAT_KEYS), B)),
+        np.empty((len(LEADER_INT_KEYS), B), dtype=np.int64),
+    )
+
+
+def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, Any]:
+    """Arrays (B, N-1) of ``ConvoyEnv``'s info keys (NaN where it has None), plus ``mode``
+    codes (``vector.env.MODES``); ``t_s`` and ``leader_*`` (B,): the leader's values of
+    the keys a log row has (``experiments.batched.run`` writes the leader's rows from them).
+    ``filled``: ``info_arrays`` that ``fill_infos`` has filled this tick already."""
+    if filled is None:
+        filled = info_arrays(*env.gap.shape)
+        ch = env.channel
+        fill_infos(
+            *filled, env.gap, env.desired_gap, env.spacing_error, env.own, env.cmd_v,
+            env.cmd_dh, env._has_cmd, env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to,
+            ch.msgs_kept, ch.lost_to, env.policy_errors,
+        )  # fmt: skip
+    fl, it, lf, li = filled
+    out = dict(zip(FLOAT_KEYS, fl))
+    out.update(zip(INT_KEYS, it))
+    out.update(zip(LEADER_FLOAT_KEYS, lf))
+    out.update(zip(LEADER_INT_KEYS, li))
+    out["t_s"] = env.t.copy()
+    out["leader_speed_mps"] = env.own[2][:, 0].copy()
+    out["collision"] = env.collided.copy()
+    return out
+
+
+@bare_kernel
+def fill_infos(
+    fl, it, lf, li, gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes,
+    sent, received, kept, lost, errors,
+):  # pragma: no cover - compiled  # fmt: skip
+    for b in range(gap.shape[0]):
+        lf[0, b] = cmd_v[b, 0] if has_cmd[b] else np.nan
+        lf[1, b] = cmd_dh[b, 0] if has_cmd[b] else np.nan
+        li[0, b], li[1, b], li[2, b], li[3, b] = modes[b, 0], sent[b, 0], received[b, 0], lost[b, 0]
+        for f in range(gap.shape[1]):
+            i = f + 1
+            fl[0, b, f], fl[1, b, f] = gap[b, f], desired[b, i]
+            fl[2, b, f], fl[3, b, f] = abs(gap[b, f] - desired[b, i]), spacing_error[b, i]
+            fl[4, b, f], fl[5, b, f] = own[2, b, i], own[4, b, i]
+            fl[6, b, f] = cmd_v[b, i] if has_cmd[b] else np.nan
+            fl[7, b, f] = cmd_dh[b, i] if has_cmd[b] else np.nan
+            fl[8, b, f] = pred_age[b, i]
+            it[0, b, f], it[1, b, f], it[2, b, f] = modes[b, i], sent[b, i], received[b, i]
+            it[3, b, f], it[4, b, f], it[5, b, f] = kept[b, i], lost[b, i], errors[b, i]

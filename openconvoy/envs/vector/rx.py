@@ -1,0 +1,91 @@
+"""The receivers' side of the batched simulator: R^i buffers and trails per kept link.
+
+Per kept link ``ln`` (receiver, sender) of convoy ``b``: ``hist[b, ln]`` (k, 6) the last
+``k`` states, newest first (t s, x m, y m, speed m/s, heading rad, accel m/s², and the
+heading's cosine and sine: one cache line a state, no trigonometry per reader),
+``hist_n`` how many, ``newest[b, ln]`` the newest one's time (-inf: none). Only what the receiver reads is kept (``LinkTables``): the states of
+the links in its observation slots and targets, of the others only the newest time (the
+ladder's age; the same ages, so the same run). Per target link, row ``trail_of[ln]`` of
+the trails: the sender's trail (``vector.trail``); ``hint`` the last projection's arc
+coordinate on it (NaN: none) and ``hint_k`` its segment (where the next search starts).
+A link's data is contiguous: a push touches a few cache lines. ``StateBuffer.push`` +
+``Trail.add``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from openconvoy.envs.vector.jit import bare_inline
+from openconvoy.envs.vector.links import LinkTables
+from openconvoy.envs.vector.math import cos_sin
+from openconvoy.envs.vector.trail import CAPACITY, trail_add
+
+T, HX, HY, HV, HH, HA, HC, HS = range(8)
+"""Fields of ``hist``'s last axis."""
+FIELDS = 8
+
+
+def aligned_zeros(shape: tuple[int, ...]) -> np.ndarray:
+    """Zeros (float64) starting on a cache line (64 bytes): a state (8 doubles) or two
+    breadcrumbs (4 each) then fill one line, not two."""
+    n = int(np.prod(shape))
+    raw = np.zeros(n + 8)
+    start = (-raw.ctypes.data % 64) // 8
+    return raw[start : start + n].reshape(shape)
+
+
+class RxBuffers:
+    """R^i buffers of ``links.L`` kept links, trails and projection hints of ``links.T``
+    target links, in ``B`` convoys."""
+
+    def __init__(self, B: int, links: LinkTables, k: int, spacing_m: float) -> None:
+        self.k, self.spacing_m = k, spacing_m
+        self.keeps_states, self.trail_of = links.keeps_states, links.trail_of
+        L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
+        self.hist = aligned_zeros((B, L, k, FIELDS))
+        self.hist_n = np.zeros((B, L), dtype=np.int64)
+        self.newest = np.full((B, L), -np.inf)
+        # Untouched pages of a trail are never committed (calloc): memory grows with
+        # the breadcrumbs actually laid.
+        self.trail = np.zeros((B, T, CAPACITY, 3))
+        self.tail = np.zeros((B, T, 4))
+        self.trail_n = np.zeros((B, T), dtype=np.int64)
+        self.hint = np.full((B, T), np.nan)
+        self.hint_k = np.zeros((B, T), dtype=np.int64)
+
+    def reset(self, rows: np.ndarray) -> None:
+        """Empty the buffers of convoys ``rows`` (bool (B,))."""
+        self.hist_n[rows] = 0
+        self.newest[rows] = -np.inf
+        self.trail_n[rows] = 0
+        self.tail[rows] = 0.0
+        self.hint[rows] = np.nan
+        self.hint_k[rows] = 0
+
+
+@bare_inline
+def push_one(
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, ln, ts, st, s, spacing
+):  # pragma: no cover - compiled
+    """``StateBuffer.push`` of sender ``s``'s state ``st[:, b, s]`` sent at ``ts`` onto
+    link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``;
+    only the time where the link ``keeps`` no states. ``st``'s rows: the plant's (with
+    the heading's cosine and sine, ``vector.plant``) or its first six (computed here)."""
+    if not ts > newest[b, ln]:
+        return
+    newest[b, ln] = ts
+    k = hist.shape[2]
+    hist_n[b, ln] = min(hist_n[b, ln] + 1, k)
+    if not keeps[ln]:
+        return
+    for j in range(k - 1, 0, -1):
+        for f in range(FIELDS):
+            hist[b, ln, j, f] = hist[b, ln, j - 1, f]
+    hist[b, ln, 0, T] = ts
+    for f in range(5):  # x, y, speed, heading, accel: the plant's rows 0..4
+        hist[b, ln, 0, f + 1] = st[f, b, s]
+    hist[b, ln, 0, HC], hist[b, ln, 0, HS] = cos_sin(st, b, s)
+    tl = trail_of[ln]
+    if tl >= 0:
+        trail_add(trail, tail, trail_n, b, tl, st[0, b, s], st[1, b, s], spacing)

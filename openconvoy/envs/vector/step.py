@@ -1,0 +1,127 @@
+"""The whole tick in one compiled call: ``VectorConvoyEnv.step``'s stages fused.
+
+At small batches a tick costs Python, not the kernels: about ten kernel calls (each
+checking the types of its ~20 arguments) and a few dozen numpy operations. ``fused_step``
+calls the same kernels in the same order from compiled code, so the numbers are the
+same. It covers the common configuration (instant Bernoulli links, a built-in leader
+speed profile, no braking fault); the env steps the others stage by stage.
+
+Each stage's arrays come packed once in a tuple in its kernel's argument order
+(``pack``): arrays the env updates in place, so the tuples stay valid.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from openconvoy.envs.vector.channel import _bernoulli_deliver, _tx_gate
+from openconvoy.envs.vector.jit import bare_kernel, typeof
+from openconvoy.envs.vector.leader import _drive, _project
+from openconvoy.envs.vector.measures import fill_infos, measure, reward
+from openconvoy.envs.vector.member import decide
+from openconvoy.envs.vector.observation import observe
+from openconvoy.envs.vector.plant import _plant_step
+
+
+def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
+    """The stages' argument tuples of ``env`` (a ``VectorConvoyEnv``), after the per-step
+    arrays: member, leader projection, leader drive, plant, clock, Tx gate, delivery,
+    observation, measures, reward, infos."""
+    t, own, lk, rx, ch, ld, pl = (
+        env.t,
+        env._own,  # with the heading's cosine and sine
+        env.links,
+        env.rx,
+        env.channel,
+        env.leader,
+        env.plant,
+    )
+    c, mc = ch.trigger, env.member_config
+    return (
+        (env.action_low, env.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
+         lk.pred_link, env._link_decel, env.lengths, env._spacing, env._ladder, env._fresh_age_s,
+         env.max_heading_change, env.pred_est, env.policy_errors, env.policy_failed,
+         env.estopped, env.emergency_stop, env._rule, env.cmd_v, env.cmd_dh, env.modes,
+         env.ranging.reading, env.events.record, env.events.count),
+        (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
+        (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
+         ld.closed, ld.length, env.cmd_v, env.cmd_dh),
+        (pl.state, pl.inner, pl.queue, pl.head, pl.params, pl.pi, pl.pi_sub, pl.delay,
+         pl.hdelay, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
+        (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),
+        (t, env._everyone, own, ch.next_check, ch.last_sent, ch.msgs_sent, ch.mute_from,
+         c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps, c.max_silence_s,
+         ch.send),
+        (ch.keys, ch.broadcasts, ch.send, ch.per, ch.sender_start, ch.sender_r,
+         ch.sender_link, env._everyone, t, own, ch.lost_to, ch.delivered_to, ch.msgs_kept,
+         rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+         rx.trail_of, rx.spacing_m, ch._lost_scratch),
+        (env._everyone, t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n,
+         lk.trail_of, rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link,
+         env._link_decel, env.lengths, env._spacing, mc.ladder.stop_after_s, env._fresh_age_s,
+         env._geom, env.desired_gap, env.spacing_error, env.pred_age, env.pred_est,
+         env._targets_scratch),
+        (own, env._half_sum, env.gap, env.collided),
+        (env.gap, env.desired_gap, env._accel_old, own, env.collided, 1.0 / env.dt,
+         env._reward_c),
+        (env.gap, env.desired_gap, env.spacing_error, own, env.cmd_v, env.cmd_dh, env._has_cmd,
+         env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to, ch.msgs_kept, ch.lost_to,
+         env.policy_errors),
+    )  # fmt: skip
+
+
+class FusedCall:
+    """``fused_step`` for one env, called through the compiled entry point of its
+    signature once the first call has typed it: the dispatcher types every argument
+    (~170 arrays in nested tuples) on every call, ~10 µs a tick. An env's stage tuples
+    are fixed and its per-step arrays always of the same kinds, so one typing holds."""
+
+    def __init__(self) -> None:
+        self._entry: Any = None
+
+    def __call__(self, *args: Any) -> None:
+        if self._entry is not None:
+            self._entry(*args)
+            return
+        fused_step(*args)
+        sig = tuple(typeof(a) for a in args)
+        found = fused_step.overloads.get(sig)
+        # (``entry_point``: numba's compiled wrapper; the dispatcher stays if it is absent)
+        self._entry = getattr(found, "entry_point", None) or fused_step
+
+
+@bare_kernel
+def fused_step(
+    act, obs, rewards, terminated, truncated, info, member, lead_project, lead_drive, plant,
+    clock, tx, deliver, view, meas, score, fill,
+):  # pragma: no cover - compiled  # fmt: skip
+    """One tick of every convoy: decide, drive the leaders, move the plant, advance the
+    clock, Tx gates, loss and delivery, observations, gaps, rewards, terminations and the
+    info arrays (``info``: ``fill_infos``'s four outputs)."""
+    decide(act, *member)
+    _project(*lead_project)
+    _drive(*lead_drive)
+    t, step_count, dt, max_steps, has_cmd, accel_old, own = clock
+    B = t.shape[0]
+    for b in range(B):
+        has_cmd[b] = True
+        for i in range(own.shape[2]):
+            accel_old[b, i] = own[4, b, i]
+    _plant_step(*plant)
+    for b in range(B):
+        step_count[b] += 1
+        t[b] = step_count[b] * dt
+    _tx_gate(*tx)
+    _bernoulli_deliver(*deliver)
+    observe(obs, *view)
+    measure(*meas)
+    reward(rewards, *score)
+    gap, collided = meas[2], meas[3]
+    for b in range(B):
+        hit = False
+        for f in range(gap.shape[1]):
+            hit = hit or collided[b, f]
+        terminated[b] = hit
+        truncated[b] = step_count[b] >= max_steps and not hit
+    fl, it, lf, li = info
+    fill_infos(fl, it, lf, li, *fill)

@@ -1,0 +1,229 @@
+"""Trails as ring arrays: ``core.trail.Trail``'s add, project and point_at, compiled.
+
+A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
+s (m), ``n[b, ln]`` of them, the oldest half dropped when full (a fourth field, each
+segment's heading laid once instead of an atan2 per query, measured slower: more cache
+lines per query); ``tail[b, ln]`` (4,) is its newest breadcrumb again and the oldest one's arc coordinate, packed with the
+other trails' (every add and query reads them: one cache line for many trails instead of
+two each). A query's path is the
+extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
+heading ``hh`` (the sender's dead-reckoned position): the same vertices, segments and
+walk as ``Trail``, so the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+from openconvoy.envs.vector.jit import bare_inline
+from openconvoy.envs.vector.math import norm
+
+CAPACITY = 1024
+"""Breadcrumbs per trail, as ``core.trail.Trail`` (the oldest half dropped when full)."""
+FAR_M = 1e4
+"""Length of the straight extension behind the oldest breadcrumb (``Trail._vertex``)."""
+
+
+@bare_inline
+def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
+    """``Trail.add``: record (x, y) when ``spacing`` m from the last breadcrumb."""
+    nn = n[b, ln]
+    step = 0.0
+    ps = 0.0
+    if nn > 0:
+        ps = tail[b, ln, 2]
+        step = norm(x - tail[b, ln, 0], y - tail[b, ln, 1])
+        if step < spacing:
+            return
+    cap = tr.shape[2]
+    if nn >= cap:
+        half = cap // 2
+        for j in range(cap - half):
+            for f in range(3):
+                tr[b, ln, j, f] = tr[b, ln, j + half, f]
+        nn -= half
+        tail[b, ln, 3] = tr[b, ln, 0, 2]
+    s = ps + step if nn > 0 else 0.0
+    tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
+    tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
+    if nn == 0:
+        tail[b, ln, 3] = s
+    n[b, ln] = nn + 1
+
+
+@bare_inline
+def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
+    """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
+    from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
+    moves a little along a trail per tick)."""
+    g = min(max(guess, 0), n)
+    if g < n and tr[b, ln, g, 2] <= value:  # the answer is above g
+        lo, step = g + 1, 1
+        hi = lo + step
+        while hi < n and tr[b, ln, hi, 2] <= value:
+            lo, step = hi + 1, step * 2
+            hi = lo + step
+        hi = min(hi, n)
+    elif g > 0 and value < tr[b, ln, g - 1, 2]:  # the answer is below g
+        hi, step = g - 1, 1
+        lo = hi - step
+        while lo > 0 and value < tr[b, ln, lo - 1, 2]:
+            hi, step = lo - 1, step * 2
+            lo = hi - step
+        lo = max(lo, 0)
+    else:
+        return g
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if value < tr[b, ln, mid, 2]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@bare_inline
+def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
+    """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb."""
+    if n >= 2:
+        dx, dy = tr[b, ln, 1, 0] - tr[b, ln, 0, 0], tr[b, ln, 1, 1] - tr[b, ln, 0, 1]
+    else:
+        dx, dy = hx - tr[b, ln, 0, 0], hy - tr[b, ln, 0, 1]
+    d = norm(dx, dy)
+    if d < 1e-9:
+        return -math.cos(hh), -math.sin(hh)
+    return -dx / d, -dy / d
+
+
+@bare_inline
+def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
+    """``Trail._vertex``: -1 the far end of the extension, 0..n-1 breadcrumbs, n the head
+    (at arc coordinate ``s_head``)."""
+    if k >= n:
+        return hx, hy, s_head
+    if k >= 0:
+        return tr[b, ln, k, 0], tr[b, ln, k, 1], tr[b, ln, k, 2]
+    bx, by = _back(tr, b, ln, n, hx, hy, hh)
+    return tr[b, ln, 0, 0] + FAR_M * bx, tr[b, ln, 0, 1] + FAR_M * by, tr[b, ln, 0, 2] - FAR_M
+
+
+@bare_inline
+def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
+    """``Trail._segment`` of (x, y) on segment k -> k+1: (dist², s, dx, dy, seg, rx, ry),
+    the cross track and heading left to ``_finish`` (only the nearest needs them)."""
+    ax, ay, sa = _vertex(tr, b, ln, n, k, hx, hy, hh, s_head)
+    bx, by, sb = _vertex(tr, b, ln, n, k + 1, hx, hy, hh, s_head)
+    dx, dy = bx - ax, by - ay
+    seg = norm(dx, dy)
+    rx, ry = x - ax, y - ay
+    if seg < 1e-12:
+        return rx * rx + ry * ry, sa, dx, dy, seg, rx, ry
+    u = min(max((rx * dx + ry * dy) / (seg * seg), 0.0), 1.0)
+    ex, ey = rx - u * dx, ry - u * dy
+    return ex * ex + ey * ey, sa + u * (sb - sa), dx, dy, seg, rx, ry
+
+
+@bare_inline
+def _dist2(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
+    """``_segment``'s squared distance alone, the same bits: where the clamp of ``u`` to
+    0 or 1 is certain (the point before the segment's start, or well past its end, as
+    the walk's neighbours mostly are) without the sqrt and the division."""
+    ax, ay, _ = _vertex(tr, b, ln, n, k, hx, hy, hh, s_head)
+    bx, by, _ = _vertex(tr, b, ln, n, k + 1, hx, hy, hh, s_head)
+    dx, dy = bx - ax, by - ay
+    rx, ry = x - ax, y - ay
+    dot = rx * dx + ry * dy
+    if dot <= 0.0:  # u = 0, or a degenerate segment: the distance to a either way
+        return rx * rx + ry * ry
+    q = dx * dx + dy * dy
+    # seg >= 1e-12 and dot / (seg * seg) > 1 for certain (seg * seg is q within 3 ulps): u = 1
+    if q > 2e-24 and dot > q * (1.0 + 1e-12):
+        ex, ey = rx - dx, ry - dy
+        return ex * ex + ey * ey
+    seg = norm(dx, dy)
+    if seg < 1e-12:
+        return rx * rx + ry * ry
+    u = min(max(dot / (seg * seg), 0.0), 1.0)
+    ex, ey = rx - u * dx, ry - u * dy
+    return ex * ex + ey * ey
+
+
+@bare_inline
+def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  # pragma: no cover
+    """``Trail.project`` from ``hint`` (NaN: ``expected`` m behind the head; ``hint_k``
+    where to look for it): (arc to head, s, segment, cross track × seg, dx, dy, seg); the
+    cross track and path heading from the last four by ``finish`` (only the target the
+    observation uses needs them: an atan2 and a division saved for the others)."""
+    n = n_arr[b, ln]
+    to_head = norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
+    last = n - 1 if to_head > 1e-9 else n - 2
+    s_head = tail[b, ln, 2] + to_head
+    start = s_head - expected if math.isnan(hint) else hint
+    k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
+    near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    best, k0 = near[0], k
+    # Trail.project's walk: forwards while closer, then backwards while closer. Both
+    # neighbours are evaluated at once (independent: they overlap; out of range they
+    # are still defined, and unused). Once the walk has moved forwards, its first step
+    # back is onto a segment it left for a closer one, so it stops there. The walk
+    # compares distances only (the start's projection kept: the walk seldom moves).
+    fwd = _dist2(tr, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
+    bwd = _dist2(tr, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
+    if k + 1 <= last and fwd < best:
+        best, k = fwd, k + 1
+        j = k + 1
+        while j <= last:
+            cand = _dist2(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            if cand >= best:
+                break
+            best, k = cand, j
+            j += 1
+    elif k - 1 >= -1 and bwd < best:
+        best, k = bwd, k - 1
+        j = k - 1
+        while j >= -1:
+            cand = _dist2(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            if cand >= best:
+                break
+            best, k = cand, j
+            j -= 1
+    if k != k0:
+        near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    _, s, dx, dy, seg, rx, ry = near
+    return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg
+
+
+@bare_inline
+def finish(cross_seg, dx, dy, seg, hh):  # pragma: no cover - compiled
+    """A ``project`` result's cross track (m) and path heading (rad; ``hh``, the head's
+    heading, on a degenerate segment), as ``Trail._segment``."""
+    if seg < 1e-12:
+        return 0.0, hh
+    return cross_seg / seg, math.atan2(dy, dx)
+
+
+@bare_inline
+def head_s(tail, b, ln, hx, hy):  # pragma: no cover - compiled
+    """The head's arc coordinate (m) on trail ``(b, ln)`` with the head at (hx, hy)."""
+    return tail[b, ln, 2] + norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
+
+
+@bare_inline
+def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess, s_head):  # pragma: no cover
+    """``Trail.point_at``: the path point at arc coordinate ``s`` (beyond the head: on);
+    ``guess``: a breadcrumb index near it; ``s_head``: ``head_s`` (once per query head)."""
+    n = n_arr[b, ln]
+    lx, ly, ls = tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2]
+    if s >= s_head and not s_head - ls > 1e-9:
+        return hx + (s - s_head) * math.cos(hh), hy + (s - s_head) * math.sin(hh)
+    if s >= ls:
+        f = (s - ls) / (s_head - ls)
+        return lx + f * (hx - lx), ly + f * (hy - ly)
+    s0 = tail[b, ln, 3]
+    if s <= s0:
+        bx, by = _back(tr, b, ln, n, hx, hy, hh)
+        return tr[b, ln, 0, 0] - (s - s0) * bx, tr[b, ln, 0, 1] - (s - s0) * by
+    i = min(max(_bisect(tr, b, ln, n, s, guess) - 1, 0), max(n - 2, 0))
+    xi, yi, si = tr[b, ln, i, 0], tr[b, ln, i, 1], tr[b, ln, i, 2]
+    f = (s - si) / (tr[b, ln, i + 1, 2] - si)
+    return xi + f * (tr[b, ln, i + 1, 0] - xi), yi + f * (tr[b, ln, i + 1, 1] - yi)

@@ -1,0 +1,1 @@
+"""Batched sweeps: a policy's runs as the convoys of one ``VectorConvoyEnv``."""

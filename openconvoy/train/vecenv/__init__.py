@@ -1,0 +1,1 @@
+"""SB3 VecEnvs for parameter sharing: SuperSuit-based, batched, and randomized."""

@@ -3,7 +3,7 @@
 The independent decoder is pycrate's compilation of the published IEEE 1609.2 ASN.1
 modules Ieee1609Dot2 and Ieee1609Dot2BaseTypes (``pycrate_asn1dir/ITS_IEEE1609_2.py``,
 module OIDs {1 3 111 2 1609 2 1 1 2 3} and {... 2 1 2 2 2}), not our
-``comms/ieee1609dot2.asn``. Compared: every field of the SPDU (version, content choice,
+``comms/security/ieee1609dot2.asn``. Compared: every field of the SPDU (version, content choice,
 hashId, payload, headerInfo psid / generationTime / inlineP2pcdRequest, signer digest or
 certificate, signature) and of both certificates (type, issuer, id name, cracaId,
 crlSeries, validity, appPermissions, certIssuePermissions, verifyKeyIndicator,
@@ -251,7 +251,7 @@ def _published(name: str):
 
 
 def test_our_module_restates_the_published_types_component_for_component():
-    # Every SEQUENCE, CHOICE and ENUMERATED of comms/ieee1609dot2.asn that the published
+    # Every SEQUENCE, CHOICE and ENUMERATED of comms/security/ieee1609dot2.asn that the published
     # modules define under the same name: the same root components in the same order,
     # the same OPTIONAL/DEFAULT ones, an extension marker where they have one, and only
     # a prefix of their extension additions (OER skips the ones left out).

@@ -159,7 +159,7 @@ def test_vector_road_without_numba_logs_one_line_and_runs_the_numpy_code() -> No
 
     code = (
         "import sys; sys.modules['numba'] = None\n"
-        "from tests.envs.test_traffic_vector import VectorRoad, _dense_world, _drive_dense\n"
+        "from tests.envs.traffic.test_traffic_vector import VectorRoad, _dense_world, _drive_dense\n"
         "w = _dense_world(VectorRoad, True)\n"
         "assert not w.road.compiled and not VectorRoad.compiled\n"
         "_dense_world(VectorRoad, True)\n"  # a second road: no second line

@@ -8,6 +8,7 @@ emulate a crowded network. Randomness is injected: every model draws from the
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Protocol
@@ -231,3 +232,25 @@ class LossConfig:
     @property
     def latency(self) -> Latency:
         return Latency(self.latency_s, self.jitter_s)
+
+
+def as_loss_config(loss: LossConfig | float | None = None, per: float | None = None) -> LossConfig:
+    """The links' ``LossConfig`` from what an environment takes: ``loss`` a ``LossConfig``,
+    a packet error rate (Bernoulli) or None (perfect links), and ``per`` a packet error
+    rate in [0, 1] replacing the config's (so ``ConvoyEnv(per=0.2)`` and
+    ``ConvoyEnv(loss=0.2)`` are the same convoy)."""
+    if isinstance(loss, bool) or not (loss is None or isinstance(loss, (LossConfig, int, float))):
+        raise ConfigError(
+            f"loss must be a LossConfig or a packet error rate, got {type(loss).__name__}"
+        )
+    if isinstance(loss, (int, float)):
+        if per is not None:
+            raise ConfigError("give the packet error rate once: per=... or loss=..., not both")
+        per = float(loss)
+        loss = None
+    config = loss or LossConfig()
+    if per is None:
+        return config
+    if isinstance(per, bool) or not isinstance(per, (int, float)):
+        raise ConfigError(f"per must be a number in [0, 1], got {type(per).__name__}")
+    return dataclasses.replace(config, per=float(per))

@@ -24,7 +24,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from openconvoy.comms.loss import LossConfig
+from openconvoy.comms.loss import LossConfig, as_loss_config
 from openconvoy.core.config import Range, check_number
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, parse_fault
@@ -102,7 +102,10 @@ class ConvoyEnv(ParallelEnv):
         member_config: the member side of the followers' implementation (topology,
             trigger, spacing, ladder, layout M and k); default: ``MemberConfig`` with the
             scenario's spacing. Pass a classical policy's ``member_config`` to run it.
-        loss: packet loss and latency of every link (default: perfect links).
+        loss: packet loss and latency of every link: a ``LossConfig``, or a packet error
+            rate for Bernoulli loss (default: perfect links).
+        per: the packet error rate of every link, in [0, 1] (``ConvoyEnv(per=0.2)``;
+            replaces ``loss``'s).
         control_rate_hz: control and plant rate; ``dt = 1 / control_rate_hz`` seconds.
         gps_noise_m: standard deviation of white Gaussian noise on the positions members
             observe and broadcast (metres, per axis); 0 = exact.
@@ -146,7 +149,7 @@ class ConvoyEnv(ParallelEnv):
         scenario: str | Scenario = "paper",
         n_followers: int | None = None,
         member_config: MemberConfig | None = None,
-        loss: LossConfig | None = None,
+        loss: LossConfig | float | None = None,
         control_rate_hz: float = 20.0,
         gps_noise_m: float = 0.0,
         max_time_s: float | None = None,
@@ -157,6 +160,7 @@ class ConvoyEnv(ParallelEnv):
         gap_margin_m: float | None = None,
         emergency_stop: bool = True,
         auth: bool = True,
+        per: float | None = None,
     ) -> None:
         check_rate_and_noise(control_rate_hz, gps_noise_m)
         if render_mode not in (None, "rgb_array"):
@@ -172,7 +176,7 @@ class ConvoyEnv(ParallelEnv):
         self.gps_noise_m = float(gps_noise_m)
         self.render_mode = render_mode
         self.reward_config = reward_config or RewardConfig()
-        self.loss = loss or LossConfig()
+        self.loss = as_loss_config(loss, per)
         self.member_config = member_config_for(member_config, scenario.spacing)
 
         parsed = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)

@@ -235,7 +235,14 @@ def _add_per_sweep(esub: argparse._SubParsersAction) -> None:
         help="seeds 0..N-1 per PER (default 3)",
     )
     p.add_argument("--name", default=None, help="experiment name")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", default=None, metavar="DIR", help="the sweep's directory (required)")
+    p.add_argument(
+        "--resume",
+        default=None,
+        metavar="DIR",
+        help="finish the interrupted sweep in DIR: run only the runs it lacks, then write "
+        "its summary (the same as an uninterrupted sweep's); with --jobs/--executor only",
+    )
     p.add_argument(
         "--jobs",
         type=_int(1, 4096),

@@ -284,15 +284,20 @@ def per_sweep(args: argparse.Namespace) -> int:
     import sys
 
     from openconvoy.experiments.executor import TasksFailed, with_flags
-    from openconvoy.experiments.sweep import run_experiment
+    from openconvoy.experiments.sweep import SweepInterrupted, run_experiment
 
-    config = experiment_from_args(args)
     if args.jobs is not None and args.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
     from openconvoy.outputs import check_output_dir
 
+    if args.resume is not None:
+        config, out = _resumed(args)
+    else:
+        if args.out is None:
+            raise ConfigError("experiment per-sweep needs --out DIR (or --resume DIR)")
+        config = experiment_from_args(args)
+        out = check_output_dir(args.out, "--out", create=False)  # created once checked
     executor = with_flags(config.executor, args.executor, args.address, args.jobs, args.batched)
-    out = check_output_dir(args.out, "--out", create=False)  # created once the config is checked
     try:
         result = run_experiment(
             config,
@@ -301,10 +306,14 @@ def per_sweep(args: argparse.Namespace) -> int:
             figures=not args.no_plots,
             executor=executor,
             run_logs=not args.no_run_logs,
+            resume=args.resume is not None,
         )
     except TasksFailed as exc:
         print(f"openconvoy: error: {exc}", file=sys.stderr)
         return 1
+    except SweepInterrupted as exc:
+        print(f"openconvoy: {exc}", file=sys.stderr)
+        return 130
     print(
         f"{'policy':<24}{'PER':>5}{'p95 err (m)':>13}{'dv (m/s)':>10}{'min gap (m)':>13}{'collisions':>12}{'delivery':>10}"
     )
@@ -319,6 +328,27 @@ def per_sweep(args: argparse.Namespace) -> int:
         f"{'logs' if not args.no_run_logs else 'metrics'} to {out}"
     )
     return 0
+
+
+_RESUME_EXCLUSIVE = (
+    "config", "policy", "pers", "seeds", "name", "out", "scenario", "loss", "burst", "duration",
+    "followers", "vehicle_preset", "ranging", "ranging_range", "fault", "auth", "no_run_logs",
+)  # fmt: skip
+
+
+def _resumed(args: argparse.Namespace) -> tuple[Any, Path]:
+    """``--resume DIR``: the sweep's own experiment file and directory; flags that would
+    change the experiment are refused (a resumed sweep is the one that was started)."""
+    from openconvoy.experiments.sweep import ExperimentConfig
+
+    given = [n for n in _RESUME_EXCLUSIVE if getattr(args, n, None) not in (None, False)]
+    if given:
+        flag = "--" + given[0].replace("_", "-")
+        raise ConfigError(f"--resume runs the sweep as it was started: {flag} cannot change it")
+    out = Path(args.resume)
+    if not (out / "experiment.toml").is_file():
+        raise ConfigError(f"--resume: {out} holds no sweep (no experiment.toml)")
+    return ExperimentConfig.from_toml(out / "experiment.toml"), out
 
 
 # --- compare -----------------------------------------------------------------------------

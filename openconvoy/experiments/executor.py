@@ -170,10 +170,17 @@ class Executor(ABC):
         self.close()
 
     def map(
-        self, tasks: Sequence[Task], progress: bool = True, desc: str = "", unit: str = "run"
+        self,
+        tasks: Sequence[Task],
+        progress: bool = True,
+        desc: str = "",
+        unit: str = "run",
+        on_result: Callable[[int, Any], None] | None = None,
     ) -> list[Any]:
         """Every task's result (or TaskFailure), in task order, whatever order they end in;
-        a progress bar over tasks (counted in ``unit``s) on stderr with ``progress``."""
+        a progress bar over tasks (counted in ``unit``s) on stderr with ``progress``;
+        ``on_result(i, result)`` as task ``i`` ends (so a caller keeps what finished
+        when it is interrupted)."""
         index = {id(t): i for i, t in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         todo = deque(tasks)
@@ -187,6 +194,8 @@ class Executor(ABC):
                 task, value = self.wait_one()
                 in_flight -= 1
                 results[index[id(task)]] = value
+                if on_result is not None:
+                    on_result(index[id(task)], value)
                 if isinstance(value, TaskFailure):
                     failed += 1
                     bar.set_postfix_str(f"{failed} failed", refresh=False)

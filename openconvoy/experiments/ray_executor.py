@@ -100,6 +100,13 @@ class RayExecutor(Executor):
                 raise LinkError(
                     f"cannot reach the Ray cluster at {address}: {error_line(exc, frame=False)}"
                 ) from None
+            except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception on a slow start
+                # e.g. "The current node timed out during startup" on a busy machine: one
+                # line naming the cluster and Ray's reason, not a traceback.
+                where = "a private cluster of this machine" if address == "local" else address
+                raise LinkError(
+                    f"the Ray cluster ({where}) did not start: {error_line(exc, frame=False)}"
+                ) from None
             self._owns = address == "local"
         self.address = ray.get_runtime_context().gcs_address
         cpus = int(ray.cluster_resources().get("CPU", 1))

@@ -54,15 +54,27 @@ policy's runs are a few tasks of one ``VectorConvoyEnv`` each (``batched.tasks``
 the batched env takes them and the policy's ``act_batch`` is its ``act`` to the bit
 (classical policies), and those tasks return the very files the per-run tasks would. A run that fails leaves
 the others written, ``failures.json`` naming it, and a summary of the runs that finished.
+
+A sweep survives interruption: each run's files are written as soon as its task ends, with
+a record of its metrics and figure series under ``.resume/``; Ctrl-C (or SIGTERM) keeps
+every finished run, writes no summary and says how to go on: ``experiment per-sweep
+--resume DIR`` runs only the missing runs (and any that failed) and writes the summary,
+byte-identical to an uninterrupted sweep's. ``.resume/`` goes once the sweep is complete.
+The summary files are written whole or not at all (signals wait until both are written).
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import io
 import json
 import math
+import os
+import pickle
+import shutil
+import signal
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,7 +84,7 @@ import numpy as np
 
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, OpenConvoyError
 from openconvoy.core.faults import check_auth, check_faults, fault_specs, parse_fault
 from openconvoy.experiments.batched import tasks as batched_sweep
 from openconvoy.experiments.executor import (
@@ -296,6 +308,22 @@ def policy_dirname(label: str) -> str:
     )
 
 
+def policy_dirnames(labels: Sequence[str]) -> dict[str, str]:
+    """Each policy's directory name, distinct across ``labels``: two files with one stem
+    (``runs/a/policy.zip``, ``runs/b/policy.zip``) get a short digest of their label each,
+    so runs of different policies never share a directory."""
+    names = {label: policy_dirname(label) for label in labels}
+    taken: dict[str, int] = {}
+    for name in names.values():
+        taken[name] = taken.get(name, 0) + 1
+    return {
+        label: name
+        if taken[name] == 1
+        else f"{name}-{hashlib.sha256(label.encode()).hexdigest()[:8]}"
+        for label, name in names.items()
+    }
+
+
 # --- running -----------------------------------------------------------------------------
 
 RUN_FILES = batched_sweep.RUN_FILES
@@ -341,6 +369,21 @@ class SweepResult:
     per_run: dict[str, str] = field(default_factory=dict)
 
 
+class SweepInterrupted(OpenConvoyError):
+    """Ctrl-C or SIGTERM stopped a sweep: the finished runs are kept, no summary written."""
+
+    def __init__(self, out: Path, kept: int, total: int) -> None:
+        self.out, self.kept, self.total = out, kept, total
+        super().__init__(
+            f"interrupted: {kept} of {total} runs finished and are kept in {out}; "
+            f"openconvoy experiment per-sweep --resume {out} runs the other {total - kept}"
+        )
+
+
+RESUME_DIR = ".resume"
+"""Under a sweep's directory until it completes: each finished run's metrics and series."""
+
+
 def run_experiment(
     config: ExperimentConfig,
     out_dir: str | Path,
@@ -351,6 +394,7 @@ def run_experiment(
     raise_on_failure: bool = True,
     run_logs: bool = True,
     say: Callable[[str], None] | None = None,
+    resume: bool = False,
 ) -> SweepResult:
     """Run every (policy, PER, seed) of ``config`` and write the run directory (see the
     module docstring). The runs are tasks of ``executor`` (default: ``config.executor``,
@@ -361,29 +405,143 @@ def run_experiment(
     (else only its ``metrics.json``; the summary is the same). When runs fail, the
     others' results are written all the same, ``summary.*`` covers them,
     ``failures.json`` names the lost runs, and ``TasksFailed`` is raised (or, without
-    ``raise_on_failure``, the result lists them)."""
+    ``raise_on_failure``, the result lists them). ``resume``: ``out_dir`` holds this
+    sweep, interrupted; only the runs it lacks are run (``SweepInterrupted`` when
+    interrupted again)."""
     config = freeze(config)
     _check_policies(config)
     _check_fault_vehicles(config)
     chosen, batched = _executor(config, executor, jobs)  # Ray: reached before any write
-    out = _start_run_dir(config, Path(out_dir))
+    out = Path(out_dir) if resume else _start_run_dir(config, Path(out_dir))
     planned = config.run_configs(write_inline_policies(config, out))
-    dirs = [run_dirname(label, rc) for label, rc in planned]
+    names = policy_dirnames(config.policies)
+    dirs = [run_dirname(label, rc, names[label]) for label, rc in planned]
     series = [rc.seed == config.seed_values[0] for _, rc in planned]
+    if resume:
+        per_run, run_logs = _load_records(out, dirs)
+    else:
+        per_run = _clear_records(out, len(dirs), run_logs)
+    todo = [i for i, res in enumerate(per_run) if res is None]
     slots = chosen.slots if isinstance(chosen, Executor) else chosen.jobs or available_cores()
-    tasks = batched_sweep.plan(planned, dirs, series, slots, batched, run_logs)
+    tasks = batched_sweep.plan(
+        [planned[i] for i in todo], [dirs[i] for i in todo], [series[i] for i in todo],
+        slots, batched, run_logs,
+    )  # fmt: skip
     if say is None and progress:
         say = _stderr_line
     batched_sweep.say_per_run(tasks, say or (lambda line: None))
     if isinstance(chosen, ExecutorConfig):  # local: no more processes than tasks
-        chosen = make_executor(dataclasses.replace(chosen, jobs=min(slots, len(tasks.tasks))))
-    with chosen:
-        unit = "run" if len(tasks.tasks) == len(planned) else "task"
-        results = chosen.map(tasks.tasks, progress, desc=config.name, unit=unit)
-    per_run = batched_sweep.expand(tasks, results, dirs)
-    runs, failures, kept = _write_runs(out, planned, dirs, per_run)
-    result = SweepResult(config, [], runs, kept, out, failures, tasks.per_run)
+        chosen = make_executor(
+            dataclasses.replace(chosen, jobs=max(1, min(slots, len(tasks.tasks))))
+        )
+
+    def keep(k: int, value: Any) -> None:
+        """Task ``k`` ended: write its runs' files and records at once."""
+        first, n = tasks.spans[k]
+        for j, res in enumerate(
+            batched_sweep.expand_one(value, n, [dirs[i] for i in todo[first : first + n]])
+        ):
+            i = todo[first + j]
+            per_run[i] = res
+            if not isinstance(res, TaskFailure):
+                _write_run(out, dirs[i], i, res)
+
+    previous = signal.getsignal(signal.SIGTERM)
+    in_main = _in_main_thread()
+    if in_main:
+        signal.signal(signal.SIGTERM, _raise_interrupt)  # SIGTERM keeps the runs as Ctrl-C does
+    try:
+        with chosen:
+            unit = "run" if len(tasks.tasks) == len(todo) else "task"
+            chosen.map(tasks.tasks, progress, desc=config.name, unit=unit, on_result=keep)
+    except KeyboardInterrupt:
+        kept = sum(1 for r in per_run if r is not None and not isinstance(r, TaskFailure))
+        raise SweepInterrupted(out, kept, len(planned)) from None
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+    runs, failures, kept_series = _collect(planned, per_run)
+    result = SweepResult(config, [], runs, kept_series, out, failures, tasks.per_run)
     return _finish(result, figures, raise_on_failure)
+
+
+def _in_main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _record_path(out: Path, i: int) -> Path:
+    return out / RESUME_DIR / f"run-{i:06d}.pkl"
+
+
+def _clear_records(out: Path, n: int, run_logs: bool) -> list[Any]:
+    """A fresh sweep: no records of an earlier one in ``out`` (its options kept for a
+    resume); no run finished."""
+    shutil.rmtree(out / RESUME_DIR, ignore_errors=True)
+    (out / RESUME_DIR).mkdir()
+    (out / RESUME_DIR / "options.json").write_text(json.dumps({"run_logs": run_logs}) + "\n")
+    return [None] * n
+
+
+def _load_records(out: Path, dirs: Sequence[str]) -> tuple[list[Any], bool]:
+    """What an interrupted sweep in ``out`` finished: per run, its record (metrics and
+    series) where its record and files are there, else None (to run); and whether it
+    writes run logs."""
+    if not (out / "experiment.toml").is_file():
+        raise ConfigError(f"--resume: {out} holds no sweep (no experiment.toml)")
+    if not (out / RESUME_DIR).is_dir():
+        raise ConfigError(
+            f"--resume: {out} holds no interrupted sweep (it is complete or was not started)"
+        )
+    found: list[Any] = [None] * len(dirs)
+    for i, d in enumerate(dirs):
+        path = _record_path(out, i)
+        if not path.is_file() or not (out / d / "metrics.json").is_file():
+            continue
+        with path.open("rb") as f:  # our own file, written by this sweep's driver
+            record = pickle.load(f)
+        if record.get("dir") == d:
+            found[i] = record
+    options = json.loads((out / RESUME_DIR / "options.json").read_text())
+    return found, bool(options.get("run_logs", True))
+
+
+def _write_run(out: Path, d: str, i: int, res: dict[str, Any]) -> None:
+    """A finished run's files, then its record (the record last: it says the files are whole)."""
+    run_dir = out / d
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name, data in res["files"].items():
+        (run_dir / name).write_bytes(data)
+    path = _record_path(out, i)
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("wb") as f:
+        pickle.dump({"dir": d, "metrics": res["metrics"], "series": res["series"]}, f)
+    os.replace(tmp, path)
+
+
+def _collect(
+    planned: Sequence[tuple[str, RunConfig]], per_run: Sequence[Any]
+) -> tuple[
+    list[tuple[str, RunConfig, dict[str, Any]]],
+    list[TaskFailure],
+    dict[tuple[str, float], dict[str, Any]],
+]:
+    """Each finished run's metrics, the failures, the figure series, in run order."""
+    runs, failures = [], []
+    series = {}
+    for (label, rc), res in zip(planned, per_run):
+        if isinstance(res, TaskFailure):
+            failures.append(res)
+            continue
+        runs.append((label, rc, res["metrics"]))
+        if res["series"] is not None:
+            series[(label, rc.per)] = res["series"]
+    return runs, failures, series
 
 
 def _check_policies(config: ExperimentConfig) -> None:
@@ -444,36 +602,11 @@ def _start_run_dir(config: ExperimentConfig, out: Path) -> Path:
     return out
 
 
-def _write_runs(
-    out: Path, planned: Sequence[tuple[str, RunConfig]], dirs: Sequence[str], per_run: Sequence[Any]
-) -> tuple[
-    list[tuple[str, RunConfig, dict[str, Any]]],
-    list[TaskFailure],
-    dict[tuple[str, float], dict[str, Any]],
-]:
-    """Write each finished run's files; its metrics, the failures, the figure series."""
-    runs, failures = [], []
-    series = {}
-    for d, (label, rc), res in zip(dirs, planned, per_run):
-        if isinstance(res, TaskFailure):
-            failures.append(res)
-            continue
-        run_dir = out / d
-        run_dir.mkdir(parents=True, exist_ok=True)
-        for name, data in res["files"].items():
-            (run_dir / name).write_bytes(data)
-        runs.append((label, rc, res["metrics"]))
-        if res["series"] is not None:
-            series[(label, rc.per)] = res["series"]
-    return runs, failures, series
-
-
 def _finish(result: SweepResult, figures: bool, raise_on_failure: bool) -> SweepResult:
     """Summaries, ``failures.json`` (raising ``TasksFailed``) or the figures."""
     config, out, failures = result.config, result.out_dir, result.failures
     result.rows = summarize(result.runs, config.policies, config.pers)
-    write_json(out / "summary.json", {"rows": result.rows})
-    (out / "summary.csv").write_text(summary_csv(result.rows), encoding="utf-8")
+    _write_summary(out, result.rows, complete=not failures)
     if failures:
         write_json(out / "failures.json", {"failures": [dataclasses.asdict(f) for f in failures]})
         if raise_on_failure:
@@ -490,9 +623,31 @@ def _finish(result: SweepResult, figures: bool, raise_on_failure: bool) -> Sweep
     return result
 
 
-def run_dirname(label: str, config: RunConfig) -> str:
-    """A run's directory under the sweep's: ``runs/<policy>/per_<PER>/seed_<seed>``."""
-    return f"runs/{policy_dirname(label)}/per_{_per_name(config.per)}/seed_{config.seed}"
+def _write_summary(out: Path, rows: list[dict[str, Any]], complete: bool) -> None:
+    """``summary.json`` and ``summary.csv``, whole or not at all: each written aside and
+    renamed, with SIGINT/SIGTERM held until both are (then ``.resume/`` goes, when the
+    sweep is ``complete``)."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        for name, text in (
+            ("summary.csv", summary_csv(rows)),
+            ("summary.json", json.dumps(mt.json_safe({"rows": rows}), indent=2) + "\n"),
+        ):
+            tmp = out / f".{name}.tmp"
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, out / name)
+        if complete:
+            shutil.rmtree(out / RESUME_DIR, ignore_errors=True)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def run_dirname(label: str, config: RunConfig, policy_dir: str | None = None) -> str:
+    """A run's directory under the sweep's: ``runs/<policy>/per_<PER>/seed_<seed>``
+    (``policy_dir``: the policy's directory name, default ``policy_dirname(label)``)."""
+    name = policy_dir or policy_dirname(label)
+    return f"runs/{name}/per_{_per_name(config.per)}/seed_{config.seed}"
 
 
 def _per_name(per: float) -> str:

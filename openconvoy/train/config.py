@@ -184,13 +184,12 @@ SCRATCH_RUN: dict[str, Any] = {
     "n_envs": 64,
     "n_worlds": 4,
     "checkpoint_every": 250_000,
-    "budget_s": 840.0,
     "per_curriculum": 0.0,
 }
 """The run ``--base none`` brings (where the config holds the residual run's values):
-64 convoys in 4 worlds, validated every 250k steps, learning until 6M steps or 14
-minutes of wall clock (the whole run, its final validation included, within 15
-minutes on a 2-core machine, whatever else runs on it)."""
+64 convoys in 4 worlds, validated every 250k steps, learning for 6M agent steps. The
+budget is in steps, not wall-clock time, so the same command and seed give the same
+policy on any machine (``--budget`` adds a wall-clock limit where one is wanted)."""
 SCRATCH_PPO: dict[str, Any] = {"n_steps": 32, "batch_size": 1024}
 """PPO settings ``--base none`` brings: 32-step rollouts of 128 slots, 4 minibatches."""
 

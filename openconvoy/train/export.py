@@ -4,7 +4,8 @@ The artifact (``openconvoy.policies.learned.save_npz``) holds the actor's layers
 arrays, the observation normalization, the action scaling, the layout (version, M, k,
 size), the member configuration and the control rate; ``load_learned`` runs it with numpy
 only. What is exported is the deterministic action SB3's ``predict(deterministic=True)``
-returns: PPO's Gaussian mean clipped to [-1, 1], SAC's tanh-squashed mean.
+returns: PPO's Gaussian mean clipped to [-1, 1] (gSDE or not; tanh-squashed with
+squash_output), SAC's tanh-squashed mean.
 """
 
 from __future__ import annotations
@@ -77,14 +78,17 @@ def actor_mlp(model) -> NumpyMLP:
         policy = model.policy
         if not isinstance(policy.pi_features_extractor, FlattenExtractor):
             raise InputFileError("only PPO MlpPolicy (flat observations) is exportable")
-        if policy.squash_output or policy.use_sde:
-            raise InputFileError("PPO with gSDE or squashed outputs is not exportable")
+        # gSDE changes only the exploration noise: the deterministic action is the Gaussian
+        # mean (SB3 StateDependentNoiseDistribution.mode), tanh-squashed with squash_output
+        # (then ``predict`` unscales it from [-1, 1], as SAC's is).
         hidden = list(policy.mlp_extractor.policy_net)
         head = [policy.action_net]
-        output = "clip"
+        output = "tanh" if policy.squash_output else "clip"
     elif isinstance(model, SAC):
         actor = model.policy.actor
         if not isinstance(actor.features_extractor, FlattenExtractor) or actor.use_sde:
+            # SB3 clips SAC's gSDE mean with a Hardtanh before the tanh, a head the .npz
+            # format does not hold; `openconvoy train` never makes such a SAC.
             raise InputFileError("only SAC MlpPolicy without gSDE is exportable")
         hidden = list(actor.latent_pi)
         head = [actor.mu]

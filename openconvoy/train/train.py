@@ -320,6 +320,14 @@ def train(
     start = time.perf_counter()
     model.learn(total_timesteps=config.total_steps, callback=callbacks, tb_log_name=config.algo)
     wall = time.perf_counter() - start
+    if schedule.stopped_by_clock and not getattr(model, "_n_updates", 1):
+        venv.close()
+        raise ConfigError(
+            f"the wall-clock budget of {config.budget_s:g} s stopped learning after "
+            f"{model.num_timesteps} agent steps, before the network's first update "
+            f"({_first_update(config, venv.num_envs)} steps): nothing was learned; give a "
+            "larger --budget, or none (total_steps alone)"
+        )
 
     policy = _choose_policy(model, config, run_dir, checkpoints.validations)
     if isinstance(venv, VecNormalize):
@@ -330,6 +338,12 @@ def train(
     _write_summary(config, result, run_dir / "train.json", schedule.per_high)
     venv.close()
     return result
+
+
+def _first_update(config: TrainConfig, slots: int) -> int:
+    """Agent steps before the network is first updated: one PPO rollout of every slot,
+    or SAC's ``learning_starts``."""
+    return config.ppo.n_steps * slots if config.algo == "ppo" else config.sac.learning_starts
 
 
 def _choose_policy(

@@ -528,7 +528,7 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     assert chosen.bounds == ((0.0, -0.5), (5.0, 0.5))
     # The run size and PPO settings of the kind come with it; flags given win.
     run = train_config_from_args(parse(["train", "--base", "none"]))
-    assert (run.n_envs, run.budget_s, run.ppo.n_steps) == (64, 840.0, 32)
+    assert (run.n_envs, run.budget_s, run.ppo.n_steps) == (64, None, 32)  # steps, not clock
     assert (
         train_config_from_args(parse(["train", "--base", "none", "--budget", "1m"])).budget_s == 60
     )
@@ -538,3 +538,59 @@ def test_base_none_brings_the_from_scratch_defaults(tmp_path: Path) -> None:
     assert load_train_config(example) == run
     assert run.env.reward == SCRATCH_REWARD and run.ppo.use_sde and not run.env.emergency_stop
     assert run.env.bounds == ABSOLUTE_ACTION_BOUNDS
+
+
+def test_a_from_scratch_gsde_policy_exports_and_sweeps_as_its_zip(tmp_path: Path) -> None:
+    """``--base none`` trains with gSDE; its deterministic action is the Gaussian mean, so
+    the ``.npz`` acts as SB3's ``predict`` and sweeps as the ``.zip`` does."""
+    from stable_baselines3 import PPO
+
+    from openconvoy.experiments.sweep import ExperimentConfig, run_experiment
+
+    run = tmp_path / "scratch"
+    argv = ["train", "--base", "none", "--steps", "512", "--envs", "1", "--no-progress"]
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("validation_seeds = []\n")
+    assert main([*argv, "--config", str(cfg), "--out", str(run)]) == 0
+    model = PPO.load(str(run / "policy.zip"), device="cpu")
+    assert model.policy.use_sde  # what made export refuse it before
+    npz_path = export_policy(run, tmp_path / "scratch.npz")
+    npz = load_learned(npz_path)
+    obs = sample_observations(npz, n=200)
+    worst = max(
+        float(
+            np.max(
+                np.abs(
+                    npz.normalized_action(o)
+                    - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0]
+                )
+            )
+        )
+        for o in obs
+    )
+    assert worst <= 1e-5
+    rows = {}
+    for name, policy in (("zip", run / "policy.zip"), ("npz", npz_path)):
+        config = ExperimentConfig(policies=(str(policy),), pers=(0.0, 0.3), seeds=1, duration_s=8.0)
+        out = tmp_path / f"sweep-{name}"
+        run_experiment(config, out, jobs=1, progress=False, figures=False)
+        rows[name] = json.loads((out / "summary.json").read_text())["rows"]
+    for z, n in zip(rows["zip"], rows["npz"]):
+        assert z["collisions"] == n["collisions"]
+        for key in ("p95_platooning_error_m", "mean_speed_difference_mps", "min_gap_m"):
+            assert z[key]["mean"] == pytest.approx(n[key]["mean"], abs=1e-6), key
+
+
+def test_a_wall_clock_budget_too_small_to_learn_is_an_error(tmp_path: Path, capsys) -> None:
+    """``--budget 1s`` stops before the first update: an error (exit 2), not a policy."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("validation_seeds = []\n")
+    argv = ["train", "--config", str(cfg), "--budget", "1s", "--envs", "32", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("training ppo for 600000 agent steps"), err
+    assert len(err) == 2 and err[1].startswith(
+        "openconvoy: error: the wall-clock budget of 1 s stopped learning after "
+    ), err
+    assert "before the network's first update (4096 steps): nothing was learned" in err[1]
+    assert not (tmp_path / "r" / "policy.zip").exists()

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import gymnasium
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -32,14 +31,8 @@ class ConvoyVectorEnv(VectorEnv):
         self.env = env
         self.per_convoy = env.n_vehicles - 1
         self.num_envs = env.num_envs * self.per_convoy
-        self.single_observation_space = gymnasium.spaces.Box(
-            -np.inf, np.inf, shape=(env.layout.size,), dtype=np.float32
-        )
-        self.single_action_space = gymnasium.spaces.Box(
-            low=env.action_low.min(axis=0).astype(np.float32),
-            high=env.action_high.max(axis=0).astype(np.float32),
-            dtype=np.float32,
-        )
+        self.single_observation_space = env.single_observation_space
+        self.single_action_space = env.single_action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None

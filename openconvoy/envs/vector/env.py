@@ -31,9 +31,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import gymnasium
 import numpy as np
 
-from openconvoy.comms.loss import LossConfig
+from openconvoy.comms.loss import LossConfig, as_loss_config
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_faults, parse_fault
 from openconvoy.core.member import MemberConfig
@@ -64,11 +65,23 @@ MODES = ("coop", "degraded", "stop", "failsafe")
 __all__ = ["COOP", "FAILSAFE", "MODES", "STOP", "VectorConvoyEnv"]
 
 
-def _per_convoy_loss(loss: LossConfig | Sequence[LossConfig] | None, B: int) -> list[LossConfig]:
-    """One LossConfig per convoy; a sequence may differ only in ``per`` (a batched sweep)."""
-    if loss is None or isinstance(loss, LossConfig):
-        return [loss or LossConfig()] * B
-    out = list(loss)
+def _per_convoy_loss(
+    loss: LossConfig | float | Sequence[LossConfig] | None,
+    B: int,
+    per: float | Sequence[float] | None = None,
+) -> list[LossConfig]:
+    """One LossConfig per convoy; a sequence may differ only in ``per`` (a batched sweep).
+    ``loss`` a number, or ``per`` (a number, or one per convoy): packet error rates
+    (``comms.loss.as_loss_config``)."""
+    if per is not None and not isinstance(per, (int, float)):
+        pers = [float(p) for p in per]
+        if len(pers) != B:
+            raise ConfigError(f"per: need one packet error rate per convoy ({B}), got {len(pers)}")
+        base = _per_convoy_loss(loss, B)
+        return [as_loss_config(c, p) for c, p in zip(base, pers)]
+    if loss is None or isinstance(loss, (LossConfig, int, float)):
+        return [as_loss_config(loss, per)] * B
+    out = [as_loss_config(c, per) for c in loss]
     if len(out) != B:
         raise ConfigError(f"loss: need one LossConfig per convoy ({B}), got {len(out)}")
     same = lambda c: (c.model, c.mean_burst_s, c.latency_s, c.jitter_s)  # noqa: E731
@@ -142,7 +155,7 @@ class VectorConvoyEnv:
         scenario: str | PathScenario = "paper",
         n_followers: int | None = None,
         member_config: MemberConfig | None = None,
-        loss: LossConfig | Sequence[LossConfig] | None = None,
+        loss: LossConfig | float | Sequence[LossConfig] | None = None,
         control_rate_hz: float = 20.0,
         gps_noise_m: float = 0.0,
         max_time_s: float | None = None,
@@ -155,12 +168,13 @@ class VectorConvoyEnv:
         auth: bool = True,
         autoreset: bool = True,
         link_counters: str = "all",
+        per: float | Sequence[float] | None = None,
     ) -> None:
         _check_args(num_envs, control_rate_hz, gps_noise_m, render_mode)
         self.scenario = sc = _scenario(scenario, n_followers, vehicle_presets)
         self.num_envs = B = int(num_envs)
         self.n_vehicles = N = sc.n_vehicles
-        self.losses = _per_convoy_loss(loss, B)
+        self.losses = _per_convoy_loss(loss, B, per)
         self.loss = max(self.losses, key=lambda c: c.per)
         _check_loss(self.loss, link_counters)
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
@@ -259,6 +273,39 @@ class VectorConvoyEnv:
         self.collided = np.zeros((B, N - 1), dtype=bool)
 
     # --- API ------------------------------------------------------------------------
+
+    @property
+    def single_observation_space(self) -> gymnasium.spaces.Box:
+        """One follower's observation: ``ConvoyEnv``'s, the layout's bounds, float32."""
+        low, high = self.layout.bounds()
+        return gymnasium.spaces.Box(low, high, dtype=np.float32)
+
+    @property
+    def single_action_space(self) -> gymnasium.spaces.Box:
+        """One follower's action ``[speed m/s, heading change rad]``: the widest followers'
+        bounds (each vehicle clips to its own, ``action_low``/``action_high``)."""
+        return gymnasium.spaces.Box(
+            low=self.action_low.min(axis=0).astype(np.float32),
+            high=self.action_high.max(axis=0).astype(np.float32),
+            dtype=np.float32,
+        )
+
+    @property
+    def observation_space(self) -> gymnasium.spaces.Box:
+        """What ``reset`` and ``step`` return: ``(num_envs, N-1, D)``, float32."""
+        low, high = self.layout.bounds()
+        shape = (self.num_envs, self.n_vehicles - 1, self.layout.size)
+        low, high = np.broadcast_to(low, shape), np.broadcast_to(high, shape)
+        return gymnasium.spaces.Box(low.copy(), high.copy(), dtype=np.float32)
+
+    @property
+    def action_space(self) -> gymnasium.spaces.Box:
+        """What ``step`` takes: ``(num_envs, N-1, 2)``, each follower its own bounds."""
+        low = np.broadcast_to(self.action_low, (self.num_envs, *self.action_low.shape))
+        high = np.broadcast_to(self.action_high, (self.num_envs, *self.action_high.shape))
+        return gymnasium.spaces.Box(
+            low=low.astype(np.float32), high=high.astype(np.float32), dtype=np.float32
+        )
 
     @property
     def own(self) -> np.ndarray:

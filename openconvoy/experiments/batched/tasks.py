@@ -4,7 +4,7 @@ Where the batched env takes a policy's runs (``batched.refusal``), they become
 ``batches`` tasks of consecutive runs (at least as many as the executor has slots, each
 at most ``MAX_BATCH_CELLS`` ticks × vehicles × convoys), each a ``VectorConvoyEnv``
 (``batched.run_batch``) that returns every run's files, metrics and figure series as a
-per-run task would; ``expand`` turns the tasks' results back into one per run, a failed
+per-run task would; ``expand_one`` turns a task's result back into one per run, a failed
 batch into a failure of each of its runs. Other policies' runs are one task each.
 """
 
@@ -136,19 +136,14 @@ def _batches(
         out.spans.append((i, len(part)))
 
 
-def expand(plan: SweepTasks, results: Sequence[Any], dirs: Sequence[str]) -> list[Any]:
-    """One result (or ``TaskFailure``) per run, in run order, from the tasks' results."""
-    out: list[Any] = [None] * len(dirs)
-    for (first, n), res in zip(plan.spans, results):
-        if n == 1 and not isinstance(res, list):
-            out[first] = res
-            continue
-        for j in range(n):
-            if isinstance(res, TaskFailure):
-                out[first + j] = TaskFailure(dirs[first + j], res.where, res.error)
-            else:
-                out[first + j] = res[j]
-    return out
+def expand_one(result: Any, n: int, dirs: Sequence[str]) -> list[Any]:
+    """The results of one task's ``n`` runs (named ``dirs``): a failed batch is a failure
+    of each of its runs."""
+    if n == 1 and not isinstance(result, list):
+        return [result]
+    if isinstance(result, TaskFailure):
+        return [TaskFailure(d, result.where, result.error) for d in dirs]
+    return list(result[:n])
 
 
 def say_per_run(plan: SweepTasks, say: Callable[[str], None]) -> None:

@@ -245,11 +245,10 @@ def test_a_tune_trials_objective_under_a_fault_is_the_same_on_both_paths(tmp_pat
 
 
 def test_a_failed_batch_fails_each_of_its_runs_by_name():
-    tasks = batched_sweep.SweepTasks(spans=[(0, 1), (1, 2)])
     lost = TaskFailure("runs/a .. runs/c (batch of 2)", "pid 1 on h", "MemoryError")
-    out = batched_sweep.expand(tasks, [{"ok": 1}, lost], ["runs/a", "runs/b", "runs/c"])
-    assert out[0] == {"ok": 1}
-    assert out[1:] == [TaskFailure(d, "pid 1 on h", "MemoryError") for d in ("runs/b", "runs/c")]
+    assert batched_sweep.expand_one({"ok": 1}, 1, ["runs/a"]) == [{"ok": 1}]
+    out = batched_sweep.expand_one(lost, 2, ["runs/b", "runs/c"])
+    assert out == [TaskFailure(d, "pid 1 on h", "MemoryError") for d in ("runs/b", "runs/c")]
 
 
 def test_the_cli_flags(tmp_path: Path, capsys):

@@ -358,3 +358,27 @@ def test_compare_two_sweeps_matches_rows_by_per(tmp_path: Path, capsys):
     assert "paper | paper+ladder" in capsys.readouterr().out
     d = result["rows"][1]["delivery_ratio"]
     assert not math.isnan(d["a"]) and d["a"] < 0.6
+
+
+def test_compare_says_what_it_left_out(tmp_path: Path, capsys):
+    """Rows one sweep has and the other lacks are named, not silently dropped."""
+    argv = ["experiment", "per-sweep", "--seeds", "1", "--duration", "4", "--quiet"]
+    argv += ["--no-plots", "--jobs", "1"]
+    assert main([*argv, "--policy", "paper", "--pers", "0,0.3", "--out", str(tmp_path / "a")]) == 0
+    two = ["--policy", "paper", "--policy", "paper+ladder", "--pers", "0.3,0.6"]
+    assert main([*argv, *two, "--out", str(tmp_path / "b")]) == 0
+    capsys.readouterr()
+    out = tmp_path / "cmp.json"
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    result = json.loads(out.read_text())
+    assert [(r["policy_a"], r["per"]) for r in result["rows"]] == [("paper", 0.3)]
+    assert result["left_out"] == {
+        "a": ["paper at PER 0.00"],
+        "b": ["paper at PER 0.60", "paper+ladder at PER 0.30", "paper+ladder at PER 0.60"],
+    }
+    assert "left out, only in A (nothing to match in B): paper at PER 0.00" in printed
+    assert (
+        "left out, only in B (nothing to match in A): paper at PER 0.60, "
+        "paper+ladder at PER 0.30, paper+ladder at PER 0.60"
+    ) in printed

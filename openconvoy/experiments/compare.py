@@ -4,7 +4,8 @@ A side is a run (a log file, a run directory of one or per-vehicle logs: sim or 
 whose metrics are recomputed from its logs, or a sweep (a directory with
 ``summary.json``, or that file), whose rows are matched by (policy, PER) — or by PER alone
 when each side has a single policy, so a ``paper`` sweep compares with a
-``paper+ladder`` one. Differences are B − A.
+``paper+ladder`` one. Differences are B − A. What one side has and the other lacks (a
+policy, a PER, a follower) is listed as left out, never dropped silently.
 """
 
 from __future__ import annotations
@@ -67,12 +68,17 @@ def compare(a: Side, b: Side) -> dict[str, Any]:
             }
             for f in followers
         }
+        only = {
+            side: sorted(set(mine["per_follower"]) - set(other["per_follower"]), key=int)
+            for side, mine, other in (("a", a.metrics, b.metrics), ("b", b.metrics, a.metrics))
+        }
         return {
             "kind": "run",
             "a": str(a.path),
             "b": str(b.path),
             "metrics": out,
             "per_follower": per_f,
+            "left_out": {side: [f"follower {f}" for f in fs] for side, fs in only.items()},
         }
     assert a.rows is not None and b.rows is not None
     pol_a = {r["policy"] for r in a.rows}
@@ -80,17 +86,31 @@ def compare(a: Side, b: Side) -> dict[str, Any]:
     by_per_only = len(pol_a) == 1 and len(pol_b) == 1
     index_b = {(None if by_per_only else r["policy"], r["per"]): r for r in b.rows}
     rows = []
+    matched: set[tuple[str | None, float]] = set()
+    left_a: list[str] = []
     for ra in a.rows:
-        rb = index_b.get((None if by_per_only else ra["policy"], ra["per"]))
+        key = (None if by_per_only else ra["policy"], ra["per"])
+        rb = index_b.get(key)
         if rb is None:
+            left_a.append(f"{ra['policy']} at PER {ra['per']:.2f}")
             continue
+        matched.add(key)
         row: dict[str, Any] = {"per": ra["per"], "policy_a": ra["policy"], "policy_b": rb["policy"]}
         for k in mt.METRIC_KEYS:
             row[k] = _triple(ra[k]["mean"], rb[k]["mean"])
         rows.append(row)
     if not rows:
         raise InputFileError(f"{a.path} and {b.path} have no (policy, PER) row in common")
-    return {"kind": "sweep", "a": str(a.path), "b": str(b.path), "rows": rows}
+    left_b = [
+        f"{r['policy']} at PER {r['per']:.2f}" for k, r in index_b.items() if k not in matched
+    ]
+    return {
+        "kind": "sweep",
+        "a": str(a.path),
+        "b": str(b.path),
+        "rows": rows,
+        "left_out": {"a": left_a, "b": left_b},
+    }
 
 
 def _triple(a: float, b: float) -> dict[str, float]:
@@ -102,7 +122,17 @@ def _f(v: float) -> str:
 
 
 def format_comparison(result: dict[str, Any]) -> str:
-    """A plain-text table of ``compare``'s result."""
+    """A plain-text table of ``compare``'s result, then what it left out (one line a side)."""
+    table = _table(result)
+    left = result.get("left_out", {})
+    for side, other in (("a", "B"), ("b", "A")):
+        if left.get(side):
+            table += f"\nleft out, only in {side.upper()} (nothing to match in {other}): "
+            table += ", ".join(left[side])
+    return table
+
+
+def _table(result: dict[str, Any]) -> str:
     lines = [f"A: {result['a']}", f"B: {result['b']}"]
     if result["kind"] == "run":
         lines.append(f"{'metric':<28}{'A':>12}{'B':>12}{'B - A':>12}")

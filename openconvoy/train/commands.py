@@ -128,6 +128,11 @@ def train_command(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
+    if result.validation is not None and result.base_validation is not None:
+        from openconvoy.train.validate import comparison_lines
+
+        for line in comparison_lines(result.validation, result.base_validation):
+            print(line)
     print(
         f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)"
     )

@@ -62,6 +62,10 @@ class TrainResult:
     steps: int
     wall_s: float
     stopped_by_budget: bool = False
+    validation: Validation | None = None
+    """The chosen policy's validation (None without validation seeds)."""
+    base_validation: Validation | None = None
+    """Its reference on the same grid: the residual's base, or ``paper`` from scratch."""
 
     @property
     def steps_per_s(self) -> float:
@@ -254,7 +258,7 @@ class _ConvoyStats(BaseCallback):
         self._err_sum, self._n, self._collisions = 0.0, 0, 0
 
 
-def _validate(config: TrainConfig, path: Path, steps: int) -> Validation:
+def _validate(config: TrainConfig, path: Path | str, steps: int) -> Validation:
     return validate(
         path,
         config.validation_pers,
@@ -329,12 +333,14 @@ def train(
             "larger --budget, or none (total_steps alone)"
         )
 
-    policy = _choose_policy(model, config, run_dir, checkpoints.validations)
+    policy, chosen, base = _choose_policy(model, config, run_dir, checkpoints.validations)
     if isinstance(venv, VecNormalize):
         venv.save(str(run_dir / VECNORM_FILE))
     meta = read_zip_meta(policy)
     (run_dir / "policy.json").write_text(json.dumps(meta.to_json(), indent=1), encoding="utf-8")
-    result = TrainResult(run_dir, policy, int(model.num_timesteps), wall, schedule.stopped_by_clock)
+    result = TrainResult(
+        run_dir, policy, int(model.num_timesteps), wall, schedule.stopped_by_clock, chosen, base
+    )
     _write_summary(config, result, run_dir / "train.json", schedule.per_high)
     venv.close()
     return result
@@ -348,26 +354,34 @@ def _first_update(config: TrainConfig, slots: int) -> int:
 
 def _choose_policy(
     model: BaseAlgorithm, config: TrainConfig, run_dir: Path, validations: list[Validation]
-) -> Path:
+) -> tuple[Path, Validation | None, Validation | None]:
     """Write ``policy.zip``: the best-validated of the checkpoints and the final network
-    (``last.zip``), with ``validation.json``; without validation, the final network."""
+    (``last.zip``), with ``validation.json`` (which also validates the reference: the
+    residual's base, or ``paper`` for a policy from scratch); without validation, the
+    final network. Returns the file, its validation and the reference's."""
     policy = run_dir / POLICY_FILE
     if not config.validation_seeds:
-        return save_policy(model, config, policy)
+        return save_policy(model, config, policy), None, None
     last = save_policy(model, config, run_dir / LAST_FILE)
     validations = [*validations, _validate(config, last, model.num_timesteps)]
     # The earliest of equally good files wins (min keeps the first).
     best = min(validations, key=lambda v: v.objective)
     shutil.copyfile(best.path, policy)
+    base = _validate(config, config.env.base_policy or REFERENCE_POLICY, 0)
     report = {
         "pers": list(config.validation_pers),
         "seeds": list(config.validation_seeds),
         "chosen": best.path,
         "chosen_steps": best.steps,
         "validations": [v.to_json() for v in validations],
+        "base": base.to_json(),
     }
     (run_dir / "validation.json").write_text(json.dumps(report, indent=1), encoding="utf-8")
-    return policy
+    return policy, best, base
+
+
+REFERENCE_POLICY = "paper"
+"""What a policy learned from scratch is validated beside: the paper's controller."""
 
 
 def _write_summary(

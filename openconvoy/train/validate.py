@@ -76,6 +76,41 @@ def validate(
     return Validation(str(policy), int(steps), validation_objective(metrics), tuple(metrics))
 
 
+def comparison_lines(chosen: Validation, base: Validation) -> list[str]:
+    """The validation table of a trained policy beside its reference on the same grid
+    (means over the grid's runs), then a warning line when the policy scores worse."""
+    rows = [("objective (lower is better)", chosen.objective, base.objective)]
+    for key, name in (
+        ("p95_platooning_error_m", "p95 platooning error (m)"),
+        ("mean_speed_difference_mps", "mean speed difference (m/s)"),
+        ("min_gap_m", "min gap (m)"),
+        ("collisions", "collisions (total)"),
+        (PATH_KEY, "p95 distance from path (m)"),
+    ):
+        total = key == "collisions"
+        rows.append((name, _grid(chosen.metrics, key, total), _grid(base.metrics, key, total)))
+    label = f"base {Path(base.path).name}"
+    n = len(chosen.metrics)
+    lines = [f"validation ({n} run{'s' * (n != 1)})   {'trained':>12}{label:>16}"]
+    lines += [f"  {name:<30}{a:>12.4g}{b:>16.4g}" for name, a, b in rows]
+    if chosen.objective > base.objective:
+        lines.append(
+            f"warning: the trained policy validates worse than {Path(base.path).name} "
+            f"(objective {chosen.objective:.4g} against {base.objective:.4g}): train longer, "
+            "or deploy the base"
+        )
+    return lines
+
+
+def _grid(metrics: Sequence[dict[str, Any]], key: str, total: bool) -> float:
+    """The mean (or, with ``total``, the sum) of ``key`` over the runs, NaN when none."""
+    values = [float(m[key]) for m in metrics if m.get(key) is not None]
+    finite = [v for v in values if np.isfinite(v)]
+    if not finite:
+        return float("nan")
+    return float(np.sum(finite) if total else np.mean(finite))
+
+
 def validation_objective(metrics: Sequence[dict[str, Any]]) -> float:
     """The tuning objective (``objective_of``) plus the mean ``PATH_KEY`` (m; 0 for a
     scenario without a path)."""

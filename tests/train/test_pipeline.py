@@ -594,3 +594,32 @@ def test_a_wall_clock_budget_too_small_to_learn_is_an_error(tmp_path: Path, caps
     ), err
     assert "before the network's first update (4096 steps): nothing was learned" in err[1]
     assert not (tmp_path / "r" / "policy.zip").exists()
+
+
+def test_training_validates_its_base_beside_it_and_warns_when_worse(ppo_run: Path) -> None:
+    """``validation.json`` holds the base's validation on the same grid; ``train`` prints
+    the two side by side and a warning when the trained policy scores worse."""
+    from openconvoy.train.validate import Validation, comparison_lines, validate
+
+    report = json.loads((ppo_run / "validation.json").read_text())
+    config = load_train_config(ppo_run / "config.toml")
+    grid = (config.validation_pers, config.validation_seeds)
+    base = validate("paper", *grid, duration_s=config.validation_duration_s)
+    assert report["base"]["path"] == "paper"
+    assert report["base"]["objective"] == pytest.approx(base.objective, rel=1e-12)
+    chosen = next(v for v in report["validations"] if v["path"] == report["chosen"])
+    trained = validate(ppo_run / "policy.zip", *grid, duration_s=config.validation_duration_s)
+    assert trained.objective == pytest.approx(chosen["objective"], rel=1e-12)
+    lines = comparison_lines(trained, base)
+    assert lines[0].startswith("validation (1 run)") and "base paper" in lines[0]
+    objective = lines[1].split()
+    assert float(objective[-2]) == pytest.approx(trained.objective, rel=1e-3)
+    assert float(objective[-1]) == pytest.approx(base.objective, rel=1e-3)
+    warned = lines[-1].startswith("warning: the trained policy validates worse than paper")
+    assert warned == (trained.objective > base.objective)
+    # Swapped, exactly one of the two orders warns (unless they tie).
+    better, worse = sorted((trained, base), key=lambda v: v.objective)
+    assert not comparison_lines(better, worse)[-1].startswith("warning")
+    if better.objective < worse.objective:
+        assert comparison_lines(worse, better)[-1].startswith("warning")
+    assert isinstance(trained, Validation)

@@ -63,17 +63,27 @@ def run_figures(log: mt.Columns, out_dir: str | Path, title: str = "") -> list[P
     vid_all = np.asarray(log["vehicle_id"])
 
     fig, ax = plt.subplots(figsize=(8, 4))
+    x_all, y_all = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
+    lead = vid_all == 0
+    line = straight_line(x_all[lead], y_all[lead])
     for vid in ids:
         r = vid_all == vid
-        ax.plot(np.asarray(log["x_m"])[r], np.asarray(log["y_m"])[r], label=_vehicle_label(vid))
-    x_all, y_all = np.asarray(log["x_m"], dtype=float), np.asarray(log["y_m"], dtype=float)
-    if np.nanmax(y_all) - np.nanmin(y_all) > 0.05 * (np.nanmax(x_all) - np.nanmin(x_all)):
-        ax.set_aspect(
-            "equal", adjustable="datalim"
-        )  # curves undistorted; a straight road stays readable
-    ax.set_xlabel("east x (m)")
-    ax.set_ylabel("north y (m)")
-    ax.set_title(f"Trajectories {title}".strip())
+        if line is None:
+            ax.plot(x_all[r], y_all[r], label=_vehicle_label(vid))
+        else:
+            along, off = road_frame(x_all[r], y_all[r], line)
+            ax.plot(along, 100.0 * off, label=_vehicle_label(vid))
+    if line is None:
+        ax.set_aspect("equal", adjustable="datalim")  # curves undistorted
+        ax.set_xlabel("east x (m)")
+        ax.set_ylabel("north y (m)")
+        ax.set_title(f"Trajectories {title}".strip())
+    else:
+        # A straight road: metres of road against centimetres off the leader's line, so
+        # a lateral wobble reads in honest units instead of filling a ±0.05 m axis.
+        ax.set_xlabel("distance along the road (m)")
+        ax.set_ylabel("lateral offset from the leader's line (cm)")
+        ax.set_title(f"Lateral deviation on the straight road {title}".strip())
     ax.legend()
     _save(fig, paths[0])
 
@@ -107,6 +117,50 @@ def run_figures(log: mt.Columns, out_dir: str | Path, title: str = "") -> list[P
     ax.legend()
     _save(fig, paths[2])
     return paths
+
+
+def straight_line(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The leader's straight line ``(origin, unit direction)`` (m) when its path (``x``,
+    ``y`` in m) stays within 0.5 m of the chord from its first to its last point and is
+    longer than 1 m; None for a curved road or a convoy at rest."""
+    pts = np.stack([x, y], axis=1)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < 2:
+        return None
+    chord = pts[-1] - pts[0]
+    length = float(np.hypot(*chord))
+    if length < 1.0:
+        return None
+    u = chord / length
+    off = (pts - pts[0]) @ np.array([-u[1], u[0]])
+    return (pts[0], u) if float(np.max(np.abs(off))) <= 0.5 else None
+
+
+def road_frame(
+    x: np.ndarray, y: np.ndarray, line: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (m) as distance along ``line`` and signed offset from it (m, left +)."""
+    origin, u = line
+    d = np.stack([x, y], axis=1) - origin
+    return d @ u, d @ np.array([-u[1], u[0]])
+
+
+def same_as(rows: Sequence[dict[str, Any]], policies: Sequence[str], key: str) -> dict[str, str]:
+    """Policies whose ``key`` means over PER equal an earlier policy's (to 1e-9): drawn
+    on top of it, they would hide it, so the figures mark them (``label -> the other``)."""
+    series = {label: [r[key]["mean"] for r in rows if r["policy"] == label] for label in policies}
+    out: dict[str, str] = {}
+    for i, label in enumerate(policies):
+        for other in policies[:i]:
+            a, b = np.array(series[label], float), np.array(series[other], float)
+            if (
+                a.shape == b.shape
+                and len(a)
+                and np.allclose(a, b, rtol=0, atol=1e-9, equal_nan=True)
+            ):
+                out[label] = out.get(other, other)
+                break
+    return out
 
 
 # --- a sweep -----------------------------------------------------------------------------
@@ -152,7 +206,7 @@ def sweep_figures(result: SweepResult, out_dir: str | Path) -> list[Path]:
         policies,
         "mean_speed_difference_mps",
         "mean speed difference (m/s)",
-        "Mean speed difference vs PER",
+        f"Mean speed difference vs PER ({cfg.scenario})",
         paths[3],
     )
     _vs_per(
@@ -160,7 +214,7 @@ def sweep_figures(result: SweepResult, out_dir: str | Path) -> list[Path]:
         policies,
         "p95_platooning_error_m",
         "95th percentile platooning error (m)",
-        "Platooning error vs PER",
+        f"Platooning error vs PER ({cfg.scenario})",
         paths[4],
     )
     _min_gap(result, policies, pers, seed, paths[5])
@@ -223,16 +277,33 @@ def _over_time(
     _save(fig, path)
 
 
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X")
+_STYLES = ("-", "--", ":", "-.")
+
+
 def _vs_per(rows, policies, key: str, ylabel: str, title: str, path: Path) -> None:
+    """Each policy's mean ± std over seeds against PER; its own marker and line style,
+    nudged sideways, and a policy equal to an earlier one says so in the legend."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    for label in policies:
+    twins = same_as(rows, policies, key)
+    pers = sorted({r["per"] for r in rows})
+    step = min(np.diff(pers)) if len(pers) > 1 else 0.1
+    for i, label in enumerate(policies):
         sel = [r for r in rows if r["policy"] == label]
-        x = [r["per"] for r in sel]
+        nudge = (i - (len(policies) - 1) / 2) * 0.06 * step
+        x = [r["per"] + nudge for r in sel]
         mean = [r[key]["mean"] for r in sel]
         std = [r[key]["std"] for r in sel]
+        note = f"; same as {twins[label]}" if label in twins else ""
         ax.errorbar(
-            x, mean, yerr=std, marker="o", capsize=3, label=f"{label} (mean ± std over seeds)"
+            x,
+            mean,
+            yerr=std,
+            marker=_MARKERS[i % len(_MARKERS)],
+            ls=_STYLES[i % len(_STYLES)],
+            capsize=3,
+            label=f"{label} (mean ± std over seeds{note})",
         )
     ax.set_xlabel("packet error rate (PER)")
     ax.set_ylabel(ylabel)

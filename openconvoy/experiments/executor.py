@@ -176,15 +176,18 @@ class Executor(ABC):
         desc: str = "",
         unit: str = "run",
         on_result: Callable[[int, Any], None] | None = None,
+        weights: Sequence[int] | None = None,
     ) -> list[Any]:
         """Every task's result (or TaskFailure), in task order, whatever order they end in;
         a progress bar over tasks (counted in ``unit``s) on stderr with ``progress``;
         ``on_result(i, result)`` as task ``i`` ends (so a caller keeps what finished
-        when it is interrupted)."""
+        when it is interrupted); ``weights[i]``: the ``unit``s task ``i`` counts for (a
+        batch of runs), 1 each by default."""
         index = {id(t): i for i, t in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         todo = deque(tasks)
-        bar = _bar(len(tasks), progress, desc, unit)
+        weight = list(weights) if weights is not None else [1] * len(tasks)
+        bar = _bar(sum(weight), progress, desc, unit)
         in_flight = failed = 0
         try:
             while todo or in_flight:
@@ -199,7 +202,7 @@ class Executor(ABC):
                 if isinstance(value, TaskFailure):
                     failed += 1
                     bar.set_postfix_str(f"{failed} failed", refresh=False)
-                bar.update(1)
+                bar.update(weight[index[id(task)]])
         finally:
             bar.close()
         return results

@@ -430,6 +430,8 @@ def run_experiment(
     if say is None and progress:
         say = _stderr_line
     batched_sweep.say_per_run(tasks, say or (lambda line: None))
+    if say is not None and len(tasks.tasks) < len(todo):  # some runs batched
+        _say_compile(say)
     if isinstance(chosen, ExecutorConfig):  # local: no more processes than tasks
         chosen = make_executor(
             dataclasses.replace(chosen, jobs=max(1, min(slots, len(tasks.tasks))))
@@ -452,8 +454,8 @@ def run_experiment(
         signal.signal(signal.SIGTERM, _raise_interrupt)  # SIGTERM keeps the runs as Ctrl-C does
     try:
         with chosen:
-            unit = "run" if len(tasks.tasks) == len(todo) else "task"
-            chosen.map(tasks.tasks, progress, desc=config.name, unit=unit, on_result=keep)
+            runs_of = [n for _, n in tasks.spans]  # the bar counts runs, a batch its runs
+            chosen.map(tasks.tasks, progress, desc=config.name, on_result=keep, weights=runs_of)
     except KeyboardInterrupt:
         kept = sum(1 for r in per_run if r is not None and not isinstance(r, TaskFailure))
         raise SweepInterrupted(out, kept, len(planned)) from None
@@ -463,6 +465,17 @@ def run_experiment(
     runs, failures, kept_series = _collect(planned, per_run)
     result = SweepResult(config, [], runs, kept_series, out, failures, tasks.per_run)
     return _finish(result, figures, raise_on_failure)
+
+
+def _say_compile(say: Callable[[str], None]) -> None:
+    """The batched kernels' first compile, said before the wait it causes."""
+    try:
+        from openconvoy.envs.vector.jit import first_compile_note
+    except ImportError:  # no numba: nothing is batched anyway
+        return
+    note = first_compile_note()
+    if note is not None:
+        say(note)
 
 
 def _in_main_thread() -> bool:

@@ -127,6 +127,8 @@ def train_command(args: argparse.Namespace) -> int:
         + f" -> {args.out}",
         file=sys.stderr,
     )
+    if config.vec_env != "supersuit":
+        _say_compile()
     result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
     if result.validation is not None and result.base_validation is not None:
         from openconvoy.train.validate import comparison_lines
@@ -137,6 +139,17 @@ def train_command(args: argparse.Namespace) -> int:
         f"{result.policy_path}  ({result.steps} steps in {result.wall_s:.0f} s, {result.steps_per_s:.0f} steps/s)"
     )
     return 0
+
+
+def _say_compile() -> None:
+    """The batched simulator's first compile, said before the wait it causes."""
+    try:
+        from openconvoy.envs.vector.jit import first_compile_note
+    except ImportError:  # no numba: training falls back to SuperSuit
+        return
+    note = first_compile_note()
+    if note is not None:
+        print(note, file=sys.stderr)
 
 
 def _train_many(args: argparse.Namespace) -> int:
@@ -233,6 +246,11 @@ def export_command(args: argparse.Namespace) -> int:
         sample_observations,
     )
 
+    print(
+        f"exporting {resolve_policy_zip(args.run)} to {args.out}, then checking it against "
+        "SB3's predict on 400 simulated observations (loads torch: ~10 s)",
+        file=sys.stderr,
+    )
     path = export_policy(args.run, args.out)
     trained = load_learned(resolve_policy_zip(args.run))
     exported = load_learned(path)

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from openconvoy.cli import main
+from openconvoy.experiments.executor import ExecutorConfig
 from openconvoy.experiments.sweep import (
     RESUME_DIR,
     ExperimentConfig,
@@ -141,3 +142,29 @@ def test_resume_records_are_only_in_an_unfinished_sweep(tmp_path: Path):
     run_experiment(ExperimentConfig.from_toml(exp), out, jobs=1, progress=False, figures=False)
     assert not (out / RESUME_DIR).exists()
     assert (out / "summary.csv").is_file()
+
+
+def test_a_sweep_says_before_the_kernels_first_compile(tmp_path: Path, monkeypatch):
+    """The batched kernels' first compile (~30-60 s) is announced, once cached it is not."""
+    from openconvoy.envs.vector import jit
+
+    said: list[str] = []
+    config = ExperimentConfig(pers=(0.0, 0.3), seeds=1, duration_s=2.0)
+    empty = tmp_path / "cache"
+    empty.mkdir()
+    monkeypatch.setattr(jit, "CACHE_DIR", empty)  # an install whose kernels never compiled
+    run_experiment(config, tmp_path / "a", jobs=1, progress=False, figures=False, say=said.append)
+    assert said == [
+        "compiling the batched simulator's kernels first (once per install or upgrade, "
+        f"~30-60 s; cached in {empty})"
+    ]
+    (empty / "step.fused_step-1.py311.nbi").write_bytes(b"")  # numba's index, once compiled
+    said.clear()
+    run_experiment(config, tmp_path / "b", jobs=1, progress=False, figures=False, say=said.append)
+    assert said == []
+    # Runs that are not batched say nothing about kernels.
+    run_experiment(
+        ExperimentConfig(pers=(0.0,), seeds=1, duration_s=2.0, executor=ExecutorConfig(batched=False)),
+        tmp_path / "c", jobs=1, progress=False, figures=False, say=said.append,
+    )  # fmt: skip
+    assert said == []

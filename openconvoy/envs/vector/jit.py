@@ -57,6 +57,19 @@ def _cache_dir() -> Path:
 
 CACHE_DIR = _cache_dir()
 
+
+def first_compile_note() -> str | None:
+    """What a command says before its first batched run when this install's kernels have
+    never been compiled (numba writes an index file per kernel once it has): the run
+    pauses ~30–60 s, once, and the user is told why. None when they are cached."""
+    if any(CACHE_DIR.glob("*.nbi")):
+        return None
+    return (
+        "compiling the batched simulator's kernels first (once per install or upgrade, "
+        f"~30-60 s; cached in {CACHE_DIR})"
+    )
+
+
 typeof: Callable[[Any], Any] = _numba.typeof
 """numba's type of a Python value (what a kernel is compiled for)."""
 

@@ -190,6 +190,22 @@ class _DummyVenv:
         return [None]
 
 
+def _worst_against_predict(npz, model, observations: np.ndarray) -> float:
+    """Largest |normalized action| difference between an export and SB3's deterministic
+    ``predict`` of its model on ``observations``."""
+    return max(
+        float(
+            np.max(
+                np.abs(
+                    npz.normalized_action(o)
+                    - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0]
+                )
+            )
+        )
+        for o in observations
+    )
+
+
 def test_sac_export_matches_sb3_predict(tmp_path: Path) -> None:
     """SAC's actor (tanh-squashed mean) exports too."""
     from stable_baselines3 import SAC
@@ -204,19 +220,7 @@ def test_sac_export_matches_sb3_predict(tmp_path: Path) -> None:
     npz = load_learned(export_policy(run, tmp_path / "sac.npz"))
     model = SAC.load(str(run / "policy.zip"), device="cpu")
     assert npz.meta.algo == "sac"
-    obs = sample_observations(npz, n=200)
-    worst = max(
-        float(
-            np.max(
-                np.abs(
-                    npz.normalized_action(o)
-                    - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0]
-                )
-            )
-        )
-        for o in obs
-    )
-    assert worst <= 1e-5
+    assert _worst_against_predict(npz, model, sample_observations(npz, n=200)) <= 1e-5
 
 
 @pytest.mark.parametrize("artifact", ["policy.zip", "policy.npz"])
@@ -556,19 +560,7 @@ def test_a_from_scratch_gsde_policy_exports_and_sweeps_as_its_zip(tmp_path: Path
     assert model.policy.use_sde  # what made export refuse it before
     npz_path = export_policy(run, tmp_path / "scratch.npz")
     npz = load_learned(npz_path)
-    obs = sample_observations(npz, n=200)
-    worst = max(
-        float(
-            np.max(
-                np.abs(
-                    npz.normalized_action(o)
-                    - model.predict(npz.meta.normalize(o).astype(np.float32), deterministic=True)[0]
-                )
-            )
-        )
-        for o in obs
-    )
-    assert worst <= 1e-5
+    assert _worst_against_predict(npz, model, sample_observations(npz, n=200)) <= 1e-5
     rows = {}
     for name, policy in (("zip", run / "policy.zip"), ("npz", npz_path)):
         config = ExperimentConfig(policies=(str(policy),), pers=(0.0, 0.3), seeds=1, duration_s=8.0)

@@ -90,3 +90,37 @@ def test_imports_point_down(path: Path) -> None:
         elif layer == "bridge" and to == "envs" and target not in BRIDGE_ENVS:
             wrong.append(target)
     assert not wrong, f"{module} imports {wrong}, against DESIGN.md's import rule"
+
+
+def _private_imports(path: Path) -> list[tuple[str, str]]:
+    """``(module, name)`` of every ``from openconvoy.X import _name`` in ``path``."""
+    module = _module(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        source = node.module or ""
+        if node.level:
+            base = package.split(".")[: len(package.split(".")) - node.level + 1]
+            source = ".".join(base + ([node.module] if node.module else []))
+        if source.startswith("openconvoy"):
+            found += [
+                (source, a.name)
+                for a in node.names
+                if a.name.startswith("_") and not a.name.startswith("__")  # not __version__
+            ]
+    return found
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_no_module_takes_another_packages_private_name(path: Path) -> None:
+    """A leading underscore is private to its package: modules of one package (say
+    ``envs.vector``, whose kernels share helpers) may share such names, no one else."""
+    package = _module(path).rpartition(".")[0] if path.name != "__init__.py" else _module(path)
+    wrong = [
+        f"{source}.{name}"
+        for source, name in _private_imports(path)
+        if source.rpartition(".")[0] != package and source != package
+    ]
+    assert not wrong, f"{_module(path)} imports private {wrong}"

@@ -18,16 +18,18 @@ import numpy as np
 from openconvoy.core.errors import ConfigError
 
 _MASK = (1 << 64) - 1
-_GOLDEN = 0x9E3779B97F4A7C15
-_M1 = 0xBF58476D1CE4E5B9
-_M2 = 0x94D049BB133111EB
-_UNIT = 2.0**-53
+# SplitMix64's constants and the 53-bit unit of a uniform draw: the counter-based draws'
+# definition, public because the batched kernels (envs.vector) compute the same draws.
+SPLITMIX_GOLDEN = 0x9E3779B97F4A7C15
+SPLITMIX_M1 = 0xBF58476D1CE4E5B9
+SPLITMIX_M2 = 0x94D049BB133111EB
+UNIT_53 = 2.0**-53
 
 
 def _mix(z: int) -> int:
     """SplitMix64's finalizer on a 64-bit integer."""
-    z = ((z ^ (z >> 30)) * _M1) & _MASK
-    z = ((z ^ (z >> 27)) * _M2) & _MASK
+    z = ((z ^ (z >> 30)) * SPLITMIX_M1) & _MASK
+    z = ((z ^ (z >> 27)) * SPLITMIX_M2) & _MASK
     return z ^ (z >> 31)
 
 
@@ -40,8 +42,8 @@ def counter_uniform(key: int, *words: int) -> float:
     """
     z = key & _MASK
     for w in words:
-        z = _mix((z + _GOLDEN + (int(w) & _MASK)) & _MASK)
-    return (z >> 11) * _UNIT
+        z = _mix((z + SPLITMIX_GOLDEN + (int(w) & _MASK)) & _MASK)
+    return (z >> 11) * UNIT_53
 
 
 def counter_state(key: int, *words: int) -> int:
@@ -51,18 +53,18 @@ def counter_state(key: int, *words: int) -> int:
     ``counter_uniform(k, *a, *b) == counter_uniform_from(counter_state(k, *a), *b)``."""
     z = key & _MASK
     for w in words:
-        z = _mix((z + _GOLDEN + (int(w) & _MASK)) & _MASK)
+        z = _mix((z + SPLITMIX_GOLDEN + (int(w) & _MASK)) & _MASK)
     return z
 
 
 def counter_uniform_from(state: int, *words: int) -> float:
     """``counter_uniform`` continued from ``counter_state``'s ``state``."""
-    return (counter_state(state, *words) >> 11) * _UNIT
+    return (counter_state(state, *words) >> 11) * UNIT_53
 
 
 def _mix_array(z: np.ndarray) -> np.ndarray:
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(_M1)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(_M2)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(SPLITMIX_M1)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(SPLITMIX_M2)
     return z ^ (z >> np.uint64(31))
 
 
@@ -71,8 +73,8 @@ def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np
     with np.errstate(over="ignore"):
         z = np.asarray(key, dtype=np.uint64)
         for w in words:
-            z = _mix_array(z + np.uint64(_GOLDEN) + np.asarray(w).astype(np.uint64))
-    return (z >> np.uint64(11)).astype(np.float64) * _UNIT
+            z = _mix_array(z + np.uint64(SPLITMIX_GOLDEN) + np.asarray(w).astype(np.uint64))
+    return (z >> np.uint64(11)).astype(np.float64) * UNIT_53
 
 
 class LossModel(Protocol):

@@ -18,13 +18,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from openconvoy.comms.loss import (
-    _GOLDEN,
-    _M1,
-    _M2,
-    _UNIT,
     GE_ADVANCE,
     GE_INIT,
     GE_LOSS,
+    SPLITMIX_GOLDEN,
+    SPLITMIX_M1,
+    SPLITMIX_M2,
+    UNIT_53,
     GilbertElliott,
     LossConfig,
     counter_uniform_array,
@@ -37,7 +37,7 @@ from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.math import norm
 from openconvoy.envs.vector.rx import RxBuffers, push_one
 
-_G, _K1, _K2 = np.uint64(_GOLDEN), np.uint64(_M1), np.uint64(_M2)
+_G, _K1, _K2 = np.uint64(SPLITMIX_GOLDEN), np.uint64(SPLITMIX_M1), np.uint64(SPLITMIX_M2)
 _S11, _S27, _S30, _S31 = np.uint64(11), np.uint64(27), np.uint64(30), np.uint64(31)
 
 
@@ -226,7 +226,7 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
     z = _mix(z + _G + np.uint64(w1))
     z = _mix(z + _G + np.uint64(w2))
     z = _mix(z + _G + np.uint64(w3))
-    return np.float64(z >> _S11) * _UNIT
+    return np.float64(z >> _S11) * UNIT_53
 
 
 @bare_inline

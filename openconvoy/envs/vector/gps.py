@@ -11,11 +11,11 @@ import math
 
 import numpy as np
 
-from openconvoy.comms.loss import _GOLDEN, _UNIT
+from openconvoy.comms.loss import SPLITMIX_GOLDEN, UNIT_53
 from openconvoy.envs.vector.channel import _mix
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 
-_G, _S11 = np.uint64(_GOLDEN), np.uint64(11)
+_G, _S11 = np.uint64(SPLITMIX_GOLDEN), np.uint64(11)
 
 
 @bare_inline
@@ -24,8 +24,8 @@ def counter_normals(key, vehicle, tick):  # pragma: no cover - compiled
     ``(..., 1)`` (``comms.loss.counter_uniform``): two independent standard normals."""
     z = _mix(key + _G + np.uint64(vehicle))
     z = _mix(z + _G + np.uint64(tick))
-    u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * _UNIT
-    u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * _UNIT
+    u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * UNIT_53
+    u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * UNIT_53
     r = math.sqrt(-2.0 * math.log(1.0 - u1))
     angle = 2.0 * math.pi * u2
     return r * math.cos(angle), r * math.sin(angle)

@@ -28,7 +28,11 @@ from openconvoy.comms.loss import LossConfig, as_loss_config
 from openconvoy.core.config import Range, check_number
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, parse_fault
-from openconvoy.core.member import MemberConfig, member_config_for
+from openconvoy.core.member import ConvoyMember, MemberConfig, member_config_for
+from openconvoy.core.state import VehicleState
+from openconvoy.envs.channel import Channel
+from openconvoy.envs.forgery import Authentication
+from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
 from openconvoy.envs.reward import RewardConfig, reward
 from openconvoy.envs.scenarios import Scenario, is_traffic_scenario, make_scenario
@@ -342,17 +346,45 @@ class ConvoyEnv(ParallelEnv):
 
     # --- the world's parts, for callers and tests ----------------------------------------
 
-    t = property(lambda self: self.sim.t, doc="Simulated time (s).")
-    step_count = property(lambda self: self.sim.step_count, doc="Steps since reset.")
-    plant = property(lambda self: self.sim.plant, doc="The vehicles' plant (``BicyclePlant``).")
-    channel = property(lambda self: self.sim.channel, doc="The V2V channel (``Channel``).")
-    members = property(lambda self: self.sim.members, doc="The ``ConvoyMember`` of each vehicle.")
-    faults = property(lambda self: self.sim.faults, doc="The injected ``Fault``s.")
-    auth = property(lambda self: self.sim.auth, doc="Receivers' verification (``Authentication``).")
-    safety_events = property(
-        lambda self: self.sim.safety_events,
-        doc="(t s, vehicle, reason): faults injected, refused actions and emergency stops.",
-    )
+    @property
+    def t(self) -> float:
+        """Simulated time (s)."""
+        return self.sim.t
+
+    @property
+    def step_count(self) -> int:
+        """Steps since reset."""
+        return self.sim.step_count
+
+    @property
+    def plant(self) -> BicyclePlant:
+        """The vehicles' plant."""
+        return self.sim.plant
+
+    @property
+    def channel(self) -> Channel[VehicleState]:
+        """The V2V channel."""
+        return self.sim.channel
+
+    @property
+    def members(self) -> list[ConvoyMember]:
+        """The ``ConvoyMember`` of each vehicle (the leader first)."""
+        return self.sim.members
+
+    @property
+    def faults(self) -> tuple[Fault, ...]:
+        """The injected faults."""
+        return self.sim.faults
+
+    @property
+    def auth(self) -> Authentication:
+        """Receivers' verification (``forge`` faults, ``security.auth``)."""
+        return self.sim.auth
+
+    @property
+    def safety_events(self) -> list[tuple[float, int, str]]:
+        """(t s, vehicle, reason): faults injected, refused actions and emergency stops."""
+        return self.sim.safety_events
 
     @property
     def forged_rejected(self) -> list[int]:

@@ -77,6 +77,18 @@ def test_train_sb3_example_trains_saves_and_evaluates(tmp_path: Path) -> None:
     assert got["trained_p95_m"] > 0.0
 
 
+def test_render_cut_in_writes_an_animated_gif(tmp_path: Path) -> None:
+    out = tmp_path / "cut-in.gif"
+    r = _run(str(EXAMPLES / "render_cut_in.py"), "--seconds", "2", "--out", str(out), cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"wrote {out} (10 frames)"  # 40 ticks, one frame every 4
+    from PIL import Image
+
+    with Image.open(out) as gif:
+        assert gif.format == "GIF" and gif.n_frames == 10 and gif.size == (900, 100)
+        assert gif.info["duration"] == 200  # 4 ticks at 20 Hz: real time
+
+
 def test_field_convoy_file_loads_and_simulates(tmp_path: Path) -> None:
     convoy = load_convoy(EXAMPLES / "field" / "convoy.toml")
     assert convoy.vehicles == ("1/10", "1/6", "1/10")

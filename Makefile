@@ -3,14 +3,14 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test docs bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	# The CPU build of torch first, so the train extra pulls no CUDA packages.
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched]'
+	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -20,7 +20,12 @@ test: $(STAMP)
 	$(VENV)/bin/ruff check openconvoy tests benchmarks
 	$(VENV)/bin/ruff format --check openconvoy tests benchmarks
 	$(VENV)/bin/mypy
+	$(MAKE) docs
 	$(VENV)/bin/python -m pytest -q
+
+# The documentation site, strict: a broken link, reference or generated table fails.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do $(PY) $$b || exit 1; done

@@ -10,7 +10,7 @@ open-type length are written and read by ``bsm`` itself, and so is a core-only B
   and BSM, from a prepared value dict, no range checks): ``codec_vs_asn1tools`` is the
   ratio, measured in the same run so that machine load cancels;
 - ``encode`` and ``decode`` alone;
-- ``decode_largest_interop``: decoding the largest frame of ../shared/interop (211 bytes,
+- ``decode_largest_interop``: decoding the largest frame of tests/data/interop (211 bytes,
   all three Part II types, skipped as open types), when that file is there;
 - ``state``: VehicleState -> bytes -> VehicleState, i.e. plus the ENU <-> geodetic
   conversions (pymap3d) and unit mapping, what a vehicle pays per message;
@@ -41,7 +41,7 @@ from openconvoy.comms.tempids import TempIds
 from openconvoy.comms.v2v import Receiver
 from openconvoy.core.state import VehicleState
 
-VECTORS = Path(__file__).resolve().parents[1].parent / "shared/interop/j2735-bsm-vectors.json"
+VECTORS = Path(__file__).resolve().parents[1] / "tests/data/interop/j2735-bsm-vectors.json"
 
 
 def _largest_interop_frame() -> bytes | None:

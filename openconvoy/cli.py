@@ -24,6 +24,37 @@ class CliError(ConfigError):
     """A user-facing error: printed as one line, exit status 2."""
 
 
+EXTRAS: dict[str, str] = {
+    "matplotlib": "plots",
+    "asn1tools": "vehicle",
+    "cryptography": "vehicle",
+    "pymavlink": "vehicle",
+    "serial": "vehicle",
+    "torch": "train",
+    "stable_baselines3": "train",
+    "supersuit": "train",
+    "optuna": "train",
+    "tensorboard": "train",
+    "highway_env": "traffic",
+    "numba": "batched",
+    "ray": "cluster",
+}
+"""The optional packages, by import name, and the extra (pyproject.toml) that brings each."""
+
+
+def missing_extra(exc: ModuleNotFoundError) -> str | None:
+    """One line naming the extra to install when ``exc`` is an optional package missing
+    (None when it is anything else: a bug, shown with its traceback)."""
+    top = (exc.name or "").split(".")[0]
+    extra = EXTRAS.get(top)
+    if extra is None:
+        return None
+    return (
+        f"this command needs the '{extra}' extra ({top} is not installed): "
+        f"pip install 'openconvoy[{extra}]' (from a clone: pip install -e '.[{extra}]')"
+    )
+
+
 Handler = Callable[[argparse.Namespace], int | None]
 
 
@@ -111,6 +142,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 141  # 128 + SIGPIPE, what a shell reports for a command killed by the pipe
     except OpenConvoyError as exc:  # what a user can get wrong; anything else is a bug
         print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:  # an optional package of an extra not installed
+        line = missing_extra(exc)
+        if line is None:
+            raise
+        print(f"openconvoy {args.command}: error: {line}", file=sys.stderr)
         return 2
     except OSError as exc:
         if exc.filename is None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from openconvoy.cli import main
 
-CONVOY = Path(__file__).resolve().parents[2] / "shared" / "sitl" / "convoy"
+CONVOY = Path(__file__).resolve().parent / "data" / "sitl" / "convoy"
 
 
 def _standstill_copy(src: Path, dst: Path) -> Path:

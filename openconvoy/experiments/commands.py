@@ -93,6 +93,24 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
     )
 
 
+def plots_wanted(no_plots: bool) -> bool:
+    """Whether to draw figures: not with ``--no-plots``, and not without matplotlib (the
+    ``plots`` extra), which a minimal install lacks: then one note on stderr and the run's
+    other files as usual."""
+    if no_plots:
+        return False
+    try:
+        import matplotlib  # noqa: F401  (the figures import it again)
+    except ModuleNotFoundError:
+        print(
+            "openconvoy: note: no plots, matplotlib is not installed "
+            "(pip install 'openconvoy[plots]'; --no-plots skips them)",
+            file=sys.stderr,
+        )
+        return False
+    return True
+
+
 def sim(args: argparse.Namespace) -> int:
     """``openconvoy sim``: one run; writes log.csv, metrics.json, run.toml and plots."""
     from openconvoy import __version__
@@ -109,7 +127,7 @@ def sim(args: argparse.Namespace) -> int:
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
     written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
-    if not args.no_plots:
+    if plots_wanted(args.no_plots):
         from openconvoy.experiments.figures import run_figures
 
         label = f"({config.scenario}, {config.policy}, PER {config.per:g}, seed {config.seed})"
@@ -298,12 +316,13 @@ def per_sweep(args: argparse.Namespace) -> int:
         config = experiment_from_args(args)
         out = check_output_dir(args.out, "--out", create=False)  # created once checked
     executor = with_flags(config.executor, args.executor, args.address, args.jobs, args.batched)
+    figures = plots_wanted(args.no_plots)
     try:
         result = run_experiment(
             config,
             out,
             progress=not args.quiet,
-            figures=not args.no_plots,
+            figures=figures,
             executor=executor,
             run_logs=not args.no_run_logs,
             resume=args.resume is not None,
@@ -324,7 +343,8 @@ def per_sweep(args: argparse.Namespace) -> int:
             f"{r['collisions']['mean']:>12.2f}{r['delivery_ratio']['mean']:>10.3f}"
         )
     print(
-        f"wrote summary.json, summary.csv, experiment.toml, figures and {len(result.runs)} run "
+        f"wrote summary.json, summary.csv, experiment.toml, {'figures, ' if figures else ''}"
+        f"{len(result.runs)} run "
         f"{'logs' if not args.no_run_logs else 'metrics'} to {out}"
     )
     return 0

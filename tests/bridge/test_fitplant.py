@@ -274,11 +274,11 @@ def test_cli_errors_are_one_line(tmp_path: Path) -> None:
         fit_plant(tmp_path / "two", vehicle_id=5)
 
 
-# --- The autopilot's PI speed loop, fitted from real firmware (../shared/sitl*) ----------
+# --- The autopilot's PI speed loop, fitted from real firmware (tests/data/sitl*) ----------
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-SITL = REPO_ROOT.parent / "shared" / "sitl"
-SITL_PX4 = REPO_ROOT.parent / "shared" / "sitl-px4"
+SITL = REPO_ROOT / "tests" / "data" / "sitl"
+SITL_PX4 = REPO_ROOT / "tests" / "data" / "sitl-px4"
 
 
 def recording_excerpt(src: Path, dst: Path, t0: float, t1: float) -> Path:
@@ -288,7 +288,7 @@ def recording_excerpt(src: Path, dst: Path, t0: float, t1: float) -> Path:
     import json
 
     if not src.is_file():
-        raise FileNotFoundError(f"{src} not found (expected ../shared next to the repo)")
+        raise FileNotFoundError(f"{src} not found")
     with gzip.open(src, "rt") as f, gzip.open(dst, "wt") as out:
         out.write(f.readline())
         for line in f:
@@ -384,7 +384,7 @@ def test_pi_fit_from_a_firmware_deploy_log(tmp_path: Path) -> None:
     through the CLI: the preset written reproduces the firmware's step overshoot."""
     log = SITL / "convoy" / "vx-fixed-1" / "vehicle_0.csv"
     if not log.is_file():
-        raise FileNotFoundError(f"{log} not found (expected ../shared next to the repo)")
+        raise FileNotFoundError(f"{log} not found")
     out = tmp_path / "leader.toml"
     result = subprocess.run(
         [

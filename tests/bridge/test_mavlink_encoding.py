@@ -18,7 +18,7 @@ from openconvoy.bridge.link import ModeLost
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME
 
-SHARED = Path(__file__).resolve().parents[3] / "shared"
+DATA = Path(__file__).resolve().parents[1] / "data"  # tests/data: see its README
 FLT_EPSILON = 1.1920929e-07  # ArduPilot's is_negative(x): x <= -FLT_EPSILON
 COMPASS = (0.0, 45.0, 89.99, 90.0, 90.01, 135.0, 180.0, 225.0, 270.0, 315.0)
 
@@ -102,7 +102,7 @@ def test_our_ardupilot_setpoint_is_what_the_real_firmware_drove_forward_with(edg
     """shared/sitl/setpoint_semantics: at every recorded heading our setpoint has the very
     fields of the recorder's body-forward one, on which ArduPilot drove forward; the NED
     encoding (the old one) made it reverse exactly where vx <= -FLT_EPSILON."""
-    recs = _records(SHARED / "sitl" / "setpoint_semantics.jsonl.gz")
+    recs = _records(DATA / "sitl" / "setpoint_semantics.jsonl.gz")
     phases = [(i, r) for i, r in enumerate(recs) if r["dir"] == "mark"]
     ap, link, _ = edge(autopilot="ardupilot")
     checked = {"body": 0, "ned": 0}
@@ -254,7 +254,7 @@ def _distance(cm: float, orientation: int = 0, max_cm: int = 2000):
 
 def test_forward_rangefinder_gives_range_and_range_rate(edge):
     # The PX4 SIH rover's own DISTANCE_SENSOR (recorded, downward: orientation 25) must be ignored.
-    with gzip.open(SHARED / "sitl-px4" / "stops.jsonl.gz", "rt") as f:
+    with gzip.open(DATA / "sitl-px4" / "stops.jsonl.gz", "rt") as f:
         px4 = next(r["fields"] for r in map(json.loads, f) if r.get("type") == "DISTANCE_SENSOR")
     assert px4["orientation"] == 25
     closing = {"cm": lambda t: 1200 - 50 * t}  # 12 m, closing at 0.5 m/s

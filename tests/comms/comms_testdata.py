@@ -6,13 +6,11 @@ import json
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-VECTORS_PATH = REPO_ROOT.parent / "shared" / "interop" / "j2735-bsm-vectors.json"
+VECTORS_PATH = REPO_ROOT / "tests" / "data" / "interop" / "j2735-bsm-vectors.json"
 
 
 def load_vectors() -> list[dict]:
-    """The 54 interop frames of ../shared/interop (DESIGN.md, Interop test data)."""
+    """The 54 interop frames of tests/data/interop (see tests/data/README.md)."""
     if not VECTORS_PATH.is_file():
-        raise FileNotFoundError(
-            f"interop vectors not found at {VECTORS_PATH} (expected ../shared next to the repo)"
-        )
+        raise FileNotFoundError(f"interop vectors not found at {VECTORS_PATH}")
     return json.loads(VECTORS_PATH.read_text())

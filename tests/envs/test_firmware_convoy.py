@@ -1,6 +1,6 @@
 """``sim`` with the firmware-fitted preset against a convoy run on real ArduPilot firmware.
 
-../shared/sitl/convoy/ holds the deploy logs of three ArduPilot Rover 4.7 SITL instances
+tests/data/sitl/convoy/ holds the deploy logs of three ArduPilot Rover 4.7 SITL instances
 driven by ``openconvoy deploy --policy paper`` (the ``paper`` scenario, BSMs over IPv6
 multicast on a veth pair). The simulation runs the same scenario and policy with all three
 vehicles ``ardupilot-rover``; its V2V latency is set so the followers see the predecessor's
@@ -20,16 +20,14 @@ from openconvoy.cli import main
 from openconvoy.logs import read_log
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-CONVOY_DIR = REPO_ROOT.parent / "shared" / "sitl" / "convoy"
+CONVOY_DIR = REPO_ROOT / "tests" / "data" / "sitl" / "convoy"
 RECORDED_RUNS = ("vx-fixed-1", "vx-fixed-2")
 LATENCY_S = "0.05"
 
 
 def _convoy_dir() -> Path:
     if not (CONVOY_DIR / "convoy.toml").is_file():
-        raise FileNotFoundError(
-            f"firmware convoy logs not found at {CONVOY_DIR} (expected ../shared next to the repo)"
-        )
+        raise FileNotFoundError(f"firmware convoy logs not found at {CONVOY_DIR}")
     return CONVOY_DIR
 
 

@@ -14,13 +14,13 @@ import pytest
 from openconvoy.experiments.recording import decode_setpoint, is_recording, read_recording
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-SITL = REPO_ROOT.parent / "shared" / "sitl"
-SITL_PX4 = REPO_ROOT.parent / "shared" / "sitl-px4"
+SITL = REPO_ROOT / "tests" / "data" / "sitl"
+SITL_PX4 = REPO_ROOT / "tests" / "data" / "sitl-px4"
 
 
 def _shared(path: Path) -> Path:
     if not path.is_file():
-        raise FileNotFoundError(f"{path} not found (expected ../shared next to the repo)")
+        raise FileNotFoundError(f"{path} not found")
     return path
 
 

@@ -11,7 +11,7 @@ from typing import Any
 
 from openconvoy.bridge.simvehicle.replay import boot_time, load_recording, replay
 
-SHARED = Path(__file__).parents[3].parent / "shared"
+DATA = Path(__file__).resolve().parents[2] / "data"  # tests/data: see its README
 Record = dict[str, Any]
 RX_TYPES = {
     "GLOBAL_POSITION_INT",
@@ -28,7 +28,7 @@ RX_TYPES = {
 @functools.cache
 def sides(folder: str, name: str) -> dict[str, Any]:
     """``{"firmware": records, "sim": records, "boot": {side: t_boot}}`` for one recording."""
-    meta, recs = load_recording(SHARED / folder / f"{name}.jsonl.gz", RX_TYPES)
+    meta, recs = load_recording(DATA / folder / f"{name}.jsonl.gz", RX_TYPES)
     t_boot = boot_time(meta, recs)
     return {
         "firmware": recs,

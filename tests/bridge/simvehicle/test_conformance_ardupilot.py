@@ -1,4 +1,4 @@
-"""shared/sitl/README.md's conformance table, row by row: each recording of real ArduPilot
+"""tests/data/sitl/README.md's conformance table, row by row: each recording of real ArduPilot
 Rover 4.7 firmware is replayed into the simulated vehicle (lockstep, real MAVLink over UDP
 loopback), and the same measurement must meet the row's tolerance on both the firmware's
 telemetry and the simulation's."""

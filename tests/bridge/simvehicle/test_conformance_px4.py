@@ -1,4 +1,4 @@
-"""shared/sitl-px4/README.md's conformance table: recordings of real PX4 (SIH rover)
+"""tests/data/sitl-px4/README.md's conformance table: recordings of real PX4 (SIH rover)
 replayed into the simulated PX4 vehicle; the same measurement on both sides. Headings
 come from the EKF's ATTITUDE, speeds from SIH's true state (HIL_STATE_QUATERNION on the
 simulator link) for the firmware and from the simulated vehicle's true GLOBAL_POSITION_INT."""

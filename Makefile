@@ -17,8 +17,8 @@ demo: $(STAMP)
 	$(VENV)/bin/openconvoy demo
 
 test: $(STAMP)
-	$(VENV)/bin/ruff check openconvoy tests benchmarks
-	$(VENV)/bin/ruff format --check openconvoy tests benchmarks
+	$(VENV)/bin/ruff check openconvoy tests benchmarks examples docs/hooks
+	$(VENV)/bin/ruff format --check openconvoy tests benchmarks examples docs/hooks
 	$(VENV)/bin/mypy
 	$(MAKE) docs
 	$(VENV)/bin/python -m pytest -q

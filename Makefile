@@ -10,7 +10,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	# The CPU build of torch first, so the train extra pulls no CUDA packages.
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched]'
+	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched,ros]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -104,11 +104,19 @@ def sim(args: argparse.Namespace) -> int:
     build_env(config)  # a bad policy, scenario or preset fails before anything is written
     out = check_output_dir(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
-    result = run_sim(config, out, progress=not args.quiet)
+    bag = None
+    if getattr(args, "bag", False):
+        bag = out / "bag"
+        if bag.exists():
+            import shutil
+
+            shutil.rmtree(bag)  # --out is overwritten, like log.csv
+    result = run_sim(config, out, progress=not args.quiet, bag=bag)
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
     written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
+    written += ["bag/"] if bag is not None else []
     if not args.no_plots:
         from openconvoy.experiments.figures import run_figures
 

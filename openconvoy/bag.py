@@ -260,22 +260,22 @@ def read_bag(path: str | Path) -> Log:
     A bag that cannot be read, or holds no ``ConvoyStatus`` message, is an
     ``InputFileError`` naming it."""
     _rosbags()
-    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import Reader
 
     bags = bag_dirs(path)
     if not bags:
         raise InputFileError(f"{path}: not a ROS 2 bag (no {_META}) and no bag inside")
+    store = typestore()
     rows: list[Any] = []
-    try:
-        with AnyReader(bags, default_typestore=typestore()) as reader:
-            status = [c for c in reader.connections if c.msgtype == STATUS_TYPE]
-            # (an empty ``connections`` would mean every connection to rosbags)
-            for conn, _, raw in reader.messages(connections=status) if status else ():
-                rows.append(reader.deserialize(raw, conn.msgtype))
-    except InputFileError:
-        raise
-    except Exception as exc:  # rosbags raises its own errors for a broken bag
-        raise InputFileError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+    for bag in bags:
+        try:
+            with Reader(bag) as reader:
+                status = [c for c in reader.connections if c.msgtype == STATUS_TYPE]
+                # (an empty ``connections`` would mean every connection to rosbags)
+                for conn, _, raw in reader.messages(connections=status) if status else ():
+                    rows.append(store.deserialize_cdr(raw, conn.msgtype))
+        except Exception as exc:  # rosbags raises its own errors for a broken bag
+            raise InputFileError(f"{bag}: not a readable ROS 2 bag ({exc})") from None
     if not rows:
         raise InputFileError(f"{path}: the bag holds no {STATUS_TYPE} messages")
     return status_log(rows)

@@ -57,11 +57,13 @@ from openconvoy.bridge.link import (
     LinkTimeout,
     StatusCallback,
     Telemetry,
+    VehicleLinkError,
 )
 from openconvoy.bridge.mavlink import protocol as mp
 from openconvoy.bridge.mavlink.setpoint import PX4_RESUME_GAP_S, encode_setpoint
 from openconvoy.bridge.ros import ftf
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.core.errors import LinkError
 from openconvoy.core.state import VehicleState
 
 GUIDED_MODE: dict[str, str] = {"ardupilot": "GUIDED", "px4": "OFFBOARD"}
@@ -208,11 +210,17 @@ class MavrosLink:
     # ------------------------------------------------------------------ connect
 
     def connect(self, timeout_s: float) -> None:
+        """Start the node (once; a later call after a timeout keeps waiting on the same node
+        and subscriptions) and wait for MAVROS's state, position and heading."""
         deadline = self.clock() + timeout_s
-        self._open()
+        if self._node is None or not self._node.alive:
+            try:
+                self._open()
+            except LinkError as exc:  # the node could not start (no master, no rospy)
+                raise LinkTimeout(f"MAVROS under {self.ns}: {exc}") from None
+        self._closed = False
         while not (self._connected and self._fix is not None and math.isfinite(self._hdg)):
             if self.clock() > deadline:
-                self.close()
                 raise LinkTimeout(
                     f"no vehicle state and position from MAVROS under {self.ns} in {timeout_s:g} s"
                 )
@@ -221,11 +229,11 @@ class MavrosLink:
             self._autopilot = guess_autopilot(self._mode)
             if self._autopilot is None:
                 self.close()
-                raise LinkTimeout(
-                    f"cannot tell the autopilot from mode {self._mode!r}: give --autopilot"
+                raise VehicleLinkError(
+                    f"cannot tell the autopilot from MAVROS's mode {self._mode!r}: give --autopilot"
                 )
         # The rate the position arrives at (what the vehicle and MAVROS agreed to).
-        t_end = min(deadline, self.clock() + 1.0)
+        t_end = self.clock() + 1.0
         while len(self._fix_times) < 5 and self.clock() < t_end:
             time.sleep(0.02)
         times = self._fix_times

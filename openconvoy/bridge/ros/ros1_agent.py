@@ -34,12 +34,19 @@ import threading
 
 
 def _generate(msg_dir, gen_dir):
-    """Python classes of the ``mavros_msgs`` subset (genpy, as catkin would build them)."""
-    pkg_dir = os.path.join(gen_dir, "mavros_msgs")
-    stamp = os.path.join(pkg_dir, ".generated")
-    if not os.path.exists(stamp):
+    """Python classes of the ``mavros_msgs`` subset (genpy, as catkin would build them),
+    generated once into ``gen_dir`` (built beside it and renamed into place, so nodes
+    starting together never see half a package)."""
+    if not os.path.exists(os.path.join(gen_dir, "mavros_msgs", ".generated")):
+        import shutil
+        import tempfile
+
         from genpy.generator import MsgGenerator, SrvGenerator
 
+        parent = os.path.dirname(gen_dir)
+        os.makedirs(parent, exist_ok=True)
+        tmp = tempfile.mkdtemp(prefix=".gen-", dir=parent)
+        pkg_dir = os.path.join(tmp, "mavros_msgs")
         search = {
             "mavros_msgs": [os.path.join(msg_dir, "msg")],
             "std_msgs": ["/usr/share/std_msgs/msg"],
@@ -60,8 +67,12 @@ def _generate(msg_dir, gen_dir):
                 f.writelines(f"from ._{n} import *\n" for n in names)
         with open(os.path.join(pkg_dir, "__init__.py"), "w") as f:
             f.write("")
-        with open(stamp, "w") as f:
+        with open(os.path.join(pkg_dir, ".generated"), "w") as f:
             f.write("ok\n")
+        try:
+            os.rename(tmp, gen_dir)
+        except OSError:  # another node got there first: use its copy
+            shutil.rmtree(tmp, ignore_errors=True)
     sys.path.insert(0, gen_dir)
 
 

@@ -114,6 +114,12 @@ def test_report_and_compare_read_the_bag_as_the_csv(run: Path, capsys) -> None:
     assert all(v["diff"] == 0 for v in diffs.values() if v["diff"] is not None), diffs
 
 
+def test_report_writes_metrics_beside_a_bag_not_into_it(run: Path) -> None:
+    assert main(["report", str(run / "bag")]) == 0
+    assert not (run / "bag" / "metrics.json").exists()
+    assert json.loads((run / "metrics.json").read_text())["collisions"] == 0
+
+
 def test_v2v_bytes_round_trip(tmp_path: Path) -> None:
     frames = [bytes(range(7)), b"\x00\x14" + bytes(range(200, 256))]
     with BagWriter(tmp_path / "b", tick_s=0.05) as bag:

@@ -181,7 +181,11 @@ def report(args: argparse.Namespace) -> int:
     warning = standstill_warning(log)
     if warning:
         print(warning, file=sys.stderr)
-    out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
+    from openconvoy.bag import is_bag
+
+    # metrics.json beside a log file, in a run directory, beside a bag (never inside it)
+    base = (path if path.is_dir() else path.parent).parent if is_bag(path) else path
+    out = Path(args.out) if args.out else (base if base.is_dir() else base.parent) / "metrics.json"
     write_json(out, metrics)
     written = [str(out)]
     if args.plots:

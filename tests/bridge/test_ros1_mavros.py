@@ -145,3 +145,53 @@ def test_cmd_vel_unstamped_vector_south_reverses_ardupilot(roscore: Roscore) -> 
         standin.stop()
         standin.node.close()
         vehicle.stop()
+
+
+@pytest.mark.e2e
+def test_px4_through_mavros_takeover_and_lost_vehicle(roscore: Roscore) -> None:
+    """PX4 behind MAVROS: told by its boot mode, OFFBOARD and armed after a setpoint stream,
+    drives; a person's MANUAL latches a takeover (not a failsafe) and stops the setpoints;
+    a silent vehicle makes MAVROS report it disconnected (``conn/timeout``): the link is lost."""
+    port = free_port()
+    vehicle = SimVehicle(
+        f"udpin:127.0.0.1:{port}", SimVehicleConfig(autopilot="px4", ready_after_s=0.0)
+    ).start()
+    standin = MavrosStandIn(
+        Ros1Node("/px4_mavros", roscore.uri), f"udpout:127.0.0.1:{port}", "/px4/mavros",
+        conn_timeout_s=1.5,
+    ).start()  # fmt: skip
+    link = MavrosLink(lambda: Ros1Node("/px4_link", roscore.uri), "/px4/mavros", DEFAULT_HOME, 1)
+    try:
+        link.connect(10.0)
+        assert link.autopilot == "px4"  # AUTO.LOITER at boot
+        link.prepare_and_arm(15.0)
+        heading = math.radians(30.0)
+        seen = []
+
+        def moving() -> bool:
+            tel = link.poll()
+            link.send_setpoint(1.5, heading)
+            if tel is not None:
+                seen.append(tel)
+            return tel is not None and tel.mode == "OFFBOARD" and tel.state.speed > 0.8
+
+        assert wait_for(moving, 10.0)
+        assert wait_for(lambda: moving() and abs(seen[-1].state.heading - heading) < 0.1, 10.0)
+        vehicle.pilot_set_mode("MANUAL")
+
+        def took_over() -> bool:
+            link.poll()
+            link.send_setpoint(1.5, heading)
+            return link.pilot_took_over
+
+        assert wait_for(took_over, 5.0)
+        assert not link.failsafe_took_over and "OFFBOARD -> MANUAL" in link.takeover_reason
+        assert not link.send_setpoint(1.5, heading)
+        assert not link.lost
+        vehicle.freeze()
+        assert wait_for(lambda: link.lost, 5.0)
+    finally:
+        link.close()
+        standin.stop()
+        standin.node.close()
+        vehicle.stop()

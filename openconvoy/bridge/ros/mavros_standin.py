@@ -125,10 +125,18 @@ class MavrosStandIn:
     ``/vehicle_1/mavros``), MAVLink side ``mavlink_url`` (pymavlink URL, e.g.
     ``udpout:127.0.0.1:14551``). ``start`` begins; ``stop`` ends (idempotent)."""
 
-    def __init__(self, node: Any, mavlink_url: str, ns: str = "/mavros", rate_hz: float = 20.0):
+    def __init__(
+        self,
+        node: Any,
+        mavlink_url: str,
+        ns: str = "/mavros",
+        rate_hz: float = 20.0,
+        conn_timeout_s: float = CONN_TIMEOUT_S,
+    ):
         from pymavlink import mavutil
 
         self.node, self.ns, self.rate_hz = node, ns.rstrip("/"), rate_hz
+        self.conn_timeout_s = conn_timeout_s  # MAVROS's ``conn/timeout`` parameter
         # MAVROS's defaults: system_id 1, component_id 240 (MAV_COMP_ID_UDP_BRIDGE).
         self.conn = mavutil.mavlink_connection(
             mavlink_url, source_system=1, source_component=240, dialect="ardupilotmega"
@@ -192,9 +200,12 @@ class MavrosStandIn:
 
     def _heartbeats(self) -> None:
         """The GCS heartbeat (1 Hz); the connection timeout (``conn/timeout``)."""
-        while not self._stop.wait(1.0):
-            self._mav("heartbeat_send", 18, 8, 0, 0, 4)  # ONBOARD_CONTROLLER, INVALID, ACTIVE
-            if self.connected and time.monotonic() - self.t_heartbeat > CONN_TIMEOUT_S:
+        n = 0
+        while not self._stop.wait(0.25):
+            n += 1
+            if n % 4 == 0:
+                self._mav("heartbeat_send", 18, 8, 0, 0, 4)  # ONBOARD_CONTROLLER, INVALID, ACTIVE
+            if self.connected and time.monotonic() - self.t_heartbeat > self.conn_timeout_s:
                 self.connected = False
                 self.node.publish(
                     self._t("state"),

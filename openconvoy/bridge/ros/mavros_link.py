@@ -81,7 +81,9 @@ class RosNode(Protocol):
     @property
     def alive(self) -> bool: ...
 
-    def subscribe(self, topic: str, type_name: str, callback: Any) -> None: ...
+    def subscribe(
+        self, topic: str, type_name: str, callback: Any, nodelay: bool = False
+    ) -> None: ...
 
     def advertise(self, topic: str, type_name: str, latch: bool = False) -> None: ...
 
@@ -154,6 +156,7 @@ class MavrosLink:
         self._fix: tuple[float, float, float, float] | None = None  # lat, lon, stamp, clock
         self._fix_times: list[float] = []
         self._new_fix = False
+        self._new_hdg = False
         self._hdg = math.nan
         self._vel = (0.0, 0.0)
         self._yaw_rate = 0.0
@@ -197,6 +200,7 @@ class MavrosLink:
     def _on_hdg(self, m: dict[str, Any]) -> None:
         with self._lock:
             self._hdg = float(m.get("data", math.nan))
+            self._new_hdg = True
 
     def _on_local(self, m: dict[str, Any]) -> None:
         lin = m.get("twist", {}).get("twist", {}).get("linear", {})
@@ -244,11 +248,12 @@ class MavrosLink:
         self._reset_state()
         node = self.node_factory()
         t = self._t
-        node.subscribe(t("state"), "mavros_msgs/State", self._on_state)
-        node.subscribe(t("global_position/global"), "sensor_msgs/NavSatFix", self._on_fix)
-        node.subscribe(t("global_position/compass_hdg"), "std_msgs/Float64", self._on_hdg)
-        node.subscribe(t("global_position/local"), "nav_msgs/Odometry", self._on_local)
-        node.subscribe(t("imu/data"), "sensor_msgs/Imu", self._on_imu)
+        # TCP_NODELAY: small messages at 20 Hz must not wait on Nagle's algorithm.
+        node.subscribe(t("state"), "mavros_msgs/State", self._on_state, True)
+        node.subscribe(t("global_position/global"), "sensor_msgs/NavSatFix", self._on_fix, True)
+        node.subscribe(t("global_position/compass_hdg"), "std_msgs/Float64", self._on_hdg, True)
+        node.subscribe(t("global_position/local"), "nav_msgs/Odometry", self._on_local, True)
+        node.subscribe(t("imu/data"), "sensor_msgs/Imu", self._on_imu, True)
         node.advertise(t("setpoint_raw/local"), "mavros_msgs/PositionTarget")
         node.advertise(t("setpoint_raw/global"), "mavros_msgs/GlobalPositionTarget")
         self._node, self._closed = node, False
@@ -283,8 +288,11 @@ class MavrosLink:
         if self._closed or self._node is None:
             return None
         with self._lock:
-            fix, new = self._fix, self._new_fix
-            self._new_fix = False
+            # One GLOBAL_POSITION_INT becomes three topics (global, local, compass_hdg) on
+            # three connections: a state is new once its position and heading both are.
+            fix, new = self._fix, self._new_fix and self._new_hdg
+            if new:
+                self._new_fix = self._new_hdg = False
             hdg_deg, (ve, vn), rate = self._hdg, self._vel, self._yaw_rate
             mode, armed, t_state = self._mode, self._armed, self._t_state
         self._watch_mode(mode)

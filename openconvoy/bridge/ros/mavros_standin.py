@@ -270,11 +270,13 @@ class MavrosStandIn:
         from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 
         lat, lon, alt = g.lat / 1e7, g.lon / 1e7, g.alt / 1e3
-        head = _header(frame_id="base_link")
+        # One stamp for the message's topics (``synchronized_header``: without time sync,
+        # the time it arrived).
+        stamp = time.time()
         self.node.publish(
             self._t("global_position/global"),
             {
-                "header": head,
+                "header": {"seq": 0, "stamp": stamp, "frame_id": "base_link"},
                 "status": {"status": -1, "service": 1},  # STATUS_NO_FIX, SERVICE_GPS
                 "latitude": lat,
                 "longitude": lon,
@@ -289,7 +291,7 @@ class MavrosStandIn:
         self.node.publish(
             self._t("global_position/local"),
             {
-                "header": _header(frame_id="map"),
+                "header": {"seq": 0, "stamp": stamp, "frame_id": "map"},
                 "child_frame_id": "base_link",
                 "pose": {
                     "pose": {"position": {"x": float(x), "y": float(y), "z": g.relative_alt / 1e3}}

@@ -178,10 +178,13 @@ class Ros1Node:
             except (BrokenPipeError, ValueError, OSError):
                 pass
 
-    def subscribe(self, topic: str, type_name: str, callback: Handler) -> None:
-        """Call ``callback(msg_dict)`` for each message on ``topic`` (``pkg/Type``)."""
+    def subscribe(
+        self, topic: str, type_name: str, callback: Handler, nodelay: bool = False
+    ) -> None:
+        """Call ``callback(msg_dict)`` for each message on ``topic`` (``pkg/Type``);
+        ``nodelay``: ask the publisher to send without Nagle's delay (TCP_NODELAY)."""
         self._subs.setdefault(topic, []).append(callback)
-        self._send({"op": "sub", "topic": topic, "type": type_name})
+        self._send({"op": "sub", "topic": topic, "type": type_name, "nodelay": nodelay})
 
     def advertise(self, topic: str, type_name: str, latch: bool = False) -> None:
         self._send({"op": "adv", "topic": topic, "type": type_name, "latch": latch})

@@ -12,7 +12,8 @@ generate their Python classes with genpy (done once, reused).
 
 Requests (one JSON object a line on stdin), answers and events on stdout:
 
-- ``{"op": "sub", "topic", "type"}``: subscribe; each message comes as
+- ``{"op": "sub", "topic", "type", "nodelay"}``: subscribe (``nodelay``: ask the publisher
+  for TCP_NODELAY, as roscpp's ``TransportHints().tcpNoDelay()``); each message comes as
   ``{"ev": "msg", "topic", "msg": {...}}``.
 - ``{"op": "adv", "topic", "type", "latch"}``; ``{"op": "pub", "topic", "msg"}``.
 - ``{"op": "call", "id", "service", "type", "req", "timeout"}``: a service call in a
@@ -145,7 +146,15 @@ class Agent:
             def cb(msg, topic=topic):
                 self.emit({"ev": "msg", "topic": topic, "msg": to_dict(msg)})
 
-            self.keep.append(rospy.Subscriber(topic, _cls(req["type"]), cb, queue_size=50))
+            self.keep.append(
+                rospy.Subscriber(
+                    topic,
+                    _cls(req["type"]),
+                    cb,
+                    queue_size=50,
+                    tcp_nodelay=bool(req.get("nodelay")),
+                )
+            )
         elif op == "adv":
             self.pubs[req["topic"]] = (
                 rospy.Publisher(

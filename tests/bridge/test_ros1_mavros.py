@@ -19,7 +19,7 @@ from openconvoy.bridge.ros.mavros_standin import MavrosStandIn, custom_mode_of, 
 from openconvoy.bridge.ros.ros1 import MSG_DIR, Ros1Node, Roscore, system_python
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "ros"
+MAVROS_1_21 = Path(__file__).resolve().parents[1] / "data" / "ros" / "mavros-1.21.0"
 
 # MAVROS Noetic's sums (ROS 1 MD5 of the message text; issue 25 measured the prefixes on
 # builds of MAVROS 1.x; PositionTarget and GlobalPositionTarget as genpy computes them from
@@ -63,12 +63,39 @@ def test_mavros_1_5_state_differs_only_by_its_constants() -> None:
         subprocess.run(
             [system_python(), "-c", script, str(f)], capture_output=True, text=True, check=True
         ).stdout.strip()
-        for f in (MSG_DIR / "msg" / "State.msg", DATA / "State-1.21.0.msg")
+        for f in (MSG_DIR / "msg" / "State.msg", MAVROS_1_21 / "msg" / "State.msg")
     ]
     assert sums == [MAVROS_MD5["mavros_msgs/State"], "65cd0a9fff993b062b91e354554ec7e9"]
     ours = (MSG_DIR / "msg" / "State.msg").read_text().split()
-    new = (DATA / "State-1.21.0.msg").read_text().splitlines()
+    new = (MAVROS_1_21 / "msg" / "State.msg").read_text().splitlines()
     assert " ".join(line for line in new if not line.startswith("string MODE_")).split() == ours
+
+
+def test_the_link_hears_a_mavros_1_21_state(roscore: Roscore) -> None:
+    """A MAVROS >= 1.5 publishes State with another MD5 sum: a plain subscriber with our
+    (1.4.0) definition is refused, the link's MD5-agnostic one decodes it (same bytes)."""
+    mavros = Ros1Node("/mavros_1_21", roscore.uri, msg_dir=MAVROS_1_21)
+    ours = Ros1Node("/ours_1_4", roscore.uri)
+    strict = Ros1Node("/ours_1_4_strict", roscore.uri)
+    plain: list[dict] = []
+    agnostic: list[dict] = []
+    try:
+        assert mavros.md5("mavros_msgs/State") == "65cd0a9fff993b062b91e354554ec7e9"
+        strict.subscribe("/m/state", "mavros_msgs/State", plain.append)
+        ours.subscribe("/m/state", "mavros_msgs/State", agnostic.append, any_md5=True)
+        mavros.advertise("/m/state", "mavros_msgs/State")
+
+        def heard() -> bool:
+            mavros.publish("/m/state", {"connected": True, "armed": True, "mode": "GUIDED"})
+            return len(agnostic) >= 3
+
+        assert wait_for(heard, 10.0)
+    finally:
+        mavros.close()
+        ours.close()
+        strict.close()
+    assert agnostic[-1]["mode"] == "GUIDED" and agnostic[-1]["armed"] is True
+    assert plain == []  # refused: MD5 mismatch
 
 
 @pytest.mark.parametrize("yaw_deg", range(-180, 181, 15))

@@ -82,7 +82,12 @@ class RosNode(Protocol):
     def alive(self) -> bool: ...
 
     def subscribe(
-        self, topic: str, type_name: str, callback: Any, nodelay: bool = False
+        self,
+        topic: str,
+        type_name: str,
+        callback: Any,
+        nodelay: bool = False,
+        any_md5: bool = False,
     ) -> None: ...
 
     def advertise(self, topic: str, type_name: str, latch: bool = False) -> None: ...
@@ -249,7 +254,8 @@ class MavrosLink:
         node = self.node_factory()
         t = self._t
         # TCP_NODELAY: small messages at 20 Hz must not wait on Nagle's algorithm.
-        node.subscribe(t("state"), "mavros_msgs/State", self._on_state, True)
+        # State's MD5 changed in MAVROS 1.5 (constants only): take either (any_md5).
+        node.subscribe(t("state"), "mavros_msgs/State", self._on_state, True, any_md5=True)
         node.subscribe(t("global_position/global"), "sensor_msgs/NavSatFix", self._on_fix, True)
         node.subscribe(t("global_position/compass_hdg"), "std_msgs/Float64", self._on_hdg, True)
         node.subscribe(t("global_position/local"), "nav_msgs/Odometry", self._on_local, True)

@@ -60,12 +60,12 @@ def ros1_available() -> str | None:
     return None
 
 
-def _gen_dir() -> Path:
+def _gen_dir(msg_dir: Path = MSG_DIR) -> Path:
     """Where genpy's classes of our ``mavros_msgs`` go (per user, per definition set)."""
     import hashlib
 
     digest = hashlib.sha256()
-    for f in sorted(MSG_DIR.rglob("*.*")):
+    for f in sorted(msg_dir.rglob("*.*")):
         digest.update(f.name.encode() + f.read_bytes())
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "openconvoy"
     return base / f"ros1-mavros_msgs-{digest.hexdigest()[:12]}"
@@ -91,14 +91,20 @@ class Ros1Node:
     Raises ``LinkError`` when the node does not come up within ``timeout_s``.
     """
 
-    def __init__(self, name: str, master_uri: str | None = None, timeout_s: float = 30.0) -> None:
+    def __init__(
+        self,
+        name: str,
+        master_uri: str | None = None,
+        timeout_s: float = 30.0,
+        msg_dir: Path = MSG_DIR,
+    ) -> None:
         why = None if Path(system_python()).exists() else ros1_available()
         if why:
             raise DependencyMissing(why)
-        gen = _gen_dir()
+        gen = _gen_dir(msg_dir)
         gen.parent.mkdir(parents=True, exist_ok=True)
         self._proc = subprocess.Popen(
-            [system_python(), str(AGENT), name.lstrip("/"), str(MSG_DIR), str(gen)],
+            [system_python(), str(AGENT), name.lstrip("/"), str(msg_dir), str(gen)],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -179,12 +185,21 @@ class Ros1Node:
                 pass
 
     def subscribe(
-        self, topic: str, type_name: str, callback: Handler, nodelay: bool = False
+        self,
+        topic: str,
+        type_name: str,
+        callback: Handler,
+        nodelay: bool = False,
+        any_md5: bool = False,
     ) -> None:
         """Call ``callback(msg_dict)`` for each message on ``topic`` (``pkg/Type``);
-        ``nodelay``: ask the publisher to send without Nagle's delay (TCP_NODELAY)."""
+        ``nodelay``: ask the publisher to send without Nagle's delay (TCP_NODELAY);
+        ``any_md5``: take any publisher of the topic (MD5 ``*``) and decode its bytes as
+        ``type_name`` (for a type whose versions differ only in constants)."""
         self._subs.setdefault(topic, []).append(callback)
-        self._send({"op": "sub", "topic": topic, "type": type_name, "nodelay": nodelay})
+        self._send(
+            {"op": "sub", "topic": topic, "type": type_name, "nodelay": nodelay, "any_md5": any_md5}
+        )
 
     def advertise(self, topic: str, type_name: str, latch: bool = False) -> None:
         self._send({"op": "adv", "topic": topic, "type": type_name, "latch": latch})

@@ -12,9 +12,10 @@ generate their Python classes with genpy (done once, reused).
 
 Requests (one JSON object a line on stdin), answers and events on stdout:
 
-- ``{"op": "sub", "topic", "type", "nodelay"}``: subscribe (``nodelay``: ask the publisher
-  for TCP_NODELAY, as roscpp's ``TransportHints().tcpNoDelay()``); each message comes as
-  ``{"ev": "msg", "topic", "msg": {...}}``.
+- ``{"op": "sub", "topic", "type", "nodelay", "any_md5"}``: subscribe (``nodelay``: ask the
+  publisher for TCP_NODELAY, as roscpp's ``TransportHints().tcpNoDelay()``; ``any_md5``:
+  accept a publisher whose definition differs only in what does not travel, e.g.
+  constants); each message comes as ``{"ev": "msg", "topic", "msg": {...}}``.
 - ``{"op": "adv", "topic", "type", "latch"}``; ``{"op": "pub", "topic", "msg"}``.
 - ``{"op": "call", "id", "service", "type", "req", "timeout"}``: a service call in a
   thread; ``{"ev": "reply", "id", "resp"}`` or ``{"ev": "reply", "id", "error"}``.
@@ -141,18 +142,24 @@ class Agent:
         op = req["op"]
         rospy = self.rospy
         if op == "sub":
-            topic = req["topic"]
+            topic, cls = req["topic"], _cls(req["type"])
+            if req.get("any_md5"):
+                # Any publisher's definition of this wire format (rospy.AnyMsg: MD5 "*", as
+                # rostopic and rosbag subscribe), decoded with ours.
+                def cb(raw, topic=topic, cls=cls):
+                    msg = cls().deserialize(raw._buff)
+                    self.emit({"ev": "msg", "topic": topic, "msg": to_dict(msg)})
 
-            def cb(msg, topic=topic):
-                self.emit({"ev": "msg", "topic": topic, "msg": to_dict(msg)})
+                wire = rospy.AnyMsg
+            else:
 
+                def cb(raw, topic=topic, cls=cls):
+                    self.emit({"ev": "msg", "topic": topic, "msg": to_dict(raw)})
+
+                wire = cls
             self.keep.append(
                 rospy.Subscriber(
-                    topic,
-                    _cls(req["type"]),
-                    cb,
-                    queue_size=50,
-                    tcp_nodelay=bool(req.get("nodelay")),
+                    topic, wire, cb, queue_size=50, tcp_nodelay=bool(req.get("nodelay"))
                 )
             )
         elif op == "adv":

@@ -120,6 +120,15 @@ def test_report_writes_metrics_beside_a_bag_not_into_it(run: Path) -> None:
     assert json.loads((run / "metrics.json").read_text())["collisions"] == 0
 
 
+def test_sim_never_deletes_a_bag_directory_that_is_not_a_bag(tmp_path: Path, capsys) -> None:
+    (tmp_path / "bag").mkdir()
+    (tmp_path / "bag" / "notes.txt").write_text("mine")
+    argv = ["sim", "--duration", "1", "--bag", "--out", str(tmp_path), "--quiet", "--no-plots"]
+    assert main(argv) == 2
+    assert "is not a ROS 2 bag" in capsys.readouterr().err
+    assert (tmp_path / "bag" / "notes.txt").read_text() == "mine"
+
+
 def test_v2v_bytes_round_trip(tmp_path: Path) -> None:
     frames = [bytes(range(7)), b"\x00\x14" + bytes(range(200, 256))]
     with BagWriter(tmp_path / "b", tick_s=0.05) as bag:

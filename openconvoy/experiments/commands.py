@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core import metrics as mt
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, OutputPathError
 
 
 def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
@@ -107,10 +107,12 @@ def sim(args: argparse.Namespace) -> int:
     bag = None
     if getattr(args, "bag", False):
         bag = out / "bag"
-        if bag.exists():
+        if (bag / "metadata.yaml").is_file():
             import shutil
 
-            shutil.rmtree(bag)  # --out is overwritten, like log.csv
+            shutil.rmtree(bag)  # a previous run's bag: overwritten, like log.csv
+        elif bag.exists():
+            raise OutputPathError(f"--bag: {bag} exists and is not a ROS 2 bag; move it away")
     result = run_sim(config, out, progress=not args.quiet, bag=bag)
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"

@@ -28,7 +28,12 @@ def _demo(out: Path, *extra: str) -> dict:
         text=True,
         timeout=300,
     )
-    assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-4000:]
+    if r.returncode != 0:
+        tails = [
+            f"--- {f.name}\n" + "\n".join(f.read_text(errors="replace").splitlines()[-15:])
+            for f in sorted(out.glob("deploy_*.txt"))
+        ]
+        raise AssertionError("\n".join([r.stdout[-3000:], r.stderr[-3000:], *tails]))
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 

@@ -3,20 +3,33 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test docs bench clean
+.PHONY: demo test docs bench clean ros1
+
+# ROS 1 for the MAVROS link's tests (Debian's rospy and roscore; docs/ros.md): installed with
+# apt when missing (as root, or through sudo). ~50 s on a machine with the package lists.
+ROS1_APT := python3-rospy python3-roslaunch python3-genpy python3-std-msgs \
+	python3-geometry-msgs python3-nav-msgs python3-sensor-msgs ros-std-msgs ros-geometry-msgs
+SUDO := $(shell test "$$(id -u)" = 0 || echo sudo)
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	# The CPU build of torch first, so the train extra pulls no CUDA packages.
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched,docs]'
+	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched,docs,ros]'
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/openconvoy demo
 
-test: $(STAMP)
+ros1:
+	@if command -v roscore >/dev/null && test -f /usr/share/geometry_msgs/msg/Twist.msg && \
+		/usr/bin/python3 -c 'import rospy, genpy, nav_msgs, sensor_msgs' 2>/dev/null; then :; \
+	else echo "installing ROS 1 from Debian: $(ROS1_APT)"; \
+		$(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+		$(SUDO) apt-get install -y -q $(ROS1_APT); fi
+
+test: $(STAMP) ros1
 	$(VENV)/bin/ruff check openconvoy tests benchmarks examples docs/hooks
 	$(VENV)/bin/ruff format --check openconvoy tests benchmarks examples docs/hooks
 	$(VENV)/bin/mypy

@@ -85,6 +85,15 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", metavar="DIR", help="keep the run here (default a temporary dir)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
+    p.add_argument(
+        "--link",
+        choices=("mavlink", "mavros"),
+        default="mavlink",
+        help="how the deploys reach the vehicles: MAVLink (default) or MAVROS stand-ins on a "
+        "private roscore (docs/ros.md)",
+    )
+    p.add_argument("--ros", type=int, choices=(1,), default=1, help="ROS version of --link mavros")
+    p.add_argument("--bag", action="store_true", help="the deploys also record ROS 2 bags")
 
     p.set_defaults(handler=lazy_handler("openconvoy.demo", "demo_from_namespace"))
 

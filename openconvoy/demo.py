@@ -58,10 +58,23 @@ class DemoOptions:
     duration_s: float | None = None
     out: str | None = None
     json: bool = False
+    link: str = "mavlink"
+    ros: int = 1
+    bag: bool = False
 
 
 def demo_from_namespace(args: argparse.Namespace) -> int:
-    opts = DemoOptions(args.policy, args.per, args.autopilot, args.duration, args.out, args.json)
+    opts = DemoOptions(
+        args.policy,
+        args.per,
+        args.autopilot,
+        args.duration,
+        args.out,
+        args.json,
+        getattr(args, "link", "mavlink"),
+        getattr(args, "ros", 1),
+        getattr(args, "bag", False),
+    )
     if os.environ.get(ENV_INSIDE) == "1":
         return run_inside(opts)
     return run_outside(opts)
@@ -89,6 +102,10 @@ def _argv(opts: DemoOptions) -> list[str]:
         argv += ["--out", str(Path(opts.out).resolve())]
     if opts.json:
         argv.append("--json")
+    if opts.link != "mavlink":
+        argv += ["--link", opts.link, "--ros", str(opts.ros)]
+    if opts.bag:
+        argv.append("--bag")
     return argv
 
 
@@ -244,8 +261,9 @@ def run_inside(opts: DemoOptions) -> int:
     run = _prepare(opts)
     convoy, out = run.convoy, run.out
     deploy_dir, sim_dir = out / "deploy", out / "sim"
+    via = "" if opts.link == "mavlink" else f" through MAVROS stand-ins on ROS {opts.ros}"
     _say(
-        f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles, policy "
+        f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles{via}, policy "
         f"{opts.policy}, PER {opts.per:g}, {run.duration_s:g} s, V2V over IPv6 multicast on "
         f"{run.iface} (private network namespace); run in {out}"
     )
@@ -264,7 +282,7 @@ def run_inside(opts: DemoOptions) -> int:
     _say(
         format_comparison(report["comparison"])
         .replace("A: ", "A (simulation): ", 1)
-        .replace("B: ", "B (MAVLink + multicast): ", 1)
+        .replace("B: ", f"B ({'MAVLink' if opts.link == 'mavlink' else 'MAVROS'} + multicast): ", 1)
     )
     for vid, phases in report["speed_phases"].items():
         cells = ", ".join(f"{m:.2f}" for m in phases["mean_speed_mps"])
@@ -282,6 +300,7 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
     vehicles: list[SimVehicle] = []
     procs: list[subprocess.Popen] = []
     logs: list[Any] = []
+    ros: list[Any] = []  # roscore, then the MAVROS stand-ins (--link mavros)
     code = 1
 
     def on_term(signum: int, frame: Any) -> None:
@@ -305,17 +324,26 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             vehicles.append(vehicle)
             urls.append(url)
         deploy_dir.mkdir(parents=True, exist_ok=True)
+        env = None
+        if opts.link == "mavros":
+            env = _start_mavros(ros, urls, opts.autopilot)
         for i, url in enumerate(urls):
             cmd = deploy_argv(
                 i, run.convoy_path, url, run.iface, deploy_dir,
                 "--per", repr(opts.per), "--seed", "0",
                 policy=opts.policy,
             )  # fmt: skip
+            if opts.link == "mavros":
+                cmd = [c for c in cmd if c not in ("--mavlink", url)]
+                cmd += ["--link", "mavros", "--ros", str(opts.ros)]
+                cmd += ["--mavros-ns", f"/vehicle_{i}/mavros", "--autopilot", opts.autopilot]
+            if opts.bag:
+                cmd.append("--bag")
             if opts.duration_s is not None and i == 0:
                 cmd += ["--duration", repr(run.duration_s)]
             err = open(run.out / f"deploy_{i}.txt", "w")
             logs.append(err)
-            procs.append(subprocess.Popen(cmd, stdout=err, stderr=subprocess.STDOUT))
+            procs.append(subprocess.Popen(cmd, stdout=err, stderr=subprocess.STDOUT, env=env))
         code = _watch(procs, vehicles, run.duration_s)
     except KeyboardInterrupt:
         # Further Ctrl-C / SIGTERM must not cut the cleanup short.
@@ -327,7 +355,36 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
         stop_convoy(procs, vehicles)
         for f in logs:
             f.close()
+        for r in reversed(ros):
+            r.close()
     return code
+
+
+def _start_mavros(ros: list[Any], urls: Sequence[str], autopilot: str) -> dict[str, str]:
+    """``--link mavros``: a private roscore and a MAVROS stand-in per vehicle (namespace
+    ``/vehicle_N/mavros``, forwarding to its simulated autopilot over MAVLink), appended
+    to ``ros`` (closed last first); the deploys' environment (``ROS_MASTER_URI``)."""
+    from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
+    from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
+
+    core = Roscore()
+    ros.append(core)
+    for i, url in enumerate(urls):
+        node = Ros1Node(f"/mavros_vehicle_{i}", core.uri)
+        ros.append(node)
+        ros.append(_Stopper(MavrosStandIn(node, url, f"/vehicle_{i}/mavros").start()))
+    _say(f"roscore at {core.uri}; MAVROS stand-ins under /vehicle_N/mavros ({autopilot})")
+    return {**os.environ, "ROS_MASTER_URI": core.uri}
+
+
+class _Stopper:
+    """``close`` = the stand-in's ``stop``."""
+
+    def __init__(self, standin: Any) -> None:
+        self.standin = standin
+
+    def close(self) -> None:
+        self.standin.stop()
 
 
 def _json_default(v: Any) -> Any:

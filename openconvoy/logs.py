@@ -185,17 +185,34 @@ def _is_log(path: Path) -> bool:
 
 
 def read_log(path: str | Path) -> Log:
-    """Read a log file or merge a directory of per-vehicle logs, sorted by time then vehicle.
+    """Read a log file or merge a directory of per-vehicle logs, sorted by time then vehicle;
+    a ROS 2 bag of a run (``sim``/``deploy --bag``), or a directory of them, reads the same.
 
     A log that is not one (binary, no data rows, a value that is not a number, a mode not
     in ``MODES``, a non-finite time or position, the same vehicle twice at one time) is an
     ``InputFileError`` naming the file, the line and the column.
     """
+    if _is_bag_run(Path(path)):
+        from openconvoy.bag import read_bag  # a ROS 2 bag (sim/deploy --bag): see bag.py
+
+        return read_bag(path)
     parts: list[Log] = [_read_one(f) for f in log_files(path)]
     columns = [c for c in parts[0] if all(c in p for p in parts)]
     merged = {c: np.concatenate([p[c] for p in parts]) for c in columns}
     order = np.lexsort((merged["vehicle_id"], merged["t_s"]))
     return {c: v[order] for c, v in merged.items()}
+
+
+def _is_bag_run(p: Path) -> bool:
+    """A ROS 2 bag (a directory with ``metadata.yaml``, or a file in one), or a directory
+    holding bags and no CSV log: what ``openconvoy.bag.read_bag`` reads."""
+    if p.is_dir():
+        if (p / "metadata.yaml").is_file():
+            return True
+        if any(_is_log(f) for f in p.glob("*.csv")):
+            return False
+        return any((d / "metadata.yaml").is_file() for d in p.iterdir() if d.is_dir())
+    return p.suffix == ".mcap" and (p.parent / "metadata.yaml").is_file()
 
 
 _FINITE_COLUMNS = ("t_s", "x_m", "y_m")

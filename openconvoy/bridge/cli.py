@@ -115,9 +115,30 @@ DEPLOY_FLAGS: Flags = (
     (
         "--mavlink",
         dict(
-            required=True,
             metavar="URL",
-            help="autopilot link: /dev/ttyX (with --baud), udp:, udpin:, udpout:, tcp:",
+            help="autopilot link: /dev/ttyX (with --baud), udp:, udpin:, udpout:, tcp: "
+            "(required with --link mavlink)",
+        ),
+    ),
+    (
+        "--link",
+        dict(
+            choices=("mavlink", "mavros"),
+            default="mavlink",
+            help="how to reach the autopilot: MAVLink (default) or MAVROS (docs/ros.md)",
+        ),
+    ),
+    ("--ros", dict(type=int, choices=(1,), default=1, help="ROS version of --link mavros (1)")),
+    (
+        "--mavros-ns",
+        dict(default="/mavros", metavar="NS", help="MAVROS's namespace (default /mavros)"),
+    ),
+    (
+        "--autopilot",
+        dict(
+            choices=("ardupilot", "px4"),
+            default=None,
+            help="the firmware behind MAVROS (default: told by its mode name)",
         ),
     ),
     ("--iface", dict(required=True, help="network interface for V2V multicast")),
@@ -131,6 +152,13 @@ DEPLOY_FLAGS: Flags = (
         ),
     ),
     ("--log", dict(metavar="DIR", help="write DIR/vehicle_N.csv and DIR/vehicle_N.json")),
+    (
+        "--bag",
+        dict(
+            action="store_true",
+            help="also record DIR/vehicle_N_bag, a ROS 2 bag (MCAP) with the V2V bytes",
+        ),
+    ),
     ("--rate", dict(type=RATE_HZ, metavar="HZ", help="control rate (default: the policy's)")),
     ("--dry-run", dict(action="store_true", help="everything but arming and setpoints")),
     (

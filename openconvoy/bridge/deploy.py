@@ -41,7 +41,7 @@ class DeployArgs:
     policy: str
     vehicle_id: int
     convoy: str
-    mavlink: str
+    mavlink: str | None
     iface: str
     per: float = 0.0
     drop_at: Literal["receiver", "sender"] = "receiver"
@@ -57,6 +57,11 @@ class DeployArgs:
     connect_timeout: float = 30.0
     telemetry_hz: float | None = None
     quiet: bool = False
+    link: Literal["mavlink", "mavros"] = "mavlink"
+    ros: int = 1
+    mavros_ns: str = "/mavros"
+    autopilot: Literal["ardupilot", "px4"] | None = None
+    bag: bool = False
 
 
 def _status(quiet: bool):
@@ -94,6 +99,10 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         arm_timeout_s=a.arm_timeout,
         seed=a.seed,
     )
+    if a.link == "mavlink" and not a.mavlink:
+        raise ConfigError("--mavlink URL is required with --link mavlink")
+    if a.bag and a.log is None:
+        raise ConfigError("--bag records beside the log: give --log DIR")
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming
     auth = vehicle_authenticator(convoy, a.vehicle_id)  # key problems: before any socket
@@ -103,8 +112,9 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates"
         )
     link = _make_link(a, origin, presets[a.vehicle_id], rate, status)
-    v2v = _make_v2v(a, convoy, origin, auth)  # opens the sockets
-    return DeployRunner(
+    bag = _make_bag(a, rate)
+    v2v = _make_v2v(a, convoy, origin, auth, bag)  # opens the sockets
+    runner = DeployRunner(
         options,
         convoy,
         policy,
@@ -122,18 +132,54 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             "policy_spec": a.policy,
             "scenario_spec": spec,
             "mavlink": a.mavlink,
+            "link": a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})",
             "iface": a.iface,
         },
     )
+    runner.runlog.recorder.bag = bag
+    return runner
+
+
+def _make_bag(a: DeployArgs, rate: float) -> Any:
+    """``--bag``: the ROS 2 bag directory ``LOG/vehicle_N_bag`` (replaced, like the CSV),
+    or None."""
+    if not a.bag or a.log is None:
+        return None
+    import shutil
+
+    from openconvoy.bag import BagWriter
+
+    path = Path(a.log) / f"vehicle_{a.vehicle_id}_bag"
+    if (path / "metadata.yaml").is_file():
+        shutil.rmtree(path)
+    return BagWriter(path, tick_s=1.0 / rate)
 
 
 def _make_link(
     a: DeployArgs, origin: Origin, preset: Any, rate: float, status: Callable[[str], None]
 ) -> Any:
     """The autopilot link (not yet connected); telemetry at the control rate within
-    10..50 Hz unless ``telemetry_hz`` says otherwise."""
+    10..50 Hz unless ``telemetry_hz`` says otherwise. ``--link mavros``: through MAVROS
+    (``bridge.ros.mavros_link``), its ROS 1 node named after the vehicle."""
+    if a.link == "mavros":
+        from openconvoy.bridge.ros.mavros_link import MavrosLink
+        from openconvoy.bridge.ros.ros1 import Ros1Node
+
+        name = f"/openconvoy_vehicle_{a.vehicle_id}"
+        return MavrosLink(
+            lambda: Ros1Node(name),
+            a.mavros_ns,
+            origin,
+            a.vehicle_id,
+            autopilot=a.autopilot,
+            on_status=status,
+            length_m=preset.length_m,
+            width_m=preset.width_m,
+        )
     from openconvoy.bridge.mavlink.link import MavlinkLink
 
+    if not a.mavlink:
+        raise ConfigError("--mavlink URL is required with --link mavlink")
     return MavlinkLink(
         a.mavlink,
         origin,
@@ -158,21 +204,35 @@ def _leader_driver(a: DeployArgs, spec: str, presets: list[Any]) -> tuple[Any, O
     return leader, (leader.origin if spec.startswith("track-file:") else None)
 
 
-def _make_v2v(a: DeployArgs, convoy: ConvoyConfig, origin: Origin, auth: Any) -> Any:
-    """The vehicle's V2V endpoint (its sockets open), with the emulated loss of ``--per``."""
+def _make_v2v(
+    a: DeployArgs, convoy: ConvoyConfig, origin: Origin, auth: Any, bag: Any = None
+) -> Any:
+    """The vehicle's V2V endpoint (its sockets open), with the emulated loss of ``--per``;
+    with a ``bag``, every IPv6 datagram sent and received is recorded in it too."""
     from openconvoy.comms.tempids import TempIds
     from openconvoy.comms.v2v import V2V, LinkConfig
 
     temp_ids = TempIds(convoy.name, convoy.n_vehicles, dict(enumerate(convoy.v2v.temp_ids)) or None)
     loss = LossConfig(per=a.per) if a.per > 0 else None
+    config = LinkConfig.from_v2v(convoy.v2v, a.iface)
+    transport = None
+    if bag is not None:
+        from openconvoy.bridge.ros.bagtap import BagTap
+        from openconvoy.comms.multicast import V2V_RCVBUF_BYTES, Ipv6Multicast
+
+        socket_ = Ipv6Multicast(
+            config.iface, config.group, config.port, config.hop_limit, rcvbuf_bytes=V2V_RCVBUF_BYTES
+        )
+        transport = BagTap(socket_, bag, a.vehicle_id, time.time)
     return V2V(
-        LinkConfig.from_v2v(convoy.v2v, a.iface),
+        config,
         temp_ids,
         origin,
         a.vehicle_id,
         loss=loss,
         drop_at=a.drop_at,
         rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
+        transport=transport,
         auth=auth,
     )
 

@@ -124,6 +124,11 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--convoy", metavar="CONVOY.toml", help="convoy file: scenario, vehicles, origin"
     )
+    p.add_argument(
+        "--bag",
+        action="store_true",
+        help="also record the run as a ROS 2 bag (MCAP) in DIR/bag (openconvoy[ros])",
+    )
     _sim_world_args(p)
     run_args(p, sweep=False)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.core import metrics as mt
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, OutputPathError
 
 
 def _lengths_from_convoy(path: str | None) -> dict[int, float] | None:
@@ -122,11 +122,21 @@ def sim(args: argparse.Namespace) -> int:
     build_env(config)  # a bad policy, scenario or preset fails before anything is written
     out = check_output_dir(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
-    result = run_sim(config, out, progress=not args.quiet)
+    bag = None
+    if getattr(args, "bag", False):
+        bag = out / "bag"
+        if (bag / "metadata.yaml").is_file():
+            import shutil
+
+            shutil.rmtree(bag)  # a previous run's bag: overwritten, like log.csv
+        elif bag.exists():
+            raise OutputPathError(f"--bag: {bag} exists and is not a ROS 2 bag; move it away")
+    result = run_sim(config, out, progress=not args.quiet, bag=bag)
     (out / "run.toml").write_text(
         f"# openconvoy {__version__}\n" + dumps_toml({"run": config.to_dict()}), encoding="utf-8"
     )
     written = ["log.csv", "metrics.json", "run.toml"] + (["events.json"] if result.events else [])
+    written += ["bag/"] if bag is not None else []
     if plots_wanted(args.no_plots):
         from openconvoy.experiments.figures import run_figures
 
@@ -191,7 +201,11 @@ def report(args: argparse.Namespace) -> int:
     warning = standstill_warning(log)
     if warning:
         print(warning, file=sys.stderr)
-    out = Path(args.out) if args.out else (path if path.is_dir() else path.parent) / "metrics.json"
+    from openconvoy.bag import is_bag
+
+    # metrics.json beside a log file, in a run directory, beside a bag (never inside it)
+    base = (path if path.is_dir() else path.parent).parent if is_bag(path) else path
+    out = Path(args.out) if args.out else (base if base.is_dir() else base.parent) / "metrics.json"
     write_json(out, metrics)
     written = [str(out)]
     if args.plots:

@@ -241,12 +241,14 @@ def run_sim(
     config: RunConfig,
     out_dir: str | Path | None = None,
     progress: bool = False,
+    bag: str | Path | None = None,
 ) -> RunResult:
     """Run ``config`` to the end (or a collision).
 
     With ``out_dir``, writes ``log.csv`` there and computes the metrics from the written
     log (what ``openconvoy report`` recomputes, to the digit); ``progress`` shows a
-    progress bar on stderr when the run lasts more than a couple of seconds.
+    progress bar on stderr when the run lasts more than a couple of seconds; ``bag``: also
+    record the log rows as a ROS 2 bag directory there (``openconvoy.bag``).
     """
     import time
 
@@ -264,10 +266,17 @@ def run_sim(
             extra_columns=EXTRA_COLUMNS + env.LOG_EXTRA_COLUMNS,
             flush_every=500,
         )
+    bag_writer = None
+    if bag is not None:
+        from openconvoy.bag import BagWriter
+
+        bag_writer = BagWriter(bag, tick_s=env.dt)
 
     def emit(tick_rows: list[dict[str, Any]]) -> None:
         for r in tick_rows:
             r["length_m"] = lengths[r["vehicle_id"]]
+            if bag_writer is not None:
+                bag_writer.row(r)
             if writer is not None:
                 writer.write(r)
             else:
@@ -287,6 +296,8 @@ def run_sim(
             bar.close()
         if writer is not None:
             writer.close()
+        if bag_writer is not None:
+            bag_writer.close()
     log = read_log(writer.path) if writer is not None else rows_to_log(rows)
     metrics = run_metrics(log, lengths)
     result = RunResult(config, log, metrics, lengths, time.perf_counter() - start)

@@ -1,6 +1,7 @@
 """The ``VehicleLink`` contract: what the runner relies on, held for every link — the
-MAVLink one against a simulated vehicle (real MAVLink bytes over localhost UDP) and the
-ideal one (the seam a ROS or DDS link will be written against)."""
+MAVLink one against a simulated vehicle (real MAVLink bytes over localhost UDP), the ideal
+one, and the MAVROS one over ROS 1 (a real roscore, Debian's rospy in node processes, the
+MAVROS stand-in forwarding to the simulated vehicle over real MAVLink)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,9 @@ from conftest import free_port, wait_for
 from openconvoy.bridge.ideallink import IdealLink
 from openconvoy.bridge.link import Telemetry, VehicleLink
 from openconvoy.bridge.mavlink.link import MavlinkLink
+from openconvoy.bridge.ros.mavros_link import MavrosLink
+from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
+from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 
 DECLARED = (
@@ -37,7 +41,13 @@ DECLARED = (
 )
 
 
-@pytest.fixture(params=["mavlink", "ideal"])
+@pytest.fixture(scope="module")
+def roscore() -> Iterator[Roscore]:
+    with Roscore() as core:
+        yield core
+
+
+@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1"])
 def link(request) -> Iterator[VehicleLink]:
     if request.param == "ideal":
         yield IdealLink(time.monotonic, time.time, DEFAULT_HOME, vehicle_id=1, x=3.0, y=-4.0)
@@ -47,6 +57,22 @@ def link(request) -> Iterator[VehicleLink]:
         f"udpin:127.0.0.1:{port}",
         SimVehicleConfig(ready_after_s=0.0, start_x_m=3.0, start_y_m=-4.0),
     ).start()
+    if request.param == "mavros-ros1":
+        core = request.getfixturevalue("roscore")
+        standin = MavrosStandIn(
+            Ros1Node("/contract_mavros", core.uri), f"udpout:127.0.0.1:{port}", "/v1/mavros"
+        ).start()
+        ros_link = MavrosLink(
+            lambda: Ros1Node("/contract_link", core.uri), "/v1/mavros", DEFAULT_HOME, 1, "ardupilot"
+        )
+        try:
+            yield ros_link
+        finally:
+            ros_link.close()
+            standin.stop()
+            standin.node.close()
+            vehicle.stop()
+        return
     mav = MavlinkLink(
         f"udpout:127.0.0.1:{port}", DEFAULT_HOME, vehicle_id=1, on_status=lambda line: None
     )

@@ -83,6 +83,9 @@ def test_leader_follows_the_convoy_scenario_or_a_track(convoy_file):
         (["--vehicle-id", "3"], "vehicles 0..2"),
         (["--vehicle-id", "1", "--passive"], "passive"),
         (["--vehicle-id", "1", "--policy", "nonsense"], "unknown policy"),
+        (["--vehicle-id", "1", "--bag"], "--bag records beside the log: give --log DIR"),
+        (["--vehicle-id", "1", "--link", "mavros", "--ros", "2"], "argument --ros"),
+        (["--vehicle-id", "1", "--link", "ros"], "argument --link"),
     ],
 )
 def test_bad_arguments_are_one_line_errors(convoy_file, capsys, extra, message):
@@ -102,3 +105,10 @@ def test_bad_arguments_are_one_line_errors(convoy_file, capsys, extra, message):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("openconvoy: error:") and message in err[0]
+
+
+def test_mavlink_link_needs_a_url(convoy_file, capsys):
+    argv = ["deploy", "--policy", "paper", "--convoy", convoy_file, "--iface", "lo"]
+    assert main([*argv, "--vehicle-id", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["openconvoy: error: --mavlink URL is required with --link mavlink"]

@@ -443,6 +443,8 @@ class SimVehicle:
                     self._flush_texts()
             elif kind == "PARAM_SET" and msg.target_system in (0, self.config.system_id):
                 self._on_param_set(msg)
+            elif kind == "SET_MODE" and msg.target_system in (0, self.config.system_id):
+                self._on_command(_SetModeCommand(msg, self.config.autopilot))
 
     def _on_param_set(self, msg: Any) -> None:
         setter = getattr(self.firmware, "param_set", None)
@@ -484,10 +486,36 @@ class SimVehicle:
         with self._lock:
             if cmd == mp.CMD_SET_MESSAGE_INTERVAL:
                 result = self._streams.set_interval(self._t, int(msg.param1), msg.param2)
+            elif cmd == 11:  # ArduPilot's ack id of SET_MODE (see _SetModeCommand)
+                result = self.firmware.command(self._t, mp.CMD_DO_SET_MODE, params)
             else:
                 result = self.firmware.command(self._t, cmd, params)
         self._ack(msg, result)
         self._flush_texts()
+
+
+class _SetModeCommand:
+    """SET_MODE (#11, what MAVROS's ``set_mode`` service sends: mavros sys_status.cpp
+    ``set_mode_cb``) as the DO_SET_MODE command the firmware makes of it. ArduPilot
+    (``GCS_Common.cpp`` ``handle_set_mode``): custom_mode is the mode number, acked as
+    COMMAND_ACK with command 11; PX4 (``mavlink_receiver.cpp`` ``handle_message_set_mode``):
+    main mode in custom_mode bits 16-23, sub mode in 24-31, acked as DO_SET_MODE (176)."""
+
+    def __init__(self, msg: Any, autopilot: str) -> None:
+        cm = int(msg.custom_mode)
+        if autopilot == "px4":
+            self.command, main, sub = mp.CMD_DO_SET_MODE, (cm >> 16) & 0xFF, (cm >> 24) & 0xFF
+        else:
+            self.command, main, sub = 11, cm, 0
+        self.param1, self.param2, self.param3 = float(msg.base_mode), float(main), float(sub)
+        self.param4 = self.param5 = self.param6 = self.param7 = 0.0
+        self._src = (msg.get_srcSystem(), msg.get_srcComponent())
+
+    def get_srcSystem(self) -> int:  # noqa: N802 (pymavlink's name)
+        return self._src[0]
+
+    def get_srcComponent(self) -> int:  # noqa: N802
+        return self._src[1]
 
 
 # --------------------------------------------------------------------- process form (CLI)

@@ -1,0 +1,79 @@
+"""``openconvoy demo --link mavros --ros 1``: the three-vehicle demo through MAVROS stand-ins
+on a real roscore (Debian's rospy in node processes), against the MAVLink demo of the same
+scenario and seed; the deploys' ``--bag`` bags hold what their CSV logs hold, and the V2V
+bytes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from openconvoy.bag import read_bag
+from openconvoy.comms.netns import netns_unavailable_reason
+from openconvoy.logs import read_log
+
+DURATION_S = 30.0
+
+
+def _demo(out: Path, *extra: str) -> dict:
+    r = subprocess.run(
+        [sys.executable, "-m", "openconvoy.cli", "demo", "--json", "--duration", str(DURATION_S)]
+        + ["--out", str(out), *extra],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if r.returncode != 0:
+        tails = [
+            f"--- {f.name}\n" + "\n".join(f.read_text(errors="replace").splitlines()[-15:])
+            for f in sorted(out.glob("deploy_*.txt"))
+        ]
+        raise AssertionError("\n".join([r.stdout[-3000:], r.stderr[-3000:], *tails]))
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.e2e
+@pytest.mark.netns
+def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
+    reason = netns_unavailable_reason()
+    assert reason is None, f"the demo needs a private network namespace: {reason}"
+    ros = _demo(tmp_path / "ros", "--link", "mavros", "--ros", "1", "--bag")
+    mav = _demo(tmp_path / "mavlink")
+    p95_ros = ros["deploy"]["p95_platooning_error_m"]
+    p95_mav = mav["deploy"]["p95_platooning_error_m"]
+    assert abs(p95_ros - p95_mav) <= 0.10 * p95_mav, (p95_ros, p95_mav)
+    assert ros["deploy"]["collisions"] == 0 and ros["deploy"]["min_gap_m"] > 13.0
+    deploy = tmp_path / "ros" / "deploy"
+    for vid in range(3):
+        meta = json.loads((deploy / f"vehicle_{vid}.json").read_text())
+        assert meta["link"] == f"mavros (ROS 1, /vehicle_{vid}/mavros)"
+        assert meta["autopilot"] == "ardupilot"
+        csv_log = read_log(deploy / f"vehicle_{vid}.csv")
+        bag_log = read_bag(deploy / f"vehicle_{vid}_bag")
+        assert list(bag_log) == list(csv_log) and len(csv_log["t_s"]) > 10 * DURATION_S
+        for c, v in csv_log.items():
+            same = (
+                list(v) == list(bag_log[c])
+                if v.dtype == object
+                else np.array_equal(v, bag_log[c], equal_nan=True)
+            )
+            assert same, (vid, c)
+    # V2V bytes: the leader's sent BSM frames (J2735 MessageFrame 00 14 ...) in its bag.
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    (mcap_file,) = (deploy / "vehicle_0_bag").glob("*.mcap")
+    with mcap_file.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        tx = [
+            bytes(m.data)
+            for _, _, _, m in reader.iter_decoded_messages(topics=["/vehicle_0/v2v/tx"])
+        ]
+    meta0 = json.loads((deploy / "vehicle_0.json").read_text())
+    assert len(tx) == meta0["v2v_counters"]["sent"] > 0
+    assert all(d[:2] == b"\x00\x14" for d in tx)

@@ -23,6 +23,12 @@ geofence_radius_m = 200.0         # around the origin
 min_gap_m = 1.0                   # emergency stop below this measured gap
 gap_margin_m = 0.2                # braking-aware stop margin between bumpers (m); default 1/4 length
 max_msg_age_s = 3.0               # stop while needed messages are older than this
+
+[channel]                         # optional; sim only: the simulated V2V links
+per = 0.0                         # packet error rate (sim's --per overrides)
+latency_s = 0.0                   # delivery delay (s; --latency overrides)
+latency_samples_s = [0.033, ...]  # or a delay distribution (quantiles, s), as fit-plant
+                                  # fits from a vehicle run's message ages
 ```
 
 Strict: an unknown key, a value of the wrong type or out of its range is an error naming
@@ -113,6 +119,34 @@ class SafetyConfig:
 
 
 @dataclass(frozen=True)
+class ChannelConfig:
+    """The simulated V2V channel of a convoy (``sim`` only; vehicles have real radios):
+    ``comms.loss.LossConfig``'s fields (seconds; ``latency_samples_s`` an empirical delay
+    distribution, see ``comms.loss.Latency``). ``fit-plant RUN --convoy`` writes it from a vehicle
+    run: the measured loss and the distribution of message ages at first use."""
+
+    per: Annotated[float, Range(0.0, 1.0)] = 0.0
+    model: str = "bernoulli"
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    latency_samples_s: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
+        check_fields(self, "channel")
+        if self.model not in ("bernoulli", "gilbert-elliott"):
+            raise ConfigError(
+                f"channel.model: {self.model!r} is not one of bernoulli, gilbert-elliott"
+            )
+        bad = [v for v in self.latency_samples_s if not 0.0 <= float(v) <= 60.0]
+        if bad:
+            raise ConfigError(f"channel.latency_samples_s: {bad[0]!r} is not seconds in [0, 60]")
+        if self.latency_samples_s and self.jitter_s > 0.0:
+            raise ConfigError("channel: give either jitter_s or latency_samples_s, not both")
+
+
+@dataclass(frozen=True)
 class ConvoyConfig:
     """A convoy: scenario, vehicles (leader first), ENU origin, V2V and safety settings."""
 
@@ -126,6 +160,7 @@ class ConvoyConfig:
     ] = UCF_ORIGIN
     v2v: V2VConfig = field(default_factory=V2VConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
@@ -141,18 +176,19 @@ class ConvoyConfig:
 
 
 def load_convoy(path: str | Path) -> ConvoyConfig:
-    """Read a convoy TOML file (tables ``[convoy]``, ``[v2v]``, ``[safety]``)."""
+    """Read a convoy TOML file (tables ``[convoy]``, ``[v2v]``, ``[safety]``, ``[channel]``)."""
     data = load_toml(path)
-    unknown = set(data) - {"convoy", "v2v", "safety"}
+    unknown = set(data) - {"convoy", "v2v", "safety", "channel"}
     if unknown:
         raise ConfigError(
-            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; expected convoy, v2v, safety"
+            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; "
+            "expected convoy, v2v, safety, channel"
         )
     for key, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: {key} must be a table ([{key}]), got {value!r}")
     table: dict[str, Any] = dict(data.get("convoy", {}))
-    for key in ("v2v", "safety"):
+    for key in ("v2v", "safety", "channel"):
         if key in data:
             if key in table:
                 raise ConfigError(f"{path}: {key} given twice ([{key}] and convoy.{key})")

@@ -184,18 +184,54 @@ class GilbertElliott:
         self._bad = bool(counter_uniform(self.key, n, GE_ADVANCE) < p_bad)
 
 
+def quantile_delay(samples: tuple[float, ...] | list[float], u: float) -> float:
+    """The delay (s) at probability ``u`` in [0, 1) of the empirical distribution whose
+    sorted quantiles at probabilities 0, 1/(n-1), ..., 1 are ``samples``: linear between
+    neighbours (the inverse of a piecewise-linear CDF; ``envs.vector.channel`` compiles the
+    same arithmetic)."""
+    n = len(samples)
+    if n == 1:
+        return float(samples[0])
+    pos = u * (n - 1)
+    k = int(pos)
+    if k >= n - 1:
+        return float(samples[n - 1])
+    return samples[k] + (pos - k) * (samples[k + 1] - samples[k])
+
+
 @dataclass(frozen=True)
 class Latency:
-    """Delivery delay: ``base_s`` plus a uniform jitter in [0, ``jitter_s``], seconds."""
+    """Delivery delay, seconds: ``base_s`` plus either a uniform jitter in [0, ``jitter_s``]
+    or, when ``samples_s`` is given, a draw from that empirical distribution (sorted
+    quantiles, as ``fit-plant`` fits from a vehicle run's message ages; ``quantile_delay``).
+    The delay is continuous: the simulated channel delivers at the next tick and advances
+    the message by the rest, so a message's age at first use is the drawn delay."""
 
     base_s: float = 0.0
     jitter_s: float = 0.0
+    samples_s: tuple[float, ...] = ()
+
+    @property
+    def instant(self) -> bool:
+        """Whether every message arrives when it is sent."""
+        return self.base_s <= 0.0 and self.jitter_s <= 0.0 and not any(self.samples_s)
+
+    @property
+    def max_s(self) -> float:
+        """The longest delay a message can get (s)."""
+        return self.base_s + (max(self.samples_s) if self.samples_s else self.jitter_s)
+
+    def from_uniform(self, u: float) -> float:
+        """The delay (s) for a uniform draw ``u`` in [0, 1)."""
+        if self.samples_s:
+            return self.base_s + quantile_delay(self.samples_s, u)
+        return self.base_s + u * self.jitter_s
 
     def delay(self, rng: np.random.Generator) -> float:
         """Draw one packet's delay, seconds."""
-        if self.jitter_s <= 0.0:
+        if self.jitter_s <= 0.0 and not self.samples_s:
             return self.base_s
-        return self.base_s + float(rng.random()) * self.jitter_s
+        return self.from_uniform(float(rng.random()))
 
 
 @dataclass(frozen=True)
@@ -203,7 +239,8 @@ class LossConfig:
     """Typed description of a link's loss and latency, as written in configs.
 
     ``model`` is ``"bernoulli"`` or ``"gilbert-elliott"``; ``mean_burst_s`` applies to
-    the latter.
+    the latter. ``latency_samples_s``: an empirical delay distribution (quantiles, s) that
+    replaces the uniform jitter (``Latency``); sorted on construction.
     """
 
     per: float = 0.0
@@ -211,6 +248,7 @@ class LossConfig:
     mean_burst_s: float = 1.0
     latency_s: float = 0.0
     jitter_s: float = 0.0
+    latency_samples_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.model not in ("bernoulli", "gilbert-elliott"):
@@ -219,6 +257,14 @@ class LossConfig:
             )
         if not 0.0 <= self.per <= 1.0:
             raise ConfigError(f"per must be in [0, 1], got {self.per}")
+        samples = tuple(float(v) for v in self.latency_samples_s)
+        if any(not (math.isfinite(v) and 0.0 <= v <= 60.0) for v in samples):
+            raise ConfigError(
+                f"latency samples must be seconds in [0, 60], got {list(self.latency_samples_s)}"
+            )
+        if samples and self.jitter_s > 0.0:
+            raise ConfigError("give either a latency jitter or latency samples, not both")
+        object.__setattr__(self, "latency_samples_s", tuple(sorted(samples)))
 
     def make(self) -> LossModel:
         """A fresh loss model for one link."""
@@ -230,4 +276,4 @@ class LossConfig:
 
     @property
     def latency(self) -> Latency:
-        return Latency(self.latency_s, self.jitter_s)
+        return Latency(self.latency_s, self.jitter_s, self.latency_samples_s)

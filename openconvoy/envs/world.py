@@ -34,7 +34,7 @@ from openconvoy.core.member import ConvoyMember, Frame, MemberConfig
 from openconvoy.core.ranging import range_and_rate
 from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
-from openconvoy.envs.channel import Channel
+from openconvoy.envs.channel import Channel, advance_state
 from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.gps import gps_key, gps_noise, vehicle_states
 from openconvoy.envs.plant import BicyclePlant
@@ -141,7 +141,7 @@ class ConvoyWorld:
             for p in self.presets[1:]
         ]
         self.plant = BicyclePlant(self.presets, dt)
-        self.channel: Channel[VehicleState] = Channel(n, loss)
+        self.channel: Channel[VehicleState] = Channel(n, loss, advance_state)
         self.ranging_sensors = [
             (i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging
         ]

@@ -25,8 +25,10 @@ def run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument(
         "--loss",
         choices=("bernoulli", "gilbert-elliott"),
-        default=None if sweep else "bernoulli",
-        help="loss model of every link (default bernoulli)",
+        default=None,
+        help="loss model of every link (default bernoulli"
+        + ("" if sweep else "; or the convoy file's [channel] model")
+        + ")",
     )
     p.add_argument(
         "--burst",
@@ -116,7 +118,12 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
         metavar="SPEC",
         help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz",
     )
-    p.add_argument("--per", type=FRACTION, default=0.0, help="packet error rate 0..1 (default 0)")
+    p.add_argument(
+        "--per",
+        type=FRACTION,
+        default=None,
+        help="packet error rate 0..1 (default: the convoy file's [channel] per, else 0)",
+    )
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument(
         "--out", default="runs/sim", metavar="DIR", help="output directory (default runs/sim)"
@@ -135,14 +142,18 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
 def _sim_world_args(p: argparse.ArgumentParser) -> None:
     """``sim``'s link delays, GPS noise, faults and authentication."""
     p.add_argument(
-        "--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds"
+        "--latency",
+        type=_num(0.0, 60.0),
+        default=None,
+        metavar="S",
+        help="delivery delay, seconds, continuous (default: the convoy file's [channel], else 0)",
     )
     p.add_argument(
         "--jitter",
         type=_num(0.0, 60.0),
-        default=0.0,
+        default=None,
         metavar="S",
-        help="uniform delay jitter, seconds",
+        help="uniform delay jitter, seconds (default: the convoy file's [channel], else 0)",
     )
     p.add_argument(
         "--gps-noise",

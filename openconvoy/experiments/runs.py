@@ -74,18 +74,23 @@ class LossSection:
         model: ``bernoulli`` or ``gilbert-elliott``.
         mean_burst_s: mean loss burst of the Gilbert–Elliott model.
         latency_s, jitter_s: delivery delay and its uniform jitter.
+        latency_samples_s: or a delay distribution (quantiles) in place of the jitter, as
+            ``fit-plant`` fits from a vehicle run's message ages (``comms.loss.Latency``).
     """
 
     model: str = "bernoulli"
     mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
     latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    latency_samples_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
         if self.model not in ("bernoulli", "gilbert-elliott"):
             raise ConfigError(
                 f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
             )
+        self.at(0.0)  # the channel's own checks (latency samples)
         if self.mean_burst_s <= 0:
             raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
 
@@ -97,6 +102,7 @@ class LossSection:
             mean_burst_s=self.mean_burst_s,
             latency_s=self.latency_s,
             jitter_s=self.jitter_s,
+            latency_samples_s=self.latency_samples_s,
         )
 
 

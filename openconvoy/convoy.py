@@ -29,6 +29,8 @@ per = 0.0                         # packet error rate (sim's --per overrides)
 latency_s = 0.0                   # delivery delay (s; --latency overrides)
 latency_samples_s = [0.033, ...]  # or a delay distribution (quantiles, s), as fit-plant
                                   # fits from a vehicle run's message ages
+stamp_error_s = 0.0               # the senders' clock error (s), growing stamp_drift s/s
+link_latency_s = [[0, 1, 0.033, ...]]  # per link: sender, receiver, its delay quantiles
 ```
 
 Strict: an unknown key, a value of the wrong type or out of its range is an error naming
@@ -131,6 +133,9 @@ class ChannelConfig:
     latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     latency_samples_s: tuple[float, ...] = ()
+    stamp_error_s: Annotated[float, Range(-60.0, 60.0)] = 0.0
+    stamp_drift: Annotated[float, Range(-0.1, 0.1)] = 0.0
+    link_latency_s: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
@@ -142,6 +147,7 @@ class ChannelConfig:
         bad = [v for v in self.latency_samples_s if not 0.0 <= float(v) <= 60.0]
         if bad:
             raise ConfigError(f"channel.latency_samples_s: {bad[0]!r} is not seconds in [0, 60]")
+        object.__setattr__(self, "link_latency_s", tuple(tuple(e) for e in self.link_latency_s))
         if self.latency_samples_s and self.jitter_s > 0.0:
             raise ConfigError("channel: give either jitter_s or latency_samples_s, not both")
 
@@ -199,4 +205,15 @@ def load_convoy(path: str | Path) -> ConvoyConfig:
     keys = Path(str(v2v.get("keys") or Path(path).with_suffix(".keys").name))
     v2v["keys"] = str(keys if keys.is_absolute() else Path(path).parent / keys)
     table["v2v"] = v2v
+    # A preset file named relative to the convoy file (as fit-plant --out-convoy writes).
+    vehicles = table.get("vehicles")
+    if isinstance(vehicles, list):
+        here = Path(path).parent
+        table["vehicles"] = [
+            str(here / v)
+            if isinstance(v, str) and v.endswith(".toml") and not Path(v).is_absolute()
+            and not Path(v).is_file() and (here / v).is_file()
+            else v
+            for v in vehicles
+        ]  # fmt: skip
     return from_dict(ConvoyConfig, table, str(path))

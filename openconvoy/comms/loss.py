@@ -205,16 +205,37 @@ class Latency:
     or, when ``samples_s`` is given, a draw from that empirical distribution (sorted
     quantiles, as ``fit-plant`` fits from a vehicle run's message ages; ``quantile_delay``).
     The delay is continuous: the simulated channel delivers at the next tick and advances
-    the message by the rest, so a message's age at first use is the drawn delay."""
+    the message by the rest, so a message's age at first use is the drawn delay.
+
+    ``stamp_error_s`` + ``stamp_drift`` x t (s, at send time t): how far the senders' clocks
+    run behind, so every message claims to be that much older than it is and receivers
+    dead-reckon it too far (the vehicle runs' own clock error: a loaded SITL host whose
+    autopilot clocks fell behind 4 ms/s, shared/sitl/convoy vx-fixed-per0.3)."""
 
     base_s: float = 0.0
     jitter_s: float = 0.0
     samples_s: tuple[float, ...] = ()
+    stamp_error_s: float = 0.0
+    stamp_drift: float = 0.0
 
     @property
     def instant(self) -> bool:
-        """Whether every message arrives when it is sent."""
-        return self.base_s <= 0.0 and self.jitter_s <= 0.0 and not any(self.samples_s)
+        """Whether every message arrives when it is sent, stamped true."""
+        return (
+            self.base_s <= 0.0
+            and self.jitter_s <= 0.0
+            and not any(self.samples_s)
+            and not self.stamped_off
+        )
+
+    @property
+    def stamped_off(self) -> bool:
+        """Whether messages carry a clock error."""
+        return self.stamp_error_s != 0.0 or self.stamp_drift != 0.0
+
+    def stamp_error(self, t: float) -> float:
+        """The senders' clock error (s) at send time ``t`` (s)."""
+        return self.stamp_error_s + self.stamp_drift * t
 
     @property
     def max_s(self) -> float:
@@ -240,7 +261,10 @@ class LossConfig:
 
     ``model`` is ``"bernoulli"`` or ``"gilbert-elliott"``; ``mean_burst_s`` applies to
     the latter. ``latency_samples_s``: an empirical delay distribution (quantiles, s) that
-    replaces the uniform jitter (``Latency``); sorted on construction.
+    replaces the uniform jitter (``Latency``); sorted on construction. ``stamp_error_s``,
+    ``stamp_drift``: the senders' clock error (``Latency``). ``link_latency_s``: per link
+    ``[sender, receiver, quantile, ...]``, that link's own delay distribution (the others
+    keep the common one): on vehicles each link's delay is the phase between two loops.
     """
 
     per: float = 0.0
@@ -249,8 +273,41 @@ class LossConfig:
     latency_s: float = 0.0
     jitter_s: float = 0.0
     latency_samples_s: tuple[float, ...] = ()
+    stamp_error_s: float = 0.0
+    stamp_drift: float = 0.0
+    link_latency_s: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
+        links = tuple(tuple(float(v) for v in e) for e in self.link_latency_s)
+        seen = set()
+        for e in links:
+            if (
+                len(e) < 3
+                or e[0] != int(e[0])
+                or e[1] != int(e[1])
+                or e[0] == e[1]
+                or min(e[:2]) < 0
+            ):
+                raise ConfigError(
+                    "link_latency_s entries are [sender, receiver, delay quantile s, ...] "
+                    f"with two different vehicle indices, got {list(e)}"
+                )
+            if e[:2] in seen:
+                raise ConfigError(f"link_latency_s: link {int(e[0])} -> {int(e[1])} given twice")
+            seen.add(e[:2])
+            if any(not (math.isfinite(v) and 0.0 <= v <= 60.0) for v in e[2:]):
+                raise ConfigError(
+                    f"link_latency_s: delays must be seconds in [0, 60], got {list(e)}"
+                )
+        object.__setattr__(
+            self, "link_latency_s", tuple((e[0], e[1], *sorted(e[2:])) for e in links)
+        )
+        if not (math.isfinite(self.stamp_error_s) and abs(self.stamp_error_s) <= 60.0):
+            raise ConfigError(
+                f"stamp_error_s must be seconds in [-60, 60], got {self.stamp_error_s}"
+            )
+        if not (math.isfinite(self.stamp_drift) and abs(self.stamp_drift) <= 0.1):
+            raise ConfigError(f"stamp_drift must be in [-0.1, 0.1] s/s, got {self.stamp_drift}")
         if self.model not in ("bernoulli", "gilbert-elliott"):
             raise ConfigError(
                 f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
@@ -274,6 +331,21 @@ class LossConfig:
             return Bernoulli(self.per)
         return GilbertElliott.from_per(self.per, self.mean_burst_s)
 
+    def link_latency(self, sender: int, receiver: int) -> Latency:
+        """The delay model of the link ``sender -> receiver`` (``link_latency_s`` or the
+        common one)."""
+        base = self.latency
+        for e in self.link_latency_s:
+            if int(e[0]) == sender and int(e[1]) == receiver:
+                return Latency(base.base_s, 0.0, tuple(e[2:]), base.stamp_error_s, base.stamp_drift)
+        return base
+
     @property
     def latency(self) -> Latency:
-        return Latency(self.latency_s, self.jitter_s, self.latency_samples_s)
+        return Latency(
+            self.latency_s,
+            self.jitter_s,
+            self.latency_samples_s,
+            self.stamp_error_s,
+            self.stamp_drift,
+        )

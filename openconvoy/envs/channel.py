@@ -64,11 +64,24 @@ def advance_kinematics(
     )
 
 
-def advance_state(st: VehicleState, d: float) -> VehicleState:
-    """``st`` as its sender would have sent it ``d`` seconds later (``advance_kinematics``)."""
-    x, y, v, h = advance_kinematics(st.x, st.y, st.speed, st.heading, st.accel, st.yaw_rate, d)
+def advance_state(st: VehicleState, d: float, stamp_error: float = 0.0) -> VehicleState:
+    """``st`` as its sender would have sent it ``d`` seconds later (``advance_kinematics``),
+    stamped ``stamp_error`` seconds early (its clock running behind)."""
+    if d > ADVANCE_MIN_S:
+        x, y, v, h = advance_kinematics(st.x, st.y, st.speed, st.heading, st.accel, st.yaw_rate, d)
+    else:
+        d, x, y, v, h = 0.0, st.x, st.y, st.speed, st.heading
     return VehicleState(
-        st.vehicle_id, st.t + d, x, y, v, h, st.accel, st.yaw_rate, st.length, st.width
+        st.vehicle_id,
+        st.t + d - stamp_error,
+        x,
+        y,
+        v,
+        h,
+        st.accel,
+        st.yaw_rate,
+        st.length,
+        st.width,
     )
 
 
@@ -94,7 +107,7 @@ class Channel(Generic[M]):
         self,
         n_vehicles: int,
         loss: LossConfig | None = None,
-        advance: Callable[[M, float], M] | None = None,
+        advance: Callable[[M, float, float], M] | None = None,
     ) -> None:
         if n_vehicles < 1:
             raise ConfigError(f"a channel needs at least one vehicle, got {n_vehicles}")
@@ -113,11 +126,18 @@ class Channel(Generic[M]):
             self._bernoulli_per = 0.0
         elif isinstance(probe, Bernoulli):
             self._bernoulli_per = probe.per
-        self._instant = self._latency.instant
-        self._drawn = self._latency.jitter_s > 0.0 or bool(self._latency.samples_s)
+        # Each link's delay model (its own distribution, or the common one).
+        self._lat = [
+            [self.config.link_latency(s, r) for r in range(n_vehicles)] for s in range(n_vehicles)
+        ]
+        self._instant = all(
+            self._lat[s][r].instant for s in range(n_vehicles) for r in range(n_vehicles) if r != s
+        )
         self._advance = advance
+        # Messages carry their clock error from the send (the advance applies it).
+        self._stamped = self._latency.stamped_off and advance is not None
         self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
-        self._queue: list[tuple[float, int, int, int, M]] = []
+        self._queue: list[tuple[float, int, int, int, M, float]] = []
         self._ready: list[tuple[int, int, M]] = []
         self.reset(np.random.default_rng(0))
 
@@ -196,14 +216,16 @@ class Channel(Generic[M]):
         if self._instant:
             self._ready.extend((r, sender, msg) for r in receivers)
             return
-        lat = self._latency
+        lats = self._lat[sender]
         for r in receivers:
-            if self._drawn:
+            lat = lats[r]
+            if lat.jitter_s > 0.0 or lat.samples_s:
                 state = self._link_state[sender][r - (r > sender)]
                 arrival = t + lat.from_uniform(counter_uniform_from(state, number, DRAW_JITTER))
             else:
                 arrival = t + lat.base_s
-            heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg))
+            err = lat.stamp_error(t) if self._stamped else 0.0
+            heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg, err))
             self._seq += 1
 
     def _draw_block(self, sender: int, first: int) -> list[list[bool]]:
@@ -225,10 +247,10 @@ class Channel(Generic[M]):
             due = now + 1e-9
             advance = self._advance
             while q and q[0][0] <= due:
-                arrival, _, r, s, msg = heapq.heappop(q)
+                arrival, _, r, s, msg, err = heapq.heappop(q)
                 waited = now - arrival
-                if advance is not None and waited > ADVANCE_MIN_S:
-                    msg = advance(msg, waited)
+                if advance is not None and (waited > ADVANCE_MIN_S or err != 0.0):
+                    msg = advance(msg, waited, err)
                 out.append((r, s, msg))
         delivered, delivered_to = self._delivered, self.delivered_to
         for r, s, _ in out:

@@ -316,8 +316,21 @@ def _add_fit_plant(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--name", default="fitted", help="preset name (default fitted)")
     p.add_argument(
         "--base",
-        default="1/10",
-        help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)",
+        default=None,
+        help="preset giving what logs cannot show: size, steering, speed cap (default 1/10; "
+        "with --convoy the shipped preset of the run's autopilot)",
+    )
+    p.add_argument(
+        "--convoy",
+        metavar="CONVOY.toml",
+        help="calibrate a whole vehicle run (LOG_DIR, deploy logs): fit every vehicle and "
+        "the V2V channel and write --out-convoy (docs/calibration.md)",
+    )
+    p.add_argument(
+        "--out-convoy",
+        metavar="FITTED.toml",
+        help="with --convoy: the convoy file to write (presets beside it); then "
+        "sim --convoy FITTED.toml and compare LOG_DIR SIM_DIR",
     )
     p.add_argument(
         "--vehicle-id", type=_int(0, 254), help="which vehicle, when the logs hold several"

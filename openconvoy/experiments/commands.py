@@ -97,6 +97,9 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
             latency_s=latency,
             jitter_s=jitter,
             latency_samples_s=samples,
+            stamp_error_s=channel.stamp_error_s,
+            stamp_drift=channel.stamp_drift,
+            link_latency_s=channel.link_latency_s if args.jitter is None else (),
         ),
         origin=origin,
         faults=tuple(getattr(args, "fault", None) or ()),
@@ -344,7 +347,7 @@ def compare(args: argparse.Namespace) -> int:
     if args.out:
         check_output_file(args.out, "--out")
     lengths = _lengths_from_convoy(args.convoy)
-    result = cmp.compare(cmp.load_side(args.a, lengths), cmp.load_side(args.b, lengths))
+    result = cmp.compare(*cmp.load_pair(args.a, args.b, lengths))
     print(cmp.format_comparison(result))
     if args.out:
         write_json(args.out, result)

@@ -76,6 +76,8 @@ class LossSection:
         latency_s, jitter_s: delivery delay and its uniform jitter.
         latency_samples_s: or a delay distribution (quantiles) in place of the jitter, as
             ``fit-plant`` fits from a vehicle run's message ages (``comms.loss.Latency``).
+        stamp_error_s, stamp_drift: the senders' clock error, s and s/s (``Latency``).
+        link_latency_s: per link ``[sender, receiver, quantile s, ...]`` (``LossConfig``).
     """
 
     model: str = "bernoulli"
@@ -83,6 +85,9 @@ class LossSection:
     latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     latency_samples_s: tuple[float, ...] = ()
+    stamp_error_s: Annotated[float, Range(-60.0, 60.0)] = 0.0
+    stamp_drift: Annotated[float, Range(-0.1, 0.1)] = 0.0
+    link_latency_s: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
@@ -103,6 +108,9 @@ class LossSection:
             latency_s=self.latency_s,
             jitter_s=self.jitter_s,
             latency_samples_s=self.latency_samples_s,
+            stamp_error_s=self.stamp_error_s,
+            stamp_drift=self.stamp_drift,
+            link_latency_s=self.link_latency_s,
         )
 
 

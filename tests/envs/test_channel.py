@@ -216,3 +216,29 @@ def test_convoy_env_message_age_follows_a_sub_tick_latency() -> None:
         ages.append(info["follower_1"]["pred_msg_age_s"])
     got = sorted({round(a, 6) for a in ages[5:]})
     assert got == [0.034, 0.084]
+
+
+def test_each_link_can_have_its_own_delay_distribution() -> None:
+    loss = LossConfig(latency_samples_s=(0.05,), link_latency_s=((0, 1, 0.034), (1, 2, 0.02, 0.03)))
+    ch: Channel[VehicleState] = Channel(3, loss, advance_state)
+    ch.reset(np.random.default_rng(0))
+    ch.send(0, VehicleState(0, 0.0, 0.0, 0.0, 1.0, 0.0), 0.0)
+    ch.send(1, VehicleState(1, 0.0, -15.0, 0.0, 1.0, 0.0), 0.0)
+    ages = {(s, r): round(0.05 - m.t, 6) for r, s, m in ch.deliver(0.05)}
+    assert ages[(0, 1)] == 0.034 and ages[(0, 2)] == 0.05 and ages[(1, 0)] == 0.05
+    assert 0.02 <= ages[(1, 2)] <= 0.03
+    with pytest.raises(ValueError, match="sender, receiver"):
+        LossConfig(link_latency_s=((0, 0, 0.1),))
+    with pytest.raises(ValueError, match="twice"):
+        LossConfig(link_latency_s=((0, 1, 0.1), (0, 1, 0.2)))
+
+
+def test_a_senders_clock_error_ages_its_messages() -> None:
+    """A clock 0.1 s + 10 ms/s behind: messages sent at t claim t - 0.1 - 0.01 t."""
+    ch: Channel[VehicleState] = Channel(
+        2, LossConfig(stamp_error_s=0.1, stamp_drift=0.01), advance_state
+    )
+    ch.reset(np.random.default_rng(0))
+    ch.send(0, VehicleState(0, 10.0, 0.0, 0.0, 2.0, 0.0), 10.0)
+    ((_, _, got),) = ch.deliver(10.0)
+    assert got.t == pytest.approx(10.0 - 0.2) and got.x == 0.0

@@ -85,9 +85,19 @@ class VectorChannel:
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
         self.latency_s, self.jitter_s = self.loss.latency_s, self.loss.jitter_s
-        self.samples_s = np.array(self.loss.latency_samples_s, dtype=float)
-        delay = self.loss.latency.max_s  # the longest a message is in flight
-        self.slots = 0 if self.loss.latency.instant else int(math.ceil(delay / dt)) + 3
+        self.stamp_error_s, self.stamp_drift = self.loss.stamp_error_s, self.loss.stamp_drift
+        # Each pair's delay distribution (``LossConfig.link_latency``): (P, Q) quantiles,
+        # the first ``n_samples[p]`` used (0: the uniform jitter).
+        lats = [self.loss.link_latency(int(a), int(b)) for a, b in zip(self.pair_s, self.pair_r)]
+        q = max([len(x.samples_s) for x in lats] + [1])
+        self.samples_s = np.zeros((len(lats), q))
+        self.n_samples = np.zeros(len(lats), dtype=np.int64)
+        for p, x in enumerate(lats):
+            self.samples_s[p, : len(x.samples_s)] = x.samples_s
+            self.n_samples[p] = len(x.samples_s)
+        delay = max([x.max_s for x in lats] + [0.0])  # the longest a message is in flight
+        instant = all(x.instant for x in lats)
+        self.slots = 0 if instant else int(math.ceil(delay / dt)) + 3
         self._alloc()
 
     def _alloc(self) -> None:
@@ -173,7 +183,7 @@ class VectorChannel:
             _enqueue(
                 self.keys, self.broadcasts, self.send, self.lost, self.pair_s, self.pair_r,
                 rows, t, step, own, self.latency_s, self.jitter_s, self.samples_s,
-                self.q_arrival, self.q_first, self.q_state, self.q_t,
+                self.n_samples, self.q_arrival, self.q_first, self.q_state, self.q_t,
             )  # fmt: skip
         self.broadcasts += self.send
         _deliver(
@@ -188,6 +198,7 @@ class VectorChannel:
                 self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
                 rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
                 rx.trail_of, rx.spacing_m, self._due_slots, self._advanced,
+                self.stamp_error_s, self.stamp_drift,
             )  # fmt: skip
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -385,16 +396,15 @@ def _deliver(
 
 
 @bare_inline
-def _quantile_delay(samples, u):  # pragma: no cover - compiled
-    """``comms.loss.quantile_delay``, the same arithmetic."""
-    n = len(samples)
+def _quantile_delay(samples, p, n, u):  # pragma: no cover - compiled
+    """``comms.loss.quantile_delay`` of pair ``p``'s ``n`` quantiles, the same arithmetic."""
     if n == 1:
-        return samples[0]
+        return samples[p, 0]
     pos = u * (n - 1)
     k = int(pos)
     if k >= n - 1:
-        return samples[n - 1]
-    return samples[k] + (pos - k) * (samples[k + 1] - samples[k])
+        return samples[p, n - 1]
+    return samples[p, k] + (pos - k) * (samples[p, k + 1] - samples[p, k])
 
 
 @bare_inline
@@ -417,7 +427,7 @@ def _advance(st, b, s, d, out):  # pragma: no cover - compiled
 @bare_kernel
 def _enqueue(
     keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, samples,
-    q_arrival, q_first, q_state, q_t,
+    n_samples, q_arrival, q_first, q_state, q_t,
 ):  # pragma: no cover - compiled  # fmt: skip
     """This tick's broadcasts into send slot ``step % S``: the senders' states, and each
     pair's arrival time (``Channel.send``'s, jitter or sample drawn on broadcast
@@ -438,9 +448,9 @@ def _enqueue(
             if not send[b, s] or lost[b, p]:
                 q_arrival[sl, b, p] = np.inf
                 continue
-            if len(samples) > 0:
+            if n_samples[p] > 0:
                 u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
-                arrival = t[b] + (latency + _quantile_delay(samples, u))
+                arrival = t[b] + (latency + _quantile_delay(samples, p, n_samples[p], u))
             elif jitter > 0.0:
                 u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
                 arrival = t[b] + (latency + u * jitter)
@@ -454,10 +464,12 @@ def _enqueue(
 def _arrive(
     step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
     hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots, advanced,
+    stamp_error, stamp_drift,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
     send first), as ``Channel.deliver``: with jitter a later broadcast may overtake; one
-    that waited for this tick is advanced by the wait (into ``advanced``: scratch).
+    that waited for this tick is advanced by the wait (into ``advanced``: scratch), and
+    stamped with the senders' clock error ``stamp_error + stamp_drift * send time``.
     Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
     scratch)."""
     S, B, P = q_arrival.shape
@@ -486,13 +498,15 @@ def _arrive(
                 if link >= 0:
                     kept[b, r] += 1
                     waited = t[b] - first_arrival
+                    ts = q_t[first, b, s]
+                    err = stamp_error + stamp_drift * ts
                     if waited > ADVANCE_MIN_S:
                         _advance(q_state[first], b, s, waited, advanced)
                         push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                                 link, q_t[first, b, s] + waited, advanced, s, spacing)  # fmt: skip
+                                 link, ts + waited - err, advanced, s, spacing)  # fmt: skip
                     else:
                         push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                                 link, q_t[first, b, s], q_state[first], s, spacing)  # fmt: skip
+                                 link, ts - err, q_state[first], s, spacing)  # fmt: skip
         for k in range(n_due):
             sl, pending = slots[k], np.inf
             for p in range(P):

@@ -71,7 +71,7 @@ def _per_convoy_loss(loss: LossConfig | Sequence[LossConfig] | None, B: int) -> 
     out = list(loss)
     if len(out) != B:
         raise ConfigError(f"loss: need one LossConfig per convoy ({B}), got {len(out)}")
-    same = lambda c: (c.model, c.mean_burst_s, c.latency)  # noqa: E731
+    same = lambda c: (c.model, c.mean_burst_s, c.latency, c.link_latency_s)  # noqa: E731
     if any(same(c) != same(out[0]) for c in out[1:]):
         raise ConfigError("loss: the convoys' LossConfigs may differ only in per")
     return out

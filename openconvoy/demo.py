@@ -464,10 +464,17 @@ def compare_with_sim(
     origin: tuple[float, float, float],
 ) -> dict[str, Any]:
     """Metrics of the deploy run (trimmed to the leader's window) and of the pure
-    simulation, and their comparison (``experiments.compare``: B = deploy, A = sim)."""
+    simulation, and their comparison (``experiments.compare``: B = deploy, A = sim). The
+    pure simulation's links delay messages as the deploys' V2V did (``fit_channel`` of the
+    deploy logs: the phases between their loops), so both see messages equally old."""
     from openconvoy.core.metrics import compute_metrics
+    from openconvoy.experiments.calibration import (
+        fit_channel,
+        median_telemetry_age,
+        message_ages_at_first_use,
+    )
     from openconvoy.experiments.compare import Side, compare
-    from openconvoy.experiments.runs import RunConfig, run_sim
+    from openconvoy.experiments.runs import LossSection, RunConfig, run_sim
     from openconvoy.logs import read_log
 
     meta = json.loads((deploy_dir / "vehicle_0.json").read_text())
@@ -475,6 +482,9 @@ def compare_with_sim(
     if t_start is None:
         raise RuntimeError("the leader never started driving")
     log = trim_to_run(read_log(deploy_dir), float(t_start), duration)
+    ids = sorted(int(v) for v in np.unique(log["vehicle_id"]))
+    # The simulated vehicles' clocks are the host's: their telemetry age is staleness.
+    channel = fit_channel(log, {v: median_telemetry_age(log, v) for v in ids})
     sim = run_sim(
         RunConfig(
             scenario="paper",
@@ -483,9 +493,23 @@ def compare_with_sim(
             seed=0,
             duration_s=duration,
             origin=origin,
+            loss=LossSection(
+                latency_samples_s=channel.latency_samples_s,
+                link_latency_s=channel.link_latency_s,
+                stamp_error_s=channel.stamp_error_s,
+                stamp_drift=channel.stamp_drift,
+            ),
         ),
         out_dir=sim_dir,
     )
+    ages = {
+        side: {
+            str(v): float(np.median(message_ages_at_first_use(lg, v)))
+            for v in ids
+            if v > 0 and len(message_ages_at_first_use(lg, v))
+        }
+        for side, lg in (("deploy", log), ("sim", sim.log))
+    }
     deploy_metrics = compute_metrics(log, sim.lengths)
     a = Side(sim_dir, "run", metrics=sim.metrics)
     b = Side(deploy_dir, "run", metrics=deploy_metrics)
@@ -499,4 +523,5 @@ def compare_with_sim(
         "sim_dir": str(sim_dir),
         "t_start_s": t_start,
         "duration_s": duration,
+        "first_use_message_age_s": ages,
     }

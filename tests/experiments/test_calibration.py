@@ -176,3 +176,34 @@ def test_calibration_refuses_what_it_cannot_fit(tmp_path: Path) -> None:
     with pytest.raises(Exception, match="not a run directory"):
         cal.calibrate(tmp_path / "missing", DATA / "convoy.toml", tmp_path / "out.toml")
     assert main(["fit-plant", str(tmp_path), "--convoy", str(DATA / "convoy.toml")]) == 2
+
+
+def _sim_args(convoy: Path, *flags: str):
+    from openconvoy.cli import build_parser
+
+    return build_parser().parse_args(["sim", "--convoy", str(convoy), *flags])
+
+
+def test_the_convoy_files_channel_feeds_sim_and_flags_override_it(tmp_path: Path) -> None:
+    from openconvoy.experiments.commands import run_config_from_args
+
+    (tmp_path / "car.toml").write_text(
+        '[vehicle]\nname = "car"\nlength_m = 0.8\nwidth_m = 0.3\nwheelbase_m = 0.33\n'
+    )
+    convoy = tmp_path / "c.toml"
+    convoy.write_text(
+        '[convoy]\nvehicles = ["car.toml", "1/10"]\n'
+        "[channel]\nper = 0.2\nlatency_samples_s = [0.03, 0.01]\n"
+        "link_latency_s = [[0, 1, 0.034, 0.036]]\nstamp_error_s = 0.05\n"
+    )
+    loss = run_config_from_args(_sim_args(convoy)).loss.at(0.2)
+    assert run_config_from_args(_sim_args(convoy)).per == 0.2
+    assert loss.latency_samples_s == (0.01, 0.03) and loss.stamp_error_s == 0.05
+    assert loss.link_latency(0, 1).samples_s == (0.034, 0.036)
+    # A preset file named relative to the convoy file.
+    assert Path(load_convoy(convoy).vehicles[0]) == tmp_path / "car.toml"
+    over = run_config_from_args(_sim_args(convoy, "--per", "0.1", "--jitter", "0.02"))
+    assert over.per == 0.1 and over.loss.jitter_s == 0.02
+    assert over.loss.latency_samples_s == () and over.loss.link_latency_s == ()
+    convoy.write_text('[convoy]\nvehicles = ["1/10", "1/10"]\n[channel]\nlatency = 0.1\n')
+    assert main(["sim", "--convoy", str(convoy), "--out", str(tmp_path / "x")]) == 2

@@ -5,6 +5,7 @@
 name = "lab"                      # also seeds the vehicles' default BSM temporary ids
 scenario = "paper"                # or "track", "emergency-braking", "track-file:PATH"
 vehicles = ["1/10", "1/6", "1/10"]  # presets (or preset .toml files), leader first
+plants = ["fitted.vehicle_0.toml", ...]  # optional, sim only: the vehicles as they drive
 origin = [28.6024, -81.2001, 0.0]   # ENU origin: latitude, longitude (deg), altitude (m)
 
 [v2v]                             # optional; vehicles only
@@ -159,6 +160,9 @@ class ConvoyConfig:
     name: str = "openconvoy"
     scenario: str = "paper"
     vehicles: tuple[str, ...] = ("1/10", "1/6", "1/10")
+    plants: tuple[str, ...] = ()
+    """sim only: the vehicles as they drive (``fit-plant --convoy``'s fitted presets), when
+    they differ from ``vehicles`` (what the members and the scenario know); empty = those."""
     origin: tuple[
         Annotated[float, Range(-90.0, 90.0)],
         Annotated[float, Range(-180.0, 180.0)],
@@ -175,6 +179,11 @@ class ConvoyConfig:
         object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         if len(self.vehicles) < 2:
             raise ConfigError("convoy.vehicles: a convoy needs a leader and at least one follower")
+        object.__setattr__(self, "plants", tuple(self.plants))
+        if self.plants and len(self.plants) != len(self.vehicles):
+            raise ConfigError(
+                f"convoy.plants: {len(self.plants)} given for {len(self.vehicles)} vehicles"
+            )
 
     @property
     def n_vehicles(self) -> int:
@@ -206,14 +215,15 @@ def load_convoy(path: str | Path) -> ConvoyConfig:
     v2v["keys"] = str(keys if keys.is_absolute() else Path(path).parent / keys)
     table["v2v"] = v2v
     # A preset file named relative to the convoy file (as fit-plant --out-convoy writes).
-    vehicles = table.get("vehicles")
-    if isinstance(vehicles, list):
-        here = Path(path).parent
-        table["vehicles"] = [
-            str(here / v)
-            if isinstance(v, str) and v.endswith(".toml") and not Path(v).is_absolute()
-            and not Path(v).is_file() and (here / v).is_file()
-            else v
-            for v in vehicles
-        ]  # fmt: skip
+    here = Path(path).parent
+    for key in ("vehicles", "plants"):
+        listed = table.get(key)
+        if isinstance(listed, list):
+            table[key] = [
+                str(here / v)
+                if isinstance(v, str) and v.endswith(".toml") and not Path(v).is_absolute()
+                and not Path(v).is_file() and (here / v).is_file()
+                else v
+                for v in listed
+            ]  # fmt: skip
     return from_dict(ConvoyConfig, table, str(path))

@@ -21,12 +21,19 @@ parameters; the recordings did); otherwise the free fit is.
 
 Channel: a logged message age at first use = its delivery delay (the phase between the
 loops, the link, the sender's staleness) + the sender's clock error. A vehicle's clock error
-is what its logged telemetry age shows beyond the staleness its loop-delay fit found (a
-vehicle whose autopilot clock falls behind logs a growing telemetry age while its loop delay
-stays put: all three in sitl/convoy vx-fixed-per0.3, +4 ms/s), fitted as a line; the delays
-are the ages less the sender's error, and the simulated channel's stamp error
-(``stamp_error_s + stamp_drift t``) is the sender's error less the receiver's: a common
-error cancels in the members' dead reckoning (their "now" is their own state's clock).
+is what its logged telemetry age shows beyond the staleness its loop-delay fit found: the
+deploy stamps its state with the autopilot's clock mapped onto the system clock, and when
+the autopilot's clock runs slow (PX4 SIH at 0.990; a loaded ArduPilot SITL host) that
+mapping falls behind while the state is fresh (sitl/convoy vx-fixed-per0.3: +4 ms/s,
+sitl-px4/convoy r2: +9 ms/s, from 0.09-0.16 s). It is fitted as a line per vehicle; the
+delays are the ages less the sender's error, and the simulated channel stamps messages that
+much older (``stamp_error_s + stamp_drift t``): members dead-reckon received states to
+their system clock, so they place the predecessor that much further on (and past the
+ladder's fresh age as if it were braking).
+
+The fitted convoy file keeps the deployed ``vehicles`` (what the members, the safety rules
+and the scenario's leader profile knew) and names the fitted presets as ``plants`` (how the
+vehicles drive).
 """
 
 from __future__ import annotations
@@ -144,9 +151,9 @@ class ChannelFit:
             simulated channel's delay distribution (``comms.loss.Latency``).
         per: the packet error rate the run's links applied (lost / offered, followers).
         ages_s: per follower, the ages at first use the fit used.
-        stamp_error_s, stamp_drift: the senders' clock error relative to the receivers'
-            at the scenario's start (s) and its growth (s/s), the mean over the measured
-            links; 0 when below ``CLOCK_ERROR_MIN_S`` over the run.
+        stamp_error_s, stamp_drift: the senders' clock error at the scenario's start (s)
+            and its growth (s/s), the mean over the measured links' senders; 0 when below
+            ``CLOCK_ERROR_MIN_S`` over the run.
         link_latency_s: per link ``(sender, receiver, quantile, ...)`` (``link_delays``).
     """
 
@@ -262,19 +269,18 @@ def fit_channel(
     )
     clocks = {v: clock_error(log, v, stale.get(v, 0.0)) for v in ids}
     ages = {}
-    rel = []  # each measured link's clock error, sender's less receiver's
+    errs: list[tuple[float, float]] = []  # each measured link's sender's clock error
     for vid in ids:
         if vid > 0 and vid - 1 in clocks:
             a, when = _ages_and_times(log, vid)
-            (e_s, d_s), (e_r, d_r) = clocks[vid - 1], clocks[vid]
-            # A logged age is the delay + the sender's clock error (the receiver's log
-            # clock is the system clock); what a member dead-reckons with is the delay +
-            # the sender's error less its own (a common error cancels).
+            e_s, d_s = clocks[vid - 1]
+            # A logged age is the delay + the sender's clock error (the receiver's "now"
+            # is the system clock, in its log and in its member alike).
             ages[vid] = np.maximum(a - (e_s + d_s * when), 0.0)
-            rel.append((e_s - e_r, d_s - d_r))
+            errs.append((e_s, d_s))
     err0, drift = (
-        (float(np.mean([r[0] for r in rel])), float(np.mean([r[1] for r in rel])))
-        if rel
+        (float(np.mean([e[0] for e in errs])), float(np.mean([e[1] for e in errs])))
+        if errs
         else (0.0, 0.0)
     )
     span = float(np.nanmax(np.asarray(log["t_s"], dtype=float))) if len(log["t_s"]) else 0.0
@@ -453,7 +459,8 @@ def _drive_duration(meta: dict[int, dict[str, Any]], t0: float | None) -> float:
 
 
 def _convoy_toml(convoy: Any, paths: dict[int, Path], channel: ChannelFit, run: Path) -> str:
-    vehicles = ", ".join(f'"{paths[v].name}"' for v in sorted(paths))
+    declared = ", ".join(f'"{v}"' for v in convoy.vehicles)
+    plants = ", ".join(f'"{paths[v].name}"' for v in sorted(paths))
     samples = ", ".join(f"{s:g}" for s in channel.latency_samples_s)
     links = ", ".join(
         "[" + ", ".join([str(int(e[0])), str(int(e[1]))] + [f"{v:g}" for v in e[2:]]) + "]"
@@ -466,7 +473,10 @@ def _convoy_toml(convoy: Any, paths: dict[int, Path], channel: ChannelFit, run: 
         "[convoy]\n"
         f'name = "{convoy.name}-fitted"\n'
         f'scenario = "{convoy.scenario}"\n'
-        f"vehicles = [{vehicles}]\n"
+        "# deployed with (what members, safety rules and the leader's profile know)\n"
+        f"vehicles = [{declared}]\n"
+        "# how they drive (fitted)\n"
+        f"plants = [{plants}]\n"
         f"origin = [{lat!r}, {lon!r}, {alt!r}]\n"
         "\n[channel]\n"
         f"per = {channel.per!r}\n"

@@ -57,6 +57,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
     from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
 
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    plants: tuple[str, ...] = ()
     auth = getattr(args, "auth", None)
     channel = ChannelConfig()
     if args.convoy:
@@ -64,6 +65,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
 
         convoy = load_convoy(args.convoy)
         scenario = scenario or convoy.scenario
+        plants = () if vehicles else convoy.plants
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
         auth = auth or ("off" if convoy.v2v.auth == "off" else None)
@@ -90,6 +92,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
             ranging=args.ranging,
             ranging_max_range_m=args.ranging_range,
             gps_noise_m=args.gps_noise,
+            plants=plants,
         ),
         loss=LossSection(
             model=model,

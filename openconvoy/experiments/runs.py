@@ -51,6 +51,9 @@ class ConvoySection:
         ranging_max_range_m: that sensor's range, metres (20 m suits the small cars; a
             car's radar sees 150 m and more).
         gps_noise_m: standard deviation of the position noise members see, metres.
+        plants: the vehicles as they drive (presets fitted by ``fit-plant --convoy``),
+            leader first, when they differ from ``vehicles`` (what the members, safety
+            rules and scenario know); empty = ``vehicles``.
     """
 
     vehicles: tuple[str, ...] = ()
@@ -58,9 +61,11 @@ class ConvoySection:
     ranging: bool = False
     ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
     gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+    plants: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        object.__setattr__(self, "plants", tuple(self.plants))
         if self.gps_noise_m < 0:
             raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
 
@@ -246,6 +251,7 @@ def build_env(config: RunConfig):
         max_time_s=config.duration_s,
         faults=config.faults,
         auth=config.auth == "required",
+        plant_presets=[vehicle_preset(v) for v in convoy.plants] or None,
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     return env, policies

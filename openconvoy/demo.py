@@ -158,6 +158,10 @@ PX4_HEADING_BIAS_MAX_DEG = 10.0
 seed): sitl-px4 shows +0.7..+5.8° per heading-step leg and a convoy leader at -11°."""
 
 
+PX4_CLOCK_RATIO = 0.990
+"""The simulated PX4s' clock, seconds per real second: the recorded SIH's."""
+
+
 def sim_vehicle_configs(
     init: Any,
     origin: Any,
@@ -306,6 +310,8 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             boot_on_connect=True,
             # PX4's EKF heading stays off by up to ~10° for a run (shared/AUTOPILOTS.md).
             heading_bias_max_deg=PX4_HEADING_BIAS_MAX_DEG if opts.autopilot == "px4" else 0.0,
+            # and SIH's clock runs at 0.990 of real time (sitl-px4 README, row 24).
+            px4_clock_ratio=PX4_CLOCK_RATIO if opts.autopilot == "px4" else None,
         )
         urls = []
         for vehicle, url in start_local_sim_vehicles(configs):

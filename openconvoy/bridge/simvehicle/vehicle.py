@@ -34,6 +34,7 @@ SIGUSR2 toggles the freeze.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import select
 import struct
@@ -95,6 +96,8 @@ class SimVehicleConfig:
         heading_bias_max_deg: PX4: the estimator's heading error, drawn once per vehicle and
             run (this seed) uniformly within +- this (deg); it steers and reports the
             biased heading (``px4``; sitl-px4 shows up to ~10°). 0 = none.
+        px4_clock_ratio: PX4: its clock's seconds per real second (None: the timing's:
+            SIH's 0.990 with ``firmware``, 1 with ``short``).
         seed: seeds the noise and the heading bias.
     """
 
@@ -121,6 +124,7 @@ class SimVehicleConfig:
     boot_on_connect: bool = False
     gps_noise_m: float = 0.0
     heading_bias_max_deg: float = 0.0
+    px4_clock_ratio: float | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -136,6 +140,8 @@ class SimVehicleConfig:
             )
         if self.speedup <= 0:
             raise ConfigError(f"speedup must be positive, got {self.speedup}")
+        if self.px4_clock_ratio is not None and not 0.5 <= self.px4_clock_ratio <= 2.0:
+            raise ConfigError(f"px4_clock_ratio must be in [0.5, 2], got {self.px4_clock_ratio}")
         if not 0.0 <= self.heading_bias_max_deg <= 45.0:
             raise ConfigError(
                 f"heading_bias_max_deg must be in [0, 45], got {self.heading_bias_max_deg}"
@@ -184,6 +190,8 @@ def make_firmware(config: SimVehicleConfig, state: MotionState) -> ArduPilotRove
             motion=motion,
         )
     timing = Px4Timing.firmware() if c.timing == "firmware" else Px4Timing.short(c.ready_after_s)
+    if c.px4_clock_ratio is not None:
+        timing = dataclasses.replace(timing, clock_ratio=c.px4_clock_ratio)
     fw = Px4Rover(
         state,
         timing,

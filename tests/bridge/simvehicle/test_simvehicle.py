@@ -239,3 +239,17 @@ def test_px4_heading_bias_is_drawn_per_vehicle_and_run() -> None:
     assert bias(3, "ardupilot") == 0.0
     with pytest.raises(ValueError, match="heading_bias_max_deg"):
         SimVehicleConfig(autopilot="px4", heading_bias_max_deg=90.0)
+
+
+def test_px4_clock_ratio_is_configurable() -> None:
+    """SIH's clock runs at 0.990 of real time (sitl-px4 row 24); the demo's PX4s use it."""
+    from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
+
+    def ratio(**kw: Any) -> float:
+        cfg = SimVehicleConfig(autopilot="px4", **kw)
+        return SimVehicle("udpin:127.0.0.1:0", cfg).firmware.clock_ratio
+
+    assert ratio() == 1.0 and ratio(timing="firmware") == 0.990
+    assert ratio(px4_clock_ratio=0.990) == 0.990
+    with pytest.raises(ValueError, match="px4_clock_ratio"):
+        SimVehicleConfig(autopilot="px4", px4_clock_ratio=0.1)

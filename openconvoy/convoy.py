@@ -5,6 +5,7 @@
 name = "lab"                      # also seeds the vehicles' default BSM temporary ids
 scenario = "paper"                # or "track", "emergency-braking", "track-file:PATH"
 vehicles = ["1/10", "1/6", "1/10"]  # presets (or preset .toml files), leader first
+plants = ["fitted.vehicle_0.toml", ...]  # optional, sim only: the vehicles as they drive
 origin = [28.6024, -81.2001, 0.0]   # ENU origin: latitude, longitude (deg), altitude (m)
 
 [v2v]                             # optional; vehicles only
@@ -23,6 +24,14 @@ geofence_radius_m = 200.0         # around the origin
 min_gap_m = 1.0                   # emergency stop below this measured gap
 gap_margin_m = 0.2                # braking-aware stop margin between bumpers (m); default 1/4 length
 max_msg_age_s = 3.0               # stop while needed messages are older than this
+
+[channel]                         # optional; sim only: the simulated V2V links
+per = 0.0                         # packet error rate (sim's --per overrides)
+latency_s = 0.0                   # delivery delay (s; --latency overrides)
+latency_samples_s = [0.033, ...]  # or a delay distribution (quantiles, s), as fit-plant
+                                  # fits from a vehicle run's message ages
+stamp_error_s = 0.0               # the senders' clock error (s), growing stamp_drift s/s
+link_latency_s = [[0, 1, 0.033, ...]]  # per link: sender, receiver, its delay quantiles
 ```
 
 Strict: an unknown key, a value of the wrong type or out of its range is an error naming
@@ -113,12 +122,47 @@ class SafetyConfig:
 
 
 @dataclass(frozen=True)
+class ChannelConfig:
+    """The simulated V2V channel of a convoy (``sim`` only; vehicles have real radios):
+    ``comms.loss.LossConfig``'s fields (seconds; ``latency_samples_s`` an empirical delay
+    distribution, see ``comms.loss.Latency``). ``fit-plant RUN --convoy`` writes it from a vehicle
+    run: the measured loss and the distribution of message ages at first use."""
+
+    per: Annotated[float, Range(0.0, 1.0)] = 0.0
+    model: str = "bernoulli"
+    mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
+    latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    latency_samples_s: tuple[float, ...] = ()
+    stamp_error_s: Annotated[float, Range(-60.0, 60.0)] = 0.0
+    stamp_drift: Annotated[float, Range(-0.1, 0.1)] = 0.0
+    link_latency_s: tuple[tuple[float, ...], ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
+        check_fields(self, "channel")
+        if self.model not in ("bernoulli", "gilbert-elliott"):
+            raise ConfigError(
+                f"channel.model: {self.model!r} is not one of bernoulli, gilbert-elliott"
+            )
+        bad = [v for v in self.latency_samples_s if not 0.0 <= float(v) <= 60.0]
+        if bad:
+            raise ConfigError(f"channel.latency_samples_s: {bad[0]!r} is not seconds in [0, 60]")
+        object.__setattr__(self, "link_latency_s", tuple(tuple(e) for e in self.link_latency_s))
+        if self.latency_samples_s and self.jitter_s > 0.0:
+            raise ConfigError("channel: give either jitter_s or latency_samples_s, not both")
+
+
+@dataclass(frozen=True)
 class ConvoyConfig:
     """A convoy: scenario, vehicles (leader first), ENU origin, V2V and safety settings."""
 
     name: str = "openconvoy"
     scenario: str = "paper"
     vehicles: tuple[str, ...] = ("1/10", "1/6", "1/10")
+    plants: tuple[str, ...] = ()
+    """sim only: the vehicles as they drive (``fit-plant --convoy``'s fitted presets), when
+    they differ from ``vehicles`` (what the members and the scenario know); empty = those."""
     origin: tuple[
         Annotated[float, Range(-90.0, 90.0)],
         Annotated[float, Range(-180.0, 180.0)],
@@ -126,6 +170,7 @@ class ConvoyConfig:
     ] = UCF_ORIGIN
     v2v: V2VConfig = field(default_factory=V2VConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
@@ -134,6 +179,11 @@ class ConvoyConfig:
         object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
         if len(self.vehicles) < 2:
             raise ConfigError("convoy.vehicles: a convoy needs a leader and at least one follower")
+        object.__setattr__(self, "plants", tuple(self.plants))
+        if self.plants and len(self.plants) != len(self.vehicles):
+            raise ConfigError(
+                f"convoy.plants: {len(self.plants)} given for {len(self.vehicles)} vehicles"
+            )
 
     @property
     def n_vehicles(self) -> int:
@@ -141,18 +191,19 @@ class ConvoyConfig:
 
 
 def load_convoy(path: str | Path) -> ConvoyConfig:
-    """Read a convoy TOML file (tables ``[convoy]``, ``[v2v]``, ``[safety]``)."""
+    """Read a convoy TOML file (tables ``[convoy]``, ``[v2v]``, ``[safety]``, ``[channel]``)."""
     data = load_toml(path)
-    unknown = set(data) - {"convoy", "v2v", "safety"}
+    unknown = set(data) - {"convoy", "v2v", "safety", "channel"}
     if unknown:
         raise ConfigError(
-            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; expected convoy, v2v, safety"
+            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; "
+            "expected convoy, v2v, safety, channel"
         )
     for key, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: {key} must be a table ([{key}]), got {value!r}")
     table: dict[str, Any] = dict(data.get("convoy", {}))
-    for key in ("v2v", "safety"):
+    for key in ("v2v", "safety", "channel"):
         if key in data:
             if key in table:
                 raise ConfigError(f"{path}: {key} given twice ([{key}] and convoy.{key})")
@@ -163,4 +214,16 @@ def load_convoy(path: str | Path) -> ConvoyConfig:
     keys = Path(str(v2v.get("keys") or Path(path).with_suffix(".keys").name))
     v2v["keys"] = str(keys if keys.is_absolute() else Path(path).parent / keys)
     table["v2v"] = v2v
+    # A preset file named relative to the convoy file (as fit-plant --out-convoy writes).
+    here = Path(path).parent
+    for key in ("vehicles", "plants"):
+        listed = table.get(key)
+        if isinstance(listed, list):
+            table[key] = [
+                str(here / v)
+                if isinstance(v, str) and v.endswith(".toml") and not Path(v).is_absolute()
+                and not Path(v).is_file() and (here / v).is_file()
+                else v
+                for v in listed
+            ]  # fmt: skip
     return from_dict(ConvoyConfig, table, str(path))

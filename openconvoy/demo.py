@@ -170,6 +170,15 @@ def write_convoy_toml(
     )
 
 
+PX4_HEADING_BIAS_MAX_DEG = 10.0
+"""The simulated PX4s' EKF heading error is drawn within +- this (deg), per vehicle (its
+seed): sitl-px4 shows +0.7..+5.8° per heading-step leg and a convoy leader at -11°."""
+
+
+PX4_CLOCK_RATIO = 0.990
+"""The simulated PX4s' clock, seconds per real second: the recorded SIH's."""
+
+
 def sim_vehicle_configs(
     init: Any,
     origin: Any,
@@ -318,6 +327,10 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             init_s=INIT_S,
             rc_mode_switch=True,
             boot_on_connect=True,
+            # PX4's EKF heading stays off by up to ~10° for a run (shared/AUTOPILOTS.md).
+            heading_bias_max_deg=PX4_HEADING_BIAS_MAX_DEG if opts.autopilot == "px4" else 0.0,
+            # and SIH's clock runs at 0.990 of real time (sitl-px4 README, row 24).
+            px4_clock_ratio=PX4_CLOCK_RATIO if opts.autopilot == "px4" else None,
         )
         urls = []
         for vehicle, url in start_local_sim_vehicles(configs):
@@ -521,10 +534,17 @@ def compare_with_sim(
     origin: tuple[float, float, float],
 ) -> dict[str, Any]:
     """Metrics of the deploy run (trimmed to the leader's window) and of the pure
-    simulation, and their comparison (``experiments.compare``: B = deploy, A = sim)."""
+    simulation, and their comparison (``experiments.compare``: B = deploy, A = sim). The
+    pure simulation's links delay messages as the deploys' V2V did (``fit_channel`` of the
+    deploy logs: the phases between their loops), so both see messages equally old."""
     from openconvoy.core.metrics import compute_metrics
+    from openconvoy.experiments.calibration import (
+        fit_channel,
+        median_telemetry_age,
+        message_ages_at_first_use,
+    )
     from openconvoy.experiments.compare import Side, compare
-    from openconvoy.experiments.runs import RunConfig, run_sim
+    from openconvoy.experiments.runs import LossSection, RunConfig, run_sim
     from openconvoy.logs import read_log
 
     meta = json.loads((deploy_dir / "vehicle_0.json").read_text())
@@ -532,6 +552,9 @@ def compare_with_sim(
     if t_start is None:
         raise RuntimeError("the leader never started driving")
     log = trim_to_run(read_log(deploy_dir), float(t_start), duration)
+    ids = sorted(int(v) for v in np.unique(log["vehicle_id"]))
+    # The simulated vehicles' clocks are the host's: their telemetry age is staleness.
+    channel = fit_channel(log, {v: median_telemetry_age(log, v) for v in ids})
     sim = run_sim(
         RunConfig(
             scenario="paper",
@@ -540,9 +563,23 @@ def compare_with_sim(
             seed=0,
             duration_s=duration,
             origin=origin,
+            loss=LossSection(
+                latency_samples_s=channel.latency_samples_s,
+                link_latency_s=channel.link_latency_s,
+                stamp_error_s=channel.stamp_error_s,
+                stamp_drift=channel.stamp_drift,
+            ),
         ),
         out_dir=sim_dir,
     )
+    ages = {
+        side: {
+            str(v): float(np.median(message_ages_at_first_use(lg, v)))
+            for v in ids
+            if v > 0 and len(message_ages_at_first_use(lg, v))
+        }
+        for side, lg in (("deploy", log), ("sim", sim.log))
+    }
     deploy_metrics = compute_metrics(log, sim.lengths)
     a = Side(sim_dir, "run", metrics=sim.metrics)
     b = Side(deploy_dir, "run", metrics=deploy_metrics)
@@ -556,4 +593,5 @@ def compare_with_sim(
         "sim_dir": str(sim_dir),
         "t_start_s": t_start,
         "duration_s": duration,
+        "first_use_message_age_s": ages,
     }

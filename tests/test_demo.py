@@ -71,6 +71,11 @@ def test_demo_convoy_matches_the_pure_simulation(tmp_path):
     assert abs(dep["p95_platooning_error_m"] - sim["p95_platooning_error_m"]) <= 0.5, (dep, sim)
     assert dep["collisions"] == 0 and sim["collisions"] == 0
     assert dep["min_gap_m"] > 13.0
+    # The pure simulation's links delay messages as the deploys' multicast did: each
+    # follower first uses its predecessor's messages equally old in both (issue 27).
+    ages = report["first_use_message_age_s"]
+    for vid in ("1", "2"):
+        assert abs(ages["sim"][vid] - ages["deploy"][vid]) < 0.005, ages
     for vid in ("1", "2"):
         ph = report["speed_phases"][vid]
         assert ph["leader_phase_mps"] == [1.0, 2.0, 1.0]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from openconvoy.convoy import ConvoyConfig, SafetyConfig, V2VConfig
+from openconvoy.convoy import ChannelConfig, ConvoyConfig, SafetyConfig, V2VConfig
 from openconvoy.core import observation as ob
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.envs.reward import RewardConfig
@@ -86,9 +86,9 @@ def test_action_reward_and_convoy_file_tables_follow_the_code(hook) -> None:
     keys = [r[0].strip("`") for r in convoy]
     expected = [
         f.name
-        for cls in (ConvoyConfig, V2VConfig, SafetyConfig)
+        for cls in (ConvoyConfig, V2VConfig, SafetyConfig, ChannelConfig)
         for f in dataclasses.fields(cls)
-        if f.name not in ("v2v", "safety")
+        if f.name not in ("v2v", "safety", "channel")
     ]
     assert keys == expected
     port = next(r for r in convoy if r[0] == "`port`")

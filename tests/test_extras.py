@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from openconvoy.cli import EXTRAS, missing_extra
+from tests.firmware_runs import unpack
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -80,7 +81,8 @@ def test_a_command_without_its_extra_names_the_extra_in_one_line(
     (tmp_path / "c.toml").write_text(
         '[convoy]\nname = "lab"\nvehicles = ["1/10", "1/6"]\norigin = [28.6, -81.2, 0.0]\n'
     )
-    data = REPO / "tests" / "data" / "sitl" / "convoy"
+    data = tmp_path / "data"
+    unpack("vx-fixed-1", data)
     argv = [a.replace("{data}", str(data)) for a in argv]
     r = run_without(extra_packages(extra), *argv, cwd=tmp_path)
     assert r.returncode == 2, (r.stdout, r.stderr)

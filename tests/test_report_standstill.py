@@ -6,8 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from openconvoy.cli import main
-
-CONVOY = Path(__file__).resolve().parent / "data" / "sitl" / "convoy"
+from tests.firmware_runs import unpack
 
 
 def _standstill_copy(src: Path, dst: Path) -> Path:
@@ -28,7 +27,7 @@ def _standstill_copy(src: Path, dst: Path) -> Path:
 
 
 def test_report_warns_when_no_vehicle_moved(tmp_path, capsys):
-    still = _standstill_copy(CONVOY / "vx-fixed-1", tmp_path / "still")
+    still = _standstill_copy(unpack("vx-fixed-1", tmp_path), tmp_path / "still")
     assert main(["report", str(still), "--out", str(tmp_path / "m.json")]) == 0
     err = capsys.readouterr().err.strip().splitlines()
     warnings = [ln for ln in err if ln.startswith("warning: no vehicle moved")]
@@ -36,5 +35,6 @@ def test_report_warns_when_no_vehicle_moved(tmp_path, capsys):
 
 
 def test_report_does_not_warn_for_a_convoy_that_drove(tmp_path, capsys):
-    assert main(["report", str(CONVOY / "vx-fixed-1"), "--out", str(tmp_path / "m.json")]) == 0
+    run = unpack("vx-fixed-1", tmp_path)
+    assert main(["report", str(run), "--out", str(tmp_path / "m.json")]) == 0
     assert "no vehicle moved" not in capsys.readouterr().err

@@ -312,6 +312,7 @@ def convoy_file() -> str:
         ("convoy", cv.ConvoyConfig),
         ("v2v", cv.V2VConfig),
         ("safety", cv.SafetyConfig),
+        ("channel", cv.ChannelConfig),
     ):
         hints = typing.get_type_hints(cls, include_extras=True)
         out += [

@@ -187,18 +187,75 @@ class GilbertElliott:
         self._bad = bool(counter_uniform(self.key, n, GE_ADVANCE) < p_bad)
 
 
+def quantile_delay(samples: tuple[float, ...] | list[float], u: float) -> float:
+    """The delay (s) at probability ``u`` in [0, 1) of the empirical distribution whose
+    sorted quantiles at probabilities 0, 1/(n-1), ..., 1 are ``samples``: linear between
+    neighbours (the inverse of a piecewise-linear CDF; ``envs.vector.channel`` compiles the
+    same arithmetic)."""
+    n = len(samples)
+    if n == 1:
+        return float(samples[0])
+    pos = u * (n - 1)
+    k = int(pos)
+    if k >= n - 1:
+        return float(samples[n - 1])
+    return samples[k] + (pos - k) * (samples[k + 1] - samples[k])
+
+
 @dataclass(frozen=True)
 class Latency:
-    """Delivery delay: ``base_s`` plus a uniform jitter in [0, ``jitter_s``], seconds."""
+    """Delivery delay, seconds: ``base_s`` plus either a uniform jitter in [0, ``jitter_s``]
+    or, when ``samples_s`` is given, a draw from that empirical distribution (sorted
+    quantiles, as ``fit-plant`` fits from a vehicle run's message ages; ``quantile_delay``).
+    The delay is continuous: the simulated channel delivers at the next tick and advances
+    the message by the rest, so a message's age at first use is the drawn delay.
+
+    ``stamp_error_s`` + ``stamp_drift`` x t (s, at send time t): how far the senders' clocks
+    run behind, so every message claims to be that much older than it is and receivers
+    dead-reckon it too far (the vehicle runs' own clock error: a loaded SITL host whose
+    autopilot clocks fell behind 4 ms/s, shared/sitl/convoy vx-fixed-per0.3)."""
 
     base_s: float = 0.0
     jitter_s: float = 0.0
+    samples_s: tuple[float, ...] = ()
+    stamp_error_s: float = 0.0
+    stamp_drift: float = 0.0
+
+    @property
+    def instant(self) -> bool:
+        """Whether every message arrives when it is sent, stamped true."""
+        return (
+            self.base_s <= 0.0
+            and self.jitter_s <= 0.0
+            and not any(self.samples_s)
+            and not self.stamped_off
+        )
+
+    @property
+    def stamped_off(self) -> bool:
+        """Whether messages carry a clock error."""
+        return self.stamp_error_s != 0.0 or self.stamp_drift != 0.0
+
+    def stamp_error(self, t: float) -> float:
+        """The senders' clock error (s) at send time ``t`` (s)."""
+        return self.stamp_error_s + self.stamp_drift * t
+
+    @property
+    def max_s(self) -> float:
+        """The longest delay a message can get (s)."""
+        return self.base_s + (max(self.samples_s) if self.samples_s else self.jitter_s)
+
+    def from_uniform(self, u: float) -> float:
+        """The delay (s) for a uniform draw ``u`` in [0, 1)."""
+        if self.samples_s:
+            return self.base_s + quantile_delay(self.samples_s, u)
+        return self.base_s + u * self.jitter_s
 
     def delay(self, rng: np.random.Generator) -> float:
         """Draw one packet's delay, seconds."""
-        if self.jitter_s <= 0.0:
+        if self.jitter_s <= 0.0 and not self.samples_s:
             return self.base_s
-        return self.base_s + float(rng.random()) * self.jitter_s
+        return self.from_uniform(float(rng.random()))
 
 
 @dataclass(frozen=True)
@@ -206,7 +263,11 @@ class LossConfig:
     """Typed description of a link's loss and latency, as written in configs.
 
     ``model`` is ``"bernoulli"`` or ``"gilbert-elliott"``; ``mean_burst_s`` applies to
-    the latter.
+    the latter. ``latency_samples_s``: an empirical delay distribution (quantiles, s) that
+    replaces the uniform jitter (``Latency``); sorted on construction. ``stamp_error_s``,
+    ``stamp_drift``: the senders' clock error (``Latency``). ``link_latency_s``: per link
+    ``[sender, receiver, quantile, ...]``, that link's own delay distribution (the others
+    keep the common one): on vehicles each link's delay is the phase between two loops.
     """
 
     per: float = 0.0
@@ -214,14 +275,56 @@ class LossConfig:
     mean_burst_s: float = 1.0
     latency_s: float = 0.0
     jitter_s: float = 0.0
+    latency_samples_s: tuple[float, ...] = ()
+    stamp_error_s: float = 0.0
+    stamp_drift: float = 0.0
+    link_latency_s: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
+        links = tuple(tuple(float(v) for v in e) for e in self.link_latency_s)
+        seen = set()
+        for e in links:
+            if (
+                len(e) < 3
+                or e[0] != int(e[0])
+                or e[1] != int(e[1])
+                or e[0] == e[1]
+                or min(e[:2]) < 0
+            ):
+                raise ConfigError(
+                    "link_latency_s entries are [sender, receiver, delay quantile s, ...] "
+                    f"with two different vehicle indices, got {list(e)}"
+                )
+            if e[:2] in seen:
+                raise ConfigError(f"link_latency_s: link {int(e[0])} -> {int(e[1])} given twice")
+            seen.add(e[:2])
+            if any(not (math.isfinite(v) and 0.0 <= v <= 60.0) for v in e[2:]):
+                raise ConfigError(
+                    f"link_latency_s: delays must be seconds in [0, 60], got {list(e)}"
+                )
+        object.__setattr__(
+            self, "link_latency_s", tuple((e[0], e[1], *sorted(e[2:])) for e in links)
+        )
+        if not (math.isfinite(self.stamp_error_s) and abs(self.stamp_error_s) <= 60.0):
+            raise ConfigError(
+                f"stamp_error_s must be seconds in [-60, 60], got {self.stamp_error_s}"
+            )
+        if not (math.isfinite(self.stamp_drift) and abs(self.stamp_drift) <= 0.1):
+            raise ConfigError(f"stamp_drift must be in [-0.1, 0.1] s/s, got {self.stamp_drift}")
         if self.model not in ("bernoulli", "gilbert-elliott"):
             raise ConfigError(
                 f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
             )
         if not 0.0 <= self.per <= 1.0:
             raise ConfigError(f"per must be in [0, 1], got {self.per}")
+        samples = tuple(float(v) for v in self.latency_samples_s)
+        if any(not (math.isfinite(v) and 0.0 <= v <= 60.0) for v in samples):
+            raise ConfigError(
+                f"latency samples must be seconds in [0, 60], got {list(self.latency_samples_s)}"
+            )
+        if samples and self.jitter_s > 0.0:
+            raise ConfigError("give either a latency jitter or latency samples, not both")
+        object.__setattr__(self, "latency_samples_s", tuple(sorted(samples)))
 
     def make(self) -> LossModel:
         """A fresh loss model for one link."""
@@ -231,9 +334,24 @@ class LossConfig:
             return Bernoulli(self.per)
         return GilbertElliott.from_per(self.per, self.mean_burst_s)
 
+    def link_latency(self, sender: int, receiver: int) -> Latency:
+        """The delay model of the link ``sender -> receiver`` (``link_latency_s`` or the
+        common one)."""
+        base = self.latency
+        for e in self.link_latency_s:
+            if int(e[0]) == sender and int(e[1]) == receiver:
+                return Latency(base.base_s, 0.0, tuple(e[2:]), base.stamp_error_s, base.stamp_drift)
+        return base
+
     @property
     def latency(self) -> Latency:
-        return Latency(self.latency_s, self.jitter_s)
+        return Latency(
+            self.latency_s,
+            self.jitter_s,
+            self.latency_samples_s,
+            self.stamp_error_s,
+            self.stamp_drift,
+        )
 
 
 def as_loss_config(loss: LossConfig | float | None = None, per: float | None = None) -> LossConfig:

@@ -4,6 +4,11 @@ Every ordered (sender, receiver) pair is a link with its own loss model, made fr
 ``LossConfig`` (independent per receiver, as radio receptions are), and its own latency
 draws. A broadcast offered at ``t_send`` reaches each receiver whose link did not drop it at
 ``t_send + delay``; ``deliver(now)`` hands out everything due by ``now`` in arrival order.
+The delay is continuous, not whole ticks: a message that arrived ``d`` seconds before the
+tick that delivers it is first ``advance``d by ``d`` (``advance_state``: as if the sender
+had sampled its state ``d`` later, which is what unsynchronised control loops on real
+vehicles do), so its age at first use is the delay drawn, as message ages measured on
+vehicles are (phase between the loops + the link; ``fit-plant`` fits their distribution).
 The loss models are the shared classes of ``openconvoy.comms.loss`` that vehicles apply at
 the receiver with ``deploy --per``. All randomness comes from the Generator given to
 ``reset``, so a seed fixes the run. Bernoulli losses and latency jitter are counter-based
@@ -15,6 +20,8 @@ reproduces them with array operations.
 from __future__ import annotations
 
 import heapq
+import math
+from collections.abc import Callable
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -29,8 +36,54 @@ from openconvoy.comms.loss import (
     counter_uniform_from,
 )
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.state import VehicleState
 
 M = TypeVar("M")
+
+ADVANCE_MIN_S = 1e-9
+"""A message is advanced only when it waited longer than this (s) for its tick: a delay
+of exactly k ticks (up to rounding) delivers the message as sent."""
+
+
+def advance_kinematics(
+    x: float, y: float, v: float, h: float, a: float, w: float, d: float
+) -> tuple[float, float, float, float]:
+    """A state moved on by ``d`` seconds at constant acceleration ``a`` (m/s², stopping at
+    zero speed) and yaw rate ``w`` (rad/s): ``(x, y, speed, heading)`` in m, m/s, rad (ENU,
+    heading wrapped to [-pi, pi)). ``envs.vector.channel`` compiles the same arithmetic."""
+    v1 = v + a * d
+    if (v > 0.0 and v1 < 0.0) or (v < 0.0 and v1 > 0.0):
+        v1 = 0.0
+    dist = 0.5 * (v + v1) * d
+    h_mid = h + 0.5 * w * d
+    return (
+        x + dist * math.cos(h_mid),
+        y + dist * math.sin(h_mid),
+        v1,
+        (h + w * d + math.pi) % (2.0 * math.pi) - math.pi,
+    )
+
+
+def advance_state(st: VehicleState, d: float, stamp_error: float = 0.0) -> VehicleState:
+    """``st`` as its sender would have sent it ``d`` seconds later (``advance_kinematics``),
+    stamped ``stamp_error`` seconds early (its clock running behind)."""
+    if d > ADVANCE_MIN_S:
+        x, y, v, h = advance_kinematics(st.x, st.y, st.speed, st.heading, st.accel, st.yaw_rate, d)
+    else:
+        d, x, y, v, h = 0.0, st.x, st.y, st.speed, st.heading
+    return VehicleState(
+        st.vehicle_id,
+        st.t + d - stamp_error,
+        x,
+        y,
+        v,
+        h,
+        st.accel,
+        st.yaw_rate,
+        st.length,
+        st.width,
+    )
+
 
 DRAW_LOSS, DRAW_JITTER = 0, 1
 """Purpose words of the channel's counter-based draws."""
@@ -50,7 +103,12 @@ class Channel(Generic[M]):
     the link ``s -> r`` dropped. ``delivered_to[r]``, ``lost_to[r]``: per-receiver totals.
     """
 
-    def __init__(self, n_vehicles: int, loss: LossConfig | None = None) -> None:
+    def __init__(
+        self,
+        n_vehicles: int,
+        loss: LossConfig | None = None,
+        advance: Callable[[M, float, float], M] | None = None,
+    ) -> None:
         if n_vehicles < 1:
             raise ConfigError(f"a channel needs at least one vehicle, got {n_vehicles}")
         self.n = n_vehicles
@@ -68,9 +126,18 @@ class Channel(Generic[M]):
             self._bernoulli_per = 0.0
         elif isinstance(probe, Bernoulli):
             self._bernoulli_per = probe.per
-        self._instant = self._latency.base_s <= 0.0 and self._latency.jitter_s <= 0.0
+        # Each link's delay model (its own distribution, or the common one).
+        self._lat = [
+            [self.config.link_latency(s, r) for r in range(n_vehicles)] for s in range(n_vehicles)
+        ]
+        self._instant = all(
+            self._lat[s][r].instant for s in range(n_vehicles) for r in range(n_vehicles) if r != s
+        )
+        self._advance = advance
+        # Messages carry their clock error from the send (the advance applies it).
+        self._stamped = self._latency.stamped_off and advance is not None
         self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
-        self._queue: list[tuple[float, int, int, int, M]] = []
+        self._queue: list[tuple[float, int, int, int, M, float]] = []
         self._ready: list[tuple[int, int, M]] = []
         self.reset(np.random.default_rng(0))
 
@@ -149,13 +216,16 @@ class Channel(Generic[M]):
         if self._instant:
             self._ready.extend((r, sender, msg) for r in receivers)
             return
-        lat = self._latency
+        lats = self._lat[sender]
         for r in receivers:
-            arrival = t + lat.base_s
-            if lat.jitter_s > 0.0:
+            lat = lats[r]
+            if lat.jitter_s > 0.0 or lat.samples_s:
                 state = self._link_state[sender][r - (r > sender)]
-                arrival += counter_uniform_from(state, number, DRAW_JITTER) * lat.jitter_s
-            heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg))
+                arrival = t + lat.from_uniform(counter_uniform_from(state, number, DRAW_JITTER))
+            else:
+                arrival = t + lat.base_s
+            err = lat.stamp_error(t) if self._stamped else 0.0
+            heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg, err))
             self._seq += 1
 
     def _draw_block(self, sender: int, first: int) -> list[list[bool]]:
@@ -167,15 +237,20 @@ class Channel(Generic[M]):
         return (u < self._bernoulli_per).tolist()
 
     def deliver(self, now: float) -> list[tuple[int, int, M]]:
-        """Messages due by ``now`` (s), as ``(receiver, sender, msg)`` in arrival order."""
+        """Messages due by ``now`` (s), as ``(receiver, sender, msg)`` in arrival order;
+        with an ``advance`` function each is advanced by how long it waited for ``now``."""
         out = self._ready
         self._ready = []
         q = self._queue
         if q:
             # A small epsilon so a delay of exactly k control periods lands on tick k.
             due = now + 1e-9
+            advance = self._advance
             while q and q[0][0] <= due:
-                _, _, r, s, msg = heapq.heappop(q)
+                arrival, _, r, s, msg, err = heapq.heappop(q)
+                waited = now - arrival
+                if advance is not None and (waited > ADVANCE_MIN_S or err != 0.0):
+                    msg = advance(msg, waited, err)
                 out.append((r, s, msg))
         delivered, delivered_to = self._delivered, self.delivered_to
         for r, s, _ in out:

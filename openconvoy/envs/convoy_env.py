@@ -115,6 +115,9 @@ class ConvoyEnv(ParallelEnv):
             observe and broadcast (metres, per axis); 0 = exact.
         max_time_s: episode length (default: the scenario's duration).
         render_mode: None or ``"rgb_array"``.
+        plant_presets: the vehicles as they drive, when they differ from the presets
+            the members and the scenario know (``fit-plant --convoy``'s fitted plants;
+            docs/calibration.md); default: the same.
         vehicle_presets: replace the scenario's vehicles (names, TOML paths or presets,
             leader first); sets the convoy size.
         reward_config: weights of the reward (``openconvoy.envs.reward``).
@@ -165,6 +168,7 @@ class ConvoyEnv(ParallelEnv):
         emergency_stop: bool = True,
         auth: bool = True,
         per: float | None = None,
+        plant_presets: Sequence[VehiclePreset | str] | None = None,
     ) -> None:
         check_rate_and_noise(control_rate_hz, gps_noise_m)
         if render_mode not in (None, "rgb_array"):
@@ -194,6 +198,9 @@ class ConvoyEnv(ParallelEnv):
             gap_margin_m,
             bool(emergency_stop),
             bool(auth),
+            plant_presets=None
+            if plant_presets is None
+            else [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in plant_presets],
         )
         """The simulated convoy (``envs.world.ConvoyWorld``)."""
         self.possible_agents = [agent_name(i) for i in range(1, n)]

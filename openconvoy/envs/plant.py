@@ -38,6 +38,20 @@ at 20 Hz Euler steps its stop logic would miss the zero crossing (-0.40 m/s unde
 from 5 m/s instead of the firmware's -0.10)."""
 
 
+def pi_delay_split(delay_s: float, dt: float) -> tuple[int, int, float, int, float]:
+    """A ``pi`` loop's speed delay, not rounded to ticks: ``(k, n1, h1, n2, h2)``. During
+    a tick the setpoint sent k + 1 ticks ago acts for the first ``n1`` substeps of ``h1``
+    seconds, then the one sent k ticks ago for ``n2`` substeps of ``h2`` (substeps of at
+    most ``PI_MAX_DT_S``; ``n1`` = 0 when the delay is whole ticks)."""
+    k = int(math.floor(delay_s / dt + 1e-9))
+    frac = max(0.0, delay_s - k * dt)
+    if frac < 1e-9 or frac > dt - 1e-9:
+        k, frac = (k + 1, 0.0) if frac > dt - 1e-9 else (k, 0.0)
+    n1 = math.ceil(frac / PI_MAX_DT_S - 1e-9) if frac > 0.0 else 0
+    n2 = max(1, math.ceil((dt - frac) / PI_MAX_DT_S - 1e-9))
+    return k, n1, (frac / n1 if n1 else 0.0), n2, (dt - frac) / n2
+
+
 class BicyclePlant:
     """``n`` vehicles stepped together with a fixed time step ``dt`` (s).
 
@@ -96,9 +110,24 @@ class BicyclePlant:
         self._yaw_acc = col("yaw_accel_max_radps2")
         self._alat = col("lateral_accel_max_mps2")
         steps = lambda delays: np.array([int(round(d / dt)) for d in delays], dtype=int)  # noqa: E731
-        self._delay_steps = steps(p.actuation_delay_s for p in self.presets)
         self._hdelay_steps = steps(p.heading_delay for p in self.presets)
-        self._depth = int(max(self._delay_steps.max(), self._hdelay_steps.max())) + 1 if n else 1
+        # The pi loop's speed delay is not whole ticks (``pi_delay_split``); the lag
+        # loop's is rounded to ticks.
+        whole = (0, 0.0, self._pi_sub, dt / self._pi_sub)
+        split = [
+            pi_delay_split(p.actuation_delay_s, dt)
+            if p.speed_loop == "pi"
+            else (int(round(p.actuation_delay_s / dt)), *whole)
+            for p in self.presets
+        ]
+        self._delay_steps = np.array([x[0] for x in split], dtype=int)
+        self._sub_n1 = np.array([x[1] for x in split], dtype=int)
+        self._sub_h1 = np.array([x[2] for x in split], dtype=float)
+        self._sub_n2 = np.array([x[3] for x in split], dtype=int)
+        self._sub_h2 = np.array([x[4] for x in split], dtype=float)
+        self._depth = (
+            int(max(self._delay_steps.max() + 1, self._hdelay_steps.max())) + 1 if n else 1
+        )
 
     def _scalar_copies(self) -> None:
         """The scalar step's copies of the parameters and of the setpoint queue."""
@@ -115,6 +144,14 @@ class BicyclePlant:
                 self._delay_steps.tolist(),
                 self._hdelay_steps.tolist(),
                 self._pi.tolist(),
+                list(
+                    zip(
+                        self._sub_n1.tolist(),
+                        self._sub_h1.tolist(),
+                        self._sub_n2.tolist(),
+                        self._sub_h2.tolist(),
+                    )
+                ),
                 self._brk.tolist(),
                 self._yaw_acc.tolist(),
                 self._alat.tolist(),
@@ -180,6 +217,9 @@ class BicyclePlant:
         slot_v = (self._head - self._delay_steps) % self._depth
         slot_h = (self._head - self._hdelay_steps) % self._depth
         v_cmd = np.clip(self._queue_v[slot_v, self._idx], -self._vmax, self._vmax)
+        v_before = np.clip(
+            self._queue_v[(slot_v - 1) % self._depth, self._idx], -self._vmax, self._vmax
+        )
         h_cmd = self._queue_h[slot_h, self._idx]
         self._head = (self._head + 1) % self._depth
 
@@ -191,7 +231,7 @@ class BicyclePlant:
         if self._brk.any():  # static friction holds a vehicle at rest
             dv = np.where((v == 0.0) & (np.abs(v_cmd) < self._brk), 0.0, dv)
         if self._any_pi:
-            dv = np.where(self._pi, self._pi_dv(v_cmd), dv)
+            dv = np.where(self._pi, self._pi_dv(v_cmd, v_before), dv)
         v_new = v + dv
 
         # Heading: lag towards the setpoint, clipped by turn rate, slewed by the yaw
@@ -213,12 +253,20 @@ class BicyclePlant:
         self.yaw_rate = rate
         self.speed = v_new
 
-    def _pi_dv(self, v_cmd: np.ndarray) -> np.ndarray:
-        """The ``pi`` speed loop's speed change over one step (numpy; updates its state)."""
-        h = self.dt / self._pi_sub
+    def _pi_dv(self, v_cmd: np.ndarray, v_before: np.ndarray) -> np.ndarray:
+        """The ``pi`` speed loop's speed change over one step (numpy; updates its state):
+        ``v_before`` (the setpoint a tick older) acts for the first substeps
+        (``pi_delay_split``)."""
         v0 = v = self.speed
         r, integ = self._ramp, self._integ
-        for _ in range(self._pi_sub):
+        v_now = v_cmd
+        n1, n2 = self._sub_n1, self._sub_n2
+        for j in range(int((n1 + n2).max())):
+            first = j < n1
+            active = j < n1 + n2
+            h = np.where(first, self._sub_h1, np.where(active, self._sub_h2, 0.0))
+            v_cmd = np.where(first, v_before, v_now)
+            r_old, integ_old, v_old = r, integ, v
             # Ramp the setpoint: the accel limit speeding up, the decel limit slowing down.
             lim = np.where(np.abs(v_cmd) > np.abs(r), self._acc, self._dec) * h
             r = r + np.clip(v_cmd - r, -lim, lim)
@@ -231,6 +279,9 @@ class BicyclePlant:
             # and a stopped vehicle (drive cut) comes to rest rather than coasting on.
             stuck = (np.abs(drive) < self._brk) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
             v = np.where(stuck, 0.0, v + dv)
+            r, integ, v = (
+                np.where(active, a, b) for a, b in ((r, r_old), (integ, integ_old), (v, v_old))
+            )
         self._ramp = np.where(self._pi, r, self._ramp)
         self._integ = np.where(self._pi, integ, self._integ)
         return v - v0
@@ -238,8 +289,6 @@ class BicyclePlant:
     def _step_scalar(self, cmd_speed: Sequence[float], cmd_heading: Sequence[float]) -> None:
         """``step`` on Python floats, the same equations vehicle by vehicle."""
         dt, depth, head = self.dt, self._depth, self._head
-        n_sub = self._pi_sub
-        h_sub = dt / n_sub
         self._qv[head] = [float(v) for v in cmd_speed]
         self._qh[head] = [float(h) for h in cmd_heading]
         self._head = (head + 1) % depth
@@ -258,6 +307,7 @@ class BicyclePlant:
             delay,
             hdelay,
             is_pi,
+            substeps,
             brk,
             yaw_acc,
             alat,
@@ -266,9 +316,11 @@ class BicyclePlant:
             v_cmd = min(max(self._qv[(head - delay) % depth][i], -vmax), vmax)
             v = vs[i]
             if is_pi:
+                v_before = min(max(self._qv[(head - delay - 1) % depth][i], -vmax), vmax)
                 vs_, ramp[i], integ[i] = _pi_scalar(
-                    v_cmd, v, ramp[i], integ[i], self._pi_params[i], acc, dec, brk, n_sub, h_sub
-                )
+                    v_cmd, v, ramp[i], integ[i], self._pi_params[i], acc, dec, brk, v_before,
+                    substeps,
+                )  # fmt: skip
                 dv = vs_ - v
             else:
                 dv = _lag_dv_scalar(v_cmd, v, tau_v, acc, dec, brk, dt)
@@ -337,14 +389,19 @@ def _pi_scalar(
     acc: float,
     dec: float,
     brk: float,
-    n_sub: int,
-    h_sub: float,
+    v_before: float,
+    substeps: tuple[int, float, int, float],
 ) -> tuple[float, float, float]:
     """One step of the ``pi`` speed loop for one vehicle on floats (``_pi_dv``'s
-    equations): the new speed, ramped setpoint and integrator."""
+    equations): the new speed, ramped setpoint and integrator; ``v_before`` acts for the
+    first ``n1`` substeps of ``h1`` s, ``v_cmd`` for the next ``n2`` of ``h2``
+    (``substeps``, from ``pi_delay_split``)."""
     kp, ki, ff, tau_d, stop, drag = pi_params
     vs_ = v
-    for _ in range(n_sub):
+    v_now = v_cmd
+    n1, h1, n2, h2 = substeps
+    for j in range(n1 + n2):
+        v_cmd, h_sub = (v_before, h1) if j < n1 else (v_now, h2)
         lim = (acc if abs(v_cmd) > abs(r) else dec) * h_sub
         r += min(max(v_cmd - r, -lim), lim)
         err = r - vs_

@@ -29,17 +29,19 @@ import numpy as np
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core import tick as member_tick
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_faults
 from openconvoy.core.member import ConvoyMember, Frame, MemberConfig
 from openconvoy.core.ranging import range_and_rate
 from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
 from openconvoy.core.state import VehicleState
-from openconvoy.envs.channel import Channel
+from openconvoy.envs.channel import Channel, advance_state
 from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.gps import gps_key, gps_noise, vehicle_states
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.ranging_noise import ranging_key, ranging_normals
 from openconvoy.envs.scenarios import Scenario
+from openconvoy.envs.vehicles import VehiclePreset
 from openconvoy.logs import TickSnapshot
 
 Ranging = member_tick.Ranging
@@ -118,6 +120,7 @@ class ConvoyWorld:
         gap_margin_m: float | None = None,
         emergency_stop: bool = True,
         auth: bool = True,
+        plant_presets: Sequence[VehiclePreset] | None = None,
     ) -> None:
         self.scenario = scenario
         self.presets = tuple(scenario.presets)
@@ -140,8 +143,15 @@ class ConvoyWorld:
             )
             for p in self.presets[1:]
         ]
-        self.plant = BicyclePlant(self.presets, dt)
-        self.channel: Channel[VehicleState] = Channel(n, loss)
+        # The vehicles as they drive (``plant_presets``: fitted to a vehicle run) may differ
+        # from the presets the members, the safety rules and the scenario know (the ones
+        # the vehicles were deployed with): calibration (docs/calibration.md).
+        if plant_presets is not None and len(plant_presets) != n:
+            raise ConfigError(
+                f"plant_presets: {len(plant_presets)} given for a convoy of {n} vehicles"
+            )
+        self.plant = BicyclePlant(plant_presets or self.presets, dt)
+        self.channel: Channel[VehicleState] = Channel(n, loss, advance_state)
         self.ranging_sensors = [
             (i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging
         ]

@@ -25,8 +25,10 @@ def run_args(p: argparse.ArgumentParser, sweep: bool) -> None:
     p.add_argument(
         "--loss",
         choices=("bernoulli", "gilbert-elliott"),
-        default=None if sweep else "bernoulli",
-        help="loss model of every link (default bernoulli)",
+        default=None,
+        help="loss model of every link (default bernoulli"
+        + ("" if sweep else "; or the convoy file's [channel] model")
+        + ")",
     )
     p.add_argument(
         "--burst",
@@ -116,7 +118,12 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
         metavar="SPEC",
         help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz",
     )
-    p.add_argument("--per", type=FRACTION, default=0.0, help="packet error rate 0..1 (default 0)")
+    p.add_argument(
+        "--per",
+        type=FRACTION,
+        default=None,
+        help="packet error rate 0..1 (default: the convoy file's [channel] per, else 0)",
+    )
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument(
         "--out", default="runs/sim", metavar="DIR", help="output directory (default runs/sim)"
@@ -140,14 +147,18 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
 def _sim_world_args(p: argparse.ArgumentParser) -> None:
     """``sim``'s link delays, GPS noise, faults and authentication."""
     p.add_argument(
-        "--latency", type=_num(0.0, 60.0), default=0.0, metavar="S", help="delivery delay, seconds"
+        "--latency",
+        type=_num(0.0, 60.0),
+        default=None,
+        metavar="S",
+        help="delivery delay, seconds, continuous (default: the convoy file's [channel], else 0)",
     )
     p.add_argument(
         "--jitter",
         type=_num(0.0, 60.0),
-        default=0.0,
+        default=None,
         metavar="S",
-        help="uniform delay jitter, seconds",
+        help="uniform delay jitter, seconds (default: the convoy file's [channel], else 0)",
     )
     p.add_argument(
         "--gps-noise",
@@ -317,8 +328,21 @@ def _add_fit_plant(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--name", default="fitted", help="preset name (default fitted)")
     p.add_argument(
         "--base",
-        default="1/10",
-        help="preset giving what logs cannot show: size, steering, speed cap (default 1/10)",
+        default=None,
+        help="preset giving what logs cannot show: size, steering, speed cap (default 1/10; "
+        "with --convoy the shipped preset of the run's autopilot)",
+    )
+    p.add_argument(
+        "--convoy",
+        metavar="CONVOY.toml",
+        help="calibrate a whole vehicle run (LOG_DIR, deploy logs): fit every vehicle and "
+        "the V2V channel and write --out-convoy (docs/calibration.md)",
+    )
+    p.add_argument(
+        "--out-convoy",
+        metavar="FITTED.toml",
+        help="with --convoy: the convoy file to write (presets beside it); then "
+        "sim --convoy FITTED.toml and compare LOG_DIR SIM_DIR",
     )
     p.add_argument(
         "--vehicle-id", type=_int(0, 254), help="which vehicle, when the logs hold several"

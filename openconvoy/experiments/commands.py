@@ -53,25 +53,37 @@ def format_metrics(metrics: dict[str, Any]) -> str:
 
 def run_config_from_args(args: argparse.Namespace) -> Any:
     """The RunConfig that ``openconvoy sim``'s arguments describe."""
+    from openconvoy.convoy import ChannelConfig
     from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
 
-    _check_per(args.per)
     scenario, vehicles, origin = args.scenario, tuple(args.vehicle_preset or ()), None
+    plants: tuple[str, ...] = ()
     auth = getattr(args, "auth", None)
+    channel = ChannelConfig()
     if args.convoy:
         from openconvoy.convoy import load_convoy
 
         convoy = load_convoy(args.convoy)
         scenario = scenario or convoy.scenario
+        plants = () if vehicles else convoy.plants
         vehicles = vehicles or convoy.vehicles
         origin = convoy.origin
         auth = auth or ("off" if convoy.v2v.auth == "off" else None)
-    if args.burst is not None and args.loss != "gilbert-elliott":
+        channel = convoy.channel
+    # Flags given on the command line win over the convoy file's [channel].
+    per = channel.per if args.per is None else args.per
+    _check_per(per)
+    latency = channel.latency_s if args.latency is None else args.latency
+    jitter = channel.jitter_s if args.jitter is None else args.jitter
+    samples = channel.latency_samples_s if args.jitter is None else ()
+    model = channel.model if args.loss is None else args.loss
+    if args.burst is not None and model != "gilbert-elliott":
         raise ConfigError("--burst applies to --loss gilbert-elliott")
+    burst = args.burst if args.burst is not None else channel.mean_burst_s
     return RunConfig(
         scenario=scenario or "paper",
         policy=args.policy,
-        per=args.per,
+        per=per,
         seed=args.seed,
         duration_s=args.duration,
         convoy=ConvoySection(
@@ -80,12 +92,17 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
             ranging=args.ranging,
             ranging_max_range_m=args.ranging_range,
             gps_noise_m=args.gps_noise,
+            plants=plants,
         ),
         loss=LossSection(
-            model=args.loss,
-            mean_burst_s=args.burst if args.burst is not None else 1.0,
-            latency_s=args.latency,
-            jitter_s=args.jitter,
+            model=model,
+            mean_burst_s=burst,
+            latency_s=latency,
+            jitter_s=jitter,
+            latency_samples_s=samples,
+            stamp_error_s=channel.stamp_error_s,
+            stamp_drift=channel.stamp_drift,
+            link_latency_s=channel.link_latency_s if args.jitter is None else (),
         ),
         origin=origin,
         faults=tuple(getattr(args, "fault", None) or ()),
@@ -397,7 +414,7 @@ def compare(args: argparse.Namespace) -> int:
     if args.out:
         check_output_file(args.out, "--out")
     lengths = _lengths_from_convoy(args.convoy)
-    result = cmp.compare(cmp.load_side(args.a, lengths), cmp.load_side(args.b, lengths))
+    result = cmp.compare(*cmp.load_pair(args.a, args.b, lengths))
     print(cmp.format_comparison(result))
     if args.out:
         write_json(args.out, result)

@@ -6,6 +6,12 @@ whose metrics are recomputed from its logs, or a sweep (a directory with
 when each side has a single policy, so a ``paper`` sweep compares with a
 ``paper+ladder`` one. Differences are B − A. What one side has and the other lacks (a
 policy, a PER, a follower) is listed as left out, never dropped silently.
+
+A vehicle run (deploy logs with their ``vehicle_N.json``) compared with a sim run is cut to
+the scenario's window: from the leader's start for the sim's duration (``load_pair``), so
+the armed wait before and the braking after a drive do not count on one side only. Two runs
+end with a verdict line (``calibration.verdict``): p95 platooning error, string stability and
+mean speed difference as ratios B / A, the calibration workflow's test (docs/calibration.md).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ class Side:
     kind: str
     metrics: dict[str, Any] | None = None
     rows: list[dict[str, Any]] | None = None
+    note: str = ""
 
 
 def load_side(path: str | Path, lengths: Mapping[int, float] | None = None) -> Side:
@@ -40,6 +47,25 @@ def load_side(path: str | Path, lengths: Mapping[int, float] | None = None) -> S
         return Side(p, "sweep", rows=read_summary(p))
     log = read_log(p)
     return Side(p, "run", metrics=mt.compute_metrics(log, lengths))
+
+
+def load_pair(
+    a: str | Path, b: str | Path, lengths: Mapping[int, float] | None = None
+) -> tuple[Side, Side]:
+    """Both sides; a vehicle run facing a sim run is cut to the sim's scenario window."""
+    from openconvoy.experiments.calibration import scenario_start, windowed_metrics
+
+    sa, sb = load_side(a, lengths), load_side(b, lengths)
+    if sa.kind == sb.kind == "run":
+        starts = scenario_start(a), scenario_start(b)
+        if (starts[0] is None) != (starts[1] is None):
+            sim, vehicle = (sb, sa) if starts[0] is not None else (sa, sb)
+            assert sim.metrics is not None
+            vehicle.metrics, vehicle.note = windowed_metrics(
+                vehicle.path, float(sim.metrics["duration_s"]), dict(lengths or {}) or None
+            )
+            sim.note = "whole run"
+    return sa, sb
 
 
 def _diff(a: float, b: float) -> float:
@@ -72,13 +98,18 @@ def compare(a: Side, b: Side) -> dict[str, Any]:
             side: sorted(set(mine["per_follower"]) - set(other["per_follower"]), key=int)
             for side, mine, other in (("a", a.metrics, b.metrics), ("b", b.metrics, a.metrics))
         }
+        from openconvoy.experiments.calibration import verdict
+
         return {
             "kind": "run",
             "a": str(a.path),
             "b": str(b.path),
+            "window_a": a.note,
+            "window_b": b.note,
             "metrics": out,
             "per_follower": per_f,
             "left_out": {side: [f"follower {f}" for f in fs] for side, fs in only.items()},
+            "verdict": verdict(a.metrics, b.metrics),
         }
     assert a.rows is not None and b.rows is not None
     pol_a = {r["policy"] for r in a.rows}
@@ -135,6 +166,11 @@ def format_comparison(result: dict[str, Any]) -> str:
 def _table(result: dict[str, Any]) -> str:
     lines = [f"A: {result['a']}", f"B: {result['b']}"]
     if result["kind"] == "run":
+        from openconvoy.experiments.calibration import format_verdict
+
+        for side in ("a", "b"):
+            if result.get(f"window_{side}"):
+                lines.append(f"{side.upper()} window: {result[f'window_{side}']}")
         lines.append(f"{'metric':<28}{'A':>12}{'B':>12}{'B - A':>12}")
         for k, v in result["metrics"].items():
             lines.append(f"{k:<28}{_f(v['a']):>12}{_f(v['b']):>12}{_f(v['diff']):>12}")
@@ -142,6 +178,7 @@ def _table(result: dict[str, Any]) -> str:
             t = v["p95_platooning_error_m"]
             name = f"  follower {f} p95 error (m)"
             lines.append(f"{name:<28}{_f(t['a']):>12}{_f(t['b']):>12}{_f(t['diff']):>12}")
+        lines.append(format_verdict(result["verdict"]))
         return "\n".join(lines)
     short = {
         "p95_platooning_error_m": "p95 err (m)",

@@ -482,8 +482,11 @@ def run_fit_plant_cli(args: argparse.Namespace) -> int:
     [--vehicle-id] [--source]``."""
     from openconvoy.outputs import check_output_file
 
-    check_output_file(args.out or f"{args.name}.toml", "--out")
     logs = args.log if isinstance(args.log, list) else [args.log]
+    if getattr(args, "convoy", None) or getattr(args, "out_convoy", None):
+        return _calibrate_cli(args, logs)
+    check_output_file(args.out or f"{args.name}.toml", "--out")
+    args.base = args.base or "1/10"
     if getattr(args, "model", "lag") == "pi":
         pi_fit = fit_pi_plant(
             logs,
@@ -515,6 +518,21 @@ def run_fit_plant_cli(args: argparse.Namespace) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(preset_to_toml(preset))
     print(f"wrote {out}")
+    return 0
+
+
+def _calibrate_cli(args: argparse.Namespace, logs: list[str]) -> int:
+    """``fit-plant RUN_DIR --convoy CONVOY.toml --out-convoy FITTED.toml``."""
+    from openconvoy.experiments.calibration import calibrate, format_calibration
+    from openconvoy.outputs import check_output_file
+
+    if not (args.convoy and args.out_convoy):
+        raise ConfigError("--convoy and --out-convoy go together (calibrate a vehicle run)")
+    if len(logs) != 1 or not Path(logs[0]).is_dir():
+        raise ConfigError("--convoy calibrates one vehicle run: give its run directory")
+    check_output_file(args.out_convoy, "--out-convoy")
+    result = calibrate(logs[0], args.convoy, args.out_convoy, base=args.base)
+    print(format_calibration(result))
     return 0
 
 
@@ -715,7 +733,11 @@ class PiFit:
 
 
 def _series_from(
-    path: str | Path, vehicle_id: int | None, source: str, cmd_timing: str = "after-state"
+    path: str | Path,
+    vehicle_id: int | None,
+    source: str,
+    cmd_timing: str = "after-state",
+    telemetry_age: bool = True,
 ) -> tuple[list[_Series], str]:
     from openconvoy.experiments.recording import is_recording, read_recording
 
@@ -726,7 +748,9 @@ def _series_from(
             for s in rec.segments
         ], f"{rec.autopilot} recording"
     d = _align(*_load(path, vehicle_id), cmd_timing)
-    t_meas = d.t - d.age  # a row's state is as old as its telemetry
+    # A row's state is as old as its telemetry; or, for the loop delay a controller sees,
+    # as the row says (telemetry_age False).
+    t_meas = d.t - d.age if telemetry_age else d.t
     return [_Series(t_meas, d.speed, d.heading, d.t_cmd, d.cmd_v, d.cmd_h)], "log"
 
 
@@ -739,6 +763,7 @@ def fit_pi_plant(
     rounds: int = 14,
     population: int = 160,
     cmd_timing: CmdTiming = "after-state",
+    telemetry_age: bool = True,
 ) -> PiFit:
     """Fit the autopilot's PI speed loop (delay, ramp limits, gains, feed-forward, drive
     lag, static friction) and its heading loop (delay, lag, rate and yaw-accel limits,
@@ -752,7 +777,7 @@ def fit_pi_plant(
     series: list[_Series] = []
     kinds = []
     for p in paths:
-        got, kind = _series_from(p, vehicle_id, source, cmd_timing)
+        got, kind = _series_from(p, vehicle_id, source, cmd_timing, telemetry_age)
         series += got
         kinds.append(kind)
     speed_series = [s for s in series if np.ptp(s.cmd_v) >= 0.2]
@@ -773,6 +798,15 @@ def fit_pi_plant(
     rounded: dict[str, Any] = {k: round(v, 4) for k, v in values.items()}
     preset = dataclasses.replace(base_preset, name=name, speed_loop="pi", **rounded)
     return PiFit(preset, speed_rms, heading_rms, samples, " + ".join(sorted(set(kinds))))
+
+
+def pi_speed_rms(series: Sequence[_Series], presets: Sequence[VehiclePreset]) -> np.ndarray:
+    """Each preset's speed RMS (m/s) replaying ``series`` (its pi loop's parameters)."""
+    c = np.array([[getattr(p, k) for k in _PI_SPEED_KEYS] for p in presets], dtype=float)
+    n = sum(len(s.t) for s in series)
+    with np.errstate(all="ignore"):
+        sse = sum(_pi_speed_sse(s, c) for s in series)
+    return np.sqrt(np.asarray(sse) / max(n, 1))
 
 
 def _fit_pi_speed(

@@ -51,6 +51,9 @@ class ConvoySection:
         ranging_max_range_m: that sensor's range, metres (20 m suits the small cars; a
             car's radar sees 150 m and more).
         gps_noise_m: standard deviation of the position noise members see, metres.
+        plants: the vehicles as they drive (presets fitted by ``fit-plant --convoy``),
+            leader first, when they differ from ``vehicles`` (what the members, safety
+            rules and scenario know); empty = ``vehicles``.
     """
 
     vehicles: tuple[str, ...] = ()
@@ -58,9 +61,11 @@ class ConvoySection:
     ranging: bool = False
     ranging_max_range_m: Annotated[float, Range(0.0, 10000.0, lo_open=True)] = 20.0
     gps_noise_m: Annotated[float, Range(0.0, 1000.0)] = 0.0
+    plants: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        object.__setattr__(self, "plants", tuple(self.plants))
         if self.gps_noise_m < 0:
             raise ConfigError(f"gps_noise_m must be >= 0, got {self.gps_noise_m}")
 
@@ -74,18 +79,28 @@ class LossSection:
         model: ``bernoulli`` or ``gilbert-elliott``.
         mean_burst_s: mean loss burst of the Gilbert–Elliott model.
         latency_s, jitter_s: delivery delay and its uniform jitter.
+        latency_samples_s: or a delay distribution (quantiles) in place of the jitter, as
+            ``fit-plant`` fits from a vehicle run's message ages (``comms.loss.Latency``).
+        stamp_error_s, stamp_drift: the senders' clock error, s and s/s (``Latency``).
+        link_latency_s: per link ``[sender, receiver, quantile s, ...]`` (``LossConfig``).
     """
 
     model: str = "bernoulli"
     mean_burst_s: Annotated[float, Range(0.0, 3600.0, lo_open=True)] = 1.0
     latency_s: Annotated[float, Range(0.0, 60.0)] = 0.0
     jitter_s: Annotated[float, Range(0.0, 60.0)] = 0.0
+    latency_samples_s: tuple[float, ...] = ()
+    stamp_error_s: Annotated[float, Range(-60.0, 60.0)] = 0.0
+    stamp_drift: Annotated[float, Range(-0.1, 0.1)] = 0.0
+    link_latency_s: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
         if self.model not in ("bernoulli", "gilbert-elliott"):
             raise ConfigError(
                 f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
             )
+        self.at(0.0)  # the channel's own checks (latency samples)
         if self.mean_burst_s <= 0:
             raise ConfigError(f"mean_burst_s must be positive, got {self.mean_burst_s}")
 
@@ -97,6 +112,10 @@ class LossSection:
             mean_burst_s=self.mean_burst_s,
             latency_s=self.latency_s,
             jitter_s=self.jitter_s,
+            latency_samples_s=self.latency_samples_s,
+            stamp_error_s=self.stamp_error_s,
+            stamp_drift=self.stamp_drift,
+            link_latency_s=self.link_latency_s,
         )
 
 
@@ -232,6 +251,7 @@ def build_env(config: RunConfig):
         max_time_s=config.duration_s,
         faults=config.faults,
         auth=config.auth == "required",
+        plant_presets=[vehicle_preset(v) for v in convoy.plants] or None,
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     return env, policies

@@ -7,8 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from openconvoy.comms.loss import LossConfig
-from openconvoy.envs.channel import Channel
+from openconvoy.comms.loss import LossConfig, quantile_delay
+from openconvoy.core.state import VehicleState
+from openconvoy.envs import ConvoyEnv
+from openconvoy.envs.channel import Channel, advance_state
 
 
 def _binomial_band(n: int, p: float, z: float = 2.576) -> tuple[float, float]:
@@ -154,3 +156,89 @@ def test_reset_clears_queue_and_counters_and_same_rng_repeats() -> None:
 def test_rejects_empty_channel() -> None:
     with pytest.raises(ValueError, match="at least one vehicle"):
         Channel(0)
+
+
+def test_sub_tick_latency_gives_that_message_age_at_first_use() -> None:
+    """A 0.034 s delay on a 0.05 s tick: delivered at the tick, advanced by the 0.016 s it
+    waited (2 m/s, 1 m/s², turning), so its age there is 0.034 s, not a whole tick."""
+    ch: Channel[VehicleState] = Channel(2, LossConfig(latency_s=0.034), advance_state)
+    ch.reset(np.random.default_rng(0))
+    sent = VehicleState(0, 0.0, 1.0, 2.0, 2.0, 0.0, accel=1.0, yaw_rate=0.5)
+    ch.send(0, sent, 0.0)
+    assert ch.deliver(0.0) == []
+    ((r, s, got),) = ch.deliver(0.05)
+    assert (r, s) == (1, 0)
+    assert 0.05 - got.t == pytest.approx(0.034, abs=1e-12)
+    d = 0.016
+    assert got.speed == pytest.approx(2.0 + 1.0 * d)
+    assert got.heading == pytest.approx(0.5 * d)
+    assert math.hypot(got.x - 1.0, got.y - 2.0) == pytest.approx(2.0 * d + 0.5 * d * d)
+    # Braking through zero stops there rather than reversing.
+    stopping = advance_state(VehicleState(0, 0.0, 0.0, 0.0, 0.01, 0.0, accel=-1.0), 0.04)
+    assert stopping.speed == 0.0 and 0.0 <= stopping.x <= 0.01 * 0.04
+
+
+def test_latency_samples_are_drawn_as_their_distribution() -> None:
+    samples = (0.01, 0.02, 0.06)  # quantiles at 0, 1/2, 1
+    assert quantile_delay(samples, 0.0) == 0.01
+    assert quantile_delay(samples, 0.25) == pytest.approx(0.015)
+    assert quantile_delay(samples, 0.75) == pytest.approx(0.04)
+    ch: Channel[int] = Channel(2, LossConfig(latency_samples_s=(0.06, 0.01, 0.02)))
+    ch.reset(np.random.default_rng(1))
+    for k in range(4000):
+        ch.send(0, k, k * 1.0)
+    delays = []
+    for k in range(4000):
+        due = [a for a, *_ in ch._queue if a < k + 0.5]
+        delays += [a - k for a in due]
+        ch.deliver(k + 0.5)
+    d = np.array(delays)
+    assert d.min() >= 0.01 and d.max() <= 0.06
+    assert np.mean(d < 0.02) == pytest.approx(0.5, abs=0.03)
+    assert d.mean() == pytest.approx((0.015 + 0.04) / 2, abs=0.002)
+
+
+def test_latency_samples_are_checked() -> None:
+    with pytest.raises(ValueError, match="latency samples"):
+        LossConfig(latency_samples_s=(0.01, -0.2))
+    with pytest.raises(ValueError, match="not both"):
+        LossConfig(jitter_s=0.1, latency_samples_s=(0.01,))
+
+
+def test_convoy_env_message_age_follows_a_sub_tick_latency() -> None:
+    """The sim's logged predecessor message age at first use is the latency (0.034 s), and
+    the next tick's 0.084 s: the same pattern as vehicle logs (sitl/convoy vx-fixed-1)."""
+    env = ConvoyEnv("paper", loss=LossConfig(latency_s=0.034))
+    env.reset(seed=0)
+    ages = []
+    for _ in range(60):
+        _, _, _, _, info = env.step({a: np.array([1.0, 0.0], np.float32) for a in env.agents})
+        ages.append(info["follower_1"]["pred_msg_age_s"])
+    got = sorted({round(a, 6) for a in ages[5:]})
+    assert got == [0.034, 0.084]
+
+
+def test_each_link_can_have_its_own_delay_distribution() -> None:
+    loss = LossConfig(latency_samples_s=(0.05,), link_latency_s=((0, 1, 0.034), (1, 2, 0.02, 0.03)))
+    ch: Channel[VehicleState] = Channel(3, loss, advance_state)
+    ch.reset(np.random.default_rng(0))
+    ch.send(0, VehicleState(0, 0.0, 0.0, 0.0, 1.0, 0.0), 0.0)
+    ch.send(1, VehicleState(1, 0.0, -15.0, 0.0, 1.0, 0.0), 0.0)
+    ages = {(s, r): round(0.05 - m.t, 6) for r, s, m in ch.deliver(0.05)}
+    assert ages[(0, 1)] == 0.034 and ages[(0, 2)] == 0.05 and ages[(1, 0)] == 0.05
+    assert 0.02 <= ages[(1, 2)] <= 0.03
+    with pytest.raises(ValueError, match="sender, receiver"):
+        LossConfig(link_latency_s=((0, 0, 0.1),))
+    with pytest.raises(ValueError, match="twice"):
+        LossConfig(link_latency_s=((0, 1, 0.1), (0, 1, 0.2)))
+
+
+def test_a_senders_clock_error_ages_its_messages() -> None:
+    """A clock 0.1 s + 10 ms/s behind: messages sent at t claim t - 0.1 - 0.01 t."""
+    ch: Channel[VehicleState] = Channel(
+        2, LossConfig(stamp_error_s=0.1, stamp_drift=0.01), advance_state
+    )
+    ch.reset(np.random.default_rng(0))
+    ch.send(0, VehicleState(0, 10.0, 0.0, 0.0, 2.0, 0.0), 10.0)
+    ((_, _, got),) = ch.deliver(10.0)
+    assert got.t == pytest.approx(10.0 - 0.2) and got.x == 0.0

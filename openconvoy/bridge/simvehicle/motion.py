@@ -35,7 +35,9 @@ GRAVITY = 9.80665
 
 @dataclass
 class MotionState:
-    """Where a vehicle is and how it moves (NED, SI units)."""
+    """Where a vehicle is and how it moves (NED, SI units). ``yaw_bias``: the estimator's
+    heading error (rad): the autopilot reports and steers ``yaw + yaw_bias`` (PX4's EKF,
+    shared/sitl-px4/README.md §4); position and velocity are true (GPS-aided)."""
 
     north: float = 0.0
     east: float = 0.0
@@ -43,6 +45,12 @@ class MotionState:
     speed: float = 0.0
     yaw_rate: float = 0.0
     accel: float = 0.0
+    yaw_bias: float = 0.0
+
+    @property
+    def estimated_yaw(self) -> float:
+        """The yaw the autopilot believes (rad, NED)."""
+        return wrap_pi(self.yaw + self.yaw_bias)
 
 
 def wrap_pi(a: float) -> float:

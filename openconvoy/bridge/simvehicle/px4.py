@@ -22,7 +22,13 @@ shared/sitl-px4/README.md's conformance table in brackets:
   gives the dead zone from rest and the direction-dependent speeds [11–13]; the yaw loop
   is RO_YAW_P 5 into a yaw rate limited by the steering lock and a lateral acceleration
   [14, 15];
-- SIH's clock runs at 0.990 of real time [24] (the firmware timing only).
+- SIH's clock runs at 0.990 of real time [24] (the firmware timing only);
+- the EKF heading can be off the true one by a few degrees for a run (README §4: +0.7 to
+  +5.8° at the end of each heading-step leg; the convoy run sitl-px4/convoy/r2's leader
+  logged a heading drifting to -11° while its track stayed on the road):
+  ``MotionState.yaw_bias``, drawn per vehicle and run (``SimVehicleConfig``). The yaw loop
+  holds the estimated yaw on the bearing, so the rover really drives that much off it;
+  ATTITUDE and the headings report the estimate, the velocity stays true.
 """
 
 from __future__ import annotations
@@ -227,8 +233,9 @@ class Px4Rover:
         if mask & mp.MASK_VEL == mp.MASK_VEL:
             self.setpoints_ignored += 1  # positions are not modelled
             return
-        if frame == 8:  # BODY_NED: rotated by the current yaw, every message
-            c, s = math.cos(self.state.yaw), math.sin(self.state.yaw)
+        if frame == 8:  # BODY_NED: rotated by the current (estimated) yaw, every message
+            yaw_now = self.state.estimated_yaw
+            c, s = math.cos(yaw_now), math.sin(yaw_now)
             vx, vy = c * vx - s * vy, s * vx + c * vy
         self._bearing = math.atan2(vy, vx)  # signed zeros: (+0, -0) -> pi, south
         self._speed = math.hypot(vx, vy)
@@ -269,7 +276,7 @@ class Px4Rover:
 
     def _steering_for(self, yaw: float) -> float:
         s = self.state
-        err = wrap_pi(yaw - s.yaw)
+        err = wrap_pi(yaw - s.estimated_yaw)  # the EKF's yaw is what PX4 controls
         rate = max(-RO_YAW_RATE_LIM, min(RO_YAW_RATE_LIM, RO_YAW_P * err))
         brake = math.sqrt(2.0 * YAW_ACCEL_LIM * BRAKE_FRACTION * abs(err))  # stop at the bearing
         rate = max(-brake, min(brake, rate))
@@ -286,7 +293,7 @@ class Px4Rover:
         """(speed m/s, NED yaw) the rover loops aim at in the current mode."""
         s = self.state
         if not self.armed:
-            return 0.0, s.yaw
+            return 0.0, s.estimated_yaw
         mode = self.mode
         if mode == "OFFBOARD":
             return min(self._speed, RO_SPEED_LIM), self._bearing
@@ -300,5 +307,5 @@ class Px4Rover:
                     HOLD_SPEED, max(HOLD_MIN_SPEED, HOLD_GAIN * (d - HOLD_RADIUS_M))
                 ), bearing
         if self._hold_yaw is None:
-            self._hold_yaw = s.yaw  # brake straight, holding the heading
+            self._hold_yaw = s.estimated_yaw  # brake straight, holding the heading
         return 0.0, self._hold_yaw

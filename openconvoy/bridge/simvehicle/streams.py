@@ -178,8 +178,10 @@ class SimStreams:
         with self._lock:
             s = self._motion
             north, east, yaw, v, yaw_rate = s.north, s.east, s.yaw, s.speed, s.yaw_rate
+            # The velocity is the true one (GPS); the heading is the estimator's.
+            vn, ve = v * math.cos(yaw), v * math.sin(yaw)
+            yaw = s.estimated_yaw
         t_ms = int(t * fw.clock_ratio * 1000) & 0xFFFFFFFF
-        vn, ve = v * math.cos(yaw), v * math.sin(yaw)
         if msg_id == mp.MSG_GLOBAL_POSITION_INT:
             if self._config.gps_noise_m > 0:
                 north += float(self._rng.normal(0.0, self._config.gps_noise_m))

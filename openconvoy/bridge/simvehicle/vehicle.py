@@ -34,6 +34,7 @@ SIGUSR2 toggles the freeze.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import select
 import struct
@@ -92,7 +93,12 @@ class SimVehicleConfig:
             SITL waiting for its serial0 connection), so a companion that connects at once
             meets the whole boot sequence.
         gps_noise_m: standard deviation of position noise on GLOBAL_POSITION_INT.
-        seed: seeds the noise.
+        heading_bias_max_deg: PX4: the estimator's heading error, drawn once per vehicle and
+            run (this seed) uniformly within +- this (deg); it steers and reports the
+            biased heading (``px4``; sitl-px4 shows up to ~10°). 0 = none.
+        px4_clock_ratio: PX4: its clock's seconds per real second (None: the timing's:
+            SIH's 0.990 with ``firmware``, 1 with ``short``).
+        seed: seeds the noise and the heading bias.
     """
 
     system_id: int = 1
@@ -117,6 +123,8 @@ class SimVehicleConfig:
     speedup: float = 1.0
     boot_on_connect: bool = False
     gps_noise_m: float = 0.0
+    heading_bias_max_deg: float = 0.0
+    px4_clock_ratio: float | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -132,6 +140,12 @@ class SimVehicleConfig:
             )
         if self.speedup <= 0:
             raise ConfigError(f"speedup must be positive, got {self.speedup}")
+        if self.px4_clock_ratio is not None and not 0.5 <= self.px4_clock_ratio <= 2.0:
+            raise ConfigError(f"px4_clock_ratio must be in [0.5, 2], got {self.px4_clock_ratio}")
+        if not 0.0 <= self.heading_bias_max_deg <= 45.0:
+            raise ConfigError(
+                f"heading_bias_max_deg must be in [0, 45], got {self.heading_bias_max_deg}"
+            )
         if self.offboard_loss_action not in (0, 5):
             raise ConfigError(
                 f"offboard_loss_action must be 0 (POSCTL) or 5 (Hold), got {self.offboard_loss_action}"
@@ -176,6 +190,8 @@ def make_firmware(config: SimVehicleConfig, state: MotionState) -> ArduPilotRove
             motion=motion,
         )
     timing = Px4Timing.firmware() if c.timing == "firmware" else Px4Timing.short(c.ready_after_s)
+    if c.px4_clock_ratio is not None:
+        timing = dataclasses.replace(timing, clock_ratio=c.px4_clock_ratio)
     fw = Px4Rover(
         state,
         timing,
@@ -209,9 +225,14 @@ class SimVehicle:
         self._clock = clock
         c = self.config
         yaw = wrap_angle(math.pi / 2 - c.start_heading_rad)
-        self.motion_state = MotionState(north=c.start_y_m, east=c.start_x_m, yaw=yaw)
-        self.firmware = make_firmware(c, self.motion_state)
         self._rng = np.random.default_rng(c.seed)
+        bias = 0.0
+        if c.autopilot == "px4" and c.heading_bias_max_deg > 0.0:
+            # Its own stream: the noise draws stay as they were without a bias.
+            draw = np.random.default_rng([c.seed, 0x48424941])  # "HBIA"
+            bias = math.radians(float(draw.uniform(-1.0, 1.0)) * c.heading_bias_max_deg)
+        self.motion_state = MotionState(north=c.start_y_m, east=c.start_x_m, yaw=yaw, yaw_bias=bias)
+        self.firmware = make_firmware(c, self.motion_state)
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._stop_evt = threading.Event()

@@ -5,9 +5,10 @@ The same draws as ``envs.channel.Channel``: a Bernoulli loss is
 here, bit-identical to ``comms.loss.counter_uniform``), a Gilbert-Elliott link keeps its
 chain per ordered link (numpy, as ``GilbertElliott``), and a latency holds messages in a
 ring of send slots until due, each pair's arrival ``t + latency + jitter * counter_uniform(key,
-sender, receiver, broadcast number, DRAW_JITTER)`` (``Channel.send``), delivered in arrival
-order. Loss is drawn on ``pairs``: every ordered pair
-(``link_counters="all"``, the counters ``ConvoyEnv`` reports) or the kept links only.
+sender, receiver, broadcast number, DRAW_JITTER)`` (``Channel.send``; with latency samples
+their quantile at that draw instead of the jitter), delivered in arrival order, advanced
+by how long it waited for its tick (``envs.channel.advance_kinematics``). Loss is drawn on
+``pairs``: every ordered pair (``link_counters="all"``, the counters ``ConvoyEnv`` reports) or the kept links only.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from openconvoy.comms.loss import (
 )
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
-from openconvoy.envs.channel import DRAW_JITTER, DRAW_LOSS
+from openconvoy.envs.channel import ADVANCE_MIN_S, DRAW_JITTER, DRAW_LOSS
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.math import norm
@@ -84,8 +85,19 @@ class VectorChannel:
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
         self.latency_s, self.jitter_s = self.loss.latency_s, self.loss.jitter_s
-        delay = self.latency_s + self.jitter_s  # the longest a message is in flight
-        self.slots = 0 if delay <= 0.0 else int(math.ceil(delay / dt)) + 3
+        self.stamp_error_s, self.stamp_drift = self.loss.stamp_error_s, self.loss.stamp_drift
+        # Each pair's delay distribution (``LossConfig.link_latency``): (P, Q) quantiles,
+        # the first ``n_samples[p]`` used (0: the uniform jitter).
+        lats = [self.loss.link_latency(int(a), int(b)) for a, b in zip(self.pair_s, self.pair_r)]
+        q = max([len(x.samples_s) for x in lats] + [1])
+        self.samples_s = np.zeros((len(lats), q))
+        self.n_samples = np.zeros(len(lats), dtype=np.int64)
+        for p, x in enumerate(lats):
+            self.samples_s[p, : len(x.samples_s)] = x.samples_s
+            self.n_samples[p] = len(x.samples_s)
+        delay = max([x.max_s for x in lats] + [0.0])  # the longest a message is in flight
+        instant = all(x.instant for x in lats)
+        self.slots = 0 if instant else int(math.ceil(delay / dt)) + 3
         self._alloc()
 
     def _alloc(self) -> None:
@@ -110,6 +122,7 @@ class VectorChannel:
             self._due_slots = np.zeros(S, dtype=np.int64)
             self.q_state = np.zeros((S, 6, B, N))
             self.q_t = np.zeros((S, B, N))
+            self._advanced = np.zeros((6, B, N))  # a delivered state, advanced
 
     def reset(self, rows: np.ndarray) -> None:
         """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
@@ -169,8 +182,8 @@ class VectorChannel:
         if not instant:  # before the broadcasts are counted: the jitter draws' numbers
             _enqueue(
                 self.keys, self.broadcasts, self.send, self.lost, self.pair_s, self.pair_r,
-                rows, t, step, own, self.latency_s, self.jitter_s, self.q_arrival,
-                self.q_first, self.q_state, self.q_t,
+                rows, t, step, own, self.latency_s, self.jitter_s, self.samples_s,
+                self.n_samples, self.q_arrival, self.q_first, self.q_state, self.q_t,
             )  # fmt: skip
         self.broadcasts += self.send
         _deliver(
@@ -184,7 +197,8 @@ class VectorChannel:
                 step, t, self.q_arrival, self.q_first, self.q_state, self.q_t, self.pair_s,
                 self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
                 rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
-                rx.trail_of, rx.spacing_m, self._due_slots,
+                rx.trail_of, rx.spacing_m, self._due_slots, self._advanced,
+                self.stamp_error_s, self.stamp_drift,
             )  # fmt: skip
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -381,14 +395,43 @@ def _deliver(
                              own, s, spacing)  # fmt: skip
 
 
+@bare_inline
+def _quantile_delay(samples, p, n, u):  # pragma: no cover - compiled
+    """``comms.loss.quantile_delay`` of pair ``p``'s ``n`` quantiles, the same arithmetic."""
+    if n == 1:
+        return samples[p, 0]
+    pos = u * (n - 1)
+    k = int(pos)
+    if k >= n - 1:
+        return samples[p, n - 1]
+    return samples[p, k] + (pos - k) * (samples[p, k + 1] - samples[p, k])
+
+
+@bare_inline
+def _advance(st, b, s, d, out):  # pragma: no cover - compiled
+    """``envs.channel.advance_kinematics`` of sender ``s``'s state ``st[:, b, s]`` by ``d``
+    seconds into ``out[:, b, s]`` (accel and yaw rate kept)."""
+    x, y, v, h, a, w = st[0, b, s], st[1, b, s], st[2, b, s], st[3, b, s], st[4, b, s], st[5, b, s]
+    v1 = v + a * d
+    if (v > 0.0 and v1 < 0.0) or (v < 0.0 and v1 > 0.0):
+        v1 = 0.0
+    dist = 0.5 * (v + v1) * d
+    h_mid = h + 0.5 * w * d
+    out[0, b, s] = x + dist * math.cos(h_mid)
+    out[1, b, s] = y + dist * math.sin(h_mid)
+    out[2, b, s] = v1
+    out[3, b, s] = (h + w * d + math.pi) % (2.0 * math.pi) - math.pi
+    out[4, b, s], out[5, b, s] = a, w
+
+
 @bare_kernel
 def _enqueue(
-    keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, q_arrival,
-    q_first, q_state, q_t,
+    keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, samples,
+    n_samples, q_arrival, q_first, q_state, q_t,
 ):  # pragma: no cover - compiled  # fmt: skip
     """This tick's broadcasts into send slot ``step % S``: the senders' states, and each
-    pair's arrival time (``Channel.send``'s, jitter drawn on broadcast ``number``;
-    inf where not sent or lost), and the slot's earliest arrival ``q_first``."""
+    pair's arrival time (``Channel.send``'s, jitter or sample drawn on broadcast
+    ``number``; inf where not sent or lost), and the slot's earliest arrival ``q_first``."""
     S, B, P = q_arrival.shape
     N = q_t.shape[2]
     for b in range(B):
@@ -405,10 +448,14 @@ def _enqueue(
             if not send[b, s] or lost[b, p]:
                 q_arrival[sl, b, p] = np.inf
                 continue
-            arrival = t[b] + latency
-            if jitter > 0.0:
+            if n_samples[p] > 0:
                 u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
-                arrival += u * jitter
+                arrival = t[b] + (latency + _quantile_delay(samples, p, n_samples[p], u))
+            elif jitter > 0.0:
+                u = counter_uniform4(keys[b], s, pair_r[p], number[b, s], DRAW_JITTER)
+                arrival = t[b] + (latency + u * jitter)
+            else:
+                arrival = t[b] + latency
             q_arrival[sl, b, p] = arrival
             q_first[sl, b] = min(q_first[sl, b], arrival)
 
@@ -416,10 +463,13 @@ def _enqueue(
 @bare_kernel
 def _arrive(
     step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots,
+    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots, advanced,
+    stamp_error, stamp_drift,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
-    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake.
+    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake; one
+    that waited for this tick is advanced by the wait (into ``advanced``: scratch), and
+    stamped with the senders' clock error ``stamp_error + stamp_drift * send time``.
     Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
     scratch)."""
     S, B, P = q_arrival.shape
@@ -447,8 +497,16 @@ def _arrive(
                 delivered_to[b, r] += 1
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link,
-                             q_t[first, b, s], q_state[first], s, spacing)  # fmt: skip
+                    waited = t[b] - first_arrival
+                    ts = q_t[first, b, s]
+                    err = stamp_error + stamp_drift * ts
+                    if waited > ADVANCE_MIN_S:
+                        _advance(q_state[first], b, s, waited, advanced)
+                        push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
+                                 link, ts + waited - err, advanced, s, spacing)  # fmt: skip
+                    else:
+                        push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
+                                 link, ts - err, q_state[first], s, spacing)  # fmt: skip
         for k in range(n_due):
             sl, pending = slots[k], np.inf
             for p in range(P):

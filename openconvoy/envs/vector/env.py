@@ -84,7 +84,7 @@ def _per_convoy_loss(
     out = [as_loss_config(c, per) for c in loss]
     if len(out) != B:
         raise ConfigError(f"loss: need one LossConfig per convoy ({B}), got {len(out)}")
-    same = lambda c: (c.model, c.mean_burst_s, c.latency_s, c.jitter_s)  # noqa: E731
+    same = lambda c: (c.model, c.mean_burst_s, c.latency, c.link_latency_s)  # noqa: E731
     if any(same(c) != same(out[0]) for c in out[1:]):
         raise ConfigError("loss: the convoys' LossConfigs may differ only in per")
     return out
@@ -106,9 +106,7 @@ def _check_loss(loss: LossConfig, link_counters: str) -> None:
     if link_counters not in ("all", "kept"):
         raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
     if link_counters == "kept" and (
-        loss.latency_s > 0.0
-        or loss.jitter_s > 0.0
-        or (loss.per > 0.0 and loss.model != "bernoulli")
+        not loss.latency.instant or (loss.per > 0.0 and loss.model != "bernoulli")
     ):
         raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
 

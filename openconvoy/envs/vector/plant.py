@@ -44,6 +44,8 @@ class VectorPlant:
         self.pi = ref._pi.copy()
         self.pi_sub = ref._pi_sub
         self.delay = ref._delay_steps.astype(np.int64)
+        self.sub_n = np.stack([ref._sub_n1, ref._sub_n2]).astype(np.int64)
+        self.sub_h = np.stack([ref._sub_h1, ref._sub_h2]).astype(float)
         self.hdelay = ref._hdelay_steps.astype(np.int64)
         self.depth = ref._depth
         self.state = np.zeros((ROWS, n))
@@ -83,7 +85,7 @@ class VectorPlant:
         from the present heading (rad; the setpoint is heading + change)."""
         _plant_step(
             self.state, self.inner, self.queue, self.head, self.params, self.pi, self.pi_sub,
-            self.delay, self.hdelay, cmd_speed, cmd_turn, self.dt,
+            self.delay, self.sub_n, self.sub_h, self.hdelay, cmd_speed, cmd_turn, self.dt,
         )  # fmt: skip
 
 
@@ -95,11 +97,17 @@ def _trig_rows(st, rows):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _pi_dv(p, i, inner, v_cmd, v0, dt, n_sub):  # pragma: no cover - compiled
-    """``BicyclePlant._pi_dv`` for vehicle ``i``: the speed change; updates its state."""
-    h = dt / n_sub
+def _pi_dv(p, i, inner, v_now, v_before, sub_n, sub_h, v0):  # pragma: no cover - compiled
+    """``BicyclePlant._pi_dv`` for vehicle ``i``: the speed change; updates its state
+    (``v_before`` acts for ``sub_n[0, i]`` substeps of ``sub_h[0, i]`` s, then ``v_now``
+    for ``sub_n[1, i]`` of ``sub_h[1, i]``: ``plant.pi_delay_split``)."""
     r, integ, v = inner[0, i], inner[1, i], v0
-    for _ in range(n_sub):
+    n1 = sub_n[0, i]
+    for j in range(n1 + sub_n[1, i]):
+        if j < n1:
+            v_cmd, h = v_before, sub_h[0, i]
+        else:
+            v_cmd, h = v_now, sub_h[1, i]
         lim = (p[ACC, i] if abs(v_cmd) > abs(r) else p[DEC, i]) * h
         r = r + min(max(v_cmd - r, -lim), lim)
         err = r - v
@@ -121,7 +129,7 @@ def _pi_dv(p, i, inner, v_cmd, v0, dt, n_sub):  # pragma: no cover - compiled
 
 @bare_kernel
 def _plant_step(
-    st, inner, queue, head_arr, p, pi, n_sub, delay, hdelay, cmd_v, cmd_h, dt
+    st, inner, queue, head_arr, p, pi, n_sub, delay, sub_n, sub_h, hdelay, cmd_v, cmd_h, dt
 ):  # pragma: no cover - compiled
     depth = queue.shape[1]
     head = head_arr[0]
@@ -133,7 +141,8 @@ def _plant_step(
         h_cmd = queue[1, (head - hdelay[i]) % depth, i]
         v = st[SPEED, i]
         if pi[i]:
-            dv = _pi_dv(p, i, inner, v_cmd, v, dt, n_sub)
+            v_before = min(max(queue[0, (head - delay[i] - 1) % depth, i], -vmax), vmax)
+            dv = _pi_dv(p, i, inner, v_cmd, v_before, sub_n, sub_h, v)
         else:
             dv = min(max((v_cmd - v) / p[TAU_V, i], -p[DEC, i]), p[ACC, i]) * dt
             if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step

@@ -46,7 +46,7 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
         (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
         (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
          ld.closed, ld.length, env.cmd_v, env.cmd_dh),
-        (pl.state, pl.inner, pl.queue, pl.head, pl.params, pl.pi, pl.pi_sub, pl.delay,
+        (pl.state, pl.inner, pl.queue, pl.head, pl.params, pl.pi, pl.pi_sub, pl.delay, pl.sub_n, pl.sub_h,
          pl.hdelay, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
         (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),
         (t, env._everyone, own, ch.next_check, ch.last_sent, ch.msgs_sent, ch.mute_from,

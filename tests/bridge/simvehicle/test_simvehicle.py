@@ -186,3 +186,70 @@ def test_px4_arming_in_offboard_needs_the_stream(sim) -> None:
     gcs.stream(0.4, 0.0, 0.0, 0.0, mp.TYPE_MASK_VEL_YAW, local=True)
     assert gcs.command(mp.CMD_COMPONENT_ARM_DISARM, 1) == mp.RESULT_ACCEPTED
     assert vehicle.armed
+
+
+def _px4_driving_east(bias_deg: float, seconds: float = 10.0):
+    """The simulated PX4 (its firmware model on SIH's rover physics), armed in OFFBOARD,
+    streaming 1.5 m/s east (LOCAL_NED 3527) at 20 Hz from rest facing east."""
+    from openconvoy.bridge.mavlink import protocol as mp
+    from openconvoy.bridge.simvehicle.motion import MotionState
+    from openconvoy.bridge.simvehicle.px4 import LOOP_DT, Px4Rover, Px4Timing
+
+    state = MotionState(yaw=math.pi / 2, yaw_bias=math.radians(bias_deg))
+    fw = Px4Rover(state, Px4Timing.short(0.0), 28.6024, -81.2001)
+    t = 0.0
+    track = []
+    for k in range(int(seconds / LOOP_DT)):
+        if k % 2 == 0:  # 25 Hz
+            fw.setpoint(t, True, 1, 3527, 0.0, 1.5, 0.0, 0.0)
+        if k == 10:
+            assert fw.command(t, mp.CMD_DO_SET_MODE, [1.0, 6.0, 0.0]) == mp.RESULT_ACCEPTED
+            assert fw.command(t, mp.CMD_COMPONENT_ARM_DISARM, [1.0]) == mp.RESULT_ACCEPTED
+        fw.tick(t)
+        track.append((t, state.north, state.east))
+        t += LOOP_DT
+    return state, track
+
+
+def test_px4_ekf_heading_bias_steers_the_rover_off_its_bearing() -> None:
+    """PX4 holds its EKF yaw on the bearing (shared/sitl-px4/README.md §4: EKF - true
+    +0.7..+5.8°, the rover really drives that far off): with a +5° bias the estimate
+    settles on east and the true yaw and course 5° short of it."""
+    state, track = _px4_driving_east(5.0)
+    assert math.degrees(state.estimated_yaw) == pytest.approx(90.0, abs=0.5)
+    assert math.degrees(state.yaw) == pytest.approx(85.0, abs=0.5)
+    (_, n0, e0), (_, n1, e1) = track[-101], track[-1]
+    course = math.degrees(math.atan2(e1 - e0, n1 - n0))
+    assert course == pytest.approx(85.0, abs=1.0)
+    unbiased, _ = _px4_driving_east(0.0)
+    assert math.degrees(unbiased.yaw) == pytest.approx(90.0, abs=0.5)
+
+
+def test_px4_heading_bias_is_drawn_per_vehicle_and_run() -> None:
+    from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
+
+    def bias(seed: int, autopilot: str = "px4") -> float:
+        cfg = SimVehicleConfig(autopilot=autopilot, heading_bias_max_deg=8.0, seed=seed)
+        return math.degrees(SimVehicle("udpin:127.0.0.1:0", cfg).motion_state.yaw_bias)
+
+    drawn = [bias(s) for s in range(40)]
+    assert all(abs(b) <= 8.0 for b in drawn) and len(set(drawn)) == 40
+    assert bias(3) == bias(3)  # the same run again
+    assert min(drawn) < -4.0 and max(drawn) > 4.0
+    assert bias(3, "ardupilot") == 0.0
+    with pytest.raises(ValueError, match="heading_bias_max_deg"):
+        SimVehicleConfig(autopilot="px4", heading_bias_max_deg=90.0)
+
+
+def test_px4_clock_ratio_is_configurable() -> None:
+    """SIH's clock runs at 0.990 of real time (sitl-px4 row 24); the demo's PX4s use it."""
+    from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
+
+    def ratio(**kw: Any) -> float:
+        cfg = SimVehicleConfig(autopilot="px4", **kw)
+        return SimVehicle("udpin:127.0.0.1:0", cfg).firmware.clock_ratio
+
+    assert ratio() == 1.0 and ratio(timing="firmware") == 0.990
+    assert ratio(px4_clock_ratio=0.990) == 0.990
+    with pytest.raises(ValueError, match="px4_clock_ratio"):
+        SimVehicleConfig(autopilot="px4", px4_clock_ratio=0.1)

@@ -35,6 +35,9 @@ def _compare(
     per: float | list[float] = 0.3,
     latency_s: float = 0.0,
     jitter_s: float = 0.0,
+    samples_s: tuple[float, ...] = (),
+    stamp: tuple[float, float] = (0.0, 0.0),
+    links: tuple[tuple[float, ...], ...] = (),
     steps: int | None = None,
     n_followers: int | None = None,
     member: dict | None = None,
@@ -50,7 +53,17 @@ def _compare(
         mc = dataclasses.replace(mc, **member)
     pers = per if isinstance(per, list) else [per] * B
     losses = [
-        LossConfig(per=p, latency_s=latency_s, jitter_s=jitter_s, model=model, mean_burst_s=0.4)
+        LossConfig(
+            per=p,
+            latency_s=latency_s,
+            jitter_s=jitter_s,
+            latency_samples_s=samples_s,
+            stamp_error_s=stamp[0],
+            stamp_drift=stamp[1],
+            link_latency_s=links,
+            model=model,
+            mean_burst_s=0.4,
+        )
         for p in pers
     ]
     vec = VectorConvoyEnv(
@@ -169,6 +182,27 @@ def test_jitter_without_base_latency_and_with_bursts() -> None:
     _compare(
         "paper", B=2, per=0.4, model="gilbert-elliott", latency_s=0.1, jitter_s=0.15, steps=150
     )
+
+
+def test_latency_samples_and_sub_tick_delays_as_convoy_env() -> None:
+    """Delays drawn from measured message ages (0.007-0.11 s, not whole 0.05 s ticks):
+    both worlds draw the same delays and advance each message by its wait for the tick."""
+    modes = _compare("paper", B=2, per=0.1, samples_s=(0.007, 0.034, 0.048, 0.11), steps=200)
+    assert modes["coop"] > 0
+
+
+def test_senders_clock_error_as_convoy_env() -> None:
+    """Messages stamped 0.157 s + 4 ms/s early (sitl/convoy vx-fixed-per0.3), with and
+    without a delay: the same stamps, the same dead reckoning in both worlds."""
+    _compare("paper", B=1, per=0.0, stamp=(0.157, 0.004), steps=120)
+    _compare("paper", B=1, per=0.2, samples_s=(0.01, 0.05), stamp=(0.05, 0.0), steps=120)
+
+
+def test_per_link_delays_as_convoy_env() -> None:
+    """Each link its own delay distribution (vx-fixed-1's 34 / 53 / 27 ms), the rest the
+    common one (none here: instant)."""
+    links = ((0, 1, 0.032, 0.034, 0.045), (1, 2, 0.051, 0.053, 0.063), (0, 2, 0.027))
+    _compare("paper", B=2, per=0.1, links=links, steps=150)
 
 
 def test_jittered_channel_is_staged_not_fused() -> None:

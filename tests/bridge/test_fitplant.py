@@ -19,6 +19,7 @@ from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset, vehicle_preset
 from openconvoy.experiments.fitplant import fit_pi_plant, fit_plant, format_pi_fit
 from openconvoy.logs import LogWriter
+from tests.firmware_runs import unpack
 
 # A vehicle unlike the stock presets, so a fit cannot pass by echoing the base preset.
 TRUTH = dataclasses.replace(
@@ -382,9 +383,7 @@ def test_pi_fit_finds_the_px4_sih_dead_zone(tmp_path: Path) -> None:
 def test_pi_fit_from_a_firmware_deploy_log(tmp_path: Path) -> None:
     """The leader of the firmware convoy run (its deploy log, telemetry ages subtracted),
     through the CLI: the preset written reproduces the firmware's step overshoot."""
-    log = SITL / "convoy" / "vx-fixed-1" / "vehicle_0.csv"
-    if not log.is_file():
-        raise FileNotFoundError(f"{log} not found")
+    log = unpack("vx-fixed-1", tmp_path) / "vehicle_0.csv"
     out = tmp_path / "leader.toml"
     result = subprocess.run(
         [

@@ -139,9 +139,18 @@ def _say(line: str) -> None:
 
 
 def write_convoy_toml(
-    path: Path, vehicles: tuple[str, ...], origin: tuple[float, float, float]
+    path: Path,
+    vehicles: tuple[str, ...],
+    origin: tuple[float, float, float],
+    *,
+    keys: bool = True,
 ) -> None:
-    """The demo's convoy config (paper scenario, its vehicles, the default V2V group)."""
+    """The demo's convoy config (paper scenario, its vehicles, the default V2V group).
+
+    With ``keys`` (the default) the convoy's authority and one key per vehicle are made in
+    ``NAME.keys/`` beside it (``openconvoy keys init`` / ``issue``), so that every deploy
+    signs and verifies its V2V messages; without, the caller makes its own keys (a deploy
+    without keys refuses to start unless ``[v2v] auth = "off"`` is written)."""
     vs = ", ".join(f'"{v}"' for v in vehicles)
     path.write_text(
         "[convoy]\n"
@@ -151,6 +160,14 @@ def write_convoy_toml(
         f"origin = [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\n",
         encoding="utf-8",
     )
+    if keys:
+        from openconvoy.comms.security import keystore
+
+        d = keystore.default_keys_dir(path)
+        now = time.time()
+        keystore.init_authority(d, "demo", now, force=True)
+        for i in range(len(vehicles)):
+            keystore.issue_vehicle(d, "demo", i, now, force=True)
 
 
 def sim_vehicle_configs(

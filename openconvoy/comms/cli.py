@@ -262,6 +262,12 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader"
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the vehicle's existing key; its old certificate is revoked (listed in "
+        "KEYS/revoked: copy that file to every vehicle)",
+    )
     p.set_defaults(handler=_keys_handler)
 
 
@@ -281,9 +287,17 @@ def _keys_handler(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--vehicle-id {args.vehicle_id}: the convoy has vehicles 0..{convoy.n_vehicles - 1}"
             )
-        cert = keystore.issue_vehicle(keys_dir, convoy.name, args.vehicle_id, time.time())
+        n_revoked = len(keystore.load_revoked(keys_dir))
+        cert = keystore.issue_vehicle(
+            keys_dir, convoy.name, args.vehicle_id, time.time(), force=args.force
+        )
         stem = keystore.vehicle_stem(args.vehicle_id)
         print(f"{cert.name}: {keys_dir}/{stem}.key, {stem}.cert (digest {cert.digest.hex()})")
+        if len(keystore.load_revoked(keys_dir)) > n_revoked:
+            print(
+                f"the previous certificate of vehicle {args.vehicle_id} is revoked: copy "
+                f"{keys_dir}/{keystore.REVOKED} to every vehicle"
+            )
     return 0
 
 

@@ -50,6 +50,8 @@ MAX_CERTS = 64
 #: A message rejected as stale or future is verified anyway, at most this often per
 #: signer (s), to measure how far off that signer's clock is (``probe_skew``).
 SKEW_PROBE_PERIOD_S = 1.0
+#: ... and at most this many such verifications per period in all.
+SKEW_PROBES_PER_PERIOD = 8
 
 REASONS = (
     "unsigned",  # auth required, the datagram is not a signed SPDU
@@ -194,6 +196,7 @@ class Authenticator:
         if own is not None:
             self._pinned[own.digest] = own
         self._probed: dict[bytes, float] = {}  # digest -> last skew probe (Unix s)
+        self._probe_window = (-float("inf"), 0)  # (start, probes in it)
         self._t_cert = -float("inf")
         self._cert_asked = False
         self._requests: dict[bytes, None] = {}  # HashedId3 of unknown digests, in order
@@ -321,17 +324,26 @@ class Authenticator:
         """For an SPDU rejected as ``stale`` or ``future``: its signer's certificate when
         the signature verifies, to measure that signer's clock offset; at most once per
         ``SKEW_PROBE_PERIOD_S`` per digest (a flood of such SPDUs costs one verification
-        a second), None otherwise. Known signers only; records nothing else."""
-        cert = self.known(spdu.digest)
-        if cert is None or spdu.digest in self.credentials.revoked:
+        a second, ``SKEW_PROBES_PER_PERIOD`` in all), None otherwise. A certificate it
+        carries is learned as ``check`` would; records nothing else."""
+        if spdu.digest in self.credentials.revoked or spdu.digest in self._bad:
             return None
         last = self._probed.get(spdu.digest)
         if last is not None and now - last < SKEW_PROBE_PERIOD_S:
             return None
+        if now - self._probe_window[0] >= SKEW_PROBE_PERIOD_S:
+            self._probe_window = (now, 0)
+        if self._probe_window[1] >= SKEW_PROBES_PER_PERIOD:
+            return None
+        self._probe_window = (self._probe_window[0], self._probe_window[1] + 1)
         if len(self._probed) > 4 * MAX_CERTS:
             self._probed.clear()
         self._probed[spdu.digest] = now
-        if spdu.psid not in cert.psids:
+        cert = self.known(spdu.digest)
+        if cert is None and spdu.certificate is not None:
+            learned = self._learn(spdu, now)
+            cert = None if isinstance(learned, str) else learned
+        if cert is None or spdu.psid not in cert.psids:
             return None
         ok = c.verify(cert.public_key, spdu.r, spdu.s, spdu.tbs, cert.coer)
         return cert if ok else None

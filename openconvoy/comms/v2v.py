@@ -83,7 +83,7 @@ Source = Literal["j2735", "compat"]
 #: Datagrams read from one socket between checks of the poll's time budget.
 POLL_CHUNK = 32
 #: Share of a poll's budget spent reading datagrams; the rest verifies signatures.
-READ_SHARE = 0.5
+READ_SHARE = 0.8
 
 #: A compat message from a vehicle heard over J2735 within this many seconds is a
 #: duplicate (our own vehicles send both when compat is on); J2735 wins.
@@ -417,7 +417,20 @@ class Receiver:
         is ``shed`` (counted, not delivered). Never raises."""
         out: list[Received] = []
         pending: list[_Pending] = []
-        for data, source in items:  # cheap per datagram: read all that were read
+        self.prepare_batch(items, t_rx, pending, out)
+        self.verify_batch(pending, t_rx, out, deadline=deadline, clock=clock)
+        return out
+
+    def prepare_batch(
+        self,
+        items: Sequence[tuple[bytes, str]],
+        t_rx: float,
+        pending: list[_Pending],
+        out: list[Received],
+    ) -> None:
+        """The cheap part of ``handle_batch``: what needs no signature verified goes to
+        ``out`` (or is counted), signed SPDUs to verify to ``pending``."""
+        for data, source in items:
             self.counters.datagrams += 1
             try:
                 if data[:2] == sp.SIGNED_PREFIX:
@@ -431,6 +444,18 @@ class Receiver:
                     out.append(r)
             except Exception as exc:  # defensive: no network input may escape as an exception
                 self._malformed(source, f"unexpected {type(exc).__name__}: {exc}")
+
+    def verify_batch(
+        self,
+        pending: Sequence[_Pending],
+        t_rx: float,
+        out: list[Received],
+        *,
+        deadline: float = math.inf,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        """The rest of ``handle_batch``: verify ``pending`` as ``schedule`` orders it until
+        ``deadline``, deliver into ``out`` in generation order."""
         order, shed = schedule(pending, self._trusted)
         self._note_shed(shed, t_rx)
         verified: list[tuple[_Pending, Certificate]] = []
@@ -464,7 +489,6 @@ class Receiver:
                 r = None
             if r is not None:
                 out.append(r)
-        return out
 
     def _handle_plain(self, data: bytes, t_rx: float, source: str) -> Received | None:
         if self.auth is not None:
@@ -516,6 +540,8 @@ class Receiver:
             return None
         abort = False
         if data[:2] == j.BSM_FRAME_PREFIX:
+            if self._foreign(data):
+                return None  # another convoy's (or nobody's) traffic: filtered, not ours
             claimed = self._claimed(data)
             if claimed >= 0 and claimed != self.vehicle_index:
                 self._mismatch(claimed, t_rx, "sends unsigned V2V messages")
@@ -1066,14 +1092,16 @@ class V2V:
     def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
         """Messages waiting, decoded and filtered, received at ``now`` (seconds).
 
-        With ``budget_s`` the poll takes at most that long (monotonic clock): it reads for
-        up to ``READ_SHARE`` of it and leaves the rest in the socket buffers for the next
-        poll (the sockets take turns in chunks of ``POLL_CHUNK``), then verifies signatures
+        With ``budget_s`` the poll takes at most that long (monotonic clock): it reads and
+        classifies for up to ``READ_SHARE`` of it and leaves the rest in the socket buffers
+        for the next poll (the sockets take turns in chunks of ``POLL_CHUNK``; the kernel
+        drops what overflows them), then verifies signatures
         as ``Receiver.handle_batch`` schedules them until the budget is spent, so a flood
         of datagrams cannot stall the caller's control loop nor starve a genuine sender.
         None: every datagram waiting.
         """
-        items: list[tuple[bytes, str]] = []
+        out: list[Received] = []
+        pending: list[_Pending] = []
         transports = [self._tx] if self._tx4 is None else [self._tx, self._tx4]
         t0 = self._clock()
         deadline = math.inf if budget_s is None else t0 + budget_s
@@ -1088,11 +1116,12 @@ class V2V:
                     dgrams = []
                 if len(dgrams) < POLL_CHUNK:
                     transports.remove(transport)  # drained
-                items.extend((d.data, d.source) for d in dgrams)
+                self.receiver.prepare_batch([(d.data, d.source) for d in dgrams], now, pending, out)
             if transports and self._clock() >= read_deadline:
                 self.counters.budget_hits += 1
                 break
-        return self.receiver.handle_batch(items, now, deadline=deadline, clock=self._clock)
+        self.receiver.verify_batch(pending, now, out, deadline=deadline, clock=self._clock)
+        return out
 
     def take_alerts(self) -> list[str]:
         """Operator lines since the last call (floods, auth disagreement, clock offsets,

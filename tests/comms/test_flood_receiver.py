@@ -22,6 +22,9 @@ IDS = TempIds("lab", 3)
 RATE_HZ = 20.0
 BUDGET_S = 0.4 / RATE_HZ  # bridge.exchange.RECEIVE_BUDGET of a 20 Hz loop
 FLOOD_PER_TICK = 750  # 15,000 a second
+#: What the V2V socket buffer holds (multicast.V2V_RCVBUF_BYTES, 256 KiB, which Linux
+#: doubles, over the ~1 KiB the kernel accounts a small datagram): beyond, it drops.
+SOCKET_DATAGRAMS = 512
 
 
 def _state(i: int, t: float) -> VehicleState:
@@ -38,7 +41,7 @@ def test_genuine_bsms_keep_a_bounded_age_under_a_wrongly_signed_flood():
         IDS,
         ORIGIN,
         1,
-        transport=bus.endpoint("1"),
+        transport=bus.endpoint("1", capacity=SOCKET_DATAGRAMS),
         auth=Authenticator(creds(1)),
         clock=time.perf_counter,
     )
@@ -49,11 +52,12 @@ def test_genuine_bsms_keep_a_bounded_age_under_a_wrongly_signed_flood():
     ages, last_t = [], r.state.t
     for k in range(2, 82):  # 4 s; the flood starts after a second of normal traffic
         t = T0 + k / RATE_HZ
+        flood = [forger.frame(t - 0.02 + i * 1e-6) for i in range(FLOOD_PER_TICK)]
+        if k >= 22:  # the leader's BSM arrives amid the flood, not first
+            bus.inject_many(flood[:200], "attacker")
         leader.send(_state(0, t - 0.005), t - 0.005)
         if k >= 22:
-            bus.inject_many(
-                (forger.frame(t - 0.02 + i * 1e-6) for i in range(FLOOD_PER_TICK)), "attacker"
-            )
+            bus.inject_many(flood[200:], "attacker")
         for m in follower.poll(t, budget_s=BUDGET_S):
             if m.state is not None and m.sender == 0:
                 last_t = max(last_t, m.state.t)
@@ -62,9 +66,13 @@ def test_genuine_bsms_keep_a_bounded_age_under_a_wrongly_signed_flood():
     c = follower.counters
     bad = follower.auth.counters.rejected["bad_signature"]
     print(f"flood: ages max {max(ages):.3f} s, shed {c.shed}, bad signatures {bad}")
-    # every tick of the flood delivered the leader's newest BSM (5 ms old when read)
-    assert max(ages) < 1.2 / RATE_HZ, ages
-    assert c.shed + bad >= 60 * FLOOD_PER_TICK - 5 and c.shed > 0  # the flood cost little
+    # the leader's newest BSM (5 ms old when read) nearly every tick, never 3 ticks late
+    # (D52: it was up to 2 s, and a follower latched "stale")
+    assert sorted(ages)[len(ages) // 2] < 0.01 and max(ages) < 3.2 / RATE_HZ, ages
+    # the flood cost little: beyond what the socket holds it was dropped, of the rest a few
+    # were verified a tick (per claimed sender), the others shed unverified
+    assert c.shed + bad + bus.dropped >= 60 * FLOOD_PER_TICK - 5 and c.shed > 0
+    assert bad <= 60 * 4 + 60
     alerts = follower.take_alerts()
     assert any("V2V flood" in a and "claiming vehicle 0" in a and "attacker" in a for a in alerts)
 

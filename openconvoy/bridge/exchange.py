@@ -72,7 +72,7 @@ class Exchange:
                 inbox.append(msg.state)
         take_alerts = getattr(self.v2v, "take_alerts", None)
         if take_alerts is not None:
-            for line in take_alerts():
+            for line in take_alerts(wall):
                 self.on_status(line)
         return member_tick.sense(self.member, inbox, wall)
 

@@ -138,11 +138,14 @@ class Alerts:
         self._last: dict[tuple[str, int], float] = {}
         self.pending: list[str] = []
 
-    def raise_(self, kind: str, sender: int, now: float, line: str) -> bool:
-        """Queue ``line`` unless this kind about this sender was said lately."""
+    def raise_(
+        self, kind: str, sender: int, now: float, line: str, period_s: float = ALERT_PERIOD_S
+    ) -> bool:
+        """Queue ``line`` unless this kind about this sender was said in the last
+        ``period_s`` seconds."""
         key = (kind, sender)
         last = self._last.get(key)
-        if last is not None and now - last < ALERT_PERIOD_S:
+        if last is not None and now - last < period_s:
             return False
         self._last[key] = now
         self.pending.append(line)

@@ -98,6 +98,8 @@ TRAIL_HEADING_M = 0.5
 VERIFY_PER_SENDER = 4
 #: Wrongly signed messages a second, claiming one sender, that make a flood (said once).
 FLOOD_ALERT_PER_S = 20
+#: A member's clock offset over half the tolerance is said at most this often (s).
+SKEW_ALERT_PERIOD_S = 60.0
 #: Payload of the leader's "scenario complete" (JSON, signed with PSID_COMPLETE).
 COMPLETE_PREFIX = b'{"openconvoy":"complete"'
 _KINDS = {PSID_ABORT: "abort", PSID_COMPLETE: "complete"}
@@ -391,11 +393,14 @@ class Receiver:
         """Each member's clock offset from ours (``guards.SkewMeter``)."""
         self.alerts = Alerts()
         """Operator lines: floods, disagreement about auth, jumps, impersonation."""
+        self.last_t_rx = -math.inf
+        """The latest receive time handled (s)."""
         self.auth_mismatch: dict[int, str] = {}
         """Members heard using V2V authentication differently from us (their first line)."""
 
     def handle(self, data: bytes, t_rx: float, source: str = "") -> Received | None:
-        """Classify and decode one datagram received at ``t_rx``; None if not delivered."""
+        """Classify and decode one datagram received at ``t_rx``; None if not delivered.
+        (``handle_batch`` of one.)"""
         out = self.handle_batch([(data, source)], t_rx)
         return out[0] if out else None
 
@@ -430,6 +435,7 @@ class Receiver:
     ) -> None:
         """The cheap part of ``handle_batch``: what needs no signature verified goes to
         ``out`` (or is counted), signed SPDUs to verify to ``pending``."""
+        self.last_t_rx = t_rx
         for data, source in items:
             self.counters.datagrams += 1
             try:
@@ -1123,10 +1129,26 @@ class V2V:
         self.receiver.verify_batch(pending, now, out, deadline=deadline, clock=self._clock)
         return out
 
-    def take_alerts(self) -> list[str]:
+    def take_alerts(self, now: float | None = None) -> list[str]:
         """Operator lines since the last call (floods, auth disagreement, clock offsets,
-        position jumps, impersonation), each at most once per ``guards.ALERT_PERIOD_S``."""
-        return self.receiver.alerts.take()
+        position jumps, impersonation), each at most once per ``guards.ALERT_PERIOD_S``
+        (a clock offset over half the tolerance: once a minute per member). ``now``: the
+        shared clock (s); default the last receive time."""
+        r = self.receiver
+        t = r.last_t_rx if now is None else now
+        half = self.config.time_tolerance_s / 2
+        for i, o in sorted(self.clock_offsets(t).items()):
+            if abs(o) > half:
+                r.alerts.raise_(
+                    "skew",
+                    i,
+                    t,
+                    f"vehicle {self.vehicle_index}: vehicle {i}'s clock is {abs(o):.2f} s "
+                    f"{'ahead of' if o > 0 else 'behind'} this vehicle's (tolerance "
+                    f"{self.config.time_tolerance_s:g} s)",
+                    period_s=SKEW_ALERT_PERIOD_S,
+                )
+        return r.alerts.take()
 
     def clock_offsets(self, now: float) -> dict[int, float]:
         """Each member's clock minus ours (s) as heard lately."""

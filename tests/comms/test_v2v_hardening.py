@@ -98,6 +98,11 @@ def test_signed_age_comes_from_the_generation_time_and_the_offset_is_measured():
     (r,) = rx.poll(T0 + 1.0)
     assert r.age == 0.0 and rx.clock_offsets(T0 + 1.0)[0] == pytest.approx(0.8, abs=1e-3)
     assert rx.start_refusal(T0 + 1.0) == ""
+    # over half the tolerance: named in one line, once a minute
+    assert rx.take_alerts() == [
+        "vehicle 1: vehicle 0's clock is 0.80 s ahead of this vehicle's (tolerance 1 s)"
+    ]
+    assert rx.take_alerts(T0 + 30.0) == []
 
 
 def test_a_clock_beyond_the_tolerance_is_named_and_refuses_the_start():

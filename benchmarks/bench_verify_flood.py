@@ -96,14 +96,17 @@ def flood(keys: Path, t0: float, rate: int, seconds: float) -> dict:
     assert sent is not None
     forger = _Forger(sent[0])
     per_tick = int(rate / RATE_HZ)
+    pick = random.Random(7)
     last_t, ages, poll_s = t0, [], []
     for k in range(2, 2 + int(seconds * RATE_HZ)):
         t = t0 + k / RATE_HZ
         frames = [forger.frame(t - 0.02 + i * 1e-6) for i in range(per_tick)]
-        # the genuine frame in the middle of the flood, not first
-        bus.inject_many(frames[: per_tick // 2], "attacker")
+        # the genuine frame at a random place among the period's flood (it arrives when
+        # it arrives; the socket buffer keeps the first SOCKET_DATAGRAMS)
+        at = pick.randint(0, per_tick)
+        bus.inject_many(frames[:at], "attacker")
         leader.send(_state(0, t - 0.005, t0), t - 0.005)
-        bus.inject_many(frames[per_tick // 2 :], "attacker")
+        bus.inject_many(frames[at:], "attacker")
         start = time.perf_counter()
         for m in follower.poll(t, budget_s=BUDGET_S):
             if m.state is not None and m.sender == 0:

@@ -363,7 +363,9 @@ def _watch(procs: list[subprocess.Popen], vehicles: list[Any], duration: float) 
     last = -math.inf
     while procs[0].poll() is None:
         now = time.monotonic()
-        if any(p.poll() is not None for p in procs[1:]):
+        # A follower ends by itself (exit 0) when it hears the leader's signed completion,
+        # which may come just before the leader's own process exits.
+        if any(p.poll() is not None and p.returncode != 0 for p in procs[1:]):
             _say("a follower's deploy ended early")
             return 1
         if now > deadline:

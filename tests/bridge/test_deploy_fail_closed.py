@@ -110,6 +110,20 @@ def test_key_files_are_refused_as_ssh_does_and_must_be_regular_and_small(tmp_pat
     assert stat.S_IMODE(key.stat().st_mode) == 0o600
 
 
+def test_a_log_that_is_a_device_or_a_fifo_is_one_line(tmp_path, capsys):
+    zero = tmp_path / "l.csv"
+    zero.symlink_to("/dev/zero")  # D57: MemoryError before
+    assert main(["report", str(zero)]) == 2
+    assert "not a regular file" in _one_line(capsys)
+    fifo = tmp_path / "f.csv"
+    os.mkfifo(fifo)  # D57: hung before
+    assert main(["report", str(fifo)]) == 2
+    assert "not a regular file" in _one_line(capsys)
+    zero.unlink()
+    assert main(["report", str(tmp_path)]) == 2  # a directory holding only the FIFO
+    assert "no OpenConvoy log" in _one_line(capsys)
+
+
 def test_a_certificate_of_another_vehicle_is_refused(tmp_path, capsys):
     convoy, d = _keyed(tmp_path)
     for ext in ("key", "cert"):  # D60: vehicle 0's pair copied over vehicle 1's

@@ -44,6 +44,8 @@ INIT_S = 2.34
 """ArduPilot's "ArduPilot Ready" (INITIAL_MODE MANUAL), then the RC mode switch's MANUAL
 0.42 s later, as the firmware does at boot. The vehicles boot when their deploy connects
 (as SITL waiting for serial0), so the GUIDED it sets first is lost and must be noticed."""
+FOLLOWER_GRACE_S = 10.0
+"""How long the followers may take to end by themselves once the leader's run ended."""
 PHASE_SETTLE_S = 10.0
 """Speed tracking is judged from this long after each leader speed change."""
 
@@ -378,6 +380,11 @@ def _watch(procs: list[subprocess.Popen], vehicles: list[Any], duration: float) 
     if procs[0].returncode != 0:
         _say(f"the leader's deploy failed (exit {procs[0].returncode})")
         return 1
+    # The followers end by themselves on the leader's signed completion; those still
+    # running after a grace period are stopped.
+    grace = time.monotonic() + FOLLOWER_GRACE_S
+    while time.monotonic() < grace and any(p.poll() is None for p in procs[1:]):
+        time.sleep(0.1)
     codes = stop_all(procs)
     _say(_status_line(time.monotonic() - t0, vehicles) + " | stopped")
     if any(c != 0 for c in codes):

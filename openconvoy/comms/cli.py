@@ -249,8 +249,9 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
         "keys",
         help="the convoy's signing keys: authority and vehicle certificates",
         description="IEEE 1609.2 keys for signed BSMs and aborts. The keys live in NAME.keys/ "
-        "beside the convoy file (or [v2v] keys); once they exist, deploy signs and verifies "
-        'every message unless the convoy says auth = "off".',
+        "beside the convoy file (or [v2v] keys). deploy signs and verifies every message and "
+        'refuses to start without keys, unless the convoy file says auth = "off". See '
+        "docs/security.md.",
     )
     cmds = keys.add_subparsers(dest="keys_command", metavar="SUBCOMMAND", required=True)
     p = cmds.add_parser("init", help="make the convoy authority's key and certificate")

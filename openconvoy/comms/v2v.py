@@ -717,9 +717,11 @@ class Receiver:
             if self.auth.admit(spdu, t_rx) is not None:
                 self._rejected(source, "replayed completion")
                 return None
-        elif car != 0 or self._frames.seen(payload, t_rx):
-            self.counters.replays += car == 0
-            self.counters.filtered += car != 0
+        elif car != 0:
+            self.counters.filtered += 1
+            return None
+        elif self._frames.seen(payload, t_rx):
+            self.counters.replays += 1
             return None
         self.counters.received += 1
         return Received(None, t_rx, False, "j2735", 0, complete=True)

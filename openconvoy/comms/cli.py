@@ -270,6 +270,13 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
         "KEYS/revoked: copy that file to every vehicle)",
     )
     p.set_defaults(handler=_keys_handler)
+    p = cmds.add_parser("operator", help="issue an operator's key (signs aborts only)")
+    p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
+    p.add_argument("--name", required=True, help="the operator's name (letters, digits, - _)")
+    p.add_argument(
+        "--force", action="store_true", help="replace it; the old certificate is revoked"
+    )
+    p.set_defaults(handler=_keys_handler)
 
 
 def _keys_handler(args: argparse.Namespace) -> int:
@@ -283,6 +290,12 @@ def _keys_handler(args: argparse.Namespace) -> int:
     if args.keys_command == "init":
         cert = keystore.init_authority(keys_dir, convoy.name, time.time(), force=args.force)
         print(f"{cert.name}: {keys_dir}/authority.key, authority.cert (digest {cert.digest.hex()})")
+    elif args.keys_command == "operator":
+        cert = keystore.issue_operator(
+            keys_dir, convoy.name, args.name, time.time(), force=args.force
+        )
+        stem = f"operator-{args.name}"
+        print(f"{cert.name}: {keys_dir}/{stem}.key, {stem}.cert (digest {cert.digest.hex()})")
     else:
         if not 0 <= args.vehicle_id < convoy.n_vehicles:
             raise ConfigError(

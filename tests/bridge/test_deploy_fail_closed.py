@@ -158,3 +158,25 @@ def test_deeply_nested_toml_is_one_line_naming_the_file(tmp_path, capsys):
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
+
+
+def test_an_operator_key_signs_aborts_and_vehicles_obey_it(tmp_path, capsys):
+    from openconvoy.comms import legacy_json as cj
+    from openconvoy.comms.geodesy import Origin
+    from openconvoy.comms.security import certs as c
+    from openconvoy.comms.security.auth import Authenticator
+    from openconvoy.comms.tempids import TempIds
+    from openconvoy.comms.v2v import Receiver
+
+    convoy, d = _keyed(tmp_path)
+    assert main(["keys", "operator", "--convoy", str(convoy), "--name", "alice"]) == 0
+    assert "lab.operator-alice" in capsys.readouterr().out
+    assert main(["keys", "operator", "--convoy", str(convoy), "--name", "alice"]) == 2
+    assert "already has a key" in _one_line(capsys)
+    now = time.time()
+    operator = Authenticator(ks.signer_of_key(d / "operator-alice.key", d, now))
+    rx = Receiver(
+        TempIds("lab", 3), Origin(0.0, 0.0), 1, auth=Authenticator(ks.load_vehicle(d, 1, now))
+    )
+    r = rx.handle(operator.sign(cj.make_abort(now), c.PSID_ABORT, now), now + 0.01)
+    assert r is not None and r.abort and r.sender == -1

@@ -243,6 +243,43 @@ def issue_vehicle(
     return cert
 
 
+def issue_operator(
+    keys_dir: str | Path, convoy: str, name: str, now: float, *, force: bool = False
+) -> c.Certificate:
+    """Issue an operator's key and certificate (``operator-NAME``): it may sign aborts
+    (``openconvoy abort --key``) and nothing else; re-issuing needs ``force`` and revokes
+    the old one."""
+    if not name or not all(ch.isalnum() or ch in "-_" for ch in name) or len(name) > 32:
+        raise KeyFileError(f"--name {name!r}: letters, digits, - and _ only (at most 32)")
+    authority, akey = load_authority(keys_dir, with_key=True)
+    assert akey is not None
+    d = Path(keys_dir)
+    stem = f"operator-{name}"
+    old_path = d / f"{stem}.cert"
+    if old_path.exists() or (d / f"{stem}.key").exists():
+        if not force:
+            raise KeyFileError(
+                f"operator {name} already has a key in {d} (use --force to issue a new one "
+                "and revoke the old certificate)"
+            )
+        if old_path.exists():
+            try:
+                revoke(d, read_certificate(old_path))
+            except KeyFileError:
+                pass
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = c.make_certificate(
+        f"{convoy}.{stem}",
+        key.public_key(),
+        psids=(c.PSID_ABORT,),
+        start_unix=now - START_SLACK_S,
+        duration_hours=VEHICLE_HOURS,
+        issuer=(authority, akey),
+    )
+    _write_pair(d, stem, key, cert)
+    return cert
+
+
 def revoke(keys_dir: str | Path, cert: c.Certificate) -> None:
     """Add ``cert`` to the keys directory's ``revoked`` list (kept, never rewritten)."""
     p = Path(keys_dir) / REVOKED

@@ -102,6 +102,12 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
             f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates"
         )
+        if a.vehicle_id == 0 and not a.passive and not _may_sign_completion(auth):
+            status(
+                "vehicle 0: its certificate predates the leader's completion message: the "
+                "followers will not hear that the scenario ended (re-issue it: `openconvoy "
+                f"keys issue --convoy {a.convoy} --vehicle-id 0 --force`)"
+            )
     link = _make_link(a, origin, presets[a.vehicle_id], rate, status)
     v2v = _make_v2v(a, convoy, origin, auth)  # opens the sockets
     if auth is None:  # only with auth = "off" written in the convoy file: say so at every start
@@ -177,6 +183,12 @@ def _make_v2v(a: DeployArgs, convoy: ConvoyConfig, origin: Origin, auth: Any) ->
         rng=np.random.default_rng(a.seed + 7919 * a.vehicle_id),
         auth=auth,
     )
+
+
+def _may_sign_completion(auth: Any) -> bool:
+    from openconvoy.comms.security.certs import PSID_COMPLETE
+
+    return PSID_COMPLETE in auth.credentials.certificate.psids
 
 
 def unauthenticated_warning(vehicle_id: int, convoy_path: str) -> str:

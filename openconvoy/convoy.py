@@ -14,9 +14,9 @@ port = 4200
 hop_limit = 1
 compat = false                    # also speak the original OpenConvoy JSON (IPv4)
 temp_ids = ["4f430000", ...]      # optional explicit 4-byte BSM ids, leader first
-auth = "required"                 # or "off"; default: required whenever keys exist
+auth = "required"                 # the default; "off" only when written here (see docs/security.md)
 keys = "lab.keys"                 # the keys directory (default NAME.keys beside this file)
-replay_window_s = 1.0             # reject signed messages generated longer ago than this
+replay_window_s = 1.0             # clock tolerance (s): replay window, secMark rebuild, start skew
 
 [safety]                          # optional; vehicles only
 speed_cap_mps = 5.0
@@ -58,10 +58,14 @@ AUTH_MODES = ("required", "off")
 class V2VConfig:
     """Where and how convoy members talk (see ``openconvoy.comms``).
 
-    ``security.auth``: ``"required"`` (sign every BSM and abort as IEEE 1609.2 SPDUs, deliver only
-    verified ones), ``"off"``, or ``""`` (the default: required when ``keys`` holds a
-    convoy authority). ``keys``: the keys directory (``load_convoy`` makes a relative
+    ``auth``: ``"required"`` (sign every BSM and abort as IEEE 1609.2 SPDUs, deliver only
+    verified ones), ``"off"`` (unsigned: only when written explicitly), or ``""`` (not
+    written: the same as ``"required"``; a deploy without keys then refuses to start —
+    V2V fails closed). ``keys``: the keys directory (``load_convoy`` makes a relative
     one relative to the convoy file, and defaults it to ``NAME.keys`` beside it).
+    ``replay_window_s``: the one clock tolerance (s) of the link: the replay window of
+    signed messages, the slack of the secMark rebuild, and the largest clock offset
+    between vehicles the convoy start accepts.
     """
 
     group: str = "ff15::4f43"
@@ -90,10 +94,9 @@ class V2VConfig:
 
     @property
     def auth_required(self) -> bool:
-        """Whether messages are signed and verified (``ValueError`` with compat)."""
-        required = self.auth == "required" or (
-            self.auth == "" and bool(self.keys) and (Path(self.keys) / "authority.cert").is_file()
-        )
+        """Whether messages are signed and verified: always, unless ``auth = "off"`` is
+        written (``ConfigError`` with compat, whose JSON cannot be signed)."""
+        required = self.auth != "off"
         if required and self.compat:
             raise ConfigError(
                 "v2v: compat = true cannot be combined with authentication (the JSON format "

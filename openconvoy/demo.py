@@ -44,6 +44,8 @@ INIT_S = 2.34
 """ArduPilot's "ArduPilot Ready" (INITIAL_MODE MANUAL), then the RC mode switch's MANUAL
 0.42 s later, as the firmware does at boot. The vehicles boot when their deploy connects
 (as SITL waiting for serial0), so the GUIDED it sets first is lost and must be noticed."""
+FOLLOWER_GRACE_S = 10.0
+"""How long the followers may take to end by themselves once the leader's run ended."""
 PHASE_SETTLE_S = 10.0
 """Speed tracking is judged from this long after each leader speed change."""
 
@@ -156,9 +158,18 @@ def _say(line: str) -> None:
 
 
 def write_convoy_toml(
-    path: Path, vehicles: tuple[str, ...], origin: tuple[float, float, float]
+    path: Path,
+    vehicles: tuple[str, ...],
+    origin: tuple[float, float, float],
+    *,
+    keys: bool = True,
 ) -> None:
-    """The demo's convoy config (paper scenario, its vehicles, the default V2V group)."""
+    """The demo's convoy config (paper scenario, its vehicles, the default V2V group).
+
+    With ``keys`` (the default) the convoy's authority and one key per vehicle are made in
+    ``NAME.keys/`` beside it (``openconvoy keys init`` / ``issue``), so that every deploy
+    signs and verifies its V2V messages; without, the caller makes its own keys (a deploy
+    without keys refuses to start unless ``[v2v] auth = "off"`` is written)."""
     vs = ", ".join(f'"{v}"' for v in vehicles)
     path.write_text(
         "[convoy]\n"
@@ -168,6 +179,14 @@ def write_convoy_toml(
         f"origin = [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\n",
         encoding="utf-8",
     )
+    if keys:
+        from openconvoy.comms.security import keystore
+
+        d = keystore.default_keys_dir(path)
+        now = time.time()
+        keystore.init_authority(d, "demo", now, force=True)
+        for i in range(len(vehicles)):
+            keystore.issue_vehicle(d, "demo", i, now, force=True)
 
 
 PX4_HEADING_BIAS_MAX_DEG = 10.0
@@ -416,7 +435,9 @@ def _watch(procs: list[subprocess.Popen], vehicles: list[Any], duration: float) 
     last = -math.inf
     while procs[0].poll() is None:
         now = time.monotonic()
-        if any(p.poll() is not None for p in procs[1:]):
+        # A follower ends by itself (exit 0) when it hears the leader's signed completion,
+        # which may come just before the leader's own process exits.
+        if any(p.poll() is not None and p.returncode != 0 for p in procs[1:]):
             _say("a follower's deploy ended early")
             return 1
         if now > deadline:
@@ -429,6 +450,11 @@ def _watch(procs: list[subprocess.Popen], vehicles: list[Any], duration: float) 
     if procs[0].returncode != 0:
         _say(f"the leader's deploy failed (exit {procs[0].returncode})")
         return 1
+    # The followers end by themselves on the leader's signed completion; those still
+    # running after a grace period are stopped.
+    grace = time.monotonic() + FOLLOWER_GRACE_S
+    while time.monotonic() < grace and any(p.poll() is None for p in procs[1:]):
+        time.sleep(0.1)
     codes = stop_all(procs)
     _say(_status_line(time.monotonic() - t0, vehicles) + " | stopped")
     if any(c != 0 for c in codes):

@@ -176,6 +176,8 @@ def log_files(path: str | Path) -> list[Path]:
 
 
 def _is_log(path: Path) -> bool:
+    if not path.is_file():  # a FIFO would block, a device never end
+        return False
     try:
         with path.open(encoding="utf-8") as f:
             header = f.readline().strip().split(",")
@@ -221,8 +223,11 @@ _FINITE_COLUMNS = ("t_s", "x_m", "y_m")
 
 def _read_one(path: Path) -> Log:
     """One CSV log as columns, converted row by row into compact arrays (8 bytes a value;
-    a 1 h, 3-vehicle run is 216,000 rows), never held as strings."""
+    a 1 h, 3-vehicle run is 216,000 rows), never held as strings. Only a regular file:
+    a FIFO or a device (``/dev/zero``) would block or never end (D57)."""
     try:
+        if path.exists() and not path.is_file():
+            raise InputFileError(f"{path}: not a regular file (a log is a CSV file)")
         with path.open(newline="", encoding="utf-8") as f:
             reader = csv.reader(f)
             header = next(reader, None)

@@ -158,7 +158,12 @@ PROBES: list[tuple[str, dict, list[str], str]] = [
         "--rate: 1e6 is out of range; allowed: a finite number in (0, 100]",
     ),
     ("D6-rate-inf", {"c.toml": CONVOY}, [*DEPLOY, "--rate", "inf"], "--rate"),
-    ("D6-log-file", {"c.toml": CONVOY, "f.txt": "x"}, [*DEPLOY, "--log", "{d}/f.txt"], "--log"),
+    (
+        "D6-log-file",
+        {"c.toml": CONVOY + '[v2v]\nauth = "off"\n', "f.txt": "x"},
+        [*DEPLOY, "--log", "{d}/f.txt"],
+        "--log",
+    ),
     # D8, D9, D45: deploy's other numbers
     (
         "D8-per-negative",
@@ -482,7 +487,7 @@ PROBES: list[tuple[str, dict, list[str], str]] = [
     # D21, D24, D45: vehicles and MAVLink URLs
     (
         "D21-deploy-port-99999",
-        {"c.toml": CONVOY},
+        {"c.toml": CONVOY + '[v2v]\nauth = "off"\n'},
         [*DEPLOY[:8], "udpin:127.0.0.1:99999", *DEPLOY[9:]],
         "PORT in 1..65535",
     ),

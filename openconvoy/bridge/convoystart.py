@@ -4,10 +4,16 @@ A follower waits, armed and still, until it has heard the leader and the predece
 Rx gate keeps; a scenario-driven leader waits until it has heard every member (at most
 ``RunnerOptions.convoy_wait_s``), so the convoy starts moving together as in simulation.
 "Heard" counts every vehicle message the V2V link delivered, before the Rx gate.
+
+Before starting, the V2V link may refuse (``refusal``: a member that uses V2V
+authentication differently, or a clock further off than the link's tolerance): the start
+is then refused for good (``refused``, one line) and the runner ends the run. A leader
+that starts without having heard every member says who and since when (D61).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 
@@ -21,6 +27,9 @@ class ConvoyStart:
             ``leader_waits_for_convoy``); wait_s: the longest such wait (s).
         clock: the runner's monotonic clock (s).
         on_start: called once, when the start is recorded.
+        refusal: why the convoy must not start ("" = it may), asked while waiting
+            (``comms.v2v.V2V.start_refusal``); None: never refused.
+        on_status: receives the leader's line about members never heard.
     """
 
     def __init__(
@@ -33,6 +42,8 @@ class ConvoyStart:
         wait_s: float,
         clock: Callable[[], float],
         on_start: Callable[[], None] | None = None,
+        refusal: Callable[[], str] | None = None,
+        on_status: Callable[[str], None] | None = None,
     ) -> None:
         self.vehicle_id = vehicle_id
         self.n_vehicles = n_vehicles
@@ -41,6 +52,10 @@ class ConvoyStart:
         self.wait_s = wait_s
         self.clock = clock
         self.on_start = on_start
+        self.refusal = refusal
+        self.on_status = on_status
+        self.refused = ""
+        """Why the start was refused ("" = not refused)."""
         self.heard: set[int] = set()
         self.t_start: float | None = None
         """Monotonic time (s) the convoy started moving; None before."""
@@ -72,9 +87,31 @@ class ConvoyStart:
     def update(self, now: float, wall: float, t_loop_start: float | None) -> bool:
         """Whether this vehicle still waits at monotonic ``now``; the first time it need not,
         the start is recorded (``t_start``, and ``wall`` as ``t_start_wall``)."""
+        if self.refused:
+            return True
+        if self.t_start is None and self.refusal is not None:
+            self.refused = self.refusal()
+            if self.refused:
+                return True
         waiting = bool(self.waiting_for(t_loop_start))
         if not waiting and self.t_start is None:
+            self._say_unheard(now, wall, t_loop_start)
             self.t_start, self.t_start_wall = now, wall
             if self.on_start is not None:
                 self.on_start()
         return waiting
+
+    def _say_unheard(self, now: float, wall: float, t_loop_start: float | None) -> None:
+        """The leader starting without having heard every member: who, and since when."""
+        unheard = [j for j in range(1, self.n_vehicles) if j not in self.heard]
+        if self.vehicle_id != 0 or not self.leader_waits or not unheard:
+            return
+        since = wall - (now - (t_loop_start if t_loop_start is not None else now))
+        who = ", ".join(str(j) for j in unheard)
+        line = (
+            f"vehicle 0: no message from vehicle{'s' if len(unheard) > 1 else ''} {who} since "
+            f"{time.strftime('%H:%M:%S', time.gmtime(since))} UTC ({now - (t_loop_start or now):.0f} s): "
+            "starting anyway"
+        )
+        if self.on_status is not None:
+            self.on_status(line)

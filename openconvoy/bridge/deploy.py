@@ -103,17 +103,25 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         raise ConfigError("--mavlink URL is required with --link mavlink")
     if a.bag and a.log is None:
         raise ConfigError("--bag records beside the log: give --log DIR")
+    auth = vehicle_authenticator(convoy, a.vehicle_id, a.convoy)  # before any file or socket
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming
-    auth = vehicle_authenticator(convoy, a.vehicle_id)  # key problems: before any socket
     if auth is not None:
         status(
             f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
             f"(IEEE 1609.2), accepting {auth.credentials.authority.name}'s certificates"
         )
+        if a.vehicle_id == 0 and not a.passive and not _may_sign_completion(auth):
+            status(
+                "vehicle 0: its certificate predates the leader's completion message: the "
+                "followers will not hear that the scenario ended (re-issue it: `openconvoy "
+                f"keys issue --convoy {a.convoy} --vehicle-id 0 --force`)"
+            )
     link = _make_link(a, origin, presets[a.vehicle_id], rate, status)
     bag = _make_bag(a, rate)
     v2v = _make_v2v(a, convoy, origin, auth, bag)  # opens the sockets
+    if auth is None:  # only with auth = "off" written in the convoy file: say so at every start
+        print(unauthenticated_warning(a.vehicle_id, a.convoy), file=sys.stderr, flush=True)
     runner = DeployRunner(
         options,
         convoy,
@@ -237,15 +245,42 @@ def _make_v2v(
     )
 
 
-def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int) -> Any:
-    """The vehicle's ``Authenticator`` when the convoy signs its messages, else None
-    (``KeyFileError``, one line, when its keys are missing or do not match)."""
+def _may_sign_completion(auth: Any) -> bool:
+    from openconvoy.comms.security.certs import PSID_COMPLETE
+
+    return PSID_COMPLETE in auth.credentials.certificate.psids
+
+
+def unauthenticated_warning(vehicle_id: int, convoy_path: str) -> str:
+    """The one line a deploy prints at every start with ``[v2v] auth = "off"``."""
+    return (
+        f'vehicle {vehicle_id}: WARNING: V2V is unauthenticated ([v2v] auth = "off" in '
+        f"{convoy_path}): any station on the link can speak for any vehicle of this convoy"
+    )
+
+
+def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int, convoy_path: str = "") -> Any:
+    """The vehicle's ``Authenticator``, or None only with ``[v2v] auth = "off"``.
+
+    V2V fails closed: without keys (no convoy authority in the keys directory), and
+    without ``auth = "off"`` written in the convoy file, this is a one-line
+    ``KeyFileError`` (exit 2) saying both ways out; so are missing, unprotected or
+    mismatched key files (``security.keystore``)."""
     if not convoy.v2v.auth_required:
         return None
     from openconvoy.comms.security.auth import Authenticator
-    from openconvoy.comms.security.keystore import load_vehicle
+    from openconvoy.comms.security.keystore import KeyFileError, has_keys, load_vehicle
 
-    creds = load_vehicle(convoy.v2v.keys, vehicle_id, time.time())
+    keys = convoy.v2v.keys
+    where = convoy_path or "the convoy file"
+    if not has_keys(keys):
+        raise KeyFileError(
+            f"V2V authentication is required and {keys} holds no convoy keys: run "
+            f"`openconvoy keys init --convoy {where}` and `openconvoy keys issue --convoy "
+            f'{where} --vehicle-id N` for each vehicle, or write [v2v] auth = "off" in '
+            f"{where} to run unauthenticated"
+        )
+    creds = load_vehicle(keys, vehicle_id, time.time())
     return Authenticator(creds, window_s=convoy.v2v.replay_window_s)
 
 

@@ -48,6 +48,9 @@ class Exchange:
         self.on_status = on_status
         self.abort = False
         """Whether an abort message was heard."""
+        self.leader_complete = False
+        """Whether the leader said (signed, when authenticating) it completed its scenario."""
+        self._complete_sent = False
         self.broadcasting = True
         self.broadcast_pauses: list[list[float | None]] = []  # [wall from, wall to]
 
@@ -62,10 +65,24 @@ class Exchange:
         for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET / self.rate_hz):
             if msg.abort:
                 self.abort = True
+            elif getattr(msg, "complete", False):
+                self.leader_complete = True
             elif msg.state is not None:
                 self.start_gate.heard_from(msg.state.vehicle_id)
                 inbox.append(msg.state)
+        take_alerts = getattr(self.v2v, "take_alerts", None)
+        if take_alerts is not None:
+            for line in take_alerts(wall):
+                self.on_status(line)
         return member_tick.sense(self.member, inbox, wall)
+
+    def announce_complete(self, wall: float) -> None:
+        """The leader completed its scenario: say so to the convoy, once (the followers
+        then end with exit 0 instead of waiting for messages that stopped, D62)."""
+        send = getattr(self.v2v, "send_complete", None)
+        if send is not None and not self._complete_sent:
+            self._complete_sent = True
+            send(wall)
 
     def delivered(self) -> int:
         """Vehicle messages the V2V link delivered (aborts are not traffic)."""

@@ -375,6 +375,8 @@ class DeployRunner:
             wait_s=o.convoy_wait_s,
             clock=self.clock,
             on_start=lambda: status(f"vehicle {o.vehicle_id}: convoy complete, starting"),
+            refusal=self._start_refusal,
+            on_status=status,
         )
         self.leading = LeaderDriving(
             self.leader,
@@ -455,6 +457,7 @@ class DeployRunner:
             code = code or failure_code(
                 self.failsafes, self.start_gate.t_start is not None, self.link.failsafe_took_over
             )
+            code = code or (1 if self.start_gate.refused else 0)
             self._finish(reason, code)
         return RunResult(
             exit_code=code,
@@ -479,6 +482,11 @@ class DeployRunner:
             done = self.tick(t_tick)
             if done:
                 return done
+
+    def _start_refusal(self) -> str:
+        """The V2V link's reason not to start ("" = none; ``comms.v2v.V2V.start_refusal``)."""
+        refusal = getattr(self.v2v, "start_refusal", None)
+        return "" if refusal is None else str(refusal(self.wall()))
 
     def _check_stop(self) -> None:
         if self._stop_requested:
@@ -539,9 +547,17 @@ class DeployRunner:
         if self.failsafes.took_over and t_start is None and self.commanding:
             why = self.link.takeover_reason or "a mode change we did not ask for"
             return f"pilot took over before the convoy drove: {why}"
+        if self.start_gate.refused:
+            return f"convoy start refused: {self.start_gate.refused}"
         if t_start is None:
             return ""
-        return "duration reached" if self.leading.over(now, t_start, own.speed) else ""
+        if self.exchange.leader_complete and not self.is_leader:
+            return "the leader completed its scenario"
+        if self.leading.over(now, t_start, own.speed):
+            if self.is_leader and not self.options.passive:
+                self.exchange.announce_complete(self.wall())
+            return "duration reached"
+        return ""
 
     # ------------------------------------------------------------------ helpers
 

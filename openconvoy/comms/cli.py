@@ -249,8 +249,9 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
         "keys",
         help="the convoy's signing keys: authority and vehicle certificates",
         description="IEEE 1609.2 keys for signed BSMs and aborts. The keys live in NAME.keys/ "
-        "beside the convoy file (or [v2v] keys); once they exist, deploy signs and verifies "
-        'every message unless the convoy says auth = "off".',
+        "beside the convoy file (or [v2v] keys). deploy signs and verifies every message and "
+        'refuses to start without keys, unless the convoy file says auth = "off". See '
+        "docs/security.md.",
     )
     cmds = keys.add_subparsers(dest="keys_command", metavar="SUBCOMMAND", required=True)
     p = cmds.add_parser("init", help="make the convoy authority's key and certificate")
@@ -261,6 +262,19 @@ def _add_keys(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
     p.add_argument(
         "--vehicle-id", type=_int(0, 254), required=True, help="convoy index, 0 = leader"
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the vehicle's existing key; its old certificate is revoked (listed in "
+        "KEYS/revoked: copy that file to every vehicle)",
+    )
+    p.set_defaults(handler=_keys_handler)
+    p = cmds.add_parser("operator", help="issue an operator's key (signs aborts only)")
+    p.add_argument("--convoy", required=True, metavar="CONVOY.toml")
+    p.add_argument("--name", required=True, help="the operator's name (letters, digits, - _)")
+    p.add_argument(
+        "--force", action="store_true", help="replace it; the old certificate is revoked"
     )
     p.set_defaults(handler=_keys_handler)
 
@@ -276,14 +290,28 @@ def _keys_handler(args: argparse.Namespace) -> int:
     if args.keys_command == "init":
         cert = keystore.init_authority(keys_dir, convoy.name, time.time(), force=args.force)
         print(f"{cert.name}: {keys_dir}/authority.key, authority.cert (digest {cert.digest.hex()})")
+    elif args.keys_command == "operator":
+        cert = keystore.issue_operator(
+            keys_dir, convoy.name, args.name, time.time(), force=args.force
+        )
+        stem = f"operator-{args.name}"
+        print(f"{cert.name}: {keys_dir}/{stem}.key, {stem}.cert (digest {cert.digest.hex()})")
     else:
         if not 0 <= args.vehicle_id < convoy.n_vehicles:
             raise ConfigError(
                 f"--vehicle-id {args.vehicle_id}: the convoy has vehicles 0..{convoy.n_vehicles - 1}"
             )
-        cert = keystore.issue_vehicle(keys_dir, convoy.name, args.vehicle_id, time.time())
+        n_revoked = len(keystore.load_revoked(keys_dir))
+        cert = keystore.issue_vehicle(
+            keys_dir, convoy.name, args.vehicle_id, time.time(), force=args.force
+        )
         stem = keystore.vehicle_stem(args.vehicle_id)
         print(f"{cert.name}: {keys_dir}/{stem}.key, {stem}.cert (digest {cert.digest.hex()})")
+        if len(keystore.load_revoked(keys_dir)) > n_revoked:
+            print(
+                f"the previous certificate of vehicle {args.vehicle_id} is revoked: copy "
+                f"{keys_dir}/{keystore.REVOKED} to every vehicle"
+            )
     return 0
 
 

@@ -20,8 +20,11 @@ from openconvoy.comms import bsm as j
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from openconvoy.core.state import VehicleState, wrap_angle
 
-#: Default slack, seconds, for a sender clock slightly ahead of the receiver's.
-DEFAULT_TIME_TOLERANCE_S = 0.5
+#: The link's one clock tolerance (s): the slack for a sender clock ahead of the
+#: receiver's in the secMark rebuild, the replay window of signed messages
+#: (``security.auth``) and the largest clock offset the convoy start accepts
+#: (``[v2v] replay_window_s`` sets all three).
+DEFAULT_TIME_TOLERANCE_S = 1.0
 
 
 def _clamp(v: int, lo: int, hi: int) -> int:

@@ -15,6 +15,7 @@ import errno
 import ipaddress
 import socket
 import struct
+from collections import deque
 from collections.abc import Iterable
 from typing import NamedTuple, Protocol, TypeVar
 
@@ -228,42 +229,53 @@ class Ipv4Multicast(_MulticastSocket):
 
 class MemoryBus:
     """An in-process multicast "link" for unit tests: every endpoint hears every send,
-    its own included (like multicast loop)."""
+    its own included (like multicast loop). An endpoint made with a ``capacity`` holds at
+    most that many datagrams and drops what arrives beyond (``dropped``), as a kernel
+    socket buffer does."""
 
     def __init__(self) -> None:
-        self._queues: list[list[Datagram]] = []
+        self._queues: list[deque[Datagram]] = []
+        self._capacity: dict[int, int] = {}
+        self.dropped = 0
 
-    def endpoint(self, name: str = "mem") -> MemoryEndpoint:
+    def endpoint(self, name: str = "mem", capacity: int | None = None) -> MemoryEndpoint:
         """A new endpoint (a ``Transport``) attached to this bus."""
-        q: list[Datagram] = []
+        q: deque[Datagram] = deque()
         self._queues.append(q)
+        if capacity is not None:
+            self._capacity[id(q)] = capacity
         return MemoryEndpoint(self, q, name)
 
     def inject(self, data: bytes, source: str = "injected") -> None:
         """Deliver ``data`` to every endpoint, as if a foreign station had sent it."""
         for q in self._queues:
+            cap = self._capacity.get(id(q))
+            if cap is not None and len(q) >= cap:
+                self.dropped += 1
+                continue
             q.append(Datagram(bytes(data), source))
 
     def inject_many(self, items: Iterable[bytes], source: str = "injected") -> None:
         for data in items:
             self.inject(data, source)
 
-    def _detach(self, q: list[Datagram]) -> None:
+    def _detach(self, q: deque[Datagram]) -> None:
         self._queues = [x for x in self._queues if x is not q]
+        self._capacity.pop(id(q), None)
 
 
 class MemoryEndpoint:
     """One endpoint of a ``MemoryBus`` (see there)."""
 
-    def __init__(self, bus: MemoryBus, queue: list[Datagram], name: str) -> None:
+    def __init__(self, bus: MemoryBus, queue: deque[Datagram], name: str) -> None:
         self._bus, self._queue, self.name = bus, queue, name
 
     def send(self, data: bytes) -> None:
         self._bus.inject(data, self.name)
 
     def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
-        out, self._queue[:] = self._queue[:max_batch], self._queue[max_batch:]
-        return out
+        q = self._queue
+        return [q.popleft() for _ in range(min(max_batch, len(q)))]
 
     def close(self) -> None:
         self._bus._detach(self._queue)

@@ -19,6 +19,7 @@ message (``legacy_json``) starts ``{``. Both give the same ``Received``. Every d
 is counted exactly once:
 
     datagrams == received + malformed + filtered + echoes + duplicates + rejected + lost_rx
+                 + shed + replays
 
 where ``lost_rx`` is ``lost`` when losses are emulated at the receiver (the default). With
 ``drop_at="sender"`` the loss model decides per outgoing message instead (as the original
@@ -36,10 +37,11 @@ SPDUs from others are still understood (their payload is used unverified).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -48,6 +50,7 @@ import numpy as np
 from openconvoy.comms import bsm as j
 from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
+from openconvoy.comms.guards import Alerts, FrameMemory, JumpCheck, SkewMeter, sec_mark_offset
 from openconvoy.comms.loss import LossConfig, LossModel, NoLoss
 from openconvoy.comms.mapping import (
     DEFAULT_TIME_TOLERANCE_S,
@@ -64,9 +67,10 @@ from openconvoy.comms.multicast import (
     Ipv6Multicast,
     Transport,
 )
+from openconvoy.comms.security import certs as c
 from openconvoy.comms.security import spdu as sp
 from openconvoy.comms.security.auth import Authenticator, vehicle_of
-from openconvoy.comms.security.certs import PSID_ABORT, PSID_BSM
+from openconvoy.comms.security.certs import PSID_ABORT, PSID_BSM, PSID_COMPLETE, Certificate
 from openconvoy.comms.tempids import TempIds
 from openconvoy.core.errors import ConfigError, LinkError
 from openconvoy.core.state import VehicleState
@@ -78,6 +82,8 @@ Source = Literal["j2735", "compat"]
 
 #: Datagrams read from one socket between checks of the poll's time budget.
 POLL_CHUNK = 32
+#: Share of a poll's budget spent reading datagrams; the rest verifies signatures.
+READ_SHARE = 0.8
 
 #: A compat message from a vehicle heard over J2735 within this many seconds is a
 #: duplicate (our own vehicles send both when compat is on); J2735 wins.
@@ -85,6 +91,77 @@ DUPLICATE_WINDOW_S = 1.0
 #: A BSM with heading "unavailable" takes the direction of its sender's travel over at
 #: least this distance (m; GPS noise makes shorter displacements meaningless).
 TRAIL_HEADING_M = 0.5
+
+
+#: Signed SPDUs verified per claimed sender (and per abort / completion group) per poll:
+#: a member sends one message per tick, so a flood claiming it costs a few verifications.
+VERIFY_PER_SENDER = 4
+#: Wrongly signed messages a second, claiming one sender, that make a flood (said once).
+FLOOD_ALERT_PER_S = 20
+#: A member's clock offset over half the tolerance is said at most this often (s).
+SKEW_ALERT_PERIOD_S = 60.0
+#: Payload of the leader's "scenario complete" (JSON, signed with PSID_COMPLETE).
+COMPLETE_PREFIX = b'{"openconvoy":"complete"'
+_KINDS = {PSID_ABORT: "abort", PSID_COMPLETE: "complete"}
+_GROUPS = {"abort": -2, "complete": -3}
+
+
+def make_complete(t: float, car: int = 0) -> bytes:
+    """The payload of a "scenario complete" message from vehicle ``car`` at time ``t`` (s)."""
+    body = {"openconvoy": "complete", "car": car, "t": round(t, 6)}
+    return json.dumps(body, separators=(",", ":")).encode()
+
+
+def parse_complete(payload: bytes) -> int | None:
+    """The sender of a "scenario complete" payload, None if it is not one."""
+    if not payload.startswith(COMPLETE_PREFIX) or len(payload) > 256:
+        return None
+    try:
+        body = json.loads(payload)
+    except ValueError:
+        return None
+    car = body.get("car") if isinstance(body, dict) else None
+    return car if isinstance(car, int) and not isinstance(car, bool) else None
+
+
+@dataclass(frozen=True, slots=True)
+class _Pending:
+    """A signed SPDU waiting for its signature to be verified."""
+
+    group: int  # the claimed sender's convoy index; -1 none, -2 aborts, -3 completions
+    source: str
+    spdu: sp.SignedSpdu
+    kind: str
+
+
+def schedule(
+    pending: Sequence[_Pending], trusted: dict[int, str], per_sender: int = VERIFY_PER_SENDER
+) -> tuple[list[_Pending], list[_Pending]]:
+    """(to verify, in order; shed) for SPDUs awaiting verification (D52).
+
+    Per group (claimed sender): from the source its last verified message came from
+    first, then those carrying a certificate (it introduces the digests of the others),
+    then newest generation time first, at most ``per_sender``; the groups take
+    turns, so a flood claiming one sender delays nobody else, and the sender it claims
+    keeps getting its own newest messages verified as long as they come from where they
+    used to."""
+    groups: dict[int, list[_Pending]] = {}
+    for p in pending:
+        groups.setdefault(p.group, []).append(p)
+    queues: list[list[_Pending]] = []
+    shed: list[_Pending] = []
+    for g, items in groups.items():
+        home = trusted.get(g)
+        # a certificate before the digests it introduces
+        items.sort(
+            key=lambda p: (p.source != home, p.spdu.certificate is None, -p.spdu.generation_time)
+        )
+        queues.append(items[:per_sender])
+        shed.extend(items[per_sender:])
+    order: list[_Pending] = []
+    for k in range(per_sender):
+        order.extend(q[k] for q in queues if k < len(q))
+    return order, shed
 
 
 @dataclass(frozen=True)
@@ -119,6 +196,7 @@ class LinkConfig:
             port=v2v.port,
             hop_limit=v2v.hop_limit,
             compat=v2v.compat,
+            time_tolerance_s=getattr(v2v, "replay_window_s", DEFAULT_TIME_TOLERANCE_S),
         )
 
 
@@ -145,6 +223,11 @@ class Counters:
         recv_errors: socket receive errors (the link keeps going).
         budget_hits: polls that ended on their time budget with datagrams possibly still
             waiting (they are read by the next poll; the kernel drops what overflows).
+        shed: signed messages left unverified: beyond their sender's share of a poll
+            (``VERIFY_PER_SENDER``) or its time budget (a flood; ``Receiver.handle_batch``).
+        replays: unsigned frames already delivered once (verbatim replays).
+        impersonations: verified BSMs carrying our own temp id, signed by someone else
+            (also among ``rejected``).
     """
 
     sent: int = 0
@@ -161,6 +244,9 @@ class Counters:
     send_errors: int = 0
     recv_errors: int = 0
     budget_hits: int = 0
+    shed: int = 0
+    replays: int = 0
+    impersonations: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,6 +272,8 @@ class Received:
     sender: int
     temp_id: bytes | None = None
     msg_cnt: int | None = None
+    complete: bool = False
+    """The leader's "scenario complete" (``state`` None, ``sender`` 0)."""
 
     @property
     def age(self) -> float:
@@ -294,29 +382,134 @@ class Receiver:
         self._last_j2735: dict[int, float] = {}
         # The convoy's ids (ours included, for echoes) as ``bsm.peek_temp_id`` reads them.
         self._known_ids = {int.from_bytes(t, "big") for _, t in temp_ids}
+        self._index_of_id = {int.from_bytes(t, "big"): i for i, t in temp_ids}
         self._heading: dict[int, float] = {}  # last heading per sender (ENU rad)
         self._anchor: dict[int, tuple[float, float]] = {}  # a trail point per sender
+        self._frames = FrameMemory()  # unsigned frames delivered (replays)
+        self._jumps = JumpCheck()
+        self._trusted: dict[int, str] = {}  # group -> source of its last verified message
+        self._bad_window: dict[int, tuple[float, int]] = {}
+        self.skew = SkewMeter()
+        """Each member's clock offset from ours (``guards.SkewMeter``)."""
+        self.alerts = Alerts()
+        """Operator lines: floods, disagreement about auth, jumps, impersonation."""
+        self.last_t_rx = -math.inf
+        """The latest receive time handled (s)."""
+        self.auth_mismatch: dict[int, str] = {}
+        """Members heard using V2V authentication differently from us (their first line)."""
 
     def handle(self, data: bytes, t_rx: float, source: str = "") -> Received | None:
-        """Classify and decode one datagram received at ``t_rx``; None if not delivered."""
-        self.counters.datagrams += 1
-        try:
-            if data[:2] == sp.SIGNED_PREFIX:
-                return self._handle_signed(data, t_rx, source)
-            if self.auth is not None:
-                self._unsigned(data, source)
+        """Classify and decode one datagram received at ``t_rx``; None if not delivered.
+        (``handle_batch`` of one.)"""
+        out = self.handle_batch([(data, source)], t_rx)
+        return out[0] if out else None
+
+    def handle_batch(
+        self,
+        items: Sequence[tuple[bytes, str]],
+        t_rx: float,
+        *,
+        deadline: float = math.inf,
+        clock: Callable[[], float] | None = None,
+    ) -> list[Received]:
+        """Classify and decode datagrams ``(data, source)`` received at ``t_rx``, in order.
+
+        Signed SPDUs that need a signature verified are verified last, scheduled so that a
+        flood cannot starve anyone (``schedule``): per claimed sender (the id its payload
+        claims; aborts and completions are groups of their own) at most
+        ``VERIFY_PER_SENDER``, the source its last verified message came from first, then
+        the newest; groups take turns. What is left when ``clock()`` passes ``deadline``
+        is ``shed`` (counted, not delivered). Never raises."""
+        out: list[Received] = []
+        pending: list[_Pending] = []
+        self.prepare_batch(items, t_rx, pending, out)
+        self.verify_batch(pending, t_rx, out, deadline=deadline, clock=clock)
+        return out
+
+    def prepare_batch(
+        self,
+        items: Sequence[tuple[bytes, str]],
+        t_rx: float,
+        pending: list[_Pending],
+        out: list[Received],
+    ) -> None:
+        """The cheap part of ``handle_batch``: what needs no signature verified goes to
+        ``out`` (or is counted), signed SPDUs to verify to ``pending``."""
+        self.last_t_rx = t_rx
+        for data, source in items:
+            self.counters.datagrams += 1
+            try:
+                if data[:2] == sp.SIGNED_PREFIX:
+                    r = self._prepare_signed(data, t_rx, source)
+                    if isinstance(r, _Pending):
+                        pending.append(r)
+                        continue
+                else:
+                    r = self._handle_plain(data, t_rx, source)
+                if r is not None:
+                    out.append(r)
+            except Exception as exc:  # defensive: no network input may escape as an exception
+                self._malformed(source, f"unexpected {type(exc).__name__}: {exc}")
+
+    def verify_batch(
+        self,
+        pending: Sequence[_Pending],
+        t_rx: float,
+        out: list[Received],
+        *,
+        deadline: float = math.inf,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        """The rest of ``handle_batch``: verify ``pending`` as ``schedule`` orders it until
+        ``deadline``, deliver into ``out`` in generation order."""
+        order, shed = schedule(pending, self._trusted)
+        self._note_shed(shed, t_rx)
+        verified: list[tuple[_Pending, Certificate]] = []
+        firsts = {id(p) for p in order[: len({p.group for p in order})]}
+        for item in order:
+            # Past the deadline only each group's first item is still verified when it
+            # comes from that group's usual source: a genuine sender's newest message costs
+            # one verification, whatever floods alongside.
+            if (
+                clock is not None
+                and clock() >= deadline
+                and not (id(item) in firsts and self._trusted.get(item.group) == item.source)
+            ):
+                self._note_shed([item], t_rx)
+                continue
+            try:
+                cert = self._verify(item, t_rx)
+            except Exception as exc:  # defensive, as above
+                self._malformed(item.source, f"unexpected {type(exc).__name__}: {exc}")
+                cert = None
+            if cert is not None:
+                verified.append((item, cert))
+        # Verified newest first, delivered in the order they were generated (the replay
+        # guard's order check sees each sender's messages as they were sent).
+        verified.sort(key=lambda v: v[0].spdu.generation_time)
+        for item, cert in verified:
+            try:
+                r = self._deliver(item.spdu, cert, item.kind, t_rx, item.source)
+            except Exception as exc:  # defensive, as above
+                self._malformed(item.source, f"unexpected {type(exc).__name__}: {exc}")
+                r = None
+            if r is not None:
+                out.append(r)
+
+    def _handle_plain(self, data: bytes, t_rx: float, source: str) -> Received | None:
+        if self.auth is not None:
+            self._unsigned(data, source, t_rx)
+            return None
+        if data[:2] == j.BSM_FRAME_PREFIX:
+            if self._foreign(data):
                 return None
-            if data[:2] == j.BSM_FRAME_PREFIX:
-                if self._foreign(data):
-                    return None
-                return self._handle_j2735(data, t_rx, source)
-            if data.lstrip()[:1] == b"{":
-                return self._handle_compat(data, t_rx, source)
-            self._malformed(source, "neither a J2735 MessageFrame nor JSON")
-            return None
-        except Exception as exc:  # defensive: no network input may escape as an exception
-            self._malformed(source, f"unexpected {type(exc).__name__}: {exc}")
-            return None
+            return self._handle_j2735(data, t_rx, source)
+        if data.startswith(COMPLETE_PREFIX):
+            return self._handle_complete(data, None, t_rx, source)
+        if data.lstrip()[:1] == b"{":
+            return self._handle_compat(data, t_rx, source)
+        self._malformed(source, "neither a J2735 MessageFrame nor JSON")
+        return None
 
     def _foreign(self, frame: bytes) -> bool:
         """A BSM frame whose id (read without decoding) is not the convoy's: counted as
@@ -326,6 +519,14 @@ class Receiver:
             self.counters.filtered += 1
             return True
         return False
+
+    def _claimed(self, frame: bytes) -> int:
+        """The convoy index a BSM frame claims (read without decoding), -1 if none."""
+        peeked = j.peek_temp_id(frame)
+        if peeked is None:
+            return -1
+        index = self._index_of_id.get(peeked)
+        return -1 if index is None else index
 
     def _malformed(self, source: str, why: str) -> None:
         self.counters.malformed += 1
@@ -339,12 +540,18 @@ class Receiver:
         log.debug("rejected a message from %s: %s", source or "?", reason)
         return None
 
-    def _unsigned(self, data: bytes, source: str) -> None:
+    def _unsigned(self, data: bytes, source: str, t_rx: float) -> None:
         if data[:2] != j.BSM_FRAME_PREFIX and data.lstrip()[:1] != b"{":
             self._malformed(source, "neither a signed SPDU, a J2735 MessageFrame nor JSON")
             return None
         abort = False
-        if data.lstrip()[:1] == b"{":
+        if data[:2] == j.BSM_FRAME_PREFIX:
+            if self._foreign(data):
+                return None  # another convoy's (or nobody's) traffic: filtered, not ours
+            claimed = self._claimed(data)
+            if claimed >= 0 and claimed != self.vehicle_index:
+                self._mismatch(claimed, t_rx, "sends unsigned V2V messages")
+        elif not data.startswith(COMPLETE_PREFIX):
             try:
                 abort = cj.decode(data).abort
             except cj.CompatDecodeError:
@@ -355,33 +562,113 @@ class Receiver:
         self._rejected(source, "unsigned", abort)
         return None
 
-    def _handle_signed(self, data: bytes, t_rx: float, source: str) -> Received | None:
+    def _mismatch(self, sender: int, t_rx: float, what: str) -> None:
+        """Member ``sender`` does not use V2V authentication as we do (``what`` it does)."""
+        ours = "requires signatures" if self.auth is not None else 'has [v2v] auth = "off"'
+        line = (
+            f"vehicle {self.vehicle_index}: vehicle {sender} {what} while this vehicle {ours}: "
+            "the convoy disagrees about [v2v] auth"
+        )
+        if sender not in self.auth_mismatch:
+            self.auth_mismatch[sender] = line
+        self.alerts.raise_("auth", sender, t_rx, line)
+
+    def _prepare_signed(self, data: bytes, t_rx: float, source: str) -> Received | _Pending | None:
+        """Everything about a signed SPDU short of verifying its signature: decoded,
+        filtered, checked for freshness and duplicates (cheap); a ``_Pending`` to verify,
+        or what to deliver without verifying (no ``auth``), or None (counted)."""
         try:
             spdu = sp.decode_signed(data)
         except sp.SpduDecodeError as exc:
             self._malformed(source, str(exc))
             return None
-        auth = self.auth
-        abort = spdu.psid == PSID_ABORT
-        if not abort and self._foreign(spdu.payload):
+        kind = _KINDS.get(spdu.psid, "bsm")
+        if kind == "bsm" and self._foreign(spdu.payload):
             return None  # before verifying: a flood of foreign signed BSMs stays cheap
+        group = self._claimed(spdu.payload) if kind == "bsm" else _GROUPS[kind]
+        auth = self.auth
         if auth is None:  # not verifying: the payload as if it came unsigned
-            signed = None
-        elif spdu.digest == auth.own_digest:
+            if kind == "bsm" and group >= 0 and group != self.vehicle_index:
+                self._mismatch(group, t_rx, "signs its V2V messages")
+            return self._deliver(spdu, None, kind, t_rx, source)
+        if spdu.digest == auth.own_digest:
             self.counters.echoes += 1
             return None
-        else:
-            cert = auth.check(spdu, t_rx)
-            if isinstance(cert, str):
-                self._rejected(source, cert, abort)
-                return None
-            signed = (spdu, cert)
-        if abort:
+        reason = auth.precheck(spdu, t_rx)
+        if reason is not None:
+            if reason in ("stale", "future"):
+                self._probe_skew(spdu, t_rx)
+            self._rejected(source, reason, kind == "abort")
+            return None
+        return _Pending(group, source, spdu, kind)
+
+    def _verify(self, item: _Pending, t_rx: float) -> Certificate | None:
+        """Verify a scheduled SPDU: its signer's certificate, or None (counted)."""
+        assert self.auth is not None  # only SPDUs to verify are scheduled
+        cert = self.auth.check(item.spdu, t_rx)
+        if isinstance(cert, str):
+            if cert == "bad_signature":
+                self._note_bad(item, t_rx)
+            signer = self.auth.known(item.spdu.digest)
+            if item.kind == "abort" and cert == "not_permitted" and signer is not None:
+                self._abort_not_permitted(signer, t_rx)
+            self._rejected(item.source, cert, item.kind == "abort")
+            return None
+        self._trusted[item.group] = item.source
+        return cert
+
+    def _deliver(
+        self, spdu: sp.SignedSpdu, cert: Certificate | None, kind: str, t_rx: float, source: str
+    ) -> Received | None:
+        signed = None if cert is None else (spdu, cert)
+        if kind == "abort":
             return self._handle_signed_abort(spdu, signed, t_rx, source)
+        if kind == "complete":
+            return self._handle_complete(spdu.payload, signed, t_rx, source)
         if spdu.psid != PSID_BSM or spdu.payload[:2] != j.BSM_FRAME_PREFIX:
             self._malformed(source, f"signed PSID {spdu.psid:#x} payload is not a BSM")
             return None
         return self._handle_j2735(spdu.payload, t_rx, source, signed)
+
+    def _probe_skew(self, spdu: sp.SignedSpdu, t_rx: float) -> None:
+        """A stale or future SPDU from a member whose signature verifies (at most once a
+        second per signer): its clock offset, to name it (``start_refusal``)."""
+        assert self.auth is not None
+        cert = self.auth.probe_skew(spdu, t_rx)
+        sender = None if cert is None else vehicle_of(cert)
+        if sender is not None and sender in self.temp_ids and sender != self.vehicle_index:
+            self.skew.sample(sender, c.unix_of_time64(spdu.generation_time) - t_rx, t_rx)
+
+    def _note_bad(self, item: _Pending, t_rx: float) -> None:
+        """Count a wrongly signed SPDU towards its group's flood rate; tell the operator
+        once a flood is on (``FLOOD_ALERT_PER_S``)."""
+        t0, n = self._bad_window.get(item.group, (t_rx, 0))
+        if t_rx - t0 > 1.0:
+            t0, n = t_rx, 0
+        self._bad_window[item.group] = (t0, n + 1)
+        if n + 1 >= FLOOD_ALERT_PER_S:
+            self._flood_alert(item.group, item.source, t_rx)
+
+    def _note_shed(self, shed: Sequence[_Pending], t_rx: float) -> None:
+        self.counters.shed += len(shed)
+        for item in shed[:1]:
+            self._flood_alert(item.group, item.source, t_rx)
+
+    def _flood_alert(self, group: int, source: str, t_rx: float) -> None:
+        who = (
+            f"vehicle {group}"
+            if group >= 0
+            else {-2: "an abort", -3: "a completion"}.get(group, "no member")
+        )
+        self.alerts.raise_(
+            "flood",
+            group,
+            t_rx,
+            f"vehicle {self.vehicle_index}: V2V flood: wrongly signed or surplus messages "
+            f"claiming {who} (from {source or '?'}); verifying that sender's newest first "
+            f"(shed so far {self.counters.shed}, bad signatures "
+            f"{self.auth.counters.rejected['bad_signature'] if self.auth else 0})",
+        )
 
     def _handle_signed_abort(
         self, spdu: Any, signed: Any, t_rx: float, source: str
@@ -398,13 +685,46 @@ class Receiver:
         if signed is not None:
             assert self.auth is not None  # signed is only set when verifying
             vehicle = vehicle_of(signed[1])
-            sender = -1 if vehicle is None else vehicle
+            if vehicle is not None:  # only the authority or an operator stops the convoy
+                self.auth.reject("not_permitted")
+                self._rejected(source, f"abort signed by {signed[1].name}", abort=True)
+                self._abort_not_permitted(signed[1], t_rx)
+                return None
+            sender = -1
             if self.auth.admit(spdu, t_rx) is not None:
                 self._rejected(source, "replayed abort", abort=True)
                 return None
         self.counters.received += 1
         self.counters.aborts += 1
         return Received(None, t_rx, True, "j2735", sender)
+
+    def _handle_complete(
+        self, payload: bytes, signed: Any, t_rx: float, source: str
+    ) -> Received | None:
+        """The leader's "scenario complete": delivered when the leader's certificate signed
+        it (or, unsigned, when this vehicle does not verify), once."""
+        car = parse_complete(payload)
+        if car is None:
+            self._malformed(source, "invalid completion message")
+            return None
+        if signed is not None:
+            assert self.auth is not None
+            spdu, cert = signed
+            if vehicle_of(cert) != 0:
+                self.auth.reject("wrong_sender")
+                self._rejected(source, f"completion signed by {cert.name}, not the leader")
+                return None
+            if self.auth.admit(spdu, t_rx) is not None:
+                self._rejected(source, "replayed completion")
+                return None
+        elif car != 0:
+            self.counters.filtered += 1
+            return None
+        elif self._frames.seen(payload, t_rx):
+            self.counters.replays += 1
+            return None
+        self.counters.received += 1
+        return Received(None, t_rx, False, "j2735", 0, complete=True)
 
     def _lost(self, sender: int, t_rx: float) -> bool:
         model = self._loss.get(sender)
@@ -423,6 +743,9 @@ class Receiver:
             return None
         core = msg.core
         if core.temp_id == self.own_id:
+            if signed is not None:  # verified, and not signed by us (echoes never get here)
+                self._impersonation(signed[1], t_rx, source)
+                return None
             self.counters.echoes += 1
             return None
         sender = self.temp_ids.index_of(core.temp_id)
@@ -439,6 +762,11 @@ class Receiver:
             if self.auth.admit(spdu, t_rx, core.msg_cnt) is not None:
                 self._rejected(source, f"vehicle {sender}'s BSM replayed")
                 return None
+        elif self._frames.seen(data, t_rx):
+            # Unsigned: the frame itself is the only evidence; a verbatim replay, even an
+            # hour late when its secMark looks fresh again, is not delivered twice (D46).
+            self.counters.replays += 1
+            return None
         # A member's BSM without position, speed or time is no use to the convoy (NaN
         # would reach the controllers, an unknown age would look fresh forever): treated
         # as not received, so the staleness ladder sees the gap. An unavailable heading
@@ -460,8 +788,27 @@ class Receiver:
         self._last_j2735[sender] = t_rx
         if self._lost(sender, t_rx):
             return None
-        t_send = reconstruct_send_time(core.sec_mark, t_rx, self.time_tolerance_s)
+        if signed is not None:
+            # The signed generation time (µs, the full date): the age whatever the secMark
+            # and the minute; a clock ahead (within the window) reads as age 0 (D50).
+            t_claimed = c.unix_of_time64(signed[0].generation_time)
+            t_send = min(t_claimed, t_rx)
+            self.skew.sample(sender, t_claimed - t_rx, t_rx)
+        else:
+            t_send = reconstruct_send_time(core.sec_mark, t_rx, self.time_tolerance_s)
+            self.skew.sample(sender, sec_mark_offset(core.sec_mark, t_rx), t_rx)
         state = core_to_state(core, self.origin, sender, t_send)
+        jump = self._jumps.check(sender, state.t, state.x, state.y)
+        if jump is not None:
+            self.alerts.raise_(
+                "jump",
+                sender,
+                t_rx,
+                f"vehicle {self.vehicle_index}: vehicle {sender}'s position jumped "
+                f"{jump.distance_m:.1f} m in {jump.dt_s:.2f} s: two stations sending as "
+                "vehicle {sender}? (a stolen key: re-issue it with `openconvoy keys issue "
+                "--force`)".replace("{sender}", str(sender)),
+            )
         if core.heading == j.HEADING_UNAVAILABLE:
             heading = self._known_heading(sender, state)
             if heading is None:
@@ -471,6 +818,32 @@ class Receiver:
         self._remember_heading(sender, state)
         self.counters.received += 1
         return Received(state, t_rx, False, "j2735", sender, core.temp_id, core.msg_cnt)
+
+    def _abort_not_permitted(self, cert: Certificate, t_rx: float) -> None:
+        """Tell the operator a vehicle's key signed an abort (ignored, D63)."""
+        who = vehicle_of(cert)
+        self.alerts.raise_(
+            "abort",
+            -1 if who is None else who,
+            t_rx,
+            f"vehicle {self.vehicle_index}: ignored an abort signed by {cert.name} (only the "
+            "convoy authority or an operator key may sign aborts)",
+        )
+
+    def _impersonation(self, cert: Certificate, t_rx: float, source: str) -> None:
+        """A verified BSM carrying our own temp id, signed by someone else (D63)."""
+        assert self.auth is not None
+        self.counters.impersonations += 1
+        self.auth.reject("wrong_sender")
+        self._rejected(source, f"{cert.name} signed a BSM with our temp id")
+        who = vehicle_of(cert)
+        self.alerts.raise_(
+            "impersonation",
+            -1 if who is None else who,
+            t_rx,
+            f"vehicle {self.vehicle_index}: {cert.name} signs BSMs with this vehicle's "
+            f"temp id (from {source or '?'})",
+        )
 
     def _known_heading(self, sender: int, state: VehicleState) -> float | None:
         """For a BSM whose heading is unavailable: the direction of the sender's trail
@@ -651,6 +1024,9 @@ class V2V:
             "loss": asdict(self.loss) if self.loss is not None else None,
             "latency_emulated": False,
             "auth": self._auth_metadata(),
+            "time_tolerance_s": self.config.time_tolerance_s,
+            "position_jumps": dict(self.receiver._jumps.jumps),
+            "auth_mismatch": dict(self.receiver.auth_mismatch),
         }
 
     def _auth_metadata(self) -> dict[str, Any] | None:
@@ -665,6 +1041,8 @@ class V2V:
             "certificates_learned": a.counters.certificates_learned,
             "certificates_sent": a.counters.certificates_sent,
             "requests_sent": a.counters.requests_sent,
+            "certificates_cached": a.certificates_cached,
+            "revoked": len(a.credentials.revoked),
         }
 
     def _send(self, transport: Transport, data: bytes) -> bool:
@@ -709,17 +1087,33 @@ class V2V:
         if self._tx4 is not None:
             self._send(self._tx4, data)
 
+    def send_complete(self, now: float, repeat: int = 3) -> None:
+        """Broadcast that the leader completed its scenario (``repeat`` copies, each its
+        own generation time; signed with ``PSID_COMPLETE`` when authenticating)."""
+        for i in range(repeat):
+            t = now + i * 1e-3
+            data = make_complete(t, self.vehicle_index)
+            if self.auth is not None:
+                data = self.auth.sign(data, PSID_COMPLETE, t)
+            self._send(self._tx, data)
+
     def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
         """Messages waiting, decoded and filtered, received at ``now`` (seconds).
 
-        With ``budget_s`` the poll reads for at most that long (monotonic clock) and leaves
-        the rest in the socket buffers for the next poll, so a flood of datagrams cannot
-        stall the caller's control loop; the sockets take turns in chunks of
-        ``POLL_CHUNK``. None: every datagram waiting.
+        With ``budget_s`` the poll takes at most that long (monotonic clock): it reads and
+        classifies for up to ``READ_SHARE`` of it and leaves the rest in the socket buffers
+        for the next poll (the sockets take turns in chunks of ``POLL_CHUNK``; the kernel
+        drops what overflows them), then verifies signatures
+        as ``Receiver.handle_batch`` schedules them until the budget is spent, so a flood
+        of datagrams cannot stall the caller's control loop nor starve a genuine sender.
+        None: every datagram waiting.
         """
         out: list[Received] = []
+        pending: list[_Pending] = []
         transports = [self._tx] if self._tx4 is None else [self._tx, self._tx4]
-        deadline = math.inf if budget_s is None else self._clock() + budget_s
+        t0 = self._clock()
+        deadline = math.inf if budget_s is None else t0 + budget_s
+        read_deadline = math.inf if budget_s is None else t0 + READ_SHARE * budget_s
         while transports:
             for transport in list(transports):
                 try:
@@ -730,14 +1124,60 @@ class V2V:
                     dgrams = []
                 if len(dgrams) < POLL_CHUNK:
                     transports.remove(transport)  # drained
-                for dgram in dgrams:
-                    r = self.receiver.handle(dgram.data, now, dgram.source)
-                    if r is not None:
-                        out.append(r)
-            if transports and self._clock() >= deadline:
+                self.receiver.prepare_batch([(d.data, d.source) for d in dgrams], now, pending, out)
+            if transports and self._clock() >= read_deadline:
                 self.counters.budget_hits += 1
                 break
+        self.receiver.verify_batch(pending, now, out, deadline=deadline, clock=self._clock)
         return out
+
+    def take_alerts(self, now: float | None = None) -> list[str]:
+        """Operator lines since the last call (floods, auth disagreement, clock offsets,
+        position jumps, impersonation), each at most once per ``guards.ALERT_PERIOD_S``
+        (a clock offset over half the tolerance: once a minute per member). ``now``: the
+        shared clock (s); default the last receive time."""
+        r = self.receiver
+        t = r.last_t_rx if now is None else now
+        half = self.config.time_tolerance_s / 2
+        for i, o in sorted(self.clock_offsets(t).items()):
+            if abs(o) > half:
+                r.alerts.raise_(
+                    "skew",
+                    i,
+                    t,
+                    f"vehicle {self.vehicle_index}: vehicle {i}'s clock is {abs(o):.2f} s "
+                    f"{'ahead of' if o > 0 else 'behind'} this vehicle's (tolerance "
+                    f"{self.config.time_tolerance_s:g} s)",
+                    period_s=SKEW_ALERT_PERIOD_S,
+                )
+        return r.alerts.take()
+
+    def clock_offsets(self, now: float) -> dict[int, float]:
+        """Each member's clock minus ours (s) as heard lately."""
+        r = self.receiver
+        out = {}
+        for i, _ in r.temp_ids:
+            o = r.skew.offset(i, now)
+            if o is not None and i != self.vehicle_index:
+                out[i] = o
+        return out
+
+    def start_refusal(self, now: float) -> str:
+        """Why the convoy must not start ("" = it may): a member using V2V authentication
+        differently from us, or a clock further off ours than the link's tolerance."""
+        r = self.receiver
+        if r.auth_mismatch:
+            return next(iter(r.auth_mismatch.values()))
+        tol = self.config.time_tolerance_s
+        for i, o in sorted(self.clock_offsets(now).items()):
+            if abs(o) > tol:
+                return (
+                    f"vehicle {self.vehicle_index}: vehicle {i}'s clock is {abs(o):.2f} s "
+                    f"{'ahead of' if o > 0 else 'behind'} this vehicle's, more than the "
+                    f"{tol:g} s tolerance ([v2v] replay_window_s): synchronise the clocks "
+                    "(NTP, GPS)"
+                )
+        return ""
 
     def close(self) -> None:
         """Close the sockets."""
@@ -811,6 +1251,9 @@ __all__ = [
     "Sender",
     "V2V",
     "send_abort",
+    "make_complete",
+    "parse_complete",
+    "schedule",
     "DUPLICATE_WINDOW_S",
     "POLL_CHUNK",
 ]

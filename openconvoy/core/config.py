@@ -294,6 +294,8 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise InputFileError(f"{p}: not a text file (TOML is UTF-8 text)") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputFileError(f"{p}: invalid TOML: {exc}") from None
+    except RecursionError:  # e.g. thousands of nested arrays (D58)
+        raise InputFileError(f"{p}: invalid TOML: nested too deeply") from None
 
 
 def dumps_toml(data: dict[str, Any]) -> str:

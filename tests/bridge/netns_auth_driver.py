@@ -41,7 +41,7 @@ def main(out: Path) -> dict:
     names = ("1/10", "1/6", "1/10")
     origin = ConvoyConfig().origin
     convoy_path = out / "convoy.toml"
-    write_convoy_toml(convoy_path, names, origin)
+    write_convoy_toml(convoy_path, names, origin, keys=False)
     keys = out / "convoy.keys"
     now = time.time()
     ks.init_authority(keys, "demo", now)

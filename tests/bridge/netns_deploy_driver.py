@@ -75,7 +75,19 @@ def main(action: str, out: Path) -> dict:
                 p.send_signal(signal.SIGTERM)
         else:
             subprocess.run(
-                [sys.executable, "-m", "openconvoy.cli", "abort", "--iface", iface],
+                # the convoy signs (write_convoy_toml made its keys): so must its operator
+                [
+                    sys.executable,
+                    "-m",
+                    "openconvoy.cli",
+                    "abort",
+                    "--iface",
+                    iface,
+                    "--convoy",
+                    str(convoy_path),
+                    "--key",
+                    str(convoy_path.with_suffix(".keys") / "authority.key"),
+                ],  # fmt: skip
                 check=True,
                 timeout=20,
             )

@@ -3,10 +3,13 @@ V2V socket is only opened on loopback; the multicast runs are in the namespace t
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from openconvoy.bridge.deploy import DeployArgs, build_runner
 from openconvoy.cli import main
+from openconvoy.comms.security import keystore as ks
 
 CONVOY = """\
 [convoy]
@@ -23,6 +26,10 @@ min_gap_m = 2.0
 def convoy_file(tmp_path):
     p = tmp_path / "convoy.toml"
     p.write_text(CONVOY)
+    keys = ks.default_keys_dir(p)  # V2V fails closed: a deploy needs keys (or auth = "off")
+    ks.init_authority(keys, "cli", time.time())
+    for i in range(3):
+        ks.issue_vehicle(keys, "cli", i, time.time())
     return str(p)
 
 

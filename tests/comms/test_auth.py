@@ -172,13 +172,17 @@ def test_unsigned_abort_is_ignored_and_a_signed_one_is_obeyed():
     for link in links:
         (r,) = link.poll(T0 + 0.03)
         assert r.abort and r.sender == -1 and r.state is None
-    # a vehicle's own abort is signed too, and the replayed operator's abort is not obeyed twice
+    # a vehicle's key may not sign aborts (D63: only the authority or an operator key), and
+    # the replayed operator's abort is not obeyed twice
     links[2].send_abort(T0 + 0.04)
     bus.inject(signed, "replay")
     for link in links[:2]:
-        (r,) = link.poll(T0 + 0.05)
-        assert r.abort and r.sender == 2
+        assert link.poll(T0 + 0.05) == []
+        assert link.counters.aborts_rejected == 4
+        (alert,) = link.take_alerts()
+        assert "ignored an abort signed by lab.vehicle-2" in alert
     assert links[0].auth.counters.rejected["duplicate"] == 1
+    assert links[0].auth.counters.rejected["not_permitted"] == 1
 
 
 def test_compat_cannot_be_signed():

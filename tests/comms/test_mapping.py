@@ -61,7 +61,7 @@ def test_sec_mark_is_ms_within_minute():
     [
         (1000.000, 1000.080),  # usual: 80 ms old
         (1019.990, 1020.050),  # sent before the minute boundary, received after
-        (1019.990, 1079.000),  # 59 s old: still the right minute
+        (1019.990, 1078.900),  # 58.9 s old: the right minute (60 s less the tolerance)
         (1020.100, 1020.000),  # sender's clock 100 ms ahead: age 0, not 60 s
     ],
 )
@@ -78,7 +78,7 @@ def test_reconstruct_special_sec_marks():
     assert reconstruct_send_time(65535, 1234.5) == 1234.5  # unavailable
     assert reconstruct_send_time(60500, 1261.0) == pytest.approx(1259.999)  # leap second
     # beyond the tolerance a "future" secMark is read as last minute's
-    assert reconstruct_send_time(sec_mark(1001.0), 1000.0) == pytest.approx(941.0)
+    assert reconstruct_send_time(sec_mark(1001.5), 1000.0) == pytest.approx(941.5)
 
 
 def test_clamps_never_wraps():

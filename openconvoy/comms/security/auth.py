@@ -14,10 +14,16 @@
   asked for in our next SPDU.
 
 Replay and freshness (``ReplayGuard``): a message is rejected when its generation time is
-more than ``window_s`` (default 1 s) in the past (``stale``) or the future (``future``);
+more than ``window_s`` (default ``mapping.DEFAULT_TIME_TOLERANCE_S``, 1 s: the link's one
+clock tolerance) in the past (``stale``) or the future (``future``);
 when its (certificate, generation time) was already accepted (``duplicate``); or when the
 sender's generation time and msgCnt both go backwards (``backwards``: an older message
 replayed within the window; a clock stepped back with msgCnt going on is not).
+
+Bounded state (D51): only canonical certificates are learned (re-encoding gives the same
+octets), at most ``MAX_CERTS`` of them (least recently used forgotten first; the authority
+and our own stay), at most ``_MAX_BAD_CERTS`` remembered as bad. Certificates listed in
+``Credentials.revoked`` (the keys directory's ``revoked`` file) are refused.
 
 Every rejection has one reason from ``REASONS``; ``rejected`` counts them. Pure: times are
 arguments (Unix seconds); no I/O.
@@ -26,23 +32,33 @@ arguments (Unix seconds); no I/O.
 from __future__ import annotations
 
 import re
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 
 from cryptography.hazmat.primitives.asymmetric import ec
 
+from openconvoy.comms.mapping import DEFAULT_TIME_TOLERANCE_S
 from openconvoy.comms.security import certs as c
 from openconvoy.comms.security.spdu import SignedSpdu, encode_signed
 from openconvoy.core.errors import ConfigError
 
-DEFAULT_WINDOW_S = 1.0
+DEFAULT_WINDOW_S = DEFAULT_TIME_TOLERANCE_S
 CERT_PERIOD_S = 1.0
+#: Verified certificates kept (besides the authority's and our own): a convoy needs one
+#: per member and operator; more only costs a re-verification when one comes back.
+MAX_CERTS = 64
+#: A message rejected as stale or future is verified anyway, at most this often per
+#: signer (s), to measure how far off that signer's clock is (``probe_skew``).
+SKEW_PROBE_PERIOD_S = 1.0
+#: ... and at most this many such verifications per period in all.
+SKEW_PROBES_PER_PERIOD = 8
 
 REASONS = (
     "unsigned",  # auth required, the datagram is not a signed SPDU
     "malformed",  # a signed SPDU we cannot read, or its payload is not a valid message
     "unknown_signer",  # signed by a certificate digest we do not know (yet)
-    "bad_certificate",  # a certificate not issued by the convoy's authority, or not valid
+    "bad_certificate",  # not issued by the convoy's authority, not valid, not canonical
+    "revoked",  # a certificate in the convoy's revocation list
     "not_permitted",  # the certificate may not sign this PSID
     "bad_signature",  # the signature does not verify
     "wrong_sender",  # a member's certificate signing another member's BSM
@@ -81,6 +97,8 @@ class Credentials:
     authority: c.Certificate
     certificate: c.Certificate | None = None
     key: ec.EllipticCurvePrivateKey | None = None
+    revoked: frozenset[bytes] = frozenset()
+    """HashedId8s of certificates no longer accepted (``keystore.load_revoked``)."""
 
     @property
     def can_sign(self) -> bool:
@@ -163,19 +181,22 @@ class Authenticator:
         credentials: Credentials,
         *,
         window_s: float = DEFAULT_WINDOW_S,
-        psids: frozenset[int] = frozenset({c.PSID_BSM, c.PSID_ABORT}),
+        psids: frozenset[int] = frozenset({c.PSID_BSM, c.PSID_ABORT, c.PSID_COMPLETE}),
     ) -> None:
         self.credentials = credentials
         self.psids = psids
         self.guard = ReplayGuard(window_s)
         self.counters = AuthCounters()
         authority = credentials.authority
-        self._certs: dict[bytes, c.Certificate] = {authority.digest: authority}
+        self._pinned: dict[bytes, c.Certificate] = {authority.digest: authority}
+        self._certs: OrderedDict[bytes, c.Certificate] = OrderedDict()  # learned, LRU
         self._bad: dict[bytes, str] = {}
         own = credentials.certificate
         self.own_digest = own.digest if own is not None else None
         if own is not None:
-            self._certs[own.digest] = own
+            self._pinned[own.digest] = own
+        self._probed: dict[bytes, float] = {}  # digest -> last skew probe (Unix s)
+        self._probe_window = (-float("inf"), 0)  # (start, probes in it)
         self._t_cert = -float("inf")
         self._cert_asked = False
         self._requests: dict[bytes, None] = {}  # HashedId3 of unknown digests, in order
@@ -222,13 +243,31 @@ class Authenticator:
             self.counters.rejected[reason] += 1
         return reason
 
-    def _check(self, spdu: SignedSpdu, now: float) -> c.Certificate | str:
+    def precheck(self, spdu: SignedSpdu, now: float) -> str | None:
+        """The cheap part of ``check`` (PSID, freshness, duplicates, revoked or known-bad
+        signer; no signature verified): why it is rejected (counted), else None."""
+        reason = self._precheck(spdu, now)
+        if reason is not None:
+            self.counters.rejected[reason] += 1
+        return reason
+
+    def _precheck(self, spdu: SignedSpdu, now: float) -> str | None:
         if spdu.psid not in self.psids:
             return "not_permitted"
         reason = self.guard.precheck(spdu.digest, spdu.generation_time, now)
         if reason is not None:
             return reason
-        cert = self._certs.get(spdu.digest)
+        if spdu.digest in self.credentials.revoked:
+            return "revoked"
+        if spdu.digest in self._bad:
+            return "bad_certificate"
+        return None
+
+    def _check(self, spdu: SignedSpdu, now: float) -> c.Certificate | str:
+        reason = self._precheck(spdu, now)
+        if reason is not None:
+            return reason
+        cert = self.known(spdu.digest)
         if cert is None:
             if spdu.digest in self._bad:
                 return "bad_certificate"
@@ -253,6 +292,7 @@ class Authenticator:
     def _learn(self, spdu: SignedSpdu, now: float) -> c.Certificate | str:
         assert spdu.certificate is not None
         try:
+            self._not_a_variant(spdu.certificate)
             if spdu.certificate_value is None:
                 cert = c.parse_certificate(spdu.certificate)
             else:
@@ -263,10 +303,50 @@ class Authenticator:
                 self._bad.pop(next(iter(self._bad)))
             self._bad[spdu.digest] = str(exc)
             return "bad_certificate"
+        if cert.digest in self.credentials.revoked:
+            return "revoked"
         self._certs[cert.digest] = cert
+        while len(self._certs) > MAX_CERTS:
+            self._certs.popitem(last=False)
         self._requests.pop(cert.digest[-3:], None)
         self.counters.certificates_learned += 1
         return cert
+
+    def _not_a_variant(self, coer: bytes) -> None:
+        """``CertificateError`` when ``coer`` is a known certificate with octets added
+        after it: rejected without parsing (a flood of such variants stays cheap)."""
+        for known in (*self._pinned.values(), *self._certs.values()):
+            n = len(known.coer)
+            if len(coer) > n and coer[:n] == known.coer:
+                raise c.CertificateError(f"{known.name!r} with {len(coer) - n} octets appended")
+
+    def probe_skew(self, spdu: SignedSpdu, now: float) -> c.Certificate | None:
+        """For an SPDU rejected as ``stale`` or ``future``: its signer's certificate when
+        the signature verifies, to measure that signer's clock offset; at most once per
+        ``SKEW_PROBE_PERIOD_S`` per digest (a flood of such SPDUs costs one verification
+        a second, ``SKEW_PROBES_PER_PERIOD`` in all), None otherwise. A certificate it
+        carries is learned as ``check`` would; records nothing else."""
+        if spdu.digest in self.credentials.revoked or spdu.digest in self._bad:
+            return None
+        last = self._probed.get(spdu.digest)
+        if last is not None and now - last < SKEW_PROBE_PERIOD_S:
+            return None
+        if now - self._probe_window[0] >= SKEW_PROBE_PERIOD_S:
+            self._probe_window = (now, 0)
+        if self._probe_window[1] >= SKEW_PROBES_PER_PERIOD:
+            return None
+        self._probe_window = (self._probe_window[0], self._probe_window[1] + 1)
+        if len(self._probed) > 4 * MAX_CERTS:
+            self._probed.clear()
+        self._probed[spdu.digest] = now
+        cert = self.known(spdu.digest)
+        if cert is None and spdu.certificate is not None:
+            learned = self._learn(spdu, now)
+            cert = None if isinstance(learned, str) else learned
+        if cert is None or spdu.psid not in cert.psids:
+            return None
+        ok = c.verify(cert.public_key, spdu.r, spdu.s, spdu.tbs, cert.coer)
+        return cert if ok else None
 
     def admit(self, spdu: SignedSpdu, now: float, msg_cnt: int | None = None) -> str | None:
         """After ``check`` and decoding the payload: ``backwards`` (counted) or None, in
@@ -279,5 +359,16 @@ class Authenticator:
         return None
 
     def known(self, digest: bytes) -> c.Certificate | None:
-        """The verified certificate of ``digest``, if known."""
-        return self._certs.get(digest)
+        """The verified certificate of ``digest``, if known (and marks it recently used)."""
+        cert = self._pinned.get(digest)
+        if cert is not None:
+            return cert
+        cert = self._certs.get(digest)
+        if cert is not None:
+            self._certs.move_to_end(digest)
+        return cert
+
+    @property
+    def certificates_cached(self) -> int:
+        """Certificates held (pinned and learned): at most ``MAX_CERTS`` + 2."""
+        return len(self._pinned) + len(self._certs)

@@ -41,6 +41,8 @@ PSID_BSM = 0x20
 #: PSID of OpenConvoy's convoy-wide abort. Not an IEEE-assigned value: picked from the
 #: 4-octet p-encoded range (0xE0000000..), where no public allocation exists.
 PSID_ABORT = 0xE0004F43
+#: PSID of the leader's "scenario complete" (``comms.v2v``): the next value of that range.
+PSID_COMPLETE = 0xE0004F44
 
 #: 1609.2 times count TAI seconds from 2004-01-01 00:00:00 UTC; TAI ran 5 s ahead of UTC's
 #: count since then (leap seconds of 2005, 2008, 2012, 2015, 2016).
@@ -264,15 +266,31 @@ def make_certificate(
 def parse_certificate(coer: bytes) -> Certificate:
     """Parse an explicit certificate's COER; ``CertificateError`` if it is not one we can
     use (implicit, unsigned, not P-256, no name)."""
+    coer = bytes(coer)
     try:
-        v = spec().decode("CertificateBase", bytes(coer))
+        v = spec().decode("CertificateBase", coer)
+        canonical = spec().encode("CertificateBase", v) == coer
     except Exception as exc:  # asn1tools raises many types on garbage
         raise CertificateError(f"not an IEEE 1609.2 certificate: {exc}") from None
-    return certificate_of_value(v, bytes(coer))
+    if not canonical:
+        # Octets the decoder skipped (e.g. appended) would give one certificate many
+        # digests: one cache entry each, and a signature that still verifies (D51).
+        raise CertificateError("certificate is not canonical OER (re-encoding differs)")
+    return certificate_of_value(v, coer)
 
 
 def certificate_of_value(v: dict[str, Any], coer: bytes) -> Certificate:
-    """A ``Certificate`` from a decoded ``CertificateBase`` and its COER bytes."""
+    """A ``Certificate`` from a decoded ``CertificateBase`` and its COER bytes
+    (``CertificateError`` for any value asn1tools cannot re-encode)."""
+    try:
+        return _certificate_of_value(v, coer)
+    except CertificateError:
+        raise
+    except Exception as exc:  # e.g. asn1tools' EncodeError on an unknown CHOICE (D55)
+        raise CertificateError(f"unusable certificate: {type(exc).__name__}: {exc}") from None
+
+
+def _certificate_of_value(v: dict[str, Any], coer: bytes) -> Certificate:
     if v["type"] != "explicit" or "signature" not in v:
         raise CertificateError("only explicit, signed certificates are accepted")
     tbs_v = v["toBeSigned"]

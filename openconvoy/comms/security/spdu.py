@@ -173,7 +173,17 @@ def decode_signed(data: bytes) -> SignedSpdu:
 
 
 def decode_signed_asn1(data: bytes) -> SignedSpdu:
-    """``decode_signed`` entirely through asn1tools (any layout)."""
+    """``decode_signed`` entirely through asn1tools (any layout); only ever raises
+    ``SpduDecodeError``."""
+    try:
+        return _decode_signed_asn1(data)
+    except SpduDecodeError:
+        raise
+    except Exception as exc:  # a shape we did not expect (e.g. content not signedData)
+        raise SpduDecodeError(f"not a signed SPDU we can read: {type(exc).__name__}") from None
+
+
+def _decode_signed_asn1(data: bytes) -> SignedSpdu:
     if data[:2] != SIGNED_PREFIX:
         raise SpduDecodeError("not a signed IEEE 1609.2 SPDU (does not start 03 81)")
     try:
@@ -233,7 +243,10 @@ def _signer_span(
     if len(signer) != 1:
         raise SpduDecodeError(f"signer is a chain of {len(signer)} certificates, expected 1")
     cert_value = signer[0]
-    cert_bytes = c.spec().encode("CertificateBase", cert_value)
+    try:
+        cert_bytes = c.spec().encode("CertificateBase", cert_value)
+    except Exception as exc:  # an unknown CHOICE or enumeration value decodes, not encodes
+        raise SpduDecodeError(f"signer certificate cannot be re-encoded: {exc}") from None
     end = len(data) - sig_len - 3 - len(cert_bytes)
     if data[end : end + 3] != b"\x81\x01\x01" or data[end + 3 : len(data) - sig_len] != cert_bytes:
         raise SpduDecodeError("signer certificate is not canonical OER")

@@ -26,7 +26,7 @@ def _err(capsys) -> str:
 
 
 def test_init_and_issue_write_0600_files_and_turn_auth_on(convoy, capsys):
-    assert not load_convoy(convoy).v2v.auth_required  # no keys yet: unsigned
+    assert load_convoy(convoy).v2v.auth_required  # fails closed: required before keys exist
     assert main(["keys", "init", "--convoy", str(convoy)]) == 0
     for i in range(3):
         assert main(["keys", "issue", "--convoy", str(convoy), "--vehicle-id", str(i)]) == 0

@@ -246,11 +246,12 @@ def export_command(args: argparse.Namespace) -> int:
         sample_observations,
     )
 
-    print(
-        f"exporting {resolve_policy_zip(args.run)} to {args.out}, then checking it against "
-        "SB3's predict on 400 simulated observations (loads torch: ~10 s)",
-        file=sys.stderr,
-    )
+    if sys.stderr.isatty():  # progress for a person waiting; a script's stderr stays errors only
+        print(
+            f"exporting {resolve_policy_zip(args.run)} to {args.out}, then checking it against "
+            "SB3's predict on 400 simulated observations (loads torch: ~10 s)",
+            file=sys.stderr,
+        )
     path = export_policy(args.run, args.out)
     trained = load_learned(resolve_policy_zip(args.run))
     exported = load_learned(path)

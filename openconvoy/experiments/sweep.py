@@ -395,6 +395,7 @@ def run_experiment(
     run_logs: bool = True,
     say: Callable[[str], None] | None = None,
     resume: bool = False,
+    compile_note: Callable[[str], None] | None = None,
 ) -> SweepResult:
     """Run every (policy, PER, seed) of ``config`` and write the run directory (see the
     module docstring). The runs are tasks of ``executor`` (default: ``config.executor``,
@@ -407,7 +408,8 @@ def run_experiment(
     ``failures.json`` names the lost runs, and ``TasksFailed`` is raised (or, without
     ``raise_on_failure``, the result lists them). ``resume``: ``out_dir`` holds this
     sweep, interrupted; only the runs it lacks are run (``SweepInterrupted`` when
-    interrupted again)."""
+    interrupted again). ``compile_note`` gets one line before the batched kernels' first
+    compile (default: stderr, with ``progress``, on a terminal)."""
     config = freeze(config)
     _check_policies(config)
     _check_fault_vehicles(config)
@@ -430,8 +432,8 @@ def run_experiment(
     if say is None and progress:
         say = _stderr_line
     batched_sweep.say_per_run(tasks, say or (lambda line: None))
-    if say is not None and len(tasks.tasks) < len(todo):  # some runs batched
-        _say_compile(say)
+    if len(tasks.tasks) < len(todo):  # some runs batched: their kernels may compile first
+        _say_compile(compile_note or (_stderr_line if progress and _on_terminal() else None))
     if isinstance(chosen, ExecutorConfig):  # local: no more processes than tasks
         chosen = make_executor(
             dataclasses.replace(chosen, jobs=max(1, min(slots, len(tasks.tasks))))
@@ -467,8 +469,16 @@ def run_experiment(
     return _finish(result, figures, raise_on_failure)
 
 
-def _say_compile(say: Callable[[str], None]) -> None:
+def _on_terminal() -> bool:
+    import sys
+
+    return sys.stderr.isatty()
+
+
+def _say_compile(say: Callable[[str], None] | None) -> None:
     """The batched kernels' first compile, said before the wait it causes."""
+    if say is None:
+        return
     try:
         from openconvoy.envs.vector.jit import first_compile_note
     except ImportError:  # no numba: nothing is batched anyway

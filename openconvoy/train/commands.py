@@ -127,7 +127,7 @@ def train_command(args: argparse.Namespace) -> int:
         + f" -> {args.out}",
         file=sys.stderr,
     )
-    if config.vec_env != "supersuit":
+    if config.vec_env != "supersuit" and sys.stderr.isatty():  # a person waiting
         _say_compile()
     result = train(config, args.out, progress_bar=not args.no_progress, overwrite=args.overwrite)
     if result.validation is not None and result.base_validation is not None:

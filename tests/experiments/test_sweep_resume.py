@@ -153,18 +153,22 @@ def test_a_sweep_says_before_the_kernels_first_compile(tmp_path: Path, monkeypat
     empty = tmp_path / "cache"
     empty.mkdir()
     monkeypatch.setattr(jit, "CACHE_DIR", empty)  # an install whose kernels never compiled
-    run_experiment(config, tmp_path / "a", jobs=1, progress=False, figures=False, say=said.append)
+    run_experiment(
+        config, tmp_path / "a", jobs=1, progress=False, figures=False, compile_note=said.append
+    )
     assert said == [
         "compiling the batched simulator's kernels first (once per install or upgrade, "
         f"~30-60 s; cached in {empty})"
     ]
     (empty / "step.fused_step-1.py311.nbi").write_bytes(b"")  # numba's index, once compiled
     said.clear()
-    run_experiment(config, tmp_path / "b", jobs=1, progress=False, figures=False, say=said.append)
+    run_experiment(
+        config, tmp_path / "b", jobs=1, progress=False, figures=False, compile_note=said.append
+    )
     assert said == []
     # Runs that are not batched say nothing about kernels.
     run_experiment(
         ExperimentConfig(pers=(0.0,), seeds=1, duration_s=2.0, executor=ExecutorConfig(batched=False)),
-        tmp_path / "c", jobs=1, progress=False, figures=False, say=said.append,
+        tmp_path / "c", jobs=1, progress=False, figures=False, compile_note=said.append,
     )  # fmt: skip
     assert said == []

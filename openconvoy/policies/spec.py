@@ -146,7 +146,7 @@ def _plugin_table(path: str) -> tuple[str, dict[str, Any]] | None:
 def plugin_from_table(table: dict[str, Any], where: str) -> tuple[str, dict[str, Any]]:
     """``(plugin, args)`` of a ``[policy]`` table naming a plug-in: ``plugin`` and an
     optional ``args`` table (the keyword arguments), nothing else."""
-    unknown = sorted(set(table) - {"plugin", "args", "name"})
+    unknown = sorted(set(table) - {"plugin", "args", "name", "description"})
     if unknown:
         raise ConfigError(
             f"{where}: unknown key(s) {', '.join(unknown)} beside plugin; a plug-in policy's "

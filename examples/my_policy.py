@@ -1,6 +1,6 @@
 """A whole policy in 20 lines: keep the gap to the nearest predecessor, steer at its trail.
 
-    openconvoy sim --policy examples/my_policy.py:GapKeeper --policy-arg kp=0.5
+openconvoy sim --policy examples/my_policy.py:GapKeeper --policy-arg kp=0.5
 """
 
 import math

@@ -396,6 +396,7 @@ class DeployRunner:
             self.start_gate,
             self.failsafes,
             period_s=1.0 / o.rate_hz,
+            clock=self.clock,
         )
         self.gate = SafetyGate(
             self.failsafes, self.link, self.member, self.exchange, lambda: self.commanding, status

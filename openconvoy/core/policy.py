@@ -127,8 +127,10 @@ class ActGuard:
     """Calls one follower's ``policy.act`` and times it, the same in every world: an
     ``act`` that raises, or that overruns ``period_s`` (s) ``LATE_ACTS`` times in a row,
     gives a ``PolicyFailure`` instead of an action. ``clock``: seconds (injected; the
-    simulator and the vehicle pass ``time.perf_counter``). ``times``: every call's
-    duration (s), for reports."""
+    simulator passes ``time.perf_counter``, a vehicle its runner's monotonic clock).
+    ``times``: every call's duration (s), for reports. After a failure ``act`` is not
+    called again: the follower stays stopped for the run (``failure`` says why), as the
+    simulator and the vehicle's failsafes latch a policy error."""
 
     def __init__(
         self,
@@ -140,21 +142,26 @@ class ActGuard:
         self.policy, self.period_s, self.clock, self.late_acts = policy, period_s, clock, late_acts
         self.late = 0
         self.times: list[float] = []
+        self.failure: PolicyFailure | None = None
 
     def __call__(self, observation: np.ndarray) -> np.ndarray | PolicyFailure:
+        if self.failure is not None:
+            return self.failure
         start = self.clock()
         try:
             action = self.policy.act(observation)
         except Exception as exc:  # noqa: BLE001 - the policy is foreign code: stop, report
-            return PolicyFailure(f"act raised {type(exc).__name__}: {exc}")
+            self.failure = PolicyFailure(f"act raised {type(exc).__name__}: {exc}")
+            return self.failure
         took = self.clock() - start
         self.times.append(took)
         self.late = self.late + 1 if took > self.period_s else 0
         if self.late >= self.late_acts:
-            return PolicyFailure(
+            self.failure = PolicyFailure(
                 f"act took {took * 1e3:.0f} ms, over the {self.period_s * 1e3:.0f} ms control "
                 f"period {self.late} times in a row"
             )
+            return self.failure
         return action
 
 

@@ -18,7 +18,11 @@ class Batchable:
 
     def act_batch(self, observations: np.ndarray) -> np.ndarray:
         o = self.layout.target_offset("pred_1")  # arc_gap, desired_gap, spacing_error, speed, valid
-        error, speed, valid = observations[..., o + 2], observations[..., o + 3], observations[..., o + 4]
+        error, speed, valid = (
+            observations[..., o + 2],
+            observations[..., o + 3],
+            observations[..., o + 4],
+        )
         v = np.where(valid > 0.5, np.clip(speed + np.float32(self.kp) * error, 0.0, 5.0), 0.0)
         return np.stack([v, np.zeros_like(v)], axis=-1).astype(np.float32)
 

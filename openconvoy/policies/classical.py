@@ -84,6 +84,8 @@ class ClassicalPolicy:
         self._speed_plugin = config.speed.plugin(dt) if config.speed.is_plugin else None
         self._speed = self._speed_plugin or PIDSpeed(config.speed, dt)
         self._heading_plugin = config.heading.plugin(dt) if config.heading.is_plugin else None
+        self._kp, self._kd = config.speed.kp, config.speed.kd
+        self._law = self._plugin_law if self._speed_plugin is not None else self._pd_law
         self._batched: BatchedClassical | None = None
         lay = self.layout
         self._target_slots = [
@@ -159,6 +161,7 @@ class ClassicalPolicy:
         fresh = [t for t, stale in targets if not stale]
         stale = [t for t, is_stale in targets if is_stale]
         speed = math.inf
+        law = self._law  # χ_v's law on one target alone (a cap)
         if fresh:
             error = sum(t[_ERROR] for t in fresh) / len(fresh)
             if self.config.rear_weight > 0.0:
@@ -167,7 +170,7 @@ class ClassicalPolicy:
             speed = self._speed(error, v_ref, v_ref - own)
             # Never faster than the nearest fresh predecessor alone asks.
             near = fresh[0]
-            speed = min(speed, self._law(near[_ERROR], near[_SPEED], near[_SPEED] - own))
+            speed = min(speed, law(near[_ERROR], near[_SPEED], near[_SPEED] - own))
         else:
             self._reset_speed()
         for t in stale:
@@ -176,18 +179,19 @@ class ClassicalPolicy:
             e = t[_ERROR]
             speed = min(
                 speed,
-                self._law(e, v_ref, v_ref - own),
-                self._law(e, t[_SPEED], t[_SPEED] - own),
+                law(e, v_ref, v_ref - own),
+                law(e, t[_SPEED], t[_SPEED] - own),
             )
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
         return make_action(speed, self._heading_change(obs, own))
 
-    def _law(self, error: float, v_ref: float, error_rate: float) -> float:
-        """χ_v's law on one target (a cap): PD for ours, the plug-in's call for a plug-in."""
-        if self._speed_plugin is not None:
-            return float(self._speed_plugin(error, v_ref, error_rate))
-        c = self.config.speed
-        return v_ref + c.kp * error + c.kd * error_rate
+    def _pd_law(self, error: float, v_ref: float, error_rate: float) -> float:
+        """The built-in χ_v's law on one target (a cap): PD."""
+        return v_ref + self._kp * error + self._kd * error_rate
+
+    def _plugin_law(self, error: float, v_ref: float, error_rate: float) -> float:
+        """A plug-in χ_v's law on one target (a cap): its call."""
+        return float(self._speed(error, v_ref, error_rate))
 
     def _stale_after(self, dtype: np.dtype) -> float:
         """``MemberConfig.fresh_age_s`` as an observation of ``dtype`` holds it: an age

@@ -39,6 +39,7 @@ ENTRY_POINT_GROUPS: dict[str, str] = {
     "topology": "openconvoy.topologies",
     "speed": "openconvoy.speed_controllers",
     "heading": "openconvoy.heading_controllers",
+    "reward": "openconvoy.rewards",
 }
 """Entry-point group of each kind of plug-in (``[project.entry-points."openconvoy.policies"]``
 in a package's ``pyproject.toml``: ``name = "module:Name"``)."""
@@ -198,7 +199,7 @@ def construct(obj: Any, kwargs: Mapping[str, Any], where: str) -> Any:
             signature.bind(**kwargs)
         except TypeError as exc:
             raise ConfigError(
-                f"{where}: {label}{signature} cannot take {dict(kwargs)}: {exc}"
+                f"{where}: {label}{_bare(signature)} cannot take {dict(kwargs)}: {exc}"
             ) from None
     try:
         return obj(**kwargs)
@@ -222,7 +223,7 @@ def check_methods(obj: Any, methods: Mapping[str, int], where: str) -> None:
             signature.bind(*([None] * n_args))
         except TypeError:
             raise ConfigError(
-                f"{where}: {label}.{name}{signature} cannot be called with {n_args} "
+                f"{where}: {label}.{name}{_bare(signature)} cannot be called with {n_args} "
                 f"argument{'s' if n_args != 1 else ''} (the protocol passes {n_args})"
             ) from None
 
@@ -236,6 +237,11 @@ def tunable(obj: Any) -> dict[str, tuple[float, float]]:
         lo, hi = (float(b) for b in bounds)
         out[str(name)] = (lo, hi)
     return out
+
+
+def _bare(signature: inspect.Signature) -> inspect.Signature:
+    """``signature`` without its return annotation (for messages)."""
+    return signature.replace(return_annotation=inspect.Signature.empty)
 
 
 def _line(exc: BaseException) -> str:

@@ -228,6 +228,14 @@ class EnvSpec:
         shaping: the training environments' terms on top of ``reward``
             (``train.shaping``: the last metre of the gap, the offset from the
             predecessor's trail); None: ``TRAIN_SHAPING``.
+        reward_fn: a reward plug-in (``module:Name``, ``file.py:Name`` or an
+            ``openconvoy.rewards`` entry point, ``?key=value`` arguments; ``core.plugins``):
+            a class or factory whose object is called per follower per step as
+            ``(reward, info, observation) -> float`` with the environment's reward (the
+            weights of ``reward`` plus ``shaping``), the agent's info (``ConvoyEnv``'s
+            ``INFO_KEYS``, SI units) and its observation; what it returns is the reward
+            learned from. ``""``: none. It runs in Python: training takes the per-convoy
+            path (docs/your-controller.md).
         emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
             follower about to hit its predecessor) during training; None: on with a base,
             off without. Learning from scratch, a policy whose exploration trips the
@@ -247,8 +255,11 @@ class EnvSpec:
     reward: RewardConfig | None = None
     shaping: Shaping | None = None
     emergency_stop: bool | None = None
+    reward_fn: str = ""
 
     def __post_init__(self) -> None:
+        if self.reward_fn:
+            self.make_reward_fn()  # loads, takes its arguments, is callable: else one line
         bounds = RESIDUAL_ACTION_BOUNDS if self.base_policy else ABSOLUTE_ACTION_BOUNDS
         for name, default in zip(("action_low", "action_high"), bounds):
             if getattr(self, name) is None:
@@ -308,6 +319,18 @@ class EnvSpec:
         assert self.control_rate_hz is not None
         return self.control_rate_hz
 
+    def make_reward_fn(self) -> Any:
+        """A new instance of the reward plug-in (None without one)."""
+        if not self.reward_fn:
+            return None
+        from openconvoy.core import plugins
+
+        where = f"reward_fn {self.reward_fn}"
+        obj, args = plugins.resolve(self.reward_fn, "reward", where)
+        fn = plugins.construct(obj, args, where)
+        plugins.check_methods(fn, {"__call__": 3}, where)
+        return fn
+
     def base_config(self) -> ClassicalConfig | None:
         """The residual base as it runs here: the base policy with this member config and
         control rate (what the trained policy records), or None."""
@@ -347,6 +370,7 @@ class RandomizedConvoyEnv(ParallelEnv):
             {a: ClassicalPolicy(base) for a in self.possible_agents} if base is not None else {}
         )
         self._obs: dict[str, np.ndarray] = {}
+        self._reward_fn = spec.make_reward_fn()
         size = spec.member_config.layout.size
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
         self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
@@ -402,6 +426,9 @@ class RandomizedConvoyEnv(ParallelEnv):
                 err = infos[a].get("platooning_error_m")
                 e = np.nan if err is None else err
                 rewards[a] += float(s.extra.bonus(layout, np.array(e), obs[a]))
+        if self._reward_fn is not None:  # the researcher's reward (EnvSpec.reward_fn)
+            fn = self._reward_fn
+            rewards = {a: float(fn(r, infos[a], obs[a])) for a, r in rewards.items()}
         self._obs = obs
         self.agents = list(self.env.agents)
         return obs, rewards, term, trunc, infos

@@ -1,0 +1,57 @@
+"""Training plug-ins (issue 23, item 5): a reward function of one's own in ``train``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from openconvoy.cli import main
+from openconvoy.train.randomization import EnvSpec, Randomization, RandomizedConvoyEnv
+
+ROOT = Path(__file__).resolve().parents[2]
+SMOOTH = "examples/my_reward.py:Smooth?weight=0.2"
+
+
+@pytest.fixture(autouse=True)
+def _at_root(monkeypatch):
+    monkeypatch.chdir(ROOT)
+
+
+def test_the_reward_plugin_gets_the_envs_reward_and_the_agents_info():
+    """Same seed, same actions: the plug-in's reward is the env's minus 0.2 × |accel|."""
+    r = Randomization(per_range=(0.2, 0.2))
+    plain = RandomizedConvoyEnv(EnvSpec(max_time_s=3.0), r)
+    smooth = RandomizedConvoyEnv(EnvSpec(max_time_s=3.0, reward_fn=SMOOTH), r)
+    plain.reset(seed=5)
+    smooth.reset(seed=5)
+    rng = np.random.default_rng(0)
+    checked = 0
+    while plain.agents:
+        actions = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in plain.agents}
+        _, want, _, _, infos = plain.step(actions)
+        _, got, _, _, _ = smooth.step(actions)
+        for a in want:
+            assert got[a] == want[a] - 0.2 * abs(infos[a]["accel_mps2"])
+            checked += abs(infos[a]["accel_mps2"]) > 0.01
+    assert checked > 50
+
+
+def test_a_short_ppo_run_trains_on_a_custom_reward(tmp_path, capsys):
+    cfg = tmp_path / "train.toml"
+    cfg.write_text(f'validation_seeds = []\ncheckpoint_every = 0\n[env]\nreward_fn = "{SMOOTH}"\n')
+    argv = ["train", "--config", str(cfg), "--steps", "512", "--envs", "1"]
+    assert main([*argv, "--out", str(tmp_path / "run"), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"the reward plug-in {SMOOTH} runs in Python" in err
+    assert (tmp_path / "run" / "policy.zip").is_file()
+    assert f'reward_fn = "{SMOOTH}"' in (tmp_path / "run" / "config.toml").read_text()
+
+
+def test_a_bad_reward_plugin_is_one_line(tmp_path, capsys):
+    cfg = tmp_path / "train.toml"
+    cfg.write_text('[env]\nreward_fn = "examples/my_reward.py:Smooth?wieght=1"\n')
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "Smooth(weight: float = 0.1) cannot take {'wieght': 1}" in line

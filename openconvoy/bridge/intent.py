@@ -104,7 +104,9 @@ class ControllerIntent:
     ) -> None:
         self.period_s, self.clock = period_s, clock
         self.guard: ActGuard | None = None
-        """Times the follower's ``act`` (``guard.times``: seconds per call)."""
+        """Times the follower's ``act`` (``guard.times``: seconds per call); the first
+        ``act`` slower than half the period is a warning in the log, at once."""
+        self._warned_slow = False
         self.member = member
         self.bounds = bounds
         self.leading = leading
@@ -133,6 +135,7 @@ class ControllerIntent:
             return self.leading.command(tel, own, now, t_start)
         if self.guard is None or self.guard.policy is not policy:
             self.guard = ActGuard(policy, self.period_s, self.clock)
+            self._warned_slow = False
         self.decision = d = follower_decision(
             self.guard,
             self.member,
@@ -142,4 +145,13 @@ class ControllerIntent:
             wall,
             first_error=not self.failsafes.policy_errors,
         )
+        times = self.guard.times
+        if times and times[-1] > 0.5 * self.period_s and not self._warned_slow:
+            self._warned_slow = True  # once a run: the end-of-run report has the figures
+            log.warning(
+                "vehicle %d: policy act took %.1f ms, over half the %.0f ms control period",
+                vehicle_id,
+                times[-1] * 1e3,
+                self.period_s * 1e3,
+            )
         return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error

@@ -127,7 +127,9 @@ class _Plugin:
         (0.0, True, "policy error: act raised RuntimeError: boom"),
     ],
 )
-def test_deploy_stops_a_raising_or_slow_plugin_as_sim_does(delay_s, raises, reason, tmp_path):
+def test_deploy_stops_a_raising_or_slow_plugin_as_sim_does(
+    delay_s, raises, reason, tmp_path, caplog
+):
     from openconvoy.policies.plugin import check_policy_object
 
     holder: dict = {}
@@ -146,7 +148,9 @@ def test_deploy_stops_a_raising_or_slow_plugin_as_sim_does(delay_s, raises, reas
     assert link.sent[-1][1] == 0.0  # stopped
     meta = json.loads((tmp_path / "vehicle_1.json").read_text())
     assert meta["policy_errors"] == result.policy_errors
+    slow = [r.getMessage() for r in caplog.records if "over half the" in r.getMessage()]
     if delay_s:
+        assert slow == ["vehicle 1: policy act took 200.0 ms, over half the 50 ms control period"]
         assert meta["policy_act_s"]["max"] == pytest.approx(0.2)
         assert meta["policy_act_s"]["calls"] == 3.0
 

@@ -139,7 +139,7 @@ def _fold_policy_args(args: argparse.Namespace) -> None:
         if isinstance(value, list):
             setattr(args, attr, [with_policy_args(v, extra) for v in value])
             return
-    raise CliError("--policy-arg: give --policy (a Python plug-in policy) too")
+    raise CliError("--policy-arg: give --policy (or train's --base), a Python plug-in policy, too")
 
 
 if __name__ == "__main__":

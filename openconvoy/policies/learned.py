@@ -80,6 +80,8 @@ class LearnedMeta:
         obs_epsilon: added to the variance before the square root.
         name: a label for logs and reports.
         base: the classical policy a residual policy corrects (None: absolute actions).
+        base_plugin: or the plug-in policy spec it corrects (``module:Name?k=v``,
+            ``policies.plugin``; loaded by reference: it must be importable here).
         residual_scale: SI size of a full-scale (±1) residual, ``[m/s, rad]``.
         extra: free-form facts about the run (steps, seed).
     """
@@ -98,8 +100,11 @@ class LearnedMeta:
     base: ClassicalConfig | None = None
     residual_scale: tuple[float, float] = (0.0, 0.0)
     extra: dict[str, Any] = field(default_factory=dict)
+    base_plugin: str = ""
 
     def __post_init__(self) -> None:
+        if self.base is not None and self.base_plugin:
+            raise InputFileError("a residual policy has one base: classical or plug-in")
         if self.base is not None and self.base.member != self.member_config:
             raise InputFileError(
                 "a residual policy's base must use the policy's member configuration"
@@ -136,6 +141,7 @@ class LearnedMeta:
             "base": None if self.base is None else to_dict(self.base),
             "residual_scale": list(self.residual_scale),
             "extra": self.extra,
+            **({"base_plugin": self.base_plugin} if self.base_plugin else {}),
         }
 
     @classmethod
@@ -159,6 +165,7 @@ class LearnedMeta:
                 base=None if base is None else from_dict(ClassicalConfig, base, f"{where}: base"),
                 residual_scale=tuple(float(v) for v in data.get("residual_scale", (0.0, 0.0))),  # type: ignore[arg-type]
                 extra=dict(data.get("extra", {})),
+                base_plugin=str(data.get("base_plugin", "")),
             )
         except KeyError as exc:
             raise InputFileError(f"{where}: missing key {exc.args[0]!r}") from None
@@ -175,8 +182,13 @@ class LearnedMeta:
         z = (obs - self.obs_mean) / np.sqrt(self.obs_var + self.obs_epsilon)
         return np.clip(z, -self.obs_clip, self.obs_clip)
 
-    def make_base(self) -> ClassicalPolicy | None:
-        """A fresh instance of the residual base (None for absolute actions)."""
+    def make_base(self) -> Any:
+        """A fresh instance of the residual base (None for absolute actions): a
+        ``ClassicalPolicy``, or the plug-in ``base_plugin`` names."""
+        if self.base_plugin:
+            from openconvoy.policies.plugin import load_plugin_policy
+
+            return load_plugin_policy(self.base_plugin)
         return None if self.base is None else ClassicalPolicy(self.base)
 
     def to_si(
@@ -275,6 +287,19 @@ class LearnedPolicy:
         """Forget the base's controller memory (the network has none)."""
         if self._base is not None:
             self._base.reset(seed)
+        self._row_bases: list[Any] = []
+
+    def _base_batch(self, obs: np.ndarray) -> np.ndarray:
+        """A plug-in base without ``act_batch`` on a batch: one copy of it per row (each
+        row a vehicle with its own memory), each acting on its row."""
+        import copy
+
+        rows = obs.reshape(-1, obs.shape[-1])
+        bases = self.__dict__.setdefault("_row_bases", [])
+        while len(bases) < len(rows):
+            bases.append(copy.deepcopy(self._base))
+        out = np.stack([np.asarray(b.act(r), dtype=np.float32) for b, r in zip(bases, rows)])
+        return out.reshape(obs.shape[:-1] + (2,))
 
     def normalized_action(self, observation: np.ndarray) -> np.ndarray:
         """The network's deterministic action in [-1, 1]^2 (before SI scaling)."""
@@ -306,7 +331,12 @@ class LearnedPolicy:
         rows = obs.reshape(-1, self.layout.size)
         a = np.asarray(self._forward(self.meta.normalize(rows)), dtype=np.float64)
         a = a.reshape(obs.shape[:-1] + (2,))
-        base = None if self._base is None else self._base.act_batch(obs.astype(np.float32))
+        if self._base is None:
+            base = None
+        elif callable(getattr(self._base, "act_batch", None)):
+            base = self._base.act_batch(obs.astype(np.float32))
+        else:
+            base = self._base_batch(obs.astype(np.float32))
         m = self.meta
         return compose_actions(a, m.action_low, m.action_high, base, m.residual_scale)
 

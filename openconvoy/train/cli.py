@@ -112,9 +112,10 @@ def _train_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--base",
         metavar="SPEC",
-        help="classical policy the network corrects (residual; "
-        "default paper), or 'none' for absolute actions",
+        help="policy the network corrects (residual; default paper): a preset, policy "
+        ".toml or plug-in (module:Name, file.py:Name), or 'none' for absolute actions",
     )
+    add_policy_arg(p)
     p.add_argument(
         "--M",
         type=_int(1, 1000),

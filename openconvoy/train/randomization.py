@@ -28,12 +28,13 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
+from openconvoy.core.plugins import join_args
 from openconvoy.envs.convoy_env import ConvoyEnv
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.learned import compose_action
-from openconvoy.policies.spec import classical_config
+from openconvoy.policies.spec import classical_config, plugin_of
 from openconvoy.train.shaping import Shaping
 
 PLANT_JITTER_FIELDS = (
@@ -211,8 +212,10 @@ class EnvSpec:
 
     Attributes:
         n_followers: agents per environment (parameter sharing: all run one policy).
-        base_policy: classical policy spec (preset or TOML) the network corrects
-            (residual actions); ``""``: none, the network's action is absolute.
+        base_policy: policy spec the network corrects (residual actions): a classical
+            preset or TOML, or a plug-in policy (``module:Name``, ``file.py:Name``; it
+            brings its member config and rate, and trains on the per-convoy path);
+            ``""``: none, the network's action is absolute.
         residual_scale: SI size of a full-scale residual ``[m/s, rad]``.
         member: the followers' member configuration (its layout is the policy's); None:
             the base policy's, or ``MemberConfig()`` without a base. A base runs with
@@ -256,6 +259,9 @@ class EnvSpec:
     shaping: Shaping | None = None
     emergency_stop: bool | None = None
     reward_fn: str = ""
+    plugin_base: str = dataclasses.field(init=False, default="", repr=False, compare=False)
+    """The plug-in spec of a plug-in residual base (``module:Name?k=v``; "" for a
+    classical base or none): ``base_policy`` resolved."""
 
     def __post_init__(self) -> None:
         if self.reward_fn:
@@ -272,13 +278,24 @@ class EnvSpec:
             object.__setattr__(self, "shaping", TRAIN_SHAPING)
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
-        base = classical_config(self.base_policy) if self.base_policy else None
+        plugin = plugin_of(self.base_policy) if self.base_policy else None
+        object.__setattr__(self, "plugin_base", "" if plugin is None else join_args(*plugin[:2]))
+        base_member: MemberConfig | None = None
+        base_rate = 20.0
+        if plugin is not None:  # a plug-in base: its own member side and rate
+            p = self.make_plugin_base()
+            base_member, base_rate = p.member_config, p.control_rate_hz
+            if base_member is not None and self.member not in (None, base_member):
+                raise ConfigError(
+                    f"base {self.base_policy} runs on its own member_config; leave member unset"
+                )
+        elif self.base_policy:
+            base = classical_config(self.base_policy)
+            base_member, base_rate = base.member, base.control_rate_hz
         if self.member is None:
-            object.__setattr__(self, "member", base.member if base is not None else MemberConfig())
+            object.__setattr__(self, "member", base_member or MemberConfig())
         if self.control_rate_hz is None:
-            object.__setattr__(
-                self, "control_rate_hz", base.control_rate_hz if base is not None else 20.0
-            )
+            object.__setattr__(self, "control_rate_hz", base_rate)
         if len(self.residual_scale) != 2 or min(self.residual_scale) < 0:
             raise ConfigError(
                 f"residual_scale must be two non-negative numbers, got {self.residual_scale}"
@@ -331,10 +348,17 @@ class EnvSpec:
         plugins.check_methods(fn, {"__call__": 3}, where)
         return fn
 
+    def make_plugin_base(self) -> Any:
+        """A new instance of the plug-in residual base (``policies.plugin``)."""
+        from openconvoy.policies.plugin import load_plugin_policy
+
+        return load_plugin_policy(self.plugin_base)
+
     def base_config(self) -> ClassicalConfig | None:
         """The residual base as it runs here: the base policy with this member config and
-        control rate (what the trained policy records), or None."""
-        if not self.base_policy:
+        control rate (what the trained policy records), or None (no base, or a plug-in
+        base: ``plugin_base``)."""
+        if not self.base_policy or self.plugin_base:
             return None
         return dataclasses.replace(
             classical_config(self.base_policy),
@@ -366,9 +390,11 @@ class RandomizedConvoyEnv(ParallelEnv):
         self.possible_agents = [f"follower_{i}" for i in range(1, spec.n_followers + 1)]
         self.agents: list[str] = []
         base = spec.base_config()
-        self._bases = (
+        self._bases: dict[str, Any] = (
             {a: ClassicalPolicy(base) for a in self.possible_agents} if base is not None else {}
         )
+        if spec.plugin_base:  # a plug-in residual base, one object per follower
+            self._bases = {a: spec.make_plugin_base() for a in self.possible_agents}
         self._obs: dict[str, np.ndarray] = {}
         self._reward_fn = spec.make_reward_fn()
         size = spec.member_config.layout.size

@@ -184,6 +184,7 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
         action_low=spec.bounds[0],
         action_high=spec.bounds[1],
         base=spec.base_config(),
+        base_plugin=spec.plugin_base,
         residual_scale=spec.residual_scale if spec.base_policy else (0.0, 0.0),
         obs_mean=mean,
         obs_var=var,

@@ -1,4 +1,5 @@
-"""Training plug-ins (issue 23, item 5): a reward function of one's own in ``train``."""
+"""Training plug-ins (issue 23, item 5): a reward function of one's own in ``train``, and
+a plug-in policy as the residual base (``train --base file.py:Name``)."""
 
 from __future__ import annotations
 
@@ -55,3 +56,31 @@ def test_a_bad_reward_plugin_is_one_line(tmp_path, capsys):
     assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run")]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "Smooth(weight: float = 0.1) cannot take {'wieght': 1}" in line
+
+
+def test_a_plugin_policy_is_a_residual_base(tmp_path, capsys):
+    """``train --base examples/my_policy.py:GapKeeper --policy-arg kp=0.5``: the run
+    records the plug-in by reference; the trained policy adds its network to the
+    plug-in's action, per vehicle and batched alike."""
+    from openconvoy.envs import ConvoyEnv
+    from openconvoy.policies.learned import load_learned
+    from openconvoy.policies.plugin import load_plugin_policy
+
+    argv = ["train", "--base", "examples/my_policy.py:GapKeeper", "--policy-arg", "kp=0.5"]
+    argv += ["--steps", "512", "--envs", "1", "--out", str(tmp_path / "run"), "--no-progress"]
+    assert main(argv) == 0
+    assert "plug-in residual base examples/my_policy.py:GapKeeper?kp=0.5" in capsys.readouterr().err
+    policy = load_learned(tmp_path / "run" / "policy.zip")
+    assert policy.meta.base is None
+    assert policy.meta.base_plugin == "examples/my_policy.py:GapKeeper?kp=0.5"
+    base = load_plugin_policy(policy.meta.base_plugin)
+    env = ConvoyEnv(member_config=policy.member_config)
+    obs, _ = env.reset(seed=0)
+    for _ in range(30):
+        obs, *_ = env.step({a: policy.act(o) for a, o in obs.items()})
+    o = obs["follower_2"]
+    want = policy.meta.to_si(policy.normalized_action(o), base.act(o))
+    np.testing.assert_array_equal(policy.act(o), want)
+    batch = np.stack([obs["follower_1"], o])
+    policy.reset()
+    np.testing.assert_allclose(policy.act_batch(batch)[1], want, atol=1e-5)

@@ -40,6 +40,7 @@ ENTRY_POINT_GROUPS: dict[str, str] = {
     "speed": "openconvoy.speed_controllers",
     "heading": "openconvoy.heading_controllers",
     "reward": "openconvoy.rewards",
+    "features": "openconvoy.features",
 }
 """Entry-point group of each kind of plug-in (``[project.entry-points."openconvoy.policies"]``
 in a package's ``pyproject.toml``: ``name = "module:Name"``)."""
@@ -294,6 +295,24 @@ def component(kind: str, spec: str, params: Mapping[str, Any], where: str, **ext
     instance = construct(obj, kwargs, where)
     check_methods(instance, COMPONENT_METHODS[kind], where)
     return instance
+
+
+def features(spec: str, size: int, where: str) -> tuple[Any, int]:
+    """An observation-features plug-in (``features`` group) built from ``spec`` and how
+    many numbers it appends to an observation of ``size``: an object called
+    ``(observation) -> 1-D array`` of a fixed length (checked on a zero observation)."""
+    import numpy as np
+
+    obj, args = resolve(spec, "features", where)
+    fn = construct(obj, args, where)
+    check_methods(fn, {"__call__": 1}, where)
+    try:
+        out = np.asarray(fn(np.zeros(size, dtype=np.float32)), dtype=np.float32)
+    except Exception as exc:  # noqa: BLE001 - the plug-in's code
+        raise ConfigError(f"{where}: on a zero observation it raised {_line(exc)}") from None
+    if out.ndim != 1:
+        raise ConfigError(f"{where}: returns shape {out.shape}; expected a 1-D array")
+    return fn, int(out.shape[0])
 
 
 def component_tunable(kind: str, spec: str, where: str) -> dict[str, tuple[float, float]]:

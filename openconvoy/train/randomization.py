@@ -239,6 +239,11 @@ class EnvSpec:
             ``INFO_KEYS``, SI units) and its observation; what it returns is the reward
             learned from. ``""``: none. It runs in Python: training takes the per-convoy
             path (docs/your-controller.md).
+        obs_features: an observation-features plug-in (``module:Name``, ``file.py:Name``
+            or an ``openconvoy.features`` entry point, ``?key=value`` arguments): an object
+            called ``(observation) -> 1-D array`` whose numbers are appended to each
+            observation the network sees; the trained policy records it and computes the
+            same features wherever it runs (``LearnedMeta.obs_features``). ``""``: none.
         emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
             follower about to hit its predecessor) during training; None: on with a base,
             off without. Learning from scratch, a policy whose exploration trips the
@@ -259,6 +264,7 @@ class EnvSpec:
     shaping: Shaping | None = None
     emergency_stop: bool | None = None
     reward_fn: str = ""
+    obs_features: str = ""
     plugin_base: str = dataclasses.field(init=False, default="", repr=False, compare=False)
     """The plug-in spec of a plug-in residual base (``module:Name?k=v``; "" for a
     classical base or none): ``base_policy`` resolved."""
@@ -266,6 +272,8 @@ class EnvSpec:
     def __post_init__(self) -> None:
         if self.reward_fn:
             self.make_reward_fn()  # loads, takes its arguments, is callable: else one line
+        if self.obs_features:
+            self.make_features(MemberConfig().layout.size)  # loads: else one line
         bounds = RESIDUAL_ACTION_BOUNDS if self.base_policy else ABSOLUTE_ACTION_BOUNDS
         for name, default in zip(("action_low", "action_high"), bounds):
             if getattr(self, name) is None:
@@ -348,6 +356,16 @@ class EnvSpec:
         plugins.check_methods(fn, {"__call__": 3}, where)
         return fn
 
+    def make_features(self, size: int | None = None) -> tuple[Any, int]:
+        """The observation-features plug-in and the count it appends ``(None, 0)`` without
+        one), checked on an observation of ``size`` (default: this member's layout)."""
+        if not self.obs_features:
+            return None, 0
+        from openconvoy.core import plugins
+
+        n = self.member_config.layout.size if size is None else size
+        return plugins.features(self.obs_features, n, f"obs_features {self.obs_features}")
+
     def make_plugin_base(self) -> Any:
         """A new instance of the plug-in residual base (``policies.plugin``)."""
         from openconvoy.policies.plugin import load_plugin_policy
@@ -397,7 +415,8 @@ class RandomizedConvoyEnv(ParallelEnv):
             self._bases = {a: spec.make_plugin_base() for a in self.possible_agents}
         self._obs: dict[str, np.ndarray] = {}
         self._reward_fn = spec.make_reward_fn()
-        size = spec.member_config.layout.size
+        self._features, n_features = spec.make_features()
+        size = spec.member_config.layout.size + n_features
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
         self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._rng = np.random.default_rng()
@@ -435,7 +454,18 @@ class RandomizedConvoyEnv(ParallelEnv):
             b.reset()
         self.agents = list(self.env.agents)
         self._obs = obs
-        return obs, infos
+        return self._extended(obs), infos
+
+    def _extended(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """What the network sees: each observation with the features plug-in's numbers
+        appended (``EnvSpec.obs_features``; the observation itself without one)."""
+        fn = self._features
+        if fn is None:
+            return obs
+        return {
+            a: np.concatenate([o, np.asarray(fn(o), dtype=np.float32)]).astype(np.float32)
+            for a, o in obs.items()
+        }
 
     def step(self, actions: dict[str, np.ndarray]):
         if self.env is None:
@@ -457,7 +487,7 @@ class RandomizedConvoyEnv(ParallelEnv):
             rewards = {a: float(fn(r, infos[a], obs[a])) for a, r in rewards.items()}
         self._obs = obs
         self.agents = list(self.env.agents)
-        return obs, rewards, term, trunc, infos
+        return self._extended(obs), rewards, term, trunc, infos
 
     def render(self) -> np.ndarray | None:
         return None if self.env is None else self.env.render()

@@ -185,6 +185,8 @@ def policy_meta(config: TrainConfig, venv: VecEnv, steps: int) -> LearnedMeta:
         action_high=spec.bounds[1],
         base=spec.base_config(),
         base_plugin=spec.plugin_base,
+        obs_features=spec.obs_features,
+        feature_size=spec.make_features()[1],
         residual_scale=spec.residual_scale if spec.base_policy else (0.0, 0.0),
         obs_mean=mean,
         obs_var=var,

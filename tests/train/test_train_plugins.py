@@ -84,3 +84,48 @@ def test_a_plugin_policy_is_a_residual_base(tmp_path, capsys):
     batch = np.stack([obs["follower_1"], o])
     policy.reset()
     np.testing.assert_allclose(policy.act_batch(batch)[1], want, atol=1e-5)
+
+
+def test_observation_features_reach_the_network_wherever_the_policy_runs(tmp_path, capsys):
+    """``[env] obs_features``: the network sees the layout's numbers and the plug-in's;
+    the trained .zip and its .npz export record the plug-in and compute it from the
+    observation at act time; a plug-in that now gives another count is refused."""
+    import dataclasses
+
+    from openconvoy.core.errors import InputFileError
+    from openconvoy.policies.learned import load_learned
+
+    cfg = tmp_path / "train.toml"
+    cfg.write_text(
+        "validation_seeds = []\ncheckpoint_every = 0\n"
+        '[env]\nobs_features = "examples/my_features.py:GapRatio"\n'
+    )
+    run = tmp_path / "run"
+    argv = ["train", "--config", str(cfg), "--steps", "512", "--envs", "1"]
+    assert main([*argv, "--out", str(run), "--no-progress"]) == 0
+    assert (
+        "observation-features plug-in examples/my_features.py:GapRatio" in capsys.readouterr().err
+    )
+    assert main(["export", str(run), "--out", str(run / "p.npz")]) == 0
+    zipped, exported = load_learned(run / "policy.zip"), load_learned(run / "p.npz")
+    size = zipped.layout.size
+    for policy in (zipped, exported):
+        assert (policy.meta.obs_features, policy.meta.feature_size) == (
+            "examples/my_features.py:GapRatio",
+            2,
+        )
+        assert policy.meta.obs_mean is not None and policy.meta.obs_mean.shape == (size + 2,)
+    from openconvoy.envs import ConvoyEnv
+
+    env = ConvoyEnv(member_config=zipped.member_config)
+    obs, _ = env.reset(seed=1)
+    for _ in range(40):
+        obs, *_ = env.step({a: zipped.act(o) for a, o in obs.items()})
+    o = obs["follower_2"]
+    extended = zipped._extend(o)
+    assert extended.shape == (size + 2,) and extended[size] == pytest.approx(1.0, abs=0.2)
+    np.testing.assert_allclose(zipped.act(o), exported.act(o), atol=1e-5)
+    with pytest.raises(InputFileError, match="gives 2 features; the policy was trained with 3"):
+        dataclasses.replace(
+            zipped.meta, feature_size=3, obs_mean=None, obs_var=None
+        ).make_features()

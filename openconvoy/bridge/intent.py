@@ -72,7 +72,11 @@ def follower_decision(
             log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
         return member_tick.stop(f"{type(exc).__name__}: {exc}")
     if isinstance(action, PolicyFailure) and first_error:
-        log.error("policy error at t=%.2f: %s", wall, action.reason)
+        tb = policy.traceback if isinstance(policy, ActGuard) else ""
+        if tb:
+            log.error("policy raised at t=%.2f:\n%s", wall, tb)
+        else:
+            log.error("policy error at t=%.2f: %s", wall, action.reason)
     return member_tick.decide(member, frame, action, bounds, ranging)
 
 

@@ -30,7 +30,7 @@ What is called when (every world: ``sim``, sweeps, ``tune``, ``deploy``, ``demo`
 What the platform enforces on whatever ``act`` returns (``core.tick.decide``): an action
 that is not two numbers, or is NaN or infinite, or an ``act`` that raises, is a policy
 error: counted, and that follower stops for the rest of the run (on a vehicle: a latched
-stop); an ``act`` slower than the control period ``LATE_ACTS`` times in a row is a
+stop; the reason is ``TypeName: message`` for an exception); an ``act`` slower than the control period ``LATE_ACTS`` times in a row is a
 policy error too (``ActGuard``). A good action is clipped to the action space, then the
 staleness ladder and the braking rule may lower it.
 """
@@ -143,6 +143,8 @@ class ActGuard:
         self.late = 0
         self.times: list[float] = []
         self.failure: PolicyFailure | None = None
+        self.traceback = ""
+        """The traceback of an ``act`` that raised ("" otherwise), for the log."""
 
     def __call__(self, observation: np.ndarray) -> np.ndarray | PolicyFailure:
         if self.failure is not None:
@@ -151,7 +153,10 @@ class ActGuard:
         try:
             action = self.policy.act(observation)
         except Exception as exc:  # noqa: BLE001 - the policy is foreign code: stop, report
-            self.failure = PolicyFailure(f"act raised {type(exc).__name__}: {exc}")
+            import traceback
+
+            self.traceback = traceback.format_exc()
+            self.failure = PolicyFailure(f"{type(exc).__name__}: {exc}")
             return self.failure
         took = self.clock() - start
         self.times.append(took)

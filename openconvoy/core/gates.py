@@ -17,6 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
+import numpy as np
+
 from openconvoy.core import plugins
 from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
@@ -47,6 +49,19 @@ class RxGate:
         plugin = None
         if is_plugin_topology(self.topology):
             plugin = topology_plugin(self.topology, self.params)
+            # Asked once for every sender of the convoy: a plug-in that raises or answers
+            # something else than true or false fails here, in one line, not mid-run.
+            try:
+                table = [plugin.keeps(self.ego, j, self.n_vehicles) for j in range(self.n_vehicles)]
+            except Exception as exc:  # noqa: BLE001 - the plug-in's code
+                raise ConfigError(
+                    f"topology {self.topology}: keeps({self.ego}, j, {self.n_vehicles}) raised "
+                    f"{type(exc).__name__}: {exc}"
+                ) from None
+            if not all(isinstance(k, (bool, np.bool_)) for k in table):
+                raise ConfigError(
+                    f"topology {self.topology}: keeps() returned {table!r}; expected true or false"
+                )
         object.__setattr__(self, "_plugin", plugin)
         _ = self.lookahead  # validates the name
 

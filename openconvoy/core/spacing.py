@@ -15,12 +15,14 @@ centre-to-centre gap (m) to the immediate predecessor (docs/your-controller.md).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 from openconvoy.core import plugins
 from openconvoy.core.config import Range
+from openconvoy.core.errors import ConfigError
 
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
@@ -49,7 +51,16 @@ class SpacingConfig:
     def plugin(self) -> Any:
         """A new instance of the plug-in ``kind`` names (``core.plugins.component``)."""
         where = f"spacing {self.kind!r} (built-in: {', '.join(SPACING_KINDS)})"
-        return plugins.component("spacing", self.kind, self.params, where)
+        plugin = plugins.component("spacing", self.kind, self.params, where)
+        try:  # a gap at rest between two 4 m cars: a number >= 0, or one line now
+            gap = float(plugin.pair_gap(0.0, 4.0, 4.0))
+        except Exception as exc:  # noqa: BLE001 - the plug-in's code
+            raise ConfigError(
+                f"{where}: pair_gap(0, 4, 4) raised {type(exc).__name__}: {exc}"
+            ) from None
+        if not math.isfinite(gap) or gap < 0.0:
+            raise ConfigError(f"{where}: pair_gap(0, 4, 4) = {gap}; expected a finite gap >= 0 m")
+        return plugin
 
 
 class SpacingPolicy:

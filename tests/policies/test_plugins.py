@@ -140,6 +140,14 @@ def test_a_bad_plugin_is_one_line_at_load_time_exit_2(spec, words, tmp_path, cap
         ),
         ('trigger = "tests/data/plugins/equal.py:PD"', ["PD has no method should_send()"]),
         ('topology = "ring"', ["topology 'ring'", "installed topology plug-in"]),
+        (
+            'topology = "tests/data/plugins/faulty.py:RaisingTopology"',
+            ["keeps(1, j, 2) raised KeyError: 0"],
+        ),
+        (
+            'spacing = "tests/data/plugins/faulty.py:NanSpacing"',
+            ["pair_gap(0, 4, 4) = nan; expected a finite gap >= 0 m"],
+        ),
     ],
 )
 def test_a_bad_component_is_one_line_naming_it(table, words, tmp_path, capsys):

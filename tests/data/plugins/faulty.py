@@ -46,3 +46,17 @@ class BadMemberConfig:
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         return np.zeros(2, dtype=np.float32)
+
+
+class RaisingTopology:
+    """ρ that raises: refused at load, not mid-run."""
+
+    def keeps(self, ego: int, sender: int, n_vehicles: int) -> bool:
+        raise KeyError(sender)
+
+
+class NanSpacing:
+    """σ whose gap is NaN: refused at load."""
+
+    def pair_gap(self, speed_mps: float, ego_length_m: float, pred_length_m: float) -> float:
+        return float("nan")

@@ -16,7 +16,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from openconvoy.core.args import DURATION, FRACTION, lazy_handler
+from openconvoy.core.args import DURATION, FRACTION, add_policy_arg, lazy_handler
 from openconvoy.core.errors import ConfigError, OpenConvoyError
 
 
@@ -75,6 +75,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         "multicast that never leaves the machine), then compares with the pure simulation.",
     )
     p.add_argument("--policy", default="paper", help="policy spec (default paper)")
+    add_policy_arg(p)
     p.add_argument("--per", type=FRACTION, default=0.0, help="emulated packet error rate")
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
     p.add_argument(
@@ -141,6 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     handler: Handler = args.handler
     try:
+        _fold_policy_args(args)
         return int(handler(args) or 0)
     except KeyboardInterrupt:
         return 130
@@ -165,6 +167,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         # disk): the file and the reason, not a traceback.
         print(f"openconvoy: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
+
+
+def _fold_policy_args(args: argparse.Namespace) -> None:
+    """``--policy-arg KEY=VALUE`` folded into ``--policy`` (every spec given) as
+    ``?KEY=VALUE``, so the arguments travel with the spec to every run and process."""
+    extra = getattr(args, "policy_arg", None)
+    if not extra:
+        return
+    from openconvoy.policies.spec import with_policy_args
+
+    for attr in ("policy", "base"):
+        value = getattr(args, attr, None)
+        if isinstance(value, str):
+            setattr(args, attr, with_policy_args(value, extra))
+            return
+        if isinstance(value, list):
+            setattr(args, attr, [with_policy_args(v, extra) for v in value])
+            return
+    raise CliError("--policy-arg: give --policy (or train's --base), a Python plug-in policy, too")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ import argparse
 from openconvoy.core.args import (
     DURATION,
     FRACTION,
+    POLICY_ARG_HELP,
     RATE_HZ,
     SEED,
     TIMEOUT,
@@ -109,7 +110,16 @@ VEHICLE_FLAGS: Flags = (
 """``openconvoy vehicle``'s flags."""
 
 DEPLOY_FLAGS: Flags = (
-    ("--policy", dict(required=True, help="preset name, policy .toml, .zip or .npz")),
+    (
+        "--policy",
+        dict(
+            required=True, help="preset name, policy .toml, module:Name, file.py:Name, .zip or .npz"
+        ),
+    ),
+    (
+        "--policy-arg",
+        dict(action="append", metavar="KEY=VALUE", default=None, help=POLICY_ARG_HELP),
+    ),
     ("--vehicle-id", dict(type=_int(0, 254), required=True, help="convoy index, 0 = leader")),
     ("--convoy", dict(required=True, metavar="CONVOY.toml", help="the convoy config")),
     (

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 import traceback
+from collections.abc import Callable
 
 from openconvoy.bridge.convoystart import ConvoyStart
 from openconvoy.bridge.failsafes import Failsafes
@@ -18,7 +20,7 @@ from openconvoy.bridge.leaderdrive import LeaderDriving
 from openconvoy.bridge.link import Telemetry
 from openconvoy.core import tick as member_tick
 from openconvoy.core.member import ConvoyMember, Frame
-from openconvoy.core.policy import ConvoyPolicy
+from openconvoy.core.policy import ActGuard, ConvoyPolicy, PolicyFailure
 from openconvoy.core.state import VehicleState
 
 log = logging.getLogger(__name__)
@@ -46,7 +48,7 @@ def ranging_ahead(
 
 
 def follower_decision(
-    policy: ConvoyPolicy,
+    policy: ConvoyPolicy | ActGuard,
     member: ConvoyMember,
     frame: Frame,
     bounds: member_tick.ActionBounds,
@@ -56,13 +58,25 @@ def follower_decision(
 ) -> member_tick.Decision:
     """``policy.act`` on the frame's observation, then the member's decision
     (``core.tick.decide``); a policy that raises gets a stop decision naming the error (the
-    traceback is logged for the ``first_error`` only)."""
+    traceback is logged for the ``first_error`` only). Through an ``ActGuard`` (what the
+    runner passes), an ``act`` slower than the control period ``LATE_ACTS`` times in a
+    row is a policy error too, as in ``sim``."""
     try:
-        action = policy.act(frame.observation)
+        action = (
+            policy(frame.observation)
+            if isinstance(policy, ActGuard)
+            else policy.act(frame.observation)
+        )
     except Exception as exc:  # the policy is foreign code: stop, log, keep looping
         if first_error:
             log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
         return member_tick.stop(f"{type(exc).__name__}: {exc}")
+    if isinstance(action, PolicyFailure) and first_error:
+        tb = policy.traceback if isinstance(policy, ActGuard) else ""
+        if tb:
+            log.error("policy raised at t=%.2f:\n%s", wall, tb)
+        else:
+            log.error("policy error at t=%.2f: %s", wall, action.reason)
     return member_tick.decide(member, frame, action, bounds, ranging)
 
 
@@ -75,6 +89,8 @@ class ControllerIntent:
         leading: the leader's driver (used when this vehicle leads).
         start_gate: when the convoy started.
         failsafes: counts policy errors (the first one's traceback is logged).
+        period_s: the control period (s) ``act`` must keep within (``ActGuard``).
+        clock: seconds, to time ``act``.
 
     Attributes:
         decision: the member's latest decision (None for a leader, or while waiting).
@@ -87,7 +103,14 @@ class ControllerIntent:
         leading: LeaderDriving,
         start_gate: ConvoyStart,
         failsafes: Failsafes,
+        period_s: float = 0.05,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
+        self.period_s, self.clock = period_s, clock
+        self.guard: ActGuard | None = None
+        """Times the follower's ``act`` (``guard.times``: seconds per call); the first
+        ``act`` slower than half the period is a warning in the log, at once."""
+        self._warned_slow = False
         self.member = member
         self.bounds = bounds
         self.leading = leading
@@ -114,8 +137,11 @@ class ControllerIntent:
             t_start = self.start_gate.t_start
             assert t_start is not None  # not waiting: started
             return self.leading.command(tel, own, now, t_start)
+        if self.guard is None or self.guard.policy is not policy:
+            self.guard = ActGuard(policy, self.period_s, self.clock)
+            self._warned_slow = False
         self.decision = d = follower_decision(
-            policy,
+            self.guard,
             self.member,
             frame,
             self.bounds,
@@ -123,4 +149,13 @@ class ControllerIntent:
             wall,
             first_error=not self.failsafes.policy_errors,
         )
+        times = self.guard.times
+        if times and times[-1] > 0.5 * self.period_s and not self._warned_slow:
+            self._warned_slow = True  # once a run: the end-of-run report has the figures
+            log.warning(
+                "vehicle %d: policy act took %.1f ms, over half the %.0f ms control period",
+                vehicle_id,
+                times[-1] * 1e3,
+                self.period_s * 1e3,
+            )
         return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error

@@ -146,12 +146,29 @@ def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
         "max_tick_late_s": timer.max_late_s if timer else 0.0,
         "v2v_counters": _safe(lambda: asdict(v2v.counters)),
         "policy_errors": r.failsafes.policy_errors,
+        "policy_act_s": _act_times(r),
         "failsafe_events": [{"t_s": wall0 + t, "reason": why} for t, why in r.failsafes.events],
         "msgs_sent": r.member.msgs_sent,
         "msgs_received": r.exchange.delivered(),
         "msgs_kept": r.member.msgs_received,
         "msgs_lost": v2v.counters.lost,
         **r.metadata_extra,
+    }
+
+
+def _act_times(r: DeployRunner) -> dict[str, float] | None:
+    """The follower policy's ``act`` durations (s): calls, median, p99, max (None: none)."""
+    guard = r.intent.guard
+    if guard is None or not guard.times:
+        return None
+    import numpy as np
+
+    t = np.array(guard.times)
+    return {
+        "calls": float(len(t)),
+        "median": float(np.median(t)),
+        "p99": float(np.percentile(t, 99)),
+        "max": float(t.max()),
     }
 
 

@@ -58,7 +58,7 @@ from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import ConvoyMember, Frame, member_config_for
-from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
+from openconvoy.core.policy import ConvoyPolicy, act_time_report, as_convoy_policy
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState, wrap_angle
 
@@ -392,7 +392,13 @@ class DeployRunner:
         )
         self.runlog = RunLog(self.log_dir, o.vehicle_id, o.status_period_s, status)
         self.intent = ControllerIntent(
-            self.member, self.bounds, self.leading, self.start_gate, self.failsafes
+            self.member,
+            self.bounds,
+            self.leading,
+            self.start_gate,
+            self.failsafes,
+            period_s=1.0 / o.rate_hz,
+            clock=self.clock,
         )
         self.gate = SafetyGate(
             self.failsafes, self.link, self.member, self.exchange, lambda: self.commanding, status
@@ -571,4 +577,9 @@ class DeployRunner:
                 closer()
             except Exception:  # noqa: BLE001
                 pass
+        if self.intent.guard is not None:  # the policy's act time against the period
+            self.on_status(
+                f"vehicle {self.options.vehicle_id}: "
+                + act_time_report(self.intent.guard.times, 1.0 / self.options.rate_hz)
+            )
         self.on_status(f"vehicle {self.options.vehicle_id}: stopped ({reason})")

@@ -91,3 +91,17 @@ def add_command(
     add_flags(parser, flags)
     parser.set_defaults(handler=handler)
     return parser
+
+
+POLICY_ARG_HELP = (
+    "keyword argument of a Python plug-in policy (module:Name, file.py:Name), repeatable; "
+    "values as TOML scalars (0.5, 3, true, text)"
+)
+
+
+def add_policy_arg(parser: argparse.ArgumentParser) -> None:
+    """``--policy-arg KEY=VALUE`` (repeatable): folded into ``--policy`` by ``cli.main``
+    (``policies.spec.with_policy_args``)."""
+    parser.add_argument(
+        "--policy-arg", action="append", metavar="KEY=VALUE", default=None, help=POLICY_ARG_HELP
+    )

@@ -4,16 +4,23 @@ Speed controllers turn a spacing error (m, positive = too far behind) and a refe
 speed (m/s, the predecessors' speed) into a speed setpoint. Heading controllers turn path
 geometry in the ego frame into a heading change (rad, CCW positive). All are stateful
 only through what ``reset`` clears; the time step is fixed at construction.
+
+Either may be a plug-in (``core.plugins``) built with its ``params`` (and ``dt_s``, the
+control period in seconds, where its constructor names it): a speed controller is called
+``(error_m, v_ref_mps, error_rate_mps) -> speed setpoint (m/s)``, a heading controller
+``(cross_track_m, heading_error_rad, speed_mps, lookahead) -> heading change (rad)``,
+``lookahead`` the path points 0.5, 1 and 2 s ahead as ``((x_m, y_m), ...)`` in the ego
+frame; ``reset()`` is optional (docs/your-controller.md).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Annotated
+from dataclasses import dataclass, field
+from typing import Annotated, Any
 
+from openconvoy.core import plugins
 from openconvoy.core.config import Range
-from openconvoy.core.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -25,10 +32,21 @@ class SpeedControlConfig:
     ki: Annotated[float, Range(0.0, 100.0)] = 0.0
     kd: Annotated[float, Range(0.0, 100.0)] = 1.1
     integral_limit: Annotated[float, Range(0.0, 1000.0)] = 5.0
+    params: dict[str, Any] = field(default_factory=dict, hash=False)
+    """A plug-in's keyword arguments (its ``kind`` a plug-in reference)."""
 
     def __post_init__(self) -> None:
-        if self.kind not in ("pd", "pid"):
-            raise ConfigError(f"unknown speed controller {self.kind!r}; expected 'pd' or 'pid'")
+        if self.is_plugin:
+            self.plugin(0.05)  # a plug-in that loads, takes ``params`` and is callable
+
+    @property
+    def is_plugin(self) -> bool:
+        return self.kind not in ("pd", "pid")
+
+    def plugin(self, dt_s: float) -> Any:
+        """A new instance of the plug-in ``kind`` names, for control period ``dt_s`` (s)."""
+        where = f"speed controller {self.kind!r} (built-in: pd, pid)"
+        return plugins.component("speed", self.kind, self.params, where, dt_s=dt_s)
 
 
 class PIDSpeed:
@@ -76,12 +94,21 @@ class HeadingControlConfig:
     softening_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
     lookahead_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 1.0
     min_lookahead_m: Annotated[float, Range(0.0, 1000.0)] = 1.0
+    params: dict[str, Any] = field(default_factory=dict, hash=False)
+    """A plug-in's keyword arguments (its ``kind`` a plug-in reference)."""
 
     def __post_init__(self) -> None:
-        if self.kind not in ("stanley", "pure-pursuit"):
-            raise ConfigError(
-                f"unknown heading controller {self.kind!r}; expected 'stanley' or 'pure-pursuit'"
-            )
+        if self.is_plugin:
+            self.plugin(0.05)  # a plug-in that loads, takes ``params`` and is callable
+
+    @property
+    def is_plugin(self) -> bool:
+        return self.kind not in ("stanley", "pure-pursuit")
+
+    def plugin(self, dt_s: float) -> Any:
+        """A new instance of the plug-in ``kind`` names, for control period ``dt_s`` (s)."""
+        where = f"heading controller {self.kind!r} (built-in: stanley, pure-pursuit)"
+        return plugins.component("heading", self.kind, self.params, where, dt_s=dt_s)
 
 
 def stanley(

@@ -3,14 +3,23 @@
 Topology names are DESIGN.md's: ``predecessor``, ``all-predecessors``, ``lookahead:K``
 (``lookahead:N`` = every predecessor), ``leader``, ``leader-predecessor``,
 ``bidirectional``, ``all``. Vehicle 0 leads; a predecessor has a smaller id.
+
+Either gate may be a plug-in (``core.plugins``: ``mylab.gates:Ring``, ``file.py:Name`` or
+an entry point) built with its ``params``: a topology has ``keeps(ego, sender,
+n_vehicles) -> bool``; a trigger ``should_send(own, last_sent, now) -> bool``, asked on the
+``period_s`` grid, and optionally ``reset()`` (docs/your-controller.md).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Annotated
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Annotated, Any
 
+import numpy as np
+
+from openconvoy.core import plugins
 from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
@@ -33,14 +42,35 @@ class RxGate:
     topology: str
     ego: int
     n_vehicles: int
+    params: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    """A plug-in topology's keyword arguments."""
 
     def __post_init__(self) -> None:
+        plugin = None
+        if is_plugin_topology(self.topology):
+            plugin = topology_plugin(self.topology, self.params)
+            # Asked once for every sender of the convoy: a plug-in that raises or answers
+            # something else than true or false fails here, in one line, not mid-run.
+            try:
+                table = [plugin.keeps(self.ego, j, self.n_vehicles) for j in range(self.n_vehicles)]
+            except Exception as exc:  # noqa: BLE001 - the plug-in's code
+                raise ConfigError(
+                    f"topology {self.topology}: keeps({self.ego}, j, {self.n_vehicles}) raised "
+                    f"{type(exc).__name__}: {exc}"
+                ) from None
+            if not all(isinstance(k, (bool, np.bool_)) for k in table):
+                raise ConfigError(
+                    f"topology {self.topology}: keeps() returned {table!r}; expected true or false"
+                )
+        object.__setattr__(self, "_plugin", plugin)
         _ = self.lookahead  # validates the name
 
     @property
     def lookahead(self) -> int | None:
         """K for ``lookahead:K`` (``N`` = all predecessors), else None."""
         name = self.topology
+        if is_plugin_topology(name):
+            return None
         if name.startswith("lookahead:"):
             k = name.split(":", 1)[1]
             if k == "N":
@@ -57,6 +87,9 @@ class RxGate:
         i, j = self.ego, sender
         if j == i:
             return False
+        plugin = self._plugin  # type: ignore[attr-defined]
+        if plugin is not None:
+            return bool(plugin.keeps(i, j, self.n_vehicles))
         t = self.topology
         if t == "all":
             return True
@@ -82,6 +115,17 @@ class RxGate:
         return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
 
 
+def is_plugin_topology(name: str) -> bool:
+    """``name`` is no built-in topology (``lookahead:K`` included): a plug-in reference."""
+    return name not in TOPOLOGIES and not name.startswith("lookahead:")
+
+
+def topology_plugin(name: str, params: Mapping[str, Any]) -> Any:
+    """A new instance of the topology plug-in ``name`` (``core.plugins.component``)."""
+    where = f"topology {name!r} (built-in: {', '.join(TOPOLOGIES)})"
+    return plugins.component("topology", name, params, where)
+
+
 @dataclass(frozen=True)
 class TriggerConfig:
     """τ's configuration.
@@ -97,12 +141,24 @@ class TriggerConfig:
     threshold_m: Annotated[float, Range(0.0, 1000.0, lo_open=True)] = 0.5
     speed_threshold_mps: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.5
     max_silence_s: Annotated[float, Range(0.0, 600.0, lo_open=True)] = 1.0
+    params: dict[str, Any] = field(default_factory=dict, hash=False)
+    """A plug-in's keyword arguments (its ``kind`` a plug-in reference, asked every
+    ``period_s``)."""
 
     def __post_init__(self) -> None:
-        if self.kind not in ("periodic", "event"):
-            raise ConfigError(f"unknown trigger {self.kind!r}; expected 'periodic' or 'event'")
         if self.period_s <= 0:
             raise ConfigError(f"trigger period_s must be positive, got {self.period_s}")
+        if self.is_plugin:
+            self.plugin()  # a plug-in that loads, takes ``params`` and has should_send
+
+    @property
+    def is_plugin(self) -> bool:
+        return self.kind not in ("periodic", "event")
+
+    def plugin(self) -> Any:
+        """A new instance of the plug-in ``kind`` names (``core.plugins.component``)."""
+        where = f"trigger {self.kind!r} (built-in: periodic, event)"
+        return plugins.component("trigger", self.kind, self.params, where)
 
 
 class TxGate:
@@ -110,11 +166,14 @@ class TxGate:
 
     def __init__(self, config: TriggerConfig) -> None:
         self.config = config
+        self._plugin = config.plugin() if config.is_plugin else None
         self.reset()
 
     def reset(self) -> None:
         self._next_check = -math.inf
         self._last_sent: VehicleState | None = None
+        if self._plugin is not None and callable(getattr(self._plugin, "reset", None)):
+            self._plugin.reset()
 
     def should_send(self, own: VehicleState, now: float) -> bool:
         """True when the own state should be broadcast at ``now``; records it as sent."""
@@ -126,7 +185,10 @@ class TxGate:
             self._next_check = now
         while self._next_check <= now + 1e-9:
             self._next_check += c.period_s
-        send = c.kind == "periodic" or self._deviates(own, now)
+        if self._plugin is not None:
+            send = bool(self._plugin.should_send(own, self._last_sent, now))
+        else:
+            send = c.kind == "periodic" or self._deviates(own, now)
         if send:
             self._last_sent = own
         return send

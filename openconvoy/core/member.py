@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from openconvoy.core import ladder as ladder_mod
 from openconvoy.core.buffer import StateBuffer
 from openconvoy.core.config import Range
 from openconvoy.core.estimate import TargetEstimate, dead_reckon, gap_and_closing
-from openconvoy.core.gates import RxGate, TriggerConfig, TxGate
+from openconvoy.core.gates import RxGate, TriggerConfig, TxGate, is_plugin_topology
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.observation import (
     DERIVED_FEATURES,
@@ -46,7 +46,9 @@ _TWO_PI = 2.0 * math.pi  # as ``wrap_angle`` computes it
 @dataclass(frozen=True)
 class MemberConfig:
     """The member side of an implementation: ρ (``topology``), τ (``trigger``), σ's
-    desired gaps (``spacing``), the staleness ``ladder``, and the observation's ``M``, ``k``."""
+    desired gaps (``spacing``), the staleness ``ladder``, and the observation's ``M``, ``k``.
+    ``topology``, ``trigger.kind`` and ``spacing.kind`` may name plug-ins
+    (``core.plugins``); ``topology_params`` are a plug-in topology's keyword arguments."""
 
     topology: str = "all-predecessors"
     trigger: TriggerConfig = field(default_factory=TriggerConfig)
@@ -55,9 +57,20 @@ class MemberConfig:
     M: Annotated[int, Range(1, 100)] = 2
     k: Annotated[int, Range(1, 100)] = 3
     trail_spacing_m: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 0.2
+    topology_params: dict[str, Any] = field(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
-        RxGate(self.topology, 1, 2)  # validates the topology name
+        RxGate(self.topology, 1, 2, self.topology_params)  # validates the topology name
+
+    @property
+    def plugins(self) -> list[str]:
+        """The plug-in components of the member side, as ``"spacing module:Name"``."""
+        out = [f"topology {self.topology}"] if is_plugin_topology(self.topology) else []
+        if self.trigger.is_plugin:
+            out.append(f"trigger {self.trigger.kind}")
+        if self.spacing.is_plugin:
+            out.append(f"spacing {self.spacing.kind}")
+        return out
 
     @property
     def layout(self) -> ObservationLayout:
@@ -123,7 +136,7 @@ class ConvoyMember:
         self.layout = config.layout
         self.lengths = list(lengths) if lengths is not None else [0.0] * n_vehicles
         self.decels = list(decels) if decels is not None else [math.inf] * n_vehicles
-        self.rx = RxGate(config.topology, vehicle_id, n_vehicles)
+        self.rx = RxGate(config.topology, vehicle_id, n_vehicles, config.topology_params)
         self.tx = TxGate(config.trigger)
         self.spacing = SpacingPolicy(config.spacing)
         self.buffer = StateBuffer(config.k, config.trail_spacing_m)

@@ -6,14 +6,21 @@ arc-length gap is the sum over the ``m`` pairs between. ``constant-distance`` is
 paper's (15 m centre to centre); ``constant-time-headway`` (CACC) and ``quadratic``
 (M-CACC) add a bumper-to-bumper standstill distance plus a speed term to the two half
 lengths, so a standstill of 2 m means 2 m between bumpers.
+
+``kind`` may also name a plug-in (``mylab.spacing:Quadratic``, ``file.py:Name`` or an
+``openconvoy.spacing`` entry point; ``core.plugins``) built with ``params``: any object
+with ``pair_gap(speed_mps, ego_length_m, pred_length_m) -> float``, the desired
+centre-to-centre gap (m) to the immediate predecessor (docs/your-controller.md).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Annotated
+from dataclasses import dataclass, field
+from typing import Annotated, Any
 
+from openconvoy.core import plugins
 from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 
@@ -30,12 +37,30 @@ class SpacingConfig:
     standstill_m: Annotated[float, Range(0.0, 1000.0)] = 2.0
     headway_s: Annotated[float, Range(0.0, 60.0)] = 0.6
     quadratic_s2_per_m: Annotated[float, Range(0.0, 10.0)] = 0.01
+    params: dict[str, Any] = field(default_factory=dict, hash=False)
+    """A plug-in's keyword arguments (its ``kind`` a plug-in reference)."""
 
     def __post_init__(self) -> None:
         if self.kind not in SPACING_KINDS:
+            self.plugin()  # a plug-in that loads, takes ``params`` and has pair_gap
+
+    @property
+    def is_plugin(self) -> bool:
+        return self.kind not in SPACING_KINDS
+
+    def plugin(self) -> Any:
+        """A new instance of the plug-in ``kind`` names (``core.plugins.component``)."""
+        where = f"spacing {self.kind!r} (built-in: {', '.join(SPACING_KINDS)})"
+        plugin = plugins.component("spacing", self.kind, self.params, where)
+        try:  # a gap at rest between two 4 m cars: a number >= 0, or one line now
+            gap = float(plugin.pair_gap(0.0, 4.0, 4.0))
+        except Exception as exc:  # noqa: BLE001 - the plug-in's code
             raise ConfigError(
-                f"unknown spacing policy {self.kind!r}; expected one of {', '.join(SPACING_KINDS)}"
-            )
+                f"{where}: pair_gap(0, 4, 4) raised {type(exc).__name__}: {exc}"
+            ) from None
+        if not math.isfinite(gap) or gap < 0.0:
+            raise ConfigError(f"{where}: pair_gap(0, 4, 4) = {gap}; expected a finite gap >= 0 m")
+        return plugin
 
 
 class SpacingPolicy:
@@ -43,9 +68,12 @@ class SpacingPolicy:
 
     def __init__(self, config: SpacingConfig) -> None:
         self.config = config
+        self._plugin = config.plugin() if config.is_plugin else None
 
     def pair_gap(self, speed: float, ego_length: float, pred_length: float) -> float:
         """Desired centre-to-centre gap (m) to the immediate predecessor at ``speed`` (m/s)."""
+        if self._plugin is not None:
+            return float(self._plugin.pair_gap(speed, ego_length, pred_length))
         c = self.config
         if c.kind == "constant-distance":
             return c.distance_m
@@ -77,7 +105,7 @@ class GapChain:
     def gap_to(self, ego: int, target: int, speed: float) -> float:
         """Desired arc-length gap (m) from ``ego`` to ``target`` ahead of it at ``speed`` (m/s)."""
         c = self.policy.config
-        if not 0 <= target <= ego <= len(self._halves):
+        if c.is_plugin or not 0 <= target <= ego <= len(self._halves):
             return self.policy.gap_to(ego, target, speed, self.lengths)
         if c.kind == "constant-distance":
             gap = self._constant.get((ego, target))

@@ -26,7 +26,7 @@ import numpy as np
 
 from openconvoy.core import ladder
 from openconvoy.core.member import ConvoyMember, Frame
-from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD, Policy
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD, Policy, PolicyFailure
 from openconvoy.core.state import VehicleState
 
 Ranging = tuple[float, float]
@@ -112,11 +112,17 @@ def sense(member: ConvoyMember, inbox: Iterable[VehicleState], now: float) -> Fr
 def decide(
     member: ConvoyMember,
     frame: Frame,
-    action: np.ndarray,
+    action: np.ndarray | PolicyFailure,
     bounds: ActionBounds,
     ranging: Ranging | None = None,
 ) -> Decision:
-    """Step 3: check, clip and supervise the policy's ``action`` for ``frame``."""
+    """Step 3: check, clip and supervise the policy's ``action`` for ``frame`` (a
+    ``PolicyFailure``, or anything but two numbers, is a policy error: stop)."""
+    if isinstance(action, PolicyFailure):
+        return stop(action.reason)
+    shape = np.shape(action)
+    if shape != (2,):
+        return stop(f"action has shape {shape}, not (2,): [speed_mps, heading_change_rad]")
     try:
         speed, change = float(action[0]), float(action[1])
     except (TypeError, ValueError, IndexError) as exc:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from openconvoy.core.args import DURATION, FRACTION, SECONDS_POS, SEED, lazy_handler
+from openconvoy.core.args import DURATION, FRACTION, SECONDS_POS, SEED, add_policy_arg, lazy_handler
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 
@@ -116,8 +116,10 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
         "--policy",
         default="paper",
         metavar="SPEC",
-        help="preset (openconvoy presets; NAME+ladder), policy .toml, .zip or .npz",
+        help="preset (openconvoy presets; NAME+ladder), policy .toml, module:Name, "
+        "file.py:Name, .zip or .npz",
     )
+    add_policy_arg(p)
     p.add_argument(
         "--per",
         type=FRACTION,
@@ -242,6 +244,7 @@ def _add_per_sweep(esub: argparse._SubParsersAction) -> None:
         metavar="SPEC",
         help="policy spec; repeat to draw several (e.g. --policy paper --policy paper+ladder)",
     )
+    add_policy_arg(p)
     p.add_argument("--pers", metavar="LIST", help="comma-separated PERs (default 0,0.1,...,0.6)")
     p.add_argument(
         "--seeds",

@@ -253,6 +253,15 @@ def presets(args: argparse.Namespace) -> int:
         m = cfg.member
         parts = f"{m.topology}, {m.trigger.kind}, {m.spacing.kind}, {cfg.speed.kind} + {cfg.heading.kind}"
         print(f"  {name:<{width}}  [{parts}] {cfg.description}")
+    from openconvoy.core.plugins import ENTRY_POINT_GROUPS, entry_points
+
+    for kind, group in ENTRY_POINT_GROUPS.items():
+        found = entry_points(kind)
+        if found:
+            how = "--policy NAME" if kind == "policy" else 'kind = "NAME" in a policy TOML'
+            print(f"installed {kind} plug-ins ({group} entry points; {how}):")
+            for name, ep in sorted(found.items()):
+                print(f"  {name:<{width}}  {ep.value}")
     print("vehicle presets (--vehicle-preset NAME or a preset .toml):")
     for name, p in VEHICLE_PRESETS.items():
         print(

@@ -1,7 +1,9 @@
 """Files a run reads on the driver, shipped to its worker as bytes.
 
 A spec may name a file: a policy ``.toml``/``.zip``/``.npz`` (with ``+ladder`` too), a
-vehicle preset ``.toml``, a scenario ``track-file:PATH``. A worker on another machine
+plug-in's ``file.py:Name``, a vehicle preset ``.toml``, a scenario ``track-file:PATH``
+(files a policy TOML names inside, plug-ins' ``file.py``, are not shipped: give workers on
+other machines the plug-in as an installed module). A worker on another machine
 has no such file, so the driver reads each one (``ship``) and the worker writes them into
 its own temporary directory (``land``) and runs with the specs pointing there
 (``relocate``). A run's results do not depend on where its files lie.
@@ -15,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from openconvoy.core.plugins import split_args
 from openconvoy.policies.spec import PolicySpec
 
 TRACK_PREFIX = "track-file:"
@@ -29,7 +32,10 @@ def spec_file(spec: str) -> str | None:
         return None
     if spec.startswith(TRACK_PREFIX):
         return spec[len(TRACK_PREFIX) :]
-    base = PolicySpec.parse(spec).base
+    parsed = PolicySpec.parse(spec)
+    if parsed.plugin_file is not None:  # a plug-in's own file.py:Name
+        return parsed.plugin_file
+    base = split_args(parsed.base)[0]
     return base if base.endswith(FILE_SUFFIXES) else None
 
 

@@ -29,6 +29,7 @@ from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, child, from_dict, to_dict
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import check_auth, fault_specs
+from openconvoy.core.policy import ActGuard
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
@@ -303,9 +304,12 @@ def run_sim(
                 rows.append(r)
 
     bar = _progress_bar(env.max_steps, config.scenario) if progress else None
+    # Each act is timed and caught as on a vehicle (``core.policy.ActGuard``): an act
+    # that raises or overruns the control period is a policy error, decided in the tick.
+    guards = {a: ActGuard(p, env.dt) for a, p in policies.items()}
     try:
         while env.agents:
-            actions = {a: policies[a].act(obs[a]) for a in env.agents}
+            actions = {a: guards[a](obs[a]) for a in env.agents}
             obs, _, _, _, _ = env.step(actions)
             emit(env.log_rows())
             if bar is not None:

@@ -207,10 +207,13 @@ class ExperimentConfig:
             if key in data:
                 table[key] = data[key]
         config = from_dict(cls, table, where)
-        from openconvoy.policies.spec import classical_from_table
+        from openconvoy.policies.spec import classical_from_table, plugin_from_table
 
         for name, policy_table in config.policy.items():  # referenced or not, checked here
-            classical_from_table(policy_table, name, f"{where}: policy.{name}")
+            if isinstance(policy_table, dict) and "plugin" in policy_table:
+                plugin_from_table(policy_table, f"{where}: policy.{name}")
+            else:
+                classical_from_table(policy_table, name, f"{where}: policy.{name}")
         return config
 
     # --- runs ----------------------------------------------------------------------------
@@ -251,7 +254,7 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
     table (``path/fast.toml+ladder`` becomes ``fast+ladder``), so the run directory's copy
     of the experiment needs no other file and labels do not depend on where files were."""
     from openconvoy.policies.presets import PRESETS
-    from openconvoy.policies.spec import classical_from_toml
+    from openconvoy.policies.spec import classical_from_toml, plugin_of
 
     inline = dict(config.policy)
     labels = []
@@ -261,7 +264,8 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
         if not spec.toml:
             labels.append(label)
             continue
-        classical_from_toml(base)  # validates the file
+        if plugin_of(label) is None:
+            classical_from_toml(base)  # validates the file
         table = dict(load_toml(base)["policy"])
         name = Path(base).stem
         table.setdefault("name", name)
@@ -279,8 +283,6 @@ def freeze(config: ExperimentConfig) -> ExperimentConfig:
 def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, str]:
     """Write ``[policy.NAME]`` tables as policy files under ``out_dir/policies`` and map each
     policy label to the spec to load; check every spec loads (one clear error if not)."""
-    from openconvoy.policies.spec import classical_config
-
     files: dict[str, str] = {}
     for name, table in config.policy.items():
         if "/" in name or name.endswith(".toml"):
@@ -293,16 +295,32 @@ def write_inline_policies(config: ExperimentConfig, out_dir: Path) -> dict[str, 
     for label in config.policies:
         parsed = PolicySpec.parse(label)
         spec = str(parsed.with_base(files[parsed.base])) if parsed.base in files else label
-        if not PolicySpec.parse(spec).learned:
-            classical_config(spec)  # fail before any process starts
+        _check_loads(spec)  # fail before any process starts
         specs[label] = spec
     return specs
 
 
+def _check_loads(spec: str) -> None:
+    """A classical or plug-in policy spec that does not load fails here, in one line."""
+    from openconvoy.policies.spec import classical_config, load_policy, plugin_of
+
+    if PolicySpec.parse(spec).learned:
+        return
+    if plugin_of(spec) is not None:
+        load_policy(spec)
+    else:
+        classical_config(spec)
+
+
 def policy_dirname(label: str) -> str:
-    """A directory name for a policy label (file specs: the file's stem)."""
+    """A directory name for a policy label (file specs: the file's stem; plug-ins: their
+    name and arguments)."""
     spec = PolicySpec.parse(label)
     base = spec.base
+    if spec.plugin:
+        ref, _, args = base.partition("?")
+        name = ref.rpartition(":")[2] + ("_" + args.replace("&", "_") if args else "")
+        return "".join(c if c.isalnum() or c in "_.=-" else "_" for c in name)
     return (
         Path(base).stem.replace(" ", "_") + spec.suffix if ("/" in base or "." in base) else label
     )
@@ -569,12 +587,10 @@ def _collect(
 
 def _check_policies(config: ExperimentConfig) -> None:
     """Fail before anything is written on a classical policy that does not load."""
-    from openconvoy.policies.spec import classical_config
-
     for label in config.policies:
         spec = PolicySpec.parse(label)
-        if spec.base not in config.policy and not spec.learned:
-            classical_config(label)
+        if spec.base not in config.policy:
+            _check_loads(label)
 
 
 def _check_fault_vehicles(config: ExperimentConfig) -> None:

@@ -19,7 +19,7 @@ from types import EllipsisType, ModuleType
 
 import numpy as np
 
-from openconvoy.core.errors import DependencyMissing
+from openconvoy.core.errors import ConfigError, DependencyMissing
 from openconvoy.core.observation import LOOKAHEAD_S, STATE_FEATURES
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.policies.classical import ClassicalConfig
@@ -76,6 +76,11 @@ class BatchedClassical:
     act through ``batched_jit``'s kernel (None: when numba is importable)."""
 
     def __init__(self, config: ClassicalConfig, compiled: bool | None = None) -> None:
+        if config.speed.is_plugin or config.heading.is_plugin:
+            raise ConfigError(
+                "act_batch computes the built-in controllers only; a plug-in speed or heading "
+                "controller acts per vehicle (act)"
+            )
         self.config = config
         self.layout = config.member.layout
         self.dt = 1.0 / config.control_rate_hz

@@ -80,7 +80,12 @@ class ClassicalPolicy:
     def __init__(self, config: ClassicalConfig) -> None:
         self.config = config
         self.layout = config.member.layout
-        self._speed = PIDSpeed(config.speed, 1.0 / config.control_rate_hz)
+        dt = 1.0 / config.control_rate_hz
+        self._speed_plugin = config.speed.plugin(dt) if config.speed.is_plugin else None
+        self._speed = self._speed_plugin or PIDSpeed(config.speed, dt)
+        self._heading_plugin = config.heading.plugin(dt) if config.heading.is_plugin else None
+        self._kp, self._kd = config.speed.kp, config.speed.kd
+        self._law = self._plugin_law if self._speed_plugin is not None else self._pd_law
         self._batched: BatchedClassical | None = None
         lay = self.layout
         self._target_slots = [
@@ -105,9 +110,25 @@ class ClassicalPolicy:
     def name(self) -> str:
         return self.config.name
 
+    @property
+    def plugins(self) -> list[str]:
+        """Every plug-in component of this policy, as ``"spacing module:Name"``."""
+        c = self.config
+        out = list(c.member.plugins)
+        out += [f"speed controller {c.speed.kind}"] if c.speed.is_plugin else []
+        return out + ([f"heading controller {c.heading.kind}"] if c.heading.is_plugin else [])
+
     def reset(self, seed: int | None = None) -> None:
-        self._speed.reset()
+        self._reset_speed()
+        if self._heading_plugin is not None and callable(
+            getattr(self._heading_plugin, "reset", None)
+        ):
+            self._heading_plugin.reset()
         self._batched = None
+
+    def _reset_speed(self) -> None:
+        if self._speed_plugin is None or callable(getattr(self._speed_plugin, "reset", None)):
+            self._speed.reset()
 
     def act_batch(self, observations: np.ndarray) -> np.ndarray:
         """``act`` for a batch ``(..., D)`` -> ``(..., 2)``, each row with its own
@@ -133,14 +154,14 @@ class ClassicalPolicy:
         obs = observation.tolist()  # plain floats: cheaper to read one by one than numpy's
         targets, lost = self._targets(obs, self._stale_after(observation.dtype))
         if lost or not targets:
-            self._speed.reset()
+            self._reset_speed()
             return make_action(0.0, 0.0)
         own = obs[lay.own_offset]
         v_ref = targets[0][0][_SPEED]  # the nearest predecessor's, as in the paper
         fresh = [t for t, stale in targets if not stale]
         stale = [t for t, is_stale in targets if is_stale]
-        c = self.config.speed
         speed = math.inf
+        law = self._law  # χ_v's law on one target alone (a cap)
         if fresh:
             error = sum(t[_ERROR] for t in fresh) / len(fresh)
             if self.config.rear_weight > 0.0:
@@ -149,20 +170,28 @@ class ClassicalPolicy:
             speed = self._speed(error, v_ref, v_ref - own)
             # Never faster than the nearest fresh predecessor alone asks.
             near = fresh[0]
-            speed = min(speed, near[_SPEED] + c.kp * near[_ERROR] + c.kd * (near[_SPEED] - own))
+            speed = min(speed, law(near[_ERROR], near[_SPEED], near[_SPEED] - own))
         else:
-            self._speed.reset()
+            self._reset_speed()
         for t in stale:
             # Each stale target caps the speed at its term of the mean (so leaving it out
             # of the mean cannot speed the follower up) and at what it alone asks.
             e = t[_ERROR]
             speed = min(
                 speed,
-                v_ref + c.kp * e + c.kd * (v_ref - own),
-                t[_SPEED] + c.kp * e + c.kd * (t[_SPEED] - own),
+                law(e, v_ref, v_ref - own),
+                law(e, t[_SPEED], t[_SPEED] - own),
             )
         speed = min(max(speed, 0.0), self.config.speed_limit_mps)
         return make_action(speed, self._heading_change(obs, own))
+
+    def _pd_law(self, error: float, v_ref: float, error_rate: float) -> float:
+        """The built-in χ_v's law on one target (a cap): PD."""
+        return v_ref + self._kp * error + self._kd * error_rate
+
+    def _plugin_law(self, error: float, v_ref: float, error_rate: float) -> float:
+        """A plug-in χ_v's law on one target (a cap): its call."""
+        return float(self._speed(error, v_ref, error_rate))
 
     def _stale_after(self, dtype: np.dtype) -> float:
         """``MemberConfig.fresh_age_s`` as an observation of ``dtype`` holds it: an age
@@ -210,6 +239,11 @@ class ClassicalPolicy:
         if obs[o + _PATH_VALID] < 0.5:
             return 0.0
         h = self.config.heading
+        if self._heading_plugin is not None:
+            points = tuple(
+                (obs[o + 2 + 2 * j], obs[o + 3 + 2 * j]) for j in range(len(LOOKAHEAD_S))
+            )
+            return float(self._heading_plugin(obs[o], obs[o + 1], speed, points))
         if h.kind == "stanley":
             return stanley(obs[o + 1], obs[o], speed, h.gain, h.softening_mps)
         # Pure pursuit: the lookahead point nearest the configured lookahead time.

@@ -80,6 +80,11 @@ class LearnedMeta:
         obs_epsilon: added to the variance before the square root.
         name: a label for logs and reports.
         base: the classical policy a residual policy corrects (None: absolute actions).
+        base_plugin: or the plug-in policy spec it corrects (``module:Name?k=v``,
+            ``policies.plugin``; loaded by reference: it must be importable here).
+        obs_features: an observation-features plug-in (``core.plugins.features``) whose
+            ``feature_size`` numbers the network sees after the layout's (loaded by
+            reference; a plug-in that now gives another count is refused).
         residual_scale: SI size of a full-scale (±1) residual, ``[m/s, rad]``.
         extra: free-form facts about the run (steps, seed).
     """
@@ -98,8 +103,13 @@ class LearnedMeta:
     base: ClassicalConfig | None = None
     residual_scale: tuple[float, float] = (0.0, 0.0)
     extra: dict[str, Any] = field(default_factory=dict)
+    base_plugin: str = ""
+    obs_features: str = ""
+    feature_size: int = 0
 
     def __post_init__(self) -> None:
+        if self.base is not None and self.base_plugin:
+            raise InputFileError("a residual policy has one base: classical or plug-in")
         if self.base is not None and self.base.member != self.member_config:
             raise InputFileError(
                 "a residual policy's base must use the policy's member configuration"
@@ -108,7 +118,7 @@ class LearnedMeta:
             raise InputFileError(
                 f"control_rate_hz: {self.control_rate_hz!r} is out of range; allowed: (0, 100] Hz"
             )
-        size = int(self.layout["size"])
+        size = int(self.layout["size"]) + self.feature_size
         for name, arr in (("obs_mean", self.obs_mean), ("obs_var", self.obs_var)):
             if arr is not None and np.shape(arr) != (size,):
                 raise InputFileError(
@@ -136,6 +146,12 @@ class LearnedMeta:
             "base": None if self.base is None else to_dict(self.base),
             "residual_scale": list(self.residual_scale),
             "extra": self.extra,
+            **({"base_plugin": self.base_plugin} if self.base_plugin else {}),
+            **(
+                {"obs_features": self.obs_features, "feature_size": self.feature_size}
+                if self.obs_features
+                else {}
+            ),
         }
 
     @classmethod
@@ -159,6 +175,9 @@ class LearnedMeta:
                 base=None if base is None else from_dict(ClassicalConfig, base, f"{where}: base"),
                 residual_scale=tuple(float(v) for v in data.get("residual_scale", (0.0, 0.0))),  # type: ignore[arg-type]
                 extra=dict(data.get("extra", {})),
+                base_plugin=str(data.get("base_plugin", "")),
+                obs_features=str(data.get("obs_features", "")),
+                feature_size=int(data.get("feature_size", 0)),
             )
         except KeyError as exc:
             raise InputFileError(f"{where}: missing key {exc.args[0]!r}") from None
@@ -175,9 +194,29 @@ class LearnedMeta:
         z = (obs - self.obs_mean) / np.sqrt(self.obs_var + self.obs_epsilon)
         return np.clip(z, -self.obs_clip, self.obs_clip)
 
-    def make_base(self) -> ClassicalPolicy | None:
-        """A fresh instance of the residual base (None for absolute actions)."""
+    def make_base(self) -> Any:
+        """A fresh instance of the residual base (None for absolute actions): a
+        ``ClassicalPolicy``, or the plug-in ``base_plugin`` names."""
+        if self.base_plugin:
+            from openconvoy.policies.plugin import load_plugin_policy
+
+            return load_plugin_policy(self.base_plugin)
         return None if self.base is None else ClassicalPolicy(self.base)
+
+    def make_features(self) -> Any:
+        """The observation-features plug-in (None without one), checked to append the
+        ``feature_size`` numbers the network was trained with."""
+        if not self.obs_features:
+            return None
+        from openconvoy.core.plugins import features
+
+        where = f"obs_features {self.obs_features}"
+        fn, n = features(self.obs_features, int(self.layout["size"]), where)
+        if n != self.feature_size:
+            raise InputFileError(
+                f"{where}: gives {n} features; the policy was trained with {self.feature_size}"
+            )
+        return fn
 
     def to_si(
         self, normalized_action: np.ndarray, base_action: np.ndarray | None = None
@@ -257,6 +296,7 @@ class LearnedPolicy:
         self.layout = meta.member_config.layout
         self._forward = forward
         self._base = meta.make_base()
+        self._features = meta.make_features()
         self.source = source
 
     @property
@@ -275,6 +315,19 @@ class LearnedPolicy:
         """Forget the base's controller memory (the network has none)."""
         if self._base is not None:
             self._base.reset(seed)
+        self._row_bases: list[Any] = []
+
+    def _base_batch(self, obs: np.ndarray) -> np.ndarray:
+        """A plug-in base without ``act_batch`` on a batch: one copy of it per row (each
+        row a vehicle with its own memory), each acting on its row."""
+        import copy
+
+        rows = obs.reshape(-1, obs.shape[-1])
+        bases = self.__dict__.setdefault("_row_bases", [])
+        while len(bases) < len(rows):
+            bases.append(copy.deepcopy(self._base))
+        out = np.stack([np.asarray(b.act(r), dtype=np.float32) for b, r in zip(bases, rows)])
+        return out.reshape(obs.shape[:-1] + (2,))
 
     def normalized_action(self, observation: np.ndarray) -> np.ndarray:
         """The network's deterministic action in [-1, 1]^2 (before SI scaling)."""
@@ -283,7 +336,19 @@ class LearnedPolicy:
             raise InputFileError(
                 f"observation has shape {obs.shape}, layout expects ({self.layout.size},)"
             )
+        obs = self._extend(obs)
         return np.asarray(self._forward(self.meta.normalize(obs)), dtype=np.float64).reshape(-1)
+
+    def _extend(self, rows: np.ndarray) -> np.ndarray:
+        """Observations ``(..., D)`` with the features plug-in's numbers appended (as the
+        network saw them in training); as given without one."""
+        fn = self._features
+        if fn is None:
+            return rows
+        flat = np.asarray(rows, dtype=np.float32).reshape(-1, rows.shape[-1])
+        extra = np.stack([np.asarray(fn(r), dtype=np.float32) for r in flat])
+        out = np.concatenate([flat, extra], axis=1)
+        return out.reshape(rows.shape[:-1] + (out.shape[1],))
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         a = self.normalized_action(observation)
@@ -303,10 +368,15 @@ class LearnedPolicy:
             raise InputFileError(
                 f"observations have shape {obs.shape}, layout expects (..., {self.layout.size})"
             )
-        rows = obs.reshape(-1, self.layout.size)
+        rows = self._extend(obs.reshape(-1, self.layout.size))
         a = np.asarray(self._forward(self.meta.normalize(rows)), dtype=np.float64)
         a = a.reshape(obs.shape[:-1] + (2,))
-        base = None if self._base is None else self._base.act_batch(obs.astype(np.float32))
+        if self._base is None:
+            base = None
+        elif callable(getattr(self._base, "act_batch", None)):
+            base = self._base.act_batch(obs.astype(np.float32))
+        else:
+            base = self._base_batch(obs.astype(np.float32))
         m = self.meta
         return compose_actions(a, m.action_low, m.action_high, base, m.residual_scale)
 
@@ -408,9 +478,10 @@ def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
             str(data["activation"]),
             str(data["output"]),
         )
-    if mlp.n_inputs != meta.layout["size"]:
+    if mlp.n_inputs != meta.layout["size"] + meta.feature_size:
         raise InputFileError(
             f"{path}: the network takes {mlp.n_inputs} inputs, the layout has {meta.layout['size']}"
+            + (f" and {meta.feature_size} features" if meta.feature_size else "")
         )
     return meta, mlp
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from openconvoy.core.args import DURATION, FRACTION, RATE_HZ, SEED, lazy_handler
+from openconvoy.core.args import DURATION, FRACTION, RATE_HZ, SEED, add_policy_arg, lazy_handler
 from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 from openconvoy.experiments.cli import executor_args, fault_args
@@ -112,9 +112,10 @@ def _train_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--base",
         metavar="SPEC",
-        help="classical policy the network corrects (residual; "
-        "default paper), or 'none' for absolute actions",
+        help="policy the network corrects (residual; default paper): a preset, policy "
+        ".toml or plug-in (module:Name, file.py:Name), or 'none' for absolute actions",
     )
+    add_policy_arg(p)
     p.add_argument(
         "--M",
         type=_int(1, 1000),
@@ -177,8 +178,12 @@ def _add_tune(sub: argparse._SubParsersAction) -> None:
         "TOML file (--policy accepts it) and OUT.json with the study's numbers.",
     )
     p.add_argument(
-        "--policy", default="paper", metavar="BASE", help="preset or policy .toml to start from"
+        "--policy",
+        default="paper",
+        metavar="BASE",
+        help="preset, policy .toml, or plug-in (module:Name, file.py:Name) to start from",
     )
+    add_policy_arg(p)
     p.add_argument("--trials", type=_int(1, 10**7), default=30, metavar="N")
     p.add_argument("--out", default="tuned.toml", metavar="FILE.toml")
     _tune_grid_args(p)

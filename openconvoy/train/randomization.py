@@ -28,12 +28,13 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
+from openconvoy.core.plugins import join_args
 from openconvoy.envs.convoy_env import ConvoyEnv
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 from openconvoy.policies.learned import compose_action
-from openconvoy.policies.spec import classical_config
+from openconvoy.policies.spec import classical_config, plugin_of
 from openconvoy.train.shaping import Shaping
 
 PLANT_JITTER_FIELDS = (
@@ -211,8 +212,10 @@ class EnvSpec:
 
     Attributes:
         n_followers: agents per environment (parameter sharing: all run one policy).
-        base_policy: classical policy spec (preset or TOML) the network corrects
-            (residual actions); ``""``: none, the network's action is absolute.
+        base_policy: policy spec the network corrects (residual actions): a classical
+            preset or TOML, or a plug-in policy (``module:Name``, ``file.py:Name``; it
+            brings its member config and rate, and trains on the per-convoy path);
+            ``""``: none, the network's action is absolute.
         residual_scale: SI size of a full-scale residual ``[m/s, rad]``.
         member: the followers' member configuration (its layout is the policy's); None:
             the base policy's, or ``MemberConfig()`` without a base. A base runs with
@@ -228,6 +231,19 @@ class EnvSpec:
         shaping: the training environments' terms on top of ``reward``
             (``train.shaping``: the last metre of the gap, the offset from the
             predecessor's trail); None: ``TRAIN_SHAPING``.
+        reward_fn: a reward plug-in (``module:Name``, ``file.py:Name`` or an
+            ``openconvoy.rewards`` entry point, ``?key=value`` arguments; ``core.plugins``):
+            a class or factory whose object is called per follower per step as
+            ``(reward, info, observation) -> float`` with the environment's reward (the
+            weights of ``reward`` plus ``shaping``), the agent's info (``ConvoyEnv``'s
+            ``INFO_KEYS``, SI units) and its observation; what it returns is the reward
+            learned from. ``""``: none. It runs in Python: training takes the per-convoy
+            path (docs/your-controller.md).
+        obs_features: an observation-features plug-in (``module:Name``, ``file.py:Name``
+            or an ``openconvoy.features`` entry point, ``?key=value`` arguments): an object
+            called ``(observation) -> 1-D array`` whose numbers are appended to each
+            observation the network sees; the trained policy records it and computes the
+            same features wherever it runs (``LearnedMeta.obs_features``). ``""``: none.
         emergency_stop: the simulator's braking-aware emergency stop (a latched stop of a
             follower about to hit its predecessor) during training; None: on with a base,
             off without. Learning from scratch, a policy whose exploration trips the
@@ -247,8 +263,17 @@ class EnvSpec:
     reward: RewardConfig | None = None
     shaping: Shaping | None = None
     emergency_stop: bool | None = None
+    reward_fn: str = ""
+    obs_features: str = ""
+    plugin_base: str = dataclasses.field(init=False, default="", repr=False, compare=False)
+    """The plug-in spec of a plug-in residual base (``module:Name?k=v``; "" for a
+    classical base or none): ``base_policy`` resolved."""
 
     def __post_init__(self) -> None:
+        if self.reward_fn:
+            self.make_reward_fn()  # loads, takes its arguments, is callable: else one line
+        if self.obs_features:
+            self.make_features(MemberConfig().layout.size)  # loads: else one line
         bounds = RESIDUAL_ACTION_BOUNDS if self.base_policy else ABSOLUTE_ACTION_BOUNDS
         for name, default in zip(("action_low", "action_high"), bounds):
             if getattr(self, name) is None:
@@ -261,13 +286,24 @@ class EnvSpec:
             object.__setattr__(self, "shaping", TRAIN_SHAPING)
         for name in ("action_low", "action_high", "residual_scale"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
-        base = classical_config(self.base_policy) if self.base_policy else None
+        plugin = plugin_of(self.base_policy) if self.base_policy else None
+        object.__setattr__(self, "plugin_base", "" if plugin is None else join_args(*plugin[:2]))
+        base_member: MemberConfig | None = None
+        base_rate = 20.0
+        if plugin is not None:  # a plug-in base: its own member side and rate
+            p = self.make_plugin_base()
+            base_member, base_rate = p.member_config, p.control_rate_hz
+            if base_member is not None and self.member not in (None, base_member):
+                raise ConfigError(
+                    f"base {self.base_policy} runs on its own member_config; leave member unset"
+                )
+        elif self.base_policy:
+            base = classical_config(self.base_policy)
+            base_member, base_rate = base.member, base.control_rate_hz
         if self.member is None:
-            object.__setattr__(self, "member", base.member if base is not None else MemberConfig())
+            object.__setattr__(self, "member", base_member or MemberConfig())
         if self.control_rate_hz is None:
-            object.__setattr__(
-                self, "control_rate_hz", base.control_rate_hz if base is not None else 20.0
-            )
+            object.__setattr__(self, "control_rate_hz", base_rate)
         if len(self.residual_scale) != 2 or min(self.residual_scale) < 0:
             raise ConfigError(
                 f"residual_scale must be two non-negative numbers, got {self.residual_scale}"
@@ -308,10 +344,39 @@ class EnvSpec:
         assert self.control_rate_hz is not None
         return self.control_rate_hz
 
+    def make_reward_fn(self) -> Any:
+        """A new instance of the reward plug-in (None without one)."""
+        if not self.reward_fn:
+            return None
+        from openconvoy.core import plugins
+
+        where = f"reward_fn {self.reward_fn}"
+        obj, args = plugins.resolve(self.reward_fn, "reward", where)
+        fn = plugins.construct(obj, args, where)
+        plugins.check_methods(fn, {"__call__": 3}, where)
+        return fn
+
+    def make_features(self, size: int | None = None) -> tuple[Any, int]:
+        """The observation-features plug-in and the count it appends ``(None, 0)`` without
+        one), checked on an observation of ``size`` (default: this member's layout)."""
+        if not self.obs_features:
+            return None, 0
+        from openconvoy.core import plugins
+
+        n = self.member_config.layout.size if size is None else size
+        return plugins.features(self.obs_features, n, f"obs_features {self.obs_features}")
+
+    def make_plugin_base(self) -> Any:
+        """A new instance of the plug-in residual base (``policies.plugin``)."""
+        from openconvoy.policies.plugin import load_plugin_policy
+
+        return load_plugin_policy(self.plugin_base)
+
     def base_config(self) -> ClassicalConfig | None:
         """The residual base as it runs here: the base policy with this member config and
-        control rate (what the trained policy records), or None."""
-        if not self.base_policy:
+        control rate (what the trained policy records), or None (no base, or a plug-in
+        base: ``plugin_base``)."""
+        if not self.base_policy or self.plugin_base:
             return None
         return dataclasses.replace(
             classical_config(self.base_policy),
@@ -343,11 +408,15 @@ class RandomizedConvoyEnv(ParallelEnv):
         self.possible_agents = [f"follower_{i}" for i in range(1, spec.n_followers + 1)]
         self.agents: list[str] = []
         base = spec.base_config()
-        self._bases = (
+        self._bases: dict[str, Any] = (
             {a: ClassicalPolicy(base) for a in self.possible_agents} if base is not None else {}
         )
+        if spec.plugin_base:  # a plug-in residual base, one object per follower
+            self._bases = {a: spec.make_plugin_base() for a in self.possible_agents}
         self._obs: dict[str, np.ndarray] = {}
-        size = spec.member_config.layout.size
+        self._reward_fn = spec.make_reward_fn()
+        self._features, n_features = spec.make_features()
+        size = spec.member_config.layout.size + n_features
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
         self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._rng = np.random.default_rng()
@@ -385,7 +454,18 @@ class RandomizedConvoyEnv(ParallelEnv):
             b.reset()
         self.agents = list(self.env.agents)
         self._obs = obs
-        return obs, infos
+        return self._extended(obs), infos
+
+    def _extended(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """What the network sees: each observation with the features plug-in's numbers
+        appended (``EnvSpec.obs_features``; the observation itself without one)."""
+        fn = self._features
+        if fn is None:
+            return obs
+        return {
+            a: np.concatenate([o, np.asarray(fn(o), dtype=np.float32)]).astype(np.float32)
+            for a, o in obs.items()
+        }
 
     def step(self, actions: dict[str, np.ndarray]):
         if self.env is None:
@@ -402,9 +482,12 @@ class RandomizedConvoyEnv(ParallelEnv):
                 err = infos[a].get("platooning_error_m")
                 e = np.nan if err is None else err
                 rewards[a] += float(s.extra.bonus(layout, np.array(e), obs[a]))
+        if self._reward_fn is not None:  # the researcher's reward (EnvSpec.reward_fn)
+            fn = self._reward_fn
+            rewards = {a: float(fn(r, infos[a], obs[a])) for a, r in rewards.items()}
         self._obs = obs
         self.agents = list(self.env.agents)
-        return obs, rewards, term, trunc, infos
+        return self._extended(obs), rewards, term, trunc, infos
 
     def render(self) -> np.ndarray | None:
         return None if self.env is None else self.env.render()

@@ -19,6 +19,13 @@ controller's gain (``heading.gain`` for Stanley, ``heading.lookahead_s`` for pur
 pursuit) and the spacing policy's shape (``member.spacing.headway_s``,
 ``member.spacing.standstill_m`` for time-headway policies). A constant-distance policy's
 ``distance_m`` is the specification, not a tunable: it is left alone.
+
+Plug-ins (docs/your-controller.md): a classical policy's plug-in components add the
+parameters their classes declare (``tunable = {"headway_s": (0.3, 2.0)}``) as
+``member.spacing.params.headway_s`` (``member.trigger.params.*``, ``speed.params.*``,
+``heading.params.*``, ``member.topology_params.*``); a whole-policy plug-in base
+(``--policy file.py:Name``) is tuned over its declared keyword arguments, ``args.NAME``,
+each trial a policy TOML naming the plug-in with its ``[policy.args]``.
 """
 
 from __future__ import annotations
@@ -34,10 +41,12 @@ from typing import Any
 
 import numpy as np
 
+from openconvoy.core import plugins
+from openconvoy.core.config import dumps_toml
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import check_auth, fault_specs
 from openconvoy.policies.classical import ClassicalConfig
-from openconvoy.policies.spec import classical_config, classical_to_toml
+from openconvoy.policies.spec import classical_config, classical_to_toml, plugin_of
 
 
 @dataclass(frozen=True)
@@ -64,18 +73,93 @@ PARAMETERS: dict[str, Param] = {
 }
 
 
-def applicable(config: ClassicalConfig) -> list[str]:
-    """The parameters that mean something for ``config``'s controllers and spacing."""
-    out = ["speed.kp", "speed.kd"]
-    if config.speed.kind == "pid":
-        out.append("speed.ki")
-    out.append("heading.gain" if config.heading.kind == "stanley" else "heading.lookahead_s")
-    if config.member.spacing.kind != "constant-distance":
-        out += ["member.spacing.headway_s", "member.spacing.standstill_m"]
+@dataclass(frozen=True)
+class PluginConfig:
+    """A whole-policy plug-in and its keyword arguments: what ``tune`` varies for one."""
+
+    plugin: str
+    args: dict[str, Any] = field(default_factory=dict)
+    name: str = "tuned"
+    description: str = ""
+
+
+Candidate = ClassicalConfig | PluginConfig
+
+
+def base_candidate(spec: str) -> Candidate:
+    """What ``tune`` starts from: a classical policy's config, or a plug-in with its arguments."""
+    plugin = plugin_of(spec)
+    if plugin is None:
+        return classical_config(spec)
+    ref, kwargs, label = plugin
+    return PluginConfig(plugins.split_args(ref)[0], {**plugins.split_args(ref)[1], **kwargs}, label)
+
+
+def candidate_toml(candidate: Candidate) -> str:
+    """The policy file of a candidate (``--policy`` reads it back)."""
+    if isinstance(candidate, ClassicalConfig):
+        return classical_to_toml(candidate)
+    table: dict[str, Any] = {"plugin": candidate.plugin, "name": candidate.name}
+    if candidate.args:
+        table["args"] = dict(candidate.args)
+    return dumps_toml({"policy": table})
+
+
+def parameters_of(config: Candidate) -> dict[str, Param]:
+    """Every parameter ``tune`` may search for ``config``: ``PARAMETERS`` and what its
+    plug-ins declare tunable."""
+    if isinstance(config, PluginConfig):
+        declared = plugins.tunable(plugins.resolve(config.plugin, "policy", config.plugin)[0])
+        return {f"args.{n}": Param(f"args.{n}", lo, hi) for n, (lo, hi) in declared.items()}
+    out = dict(PARAMETERS)
+    m = config.member
+    parts: list[tuple[str, str, str]] = [
+        ("member.spacing.params", "spacing", m.spacing.kind),
+        ("member.trigger.params", "trigger", m.trigger.kind),
+        ("speed.params", "speed", config.speed.kind),
+        ("heading.params", "heading", config.heading.kind),
+    ]
+    from openconvoy.core.gates import is_plugin_topology
+
+    if is_plugin_topology(m.topology):
+        parts.append(("member.topology_params", "topology", m.topology))
+    for prefix, kind, spec in parts:
+        if kind == "topology" or _is_plugin_kind(config, kind):
+            for n, (lo, hi) in plugins.component_tunable(kind, spec, spec).items():
+                out[f"{prefix}.{n}"] = Param(f"{prefix}.{n}", lo, hi)
     return out
 
 
-def with_values(config: ClassicalConfig, values: dict[str, float], name: str) -> ClassicalConfig:
+def _is_plugin_kind(config: ClassicalConfig, kind: str) -> bool:
+    m = config.member
+    return {
+        "spacing": m.spacing.is_plugin,
+        "trigger": m.trigger.is_plugin,
+        "speed": config.speed.is_plugin,
+        "heading": config.heading.is_plugin,
+    }[kind]
+
+
+def applicable(config: Candidate) -> list[str]:
+    """The parameters that mean something for ``config``'s controllers and spacing (a
+    plug-in's: those it declares tunable)."""
+    declared = [p for p in parameters_of(config) if p not in PARAMETERS]
+    if isinstance(config, PluginConfig):
+        return declared
+    out = []
+    if not config.speed.is_plugin:
+        out += ["speed.kp", "speed.kd"]
+        if config.speed.kind == "pid":
+            out.append("speed.ki")
+    if not config.heading.is_plugin:
+        out.append("heading.gain" if config.heading.kind == "stanley" else "heading.lookahead_s")
+    spacing = config.member.spacing
+    if not spacing.is_plugin and spacing.kind != "constant-distance":
+        out += ["member.spacing.headway_s", "member.spacing.standstill_m"]
+    return out + declared
+
+
+def with_values(config: Candidate, values: dict[str, float], name: str) -> Candidate:
     """``config`` with dotted-path ``values`` replaced, renamed ``name``."""
     out = dataclasses.replace(config, name=name)
     for path, value in values.items():
@@ -84,6 +168,10 @@ def with_values(config: ClassicalConfig, values: dict[str, float], name: str) ->
 
 
 def _replace_path(obj: Any, parts: list[str], value: float) -> Any:
+    if isinstance(obj, dict):  # a plug-in's keyword arguments
+        if len(parts) == 1:
+            return {**obj, parts[0]: float(value)}
+        return {**obj, parts[0]: _replace_path(obj.get(parts[0], {}), parts[1:], value)}
     if (
         not dataclasses.is_dataclass(obj)
         or isinstance(obj, type)
@@ -140,11 +228,17 @@ class TuneConfig:
         check_auth(self.auth)
         if self.trials < 1 or not self.pers or not self.seeds:
             raise ConfigError("tune needs at least one trial, one PER and one seed")
-        unknown = [p for p in self.params if p not in PARAMETERS]
+        unknown = [p for p in self.params if p not in PARAMETERS and not _plugin_path(p)]
         if unknown:
             raise ConfigError(
                 f"unknown tuning parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMETERS)}"
             )
+
+
+def _plugin_path(path: str) -> bool:
+    """A dotted path into a plug-in's keyword arguments (checked against what it
+    declares tunable once the base is loaded)."""
+    return path.startswith(("args.", "member.topology_params.")) or ".params." in path
 
 
 @dataclass
@@ -154,7 +248,7 @@ class TuneResult:
     ``requeued``: trials a stopped driver had left running, ``failures``: evaluations
     that failed (TaskFailure)."""
 
-    best: ClassicalConfig
+    best: Candidate
     best_value: float
     best_params: dict[str, float]
     base_value: float
@@ -165,7 +259,7 @@ class TuneResult:
     failures: list[Any] = field(default_factory=list)
 
 
-Evaluate = Callable[[ClassicalConfig], float]
+Evaluate = Callable[[Candidate], float]
 
 
 def objective_of(metrics: Sequence[dict[str, Any]], config: TuneConfig) -> float:
@@ -210,9 +304,9 @@ def grid_evaluator(config: TuneConfig, workdir: Path, batched: bool = False) -> 
 
     counter = iter(range(1_000_000))
 
-    def evaluate(candidate: ClassicalConfig) -> float:
+    def evaluate(candidate: Candidate) -> float:
         path = workdir / f"trial_{next(counter)}.toml"
-        path.write_text(classical_to_toml(candidate), encoding="utf-8")
+        path.write_text(candidate_toml(candidate), encoding="utf-8")
         runs = grid_runs(config, str(path))
         if batched:
             metrics = [r["metrics"] for r in run_batch(runs, read_back=False, logs=False)]
@@ -224,7 +318,7 @@ def grid_evaluator(config: TuneConfig, workdir: Path, batched: bool = False) -> 
 
 
 def evaluate_on_worker(
-    config: TuneConfig, files: dict[str, bytes], candidate: ClassicalConfig, batched: bool = False
+    config: TuneConfig, files: dict[str, bytes], candidate: Candidate, batched: bool = False
 ) -> float:
     """Task: ``candidate``'s objective over the grid, in a temporary directory of the
     worker (``files``: the scenario's track file, if any, shipped from the driver)."""
@@ -379,10 +473,17 @@ def tune(
     from optuna.trial import TrialState
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    base = classical_config(config.base)
+    base = base_candidate(config.base)
     if evaluate is None and config.faults:
         check_grid(config)
+    table = parameters_of(base)
     params = list(config.params) or applicable(base)
+    unknown = [p for p in params if p not in table]
+    if unknown or not params:
+        raise ConfigError(
+            f"tune: {config.base} has no tunable parameter {', '.join(unknown)}; expected some "
+            f"of {', '.join(table) or 'none (declare tunable = {name: (low, high)} on the plug-in)'}"
+        )
     fn = evaluate or _grid_task(config, executor, say or (_stderr if progress_bar else None))
     executor = _executor_for(executor, evaluate is not None)
     study_name = study_name or config.name
@@ -393,11 +494,13 @@ def tune(
         base_value = _base_value(study, executor, fn, base, config.name)
         if not existing:
             # The base's own values first: the study can only improve on the starting point.
-            study.enqueue_trial({p: _get_path(base, p) for p in params if _in_range(base, p)})
+            study.enqueue_trial(
+                {p: _get_path(base, p) for p in params if _in_range(base, p, table)}
+            )
         done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
         todo = max(0, config.trials - done)
         evaluated = _ask_tell(
-            study, executor, fn, base, params, config.name, todo, progress_bar, failures
+            study, executor, fn, base, params, config.name, todo, progress_bar, failures, table
         )
     result = _result(study, base, config, study_name, base_value, failures)
     result.evaluated, result.requeued, result.failures = evaluated, requeued, failures
@@ -412,7 +515,7 @@ def _stderr(line: str) -> None:
 
 def _grid_task(
     config: TuneConfig, executor: Any, say: Callable[[str], None] | None
-) -> Callable[[ClassicalConfig], float]:
+) -> Callable[[Candidate], float]:
     """The trials' task function: the grid on a worker, batched where it may be."""
     import functools
 
@@ -435,7 +538,7 @@ def _executor_for(executor: Any, in_process: bool) -> Any:
     return executor if isinstance(executor, Executor) else make_executor(executor)
 
 
-def _base_value(study: Any, executor: Any, fn: Any, base: ClassicalConfig, name: str) -> float:
+def _base_value(study: Any, executor: Any, fn: Any, base: Candidate, name: str) -> float:
     """The base policy's objective: the study's record of it, or evaluated now."""
     from openconvoy.experiments.executor import Task, TaskFailure, TasksFailed
 
@@ -453,7 +556,7 @@ def _base_value(study: Any, executor: Any, fn: Any, base: ClassicalConfig, name:
 
 def _result(
     study: Any,
-    base: ClassicalConfig,
+    base: Candidate,
     config: TuneConfig,
     study_name: str,
     base_value: float,
@@ -503,13 +606,14 @@ def _run_alone(executor: Any, task: Any) -> tuple[Any, Any]:
 def _ask_tell(
     study: Any,
     executor: Any,
-    fn: Callable[[ClassicalConfig], float],
-    base: ClassicalConfig,
+    fn: Callable[[Candidate], float],
+    base: Candidate,
     params: list[str],
     name: str,
     todo: int,
     progress_bar: bool,
     failures: list[Any],
+    table: dict[str, Param] = PARAMETERS,
 ) -> int:
     """Ask ``todo`` trials, at most ``executor.slots`` in flight, telling each result as
     it comes; failed evaluations are told as failed and collected in ``failures``."""
@@ -524,9 +628,7 @@ def _ask_tell(
             while asked < todo and len(in_flight) < executor.slots:
                 trial = study.ask()
                 values = {
-                    p: trial.suggest_float(
-                        p, PARAMETERS[p].low, PARAMETERS[p].high, log=PARAMETERS[p].log
-                    )
+                    p: trial.suggest_float(p, table[p].low, table[p].high, log=table[p].log)
                     for p in params
                 }
                 task = Task(f"trial {trial.number}", fn, with_values(base, values, name))
@@ -546,15 +648,16 @@ def _ask_tell(
     return asked
 
 
-def _get_path(config: ClassicalConfig, path: str) -> float:
+def _get_path(config: Candidate, path: str) -> float:
+    """The value at a dotted path (NaN: a plug-in argument left at its default)."""
     obj: Any = config
     for part in path.split("."):
-        obj = getattr(obj, part)
+        obj = obj.get(part, math.nan) if isinstance(obj, dict) else getattr(obj, part)
     return float(obj)
 
 
-def _in_range(config: ClassicalConfig, path: str) -> bool:
-    p = PARAMETERS[path]
+def _in_range(config: Candidate, path: str, table: dict[str, Param] = PARAMETERS) -> bool:
+    p = table[path]
     return p.low <= _get_path(config, path) <= p.high
 
 
@@ -565,7 +668,7 @@ def write_tuned(result: TuneResult, out: str | Path) -> Path:
     if out.suffix != ".toml":
         raise ConfigError(f"{out}: the tuned policy is a .toml file")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(classical_to_toml(result.best), encoding="utf-8")
+    out.write_text(candidate_toml(result.best), encoding="utf-8")
     summary = {
         "best_value": result.best_value,
         "base_value": result.base_value,

@@ -186,6 +186,12 @@ class VectorConvoyEnv:
         self.max_steps = max(1, int(round(self.max_time_s / self.dt)))
         self.reward_config = reward_config or RewardConfig()
         self.member_config = mc = member_config or MemberConfig(spacing=sc.spacing)
+        compiled_only = [p for p in mc.plugins if not p.startswith("topology ")]
+        if compiled_only:  # a plug-in σ or τ is Python: the kernels cannot call it
+            raise ConfigError(
+                f"VectorConvoyEnv compiles the built-in spacing and trigger only, not the plug-in "
+                f"{', '.join(compiled_only)} (use ConvoyEnv)"
+            )
         self.layout: ObservationLayout = mc.layout
         self.emergency_stop = bool(emergency_stop)
         self.possible_agents = [f"follower_{i}" for i in range(1, N)]

@@ -45,7 +45,7 @@ def build_links(mc: MemberConfig, N: int) -> LinkTables:
     link_of = np.full((N, N), -1, dtype=np.int64)
     needed: list[list[int]] = [[] for _ in range(N)]
     for r in range(1, N):
-        gate = RxGate(mc.topology, r, N)
+        gate = RxGate(mc.topology, r, N, mc.topology_params)
         for s in range(N):
             if s != r and gate.keeps(s):
                 link_of[s, r] = len(links)

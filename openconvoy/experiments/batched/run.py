@@ -66,8 +66,18 @@ def refusal(config: RunConfig, exact: bool = True) -> str | None:
     policy = next(iter(policies.values()))
     if not isinstance(policy, BatchPolicy):
         return f"policy {config.policy} has no act_batch"
-    if exact and not isinstance(policy, ClassicalPolicy):
-        return f"policy {config.policy}'s act_batch is not known to be bit-equal to its act"
+    if isinstance(policy, ClassicalPolicy):
+        compiled_only = [p for p in policy.plugins if not p.startswith("topology ")]
+        if compiled_only:
+            return f"its plug-in {', '.join(compiled_only)} run in Python, per run"
+    elif exact:
+        from openconvoy.policies.plugin import PluginPolicy
+
+        if not isinstance(policy, PluginPolicy):
+            return f"policy {config.policy}'s act_batch is not known to be bit-equal to its act"
+        why = batch_mismatch(config)
+        if why:
+            return f"policy {config.policy}'s act_batch {why}"
     try:
         _vector_env([config], env)
     except (ConfigError, DependencyMissing) as exc:
@@ -75,6 +85,46 @@ def refusal(config: RunConfig, exact: bool = True) -> str | None:
             str(exc).replace("VectorConvoyEnv", "the batched env").replace(" (use ConvoyEnv)", "")
         )
     return None
+
+
+TEST_EPISODE_S = 5.0
+"""Length (s) of the episode on which a plug-in's ``act_batch`` must match its ``act``."""
+
+
+def batch_mismatch(config: RunConfig, duration_s: float = TEST_EPISODE_S) -> str:
+    """Where a plug-in policy's ``act_batch`` differs from its ``act`` on a test episode
+    (``config``'s scenario at PER 0, ``duration_s`` s), "" when bit-equal everywhere: one
+    copy acts per follower, another on all followers at once, tick by tick, each fed the
+    per-follower copies' observations; an ``act_batch`` that raises is a mismatch."""
+    test = dataclasses.replace(
+        config, per=0.0, duration_s=min(duration_s, config.duration_s or duration_s)
+    )
+    env, policies = build_env(test)
+    agents = env.possible_agents
+    batch = next(iter(policies.values()))
+    import copy
+
+    batch = copy.deepcopy(batch)
+    for p in (*policies.values(), batch):
+        p.reset(test.seed)
+    obs, _ = env.reset(seed=test.seed)
+    k = 0
+    while env.agents:
+        acts = np.stack([np.asarray(policies[a].act(obs[a]), dtype=np.float32) for a in agents])
+        try:
+            batched = np.asarray(batch.act_batch(np.stack([obs[a] for a in agents])))
+        except Exception as exc:  # noqa: BLE001 - the plug-in's code
+            return f"raised {type(exc).__name__}: {exc} at tick {k} of a test episode"
+        if batched.shape != acts.shape or not np.array_equal(
+            batched.astype(np.float32), acts, equal_nan=True
+        ):
+            return (
+                f"differs from its act at tick {k} of a {test.duration_s:g} s test episode "
+                f"({batched.tolist()} vs {acts.tolist()})"
+            )
+        obs, _, _, _, _ = env.step(dict(zip(agents, acts)))
+        k += 1
+    return ""
 
 
 def batch_cells(config: RunConfig) -> int:

@@ -77,6 +77,12 @@ def group_env(
 def batched_refusal(spec: EnvSpec, r: Randomization) -> str | None:
     """Why ``VectorConvoyEnv`` cannot run the worlds ``r`` draws (None: it can run them):
     it is asked for the widest draw of every scenario and vehicle preset."""
+    if spec.reward_fn:
+        return f"the reward plug-in {spec.reward_fn} runs in Python"
+    if spec.obs_features:
+        return f"the observation-features plug-in {spec.obs_features} runs in Python"
+    if spec.plugin_base:
+        return f"the plug-in residual base {spec.plugin_base} acts per follower"
     models = [
         m for m, p in (("bernoulli", r.burst_prob < 1), ("gilbert-elliott", r.burst_prob > 0)) if p
     ]

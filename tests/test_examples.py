@@ -105,11 +105,16 @@ def test_field_convoy_file_loads_and_simulates(tmp_path: Path) -> None:
     assert metrics["collisions"] == 0 and metrics["min_gap_m"] > 14.0
 
 
-def test_field_steps_make_keys_that_turn_authentication_on(tmp_path: Path) -> None:
+def test_field_steps_make_the_keys_a_deploy_needs(tmp_path: Path) -> None:
+    from openconvoy.bridge.deploy import vehicle_authenticator
+    from openconvoy.comms.security.keystore import KeyFileError
+
     field = tmp_path / "field"
     shutil.copytree(EXAMPLES / "field", field)
     convoy = field / "convoy.toml"
-    assert not load_convoy(convoy).v2v.auth_required  # no keys yet
+    assert load_convoy(convoy).v2v.auth_required  # signed unless auth = "off" is written
+    with pytest.raises(KeyFileError, match="holds no convoy keys"):  # V2V fails closed
+        vehicle_authenticator(load_convoy(convoy), 1, str(convoy))
     assert main(["keys", "init", "--convoy", str(convoy)]) == 0
     for vid in (0, 1, 2):
         assert main(["keys", "issue", "--convoy", str(convoy), "--vehicle-id", str(vid)]) == 0
@@ -119,4 +124,4 @@ def test_field_steps_make_keys_that_turn_authentication_on(tmp_path: Path) -> No
         "authority.cert",
         *(f"vehicle-{i}.{ext}" for i in (0, 1, 2) for ext in ("key", "cert")),
     }
-    assert load_convoy(convoy).v2v.auth_required
+    assert vehicle_authenticator(load_convoy(convoy), 1, str(convoy)) is not None

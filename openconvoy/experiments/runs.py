@@ -234,6 +234,10 @@ def build_env(config: RunConfig):
         auth=config.auth == "required",
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
+    for i, a in enumerate(env.possible_agents, start=1):
+        bind = getattr(policies[a], "bind_vehicle", None)
+        if bind is not None:  # a model-based policy predicts with its vehicle's numbers
+            bind(env.presets[i])
     return env, policies
 
 
@@ -250,8 +254,11 @@ def run_sim(
     """
     import time
 
+    from openconvoy.envs.plans import PlanRelay
+
     start = time.perf_counter()
     env, policies = build_env(config)
+    relay = PlanRelay(env, policies)
     lengths = {i: p.length_m for i, p in enumerate(env.presets)}
     obs, _ = env.reset(seed=config.seed)
     for p in policies.values():
@@ -276,7 +283,9 @@ def run_sim(
     bar = _progress_bar(env.max_steps, config.scenario) if progress else None
     try:
         while env.agents:
+            relay.before_act()
             actions = {a: policies[a].act(obs[a]) for a in env.agents}
+            relay.after_act()
             obs, _, _, _, _ = env.step(actions)
             emit(env.log_rows())
             if bar is not None:

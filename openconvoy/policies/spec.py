@@ -73,7 +73,12 @@ def load_policy(spec: str, **learned_kwargs: Any) -> ConvoyPolicy:
         from openconvoy.policies import learned
 
         return as_convoy_policy(learned.load_learned(path, **learned_kwargs), spec)
-    return as_convoy_policy(ClassicalPolicy(classical_config(spec)), spec)
+    config = classical_config(spec)
+    if config.mpc is not None:
+        from openconvoy.policies.mpc import MPCPolicy
+
+        return as_convoy_policy(MPCPolicy(config), spec)
+    return as_convoy_policy(ClassicalPolicy(config), spec)
 
 
 def classical_config(spec: str) -> ClassicalConfig:
@@ -142,7 +147,8 @@ def describe(config: ClassicalConfig) -> str:
     m = config.member
     return (
         f"{config.name}: {m.topology}, {m.trigger.kind}, {m.spacing.kind}, "
-        f"{config.speed.kind} + {config.heading.kind}" + (", ladder" if m.ladder.enabled else "")
+        f"{'mpc' if config.mpc is not None else config.speed.kind} + {config.heading.kind}"
+        + (", ladder" if m.ladder.enabled else "")
     )
 
 

@@ -7,11 +7,11 @@ horizons). No modelling layer in the control loop. The formulation with units is
 ``step_s`` seconds,
 
     minimise   Σ_k  w_k [ Σ_j w_gap e_jk² + w_speed (v^p_k − v_k)² + w_accel a_k² ]
-             + Σ_k  w_du (u_k − u_{k−1})² + w_slack (s² + s)
+             + Σ_k  w_du (u_k − u_{k−1})² + w_slack Σ (s² + s)
     subject to 0 ≤ u_k ≤ v_max                     (speed setpoints, m/s: hard)
                0 − s ≤ v_k ≤ v_max + s             (predicted speed, m/s)
                −decel − s ≤ a_k ≤ accel + s        (predicted acceleration, m/s²)
-               gap_k − L ≥ margin + reaction·c_k + c̄_k (2c_k − c̄_k)/(2·decel) − s
+               gap_k − L ≥ margin + reaction·c_k + c̄_k (2c_k − c̄_k)/(2·decel) − s_k
                                                    (braking-safe gap to the predecessor)
                [hard terminal: e_1H = 0, v_H = v^p_H]
 
@@ -22,7 +22,8 @@ spacing error to predecessor ``j`` (predicted gap − desired gap at the predict
 ``v^p`` the immediate predecessor's predicted speed (its shared plan, or constant
 velocity), ``c_k = v_k − v^p_k`` the closing speed (linearised about the last plan's
 ``c̄_k``), ``w_k`` 1 except ``w_terminal`` at the last step (the soft terminal cost), and
-``s ≥ 0`` one slack that keeps every state constraint feasible.
+``s, s_k ≥ 0`` slacks that keep every state constraint feasible (one for the speed and
+acceleration rows, one per gap row, so each step's gap counts).
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ from openconvoy.core.errors import ConfigError, DependencyMissing
 SOLVERS = ("daqp", "osqp")
 TERMINALS = ("soft", "hard")
 PLAN_FALLBACKS = ("shift", "constant-velocity")
+STATE_SLACK_FACTOR = 1000.0
+"""How much more the speed/acceleration rows' slack costs than a gap row's."""
 
 
 @dataclass(frozen=True)
@@ -219,7 +222,8 @@ class Target:
 class QP:
     """``min ½ zᵀ H z + fᵀ z`` s.t. ``lower ≤ z ≤ upper`` (first ``n`` rows of the bounds:
     simple bounds), ``blower ≤ A z ≤ bupper``; ``sense`` 5 marks equality rows (DAQP's
-    convention). ``z = [u_0 .. u_{H-1}, s]``."""
+    convention). ``z = [u_0 .. u_{H-1}, s, s_1 .. s_H]``: the setpoints, the state rows'
+    slack, and one slack per braking-safe-gap row (when there are such rows)."""
 
     H: np.ndarray
     f: np.ndarray
@@ -277,41 +281,50 @@ def build_qp(
     dd = np.eye(h) - np.eye(h, k=-1)
     hess += c.w_du * dd.T @ dd
     grad[0] -= c.w_du * u_prev
-    n = h + 1
+    gap_rows = c.safe_gap and bool(targets)
+    ns = 1 + (h if gap_rows else 0)  # one slack for the state rows, one per gap row
+    n = h + ns
     H = np.zeros((n, n))
-    H[:h, :h] = 2.0 * hess
-    H[h, h] = 2.0 * c.w_slack
-    H[:h, :h] += 1e-8 * np.eye(h)
+    H[:h, :h] = 2.0 * hess + 1e-8 * np.eye(h)
+    # The speed and acceleration rows are the vehicle's physics: their slack costs
+    # STATE_SLACK_FACTOR times more than the gap's, so the gap gives way first.
+    H[h:, h:] = 2.0 * c.w_slack * np.eye(ns)
+    H[h, h] *= STATE_SLACK_FACTOR
     f = np.zeros(n)
     f[:h] = 2.0 * grad
-    f[h] = c.w_slack
+    f[h:] = c.w_slack
+    f[h] *= STATE_SLACK_FACTOR
     rows: list[np.ndarray] = []
     upper: list[np.ndarray] = []
     lower: list[np.ndarray] = []
     inf = 1e30
+    state_slack = np.zeros((h, ns))
+    state_slack[:, 0] = 1.0
     # v_k - s <= vmax ; v_k + s >= 0
-    rows.append(np.hstack([Gv, -np.ones((h, 1))]))
+    rows.append(np.hstack([Gv, -state_slack]))
     upper.append(m.max_speed_mps - vx)
     lower.append(np.full(h, -inf))
-    rows.append(np.hstack([Gv, np.ones((h, 1))]))
+    rows.append(np.hstack([Gv, state_slack]))
     upper.append(np.full(h, inf))
     lower.append(-vx)
-    rows.append(np.hstack([ga, -np.ones((h, 1))]))
+    rows.append(np.hstack([ga, -state_slack]))
     upper.append(m.accel_max_mps2 - acc0)
     lower.append(np.full(h, -inf))
-    rows.append(np.hstack([ga, np.ones((h, 1))]))
+    rows.append(np.hstack([ga, state_slack]))
     upper.append(np.full(h, inf))
     lower.append(-m.decel_max_mps2 - acc0)
-    if c.safe_gap and targets:
-        # bumper gap - margin - reaction c - cbar (2c - cbar)/(2 b) + s >= 0, c = v - v^p
+    if gap_rows:
+        # bumper gap - margin - reaction c - cbar (2c - cbar)/(2 b) + s_k >= 0, c = v - v^p
         cbar = np.maximum(closing_guess, 0.0)
         coef_v = braking_reaction_s + cbar / m.decel_max_mps2  # d(.)/dv of the subtracted part
         t0 = targets[0]
         gap0 = t0.position - px - 0.5 * (m.length_m + pred_length_m)
         closing0 = vx - pred_speed
         const = gap0 - c.safe_margin_m - coef_v * closing0 + cbar * cbar / (2.0 * m.decel_max_mps2)
-        # const - (Gp + coef_v Gv) u + s >= 0  ->  (Gp + coef_v Gv) u - s <= const
-        rows.append(np.hstack([Gp + coef_v[:, None] * Gv, -np.ones((h, 1))]))
+        # const - (Gp + coef_v Gv) u + s_k >= 0  ->  (Gp + coef_v Gv) u - s_k <= const
+        gap_slack = np.zeros((h, ns))
+        gap_slack[:, 1:] = np.eye(h)
+        rows.append(np.hstack([Gp + coef_v[:, None] * Gv, -gap_slack]))
         upper.append(const)
         lower.append(np.full(h, -inf))
     sense_rows = [np.zeros(len(u), dtype=np.int32) for u in upper]
@@ -330,8 +343,8 @@ def build_qp(
         upper.append(np.array([ve]))
         lower.append(np.array([ve]))
         sense_rows.append(np.full(2, 5, dtype=np.int32))
-    bu_simple = np.append(np.full(h, m.max_speed_mps), inf)
-    bl_simple = np.append(np.zeros(h), 0.0)
+    bu_simple = np.concatenate([np.full(h, m.max_speed_mps), np.full(ns, inf)])
+    bl_simple = np.zeros(n)
     return QP(
         H,
         f,
@@ -391,7 +404,7 @@ def _solve_osqp(qp: QP) -> Solution:
         verbose=False,
         eps_abs=1e-7,
         eps_rel=1e-7,
-        max_iter=20000,
+        max_iter=200000,
         polishing=True,
     )
     res = prob.solve()

@@ -41,6 +41,9 @@ PSID_BSM = 0x20
 #: PSID of OpenConvoy's convoy-wide abort. Not an IEEE-assigned value: picked from the
 #: 4-octet p-encoded range (0xE0000000..), where no public allocation exists.
 PSID_ABORT = 0xE0004F43
+#: PSID of OpenConvoy's plan message (``comms.plans``: a speed forecast beside the BSM, as
+#: SAE J2945/6's cooperative control messages carry). From the same private range.
+PSID_PLAN = 0xE0004F50
 
 #: 1609.2 times count TAI seconds from 2004-01-01 00:00:00 UTC; TAI ran 5 s ahead of UTC's
 #: count since then (leap seconds of 2005, 2008, 2012, 2015, 2016).

@@ -159,7 +159,7 @@ def issue_vehicle(
     cert = c.make_certificate(
         vehicle_name(convoy, vehicle_index),
         key.public_key(),
-        psids=(c.PSID_BSM, c.PSID_ABORT),
+        psids=(c.PSID_BSM, c.PSID_ABORT, c.PSID_PLAN),
         start_unix=now - START_SLACK_S,
         duration_hours=VEHICLE_HOURS,
         issuer=(authority, akey),

@@ -46,11 +46,18 @@ class PlanExchange:
         """Vehicle ``vehicle``'s newest plan (sent with its next state)."""
         self.outgoing[vehicle] = plan
 
-    def send(self, vehicle: int, t: float) -> None:
-        """τ sent ``vehicle``'s state at ``t`` (s): its plan goes too, if it has one."""
+    def send(
+        self, vehicle: int, t: float, mode: str = "coop", speed: float = 0.0, decel: float = 1.0
+    ) -> None:
+        """τ sent ``vehicle``'s state at ``t`` (s): its plan goes too, if it has one. A
+        vehicle whose commands are not its policy's (``mode`` other than ``coop``: a
+        ladder rung, an emergency stop, a fault) shares what it will do instead: brake
+        from ``speed`` (m/s) at ``decel`` (m/s²) to rest (``braking_plan``)."""
         plan = self.outgoing[vehicle]
         if vehicle == 0 and self.leader is not None:
             plan = self.leader(t)
+        if mode != "coop":
+            plan = braking_plan(vehicle, t, speed, decel, plan)
         if plan is not None:
             self.channel.send(vehicle, plan, t)
             self.sent += 1
@@ -63,6 +70,14 @@ class PlanExchange:
     def held(self, vehicle: int) -> Mapping[int, Plan]:
         """The plans ``vehicle`` holds (vehicle id -> newest plan)."""
         return self.stores[vehicle].plans
+
+
+def braking_plan(vehicle: int, t: float, speed: float, decel: float, like: Plan | None) -> Plan:
+    """Braking from ``speed`` (m/s) at ``decel`` (m/s²) to rest from ``t`` (s), on the grid
+    of ``like`` (default 21 points 0.1 s apart)."""
+    n, step, tau = (len(like.speeds), like.step_s, like.tau_s) if like else (21, 0.1, 0.0)
+    v0 = max(speed, 0.0)
+    return Plan(vehicle, t, step, tuple(max(v0 - decel * k * step, 0.0) for k in range(n)), tau)
 
 
 def leader_plan(

@@ -244,7 +244,9 @@ class ConvoyWorld:
             if sent is not None:
                 self.channel.send(i, sent, t)
                 if self.plans is not None:
-                    self.plans.send(i, t)
+                    self.plans.send(
+                        i, t, self.modes[i], tr.speed[i], self.presets[i].decel_max_mps2
+                    )
         inboxes: list[list[VehicleState]] = [[] for _ in self.members]
         for r, _, msg in self.channel.deliver(t):
             inboxes[r].append(msg)

@@ -202,7 +202,7 @@ def presets(args: argparse.Namespace) -> int:
     print("policy presets (--policy NAME, NAME+ladder for the staleness ladder):")
     for name, cfg in PRESETS.items():
         m = cfg.member
-        parts = f"{m.topology}, {m.trigger.kind}, {m.spacing.kind}, {cfg.speed.kind} + {cfg.heading.kind}"
+        parts = f"{m.topology}, {m.trigger.kind}, {m.spacing.kind}, {'mpc' if cfg.mpc is not None else cfg.speed.kind} + {cfg.heading.kind}"
         print(f"  {name:<{width}}  [{parts}] {cfg.description}")
     print("vehicle presets (--vehicle-preset NAME or a preset .toml):")
     for name, p in VEHICLE_PRESETS.items():

@@ -34,6 +34,11 @@ _ARC, _DESIRED, _TSPEED, _VALID = (
 )
 
 
+PLAN_MISMATCH_MPS = 0.5
+"""A plan whose speed at the newest state's time differs from that state's by more (m/s)
+is not used."""
+
+
 class MPCPolicy:
     """Implements ``core.policy.Policy`` and ``core.plans.PlanningPolicy``."""
 
@@ -224,6 +229,11 @@ class MPCPolicy:
         if plan is None:
             return None
         if t["stale"] > 0.5 and self.mpc.plan_fallback != "shift":
+            return None
+        # A plan that disagrees with the newest state (the sender was overridden: a stop,
+        # a fault) is no forecast: the member's estimate of that state stands.
+        t_msg = self._now - max(t["age"], 0.0)
+        if abs(float(plan.speeds_at(np.array([t_msg]))[0]) - t["msg_speed"]) > PLAN_MISMATCH_MPS:
             return None
         fresh = self._now - plan.t0 <= self.mpc.plan_fresh_s
         if not fresh and self.mpc.plan_fallback == "constant-velocity":

@@ -54,7 +54,7 @@ def _preset(
     )
 
 
-_MPC = " (original: distributed MPC; here PD + Stanley until an MPC exists)"
+_MPC = " (original: distributed MPC; here PD + Stanley: the MPC rows are the Table I presets)"
 
 PRESETS: dict[str, ClassicalConfig] = {
     p.name: p

@@ -52,9 +52,10 @@ MPC_LADDER = LadderConfig(enabled=False, degrade_after_s=0.5, stop_after_s=3.0)
 """Targets are dropped after 3 s of silence (a shifted plan covers the gap)."""
 
 PLAN_EVENT = TriggerConfig(
-    kind="event", period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=0.5
+    kind="event", period_s=0.1, threshold_m=0.25, speed_threshold_mps=0.2, max_silence_s=0.2
 )
-"""Event trigger for plan-sharing rows: deviation 0.25 m / 0.2 m/s, at most 0.5 s silent."""
+"""Event trigger for plan-sharing rows: deviation 0.25 m / 0.2 m/s, at most 0.2 s silent
+(a receiver's estimate of a silent sender turns to braking after 0.5 s: ``core.estimate``)."""
 
 
 def _row(

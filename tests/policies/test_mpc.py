@@ -171,3 +171,31 @@ def test_hard_terminal_and_osqp_variants_drive_too() -> None:
         for name in ("hard", "osqp", "cv"):
             PRESETS.pop(f"test-mpc-{name}")
     assert MPCConfig().terminal == "soft"
+
+
+def test_a_vehicle_overridden_shares_its_braking_not_its_policys_plan() -> None:
+    """A halted follower (fault): its policy still plans to drive, but what goes out is
+    braking to rest at its limit, and the follower behind stops behind it."""
+    config = RunConfig(scenario="paper", policy="paper-mpc", per=0.0, duration_s=14.0,
+                       faults=("halt:1@8",))  # fmt: skip
+    env, policies = build_env(config)
+    from openconvoy.envs.plans import PlanRelay
+
+    relay = PlanRelay(env, policies)
+    obs, _ = env.reset(seed=0)
+    seen = []
+    while env.agents:
+        relay.before_act()
+        actions = {a: policies[a].act(obs[a]) for a in env.agents}
+        relay.after_act()
+        obs, *_ = env.step(actions)
+        assert env.sim.plans is not None
+        plan = env.sim.plans.held(2).get(1)
+        if plan is not None and 8.5 < env.sim.t < 9.0:
+            seen.append(plan)
+    assert seen and all(p.speeds[-1] == 0.0 for p in seen)  # braking to rest
+    assert all(
+        p.speeds[0] - p.speeds[1] == pytest.approx(0.1, abs=1e-9) for p in seen if p.speeds[1] > 0
+    )
+    # (all predecessors: the leader driving on pulls it a little past 15 m)
+    assert min(env.sim.gaps) > 12.0 and not any(env.sim.collided)

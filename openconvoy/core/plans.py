@@ -99,6 +99,17 @@ class PlanStore:
             self.receive(p)
 
 
+def braking_plan(vehicle: int, t: float, speed: float, decel: float, like: Plan | None) -> Plan:
+    """Braking from ``speed`` (m/s) at ``decel`` (m/s², inf: at once) to rest from ``t``
+    (s), on the grid of ``like`` (default 21 points 0.1 s apart)."""
+    n, step, tau = (len(like.speeds), like.step_s, like.tau_s) if like else (21, 0.1, 0.0)
+    v0 = max(speed, 0.0) if math.isfinite(speed) else 0.0
+    a = decel if decel > 0.0 else math.inf
+    return Plan(
+        vehicle, t, step, (v0, *(max(v0 - a * k * step, 0.0) for k in range(1, n))), tau
+    )
+
+
 @runtime_checkable
 class PlanningPolicy(Protocol):
     """A policy that shares plans: before each ``act`` the world hands it the plans it

@@ -18,7 +18,7 @@ import numpy as np
 
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core.member import ConvoyMember
-from openconvoy.core.plans import Plan, PlanningPolicy, PlanStore
+from openconvoy.core.plans import Plan, PlanningPolicy, PlanStore, braking_plan
 from openconvoy.envs.channel import Channel
 
 
@@ -70,14 +70,6 @@ class PlanExchange:
     def held(self, vehicle: int) -> Mapping[int, Plan]:
         """The plans ``vehicle`` holds (vehicle id -> newest plan)."""
         return self.stores[vehicle].plans
-
-
-def braking_plan(vehicle: int, t: float, speed: float, decel: float, like: Plan | None) -> Plan:
-    """Braking from ``speed`` (m/s) at ``decel`` (m/s²) to rest from ``t`` (s), on the grid
-    of ``like`` (default 21 points 0.1 s apart)."""
-    n, step, tau = (len(like.speeds), like.step_s, like.tau_s) if like else (21, 0.1, 0.0)
-    v0 = max(speed, 0.0)
-    return Plan(vehicle, t, step, tuple(max(v0 - decel * k * step, 0.0) for k in range(n)), tau)
 
 
 def leader_plan(

@@ -34,9 +34,9 @@ _ARC, _DESIRED, _TSPEED, _VALID = (
 )
 
 
-PLAN_MISMATCH_MPS = 0.5
-"""A plan whose speed at the newest state's time differs from that state's by more (m/s)
-is not used."""
+PLAN_MISMATCH_MPS = 1.0
+"""A plan whose speed at the newest state's time exceeds that state's by more (m/s) only
+lowers the forecast (the slower of it and constant velocity): its sender was overridden."""
 
 
 class MPCPolicy:
@@ -230,11 +230,6 @@ class MPCPolicy:
             return None
         if t["stale"] > 0.5 and self.mpc.plan_fallback != "shift":
             return None
-        # A plan that disagrees with the newest state (the sender was overridden: a stop,
-        # a fault) is no forecast: the member's estimate of that state stands.
-        t_msg = self._now - max(t["age"], 0.0)
-        if abs(float(plan.speeds_at(np.array([t_msg]))[0]) - t["msg_speed"]) > PLAN_MISMATCH_MPS:
-            return None
         fresh = self._now - plan.t0 <= self.mpc.plan_fresh_s
         if not fresh and self.mpc.plan_fallback == "constant-velocity":
             return None
@@ -258,6 +253,11 @@ class MPCPolicy:
         assert self._now is not None
         now = self._now
         age = max(t["age"], 0.0)
+        # A plan well above the newest state (its sender overridden: a stop, a fault, and
+        # the braking plan it then shares lost) only lowers the forecast: the slower of
+        # the two, from the member's estimate of that state.
+        if float(plan.speeds_at(np.array([now - age]))[0]) - t["msg_speed"] > PLAN_MISMATCH_MPS:
+            return np.minimum(plan.speeds_at(now + times), t["speed"]), 0.0
         if t["speed"] > 0.0 or t["msg_speed"] <= 0.0:
             member_d = 0.5 * (t["msg_speed"] + t["speed"]) * age
         else:  # stopped by the braking estimate: how far it went is the gap's excess

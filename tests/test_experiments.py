@@ -246,7 +246,7 @@ KEPT_BY_VEHICLE_2_OF_4 = {
 
 @pytest.mark.parametrize("name", [n for n in PRESETS if n not in TABLE1_ROWS])
 def test_each_preset_uses_the_topology_and_trigger_it_claims(name: str):
-    """(The Table I rows are named after their papers: ``tests/policies/test_mpc.py``.)"""
+    """(The Table I rows are named after their papers: ``tests/policies/test_mpc_policy.py``.)"""
     cfg = PRESETS[name].member
     topology, trigger = _claimed(name)
     assert (cfg.topology, cfg.trigger.kind) == (topology, trigger)

@@ -105,9 +105,7 @@ def braking_plan(vehicle: int, t: float, speed: float, decel: float, like: Plan 
     n, step, tau = (len(like.speeds), like.step_s, like.tau_s) if like else (21, 0.1, 0.0)
     v0 = max(speed, 0.0) if math.isfinite(speed) else 0.0
     a = decel if decel > 0.0 else math.inf
-    return Plan(
-        vehicle, t, step, (v0, *(max(v0 - a * k * step, 0.0) for k in range(1, n))), tau
-    )
+    return Plan(vehicle, t, step, (v0, *(max(v0 - a * k * step, 0.0) for k in range(1, n))), tau)
 
 
 @runtime_checkable

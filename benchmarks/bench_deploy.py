@@ -19,7 +19,8 @@ BSM send/receive, observation, policy, ladder, failsafes, setpoint, log row):
   above 40 Hz, as ArduPilot refuses rates above its loop rate, and the link lowers the
   request).
 
-Prints one JSON object. Usage: ``python benchmarks/bench_deploy.py [--seconds S]``.
+Prints one JSON object. Usage: ``python benchmarks/bench_deploy.py [--seconds S]
+[--policy SPEC]`` (``--policy paper-mpc``: the follower runs the MPC, as in ``docs/mpc.md``).
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.policies import load_policy
 
 CONVOY = ConvoyConfig(name="bench", vehicles=("1/10", "1/6"))
+POLICY = ["paper"]
+"""The follower's policy spec (``--policy``)."""
 
 
 class UdpPair:
@@ -108,7 +111,7 @@ def _runner(
             vehicle_id=i, rate_hz=rate_hz, duration_s=seconds, status_period_s=0, record_timing=True
         ),
         CONVOY,
-        load_policy("paper"),
+        load_policy(POLICY[0]),
         link,
         v2v,
         leader=make_scenario("paper", presets=presets) if i == 0 else None,
@@ -168,6 +171,7 @@ def _pct(a: np.ndarray, q: float) -> float:
 
 
 def measure(rate_hz: float, seconds: float) -> dict:
+    """The follower's loop timing at ``rate_hz`` for ``seconds`` of driving."""
     with tempfile.TemporaryDirectory() as tmp:
         spec = {
             "rate": rate_hz,
@@ -239,8 +243,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--seconds", type=float, default=10.0, help="driving time per rate (default 10)"
     )
+    ap.add_argument("--policy", default="paper", help="the follower's policy (default paper)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    POLICY[0] = args.policy
     if args.child:
         return child(json.loads(args.child))
     out = {
@@ -248,6 +254,8 @@ def main(argv: list[str] | None = None) -> int:
         "python": platform.python_version(),
         "machine": platform.machine(),
         "cpus": len(__import__("os").sched_getaffinity(0)),
+        "policy": args.policy,
+        "load_average": __import__("os").getloadavg(),
         "results": [measure(rate, args.seconds) for rate in (20.0, 50.0)],
     }
     print(json.dumps(out, indent=2))

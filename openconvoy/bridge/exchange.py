@@ -15,6 +15,7 @@ from typing import Any
 from openconvoy.bridge.convoystart import ConvoyStart
 from openconvoy.core import tick as member_tick
 from openconvoy.core.member import ConvoyMember, Frame
+from openconvoy.core.plans import Plan, PlanStore
 from openconvoy.core.state import VehicleState
 
 RECEIVE_BUDGET = 0.4
@@ -53,6 +54,14 @@ class Exchange:
         self._complete_sent = False
         self.broadcasting = True
         self.broadcast_pauses: list[list[float | None]] = []  # [wall from, wall to]
+        self.plans = PlanStore(member.rx.keeps)
+        """The plans heard (``core.plans``), beside the member's R^i."""
+        self.plan: Plan | None = None
+        """The own plan sent with the next state (``offer_plan``), if the policy plans."""
+
+    def offer_plan(self, plan: Plan | None) -> None:
+        """The own plan to send with the next broadcast state (None: none)."""
+        self.plan = plan
 
     def step(self, own: VehicleState, wall: float, known: bool) -> Frame:
         """Broadcast ``own`` if ``known`` (and the Tx gate says so), receive, and sense at
@@ -61,9 +70,15 @@ class Exchange:
         sent = member_tick.begin(self.member, own, wall, may_send=known)
         if sent is not None:
             self.v2v.send(sent, wall)
+            send_plan = getattr(self.v2v, "send_plan", None)
+            if self.plan is not None and send_plan is not None and self.plan.valid():
+                send_plan(self.plan, wall)
         inbox = []
         for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET / self.rate_hz):
-            if msg.abort:
+            plan = getattr(msg, "plan", None)
+            if plan is not None:
+                self.plans.receive(plan)
+            elif msg.abort:
                 self.abort = True
             elif getattr(msg, "complete", False):
                 self.leader_complete = True
@@ -87,7 +102,7 @@ class Exchange:
     def delivered(self) -> int:
         """Vehicle messages the V2V link delivered (aborts are not traffic)."""
         c = self.v2v.counters
-        return int(c.received - c.aborts)
+        return int(c.received - c.aborts - getattr(c, "plans", 0))
 
     def _track_broadcast(self, known: bool, wall: float) -> None:
         """Announce and record when broadcasting stops (autopilot link lost) and resumes."""

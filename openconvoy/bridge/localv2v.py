@@ -18,6 +18,7 @@ import numpy as np
 from openconvoy.comms.loss import LossConfig
 from openconvoy.comms.v2v import Counters
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.plans import Plan
 from openconvoy.core.state import VehicleState
 
 
@@ -30,6 +31,7 @@ class Received:
     t_rx: float
     abort: bool = False
     source: str = "local"
+    plan: Plan | None = None
 
 
 class LocalBus:
@@ -37,15 +39,17 @@ class LocalBus:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._queues: list[deque[tuple[VehicleState | None, bool]]] = []
+        self._queues: list[deque[tuple[VehicleState | Plan | None, bool]]] = []
 
-    def attach(self) -> deque[tuple[VehicleState | None, bool]]:
-        q: deque[tuple[VehicleState | None, bool]] = deque(maxlen=10000)
+    def attach(self) -> deque[tuple[VehicleState | Plan | None, bool]]:
+        q: deque[tuple[VehicleState | Plan | None, bool]] = deque(maxlen=10000)
         with self._lock:
             self._queues.append(q)
         return q
 
-    def publish(self, sender: deque, state: VehicleState | None, abort: bool = False) -> None:
+    def publish(
+        self, sender: deque, state: VehicleState | Plan | None, abort: bool = False
+    ) -> None:
         with self._lock:
             for q in self._queues:
                 if q is not sender:
@@ -88,6 +92,14 @@ class LocalV2V:
         self.bus.publish(self._q, state)
         return True
 
+    def send_plan(self, plan: Plan, now: float) -> bool:
+        """Publish own ``plan`` (``core.plans``) beside the state, as ``V2V.send_plan``."""
+        if self.drop_at == "sender" and self._loss.lost(now):
+            self.counters.lost += 1
+            return False
+        self.bus.publish(self._q, plan)
+        return True
+
     def poll(self, now: float, budget_s: float | None = None) -> list[Received]:
         """Every message waiting (in-process: ``budget_s`` is not needed)."""
         out: list[Received] = []
@@ -102,7 +114,11 @@ class LocalV2V:
                 self.counters.lost += 1
                 continue
             self.counters.received += 1
-            out.append(Received(state, now))
+            if isinstance(state, Plan):
+                self.counters.plans += 1
+                out.append(Received(None, now, plan=state))
+            else:
+                out.append(Received(state, now))
         return out
 
     @property

@@ -58,6 +58,7 @@ from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import ConvoyMember, Frame, member_config_for
+from openconvoy.core.plans import Plan, PlanningPolicy, braking_plan
 from openconvoy.core.policy import ConvoyPolicy, act_time_report, as_convoy_policy
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState, wrap_angle
@@ -187,6 +188,19 @@ def scenario_spacing(convoy: ConvoyConfig) -> SpacingConfig:
     return make_scenario(
         convoy.scenario, presets=[vehicle_preset(v) for v in convoy.vehicles]
     ).spacing
+
+
+def bind_planning(
+    policy: ConvoyPolicy, convoy: ConvoyConfig, vehicle_id: int
+) -> PlanningPolicy | None:
+    """A model-based policy predicts with its vehicle's preset (``bind_vehicle``, as in
+    ``sim``); a planning one (``core.plans``) is returned for the plan exchange."""
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    bind = getattr(policy, "bind_vehicle", None)
+    if bind is not None and 0 <= vehicle_id < len(convoy.vehicles):
+        bind(vehicle_preset(convoy.vehicles[vehicle_id]))
+    return policy if isinstance(policy, PlanningPolicy) else None
 
 
 def top_speed(convoy: ConvoyConfig, vehicle_id: int) -> float:
@@ -335,6 +349,7 @@ class DeployRunner:
         self.leader_origin = leader_origin
         self.policy = as_convoy_policy(policy)
         self.member = make_member(self.policy, convoy, options.vehicle_id, spacing, lengths, decels)
+        self._planning = bind_planning(self.policy, convoy, options.vehicle_id)
         self.bounds = bounds or member_tick.ActionBounds.float32(
             top_speed(convoy, options.vehicle_id)
         )
@@ -500,6 +515,16 @@ class DeployRunner:
 
     # ------------------------------------------------------------------ one tick
 
+    def _own_plan(self, mode: str, own: VehicleState, wall: float) -> Plan | None:
+        """The plan to share: the policy's while its commands go out (``coop``), else
+        braking to rest at the vehicle's limit, which is what it does instead."""
+        assert self._planning is not None
+        plan = self._planning.plan()
+        if mode == "coop" or plan is None:
+            return plan
+        decel = self.member.decels[self.options.vehicle_id]
+        return braking_plan(self.options.vehicle_id, wall, own.speed, decel, plan)
+
     def tick(self, now: float) -> str:
         """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
         tel, t_polled = self.vehicle.read(now)
@@ -510,6 +535,8 @@ class DeployRunner:
         )
         self.frame = frame = self.exchange.step(own, wall, known)  # τ, receive, ρ
         waiting = self.start_gate.update(now, wall, self.timer.start if self.timer else None)
+        if self._planning is not None:  # the plans heard, before the policy acts
+            self._planning.observe_plans(self.exchange.plans.plans, self.options.vehicle_id, wall)
         # What the controller wants (the member's decision, or the leader's driver) ...
         want = self.intent.want(self.policy, tel, own, frame, waiting, (now, wall))
         gap, closing = gap_ahead(self.member, wall)
@@ -527,6 +554,8 @@ class DeployRunner:
             late_periods=self._late_periods,
         )
         speed, heading_cmd, mode = self.gate.let_through(verdict, want, own, heading_cmd)
+        if self._planning is not None:
+            self.exchange.offer_plan(self._own_plan(mode, own, wall))
         t_sent = self.vehicle.actuate(now, tel, own, verdict, speed, heading_cmd)
         if self.options.record_timing:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))

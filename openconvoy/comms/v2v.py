@@ -67,12 +67,26 @@ from openconvoy.comms.multicast import (
     Ipv6Multicast,
     Transport,
 )
+from openconvoy.comms.plans import (
+    PLAN_MAGIC,
+    PlanDecodeError,
+    decode_plan,
+    encode_plan,
+    peek_plan_id,
+)
 from openconvoy.comms.security import certs as c
 from openconvoy.comms.security import spdu as sp
 from openconvoy.comms.security.auth import Authenticator, vehicle_of
-from openconvoy.comms.security.certs import PSID_ABORT, PSID_BSM, PSID_COMPLETE, Certificate
+from openconvoy.comms.security.certs import (
+    PSID_ABORT,
+    PSID_BSM,
+    PSID_COMPLETE,
+    PSID_PLAN,
+    Certificate,
+)
 from openconvoy.comms.tempids import TempIds
 from openconvoy.core.errors import ConfigError, LinkError
+from openconvoy.core.plans import Plan
 from openconvoy.core.state import VehicleState
 
 log = logging.getLogger(__name__)
@@ -102,7 +116,7 @@ FLOOD_ALERT_PER_S = 20
 SKEW_ALERT_PERIOD_S = 60.0
 #: Payload of the leader's "scenario complete" (JSON, signed with PSID_COMPLETE).
 COMPLETE_PREFIX = b'{"openconvoy":"complete"'
-_KINDS = {PSID_ABORT: "abort", PSID_COMPLETE: "complete"}
+_KINDS = {PSID_ABORT: "abort", PSID_COMPLETE: "complete", PSID_PLAN: "plan"}
 _GROUPS = {"abort": -2, "complete": -3}
 
 
@@ -228,6 +242,7 @@ class Counters:
         replays: unsigned frames already delivered once (verbatim replays).
         impersonations: verified BSMs carrying our own temp id, signed by someone else
             (also among ``rejected``).
+        plans: plan messages among ``received`` (``comms.plans``).
     """
 
     sent: int = 0
@@ -247,6 +262,7 @@ class Counters:
     shed: int = 0
     replays: int = 0
     impersonations: int = 0
+    plans: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -256,13 +272,15 @@ class Received:
     Attributes:
         state: the sender's state in the convoy's ENU frame; ``vehicle_id`` is the convoy
             index, ``t`` the sender's time (rebuilt from secMark for J2735, never after
-            ``t_rx``). None only for an abort that carries no position (an operator's).
+            ``t_rx``). None for an abort that carries no position (an operator's) and for
+            a plan message.
         t_rx: our receive time (the ``now`` given to ``poll``), seconds.
         abort: the convoy-wide abort flag.
         source: ``"j2735"`` or ``"compat"``.
         sender: convoy index of the sender (-1: an operator).
         temp_id: J2735 temporary ID (None for compat messages).
         msg_cnt: J2735 msgCnt (None for compat messages).
+        plan: the sender's plan (``comms.plans``), for a plan message.
     """
 
     state: VehicleState | None
@@ -274,6 +292,7 @@ class Received:
     msg_cnt: int | None = None
     complete: bool = False
     """The leader's "scenario complete" (``state`` None, ``sender`` 0)."""
+    plan: Plan | None = None
 
     @property
     def age(self) -> float:
@@ -506,6 +525,8 @@ class Receiver:
             return self._handle_j2735(data, t_rx, source)
         if data.startswith(COMPLETE_PREFIX):
             return self._handle_complete(data, None, t_rx, source)
+        if data[:4] == PLAN_MAGIC:
+            return self._handle_plan(data, t_rx, source)
         if data.lstrip()[:1] == b"{":
             return self._handle_compat(data, t_rx, source)
         self._malformed(source, "neither a J2735 MessageFrame nor JSON")
@@ -541,7 +562,8 @@ class Receiver:
         return None
 
     def _unsigned(self, data: bytes, source: str, t_rx: float) -> None:
-        if data[:2] != j.BSM_FRAME_PREFIX and data.lstrip()[:1] != b"{":
+        plan = data[:4] == PLAN_MAGIC
+        if data[:2] != j.BSM_FRAME_PREFIX and data.lstrip()[:1] != b"{" and not plan:
             self._malformed(source, "neither a signed SPDU, a J2735 MessageFrame nor JSON")
             return None
         abort = False
@@ -551,7 +573,7 @@ class Receiver:
             claimed = self._claimed(data)
             if claimed >= 0 and claimed != self.vehicle_index:
                 self._mismatch(claimed, t_rx, "sends unsigned V2V messages")
-        elif not data.startswith(COMPLETE_PREFIX):
+        elif not plan and not data.startswith(COMPLETE_PREFIX):
             try:
                 abort = cj.decode(data).abort
             except cj.CompatDecodeError:
@@ -585,7 +607,16 @@ class Receiver:
         kind = _KINDS.get(spdu.psid, "bsm")
         if kind == "bsm" and self._foreign(spdu.payload):
             return None  # before verifying: a flood of foreign signed BSMs stays cheap
-        group = self._claimed(spdu.payload) if kind == "bsm" else _GROUPS[kind]
+        if kind == "plan" and self._foreign_plan(spdu.payload):
+            return None  # before verifying: a flood of foreign signed BSMs stays cheap
+        if kind == "bsm":
+            group = self._claimed(spdu.payload)
+        elif kind == "plan":  # a plan is budgeted with its sender's BSMs
+            peeked = peek_plan_id(spdu.payload)
+            index = None if peeked is None else self.temp_ids.index_of(peeked)
+            group = -1 if index is None else index
+        else:
+            group = _GROUPS[kind]
         auth = self.auth
         if auth is None:  # not verifying: the payload as if it came unsigned
             if kind == "bsm" and group >= 0 and group != self.vehicle_index:
@@ -625,6 +656,8 @@ class Receiver:
             return self._handle_signed_abort(spdu, signed, t_rx, source)
         if kind == "complete":
             return self._handle_complete(spdu.payload, signed, t_rx, source)
+        if kind == "plan":
+            return self._handle_plan(spdu.payload, t_rx, source, signed)
         if spdu.psid != PSID_BSM or spdu.payload[:2] != j.BSM_FRAME_PREFIX:
             self._malformed(source, f"signed PSID {spdu.psid:#x} payload is not a BSM")
             return None
@@ -725,6 +758,51 @@ class Receiver:
             return None
         self.counters.received += 1
         return Received(None, t_rx, False, "j2735", 0, complete=True)
+
+    def _foreign_plan(self, data: bytes) -> bool:
+        """A plan message from outside the convoy (its id read without decoding)."""
+        peeked = peek_plan_id(data)
+        if peeked is not None and self.temp_ids.index_of(peeked) is None:
+            self.counters.filtered += 1
+            return True
+        return False
+
+    def _handle_plan(
+        self, data: bytes, t_rx: float, source: str, signed: Any = None
+    ) -> Received | None:
+        """A plan message (``comms.plans``): the same checks as a BSM's — echo, convoy
+        member, signer speaks for itself, no replay, emulated loss."""
+        temp_id = peek_plan_id(data)
+        if temp_id is None:
+            self._malformed(source, "plan message too short")
+            return None
+        if temp_id == self.own_id:
+            self.counters.echoes += 1
+            return None
+        sender = self.temp_ids.index_of(temp_id)
+        if sender is None:
+            self.counters.filtered += 1
+            return None
+        try:
+            _, plan = decode_plan(data, sender)
+        except PlanDecodeError as exc:
+            self._malformed(source, str(exc))
+            return None
+        if signed is not None:
+            assert self.auth is not None  # signed is only set when verifying
+            spdu, cert = signed
+            if vehicle_of(cert) != sender:
+                self.auth.reject("wrong_sender")
+                self._rejected(source, f"{cert.name} signed vehicle {sender}'s plan")
+                return None
+            if self.auth.admit(spdu, t_rx) is not None:
+                self._rejected(source, f"vehicle {sender}'s plan replayed")
+                return None
+        if self._lost(sender, t_rx):
+            return None
+        self.counters.received += 1
+        self.counters.plans += 1
+        return Received(None, t_rx, False, "j2735", sender, temp_id, plan=plan)
 
     def _lost(self, sender: int, t_rx: float) -> bool:
         model = self._loss.get(sender)
@@ -1074,6 +1152,18 @@ class V2V:
         if ok:
             self.counters.sent += 1
         return ok
+
+    def send_plan(self, plan: Plan, now: float) -> bool:
+        """Broadcast own ``plan`` (``comms.plans``; signed under ``PSID_PLAN`` with auth) at
+        ``now`` (s), beside the BSM τ just sent. True if transmitted."""
+        if plan.vehicle_id != self.vehicle_index:
+            raise ConfigError(
+                f"plan of vehicle {plan.vehicle_id} sent by vehicle {self.vehicle_index}"
+            )
+        data = encode_plan(plan, self.sender.temp_id)
+        if self.auth is not None:
+            data = self.auth.sign(data, PSID_PLAN, now)
+        return self._send(self._tx, data)
 
     def send_abort(self, now: float, state: VehicleState | None = None) -> None:
         """Broadcast a convoy-wide abort from this vehicle (with its ``state`` if given)."""

@@ -38,6 +38,7 @@ from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel, advance_state
 from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.gps import gps_key, gps_noise, vehicle_states
+from openconvoy.envs.plans import PlanExchange
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.ranging_noise import ranging_key, ranging_normals
 from openconvoy.envs.scenarios import Scenario
@@ -159,7 +160,15 @@ class ConvoyWorld:
         """The action space of each vehicle (the leader's unused), as ``core.tick`` clips."""
         self.t = 0.0
         self.step_count = 0
+        self.loss = loss
+        self.plans: PlanExchange | None = None
+        """Plans beside the states (``envs.plans``), once ``enable_plans`` is called."""
         self._clear()
+
+    def enable_plans(self) -> None:
+        """Carry plans beside the states from the next ``reset`` on (MPC policies)."""
+        if self.plans is None:
+            self.plans = PlanExchange(self.members, self.loss)
 
     # --- the tick ----------------------------------------------------------------------
 
@@ -176,6 +185,8 @@ class ConvoyWorld:
         self.plant.reset(init.x, init.y, init.heading, init.speed)
         for m in self.members:
             m.reset()
+        if self.plans is not None:
+            self.plans.reset(np.random.default_rng(seed_seq.spawn(1)[0]))
         self.t = 0.0
         self.step_count = 0
         self._clear()
@@ -242,9 +253,15 @@ class ConvoyWorld:
             sent = member_tick.begin(m, st, t, may_send=not muted)
             if sent is not None:
                 self.channel.send(i, sent, t)
+                if self.plans is not None:
+                    self.plans.send(
+                        i, t, self.modes[i], tr.speed[i], self.presets[i].decel_max_mps2
+                    )
         inboxes: list[list[VehicleState]] = [[] for _ in self.members]
         for r, _, msg in self.channel.deliver(t):
             inboxes[r].append(msg)
+        if self.plans is not None:
+            self.plans.deliver(t)
         if self._forged:
             self._forge(t, inboxes)
         self.frames = [member_tick.sense(m, box, t) for m, box in zip(self.members, inboxes)]

@@ -251,7 +251,7 @@ def presets(args: argparse.Namespace) -> int:
     print("policy presets (--policy NAME, NAME+ladder for the staleness ladder):")
     for name, cfg in PRESETS.items():
         m = cfg.member
-        parts = f"{m.topology}, {m.trigger.kind}, {m.spacing.kind}, {cfg.speed.kind} + {cfg.heading.kind}"
+        parts = f"{m.topology}, {m.trigger.kind}, {m.spacing.kind}, {'mpc' if cfg.mpc is not None else cfg.speed.kind} + {cfg.heading.kind}"
         print(f"  {name:<{width}}  [{parts}] {cfg.description}")
     from openconvoy.core.plugins import ENTRY_POINT_GROUPS, entry_points
 

@@ -255,6 +255,10 @@ def build_env(config: RunConfig):
         plant_presets=[vehicle_preset(v) for v in convoy.plants] or None,
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
+    for i, a in enumerate(env.possible_agents, start=1):
+        bind = getattr(policies[a], "bind_vehicle", None)
+        if bind is not None:  # a model-based policy predicts with its vehicle's numbers
+            bind(env.presets[i])
     return env, policies
 
 
@@ -273,8 +277,11 @@ def run_sim(
     """
     import time
 
+    from openconvoy.envs.plans import PlanRelay
+
     start = time.perf_counter()
     env, policies = build_env(config)
+    relay = PlanRelay(env, policies)
     lengths = {i: p.length_m for i, p in enumerate(env.presets)}
     obs, _ = env.reset(seed=config.seed)
     for p in policies.values():
@@ -309,7 +316,9 @@ def run_sim(
     guards = {a: ActGuard(p, env.dt) for a, p in policies.items()}
     try:
         while env.agents:
+            relay.before_act()
             actions = {a: guards[a](obs[a]) for a in env.agents}
+            relay.after_act()
             obs, _, _, _, _ = env.step(actions)
             emit(env.log_rows())
             if bar is not None:

@@ -36,6 +36,7 @@ from openconvoy.core.controllers import (
 )
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.member import MemberConfig
+from openconvoy.core.mpc import MPCConfig
 from openconvoy.core.observation import (
     DERIVED_FEATURES,
     LOOKAHEAD_S,
@@ -68,6 +69,9 @@ class ClassicalConfig:
     control_rate_hz: Annotated[float, Range(0.0, 100.0, lo_open=True)] = 20.0
     rear_weight: Annotated[float, Range(0.0, 10.0)] = 0.0
     """Bidirectional (M-CACC) coupling: weight of the follower's spacing error (0 = none)."""
+    mpc: MPCConfig | None = None
+    """The ``mpc`` controller family (``policies.mpc``) in place of χ_v when set; ``speed``
+    is then its fallback when a solve fails."""
 
     def __post_init__(self) -> None:
         if self.control_rate_hz <= 0 or self.speed_limit_mps <= 0:

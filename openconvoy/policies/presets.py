@@ -1,9 +1,9 @@
-"""Named classical implementations: the paper's and those its Table I surveys.
+"""Named implementations: the paper's and those its Table I surveys.
 
-Each preset is a combination of spacing policy, topology, trigger and controllers. Where
-the surveyed work used a model-predictive controller, the description says so and the
-preset uses the closest classical controllers (PD speed on the spacing error with the
-predecessor's speed as feed-forward, Stanley steering) until an MPC exists here.
+Each preset is a combination of spacing policy, topology, trigger and controllers. The
+Table I rows are ``openconvoy.policies.table1`` (one per paper, with the ``mpc`` family
+where the paper's controller is model-predictive); the PD stand-ins that preceded them keep
+their names, and answer to ``<name>-pd`` too.
 
 ``paper`` keeps the original implementation's 5 m/s speed limit; the surveyed presets allow
 40 m/s so they also drive the full-size ``emergency-braking`` scenario (a vehicle's own
@@ -54,7 +54,7 @@ def _preset(
     )
 
 
-_MPC = " (original: distributed MPC; here PD + Stanley until an MPC exists)"
+_MPC = " (original: distributed MPC; here PD + Stanley: the MPC rows are the Table I presets)"
 
 PRESETS: dict[str, ClassicalConfig] = {
     p.name: p
@@ -149,6 +149,21 @@ PRESETS: dict[str, ClassicalConfig] = {
 }
 
 
+PD_SUFFIX = "-pd"
+"""The PD stand-ins of the Table I rows answer to ``<name>-pd`` as well as their old names."""
+
+PD_STAND_INS = tuple(n for n in PRESETS if n != "paper")
+PRESETS.update(
+    (n + PD_SUFFIX, dataclasses.replace(PRESETS[n], name=n + PD_SUFFIX)) for n in PD_STAND_INS
+)
+
+
+def _add_table1() -> None:
+    from openconvoy.policies.table1 import TABLE1_PRESETS
+
+    PRESETS.update(TABLE1_PRESETS)
+
+
 def with_ladder(config: ClassicalConfig, enabled: bool = True) -> ClassicalConfig:
     """The same implementation with the staleness ladder switched on (or off)."""
     member = dataclasses.replace(
@@ -158,3 +173,6 @@ def with_ladder(config: ClassicalConfig, enabled: bool = True) -> ClassicalConfi
     return dataclasses.replace(
         config, member=member, name=config.name.removesuffix("+ladder") + suffix
     )
+
+
+_add_table1()

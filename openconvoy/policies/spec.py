@@ -101,7 +101,12 @@ def load_policy(spec: str, **learned_kwargs: Any) -> ConvoyPolicy:
 
         ref, kwargs, label = plugin
         return as_convoy_policy(load_plugin_policy(ref, kwargs, label), spec)
-    return as_convoy_policy(ClassicalPolicy(classical_config(spec)), spec)
+    config = classical_config(spec)
+    if config.mpc is not None:
+        from openconvoy.policies.mpc import MPCPolicy
+
+        return as_convoy_policy(MPCPolicy(config), spec)
+    return as_convoy_policy(ClassicalPolicy(config), spec)
 
 
 def plugin_of(spec: str) -> tuple[str, dict[str, Any], str] | None:
@@ -266,7 +271,8 @@ def describe(config: ClassicalConfig) -> str:
     m = config.member
     return (
         f"{config.name}: {m.topology}, {m.trigger.kind}, {m.spacing.kind}, "
-        f"{config.speed.kind} + {config.heading.kind}" + (", ladder" if m.ladder.enabled else "")
+        f"{'mpc' if config.mpc is not None else config.speed.kind} + {config.heading.kind}"
+        + (", ladder" if m.ladder.enabled else "")
     )
 
 

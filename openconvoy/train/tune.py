@@ -16,7 +16,8 @@ file (``classical_to_toml``) that ``--policy`` accepts.
 Parameters (``PARAMETERS``; names are dotted ClassicalConfig paths): the speed
 controller's gains (``speed.kp``, ``speed.kd``, ``speed.ki`` for ``pid``), the heading
 controller's gain (``heading.gain`` for Stanley, ``heading.lookahead_s`` for pure
-pursuit) and the spacing policy's shape (``member.spacing.headway_s``,
+pursuit), the ``mpc`` family's weights in place of the gains (``mpc.w_gap``, ``mpc.w_speed``,
+``mpc.w_du``, ``mpc.w_accel``, ``mpc.w_terminal``) and the spacing policy's shape (``member.spacing.headway_s``,
 ``member.spacing.standstill_m`` for time-headway policies). A constant-distance policy's
 ``distance_m`` is the specification, not a tunable: it is left alone.
 
@@ -69,6 +70,12 @@ PARAMETERS: dict[str, Param] = {
         Param("heading.lookahead_s", 0.5, 2.0),
         Param("member.spacing.headway_s", 0.3, 2.0),
         Param("member.spacing.standstill_m", 1.0, 5.0),
+        # the mpc family's weights (``core.mpc.MPCConfig``)
+        Param("mpc.w_gap", 0.05, 20.0, log=True),
+        Param("mpc.w_speed", 0.05, 20.0, log=True),
+        Param("mpc.w_du", 0.01, 20.0, log=True),
+        Param("mpc.w_accel", 0.001, 5.0, log=True),
+        Param("mpc.w_terminal", 1.0, 100.0, log=True),
     )
 }
 
@@ -147,7 +154,9 @@ def applicable(config: Candidate) -> list[str]:
     if isinstance(config, PluginConfig):
         return declared
     out = []
-    if not config.speed.is_plugin:
+    if config.mpc is not None:  # the mpc family: its weights in place of the PD gains
+        out += ["mpc.w_gap", "mpc.w_speed", "mpc.w_du", "mpc.w_accel", "mpc.w_terminal"]
+    elif not config.speed.is_plugin:
         out += ["speed.kp", "speed.kd"]
         if config.speed.kind == "pid":
             out.append("speed.ki")

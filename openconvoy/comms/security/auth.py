@@ -110,6 +110,15 @@ def _behind(cnt: int, last: int) -> bool:
     return 0 < (last - cnt) % 128 < 64
 
 
+def _replay_key(spdu: SignedSpdu) -> bytes:
+    """The stream an SPDU's replay checks run in: the signer's digest; plan messages
+    (``PSID_PLAN``) in a stream of their own, since a plan goes out with each BSM, at the
+    same instant, and is no replay of it."""
+    if spdu.psid == c.PSID_PLAN:
+        return spdu.digest + c.PSID_PLAN.to_bytes(4, "big")
+    return spdu.digest
+
+
 class ReplayGuard:
     """Freshness, duplicate and order checks per signer certificate (times in Unix s)."""
 
@@ -181,7 +190,7 @@ class Authenticator:
         credentials: Credentials,
         *,
         window_s: float = DEFAULT_WINDOW_S,
-        psids: frozenset[int] = frozenset({c.PSID_BSM, c.PSID_ABORT, c.PSID_COMPLETE}),
+        psids: frozenset[int] = frozenset({c.PSID_BSM, c.PSID_ABORT, c.PSID_COMPLETE, c.PSID_PLAN}),
     ) -> None:
         self.credentials = credentials
         self.psids = psids
@@ -254,7 +263,7 @@ class Authenticator:
     def _precheck(self, spdu: SignedSpdu, now: float) -> str | None:
         if spdu.psid not in self.psids:
             return "not_permitted"
-        reason = self.guard.precheck(spdu.digest, spdu.generation_time, now)
+        reason = self.guard.precheck(_replay_key(spdu), spdu.generation_time, now)
         if reason is not None:
             return reason
         if spdu.digest in self.credentials.revoked:
@@ -351,11 +360,11 @@ class Authenticator:
     def admit(self, spdu: SignedSpdu, now: float, msg_cnt: int | None = None) -> str | None:
         """After ``check`` and decoding the payload: ``backwards`` (counted) or None, in
         which case the message is recorded as accepted."""
-        reason = self.guard.order(spdu.digest, spdu.generation_time, msg_cnt)
+        reason = self.guard.order(_replay_key(spdu), spdu.generation_time, msg_cnt)
         if reason is not None:
             self.counters.rejected[reason] += 1
             return reason
-        self.guard.record(spdu.digest, spdu.generation_time, msg_cnt, now)
+        self.guard.record(_replay_key(spdu), spdu.generation_time, msg_cnt, now)
         return None
 
     def known(self, digest: bytes) -> c.Certificate | None:

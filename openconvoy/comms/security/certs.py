@@ -43,6 +43,9 @@ PSID_BSM = 0x20
 PSID_ABORT = 0xE0004F43
 #: PSID of the leader's "scenario complete" (``comms.v2v``): the next value of that range.
 PSID_COMPLETE = 0xE0004F44
+#: PSID of OpenConvoy's plan message (``comms.plans``: a speed forecast beside the BSM, as
+#: SAE J2945/6's cooperative control messages carry). From the same private range.
+PSID_PLAN = 0xE0004F50
 
 #: 1609.2 times count TAI seconds from 2004-01-01 00:00:00 UTC; TAI ran 5 s ahead of UTC's
 #: count since then (leap seconds of 2005, 2008, 2012, 2015, 2016).

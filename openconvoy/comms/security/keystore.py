@@ -230,7 +230,9 @@ def issue_vehicle(
             except KeyFileError:
                 pass  # an unreadable old certificate was never usable
     key = ec.generate_private_key(ec.SECP256R1())
-    psids = (c.PSID_BSM, c.PSID_COMPLETE) if vehicle_index == 0 else (c.PSID_BSM,)
+    # Vehicles sign BSMs and plans; the leader also its scenario's completion; aborts only
+    # the authority or an operator key.
+    psids = (c.PSID_BSM, c.PSID_PLAN) + ((c.PSID_COMPLETE,) if vehicle_index == 0 else ())
     cert = c.make_certificate(
         vehicle_name(convoy, vehicle_index),
         key.public_key(),

@@ -1,0 +1,119 @@
+"""Shared plans: a vehicle's speed forecast, sent beside its state, kept beside R^i.
+
+A ``Plan`` is what a model-predictive follower (``policies.mpc``) intends: its predicted
+speed at ``t0 + k·step_s`` (k = 0..H; ``t0`` the time of validity on the shared clock), and
+its actuator time constant. The sender broadcasts its newest plan whenever τ sends its state
+(the same trigger); receivers keep the newest plan of every vehicle ρ keeps (``PlanStore``)
+and hand them to their policy before it acts (``PlanningPolicy.observe_plans``).
+
+When plans are lost, a receiver reads the last one shifted in time (it is indexed by
+absolute time, so "shifting" is reading it at the later time; past its end the last speed
+holds: Razzaghpour et al., ECC 2022) or falls back to constant-velocity dead reckoning from
+the newest state (Razzaghpour et al., VTC 2021): ``MPCConfig.plan_fallback``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+MAX_PLAN_POINTS = 64
+"""The most forecast points a plan carries (the wire format's limit)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """Vehicle ``vehicle_id``'s speed forecast: ``speeds[k]`` (m/s) at ``t0 + k·step_s``
+    (s, shared clock); ``tau_s`` its speed loop's time constant (s)."""
+
+    vehicle_id: int
+    t0: float
+    step_s: float
+    speeds: tuple[float, ...]
+    tau_s: float = 0.0
+
+    def valid(self) -> bool:
+        """Finite, a positive step, 1..MAX_PLAN_POINTS non-negative speeds."""
+        return (
+            math.isfinite(self.t0)
+            and math.isfinite(self.step_s)
+            and self.step_s > 0.0
+            and 1 <= len(self.speeds) <= MAX_PLAN_POINTS
+            and all(math.isfinite(v) and v >= 0.0 for v in self.speeds)
+            and math.isfinite(self.tau_s)
+        )
+
+    @property
+    def end_s(self) -> float:
+        """Time of the last forecast point (s)."""
+        return self.t0 + (len(self.speeds) - 1) * self.step_s
+
+    def speeds_at(self, times: np.ndarray) -> np.ndarray:
+        """Forecast speeds (m/s) at ``times`` (s): linear between points, the first before
+        ``t0``, the last after the end (the plan shifted in time)."""
+        grid = self.t0 + self.step_s * np.arange(len(self.speeds))
+        return np.interp(times, grid, np.asarray(self.speeds, dtype=float))
+
+    def distance(self, t_from: float, t_to: float, samples: int = 8) -> float:
+        """Distance (m) the forecast covers from ``t_from`` to ``t_to`` (s), trapezoids."""
+        if t_to <= t_from:
+            return 0.0
+        ts = np.linspace(t_from, t_to, samples + 1)
+        v = self.speeds_at(ts)
+        return float(np.sum(0.5 * (v[1:] + v[:-1])) * (t_to - t_from) / samples)
+
+
+class PlanStore:
+    """The newest plan of every vehicle heard, beside R^i; ``keeps`` is the member's ρ."""
+
+    def __init__(self, keeps: Callable[[int], bool]) -> None:
+        self.keeps = keeps
+        self.plans: dict[int, Plan] = {}
+        self.received = 0
+        self.dropped = 0
+
+    def clear(self) -> None:
+        self.plans.clear()
+        self.received = self.dropped = 0
+
+    def receive(self, plan: Plan) -> bool:
+        """Keep ``plan`` if ρ keeps its sender, it is well-formed and newer than the one
+        held; otherwise count it dropped. True when kept."""
+        if not plan.valid() or not self.keeps(plan.vehicle_id):
+            self.dropped += 1
+            return False
+        held = self.plans.get(plan.vehicle_id)
+        if held is not None and held.t0 >= plan.t0:
+            self.dropped += 1
+            return False
+        self.plans[plan.vehicle_id] = plan
+        self.received += 1
+        return True
+
+    def receive_all(self, plans: Iterable[Plan]) -> None:
+        for p in plans:
+            self.receive(p)
+
+
+def braking_plan(vehicle: int, t: float, speed: float, decel: float, like: Plan | None) -> Plan:
+    """Braking from ``speed`` (m/s) at ``decel`` (m/s², inf: at once) to rest from ``t``
+    (s), on the grid of ``like`` (default 21 points 0.1 s apart)."""
+    n, step, tau = (len(like.speeds), like.step_s, like.tau_s) if like else (21, 0.1, 0.0)
+    v0 = max(speed, 0.0) if math.isfinite(speed) else 0.0
+    a = decel if decel > 0.0 else math.inf
+    return Plan(vehicle, t, step, (v0, *(max(v0 - a * k * step, 0.0) for k in range(1, n))), tau)
+
+
+@runtime_checkable
+class PlanningPolicy(Protocol):
+    """A policy that shares plans: before each ``act`` the world hands it the plans it
+    holds (vehicle id -> Plan), its own vehicle id and the time (s); after ``act``,
+    ``plan()`` is the plan to broadcast with the next state (None: nothing to share)."""
+
+    def observe_plans(self, plans: Mapping[int, Plan], vehicle_id: int, now: float) -> None: ...
+
+    def plan(self) -> Plan | None: ...

@@ -652,6 +652,11 @@ class Receiver:
         self, spdu: sp.SignedSpdu, cert: Certificate | None, kind: str, t_rx: float, source: str
     ) -> Received | None:
         signed = None if cert is None else (spdu, cert)
+        if cert is not None and self.auth is not None and self.auth.precheck(spdu, t_rx):
+            # A copy verified in the same poll as the first one (both passed the precheck
+            # before either was recorded): a duplicate now that the first is delivered.
+            self._rejected(source, "duplicate", kind == "abort")
+            return None
         if kind == "abort":
             return self._handle_signed_abort(spdu, signed, t_rx, source)
         if kind == "complete":

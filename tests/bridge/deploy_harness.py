@@ -16,8 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from conftest import free_port
-
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
@@ -28,6 +26,7 @@ from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import RangingSensor, vehicle_preset
 from openconvoy.policies import load_policy
+from tests.bridge.conftest import free_port
 
 
 class RecordingLink:

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import free_port
 
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
@@ -19,6 +18,7 @@ from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset, vehicle_preset
 from openconvoy.experiments.fitplant import fit_pi_plant, fit_plant, format_pi_fit
 from openconvoy.logs import LogWriter
+from tests.bridge.conftest import free_port
 from tests.firmware_runs import unpack
 
 # A vehicle unlike the stock presets, so a fit cannot pass by echoing the base preset.

@@ -11,7 +11,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import wait_for
 from deploy_harness import make_convoy, wait_until
 from mavlink_edge import EdgeAutopilot
 from test_runner import WALL0, FakeClock, FakeLink, FixedPolicy
@@ -24,6 +23,7 @@ from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.core.state import VehicleState
 from openconvoy.logs import read_log
+from tests.bridge.conftest import wait_for
 
 
 class ScriptedLink(FakeLink):

@@ -7,10 +7,9 @@ import subprocess
 import sys
 import time
 
-from conftest import free_port, run_for, wait_for
-
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.comms.geodesy import Origin
+from tests.bridge.conftest import free_port, run_for, wait_for
 
 
 def test_vehicle_process_answers_and_obeys_signals() -> None:

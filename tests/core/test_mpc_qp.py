@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from openconvoy.core.errors import ConfigError
@@ -82,8 +82,12 @@ def test_daqp_matches_the_osqp_reference(h, v_now, gap_err, v_pred, pi, w_du) ->
     cfg = MPCConfig(horizon=h, w_du=w_du, w_slack=100.0)
     qp = _problem(h, v_now, gap_err, v_pred, PI if pi else LAG, cfg)
     ours = solve(qp, "daqp")
+    assert ours.ok
     ref = solve(qp, "osqp")
-    assert ours.ok and ref.ok
+    # ADMM (the reference) can stop at its iteration cap on an ill-conditioned instance
+    # (hypothesis found h=18, v_now=0, v_pred=2, w_du=0.25); DAQP is judged where the
+    # reference has an answer.
+    assume(ref.ok)
     # Feasible for the constraints it was given (to solver tolerance) ...
     n = qp.H.shape[0]
     az = qp.A @ ours.z

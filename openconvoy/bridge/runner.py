@@ -52,7 +52,13 @@ from openconvoy.bridge.leaderdrive import FINISH_TIMEOUT_S, LeaderDriver, Leader
 from openconvoy.bridge.link import VehicleLink, VehicleLinkError
 from openconvoy.bridge.runlog import EXTRA_COLUMNS, RunLog
 from openconvoy.bridge.safetygate import SafetyGate
-from openconvoy.bridge.vehicle import HOLD_BELOW_MPS, HOLD_MODES, StopRequested, VehicleHandler
+from openconvoy.bridge.vehicle import (
+    HOLD_BELOW_MPS,
+    HOLD_MODES,
+    StopRequested,
+    VehicleHandler,
+    brake_time_s,
+)
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
@@ -120,6 +126,8 @@ class RunnerOptions:
         status_period_s: status line period (s); 0 = none.
         record_timing: keep per-tick timings (benchmarks).
         seed: seeds the leader scenario's randomness.
+        stay_armed: leave the vehicle armed in HOLD at the end (``--stay-armed``); by
+            default a run ends with its vehicle at rest and disarmed.
     """
 
     vehicle_id: int
@@ -134,6 +142,7 @@ class RunnerOptions:
     status_period_s: float = 1.0
     record_timing: bool = False
     seed: int = 0
+    stay_armed: bool = False
 
     def __post_init__(self) -> None:
         # Checked here too (the CLI checks its flags): a NaN rate or timeout would busy-loop
@@ -249,11 +258,14 @@ def gap_ahead(member: ConvoyMember, wall: float) -> tuple[float, float]:
     return (math.nan, 0.0) if est is None else est
 
 
-def failure_code(failsafes: Failsafes, started: bool, autopilot_failsafe: bool) -> int:
+def failure_code(
+    failsafes: Failsafes, started: bool, autopilot_failsafe: bool, uncommanded: str = ""
+) -> int:
     """1 when the run ended by a failsafe, a lost autopilot link, a takeover before the
-    convoy ``started`` or an autopilot failsafe; 0 when it completed or a person stopped it
-    (signal, ``abort``) with nothing of that kind on the way."""
-    if failsafes.latched or failsafes.watchdog.was_lost:
+    convoy ``started``, an autopilot failsafe or uncommanded motion while held; 0 when it
+    completed or a person stopped it (signal, ``abort``) with nothing of that kind on the
+    way."""
+    if failsafes.latched or failsafes.watchdog.was_lost or uncommanded:
         return 1
     if failsafes.took_over and (not started or autopilot_failsafe):
         return 1
@@ -354,6 +366,7 @@ class DeployRunner:
         bookkeeping)."""
         o = self.options
         self._stop_requested = ""
+        self._ending = ""  # why the run ends, while the loop brakes to rest
         # The lambdas read ``self.sleep`` / ``self.on_status`` at call time (tests swap them).
         status = lambda line: self.on_status(line)  # noqa: E731
         self.vehicle = VehicleHandler(
@@ -366,6 +379,8 @@ class DeployRunner:
             sleep=lambda s: self.sleep(s),
             on_status=status,
             check_stop=self._check_stop,
+            stay_armed=o.stay_armed,
+            on_event=lambda why: self.failsafes.events.append((self.clock(), why)),
         )
         self.start_gate = ConvoyStart(
             o.vehicle_id,
@@ -397,6 +412,7 @@ class DeployRunner:
         )
         self.timer: LoopTimer | None = None
         self._late_periods = 0.0
+        self._sent_last = False  # the last tick's setpoint went out
         self.t_begin_wall = self.wall()
 
     # ------------------------------------------------------------------ control
@@ -452,10 +468,14 @@ class DeployRunner:
             code = 1
             log.error("deploy loop failed:\n%s", traceback.format_exc())
         finally:
-            code = code or failure_code(
-                self.failsafes, self.start_gate.t_start is not None, self.link.failsafe_took_over
-            )
             self._finish(reason, code)
+            code = code or failure_code(
+                self.failsafes,
+                self.start_gate.t_start is not None,
+                self.link.failsafe_took_over,
+                self.vehicle.uncommanded,
+            )
+            self._close(reason, code)
         return RunResult(
             exit_code=code,
             reason=reason,
@@ -467,9 +487,11 @@ class DeployRunner:
         )
 
     def _loop(self) -> str:
-        """Tick at the control rate until a tick says why the run ends."""
+        """Tick at the control rate until a tick says why the run ends, then on (stop
+        setpoints, log rows and broadcasts) until the vehicle is at rest (``_braked``)."""
         period = 1.0 / self.options.rate_hz
         self.timer = timer = LoopTimer(period, self.clock())
+        ending, t_end, v_end = "", math.nan, 0.0
         while True:
             wait = timer.wait_time(self.clock())
             if wait > 0:
@@ -477,8 +499,34 @@ class DeployRunner:
             t_tick = self.clock()
             self._late_periods = timer.begin(t_tick) / period
             done = self.tick(t_tick)
-            if done:
-                return done
+            if done and not ending:
+                ending, t_end = done, t_tick
+                self._ending = done  # the next ticks stop the vehicle (the gate's STOP)
+                v_end = abs(self.vehicle.tel.state.speed) if self.vehicle.tel else 0.0
+            if ending and self._braked(t_tick, t_end, v_end):
+                return ending
+
+    def _braked(self, now: float, t_end: float, v_end: float) -> bool:
+        """After the tick that ended the run (at ``t_end``, at ``v_end`` m/s): whether the
+        vehicle is at rest, or nothing more can be done from here (not commanding, taken
+        over, the autopilot link stale, no stop setpoint accepted by the link (PX4's stream
+        ended), or the braking time of
+        ``vehicle.brake_time_s`` over). Until then the loop goes on stopping, logging and
+        broadcasting, so that a run ended by a signal or an abort logs its braking and its
+        followers see it stop."""
+        tel = self.vehicle.tel
+        if (
+            tel is None
+            or not (self.commanding and self.vehicle.armed_by_us)
+            or self.failsafes.took_over
+            or not self._sent_last
+            or abs(tel.state.speed) < HOLD_BELOW_MPS
+            or now - t_end >= brake_time_s(v_end)
+        ):
+            return True
+        return not self.failsafes.watchdog.fresh(
+            now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost
+        )
 
     def _check_stop(self) -> None:
         if self._stop_requested:
@@ -511,9 +559,11 @@ class DeployRunner:
             gap=(gap, closing),
             stop_requested=self._stop_requested,
             late_periods=self._late_periods,
+            ending=self._ending,
         )
         speed, heading_cmd, mode = self.gate.let_through(verdict, want, own, heading_cmd)
         t_sent = self.vehicle.actuate(now, tel, own, verdict, speed, heading_cmd)
+        self._sent_last = not math.isnan(t_sent)
         if self.options.record_timing:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
         self.runlog.row(
@@ -526,8 +576,9 @@ class DeployRunner:
             mode,
             gap,
             sent=self.commanding and not math.isnan(t_sent),
+            valid=known,
         )  # what really went out
-        self.runlog.status(self, now, own, mode, gap)
+        self.runlog.status(self, now, own, mode, gap, valid=known)
         return verdict.reason if verdict.exit else self._end_reason(now, own)
 
     # ------------------------------------------------------------------ tick phases
@@ -546,10 +597,29 @@ class DeployRunner:
     # ------------------------------------------------------------------ helpers
 
     def _finish(self, reason: str, code: int = 0) -> None:
-        """Stop, HOLD, flush and close the log, write metadata. Never raises."""
+        """Stop, HOLD and disarm the vehicle (``VehicleHandler.secure``). Never raises."""
         took_over = self.failsafes.took_over or self.link.pilot_took_over
-        self.vehicle.secure(took_over, drove=self.start_gate.t_start is not None)
-        self.runlog.close(self, reason, code)
+        try:
+            self.vehicle.secure(
+                took_over,
+                drove=self.start_gate.t_start is not None,
+                autopilot_failsafe=self.link.failsafe_took_over,
+            )
+        except Exception:  # noqa: BLE001 - the log and the sockets must still be closed
+            log.error(
+                "vehicle %d: securing failed:\n%s", self.options.vehicle_id, traceback.format_exc()
+            )
+
+    def _close(self, reason: str, code: int) -> None:
+        """Flush and close the log, write metadata, close V2V and the link. Never raises."""
+        try:
+            self.runlog.close(self, reason, code)
+        except Exception:  # noqa: BLE001
+            log.error(
+                "vehicle %d: closing the log failed:\n%s",
+                self.options.vehicle_id,
+                traceback.format_exc(),
+            )
         for closer in (self.v2v.close, self.link.close):
             try:
                 closer()

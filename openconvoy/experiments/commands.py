@@ -153,13 +153,19 @@ def standstill_warning(log: dict[str, Any]) -> str:
 def report(args: argparse.Namespace) -> int:
     """``openconvoy report``: recompute metrics from a log file or a run directory."""
     from openconvoy.experiments.runs import write_json
-    from openconvoy.logs import read_log
+    from openconvoy.logs import read_log_counted
     from openconvoy.outputs import check_output_file
 
     path = Path(args.path)
     if args.out:
         check_output_file(args.out, "--out")
-    log = read_log(path)
+    log, left_out = read_log_counted(path)
+    if left_out:
+        per = ", ".join(f"vehicle {v}: {n}" for v, n in sorted(left_out.items()))
+        print(
+            f"note: left out {sum(left_out.values())} rows written without telemetry "
+            f"(the autopilot link was lost; {per})"
+        )
     lengths = _lengths_from_convoy(args.convoy)
     if lengths is None and "length_m" not in log:
         print(

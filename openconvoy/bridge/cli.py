@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import argparse
 
+from openconvoy.bridge.limits import MIN_RATE_HZ
 from openconvoy.core.args import (
     DURATION,
     FRACTION,
-    RATE_HZ,
     SEED,
     TIMEOUT,
     Flags,
@@ -131,8 +131,22 @@ DEPLOY_FLAGS: Flags = (
         ),
     ),
     ("--log", dict(metavar="DIR", help="write DIR/vehicle_N.csv and DIR/vehicle_N.json")),
-    ("--rate", dict(type=RATE_HZ, metavar="HZ", help="control rate (default: the policy's)")),
+    (
+        "--rate",
+        dict(
+            type=_num(MIN_RATE_HZ, 100.0),
+            metavar="HZ",
+            help=f"control rate, {MIN_RATE_HZ:g}..100 Hz (default: the policy's)",
+        ),
+    ),
     ("--dry-run", dict(action="store_true", help="everything but arming and setpoints")),
+    (
+        "--stay-armed",
+        dict(
+            action="store_true",
+            help="leave the vehicle armed in HOLD at the end (default: at rest, disarmed)",
+        ),
+    ),
     (
         "--passive",
         dict(action="store_true", help="leader driven by a person: broadcast and log only"),
@@ -191,7 +205,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="drive a vehicle with a policy over MAVLink, talking V2V over IPv6 multicast",
         description="The real-time loop on a vehicle: telemetry -> convoy member -> policy -> "
         "setpoints, with BSMs over IPv6 multicast, failsafes and a safety envelope. "
-        "SIGINT/SIGTERM: stop, HOLD, save the log, exit 0.",
+        "SIGINT/SIGTERM: brake to rest (logged and broadcast), HOLD, disarm (unless "
+        "--stay-armed), save the log, exit 0.",
     )
     add_command(
         sub,

@@ -57,6 +57,7 @@ class DeployArgs:
     connect_timeout: float = 30.0
     telemetry_hz: float | None = None
     quiet: bool = False
+    stay_armed: bool = False
 
 
 def _status(quiet: bool):
@@ -93,6 +94,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         connect_timeout_s=a.connect_timeout,
         arm_timeout_s=a.arm_timeout,
         seed=a.seed,
+        stay_armed=a.stay_armed,
     )
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming

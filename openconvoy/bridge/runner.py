@@ -49,6 +49,7 @@ from openconvoy.bridge.failsafes import (
 )
 from openconvoy.bridge.intent import ControllerIntent
 from openconvoy.bridge.leaderdrive import FINISH_TIMEOUT_S, LeaderDriver, LeaderDriving
+from openconvoy.bridge.limits import MIN_RATE_HZ
 from openconvoy.bridge.link import VehicleLink, VehicleLinkError
 from openconvoy.bridge.runlog import EXTRA_COLUMNS, RunLog
 from openconvoy.bridge.safetygate import SafetyGate
@@ -147,8 +148,12 @@ class RunnerOptions:
     def __post_init__(self) -> None:
         # Checked here too (the CLI checks its flags): a NaN rate or timeout would busy-loop
         # setpoints to the autopilot or wait forever.
+        if not (math.isfinite(self.rate_hz) and MIN_RATE_HZ <= self.rate_hz <= 100.0):
+            raise ConfigError(
+                f"control rate (--rate, or the policy's control_rate_hz): {self.rate_hz!r} Hz "
+                f"is out of range; allowed: {MIN_RATE_HZ:g}..100 Hz"
+            )
         for what, value, hi in (
-            ("control rate (--rate, or the policy's control_rate_hz), Hz", self.rate_hz, 100.0),
             ("--connect-timeout, s", self.connect_timeout_s, 86400.0),
             ("--arm-timeout, s", self.arm_timeout_s, 86400.0),
             ("--duration, s", 1.0 if self.duration_s is None else self.duration_s, 7 * 86400.0),

@@ -93,6 +93,13 @@ class SimVehicleConfig:
             meets the whole boot sequence.
         gps_noise_m: standard deviation of position noise on GLOBAL_POSITION_INT.
         seed: seeds the noise.
+        other_streams_hz: messages/s of the firmware's other onboard streams (0 = none;
+            a real PX4 sends ~200/s besides what is requested, shared/sitl-px4): what fills
+            a companion's socket buffer while its loop pauses.
+        hold_drift_mps: PX4: how fast the position estimate drifts while held (m/s; 0 =
+            none). Its Hold drives back to the hold point as the estimate sees it, so a
+            drift past the acceptance radius moves the vehicle: the loops at up to 2.2 m/s
+            of 2 in 14 held firmware vehicles (shared/AUTOPILOTS.md, issue 22's PX4 HOLD).
     """
 
     system_id: int = 1
@@ -118,6 +125,8 @@ class SimVehicleConfig:
     boot_on_connect: bool = False
     gps_noise_m: float = 0.0
     seed: int = 0
+    other_streams_hz: float = 0.0
+    hold_drift_mps: float = 0.0
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("ardupilot", "px4"):
@@ -183,6 +192,7 @@ def make_firmware(config: SimVehicleConfig, state: MotionState) -> ArduPilotRove
         c.home.lon_deg,
         obl_rc_act=c.offboard_loss_action,
         motion=motion,
+        hold_drift_mps=c.hold_drift_mps,
     )
     fw.params["COM_OF_LOSS_T"] = c.offboard_loss_s
     return fw

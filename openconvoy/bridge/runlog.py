@@ -45,6 +45,7 @@ class RunLog:
         on_status: Callable[[str], None],
     ) -> None:
         self.recorder = RunRecorder(log_dir, vehicle_id, EXTRA_COLUMNS)
+        self.applies_loss: bool | None = None  # learnt from the V2V metadata at the first row
         self.status_period_s = status_period_s
         self.on_status = on_status
         self._t_status = -math.inf
@@ -68,6 +69,12 @@ class RunLog:
             return
         m, vid, frame = r.member, r.options.vehicle_id, r.frame
         nan = math.nan
+        if self.applies_loss is None:
+            self.applies_loss = applies_loss(_safe(lambda: r.v2v.metadata) or {})
+        # A vehicle whose V2V applies no loss model writes -1 ("not logged") for what was
+        # delivered and lost: the delivery ratio is over the links that apply loss (a
+        # lossless leader's 100 % would raise the followers' 70 % to 80 %).
+        lossy = self.applies_loss
         self.recorder.row(
             {
                 "t_s": wall,
@@ -86,8 +93,8 @@ class RunLog:
                 "desired_gap_m": frame.desired_gap_m,
                 "spacing_error_m": frame.spacing_error_m,
                 "msgs_sent": m.msgs_sent,
-                "msgs_received": r.exchange.delivered(),
-                "msgs_lost": r.v2v.counters.lost,
+                "msgs_received": r.exchange.delivered() if lossy else -1,
+                "msgs_lost": r.v2v.counters.lost if lossy else -1,
                 "pred_msg_age_s": frame.pred_msg_age_s,
                 "length_m": m.lengths[vid],
                 "msgs_kept": m.msgs_received,
@@ -173,6 +180,14 @@ def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
         "msgs_lost": v2v.counters.lost,
         **r.metadata_extra,
     }
+
+
+def applies_loss(v2v_metadata: dict[str, Any]) -> bool:
+    """Whether a V2V endpoint emulates loss, from its metadata (``comms.v2v.V2V``: a
+    ``loss`` entry; ``bridge.localv2v.LocalV2V``: ``per`` > 0)."""
+    if "loss" in v2v_metadata:
+        return bool(v2v_metadata["loss"])
+    return float(v2v_metadata.get("per") or 0.0) > 0.0
 
 
 def _safe(fn: Callable[[], Any]) -> Any:

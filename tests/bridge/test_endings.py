@@ -179,3 +179,33 @@ def test_after_the_autopilot_dies_rows_are_invalid_and_the_metadata_names_it(
     assert main(["report", str(c.log_dir)]) == 0
     out = capsys.readouterr().out
     assert f"left out {int(invalid.sum())} rows written without telemetry" in out
+
+
+def test_delivery_ratio_is_over_the_followers_lossy_links(tmp_path):
+    """Followers at PER 0.5, the leader lossless (as the firmware runs with ``--per``
+    on the followers only): the run's delivery ratio is the followers' (it was 0.803
+    against their 0.70-0.71 with the leader's 100 % counted)."""
+    from openconvoy.bridge.localv2v import LocalBus, LocalV2V
+    from openconvoy.comms.loss import LossConfig
+    from openconvoy.core.metrics import compute_metrics
+
+    bus = LocalBus()
+
+    def v2v(i, convoy):
+        return LocalV2V(bus, loss=LossConfig(per=0.5), seed=i) if i > 0 else LocalV2V(bus)
+
+    c = make_convoy(tmp_path, n=3, v2v_factory=v2v)
+    try:
+        time.sleep(6.0)
+    finally:
+        c.stop()
+    log = read_log(c.log_dir)
+    metas = [json.loads((c.log_dir / f"vehicle_{i}.json").read_text()) for i in range(3)]
+    rec = sum(m["msgs_received"] for m in metas[1:])
+    lost = sum(m["msgs_lost"] for m in metas[1:])
+    assert rec > 50 and lost > 50 and metas[0]["msgs_lost"] == 0
+    leader_rows = log["vehicle_id"] == 0
+    assert (log["msgs_received"][leader_rows] == -1).all()  # lossless: not counted
+    ratio = compute_metrics(log)["delivery_ratio"]
+    assert ratio == pytest.approx(rec / (rec + lost), abs=0.02)
+    assert 0.4 < ratio < 0.6

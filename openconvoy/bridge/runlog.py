@@ -75,7 +75,7 @@ class RunLog:
         # delivered and lost: the delivery ratio is over the links that apply loss (a
         # lossless leader's 100 % would raise the followers' 70 % to 80 %).
         lossy = self.applies_loss
-        self.recorder.row(
+        if not self.recorder.row(
             {
                 "t_s": wall,
                 "vehicle_id": vid,
@@ -102,7 +102,11 @@ class RunLog:
                 "telemetry_age_s": max(wall - own.t, 0.0),
                 "telemetry_valid": int(valid),
             }
-        )
+        ):
+            self.on_status(
+                f"vehicle {vid}: log write failed ({self.recorder.failed}): stopping the "
+                "vehicle; the log ends here, its metadata is still written"
+            )
 
     def status(
         self,
@@ -133,9 +137,13 @@ class RunLog:
         self.on_status(" | ".join(parts))
 
     def close(self, r: DeployRunner, reason: str, code: int) -> None:
-        """Flush and close the log with the run's metadata (nothing when not recording)."""
-        if self.recorder.recording:
-            self.recorder.close(metadata(r, reason, code))
+        """Flush and close the log with the run's metadata (nothing when it was never
+        opened); a file that cannot be written is one status line, never an exception."""
+        if not self.recorder.created:
+            return
+        why = self.recorder.close(metadata(r, reason, code))
+        if why:
+            self.on_status(f"vehicle {r.options.vehicle_id}: log not fully saved ({why})")
 
 
 def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:

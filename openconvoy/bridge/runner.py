@@ -63,7 +63,7 @@ from openconvoy.bridge.vehicle import (
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, OpenConvoyError
 from openconvoy.core.member import ConvoyMember, Frame, member_config_for
 from openconvoy.core.policy import ConvoyPolicy, as_convoy_policy
 from openconvoy.core.spacing import SpacingConfig
@@ -263,6 +263,20 @@ def gap_ahead(member: ConvoyMember, wall: float) -> tuple[float, float]:
     return (math.nan, 0.0) if est is None else est
 
 
+def great_circle_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
+    """Distance (m) between two WGS-84 points on a sphere of the mean Earth radius
+    (haversine; within 0.5 % of the ellipsoid)."""
+    p1, p2 = math.radians(lat1), math.radians(lat2)
+    dp, dl = p2 - p1, math.radians(lon2 - lon1)
+    h = math.sin(dp / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2
+    return 2.0 * 6_371_008.8 * math.asin(min(1.0, math.sqrt(h)))
+
+
+def _distance_text(d: float) -> str:
+    """``d`` metres as a person says it: "212 m", "7,512 km"."""
+    return f"{d:,.0f} m" if d < 10_000 else f"{d / 1000:,.0f} km"
+
+
 def failure_code(
     failsafes: Failsafes, started: bool, autopilot_failsafe: bool, uncommanded: str = ""
 ) -> int:
@@ -442,9 +456,10 @@ class DeployRunner:
         """Connect, wait for telemetry, arm (unless dry-run/passive), open the log."""
         o = self.options
         self.vehicle.connect(o.connect_timeout_s)
+        self._check_inside_fence()
+        self.runlog.recorder.open()  # before arming: a log that cannot be written refuses
         if self.commanding and not self._stop_requested:
             self.vehicle.arm(o.arm_timeout_s)
-        self.runlog.recorder.open()
         self.policy.reset(o.seed)
         self.leading.reset(o.seed)
         self.on_status(
@@ -452,6 +467,26 @@ class DeployRunner:
             + (" (dry run: no setpoints)" if o.dry_run else "")
             + (" (passive: broadcasting only)" if o.passive else "")
         )
+
+    def _check_inside_fence(self) -> None:
+        """Refuse (before arming) a vehicle that stands outside the geofence, naming how
+        far outside it is (D64: a vehicle 7,500 km from the convoy's origin armed, then
+        latched ``geofence``)."""
+        tel = self.vehicle.tel
+        radius = self.failsafes.envelope.geofence_radius_m
+        if tel is None or not self.commanding:
+            return
+        if math.hypot(tel.state.x, tel.state.y) <= radius:  # as the fence itself measures
+            return
+        lat0, lon0 = self.origin.lat_deg, self.origin.lon_deg
+        d = great_circle_m(lat0, lon0, tel.lat_deg, tel.lon_deg)
+        if d > radius:
+            raise ConfigError(
+                f"vehicle {self.options.vehicle_id} is {_distance_text(d)} from the convoy's "
+                f"origin ({lat0:.6f}, {lon0:.6f}), outside the {radius:g} m geofence "
+                f"(it stands at {tel.lat_deg:.6f}, {tel.lon_deg:.6f}): not arming. Check the "
+                "convoy's origin and the vehicle's position"
+            )
 
     def run(self) -> RunResult:
         """Start, loop until the run ends, stop safely. Never leaves the vehicle moving."""
@@ -464,6 +499,10 @@ class DeployRunner:
             reason = str(exc)
         except KeyboardInterrupt:
             reason = "SIGINT"
+        except OpenConvoyError as exc:  # refused before arming (the log, the geofence)
+            reason = f"refused: {exc}"
+            code = 2
+            self.on_status(f"vehicle {self.options.vehicle_id}: refused: {exc}")
         except (VehicleLinkError, TimeoutError) as exc:  # the vehicle said no, or nothing
             reason = f"error: {exc}"
             code = 1
@@ -474,11 +513,15 @@ class DeployRunner:
             log.error("deploy loop failed:\n%s", traceback.format_exc())
         finally:
             self._finish(reason, code)
-            code = code or failure_code(
-                self.failsafes,
-                self.start_gate.t_start is not None,
-                self.link.failsafe_took_over,
-                self.vehicle.uncommanded,
+            code = (
+                code
+                or failure_code(
+                    self.failsafes,
+                    self.start_gate.t_start is not None,
+                    self.link.failsafe_took_over,
+                    self.vehicle.uncommanded,
+                )
+                or (1 if self.runlog.recorder.failed else 0)
             )
             self._close(reason, code)
         return RunResult(
@@ -584,6 +627,8 @@ class DeployRunner:
             valid=known,
         )  # what really went out
         self.runlog.status(self, now, own, mode, gap, valid=known)
+        if self.runlog.recorder.failed and not verdict.exit:
+            return f"log write failed ({self.runlog.recorder.failed})"
         return verdict.reason if verdict.exit else self._end_reason(now, own)
 
     # ------------------------------------------------------------------ tick phases

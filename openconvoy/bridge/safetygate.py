@@ -95,7 +95,7 @@ class SafetyGate:
                 ending=ending,
             )
         )
-        if verdict.reason and verdict.reason != self.last_reason:
+        if verdict.reason and verdict.reason not in (self.last_reason, ending):
             why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
             self._on_status(
                 f"vehicle {self.member.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else "")

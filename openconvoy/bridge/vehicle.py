@@ -291,7 +291,11 @@ class VehicleHandler:
             self.sleep(1.0 / self.rate_hz)
 
     def _disarm_at_end(self, where: str) -> None:
-        """Disarm at rest, or say that the vehicle stays armed and why."""
+        """Disarm at rest, or say that the vehicle stays armed and why. Both firmwares
+        accept a disarm at rest in their hold mode (recorded: PX4 "Disarmed by external
+        command" in Hold, shared/sitl-px4 boot_and_arm 6.38 s; ArduPilot Rover, shared/sitl
+        boot_and_arm 26.97 s), and a disarmed rover cannot drive loops around a hold point
+        (shared/AUTOPILOTS.md: "End at rest disarmed")."""
         vid = self.vehicle_id
         if self.stay_armed:
             self.on_status(

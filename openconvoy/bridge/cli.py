@@ -105,6 +105,25 @@ VEHICLE_FLAGS: Flags = (
         dict(type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std"),
     ),
     ("--seed", dict(type=SEED, default=0)),
+    (
+        "--hold-drift",
+        dict(
+            type=_num(0.0, 10.0),
+            default=0.0,
+            metavar="MPS",
+            help="PX4: position estimate drift while in Hold, m/s (Hold then drives around "
+            "its hold point, as the firmware did); default 0",
+        ),
+    ),
+    (
+        "--other-streams",
+        dict(
+            type=_num(0.0, 5000.0),
+            default=0.0,
+            metavar="HZ",
+            help="messages/s of the firmware's other streams (a real PX4 sends ~200/s)",
+        ),
+    ),
 )
 """``openconvoy vehicle``'s flags."""
 

@@ -584,6 +584,8 @@ def run_vehicle_cli(args: Any) -> int:
         boot_on_connect=args.boot_on_connect,
         gps_noise_m=args.gps_noise,
         seed=args.seed,
+        hold_drift_mps=getattr(args, "hold_drift", 0.0),
+        other_streams_hz=getattr(args, "other_streams", 0.0),
     )
     vehicle = SimVehicle(args.mavlink, config)
     try:

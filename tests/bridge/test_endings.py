@@ -209,3 +209,12 @@ def test_delivery_ratio_is_over_the_followers_lossy_links(tmp_path):
     ratio = compute_metrics(log)["delivery_ratio"]
     assert ratio == pytest.approx(rec / (rec + lost), abs=0.02)
     assert 0.4 < ratio < 0.6
+    # per follower, in report's metrics.json
+    from openconvoy.cli import main
+
+    assert main(["report", str(c.log_dir)]) == 0
+    per = json.loads((c.log_dir / "metrics.json").read_text())["per_follower"]
+    for i in (1, 2):
+        own = metas[i]["msgs_received"] / (metas[i]["msgs_received"] + metas[i]["msgs_lost"])
+        assert per[str(i)]["delivery_ratio"] == pytest.approx(own, abs=0.02)
+    assert "0" not in per

@@ -499,14 +499,14 @@ class DeployRunner:
             reason = str(exc)
         except KeyboardInterrupt:
             reason = "SIGINT"
-        except OpenConvoyError as exc:  # refused before arming (the log, the geofence)
-            reason = f"refused: {exc}"
-            code = 2
-            self.on_status(f"vehicle {self.options.vehicle_id}: refused: {exc}")
         except (VehicleLinkError, TimeoutError) as exc:  # the vehicle said no, or nothing
             reason = f"error: {exc}"
             code = 1
             log.error("vehicle %d: %s", self.options.vehicle_id, exc)
+        except OpenConvoyError as exc:  # refused before arming (the log, the geofence)
+            reason = f"refused: {exc}"
+            code = 2
+            self.on_status(f"vehicle {self.options.vehicle_id}: refused: {exc}")
         except Exception as exc:  # a runner bug must not leave the vehicle moving
             reason = f"error: {exc}"
             code = 1

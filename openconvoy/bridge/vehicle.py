@@ -25,7 +25,11 @@ shared/sitl-px4 row 23) and ArduPilot's coasts without braking (4.4 s from 2 m/s
 1.9 s for a stop setpoint, shared/sitl rows 20, 23)."""
 RECONNECT_PERIOD_S = 2.0
 """A lost connection is reopened at most this often (s)."""
-UNCOMMANDED_MPS = 0.3
+REST_MPS = 0.3
+"""Reported speeds below this (m/s) count as at rest for the end of a run and the watch
+below: PX4's estimated speed (GLOBAL_POSITION_INT) stays at 0.19-0.22 m/s for a rover
+standing still (shared/sitl-px4, speed steps "1 -> 0": true speed 0)."""
+UNCOMMANDED_MPS = 0.5
 """A vehicle held at rest (HOLD/LOITER, armed) faster than this (m/s) moves uncommanded."""
 UNCOMMANDED_M = 1.0
 """... or farther than this (m) from where it came to rest: PX4's Hold is not a parking
@@ -210,7 +214,7 @@ class VehicleHandler:
             self._rest = None
             return
         if self._rest is None:
-            if abs(own.speed) < HOLD_BELOW_MPS:
+            if abs(own.speed) < REST_MPS:
                 self._rest = (own.x, own.y)
             return
         moved = math.hypot(own.x - self._rest[0], own.y - self._rest[1])
@@ -280,13 +284,13 @@ class VehicleHandler:
         return "the autopilot link is lost (no telemetry or heartbeat)"
 
     def _wait_for_rest(self, timeout_s: float) -> Telemetry | None:
-        """Poll until the vehicle is slower than ``HOLD_BELOW_MPS`` (at most ``timeout_s``
-        s); the newest telemetry."""
+        """Poll until the vehicle is slower than ``REST_MPS`` (at most ``timeout_s`` s);
+        the newest telemetry."""
         end = self.clock() + timeout_s
         tel = self.tel
         while True:
             tel = self.link.poll() or tel
-            if tel is None or abs(tel.state.speed) < HOLD_BELOW_MPS or self.clock() >= end:
+            if tel is None or abs(tel.state.speed) < REST_MPS or self.clock() >= end:
                 return tel
             self.sleep(1.0 / self.rate_hz)
 
@@ -304,7 +308,7 @@ class VehicleHandler:
             )
             return
         tel = self._wait_for_rest(REST_WAIT_S)
-        if tel is not None and abs(tel.state.speed) >= HOLD_BELOW_MPS:
+        if tel is not None and abs(tel.state.speed) >= REST_MPS:
             self.on_status(
                 f"vehicle {vid}: WARNING: still moving at {abs(tel.state.speed):.2f} m/s "
                 f"{REST_WAIT_S:g} s after HOLD; disarming anyway"
@@ -348,7 +352,7 @@ class VehicleHandler:
         if self.stay_armed:
             self.on_status(f"vehicle {vid}: left ARMED in {mode} (--stay-armed; {why})")
             return
-        if tel is not None and abs(tel.state.speed) < HOLD_BELOW_MPS and not self.link.lost:
+        if tel is not None and abs(tel.state.speed) < REST_MPS and not self.link.lost:
             try:
                 self.link.disarm(2.0)
                 self.on_status(f"vehicle {vid}: disarmed ({why}, in {mode})")

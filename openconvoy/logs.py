@@ -198,11 +198,27 @@ def read_log(path: str | Path) -> Log:
         from openconvoy.bag import read_bag  # a ROS 2 bag (sim/deploy --bag): see bag.py
 
         return read_bag(path)
-    parts: list[Log] = [_read_one(f) for f in log_files(path)]
+    return read_log_counted(path)[0]
+
+
+INVALID_COLUMN = "telemetry_valid"
+"""A deploy log's row flag: 0 = written while the autopilot's telemetry was lost (its
+measured values are NaN, not repeated). ``read_log`` leaves such rows out."""
+
+
+def read_log_counted(path: str | Path) -> tuple[Log, dict[int, int]]:
+    """``read_log``, and how many rows each vehicle's log marked invalid (``INVALID_COLUMN``
+    0: no telemetry) and were left out (vehicle id -> rows; empty when none)."""
+    read = [_read_one(f) for f in log_files(path)]
+    parts: list[Log] = [p for p, _ in read]
+    left_out: dict[int, int] = {}
+    for _, counts in read:
+        for vid, n in counts.items():
+            left_out[vid] = left_out.get(vid, 0) + n
     columns = [c for c in parts[0] if all(c in p for p in parts)]
     merged = {c: np.concatenate([p[c] for p in parts]) for c in columns}
     order = np.lexsort((merged["vehicle_id"], merged["t_s"]))
-    return {c: v[order] for c, v in merged.items()}
+    return {c: v[order] for c, v in merged.items()}, left_out
 
 
 def _is_bag_run(p: Path) -> bool:
@@ -221,10 +237,11 @@ _FINITE_COLUMNS = ("t_s", "x_m", "y_m")
 """Columns every row must carry as finite numbers."""
 
 
-def _read_one(path: Path) -> Log:
+def _read_one(path: Path) -> tuple[Log, dict[int, int]]:
     """One CSV log as columns, converted row by row into compact arrays (8 bytes a value;
-    a 1 h, 3-vehicle run is 216,000 rows), never held as strings. Only a regular file:
-    a FIFO or a device (``/dev/zero``) would block or never end (D57)."""
+    a 1 h, 3-vehicle run is 216,000 rows), never held as strings; without the rows marked
+    invalid, counted per vehicle. Only a regular file: a FIFO or a device (``/dev/zero``)
+    would block or never end (D57)."""
     try:
         if path.exists() and not path.is_file():
             raise InputFileError(f"{path}: not a regular file (a log is a CSV file)")
@@ -259,8 +276,17 @@ def _read_one(path: Path) -> Log:
             out[name] = (
                 np.frombuffer(values, dtype=np.float64).copy() if len(values) else np.zeros(0)
             )
+    left_out: dict[int, int] = {}
+    if INVALID_COLUMN in out:
+        keep = out[INVALID_COLUMN] != 0
+        for vid in out["vehicle_id"][~keep]:
+            left_out[int(vid)] = left_out.get(int(vid), 0) + 1
+        out = {c: v[keep] for c, v in out.items()}
+        lines = [n for n, k in zip(lines, keep) if k]
+        if not lines:
+            raise InputFileError(f"{path}: every row is marked invalid (no telemetry)")
     _check_rows(path, out, lines)
-    return out
+    return out, left_out
 
 
 def _columns(path: Path, header: list[str], reader: Any) -> tuple[list[Any], list[int]]:

@@ -155,7 +155,7 @@ PROBES: list[tuple[str, dict, list[str], str]] = [
         "D6-rate-1e6",
         {"c.toml": CONVOY},
         [*DEPLOY, "--rate", "1e6"],
-        "--rate: 1e6 is out of range; allowed: a finite number in (0, 100]",
+        "--rate: 1e6 is out of range; allowed: a finite number in [5, 100]",
     ),
     ("D6-rate-inf", {"c.toml": CONVOY}, [*DEPLOY, "--rate", "inf"], "--rate"),
     (

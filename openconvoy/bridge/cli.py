@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import argparse
 
+from openconvoy.bridge.limits import MIN_RATE_HZ
 from openconvoy.core.args import (
     DURATION,
     FRACTION,
     POLICY_ARG_HELP,
-    RATE_HZ,
     SEED,
     TIMEOUT,
     Flags,
@@ -106,6 +106,25 @@ VEHICLE_FLAGS: Flags = (
         dict(type=_num(0.0, 1000.0), default=0.0, metavar="M", help="position noise std"),
     ),
     ("--seed", dict(type=SEED, default=0)),
+    (
+        "--hold-drift",
+        dict(
+            type=_num(0.0, 10.0),
+            default=0.0,
+            metavar="MPS",
+            help="PX4: position estimate drift while in Hold, m/s (Hold then drives around "
+            "its hold point, as the firmware did); default 0",
+        ),
+    ),
+    (
+        "--other-streams",
+        dict(
+            type=_num(0.0, 5000.0),
+            default=0.0,
+            metavar="HZ",
+            help="messages/s of the firmware's other streams (a real PX4 sends ~200/s)",
+        ),
+    ),
 )
 """``openconvoy vehicle``'s flags."""
 
@@ -169,8 +188,22 @@ DEPLOY_FLAGS: Flags = (
             help="also record DIR/vehicle_N_bag, a ROS 2 bag (MCAP) with the V2V bytes",
         ),
     ),
-    ("--rate", dict(type=RATE_HZ, metavar="HZ", help="control rate (default: the policy's)")),
+    (
+        "--rate",
+        dict(
+            type=_num(MIN_RATE_HZ, 100.0),
+            metavar="HZ",
+            help=f"control rate, {MIN_RATE_HZ:g}..100 Hz (default: the policy's)",
+        ),
+    ),
     ("--dry-run", dict(action="store_true", help="everything but arming and setpoints")),
+    (
+        "--stay-armed",
+        dict(
+            action="store_true",
+            help="leave the vehicle armed in HOLD at the end (default: at rest, disarmed)",
+        ),
+    ),
     (
         "--passive",
         dict(action="store_true", help="leader driven by a person: broadcast and log only"),
@@ -229,7 +262,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="drive a vehicle with a policy over MAVLink, talking V2V over IPv6 multicast",
         description="The real-time loop on a vehicle: telemetry -> convoy member -> policy -> "
         "setpoints, with BSMs over IPv6 multicast, failsafes and a safety envelope. "
-        "SIGINT/SIGTERM: stop, HOLD, save the log, exit 0.",
+        "SIGINT/SIGTERM: brake to rest (logged and broadcast), HOLD, disarm (unless "
+        "--stay-armed), save the log, exit 0.",
     )
     add_command(
         sub,

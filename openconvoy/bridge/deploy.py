@@ -23,15 +23,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-import numpy as np
-
-from openconvoy.bridge.runner import DeployRunner, RunnerOptions, RunResult
-from openconvoy.comms.geodesy import Origin
-from openconvoy.comms.loss import LossConfig
-from openconvoy.convoy import ConvoyConfig, load_convoy
 from openconvoy.core.errors import ConfigError
+
+if TYPE_CHECKING:  # imported when a deploy runs, after its signal handlers are in place
+    from openconvoy.bridge.runner import DeployRunner
+    from openconvoy.comms.geodesy import Origin
+    from openconvoy.convoy import ConvoyConfig
 
 
 @dataclass(frozen=True)
@@ -62,6 +61,7 @@ class DeployArgs:
     mavros_ns: str = "/mavros"
     autopilot: Literal["ardupilot", "px4"] | None = None
     bag: bool = False
+    stay_armed: bool = False
 
 
 def _status(quiet: bool):
@@ -74,6 +74,10 @@ def _status(quiet: bool):
 
 def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRunner:
     """Everything ``deploy`` runs, not yet connected (sockets opened, no message sent)."""
+    from openconvoy.bridge.recorder import RunRecorder
+    from openconvoy.bridge.runner import DeployRunner, RunnerOptions
+    from openconvoy.comms.geodesy import Origin
+    from openconvoy.convoy import load_convoy
     from openconvoy.envs.vehicles import vehicle_preset
     from openconvoy.outputs import check_output_dir
     from openconvoy.policies import load_policy
@@ -98,6 +102,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
         connect_timeout_s=a.connect_timeout,
         arm_timeout_s=a.arm_timeout,
         seed=a.seed,
+        stay_armed=a.stay_armed,
     )
     if a.link == "mavlink" and not a.mavlink:
         raise ConfigError("--mavlink URL is required with --link mavlink")
@@ -106,6 +111,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     auth = vehicle_authenticator(convoy, a.vehicle_id, a.convoy)  # before any file or socket
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming
+        RunRecorder(a.log, a.vehicle_id).check_free()  # a second deploy of this vehicle
     if auth is not None:
         status(
             f"vehicle {a.vehicle_id}: V2V signed as {auth.credentials.certificate.name} "
@@ -217,6 +223,9 @@ def _make_v2v(
 ) -> Any:
     """The vehicle's V2V endpoint (its sockets open), with the emulated loss of ``--per``;
     with a ``bag``, every IPv6 datagram sent and received is recorded in it too."""
+    import numpy as np
+
+    from openconvoy.comms.loss import LossConfig
     from openconvoy.comms.tempids import TempIds
     from openconvoy.comms.v2v import V2V, LinkConfig
 
@@ -284,35 +293,75 @@ def vehicle_authenticator(convoy: ConvoyConfig, vehicle_id: int, convoy_path: st
     return Authenticator(creds, window_s=convoy.v2v.replay_window_s)
 
 
-def run_deploy(a: DeployArgs) -> int:
-    """Build, install signal handlers, run; the exit status (0 after a clean stop)."""
-    runner = build_runner(a)
-    previous: dict[signal.Signals, Any] = {}
+class SignalGate:
+    """SIGINT/SIGTERM from the moment ``deploy`` starts: remembered while the runner is
+    being built (imports, sockets), then passed on to it (``DeployRunner.request_stop``):
+    a signal at any time ends the deploy with its line and exit 0 (D66)."""
 
-    def on_signal(signum: int, frame: Any) -> None:
-        runner.request_stop(signal.Signals(signum).name)
+    def __init__(self) -> None:
+        self.name = ""
+        self.runner: DeployRunner | None = None
+        self._previous: dict[signal.Signals, Any] = {}
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        previous[sig] = signal.signal(sig, on_signal)
-    try:
-        result: RunResult = runner.run()
-    finally:
-        for sig, handler in previous.items():
+    def install(self) -> SignalGate:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self.name = self.name or signal.Signals(signum).name
+        if self.runner is not None:
+            self.runner.request_stop(signal.Signals(signum).name)
+
+    def attach(self, runner: DeployRunner) -> None:
+        """From now on signals go to ``runner`` (one that came already, too)."""
+        self.runner = runner
+        if self.name:
+            runner.request_stop(self.name)
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
             signal.signal(sig, handler)
+        self._previous.clear()
+
+
+def run_deploy(a: DeployArgs, gate: SignalGate | None = None) -> int:
+    """Build, pass signals on, run; the exit status (0 after a clean stop)."""
+    own = gate is None
+    gate = gate or SignalGate().install()
+    try:
+        if gate.name:
+            print(f"vehicle {a.vehicle_id}: stopped before starting ({gate.name})", file=sys.stderr)
+            return 0
+        runner = build_runner(a)
+        gate.attach(runner)
+        result = runner.run()
+    finally:
+        if own:
+            gate.restore()
     summary = (
         f"vehicle {a.vehicle_id}: {result.reason}; {result.ticks} ticks, "
         f"{result.overruns} overruns, {result.policy_errors} policy errors"
     )
-    if a.log:
-        summary += f"; log in {Path(a.log) / f'vehicle_{a.vehicle_id}.csv'}"
+    written = runner.runlog.recorder.written
+    if written is not None:  # only a log that was created (not one never opened)
+        summary += f"; log in {written}"
+    elif a.log:
+        summary += "; no log written (the run ended before it began)"
     print(summary, file=sys.stderr, flush=True)
     return result.exit_code
 
 
 def deploy_from_namespace(args: argparse.Namespace) -> int:
-    """The CLI handler: argparse namespace -> ``run_deploy``."""
-    fields = DeployArgs.__dataclass_fields__
-    return run_deploy(DeployArgs(**{k: v for k, v in vars(args).items() if k in fields}))
+    """The CLI handler: argparse namespace -> ``run_deploy``; signals are caught from
+    here on, before the runner's modules are imported."""
+    gate = SignalGate().install()
+    try:
+        fields = DeployArgs.__dataclass_fields__
+        a = DeployArgs(**{k: v for k, v in vars(args).items() if k in fields})
+        return run_deploy(a, gate)
+    finally:
+        gate.restore()
 
 
 def abort_from_namespace(args: argparse.Namespace) -> int:
@@ -325,6 +374,8 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
     required = False
     keys_dir: Path | None = None
     if args.convoy:
+        from openconvoy.convoy import load_convoy
+
         v = load_convoy(args.convoy).v2v
         kwargs.update(group=v.group, port=v.port, hop_limit=v.hop_limit)
         compat = compat or v.compat

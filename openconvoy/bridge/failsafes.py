@@ -169,6 +169,8 @@ class TickInputs:
         policy_error: the policy raised this tick (its message), "" if not.
         held: the autopilot reports its hold mode.
         late_periods: how late this tick started, in loop periods (0 = on time).
+        ending: the run is over for this reason (duration reached) and brakes to rest:
+            stop, no failsafe ("" = driving on).
     """
 
     now: float
@@ -189,6 +191,7 @@ class TickInputs:
     policy_error: str = ""
     held: bool = False
     late_periods: float = 0.0
+    ending: str = ""
 
 
 @dataclass
@@ -225,6 +228,8 @@ class Failsafes:
                 self.exiting = inp.stop_requested or "convoy abort"
                 self._fire(now, self.exiting)
             return Verdict(STOP, hold=True, exit=True, failsafe=True, reason=self.exiting)
+        if inp.ending:  # a completed run braking to rest: no rule can fire any more
+            return Verdict(STOP, hold=True, exit=True, reason=inp.ending)
         link = self.watchdog.update(now, inp.t_telemetry, inp.t_heartbeat, inp.link_open)
         if link == "lost":
             if self.watchdog.t_lost == now:

@@ -18,7 +18,7 @@ from openconvoy.core.state import VehicleState
 if TYPE_CHECKING:
     from openconvoy.bridge.runner import DeployRunner
 
-EXTRA_COLUMNS = ("length_m", "msgs_kept", "loop_overruns", "telemetry_age_s")
+EXTRA_COLUMNS = ("length_m", "msgs_kept", "loop_overruns", "telemetry_age_s", "telemetry_valid")
 """Numeric log columns after DESIGN.md's: the vehicle's length (as ``sim`` writes, so
 ``report`` counts collisions from the log alone), the messages the Rx gate kept, the loop
 overruns so far, and how old the telemetry behind the row was (s; ``fit-plant`` removes it
@@ -45,6 +45,7 @@ class RunLog:
         on_status: Callable[[str], None],
     ) -> None:
         self.recorder = RunRecorder(log_dir, vehicle_id, EXTRA_COLUMNS)
+        self.applies_loss: bool | None = None  # learnt from the V2V metadata at the first row
         self.status_period_s = status_period_s
         self.on_status = on_status
         self._t_status = -math.inf
@@ -60,22 +61,31 @@ class RunLog:
         mode: str,
         gap: float,
         sent: bool,
+        valid: bool = True,
     ) -> None:
-        """This tick's row: what was measured, and what was commanded (NaN if nothing went out)."""
+        """This tick's row: what was measured (NaN when the telemetry is not ``valid``:
+        lost, not repeated), and what was commanded (NaN if nothing went out)."""
         if not self.recorder.recording:
             return
         m, vid, frame = r.member, r.options.vehicle_id, r.frame
-        self.recorder.row(
+        nan = math.nan
+        if self.applies_loss is None:
+            self.applies_loss = applies_loss(_safe(lambda: r.v2v.metadata) or {})
+        # A vehicle whose V2V applies no loss model writes -1 ("not logged") for what was
+        # delivered and lost: the delivery ratio is over the links that apply loss (a
+        # lossless leader's 100 % would raise the followers' 70 % to 80 %).
+        lossy = self.applies_loss
+        if not self.recorder.row(
             {
                 "t_s": wall,
                 "vehicle_id": vid,
-                "x_m": own.x,
-                "y_m": own.y,
-                "lat_deg": tel.lat_deg,
-                "lon_deg": tel.lon_deg,
-                "speed_mps": own.speed,
-                "heading_rad": own.heading,
-                "accel_mps2": own.accel,
+                "x_m": own.x if valid else nan,
+                "y_m": own.y if valid else nan,
+                "lat_deg": tel.lat_deg if valid else nan,
+                "lon_deg": tel.lon_deg if valid else nan,
+                "speed_mps": own.speed if valid else nan,
+                "heading_rad": own.heading if valid else nan,
+                "accel_mps2": own.accel if valid else nan,
                 "cmd_speed_mps": speed if sent else math.nan,
                 "cmd_heading_change_rad": change if sent else math.nan,
                 "mode": mode,
@@ -83,24 +93,43 @@ class RunLog:
                 "desired_gap_m": frame.desired_gap_m,
                 "spacing_error_m": frame.spacing_error_m,
                 "msgs_sent": m.msgs_sent,
-                "msgs_received": r.exchange.delivered(),
-                "msgs_lost": r.v2v.counters.lost,
+                "msgs_received": r.exchange.delivered() if lossy else -1,
+                "msgs_lost": r.v2v.counters.lost if lossy else -1,
                 "pred_msg_age_s": frame.pred_msg_age_s,
                 "length_m": m.lengths[vid],
                 "msgs_kept": m.msgs_received,
                 "loop_overruns": r.timer.overruns if r.timer else 0,
                 "telemetry_age_s": max(wall - own.t, 0.0),
+                "telemetry_valid": int(valid),
             }
-        )
+        ):
+            self.on_status(
+                f"vehicle {vid}: log write failed ({self.recorder.failed}): stopping the "
+                "vehicle; the log ends here, its metadata is still written"
+            )
 
-    def status(self, r: DeployRunner, now: float, own: VehicleState, mode: str, gap: float) -> None:
-        """A status line every ``status_period_s``."""
+    def status(
+        self,
+        r: DeployRunner,
+        now: float,
+        own: VehicleState,
+        mode: str,
+        gap: float,
+        valid: bool = True,
+    ) -> None:
+        """A status line every ``status_period_s`` (without telemetry: how long none came,
+        not the last speed)."""
         p = self.status_period_s
         if p <= 0 or now - self._t_status < p:
             return
         self._t_status = now
         m = r.member
-        parts = [f"vehicle {r.options.vehicle_id}", mode, f"v {own.speed:4.2f} m/s"]
+        tel = r.vehicle.tel
+        if valid or tel is None:
+            motion = f"v {own.speed:4.2f} m/s"
+        else:
+            motion = f"no telemetry for {max(0.0, now - tel.t_telemetry):.1f} s"
+        parts = [f"vehicle {r.options.vehicle_id}", mode, motion]
         if not r.is_leader:
             parts.append(f"gap {gap:5.2f} m (want {r.frame.desired_gap_m:4.1f})")
             parts.append(f"age {r.frame.pred_msg_age_s:4.2f} s")
@@ -108,9 +137,13 @@ class RunLog:
         self.on_status(" | ".join(parts))
 
     def close(self, r: DeployRunner, reason: str, code: int) -> None:
-        """Flush and close the log with the run's metadata (nothing when not recording)."""
-        if self.recorder.recording:
-            self.recorder.close(metadata(r, reason, code))
+        """Flush and close the log with the run's metadata (nothing when it was never
+        opened); a file that cannot be written is one status line, never an exception."""
+        if not self.recorder.created:
+            return
+        why = self.recorder.close(metadata(r, reason, code))
+        if why:
+            self.on_status(f"vehicle {r.options.vehicle_id}: log not fully saved ({why})")
 
 
 def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
@@ -127,7 +160,9 @@ def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
         "rate_hz": o.rate_hz,
         "dry_run": o.dry_run,
         "passive": o.passive,
-        "autopilot": _safe(lambda: link.autopilot),
+        "autopilot": r.vehicle.autopilot or _safe(lambda: link.autopilot),
+        "stay_armed": o.stay_armed,
+        "uncommanded_motion": r.vehicle.uncommanded or None,
         "telemetry_rates_hz": link.telemetry_rates,
         "v2v": _safe(lambda: v2v.metadata) or {},
         "t_begin_s": r.t_begin_wall,
@@ -170,6 +205,14 @@ def _act_times(r: DeployRunner) -> dict[str, float] | None:
         "p99": float(np.percentile(t, 99)),
         "max": float(t.max()),
     }
+
+
+def applies_loss(v2v_metadata: dict[str, Any]) -> bool:
+    """Whether a V2V endpoint emulates loss, from its metadata (``comms.v2v.V2V``: a
+    ``loss`` entry; ``bridge.localv2v.LocalV2V``: ``per`` > 0)."""
+    if "loss" in v2v_metadata:
+        return bool(v2v_metadata["loss"])
+    return float(v2v_metadata.get("per") or 0.0) > 0.0
 
 
 def _safe(fn: Callable[[], Any]) -> Any:

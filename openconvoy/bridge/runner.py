@@ -49,14 +49,21 @@ from openconvoy.bridge.failsafes import (
 )
 from openconvoy.bridge.intent import ControllerIntent
 from openconvoy.bridge.leaderdrive import FINISH_TIMEOUT_S, LeaderDriver, LeaderDriving
+from openconvoy.bridge.limits import MIN_RATE_HZ
 from openconvoy.bridge.link import VehicleLink, VehicleLinkError
 from openconvoy.bridge.runlog import EXTRA_COLUMNS, RunLog
 from openconvoy.bridge.safetygate import SafetyGate
-from openconvoy.bridge.vehicle import HOLD_BELOW_MPS, HOLD_MODES, StopRequested, VehicleHandler
+from openconvoy.bridge.vehicle import (
+    HOLD_BELOW_MPS,
+    HOLD_MODES,
+    StopRequested,
+    VehicleHandler,
+    brake_time_s,
+)
 from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
-from openconvoy.core.errors import ConfigError
+from openconvoy.core.errors import ConfigError, OpenConvoyError
 from openconvoy.core.member import ConvoyMember, Frame, member_config_for
 from openconvoy.core.plans import Plan, PlanningPolicy, braking_plan
 from openconvoy.core.policy import ConvoyPolicy, act_time_report, as_convoy_policy
@@ -121,6 +128,8 @@ class RunnerOptions:
         status_period_s: status line period (s); 0 = none.
         record_timing: keep per-tick timings (benchmarks).
         seed: seeds the leader scenario's randomness.
+        stay_armed: leave the vehicle armed in HOLD at the end (``--stay-armed``); by
+            default a run ends with its vehicle at rest and disarmed.
     """
 
     vehicle_id: int
@@ -135,12 +144,17 @@ class RunnerOptions:
     status_period_s: float = 1.0
     record_timing: bool = False
     seed: int = 0
+    stay_armed: bool = False
 
     def __post_init__(self) -> None:
         # Checked here too (the CLI checks its flags): a NaN rate or timeout would busy-loop
         # setpoints to the autopilot or wait forever.
+        if not (math.isfinite(self.rate_hz) and MIN_RATE_HZ <= self.rate_hz <= 100.0):
+            raise ConfigError(
+                f"control rate (--rate, or the policy's control_rate_hz): {self.rate_hz!r} Hz "
+                f"is out of range; allowed: {MIN_RATE_HZ:g}..100 Hz"
+            )
         for what, value, hi in (
-            ("control rate (--rate, or the policy's control_rate_hz), Hz", self.rate_hz, 100.0),
             ("--connect-timeout, s", self.connect_timeout_s, 86400.0),
             ("--arm-timeout, s", self.arm_timeout_s, 86400.0),
             ("--duration, s", 1.0 if self.duration_s is None else self.duration_s, 7 * 86400.0),
@@ -263,11 +277,28 @@ def gap_ahead(member: ConvoyMember, wall: float) -> tuple[float, float]:
     return (math.nan, 0.0) if est is None else est
 
 
-def failure_code(failsafes: Failsafes, started: bool, autopilot_failsafe: bool) -> int:
+def great_circle_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
+    """Distance (m) between two WGS-84 points on a sphere of the mean Earth radius
+    (haversine; within 0.5 % of the ellipsoid)."""
+    p1, p2 = math.radians(lat1), math.radians(lat2)
+    dp, dl = p2 - p1, math.radians(lon2 - lon1)
+    h = math.sin(dp / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2
+    return 2.0 * 6_371_008.8 * math.asin(min(1.0, math.sqrt(h)))
+
+
+def _distance_text(d: float) -> str:
+    """``d`` metres as a person says it: "212 m", "7,512 km"."""
+    return f"{d:,.0f} m" if d < 10_000 else f"{d / 1000:,.0f} km"
+
+
+def failure_code(
+    failsafes: Failsafes, started: bool, autopilot_failsafe: bool, uncommanded: str = ""
+) -> int:
     """1 when the run ended by a failsafe, a lost autopilot link, a takeover before the
-    convoy ``started`` or an autopilot failsafe; 0 when it completed or a person stopped it
-    (signal, ``abort``) with nothing of that kind on the way."""
-    if failsafes.latched or failsafes.watchdog.was_lost:
+    convoy ``started``, an autopilot failsafe or uncommanded motion while held; 0 when it
+    completed or a person stopped it (signal, ``abort``) with nothing of that kind on the
+    way."""
+    if failsafes.latched or failsafes.watchdog.was_lost or uncommanded:
         return 1
     if failsafes.took_over and (not started or autopilot_failsafe):
         return 1
@@ -369,6 +400,7 @@ class DeployRunner:
         bookkeeping)."""
         o = self.options
         self._stop_requested = ""
+        self._ending = ""  # why the run ends, while the loop brakes to rest
         # The lambdas read ``self.sleep`` / ``self.on_status`` at call time (tests swap them).
         status = lambda line: self.on_status(line)  # noqa: E731
         self.vehicle = VehicleHandler(
@@ -381,6 +413,8 @@ class DeployRunner:
             sleep=lambda s: self.sleep(s),
             on_status=status,
             check_stop=self._check_stop,
+            stay_armed=o.stay_armed,
+            on_event=lambda why: self.failsafes.events.append((self.clock(), why)),
         )
         self.start_gate = ConvoyStart(
             o.vehicle_id,
@@ -420,6 +454,7 @@ class DeployRunner:
         )
         self.timer: LoopTimer | None = None
         self._late_periods = 0.0
+        self._sent_last = False  # the last tick's setpoint went out
         self.t_begin_wall = self.wall()
 
     # ------------------------------------------------------------------ control
@@ -444,9 +479,10 @@ class DeployRunner:
         """Connect, wait for telemetry, arm (unless dry-run/passive), open the log."""
         o = self.options
         self.vehicle.connect(o.connect_timeout_s)
+        self._check_inside_fence()
+        self.runlog.recorder.open()  # before arming: a log that cannot be written refuses
         if self.commanding and not self._stop_requested:
             self.vehicle.arm(o.arm_timeout_s)
-        self.runlog.recorder.open()
         self.policy.reset(o.seed)
         self.leading.reset(o.seed)
         self.on_status(
@@ -454,6 +490,26 @@ class DeployRunner:
             + (" (dry run: no setpoints)" if o.dry_run else "")
             + (" (passive: broadcasting only)" if o.passive else "")
         )
+
+    def _check_inside_fence(self) -> None:
+        """Refuse (before arming) a vehicle that stands outside the geofence, naming how
+        far outside it is (D64: a vehicle 7,500 km from the convoy's origin armed, then
+        latched ``geofence``)."""
+        tel = self.vehicle.tel
+        radius = self.failsafes.envelope.geofence_radius_m
+        if tel is None or not self.commanding:
+            return
+        if math.hypot(tel.state.x, tel.state.y) <= radius:  # as the fence itself measures
+            return
+        lat0, lon0 = self.origin.lat_deg, self.origin.lon_deg
+        d = great_circle_m(lat0, lon0, tel.lat_deg, tel.lon_deg)
+        if d > radius:
+            raise ConfigError(
+                f"vehicle {self.options.vehicle_id} is {_distance_text(d)} from the convoy's "
+                f"origin ({lat0:.6f}, {lon0:.6f}), outside the {radius:g} m geofence "
+                f"(it stands at {tel.lat_deg:.6f}, {tel.lon_deg:.6f}): not arming. Check the "
+                "convoy's origin and the vehicle's position"
+            )
 
     def run(self) -> RunResult:
         """Start, loop until the run ends, stop safely. Never leaves the vehicle moving."""
@@ -470,16 +526,28 @@ class DeployRunner:
             reason = f"error: {exc}"
             code = 1
             log.error("vehicle %d: %s", self.options.vehicle_id, exc)
+        except OpenConvoyError as exc:  # refused before arming (the log, the geofence)
+            reason = f"refused: {exc}"
+            code = 2
+            self.on_status(f"vehicle {self.options.vehicle_id}: refused: {exc}")
         except Exception as exc:  # a runner bug must not leave the vehicle moving
             reason = f"error: {exc}"
             code = 1
             log.error("deploy loop failed:\n%s", traceback.format_exc())
         finally:
-            code = code or failure_code(
-                self.failsafes, self.start_gate.t_start is not None, self.link.failsafe_took_over
-            )
-            code = code or (1 if self.start_gate.refused else 0)
             self._finish(reason, code)
+            code = (
+                code
+                or failure_code(
+                    self.failsafes,
+                    self.start_gate.t_start is not None,
+                    self.link.failsafe_took_over,
+                    self.vehicle.uncommanded,
+                )
+                or (1 if self.runlog.recorder.failed else 0)
+                or (1 if self.start_gate.refused else 0)
+            )
+            self._close(reason, code)
         return RunResult(
             exit_code=code,
             reason=reason,
@@ -491,9 +559,11 @@ class DeployRunner:
         )
 
     def _loop(self) -> str:
-        """Tick at the control rate until a tick says why the run ends."""
+        """Tick at the control rate until a tick says why the run ends, then on (stop
+        setpoints, log rows and broadcasts) until the vehicle is at rest (``_braked``)."""
         period = 1.0 / self.options.rate_hz
         self.timer = timer = LoopTimer(period, self.clock())
+        ending, t_end, v_end = "", math.nan, 0.0
         while True:
             wait = timer.wait_time(self.clock())
             if wait > 0:
@@ -501,8 +571,34 @@ class DeployRunner:
             t_tick = self.clock()
             self._late_periods = timer.begin(t_tick) / period
             done = self.tick(t_tick)
-            if done:
-                return done
+            if done and not ending:
+                ending, t_end = done, t_tick
+                self._ending = done  # the next ticks stop the vehicle (the gate's STOP)
+                v_end = abs(self.vehicle.tel.state.speed) if self.vehicle.tel else 0.0
+            if ending and self._braked(t_tick, t_end, v_end):
+                return ending
+
+    def _braked(self, now: float, t_end: float, v_end: float) -> bool:
+        """After the tick that ended the run (at ``t_end``, at ``v_end`` m/s): whether the
+        vehicle is at rest, or nothing more can be done from here (not commanding, taken
+        over, the autopilot link stale, no stop setpoint accepted by the link (PX4's stream
+        ended), or the braking time of
+        ``vehicle.brake_time_s`` over). Until then the loop goes on stopping, logging and
+        broadcasting, so that a run ended by a signal or an abort logs its braking and its
+        followers see it stop."""
+        tel = self.vehicle.tel
+        if (
+            tel is None
+            or not (self.commanding and self.vehicle.armed_by_us)
+            or self.failsafes.took_over
+            or not self._sent_last
+            or abs(tel.state.speed) < HOLD_BELOW_MPS
+            or now - t_end >= brake_time_s(v_end)
+        ):
+            return True
+        return not self.failsafes.watchdog.fresh(
+            now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost
+        )
 
     def _start_refusal(self) -> str:
         """The V2V link's reason not to start ("" = none; ``comms.v2v.V2V.start_refusal``)."""
@@ -552,11 +648,13 @@ class DeployRunner:
             gap=(gap, closing),
             stop_requested=self._stop_requested,
             late_periods=self._late_periods,
+            ending=self._ending,
         )
         speed, heading_cmd, mode = self.gate.let_through(verdict, want, own, heading_cmd)
         if self._planning is not None:
             self.exchange.offer_plan(self._own_plan(mode, own, wall))
         t_sent = self.vehicle.actuate(now, tel, own, verdict, speed, heading_cmd)
+        self._sent_last = not math.isnan(t_sent)
         if self.options.record_timing:
             self.timings.append(TickTiming(now, t_polled, t_sent, tel.t_telemetry))
         self.runlog.row(
@@ -569,8 +667,11 @@ class DeployRunner:
             mode,
             gap,
             sent=self.commanding and not math.isnan(t_sent),
+            valid=known,
         )  # what really went out
-        self.runlog.status(self, now, own, mode, gap)
+        self.runlog.status(self, now, own, mode, gap, valid=known)
+        if self.runlog.recorder.failed and not verdict.exit:
+            return f"log write failed ({self.runlog.recorder.failed})"
         return verdict.reason if verdict.exit else self._end_reason(now, own)
 
     # ------------------------------------------------------------------ tick phases
@@ -597,10 +698,29 @@ class DeployRunner:
     # ------------------------------------------------------------------ helpers
 
     def _finish(self, reason: str, code: int = 0) -> None:
-        """Stop, HOLD, flush and close the log, write metadata. Never raises."""
+        """Stop, HOLD and disarm the vehicle (``VehicleHandler.secure``). Never raises."""
         took_over = self.failsafes.took_over or self.link.pilot_took_over
-        self.vehicle.secure(took_over, drove=self.start_gate.t_start is not None)
-        self.runlog.close(self, reason, code)
+        try:
+            self.vehicle.secure(
+                took_over,
+                drove=self.start_gate.t_start is not None,
+                autopilot_failsafe=self.link.failsafe_took_over,
+            )
+        except Exception:  # noqa: BLE001 - the log and the sockets must still be closed
+            log.error(
+                "vehicle %d: securing failed:\n%s", self.options.vehicle_id, traceback.format_exc()
+            )
+
+    def _close(self, reason: str, code: int) -> None:
+        """Flush and close the log, write metadata, close V2V and the link. Never raises."""
+        try:
+            self.runlog.close(self, reason, code)
+        except Exception:  # noqa: BLE001
+            log.error(
+                "vehicle %d: closing the log failed:\n%s",
+                self.options.vehicle_id,
+                traceback.format_exc(),
+            )
         for closer in (self.v2v.close, self.link.close):
             try:
                 closer()

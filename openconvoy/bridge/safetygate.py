@@ -65,6 +65,7 @@ class SafetyGate:
         gap: tuple[float, float],
         stop_requested: str,
         late_periods: float,
+        ending: str = "",
     ) -> Verdict:
         """The verdict at (monotonic, wall) ``clocks`` (s) on ``want`` steered to
         ``heading_cmd`` (rad), with the (gap m, closing m/s) ahead; a status line when
@@ -91,9 +92,10 @@ class SafetyGate:
                 stale_stop=following and self.member.mode == "stop",
                 held=tel.mode in HOLD_MODES,
                 late_periods=late_periods,
+                ending=ending,
             )
         )
-        if verdict.reason and verdict.reason != self.last_reason:
+        if verdict.reason and verdict.reason not in (self.last_reason, ending):
             why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
             self._on_status(
                 f"vehicle {self.member.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else "")

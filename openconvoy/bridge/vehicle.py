@@ -25,6 +25,19 @@ shared/sitl-px4 row 23) and ArduPilot's coasts without braking (4.4 s from 2 m/s
 1.9 s for a stop setpoint, shared/sitl rows 20, 23)."""
 RECONNECT_PERIOD_S = 2.0
 """A lost connection is reopened at most this often (s)."""
+REST_MPS = 0.3
+"""Reported speeds below this (m/s) count as at rest for the end of a run and the watch
+below: PX4's estimated speed (GLOBAL_POSITION_INT) stays at 0.19-0.22 m/s for a rover
+standing still (shared/sitl-px4, speed steps "1 -> 0": true speed 0)."""
+UNCOMMANDED_MPS = 0.5
+"""A vehicle held at rest (HOLD/LOITER, armed) faster than this (m/s) moves uncommanded."""
+UNCOMMANDED_M = 1.0
+"""... or farther than this (m) from where it came to rest: PX4's Hold is not a parking
+brake (shared/AUTOPILOTS.md: with its position estimate drifting ~0.5 m at rest, past the
+acceptance radius, PX4 drove loops around its hold point at up to 2.2 m/s in 2 of 14 held
+vehicles); GPS noise at rest stays well below a metre."""
+REST_WAIT_S = 5.0
+"""At the end, how long to wait for a vehicle to come to rest before disarming it (s)."""
 
 
 class StopRequested(Exception):
@@ -49,6 +62,9 @@ class VehicleHandler:
         clock: monotonic clock (s); sleep: sleeps that many seconds.
         on_status: receives status lines.
         check_stop: raises ``StopRequested`` when a stop was asked for.
+        stay_armed: leave the vehicle armed in HOLD at the end (``--stay-armed``); by
+            default a run ends with its vehicle at rest and disarmed.
+        on_event: records a failsafe-like event (uncommanded motion) for the metadata.
     """
 
     def __init__(
@@ -63,6 +79,8 @@ class VehicleHandler:
         sleep: Callable[[float], None],
         on_status: Callable[[str], None],
         check_stop: Callable[[], None],
+        stay_armed: bool = False,
+        on_event: Callable[[str], None] | None = None,
     ) -> None:
         self.link = link
         self.watchdog = watchdog
@@ -73,6 +91,13 @@ class VehicleHandler:
         self.sleep = sleep
         self.on_status = on_status
         self.check_stop = check_stop
+        self.stay_armed = stay_armed
+        self.on_event = on_event or (lambda why: None)
+        self.autopilot: str | None = None
+        """The firmware the vehicle identified itself as at connect (kept after its loss)."""
+        self.uncommanded = ""
+        """The uncommanded motion seen while holding the vehicle ("" when none)."""
+        self._rest: tuple[float, float] | None = None  # where it came to rest in HOLD (ENU m)
         self.tel: Telemetry | None = None
         """The newest telemetry (None before the first)."""
         self.armed_by_us = False
@@ -96,6 +121,7 @@ class VehicleHandler:
                 if self.clock() >= deadline:  # the attempt's own timeout is not the user's
                     why = str(exc).split(" within ")[0]
                     raise LinkTimeout(f"{why} within --connect-timeout {timeout_s:g} s") from None
+        self.autopilot = _identified(self.link)
         while self.tel is None:
             self.check_stop()
             self.tel = self.link.poll()
@@ -160,6 +186,7 @@ class VehicleHandler:
             return t_sent
         if verdict.command in (DRIVE, STOP) and self.link.send_setpoint(speed, heading_cmd):
             t_sent = self.clock()
+        self._watch_rest(tel, own)
         if not verdict.hold:
             self._t_stop = math.nan
         elif math.isnan(self._t_stop):
@@ -179,20 +206,58 @@ class VehicleHandler:
                 log.warning("HOLD not sent: %s", exc)
         return t_sent
 
+    def _watch_rest(self, tel: Telemetry, own: VehicleState) -> None:
+        """While the vehicle stands armed in its hold mode, report (once) any motion it makes
+        on its own — faster than ``UNCOMMANDED_MPS`` or farther than ``UNCOMMANDED_M`` from
+        where it came to rest — and disarm it unless ``stay_armed``."""
+        if not (self.armed_by_us and tel.armed and tel.mode in HOLD_MODES):
+            self._rest = None
+            return
+        if self._rest is None:
+            if abs(own.speed) < REST_MPS:
+                self._rest = (own.x, own.y)
+            return
+        moved = math.hypot(own.x - self._rest[0], own.y - self._rest[1])
+        if self.uncommanded or (abs(own.speed) <= UNCOMMANDED_MPS and moved <= UNCOMMANDED_M):
+            return
+        self.uncommanded = (
+            f"uncommanded motion in {tel.mode}: {abs(own.speed):.2f} m/s, "
+            f"{moved:.1f} m from where it came to rest"
+        )
+        self.on_event(self.uncommanded)
+        action = "left armed (--stay-armed)" if self.stay_armed else "disarming it"
+        self.on_status(f"vehicle {self.vehicle_id}: WARNING: {self.uncommanded}; {action}")
+        if not self.stay_armed:
+            try:
+                self.link.disarm(0.0)
+            except Exception as exc:  # noqa: BLE001 - retried at the finish
+                log.warning("vehicle %d: disarm not sent: %s", self.vehicle_id, exc)
+
     # ------------------------------------------------------------------ finish
 
-    def secure(self, took_over: bool, drove: bool) -> None:
-        """Leave the vehicle safe at the end of a run: braked and in HOLD when we armed it,
-        HOLD and disarmed when interrupted while arming, disarmed (or loudly left armed) when
-        taken over before the convoy ``drove``. Never raises."""
+    def secure(self, took_over: bool, drove: bool, autopilot_failsafe: bool = False) -> None:
+        """Leave the vehicle safe at the end of a run: braked, in HOLD and disarmed when we
+        armed it (still armed in HOLD with ``stay_armed``); HOLD and disarmed when
+        interrupted while arming; disarmed at rest after a takeover before the convoy
+        ``drove``, or after the autopilot's own failsafe took it (nobody at the controls);
+        left alone when a person took over while driving. Never raises."""
         vid = self.vehicle_id
-        if self.commanding and self.armed_by_us and not took_over:
+        if not self.commanding:
+            return
+        if self.armed_by_us and not took_over:
+            if not self._link_usable():
+                self.on_status(
+                    f"vehicle {vid}: HOLD and disarm at exit not sent: {self._why_unusable()}; "
+                    "the autopilot's own failsafe has the vehicle"
+                )
+                return
             try:
                 self._brake_to_rest()
                 self.link.hold(2.0)
             except Exception as exc:  # noqa: BLE001 - the log must still be saved
                 log.warning("vehicle %d: HOLD at exit failed: %s", vid, exc)
-        elif self.commanding and self.arming:
+            self._disarm_at_end("in HOLD")
+        elif self.arming:
             # Interrupted while arming (a signal, a refusal, a lost mode): it may have armed
             # meanwhile. Standing still, so HOLD and disarm; never armed without HOLD.
             for step in (self.link.hold, self.link.disarm):
@@ -200,8 +265,59 @@ class VehicleHandler:
                     step(0.0)
                 except Exception as exc:  # noqa: BLE001
                     log.warning("vehicle %d: HOLD/disarm after arming failed: %s", vid, exc)
-        elif self.commanding and took_over and not drove and self.armed_by_us:
-            self._disarm_if_at_rest()
+        elif took_over and self.armed_by_us and (not drove or autopilot_failsafe):
+            self._disarm_if_at_rest(drove)
+
+    def _link_usable(self) -> bool:
+        """Whether the autopilot can be told anything: connected, identified and heard from
+        within the watchdog's timeouts."""
+        tel = self.link.poll() or self.tel
+        if tel is not None:
+            self.tel = tel
+        if self.link.lost or tel is None:
+            return False
+        return self.watchdog.fresh(self.clock(), tel.t_telemetry, tel.t_heartbeat, True)
+
+    def _why_unusable(self) -> str:
+        if self.link.lost:
+            return "the autopilot link is lost (connection closed)"
+        return "the autopilot link is lost (no telemetry or heartbeat)"
+
+    def _wait_for_rest(self, timeout_s: float) -> Telemetry | None:
+        """Poll until the vehicle is slower than ``REST_MPS`` (at most ``timeout_s`` s);
+        the newest telemetry."""
+        end = self.clock() + timeout_s
+        tel = self.tel
+        while True:
+            tel = self.link.poll() or tel
+            if tel is None or abs(tel.state.speed) < REST_MPS or self.clock() >= end:
+                return tel
+            self.sleep(1.0 / self.rate_hz)
+
+    def _disarm_at_end(self, where: str) -> None:
+        """Disarm at rest, or say that the vehicle stays armed and why. Both firmwares
+        accept a disarm at rest in their hold mode (recorded: PX4 "Disarmed by external
+        command" in Hold, shared/sitl-px4 boot_and_arm 6.38 s; ArduPilot Rover, shared/sitl
+        boot_and_arm 26.97 s), and a disarmed rover cannot drive loops around a hold point
+        (shared/AUTOPILOTS.md: "End at rest disarmed")."""
+        vid = self.vehicle_id
+        if self.stay_armed:
+            self.on_status(
+                f"vehicle {vid}: left ARMED {where} (--stay-armed); nobody watches it once "
+                "this process ends (PX4's Hold can drive around its hold point)"
+            )
+            return
+        tel = self._wait_for_rest(REST_WAIT_S)
+        if tel is not None and abs(tel.state.speed) >= REST_MPS:
+            self.on_status(
+                f"vehicle {vid}: WARNING: still moving at {abs(tel.state.speed):.2f} m/s "
+                f"{REST_WAIT_S:g} s after HOLD; disarming anyway"
+            )
+        try:
+            self.link.disarm(2.0)
+            self.on_status(f"vehicle {vid}: at rest {where}, disarmed")
+        except Exception as exc:  # noqa: BLE001
+            self.on_status(f"vehicle {vid}: WARNING: disarm at exit failed ({exc}): left ARMED")
 
     def _brake_to_rest(self) -> None:
         """Stream stop setpoints until the vehicle is slower than ``HOLD_BELOW_MPS`` (at
@@ -222,22 +338,33 @@ class VehicleHandler:
                 return
             self.sleep(period)
 
-    def _disarm_if_at_rest(self) -> None:
+    def _disarm_if_at_rest(self, drove: bool = False) -> None:
         """A takeover before the convoy drove (ArduPilot's RC mode switch setting MANUAL
-        after GUIDED, say) must not leave the vehicle armed and forgotten: disarm it if it
-        stands still, else say loudly that it is armed in someone else's hands."""
+        after GUIDED, say), or the autopilot's own failsafe (PX4's offboard-loss POSCTL,
+        which brakes straight), must not leave the vehicle armed and forgotten: disarm it
+        once it stands still (``stay_armed``: leave it), else say loudly that it is armed
+        in someone else's hands."""
         vid = self.vehicle_id
-        tel = self.link.poll() or self.tel
+        tel = self._wait_for_rest(REST_WAIT_S if drove else 0.0) if not self.link.lost else None
+        tel = tel or self.tel
         mode = tel.mode if tel is not None else "?"
-        if tel is not None and abs(tel.state.speed) < HOLD_BELOW_MPS:
+        why = "its failsafe took it" if drove else "taken over before the convoy drove"
+        if self.stay_armed:
+            self.on_status(f"vehicle {vid}: left ARMED in {mode} (--stay-armed; {why})")
+            return
+        if tel is not None and abs(tel.state.speed) < REST_MPS and not self.link.lost:
             try:
                 self.link.disarm(2.0)
-                self.on_status(
-                    f"vehicle {vid}: disarmed (taken over in {mode} before the convoy drove)"
-                )
+                self.on_status(f"vehicle {vid}: disarmed ({why}, in {mode})")
                 return
             except Exception as exc:  # noqa: BLE001
                 log.warning("vehicle %d: disarm failed: %s", vid, exc)
-        self.on_status(
-            f"vehicle {vid}: WARNING: left ARMED in {mode} (taken over before the convoy drove)"
-        )
+        self.on_status(f"vehicle {vid}: WARNING: left ARMED in {mode} ({why})")
+
+
+def _identified(link: VehicleLink) -> str | None:
+    """The autopilot a connected link identified (None when it cannot say)."""
+    try:
+        return str(link.autopilot)
+    except Exception:  # noqa: BLE001
+        return None

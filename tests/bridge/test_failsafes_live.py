@@ -242,7 +242,13 @@ def test_policy_exception_stops_logs_and_keeps_looping(tmp_path):
 
 def test_geofence_holds_whatever_the_policy_says(tmp_path):
     # The leader starts at the origin and drives east: a 3 m fence stops it after ~2 m.
-    c = make_convoy(tmp_path, n=2, safety=replace_safety(geofence_radius_m=3.0))
+    # (The follower, 15 m out, would be refused before arming: it runs dry, broadcasting.)
+    c = make_convoy(
+        tmp_path,
+        n=2,
+        safety=replace_safety(geofence_radius_m=3.0),
+        options={1: {"dry_run": True}},
+    )
     try:
         leader = c.cars[0]
         wait_until(lambda: leader.runner.failsafes.latched == "geofence", 20, "geofence")

@@ -165,24 +165,30 @@ def test_fixed_rate_absolute_yaw_and_log(tmp_path):
     clock, link, runner = follower_setup(tmp_path, policy)
     result = runner.run()
     assert result.exit_code == 0 and result.reason == "duration reached"
-    assert result.ticks == 41 and result.overruns == 0  # 2 s at 20 Hz, both ends
+    # 2 s at 20 Hz, both ends, then the run goes on ticking (stop setpoints, log rows) until
+    # the vehicle is at rest: one stop tick, and the tick that sees it at rest.
+    assert result.ticks == 43 and result.overruns == 0
     t = np.array([s[0] for s in link.sent])
-    drive = link.sent[1:-1]  # the first is the stand-still after arming, the last the exit stop
-    assert np.allclose(np.diff(t[1:-1]), 0.05)
+    drive = link.sent[1:42]  # the first is the stand-still after arming, then 41 drive ticks
+    assert np.allclose(np.diff(t[1:44]), 0.05)
+    assert [s[1] for s in link.sent[42:]] == [0.0] * (len(link.sent) - 42)
     assert all(s[1] == pytest.approx(1.0) for s in drive)
     # absolute yaw = current heading + heading change (the ideal vehicle turns at once)
     headings = [s[2] for s in drive]
     assert headings[0] == pytest.approx(0.3)
     assert headings[1] == pytest.approx(0.6)
-    assert link.holds == 1  # HOLD at the end of the run
+    # HOLD at the end of the run: sent by the tick that saw it at rest, then confirmed by the
+    # finish; and disarmed (no --stay-armed).
+    assert link.holds == 2 and not link.armed
     log = read_log(tmp_path / "vehicle_1.csv")
-    assert len(log["t_s"]) == 41
-    assert set(log["mode"].tolist()) == {"coop"}
+    assert len(log["t_s"]) == 43
+    assert log["mode"].tolist() == ["coop"] * 41 + ["stop"] * 2  # braking logged, no failsafe
+    assert log["speed_mps"][-1] == 0.0 and log["telemetry_valid"].tolist() == [1] * 43
     assert np.allclose(np.diff(log["t_s"]), 0.05)
     with open(tmp_path / "vehicle_1.csv") as f:
         assert tuple(f.readline().strip().split(",")) == COLUMNS + EXTRA_COLUMNS
     meta = json.loads((tmp_path / "vehicle_1.json").read_text())
-    assert meta["rate_hz"] == 20.0 and meta["ticks"] == 41 and meta["overruns"] == 0
+    assert meta["rate_hz"] == 20.0 and meta["ticks"] == 43 and meta["overruns"] == 0
     assert meta["v2v"]["drop_at"] == "receiver"
     assert meta["t_start_s"] == pytest.approx(WALL0 + 100.0)
 
@@ -191,8 +197,8 @@ def test_fifty_hertz(tmp_path):
     clock, link, runner = follower_setup(
         tmp_path, FixedPolicy(1.0, 0.0), rate_hz=50.0, duration_s=1.0
     )
-    assert runner.run().ticks == 51
-    assert np.allclose(np.diff([s[0] for s in link.sent[1:-1]]), 0.02)
+    assert runner.run().ticks == 51 + 2  # and two ticks braking to rest
+    assert np.allclose(np.diff([s[0] for s in link.sent[1:54]]), 0.02)
 
 
 def test_speed_cap_holds_whatever_the_policy_says(tmp_path):
@@ -214,9 +220,9 @@ def test_overruns_are_counted_and_the_loop_goes_on(tmp_path):
     result = runner.run()
     # The 11th tick ran 0.17 s: the next one started 0.12 s (2.4 periods) late, so the
     # slots of 2 ticks passed without one, and that late tick stopped the vehicle.
-    assert result.overruns == 2 and result.ticks == 41 - 2
+    assert result.overruns == 2 and result.ticks == 41 - 2 + 2  # + 2 braking to rest
     assert [r for _, r in result.events] == ["control loop late (2.4 periods)"]
-    speeds = [s[1] for s in link.sent[1:-1]]
+    speeds = [s[1] for s in link.sent[1:40]]
     assert speeds.count(0.0) == 1 and speeds.index(0.0) in (10, 11) and set(speeds) == {0.0, 1.0}
     assert result.reason == "duration reached"
     meta = json.loads((tmp_path / "vehicle_1.json").read_text())

@@ -168,11 +168,18 @@ def test_takeover_after_the_convoy_drove_exits_0_unless_it_was_a_failsafe(tmp_pa
     assert runner.run().exit_code == 1  # PX4's offboard-loss failsafe, say
 
 
-def test_a_latched_failsafe_exits_nonzero(tmp_path):
-    # The follower starts 15 m west of the origin: a 10 m fence is breached at once.
-    _, _, runner, _ = runner_for(tmp_path, safety=SafetyConfig(geofence_radius_m=10.0))
+def test_a_vehicle_outside_the_geofence_is_refused_before_arming(tmp_path):
+    # The follower starts 15 m west of the origin, outside a 10 m fence: refused before
+    # arming, naming how far out it is (D64: it armed, then latched "geofence").
+    _, link, runner, _ = runner_for(tmp_path, safety=SafetyConfig(geofence_radius_m=10.0))
+    lines: list[str] = []
+    runner.on_status = lines.append
     res = runner.run()
-    assert res.exit_code == 1 and meta(tmp_path)["exit_code"] == 1
+    assert res.exit_code == 2 and not link.armed and link.sent == []
+    assert "vehicle 1 is 15 m from the convoy's origin" in res.reason
+    assert "outside the 10 m geofence" in res.reason and "not arming" in res.reason
+    assert any(line.startswith("vehicle 1: refused: vehicle 1 is 15 m") for line in lines)
+    assert not (tmp_path / "vehicle_1.csv").exists()  # refused before the log was opened
 
 
 def test_lost_autopilot_stops_broadcasting_says_why_and_exits_nonzero(tmp_path):
@@ -223,6 +230,9 @@ def test_hold_waits_until_the_stop_setpoints_have_braked_the_vehicle(tmp_path):
         safety=SafetyConfig(geofence_radius_m=10.0),
         duration_s=4.0,
     )
+    # (a vehicle that starts outside the fence is refused before arming: here it is as if
+    # it had driven out of it)
+    runner._check_inside_fence = lambda: None
     runner.run()
     first_t, first_v = link.hold_log[0]
     assert first_v < HOLD_BELOW_MPS

@@ -10,12 +10,21 @@ next ``install_pending`` on the owner's thread.
 from __future__ import annotations
 
 import math
+import socket
 import threading
 from collections.abc import Callable
 from typing import Any
 
 from openconvoy.bridge.link import LinkLost, StatusCallback
 from openconvoy.bridge.mavlink import protocol as mp
+
+RECEIVE_BUFFER_BYTES = 8 << 20
+"""The socket receive buffer asked for (the kernel caps it at ``net.core.rmem_max``). A
+real PX4 sends ~200 messages/s on its onboard link (shared/sitl-px4: TIMESYNC, ALTITUDE,
+VFR_HUD, GPS_RAW_INT, ... at their default rates besides what we request); at the default
+~208 KiB a pause of the loop of about a second overflows the buffer and the kernel drops
+what comes next, such as PX4's "Failsafe activated" text. With the buffer raised, the
+messages of a pause wait for the next read (up to rmem_max: 4 MiB holds ~20 s)."""
 
 
 class MavConnection:
@@ -85,6 +94,12 @@ class MavConnection:
         # and returns no data, forever: hook it so EOF marks the link lost instead.
         conn.handle_eof = lambda: self.mark_lost("connection closed by the vehicle (EOF)")
         conn.handle_disconnect = lambda: self.mark_lost("connection reset by the vehicle")
+        sock = getattr(conn, "port", None)
+        if isinstance(sock, socket.socket):  # UDP and TCP links; not serial ports
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+            except OSError:
+                pass  # the default buffer still works
         self.conn = conn
 
     def mark_lost(self, reason: str) -> None:

@@ -119,6 +119,7 @@ class Inbox:
             self._cmd.resend_intervals(self._rates(), self._status)
         w.t_heartbeat = now
         w.armed = bool(msg.base_mode & mp.mav().MAV_MODE_FLAG_SAFETY_ARMED)
+        w.system_status = int(msg.system_status)
         mode = mp.mode_name(msg.autopilot, msg.custom_mode)
         if self._modes.observe_mode(mode):
             self._stream.end("a mode change we did not ask for")

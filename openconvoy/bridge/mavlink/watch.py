@@ -18,6 +18,7 @@ from openconvoy.bridge.mavlink import protocol as mp
 _FAILSAFE_TEXT_S = 3.0  # a "failsafe" STATUSTEXT this recent explains a mode change
 _TEXT_CHUNK = 50  # STATUSTEXT's text field, bytes: a shorter chunk is a text's last
 _CHUNK_WAIT_S = 1.0  # a chunked text still unfinished this long is kept as it stands
+_FAILSAFE_STATES = {5: "CRITICAL", 6: "EMERGENCY"}  # MAV_STATE: "non-normal mode"
 
 
 class VehicleWatch:
@@ -30,6 +31,9 @@ class VehicleWatch:
         armed: armed bit of the latest heartbeat.
         t_heartbeat: clock (s) of the latest heartbeat.
         heartbeats: heartbeats counted (to wait for one after now).
+        system_status: MAV_STATE of the latest heartbeat (5 CRITICAL while a failsafe is
+            active: PX4's offboard-loss failsafe, shared/sitl-px4 row 16; ArduPilot Rover
+            reports CRITICAL while ``failsafe.triggered``).
         acks: command id -> (result, clock s) of its latest final COMMAND_ACK.
         texts: recent (clock s, severity, text) STATUSTEXTs, oldest first; a text the
             autopilot sent in chunks (longer than 50 bytes: PX4's "Arming denied: ..."
@@ -48,6 +52,7 @@ class VehicleWatch:
         self.armed = False
         self.t_heartbeat = -math.inf
         self.heartbeats = 0
+        self.system_status = 0
         self.acks: dict[int, tuple[int, float]] = {}
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=32)
         self._chunks: dict[int, tuple[float, int, str]] = {}  # id -> (clock s, severity, so far)
@@ -129,14 +134,19 @@ class VehicleWatch:
         return "; ".join(dict.fromkeys(found)) or self.reason(since)
 
     def who_set_mode(self) -> str:
-        """Who changed the mode, as far as MAVLink tells: a recent failsafe STATUSTEXT
-        names the autopilot itself; otherwise it was not this link."""
+        """Who changed the mode, as far as MAVLink tells: a recent failsafe STATUSTEXT, or
+        a heartbeat with system status CRITICAL/EMERGENCY (the failsafe flag itself, which
+        a lost or late text cannot hide), names the autopilot; otherwise it was someone
+        other than this link."""
         now = self._clock()
         for t, _, text in reversed(self.texts):
             if now - t > _FAILSAFE_TEXT_S:
                 break
             if "failsafe" in text.lower():
                 return f"the autopilot's failsafe ({text.strip()!r})"
+        if self.system_status in _FAILSAFE_STATES:
+            state = _FAILSAFE_STATES[self.system_status]
+            return f"the autopilot's failsafe (heartbeat system status {state}; no failsafe text)"
         if self.autopilot_id == mp.AUTOPILOT_PX4:
-            return "not this link (the RC, another GCS, or a PX4 failsafe without a text)"
-        return "not this link (the RC mode switch, MODE_CH, or another GCS)"
+            return "someone other than this link (the RC, another GCS, or a PX4 failsafe without a text)"
+        return "someone other than this link (the RC mode switch, MODE_CH, or another GCS)"

@@ -29,6 +29,17 @@ shared/sitl-px4/README.md's conformance table in brackets:
   ``MotionState.yaw_bias``, drawn per vehicle and run (``SimVehicleConfig``). The yaw loop
   holds the estimated yaw on the bearing, so the rover really drives that much off it;
   ATTITUDE and the headings report the estimate, the velocity stays true.
+- optionally (``hold_drift_mps``), Hold is not a parking brake: the position estimate
+  drifts at rest, and Hold drives back to the hold point *as estimated*, so once the drift
+  passes the acceptance radius the rover moves by itself, around its hold point as the
+  drift turns. Observed on the firmware (shared/AUTOPILOTS.md, issue 22 "PX4 HOLD"): with
+  its estimate drifting ~0.5 m at rest, PX4 drove loops around the hold point at up to
+  2.2 m/s in 2 of 14 held vehicles, once 8.8 s after the deploy exited. The rover's
+  Loiter is a position setpoint at the engage point, driven to whenever the estimated
+  distance exceeds the acceptance radius (``HOLD_RADIUS_M``). The drift is modelled as a
+  vector growing at ``hold_drift_mps`` up to ``HOLD_DRIFT_MAX_M`` and turning at
+  ``HOLD_DRIFT_TURN_RADPS``; the telemetry keeps reporting the true motion (the EKF's
+  velocity follows the wheels, its position the drift).
 """
 
 from __future__ import annotations
@@ -58,6 +69,8 @@ HOLD_RADIUS_M = 0.8
 HOLD_SPEED = 1.5  # m/s: the return to the hold point
 HOLD_GAIN = 1.0  # 1/s: return speed per metre beyond HOLD_RADIUS_M
 HOLD_MIN_SPEED = 1.0  # m/s: enough to break away from rest (SIH's dead zone)
+HOLD_DRIFT_MAX_M = 1.5  # m: the largest estimate drift modelled
+HOLD_DRIFT_TURN_RADPS = 0.5  # rad/s: how fast the drift's direction turns
 _ARMING_DENIED = "Arming denied: Resolve system health failures first"
 _OFFBOARD_UNAVAILABLE = "Switching to Offboard is currently not available"
 # (main, sub) -> name, as mavproto
@@ -97,8 +110,11 @@ class Px4Rover:
         lon_deg: float,
         obl_rc_act: int = 0,
         motion: SihRover | PresetMotion | None = None,
+        hold_drift_mps: float = 0.0,
     ) -> None:
         self.state = state
+        self.hold_drift_mps = hold_drift_mps
+        self._drift = (0.0, 0.0)  # (radius m, direction rad) of the estimate's drift
         self.timing = timing
         self.clock_ratio = timing.clock_ratio
         self.first_heartbeat_s = timing.first_heartbeat_s
@@ -174,6 +190,7 @@ class Px4Rover:
         if name == "LOITER":
             self._hold_point = (self.state.north, self.state.east)
             self._hold_yaw = None
+            self._drift = (0.0, 0.0)
         self.user_mode = name
 
     def command(self, t: float, command: int, params: list[float]) -> int:
@@ -252,6 +269,10 @@ class Px4Rover:
             self.texts.append((2, "Failsafe activated"))
         elif self.failsafe and self.signal(t) and self.user_mode == "OFFBOARD":
             self.failsafe = False
+        if self.hold_drift_mps > 0 and self.armed and self.mode == "LOITER":
+            r, direction = self._drift
+            r = min(HOLD_DRIFT_MAX_M, r + self.hold_drift_mps * self.loop_dt)
+            self._drift = (r, direction + HOLD_DRIFT_TURN_RADPS * self.loop_dt)
         speed, yaw = self._targets()
         if isinstance(self.motion, PresetMotion):
             n = max(1, int(round(self.loop_dt / self.motion.dt)))
@@ -298,7 +319,9 @@ class Px4Rover:
         if mode == "OFFBOARD":
             return min(self._speed, RO_SPEED_LIM), self._bearing
         if mode == "LOITER" and self._hold_point is not None:
-            dn, de = self._hold_point[0] - s.north, self._hold_point[1] - s.east
+            r, direction = self._drift  # the estimate = the truth + the drift
+            est_n, est_e = s.north + r * math.cos(direction), s.east + r * math.sin(direction)
+            dn, de = self._hold_point[0] - est_n, self._hold_point[1] - est_e
             d = math.hypot(dn, de)
             if d > HOLD_RADIUS_M:  # drive back to where Hold was engaged
                 self._hold_yaw = None

@@ -112,6 +112,8 @@ class SimStreams:
         self.due: dict[int, float] = {}
         self._geodetic = _GeodeticCache(config.home)
         self._text_id = 0
+        self._other_owed = 0.0  # other onboard messages due but not yet sent
+        self._t_other = 0.0
 
     def rates_hz(self) -> dict[str, float]:
         """Current telemetry rate per message name (0 = disabled)."""
@@ -168,6 +170,21 @@ class SimStreams:
                 self.heartbeat(mav, t)
             else:
                 self.send_telemetry(mav, msg_id, t)
+        self._send_other(mav, t)
+
+    def _send_other(self, mav: Any, t: float) -> None:
+        """The firmware's other onboard streams, ``config.other_streams_hz`` messages/s in
+        all (TIMESYNC here; a real PX4 sends ~200/s of TIMESYNC, ALTITUDE, VFR_HUD,
+        GPS_RAW_INT, SYS_STATUS, ... at their default rates, shared/sitl-px4/README.md)."""
+        rate = self._config.other_streams_hz
+        if rate <= 0:
+            return
+        self._other_owed += rate * max(0.0, t - self._t_other)
+        self._t_other = t
+        ns = int(t * 1e9)
+        while self._other_owed >= 1.0:
+            self._other_owed -= 1.0
+            mav.timesync_send(0, ns)
 
     def heartbeat(self, mav: Any, t: float) -> None:
         base, custom, status = self._fw.heartbeat(t)

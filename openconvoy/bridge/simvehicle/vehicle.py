@@ -99,6 +99,13 @@ class SimVehicleConfig:
         px4_clock_ratio: PX4: its clock's seconds per real second (None: the timing's:
             SIH's 0.990 with ``firmware``, 1 with ``short``).
         seed: seeds the noise and the heading bias.
+        other_streams_hz: messages/s of the firmware's other onboard streams (0 = none;
+            a real PX4 sends ~200/s besides what is requested, shared/sitl-px4): what fills
+            a companion's socket buffer while its loop pauses.
+        hold_drift_mps: PX4: how fast the position estimate drifts while held (m/s; 0 =
+            none). Its Hold drives back to the hold point as the estimate sees it, so a
+            drift past the acceptance radius moves the vehicle: the loops at up to 2.2 m/s
+            of 2 in 14 held firmware vehicles (shared/AUTOPILOTS.md, issue 22's PX4 HOLD).
     """
 
     system_id: int = 1
@@ -126,6 +133,8 @@ class SimVehicleConfig:
     heading_bias_max_deg: float = 0.0
     px4_clock_ratio: float | None = None
     seed: int = 0
+    other_streams_hz: float = 0.0
+    hold_drift_mps: float = 0.0
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("ardupilot", "px4"):
@@ -199,6 +208,7 @@ def make_firmware(config: SimVehicleConfig, state: MotionState) -> ArduPilotRove
         c.home.lon_deg,
         obl_rc_act=c.offboard_loss_action,
         motion=motion,
+        hold_drift_mps=c.hold_drift_mps,
     )
     fw.params["COM_OF_LOSS_T"] = c.offboard_loss_s
     return fw
@@ -623,6 +633,8 @@ def run_vehicle_cli(args: Any) -> int:
         boot_on_connect=args.boot_on_connect,
         gps_noise_m=args.gps_noise,
         seed=args.seed,
+        hold_drift_mps=getattr(args, "hold_drift", 0.0),
+        other_streams_hz=getattr(args, "other_streams", 0.0),
     )
     vehicle = SimVehicle(args.mavlink, config)
     try:

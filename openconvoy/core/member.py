@@ -129,7 +129,14 @@ class ConvoyMember:
         self.buffer = StateBuffer(config.k, config.trail_spacing_m)
         # What the gates, the layout and σ say is fixed for the member's life; computed
         # once, because every tick reads it for every message and target.
-        self._keeps = [self.rx.keeps(j) for j in range(n_vehicles)]
+        # ρ decides what the policy sees; the braking rule sees more: every member keeps
+        # its immediate predecessor's messages, the leader everyone's (a convoy vehicle
+        # in its path on a closed track), whatever ρ says (issue 22, D47, D49).
+        self._control = [self.rx.keeps(j) for j in range(n_vehicles)]
+        self._keeps = [
+            self._control[j] or j == vehicle_id - 1 or (vehicle_id == 0 and j != 0)
+            for j in range(n_vehicles)
+        ]
         self._needed = tuple(self.rx.needed())
         self._gaps = GapChain(self.spacing, self.lengths)
         self._fresh_age_s = config.fresh_age_s
@@ -138,14 +145,16 @@ class ConvoyMember:
         self._slots = [
             (lay.slot_offset(slot), vid)
             for slot, vid in zip(lay.slots, self._slot_ids())
-            if vid is not None
+            if vid is not None and self._control[vid]
         ]
         targets = self._slot_ids()[: len(lay.targets)]
         preds_in_slots = set(targets[1:])
         self._targets = [
             (name, vid, lay.target_offset(name))
             for name, vid in zip(lay.targets, targets)
-            if vid is not None and not (name == "leader" and vid in preds_in_slots)
+            if vid is not None
+            and self._control[vid]
+            and not (name == "leader" and vid in preds_in_slots)
         ]
         """(target name, vehicle id, offset) of every target slot with a vehicle in it."""
         self._nearest_first = (*lay.targets[1:], "leader")
@@ -180,7 +189,8 @@ class ConvoyMember:
         return send
 
     def receive(self, msg: VehicleState, now: float) -> bool:
-        """ρ: keep ``msg`` in R^i if the topology wants its sender. Returns True if kept."""
+        """ρ: keep ``msg`` in R^i if the topology wants its sender, or the braking rule
+        does (the predecessor; for the leader, everyone). Returns True if kept."""
         j = msg.vehicle_id
         keeps = self._keeps
         if not (keeps[j] if 0 <= j < len(keeps) else self.rx.keeps(j)):
@@ -323,6 +333,37 @@ class ConvoyMember:
             est = dead_reckon(latest, now, self._fresh_age_s, math.inf, self._decel(i - 1))
             assert est is not None
         return gap_and_closing(self.own, est)
+
+    def path_gap(self, now: float) -> tuple[float, float, int] | None:
+        """The leader's gap source: ``(gap_m, closing_mps, vehicle)`` to the nearest
+        convoy member in its path by that member's messages (centre to centre; positive
+        closing = closing), None when none is. In its path: ahead of the leader
+        (``along`` > 0) and within half the two lengths of its heading line (a straight
+        corridor, wide enough for the curve of a track within the few metres where the
+        rule can fire). Estimates as ``gap_estimate``'s: no stop age."""
+        own = self.own
+        if self.vehicle_id != 0 or own is None:
+            return None
+        c, s = math.cos(own.heading), math.sin(own.heading)
+        best: tuple[float, float, int] | None = None
+        for j in range(1, self.n_vehicles):
+            latest = self.buffer.latest(j)
+            if latest is None:
+                continue
+            est = dead_reckon(latest, now, self._fresh_age_s, math.inf, self._decel(j))
+            assert est is not None
+            dx, dy = est.x - own.x, est.y - own.y
+            half = 0.5 * (self._length(0) + self._length(j))
+            if not (c * dx + s * dy > 0.0 and abs(c * dy - s * dx) < half):
+                continue
+            gap, closing = gap_and_closing(own, est)
+            if best is None or gap < best[0]:
+                best = (gap, closing, j)
+        return best
+
+    def decel_of(self, vid: int) -> float:
+        """Vehicle ``vid``'s braking limit (m/s²; inf when unknown)."""
+        return self._decel(vid)
 
     # --- helpers ---------------------------------------------------------------------
 

@@ -51,7 +51,15 @@ from openconvoy.envs.vector.gps import sense
 from openconvoy.envs.vector.leader import LeaderDriver
 from openconvoy.envs.vector.links import build_links
 from openconvoy.envs.vector.measures import info_arrays, infos, measure, pack_reward, reward
-from openconvoy.envs.vector.member import COOP, FAILSAFE, STOP, decide, pack_ladder, pack_spacing
+from openconvoy.envs.vector.member import (
+    COOP,
+    FAILSAFE,
+    STOP,
+    decide,
+    lead_guard,
+    pack_ladder,
+    pack_spacing,
+)
 from openconvoy.envs.vector.observation import observe, pack_layout
 from openconvoy.envs.vector.plant import VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
@@ -214,9 +222,11 @@ class VectorConvoyEnv:
         self._decel = np.where(decel > 0.0, decel, np.inf)
         self._rules = rules = [
             for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
-            for p in P[1:]
+            for p in P
         ]  # fmt: skip
-        self._rule = np.array([[r.decel_mps2, r.reaction_s, r.margin_m] for r in rules]).T.copy()
+        packed = np.array([[r.decel_mps2, r.reaction_s, r.margin_m, r.lag_s] for r in rules]).T
+        self._rule = packed[:, 1:].copy()  # the followers'
+        self._lead_rule = packed[:, 0].copy()
         f32 = np.float32
         self.action_low = np.array([[0.0, float(f32(-MAX_HEADING_CHANGE_RAD))]] * (len(P) - 1))
         self.action_high = np.array(
@@ -384,9 +394,14 @@ class VectorConvoyEnv:
             self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
             self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
-            self.events.record, self.events.count,
+            self.events.record, self.events.count, self._decel,
         )  # fmt: skip
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
+        lead_guard(
+            t, self._sensed, rx.hist, rx.hist_n, lk.lead_link, self._link_decel, self._decel,
+            self.lengths, self._fresh_age_s, self._lead_rule, self.estopped, self.emergency_stop,
+            self.cmd_v, self.cmd_dh, self.modes, self.events.record, self.events.count,
+        )  # fmt: skip
         for vehicle, t_from in self._brakes:
             on = t >= t_from
             self.cmd_v[on, vehicle] = 0.0

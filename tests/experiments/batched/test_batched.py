@@ -217,13 +217,15 @@ def test_a_fault_sweep_batched_byte_for_byte(tmp_path: Path, fault: str):
 def test_a_forged_leader_sweep_batched_byte_for_byte(tmp_path: Path):
     """A forger claiming to be the leader, 1 km ahead of it, from 4 s: with ``security.auth``
     off the followers chase it (min gap 15 m -> under 2 m) on both paths alike; with
-    authentication it is rejected and the summary is the healthy sweep's."""
+    authentication it is rejected and the summary is the healthy sweep's. (Under 2 m
+    before issue 22; the braking rule that assumes the vehicle ahead may brake now holds
+    the chase to about 4.4-5.1 m.)"""
     sweep = dataclasses.replace(FAULTED, faults=("forge:0@4",), auth="off")
     a = _same_files_on_both_paths(sweep, tmp_path)
     assert 'auth = "off"' in a["experiment.toml"].decode()
     healthy = _summary_without_faults(tmp_path)
     forged = read_summary(tmp_path / "batched")
-    assert max(_means(forged, "min_gap_m")) < 2.0 < 14.0 < min(_means(healthy, "min_gap_m"))
+    assert max(_means(forged, "min_gap_m")) < 6.0 < 14.0 < min(_means(healthy, "min_gap_m"))
     rejected = dataclasses.replace(sweep, auth="required")
     run_experiment(rejected, tmp_path / "rejected", progress=False, figures=False, jobs=1)
     assert (tmp_path / "rejected" / "summary.csv").read_bytes() == (

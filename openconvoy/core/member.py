@@ -41,6 +41,9 @@ from openconvoy.core.trail import Projection, Trail
 _NF = len(STATE_FEATURES)
 _ND = len(DERIVED_FEATURES)
 _TWO_PI = 2.0 * math.pi  # as ``wrap_angle`` computes it
+PATH_CONE = 0.5
+"""Half-width growth (m per m ahead) of the corridor in which the leader looks for a
+member in its path (``ConvoyMember.path_gap``)."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,15 @@ class MemberConfig:
         t = self.trigger
         silence = t.max_silence_s + t.period_s if t.kind == "event" else 0.0
         return max(self.ladder.degrade_after_s, silence)
+
+    @property
+    def rule_fresh_age_s(self) -> float:
+        """Message age (s) up to which the braking rule takes the vehicle ahead at its
+        constant speed before braking at its limit: 0, whatever the trigger. It may have
+        braked since it sent; an event trigger's silence does not say otherwise, since a
+        dead sender is silent too (issue 22's fault matrix: with the event trigger's 1.1 s,
+        ``dead:1@3`` on ``emergency-braking`` at PER 0.3 collided)."""
+        return 0.0
 
 
 def member_config_for(config: MemberConfig | None, spacing: SpacingConfig) -> MemberConfig:
@@ -140,6 +152,7 @@ class ConvoyMember:
         self._needed = tuple(self.rx.needed())
         self._gaps = GapChain(self.spacing, self.lengths)
         self._fresh_age_s = config.fresh_age_s
+        self._rule_fresh_s = config.rule_fresh_age_s
         self._stop_after_s = config.ladder.stop_after_s
         lay = self.layout
         self._slots = [
@@ -321,26 +334,30 @@ class ConvoyMember:
         Unlike a target, this estimate does not expire at the ladder's stop age: a
         predecessor silent for longer got no further than braking at its limit takes it
         (and a stopped car stays put), so the braking rule, which reads it, keeps seeing
-        it there. Expiring it let a policy drive into a dead predecessor unchecked."""
+        it there. Expiring it let a policy drive into a dead predecessor unchecked.
+
+        The predecessor is taken as braking at its limit since its newest message, however
+        fresh (``MemberConfig.rule_fresh_age_s``): it may have started when it sent, and
+        where it stops does not depend on the message's age then. Dead-reckoned at its
+        speed, a lossy link let the rule fire late (issue 22's fault matrix)."""
         i = self.vehicle_id
         if i == 0 or self.own is None:
             return None
         latest = self.buffer.latest(i - 1)
         if latest is None:
             return None
-        est = self.estimate(i - 1, now)  # the target's (cached); None once it expired
-        if est is None:
-            est = dead_reckon(latest, now, self._fresh_age_s, math.inf, self._decel(i - 1))
-            assert est is not None
+        est = dead_reckon(latest, now, self._rule_fresh_s, math.inf, self._decel(i - 1))
+        assert est is not None
         return gap_and_closing(self.own, est)
 
     def path_gap(self, now: float) -> tuple[float, float, int] | None:
         """The leader's gap source: ``(gap_m, closing_mps, vehicle)`` to the nearest
         convoy member in its path by that member's messages (centre to centre; positive
         closing = closing), None when none is. In its path: ahead of the leader
-        (``along`` > 0) and within half the two lengths of its heading line (a straight
-        corridor, wide enough for the curve of a track within the few metres where the
-        rule can fire). Estimates as ``gap_estimate``'s: no stop age."""
+        (``along`` > 0) and within half the two lengths plus ``PATH_CONE`` of the
+        distance ahead of its heading line (a cone: a track's curve, or a follower
+        stopped off the line, comes into it before the leader gets there). Estimates as
+        ``gap_estimate``'s: braking since the message."""
         own = self.own
         if self.vehicle_id != 0 or own is None:
             return None
@@ -350,11 +367,12 @@ class ConvoyMember:
             latest = self.buffer.latest(j)
             if latest is None:
                 continue
-            est = dead_reckon(latest, now, self._fresh_age_s, math.inf, self._decel(j))
+            est = dead_reckon(latest, now, self._rule_fresh_s, math.inf, self._decel(j))
             assert est is not None
             dx, dy = est.x - own.x, est.y - own.y
             half = 0.5 * (self._length(0) + self._length(j))
-            if not (c * dx + s * dy > 0.0 and abs(c * dy - s * dx) < half):
+            along = c * dx + s * dy
+            if not (along > 0.0 and abs(c * dy - s * dx) < half + PATH_CONE * along):
                 continue
             gap, closing = gap_and_closing(own, est)
             if best is None or gap < best[0]:

@@ -24,6 +24,11 @@ DEFAULT_MARGIN_LENGTHS = 0.25
 emergency)."""
 
 
+CONTROL_PERIOD_S = 0.05
+"""The control period the rule allows for by default (s): 20 Hz, the simulator's and
+``deploy``'s rate."""
+
+
 def bumper_gap(centre_gap_m: float, ego_length_m: float, pred_length_m: float) -> float:
     """Gap between bumpers (m) from the centre-to-centre gap and the two lengths."""
     return centre_gap_m - 0.5 * (ego_length_m + pred_length_m)
@@ -36,11 +41,14 @@ def gap_reduction_m(
     lag_s: float,
     ego_decel: float,
     pred_decel: float,
+    ego_accel: float = 0.0,
 ) -> float:
     """The most the gap (m) shrinks from now on when the vehicle ahead, at ``pred_mps``
     (m/s, along the line between the two), brakes at ``pred_decel`` (m/s²; inf: it
-    stops at once, a wall) from now, and the ego, at ``ego_mps``, holds its speed for
-    ``reaction_s`` (s) and then brakes through its speed loop: a first-order lag of
+    stops at once, a wall) from now, and the ego, at ``ego_mps`` and speeding up at
+    ``ego_accel`` (m/s²; slowing counts as 0), keeps accelerating for ``reaction_s`` (s:
+    its actuation delay and a control period) and then brakes through its speed loop: a
+    first-order lag of
     ``lag_s`` (s) clipped at ``ego_decel`` (m/s², the simulator's ``lag`` plant). 0 when
     the gap only grows.
 
@@ -50,14 +58,17 @@ def gap_reduction_m(
     gap is smallest, taken with the lag as a further delay (conservative). Written op for
     op as the batched twin (``envs.vector.member._reduction``): the two agree to the bit.
     """
-    ve = ego_mps if ego_mps > 0.0 else 0.0
+    v0 = ego_mps if ego_mps > 0.0 else 0.0
     vp = pred_mps if pred_mps > 0.0 else 0.0
+    up = ego_accel if ego_accel > 0.0 else 0.0
+    ve = v0 + up * reaction_s  # the speed it starts braking from
     pred_stop = 0.0 if math.isinf(pred_decel) else vp * vp / (2.0 * pred_decel)
+    react = v0 * reaction_s + 0.5 * up * reaction_s * reaction_s
     knee = ego_decel * lag_s
     if ve > knee:
-        ego_stop = ve * reaction_s + ve * ve / (2.0 * ego_decel) + 0.5 * knee * lag_s
+        ego_stop = react + ve * ve / (2.0 * ego_decel) + 0.5 * knee * lag_s
     else:
-        ego_stop = ve * reaction_s + ve * lag_s
+        ego_stop = react + ve * lag_s
     worst = ego_stop - pred_stop
     if ego_decel > pred_decel:
         # speeds meet at t*: ve - a_e (t* - t_r) = vp - a_p t*, with t_r = reaction + lag
@@ -65,7 +76,7 @@ def gap_reduction_m(
         ts = (ve + ego_decel * tr - vp) / (ego_decel - pred_decel)
         tb = ts - tr
         if tb > 0.0 and vp - pred_decel * ts > 0.0:
-            ego_x = ve * ts - 0.5 * ego_decel * tb * tb
+            ego_x = ve * ts - 0.5 * ego_decel * tb * tb  # (at ve from the start: more)
             pred_x = vp * ts - 0.5 * pred_decel * ts * ts
             worst = max(worst, ego_x - pred_x)
     return worst if worst > 0.0 else 0.0
@@ -103,7 +114,11 @@ class BrakingGap:
             )
 
     def stopping_distance(
-        self, closing_mps: float, ego_mps: float | None = None, pred_decel_mps2: float = math.inf
+        self,
+        closing_mps: float,
+        ego_mps: float | None = None,
+        pred_decel_mps2: float = math.inf,
+        ego_accel_mps2: float = 0.0,
     ) -> float:
         """Distance (m) the gap may shrink before both vehicles are at rest if the one
         ahead brakes at ``pred_decel_mps2`` from now (``gap_reduction_m``). ``closing_mps``
@@ -117,7 +132,7 @@ class BrakingGap:
             ego = ego_mps
             pred = ego_mps - closing
         return gap_reduction_m(
-            ego, pred, self.reaction_s, self.lag_s, self.decel_mps2, pred_decel_mps2
+            ego, pred, self.reaction_s, self.lag_s, self.decel_mps2, pred_decel_mps2, ego_accel_mps2
         )
 
     def clearance(
@@ -126,9 +141,12 @@ class BrakingGap:
         closing_mps: float,
         ego_mps: float | None = None,
         pred_decel_mps2: float = math.inf,
+        ego_accel_mps2: float = 0.0,
     ) -> float:
         """Bumper gap left (m) after both brake (``stopping_distance``)."""
-        return bumper_gap_m - self.stopping_distance(closing_mps, ego_mps, pred_decel_mps2)
+        return bumper_gap_m - self.stopping_distance(
+            closing_mps, ego_mps, pred_decel_mps2, ego_accel_mps2
+        )
 
     def too_close(
         self,
@@ -136,11 +154,13 @@ class BrakingGap:
         closing_mps: float,
         ego_mps: float | None = None,
         pred_decel_mps2: float = math.inf,
+        ego_accel_mps2: float = 0.0,
     ) -> bool:
         """True when the gap is known and the clearance left is below the margin."""
         if not math.isfinite(bumper_gap_m):
             return False
-        return self.clearance(bumper_gap_m, closing_mps, ego_mps, pred_decel_mps2) < self.margin_m
+        left = self.clearance(bumper_gap_m, closing_mps, ego_mps, pred_decel_mps2, ego_accel_mps2)
+        return left < self.margin_m
 
     def reason(
         self,
@@ -148,10 +168,11 @@ class BrakingGap:
         closing_mps: float,
         ego_mps: float | None = None,
         pred_decel_mps2: float = math.inf,
+        ego_accel_mps2: float = 0.0,
     ) -> str:
         """The log line: gap, closing speed, own speed and what braking would leave."""
         own = "" if ego_mps is None else f" at {ego_mps:.2f} m/s"
-        left = self.clearance(bumper_gap_m, closing_mps, ego_mps, pred_decel_mps2)
+        left = self.clearance(bumper_gap_m, closing_mps, ego_mps, pred_decel_mps2, ego_accel_mps2)
         return (
             f"gap {bumper_gap_m:.2f} m between bumpers closing at {closing_mps:.2f} m/s{own} "
             f"leaves {left:.2f} m after braking (margin {self.margin_m:.2f} m)"
@@ -164,8 +185,10 @@ def for_vehicle(
     speed_lag_s: float,
     length_m: float,
     margin_m: float | None = None,
+    period_s: float = CONTROL_PERIOD_S,
 ) -> BrakingGap:
     """The rule for a vehicle preset's numbers; ``margin_m`` None = the default
-    (``DEFAULT_MARGIN_LENGTHS`` of the vehicle's length)."""
+    (``DEFAULT_MARGIN_LENGTHS`` of the vehicle's length). The reaction is the actuation
+    delay and one control period ``period_s`` (s: the stop goes out at the next tick)."""
     margin = DEFAULT_MARGIN_LENGTHS * length_m if margin_m is None else margin_m
-    return BrakingGap(decel_max_mps2, actuation_delay_s, margin, speed_lag_s)
+    return BrakingGap(decel_max_mps2, actuation_delay_s + period_s, margin, speed_lag_s)

@@ -136,7 +136,7 @@ class ConvoyWorld:
         self._forged = tuple(f for f in self.faults if f.forges)
         self._braking: list[BrakingGap] = [
             for_vehicle(
-                p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m
+                p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m, dt
             )
             for p in self.presets
         ]
@@ -404,12 +404,12 @@ class ConvoyWorld:
         member = self.members[i]
         assert member.own is not None
         rule = self._braking[i]
-        ego, decel = member.own.speed, member.decel_of(j)
+        ego, decel, accel = member.own.speed, member.decel_of(j), member.own.accel
         bumper = bumper_gap(gap, self.lengths[i], self.lengths[j])
-        if not rule.too_close(bumper, closing, ego, decel):
+        if not rule.too_close(bumper, closing, ego, decel, accel):
             return False
         self._estopped[i] = True
-        why = rule.reason(bumper, closing, ego, decel)
+        why = rule.reason(bumper, closing, ego, decel, accel)
         self.safety_events.append((t, i, "emergency stop: " + why))
         return True
 

@@ -36,14 +36,14 @@ def test_rule_assumes_the_vehicle_ahead_may_brake_d48_numbers() -> None:
     """D48's moment: follower 2 at 20.7 m/s, 12.45 m (centre) behind vehicle 1 at 14.9
     m/s, full-size cars (4.8 m). The old rule (closing speed only: 5.8²/16 + 0.55·5.8)
     left 2.35 m > the 1.2 m margin and did not fire; braking at the limit from 14.9 m/s
-    the predecessor stops 13.9 m on, the follower needs 30.5 m: 16.6 m more."""
-    rule = for_vehicle(8.0, 0.15, 0.4, 4.8)
+    the predecessor stops 13.9 m on, the follower needs 31.6 m: 17.7 m more."""
+    rule = for_vehicle(8.0, 0.15, 0.4, 4.8)  # reaction 0.15 s + a 0.05 s control period
     bumper = 12.45 - 4.8
     old = BrakingGap(8.0, 0.55, rule.margin_m)  # the old rule: closing speed, reaction + lag
     assert old.clearance(bumper, 5.8) == pytest.approx(2.35, abs=0.01)
     assert not old.too_close(bumper, 5.8)
     assert rule.stopping_distance(5.8, 20.7, 8.0) == pytest.approx(
-        20.7 * 0.15 + 20.7**2 / 16 + 0.5 * 8.0 * 0.4**2 - 14.9**2 / 16
+        20.7 * 0.2 + 20.7**2 / 16 + 0.5 * 8.0 * 0.4**2 - 14.9**2 / 16
     )
     assert rule.too_close(bumper, 5.8, 20.7, 8.0)
     assert rule.clearance(bumper, 5.8, 20.7, 8.0) < -8.0
@@ -57,6 +57,11 @@ def test_reduction_at_rest_equal_speeds_and_a_harder_braking_ego() -> None:
     )
     # Below the lag's knee (a·τ = 0.35 m/s) the speed decays: v·τ.
     assert gap_reduction_m(0.3, 0.0, 0.12, 0.35, 1.0, 1.0) == pytest.approx(0.3 * 0.12 + 0.3 * 0.35)
+    # Speeding up, it goes on through the reaction: braking starts from 2.1 m/s.
+    assert gap_reduction_m(2.0, 2.0, 0.1, 0.0, 1.0, 1.0, 1.0) == pytest.approx(
+        2.0 * 0.1 + 0.5 * 0.1 * 0.1 + (2.1**2 - 2.0**2) / 2.0
+    )
+    assert gap_reduction_m(2.0, 2.0, 0.1, 0.0, 1.0, 1.0, -1.0) == pytest.approx(0.2)
     # A wall ahead (unknown braking limit): the ego's whole stopping distance.
     assert gap_reduction_m(10.0, 10.0, 0.0, 0.0, 5.0, math.inf) == pytest.approx(10.0)
     # The ego brakes harder than the vehicle ahead: the gap is smallest where the speeds

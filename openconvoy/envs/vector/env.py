@@ -221,7 +221,8 @@ class VectorConvoyEnv:
         decel = np.array([p.decel_max_mps2 for p in P], dtype=float)
         self._decel = np.where(decel > 0.0, decel, np.inf)
         self._rules = rules = [
-            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
+            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m,
+                        self.dt)
             for p in P
         ]  # fmt: skip
         packed = np.array([[r.decel_mps2, r.reaction_s, r.margin_m, r.lag_s] for r in rules]).T
@@ -262,6 +263,7 @@ class VectorConvoyEnv:
         self._everyone = np.ones(B, dtype=bool)
         self._fused_call = FusedCall()
         self._fresh_age_s = self.member_config.fresh_age_s
+        self._rule_fresh_s = self.member_config.rule_fresh_age_s  # decide's and lead_guard's
         self._targets_scratch = np.zeros((13, len(self.layout.targets)))
         self._accel_old = np.zeros((B, N))
         self.max_heading_change = MAX_HEADING_CHANGE_RAD
@@ -391,7 +393,7 @@ class VectorConvoyEnv:
         decide(  # on what the members measured of themselves at the last tick
             a, self.action_low, self.action_high, t, self._sensed, rx.hist, rx.hist_n,
             rx.newest, lk.needed, lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
-            self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
+            self._rule_fresh_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
             self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
             self.events.record, self.events.count, self._decel,
@@ -399,7 +401,7 @@ class VectorConvoyEnv:
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
         lead_guard(
             t, self._sensed, rx.hist, rx.hist_n, lk.lead_link, self._link_decel, self._decel,
-            self.lengths, self._fresh_age_s, self._lead_rule, self.estopped, self.emergency_stop,
+            self.lengths, self._rule_fresh_s, self._lead_rule, self.estopped, self.emergency_stop,
             self.cmd_v, self.cmd_dh, self.modes, self.events.record, self.events.count,
         )  # fmt: skip
         for vehicle, t_from in self._brakes:

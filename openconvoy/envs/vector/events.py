@@ -5,7 +5,7 @@ refused (``"policy error: ..."``), when its emergency stop latches (``"emergency
 ..."``, with the bumper gap and closing speed it read) and when an injected fault first
 becomes active (``"fault ..."``); in one tick the followers' events come in vehicle order,
 then the faults' in their order. The batched tick keeps no list: ``vector.member.decide``
-writes a latch's numbers into ``record`` (``EVENT_ROWS``, (8, B, N)) on the branch that
+writes a latch's numbers into ``record`` (``EVENT_ROWS``, (9, B, N)) on the branch that
 latches only (at most twice per follower and episode) and counts it in ``count``; a
 fault's event follows from the clock alone (the first tick it is active at), so it costs
 the tick nothing. ``SafetyEvents.of`` builds the tuples, strings and all, when asked.
@@ -85,7 +85,7 @@ class SafetyEvents:
 
     def _members(self, b: int) -> list[tuple[tuple[float, int, int, int], Event]]:
         """The followers' events of convoy ``b``, each with its sort key."""
-        err_t, speed, change, stop_t, bumper, closing, ego, decel = self.record[:, b]
+        err_t, speed, change, stop_t, bumper, closing, ego, decel, accel = self.record[:, b]
         out = []
         for i in np.flatnonzero(~np.isnan(err_t)).tolist():
             t = float(err_t[i])
@@ -94,7 +94,7 @@ class SafetyEvents:
         for i in np.flatnonzero(~np.isnan(stop_t)).tolist():
             t = float(stop_t[i])
             reason = self.rules[i].reason(
-                float(bumper[i]), float(closing[i]), float(ego[i]), float(decel[i])
+                float(bumper[i]), float(closing[i]), float(ego[i]), float(decel[i]), float(accel[i])
             )
             out.append(((t, 0, i, 1), (t, i, "emergency stop: " + reason)))
         return out

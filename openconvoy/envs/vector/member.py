@@ -18,16 +18,18 @@ import math
 import numpy as np
 
 from openconvoy.core.ladder import LadderConfig
+from openconvoy.core.member import PATH_CONE
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 from openconvoy.envs.vector.math import cos_sin, norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
 EVENT_ROWS = ("error_t_s", "error_speed", "error_change", "estop_t_s", "estop_bumper_m",
-              "estop_closing_mps", "estop_ego_mps", "estop_pred_decel")  # fmt: skip
+              "estop_closing_mps", "estop_ego_mps", "estop_pred_decel", "estop_ego_accel")  # fmt: skip
 """``decide``'s event record, per vehicle and episode (NaN until it happens): when the
 first refused action came and its two values; when the emergency stop latched, with the
-bumper gap, closing speed, own speed and the braking limit of the vehicle ahead it read."""
+bumper gap, closing speed, own speed, the braking limit of the vehicle ahead and own
+acceleration it read."""
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
 
@@ -112,7 +114,9 @@ def decide(
     latched policy error), clipped and float32, through the ladder (with the ranging
     reading), then the latch and the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N)
     and ``modes``. A latch that ``ConvoyWorld`` records in ``safety_events`` is written
-    to ``events`` (``EVENT_ROWS``, (8, B, N)) and counted in ``n_events`` (B,)."""
+    to ``events`` (``EVENT_ROWS``, (9, B, N)) and counted in ``n_events`` (B,).
+    ``fresh_age``: the rule's (``MemberConfig.rule_fresh_age_s``); ``decel`` (N,) each
+    vehicle's braking limit."""
     B, F = act.shape[0], act.shape[1]
     for b in range(B):
         for f in range(F):
@@ -198,6 +202,7 @@ def _rule_gap(
     else:
         # no stop age: a predecessor silent for longer is still no further than braking at
         # its limit takes it (``ConvoyMember.gap_estimate``)
+        # ``fresh_age``: the rule's (``MemberConfig.rule_fresh_age_s``, ``gap_estimate``)
         valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, np.inf, fresh_age)
         if not valid:
             return False, 0.0, 0.0
@@ -217,7 +222,7 @@ def _record_stop(
     _, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
                                    fresh_age, t, ranging)  # fmt: skip
     events[3, b, i], events[4, b, i], events[5, b, i] = t, bumper, closing
-    events[6, b, i], events[7, b, i] = own[2, b, i], pred_decel
+    events[6, b, i], events[7, b, i], events[8, b, i] = own[2, b, i], pred_decel, own[4, b, i]
     n_events[b] += 1
 
 
@@ -231,14 +236,14 @@ def _fires(
                                        fresh_age, t, ranging)  # fmt: skip
     if not known:
         return False
-    return _too_close(bumper, closing, own[2, b, i], pred_decel, rule)
+    return _too_close(bumper, closing, own[2, b, i], pred_decel, own[4, b, i], rule)
 
 
 @bare_inline
-def _too_close(bumper, closing, ego, pred_decel, rule):  # pragma: no cover - compiled
+def _too_close(bumper, closing, ego, pred_decel, accel, rule):  # pragma: no cover - compiled
     """``BrakingGap.too_close`` with the ego's speed: the rule ``(decel, reaction,
     margin, lag)`` on the bumper gap (m), closing speed (m/s), own speed (m/s) and the braking
-    limit of the vehicle ahead (m/s²)."""
+    limit of the vehicle ahead (m/s²), and the own acceleration (m/s²)."""
     if not np.isfinite(bumper):
         return False
     if not np.isfinite(closing):
@@ -247,20 +252,25 @@ def _too_close(bumper, closing, ego, pred_decel, rule):  # pragma: no cover - co
         ego, pred = closing, 0.0
     else:
         pred = ego - closing
-    return bumper - _reduction(ego, pred, rule[1], rule[3], rule[0], pred_decel) < rule[2]
+    return bumper - _reduction(ego, pred, rule[1], rule[3], rule[0], pred_decel, accel) < rule[2]
 
 
 @bare_inline
-def _reduction(ego_mps, pred_mps, reaction_s, lag_s, ego_decel, pred_decel):  # pragma: no cover
+def _reduction(
+    ego_mps, pred_mps, reaction_s, lag_s, ego_decel, pred_decel, ego_accel
+):  # pragma: no cover - compiled
     """``core.safety.gap_reduction_m``, op for op."""
-    ve = ego_mps if ego_mps > 0.0 else 0.0
+    v0 = ego_mps if ego_mps > 0.0 else 0.0
     vp = pred_mps if pred_mps > 0.0 else 0.0
+    up = ego_accel if ego_accel > 0.0 else 0.0
+    ve = v0 + up * reaction_s
     pred_stop = 0.0 if math.isinf(pred_decel) else vp * vp / (2.0 * pred_decel)
+    react = v0 * reaction_s + 0.5 * up * reaction_s * reaction_s
     knee = ego_decel * lag_s
     if ve > knee:
-        ego_stop = ve * reaction_s + ve * ve / (2.0 * ego_decel) + 0.5 * knee * lag_s
+        ego_stop = react + ve * ve / (2.0 * ego_decel) + 0.5 * knee * lag_s
     else:
-        ego_stop = ve * reaction_s + ve * lag_s
+        ego_stop = react + ve * lag_s
     worst = ego_stop - pred_stop
     if ego_decel > pred_decel:
         tr = reaction_s + lag_s
@@ -298,7 +308,8 @@ def lead_guard(
                     continue
                 dx, dy = ex - own[0, b, 0], ey - own[1, b, 0]
                 half = 0.5 * (lengths[0] + lengths[j])
-                if not (co * dx + so * dy > 0.0 and abs(co * dy - so * dx) < half):
+                along = co * dx + so * dy
+                if not (along > 0.0 and abs(co * dy - so * dx) < half + PATH_CONE * along):
                     continue
                 gap, closing = _gap_and_closing(own, b, 0, ex, ey, es, hist[b, ln, 0, 6],
                                                 hist[b, ln, 0, 7])  # fmt: skip
@@ -307,11 +318,16 @@ def lead_guard(
             if best_j < 0:
                 continue
             bumper = best - 0.5 * (lengths[0] + lengths[best_j])
-            if not _too_close(bumper, best_closing, own[2, b, 0], decel[best_j], rule):
+            if not _too_close(bumper, best_closing, own[2, b, 0], decel[best_j], own[4, b, 0],
+                              rule):  # fmt: skip
                 continue
             estopped[b, 0] = True
             events[3, b, 0], events[4, b, 0], events[5, b, 0] = t[b], bumper, best_closing
-            events[6, b, 0], events[7, b, 0] = own[2, b, 0], decel[best_j]
+            events[6, b, 0], events[7, b, 0], events[8, b, 0] = (
+                own[2, b, 0],
+                decel[best_j],
+                own[4, b, 0],
+            )
             n_events[b] += 1
         cmd_v[b, 0], cmd_dh[b, 0], modes[b, 0] = 0.0, 0.0, FAILSAFE
 

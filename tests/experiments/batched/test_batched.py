@@ -140,15 +140,18 @@ def test_ranging_sweep_batched_byte_for_byte(tmp_path: Path):
 
 
 def test_emergency_stops_sweep_batched_writes_run_sims_events_json(tmp_path: Path):
-    """Event-triggered CACC of full-size cars at PER 0.9 brakes too late: emergency stops
-    (and a collision). Each run directory has ``events.json`` exactly when the run had
-    events, the same bytes on both paths (the per-run path's is ``run_sim``'s)."""
+    """Event-triggered CACC of full-size cars: emergency stops at PER 0.9, and since
+    issue 22 at PER 0 too: the rule takes a silent leader as braking since its last
+    message (a dead one is silent too), and 0.45 s of the event trigger's silence at
+    25 m/s and 0.6 s headway leave less than that needs. Each run directory has
+    ``events.json`` exactly when the run had events, the same bytes on both paths (the
+    per-run path's is ``run_sim``'s)."""
     sweep = ExperimentConfig(name="e", scenario="emergency-braking",
                              policies=("cacc-allpred-event",), pers=(0.0, 0.9), seeds=2)  # fmt: skip
     a = _same_files_on_both_paths(sweep, tmp_path)
     runs = {n.rsplit("/", 1)[0] for n in a if n.endswith("metrics.json")}
     with_events = {n.rsplit("/", 1)[0] for n in a if n.endswith("events.json")}
-    assert len(runs) == 4 and with_events == {r for r in runs if "per_0.90" in r}
+    assert len(runs) == 4 and with_events == runs
     for run in with_events:
         events = json.loads(a[f"{run}/events.json"])
         assert events and all(e["reason"].startswith("emergency stop: gap") for e in events)

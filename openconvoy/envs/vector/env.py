@@ -40,7 +40,7 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
-from openconvoy.envs.convoy_env import check_rate_and_noise
+from openconvoy.envs.convoy_env import check_episode_args, check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import PathScenario, make_scenario
@@ -85,11 +85,18 @@ def _per_convoy_loss(loss: LossConfig | Sequence[LossConfig] | None, B: int) -> 
     return out
 
 
+MAX_NUM_ENVS = 1_000_000
+"""Most convoys one ``VectorConvoyEnv`` holds (its arrays grow with it: 10**7 ran out of
+memory, issue 22 D68)."""
+
+
 def _check_args(
     num_envs: int, control_rate_hz: float, gps_noise_m: float, render_mode: str | None
 ) -> None:
-    if num_envs < 1:
-        raise ConfigError(f"num_envs must be at least 1, got {num_envs}")
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)):
+        raise ConfigError(f"num_envs: expected an integer, got {num_envs!r}")
+    if not 1 <= int(num_envs) <= MAX_NUM_ENVS:
+        raise ConfigError(f"num_envs must be in 1..{MAX_NUM_ENVS}, got {num_envs}")
     check_rate_and_noise(control_rate_hz, gps_noise_m)
     if render_mode is not None:
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
@@ -165,6 +172,7 @@ class VectorConvoyEnv:
         link_counters: str = "all",
     ) -> None:
         _check_args(num_envs, control_rate_hz, gps_noise_m, render_mode)
+        check_episode_args(n_followers, max_time_s)
         self.scenario = sc = _scenario(scenario, n_followers, vehicle_presets)
         self.num_envs = B = int(num_envs)
         self.n_vehicles = N = sc.n_vehicles
@@ -289,8 +297,16 @@ class VectorConvoyEnv:
 
     def safety_events(self, b: int) -> list[Event]:
         """Convoy ``b``'s ``ConvoyEnv.safety_events`` (t s, vehicle, reason) this episode,
-        built when asked (``vector.events``); see ``autoreset`` for a finished one's."""
-        return self.events.of(b, int(self.step_count[b]))
+        built when asked (``vector.events``); see ``autoreset`` for a finished one's.
+        ``ValueError`` for a ``b`` that is no convoy."""
+        if isinstance(b, bool) or not isinstance(b, (int, np.integer)):
+            raise ValueError(f"safety_events: convoy index must be an integer, got {b!r}")
+        if not 0 <= b < self.num_envs:
+            raise ValueError(f"safety_events: convoy {b} out of 0..{self.num_envs - 1}")
+        return self.events.of(int(b), int(self.step_count[b]))
+
+    def close(self) -> None:
+        """Nothing to release (the Gymnasium vector API's ``close``)."""
 
     def reset(self, seed: int | Sequence[int] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every convoy: convoy ``b`` gets ``seed + b`` (or ``seed[b]``)."""

@@ -114,3 +114,21 @@ def test_d49_the_track_leader_stops_for_the_convoy_in_its_path(fault: str) -> No
     assert 60.0 < stop["t_s"] < 90.0
     # It stopped short of the tail, its 0.19 m margin kept to within a tick's travel.
     assert _min_clearance_to_leader(r.log, lengths) > 0.1
+
+
+def test_the_runners_leader_gap_is_the_member_in_its_path() -> None:
+    """``deploy`` (``bridge.runner.gap_ahead``) for vehicle 0: NaN at aea1a73, so
+    ``deploy --track`` had only the speed cap and the geofence (D49)."""
+    from openconvoy.bridge.runner import gap_ahead
+    from openconvoy.core.member import ConvoyMember, MemberConfig
+    from openconvoy.core.state import VehicleState
+
+    member = ConvoyMember(0, 3, MemberConfig(), [0.8, 1.0, 0.8], [1.0, 1.0, 1.0])
+    member.observe_own(VehicleState(0, 10.0, 0.0, 0.0, 1.5, 0.0))
+    assert math.isnan(gap_ahead(member, 10.0)[0])  # nobody heard
+    member.receive(VehicleState(1, 10.0, -15.0, 0.0, 0.0, 0.0), 10.0)  # behind: not in its path
+    member.receive(VehicleState(2, 10.0, 3.0, 0.4, 0.0, math.pi), 10.0)  # the tail, ahead
+    gap, closing = gap_ahead(member, 10.0)
+    assert gap == pytest.approx(math.hypot(3.0, 0.4)) and closing == pytest.approx(1.5 * 3.0 / gap)
+    member.receive(VehicleState(2, 10.1, 3.0, 5.0, 0.0, math.pi), 10.1)  # beside, 5 m off
+    assert math.isnan(gap_ahead(member, 10.1)[0])

@@ -1,6 +1,7 @@
 import pytest
 
 from openconvoy.convoy import ConvoyConfig, load_convoy
+from openconvoy.envs.vehicles import vehicle_preset
 
 
 def test_load_full_convoy_file(tmp_path):
@@ -53,9 +54,16 @@ def test_gap_margin_is_checked_and_reaches_the_envelope(tmp_path, value, ok):
         return
     env = envelope_from(load_convoy(p), vehicle_id=1)
     assert env.braking.margin_m == float(value)
-    assert env.braking.decel_mps2 == 1.0 and env.braking.reaction_s == pytest.approx(0.12 + 0.35)
+    # reaction: the actuation delay and a 20 Hz control period
+    assert env.braking.decel_mps2 == 1.0 and env.braking.reaction_s == pytest.approx(0.12 + 0.05)
+    assert env.braking.lag_s == pytest.approx(0.35)
     assert (env.ego_length_m, env.pred_length_m) == (0.97, 0.779)
     assert envelope_from(ConvoyConfig(), vehicle_id=1).braking.margin_m == pytest.approx(
         0.25 * 0.97
     )
-    assert envelope_from(ConvoyConfig(), vehicle_id=0).braking is None  # the leader follows nobody
+    # The leader's rule is to the convoy's tail, which it meets lapping a closed track (D49).
+    lead = envelope_from(ConvoyConfig(), vehicle_id=0)
+    assert (
+        lead.braking is not None
+        and lead.pred_length_m == vehicle_preset(ConvoyConfig().vehicles[-1]).length_m
+    )

@@ -251,19 +251,24 @@ def test_each_preset_uses_the_topology_and_trigger_it_claims(name: str):
     topology, trigger = _claimed(name)
     assert (cfg.topology, cfg.trigger.kind) == (topology, trigger)
     member = ConvoyMember(2, 4, cfg)
+    assert {j for j in (0, 1, 3) if member.rx.keeps(j)} == KEPT_BY_VEHICLE_2_OF_4[topology]
+    # R^i also keeps the predecessor's messages, for the braking rule (issue 22, D47).
     kept = {
         j
         for j in (0, 1, 3)
         if member.receive(VehicleState(j, 0.0, 10.0 * (2 - j), 0.0, 1.0, 0.0), 0.0)
     }
-    assert kept == KEPT_BY_VEHICLE_2_OF_4[topology]
+    assert kept == KEPT_BY_VEHICLE_2_OF_4[topology] | {1}
 
 
-def test_a_leader_following_member_ignores_a_non_leaders_message():
+def test_a_leader_following_member_shows_its_policy_the_leader_only():
     member = ConvoyMember(2, 3, PRESETS["platoon-leader"].member)
-    assert not member.receive(VehicleState(1, 0.0, 15.0, 0.0, 1.0, 0.0), 0.0)
+    assert member.receive(VehicleState(1, 0.0, 15.0, 0.0, 1.0, 0.0), 0.0)  # for the rule
     assert member.receive(VehicleState(0, 0.0, 30.0, 0.0, 1.0, 0.0), 0.0)
-    assert member.buffer.latest(1) is None and member.buffer.latest(0) is not None
+    member.observe_own(VehicleState(2, 0.0, 0.0, 0.0, 1.0, 0.0))
+    view = member.layout.view(member.sense(0.0).observation)
+    assert view.states("pred_1")[0, 6] == 0.0 and view.states("pred_2")[0, 6] == 1.0
+    assert member.gap_estimate(0.0) == (15.0, 0.0)
 
 
 @pytest.mark.parametrize("periodic", [n for n in PRESETS if n + "-event" in PRESETS])

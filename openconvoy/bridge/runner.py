@@ -226,16 +226,17 @@ def top_speed(convoy: ConvoyConfig, vehicle_id: int) -> float:
 
 def envelope_from(convoy: ConvoyConfig, vehicle_id: int | None = None) -> Envelope:
     """The safety envelope a convoy config asks for; with ``vehicle_id``, the braking-aware
-    gap rule from that vehicle's preset (margin ``[safety] gap_margin_m`` or its default)."""
+    gap rule from that vehicle's preset (margin ``[safety] gap_margin_m`` or its default);
+    the leader's is to the convoy's last vehicle, the one a lapping leader meets (D49)."""
     s = convoy.safety
     braking, ego_len, pred_len = None, 0.0, 0.0
-    if vehicle_id is not None and vehicle_id > 0:
+    if vehicle_id is not None and convoy.n_vehicles > 1:
         from openconvoy.core.safety import for_vehicle
         from openconvoy.envs.vehicles import vehicle_preset
 
         ego, pred = (
             vehicle_preset(convoy.vehicles[vehicle_id]),
-            vehicle_preset(convoy.vehicles[vehicle_id - 1]),
+            vehicle_preset(convoy.vehicles[vehicle_id - 1 if vehicle_id > 0 else -1]),
         )
         braking = for_vehicle(
             ego.decel_max_mps2, ego.actuation_delay_s, ego.speed_lag_s, ego.length_m, s.gap_margin_m
@@ -272,8 +273,12 @@ def make_member(
 def gap_ahead(member: ConvoyMember, wall: float) -> tuple[float, float]:
     """Measured gap to the immediate predecessor (m, centre to centre) and its closing speed
     (m/s): the member's estimate from its messages (bounded dead-reckoning, as in
-    simulation); NaN and 0 for the leader or when unknown."""
-    est = None if member.vehicle_id == 0 else member.gap_estimate(wall)
+    simulation); for the leader, to the nearest member in its path (``path_gap``: a
+    closed track's tail, D49); NaN and 0 when unknown."""
+    if member.vehicle_id == 0:
+        ahead = member.path_gap(wall)
+        return (math.nan, 0.0) if ahead is None else (ahead[0], ahead[1])
+    est = member.gap_estimate(wall)
     return (math.nan, 0.0) if est is None else est
 
 

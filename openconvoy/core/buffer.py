@@ -41,7 +41,7 @@ class StateBuffer:
             return
         q.appendleft(state)
         self._newest_t[state.vehicle_id] = state.t
-        self._trails[state.vehicle_id].add(state.x, state.y)
+        self._trails[state.vehicle_id].add(state.x, state.y, state.heading, state.speed, state.t)
 
     def heard(self) -> list[int]:
         """Ids of every vehicle with at least one stored state."""

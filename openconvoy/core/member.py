@@ -41,6 +41,9 @@ from openconvoy.core.trail import Projection, Trail
 _NF = len(STATE_FEATURES)
 _ND = len(DERIVED_FEATURES)
 _TWO_PI = 2.0 * math.pi  # as ``wrap_angle`` computes it
+PATH_CONE = 0.5
+"""Half-width growth (m per m ahead) of the corridor in which the leader looks for a
+member in its path (``ConvoyMember.path_gap``)."""
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,15 @@ class MemberConfig:
         t = self.trigger
         silence = t.max_silence_s + t.period_s if t.kind == "event" else 0.0
         return max(self.ladder.degrade_after_s, silence)
+
+    @property
+    def rule_fresh_age_s(self) -> float:
+        """Message age (s) up to which the braking rule takes the vehicle ahead at its
+        constant speed before braking at its limit: 0, whatever the trigger. It may have
+        braked since it sent; an event trigger's silence does not say otherwise, since a
+        dead sender is silent too (issue 22's fault matrix: with the event trigger's 1.1 s,
+        ``dead:1@3`` on ``emergency-braking`` at PER 0.3 collided)."""
+        return 0.0
 
 
 def member_config_for(config: MemberConfig | None, spacing: SpacingConfig) -> MemberConfig:
@@ -142,23 +154,33 @@ class ConvoyMember:
         self.buffer = StateBuffer(config.k, config.trail_spacing_m)
         # What the gates, the layout and σ say is fixed for the member's life; computed
         # once, because every tick reads it for every message and target.
-        self._keeps = [self.rx.keeps(j) for j in range(n_vehicles)]
+        # ρ decides what the policy sees; the braking rule sees more: every member keeps
+        # its immediate predecessor's messages, the leader everyone's (a convoy vehicle
+        # in its path on a closed track), whatever ρ says (issue 22, D47, D49).
+        self._control = [self.rx.keeps(j) for j in range(n_vehicles)]
+        self._keeps = [
+            self._control[j] or j == vehicle_id - 1 or (vehicle_id == 0 and j != 0)
+            for j in range(n_vehicles)
+        ]
         self._needed = tuple(self.rx.needed())
         self._gaps = GapChain(self.spacing, self.lengths)
         self._fresh_age_s = config.fresh_age_s
+        self._rule_fresh_s = config.rule_fresh_age_s
         self._stop_after_s = config.ladder.stop_after_s
         lay = self.layout
         self._slots = [
             (lay.slot_offset(slot), vid)
             for slot, vid in zip(lay.slots, self._slot_ids())
-            if vid is not None
+            if vid is not None and self._control[vid]
         ]
         targets = self._slot_ids()[: len(lay.targets)]
         preds_in_slots = set(targets[1:])
         self._targets = [
             (name, vid, lay.target_offset(name))
             for name, vid in zip(lay.targets, targets)
-            if vid is not None and not (name == "leader" and vid in preds_in_slots)
+            if vid is not None
+            and self._control[vid]
+            and not (name == "leader" and vid in preds_in_slots)
         ]
         """(target name, vehicle id, offset) of every target slot with a vehicle in it."""
         self._nearest_first = (*lay.targets[1:], "leader")
@@ -193,7 +215,8 @@ class ConvoyMember:
         return send
 
     def receive(self, msg: VehicleState, now: float) -> bool:
-        """ρ: keep ``msg`` in R^i if the topology wants its sender. Returns True if kept."""
+        """ρ: keep ``msg`` in R^i if the topology wants its sender, or the braking rule
+        does (the predecessor; for the leader, everyone). Returns True if kept."""
         j = msg.vehicle_id
         keeps = self._keeps
         if not (keeps[j] if 0 <= j < len(keeps) else self.rx.keeps(j)):
@@ -324,18 +347,54 @@ class ConvoyMember:
         Unlike a target, this estimate does not expire at the ladder's stop age: a
         predecessor silent for longer got no further than braking at its limit takes it
         (and a stopped car stays put), so the braking rule, which reads it, keeps seeing
-        it there. Expiring it let a policy drive into a dead predecessor unchecked."""
+        it there. Expiring it let a policy drive into a dead predecessor unchecked.
+
+        The predecessor is taken as braking at its limit since its newest message, however
+        fresh (``MemberConfig.rule_fresh_age_s``): it may have started when it sent, and
+        where it stops does not depend on the message's age then. Dead-reckoned at its
+        speed, a lossy link let the rule fire late (issue 22's fault matrix)."""
         i = self.vehicle_id
         if i == 0 or self.own is None:
             return None
         latest = self.buffer.latest(i - 1)
         if latest is None:
             return None
-        est = self.estimate(i - 1, now)  # the target's (cached); None once it expired
-        if est is None:
-            est = dead_reckon(latest, now, self._fresh_age_s, math.inf, self._decel(i - 1))
-            assert est is not None
+        est = dead_reckon(latest, now, self._rule_fresh_s, math.inf, self._decel(i - 1))
+        assert est is not None
         return gap_and_closing(self.own, est)
+
+    def path_gap(self, now: float) -> tuple[float, float, int] | None:
+        """The leader's gap source: ``(gap_m, closing_mps, vehicle)`` to the nearest
+        convoy member in its path by that member's messages (centre to centre; positive
+        closing = closing), None when none is. In its path: ahead of the leader
+        (``along`` > 0) and within half the two lengths plus ``PATH_CONE`` of the
+        distance ahead of its heading line (a cone: a track's curve, or a follower
+        stopped off the line, comes into it before the leader gets there). Estimates as
+        ``gap_estimate``'s: braking since the message."""
+        own = self.own
+        if self.vehicle_id != 0 or own is None:
+            return None
+        c, s = math.cos(own.heading), math.sin(own.heading)
+        best: tuple[float, float, int] | None = None
+        for j in range(1, self.n_vehicles):
+            latest = self.buffer.latest(j)
+            if latest is None:
+                continue
+            est = dead_reckon(latest, now, self._rule_fresh_s, math.inf, self._decel(j))
+            assert est is not None
+            dx, dy = est.x - own.x, est.y - own.y
+            half = 0.5 * (self._length(0) + self._length(j))
+            along = c * dx + s * dy
+            if not (along > 0.0 and abs(c * dy - s * dx) < half + PATH_CONE * along):
+                continue
+            gap, closing = gap_and_closing(own, est)
+            if best is None or gap < best[0]:
+                best = (gap, closing, j)
+        return best
+
+    def decel_of(self, vid: int) -> float:
+        """Vehicle ``vid``'s braking limit (m/s²; inf when unknown)."""
+        return self._decel(vid)
 
     # --- helpers ---------------------------------------------------------------------
 

@@ -18,6 +18,11 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass
 
+SMOOTHING = 0.25
+"""Weight of a new position fix against the track predicted from the sender's own speed
+and heading (``Trail.add``): GPS noise of σ leaves ~0.38σ on the breadcrumbs, and no lag
+at a steady speed (the prediction carries the motion)."""
+
 
 @dataclass(frozen=True, slots=True)
 class Projection:
@@ -36,7 +41,14 @@ class Projection:
 
 class Trail:
     """Breadcrumbs at least ``spacing_m`` apart, newest last, at most ``capacity`` of them
-    (the oldest half is dropped when full)."""
+    (the oldest half is dropped when full).
+
+    Robust to positioning noise (issue 22, the PX4 start stall): with the sender's
+    heading, speed and time, the positions are smoothed along the motion they report
+    (``SMOOTHING``), a breadcrumb is laid only for ``spacing_m`` of progress along that
+    heading (a fix that jitters or creeps at rest lays none), and the extension behind
+    the oldest breadcrumb follows the heading the sender reported there, not a
+    direction taken from two close, noisy points."""
 
     def __init__(self, spacing_m: float = 0.2, capacity: int = 1024) -> None:
         self.spacing_m = spacing_m
@@ -50,9 +62,33 @@ class Trail:
         self._x: list[float] = []
         self._y: list[float] = []
         self._s: list[float] = []
+        self._back: tuple[float, float] | None = None  # unit vector behind the oldest
+        self._fix: tuple[float, float, float] | None = None  # smoothed x, y (m), t (s)
 
-    def add(self, x: float, y: float) -> None:
-        """Record a position; kept only when ``spacing_m`` from the last breadcrumb."""
+    def add(
+        self,
+        x: float,
+        y: float,
+        heading: float | None = None,
+        speed: float = 0.0,
+        t: float = 0.0,
+    ) -> None:
+        """Record a position (m) sent at ``t`` (s) by a vehicle reporting ``heading``
+        (rad) and ``speed`` (m/s): smoothed, and laid as a breadcrumb after ``spacing_m``
+        of progress along ``heading``. Without a heading: the raw position, laid when
+        ``spacing_m`` from the last breadcrumb."""
+        if heading is not None:
+            c, s = math.cos(heading), math.sin(heading)
+            fix = self._fix
+            if fix is not None:
+                d = speed * (t - fix[2])
+                px, py = fix[0] + d * c, fix[1] + d * s
+                x, y = px + SMOOTHING * (x - px), py + SMOOTHING * (y - py)
+            self._fix = (x, y, t)
+            if self._x and (x - self._x[-1]) * c + (y - self._y[-1]) * s < self.spacing_m:
+                return
+            if not self._x:
+                self._back = (-c, -s)
         step = math.hypot(x - self._x[-1], y - self._y[-1]) if self._x else 0.0
         if self._x and step < self.spacing_m:
             return
@@ -60,6 +96,7 @@ class Trail:
             half = self.capacity // 2
             # Arc coordinates stay absolute, so a caller's remembered ``s`` stays valid.
             del self._x[:half], self._y[:half], self._s[:half]
+            self._back = None
         self._x.append(x)
         self._y.append(y)
         self._s.append(self._s[-1] + step if self._s else 0.0)
@@ -87,7 +124,10 @@ class Trail:
         return self._x[0] + far * hx, self._y[0] + far * hy, self._s[0] - far
 
     def _back_direction(self, head: tuple[float, float], heading: float) -> tuple[float, float]:
-        """Unit vector pointing backwards from the oldest breadcrumb."""
+        """Unit vector pointing backwards from the oldest breadcrumb: against the heading
+        reported there, else from the two oldest breadcrumbs."""
+        if self._back is not None:
+            return self._back
         if len(self._x) >= 2:
             dx, dy = self._x[1] - self._x[0], self._y[1] - self._y[0]
         else:

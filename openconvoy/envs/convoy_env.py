@@ -90,6 +90,49 @@ def check_rate_and_noise(control_rate_hz: float, gps_noise_m: float) -> None:
         check_number(number, name, allowed)
 
 
+MAX_FOLLOWERS = 1000
+"""Most followers a convoy env takes (``RunConfig``'s ``[convoy] n_followers`` bound)."""
+MAX_TIME_S = 604800.0
+"""Longest episode an env takes (s): a week, ``RunConfig``'s ``duration_s`` bound."""
+
+
+def check_episode_args(n_followers: object, max_time_s: object) -> None:
+    """``ConfigError`` naming the argument unless ``n_followers`` is None or an integer in
+    1..``MAX_FOLLOWERS`` and ``max_time_s`` None or a number in (0, ``MAX_TIME_S``] s
+    (issue 22, D68/D69)."""
+    if n_followers is not None:
+        if isinstance(n_followers, bool) or not isinstance(n_followers, (int, np.integer)):
+            raise ConfigError(f"n_followers: expected an integer, got {n_followers!r}")
+        if not 1 <= int(n_followers) <= MAX_FOLLOWERS:
+            raise ConfigError(f"n_followers must be in 1..{MAX_FOLLOWERS}, got {n_followers}")
+    if max_time_s is not None:
+        try:
+            value = float(max_time_s)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            raise ConfigError(f"max_time_s: expected a number, got {max_time_s!r}") from None
+        check_number(value, "max_time_s", Range(lo=0.0, hi=MAX_TIME_S, lo_open=True))
+
+
+def check_action(agent: str, action: object) -> None:
+    """``ValueError`` naming ``agent`` unless ``action`` is ``[speed, heading change]``: two
+    real numbers (shape (2,); NaN or inf pass: they are the policy's error, a stop)."""
+    try:
+        arr = np.asarray(action)
+    except Exception:  # noqa: BLE001 - anything not an array is the message's case
+        arr = None
+    if arr is None or arr.shape != (2,) or arr.dtype.kind not in "fiu":
+        what = (
+            "None"
+            if action is None
+            else " ".join(f"{type(action).__name__} {action!r}".split())[:80]
+        )
+        shape = "" if arr is None else f" shape {arr.shape} dtype {arr.dtype}"
+        raise ValueError(
+            f"action of {agent}: expected shape (2,) numbers [speed, heading change], "
+            f"got {what}{shape}"
+        )
+
+
 def agent_name(vehicle_id: int) -> str:
     """The agent name of follower ``vehicle_id`` (1 = first follower)."""
     return f"{AGENT_PREFIX}{vehicle_id}"
@@ -171,6 +214,7 @@ class ConvoyEnv(ParallelEnv):
         plant_presets: Sequence[VehiclePreset | str] | None = None,
     ) -> None:
         check_rate_and_noise(control_rate_hz, gps_noise_m)
+        check_episode_args(n_followers, max_time_s)
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         scenario = _resolve_scenario(scenario, n_followers, vehicle_presets)
@@ -205,6 +249,7 @@ class ConvoyEnv(ParallelEnv):
         """The simulated convoy (``envs.world.ConvoyWorld``)."""
         self.possible_agents = [agent_name(i) for i in range(1, n)]
         self.agents: list[str] = []
+        self._was_reset = False
         self._agent_index = {a: i for i, a in enumerate(self.possible_agents, start=1)}
         self._observation_spaces, self._action_spaces = self._spaces()
         self._road: np.ndarray | None = None
@@ -243,6 +288,7 @@ class ConvoyEnv(ParallelEnv):
         elif self._seed_seq is None:
             self._seed_seq = np.random.SeedSequence()
         self.sim.reset(self._seed_seq)
+        self._was_reset = True
         self.agents = self.possible_agents[:]
         return self._observations(), self._infos()
 
@@ -255,14 +301,25 @@ class ConvoyEnv(ParallelEnv):
         dict[str, bool],
         dict[str, dict[str, Any]],
     ]:
-        """Advance one tick with every live agent's action (SI units, clipped to the space)."""
+        """Advance one tick with every live agent's action (SI units, clipped to the space).
+        ``ValueError`` naming the agent for an action that is not two numbers, or a key
+        that is no agent; NaN or inf is the policy's error (that follower stops)."""
         if not self.agents:
+            if not self._was_reset:
+                raise RuntimeError("step() called before reset(); call reset() first")
             raise RuntimeError("step() called on a finished episode; call reset()")
         names = self.possible_agents
         try:
             ordered = [actions[a] for a in names]
         except KeyError as exc:
             raise KeyError(f"no action for {exc.args[0]}") from None
+        unknown = set(actions) - set(names)
+        if unknown:
+            raise ValueError(
+                f"actions for unknown agents {sorted(map(str, unknown))}; agents: {', '.join(names)}"
+            )
+        for a, action in zip(names, ordered):
+            check_action(a, action)
         sim = self.sim
         accel_before = sim.truth.accel
         sim.decide(ordered)

@@ -138,12 +138,13 @@ class ConvoyWorld:
         self.emergency_stop = emergency_stop
         self.auth = Authentication(n, required=auth)
         self._forged = tuple(f for f in self.faults if f.forges)
-        self._braking: list[BrakingGap | None] = [None] + [
+        self._braking: list[BrakingGap] = [
             for_vehicle(
-                p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m
+                p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m, dt
             )
-            for p in self.presets[1:]
+            for p in self.presets
         ]
+        """Each vehicle's braking-aware gap rule (the leader's: a member in its path)."""
         # The vehicles as they drive (``plant_presets``: fitted to a vehicle run) may differ
         # from the presets the members, the safety rules and the scenario know (the ones
         # the vehicles were deployed with): calibration (docs/calibration.md).
@@ -213,6 +214,9 @@ class ConvoyWorld:
         v0, h0 = self.scenario.leader_command(t, tr.x[0], tr.y[0], tr.heading[0], tr.speed[0])
         cmd_v[0] = v0
         cmd_dh[0] = (h0 - tr.heading[0] + math.pi) % (2 * math.pi) - math.pi
+        if self.emergency_stop and self._lead_emergency(t):
+            cmd_v[0] = cmd_dh[0] = 0.0
+            modes[0] = "failsafe"
         if self.faults:
             self._apply_faults(t)
 
@@ -400,20 +404,40 @@ class ConvoyWorld:
         """The braking-aware gap rule for follower ``i`` (latched once it fires)."""
         if self._estopped[i]:
             return True
-        rule = self._braking[i]
-        assert rule is not None
+        member = self.members[i]
         if reading is not None:
             gap, closing = reading[0], -reading[1]
         else:
-            est = self.members[i].gap_estimate(t)
+            est = member.gap_estimate(t)
             if est is None:
                 return False
             gap, closing = est
-        bumper = bumper_gap(gap, self.lengths[i], self.lengths[i - 1])
-        if not rule.too_close(bumper, closing):
+        return self._rule_fires(i, i - 1, t, gap, closing)
+
+    def _lead_emergency(self, t: float) -> bool:
+        """The leader's braking-aware gap rule to a member in its path (a closed track:
+        the convoy's tail), latched once it fires (issue 22, D49)."""
+        if self._estopped[0]:
+            return True
+        ahead = self.members[0].path_gap(t)
+        if ahead is None:
+            return False
+        gap, closing, j = ahead
+        return self._rule_fires(0, j, t, gap, closing)
+
+    def _rule_fires(self, i: int, j: int, t: float, gap: float, closing: float) -> bool:
+        """Vehicle ``i``'s rule on the centre gap (m) and closing speed (m/s) to vehicle
+        ``j`` ahead, which may brake at its limit from now; latches and records a stop."""
+        member = self.members[i]
+        assert member.own is not None
+        rule = self._braking[i]
+        ego, decel, accel = member.own.speed, member.decel_of(j), member.own.accel
+        bumper = bumper_gap(gap, self.lengths[i], self.lengths[j])
+        if not rule.too_close(bumper, closing, ego, decel, accel):
             return False
         self._estopped[i] = True
-        self.safety_events.append((t, i, "emergency stop: " + rule.reason(bumper, closing)))
+        why = rule.reason(bumper, closing, ego, decel, accel)
+        self.safety_events.append((t, i, "emergency stop: " + why))
         return True
 
 

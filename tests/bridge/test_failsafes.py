@@ -137,21 +137,23 @@ def test_ladder_stop_holds():
 
 
 def test_braking_aware_gap_stops_before_the_bumpers_meet():
-    # 1/6 car behind a 1/10 car: 0.874 m of half lengths; brakes at 1 m/s² after 0.47 s.
+    # 1/6 car behind a 1/10 car: 0.874 m of half lengths; brakes at 1 m/s² after 0.17 s
+    # (0.12 s delay, a 20 Hz control period) through a 0.35 s lag (saturated above
+    # 0.35 m/s: + a·τ²/2 = 0.061 m).
     rule = for_vehicle(1.0, 0.12, 0.35, 0.97)
     assert rule.margin_m == pytest.approx(0.2425)
     env = Envelope(min_gap_m=1.0, braking=rule, ego_length_m=0.97, pred_length_m=0.779)
     # The old rule's 1 m centre to centre is 0.13 m between bumpers: now far too close.
     assert env.too_close(1.0, 0.0).startswith("gap 0.13 m between bumpers")
-    # Closing at 2 m/s needs 2 m of braking + 0.94 m of reaction: 4.2 m centre gap fires,
-    # 4.1 + margin would not at rest.
-    assert env.too_close(0.874 + 2.0 + 0.94 + 0.24, 2.0)
-    assert env.too_close(0.874 + 2.0 + 0.94 + 0.25, 2.0) == ""
+    # Closing at 2 m/s (own speed unknown: the vehicle ahead taken as at rest) needs 2 m
+    # of braking + 0.34 m of reaction + 0.061 m of lag: 4.2 m centre gap fires.
+    assert env.too_close(0.874 + 2.0 + 0.34 + 0.061 + 0.24, 2.0)
+    assert env.too_close(0.874 + 2.0 + 0.34 + 0.061 + 0.245, 2.0) == ""
     assert env.too_close(0.874 + 0.25, 0.0) == ""
     assert env.too_close(0.874 + 0.25, -3.0) == ""  # opening: only the margin counts
     assert env.too_close(math.nan, 2.0) == ""
     f = Failsafes(envelope=env)
-    v = f.decide(fresh(1.0, gap_m=4.0, closing_mps=2.0))
+    v = f.decide(fresh(1.0, gap_m=3.3, closing_mps=2.0))
     assert (v.command, v.hold) == (STOP, True) and "after braking" in v.reason
 
 

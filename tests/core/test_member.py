@@ -17,16 +17,24 @@ def member(vid=2, n=3, **kw):
     return ConvoyMember(vid, n, MemberConfig(**kw), lengths=[0.8] * n)
 
 
-def test_leader_following_member_ignores_non_leader_messages():
+def test_leader_following_member_shows_the_policy_the_leader_only():
+    """ρ = leader: the policy sees the leader alone; the predecessor's messages are kept
+    for the braking rule all the same (issue 22, D47: before, they were dropped and the
+    rule had no gap)."""
     m = member(topology="leader")
     m.observe_own(S(2, 0.0, 0.0))
     assert m.receive(S(0, 0.0, 30.0), 0.0)
-    assert not m.receive(S(1, 0.0, 15.0), 0.0)
+    assert m.receive(S(1, 0.0, 15.0), 0.0)  # kept for the rule
+    assert not m.receive(S(3, 0.0, -15.0), 0.0)  # the follower: filtered
     assert not m.receive(S(2, 0.0, 0.0), 0.0)  # own echo
-    assert m.msgs_received == 1 and m.msgs_filtered == 2
-    view = m.layout.view(m.observation(0.0))
-    assert view.states("pred_1")[0, 6] == 0.0  # vehicle 1 unheard
+    assert m.msgs_received == 2 and m.msgs_filtered == 2
+    frame = m.sense(0.0)
+    view = m.layout.view(frame.observation)
+    assert view.states("pred_1")[0, 6] == 0.0  # vehicle 1 not in the observation
     assert view.states("pred_2")[0, 6] == 1.0  # vehicle 0 is pred_2 of vehicle 2
+    assert frame.pred_gap is None  # nor in the degraded rung's ACC target
+    gap, closing = m.gap_estimate(0.0)
+    assert gap == pytest.approx(15.0) and closing == pytest.approx(0.0)
 
 
 def test_observation_on_a_straight_road_at_the_desired_gaps():

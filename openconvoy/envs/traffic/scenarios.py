@@ -80,6 +80,12 @@ CAR = VEHICLE_PRESETS["full-size"].with_ranging(RADAR)
 CACC = SpacingConfig("constant-time-headway", standstill_m=2.0, headway_s=0.6)
 
 
+MAX_TRAFFIC = 500
+"""Most traffic cars (``traffic``, ``merge_cars``) a highway scenario takes: each is
+stepped every tick (100,000 ran for minutes, issue 22 D68)."""
+MAX_LANES = 10
+
+
 @dataclass(frozen=True)
 class HighwayConfig:
     """A highway scenario's numbers (SI). Traffic speeds are IDM target speeds."""
@@ -109,8 +115,22 @@ class HighwayConfig:
     drop_cars: int = 2
 
     def __post_init__(self) -> None:
-        if self.lanes < 2:
-            raise ConfigError(f"highway scenarios need at least 2 lanes, got lanes={self.lanes}")
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ConfigError(f"highway {f.name} must be a finite number, got {value}")
+        if not 2 <= self.lanes <= MAX_LANES:
+            raise ConfigError(
+                f"highway scenarios need 2..{MAX_LANES} lanes, got lanes={self.lanes}"
+            )
+        for name in ("cut_in_at_s", "cut_out_at_s"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"highway {name} must be >= 0 s, got {getattr(self, name)}")
+        for name in ("traffic", "merge_cars"):
+            if getattr(self, name) > MAX_TRAFFIC:
+                raise ConfigError(
+                    f"highway {name} must be at most {MAX_TRAFFIC}, got {getattr(self, name)}"
+                )
         for name in ("speed_mps", "duration_s", "traffic_speed_max_mps"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"highway {name} must be positive, got {getattr(self, name)}")

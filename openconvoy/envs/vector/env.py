@@ -41,7 +41,7 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
-from openconvoy.envs.convoy_env import check_rate_and_noise
+from openconvoy.envs.convoy_env import check_episode_args, check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.scenarios import PathScenario, make_scenario
@@ -52,7 +52,15 @@ from openconvoy.envs.vector.gps import sense
 from openconvoy.envs.vector.leader import LeaderDriver
 from openconvoy.envs.vector.links import build_links
 from openconvoy.envs.vector.measures import info_arrays, infos, measure, pack_reward, reward
-from openconvoy.envs.vector.member import COOP, FAILSAFE, STOP, decide, pack_ladder, pack_spacing
+from openconvoy.envs.vector.member import (
+    COOP,
+    FAILSAFE,
+    STOP,
+    decide,
+    lead_guard,
+    pack_ladder,
+    pack_spacing,
+)
 from openconvoy.envs.vector.observation import observe, pack_layout
 from openconvoy.envs.vector.plant import VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
@@ -90,11 +98,18 @@ def _per_convoy_loss(
     return out
 
 
+MAX_NUM_ENVS = 1_000_000
+"""Most convoys one ``VectorConvoyEnv`` holds (its arrays grow with it: 10**7 ran out of
+memory, issue 22 D68)."""
+
+
 def _check_args(
     num_envs: int, control_rate_hz: float, gps_noise_m: float, render_mode: str | None
 ) -> None:
-    if num_envs < 1:
-        raise ConfigError(f"num_envs must be at least 1, got {num_envs}")
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)):
+        raise ConfigError(f"num_envs: expected an integer, got {num_envs!r}")
+    if not 1 <= int(num_envs) <= MAX_NUM_ENVS:
+        raise ConfigError(f"num_envs must be in 1..{MAX_NUM_ENVS}, got {num_envs}")
     check_rate_and_noise(control_rate_hz, gps_noise_m)
     if render_mode is not None:
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
@@ -169,6 +184,7 @@ class VectorConvoyEnv:
         per: float | Sequence[float] | None = None,
     ) -> None:
         _check_args(num_envs, control_rate_hz, gps_noise_m, render_mode)
+        check_episode_args(n_followers, max_time_s)
         self.scenario = sc = _scenario(scenario, n_followers, vehicle_presets)
         self.num_envs = B = int(num_envs)
         self.n_vehicles = N = sc.n_vehicles
@@ -231,10 +247,13 @@ class VectorConvoyEnv:
         decel = np.array([p.decel_max_mps2 for p in P], dtype=float)
         self._decel = np.where(decel > 0.0, decel, np.inf)
         self._rules = rules = [
-            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m)
-            for p in P[1:]
+            for_vehicle(p.decel_max_mps2, p.actuation_delay_s, p.speed_lag_s, p.length_m, gap_margin_m,
+                        self.dt)
+            for p in P
         ]  # fmt: skip
-        self._rule = np.array([[r.decel_mps2, r.reaction_s, r.margin_m] for r in rules]).T.copy()
+        packed = np.array([[r.decel_mps2, r.reaction_s, r.margin_m, r.lag_s] for r in rules]).T
+        self._rule = packed[:, 1:].copy()  # the followers'
+        self._lead_rule = packed[:, 0].copy()
         f32 = np.float32
         self.action_low = np.array([[0.0, float(f32(-MAX_HEADING_CHANGE_RAD))]] * (len(P) - 1))
         self.action_high = np.array(
@@ -270,6 +289,7 @@ class VectorConvoyEnv:
         self._everyone = np.ones(B, dtype=bool)
         self._fused_call = FusedCall()
         self._fresh_age_s = self.member_config.fresh_age_s
+        self._rule_fresh_s = self.member_config.rule_fresh_age_s  # decide's and lead_guard's
         self._targets_scratch = np.zeros((13, len(self.layout.targets)))
         self._accel_old = np.zeros((B, N))
         self.max_heading_change = MAX_HEADING_CHANGE_RAD
@@ -328,8 +348,16 @@ class VectorConvoyEnv:
 
     def safety_events(self, b: int) -> list[Event]:
         """Convoy ``b``'s ``ConvoyEnv.safety_events`` (t s, vehicle, reason) this episode,
-        built when asked (``vector.events``); see ``autoreset`` for a finished one's."""
-        return self.events.of(b, int(self.step_count[b]))
+        built when asked (``vector.events``); see ``autoreset`` for a finished one's.
+        ``ValueError`` for a ``b`` that is no convoy."""
+        if isinstance(b, bool) or not isinstance(b, (int, np.integer)):
+            raise ValueError(f"safety_events: convoy index must be an integer, got {b!r}")
+        if not 0 <= b < self.num_envs:
+            raise ValueError(f"safety_events: convoy {b} out of 0..{self.num_envs - 1}")
+        return self.events.of(int(b), int(self.step_count[b]))
+
+    def close(self) -> None:
+        """Nothing to release (the Gymnasium vector API's ``close``)."""
 
     def reset(self, seed: int | Sequence[int] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every convoy: convoy ``b`` gets ``seed + b`` (or ``seed[b]``)."""
@@ -432,12 +460,17 @@ class VectorConvoyEnv:
         decide(  # on what the members measured of themselves at the last tick
             a, self.action_low, self.action_high, t, self._sensed, rx.hist, rx.hist_n,
             rx.newest, lk.needed, lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
-            self._fresh_age_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
+            self._rule_fresh_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
             self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
             self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
-            self.events.record, self.events.count,
+            self.events.record, self.events.count, self._decel,
         )  # fmt: skip
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
+        lead_guard(
+            t, self._sensed, rx.hist, rx.hist_n, lk.lead_link, self._link_decel, self._decel,
+            self.lengths, self._rule_fresh_s, self._lead_rule, self.estopped, self.emergency_stop,
+            self.cmd_v, self.cmd_dh, self.modes, self.events.record, self.events.count,
+        )  # fmt: skip
         for vehicle, t_from in self._brakes:
             on = t >= t_from
             self.cmd_v[on, vehicle] = 0.0

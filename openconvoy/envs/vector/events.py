@@ -5,7 +5,7 @@ refused (``"policy error: ..."``), when its emergency stop latches (``"emergency
 ..."``, with the bumper gap and closing speed it read) and when an injected fault first
 becomes active (``"fault ..."``); in one tick the followers' events come in vehicle order,
 then the faults' in their order. The batched tick keeps no list: ``vector.member.decide``
-writes a latch's numbers into ``record`` (``EVENT_ROWS``, (6, B, N)) on the branch that
+writes a latch's numbers into ``record`` (``EVENT_ROWS``, (9, B, N)) on the branch that
 latches only (at most twice per follower and episode) and counts it in ``count``; a
 fault's event follows from the clock alone (the first tick it is active at), so it costs
 the tick nothing. ``SafetyEvents.of`` builds the tuples, strings and all, when asked.
@@ -40,7 +40,7 @@ def first_active_step(fault: Fault, dt: float) -> int:
 
 class SafetyEvents:
     """The event record of ``B`` convoys of ``N`` vehicles ticking every ``dt`` s, with
-    ``faults`` injected and ``rules[i - 1]`` follower ``i``'s emergency rule (its reason
+    ``faults`` injected and ``rules[i]`` vehicle ``i``'s emergency rule (its reason
     text)."""
 
     def __init__(
@@ -85,7 +85,7 @@ class SafetyEvents:
 
     def _members(self, b: int) -> list[tuple[tuple[float, int, int, int], Event]]:
         """The followers' events of convoy ``b``, each with its sort key."""
-        err_t, speed, change, stop_t, bumper, closing = self.record[:, b]
+        err_t, speed, change, stop_t, bumper, closing, ego, decel, accel = self.record[:, b]
         out = []
         for i in np.flatnonzero(~np.isnan(err_t)).tolist():
             t = float(err_t[i])
@@ -93,6 +93,8 @@ class SafetyEvents:
             out.append(((t, 0, i, 0), (t, i, f"policy error: {why}")))
         for i in np.flatnonzero(~np.isnan(stop_t)).tolist():
             t = float(stop_t[i])
-            reason = self.rules[i - 1].reason(float(bumper[i]), float(closing[i]))
+            reason = self.rules[i].reason(
+                float(bumper[i]), float(closing[i]), float(ego[i]), float(decel[i]), float(accel[i])
+            )
             out.append(((t, 0, i, 1), (t, i, "emergency stop: " + reason)))
         return out

@@ -107,7 +107,7 @@ def _forge(
             forged[0, b, v] = own[0, b, v] + FORGED_AHEAD_M * math.cos(h)
             forged[1, b, v] = own[1, b, v] + FORGED_AHEAD_M * math.sin(h)
             forged[2, b, v], forged[3, b, v], forged[4, b, v] = own[2, b, v], h, 0.0
-            for r in range(1, N):
+            for r in range(N):  # the leader too: it keeps everyone's for its braking rule
                 ln = link_of[v, r]
                 if r == v or ln < 0:
                     continue

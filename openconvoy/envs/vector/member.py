@@ -5,7 +5,7 @@ follower of every convoy in one compiled loop.
 ``spacing`` packs ``SpacingConfig`` as (kind code, distance m, standstill m, headway s,
 quadratic s²/m); ``ladder`` packs ``LadderConfig`` as (enabled, degrade after s, stop
 after s, extra headway s, gap gain 1/s, intruder margin m); ``rule`` the emergency rule
-per follower as (decel m/s², reaction s, margin m); ``ranging`` (2, B, N) each vehicle's
+per follower as (decel m/s², reaction s, margin m, lag s); ``ranging`` (2, B, N) each vehicle's
 ranging reading this tick (range m, range rate m/s; NaN range: none, ``vector.ranging``),
 which the ladder's ACC fallback, the ranging override and the emergency rule take
 before the estimate from messages (``ConvoyMember.supervise``, ``ConvoyWorld._emergency``).
@@ -18,16 +18,18 @@ import math
 import numpy as np
 
 from openconvoy.core.ladder import LadderConfig
+from openconvoy.core.member import PATH_CONE
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 from openconvoy.envs.vector.math import cos_sin, norm
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
 EVENT_ROWS = ("error_t_s", "error_speed", "error_change", "estop_t_s", "estop_bumper_m",
-              "estop_closing_mps")  # fmt: skip
-"""``decide``'s event record, per follower and episode (NaN until it happens): when the
+              "estop_closing_mps", "estop_ego_mps", "estop_pred_decel", "estop_ego_accel")  # fmt: skip
+"""``decide``'s event record, per vehicle and episode (NaN until it happens): when the
 first refused action came and its two values; when the emergency stop latched, with the
-bumper gap and closing speed it read."""
+bumper gap, closing speed, own speed, the braking limit of the vehicle ahead and own
+acceleration it read."""
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
 
@@ -106,13 +108,15 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
 def decide(
     act, low, high, t, own, hist, hist_n, newest, needed, pred_link, link_decel, lengths, sp, lad,
     fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
-    ranging, events, n_events,
+    ranging, events, n_events, decel,
 ):  # pragma: no cover - compiled  # fmt: skip
     """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
     latched policy error), clipped and float32, through the ladder (with the ranging
     reading), then the latch and the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N)
     and ``modes``. A latch that ``ConvoyWorld`` records in ``safety_events`` is written
-    to ``events`` (``EVENT_ROWS``, (6, B, N)) and counted in ``n_events`` (B,)."""
+    to ``events`` (``EVENT_ROWS``, (9, B, N)) and counted in ``n_events`` (B,).
+    ``fresh_age``: the rule's (``MemberConfig.rule_fresh_age_s``); ``decel`` (N,) each
+    vehicle's braking limit."""
     B, F = act.shape[0], act.shape[1]
     for b in range(B):
         for f in range(F):
@@ -142,11 +146,12 @@ def decide(
                 v, dh, mode = 0.0, 0.0, FAILSAFE
             if emergency:
                 if _fires(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths, lad,
-                          fresh_age, rule[:, f], t[b], ranging) or estopped[b, i]:  # fmt: skip
+                          fresh_age, rule[:, f], t[b], ranging, decel[i - 1]) or estopped[b, i]:  # fmt: skip
                     if not (estopped[b, i] or failed[b, i]):  # it latches: an event
                         # (a failed follower's rule is not consulted in ConvoyWorld: no event)
                         _record_stop(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths,
-                                     lad, fresh_age, t[b], ranging, events, n_events)  # fmt: skip
+                                     lad, fresh_age, t[b], ranging, events, n_events,
+                                     decel[i - 1])  # fmt: skip
                     estopped[b, i] = True
                     v, dh, mode = 0.0, 0.0, FAILSAFE
             cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
@@ -197,6 +202,7 @@ def _rule_gap(
     else:
         # no stop age: a predecessor silent for longer is still no further than braking at
         # its limit takes it (``ConvoyMember.gap_estimate``)
+        # ``fresh_age``: the rule's (``MemberConfig.rule_fresh_age_s``, ``gap_estimate``)
         valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, np.inf, fresh_age)
         if not valid:
             return False, 0.0, 0.0
@@ -209,31 +215,121 @@ def _rule_gap(
 @bare_kernel
 def _record_stop(
     own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, t, ranging, events,
-    n_events,
+    n_events, pred_decel,
 ):  # pragma: no cover - compiled  # fmt: skip
     """An emergency stop latched at ``t``: its time and what the rule read, into
-    ``events`` (``EVENT_ROWS`` 3-5). Out of line: the rare branch keeps the loop small."""
+    ``events`` (``EVENT_ROWS`` 3-7). Out of line: the rare branch keeps the loop small."""
     _, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
                                    fresh_age, t, ranging)  # fmt: skip
     events[3, b, i], events[4, b, i], events[5, b, i] = t, bumper, closing
+    events[6, b, i], events[7, b, i], events[8, b, i] = own[2, b, i], pred_decel, own[4, b, i]
     n_events[b] += 1
 
 
 @bare_inline
 def _fires(
-    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t, ranging
-):  # pragma: no cover - compiled
+    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t, ranging,
+    pred_decel,
+):  # pragma: no cover - compiled  # fmt: skip
     """The braking-aware gap rule on ``_rule_gap``'s reading: True to stop."""
     known, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
                                        fresh_age, t, ranging)  # fmt: skip
     if not known:
         return False
+    return _too_close(bumper, closing, own[2, b, i], pred_decel, own[4, b, i], rule)
+
+
+@bare_inline
+def _too_close(bumper, closing, ego, pred_decel, accel, rule):  # pragma: no cover - compiled
+    """``BrakingGap.too_close`` with the ego's speed: the rule ``(decel, reaction,
+    margin, lag)`` on the bumper gap (m), closing speed (m/s), own speed (m/s) and the braking
+    limit of the vehicle ahead (m/s²), and the own acceleration (m/s²)."""
+    if not np.isfinite(bumper):
+        return False
     if not np.isfinite(closing):
         closing = 0.0
-    stopping = 0.0
-    if closing > 0.0:
-        stopping = closing * closing / (2.0 * rule[0]) + rule[1] * closing
-    return np.isfinite(bumper) and bumper - stopping < rule[2]
+    if not np.isfinite(ego):
+        ego, pred = closing, 0.0
+    else:
+        pred = ego - closing
+    return bumper - _reduction(ego, pred, rule[1], rule[3], rule[0], pred_decel, accel) < rule[2]
+
+
+@bare_inline
+def _reduction(
+    ego_mps, pred_mps, reaction_s, lag_s, ego_decel, pred_decel, ego_accel
+):  # pragma: no cover - compiled
+    """``core.safety.gap_reduction_m``, op for op."""
+    v0 = ego_mps if ego_mps > 0.0 else 0.0
+    vp = pred_mps if pred_mps > 0.0 else 0.0
+    up = ego_accel if ego_accel > 0.0 else 0.0
+    ve = v0 + up * reaction_s
+    pred_stop = 0.0 if math.isinf(pred_decel) else vp * vp / (2.0 * pred_decel)
+    react = v0 * reaction_s + 0.5 * up * reaction_s * reaction_s
+    knee = ego_decel * lag_s
+    if ve > knee:
+        ego_stop = react + ve * ve / (2.0 * ego_decel) + 0.5 * knee * lag_s
+    else:
+        ego_stop = react + ve * lag_s
+    worst = ego_stop - pred_stop
+    if ego_decel > pred_decel:
+        tr = reaction_s + lag_s
+        ts = (ve + ego_decel * tr - vp) / (ego_decel - pred_decel)
+        tb = ts - tr
+        if tb > 0.0 and vp - pred_decel * ts > 0.0:
+            ego_x = ve * ts - 0.5 * ego_decel * tb * tb
+            pred_x = vp * ts - 0.5 * pred_decel * ts * ts
+            worst = max(worst, ego_x - pred_x)
+    return worst if worst > 0.0 else 0.0
+
+
+@bare_kernel
+def lead_guard(
+    t, own, hist, hist_n, lead_link, link_decel, decel, lengths, fresh_age, rule, estopped,
+    emergency, cmd_v, cmd_dh, modes, events, n_events,
+):  # pragma: no cover - compiled  # fmt: skip
+    """``ConvoyWorld._lead_emergency`` for every leader: the braking rule ``rule`` (3,) to
+    the nearest member in its path (``ConvoyMember.path_gap``; ``lead_link[j]``: the
+    leader's link from vehicle ``j``, -1: none), latched; after the leader's command."""
+    if not emergency:
+        return
+    B, N = own.shape[1], own.shape[2]
+    for b in range(B):
+        if not estopped[b, 0]:
+            co, so = cos_sin(own, b, 0)
+            best, best_closing, best_j = np.inf, 0.0, -1
+            for j in range(1, N):
+                ln = lead_link[j]
+                if ln < 0:
+                    continue
+                valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, ln, t[b], np.inf,
+                                                   fresh_age)  # fmt: skip
+                if not valid:
+                    continue
+                dx, dy = ex - own[0, b, 0], ey - own[1, b, 0]
+                half = 0.5 * (lengths[0] + lengths[j])
+                along = co * dx + so * dy
+                if not (along > 0.0 and abs(co * dy - so * dx) < half + PATH_CONE * along):
+                    continue
+                gap, closing = _gap_and_closing(own, b, 0, ex, ey, es, hist[b, ln, 0, 6],
+                                                hist[b, ln, 0, 7])  # fmt: skip
+                if best_j < 0 or gap < best:
+                    best, best_closing, best_j = gap, closing, j
+            if best_j < 0:
+                continue
+            bumper = best - 0.5 * (lengths[0] + lengths[best_j])
+            if not _too_close(bumper, best_closing, own[2, b, 0], decel[best_j], own[4, b, 0],
+                              rule):  # fmt: skip
+                continue
+            estopped[b, 0] = True
+            events[3, b, 0], events[4, b, 0], events[5, b, 0] = t[b], bumper, best_closing
+            events[6, b, 0], events[7, b, 0], events[8, b, 0] = (
+                own[2, b, 0],
+                decel[best_j],
+                own[4, b, 0],
+            )
+            n_events[b] += 1
+        cmd_v[b, 0], cmd_dh[b, 0], modes[b, 0] = 0.0, 0.0, FAILSAFE
 
 
 @bare_inline

@@ -49,7 +49,7 @@ class RxBuffers:
         # Untouched pages of a trail are never committed (calloc): memory grows with
         # the breadcrumbs actually laid.
         self.trail = np.zeros((B, T, CAPACITY, 3))
-        self.tail = np.zeros((B, T, 4))
+        self.tail = np.zeros((B, T, 9))
         self.trail_n = np.zeros((B, T), dtype=np.int64)
         self.hint = np.full((B, T), np.nan)
         self.hint_k = np.zeros((B, T), dtype=np.int64)
@@ -88,4 +88,5 @@ def push_one(
     hist[b, ln, 0, HC], hist[b, ln, 0, HS] = cos_sin(st, b, s)
     tl = trail_of[ln]
     if tl >= 0:
-        trail_add(trail, tail, trail_n, b, tl, st[0, b, s], st[1, b, s], spacing)
+        trail_add(trail, tail, trail_n, b, tl, st[0, b, s], st[1, b, s], spacing, ts,
+                  st[2, b, s], hist[b, ln, 0, HC], hist[b, ln, 0, HS])  # fmt: skip

@@ -18,14 +18,14 @@ from openconvoy.envs.vector.channel import _bernoulli_deliver, _tx_gate
 from openconvoy.envs.vector.jit import bare_kernel, typeof
 from openconvoy.envs.vector.leader import _drive, _project
 from openconvoy.envs.vector.measures import fill_infos, measure, reward
-from openconvoy.envs.vector.member import decide
+from openconvoy.envs.vector.member import decide, lead_guard
 from openconvoy.envs.vector.observation import observe
 from openconvoy.envs.vector.plant import _plant_step
 
 
 def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     """The stages' argument tuples of ``env`` (a ``VectorConvoyEnv``), after the per-step
-    arrays: member, leader projection, leader drive, plant, clock, Tx gate, delivery,
+    arrays: member, leader projection, leader drive, leader guard, plant, clock, Tx gate, delivery,
     observation, measures, reward, infos."""
     t, own, lk, rx, ch, ld, pl = (
         env.t,
@@ -39,13 +39,16 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     c, mc = ch.trigger, env.member_config
     return (
         (env.action_low, env.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
-         lk.pred_link, env._link_decel, env.lengths, env._spacing, env._ladder, env._fresh_age_s,
+         lk.pred_link, env._link_decel, env.lengths, env._spacing, env._ladder, env._rule_fresh_s,
          env.max_heading_change, env.pred_est, env.policy_errors, env.policy_failed,
          env.estopped, env.emergency_stop, env._rule, env.cmd_v, env.cmd_dh, env.modes,
-         env.ranging.reading, env.events.record, env.events.count),
+         env.ranging.reading, env.events.record, env.events.count, env._decel),
         (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
         (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
          ld.closed, ld.length, env.cmd_v, env.cmd_dh),
+        (t, own, rx.hist, rx.hist_n, lk.lead_link, env._link_decel, env._decel, env.lengths,
+         env._rule_fresh_s, env._lead_rule, env.estopped, env.emergency_stop, env.cmd_v,
+         env.cmd_dh, env.modes, env.events.record, env.events.count),
         (pl.state, pl.inner, pl.queue, pl.head, pl.params, pl.pi, pl.pi_sub, pl.delay, pl.sub_n, pl.sub_h,
          pl.hdelay, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
         (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),
@@ -92,8 +95,8 @@ class FusedCall:
 
 @bare_kernel
 def fused_step(
-    act, obs, rewards, terminated, truncated, info, member, lead_project, lead_drive, plant,
-    clock, tx, deliver, view, meas, score, fill,
+    act, obs, rewards, terminated, truncated, info, member, lead_project, lead_drive, guard,
+    plant, clock, tx, deliver, view, meas, score, fill,
 ):  # pragma: no cover - compiled  # fmt: skip
     """One tick of every convoy: decide, drive the leaders, move the plant, advance the
     clock, Tx gates, loss and delivery, observations, gaps, rewards, terminations and the
@@ -101,6 +104,7 @@ def fused_step(
     decide(act, *member)
     _project(*lead_project)
     _drive(*lead_drive)
+    lead_guard(*guard)
     t, step_count, dt, max_steps, has_cmd, accel_old, own = clock
     B = t.shape[0]
     for b in range(B):

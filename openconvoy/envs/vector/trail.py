@@ -3,7 +3,8 @@
 A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
 s (m), ``n[b, ln]`` of them, the oldest half dropped when full (a fourth field, each
 segment's heading laid once instead of an atan2 per query, measured slower: more cache
-lines per query); ``tail[b, ln]`` (4,) is its newest breadcrumb again and the oldest one's arc coordinate, packed with the
+lines per query); ``tail[b, ln]`` (9,) is its newest breadcrumb again and the oldest one's arc coordinate
+(then the smoothed fix x, y, t and the unit vector behind the oldest breadcrumb), packed with the
 other trails' (every add and query reads them: one cache line for many trails instead of
 two each). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import math
 
+from openconvoy.core.trail import SMOOTHING
 from openconvoy.envs.vector.jit import bare_inline
 from openconvoy.envs.vector.math import norm
 
@@ -25,12 +27,22 @@ FAR_M = 1e4
 
 
 @bare_inline
-def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
-    """``Trail.add``: record (x, y) when ``spacing`` m from the last breadcrumb."""
+def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cover - compiled
+    """``Trail.add`` with the sender's time ``t`` (s), speed ``v`` (m/s) and heading's
+    cosine and sine: (x, y) smoothed along the reported motion (``tail`` 4-6: the smoothed
+    fix and its time), laid ``spacing`` m of progress along the heading after the last
+    breadcrumb."""
     nn = n[b, ln]
+    if nn > 0:
+        d = v * (t - tail[b, ln, 6])
+        px, py = tail[b, ln, 4] + d * c, tail[b, ln, 5] + d * sn
+        x, y = px + SMOOTHING * (x - px), py + SMOOTHING * (y - py)
+    tail[b, ln, 4], tail[b, ln, 5], tail[b, ln, 6] = x, y, t
     step = 0.0
     ps = 0.0
     if nn > 0:
+        if (x - tail[b, ln, 0]) * c + (y - tail[b, ln, 1]) * sn < spacing:
+            return
         ps = tail[b, ln, 2]
         step = norm(x - tail[b, ln, 0], y - tail[b, ln, 1])
         if step < spacing:
@@ -43,11 +55,13 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing):  # pragma: no cover - compiled
                 tr[b, ln, j, f] = tr[b, ln, j + half, f]
         nn -= half
         tail[b, ln, 3] = tr[b, ln, 0, 2]
+        tail[b, ln, 7] = math.nan  # the oldest breadcrumb's heading is gone
     s = ps + step if nn > 0 else 0.0
     tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
     tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
     if nn == 0:
         tail[b, ln, 3] = s
+        tail[b, ln, 7], tail[b, ln, 8] = -c, -sn
     n[b, ln] = nn + 1
 
 
@@ -83,8 +97,11 @@ def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
-    """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb."""
+def _back(tr, tail, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
+    """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb
+    (against the heading reported there: ``tail`` 7-8, NaN once it was dropped)."""
+    if not math.isnan(tail[b, ln, 7]):
+        return tail[b, ln, 7], tail[b, ln, 8]
     if n >= 2:
         dx, dy = tr[b, ln, 1, 0] - tr[b, ln, 0, 0], tr[b, ln, 1, 1] - tr[b, ln, 0, 1]
     else:
@@ -96,23 +113,23 @@ def _back(tr, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _vertex(tr, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
+def _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     """``Trail._vertex``: -1 the far end of the extension, 0..n-1 breadcrumbs, n the head
     (at arc coordinate ``s_head``)."""
     if k >= n:
         return hx, hy, s_head
     if k >= 0:
         return tr[b, ln, k, 0], tr[b, ln, k, 1], tr[b, ln, k, 2]
-    bx, by = _back(tr, b, ln, n, hx, hy, hh)
+    bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
     return tr[b, ln, 0, 0] + FAR_M * bx, tr[b, ln, 0, 1] + FAR_M * by, tr[b, ln, 0, 2] - FAR_M
 
 
 @bare_inline
-def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
+def _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``Trail._segment`` of (x, y) on segment k -> k+1: (dist², s, dx, dy, seg, rx, ry),
     the cross track and heading left to ``_finish`` (only the nearest needs them)."""
-    ax, ay, sa = _vertex(tr, b, ln, n, k, hx, hy, hh, s_head)
-    bx, by, sb = _vertex(tr, b, ln, n, k + 1, hx, hy, hh, s_head)
+    ax, ay, sa = _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head)
+    bx, by, sb = _vertex(tr, tail, b, ln, n, k + 1, hx, hy, hh, s_head)
     dx, dy = bx - ax, by - ay
     seg = norm(dx, dy)
     rx, ry = x - ax, y - ay
@@ -124,12 +141,12 @@ def _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - c
 
 
 @bare_inline
-def _dist2(tr, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
+def _dist2(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``_segment``'s squared distance alone, the same bits: where the clamp of ``u`` to
     0 or 1 is certain (the point before the segment's start, or well past its end, as
     the walk's neighbours mostly are) without the sqrt and the division."""
-    ax, ay, _ = _vertex(tr, b, ln, n, k, hx, hy, hh, s_head)
-    bx, by, _ = _vertex(tr, b, ln, n, k + 1, hx, hy, hh, s_head)
+    ax, ay, _ = _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head)
+    bx, by, _ = _vertex(tr, tail, b, ln, n, k + 1, hx, hy, hh, s_head)
     dx, dy = bx - ax, by - ay
     rx, ry = x - ax, y - ay
     dot = rx * dx + ry * dy
@@ -160,20 +177,20 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     s_head = tail[b, ln, 2] + to_head
     start = s_head - expected if math.isnan(hint) else hint
     k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
-    near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+    near = _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y)
     best, k0 = near[0], k
     # Trail.project's walk: forwards while closer, then backwards while closer. Both
     # neighbours are evaluated at once (independent: they overlap; out of range they
     # are still defined, and unused). Once the walk has moved forwards, its first step
     # back is onto a segment it left for a closer one, so it stops there. The walk
     # compares distances only (the start's projection kept: the walk seldom moves).
-    fwd = _dist2(tr, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
-    bwd = _dist2(tr, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
+    fwd = _dist2(tr, tail, b, ln, n, k + 1, hx, hy, hh, s_head, x, y)
+    bwd = _dist2(tr, tail, b, ln, n, k - 1, hx, hy, hh, s_head, x, y)
     if k + 1 <= last and fwd < best:
         best, k = fwd, k + 1
         j = k + 1
         while j <= last:
-            cand = _dist2(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            cand = _dist2(tr, tail, b, ln, n, j, hx, hy, hh, s_head, x, y)
             if cand >= best:
                 break
             best, k = cand, j
@@ -182,13 +199,13 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
         best, k = bwd, k - 1
         j = k - 1
         while j >= -1:
-            cand = _dist2(tr, b, ln, n, j, hx, hy, hh, s_head, x, y)
+            cand = _dist2(tr, tail, b, ln, n, j, hx, hy, hh, s_head, x, y)
             if cand >= best:
                 break
             best, k = cand, j
             j -= 1
     if k != k0:
-        near = _segment(tr, b, ln, n, k, hx, hy, hh, s_head, x, y)
+        near = _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y)
     _, s, dx, dy, seg, rx, ry = near
     return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg
 
@@ -221,7 +238,7 @@ def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess, s_head):  # pragma: n
         return lx + f * (hx - lx), ly + f * (hy - ly)
     s0 = tail[b, ln, 3]
     if s <= s0:
-        bx, by = _back(tr, b, ln, n, hx, hy, hh)
+        bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
         return tr[b, ln, 0, 0] - (s - s0) * bx, tr[b, ln, 0, 1] - (s - s0) * by
     i = min(max(_bisect(tr, b, ln, n, s, guess) - 1, 0), max(n - 2, 0))
     xi, yi, si = tr[b, ln, i, 0], tr[b, ln, i, 1], tr[b, ln, i, 2]

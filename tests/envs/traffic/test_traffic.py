@@ -171,29 +171,25 @@ def _cut_in(policy: str, seed: int = 0):
     return run_sim(RunConfig(scenario=CUT_IN, policy=policy, seed=seed))
 
 
-def test_cut_in_degrades_to_ranging_and_restores_the_gap() -> None:
+def test_cut_in_closer_than_braking_allows_stops_follower_1() -> None:
+    """The intruder changes in about 6 m ahead of follower 1 at 25 m/s: were it to brake
+    at its limit, follower 1 (0.15 s delay, 8 m/s²) would hit it. The rule assumes the
+    vehicle ahead may brake (issue 22) and stops follower 1 the tick its ranging sensor
+    sees the intruder. (Before, the rule took the closing speed only, and the ladder's
+    ranging ACC let follower 1 drive on 6 m behind it.)"""
     r = _cut_in("cacc-allpred+ladder")
     log, m = r.log, r.metrics
     f1 = log["vehicle_id"] == 1
     intruded = f1 & (log["ahead_traffic"] == 1.0)
-    # The intruder became follower 1's ranging target for about two seconds, and follower 1
-    # followed it by ranging all that time (never by its V2V predecessor).
     t_in = log["t_s"][intruded]
     assert 1.0 < t_in.min() < 1.6 and 3.0 < t_in.max() < 3.8
-    assert set(log["mode"][intruded]) == {"degraded"}
-    assert log["mode"][f1 & (log["t_s"] > 5.0)].tolist() == ["coop"] * int(
-        (f1 & (log["t_s"] > 5.0)).sum()
-    )
-    # No collision, with the cut-in's closest approach reported.
+    assert set(log["mode"][intruded]) == {"failsafe"}
+    ((t, vid, why),) = [(e["t_s"], e["vehicle_id"], e["reason"]) for e in r.events]
+    assert vid == 1 and t == pytest.approx(t_in.min()) and why.startswith("emergency stop")
     assert m["traffic_collisions"] == 0 and m["collisions"] == 0
-    assert 1.5 < m["min_ttc_s"] < 2.5
-    assert 8.5 < m["min_gap_ahead_m"] < 11.0
-    # Follower 1 got its cooperative gap back (|gap - desired| <= 10 % of it) and kept it.
-    assert m["gap_restored"] and 18.0 < m["gap_restore_time_s"] < 28.0
-    assert m["disturbance_s"] == pytest.approx(t_in.min())
-    # Follower 2 never saw the intruder, and the disturbance shrank along the string.
+    assert 5.0 < m["min_gap_ahead_m"] < 11.0 and not m["gap_restored"]
+    # Follower 2 never saw the intruder.
     assert not ((log["vehicle_id"] == 2) & (log["ahead_traffic"] == 1.0)).any()
-    assert m["string_stability_after_disturbance"] < 0.2
 
 
 def _run_env(env: TrafficConvoyEnv, policy: str) -> dict:
@@ -221,7 +217,7 @@ def test_cut_in_without_the_ladder_ends_in_an_emergency_stop_or_a_crash() -> Non
     m = _run_env(env, "cacc-allpred")
     assert m["traffic_collisions"] == 0 and not m["gap_restored"]
     assert [e[1] for e in env.safety_events] == [1] and "emergency stop" in env.safety_events[0][2]
-    assert env.plant.speed[1] == pytest.approx(0.0, abs=0.01) and 0.5 < m["min_ttc_s"] < 1.5
+    assert env.plant.speed[1] == pytest.approx(0.0, abs=0.01) and 0.5 < m["min_ttc_s"] < 2.5
     # Without that last resort it drives into the intruder.
     env = TrafficConvoyEnv(CUT_IN, member_config=member, emergency_stop=False)
     m = _run_env(env, "cacc-allpred")

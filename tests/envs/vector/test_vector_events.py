@@ -49,7 +49,8 @@ def test_emergency_stops_and_a_refused_action_on_the_fused_tick() -> None:
     assert _kinds(seen[0]) == _kinds(seen[2]) == stops
     assert _kinds(seen[1]) == [(2, "policy error"), (1, "emergency stop")]
     assert seen[1][0] == (60 * DT, 2, "policy error: non-finite action nan, 0.0")
-    assert "between bumpers closing at 1.30 m/s" in seen[2][0][2]  # 2.3 - 1
+    # 2.3 - (1 - 0.05): the leader taken as braking at 1 m/s² since its message 0.05 s ago
+    assert "between bumpers closing at 1.35 m/s at 2.30 m/s" in seen[2][0][2]
     assert len({e[0][0] for e in (seen[0], seen[2])}) == 2  # pushed harder: stopped sooner
 
 
@@ -80,9 +81,10 @@ def test_brake_faults_emergency_stops_and_errors_stage_by_stage() -> None:
 
 
 def test_emergency_braking_under_heavy_loss() -> None:
-    """Full-size cars told 8 m/s faster than their policy: one convoy of the two stops."""
+    """Full-size cars told 6 m/s faster than their policy: one convoy of the two stops (8 m/s
+    stopped both once the rule assumed the predecessor may brake, issue 22)."""
     seen: list = []
-    faster = np.array([8.0, 0.0], np.float32)
+    faster = np.array([6.0, 0.0], np.float32)
     _compare("emergency-braking", B=2, per=0.9, events_out=seen, corrupt=lambda k, a: a + faster)
     assert seen[0] == [] and _kinds(seen[1]) == [(2, "emergency stop")]
 
@@ -143,3 +145,12 @@ def test_a_dead_predecessor_still_stops_a_creeping_follower() -> None:
     for events in seen:
         assert _kinds(events) == [(1, "fault dead"), (2, "emergency stop")]
         assert events[1][0] > 5.0  # after the estimate expired as a target (stop age 2 s)
+
+
+def test_the_track_leader_stops_for_the_stopped_tail_in_both_worlds() -> None:
+    """D49 (issue 22): follower 1 halts at 10 s; the leader laps the track and stops short
+    of the convoy's tail by the same rule, the same tick, in both worlds."""
+    seen: list = []
+    _compare("track", B=1, per=0.0, faults=["halt:1@10"], events_out=seen, steps=1650)
+    stops = [e for e in seen[0] if e[1] == 0 and e[2].startswith("emergency stop")]
+    assert len(stops) == 1 and 70.0 < stops[0][0] < 82.0

@@ -19,6 +19,7 @@ import numpy as np
 
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.member import PATH_CONE
+from openconvoy.core.safety import gap_reduction_m
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 from openconvoy.envs.vector.math import cos_sin, norm
@@ -255,32 +256,8 @@ def _too_close(bumper, closing, ego, pred_decel, accel, rule):  # pragma: no cov
     return bumper - _reduction(ego, pred, rule[1], rule[3], rule[0], pred_decel, accel) < rule[2]
 
 
-@bare_inline
-def _reduction(
-    ego_mps, pred_mps, reaction_s, lag_s, ego_decel, pred_decel, ego_accel
-):  # pragma: no cover - compiled
-    """``core.safety.gap_reduction_m``, op for op."""
-    v0 = ego_mps if ego_mps > 0.0 else 0.0
-    vp = pred_mps if pred_mps > 0.0 else 0.0
-    up = ego_accel if ego_accel > 0.0 else 0.0
-    ve = v0 + up * reaction_s
-    pred_stop = 0.0 if math.isinf(pred_decel) else vp * vp / (2.0 * pred_decel)
-    react = v0 * reaction_s + 0.5 * up * reaction_s * reaction_s
-    knee = ego_decel * lag_s
-    if ve > knee:
-        ego_stop = react + ve * ve / (2.0 * ego_decel) + 0.5 * knee * lag_s
-    else:
-        ego_stop = react + ve * lag_s
-    worst = ego_stop - pred_stop
-    if ego_decel > pred_decel:
-        tr = reaction_s + lag_s
-        ts = (ve + ego_decel * tr - vp) / (ego_decel - pred_decel)
-        tb = ts - tr
-        if tb > 0.0 and vp - pred_decel * ts > 0.0:
-            ego_x = ve * ts - 0.5 * ego_decel * tb * tb
-            pred_x = vp * ts - 0.5 * pred_decel * ts * ts
-            worst = max(worst, ego_x - pred_x)
-    return worst if worst > 0.0 else 0.0
+_reduction = bare_inline(gap_reduction_m)
+"""``core.safety.gap_reduction_m`` itself, compiled: the rule is written once."""
 
 
 @bare_kernel

@@ -201,7 +201,16 @@ class MavlinkLink:
         if link.conn is None:
             self._reset_link_state()
             link.open()
-        if not self._cmd.wait_until(lambda: self._watch.target is not None, timeout_s):
+        found = lambda: self._watch.target is not None  # noqa: E731
+        quiet = min(3.0, timeout_s)  # a vehicle that answers at once needs no word
+        if not self._cmd.wait_until(found, quiet) and timeout_s > quiet:
+            self._status(
+                f"no heartbeat on {self.url} yet: waiting up to {timeout_s - quiet:g} s more "
+                "for the vehicle (is it powered, and the URL its telemetry port?)"
+            )
+        if not found() and not (
+            timeout_s > quiet and self._cmd.wait_until(found, timeout_s - quiet)
+        ):
             raise LinkTimeout(
                 f"no heartbeat from a vehicle on {self.url} within {timeout_s:g} s"
                 + (f" ({link.lost_reason})" if link.eof else "")

@@ -39,6 +39,19 @@ def test_no_heartbeat_times_out() -> None:
     link.close()
 
 
+def test_a_long_wait_for_a_heartbeat_is_said_after_3_s() -> None:
+    """Waiting longer than ~3 s for a vehicle is never silent: one status line, once."""
+    said: list[str] = []
+    link = MavlinkLink(f"udpout:127.0.0.1:{free_port()}", DEFAULT_HOME, on_status=said.append)
+    t0 = time.monotonic()
+    with pytest.raises(LinkTimeout, match="no heartbeat"):
+        link.connect(timeout_s=3.5)
+    assert 3.4 < time.monotonic() - t0 < 6.0
+    assert len(said) == 1 and said[0].startswith("no heartbeat on udpout:127.0.0.1:")
+    assert "waiting up to 0.5 s more for the vehicle" in said[0]
+    link.close()
+
+
 @pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
 def test_identify_and_telemetry_in_enu(vehicle_and_link, autopilot) -> None:
     # The convoy origin lies 100 m west and 50 m south of the vehicle's home, so the link's

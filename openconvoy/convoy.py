@@ -75,7 +75,8 @@ class V2VConfig:
     temp_ids: tuple[str, ...] = ()
     auth: str = ""
     keys: str = ""
-    replay_window_s: Annotated[float, Range(0.0, 60.0, lo_open=True)] = 1.0
+    # At least two control periods at 20 Hz: a shorter window rejects every message.
+    replay_window_s: Annotated[float, Range(0.1, 60.0)] = 1.0
 
     def __post_init__(self) -> None:
         check_fields(self, "v2v")

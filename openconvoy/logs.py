@@ -233,6 +233,9 @@ def _is_bag_run(p: Path) -> bool:
     return p.suffix == ".mcap" and (p.parent / "metadata.yaml").is_file()
 
 
+MAX_VEHICLE_ID = 1000
+"""The largest vehicle id a log may hold (a leader and at most 1,000 followers)."""
+
 _FINITE_COLUMNS = ("t_s", "x_m", "y_m")
 """Columns every row must carry as finite numbers."""
 
@@ -330,6 +333,23 @@ def _check_rows(path: Path, log: Log, lines: list[int]) -> None:
         raise InputFileError(
             f"{path}:{lines[k]}: column mode: {log['mode'][k]!r} is not one of {', '.join(MODES)}"
         )
+    vid = log["vehicle_id"]
+    bad = np.flatnonzero((vid < 0) | (vid > MAX_VEHICLE_ID))
+    if bad.size:
+        k = int(bad[0])
+        raise InputFileError(
+            f"{path}:{lines[k]}: column vehicle_id: {int(vid[k])} (a convoy's vehicles are "
+            f"0..{MAX_VEHICLE_ID})"
+        )
+    for v in np.unique(vid):
+        rows = np.flatnonzero(vid == v)
+        back = np.flatnonzero(np.diff(log["t_s"][rows]) < 0.0)
+        if back.size:
+            k = int(rows[back[0] + 1])
+            raise InputFileError(
+                f"{path}:{lines[k]}: column t_s: vehicle {int(v)}'s time goes back to "
+                f"{float(log['t_s'][k])!r} s (rows must be in time order)"
+            )
     keys = np.stack([log["t_s"], log["vehicle_id"].astype(float)], axis=1)
     _, first, counts = np.unique(keys, axis=0, return_index=True, return_counts=True)
     if (counts > 1).any():

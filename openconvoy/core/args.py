@@ -49,7 +49,7 @@ def integer(lo: int, hi: int) -> Callable[[str], Any]:
 FRACTION = number(0.0, 1.0)  # probabilities and packet error rates
 SEED = integer(0, 2**32 - 1)
 RATE_HZ = number(0.0, 100.0, lo_open=True)  # control rates: above 100 Hz no autopilot keeps up
-DURATION = number(0.0, 7 * 86400.0, lo_open=True)  # seconds
+DURATION = number(0.05, 7 * 86400.0)  # seconds: at least one control period at 20 Hz
 TIMEOUT = number(0.0, 86400.0, lo_open=True)  # seconds
 SECONDS_POS = number(0.0, 3600.0, lo_open=True)
 

@@ -93,6 +93,17 @@ def check_faults(faults: tuple[Fault, ...], n_vehicles: int) -> None:
             )
 
 
+def check_fault_times(faults: tuple[Fault, ...], duration_s: float) -> None:
+    """Raise ConfigError (one line) for a fault set after the run ends at ``duration_s``
+    (s): it would never happen, and a robustness study that injects nothing is wrong."""
+    for f in faults:
+        if not f.t_s <= duration_s:
+            raise ConfigError(
+                f"fault {f}: at {f.t_s:g} s, after the run ends at {duration_s:g} s "
+                "(it would never happen)"
+            )
+
+
 AUTH_MODES = ("required", "off")
 """Whether members authenticate messages (``required``: forged ones are rejected)."""
 

@@ -235,6 +235,26 @@ def delivery_ratio(log: Columns) -> float:
     return received / total if total else math.nan
 
 
+def delivery_per_follower(log: Columns) -> dict[int, float]:
+    """Each follower's delivery ratio, received / (received + lost), from its final
+    counters; followers whose link applies no loss (counters -1, "not logged") and those
+    offered nothing are left out, as is the leader."""
+    out: dict[int, float] = {}
+    rec_col = np.asarray(log["msgs_received"])
+    lost_col = np.asarray(log["msgs_lost"])
+    for vid in vehicle_ids(log):
+        if vid == 0:
+            continue
+        r = _rows(log, vid)
+        rec, los = rec_col[r], lost_col[r]
+        rec, los = rec[rec >= 0], los[los >= 0]  # -1 = not logged
+        received = int(rec.max()) if len(rec) else 0
+        total = received + (int(los.max()) if len(los) else 0)
+        if total:
+            out[vid] = received / total
+    return out
+
+
 def compute_metrics(log: Columns, lengths: Mapping[int, float] | None = None) -> dict[str, Any]:
     """All metrics of a run, with ``metrics.json``'s key names.
 
@@ -249,6 +269,7 @@ def compute_metrics(log: Columns, lengths: Mapping[int, float] | None = None) ->
     ss, ss_per = string_stability(log)
     gaps = min_gaps(log)
     t = np.asarray(log["t_s"], dtype=float)
+    delivery = delivery_per_follower(log)
     per_follower: dict[str, dict[str, Any]] = {}
     for vid in sorted(p95_per):
         per_follower[str(vid)] = {
@@ -257,6 +278,8 @@ def compute_metrics(log: Columns, lengths: Mapping[int, float] | None = None) ->
             "collided": coll_per.get(vid, False),
             "string_stability": ss_per.get(vid, math.nan),
         }
+        if vid in delivery:
+            per_follower[str(vid)]["delivery_ratio"] = delivery[vid]
     finite_gaps = [g for g in gaps.values() if math.isfinite(g)]
     return {
         "p95_platooning_error_m": p95,

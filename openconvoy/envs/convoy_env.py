@@ -27,7 +27,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from openconvoy.comms.loss import LossConfig, as_loss_config
 from openconvoy.core.config import Range, check_number
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.faults import Fault, parse_fault
+from openconvoy.core.faults import Fault, check_fault_times, check_faults, parse_fault
 from openconvoy.core.member import ConvoyMember, MemberConfig, member_config_for
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
@@ -232,6 +232,8 @@ class ConvoyEnv(ParallelEnv):
         self.member_config = member_config_for(member_config, scenario.spacing)
 
         parsed = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
+        check_faults(parsed, n)  # the vehicle first, then the time: the more telling line
+        check_fault_times(parsed, self.max_time_s)
         self.sim = self.WORLD(
             scenario,
             self.member_config,

@@ -195,26 +195,6 @@ def standstill_warning(log: dict[str, Any]) -> str:
     )
 
 
-def delivery_per_vehicle(log: mt.Columns) -> dict[int, float]:
-    """Each follower's delivery ratio, received / (received + lost), from its final
-    counters; followers whose link applies no loss (counters -1, "not logged") are left
-    out, as is the leader."""
-    import numpy as np
-
-    out: dict[int, float] = {}
-    ids = np.asarray(log["vehicle_id"])
-    for vid in mt.vehicle_ids(log):
-        if vid == 0:
-            continue
-        rec = np.asarray(log["msgs_received"])[ids == vid]
-        lost = np.asarray(log["msgs_lost"])[ids == vid]
-        rec, lost = rec[rec >= 0], lost[lost >= 0]
-        total = (int(rec.max()) if len(rec) else 0) + (int(lost.max()) if len(lost) else 0)
-        if total:
-            out[vid] = int(rec.max()) / total
-    return out
-
-
 def report(args: argparse.Namespace) -> int:
     """``openconvoy report``: recompute metrics from a log file or a run directory."""
     from openconvoy.experiments.runs import write_json
@@ -238,8 +218,6 @@ def report(args: argparse.Namespace) -> int:
             "against half lengths (now: centre distance < 0)"
         )
     metrics = mt.compute_metrics(log, lengths)
-    for vid, ratio in delivery_per_vehicle(log).items():
-        metrics["per_follower"].setdefault(str(vid), {})["delivery_ratio"] = ratio
     if mt.has_traffic_columns(log):
         metrics.update(mt.traffic_metrics(log, lengths or mt.lengths_from_log(log)))
     print(format_metrics(metrics))

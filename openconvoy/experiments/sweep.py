@@ -85,7 +85,13 @@ import numpy as np
 from openconvoy.core import metrics as mt
 from openconvoy.core.config import Range, dumps_toml, from_dict, load_toml, to_dict
 from openconvoy.core.errors import ConfigError, OpenConvoyError
-from openconvoy.core.faults import check_auth, check_faults, fault_specs, parse_fault
+from openconvoy.core.faults import (
+    check_auth,
+    check_fault_times,
+    check_faults,
+    fault_specs,
+    parse_fault,
+)
 from openconvoy.experiments.batched import tasks as batched_sweep
 from openconvoy.experiments.executor import (
     Executor,
@@ -602,7 +608,9 @@ def _check_fault_vehicles(config: ExperimentConfig) -> None:
 
     presets = [vehicle_preset(v) for v in config.convoy.vehicles] or None
     scenario = make_scenario(config.scenario, config.convoy.n_followers, presets)
-    check_faults(tuple(parse_fault(f) for f in config.faults), scenario.n_vehicles)
+    faults = tuple(parse_fault(f) for f in config.faults)
+    check_faults(faults, scenario.n_vehicles)
+    check_fault_times(faults, config.duration_s or scenario.duration_s)
 
 
 def _executor(

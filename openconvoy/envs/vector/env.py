@@ -36,7 +36,7 @@ import numpy as np
 
 from openconvoy.comms.loss import LossConfig, as_loss_config
 from openconvoy.core.errors import ConfigError
-from openconvoy.core.faults import Fault, check_faults, parse_fault
+from openconvoy.core.faults import Fault, check_fault_times, check_faults, parse_fault
 from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
@@ -200,6 +200,7 @@ class VectorConvoyEnv:
         self.dt = 1.0 / self.control_rate_hz
         self.max_time_s = float(sc.duration_s if max_time_s is None else max_time_s)
         self.max_steps = max(1, int(round(self.max_time_s / self.dt)))
+        check_fault_times(self.faults, self.max_time_s)
         self.reward_config = reward_config or RewardConfig()
         self.member_config = mc = member_config or MemberConfig(spacing=sc.spacing)
         compiled_only = [p for p in mc.plugins if not p.startswith("topology ")]

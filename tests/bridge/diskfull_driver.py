@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.bridge.*
 
 from deploy_harness import make_convoy, wait_until  # noqa: E402
 

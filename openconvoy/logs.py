@@ -194,10 +194,6 @@ def read_log(path: str | Path) -> Log:
     in ``MODES``, a non-finite time or position, the same vehicle twice at one time) is an
     ``InputFileError`` naming the file, the line and the column.
     """
-    if _is_bag_run(Path(path)):
-        from openconvoy.bag import read_bag  # a ROS 2 bag (sim/deploy --bag): see bag.py
-
-        return read_bag(path)
     return read_log_counted(path)[0]
 
 
@@ -209,6 +205,10 @@ measured values are NaN, not repeated). ``read_log`` leaves such rows out."""
 def read_log_counted(path: str | Path) -> tuple[Log, dict[int, int]]:
     """``read_log``, and how many rows each vehicle's log marked invalid (``INVALID_COLUMN``
     0: no telemetry) and were left out (vehicle id -> rows; empty when none)."""
+    if _is_bag_run(Path(path)):
+        from openconvoy.bag import read_bag  # a ROS 2 bag (sim/deploy --bag): see bag.py
+
+        return read_bag(path), {}
     read = [_read_one(f) for f in log_files(path)]
     parts: list[Log] = [p for p, _ in read]
     left_out: dict[int, int] = {}

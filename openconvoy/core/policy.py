@@ -160,6 +160,12 @@ class ActGuard:
             return self.failure
         took = self.clock() - start
         self.times.append(took)
+        shape = np.shape(action)
+        if shape != (2,):  # the tick's own words (``core.tick.decide``): a policy error
+            self.failure = PolicyFailure(
+                f"action has shape {shape}, not (2,): [speed_mps, heading_change_rad]"
+            )
+            return self.failure
         self.late = self.late + 1 if took > self.period_s else 0
         if self.late >= self.late_acts:
             self.failure = PolicyFailure(

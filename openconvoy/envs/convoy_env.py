@@ -29,6 +29,7 @@ from openconvoy.core.config import Range, check_number
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_fault_times, check_faults, parse_fault
 from openconvoy.core.member import ConvoyMember, MemberConfig, member_config_for
+from openconvoy.core.policy import PolicyFailure
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
 from openconvoy.envs.forgery import Authentication
@@ -115,7 +116,10 @@ def check_episode_args(n_followers: object, max_time_s: object) -> None:
 
 def check_action(agent: str, action: object) -> None:
     """``ValueError`` naming ``agent`` unless ``action`` is ``[speed, heading change]``: two
-    real numbers (shape (2,); NaN or inf pass: they are the policy's error, a stop)."""
+    real numbers (shape (2,); NaN or inf pass: they are the policy's error, a stop), or a
+    ``PolicyFailure`` (a guarded policy that raised or overran: a stop too)."""
+    if isinstance(action, PolicyFailure):
+        return
     try:
         arr = np.asarray(action)
     except Exception:  # noqa: BLE001 - anything not an array is the message's case

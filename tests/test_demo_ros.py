@@ -63,7 +63,7 @@ def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
                 else np.array_equal(v, bag_log[c], equal_nan=True)
             )
             assert same, (vid, c)
-    # V2V bytes: the leader's sent BSM frames (J2735 MessageFrame 00 14 ...) in its bag.
+    # V2V bytes: the leader's sent datagrams in its bag.
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
@@ -75,5 +75,13 @@ def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
             for _, _, _, m in reader.iter_decoded_messages(topics=["/vehicle_0/v2v/tx"])
         ]
     meta0 = json.loads((deploy / "vehicle_0.json").read_text())
-    assert len(tx) == meta0["v2v_counters"]["sent"] > 0
-    assert all(d[:2] == b"\x00\x14" for d in tx)
+    # The demo signs its V2V (it fails closed without keys): each datagram an IEEE 1609.2
+    # SPDU, the BSMs under their PSID, then the leader's "scenario complete" ones.
+    from openconvoy.comms.security import spdu as sp
+    from openconvoy.comms.security.certs import PSID_BSM, PSID_COMPLETE
+
+    spdus = [sp.decode_signed(d) for d in tx]
+    bsms = [s for s in spdus if s.psid == PSID_BSM]
+    assert len(bsms) == meta0["v2v_counters"]["sent"] > 0
+    assert all(s.payload[:2] == b"\x00\x14" for s in bsms)
+    assert {s.psid for s in spdus} <= {PSID_BSM, PSID_COMPLETE}

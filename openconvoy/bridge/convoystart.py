@@ -57,6 +57,7 @@ class ConvoyStart:
         self.refused = ""
         """Why the start was refused ("" = not refused)."""
         self.heard: set[int] = set()
+        self._said_wait: float | None = None  # when the last "waiting for" line went out
         self.t_start: float | None = None
         """Monotonic time (s) the convoy started moving; None before."""
         self.t_start_wall: float | None = None
@@ -93,13 +94,38 @@ class ConvoyStart:
             self.refused = self.refusal()
             if self.refused:
                 return True
-        waiting = bool(self.waiting_for(t_loop_start))
+        missing = self.waiting_for(t_loop_start)
+        waiting = bool(missing)
+        if waiting:
+            self._say_waiting(missing, now, t_loop_start)
         if not waiting and self.t_start is None:
             self._say_unheard(now, wall, t_loop_start)
             self.t_start, self.t_start_wall = now, wall
             if self.on_start is not None:
                 self.on_start()
         return waiting
+
+    SAY_AFTER_S = 3.0
+    """A wait longer than this (s) is said, then again every ``SAY_EVERY_S``."""
+    SAY_EVERY_S = 10.0
+
+    def _say_waiting(self, missing: list[int], now: float, t_loop_start: float | None) -> None:
+        """A long wait to start is never silent: who is missing, and for how long."""
+        waited = now - (t_loop_start if t_loop_start is not None else now)
+        due = self._said_wait is None or now - self._said_wait >= self.SAY_EVERY_S
+        if self.on_status is None or waited < self.SAY_AFTER_S or not due:
+            return
+        self._said_wait = now
+        who = ", ".join(str(j) for j in missing)
+        after = (
+            f"; starting anyway after {self.wait_s:g} s"
+            if self.vehicle_id == 0 and self.leader_waits
+            else ""
+        )
+        self.on_status(
+            f"vehicle {self.vehicle_id}: waiting {waited:.0f} s for vehicle"
+            f"{'s' if len(missing) > 1 else ''} {who} to be heard before starting{after}"
+        )
 
     def _say_unheard(self, now: float, wall: float, t_loop_start: float | None) -> None:
         """The leader starting without having heard every member: who, and since when."""

@@ -130,3 +130,26 @@ def test_a_leader_starting_without_a_member_says_who_and_since_when():
     assert lines == [
         f"vehicle 0: no message from vehicle 2 since {since} UTC (120 s): starting anyway"
     ]
+
+
+def test_a_long_wait_to_start_says_who_is_missing_every_10_s():
+    t = [0.0]
+    lines: list[str] = []
+    gate = ConvoyStart(0, 3, lambda j: True, leader_waits=True, wait_s=120.0,
+                       clock=lambda: t[0], on_status=lines.append)  # fmt: skip
+    for now in (0.0, 2.9, 3.0, 5.0, 12.9, 13.0):
+        t[0] = now
+        assert gate.update(now, 1.8e9 + now, 0.0)
+    assert lines == [
+        "vehicle 0: waiting 3 s for vehicles 1, 2 to be heard before starting; starting "
+        "anyway after 120 s",
+        "vehicle 0: waiting 13 s for vehicles 1, 2 to be heard before starting; starting "
+        "anyway after 120 s",
+    ]
+    follower = ConvoyStart(2, 3, lambda j: True, leader_waits=True, wait_s=120.0,
+                           clock=lambda: t[0], on_status=lines.append)  # fmt: skip
+    follower.heard_from(0)
+    lines.clear()
+    t[0] = 4.0
+    assert follower.update(4.0, 1.8e9, 0.0)
+    assert lines == ["vehicle 2: waiting 4 s for vehicle 1 to be heard before starting"]

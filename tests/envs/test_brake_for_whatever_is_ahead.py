@@ -1,6 +1,6 @@
 """Issue 22, item 1: the emergency rule brakes for whatever is ahead, in every topology.
 
-Each run below collided at aea1a73 (numbers from ../shared/findings/defects-aea1a73.md and
+Each run below collided at aea1a73 (numbers from the project's defect list defects-aea1a73.md, D47-D49, and
 re-measured there): D47 ``platoon-leader`` kept nothing of the vehicle directly ahead;
 D48 the rule took the predecessor as holding its speed; D49 the scenario leader lapped
 into stopped followers on the closed track.

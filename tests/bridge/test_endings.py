@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from deploy_harness import make_convoy, wait_until
 
+from openconvoy.bridge.vehicle import HOLD_BELOW_MPS, REST_MPS, brake_time_s
 from openconvoy.logs import read_log, read_log_counted
 
 
@@ -60,8 +61,15 @@ def test_a_signal_while_driving_brakes_to_rest_logged_and_broadcast_then_disarms
     log = read_log(c.log_dir / "vehicle_0.csv")
     t, v = log["t_s"], log["speed_mps"]
     after = t >= t_stop
-    # The braking is in the log, down to rest (it used to end at the speed of the signal).
-    assert after.sum() >= 5 and v[after][0] > 0.5 and abs(v[-1]) < 0.1
+    # The braking is in the log (it used to end at the speed of the signal): down to
+    # HOLD_BELOW_MPS, or, where the simulated autopilot's thread falls behind the wall clock
+    # on a loaded machine, until the braking time ran out, slower than REST_MPS (HOLD then
+    # stops it: ``v_true`` above).
+    assert after.sum() >= 5 and v[after][0] > 0.5
+    braking_s = t[-1] - t[after][0]
+    assert abs(v[-1]) < HOLD_BELOW_MPS or (
+        braking_s >= brake_time_s(v[after][0]) - 0.2 and abs(v[-1]) < REST_MPS
+    ), (v[-1], braking_s)
     assert set(log["mode"][after].tolist()) == {"failsafe"}
     # ... and was broadcast: the followers saw it stop.
     assert leader.runner.member.msgs_sent > sent_before + 3

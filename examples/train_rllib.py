@@ -155,9 +155,9 @@ def main(
                 print(describe(algo))
                 train(algo, iterations)
                 if restore is None:
-                    path = algo.save_to_path(str((out / "checkpoint").resolve()))
+                    algo.save_to_path(str((out / "checkpoint").resolve()))
                     show("saved", greedy_action(algo, probe_observation()))
-                    print(f"wrote {path}")
+                    print(f"wrote {out / 'checkpoint'}")
             finally:
                 algo.stop()
         finally:

@@ -130,7 +130,8 @@ def test_train_rllib_example_trains_a_shared_policy_and_restores_it(tmp_path: Pa
         r = _run_rllib("--iterations", "2", *common, "--out", str(out), cwd=tmp_path, tmp=ray_tmp)
         assert r.returncode == 0, r.stderr[-3000:]
         # 111 layout numbers + GapRatio's 2: the features plug-in reached the policy.
-        assert "policy shared obs 113 reward my_reward.py:Smooth?weight=0.2" in r.stdout
+        # 111 layout numbers + GapRatio's 2: the features plug-in reached the policy.
+        assert "policy shared obs 113 critic own reward my_reward.py:Smooth?weight=0.2" in r.stdout
         rows = [(int(i), int(n), float(ret)) for i, n, ret in ITERATION.findall(r.stdout)]
         assert [(i, n) for i, n, _ in rows] == [(1, 200), (2, 400)]
         # 100-step episodes, 2 followers: each iteration ends two episodes.
@@ -156,6 +157,27 @@ def test_train_rllib_example_trains_a_shared_policy_and_restores_it(tmp_path: Pa
 
         assert _processes_naming(ray_tmp) == []  # raylet, GCS, workers: all stopped
         assert not [p for p in os.listdir(ray_tmp) if p.startswith("ray")]  # folder removed
+    finally:
+        shutil.rmtree(ray_tmp, ignore_errors=True)
+
+
+@pytest.mark.e2e
+def test_train_rllib_example_trains_mappo_style_with_a_central_critic(tmp_path: Path) -> None:
+    """``--critic central``: each follower observes itself then the other (2 × 113), the
+    critic reads all of it and the trained actor only its own part; two iterations run."""
+    ray_tmp = tempfile.mkdtemp(prefix="rl", dir="/tmp")
+    try:
+        argv = ("--critic", "central", "--iterations", "2", "--batch", "200", "--seconds", "5")
+        r = _run_rllib(*argv, "--out", str(tmp_path / "c"), cwd=tmp_path, tmp=ray_tmp)
+        assert r.returncode == 0, r.stderr[-3000:]
+        assert "policy shared obs 226 critic central" in r.stdout
+        rows = [(int(i), int(n), float(ret)) for i, n, ret in ITERATION.findall(r.stdout)]
+        assert [(i, n) for i, n, _ in rows] == [(1, 200), (2, 400)]
+        assert all(math.isfinite(ret) and ret != 0.0 for _, _, ret in rows)
+        # The greedy action with the other follower's 113 numbers replaced by noise.
+        assert "actor reads own 113 of 226: yes" in r.stdout
+        assert (tmp_path / "c" / "checkpoint" / "rllib_checkpoint.json").is_file()
+        assert _processes_naming(ray_tmp) == []
     finally:
         shutil.rmtree(ray_tmp, ignore_errors=True)
 

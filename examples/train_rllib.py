@@ -11,6 +11,7 @@ reward here is ``examples/my_reward.py:Smooth`` and its observation carries
 PettingZoo wrapper (``ParallelPettingZooEnv``). A few iterations learn little: raise
 ``--iterations`` and ``--batch`` for a policy worth keeping.
 
+    make rllib && . .venv-rllib/bin/activate
     python examples/train_rllib.py [--iterations 3] [--batch 400] [--out runs/rllib-example]
     python examples/train_rllib.py --restore runs/rllib-example/checkpoint --iterations 1
     python examples/train_rllib.py --critic central   # MAPPO-style: a centralised critic
@@ -18,8 +19,9 @@ PettingZoo wrapper (``ParallelPettingZooEnv``). A few iterations learn little: r
 It prints one line per iteration (``iteration 2 env_steps 800 return 98.8``: env steps so
 far, the mean return of the episodes that ended in it, summed over the followers), the
 shared policy's greedy action on a fixed observation after saving, and the same line after
-restoring, so the two can be compared. Ray runs in this process only: no extra env-runner
-or learner processes, no dashboard, on 127.0.0.1, stopped on the way out.
+restoring, so the two can be compared. Sampling and learning run in this process (no
+env-runner or learner actors); the local Ray it starts for RLlib listens on 127.0.0.1 only,
+without the dashboard, in a folder of its own, and is shut down on the way out.
 
 ``--critic central`` trains MAPPO-style: each follower's observation is its own followed by
 the other followers' (``CentralObservations``), the value function reads all of it and the

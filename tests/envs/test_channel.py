@@ -11,6 +11,7 @@ from openconvoy.comms.loss import LossConfig, quantile_delay
 from openconvoy.core.state import VehicleState
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.channel import Channel, advance_state
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 
 def _binomial_band(n: int, p: float, z: float = 2.576) -> tuple[float, float]:

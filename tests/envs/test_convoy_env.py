@@ -15,6 +15,7 @@ from openconvoy.envs.convoy_env import INFO_KEYS
 from openconvoy.envs.reward import RewardConfig, reward
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
 from openconvoy.logs import COLUMNS, LogWriter, read_log
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 
 def _hold(env: ConvoyEnv, speed: float = 0.0) -> dict[str, np.ndarray]:

@@ -134,7 +134,9 @@ class CompiledConvoy:
         obs, info = self.vec.reset(seed=seed)
         return obs, info
 
-    def step(self, ordered: Sequence[Any]) -> tuple[np.ndarray, ...]:
+    def step(
+        self, ordered: Sequence[Any]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """One tick with follower i's action at ``ordered[i - 1]`` (checked already):
         the batched (obs, rewards, terminated, truncated, infos)."""
         try:

@@ -114,11 +114,7 @@ class Channel(Generic[M]):
         self.n = n_vehicles
         self.config = loss or LossConfig()
         self._latency = self.config.latency
-        # Loss models per link; the diagonal is unused (a vehicle does not hear itself).
-        self._links: list[list[LossModel]] = [
-            [self.config.make() for _ in range(n_vehicles)] for _ in range(n_vehicles)
-        ]
-        probe = self._links[0][0]
+        probe = self.config.make()
         # Independent Bernoulli links are drawn for all receivers of a broadcast at once:
         # statistically the same as one draw per link, and much cheaper.
         self._bernoulli_per: float | None = None
@@ -126,6 +122,14 @@ class Channel(Generic[M]):
             self._bernoulli_per = 0.0
         elif isinstance(probe, Bernoulli):
             self._bernoulli_per = probe.per
+        # Loss models with a state per link (Gilbert-Elliott); the diagonal is unused (a
+        # vehicle does not hear itself). Bernoulli and perfect links draw counter-based
+        # (``send``) and need none: N² objects and streams fewer at N vehicles.
+        self._links: list[list[LossModel]] = (
+            []
+            if self._bernoulli_per is not None
+            else [[self.config.make() for _ in range(n_vehicles)] for _ in range(n_vehicles)]
+        )
         # Each link's delay model (its own distribution, or the common one).
         self._lat = [
             [self.config.link_latency(s, r) for r in range(n_vehicles)] for s in range(n_vehicles)
@@ -144,7 +148,9 @@ class Channel(Generic[M]):
     def reset(self, rng: np.random.Generator) -> None:
         """Empty the channel, zero the counters, and draw all randomness from ``rng``."""
         self._rng = rng
-        self.key = int(rng.integers(2**63))  # first, so the per-link streams stay as they were
+        # First, so the per-link streams stay as they were; nothing draws from ``rng``
+        # after them, so links without a model (Bernoulli) skip theirs.
+        self.key = int(rng.integers(2**63))
         for s, row in enumerate(self._links):
             for r, model in enumerate(row):
                 if r != s:

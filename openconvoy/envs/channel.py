@@ -89,8 +89,17 @@ DRAW_LOSS, DRAW_JITTER = 0, 1
 """Purpose words of the channel's counter-based draws."""
 
 DRAW_BLOCK = 64
-"""Broadcasts per sender whose Bernoulli loss draws are made at once, as one array
+"""Most broadcasts per sender whose Bernoulli loss draws are made at once, as one array
 operation (the same numbers as one ``counter_uniform`` per link and message)."""
+DRAW_BUDGET = 4096
+"""Most draws (broadcasts x receivers) one sender's block holds: a long convoy draws
+fewer broadcasts ahead (a 1,000-vehicle convoy 4, not 64: 32 MB of held draws, not 512
+MB), a short one ``DRAW_BLOCK``. The numbers drawn are the same either way."""
+
+
+def draw_block_size(n_vehicles: int) -> int:
+    """Broadcasts per sender drawn at once in a convoy of ``n_vehicles``."""
+    return max(1, min(DRAW_BLOCK, DRAW_BUDGET // max(1, n_vehicles - 1)))
 
 
 class Channel(Generic[M]):
@@ -138,6 +147,7 @@ class Channel(Generic[M]):
             self._lat[s][r].instant for s in range(n_vehicles) for r in range(n_vehicles) if r != s
         )
         self._advance = advance
+        self._block = draw_block_size(n_vehicles)
         # Messages carry their clock error from the send (the advance applies it).
         self._stamped = self._latency.stamped_off and advance is not None
         self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
@@ -172,7 +182,7 @@ class Channel(Generic[M]):
             [counter_state(self.key, s, r) for r in o] for s, o in enumerate(self._others)
         ]
         self._link_state_array = [np.array(row, dtype=np.uint64) for row in self._link_state]
-        self._dropped: list[tuple[int, list[list[bool]]]] = [(-DRAW_BLOCK, [])] * n
+        self._dropped: list[tuple[int, list[list[bool]]]] = [(-self._block, [])] * n
 
     @property
     def sent(self) -> np.ndarray:
@@ -201,7 +211,7 @@ class Channel(Generic[M]):
             receivers = others
         elif per is not None:
             first, block = self._dropped[sender]
-            if not 0 <= number - first < DRAW_BLOCK:
+            if not 0 <= number - first < self._block:
                 first, block = self._dropped[sender] = (number, self._draw_block(sender, number))
             receivers = []
             for r, dropped in zip(others, block[number - first]):
@@ -235,9 +245,9 @@ class Channel(Generic[M]):
             self._seq += 1
 
     def _draw_block(self, sender: int, first: int) -> list[list[bool]]:
-        """Whether each link of ``sender`` drops its broadcasts ``first`` ..
-        ``first + DRAW_BLOCK - 1``: ``[broadcast - first][receiver index]`` (Bernoulli)."""
-        numbers = np.arange(first, first + DRAW_BLOCK, dtype=np.uint64)
+        """Whether each link of ``sender`` drops its broadcasts ``first`` .. ``first +
+        draw_block_size - 1``: ``[broadcast - first][receiver index]`` (Bernoulli)."""
+        numbers = np.arange(first, first + self._block, dtype=np.uint64)
         states = self._link_state_array[sender]
         u = counter_uniform_array(states[None, :], numbers[:, None], DRAW_LOSS)
         return (u < self._bernoulli_per).tolist()

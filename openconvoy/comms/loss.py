@@ -68,12 +68,19 @@ def _mix_array(z: np.ndarray) -> np.ndarray:
     return z ^ (z >> np.uint64(31))
 
 
-def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
-    """``counter_uniform`` on arrays (broadcast together): bit-identical draws."""
+def counter_state_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
+    """``counter_state`` on arrays (broadcast together), uint64: bit-identical states (a
+    channel hashes every link's words at once)."""
     with np.errstate(over="ignore"):
         z = np.asarray(key, dtype=np.uint64)
         for w in words:
             z = _mix_array(z + np.uint64(SPLITMIX_GOLDEN) + np.asarray(w).astype(np.uint64))
+    return z
+
+
+def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
+    """``counter_uniform`` on arrays (broadcast together): bit-identical draws."""
+    z = counter_state_array(key, *words)
     return (z >> np.uint64(11)).astype(np.float64) * UNIT_53
 
 

@@ -253,3 +253,22 @@ def test_event_trigger_sends_less_than_periodic_at_steady_speed() -> None:
     # Standing still: only the max-silence heartbeats (about one per second) go out.
     assert 9 <= counts["event"] <= 12
     assert ConvoyEnv().vehicle_lengths == {0: 0.779, 1: 0.97, 2: 0.779}
+
+
+def test_reset_leaves_the_garbage_collector_as_it_found_it() -> None:
+    """The first sense runs with collection paused (``envs.world``); it comes back on,
+    and stays off for a caller who turned it off."""
+    import gc
+
+    env = ConvoyEnv("paper", n_followers=30, backend="python")
+    assert gc.isenabled()
+    env.reset(seed=0)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        env.reset(seed=1)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    # All 30 followers heard every predecessor at t = 0 (the paused block did its work).
+    assert [len(m.buffer.heard()) for m in env.members[1:]] == list(range(1, 31))

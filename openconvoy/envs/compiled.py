@@ -79,8 +79,9 @@ INFO_INTS = ("msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_err
 
 
 def _column(values: np.ndarray) -> list[Any]:
-    """One convoy's values of an info key as Python numbers, NaN as None."""
-    return [None if v != v else v for v in values.tolist()]
+    """The first convoy's values of an info key ``(1, F)`` as Python numbers, NaN as
+    None."""
+    return [None if v != v else v for v in values.tolist()[0]]
 
 
 class CompiledConvoy:
@@ -187,13 +188,14 @@ class CompiledConvoy:
         if not agents:
             return {}
         n = len(agents)
-        t = float(info["t_s"][0])
-        lead = float(info["leader_speed_mps"][0])
-        col = {k: info[k][0].tolist() for k in (*INFO_FLOATS, *INFO_INTS)}
-        opt = {k: _column(info[k][0]) for k in INFO_OPTIONAL}
+        # (``.tolist()[0]``: a list of the one convoy's row, without a view of it.)
+        t = info["t_s"].tolist()[0]
+        lead = info["leader_speed_mps"].tolist()[0]
+        col = {k: info[k].tolist()[0] for k in (*INFO_FLOATS, *INFO_INTS)}
+        opt = {k: _column(info[k]) for k in INFO_OPTIONAL}
         modes = self.modes
-        mode = [modes[c] for c in info["mode"][0].tolist()]
-        collision = info["collision"][0].tolist()
+        mode = [modes[c] for c in info["mode"].tolist()[0]]
+        collision = info["collision"].tolist()[0]
         return {
             a: {
                 "t_s": t,

@@ -123,6 +123,8 @@ def check_action(agent: str, action: object) -> None:
     """``ValueError`` naming ``agent`` unless ``action`` is ``[speed, heading change]``: two
     real numbers (shape (2,); NaN or inf pass: they are the policy's error, a stop), or a
     ``PolicyFailure`` (a guarded policy that raised or overran: a stop too)."""
+    if type(action) is np.ndarray and action.shape == (2,) and action.dtype.kind in "fiu":
+        return  # the common case, without a conversion
     if isinstance(action, PolicyFailure):
         return
     try:
@@ -390,7 +392,8 @@ class ConvoyEnv(ParallelEnv):
             ordered = [actions[a] for a in names]
         except KeyError as exc:
             raise KeyError(f"no action for {exc.args[0]}") from None
-        unknown = set(actions) - set(names)
+        # Every agent has an action, so an extra key makes the dict longer.
+        unknown = set(actions) - set(names) if len(actions) > len(names) else ()
         if unknown:
             raise ValueError(
                 f"actions for unknown agents {sorted(map(str, unknown))}; agents: {', '.join(names)}"

@@ -7,11 +7,11 @@ cost is included. Each case runs on both of ``ConvoyEnv``'s backends (``envs.com
 the compiled tick and the Python path), their timed runs alternating, and prints the
 ratio. ``--long N`` adds a convoy of N all-predecessor followers: the seconds to
 construct and to reset it and the memory that takes (peak RSS growth, MB), each backend
-in a fresh process (the Python path's takes minutes at 1,000: ``--long-python``).
+in a fresh process.
 ``--profile`` adds where the time goes (cProfile, share of step time per component).
 One process, one core.
 
-    python benchmarks/bench_env.py [--seconds 3] [--profile] [--long 1000 [--long-python]]
+    python benchmarks/bench_env.py [--seconds 3] [--profile] [--long 1000]
 """
 
 from __future__ import annotations
@@ -168,9 +168,6 @@ def main() -> None:
     parser.add_argument(
         "--long", type=int, metavar="N", help="time constructing and resetting N followers"
     )
-    parser.add_argument(
-        "--long-python", action="store_true", help="--long on the Python path too (minutes)"
-    )
     args = parser.parse_args()
     results = []
     for n_followers in args.followers:
@@ -208,7 +205,7 @@ def main() -> None:
                 row["time_share_python"] = _profile(env, pol, 2000)
             results.append(row)
     if args.long:
-        for b in BACKENDS if args.long_python else ("compiled",):
+        for b in BACKENDS:
             results.append(_long(args.long, b))
     print(
         json.dumps(

@@ -181,7 +181,7 @@ class Channel(Generic[M]):
         # (One array operation: a per-link Python hash was seconds at 1,000 vehicles.)
         others = np.array(self._others, dtype=np.uint64).reshape(n, n - 1)
         senders = np.arange(n, dtype=np.uint64)[:, None]
-        self._link_state_array = list(counter_state_array(np.uint64(self.key), senders, others))
+        self._link_state_array = list(counter_state_array(self.key, senders, others))
         self._dropped: list[tuple[int, list[list[bool]]]] = [(-self._block, [])] * n
 
     @property

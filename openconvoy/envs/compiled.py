@@ -141,7 +141,8 @@ class CompiledConvoy:
         """One tick with follower i's action at ``ordered[i - 1]`` (checked already):
         the batched (obs, rewards, terminated, truncated, infos)."""
         try:
-            a = np.array(ordered, dtype=np.float32)
+            with np.errstate(over="ignore"):  # beyond float32: inf, then clipped below
+                a = np.array(ordered, dtype=np.float32)
         except (TypeError, ValueError):  # a PolicyFailure among them
             a = None
         if a is None or not np.isfinite(a).all():  # (a float32 cast overflows to inf)

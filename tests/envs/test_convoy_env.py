@@ -272,3 +272,22 @@ def test_reset_leaves_the_garbage_collector_as_it_found_it() -> None:
         gc.enable()
     # All 30 followers heard every predecessor at t = 0 (the paused block did its work).
     assert [len(m.buffer.heard()) for m in env.members[1:]] == list(range(1, 31))
+
+
+def test_without_numba_auto_is_the_python_path(monkeypatch) -> None:
+    """The vehicle runtime needs no numba: ``auto`` falls back, ``compiled`` says why."""
+    import openconvoy.envs.convoy_env as convoy_env_mod
+    from openconvoy.core.errors import ConfigError
+    from openconvoy.envs.compiled import BACKEND_ENV_VAR
+
+    def no_numba(*args, **kwargs):
+        raise ImportError("No module named 'numba'")
+
+    monkeypatch.setattr(convoy_env_mod, "CompiledConvoy", no_numba)
+    monkeypatch.setenv(BACKEND_ENV_VAR, "auto")
+    env = ConvoyEnv(loss=0.2)
+    assert env.backend == "python"
+    obs, _ = env.reset(seed=0)
+    assert set(obs) == {"follower_1", "follower_2"} and env.sim.n_vehicles == 3
+    with pytest.raises(ConfigError, match="numba"):
+        ConvoyEnv(backend="compiled")

@@ -3,10 +3,15 @@
 Cases: the ``paper`` scenario (leader + 2 followers) and a 100-follower convoy, each with
 fixed actions (the environment alone) and with every follower on the ``paper`` policy
 (closed loop, what ``sim`` runs). Packet loss is on (PER 0.2, Bernoulli) so the channel's
-cost is included. ``--profile`` adds where the time goes (cProfile, share of step time per
-component). One process, one core.
+cost is included. Each case runs on both of ``ConvoyEnv``'s backends (``envs.compiled``:
+the compiled tick and the Python path), their timed runs alternating, and prints the
+ratio. ``--long N`` adds a convoy of N all-predecessor followers: the seconds to
+construct and to reset it and the memory that takes (peak RSS growth, MB), each backend
+in a fresh process.
+``--profile`` adds where the time goes (cProfile, share of step time per component).
+One process, one core.
 
-    python benchmarks/bench_env.py [--seconds 3] [--profile]
+    python benchmarks/bench_env.py [--seconds 3] [--profile] [--long 1000]
 """
 
 from __future__ import annotations
@@ -14,8 +19,10 @@ from __future__ import annotations
 import argparse
 import cProfile
 import json
+import multiprocessing
 import platform
 import pstats
+import resource
 import time
 
 import numpy as np
@@ -38,7 +45,10 @@ COMPONENTS = {
 }
 
 
-def _make(n_followers: int, preset: str | None = None) -> tuple[ConvoyEnv, dict]:
+BACKENDS = ("python", "compiled")
+
+
+def _make(n_followers: int, preset: str | None, backend: str) -> tuple[ConvoyEnv, dict]:
     probe = load_policy("paper")
     env = ConvoyEnv(
         "paper",
@@ -47,6 +57,7 @@ def _make(n_followers: int, preset: str | None = None) -> tuple[ConvoyEnv, dict]
         control_rate_hz=probe.control_rate_hz,
         loss=LossConfig(per=0.2),
         vehicle_presets=None if preset is None else [preset] * (n_followers + 1),
+        backend=backend,
     )
     policies = {a: load_policy("paper") for a in env.possible_agents}
     return env, policies
@@ -98,6 +109,39 @@ def _profile(env: ConvoyEnv, policies: dict | None, steps: int) -> dict[str, flo
     return out
 
 
+def _construct_and_reset(n_followers: int, backend: str, out: multiprocessing.Queue) -> None:
+    """In a fresh process: seconds to construct and reset ``n_followers`` all-predecessor
+    followers, and the peak RSS growth (MB) over a process that built a 2-follower env."""
+    ConvoyEnv("paper", backend=backend).reset(seed=0)  # imports, kernels loaded
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    env = ConvoyEnv("paper", n_followers=n_followers, loss=LossConfig(per=0.2), backend=backend)
+    t1 = time.perf_counter()
+    env.reset(seed=0)
+    t2 = time.perf_counter()
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    out.put((t1 - t0, t2 - t1, (rss - rss0) / 1024))
+
+
+def _long(n_followers: int, backend: str) -> dict:
+    """``_construct_and_reset`` of one backend, as a result row."""
+    ctx = multiprocessing.get_context("spawn")
+    q: multiprocessing.Queue = ctx.Queue()
+    p = ctx.Process(target=_construct_and_reset, args=(n_followers, backend, q))
+    p.start()
+    construct_s, reset_s, mb = q.get()
+    p.join()
+    return {
+        "case": "long platoon",
+        "topology": "all-predecessors",
+        "n_followers": n_followers,
+        "backend": backend,
+        "construct_s": round(construct_s, 3),
+        "reset_s": round(reset_s, 3),
+        "peak_rss_growth_mb": round(mb, 1),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per case")
@@ -121,32 +165,48 @@ def main() -> None:
         help="every vehicle this preset (default: the scenario's lag presets), "
         "e.g. ardupilot-rover for the autopilot's PI speed loop",
     )
+    parser.add_argument(
+        "--long", type=int, metavar="N", help="time constructing and resetting N followers"
+    )
     args = parser.parse_args()
     results = []
     for n_followers in args.followers:
         for closed_loop in (False, True):
-            env, policies = _make(n_followers, args.vehicle_preset)
-            pol = policies if closed_loop else None
-            _run(env, pol, 0.2, 10**9)  # warm-up
-            rates = []
-            for _ in range(max(1, args.repeats)):
-                steps, busy = _run(env, pol, args.seconds / max(1, args.repeats), 10**9)
-                rates.append(steps / busy)
-            best = max(rates)
             row = {
                 "scenario": "paper",
                 "vehicles": args.vehicle_preset or "scenario (1/10, 1/6)",
                 "n_followers": n_followers,
                 "actions": "paper policy" if closed_loop else "fixed",
                 "loss": "bernoulli per=0.2",
-                "repeats": len(rates),
-                "env_steps_per_s": round(best, 1),
-                "env_steps_per_s_median": round(float(np.median(rates)), 1),
-                "vehicle_steps_per_s": round(best * (n_followers + 1), 1),
+                "repeats": max(1, args.repeats),
             }
+            made = {b: _make(n_followers, args.vehicle_preset, b) for b in BACKENDS}
+            rates: dict[str, list[float]] = {b: [] for b in BACKENDS}
+            for env, policies in made.values():
+                _run(env, policies if closed_loop else None, 0.2, 10**9)  # warm-up
+            for _ in range(max(1, args.repeats)):  # alternating: the same load on both
+                for b, (env, policies) in made.items():
+                    pol = policies if closed_loop else None
+                    steps, busy = _run(env, pol, args.seconds / max(1, args.repeats), 10**9)
+                    rates[b].append(steps / busy)
+            for b in BACKENDS:
+                best = max(rates[b])
+                row[b] = {
+                    "env_steps_per_s": round(best, 1),
+                    "env_steps_per_s_median": round(float(np.median(rates[b])), 1),
+                    "vehicle_steps_per_s": round(best * (n_followers + 1), 1),
+                }
+            row["compiled_over_python"] = round(
+                row["compiled"]["env_steps_per_s"] / row["python"]["env_steps_per_s"], 2
+            )
             if args.profile:
-                row["time_share"] = _profile(env, pol, max(50, min(2000, steps // 4)))
+                env, policies = made["python"]
+                pol = policies if closed_loop else None
+                row["time_share_python"] = _profile(env, pol, 2000)
             results.append(row)
+    if args.long:
+        for b in BACKENDS:
+            results.append(_long(args.long, b))
     print(
         json.dumps(
             {

@@ -68,12 +68,19 @@ def _mix_array(z: np.ndarray) -> np.ndarray:
     return z ^ (z >> np.uint64(31))
 
 
-def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
-    """``counter_uniform`` on arrays (broadcast together): bit-identical draws."""
+def counter_state_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
+    """``counter_state`` on arrays (broadcast together), uint64: bit-identical states (a
+    channel hashes every link's words at once)."""
     with np.errstate(over="ignore"):
         z = np.asarray(key, dtype=np.uint64)
         for w in words:
             z = _mix_array(z + np.uint64(SPLITMIX_GOLDEN) + np.asarray(w).astype(np.uint64))
+    return z
+
+
+def counter_uniform_array(key: np.ndarray | int, *words: np.ndarray | int) -> np.ndarray:
+    """``counter_uniform`` on arrays (broadcast together): bit-identical draws."""
+    z = counter_state_array(key, *words)
     return (z >> np.uint64(11)).astype(np.float64) * UNIT_53
 
 
@@ -325,6 +332,19 @@ class LossConfig:
         if samples and self.jitter_s > 0.0:
             raise ConfigError("give either a latency jitter or latency samples, not both")
         object.__setattr__(self, "latency_samples_s", tuple(sorted(samples)))
+        # The common delay model, made once: a channel asks for every link's (N² at N
+        # vehicles), and the config is frozen. (Not a field: not compared or printed.)
+        object.__setattr__(
+            self,
+            "_latency",
+            Latency(
+                self.latency_s,
+                self.jitter_s,
+                self.latency_samples_s,
+                self.stamp_error_s,
+                self.stamp_drift,
+            ),
+        )
 
     def make(self) -> LossModel:
         """A fresh loss model for one link."""
@@ -338,6 +358,8 @@ class LossConfig:
         """The delay model of the link ``sender -> receiver`` (``link_latency_s`` or the
         common one)."""
         base = self.latency
+        if not self.link_latency_s:
+            return base
         for e in self.link_latency_s:
             if int(e[0]) == sender and int(e[1]) == receiver:
                 return Latency(base.base_s, 0.0, tuple(e[2:]), base.stamp_error_s, base.stamp_drift)
@@ -345,13 +367,9 @@ class LossConfig:
 
     @property
     def latency(self) -> Latency:
-        return Latency(
-            self.latency_s,
-            self.jitter_s,
-            self.latency_samples_s,
-            self.stamp_error_s,
-            self.stamp_drift,
-        )
+        """The common delay model of the links (one object: ``Latency`` is frozen)."""
+        latency: Latency = self.__dict__["_latency"]
+        return latency
 
 
 def as_loss_config(loss: LossConfig | float | None = None, per: float | None = None) -> LossConfig:

@@ -6,7 +6,6 @@ sender's measurement time), as DESIGN.md defines message age.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable, Sequence
 
 from openconvoy.core.errors import ConfigError
@@ -22,7 +21,9 @@ class StateBuffer:
             raise ConfigError(f"buffer depth k must be at least 1, got {k}")
         self.k = k
         self.trail_spacing_m = trail_spacing_m
-        self._states: dict[int, deque[VehicleState]] = {}
+        # Newest first, at most k: plain lists (a deque is ~600 bytes even for one state,
+        # and a long all-predecessors convoy holds N²/2 of these).
+        self._states: dict[int, list[VehicleState]] = {}
         self._trails: dict[int, Trail] = {}
         self._newest_t: dict[int, float] = {}  # each sender's newest time stamp
 
@@ -35,11 +36,13 @@ class StateBuffer:
         """Store a received state. Out-of-order (older than the newest) states are ignored."""
         q = self._states.get(state.vehicle_id)
         if q is None:
-            q = self._states[state.vehicle_id] = deque(maxlen=self.k)
+            q = self._states[state.vehicle_id] = []
             self._trails[state.vehicle_id] = Trail(self.trail_spacing_m)
         elif q and state.t <= q[0].t:
             return
-        q.appendleft(state)
+        q.insert(0, state)
+        if len(q) > self.k:
+            q.pop()
         self._newest_t[state.vehicle_id] = state.t
         self._trails[state.vehicle_id].add(state.x, state.y, state.heading, state.speed, state.t)
 

@@ -50,6 +50,10 @@ class Trail:
     the oldest breadcrumb follows the heading the sender reported there, not a
     direction taken from two close, noisy points."""
 
+    # A member keeps a trail per vehicle it hears: a long all-predecessors convoy holds
+    # N²/2 of them, so no per-instance dict.
+    __slots__ = ("spacing_m", "capacity", "_x", "_y", "_s", "_back", "_fix")
+
     def __init__(self, spacing_m: float = 0.2, capacity: int = 1024) -> None:
         self.spacing_m = spacing_m
         self.capacity = capacity

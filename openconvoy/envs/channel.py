@@ -31,7 +31,7 @@ from openconvoy.comms.loss import (
     LossConfig,
     LossModel,
     NoLoss,
-    counter_state,
+    counter_state_array,
     counter_uniform_array,
     counter_uniform_from,
 )
@@ -89,8 +89,17 @@ DRAW_LOSS, DRAW_JITTER = 0, 1
 """Purpose words of the channel's counter-based draws."""
 
 DRAW_BLOCK = 64
-"""Broadcasts per sender whose Bernoulli loss draws are made at once, as one array
+"""Most broadcasts per sender whose Bernoulli loss draws are made at once, as one array
 operation (the same numbers as one ``counter_uniform`` per link and message)."""
+DRAW_BUDGET = 4096
+"""Most draws (broadcasts x receivers) one sender's block holds: a long convoy draws
+fewer broadcasts ahead (a 1,000-vehicle convoy 4, not 64: 32 MB of held draws, not 512
+MB), a short one ``DRAW_BLOCK``. The numbers drawn are the same either way."""
+
+
+def draw_block_size(n_vehicles: int) -> int:
+    """Broadcasts per sender drawn at once in a convoy of ``n_vehicles``."""
+    return max(1, min(DRAW_BLOCK, DRAW_BUDGET // max(1, n_vehicles - 1)))
 
 
 class Channel(Generic[M]):
@@ -114,11 +123,7 @@ class Channel(Generic[M]):
         self.n = n_vehicles
         self.config = loss or LossConfig()
         self._latency = self.config.latency
-        # Loss models per link; the diagonal is unused (a vehicle does not hear itself).
-        self._links: list[list[LossModel]] = [
-            [self.config.make() for _ in range(n_vehicles)] for _ in range(n_vehicles)
-        ]
-        probe = self._links[0][0]
+        probe = self.config.make()
         # Independent Bernoulli links are drawn for all receivers of a broadcast at once:
         # statistically the same as one draw per link, and much cheaper.
         self._bernoulli_per: float | None = None
@@ -126,6 +131,14 @@ class Channel(Generic[M]):
             self._bernoulli_per = 0.0
         elif isinstance(probe, Bernoulli):
             self._bernoulli_per = probe.per
+        # Loss models with a state per link (Gilbert-Elliott); the diagonal is unused (a
+        # vehicle does not hear itself). Bernoulli and perfect links draw counter-based
+        # (``send``) and need none: N² objects and streams fewer at N vehicles.
+        self._links: list[list[LossModel]] = (
+            []
+            if self._bernoulli_per is not None
+            else [[self.config.make() for _ in range(n_vehicles)] for _ in range(n_vehicles)]
+        )
         # Each link's delay model (its own distribution, or the common one).
         self._lat = [
             [self.config.link_latency(s, r) for r in range(n_vehicles)] for s in range(n_vehicles)
@@ -134,6 +147,7 @@ class Channel(Generic[M]):
             self._lat[s][r].instant for s in range(n_vehicles) for r in range(n_vehicles) if r != s
         )
         self._advance = advance
+        self._block = draw_block_size(n_vehicles)
         # Messages carry their clock error from the send (the advance applies it).
         self._stamped = self._latency.stamped_off and advance is not None
         self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
@@ -144,7 +158,9 @@ class Channel(Generic[M]):
     def reset(self, rng: np.random.Generator) -> None:
         """Empty the channel, zero the counters, and draw all randomness from ``rng``."""
         self._rng = rng
-        self.key = int(rng.integers(2**63))  # first, so the per-link streams stay as they were
+        # First, so the per-link streams stay as they were; nothing draws from ``rng``
+        # after them, so links without a model (Bernoulli) skip theirs.
+        self.key = int(rng.integers(2**63))
         for s, row in enumerate(self._links):
             for r, model in enumerate(row):
                 if r != s:
@@ -162,11 +178,11 @@ class Channel(Generic[M]):
         self._seq = 0
         # Each link's draws are keyed by (channel key, sender, receiver, ...): those words
         # hashed once per episode, the message number and purpose per broadcast.
-        self._link_state = [
-            [counter_state(self.key, s, r) for r in o] for s, o in enumerate(self._others)
-        ]
-        self._link_state_array = [np.array(row, dtype=np.uint64) for row in self._link_state]
-        self._dropped: list[tuple[int, list[list[bool]]]] = [(-DRAW_BLOCK, [])] * n
+        # (One array operation: a per-link Python hash was seconds at 1,000 vehicles.)
+        others = np.array(self._others, dtype=np.uint64).reshape(n, n - 1)
+        senders = np.arange(n, dtype=np.uint64)[:, None]
+        self._link_state_array = list(counter_state_array(self.key, senders, others))
+        self._dropped: list[tuple[int, list[list[bool]]]] = [(-self._block, [])] * n
 
     @property
     def sent(self) -> np.ndarray:
@@ -195,7 +211,7 @@ class Channel(Generic[M]):
             receivers = others
         elif per is not None:
             first, block = self._dropped[sender]
-            if not 0 <= number - first < DRAW_BLOCK:
+            if not 0 <= number - first < self._block:
                 first, block = self._dropped[sender] = (number, self._draw_block(sender, number))
             receivers = []
             for r, dropped in zip(others, block[number - first]):
@@ -220,7 +236,7 @@ class Channel(Generic[M]):
         for r in receivers:
             lat = lats[r]
             if lat.jitter_s > 0.0 or lat.samples_s:
-                state = self._link_state[sender][r - (r > sender)]
+                state = int(self._link_state_array[sender][r - (r > sender)])
                 arrival = t + lat.from_uniform(counter_uniform_from(state, number, DRAW_JITTER))
             else:
                 arrival = t + lat.base_s
@@ -229,9 +245,9 @@ class Channel(Generic[M]):
             self._seq += 1
 
     def _draw_block(self, sender: int, first: int) -> list[list[bool]]:
-        """Whether each link of ``sender`` drops its broadcasts ``first`` ..
-        ``first + DRAW_BLOCK - 1``: ``[broadcast - first][receiver index]`` (Bernoulli)."""
-        numbers = np.arange(first, first + DRAW_BLOCK, dtype=np.uint64)
+        """Whether each link of ``sender`` drops its broadcasts ``first`` .. ``first +
+        draw_block_size - 1``: ``[broadcast - first][receiver index]`` (Bernoulli)."""
+        numbers = np.arange(first, first + self._block, dtype=np.uint64)
         states = self._link_state_array[sender]
         u = counter_uniform_array(states[None, :], numbers[:, None], DRAW_LOSS)
         return (u < self._bernoulli_per).tolist()

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
@@ -25,6 +25,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from openconvoy.comms.loss import LossConfig, as_loss_config
+from openconvoy.core import tick as member_tick
 from openconvoy.core.config import Range, check_number
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_fault_times, check_faults, parse_fault
@@ -32,6 +33,7 @@ from openconvoy.core.member import ConvoyMember, MemberConfig, member_config_for
 from openconvoy.core.policy import PolicyFailure
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel
+from openconvoy.envs.compiled import CompiledConvoy, backend_choice, python_only_reason
 from openconvoy.envs.forgery import Authentication
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.render import draw_convoy
@@ -40,6 +42,9 @@ from openconvoy.envs.scenarios import Scenario, is_traffic_scenario, make_scenar
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 from openconvoy.envs.world import ConvoyWorld, TickRecord
 from openconvoy.logs import snapshot_rows
+
+if TYPE_CHECKING:
+    from openconvoy.envs.vector.plant import VectorPlant
 
 AGENT_PREFIX = "follower_"
 
@@ -118,6 +123,8 @@ def check_action(agent: str, action: object) -> None:
     """``ValueError`` naming ``agent`` unless ``action`` is ``[speed, heading change]``: two
     real numbers (shape (2,); NaN or inf pass: they are the policy's error, a stop), or a
     ``PolicyFailure`` (a guarded policy that raised or overran: a stop too)."""
+    if type(action) is np.ndarray and action.shape == (2,) and action.dtype.kind in "fiu":
+        return  # the common case, without a conversion
     if isinstance(action, PolicyFailure):
         return
     try:
@@ -176,6 +183,11 @@ class ConvoyEnv(ParallelEnv):
         auth: members authenticate what they receive (modelled: ``envs.forgery``), so the
             messages of a ``forge`` fault are rejected and counted (``forged_rejected``);
             False: they are believed (default True, as on vehicles with keys).
+        backend: ``compiled`` steps through the batched kernels (``envs.compiled``,
+            numba), ``python`` through ``envs.world`` (the reference, what vehicles
+            run), ``auto`` the compiled tick where it can run this convoy; default: the
+            ``OPENCONVOY_ENV_BACKEND`` environment variable, else ``auto``. ``sim``,
+            ``members``, ``channel``, ``auth`` and the log rows are the Python path's.
     """
 
     metadata = {
@@ -216,6 +228,7 @@ class ConvoyEnv(ParallelEnv):
         auth: bool = True,
         per: float | None = None,
         plant_presets: Sequence[VehiclePreset | str] | None = None,
+        backend: str | None = None,
     ) -> None:
         check_rate_and_noise(control_rate_hz, gps_noise_m)
         check_episode_args(n_followers, max_time_s)
@@ -238,7 +251,20 @@ class ConvoyEnv(ParallelEnv):
         parsed = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         check_faults(parsed, n)  # the vehicle first, then the time: the more telling line
         check_fault_times(parsed, self.max_time_s)
-        self.sim = self.WORLD(
+        self._faults = parsed
+        self._compiled = self._compile(backend, plant_presets, gap_margin_m, emergency_stop, auth)
+        self.backend = "python" if self._compiled is None else "compiled"
+        """The path this env steps through: ``compiled`` or ``python`` (``envs.compiled``)."""
+        self.possible_agents = [agent_name(i) for i in range(1, n)]
+        self.agents: list[str] = []
+        self._was_reset = False
+        self._agent_index = {a: i for i, a in enumerate(self.possible_agents, start=1)}
+        self._observation_spaces, self._action_spaces = self._spaces()
+        self._road: np.ndarray | None = None
+        self._seed_seq: np.random.SeedSequence | None = None
+        if self._compiled is not None:
+            return
+        self._sim = self.WORLD(
             scenario,
             self.member_config,
             self.loss,
@@ -252,14 +278,57 @@ class ConvoyEnv(ParallelEnv):
             if plant_presets is None
             else [p if isinstance(p, VehiclePreset) else vehicle_preset(p) for p in plant_presets],
         )
-        """The simulated convoy (``envs.world.ConvoyWorld``)."""
-        self.possible_agents = [agent_name(i) for i in range(1, n)]
-        self.agents: list[str] = []
-        self._was_reset = False
-        self._agent_index = {a: i for i, a in enumerate(self.possible_agents, start=1)}
-        self._observation_spaces, self._action_spaces = self._spaces()
-        self._road: np.ndarray | None = None
-        self._seed_seq: np.random.SeedSequence | None = None
+
+    def _compile(
+        self,
+        backend: str | None,
+        plant_presets: object,
+        gap_margin_m: float | None,
+        emergency_stop: bool,
+        auth: bool,
+    ) -> CompiledConvoy | None:
+        """The compiled tick of this convoy (``envs.compiled``), or None for the Python
+        path: asked for, or ``auto`` where the kernels cannot run it (numba missing, a
+        traffic world, a plug-in σ or τ...); ``ConfigError`` when ``compiled`` cannot."""
+        choice = backend_choice(backend)
+        if choice == "python":
+            return None
+        why = python_only_reason(
+            self.scenario, type(self).WORLD is ConvoyWorld, plant_presets, self.render_mode
+        )
+        if why is None:
+            try:
+                return CompiledConvoy(
+                    self.scenario,  # type: ignore[arg-type]  # a PathScenario (checked)
+                    self.member_config,
+                    self.loss,
+                    self.control_rate_hz,
+                    self.gps_noise_m,
+                    self.max_time_s,
+                    self.reward_config,
+                    self._faults,
+                    gap_margin_m,
+                    bool(emergency_stop),
+                    bool(auth),
+                )
+            except ImportError:
+                why = "numba (the batched extra) is not installed"
+            except ConfigError as exc:
+                why = str(exc)
+        if choice == "compiled":
+            raise ConfigError(f"backend='compiled': {why}")
+        return None
+
+    @property
+    def sim(self) -> ConvoyWorld:
+        """The simulated convoy (``envs.world.ConvoyWorld``): the Python path's only."""
+        sim = self.__dict__.get("_sim")
+        if sim is None:
+            raise AttributeError(
+                "sim: this env steps through the compiled tick, which has no ConvoyWorld; "
+                "ConvoyEnv(..., backend='python') (or OPENCONVOY_ENV_BACKEND=python) has one"
+            )
+        return sim
 
     def _spaces(self) -> tuple[dict[str, Any], dict[str, Any]]:
         """Observation and action spaces per agent; the action space is the clip every
@@ -268,7 +337,7 @@ class ConvoyEnv(ParallelEnv):
         obs = {a: gymnasium.spaces.Box(low, high, dtype=np.float32) for a in self.possible_agents}
         act = {}
         for a, i in self._agent_index.items():
-            b = self.sim.bounds[i]
+            b = member_tick.ActionBounds.float32(self.presets[i].max_speed_mps)
             act[a] = gymnasium.spaces.Box(
                 low=np.array([0.0, -b.max_heading_change_rad], dtype=np.float32),
                 high=np.array([b.max_speed_mps, b.max_heading_change_rad], dtype=np.float32),
@@ -289,13 +358,17 @@ class ConvoyEnv(ParallelEnv):
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
         """Start an episode. The same ``seed`` gives the same episode for the same actions;
         ``seed=None`` continues the previous seed's sequence (fresh entropy the first time)."""
+        self._was_reset = True
+        self.agents = self.possible_agents[:]
+        fast = self._compiled
+        if fast is not None:
+            obs, info = fast.reset(seed)
+            return dict(zip(self.agents, obs[0])), fast.infos(info, self.agents)
         if seed is not None:
             self._seed_seq = np.random.SeedSequence(seed)
         elif self._seed_seq is None:
             self._seed_seq = np.random.SeedSequence()
         self.sim.reset(self._seed_seq)
-        self._was_reset = True
-        self.agents = self.possible_agents[:]
         return self._observations(), self._infos()
 
     def step(
@@ -319,13 +392,16 @@ class ConvoyEnv(ParallelEnv):
             ordered = [actions[a] for a in names]
         except KeyError as exc:
             raise KeyError(f"no action for {exc.args[0]}") from None
-        unknown = set(actions) - set(names)
+        # Every agent has an action, so an extra key makes the dict longer.
+        unknown = set(actions) - set(names) if len(actions) > len(names) else ()
         if unknown:
             raise ValueError(
                 f"actions for unknown agents {sorted(map(str, unknown))}; agents: {', '.join(names)}"
             )
         for a, action in zip(names, ordered):
             check_action(a, action)
+        if self._compiled is not None:
+            return self._compiled_step(ordered)
         sim = self.sim
         accel_before = sim.truth.accel
         sim.decide(ordered)
@@ -351,6 +427,32 @@ class ConvoyEnv(ParallelEnv):
         if done or trunc:
             self.agents = []
         return obs, rewards, terminations, truncations, infos
+
+    def _compiled_step(
+        self, ordered: list[Any]
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        """``step`` through the compiled tick (``envs.compiled``)."""
+        fast = self._compiled
+        assert fast is not None
+        obs, rew, term, trunc, info = fast.step(ordered)
+        agents = self.agents
+        done, cut = bool(term[0]), bool(trunc[0])
+        out = (
+            dict(zip(agents, obs[0])),
+            dict(zip(agents, rew[0].tolist())),
+            dict.fromkeys(agents, done),
+            dict.fromkeys(agents, cut),
+            fast.infos(info, agents),
+        )
+        if done or cut:
+            self.agents = []
+        return out
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: an H x W x 3 uint8 picture of the convoy (None without a mode)."""
@@ -386,11 +488,13 @@ class ConvoyEnv(ParallelEnv):
     @property
     def vehicle_lengths(self) -> dict[int, float]:
         """Vehicle id -> length (m): the collision thresholds ``core.metrics`` wants."""
-        return dict(enumerate(self.sim.lengths))
+        return {i: p.length_m for i, p in enumerate(self.presets)}
 
     @property
     def delivery_ratio(self) -> float:
         """Messages delivered / (delivered + lost) over all links so far (NaN before any)."""
+        if self._compiled is not None:
+            return self._compiled.delivery_ratio()
         return self.sim.channel.delivery_ratio()
 
     def log_rows(self) -> list[dict[str, Any]]:
@@ -419,16 +523,23 @@ class ConvoyEnv(ParallelEnv):
     @property
     def t(self) -> float:
         """Simulated time (s)."""
+        if self._compiled is not None:
+            return float(self._compiled.vec.t[0])
         return self.sim.t
 
     @property
     def step_count(self) -> int:
         """Steps since reset."""
+        if self._compiled is not None:
+            return int(self._compiled.vec.step_count[0])
         return self.sim.step_count
 
     @property
-    def plant(self) -> BicyclePlant:
-        """The vehicles' plant."""
+    def plant(self) -> BicyclePlant | VectorPlant:
+        """The vehicles' plant (the compiled tick's: ``x``, ``y``, ``speed``,
+        ``heading``, ``accel``, ``yaw_rate`` arrays alike, one entry per vehicle)."""
+        if self._compiled is not None:
+            return self._compiled.vec.plant
         return self.sim.plant
 
     @property
@@ -444,7 +555,7 @@ class ConvoyEnv(ParallelEnv):
     @property
     def faults(self) -> tuple[Fault, ...]:
         """The injected faults."""
-        return self.sim.faults
+        return self._faults
 
     @property
     def auth(self) -> Authentication:
@@ -454,11 +565,15 @@ class ConvoyEnv(ParallelEnv):
     @property
     def safety_events(self) -> list[tuple[float, int, str]]:
         """(t s, vehicle, reason): faults injected, refused actions and emergency stops."""
+        if self._compiled is not None:
+            return self._compiled.safety_events()
         return self.sim.safety_events
 
     @property
     def forged_rejected(self) -> list[int]:
         """Forged messages each member rejected so far (``forge`` faults, ``security.auth`` on)."""
+        if self._compiled is not None:
+            return [int(v) for v in self._compiled.vec.forged_rejected[0].tolist()]
         return list(self.sim.auth.rejected)
 
     # --- internals ---------------------------------------------------------------------

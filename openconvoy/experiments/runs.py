@@ -253,6 +253,7 @@ def build_env(config: RunConfig):
         faults=config.faults,
         auth=config.auth == "required",
         plant_presets=[vehicle_preset(v) for v in convoy.plants] or None,
+        backend="python",  # its log rows and plans are the world's (what vehicles run)
     )
     policies = {a: copy.deepcopy(policy) for a in env.possible_agents}
     for i, a in enumerate(env.possible_agents, start=1):

@@ -23,6 +23,7 @@ from openconvoy.core.state import VehicleState
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.policies import load_policy
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 VEHICLES = ("1/10", "1/6", "1/10")  # the paper scenario's presets
 

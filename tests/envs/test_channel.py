@@ -11,6 +11,7 @@ from openconvoy.comms.loss import LossConfig, quantile_delay
 from openconvoy.core.state import VehicleState
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.channel import Channel, advance_state
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 
 def _binomial_band(n: int, p: float, z: float = 2.576) -> tuple[float, float]:
@@ -242,3 +243,35 @@ def test_a_senders_clock_error_ages_its_messages() -> None:
     ch.send(0, VehicleState(0, 10.0, 0.0, 0.0, 2.0, 0.0), 10.0)
     ((_, _, got),) = ch.deliver(10.0)
     assert got.t == pytest.approx(10.0 - 0.2) and got.x == 0.0
+
+
+def test_loss_draws_do_not_depend_on_how_many_broadcasts_are_drawn_at_once(monkeypatch) -> None:
+    """A long convoy draws fewer broadcasts ahead (``DRAW_BUDGET``): the same drops, which
+    are ``counter_uniform`` of (key, sender, receiver, broadcast number)."""
+    import openconvoy.envs.channel as channel_mod
+    from openconvoy.comms.loss import counter_uniform
+
+    n, per, sends = 12, 0.3, 20
+
+    def drops(budget: int) -> list[list[int]]:
+        monkeypatch.setattr(channel_mod, "DRAW_BUDGET", budget)
+        ch: Channel[int] = Channel(n, LossConfig(per=per))
+        ch.reset(np.random.default_rng(5))
+        for k in range(sends):
+            for s in range(n):
+                ch.send(s, k, 0.05 * k)
+        return ch.lost.tolist()
+
+    assert channel_mod.draw_block_size(1001) == 4 and channel_mod.draw_block_size(3) == 64
+    one_at_a_time, many = drops(n - 1), drops(10**6)
+    assert one_at_a_time == many
+    ch: Channel[int] = Channel(n, LossConfig(per=per))
+    ch.reset(np.random.default_rng(5))
+    want = [
+        [
+            0 if s == r else sum(counter_uniform(ch.key, s, r, k, 0) < per for k in range(sends))
+            for r in range(n)
+        ]
+        for s in range(n)
+    ]
+    assert many == want and 0 < sum(map(sum, want)) < n * (n - 1) * sends

@@ -15,6 +15,7 @@ from openconvoy.envs.convoy_env import INFO_KEYS
 from openconvoy.envs.reward import RewardConfig, reward
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
 from openconvoy.logs import COLUMNS, LogWriter, read_log
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 
 def _hold(env: ConvoyEnv, speed: float = 0.0) -> dict[str, np.ndarray]:
@@ -252,3 +253,41 @@ def test_event_trigger_sends_less_than_periodic_at_steady_speed() -> None:
     # Standing still: only the max-silence heartbeats (about one per second) go out.
     assert 9 <= counts["event"] <= 12
     assert ConvoyEnv().vehicle_lengths == {0: 0.779, 1: 0.97, 2: 0.779}
+
+
+def test_reset_leaves_the_garbage_collector_as_it_found_it() -> None:
+    """The first sense runs with collection paused (``envs.world``); it comes back on,
+    and stays off for a caller who turned it off."""
+    import gc
+
+    env = ConvoyEnv("paper", n_followers=30, backend="python")
+    assert gc.isenabled()
+    env.reset(seed=0)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        env.reset(seed=1)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    # All 30 followers heard every predecessor at t = 0 (the paused block did its work).
+    assert [len(m.buffer.heard()) for m in env.members[1:]] == list(range(1, 31))
+
+
+def test_without_numba_auto_is_the_python_path(monkeypatch) -> None:
+    """The vehicle runtime needs no numba: ``auto`` falls back, ``compiled`` says why."""
+    import openconvoy.envs.convoy_env as convoy_env_mod
+    from openconvoy.core.errors import ConfigError
+    from openconvoy.envs.compiled import BACKEND_ENV_VAR
+
+    def no_numba(*args, **kwargs):
+        raise ImportError("No module named 'numba'")
+
+    monkeypatch.setattr(convoy_env_mod, "CompiledConvoy", no_numba)
+    monkeypatch.setenv(BACKEND_ENV_VAR, "auto")
+    env = ConvoyEnv(loss=0.2)
+    assert env.backend == "python"
+    obs, _ = env.reset(seed=0)
+    assert set(obs) == {"follower_1", "follower_2"} and env.sim.n_vehicles == 3
+    with pytest.raises(ConfigError, match="numba"):
+        ConvoyEnv(backend="compiled")

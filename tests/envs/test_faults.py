@@ -10,6 +10,7 @@ from openconvoy.core.faults import Fault, parse_fault
 from openconvoy.envs import ConvoyEnv
 from openconvoy.experiments.runs import RunConfig, run_sim
 from openconvoy.policies.spec import load_policy
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 FAULT_T_S = 30.0
 REST_WITHIN_S = 10.0

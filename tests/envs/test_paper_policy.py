@@ -11,6 +11,7 @@ from openconvoy.comms.loss import LossConfig
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.scenarios import PAPER_PHASES
 from openconvoy.policies.spec import load_policy
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 
 def run_paper(per: float, seed: int) -> dict:

@@ -24,6 +24,7 @@ from openconvoy.policies.presets import PD_STAND_INS, PRESETS
 from openconvoy.policies.spec import classical_config, classical_to_toml, describe
 from openconvoy.policies.table1 import ROWS, TABLE1_PRESETS
 from openconvoy.train.tune import applicable
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 TABLE1 = [
     "turri2017",

@@ -27,6 +27,7 @@ from openconvoy.envs.gps import gps_noise, vehicle_states
 from openconvoy.envs.vector.env import MODES
 from openconvoy.policies.classical import ClassicalPolicy
 from openconvoy.policies.spec import load_policy
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 
 def _compare(

@@ -20,6 +20,7 @@ from openconvoy.envs import ConvoyEnv, VectorConvoyEnv
 from openconvoy.envs.ranging_noise import ranging_normals
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor
 from openconvoy.policies.spec import load_policy
+from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 LADDER = {"ladder": LadderConfig(enabled=True)}
 RADAR = RangingSensor(max_range_m=150.0, range_noise_m=0.1, range_rate_noise_mps=0.1)

@@ -16,6 +16,8 @@ import copy
 import dataclasses
 import json
 import math
+import os
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +35,42 @@ from openconvoy.core.policy import ActGuard
 from openconvoy.logs import COLUMNS, Log, LogWriter, read_log
 
 EXTRA_COLUMNS: tuple[str, ...] = ("length_m",)
+SCHEDSTAT = "/proc/thread-self/schedstat"
+"""Linux's per-thread scheduler statistics: its second field is the time (ns) the thread
+has waited on a run queue for a core."""
+
+
+class UnloadedClock:
+    """Seconds of ``time.perf_counter`` less the time this thread has waited for a core
+    (``SCHEDSTAT``; plain ``perf_counter`` where the kernel does not say): what an ``act``
+    would take on an idle machine, sleeps and I/O included. A simulated run times its
+    policies with it, so the same run gives the same result on a loaded machine (an MPC
+    solve once overran the 50 ms period three times in a row at load 17 on 2 cores and
+    stopped its follower); a vehicle times them by the wall clock, which is what its
+    control loop lives by. Read from the thread that created it."""
+
+    def __init__(self, path: str = SCHEDSTAT) -> None:
+        try:
+            self._fd: int | None = os.open(path, os.O_RDONLY)
+            self._waited_s()
+        except (OSError, ValueError, IndexError):
+            self._fd = None
+
+    def _waited_s(self) -> float:
+        assert self._fd is not None
+        return int(os.pread(self._fd, 64, 0).split()[1]) * 1e-9
+
+    def __call__(self) -> float:
+        now = time.perf_counter()
+        return now if self._fd is None else now - self._waited_s()
+
+    def close(self) -> None:
+        """Close the statistics file (idempotent)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
 EVENTS_FILE = "events.json"
 """A run's events (``run_events``), written only when it had any."""
 
@@ -314,7 +352,9 @@ def run_sim(
     bar = _progress_bar(env.max_steps, config.scenario) if progress else None
     # Each act is timed and caught as on a vehicle (``core.policy.ActGuard``): an act
     # that raises or overruns the control period is a policy error, decided in the tick.
-    guards = {a: ActGuard(p, env.dt) for a, p in policies.items()}
+    # Timed without the waits for a core, so a busy machine does not change a run.
+    clock = UnloadedClock()
+    guards = {a: ActGuard(p, env.dt, clock) for a, p in policies.items()}
     try:
         while env.agents:
             relay.before_act()
@@ -326,6 +366,7 @@ def run_sim(
                 bar.update(1)
         emit(env.final_log_rows())
     finally:
+        clock.close()
         if bar is not None:
             bar.close()
         if writer is not None:

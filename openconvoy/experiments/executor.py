@@ -216,7 +216,7 @@ class Executor(ABC):
         when it is interrupted); ``weights[i]``: the ``unit``s task ``i`` counts for (a
         batch of runs), 1 each by default. A task's ``report_progress`` moves the bar by
         that share of its weight as it runs (local executor). ``bar``: an object with
-        tqdm's ``update``, ``set_postfix_str`` and ``close`` instead of the stderr bar."""
+        tqdm's ``n``, ``refresh``, ``set_postfix_str`` and ``close`` instead of the stderr bar."""
         index = {id(t): i for i, t in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         todo = deque(tasks)
@@ -251,14 +251,17 @@ class Executor(ABC):
 class _Meter:
     """The progress bar's count: each task credited with the share of its weight it
     reported done (``report_progress``), and all of it when it ends; reports that arrive
-    after the end, or go backwards, change nothing. Thread-safe (a listener feeds it)."""
+    after the end, or go backwards, change nothing. The bar's ``n`` is set, never summed
+    from float steps, so it ends at its total exactly. Thread-safe (a listener feeds it)."""
 
     def __init__(self, bar: Any, by_label: dict[str, int], weight: Sequence[int]) -> None:
         import threading
 
         self.bar, self.by_label, self.weight = bar, by_label, list(weight)
+        self.total = sum(self.weight)
         self.credited = [0.0] * len(self.weight)
         self.done = [False] * len(self.weight)
+        self.sum = 0.0  # of ``credited``
         self.lock = threading.Lock()
 
     def partial(self, label: str, fraction: float) -> None:
@@ -276,9 +279,11 @@ class _Meter:
             if self.done[i] or units <= self.credited[i]:
                 self.done[i] = self.done[i] or ended
                 return
-            self.bar.update(units - self.credited[i])
+            self.sum += units - self.credited[i]
             self.credited[i] = units
             self.done[i] = ended
+            self.bar.n = self.total if all(self.done) else min(self.sum, self.total)
+            self.bar.refresh()
 
 
 def _listen(queue: Any | None, meter: _Meter) -> Callable[[], None]:

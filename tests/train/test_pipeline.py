@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 import threading
 import time
 from pathlib import Path
@@ -181,6 +182,28 @@ def test_export_matches_sb3_predict(ppo_run: Path, ppo_npz: Path, tmp_path: Path
         for o in obs
     )
     assert worst <= 1e-5
+
+
+def test_export_says_what_it_waits_for_and_checks_against_sb3(
+    ppo_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch
+) -> None:
+    """A person at a terminal is told what the ~10 s are for; the check's line gives the
+    largest action difference from SB3's own predict (the reference, not the .zip's
+    numpy forward, which equals the export by construction)."""
+    import sys
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    out = tmp_path / "said.npz"
+    assert main(["export", str(ppo_run), "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    assert said.err.startswith(f"exporting {ppo_run / 'policy.zip'} to {out}, then checking it")
+    assert "(loads torch: ~10 s)" in said.err
+    m = re.fullmatch(
+        rf"{re.escape(str(out))}: max \|action difference\| vs SB3 predict = (\S+) on 400 observations\n",
+        said.out,
+    )
+    assert m is not None, said.out
+    assert 0.0 <= float(m.group(1)) <= 1e-5
 
 
 class _DummyVenv:

@@ -5,7 +5,8 @@ Both the export (``openconvoy export``) and the loading of a trained ``.zip``
 runs in sim and sweeps through the very numpy forward its ``.npz`` runs on a vehicle: the
 two give the same numbers to the bit. What is extracted is the action SB3's
 ``predict(deterministic=True)`` returns: PPO's Gaussian mean clipped to [-1, 1] (gSDE or
-not; tanh-squashed with ``squash_output``), SAC's tanh-squashed mean. Imports torch and
+not; tanh-squashed with ``squash_output``), SAC's tanh-squashed mean (with gSDE, clipped to
+±``clip_mean`` first, as SB3's Hardtanh does). Imports torch and
 stable-baselines3 lazily (the ``train`` extra); the vehicle runtime never calls it.
 """
 
@@ -64,16 +65,14 @@ def actor_mlp(model: Any) -> NumpyMLP:
         # mean (SB3 StateDependentNoiseDistribution.mode), tanh-squashed with squash_output
         # (then ``predict`` unscales it from [-1, 1], as SAC's is).
         hidden = list(policy.mlp_extractor.policy_net)
-        head = [policy.action_net]
+        head, mean_clip = [policy.action_net], 0.0
         output = "tanh" if policy.squash_output else "clip"
     elif isinstance(model, SAC):
         actor = model.policy.actor
-        if not isinstance(actor.features_extractor, FlattenExtractor) or actor.use_sde:
-            # SB3 clips SAC's gSDE mean with a Hardtanh before the tanh, a head the .npz
-            # format does not hold; `openconvoy train` never makes such a SAC.
-            raise InputFileError("only SAC MlpPolicy without gSDE is exportable")
+        if not isinstance(actor.features_extractor, FlattenExtractor):
+            raise InputFileError("only SAC MlpPolicy (flat observations) is exportable")
         hidden = list(actor.latent_pi)
-        head = [actor.mu]
+        head, mean_clip = sac_head(actor.mu)
         output = "tanh"
     else:
         raise InputFileError(
@@ -81,7 +80,25 @@ def actor_mlp(model: Any) -> NumpyMLP:
         )
     w, b, activation = torch_layers(hidden, type(model).__name__)
     hw, hb, _ = torch_layers(head, type(model).__name__)
-    return NumpyMLP(w + hw, b + hb, activation or "identity", output)
+    return NumpyMLP(w + hw, b + hb, activation or "identity", output, mean_clip)
 
 
-__all__ = ["ACTIVATION_CLASSES", "actor_mlp", "torch_layers"]
+def sac_head(mu: Any) -> tuple[list[Any], float]:
+    """SAC's mean layer as (linear modules, mean clip): with gSDE SB3 appends a symmetric
+    ``Hardtanh(-clip_mean, clip_mean)`` to it (``clip_mean`` 0: none); 0.0 without one."""
+    import torch.nn as nn
+
+    modules = list(mu) if isinstance(mu, nn.Sequential) else [mu]
+    if modules and isinstance(modules[-1], nn.Hardtanh):
+        clip = modules.pop()
+        low, high = float(clip.min_val), float(clip.max_val)  # type: ignore[arg-type]
+        if low != -high or high <= 0:
+            raise InputFileError(
+                f"SAC: mean clip [{low}, {high}] is not symmetric; "
+                "the numpy forward clips to ±clip_mean"
+            )
+        return modules, high
+    return modules, 0.0
+
+
+__all__ = ["ACTIVATION_CLASSES", "actor_mlp", "sac_head", "torch_layers"]

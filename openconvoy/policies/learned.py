@@ -389,10 +389,18 @@ class LearnedPolicy:
 
 class NumpyMLP:
     """The actor's forward pass in numpy: hidden layers with one activation, a linear
-    output, then ``clip`` or ``tanh`` (see ``OUTPUTS``). Computes in float64."""
+    output, then ``clip`` or ``tanh`` (see ``OUTPUTS``). Computes in float64.
+
+    ``mean_clip`` > 0: the linear output is first clipped to ±``mean_clip`` (SB3's SAC with
+    gSDE clips its mean with a Hardtanh before the tanh); 0: not clipped."""
 
     def __init__(
-        self, weights: list[np.ndarray], biases: list[np.ndarray], activation: str, output: str
+        self,
+        weights: list[np.ndarray],
+        biases: list[np.ndarray],
+        activation: str,
+        output: str,
+        mean_clip: float = 0.0,
     ) -> None:
         if activation not in ACTIVATIONS:
             raise InputFileError(
@@ -413,8 +421,11 @@ class NumpyMLP:
                 raise InputFileError(
                     f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}"
                 )
+        if not (math.isfinite(mean_clip) and mean_clip >= 0.0):
+            raise InputFileError(f"mean_clip: {mean_clip!r} is not a finite number >= 0")
         self.activation = activation
         self.output = output
+        self.mean_clip = float(mean_clip)
         self._act = ACTIVATIONS[activation]
 
     @property
@@ -428,6 +439,8 @@ class NumpyMLP:
             h = w @ h + b if h.ndim == 1 else h @ w.T + b
             if i < last:
                 h = self._act(h)
+        if self.mean_clip > 0.0:
+            h = np.clip(h, -self.mean_clip, self.mean_clip)
         return np.tanh(h) if self.output == "tanh" else np.clip(h, -1.0, 1.0)
 
 
@@ -440,6 +453,8 @@ def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
         "output": np.array(mlp.output),
         "n_layers": np.array(len(mlp.weights)),
     }
+    if mlp.mean_clip > 0.0:  # only then: the exports of other actors stay as they were
+        arrays["mean_clip"] = np.array(mlp.mean_clip)
     for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases)):
         arrays[f"W{i}"] = w
         arrays[f"b{i}"] = b
@@ -479,6 +494,7 @@ def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
             [data[f"b{i}"] for i in range(n)],
             str(data["activation"]),
             str(data["output"]),
+            float(data["mean_clip"]) if "mean_clip" in data else 0.0,
         )
     if mlp.n_inputs != meta.layout["size"] + meta.feature_size:
         raise InputFileError(

@@ -48,6 +48,7 @@ from openconvoy.convoy import ConvoyConfig
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.policies import load_policy
+from openconvoy.testing import free_port
 
 CONVOY = ConvoyConfig(name="bench", vehicles=("1/10", "1/6"))
 POLICY = ["paper"]
@@ -79,12 +80,6 @@ class UdpPair:
 
     def close(self) -> None:
         self._sock.close()
-
-
-def _port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _runner(
@@ -176,8 +171,8 @@ def measure(rate_hz: float, seconds: float) -> dict:
         spec = {
             "rate": rate_hz,
             "seconds": seconds,
-            "mav": [_port(), _port()],
-            "v2v": [_port(), _port()],
+            "mav": [free_port(), free_port()],
+            "v2v": [free_port(), free_port()],
             "dir": tmp,
             "times": str(Path(tmp) / "times.json"),
         }

@@ -22,6 +22,7 @@ from openconvoy.cli import main
 from openconvoy.logs import COLUMNS
 from openconvoy.policies.learned import META_MEMBER, LearnedMeta, NumpyMLP, save_npz
 from openconvoy.policies.presets import PRESETS
+from openconvoy.testing import free_port
 
 CONVOY = '[convoy]\nname = "lab"\nvehicles = ["1/10", "1/6"]\n'
 DEPLOY = [
@@ -635,12 +636,6 @@ PROBES: list[tuple[str, dict, list[str], str]] = [
 ]
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.parametrize("files, argv, words", [p[1:] for p in PROBES], ids=[p[0] for p in PROBES])
 def test_every_bad_input_is_one_line_and_exit_2(files, argv, words, tmp_path, capsys):
     for name, content in files.items():
@@ -655,7 +650,7 @@ def test_every_bad_input_is_one_line_and_exit_2(files, argv, words, tmp_path, ca
     held = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # a port a vehicle already holds
     held.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     held.bind(("127.0.0.1", 0))
-    subst = {"d": str(tmp_path), "port": str(_free_port()), "taken": str(held.getsockname()[1])}
+    subst = {"d": str(tmp_path), "port": str(free_port()), "taken": str(held.getsockname()[1])}
     try:
         code = main([a.format(**subst) for a in argv])
     finally:

@@ -14,9 +14,11 @@ import time
 from pathlib import Path
 
 import pytest
-from pool_tasks import square_or_die
+from pool_tasks import report_quarters, square_or_die
 
 from openconvoy.cli import main
+from openconvoy.experiments.batched import tasks as batched_sweep
+from openconvoy.experiments.batched.run import STEPPING_SHARE, run_batch
 from openconvoy.experiments.executor import (
     ExecutorConfig,
     LocalExecutor,
@@ -25,6 +27,7 @@ from openconvoy.experiments.executor import (
     TasksFailed,
     with_flags,
 )
+from openconvoy.experiments.runs import RunConfig
 from openconvoy.experiments.sweep import ExperimentConfig, read_summary, run_experiment
 
 PACKAGE = Path(__file__).resolve().parents[1] / "openconvoy"
@@ -221,3 +224,76 @@ def test_an_unreachable_cluster_is_one_error_line(tmp_path: Path, capsys):
         "openconvoy: error: cannot reach the Ray cluster at 127.0.0.1:1: ConnectionRefusedError"
     )
     assert not (tmp_path / "x").exists()  # nothing written before the cluster answers
+
+
+# --- progress that moves (issue 26): a batch moves the bar as it steps and writes ---
+
+
+class RecordingBar:
+    """tqdm's ``n``/``refresh``/``set_postfix_str``/``close``, recording ``n`` at each refresh."""
+
+    def __init__(self) -> None:
+        self.n = 0.0
+        self.seen: list[float] = []
+        self.closed = False
+
+    def refresh(self) -> None:
+        assert not self.seen or self.n > self.seen[-1], "the bar only moves forward"
+        self.seen.append(round(self.n, 9))
+
+    def set_postfix_str(self, text: str, refresh: bool = True) -> None:
+        pass
+
+    def close(self) -> None:
+        self.closed = True
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_task_reports_move_the_bar_by_its_weight(jobs: int) -> None:
+    """A task of weight 4 reporting 1/4, 1/2, (1/4 again: ignored), 3/4 moves the bar to
+    1, 2, 3 while it runs, then to 4 as it ends; in this process (jobs 1) and from a
+    worker process (jobs 2). A weight-1 task beside it moves by its quarters."""
+    bar = RecordingBar()
+    with LocalExecutor(jobs=jobs) as ex:
+        assert ex.map([Task("batch", report_quarters, 7)], weights=[4], bar=bar) == [7]
+    assert bar.seen == [1.0, 2.0, 3.0, 4.0] and bar.closed
+    bar = RecordingBar()
+    with LocalExecutor(jobs=jobs) as ex:
+        tasks = [Task("batch", report_quarters, 7), Task("one", report_quarters, 8)]
+        assert ex.map(tasks, weights=[4, 1], bar=bar) == [7, 8]
+    assert len(bar.seen) == 2 * 4 and bar.n == 5  # exactly the total at the end
+
+
+def test_a_batch_reports_its_progress_as_it_steps_and_writes() -> None:
+    """``run_batch``'s fractions climb evenly to STEPPING_SHARE while stepping, then by
+    equal parts as each run's files are written, ending at 1."""
+    configs = [RunConfig(policy="paper", per=0.3, seed=s, duration_s=6.0) for s in range(4)]
+    fractions: list[float] = []
+    run_batch(configs, on_progress=fractions.append)
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    stepping = [f for f in fractions if f <= STEPPING_SHARE + 1e-12]
+    assert len(stepping) >= 25  # about every 1 % of the ticks, not one jump
+    assert stepping[-1] == pytest.approx(STEPPING_SHARE, abs=0.01)
+    writing = fractions[len(stepping) :]
+    share = (1.0 - STEPPING_SHARE) / len(configs)
+    assert writing == pytest.approx([STEPPING_SHARE + share * (b + 1) for b in range(4)])
+
+
+def test_a_batched_sweep_moves_its_bar_within_a_batch(tmp_path: Path) -> None:
+    """The sweep's own tasks (one batch of 4 runs, in this process): the bar passes
+    fractions of a run before the batch ends, and ends at exactly 4 runs."""
+    planned = [
+        ("paper", RunConfig(policy="paper", per=p, seed=s, duration_s=4.0))
+        for p in (0.0, 0.3)
+        for s in (1, 2)
+    ]
+    dirs = [f"run{i}" for i in range(4)]
+    plan = batched_sweep.plan(planned, dirs, [False] * 4, slots=1)
+    assert plan.spans == [(0, 4)]  # one batch: before, the bar jumped 0 -> 4
+    bar = RecordingBar()
+    with LocalExecutor(jobs=1) as ex:
+        (result,) = ex.map(plan.tasks, weights=[4], bar=bar)
+    assert len(result) == 4 and bar.n == 4
+    before_end = [v for v in bar.seen[:-1] if v < 4.0]
+    assert len(before_end) >= 20
+    assert any(0.0 < v < 1.0 for v in before_end)  # a fraction of one run, while stepping

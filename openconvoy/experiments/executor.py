@@ -125,13 +125,39 @@ def error_line(exc: BaseException, frame: bool = True) -> str:
     return out
 
 
-def guarded(fn: Callable[[Any], Any], arg: Any, where: str | None = None) -> Any:
+_progress_put: Callable[[tuple[str, float]], None] | None = None
+"""Where this process sends its tasks' partial progress (None: nowhere; only whole tasks
+count, as on Ray)."""
+_running: str = ""
+"""The label of the task this process runs now (``guarded`` sets it)."""
+
+
+def report_progress(fraction: float) -> None:
+    """The running task is ``fraction`` (0..1) done: the driver's progress bar moves by
+    that share of the task's weight (a batch of runs moves run by run, not all at once).
+    A no-op where the executor carries no progress."""
+    if _progress_put is not None and _running:
+        _progress_put((_running, min(1.0, max(0.0, float(fraction)))))
+
+
+def _send_progress_to(put: Callable[[tuple[str, float]], None] | None) -> None:
+    """Make this process report progress through ``put`` (a worker pool's initializer)."""
+    global _progress_put
+    _progress_put = put
+
+
+def guarded(fn: Callable[[Any], Any], arg: Any, where: str | None = None, label: str = "") -> Any:
     """``fn(arg)`` on a worker, an exception returned as a ``_Failed`` instead of raised
-    (so one bad run is reported, not the whole pool's)."""
+    (so one bad run is reported, not the whole pool's); ``label``: the task's, which its
+    ``report_progress`` calls carry."""
+    global _running
+    _running = label
     try:
         return fn(arg)
     except Exception as exc:  # noqa: BLE001 - reported to the driver, which names the run
         return _Failed(where or worker_location(), error_line(exc))
+    finally:
+        _running = ""
 
 
 def outcome(task: Task, value: Any) -> Any:
@@ -163,6 +189,11 @@ class Executor(ABC):
     def close(self) -> None:
         """Stop: cancel what has not ended, release the workers."""
 
+    def progress_queue(self) -> Any | None:
+        """A queue on which ``(task label, fraction done)`` arrives while tasks run
+        (``report_progress``), or None: this executor reports whole tasks only."""
+        return None
+
     def __enter__(self) -> Executor:
         return self
 
@@ -177,17 +208,25 @@ class Executor(ABC):
         unit: str = "run",
         on_result: Callable[[int, Any], None] | None = None,
         weights: Sequence[int] | None = None,
+        bar: Any = None,
     ) -> list[Any]:
         """Every task's result (or TaskFailure), in task order, whatever order they end in;
         a progress bar over tasks (counted in ``unit``s) on stderr with ``progress``;
         ``on_result(i, result)`` as task ``i`` ends (so a caller keeps what finished
         when it is interrupted); ``weights[i]``: the ``unit``s task ``i`` counts for (a
-        batch of runs), 1 each by default."""
+        batch of runs), 1 each by default. A task's ``report_progress`` moves the bar by
+        that share of its weight as it runs (local executor). ``bar``: an object with
+        tqdm's ``n``, ``refresh``, ``set_postfix_str`` and ``close`` instead of the stderr bar."""
         index = {id(t): i for i, t in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         todo = deque(tasks)
         weight = list(weights) if weights is not None else [1] * len(tasks)
-        bar = _bar(sum(weight), progress, desc, unit)
+        if bar is None:
+            bar = _bar(sum(weight), progress, desc, unit, partial=any(w > 1 for w in weight))
+        else:
+            progress = True
+        meter = _Meter(bar, {t.label: i for i, t in enumerate(tasks)}, weight)
+        listener = _listen(self.progress_queue() if progress else None, meter)
         in_flight = failed = 0
         try:
             while todo or in_flight:
@@ -202,16 +241,86 @@ class Executor(ABC):
                 if isinstance(value, TaskFailure):
                     failed += 1
                     bar.set_postfix_str(f"{failed} failed", refresh=False)
-                bar.update(weight[index[id(task)]])
+                meter.finished(index[id(task)])
         finally:
+            listener()
             bar.close()
         return results
 
 
-def _bar(total: int, enabled: bool, desc: str, unit: str = "run") -> Any:
+class _Meter:
+    """The progress bar's count: each task credited with the share of its weight it
+    reported done (``report_progress``), and all of it when it ends; reports that arrive
+    after the end, or go backwards, change nothing. The bar's ``n`` is set, never summed
+    from float steps, so it ends at its total exactly. Thread-safe (a listener feeds it)."""
+
+    def __init__(self, bar: Any, by_label: dict[str, int], weight: Sequence[int]) -> None:
+        import threading
+
+        self.bar, self.by_label, self.weight = bar, by_label, list(weight)
+        self.total = sum(self.weight)
+        self.credited = [0.0] * len(self.weight)
+        self.done = [False] * len(self.weight)
+        self.sum = 0.0  # of ``credited``
+        self.lock = threading.Lock()
+
+    def partial(self, label: str, fraction: float) -> None:
+        """Task ``label`` reports ``fraction`` of itself done."""
+        i = self.by_label.get(label)
+        if i is not None:
+            self._credit(i, fraction * self.weight[i], ended=False)
+
+    def finished(self, i: int) -> None:
+        """Task ``i`` ended: the rest of its weight."""
+        self._credit(i, float(self.weight[i]), ended=True)
+
+    def _credit(self, i: int, units: float, ended: bool) -> None:
+        with self.lock:
+            if self.done[i] or units <= self.credited[i]:
+                self.done[i] = self.done[i] or ended
+                return
+            self.sum += units - self.credited[i]
+            self.credited[i] = units
+            self.done[i] = ended
+            self.bar.n = self.total if all(self.done) else min(self.sum, self.total)
+            self.bar.refresh()
+
+
+def _listen(queue: Any | None, meter: _Meter) -> Callable[[], None]:
+    """Feed ``meter`` from ``queue`` on a thread until the returned function is called
+    (which stops it); a no-op without a queue."""
+    if queue is None:
+        return lambda: None
+    import threading
+
+    def drain() -> None:
+        while (item := queue.get()) is not None:
+            meter.partial(*item)
+
+    thread = threading.Thread(target=drain, name="openconvoy-progress", daemon=True)
+    thread.start()
+
+    def stop() -> None:
+        queue.put(None)
+        thread.join(5.0)
+
+    return stop
+
+
+PARTIAL_BAR = "{l_bar}{bar}| {n:.1f}/{total_fmt} [{elapsed}<{remaining}, {rate_fmt}{postfix}]"
+"""The bar's line where tasks move it by fractions (a batch of runs): one decimal."""
+
+
+def _bar(total: int, enabled: bool, desc: str, unit: str = "run", partial: bool = False) -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=total, unit=unit, desc=desc or None, disable=not enabled)
+    return tqdm(
+        total=total,
+        unit=unit,
+        desc=desc or None,
+        disable=not enabled,
+        bar_format=PARTIAL_BAR if partial else None,
+    )
 
 
 class LocalExecutor(Executor):
@@ -233,6 +342,7 @@ class LocalExecutor(Executor):
         self._suspects: deque[Task] = deque()  # in flight when a pool broke
         self._solo_pool: Any = None
         self._solo: tuple[Any, Task] | None = None  # the suspect running alone
+        self._progress: Any = None  # the queue workers report progress on, once asked
 
     @property
     def slots(self) -> int:
@@ -245,23 +355,23 @@ class LocalExecutor(Executor):
         from concurrent.futures.process import BrokenProcessPool
 
         if self._pool is None:
-            self._pool = _process_pool(self.jobs)
+            self._pool = _process_pool(self.jobs, self._progress)
         try:
-            future = self._pool.submit(guarded, task.fn, task.arg)
+            future = self._pool.submit(guarded, task.fn, task.arg, None, task.label)
         except BrokenProcessPool:
             # A worker died after the last result was taken and before this submit: the
             # tasks still in flight with the old pool come back broken in wait_one (and run
             # again alone); this one goes to a fresh pool.
             self._pool.shutdown(wait=False)  # (not cancel_futures: wait_one reads them)
-            self._pool = _process_pool(self.jobs)
-            future = self._pool.submit(guarded, task.fn, task.arg)
+            self._pool = _process_pool(self.jobs, self._progress)
+            future = self._pool.submit(guarded, task.fn, task.arg, None, task.label)
         self._futures[future] = (task, self._pool)
 
     def wait_one(self) -> tuple[Task, Any]:
         if self.jobs == 1:
             task = self._queue.popleft()
             return task, outcome(
-                task, guarded(task.fn, task.arg, f"the driver, {worker_location()}")
+                task, guarded(task.fn, task.arg, f"the driver, {worker_location()}", task.label)
             )
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
@@ -269,9 +379,12 @@ class LocalExecutor(Executor):
         while True:
             if self._solo is None and self._suspects:
                 if self._solo_pool is None:
-                    self._solo_pool = _process_pool(1)
+                    self._solo_pool = _process_pool(1, self._progress)
                 task = self._suspects.popleft()
-                self._solo = (self._solo_pool.submit(guarded, task.fn, task.arg), task)
+                self._solo = (
+                    self._solo_pool.submit(guarded, task.fn, task.arg, None, task.label),
+                    task,
+                )
             waiting = list(self._futures) + ([self._solo[0]] if self._solo else [])
             done, _ = wait(waiting, return_when=FIRST_COMPLETED)
             fut = next(iter(done))
@@ -297,22 +410,52 @@ class LocalExecutor(Executor):
                     self._pool = None  # the next submit starts a fresh pool
                 self._suspects.append(task)
 
+    def progress_queue(self) -> Any:
+        """Workers (processes, or this one with ``jobs = 1``) report progress on it; ask
+        before the first ``submit`` (the pool's processes are given it as they start)."""
+        if self._progress is None:
+            import multiprocessing
+            import queue
+
+            if self.jobs == 1:
+                self._progress = queue.SimpleQueue()
+                _send_progress_to(self._progress.put)
+            else:
+                self._progress = multiprocessing.get_context("spawn").Queue()
+        return self._progress
+
     def close(self) -> None:
+        if self.jobs == 1 and self._progress is not None:
+            _send_progress_to(None)
+        progress, self._progress = self._progress, None
         for pool in (self._pool, self._solo_pool):
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
         self._pool = self._solo_pool = self._solo = None
+        if progress is not None and self.jobs > 1:
+            progress.close()  # after the pools: no worker writes to it any more
         self._futures.clear()
         self._queue.clear()
         self._suspects.clear()
 
 
-def _process_pool(workers: int) -> Any:
+def _process_pool(workers: int, progress: Any = None) -> Any:
+    """A pool of ``workers`` spawned processes, each reporting progress on ``progress``
+    (a multiprocessing queue; None: none)."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    # spawn: workers start clean (no inherited threads or open files).
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    # spawn: workers start clean (no inherited threads or open files). A queue reaches a
+    # worker only as it starts (an initializer argument), never inside a task.
+    context = multiprocessing.get_context("spawn")
+    if progress is None:
+        return ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    return ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=context,
+        initializer=_send_progress_to,
+        initargs=(progress.put,),
+    )
 
 
 def with_flags(

@@ -18,7 +18,9 @@ action modes (``compose_action``):
 - ``.npz``: written by ``openconvoy export``; the actor's layers as plain arrays and a numpy
   forward pass. Never imports torch, so vehicles deploy it without the training stack.
 - ``.zip``: written by ``openconvoy train`` (SB3's own file with an ``openconvoy.json``
-  member holding the metadata); loading it imports stable-baselines3 (and torch) lazily.
+  member holding the metadata); loading it imports stable-baselines3 (and torch) lazily
+  and takes the actor's layers out once, so it runs the ``.npz``'s numpy forward: a
+  ``.zip`` and its export act, simulate and sweep alike to the bit.
 
 A policy whose recorded layout differs from the convoy's (``layout=`` or
 ``member_config=`` given to the loader) is refused with a ValueError naming the difference.
@@ -387,10 +389,18 @@ class LearnedPolicy:
 
 class NumpyMLP:
     """The actor's forward pass in numpy: hidden layers with one activation, a linear
-    output, then ``clip`` or ``tanh`` (see ``OUTPUTS``). Computes in float64."""
+    output, then ``clip`` or ``tanh`` (see ``OUTPUTS``). Computes in float64.
+
+    ``mean_clip`` > 0: the linear output is first clipped to ±``mean_clip`` (SB3's SAC with
+    gSDE clips its mean with a Hardtanh before the tanh); 0: not clipped."""
 
     def __init__(
-        self, weights: list[np.ndarray], biases: list[np.ndarray], activation: str, output: str
+        self,
+        weights: list[np.ndarray],
+        biases: list[np.ndarray],
+        activation: str,
+        output: str,
+        mean_clip: float = 0.0,
     ) -> None:
         if activation not in ACTIVATIONS:
             raise InputFileError(
@@ -411,8 +421,11 @@ class NumpyMLP:
                 raise InputFileError(
                     f"layer {i} takes {self.weights[i].shape[1]} inputs, layer {i - 1} gives {self.weights[i - 1].shape[0]}"
                 )
+        if not (math.isfinite(mean_clip) and mean_clip >= 0.0):
+            raise InputFileError(f"mean_clip: {mean_clip!r} is not a finite number >= 0")
         self.activation = activation
         self.output = output
+        self.mean_clip = float(mean_clip)
         self._act = ACTIVATIONS[activation]
 
     @property
@@ -426,6 +439,8 @@ class NumpyMLP:
             h = w @ h + b if h.ndim == 1 else h @ w.T + b
             if i < last:
                 h = self._act(h)
+        if self.mean_clip > 0.0:
+            h = np.clip(h, -self.mean_clip, self.mean_clip)
         return np.tanh(h) if self.output == "tanh" else np.clip(h, -1.0, 1.0)
 
 
@@ -438,6 +453,8 @@ def save_npz(path: str | Path, meta: LearnedMeta, mlp: NumpyMLP) -> Path:
         "output": np.array(mlp.output),
         "n_layers": np.array(len(mlp.weights)),
     }
+    if mlp.mean_clip > 0.0:  # only then: the exports of other actors stay as they were
+        arrays["mean_clip"] = np.array(mlp.mean_clip)
     for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases)):
         arrays[f"W{i}"] = w
         arrays[f"b{i}"] = b
@@ -477,6 +494,7 @@ def _load_npz(path: str | Path) -> tuple[LearnedMeta, NumpyMLP]:
             [data[f"b{i}"] for i in range(n)],
             str(data["activation"]),
             str(data["output"]),
+            float(data["mean_clip"]) if "mean_clip" in data else 0.0,
         )
     if mlp.n_inputs != meta.layout["size"] + meta.feature_size:
         raise InputFileError(
@@ -550,34 +568,83 @@ def load_learned(
 ) -> LearnedPolicy:
     """A learned policy from a ``.zip`` (SB3, needs torch) or ``.npz`` (numpy only).
 
+    A ``.zip`` runs through the numpy forward its export runs (the actor's weights taken
+    out of the SB3 model once, on load: ``openconvoy.policies.actor``), so a ``.zip`` and
+    its ``.npz`` give the same actions, runs and sweeps to the bit; a ``.zip`` whose actor
+    the numpy forward cannot hold (a SAC with gSDE, a custom network: nothing ``openconvoy
+    train`` makes) is refused, saying why, as its export would be. ``load_sb3_predict`` is
+    the reference the extraction is checked against.
+
     ``layout`` or ``member_config``: the convoy's observation layout; a policy trained for
     another layout is refused with a ValueError naming the difference.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"policy file not found: {path}")
+    path = _existing(path)
     if path.suffix == ".npz":
         meta, mlp = load_npz(path)
         forward: Callable[[np.ndarray], np.ndarray] = mlp
     elif path.suffix == ".zip":
+        from openconvoy.policies.actor import actor_mlp
+
         meta = read_zip_meta(path)
         model = load_sb3_model(path, meta.algo)
-
-        def predict(obs: np.ndarray) -> np.ndarray:
-            action, _ = model.predict(obs.astype(np.float32), deterministic=True)
-            return action
-
-        forward = predict
-
+        try:
+            forward = actor_mlp(model)
+        except InputFileError as exc:
+            raise InputFileError(f"{path}: {exc}; it runs nowhere a .npz runs") from None
     else:
         raise InputFileError(f"{path}: a learned policy is a .zip (SB3) or .npz (export) file")
+    _check_layout(path, meta, layout, member_config)
+    return LearnedPolicy(meta, forward, str(path))
+
+
+def load_sb3_predict(
+    path: str | Path,
+    layout: ObservationLayout | None = None,
+    member_config: MemberConfig | None = None,
+) -> LearnedPolicy:
+    """A trained ``.zip`` acting through SB3's (torch) ``predict(deterministic=True)``:
+    the reference an export, and ``load_learned``'s numpy forward of a ``.zip``, are
+    checked against (``openconvoy export`` does, on 400 simulated observations)."""
+    path = _existing(path)
+    if path.suffix != ".zip":
+        raise InputFileError(f"{path}: SB3's predict needs the trained .zip")
+    meta = read_zip_meta(path)
+    forward = _sb3_predict(load_sb3_model(path, meta.algo))
+    _check_layout(path, meta, layout, member_config)
+    return LearnedPolicy(meta, forward, str(path))
+
+
+def _existing(path: str | Path) -> Path:
+    """``path`` as a Path, a ``MissingFileError`` when no such file."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"policy file not found: {path}")
+    return path
+
+
+def _sb3_predict(model: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """SB3's deterministic ``predict`` as a forward on normalized observations."""
+
+    def predict(obs: np.ndarray) -> np.ndarray:
+        action, _ = model.predict(obs.astype(np.float32), deterministic=True)
+        return action
+
+    return predict
+
+
+def _check_layout(
+    path: Path,
+    meta: LearnedMeta,
+    layout: ObservationLayout | None,
+    member_config: MemberConfig | None,
+) -> None:
+    """Refuse (``InputFileError``, a ValueError) a policy trained for another layout."""
     for expected in (layout, None if member_config is None else member_config.layout):
         if expected is not None:
             try:
                 expected.check_compatible(meta.layout)
             except ValueError as exc:
                 raise InputFileError(f"{path}: {exc}") from None
-    return LearnedPolicy(meta, forward, str(path))
 
 
 __all__ = [
@@ -588,6 +655,7 @@ __all__ = [
     "compose_action",
     "compose_actions",
     "load_learned",
+    "load_sb3_predict",
     "load_npz",
     "save_npz",
     "read_zip_meta",

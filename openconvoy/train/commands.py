@@ -238,7 +238,7 @@ def tune_command(args: argparse.Namespace) -> int:
 
 
 def export_command(args: argparse.Namespace) -> int:
-    from openconvoy.policies.learned import load_learned
+    from openconvoy.policies.learned import load_learned, load_sb3_predict
     from openconvoy.train.export import (
         export_policy,
         max_action_difference,
@@ -253,7 +253,7 @@ def export_command(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     path = export_policy(args.run, args.out)
-    trained = load_learned(resolve_policy_zip(args.run))
+    trained = load_sb3_predict(resolve_policy_zip(args.run))  # torch: the reference
     exported = load_learned(path)
     obs = sample_observations(trained, n=400)
     diff = max_action_difference(trained, exported, obs)

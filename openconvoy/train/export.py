@@ -4,8 +4,8 @@ The artifact (``openconvoy.policies.learned.save_npz``) holds the actor's layers
 arrays, the observation normalization, the action scaling, the layout (version, M, k,
 size), the member configuration and the control rate; ``load_learned`` runs it with numpy
 only. What is exported is the deterministic action SB3's ``predict(deterministic=True)``
-returns: PPO's Gaussian mean clipped to [-1, 1] (gSDE or not; tanh-squashed with
-squash_output), SAC's tanh-squashed mean.
+returns (``openconvoy.policies.actor``, the same extraction ``load_learned`` runs a
+``.zip`` through); the check after an export compares it with SB3's own ``predict``.
 """
 
 from __future__ import annotations
@@ -16,17 +16,16 @@ from pathlib import Path
 import numpy as np
 
 from openconvoy.core.errors import InputFileError, MissingFileError
+from openconvoy.policies.actor import actor_mlp
 from openconvoy.policies.learned import (
     LearnedPolicy,
-    NumpyMLP,
     load_learned,
     load_npz,
+    load_sb3_predict,
     read_zip_meta,
     save_npz,
 )
 from openconvoy.train.train import POLICY_FILE
-
-_ACTIVATION_CLASSES = {"Tanh": "tanh", "ReLU": "relu", "ELU": "elu", "LeakyReLU": "leaky_relu"}
 
 
 def resolve_policy_zip(source: str | Path) -> Path:
@@ -39,67 +38,6 @@ def resolve_policy_zip(source: str | Path) -> Path:
     if path.suffix != ".zip":
         raise InputFileError(f"{path}: expected an SB3 .zip or a run directory")
     return path
-
-
-def _layers(modules, where: str) -> tuple[list[np.ndarray], list[np.ndarray], str | None]:
-    """Weights, biases and the (single) activation of a sequence of torch modules."""
-    import torch.nn as nn
-
-    weights, biases, activation = [], [], None
-    for m in modules:
-        if isinstance(m, nn.Linear):
-            weights.append(m.weight.detach().cpu().numpy().astype(np.float64))
-            bias = m.bias.detach().cpu().numpy() if m.bias is not None else np.zeros(m.out_features)
-            biases.append(bias.astype(np.float64))
-        elif type(m).__name__ in _ACTIVATION_CLASSES:
-            if isinstance(m, nn.LeakyReLU) and m.negative_slope != 0.01:
-                raise InputFileError(
-                    f"{where}: LeakyReLU slope {m.negative_slope} is not exportable (0.01 is)"
-                )
-            name = _ACTIVATION_CLASSES[type(m).__name__]
-            if activation not in (None, name):
-                raise InputFileError(
-                    f"{where}: mixed activations {activation} and {name} are not exportable"
-                )
-            activation = name
-        elif isinstance(m, (nn.Flatten, nn.Identity)):
-            continue
-        else:
-            raise InputFileError(f"{where}: layer {type(m).__name__} is not exportable")
-    return weights, biases, activation
-
-
-def actor_mlp(model) -> NumpyMLP:
-    """The deterministic actor of an SB3 PPO or SAC model as a ``NumpyMLP``."""
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.torch_layers import FlattenExtractor
-
-    if isinstance(model, PPO):
-        policy = model.policy
-        if not isinstance(policy.pi_features_extractor, FlattenExtractor):
-            raise InputFileError("only PPO MlpPolicy (flat observations) is exportable")
-        # gSDE changes only the exploration noise: the deterministic action is the Gaussian
-        # mean (SB3 StateDependentNoiseDistribution.mode), tanh-squashed with squash_output
-        # (then ``predict`` unscales it from [-1, 1], as SAC's is).
-        hidden = list(policy.mlp_extractor.policy_net)
-        head = [policy.action_net]
-        output = "tanh" if policy.squash_output else "clip"
-    elif isinstance(model, SAC):
-        actor = model.policy.actor
-        if not isinstance(actor.features_extractor, FlattenExtractor) or actor.use_sde:
-            # SB3 clips SAC's gSDE mean with a Hardtanh before the tanh, a head the .npz
-            # format does not hold; `openconvoy train` never makes such a SAC.
-            raise InputFileError("only SAC MlpPolicy without gSDE is exportable")
-        hidden = list(actor.latent_pi)
-        head = [actor.mu]
-        output = "tanh"
-    else:
-        raise InputFileError(
-            f"cannot export a {type(model).__name__} model (PPO and SAC are exportable)"
-        )
-    w, b, activation = _layers(hidden, type(model).__name__)
-    hw, hb, _ = _layers(head, type(model).__name__)
-    return NumpyMLP(w + hw, b + hb, activation or "identity", output)
 
 
 def export_policy(source: str | Path, out: str | Path) -> Path:
@@ -125,10 +63,11 @@ def max_action_difference(
 
 
 def verify_export(source: str | Path, npz: str | Path, observations: np.ndarray) -> float:
-    """``max_action_difference`` of the trained ``.zip`` and its export on ``observations``."""
+    """``max_action_difference`` of the trained ``.zip`` (SB3's ``predict``) and its export
+    on ``observations``."""
     load_npz(npz)  # a malformed file fails here with its own message
     return max_action_difference(
-        load_learned(resolve_policy_zip(source)), load_learned(npz), observations
+        load_sb3_predict(resolve_policy_zip(source)), load_learned(npz), observations
     )
 
 

@@ -1,10 +1,9 @@
-"""Helpers for the bridge tests: free localhost ports, a simulated vehicle with a link."""
+"""Fixtures of the bridge tests: a simulated vehicle with a link (the fakes and waits
+are ``openconvoy.testing``)."""
 
 from __future__ import annotations
 
 import contextlib
-import socket
-import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -13,43 +12,7 @@ import pytest
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A localhost port nobody uses right now (UDP by default)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def run_for(
-    link: MavlinkLink,
-    seconds: float,
-    speed: float | None = None,
-    heading: float | None = None,
-    period: float = 0.05,
-) -> None:
-    """Poll the link (and send a setpoint when given) every ``period`` s for ``seconds``."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        link.poll()
-        if speed is not None and heading is not None:
-            link.send_setpoint(speed, heading)
-        time.sleep(period)
-
-
-def wait_for(
-    predicate: Callable[[], bool], timeout: float, link: MavlinkLink | None = None
-) -> bool:
-    """Poll ``link`` until ``predicate`` holds or ``timeout`` s pass."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if link is not None:
-            link.poll()
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
+from openconvoy.testing import free_port
 
 
 @pytest.fixture

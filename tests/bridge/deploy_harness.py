@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import socket
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,45 +25,7 @@ from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.envs.vehicles import RangingSensor, vehicle_preset
 from openconvoy.policies import load_policy
-from tests.bridge.conftest import free_port
-
-
-class RecordingLink:
-    """Delegates to a ``MavlinkLink``; records ``(monotonic s, speed, heading)`` of every
-    setpoint that actually went out (``send_setpoint``/``stop_motion`` returned True)."""
-
-    def __init__(self, link: MavlinkLink) -> None:
-        self._link = link
-        self.sent: list[tuple[float, float, float]] = []
-        self.holds: list[float] = []
-        self.reconnects: list[float] = []
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._link, name)
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        ok = self._link.send_setpoint(speed_mps, heading_rad)
-        if ok:
-            self.sent.append((time.monotonic(), float(speed_mps), float(heading_rad)))
-        return ok
-
-    def stop_motion(self) -> bool:
-        ok = self._link.stop_motion()
-        if ok and self._link.last_setpoint is not None:
-            sp = self._link.last_setpoint
-            self.sent.append((time.monotonic(), sp[0], sp[1]))
-        return ok
-
-    def hold(self, timeout_s: float = 2.0) -> None:
-        self.holds.append(time.monotonic())
-        self._link.hold(timeout_s)
-
-    def reconnect(self, timeout_s: float) -> None:
-        self.reconnects.append(time.monotonic())
-        self._link.reconnect(timeout_s)
-
-    def after(self, t: float) -> list[tuple[float, float, float]]:
-        return [s for s in self.sent if s[0] > t]
+from openconvoy.testing import RecordingLink, free_port
 
 
 @dataclass
@@ -118,16 +79,6 @@ class Convoy:
             c.vehicle.stop()
         for v in self.extra:
             v.stop()
-
-
-def wait_until(pred: Callable[[], bool], timeout: float, what: str = "") -> float:
-    """Sleep-poll until ``pred()``; returns the monotonic time it became true."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return time.monotonic()
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what or pred}")
 
 
 def make_convoy(

@@ -17,9 +17,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.bridge.*
 
-from deploy_harness import make_convoy, wait_until  # noqa: E402
+from deploy_harness import make_convoy  # noqa: E402
 
 from openconvoy.logs import read_log  # noqa: E402
+from openconvoy.testing import wait_until  # noqa: E402
 
 
 def main(out: Path, size_kib: int) -> dict:

@@ -27,11 +27,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.bridge.*
 
-from deploy_harness import make_convoy, wait_until  # noqa: E402
+from deploy_harness import make_convoy  # noqa: E402
 
 from openconvoy.comms.geodesy import Origin  # noqa: E402
 from openconvoy.comms.tempids import TempIds  # noqa: E402
 from openconvoy.comms.v2v import V2V, LinkConfig  # noqa: E402
+from openconvoy.testing import wait_until  # noqa: E402
 
 REST_SPEED_MPS = 0.05
 WATCH_S = 10.0

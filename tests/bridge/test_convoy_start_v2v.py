@@ -13,7 +13,6 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "comms"))
 
 from auth_testdata import T0, creds  # noqa: E402
-from test_runner import FakeClock, FakeLink  # noqa: E402
 
 from openconvoy.bridge.convoystart import ConvoyStart  # noqa: E402
 from openconvoy.bridge.runner import DeployRunner, RunnerOptions  # noqa: E402
@@ -25,6 +24,7 @@ from openconvoy.comms.v2v import V2V, LinkConfig  # noqa: E402
 from openconvoy.convoy import ConvoyConfig  # noqa: E402
 from openconvoy.core.state import VehicleState  # noqa: E402
 from openconvoy.policies import load_policy  # noqa: E402
+from openconvoy.testing import FakeClock, FakeLink  # noqa: E402
 
 
 class NowClock(FakeClock):

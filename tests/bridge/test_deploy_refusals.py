@@ -12,8 +12,7 @@ import textwrap
 import threading
 
 import pytest
-from conftest import free_port
-from deploy_harness import make_convoy, wait_until
+from deploy_harness import make_convoy
 
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
 from openconvoy.bridge.mavlink.link import MavlinkLink
@@ -26,6 +25,7 @@ from openconvoy.convoy import ConvoyConfig
 from openconvoy.core.errors import ConfigError
 from openconvoy.logs import read_log
 from openconvoy.policies import load_policy
+from openconvoy.testing import free_port, wait_until
 
 
 def convoy_toml(tmp_path) -> str:

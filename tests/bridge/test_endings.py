@@ -21,10 +21,11 @@ import time
 
 import numpy as np
 import pytest
-from deploy_harness import make_convoy, wait_until
+from deploy_harness import make_convoy
 
 from openconvoy.bridge.vehicle import HOLD_BELOW_MPS, REST_MPS, brake_time_s
 from openconvoy.logs import read_log, read_log_counted
+from openconvoy.testing import wait_until
 
 
 def moving(car, speed: float = 0.8) -> bool:

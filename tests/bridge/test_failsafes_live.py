@@ -12,11 +12,12 @@ import time
 
 import numpy as np
 import pytest
-from deploy_harness import make_convoy, replace_safety, wait_until
+from deploy_harness import make_convoy, replace_safety
 
 from openconvoy.bridge.simvehicle.vehicle import SimVehicle
 from openconvoy.logs import read_log
 from openconvoy.policies import load_policy
+from openconvoy.testing import wait_until
 
 STOP_WITHIN_S = 0.5
 

@@ -18,7 +18,7 @@ from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, VehiclePreset, vehicle_preset
 from openconvoy.experiments.fitplant import fit_pi_plant, fit_plant, format_pi_fit
 from openconvoy.logs import LogWriter
-from tests.bridge.conftest import free_port
+from openconvoy.testing import free_port
 from tests.firmware_runs import unpack
 
 # A vehicle unlike the stock presets, so a fit cannot pass by echoing the base preset.

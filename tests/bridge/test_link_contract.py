@@ -18,7 +18,7 @@ from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
-from tests.bridge.conftest import free_port, wait_for
+from openconvoy.testing import free_port, wait_for
 
 DECLARED = (
     "telemetry_timeout_s",

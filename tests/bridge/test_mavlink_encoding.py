@@ -16,7 +16,7 @@ from mavlink_edge import EdgeAutopilot
 from openconvoy.bridge.link import ModeLost
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME
-from tests.bridge.conftest import wait_for
+from openconvoy.testing import wait_for
 
 DATA = Path(__file__).resolve().parents[1] / "data"  # tests/data: see its README
 FLT_EPSILON = 1.1920929e-07  # ArduPilot's is_negative(x): x <= -FLT_EPSILON

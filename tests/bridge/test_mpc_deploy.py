@@ -4,11 +4,12 @@ V2V bus)."""
 
 from __future__ import annotations
 
-from deploy_harness import make_convoy, wait_until
+from deploy_harness import make_convoy
 
 from openconvoy.core.mpc import PlantModel
 from openconvoy.envs.vehicles import vehicle_preset
 from openconvoy.policies.mpc import MPCPolicy
+from openconvoy.testing import wait_until
 
 
 def test_followers_exchange_plans_and_drive_with_the_mpc(tmp_path):

@@ -6,16 +6,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import pytest
 
-from openconvoy.bridge.link import Telemetry
 from openconvoy.bridge.runner import DeployRunner, RunnerOptions
 from openconvoy.comms.loss import LossConfig
-from openconvoy.comms.v2v import Counters
 from openconvoy.convoy import ConvoyConfig
 from openconvoy.core import tick as member_tick
 from openconvoy.core.member import MemberConfig
@@ -23,82 +20,10 @@ from openconvoy.core.state import VehicleState
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.policies import load_policy
+from openconvoy.testing import ReplayLink, ReplayV2V
 from tests.python_world import python_world  # noqa: F401 - reads the Python world
 
 VEHICLES = ("1/10", "1/6", "1/10")  # the paper scenario's presets
-
-
-@dataclass
-class Heard:
-    state: VehicleState | None
-    abort: bool = False
-
-
-class ReplayLink:
-    """A vehicle whose telemetry is whatever the test sets (``state``), always fresh."""
-
-    autopilot = "ardupilot"
-    telemetry_timeout_s = 0.5
-    heartbeat_timeout_s = 3.0
-    pilot_took_over = False
-    failsafe_took_over = False
-    takeover_reason = ""
-    lost = False
-
-    def __init__(self, clock: list[float]) -> None:
-        self.clock = clock
-        self.state: VehicleState | None = None
-        self.ranging: tuple[float, float] | None = None
-        self.sent: list[tuple[float, float]] = []
-        self.telemetry_rates: dict[str, float] = {}
-
-    def connect(self, timeout_s: float) -> None: ...
-
-    def poll(self) -> Telemetry | None:
-        if self.state is None:
-            return None
-        now = self.clock[0]
-        tel = Telemetry(self.state, 0.0, 0.0, "GUIDED", True, now, now)
-        if self.ranging is not None:  # a rangefinder: bumper to bumper
-            tel = replace(tel, range_m=self.ranging[0], range_rate_mps=self.ranging[1], t_range=now)
-        return tel
-
-    def prepare_and_arm(self, timeout_s: float, on_status: Any = None) -> None: ...
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        self.sent.append((speed_mps, heading_rad))
-        return True
-
-    def stop_motion(self) -> bool:
-        return True
-
-    def hold(self, timeout_s: float = 2.0) -> None: ...
-
-    def disarm(self, timeout_s: float = 2.0) -> None: ...
-
-    def reconnect(self, timeout_s: float) -> None: ...
-
-    def close(self) -> None: ...
-
-
-class ReplayV2V:
-    """Delivers exactly the messages the test puts in ``inbox``."""
-
-    def __init__(self) -> None:
-        self.counters = Counters()
-        self.inbox: list[VehicleState] = []
-        self.metadata: dict[str, Any] = {}
-
-    def send(self, state: VehicleState, now: float) -> bool:
-        self.counters.sent += 1
-        return True
-
-    def poll(self, now: float, budget_s: float | None = None) -> list[Heard]:
-        out, self.inbox = [Heard(s) for s in self.inbox], []
-        self.counters.received += len(out)
-        return out
-
-    def close(self) -> None: ...
 
 
 def runner_for(

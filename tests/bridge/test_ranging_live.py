@@ -8,12 +8,12 @@ import math
 import time
 
 import numpy as np
-from deploy_harness import make_convoy, wait_until
+from deploy_harness import make_convoy
 
 from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor
 from openconvoy.logs import read_log
-from tests.bridge.conftest import free_port
+from openconvoy.testing import free_port, wait_until
 
 
 def _modes_after(log_dir, wall: float) -> tuple[np.ndarray, np.ndarray]:

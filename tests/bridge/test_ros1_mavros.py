@@ -17,7 +17,7 @@ from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import MavrosStandIn, custom_mode_of, mode_name
 from openconvoy.bridge.ros.ros1 import MSG_DIR, Ros1Node, Roscore, system_python
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
-from tests.bridge.conftest import free_port, wait_for
+from openconvoy.testing import free_port, wait_for
 
 MAVROS_1_21 = Path(__file__).resolve().parents[1] / "data" / "ros" / "mavros-1.21.0"
 

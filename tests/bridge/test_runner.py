@@ -8,132 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from openconvoy.bridge.link import Telemetry
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
 from openconvoy.bridge.runner import EXTRA_COLUMNS, DeployRunner, RunnerOptions
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
-from openconvoy.core.policy import make_action
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.scenarios import make_scenario
 from openconvoy.logs import COLUMNS, read_log
 from openconvoy.policies import ClassicalPolicy, load_policy
-
-WALL0 = 1.7e9
-
-
-class FakeClock:
-    """Monotonic time that only moves when somebody sleeps (or ``advance``s)."""
-
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-    def sleep(self, dt: float) -> None:
-        self.t += max(dt, 0.0)
-
-    def wall(self) -> float:
-        return WALL0 + self.t
-
-
-class FakeLink:
-    """A vehicle that is wherever the test says, kinematically integrating setpoints."""
-
-    autopilot = "ardupilot"
-    telemetry_timeout_s = 0.5
-    heartbeat_timeout_s = 3.0
-    takeover_reason = ""
-    failsafe_took_over = False
-
-    def __init__(
-        self,
-        clock: FakeClock,
-        origin: Origin,
-        vehicle_id: int,
-        x: float,
-        y: float,
-        heading: float = 0.0,
-        move: bool = True,
-    ) -> None:
-        self.clock, self.origin, self.vehicle_id = clock, origin, vehicle_id
-        self.x, self.y, self.heading, self.speed = x, y, heading, 0.0
-        self.move = move
-        self.sent: list[tuple[float, float, float]] = []
-        self.armed = False
-        self.holds = 0
-        self.pilot_took_over = False
-        self.telemetry_rates: dict[str, float] = {}
-        self.lost = False
-        self._t = clock()
-
-    def connect(self, timeout_s: float) -> None:
-        pass
-
-    def poll(self) -> Telemetry:
-        now = self.clock()
-        if self.move:
-            dt = now - self._t
-            self.x += self.speed * math.cos(self.heading) * dt
-            self.y += self.speed * math.sin(self.heading) * dt
-        self._t = now
-        lat, lon, _ = enu_to_geodetic(self.origin, self.x, self.y)
-        st = VehicleState(
-            self.vehicle_id, self.clock.wall(), self.x, self.y, self.speed, self.heading
-        )
-        return Telemetry(st, lat, lon, "GUIDED", self.armed, now, now)
-
-    def prepare_and_arm(self, timeout_s: float, on_status=None) -> None:
-        self.armed = True
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        self.sent.append((self.clock(), speed_mps, heading_rad))
-        self.speed, self.heading = speed_mps, heading_rad  # an ideal autopilot
-        return True
-
-    def stop_motion(self) -> bool:
-        return self.send_setpoint(0.0, self.heading)
-
-    def hold(self, timeout_s: float = 2.0) -> None:
-        self.holds += 1
-
-    def disarm(self, timeout_s: float = 2.0) -> None:
-        self.armed = False
-
-    def reconnect(self, timeout_s: float) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-class FixedPolicy:
-    """Always the same action; counts calls; optionally burns clock time on one call."""
-
-    def __init__(
-        self,
-        speed: float,
-        change: float,
-        clock: FakeClock | None = None,
-        slow_call: int = -1,
-        slow_s: float = 0.0,
-    ) -> None:
-        self.action = make_action(speed, change)
-        self.member_config = load_policy("paper").member_config
-        self.control_rate_hz = 20.0
-        self.name = "fixed"
-        self.calls = 0
-        self.clock, self.slow_call, self.slow_s = clock, slow_call, slow_s
-
-    def reset(self, seed=None) -> None:
-        pass
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        self.calls += 1
-        if self.calls == self.slow_call and self.clock is not None:
-            self.clock.t += self.slow_s
-        return self.action
+from openconvoy.testing import WALL0, FakeClock, FakeLink, FixedPolicy
 
 
 def follower_setup(tmp_path, policy, rate_hz=20.0, duration_s=2.0, safety=None):

@@ -5,17 +5,13 @@ ladder, HOLD only once braked."""
 from __future__ import annotations
 
 import json
-import math
 import time
-from dataclasses import replace
 
 import numpy as np
 import pytest
-from deploy_harness import make_convoy, wait_until
+from deploy_harness import make_convoy
 from mavlink_edge import EdgeAutopilot
-from test_runner import WALL0, FakeClock, FakeLink, FixedPolicy
 
-from openconvoy.bridge.link import Telemetry
 from openconvoy.bridge.localv2v import LocalBus, LocalV2V
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.runner import HOLD_BELOW_MPS, DeployRunner, RunnerOptions
@@ -23,86 +19,7 @@ from openconvoy.comms.geodesy import Origin
 from openconvoy.convoy import ConvoyConfig, SafetyConfig
 from openconvoy.core.state import VehicleState
 from openconvoy.logs import read_log
-from tests.bridge.conftest import wait_for
-
-
-class ScriptedLink(FakeLink):
-    """FakeLink plus what MavlinkLink reports: a takeover at a time, telemetry that freezes
-    at a time, a rangefinder reading, finite braking, and a record of holds and disarms."""
-
-    def __init__(
-        self,
-        *args,
-        takeover_at=math.inf,
-        failsafe=False,
-        freeze_at=math.inf,
-        range_m=math.nan,
-        range_rate=math.nan,
-        decel=math.inf,
-        speed=0.0,
-        refuse_at=math.inf,
-        **kw,
-    ):
-        super().__init__(*args, **kw)
-        self.refuse_at = refuse_at  # from then on send_setpoint refuses (PX4 stream ended)
-        self.takeover_at, self.failsafe, self.freeze_at = takeover_at, failsafe, freeze_at
-        self.range_m, self.range_rate, self.decel = range_m, range_rate, decel
-        self.speed = self.target = speed
-        self.hold_log: list[tuple[float, float]] = []  # (clock, speed) at each HOLD request
-        self.disarms = 0
-        self._frozen: Telemetry | None = None
-
-    @property
-    def pilot_took_over(self) -> bool:
-        return self.clock() >= self.takeover_at
-
-    @pilot_took_over.setter
-    def pilot_took_over(self, value) -> None:  # FakeLink.__init__ assigns it
-        pass
-
-    @property
-    def failsafe_took_over(self) -> bool:
-        return self.pilot_took_over and self.failsafe
-
-    @property
-    def takeover_reason(self) -> str:
-        return (
-            "mode changed from GUIDED to MANUAL, set by not this link (the RC mode switch)"
-            if self.pilot_took_over
-            else ""
-        )
-
-    def poll(self) -> Telemetry:
-        now = self.clock()
-        dt = now - self._t
-        if math.isfinite(self.decel):  # the speed approaches the command at ``decel``
-            step = self.decel * dt
-            self.speed += max(-step, min(step, self.target - self.speed))
-        tel = super().poll()
-        if now >= self.freeze_at:
-            if self._frozen is None:
-                self._frozen = tel
-            return self._frozen
-        return replace(tel, range_m=self.range_m, range_rate_mps=self.range_rate, t_range=now)
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        if self.pilot_took_over or self.clock() >= self.refuse_at:
-            return False
-        self.sent.append((self.clock(), speed_mps, heading_rad))
-        self.heading = heading_rad
-        if math.isfinite(self.decel):
-            self.target = speed_mps
-        else:
-            self.speed = speed_mps
-        return True
-
-    def hold(self, timeout_s: float = 2.0) -> None:
-        self.holds += 1
-        self.hold_log.append((self.clock(), self.speed))
-
-    def disarm(self, timeout_s: float = 2.0) -> None:
-        self.disarms += 1
-        self.armed = False
+from openconvoy.testing import WALL0, FakeClock, FixedPolicy, ScriptedLink, wait_for, wait_until
 
 
 def runner_for(tmp_path, link_kw=None, leader_heard=True, duration_s=2.0, safety=None, policy=None):

@@ -9,7 +9,7 @@ import time
 
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.comms.geodesy import Origin
-from tests.bridge.conftest import free_port, run_for, wait_for
+from openconvoy.testing import free_port, run_for, wait_for
 
 
 def test_vehicle_process_answers_and_obeys_signals() -> None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import gymnasium
 import numpy as np
 import pytest
@@ -14,6 +12,7 @@ import openconvoy.envs
 from openconvoy.comms.loss import LossConfig
 from openconvoy.envs import ConvoyEnv, convoy_aec_env
 from openconvoy.envs.single_agent import SingleAgentConvoyEnv
+from openconvoy.testing import same
 from tests.pinned_warnings import GYMNASIUM_ALLOWED, PETTINGZOO_ALLOWED, pinned
 
 LOSSY = LossConfig(per=0.3, latency_s=0.02, jitter_s=0.03)
@@ -95,18 +94,6 @@ def _rollout(env: ConvoyEnv, seed: int, actions_seed: int) -> list:
     return trace
 
 
-def _same(a, b) -> bool:
-    if isinstance(a, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (tuple, list)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    if isinstance(a, np.ndarray):
-        return a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
-    if isinstance(a, float) and math.isnan(a):
-        return isinstance(b, float) and math.isnan(b)
-    return a == b
-
-
 @pytest.mark.parametrize(
     "loss",
     [
@@ -124,10 +111,10 @@ def test_same_seed_same_episode_under_loss(loss: LossConfig) -> None:
     first = _rollout(make(), seed=7, actions_seed=1)
     second = _rollout(make(), seed=7, actions_seed=1)
     assert len(first) == len(second) == 401
-    assert _same(first, second)
+    assert same(first, second)
     # ... and the seed matters: another seed loses other packets.
     other = _rollout(make(), seed=8, actions_seed=1)
-    assert not _same(first, other)
+    assert not same(first, other)
     # Loss was really applied: some messages never arrived.
     assert first[-1][4]["follower_1"]["msgs_lost"] > 0
 
@@ -136,7 +123,7 @@ def test_reset_reuses_env_deterministically() -> None:
     env = ConvoyEnv(loss=LossConfig(per=0.5), max_time_s=5.0)
     a = _rollout(env, seed=11, actions_seed=2)
     b = _rollout(env, seed=11, actions_seed=2)
-    assert _same(a, b)
+    assert same(a, b)
 
 
 def test_render_rgb_array_shows_the_convoy() -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from openconvoy.experiments import portable
-from openconvoy.experiments.executor import Task, TaskFailure
+from openconvoy.experiments.executor import Task, TaskFailure, report_progress
 from openconvoy.experiments.portable import Files
 from openconvoy.experiments.runs import EVENTS_FILE, RunConfig, run_sim
 
@@ -58,7 +58,9 @@ def run_many(args: tuple[list[RunConfig], Files, list[bool], bool]) -> list[dict
         where = portable.land(files, tmp)
         with portable.driver_names(where):
             local = [portable.relocate_run(c, where) for c in configs]
-            return run_batch(local, read_back=True, logs=logs, series=series)
+            return run_batch(
+                local, read_back=True, logs=logs, series=series, on_progress=report_progress
+            )
 
 
 @dataclass

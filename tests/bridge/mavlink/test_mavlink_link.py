@@ -12,7 +12,7 @@ from openconvoy.bridge.link import CommandRefused, LinkLost, LinkTimeout, Vehicl
 from openconvoy.bridge.mavlink.link import MavlinkLink, check_url
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.comms.geodesy import Origin, enu_to_geodetic
-from tests.bridge.conftest import free_port, run_for, wait_for
+from openconvoy.testing import free_port, run_for, wait_for
 
 
 def test_urls_are_checked() -> None:

@@ -12,7 +12,7 @@ import pytest
 from openconvoy.bridge.mavlink import protocol as mp
 from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
-from tests.bridge.conftest import free_port
+from openconvoy.testing import free_port
 
 ACCEL_IN_USE = mp.TYPE_MASK_VEL_YAW & ~mp.MASK_ACC
 

@@ -15,7 +15,7 @@ from openconvoy.bridge.simvehicle.streams import RANGE_HZ
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.bridge.simvehicle.world import SimWorld, distance_sensor_cm
 from openconvoy.envs.vehicles import VEHICLE_PRESETS, RangingSensor
-from tests.bridge.conftest import free_port, wait_for
+from openconvoy.testing import free_port, wait_for
 
 P = VEHICLE_PRESETS["1/10"]
 EXACT = P.with_ranging(RangingSensor(max_range_m=20.0, range_noise_m=0.0))

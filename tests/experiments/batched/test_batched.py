@@ -19,6 +19,7 @@ from openconvoy.experiments.executor import ExecutorConfig, TaskFailure
 from openconvoy.experiments.runs import ConvoySection, LossSection, RunConfig
 from openconvoy.experiments.sweep import ExperimentConfig, read_summary, run_experiment
 from openconvoy.policies.spec import classical_config
+from openconvoy.testing import tree_files
 from openconvoy.train.tune import TuneConfig, grid_batched, grid_evaluator, with_values
 
 # 25 s: past the leader's first speed change.
@@ -28,11 +29,7 @@ SWEEP = ExperimentConfig(
 
 
 def _files(root: Path) -> dict[str, bytes]:
-    return {
-        str(p.relative_to(root)): p.read_bytes()
-        for p in sorted(root.rglob("*"))
-        if p.is_file() and p.name != "manifest.json"  # names its own directory
-    }
+    return tree_files(root, skip=("manifest.json",))  # the manifest names its own directory
 
 
 def _same_files_on_both_paths(config: ExperimentConfig, tmp_path: Path) -> dict[str, bytes]:

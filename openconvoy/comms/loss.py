@@ -268,6 +268,14 @@ class LossConfig:
     ``stamp_drift``: the senders' clock error (``Latency``). ``link_latency_s``: per link
     ``[sender, receiver, quantile, ...]``, that link's own delay distribution (the others
     keep the common one): on vehicles each link's delay is the phase between two loops.
+    ``staleness_s``: per sender (by vehicle index), how much older than the simulated state
+    its messages are stamped (s). On a vehicle a message carries the autopilot's last
+    telemetry sample, stamped when the autopilot took it: it is that sample's age (the
+    telemetry's staleness) old when it leaves. A fitted plant already holds the staleness
+    in its loop delay (its state lags the command as the logged state did), so adding it
+    to the link's delay as well would make the news later than on the vehicle; instead
+    the sender's messages leave with the link's delay and are stamped that much older
+    (``Latency.stamp_error_s`` of the sender's links; ``fit-plant`` fits both).
     """
 
     per: float = 0.0
@@ -279,8 +287,13 @@ class LossConfig:
     stamp_error_s: float = 0.0
     stamp_drift: float = 0.0
     link_latency_s: tuple[tuple[float, ...], ...] = ()
+    staleness_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        stale = tuple(float(v) for v in self.staleness_s)
+        if any(not (math.isfinite(v) and 0.0 <= v <= 60.0) for v in stale):
+            raise ConfigError(f"staleness_s: seconds in [0, 60] per sender, got {list(stale)}")
+        object.__setattr__(self, "staleness_s", stale)
         links = tuple(tuple(float(v) for v in e) for e in self.link_latency_s)
         seen = set()
         for e in links:
@@ -334,14 +347,20 @@ class LossConfig:
             return Bernoulli(self.per)
         return GilbertElliott.from_per(self.per, self.mean_burst_s)
 
+    def sender_staleness(self, sender: int) -> float:
+        """How much older than the simulated state ``sender``'s messages are stamped (s):
+        ``staleness_s[sender]``, 0 for a sender not listed."""
+        return self.staleness_s[sender] if 0 <= sender < len(self.staleness_s) else 0.0
+
     def link_latency(self, sender: int, receiver: int) -> Latency:
         """The delay model of the link ``sender -> receiver`` (``link_latency_s`` or the
-        common one)."""
+        common one), its stamps older by the sender's staleness (``staleness_s``)."""
         base = self.latency
+        stamp = base.stamp_error_s + self.sender_staleness(sender)
         for e in self.link_latency_s:
             if int(e[0]) == sender and int(e[1]) == receiver:
-                return Latency(base.base_s, 0.0, tuple(e[2:]), base.stamp_error_s, base.stamp_drift)
-        return base
+                return Latency(base.base_s, 0.0, tuple(e[2:]), stamp, base.stamp_drift)
+        return dataclasses.replace(base, stamp_error_s=stamp)
 
     @property
     def latency(self) -> Latency:

@@ -135,7 +135,9 @@ class Channel(Generic[M]):
         )
         self._advance = advance
         # Messages carry their clock error from the send (the advance applies it).
-        self._stamped = self._latency.stamped_off and advance is not None
+        self._stamped = advance is not None and any(
+            self._lat[s][r].stamped_off for s in range(n_vehicles) for r in range(n_vehicles)
+        )
         self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
         self._queue: list[tuple[float, int, int, int, M, float]] = []
         self._ready: list[tuple[int, int, M]] = []

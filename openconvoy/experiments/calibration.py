@@ -20,7 +20,13 @@ free fit, only that delay is taken (one run of the ``paper`` profile cannot pin 
 parameters; the recordings did); otherwise the free fit is.
 
 Channel: a logged message age at first use = its delivery delay (the phase between the
-loops, the link, the sender's staleness) + the sender's clock error. A vehicle's clock error
+loops, the link) + the sender's telemetry staleness + the sender's clock error. The staleness
+is not part of the simulated link's delay: the fitted plant's loop delay already holds it (the
+simulated state lags as the logged one did), so the simulated sender's messages leave with
+the delay alone and are stamped older by its staleness (``[channel] staleness_s``), as on
+the vehicle, where the message carried a telemetry sample that old. Counting it twice made
+the news reach the followers one staleness late (sitl/convoy vx-fixed-2, staleness 36 ms:
+p95 ratio 1.10 against 1.04). A vehicle's clock error
 is what its logged telemetry age shows beyond the staleness its loop-delay fit found: the
 deploy stamps its state with the autopilot's clock mapped onto the system clock, and when
 the autopilot's clock runs slow (PX4 SIH at 0.990; a loaded ArduPilot SITL host) that
@@ -147,14 +153,17 @@ class ChannelFit:
     """The V2V channel of a vehicle run, as the simulator models it.
 
     Attributes:
-        latency_samples_s: quantiles of the followers' message ages at first use (s), the
-            simulated channel's delay distribution (``comms.loss.Latency``).
+        latency_samples_s: quantiles of the followers' message ages at first use less the
+            senders' clock error and staleness (s), the simulated channel's delay
+            distribution (``comms.loss.Latency``).
         per: the packet error rate the run's links applied (lost / offered, followers).
         ages_s: per follower, the ages at first use the fit used.
         stamp_error_s, stamp_drift: the senders' clock error at the scenario's start (s)
             and its growth (s/s), the mean over the measured links' senders; 0 when below
             ``CLOCK_ERROR_MIN_S`` over the run.
         link_latency_s: per link ``(sender, receiver, quantile, ...)`` (``link_delays``).
+        staleness_s: per vehicle (by index), its telemetry staleness (s): its messages are
+            stamped that much older than the simulated state (``LossConfig.staleness_s``).
     """
 
     latency_samples_s: tuple[float, ...]
@@ -163,6 +172,7 @@ class ChannelFit:
     stamp_error_s: float = 0.0
     stamp_drift: float = 0.0
     link_latency_s: tuple[tuple[float, ...], ...] = ()
+    staleness_s: tuple[float, ...] = ()
 
     def summary(self) -> str:
         """One line per follower: how many ages, their median and 5-95 % range (ms)."""
@@ -171,7 +181,8 @@ class ChannelFit:
             f"{1e3 * self.latency_samples_s[0]:.1f} / "
             f"{1e3 * float(np.median(self.latency_samples_s)):.1f} / "
             f"{1e3 * self.latency_samples_s[-1]:.1f} ms; clock error "
-            f"{1e3 * self.stamp_error_s:.0f} ms + {1e3 * self.stamp_drift:.1f} ms/s"
+            f"{1e3 * self.stamp_error_s:.0f} ms + {1e3 * self.stamp_drift:.1f} ms/s; "
+            "senders' staleness " + " / ".join(f"{1e3 * v:.0f}" for v in self.staleness_s) + " ms"
         ]
         for e in self.link_latency_s:
             lines.append(
@@ -230,26 +241,59 @@ def _tick_s(log: Log) -> float:
     return float(np.median(steps)) if len(steps) else 0.05
 
 
+STAMP_MATCH_S = 0.002
+"""A first-use stamp matches a sender's logged row when their stamps differ by less (s)."""
+
+
+def delivery_delays(log: Log, vehicle_id: int, fallback_s: np.ndarray) -> np.ndarray:
+    """Each new predecessor message's delivery delay (s): from the sender's tick that sent
+    it to the receiver's tick that first used it. A message carries the stamp of the
+    sender's telemetry sample (its row's time less its ``telemetry_age_s``), so the first
+    use of stamp ``t - age`` is matched to the sender's first row with that stamp (within
+    ``STAMP_MATCH_S``). What is left of the age is the sender's staleness and clock error,
+    which vary per message (sitl/convoy vx-fixed-2: ages 8 or 46 ms, delays 7 ms, the
+    leader's telemetry 0.1 or 38 ms old). Unmatched messages (a log without telemetry ages)
+    get ``fallback_s`` (per first use, same order as ``message_ages_at_first_use``)."""
+    a, when = _ages_and_times(log, vehicle_id)
+    out = np.asarray(fallback_s, dtype=float).copy()
+    if "telemetry_age_s" not in log or len(a) == 0:
+        return out
+    sel = np.asarray(log["vehicle_id"]) == vehicle_id - 1
+    ts = np.asarray(log["t_s"], dtype=float)[sel]
+    tel = np.asarray(log["telemetry_age_s"], dtype=float)[sel]
+    ok = np.isfinite(ts) & np.isfinite(tel)
+    ts, stamps = ts[ok], (ts - tel)[ok]
+    order = np.argsort(ts, kind="stable")
+    ts, stamps = ts[order], stamps[order]
+    for k, (w, age) in enumerate(zip(when, a)):
+        hit = np.flatnonzero((np.abs(stamps - (w - age)) < STAMP_MATCH_S) & (ts <= w + 1e-6))
+        if len(hit):
+            out[k] = w - ts[hit[0]]
+    return out
+
+
 def link_delays(
-    ages: dict[int, np.ndarray], staleness: dict[int, float], tick_s: float, quantiles: int
+    delays: dict[int, np.ndarray], tick_s: float, quantiles: int
 ) -> tuple[tuple[float, ...], ...]:
-    """Per link, its delay quantiles: measured for each follower's link from its immediate
-    predecessor (``ages``); composed for a link that skips vehicles. On a vehicle a message
-    from ``s`` is first used at the receiver's next tick: its age is ``s``'s staleness +
-    the phase of ``r``'s loop after ``s``'s (mod the tick), and phases add up along the
-    string, so ``s -> r`` gets ``a_s + (sum of the links' (median age - a_k)) mod tick``."""
+    """Per link, its delay quantiles (s): measured for each follower's link from its
+    immediate predecessor (``delays``: ``delivery_delays``); composed for a link that skips
+    vehicles. On a vehicle a message from ``s`` is first used at the receiver's next tick
+    after it arrives: its delay is the phase of ``r``'s loop after ``s``'s (mod the tick),
+    and phases add up along the string, so ``s -> r`` gets ``(sum of the links' median
+    delays) mod tick``. The senders' staleness is not in them: the channel stamps it
+    (``LossConfig.staleness_s``)."""
     out: list[tuple[float, ...]] = []
-    ids = sorted(ages)
+    ids = sorted(delays)
     for r in ids:
-        if len(ages[r]):
-            out.append((r - 1.0, float(r), *_quantiles(ages[r], quantiles)))
+        if len(delays[r]):
+            out.append((r - 1.0, float(r), *_quantiles(delays[r], quantiles)))
     for r in ids:
         for s in range(0, r - 1):
             chain = range(s + 1, r + 1)
-            if not all(k in ages and len(ages[k]) for k in chain):
+            if not all(k in delays and len(delays[k]) for k in chain):
                 continue
-            phase = sum(float(np.median(ages[k])) - staleness.get(k - 1, 0.0) for k in chain)
-            out.append((float(s), float(r), round(staleness.get(s, 0.0) + phase % tick_s, 4)))
+            phase = sum(float(np.median(delays[k])) for k in chain)
+            out.append((float(s), float(r), round(phase % tick_s, 4)))
     return tuple(out)
 
 
@@ -259,24 +303,29 @@ def fit_channel(
     quantiles: int = QUANTILES,
 ) -> ChannelFit:
     """Fit the channel from a run's (merged) log, times from the scenario's start: the
-    senders' clock error (``clock_error``), the followers' message ages at first use less
-    that error as each link's delay distribution (``link_delays``) and, pooled, as the
-    common one, and the loss their counters show. ``staleness_s``: each vehicle's (or all
-    vehicles') telemetry staleness (s)."""
+    senders' clock error (``clock_error``), the followers' delivery delays
+    (``delivery_delays``; without telemetry ages: the ages at first use less the sender's
+    clock error and staleness) as each link's delay distribution (``link_delays``) and,
+    pooled, as the common one, the senders' staleness (which the channel stamps), and the
+    loss their counters show. ``staleness_s``: each vehicle's (or all vehicles') telemetry
+    staleness (s)."""
     ids = sorted(int(v) for v in np.unique(np.asarray(log["vehicle_id"])))
     stale = (
         dict(staleness_s) if isinstance(staleness_s, dict) else {v: float(staleness_s) for v in ids}
     )
     clocks = {v: clock_error(log, v, stale.get(v, 0.0)) for v in ids}
-    ages = {}
+    ages, delays = {}, {}
     errs: list[tuple[float, float]] = []  # each measured link's sender's clock error
     for vid in ids:
         if vid > 0 and vid - 1 in clocks:
             a, when = _ages_and_times(log, vid)
             e_s, d_s = clocks[vid - 1]
-            # A logged age is the delay + the sender's clock error (the receiver's "now"
-            # is the system clock, in its log and in its member alike).
+            # A logged age is the delay + the sender's staleness and clock error (the
+            # receiver's "now" is the system clock, in its log and in its member alike).
             ages[vid] = np.maximum(a - (e_s + d_s * when), 0.0)
+            delays[vid] = delivery_delays(
+                log, vid, np.maximum(ages[vid] - stale.get(vid - 1, 0.0), 0.0)
+            )
             errs.append((e_s, d_s))
     err0, drift = (
         (float(np.mean([e[0] for e in errs])), float(np.mean([e[1] for e in errs])))
@@ -286,14 +335,14 @@ def fit_channel(
     span = float(np.nanmax(np.asarray(log["t_s"], dtype=float))) if len(log["t_s"]) else 0.0
     if max(abs(err0), abs(err0 + drift * span)) < CLOCK_ERROR_MIN_S:
         err0, drift = 0.0, 0.0
-    pooled = np.concatenate([a for a in ages.values()] or [np.zeros(0)])
+    pooled = np.concatenate([d for d in delays.values()] or [np.zeros(0)])
     if len(pooled) < 10:
         raise InputFileError(
             "too few predecessor messages in the log to fit the channel "
             f"({len(pooled)} first-use ages; need >= 10)"
         )
     samples = _quantiles(pooled, quantiles)
-    links = link_delays(ages, stale, _tick_s(log), quantiles)
+    links = link_delays(delays, _tick_s(log), quantiles)
     received = lost = 0
     for vid in ages:
         sel = np.asarray(log["vehicle_id"]) == vid
@@ -304,7 +353,8 @@ def fit_channel(
             received += int(rec.max() - rec.min())
             lost += int(los.max() - los.min())
     per = lost / (received + lost) if received + lost else 0.0
-    return ChannelFit(samples, round(per, 4), ages, err0, drift, links)
+    staleness = tuple(round(stale.get(v, 0.0), 4) for v in range(max(ids) + 1))
+    return ChannelFit(samples, round(per, 4), ages, err0, drift, links, staleness)
 
 
 @dataclass(frozen=True)
@@ -485,6 +535,8 @@ def _convoy_toml(convoy: Any, paths: dict[int, Path], channel: ChannelFit, run: 
         f"stamp_drift = {channel.stamp_drift!r}\n"
         "# per link: sender, receiver, its delay quantiles (s)\n"
         f"link_latency_s = [{links}]\n"
+        "# per vehicle: its telemetry staleness, its messages stamped that much older (s)\n"
+        f"staleness_s = [{', '.join(f'{v:g}' for v in channel.staleness_s)}]\n"
     )
 
 

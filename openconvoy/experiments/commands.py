@@ -103,6 +103,7 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
             stamp_error_s=channel.stamp_error_s,
             stamp_drift=channel.stamp_drift,
             link_latency_s=channel.link_latency_s if args.jitter is None else (),
+            staleness_s=channel.staleness_s,
         ),
         origin=origin,
         faults=tuple(getattr(args, "fault", None) or ()),

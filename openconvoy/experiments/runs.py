@@ -84,6 +84,7 @@ class LossSection:
             ``fit-plant`` fits from a vehicle run's message ages (``comms.loss.Latency``).
         stamp_error_s, stamp_drift: the senders' clock error, s and s/s (``Latency``).
         link_latency_s: per link ``[sender, receiver, quantile s, ...]`` (``LossConfig``).
+        staleness_s: per sender, how much older its messages are stamped (``LossConfig``).
     """
 
     model: str = "bernoulli"
@@ -94,9 +95,11 @@ class LossSection:
     stamp_error_s: Annotated[float, Range(-60.0, 60.0)] = 0.0
     stamp_drift: Annotated[float, Range(-0.1, 0.1)] = 0.0
     link_latency_s: tuple[tuple[float, ...], ...] = ()
+    staleness_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
+        object.__setattr__(self, "staleness_s", tuple(self.staleness_s))
         if self.model not in ("bernoulli", "gilbert-elliott"):
             raise ConfigError(
                 f"unknown loss model {self.model!r} (expected 'bernoulli' or 'gilbert-elliott')"
@@ -117,6 +120,7 @@ class LossSection:
             stamp_error_s=self.stamp_error_s,
             stamp_drift=self.stamp_drift,
             link_latency_s=self.link_latency_s,
+            staleness_s=self.staleness_s,
         )
 
 

@@ -242,3 +242,27 @@ def test_a_senders_clock_error_ages_its_messages() -> None:
     ch.send(0, VehicleState(0, 10.0, 0.0, 0.0, 2.0, 0.0), 10.0)
     ((_, _, got),) = ch.deliver(10.0)
     assert got.t == pytest.approx(10.0 - 0.2) and got.x == 0.0
+
+
+def test_a_senders_staleness_ages_only_its_own_messages() -> None:
+    """Staleness 30 ms for vehicle 0, none for 1, on top of a 0.1 s clock error: sent at
+    t = 10 and delivered 7 ms later, 0's messages are 0.137 s old at first use, 1's
+    0.107 s; the delay (7 ms) is the link's alone."""
+    cfg = LossConfig(latency_s=0.007, stamp_error_s=0.1, staleness_s=(0.03,))
+    assert cfg.link_latency(0, 1).stamp_error_s == pytest.approx(0.13)
+    assert cfg.link_latency(1, 0).stamp_error_s == pytest.approx(0.1)
+    ch: Channel[VehicleState] = Channel(2, cfg, advance_state)
+    ch.reset(np.random.default_rng(0))
+    ch.send(0, VehicleState(0, 10.0, 0.0, 0.0, 2.0, 0.0), 10.0)
+    ch.send(1, VehicleState(1, 10.0, -15.0, 0.0, 2.0, 0.0), 10.0)
+    assert ch.deliver(10.0) == []
+    got = {s: m for _, s, m in ch.deliver(10.05)}
+    assert 10.05 - got[0].t == pytest.approx(0.137) and 10.05 - got[1].t == pytest.approx(0.107)
+    assert got[0].x == pytest.approx(2.0 * 0.043)  # advanced by its wait for the tick only
+    staleness_only = Channel(2, LossConfig(staleness_s=(0.0, 0.02)), advance_state)
+    staleness_only.reset(np.random.default_rng(0))
+    staleness_only.send(1, VehicleState(1, 5.0, 0.0, 0.0, 1.0, 0.0), 5.0)
+    ((_, _, m),) = staleness_only.deliver(5.0)
+    assert m.t == pytest.approx(4.98)
+    with pytest.raises(ValueError, match="staleness_s"):
+        LossConfig(staleness_s=(-0.1,))

@@ -148,14 +148,36 @@ def test_first_use_ages_are_where_the_age_falls() -> None:
 
 
 def test_link_delays_compose_phases_along_the_string() -> None:
-    """0 -> 1 first used at 34 ms, 1 -> 2 at 53 ms, staleness 10 ms each: the phases are
-    24 and 43 ms, so 0 -> 2's is 67 mod 50 = 17 ms, its age 27 ms (vx-fixed-1)."""
-    ages = {1: np.full(50, 0.034), 2: np.full(50, 0.053)}
-    links = cal.link_delays(ages, {0: 0.01, 1: 0.01, 2: 0.04}, 0.05, 5)
+    """0 -> 1 delivered 24 ms after its send, 1 -> 2 43 ms (vx-fixed-1's phases): 0 -> 2's
+    phase is 67 mod 50 = 17 ms."""
+    delays = {1: np.full(50, 0.024), 2: np.full(50, 0.043)}
+    links = cal.link_delays(delays, 0.05, 5)
     by = {(int(e[0]), int(e[1])): e[2:] for e in links}
-    assert by[(0, 1)] == (0.034,) * 5 and by[(1, 2)] == (0.053,) * 5
-    assert by[(0, 2)] == (pytest.approx(0.027),)
+    assert by[(0, 1)] == (0.024,) * 5 and by[(1, 2)] == (0.043,) * 5
+    assert by[(0, 2)] == (pytest.approx(0.017),)
     LossConfig(link_latency_s=links)  # what the channel accepts
+
+
+def test_delivery_delays_match_the_stamp_to_the_senders_tick() -> None:
+    """A message first used at t with age a carries stamp t - a: the sender's first row with
+    that stamp (row time less its telemetry age) sent it, so its delay is t less that row's
+    time, however old the telemetry was (vx-fixed-2: ages 8 or 46 ms, delays 7 ms)."""
+    t = np.arange(0.0, 2.0, 0.05)
+    tel = np.where(np.arange(len(t)) % 4 == 0, 0.001, 0.039)  # the sender's staleness
+    lead = _log(t, 0, np.full(len(t), np.nan), tel)
+    # Each broadcast first used 7 ms after it left, on the receiver's next tick.
+    follower = _log(t + 0.007, 1, tel + 0.007, np.full(len(t), 0.01))
+    log = _merge(lead, follower)
+    a = cal.message_ages_at_first_use(log, 1)
+    assert sorted(set(np.round(a, 3))) == [0.008, 0.046]
+    d = cal.delivery_delays(log, 1, np.full(len(a), -1.0))
+    assert np.allclose(d, 0.007)
+    # Without telemetry ages the fallback stands.
+    bare = {k: v for k, v in log.items() if k != "telemetry_age_s"}
+    assert (cal.delivery_delays(bare, 1, np.full(len(a), -1.0)) == -1.0).all()
+    fit = cal.fit_channel(log, {0: 0.03, 1: 0.01})
+    assert fit.staleness_s == (0.03, 0.01)
+    assert fit.link_latency_s[0][2:] == pytest.approx((0.007,) * cal.QUANTILES)
 
 
 def test_a_clock_error_is_taken_out_of_the_ages_and_stamps_the_messages() -> None:

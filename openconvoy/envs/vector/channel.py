@@ -30,6 +30,7 @@ from openconvoy.comms.loss import (
     LossConfig,
     counter_uniform_array,
 )
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import ADVANCE_MIN_S, DRAW_JITTER, DRAW_LOSS
@@ -56,6 +57,11 @@ class VectorChannel:
         all_pairs: bool,
     ) -> None:
         N = links.N
+        if any(c.lost_s for c in losses):
+            raise ConfigError(
+                "a channel replaying a vehicle run's losses (lost_s) is the scalar "
+                "simulator's (openconvoy sim), not the batched one's"
+            )
         self.B, self.N, self.trigger = B, N, trigger
         self.per = np.array([c.per for c in losses])
         self.loss = max(losses, key=lambda c: c.per)

@@ -159,11 +159,13 @@ class ChannelFit:
         per: the packet error rate the run's links applied (lost / offered, followers).
         ages_s: per follower, the ages at first use the fit used.
         stamp_error_s, stamp_drift: the senders' clock error at the scenario's start (s)
-            and its growth (s/s), the mean over the measured links' senders; 0 when below
+            and its growth (s/s): the least of the measured links' senders' errors and the
+            mean of their drifts; 0 when below
             ``CLOCK_ERROR_MIN_S`` over the run.
         link_latency_s: per link ``(sender, receiver, quantile, ...)`` (``link_delays``).
-        staleness_s: per vehicle (by index), its telemetry staleness (s): its messages are
-            stamped that much older than the simulated state (``LossConfig.staleness_s``).
+        staleness_s: per vehicle (by index), its telemetry staleness and its clock's error
+            beyond ``stamp_error_s`` (s): its messages are stamped that much older than the
+            simulated state (``LossConfig.staleness_s``).
         lost_s, lost_window_s: per measured link ``(sender, receiver, send time, ...)``, the
             broadcasts it dropped on the run (``recorded_losses``), for the sim to replay;
             empty when the run lost nothing.
@@ -456,8 +458,15 @@ def fit_channel(
         else (0.0, 0.0)
     )
     span = float(np.nanmax(np.asarray(log["t_s"], dtype=float))) if len(log["t_s"]) else 0.0
+    offsets: dict[int, float] = {}
     if max(abs(err0), abs(err0 + drift * span)) < CLOCK_ERROR_MIN_S:
         err0, drift = 0.0, 0.0
+    elif errs:
+        # The common error is the least sender's; each sender's own beyond it is stamped
+        # with its staleness (sitl-px4/convoy r2: 55 / 30 ms at the start, leader /
+        # follower 1; their drifts agree to 0.1 ms/s).
+        err0 = min(clocks[v - 1][0] for v in ages)
+        offsets = {v - 1: clocks[v - 1][0] - err0 for v in ages}
     pooled = np.concatenate([d for d in delays.values()] or [np.zeros(0)])
     if len(pooled) < 10:
         raise InputFileError(
@@ -476,7 +485,9 @@ def fit_channel(
             received += int(rec.max() - rec.min())
             lost += int(los.max() - los.min())
     per = lost / (received + lost) if received + lost else 0.0
-    staleness = tuple(round(stale.get(v, 0.0), 4) for v in range(max(ids) + 1))
+    staleness = tuple(
+        round(stale.get(v, 0.0) + offsets.get(v, 0.0), 4) for v in range(max(ids) + 1)
+    )
     replay, windows = _replayed_losses(log, ids, delays, links) if per > 0.0 else ([], [])
     window = round(float(np.median(windows)), 4) if windows else 0.05
     return ChannelFit(

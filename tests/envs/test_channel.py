@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from openconvoy.comms.loss import LossConfig, quantile_delay
+from openconvoy.comms.loss import LossConfig, LossReplay, quantile_delay
 from openconvoy.core.state import VehicleState
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.channel import Channel, advance_state
@@ -266,3 +266,38 @@ def test_a_senders_staleness_ages_only_its_own_messages() -> None:
     assert m.t == pytest.approx(4.98)
     with pytest.raises(ValueError, match="staleness_s"):
         LossConfig(staleness_s=(-0.1,))
+
+
+def test_a_link_replays_a_runs_recorded_losses() -> None:
+    """0 -> 1 dropped the broadcasts sent at 0.2 and 0.5 s on the run: the sim's broadcasts
+    nearest them (within half the 0.1 s period) are dropped, the rest delivered even at a
+    PER of 0.9; the other links still draw (1 -> 0 loses most at 0.9)."""
+    replay = LossReplay((0.2, 0.5), 0.05)
+    assert [replay.lost(t) for t in (0.1, 0.16, 0.2, 0.24, 0.3, 0.5)] == [
+        False, True, True, True, False, True,
+    ]  # fmt: skip
+    cfg = LossConfig(per=0.9, lost_s=((0, 1, 0.5, 0.2),), lost_window_s=0.05)
+    assert cfg.lost_s == ((0.0, 1.0, 0.2, 0.5),)
+    ch: Channel[VehicleState] = Channel(2, cfg)
+    ch.reset(np.random.default_rng(0))
+    heard = []
+    for k in range(10):
+        t = 0.1 * k
+        ch.send(0, VehicleState(0, t, 0.0, 0.0, 1.0, 0.0), t)
+        ch.send(1, VehicleState(1, t, 0.0, 0.0, 1.0, 0.0), t)
+        heard += [(s, round(m.t, 1)) for _, s, m in ch.deliver(t)]
+    assert [t for s, t in heard if s == 0] == [0.0, 0.1, 0.3, 0.4, 0.6, 0.7, 0.8, 0.9]
+    assert ch.lost[0, 1] == 2 and ch.delivered[0, 1] == 8
+    assert ch.lost[1, 0] + ch.delivered[1, 0] == 10 and ch.lost[1, 0] >= 6
+    assert ch.lost_to == [ch.lost[1, 0], 2]
+    with pytest.raises(ValueError, match="twice"):
+        LossConfig(lost_s=((0, 1, 0.2), (0, 1)))
+    with pytest.raises(ValueError, match="lost_window_s"):
+        LossConfig(lost_window_s=0.0)
+
+
+def test_the_batched_channel_refuses_a_replay() -> None:
+    from openconvoy.envs import VectorConvoyEnv
+
+    with pytest.raises(ValueError, match="replaying"):
+        VectorConvoyEnv(1, loss=LossConfig(per=0.3, lost_s=((0, 1, 0.2),)))

@@ -193,12 +193,18 @@ def test_delivery_delays_match_the_stamp_to_the_senders_tick() -> None:
 
 
 def _lossy_vehicle(
-    vid: int, phase: float, sender_times: np.ndarray, heard: dict[float, bool], lost: list
+    vid: int,
+    phase: float,
+    sender_times: np.ndarray,
+    heard: dict[float, bool],
+    lost: list,
+    signed: bool = False,
 ) -> dict:
     """A vehicle's rows every 50 ms from ``phase`` (s): broadcasting on odd rows (telemetry
     10 ms old), using the newest of its predecessor's broadcasts that ``heard`` says
     arrived (``sender_times``: their send times), counting the drops in ``lost``
-    (send time + arrival delay) on the row after each."""
+    (send time + arrival delay) on the row after each. Messages carry the telemetry
+    sample's time, or with ``signed`` their send time (D50)."""
     t = np.arange(60) * 0.05 + phase
     sent = (np.arange(60) + 1) // 2
     ages = np.full(len(t), np.nan)
@@ -206,7 +212,7 @@ def _lossy_vehicle(
     for k, now in enumerate(t):
         before = [s for s in got if s < now]
         if vid > 0 and before:
-            ages[k] = now - (before[-1] - 0.01)
+            ages[k] = now - (before[-1] - (0.0 if signed else 0.01))
     drops = np.array([np.sum(np.asarray(lost) < now) for now in t])
     return {
         "t_s": t,
@@ -247,6 +253,29 @@ def test_recorded_losses_per_link_and_the_leaders_to_the_last_follower() -> None
     assert by[(0, 2)] == pytest.approx(lost02)
     # A log without telemetry ages cannot tell: nothing replayed.
     assert cal.recorded_losses({k: v for k, v in log.items() if k != "telemetry_age_s"}, 1) is None
+
+
+def test_signed_messages_carry_their_send_time_and_no_staleness() -> None:
+    """A signed run (D50): the first uses match the senders' row times, not their telemetry
+    stamps, so the ages are the delays and nothing is stamped (the demo: 40 / 21 ms)."""
+    b0 = np.round(np.arange(1, 60, 2) * 0.05, 3)
+    b1 = np.round(b0 + 0.007, 3)
+    logs = [
+        _lossy_vehicle(0, 0.0, b0, {}, [], signed=True),
+        _lossy_vehicle(1, 0.007, b0, {}, [], signed=True),
+        _lossy_vehicle(2, 0.02, b1, {}, [], signed=True),
+    ]
+    log = _merge(*logs)
+    assert cal.stamp_source(log, 1) == "send" and cal.stamp_source(log, 2) == "send"
+    fit = cal.fit_channel(log, 0.01)
+    assert fit.staleness_s == (0.0, 0.0, 0.0) and fit.stamp_error_s == 0.0
+    by = {(int(e[0]), int(e[1])): e[2:] for e in fit.link_latency_s}
+    assert float(np.median(by[(0, 1)])) == pytest.approx(0.007)
+    assert float(np.median(by[(1, 2)])) == pytest.approx(0.013)
+    unsigned = _merge(
+        *[_lossy_vehicle(v, p, b, {}, []) for v, p, b in ((0, 0, b0), (1, 0.007, b0))]
+    )
+    assert cal.stamp_source(unsigned, 1) == "telemetry"
 
 
 def test_a_clock_error_is_taken_out_of_the_ages_and_stamps_the_messages() -> None:

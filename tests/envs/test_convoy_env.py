@@ -252,3 +252,34 @@ def test_event_trigger_sends_less_than_periodic_at_steady_speed() -> None:
     # Standing still: only the max-silence heartbeats (about one per second) go out.
     assert 9 <= counts["event"] <= 12
     assert ConvoyEnv().vehicle_lengths == {0: 0.779, 1: 0.97, 2: 0.779}
+
+
+def test_a_heading_bias_is_what_members_see_and_the_vehicle_steers_by() -> None:
+    """A leader whose autopilot believes its heading 0.1 rad left of the truth: it reports
+    and broadcasts the believed heading, and steering the road by it, it drives its true
+    heading off the road and its track drifts (the PX4 demo's followers: 2-3 m)."""
+    import dataclasses
+
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    biased = dataclasses.replace(vehicle_preset("1/10"), heading_bias_rad=0.1)
+    env = ConvoyEnv("paper", n_followers=1, plant_presets=[biased, "1/10"])
+    env.reset(seed=0)
+    still = {a: np.zeros(2, dtype=np.float32) for a in env.agents}
+    ys = []
+    for _ in range(200):  # 10 s
+        env.step(still)
+        ys.append(env.sim.truth.y[0])
+    own = env.sim.members[0].own
+    assert own is not None
+    assert own.heading == pytest.approx(env.sim.truth.heading[0] + 0.1)
+    assert max(abs(y) for y in ys) > 0.05  # the unbiased leader stays on the road
+    straight = ConvoyEnv("paper", n_followers=1)
+    straight.reset(seed=0)
+    for _ in range(200):
+        straight.step(still)
+    assert abs(straight.sim.truth.y[0]) < 0.01
+    from openconvoy.envs import VectorConvoyEnv
+
+    with pytest.raises(ValueError, match="heading bias"):
+        VectorConvoyEnv(1, vehicle_presets=[biased, "1/10"], n_followers=1)

@@ -278,6 +278,23 @@ def test_signed_messages_carry_their_send_time_and_no_staleness() -> None:
     assert cal.stamp_source(unsigned, 1) == "telemetry"
 
 
+def test_heading_bias_is_the_logged_heading_less_the_track() -> None:
+    """A vehicle driving 10 degrees north of east while logging a heading of 2 degrees:
+    its bias is -8 degrees; one at rest has none."""
+    t = np.arange(100) * 0.05
+    track = math.radians(10.0)
+    log = {
+        "t_s": t,
+        "vehicle_id": np.zeros(100, dtype=int),
+        "x_m": t * math.cos(track),
+        "y_m": t * math.sin(track),
+        "heading_rad": np.full(100, math.radians(2.0)),
+    }
+    assert math.degrees(cal.heading_bias(log, 0)) == pytest.approx(-8.0)
+    log["x_m"], log["y_m"] = np.zeros(100), np.zeros(100)
+    assert cal.heading_bias(log, 0) == 0.0
+
+
 def test_a_clock_error_is_taken_out_of_the_ages_and_stamps_the_messages() -> None:
     """Clocks falling behind 4 ms/s from 0.157 s (vx-fixed-per0.3's telemetry ages, states
     fresh: staleness 0.01 s): the delays are the ages less the sender's error, and the

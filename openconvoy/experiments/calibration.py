@@ -784,7 +784,8 @@ def format_calibration(c: Calibration) -> str:
         how = "base loop kept" if c.kept_base[vid] else "free pi fit"
         lines.append(
             f"vehicle {vid}: {c.preset_paths[vid]}  {how}, loop delay "
-            f"{p.actuation_delay_s:.2f} s, speed RMS {c.speed_rms_mps[vid]:.4f} m/s"
+            f"{p.actuation_delay_s:.2f} s, speed RMS {c.speed_rms_mps[vid]:.4f} m/s, "
+            f"heading bias {math.degrees(p.heading_bias_rad):+.1f} deg"
         )
     lines.append(c.channel.summary())
     lines.append(f"wrote {c.convoy_path}")

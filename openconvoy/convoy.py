@@ -32,6 +32,8 @@ latency_samples_s = [0.033, ...]  # or a delay distribution (quantiles, s), as f
                                   # fits from a vehicle run's message ages
 stamp_error_s = 0.0               # the senders' clock error (s), growing stamp_drift s/s
 link_latency_s = [[0, 1, 0.033, ...]]  # per link: sender, receiver, its delay quantiles
+staleness_s = [0.036, 0.033, 0.01]     # per sender: its messages stamped this much older (s)
+lost_s = [[0, 1, 0.15, 1.71, ...]]     # per link: a vehicle run's dropped broadcasts, replayed
 ```
 
 Strict: an unknown key, a value of the wrong type or out of its range is an error naming
@@ -141,10 +143,18 @@ class ChannelConfig:
     stamp_error_s: Annotated[float, Range(-60.0, 60.0)] = 0.0
     stamp_drift: Annotated[float, Range(-0.1, 0.1)] = 0.0
     link_latency_s: tuple[tuple[float, ...], ...] = ()
+    staleness_s: tuple[float, ...] = ()
+    lost_s: tuple[tuple[float, ...], ...] = ()
+    lost_window_s: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 0.05
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "latency_samples_s", tuple(self.latency_samples_s))
+        object.__setattr__(self, "staleness_s", tuple(self.staleness_s))
+        object.__setattr__(self, "lost_s", tuple(tuple(e) for e in self.lost_s))
         check_fields(self, "channel")
+        bad = [v for v in self.staleness_s if not 0.0 <= float(v) <= 60.0]
+        if bad:
+            raise ConfigError(f"channel.staleness_s: {bad[0]!r} is not seconds in [0, 60]")
         if self.model not in ("bernoulli", "gilbert-elliott"):
             raise ConfigError(
                 f"channel.model: {self.model!r} is not one of bernoulli, gilbert-elliott"

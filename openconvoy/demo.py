@@ -594,6 +594,7 @@ def compare_with_sim(
                 link_latency_s=channel.link_latency_s,
                 stamp_error_s=channel.stamp_error_s,
                 stamp_drift=channel.stamp_drift,
+                staleness_s=channel.staleness_s,
             ),
         ),
         out_dir=sim_dir,

@@ -8,6 +8,7 @@ emulate a crowded network. Randomness is injected: every model draws from the
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -266,6 +267,22 @@ class Latency:
 
 
 @dataclass(frozen=True)
+class LossReplay:
+    """One link's recorded losses: the send times (s, sorted) of the broadcasts it dropped on
+    a vehicle run. A broadcast sent at ``t`` is lost when one of them lies within
+    ``window_s`` of ``t`` (half the senders' broadcast period: the nearest recorded
+    broadcast decides, whatever the phase between the run's and the sim's ticks)."""
+
+    lost_s: tuple[float, ...]
+    window_s: float
+
+    def lost(self, t: float) -> bool:
+        """Whether the broadcast sent at ``t`` (s) was dropped on the run."""
+        k = bisect.bisect_left(self.lost_s, t - self.window_s)
+        return k < len(self.lost_s) and self.lost_s[k] < t + self.window_s
+
+
+@dataclass(frozen=True)
 class LossConfig:
     """Typed description of a link's loss and latency, as written in configs.
 
@@ -275,6 +292,19 @@ class LossConfig:
     ``stamp_drift``: the senders' clock error (``Latency``). ``link_latency_s``: per link
     ``[sender, receiver, quantile, ...]``, that link's own delay distribution (the others
     keep the common one): on vehicles each link's delay is the phase between two loops.
+    ``staleness_s``: per sender (by vehicle index), how much older than the simulated state
+    its messages are stamped (s). On a vehicle a message carries the autopilot's last
+    telemetry sample, stamped when the autopilot took it: it is that sample's age (the
+    telemetry's staleness) old when it leaves. A fitted plant already holds the staleness
+    in its loop delay (its state lags the command as the logged state did), so adding it
+    to the link's delay as well would make the news later than on the vehicle; instead
+    the sender's messages leave with the link's delay and are stamped that much older
+    (``Latency.stamp_error_s`` of the sender's links; ``fit-plant`` fits both).
+    ``lost_s``: per link ``[sender, receiver, t, ...]``, the send times (s, from the
+    scenario's start) of the broadcasts that link dropped on a vehicle run: the link
+    replays them (drops a broadcast sent within ``lost_window_s`` of one, delivers the
+    rest) in place of drawing its losses, so a sim reproduces that run's losses rather
+    than another draw (``fit-plant``; ``LossReplay``). Scalar channel only.
     """
 
     per: float = 0.0
@@ -286,8 +316,37 @@ class LossConfig:
     stamp_error_s: float = 0.0
     stamp_drift: float = 0.0
     link_latency_s: tuple[tuple[float, ...], ...] = ()
+    staleness_s: tuple[float, ...] = ()
+    lost_s: tuple[tuple[float, ...], ...] = ()
+    lost_window_s: float = 0.05
 
     def __post_init__(self) -> None:
+        lost = tuple(tuple(float(v) for v in e) for e in self.lost_s)
+        pairs = set()
+        for e in lost:
+            if (
+                len(e) < 2
+                or e[0] != int(e[0])
+                or e[1] != int(e[1])
+                or e[0] == e[1]
+                or min(e[:2]) < 0
+            ):
+                raise ConfigError(
+                    "lost_s entries are [sender, receiver, send time s, ...] with two "
+                    f"different vehicle indices, got {list(e)[:4]}"
+                )
+            if e[:2] in pairs:
+                raise ConfigError(f"lost_s: link {int(e[0])} -> {int(e[1])} given twice")
+            pairs.add(e[:2])
+            if any(not math.isfinite(v) for v in e[2:]):
+                raise ConfigError(f"lost_s: send times must be finite seconds, got {list(e)[:4]}")
+        object.__setattr__(self, "lost_s", tuple((e[0], e[1], *sorted(e[2:])) for e in lost))
+        if not (math.isfinite(self.lost_window_s) and 0.0 < self.lost_window_s <= 1.0):
+            raise ConfigError(f"lost_window_s must be seconds in (0, 1], got {self.lost_window_s}")
+        stale = tuple(float(v) for v in self.staleness_s)
+        if any(not (math.isfinite(v) and 0.0 <= v <= 60.0) for v in stale):
+            raise ConfigError(f"staleness_s: seconds in [0, 60] per sender, got {list(stale)}")
+        object.__setattr__(self, "staleness_s", stale)
         links = tuple(tuple(float(v) for v in e) for e in self.link_latency_s)
         seen = set()
         for e in links:
@@ -354,16 +413,31 @@ class LossConfig:
             return Bernoulli(self.per)
         return GilbertElliott.from_per(self.per, self.mean_burst_s)
 
+    def replay(self) -> dict[tuple[int, int], LossReplay]:
+        """The links that replay a vehicle run's losses (``lost_s``), by (sender, receiver)."""
+        return {
+            (int(e[0]), int(e[1])): LossReplay(tuple(e[2:]), self.lost_window_s)
+            for e in self.lost_s
+        }
+
+    def sender_staleness(self, sender: int) -> float:
+        """How much older than the simulated state ``sender``'s messages are stamped (s):
+        ``staleness_s[sender]``, 0 for a sender not listed."""
+        return self.staleness_s[sender] if 0 <= sender < len(self.staleness_s) else 0.0
+
     def link_latency(self, sender: int, receiver: int) -> Latency:
         """The delay model of the link ``sender -> receiver`` (``link_latency_s`` or the
-        common one)."""
+        common one), its stamps older by the sender's staleness (``staleness_s``)."""
         base = self.latency
-        if not self.link_latency_s:
-            return base
+        stamp = base.stamp_error_s + self.sender_staleness(sender)
+        if not self.link_latency_s and stamp == base.stamp_error_s:
+            return base  # the common model, built once
         for e in self.link_latency_s:
             if int(e[0]) == sender and int(e[1]) == receiver:
-                return Latency(base.base_s, 0.0, tuple(e[2:]), base.stamp_error_s, base.stamp_drift)
-        return base
+                return Latency(base.base_s, 0.0, tuple(e[2:]), stamp, base.stamp_drift)
+        return (
+            base if stamp == base.stamp_error_s else dataclasses.replace(base, stamp_error_s=stamp)
+        )
 
     @property
     def latency(self) -> Latency:

@@ -148,8 +148,12 @@ class Channel(Generic[M]):
         )
         self._advance = advance
         self._block = draw_block_size(n_vehicles)
+        # Links replaying a vehicle run's losses (LossConfig.lost_s) instead of drawing.
+        self._replay = self.config.replay()
         # Messages carry their clock error from the send (the advance applies it).
-        self._stamped = self._latency.stamped_off and advance is not None
+        self._stamped = advance is not None and any(
+            self._lat[s][r].stamped_off for s in range(n_vehicles) for r in range(n_vehicles)
+        )
         self._others = [[r for r in range(n_vehicles) if r != s] for s in range(n_vehicles)]
         self._queue: list[tuple[float, int, int, int, M, float]] = []
         self._ready: list[tuple[int, int, M]] = []
@@ -229,6 +233,8 @@ class Channel(Generic[M]):
                     lost_to[r] += 1
                 else:
                     receivers.append(r)
+        if self._replay:
+            receivers = self._replayed(sender, t, receivers)
         if self._instant:
             self._ready.extend((r, sender, msg) for r in receivers)
             return
@@ -243,6 +249,25 @@ class Channel(Generic[M]):
             err = lat.stamp_error(t) if self._stamped else 0.0
             heapq.heappush(self._queue, (arrival, self._seq, r, sender, msg, err))
             self._seq += 1
+
+    def _replayed(self, sender: int, t: float, receivers: list[int]) -> list[int]:
+        """``receivers`` with the replaying links' verdicts on the broadcast ``sender`` makes
+        at ``t`` (s) in place of the drawn ones, the loss counters moved to match."""
+        kept = set(receivers)
+        for r in self._others[sender]:
+            replay = self._replay.get((sender, r))
+            if replay is None:
+                continue
+            drop = replay.lost(t)
+            if drop and r in kept:
+                kept.discard(r)
+                self._lost[sender][r] += 1
+                self.lost_to[r] += 1
+            elif not drop and r not in kept:
+                kept.add(r)
+                self._lost[sender][r] -= 1
+                self.lost_to[r] -= 1
+        return [r for r in self._others[sender] if r in kept]
 
     def _draw_block(self, sender: int, first: int) -> list[list[bool]]:
         """Whether each link of ``sender`` drops its broadcasts ``first`` .. ``first +

@@ -89,6 +89,10 @@ class VehiclePreset:
         yaw_accel_max_radps2: slew limit of the heading loop's desired yaw rate (ArduPilot
             ATC_STR_ACC_MAX), rad/s²; inf = none.
         lateral_accel_max_mps2: yaw rate is also capped at this / speed (m/s²); inf = none.
+        heading_bias_rad: the autopilot's heading estimate less the true heading (rad): what
+            the vehicle reports and steers by (an EKF heading bias; PX4 SIH rovers logged
+            -1 to -10 degrees, ArduPilot SITL about 0.5; ``fit-plant`` fits it from a run's
+            logged headings against its track). Scalar simulator only.
     """
 
     name: str
@@ -115,6 +119,7 @@ class VehiclePreset:
     heading_delay_s: Annotated[float, Range(0.0, 2.0)] | None = None
     yaw_accel_max_radps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
     lateral_accel_max_mps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
+    heading_bias_rad: Annotated[float, Range(-0.5, 0.5)] = 0.0
 
     def __post_init__(self) -> None:
         check_fields(self, f"vehicle preset {self.name!r}")

@@ -170,6 +170,9 @@ class ConvoyWorld:
                 f"plant_presets: {len(plant_presets)} given for a convoy of {n} vehicles"
             )
         self.plant = BicyclePlant(plant_presets or self.presets, dt)
+        # What each vehicle's autopilot believes its heading is, less the truth (rad): the
+        # members see and steer by the believed heading, the vehicles move by the true one.
+        self.heading_bias = [p.heading_bias_rad for p in (plant_presets or self.presets)]
         self.channel: Channel[VehicleState] = Channel(n, loss, advance_state)
         self.ranging_sensors = [
             (i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging
@@ -229,9 +232,10 @@ class ConvoyWorld:
                 cmd_v[i] = cmd_dh[i] = 0.0
                 modes[i] = "failsafe"
         tr = self.truth
-        v0, h0 = self.scenario.leader_command(t, tr.x[0], tr.y[0], tr.heading[0], tr.speed[0])
+        h_lead = tr.heading[0] + self.heading_bias[0]
+        v0, h0 = self.scenario.leader_command(t, tr.x[0], tr.y[0], h_lead, tr.speed[0])
         cmd_v[0] = v0
-        cmd_dh[0] = (h0 - tr.heading[0] + math.pi) % (2 * math.pi) - math.pi
+        cmd_dh[0] = (h0 - h_lead + math.pi) % (2 * math.pi) - math.pi
         if self.emergency_stop and self._lead_emergency(t):
             cmd_v[0] = cmd_dh[0] = 0.0
             modes[0] = "failsafe"
@@ -265,7 +269,7 @@ class ConvoyWorld:
                 xs[i],
                 ys[i],
                 tr.speed[i],
-                tr.heading[i],
+                tr.heading[i] + self.heading_bias[i],
                 tr.accel[i],
                 tr.yaw_rate[i],
                 self.lengths[i],

@@ -20,7 +20,13 @@ free fit, only that delay is taken (one run of the ``paper`` profile cannot pin 
 parameters; the recordings did); otherwise the free fit is.
 
 Channel: a logged message age at first use = its delivery delay (the phase between the
-loops, the link, the sender's staleness) + the sender's clock error. A vehicle's clock error
+loops, the link) + the sender's telemetry staleness + the sender's clock error. The staleness
+is not part of the simulated link's delay: the fitted plant's loop delay already holds it (the
+simulated state lags as the logged one did), so the simulated sender's messages leave with
+the delay alone and are stamped older by its staleness (``[channel] staleness_s``), as on
+the vehicle, where the message carried a telemetry sample that old. Counting it twice made
+the news reach the followers one staleness late (sitl/convoy vx-fixed-2, staleness 36 ms:
+p95 ratio 1.10 against 1.04). A vehicle's clock error
 is what its logged telemetry age shows beyond the staleness its loop-delay fit found: the
 deploy stamps its state with the autopilot's clock mapped onto the system clock, and when
 the autopilot's clock runs slow (PX4 SIH at 0.990; a loaded ArduPilot SITL host) that
@@ -147,14 +153,22 @@ class ChannelFit:
     """The V2V channel of a vehicle run, as the simulator models it.
 
     Attributes:
-        latency_samples_s: quantiles of the followers' message ages at first use (s), the
-            simulated channel's delay distribution (``comms.loss.Latency``).
+        latency_samples_s: quantiles of the followers' message ages at first use less the
+            senders' clock error and staleness (s), the simulated channel's delay
+            distribution (``comms.loss.Latency``).
         per: the packet error rate the run's links applied (lost / offered, followers).
         ages_s: per follower, the ages at first use the fit used.
         stamp_error_s, stamp_drift: the senders' clock error at the scenario's start (s)
-            and its growth (s/s), the mean over the measured links' senders; 0 when below
+            and its growth (s/s): the least of the measured links' senders' errors and the
+            mean of their drifts; 0 when below
             ``CLOCK_ERROR_MIN_S`` over the run.
         link_latency_s: per link ``(sender, receiver, quantile, ...)`` (``link_delays``).
+        staleness_s: per vehicle (by index), its telemetry staleness and its clock's error
+            beyond ``stamp_error_s`` (s): its messages are stamped that much older than the
+            simulated state (``LossConfig.staleness_s``).
+        lost_s, lost_window_s: per measured link ``(sender, receiver, send time, ...)``, the
+            broadcasts it dropped on the run (``recorded_losses``), for the sim to replay;
+            empty when the run lost nothing.
     """
 
     latency_samples_s: tuple[float, ...]
@@ -163,6 +177,9 @@ class ChannelFit:
     stamp_error_s: float = 0.0
     stamp_drift: float = 0.0
     link_latency_s: tuple[tuple[float, ...], ...] = ()
+    staleness_s: tuple[float, ...] = ()
+    lost_s: tuple[tuple[float, ...], ...] = ()
+    lost_window_s: float = 0.05
 
     def summary(self) -> str:
         """One line per follower: how many ages, their median and 5-95 % range (ms)."""
@@ -171,7 +188,8 @@ class ChannelFit:
             f"{1e3 * self.latency_samples_s[0]:.1f} / "
             f"{1e3 * float(np.median(self.latency_samples_s)):.1f} / "
             f"{1e3 * self.latency_samples_s[-1]:.1f} ms; clock error "
-            f"{1e3 * self.stamp_error_s:.0f} ms + {1e3 * self.stamp_drift:.1f} ms/s"
+            f"{1e3 * self.stamp_error_s:.0f} ms + {1e3 * self.stamp_drift:.1f} ms/s; "
+            "senders' staleness " + " / ".join(f"{1e3 * v:.0f}" for v in self.staleness_s) + " ms"
         ]
         for e in self.link_latency_s:
             lines.append(
@@ -230,27 +248,229 @@ def _tick_s(log: Log) -> float:
     return float(np.median(steps)) if len(steps) else 0.05
 
 
+STAMP_MATCH_S = 0.002
+"""A first-use stamp matches a sender's logged row when their stamps differ by less (s)."""
+
+
+STAMP_SOURCES = ("telemetry", "send")
+"""What a message's stamp is: its sender's telemetry sample's time (an unsigned BSM's
+secMark: the sender row's time less its ``telemetry_age_s``), or the time it was sent (a
+signed one's generation time, D50: the sender row's time)."""
+
+
+def _sender_rows(log: Log, sender: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A vehicle's rows in time order: (times s, telemetry ages s or NaN, msgs_sent or NaN)."""
+    sel = np.asarray(log["vehicle_id"]) == sender
+    ts = np.asarray(log["t_s"], dtype=float)[sel]
+    order = np.argsort(ts, kind="stable")
+
+    def col(name: str) -> np.ndarray:
+        if name not in log:
+            return np.full(len(ts), np.nan)
+        return np.asarray(log[name], dtype=float)[sel][order]
+
+    return ts[order], col("telemetry_age_s"), col("msgs_sent")
+
+
+def stamp_source(log: Log, vehicle_id: int) -> str | None:
+    """How ``vehicle_id``'s predecessor stamped its messages (``STAMP_SOURCES``): the one
+    whose stamps the receiver's first uses (``t - age``) match, within ``STAMP_MATCH_S``, for
+    most of them; None when neither does for half (a log without telemetry ages). Measured:
+    all of sitl/convoy and sitl-px4/convoy r2 (unsigned) match the telemetry, 99 % of a
+    signed ``demo`` the send times, and at most 24 % the other."""
+    a, when = _ages_and_times(log, vehicle_id)
+    ts, tel, _ = _sender_rows(log, vehicle_id - 1)
+    if len(a) == 0 or len(ts) == 0:
+        return None
+    used = when - a
+    share = {
+        name: float(np.mean(_nearest_distance(np.sort(st[np.isfinite(st)]), used) < STAMP_MATCH_S))
+        for name, st in (("telemetry", ts - tel), ("send", ts))
+    }
+    best = max(share, key=lambda n: share[n])
+    return best if share[best] >= 0.5 else None
+
+
+def _stamps(ts: np.ndarray, tel: np.ndarray, source: str) -> np.ndarray:
+    """The stamps (s) a sender's rows gave their messages, by ``stamp_source``."""
+    return ts - tel if source == "telemetry" else ts.copy()
+
+
+def delivery_delays(
+    log: Log, vehicle_id: int, fallback_s: np.ndarray, source: str | None = None
+) -> np.ndarray:
+    """Each new predecessor message's delivery delay (s): from the sender's tick that sent
+    it to the receiver's tick that first used it. The first use of stamp ``t - age`` is
+    matched to the sender's first row that gave that stamp (``source``, default
+    ``stamp_source``; within ``STAMP_MATCH_S``). With telemetry stamps what is left of the
+    age is the sender's staleness and clock error, which vary per message (sitl/convoy
+    vx-fixed-2: ages 8 or 46 ms, delays 7 ms, the leader's telemetry 0.1 or 38 ms old).
+    Unmatched messages (a log without telemetry ages) get ``fallback_s`` (per first use,
+    same order as ``message_ages_at_first_use``)."""
+    a, when = _ages_and_times(log, vehicle_id)
+    out = np.asarray(fallback_s, dtype=float).copy()
+    source = source or stamp_source(log, vehicle_id)
+    if source is None or len(a) == 0:
+        return out
+    ts, tel, _ = _sender_rows(log, vehicle_id - 1)
+    stamps = _stamps(ts, tel, source)
+    for k, (w, age) in enumerate(zip(when, a)):
+        hit = np.flatnonzero((np.abs(stamps - (w - age)) < STAMP_MATCH_S) & (ts <= w + 1e-6))
+        if len(hit):
+            out[k] = w - ts[hit[0]]
+    return out
+
+
+def _nearest_distance(sorted_values: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Each ``x``'s distance to the nearest of ``sorted_values`` (inf when there are none)."""
+    if len(sorted_values) == 0:
+        return np.full(len(x), np.inf)
+    k = np.searchsorted(sorted_values, x)
+    lo = sorted_values[np.clip(k - 1, 0, len(sorted_values) - 1)]
+    hi = sorted_values[np.clip(k, 0, len(sorted_values) - 1)]
+    return np.minimum(np.abs(x - lo), np.abs(x - hi))
+
+
+def recorded_losses(
+    log: Log, vehicle_id: int, source: str | None = None
+) -> tuple[np.ndarray, float] | None:
+    """The broadcasts of ``vehicle_id``'s predecessor that never reached it on the run: their
+    send times (s, log time) and half the sender's broadcast period (s); None when the log
+    cannot tell (no ``msgs_sent``, no ``stamp_source``). A broadcast is a row where the
+    sender's ``msgs_sent`` grew; it carried that row's stamp (``source``), and it arrived
+    when the receiver first used that stamp (``STAMP_MATCH_S``; at 10 Hz broadcasts and
+    20 Hz ticks nothing arrives unused). sitl/convoy vx-fixed-per0.3: 29 % and 31 % of the
+    leader's and follower 1's broadcasts lost, 0 on the PER 0 runs."""
+    source = source or stamp_source(log, vehicle_id)
+    if source is None or "msgs_sent" not in log:
+        return None
+    ts, tel, sent = _sender_rows(log, vehicle_id - 1)
+    stamps = _stamps(ts, tel, source)
+    rows = np.flatnonzero(np.diff(sent) > 0) + 1
+    rows = rows[np.isfinite(stamps[rows])]
+    if len(rows) < 2:
+        return None
+    a, when = _ages_and_times(log, vehicle_id)
+    near = _nearest_distance(np.sort(when - a), stamps[rows])
+    lost = ts[rows][near >= STAMP_MATCH_S]
+    return lost, 0.5 * float(np.median(np.diff(ts[rows])))
+
+
+def _broadcast_times(log: Log, vehicle_id: int) -> np.ndarray:
+    """The log times (s) of a vehicle's broadcasts: the rows where its ``msgs_sent`` grew."""
+    sel = np.asarray(log["vehicle_id"]) == vehicle_id
+    ts = np.asarray(log["t_s"], dtype=float)[sel]
+    order = np.argsort(ts, kind="stable")
+    sent = np.asarray(log["msgs_sent"], dtype=float)[sel][order]
+    return ts[order][np.flatnonzero(np.diff(sent) > 0) + 1]
+
+
+ARRIVAL_SLACK_S = 0.0125
+"""How much earlier than its median delay says a message may arrive (s): delays vary by a few
+ms per message, and the receiver's rows are a tick apart, so a drop is looked for from a
+quarter tick before (vx-fixed-per0.3: 2->1 drops 249 attributed at no slack, 184 at 2-15 ms)."""
+
+
+def other_sender_losses(
+    log: Log,
+    receiver: int,
+    sender: int,
+    pred_lost_s: np.ndarray,
+    pred_delay_s: float,
+    sender_delay_s: float,
+) -> np.ndarray:
+    """The broadcasts of ``sender`` (not ``receiver``'s predecessor) that ``receiver``
+    dropped: send times (s). Its log counts drops from all senders (``msgs_lost``); those
+    of the predecessor (``pred_lost_s``, each counted on the receiver's first row after it
+    would have arrived, ``pred_delay_s`` after it left) are taken out, and each drop left is
+    ``sender``'s latest broadcast due (``sender_delay_s`` after it left) by that row. Only
+    right when the receiver hears one vehicle besides its predecessor (a three-vehicle
+    convoy's last follower hears the leader: vx-fixed-per0.3, 216 of 619 dropped)."""
+    sel = np.asarray(log["vehicle_id"]) == receiver
+    ts = np.asarray(log["t_s"], dtype=float)[sel]
+    order = np.argsort(ts, kind="stable")
+    ts = ts[order]
+    drops = np.diff(np.asarray(log["msgs_lost"], dtype=float)[sel][order])
+    pred = np.bincount(
+        np.searchsorted(ts, np.asarray(pred_lost_s) + pred_delay_s - ARRIVAL_SLACK_S),
+        minlength=len(ts) + 1,
+    )[1 : len(ts)]
+    left = np.maximum(drops - pred, 0).astype(int)
+    sent = _broadcast_times(log, sender)
+    out = []
+    for k in np.flatnonzero(left):
+        i = int(np.searchsorted(sent + sender_delay_s - ARRIVAL_SLACK_S, ts[k + 1])) - 1
+        out.extend([float(sent[i])] * int(left[k]) if i >= 0 else [])
+    return np.unique(np.round(out, 3))
+
+
 def link_delays(
-    ages: dict[int, np.ndarray], staleness: dict[int, float], tick_s: float, quantiles: int
+    delays: dict[int, np.ndarray], tick_s: float, quantiles: int
 ) -> tuple[tuple[float, ...], ...]:
-    """Per link, its delay quantiles: measured for each follower's link from its immediate
-    predecessor (``ages``); composed for a link that skips vehicles. On a vehicle a message
-    from ``s`` is first used at the receiver's next tick: its age is ``s``'s staleness +
-    the phase of ``r``'s loop after ``s``'s (mod the tick), and phases add up along the
-    string, so ``s -> r`` gets ``a_s + (sum of the links' (median age - a_k)) mod tick``."""
+    """Per link, its delay quantiles (s): measured for each follower's link from its
+    immediate predecessor (``delays``: ``delivery_delays``); composed for a link that skips
+    vehicles. On a vehicle a message from ``s`` is first used at the receiver's next tick
+    after it arrives: its delay is the phase of ``r``'s loop after ``s``'s (mod the tick),
+    and phases add up along the string, so ``s -> r`` gets ``(sum of the links' median
+    delays) mod tick``. The senders' staleness is not in them: the channel stamps it
+    (``LossConfig.staleness_s``)."""
     out: list[tuple[float, ...]] = []
-    ids = sorted(ages)
+    ids = sorted(delays)
     for r in ids:
-        if len(ages[r]):
-            out.append((r - 1.0, float(r), *_quantiles(ages[r], quantiles)))
+        if len(delays[r]):
+            out.append((r - 1.0, float(r), *_quantiles(delays[r], quantiles)))
     for r in ids:
         for s in range(0, r - 1):
             chain = range(s + 1, r + 1)
-            if not all(k in ages and len(ages[k]) for k in chain):
+            if not all(k in delays and len(delays[k]) for k in chain):
                 continue
-            phase = sum(float(np.median(ages[k])) - staleness.get(k - 1, 0.0) for k in chain)
-            out.append((float(s), float(r), round(staleness.get(s, 0.0) + phase % tick_s, 4)))
+            phase = sum(float(np.median(delays[k])) for k in chain)
+            out.append((float(s), float(r), round(phase % tick_s, 4)))
     return tuple(out)
+
+
+def _replayed_losses(
+    log: Log,
+    ids: list[int],
+    delays: dict[int, np.ndarray],
+    links: tuple[tuple[float, ...], ...],
+    source: str,
+) -> tuple[list[tuple[float, ...]], list[float]]:
+    """Each link's recorded losses as ``LossConfig.lost_s`` entries, and the senders' half
+    broadcast periods: every follower's link from its predecessor (``recorded_losses``)
+    and, for a receiver that hears one vehicle besides its predecessor, that link too
+    (``other_sender_losses``; with more vehicles a drop's sender is ambiguous: drawn)."""
+    replay: list[tuple[float, ...]] = []
+    windows: list[float] = []
+    composed = {(int(e[0]), int(e[1])): float(np.median(e[2:])) for e in links}
+    for vid in delays:
+        rec = recorded_losses(log, vid, source)
+        if rec is None:
+            continue
+        replay.append((vid - 1.0, float(vid), *(round(float(x), 3) for x in rec[0])))
+        windows.append(rec[1])
+        others = [v for v in ids if v not in (vid, vid - 1)]
+        if len(others) == 1:
+            s = others[0]
+            lost = other_sender_losses(
+                log,
+                receiver=vid,
+                sender=s,
+                pred_lost_s=rec[0],
+                pred_delay_s=float(np.median(delays[vid])),
+                sender_delay_s=composed.get((s, vid), 0.0),
+            )
+            replay.append((float(s), float(vid), *(float(x) for x in lost)))
+    return replay, windows
+
+
+def run_stamp_source(log: Log, ids: list[int]) -> str | None:
+    """How the run's vehicles stamped their messages (``stamp_source``), the most links'
+    verdict (the deploys of one run share their version and signing); None if no link's
+    stamps match."""
+    found = [stamp_source(log, v) for v in ids if v > 0 and v - 1 in ids]
+    known = [f for f in found if f is not None]
+    return max(STAMP_SOURCES, key=known.count) if known else None
 
 
 def fit_channel(
@@ -259,24 +479,36 @@ def fit_channel(
     quantiles: int = QUANTILES,
 ) -> ChannelFit:
     """Fit the channel from a run's (merged) log, times from the scenario's start: the
-    senders' clock error (``clock_error``), the followers' message ages at first use less
-    that error as each link's delay distribution (``link_delays``) and, pooled, as the
-    common one, and the loss their counters show. ``staleness_s``: each vehicle's (or all
-    vehicles') telemetry staleness (s)."""
+    senders' clock error (``clock_error``), the followers' delivery delays
+    (``delivery_delays``; without telemetry ages: the ages at first use less the sender's
+    clock error and staleness) as each link's delay distribution (``link_delays``) and,
+    pooled, as the common one, the senders' staleness (which the channel stamps), and the
+    loss their counters show. ``staleness_s``: each vehicle's (or all vehicles') telemetry
+    staleness (s)."""
     ids = sorted(int(v) for v in np.unique(np.asarray(log["vehicle_id"])))
     stale = (
         dict(staleness_s) if isinstance(staleness_s, dict) else {v: float(staleness_s) for v in ids}
     )
-    clocks = {v: clock_error(log, v, stale.get(v, 0.0)) for v in ids}
-    ages = {}
+    source = run_stamp_source(log, ids)
+    if source == "send":
+        # Messages stamped when sent (signed) show neither the senders' clocks nor their
+        # telemetry's staleness: the simulated ones are not stamped with them either.
+        clocks = {v: (0.0, 0.0) for v in ids}
+        stale = {v: 0.0 for v in ids}
+    else:
+        clocks = {v: clock_error(log, v, stale.get(v, 0.0)) for v in ids}
+    ages, delays = {}, {}
     errs: list[tuple[float, float]] = []  # each measured link's sender's clock error
     for vid in ids:
         if vid > 0 and vid - 1 in clocks:
             a, when = _ages_and_times(log, vid)
             e_s, d_s = clocks[vid - 1]
-            # A logged age is the delay + the sender's clock error (the receiver's "now"
-            # is the system clock, in its log and in its member alike).
+            # A logged age is the delay + the sender's staleness and clock error (the
+            # receiver's "now" is the system clock, in its log and in its member alike).
             ages[vid] = np.maximum(a - (e_s + d_s * when), 0.0)
+            delays[vid] = delivery_delays(
+                log, vid, np.maximum(ages[vid] - stale.get(vid - 1, 0.0), 0.0), source
+            )
             errs.append((e_s, d_s))
     err0, drift = (
         (float(np.mean([e[0] for e in errs])), float(np.mean([e[1] for e in errs])))
@@ -284,16 +516,23 @@ def fit_channel(
         else (0.0, 0.0)
     )
     span = float(np.nanmax(np.asarray(log["t_s"], dtype=float))) if len(log["t_s"]) else 0.0
+    offsets: dict[int, float] = {}
     if max(abs(err0), abs(err0 + drift * span)) < CLOCK_ERROR_MIN_S:
         err0, drift = 0.0, 0.0
-    pooled = np.concatenate([a for a in ages.values()] or [np.zeros(0)])
+    elif errs:
+        # The common error is the least sender's; each sender's own beyond it is stamped
+        # with its staleness (sitl-px4/convoy r2: 55 / 30 ms at the start, leader /
+        # follower 1; their drifts agree to 0.1 ms/s).
+        err0 = min(clocks[v - 1][0] for v in ages)
+        offsets = {v - 1: clocks[v - 1][0] - err0 for v in ages}
+    pooled = np.concatenate([d for d in delays.values()] or [np.zeros(0)])
     if len(pooled) < 10:
         raise InputFileError(
             "too few predecessor messages in the log to fit the channel "
             f"({len(pooled)} first-use ages; need >= 10)"
         )
     samples = _quantiles(pooled, quantiles)
-    links = link_delays(ages, stale, _tick_s(log), quantiles)
+    links = link_delays(delays, _tick_s(log), quantiles)
     received = lost = 0
     for vid in ages:
         sel = np.asarray(log["vehicle_id"]) == vid
@@ -304,7 +543,16 @@ def fit_channel(
             received += int(rec.max() - rec.min())
             lost += int(los.max() - los.min())
     per = lost / (received + lost) if received + lost else 0.0
-    return ChannelFit(samples, round(per, 4), ages, err0, drift, links)
+    staleness = tuple(
+        round(stale.get(v, 0.0) + offsets.get(v, 0.0), 4) for v in range(max(ids) + 1)
+    )
+    replay, windows = (
+        _replayed_losses(log, ids, delays, links, source) if per > 0.0 and source else ([], [])
+    )
+    window = round(float(np.median(windows)), 4) if windows else 0.05
+    return ChannelFit(
+        samples, round(per, 4), ages, err0, drift, links, staleness, tuple(replay), window
+    )
 
 
 @dataclass(frozen=True)
@@ -357,6 +605,29 @@ def _with_loop_delay(preset: VehiclePreset, delay_s: float, name: str) -> Vehicl
         actuation_delay_s=round(min(2.0, max(0.0, delay_s)), 3),
         heading_delay_s=round(min(2.0, max(0.0, preset.heading_delay + extra)), 3),
     )
+
+
+HEADING_BIAS_MIN_STEP_M = 0.02
+"""Rows that moved less than this (m) since the previous one say nothing of the track."""
+
+
+def heading_bias(log: Log, vehicle_id: int) -> float:
+    """A vehicle's heading bias (rad): the median of its logged heading (the autopilot's
+    estimate) less its track's direction (from its logged positions, between rows that
+    moved ``HEADING_BIAS_MIN_STEP_M`` or more); 0 when it hardly moved. Measured: PX4 SIH
+    r2 -5.9 / -5.7 / +1.5 degrees, the PX4 demo -1.1 / -9.5 / -5.0, ArduPilot SITL
+    +0.5 to +0.6."""
+    sel = np.asarray(log["vehicle_id"]) == vehicle_id
+    t = np.asarray(log["t_s"], dtype=float)[sel]
+    order = np.argsort(t, kind="stable")
+    x, y, h = (np.asarray(log[k], dtype=float)[sel][order] for k in ("x_m", "y_m", "heading_rad"))
+    dx, dy = np.diff(x), np.diff(y)
+    moved = np.hypot(dx, dy) >= HEADING_BIAS_MIN_STEP_M
+    moved &= np.isfinite(h[1:])
+    if moved.sum() < 20:
+        return 0.0
+    off = np.angle(np.exp(1j * (h[1:] - np.arctan2(dy, dx))))[moved]
+    return float(np.clip(np.median(off), -0.5, 0.5))
 
 
 LOOP_DELAYS_S = np.round(np.arange(0.0, 0.62, 0.02), 2)
@@ -430,6 +701,9 @@ def calibrate(
         start = _base_for(vid, vehicle_preset(convoy.vehicles[vid]), meta.get(vid, {}), base)
         name = f"{convoy.name}-vehicle-{vid}"
         presets[vid], rms[vid], kept[vid] = fit_vehicle(run, vid, start, name, rounds, population)
+        presets[vid] = dataclasses.replace(
+            presets[vid], heading_bias_rad=round(heading_bias(log, vid), 4)
+        )
         # The loop's dead time beyond the autopilot's own: the telemetry's real staleness.
         stale[vid] = (
             round(min(max(presets[vid].actuation_delay_s - start.actuation_delay_s, 0.0),
@@ -485,6 +759,21 @@ def _convoy_toml(convoy: Any, paths: dict[int, Path], channel: ChannelFit, run: 
         f"stamp_drift = {channel.stamp_drift!r}\n"
         "# per link: sender, receiver, its delay quantiles (s)\n"
         f"link_latency_s = [{links}]\n"
+        "# per vehicle: its telemetry staleness, its messages stamped that much older (s)\n"
+        f"staleness_s = [{', '.join(f'{v:g}' for v in channel.staleness_s)}]\n"
+        + (
+            "# per link: sender, receiver, the send times (s) of the broadcasts it dropped on\n"
+            "# the run, replayed by sim (sim --per P draws losses at P instead)\n"
+            f"lost_window_s = {channel.lost_window_s!r}\n"
+            "lost_s = ["
+            + ", ".join(
+                "[" + ", ".join([str(int(e[0])), str(int(e[1]))] + [f"{v:g}" for v in e[2:]]) + "]"
+                for e in channel.lost_s
+            )
+            + "]\n"
+            if channel.lost_s
+            else ""
+        )
     )
 
 
@@ -495,7 +784,8 @@ def format_calibration(c: Calibration) -> str:
         how = "base loop kept" if c.kept_base[vid] else "free pi fit"
         lines.append(
             f"vehicle {vid}: {c.preset_paths[vid]}  {how}, loop delay "
-            f"{p.actuation_delay_s:.2f} s, speed RMS {c.speed_rms_mps[vid]:.4f} m/s"
+            f"{p.actuation_delay_s:.2f} s, speed RMS {c.speed_rms_mps[vid]:.4f} m/s, "
+            f"heading bias {math.degrees(p.heading_bias_rad):+.1f} deg"
         )
     lines.append(c.channel.summary())
     lines.append(f"wrote {c.convoy_path}")

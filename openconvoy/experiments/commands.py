@@ -103,6 +103,10 @@ def run_config_from_args(args: argparse.Namespace) -> Any:
             stamp_error_s=channel.stamp_error_s,
             stamp_drift=channel.stamp_drift,
             link_latency_s=channel.link_latency_s if args.jitter is None else (),
+            staleness_s=channel.staleness_s,
+            # --per draws losses at that rate: the run's recorded ones are not replayed.
+            lost_s=channel.lost_s if args.per is None else (),
+            lost_window_s=channel.lost_window_s,
         ),
         origin=origin,
         faults=tuple(getattr(args, "fault", None) or ()),

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from openconvoy.comms.loss import LossConfig, quantile_delay
+from openconvoy.comms.loss import LossConfig, LossReplay, quantile_delay
 from openconvoy.core.state import VehicleState
 from openconvoy.envs import ConvoyEnv
 from openconvoy.envs.channel import Channel, advance_state
@@ -275,3 +275,62 @@ def test_loss_draws_do_not_depend_on_how_many_broadcasts_are_drawn_at_once(monke
         for s in range(n)
     ]
     assert many == want and 0 < sum(map(sum, want)) < n * (n - 1) * sends
+
+
+def test_a_senders_staleness_ages_only_its_own_messages() -> None:
+    """Staleness 30 ms for vehicle 0, none for 1, on top of a 0.1 s clock error: sent at
+    t = 10 and delivered 7 ms later, 0's messages are 0.137 s old at first use, 1's
+    0.107 s; the delay (7 ms) is the link's alone."""
+    cfg = LossConfig(latency_s=0.007, stamp_error_s=0.1, staleness_s=(0.03,))
+    assert cfg.link_latency(0, 1).stamp_error_s == pytest.approx(0.13)
+    assert cfg.link_latency(1, 0).stamp_error_s == pytest.approx(0.1)
+    ch: Channel[VehicleState] = Channel(2, cfg, advance_state)
+    ch.reset(np.random.default_rng(0))
+    ch.send(0, VehicleState(0, 10.0, 0.0, 0.0, 2.0, 0.0), 10.0)
+    ch.send(1, VehicleState(1, 10.0, -15.0, 0.0, 2.0, 0.0), 10.0)
+    assert ch.deliver(10.0) == []
+    got = {s: m for _, s, m in ch.deliver(10.05)}
+    assert 10.05 - got[0].t == pytest.approx(0.137) and 10.05 - got[1].t == pytest.approx(0.107)
+    assert got[0].x == pytest.approx(2.0 * 0.043)  # advanced by its wait for the tick only
+    staleness_only = Channel(2, LossConfig(staleness_s=(0.0, 0.02)), advance_state)
+    staleness_only.reset(np.random.default_rng(0))
+    staleness_only.send(1, VehicleState(1, 5.0, 0.0, 0.0, 1.0, 0.0), 5.0)
+    ((_, _, m),) = staleness_only.deliver(5.0)
+    assert m.t == pytest.approx(4.98)
+    with pytest.raises(ValueError, match="staleness_s"):
+        LossConfig(staleness_s=(-0.1,))
+
+
+def test_a_link_replays_a_runs_recorded_losses() -> None:
+    """0 -> 1 dropped the broadcasts sent at 0.2 and 0.5 s on the run: the sim's broadcasts
+    nearest them (within half the 0.1 s period) are dropped, the rest delivered even at a
+    PER of 0.9; the other links still draw (1 -> 0 loses most at 0.9)."""
+    replay = LossReplay((0.2, 0.5), 0.05)
+    assert [replay.lost(t) for t in (0.1, 0.16, 0.2, 0.24, 0.3, 0.5)] == [
+        False, True, True, True, False, True,
+    ]  # fmt: skip
+    cfg = LossConfig(per=0.9, lost_s=((0, 1, 0.5, 0.2),), lost_window_s=0.05)
+    assert cfg.lost_s == ((0.0, 1.0, 0.2, 0.5),)
+    ch: Channel[VehicleState] = Channel(2, cfg)
+    ch.reset(np.random.default_rng(0))
+    heard = []
+    for k in range(10):
+        t = 0.1 * k
+        ch.send(0, VehicleState(0, t, 0.0, 0.0, 1.0, 0.0), t)
+        ch.send(1, VehicleState(1, t, 0.0, 0.0, 1.0, 0.0), t)
+        heard += [(s, round(m.t, 1)) for _, s, m in ch.deliver(t)]
+    assert [t for s, t in heard if s == 0] == [0.0, 0.1, 0.3, 0.4, 0.6, 0.7, 0.8, 0.9]
+    assert ch.lost[0, 1] == 2 and ch.delivered[0, 1] == 8
+    assert ch.lost[1, 0] + ch.delivered[1, 0] == 10 and ch.lost[1, 0] >= 6
+    assert ch.lost_to == [ch.lost[1, 0], 2]
+    with pytest.raises(ValueError, match="twice"):
+        LossConfig(lost_s=((0, 1, 0.2), (0, 1)))
+    with pytest.raises(ValueError, match="lost_window_s"):
+        LossConfig(lost_window_s=0.0)
+
+
+def test_the_batched_channel_refuses_a_replay() -> None:
+    from openconvoy.envs import VectorConvoyEnv
+
+    with pytest.raises(ValueError, match="replaying"):
+        VectorConvoyEnv(1, loss=LossConfig(per=0.3, lost_s=((0, 1, 0.2),)))

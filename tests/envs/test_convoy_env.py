@@ -291,3 +291,34 @@ def test_without_numba_auto_is_the_python_path(monkeypatch) -> None:
     assert set(obs) == {"follower_1", "follower_2"} and env.sim.n_vehicles == 3
     with pytest.raises(ConfigError, match="numba"):
         ConvoyEnv(backend="compiled")
+
+
+def test_a_heading_bias_is_what_members_see_and_the_vehicle_steers_by() -> None:
+    """A leader whose autopilot believes its heading 0.1 rad left of the truth: it reports
+    and broadcasts the believed heading, and steering the road by it, it drives its true
+    heading off the road and its track drifts (the PX4 demo's followers: 2-3 m)."""
+    import dataclasses
+
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    biased = dataclasses.replace(vehicle_preset("1/10"), heading_bias_rad=0.1)
+    env = ConvoyEnv("paper", n_followers=1, plant_presets=[biased, "1/10"])
+    env.reset(seed=0)
+    still = {a: np.zeros(2, dtype=np.float32) for a in env.agents}
+    ys = []
+    for _ in range(200):  # 10 s
+        env.step(still)
+        ys.append(env.sim.truth.y[0])
+    own = env.sim.members[0].own
+    assert own is not None
+    assert own.heading == pytest.approx(env.sim.truth.heading[0] + 0.1)
+    assert max(abs(y) for y in ys) > 0.05  # the unbiased leader stays on the road
+    straight = ConvoyEnv("paper", n_followers=1)
+    straight.reset(seed=0)
+    for _ in range(200):
+        straight.step(still)
+    assert abs(straight.sim.truth.y[0]) < 0.01
+    from openconvoy.envs import VectorConvoyEnv
+
+    with pytest.raises(ValueError, match="heading bias"):
+        VectorConvoyEnv(1, vehicle_presets=[biased, "1/10"], n_followers=1)

@@ -30,6 +30,7 @@ from openconvoy.comms.loss import (
     LossConfig,
     counter_uniform_array,
 )
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import ADVANCE_MIN_S, DRAW_JITTER, DRAW_LOSS
@@ -56,6 +57,11 @@ class VectorChannel:
         all_pairs: bool,
     ) -> None:
         N = links.N
+        if any(c.lost_s for c in losses):
+            raise ConfigError(
+                "a channel replaying a vehicle run's losses (lost_s) is the scalar "
+                "simulator's (openconvoy sim), not the batched one's"
+            )
         self.B, self.N, self.trigger = B, N, trigger
         self.per = np.array([c.per for c in losses])
         self.loss = max(losses, key=lambda c: c.per)
@@ -86,6 +92,8 @@ class VectorChannel:
         self.mute_from = np.array(mute, dtype=float)
         self.latency_s, self.jitter_s = self.loss.latency_s, self.loss.jitter_s
         self.stamp_error_s, self.stamp_drift = self.loss.stamp_error_s, self.loss.stamp_drift
+        # Each sender's messages stamped older by its telemetry staleness (LossConfig).
+        self.stamp_sender = np.array([self.loss.sender_staleness(i) for i in range(N)])
         # Each pair's delay distribution (``LossConfig.link_latency``): (P, Q) quantiles,
         # the first ``n_samples[p]`` used (0: the uniform jitter).
         lats = [self.loss.link_latency(int(a), int(b)) for a, b in zip(self.pair_s, self.pair_r)]
@@ -198,7 +206,7 @@ class VectorChannel:
                 self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
                 rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
                 rx.trail_of, rx.spacing_m, self._due_slots, self._advanced,
-                self.stamp_error_s, self.stamp_drift,
+                self.stamp_error_s, self.stamp_drift, self.stamp_sender,
             )  # fmt: skip
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -464,12 +472,13 @@ def _enqueue(
 def _arrive(
     step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
     hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots, advanced,
-    stamp_error, stamp_drift,
+    stamp_error, stamp_drift, stamp_sender,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
     send first), as ``Channel.deliver``: with jitter a later broadcast may overtake; one
     that waited for this tick is advanced by the wait (into ``advanced``: scratch), and
-    stamped with the senders' clock error ``stamp_error + stamp_drift * send time``.
+    stamped with the senders' clock error ``stamp_error + stamp_drift * send time`` and
+    the sender's staleness ``stamp_sender[s]`` (s).
     Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
     scratch)."""
     S, B, P = q_arrival.shape
@@ -499,7 +508,7 @@ def _arrive(
                     kept[b, r] += 1
                     waited = t[b] - first_arrival
                     ts = q_t[first, b, s]
-                    err = stamp_error + stamp_drift * ts
+                    err = stamp_error + stamp_drift * ts + stamp_sender[s]
                     if waited > ADVANCE_MIN_S:
                         _advance(q_state[first], b, s, waited, advanced)
                         push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,

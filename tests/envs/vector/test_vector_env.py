@@ -39,6 +39,7 @@ def _compare(
     samples_s: tuple[float, ...] = (),
     stamp: tuple[float, float] = (0.0, 0.0),
     links: tuple[tuple[float, ...], ...] = (),
+    staleness: tuple[float, ...] = (),
     steps: int | None = None,
     n_followers: int | None = None,
     member: dict | None = None,
@@ -62,6 +63,7 @@ def _compare(
             stamp_error_s=stamp[0],
             stamp_drift=stamp[1],
             link_latency_s=links,
+            staleness_s=staleness,
             model=model,
             mean_burst_s=0.4,
         )
@@ -197,6 +199,14 @@ def test_senders_clock_error_as_convoy_env() -> None:
     without a delay: the same stamps, the same dead reckoning in both worlds."""
     _compare("paper", B=1, per=0.0, stamp=(0.157, 0.004), steps=120)
     _compare("paper", B=1, per=0.2, samples_s=(0.01, 0.05), stamp=(0.05, 0.0), steps=120)
+
+
+def test_senders_staleness_as_convoy_env() -> None:
+    """Each sender's messages stamped older by its telemetry staleness (vx-fixed-2's 36 /
+    33 / 10 ms) on top of the link delays (7 ms): the same stamps in both worlds."""
+    links = ((0, 1, 0.0043, 0.0072, 0.064), (1, 2, 0.0065), (0, 2, 0.014))
+    _compare("paper", B=2, per=0.1, links=links, staleness=(0.036, 0.033, 0.01), steps=150)
+    _compare("paper", B=1, per=0.0, staleness=(0.036, 0.0, 0.01), stamp=(0.05, 0.001), steps=80)
 
 
 def test_per_link_delays_as_convoy_env() -> None:

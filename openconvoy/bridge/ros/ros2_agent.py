@@ -21,7 +21,7 @@ the two profiles MAVROS 2's plugins use (``bridge.ros.ros2.qos_for``).
 - ``{"op": "adv", "topic", "type", "qos"}``; ``{"op": "pub", "topic", "msg"}``.
 - ``{"op": "call", "id", "service", "type", "req", "timeout"}`` → ``{"ev": "reply", ...}``.
 - ``{"op": "serve", "service", "type"}``: each call comes as ``{"ev": "request", ...}`` and
-  waits (10 s) for ``{"op": "respond", "id", "resp"}`` (no answer: the default response).
+  waits for ``{"op": "respond", "id", "resp"}`` (``resp`` null: the default response).
 - ``{"op": "publishers", "id", "topic"}``: the topic's publishers as discovered
   (node name, type, RIHS01 type hash, reliability).
 
@@ -91,7 +91,7 @@ class Agent:
     def __init__(self, node_name):
         import rclpy
         from rclpy.callback_groups import ReentrantCallbackGroup
-        from rclpy.executors import MultiThreadedExecutor
+        from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
         rclpy.init(args=[])
@@ -113,8 +113,11 @@ class Agent:
         self.keep = []
         self.pending = {}
         self.next_id = 0
-        self.executor = MultiThreadedExecutor(num_threads=4)
+        # One thread spins (a multi-threaded executor costs several times the CPU); service
+        # handlers are coroutines that wait for our answer without blocking it.
+        self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
+        self.wake = self.node.create_guard_condition(lambda: None)
         threading.Thread(target=self.executor.spin, daemon=True).start()
 
     def emit(self, obj):
@@ -148,10 +151,10 @@ class Agent:
         elif op == "serve":
             self.serve(req["service"], req["type"])
         elif op == "respond":
-            slot = self.pending.get(req["id"])
-            if slot is not None:
-                slot[1] = req["resp"]
-                slot[0].set()
+            future = self.pending.pop(req["id"], None)
+            if future is not None:
+                future.set_result(req["resp"])
+                self.wake.trigger()  # the executor resumes the waiting handler
         elif op == "publishers":
             infos = self.node.get_publishers_info_by_topic(req["topic"])
             resp = [
@@ -191,18 +194,19 @@ class Agent:
     def serve(self, service, type_name):
         srv = _cls(type_name, "srv")
 
-        def handler(request, response):
+        async def handler(request, response):
+            from rclpy.task import Future
+
             with self.lock:
                 self.next_id += 1
                 rid = self.next_id
-            slot = [threading.Event(), None]
-            self.pending[rid] = slot
+            future = Future()
+            self.pending[rid] = future
             self.emit({"ev": "request", "id": rid, "service": service, "req": to_dict(request)})
-            ok = slot[0].wait(10.0)
-            self.pending.pop(rid, None)
-            if not ok or slot[1] is None:
+            resp = await future
+            if resp is None:
                 return response  # no answer: the default response (e.g. success false)
-            return from_dict(srv.Response, slot[1])
+            return from_dict(srv.Response, resp)
 
         self.keep.append(
             self.node.create_service(srv, service, handler, callback_group=self.group)

@@ -31,6 +31,7 @@ not have (ROS 1's ``header.seq``) is ignored; arrays as lists.
 
 import importlib
 import json
+import os
 import sys
 import threading
 
@@ -97,7 +98,10 @@ class Agent:
         rclpy.init(args=[])
         ns, _, name = node_name.rpartition("/")
         self.rclpy = rclpy
-        self.node = rclpy.create_node(name, namespace=ns or "/")
+        # No parameter services and no /rosout: fewer entities for the executor to wait on.
+        self.node = rclpy.create_node(
+            name, namespace=ns or "/", start_parameter_services=False, enable_rosout=False
+        )
         self.group = ReentrantCallbackGroup()
         self.qos = {
             "sensor": qos_profile_sensor_data,
@@ -113,8 +117,9 @@ class Agent:
         self.keep = []
         self.pending = {}
         self.next_id = 0
-        # One thread spins (a multi-threaded executor costs several times the CPU); service
-        # handlers are coroutines that wait for our answer without blocking it.
+        # One thread spins (the multi-threaded executor costs several times the CPU per
+        # message; rclpy 7.1's events executor took no entities created after it started);
+        # service handlers are coroutines that wait for our answer without blocking it.
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.wake = self.node.create_guard_condition(lambda: None)
@@ -225,9 +230,10 @@ def main():
             agent.handle(json.loads(line))
         except Exception as exc:  # noqa: BLE001 - one line back; the node keeps running
             agent.emit({"ev": "error", "error": f"{type(exc).__name__}: {exc}"})
-    agent.executor.shutdown(timeout_sec=1.0)
-    agent.node.destroy_node()
-    agent.rclpy.try_shutdown()
+    # Our parent closed stdin (or died): leave now. A clean rclpy shutdown can wait on the
+    # executor's thread; the node's peers see it go by DDS's liveliness either way.
+    sys.stdout.flush()
+    os._exit(0)
 
 
 if __name__ == "__main__":

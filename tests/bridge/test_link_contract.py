@@ -75,9 +75,12 @@ def link(request) -> Iterator[VehicleLink]:
         else:
             pid = request.getfixturevalue("ros2_netns").pid
             mavros_node = Ros2Node("/contract_mavros", netns_pid=pid)
+            # The link's first node is started here, as a vehicle's ROS 2 process is before
+            # it connects (rclpy's start-up in a busy CI is seconds); reconnect starts anew.
+            started = [Ros2Node("/contract_link", netns_pid=pid)]
 
             def node() -> Ros1Node:
-                return Ros2Node("/contract_link", netns_pid=pid)
+                return started.pop() if started else Ros2Node("/contract_link", netns_pid=pid)
 
         standin = MavrosStandIn(mavros_node, f"udpout:127.0.0.1:{port}", "/v1/mavros").start()
         ros_link = MavrosLink(node, "/v1/mavros", DEFAULT_HOME, 1, "ardupilot")

@@ -30,6 +30,8 @@ from openconvoy.bridge.ros.ros1 import MSG_DIR, Ros1Node
 from openconvoy.core.errors import DependencyMissing, LinkError
 
 AGENT = Path(__file__).resolve().parent / "ros2_agent.py"
+FASTDDS_PROFILE = Path(__file__).resolve().parent / "fastdds_discovery.xml"
+"""Fast DDS's default participant with a longer burst of discovery announcements."""
 REPO_VENV = Path(__file__).resolve().parents[3] / ".venv-ros2"
 INSTALL_HINT = "ROS 2 needs the rclpy wheels in their own environment: run `make ros2` (docs/ros.md)"
 MAVROS_MSGS = ("State", "PositionTarget", "GlobalPositionTarget")
@@ -178,6 +180,7 @@ def ros2_env(prefix: Path | None) -> dict[str, str]:
     for var in ("PYTHONPATH", "PYTHONHOME", "_ROS_WHEELS_BOOTSTRAP_COMPLETE", "VIRTUAL_ENV"):
         env.pop(var, None)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
     env.setdefault("ROS_LOG_DIR", str(Path(tempfile.gettempdir()) / "openconvoy-ros2-log"))
     env["RCUTILS_LOGGING_USE_STDOUT"] = "0"  # stdout carries our JSON lines
     if prefix is not None:

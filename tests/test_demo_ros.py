@@ -1,7 +1,7 @@
-"""``openconvoy demo --link mavros --ros 1``: the three-vehicle demo through MAVROS stand-ins
-on a real roscore (Debian's rospy in node processes), against the MAVLink demo of the same
-scenario and seed; the deploys' ``--bag`` bags hold what their CSV logs hold, and the V2V
-bytes."""
+"""``openconvoy demo --link mavros --ros 1|2``: the three-vehicle demo through MAVROS
+stand-ins on a real roscore (Debian's rospy in node processes) and on real rclpy (Fast DDS,
+inside the demo's private network namespace), against the MAVLink demo of the same scenario
+and seed; the deploys' ``--bag`` bags hold what their CSV logs hold, and the V2V bytes."""
 
 from __future__ import annotations
 
@@ -37,13 +37,31 @@ def _demo(out: Path, *extra: str) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.e2e
-@pytest.mark.netns
-def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def mavlink_demo(tmp_path_factory: pytest.TempPathFactory) -> dict:
     reason = netns_unavailable_reason()
     assert reason is None, f"the demo needs a private network namespace: {reason}"
+    return _demo(tmp_path_factory.mktemp("mavlink"))
+
+
+@pytest.mark.e2e
+@pytest.mark.netns
+def test_mavros_ros2_demo_matches_the_mavlink_demo(tmp_path: Path, mavlink_demo: dict) -> None:
+    ros = _demo(tmp_path / "ros2", "--link", "mavros", "--ros", "2")
+    p95_ros = ros["deploy"]["p95_platooning_error_m"]
+    p95_mav = mavlink_demo["deploy"]["p95_platooning_error_m"]
+    assert abs(p95_ros - p95_mav) <= 0.10 * p95_mav, (p95_ros, p95_mav)
+    assert ros["deploy"]["collisions"] == 0 and ros["deploy"]["min_gap_m"] > 13.0
+    for vid in range(3):
+        meta = json.loads((tmp_path / "ros2" / "deploy" / f"vehicle_{vid}.json").read_text())
+        assert meta["link"] == f"mavros (ROS 2, /vehicle_{vid}/mavros)"
+
+
+@pytest.mark.e2e
+@pytest.mark.netns
+def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path, mavlink_demo: dict) -> None:
     ros = _demo(tmp_path / "ros", "--link", "mavros", "--ros", "1", "--bag")
-    mav = _demo(tmp_path / "mavlink")
+    mav = mavlink_demo
     p95_ros = ros["deploy"]["p95_platooning_error_m"]
     p95_mav = mav["deploy"]["p95_platooning_error_m"]
     assert abs(p95_ros - p95_mav) <= 0.10 * p95_mav, (p95_ros, p95_mav)

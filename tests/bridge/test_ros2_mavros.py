@@ -49,7 +49,9 @@ def test_our_mavros_msgs_have_mavros_2_type_hashes(mavros_2_hashes: dict[str, st
     assert ours == mavros_2_hashes
     assert all(h.startswith("RIHS01_") and len(h) == 7 + 64 for h in ours.values())
     # MAVROS 2's State carries mode-name constants ours lacks: the text differs, the type not.
-    assert (MAVROS_2 / "msg" / "State.msg").read_text() != (MSG_DIR / "msg" / "State.msg").read_text()
+    assert (MAVROS_2 / "msg" / "State.msg").read_text() != (
+        MSG_DIR / "msg" / "State.msg"
+    ).read_text()
 
 
 def test_qos_follows_mavros_2() -> None:
@@ -72,18 +74,27 @@ def test_link_drives_the_vehicle_over_dds(
         Ros2Node("/dds_mavros", netns_pid=netns.pid), f"udpout:127.0.0.1:{port}", "/v9/mavros"
     ).start()
     link = MavrosLink(
-        lambda: Ros2Node("/dds_link", netns_pid=netns.pid), "/v9/mavros", DEFAULT_HOME, 9, "ardupilot"
+        lambda: Ros2Node("/dds_link", netns_pid=netns.pid),
+        "/v9/mavros",
+        DEFAULT_HOME,
+        9,
+        "ardupilot",
     )
     spy = Ros2Node("/dds_spy", netns_pid=netns.pid)
     heard: list[dict] = []
     try:
-        spy.subscribe("/v9/mavros/setpoint_raw/global", "mavros_msgs/GlobalPositionTarget", heard.append)
+        spy.subscribe(
+            "/v9/mavros/setpoint_raw/global", "mavros_msgs/GlobalPositionTarget", heard.append
+        )
         link.connect(20.0)
         (state_pub,) = spy.publishers("/v9/mavros/state")
         assert state_pub["node"] == "/dds_mavros"
         assert state_pub["type"] == "mavros_msgs/msg/State"
         assert state_pub["type_hash"] == mavros_2_hashes["mavros_msgs/msg/State"]
-        assert (state_pub["reliability"], state_pub["durability"]) == ("RELIABLE", "TRANSIENT_LOCAL")
+        assert (state_pub["reliability"], state_pub["durability"]) == (
+            "RELIABLE",
+            "TRANSIENT_LOCAL",
+        )
         (fix_pub,) = spy.publishers("/v9/mavros/global_position/global")
         assert fix_pub["reliability"] == "BEST_EFFORT"
         link.prepare_and_arm(20.0)

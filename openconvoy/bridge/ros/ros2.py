@@ -33,7 +33,9 @@ AGENT = Path(__file__).resolve().parent / "ros2_agent.py"
 FASTDDS_PROFILE = Path(__file__).resolve().parent / "fastdds_discovery.xml"
 """Fast DDS's default participant with a longer burst of discovery announcements."""
 REPO_VENV = Path(__file__).resolve().parents[3] / ".venv-ros2"
-INSTALL_HINT = "ROS 2 needs the rclpy wheels in their own environment: run `make ros2` (docs/ros.md)"
+INSTALL_HINT = (
+    "ROS 2 needs the rclpy wheels in their own environment: run `make ros2` (docs/ros.md)"
+)
 MAVROS_MSGS = ("State", "PositionTarget", "GlobalPositionTarget")
 MAVROS_SRVS = ("SetMode", "CommandBool")
 NETNS_ENV = "OPENCONVOY_ROS2_NETNS"

@@ -93,7 +93,12 @@ class Agent:
         import rclpy
         from rclpy.callback_groups import ReentrantCallbackGroup
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+        from rclpy.qos import (
+            DurabilityPolicy,
+            QoSProfile,
+            ReliabilityPolicy,
+            qos_profile_sensor_data,
+        )
 
         rclpy.init(args=[])
         ns, _, name = node_name.rpartition("/")
@@ -213,9 +218,7 @@ class Agent:
                 return response  # no answer: the default response (e.g. success false)
             return from_dict(srv.Response, resp)
 
-        self.keep.append(
-            self.node.create_service(srv, service, handler, callback_group=self.group)
-        )
+        self.keep.append(self.node.create_service(srv, service, handler, callback_group=self.group))
 
 
 def main():

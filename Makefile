@@ -44,6 +44,10 @@ ROS2_PIP := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-std-msgs==5.3.6 \
 	ros-jazzy-rosidl-core-generators==0.2.0 ros-jazzy-ament-package==0.16.4 catkin_pkg==1.1.1
 
 $(ROS2_STAMP):
+	@command -v cmake >/dev/null && command -v g++ >/dev/null || { \
+		echo "installing cmake and g++ from Debian (to build mavros_msgs for ROS 2)"; \
+		$(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+		$(SUDO) apt-get install -y -q cmake g++; }
 	test -x $(ROS2_VENV)/bin/python || python3.11 -m venv $(ROS2_VENV)
 	$(ROS2_VENV)/bin/python -m pip install -q $(ROS2_PIP)
 	touch $(ROS2_STAMP)

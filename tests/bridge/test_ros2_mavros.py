@@ -87,6 +87,9 @@ def test_link_drives_the_vehicle_over_dds(
             "/v9/mavros/setpoint_raw/global", "mavros_msgs/GlobalPositionTarget", heard.append
         )
         link.connect(20.0)
+        # The spy discovers the stand-in on its own (DDS discovery is per participant).
+        assert wait_for(lambda: len(spy.publishers("/v9/mavros/state")) == 1, 10.0)
+        assert wait_for(lambda: len(spy.publishers("/v9/mavros/global_position/global")) == 1, 10.0)
         (state_pub,) = spy.publishers("/v9/mavros/state")
         assert state_pub["node"] == "/dds_mavros"
         assert state_pub["type"] == "mavros_msgs/msg/State"

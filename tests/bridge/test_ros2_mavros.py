@@ -123,3 +123,40 @@ def test_link_drives_the_vehicle_over_dds(
         standin.stop()
         standin.node.close()
         vehicle.stop()
+
+
+def test_px4_over_dds(netns: LoopbackNetns) -> None:
+    """PX4 behind MAVROS 2: told by its boot mode (AUTO.LOITER), OFFBOARD and armed after a
+    setpoint stream (``setpoint_raw/local``), drives at the commanded heading."""
+    port = free_port()
+    vehicle = SimVehicle(
+        f"udpin:127.0.0.1:{port}", SimVehicleConfig(autopilot="px4", ready_after_s=0.0)
+    ).start()
+    standin = MavrosStandIn(
+        Ros2Node("/px4_mavros", netns_pid=netns.pid), f"udpout:127.0.0.1:{port}", "/p4/mavros"
+    ).start()
+    link = MavrosLink(
+        lambda: Ros2Node("/px4_link", netns_pid=netns.pid), "/p4/mavros", DEFAULT_HOME, 4
+    )
+    try:
+        link.connect(20.0)
+        assert link.autopilot == "px4"
+        link.prepare_and_arm(20.0)
+        heading = math.radians(30.0)
+        seen = []
+
+        def moving() -> bool:
+            tel = link.poll()
+            link.send_setpoint(1.5, heading)
+            if tel is not None:
+                seen.append(tel)
+            return tel is not None and tel.mode == "OFFBOARD" and tel.state.speed > 0.8
+
+        assert wait_for(moving, 15.0)
+        assert wait_for(lambda: moving() and abs(seen[-1].state.heading - heading) < 0.2, 10.0)
+        assert seen[-1].armed
+    finally:
+        link.close()
+        standin.stop()
+        standin.node.close()
+        vehicle.stop()

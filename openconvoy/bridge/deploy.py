@@ -174,14 +174,23 @@ def _make_link(
 ) -> Any:
     """The autopilot link (not yet connected); telemetry at the control rate within
     10..50 Hz unless ``telemetry_hz`` says otherwise. ``--link mavros``: through MAVROS
-    (``bridge.ros.mavros_link``), its ROS 1 node named after the vehicle."""
+    (``bridge.ros.mavros_link``), its ROS 1 or ROS 2 node named after the vehicle."""
     if a.link == "mavros":
-        from openconvoy.bridge.ros.mavros_link import MavrosLink
-        from openconvoy.bridge.ros.ros1 import Ros1Node
+        from openconvoy.bridge.ros.mavros_link import MavrosLink, RosNode
 
         name = f"/openconvoy_vehicle_{a.vehicle_id}"
+
+        def node() -> RosNode:
+            if a.ros == 2:
+                from openconvoy.bridge.ros.ros2 import Ros2Node
+
+                return Ros2Node(name)
+            from openconvoy.bridge.ros.ros1 import Ros1Node
+
+            return Ros1Node(name)
+
         return MavrosLink(
-            lambda: Ros1Node(name),
+            node,
             a.mavros_ns,
             origin,
             a.vehicle_id,

@@ -1,7 +1,8 @@
 """The ``VehicleLink`` contract: what the runner relies on, held for every link — the
 MAVLink one against a simulated vehicle (real MAVLink bytes over localhost UDP), the ideal
 one, and the MAVROS one over ROS 1 (a real roscore, Debian's rospy in node processes, the
-MAVROS stand-in forwarding to the simulated vehicle over real MAVLink)."""
+MAVROS stand-in forwarding to the simulated vehicle over real MAVLink) and over ROS 2 (real
+rclpy and Fast DDS in node processes inside a private network namespace)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
+from openconvoy.bridge.ros.ros2 import LoopbackNetns, Ros2Node
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.testing import free_port, wait_for
 
@@ -47,7 +49,13 @@ def roscore() -> Iterator[Roscore]:
         yield core
 
 
-@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1"])
+@pytest.fixture(scope="module")
+def ros2_netns() -> Iterator[LoopbackNetns]:
+    with LoopbackNetns() as ns:
+        yield ns
+
+
+@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1", "mavros-ros2"])
 def link(request) -> Iterator[VehicleLink]:
     if request.param == "ideal":
         yield IdealLink(time.monotonic, time.time, DEFAULT_HOME, vehicle_id=1, x=3.0, y=-4.0)
@@ -57,14 +65,25 @@ def link(request) -> Iterator[VehicleLink]:
         f"udpin:127.0.0.1:{port}",
         SimVehicleConfig(ready_after_s=0.0, start_x_m=3.0, start_y_m=-4.0),
     ).start()
-    if request.param == "mavros-ros1":
-        core = request.getfixturevalue("roscore")
-        standin = MavrosStandIn(
-            Ros1Node("/contract_mavros", core.uri), f"udpout:127.0.0.1:{port}", "/v1/mavros"
-        ).start()
-        ros_link = MavrosLink(
-            lambda: Ros1Node("/contract_link", core.uri), "/v1/mavros", DEFAULT_HOME, 1, "ardupilot"
-        )
+    if request.param.startswith("mavros-"):
+        if request.param == "mavros-ros1":
+            core = request.getfixturevalue("roscore")
+            mavros_node = Ros1Node("/contract_mavros", core.uri)
+
+            def node() -> Ros1Node:
+                return Ros1Node("/contract_link", core.uri)
+        else:
+            pid = request.getfixturevalue("ros2_netns").pid
+            mavros_node = Ros2Node("/contract_mavros", netns_pid=pid)
+            # The link's first node is started here, as a vehicle's ROS 2 process is before
+            # it connects (rclpy's start-up in a busy CI is seconds); reconnect starts anew.
+            started = [Ros2Node("/contract_link", netns_pid=pid)]
+
+            def node() -> Ros1Node:
+                return started.pop() if started else Ros2Node("/contract_link", netns_pid=pid)
+
+        standin = MavrosStandIn(mavros_node, f"udpout:127.0.0.1:{port}", "/v1/mavros").start()
+        ros_link = MavrosLink(node, "/v1/mavros", DEFAULT_HOME, 1, "ardupilot")
         try:
             yield ros_link
         finally:

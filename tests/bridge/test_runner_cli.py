@@ -91,7 +91,7 @@ def test_leader_follows_the_convoy_scenario_or_a_track(convoy_file):
         (["--vehicle-id", "1", "--passive"], "passive"),
         (["--vehicle-id", "1", "--policy", "nonsense"], "unknown policy"),
         (["--vehicle-id", "1", "--bag"], "--bag records beside the log: give --log DIR"),
-        (["--vehicle-id", "1", "--link", "mavros", "--ros", "2"], "argument --ros"),
+        (["--vehicle-id", "1", "--link", "mavros", "--ros", "3"], "argument --ros"),
         (["--vehicle-id", "1", "--link", "ros"], "argument --link"),
     ],
 )

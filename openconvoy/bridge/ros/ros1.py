@@ -91,6 +91,8 @@ class Ros1Node:
     Raises ``LinkError`` when the node does not come up within ``timeout_s``.
     """
 
+    ROS = "ROS 1"
+
     def __init__(
         self,
         name: str,
@@ -98,19 +100,15 @@ class Ros1Node:
         timeout_s: float = 30.0,
         msg_dir: Path = MSG_DIR,
     ) -> None:
-        why = None if Path(system_python()).exists() else ros1_available()
-        if why:
-            raise DependencyMissing(why)
-        gen = _gen_dir(msg_dir)
-        gen.parent.mkdir(parents=True, exist_ok=True)
+        argv, env = self._agent(name, master_uri, msg_dir)
         self._proc = subprocess.Popen(
-            [system_python(), str(AGENT), name.lstrip("/"), str(msg_dir), str(gen)],
+            argv,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
             bufsize=1,
-            env=ros_env(master_uri),
+            env=env,
         )
         self._lock = threading.Lock()
         self._subs: dict[str, list[Handler]] = {}
@@ -131,7 +129,19 @@ class Ros1Node:
             time.sleep(0.2)  # the last stderr lines
             tail = "; ".join(self.errors[-3:])
             self.close()
-            raise LinkError(f"ROS 1 node {name} did not start within {timeout_s:g} s {tail}")
+            raise LinkError(f"{self.ROS} node {name} did not start within {timeout_s:g} s {tail}")
+
+    def _agent(
+        self, name: str, master_uri: str | None, msg_dir: Path
+    ) -> tuple[list[str], dict[str, str]]:
+        """The agent's command line and environment (``Ros2Node`` has its own)."""
+        why = None if Path(system_python()).exists() else ros1_available()
+        if why:
+            raise DependencyMissing(why)
+        gen = _gen_dir(msg_dir)
+        gen.parent.mkdir(parents=True, exist_ok=True)
+        argv = [system_python(), str(AGENT), name.lstrip("/"), str(msg_dir), str(gen)]
+        return argv, ros_env(master_uri)
 
     @property
     def alive(self) -> bool:

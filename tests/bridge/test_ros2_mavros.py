@@ -16,7 +16,7 @@ from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 from openconvoy.bridge.ros.ros1 import MSG_DIR
 from openconvoy.bridge.ros.ros2 import LoopbackNetns, Ros2Node, qos_for, type_hashes
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
-from tests.bridge.conftest import free_port, wait_for
+from openconvoy.testing import free_port, wait_for
 
 MAVROS_2 = Path(__file__).resolve().parents[1] / "data" / "ros" / "mavros-2.12.0"
 

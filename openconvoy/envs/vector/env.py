@@ -56,6 +56,8 @@ from openconvoy.envs.vector.member import (
     COOP,
     FAILSAFE,
     STOP,
+    Commands,
+    Member,
     decide,
     lead_guard,
     pack_ladder,
@@ -296,6 +298,17 @@ class VectorConvoyEnv:
         self.max_heading_change = MAX_HEADING_CHANGE_RAD
         self.gap = np.zeros((B, N - 1))
         self.collided = np.zeros((B, N - 1), dtype=bool)
+        lk, rx = self.links, self.rx
+        self._member = Member(
+            self.action_low, self.action_high, rx.hist, rx.hist_n, rx.newest, lk.needed,
+            lk.pred_link, lk.lead_link, self._link_decel, self._decel, self.lengths,
+            self._spacing, self._ladder, float(self._rule_fresh_s), MAX_HEADING_CHANGE_RAD,
+            self._rule, self._lead_rule, self.emergency_stop,
+        )  # fmt: skip
+        self._commands = Commands(
+            self.policy_errors, self.policy_failed, self.estopped, self.cmd_v, self.cmd_dh,
+            self.modes, self.events.record, self.events.count,
+        )  # fmt: skip
 
     # --- API ------------------------------------------------------------------------
 
@@ -456,22 +469,13 @@ class VectorConvoyEnv:
     def _command(self, a: np.ndarray) -> np.ndarray:
         """The members decide, the leaders drive, faults act, the plant moves ``dt``;
         returns the accelerations before the move (B, N)."""
-        t, own, lk, rx = self.t, self.own, self.links, self.rx
+        t, own = self.t, self.own
         self.ranging.read(own, self.step_count)  # the true state, before the plant moves
-        decide(  # on what the members measured of themselves at the last tick
-            a, self.action_low, self.action_high, t, self._sensed, rx.hist, rx.hist_n,
-            rx.newest, lk.needed, lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
-            self._rule_fresh_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
-            self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
-            self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
-            self.events.record, self.events.count, self._decel,
-        )  # fmt: skip
+        # on what the members measured of themselves at the last tick
+        sensed, reading = self._sensed, self.ranging.reading
+        decide(a, t, sensed, reading, self.pred_est, self._member, self._commands)
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
-        lead_guard(
-            t, self._sensed, rx.hist, rx.hist_n, lk.lead_link, self._link_decel, self._decel,
-            self.lengths, self._rule_fresh_s, self._lead_rule, self.estopped, self.emergency_stop,
-            self.cmd_v, self.cmd_dh, self.modes, self.events.record, self.events.count,
-        )  # fmt: skip
+        lead_guard(t, sensed, self._member, self._commands)
         for vehicle, t_from in self._brakes:
             on = t >= t_from
             self.cmd_v[on, vehicle] = 0.0

@@ -9,17 +9,12 @@ import math
 import numpy as np
 
 from openconvoy.core.errors import ConfigError
-from openconvoy.envs.scenarios import (
-    EMERGENCY_BRAKE_AT_S,
-    EMERGENCY_DECEL_MPS2,
-    EMERGENCY_SPEED_MPS,
-    PathScenario,
-    SpeedProfile,
-    emergency_speed,
-    paper_speed,
-)
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs import scenarios
+from openconvoy.envs.scenarios import PathScenario, SpeedProfile, emergency_speed, paper_speed
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
 from openconvoy.envs.vector.math import wrap
+
+rules(scenarios, "paper_speed", "emergency_speed")
 
 WINDOW_M = 20.0
 """``Path.project``'s search window around the last arc length (m)."""
@@ -109,13 +104,12 @@ def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - comp
 
 @bare_inline
 def _profile(kind, t, s, target):  # pragma: no cover - compiled
-    """The built-in speed profiles (``scenarios.paper_speed``, ``emergency_speed``)."""
+    """The built-in speed profiles, compiled (``scenarios.paper_speed``,
+    ``emergency_speed``); ``target`` for the others."""
     if kind == 1:
-        return 2.0 if 20.0 <= t < 40.0 else 1.0
+        return scenarios.paper_speed(t, s)
     if kind == 2:
-        if t < EMERGENCY_BRAKE_AT_S:
-            return EMERGENCY_SPEED_MPS
-        return max(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
+        return scenarios.emergency_speed(t, s)
     return target
 
 

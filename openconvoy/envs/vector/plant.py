@@ -16,14 +16,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from openconvoy.envs import plant
 from openconvoy.envs.plant import BicyclePlant
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
 from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vehicles import VehiclePreset
 
 X, Y, SPEED, HEADING, ACCEL, YAW_RATE, COS_H, SIN_H = range(8)
 ROWS = 8
 """Rows of ``VectorPlant.state``."""
+rules(plant, "lag_speed_change", "pi_speed_loop", "slewed_yaw_rate")
 _PARAMS = (
     "_tau_v", "_tau_h", "_acc", "_dec", "_rate", "_vmax", "_kappa", "_kp", "_ki", "_ff",
     "_tau_d", "_drag", "_stop", "_brk", "_yaw_acc", "_alat",
@@ -98,32 +100,15 @@ def _trig_rows(st, rows):  # pragma: no cover - compiled
 
 @bare_inline
 def _pi_dv(p, i, inner, v_now, v_before, sub_n, sub_h, v0):  # pragma: no cover - compiled
-    """``BicyclePlant._pi_dv`` for vehicle ``i``: the speed change; updates its state
+    """``envs.plant.pi_speed_loop`` for vehicle ``i``: the speed change; updates its state
     (``v_before`` acts for ``sub_n[0, i]`` substeps of ``sub_h[0, i]`` s, then ``v_now``
     for ``sub_n[1, i]`` of ``sub_h[1, i]``: ``plant.pi_delay_split``)."""
-    r, integ, v = inner[0, i], inner[1, i], v0
-    n1 = sub_n[0, i]
-    for j in range(n1 + sub_n[1, i]):
-        if j < n1:
-            v_cmd, h = v_before, sub_h[0, i]
-        else:
-            v_cmd, h = v_now, sub_h[1, i]
-        lim = (p[ACC, i] if abs(v_cmd) > abs(r) else p[DEC, i]) * h
-        r = r + min(max(v_cmd - r, -lim), lim)
-        err = r - v
-        stopped = r == 0.0 and abs(v) <= p[STOP, i]
-        if stopped:
-            integ = 0.0
-            drive = 0.0
-        else:
-            integ = integ + p[KI, i] * err * h
-            drive = p[FF, i] * r + p[KP, i] * err + integ
-        dv = (drive - v - p[DRAG, i] * v * abs(v)) / p[TAU_D, i] * h
-        if abs(drive) < p[BRK, i] and (v == 0.0 or (v + dv) * v < 0.0 or stopped):
-            v = 0.0
-        else:
-            v = v + dv
-    inner[0, i], inner[1, i] = r, integ
+    gains = (p[KP, i], p[KI, i], p[FF, i], p[TAU_D, i], p[STOP, i], p[DRAG, i])
+    substeps = (sub_n[0, i], sub_h[0, i], sub_n[1, i], sub_h[1, i])
+    v, inner[0, i], inner[1, i] = plant.pi_speed_loop(
+        v_now, v0, inner[0, i], inner[1, i], gains, p[ACC, i], p[DEC, i], p[BRK, i], v_before,
+        substeps,
+    )  # fmt: skip
     return v - v0
 
 
@@ -144,24 +129,15 @@ def _plant_step(
             v_before = min(max(queue[0, (head - delay[i] - 1) % depth, i], -vmax), vmax)
             dv = _pi_dv(p, i, inner, v_cmd, v_before, sub_n, sub_h, v)
         else:
-            dv = min(max((v_cmd - v) / p[TAU_V, i], -p[DEC, i]), p[ACC, i]) * dt
-            if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
-                dv = v_cmd - v
-            if v == 0.0 and abs(v_cmd) < p[BRK, i]:  # static friction holds it at rest
-                dv = 0.0
+            dv = plant.lag_speed_change(v_cmd, v, p[TAU_V, i], p[ACC, i], p[DEC, i], p[BRK, i], dt)
         v_new = v + dv
         hd = st[HEADING, i]
         err = wrap(h_cmd - hd)
         v_mid = 0.5 * (v + v_new)
-        rmax = p[RATE, i]
-        wanted = min(max(err / max(p[TAU_H, i], dt), -rmax), rmax)
-        slew = p[YAW_ACC, i] * dt
-        rd = inner[2, i]
-        rd = min(max(wanted, rd - slew), rd + slew)
-        inner[2, i] = rd
-        speed_mid = abs(v_mid)
-        cap = min(speed_mid * p[KAPPA, i], p[ALAT, i] / max(speed_mid, 1e-9))
-        rate = min(max(rd, -cap), cap)
+        rate, inner[2, i] = plant.slewed_yaw_rate(
+            err, v_mid, inner[2, i], p[TAU_H, i], p[RATE, i], p[KAPPA, i], p[YAW_ACC, i],
+            p[ALAT, i], dt,
+        )  # fmt: skip
         h_mid = hd + 0.5 * rate * dt
         st[X, i] = st[X, i] + v_mid * math.cos(h_mid) * dt
         st[Y, i] = st[Y, i] + v_mid * math.sin(h_mid) * dt

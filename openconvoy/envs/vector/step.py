@@ -38,17 +38,11 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     )
     c, mc = ch.trigger, env.member_config
     return (
-        (env.action_low, env.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
-         lk.pred_link, env._link_decel, env.lengths, env._spacing, env._ladder, env._rule_fresh_s,
-         env.max_heading_change, env.pred_est, env.policy_errors, env.policy_failed,
-         env.estopped, env.emergency_stop, env._rule, env.cmd_v, env.cmd_dh, env.modes,
-         env.ranging.reading, env.events.record, env.events.count, env._decel),
+        (t, own, env.ranging.reading, env.pred_est, env._member, env._commands),
         (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
         (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
          ld.closed, ld.length, env.cmd_v, env.cmd_dh),
-        (t, own, rx.hist, rx.hist_n, lk.lead_link, env._link_decel, env._decel, env.lengths,
-         env._rule_fresh_s, env._lead_rule, env.estopped, env.emergency_stop, env.cmd_v,
-         env.cmd_dh, env.modes, env.events.record, env.events.count),
+        (t, own, env._member, env._commands),
         (pl.state, pl.inner, pl.queue, pl.head, pl.params, pl.pi, pl.pi_sub, pl.delay, pl.sub_n, pl.sub_h,
          pl.hdelay, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
         (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),

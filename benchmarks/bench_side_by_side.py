@@ -5,7 +5,7 @@ Cases: ``bench_vector_env``'s paper scenario at B = 1,024 with fixed actions and
 paper policy acting batched, and ``bench_env``'s ``ConvoyEnv`` (2 followers) with fixed
 actions and closed loop. Each round runs every case once per tree, each in a fresh process
 (``PYTHONPATH`` the tree; pinned to one core with ``--cpu``), after one untimed run per
-tree that compiles or loads its kernels; the table gives per case the
+case and tree that compiles or loads its kernels; the table gives per case the
 median over rounds of each tree's rate per CPU-second of the process and the ratio
 new / base. Prints the load average at start and end.
 
@@ -62,7 +62,8 @@ def main() -> None:
     ap.add_argument("--cpu", type=int, default=None, help="pin every run to this core")
     args = ap.parse_args()
     for tree in (args.base.resolve(), HERE):  # compile (or load) each tree's kernels first
-        _rate(tree, "vector-fixed", 0.2, args.cpu)
+        for case in CASES:
+            _rate(tree, case, 0.2, args.cpu)
     print(f"load average at start: {os.getloadavg()}")
     rates: dict[tuple[str, str], list[float]] = {}
     for r in range(args.rounds):

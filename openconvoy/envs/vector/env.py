@@ -64,7 +64,7 @@ from openconvoy.envs.vector.member import (
     pack_spacing,
 )
 from openconvoy.envs.vector.observation import observe, pack_layout
-from openconvoy.envs.vector.plant import VectorPlant
+from openconvoy.envs.vector.plant import ACCEL, VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
 from openconvoy.envs.vector.step import FusedCall, pack
@@ -300,15 +300,35 @@ class VectorConvoyEnv:
         self.collided = np.zeros((B, N - 1), dtype=bool)
         lk, rx = self.links, self.rx
         self._member = Member(
-            self.action_low, self.action_high, rx.hist, rx.hist_n, rx.newest, lk.needed,
-            lk.pred_link, lk.lead_link, self._link_decel, self._decel, self.lengths,
-            self._spacing, self._ladder, float(self._rule_fresh_s), MAX_HEADING_CHANGE_RAD,
-            self._rule, self._lead_rule, self.emergency_stop,
-        )  # fmt: skip
+            low=self.action_low,
+            high=self.action_high,
+            hist=rx.hist,
+            hist_n=rx.hist_n,
+            newest=rx.newest,
+            needed=lk.needed,
+            pred_link=lk.pred_link,
+            lead_link=lk.lead_link,
+            link_decel=self._link_decel,
+            decel=self._decel,
+            lengths=self.lengths,
+            spacing=self._spacing,
+            ladder=self._ladder,
+            fresh_age=float(self._rule_fresh_s),
+            max_dh=MAX_HEADING_CHANGE_RAD,
+            rule=self._rule,
+            lead_rule=self._lead_rule,
+            emergency=self.emergency_stop,
+        )
         self._commands = Commands(
-            self.policy_errors, self.policy_failed, self.estopped, self.cmd_v, self.cmd_dh,
-            self.modes, self.events.record, self.events.count,
-        )  # fmt: skip
+            errors=self.policy_errors,
+            failed=self.policy_failed,
+            estopped=self.estopped,
+            cmd_v=self.cmd_v,
+            cmd_dh=self.cmd_dh,
+            modes=self.modes,
+            events=self.events.record,
+            n_events=self.events.count,
+        )
 
     # --- API ------------------------------------------------------------------------
 
@@ -483,7 +503,7 @@ class VectorConvoyEnv:
             self.modes[on, vehicle] = STOP
         self._has_cmd[:] = True
         accel_old = self._accel_old
-        accel_old[:] = own[4]
+        accel_old[:] = own[ACCEL]
         self.plant.step(self._cmd_v_flat, self._cmd_dh_flat)
         return accel_old
 

@@ -55,6 +55,7 @@ RULE_MODULES = (
     "openconvoy.core.safety",
     "openconvoy.envs.gps",
     "openconvoy.envs.plant",
+    "openconvoy.envs.reward",
     "openconvoy.envs.scenarios",
 )
 """The modules whose plain rule functions the kernels call compiled (``rules``): their

@@ -24,8 +24,7 @@ from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.member import PATH_CONE
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
-from openconvoy.envs.vector.math import cos_sin
-from openconvoy.envs.vector.plant import ACCEL, SPEED, X, Y
+from openconvoy.envs.vector.plant import ACCEL, SPEED, X, Y, cos_sin
 from openconvoy.envs.vector.rx import HC, HH, HS, HV, HX, HY, T
 
 rules(spacing, "time_headway_gap_m", "speed_gap_m", "pair_gap_m")

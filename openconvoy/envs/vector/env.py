@@ -66,6 +66,7 @@ from openconvoy.envs.vector.plant import VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
 from openconvoy.envs.vector.step import FusedCall, pack
+from openconvoy.envs.vector.threads import make_slabs, thread_count
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 MODES = ("coop", "degraded", "stop", "failsafe")
@@ -160,6 +161,9 @@ class VectorConvoyEnv:
     ``ConvoyEnv``, so the message counters match it; ``"kept"`` only on the links the
     topology keeps (the same deliveries into R^i, hence the same run; counters then
     count those links): O(N·K) per step for ``lookahead:K``.
+    ``threads``: how many threads a step may use (default: the cores this process may
+    run on, capped by ``NUMBA_NUM_THREADS``); the batch is cut into slabs of at least
+    ``vector.threads.MIN_SLAB`` convoys, with the same results whatever the count.
     """
 
     def __init__(
@@ -182,6 +186,7 @@ class VectorConvoyEnv:
         autoreset: bool = True,
         link_counters: str = "all",
         per: float | Sequence[float] | None = None,
+        threads: int | None = None,
     ) -> None:
         _check_args(num_envs, control_rate_hz, gps_noise_m, render_mode)
         check_episode_args(n_followers, max_time_s)
@@ -228,6 +233,12 @@ class VectorConvoyEnv:
         self.step_count = np.zeros(B, dtype=np.int64)
         self._alloc()
         self._fused = pack(self) if self._fusable() else None
+        self.threads = thread_count(threads)
+        self._slabs = (
+            make_slabs(self, self._fused, self.threads, FusedCall)
+            if self._fused is not None
+            else None
+        )
 
     def _fusable(self) -> bool:
         """Every stage has a kernel: one compiled call per tick (``vector.step``)."""
@@ -358,7 +369,9 @@ class VectorConvoyEnv:
         return self.events.of(int(b), int(self.step_count[b]))
 
     def close(self) -> None:
-        """Nothing to release (the Gymnasium vector API's ``close``)."""
+        """Stop the step's threads, if any (the Gymnasium vector API's ``close``)."""
+        if self._slabs is not None:
+            self._slabs.close()
 
     def reset(self, seed: int | Sequence[int] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every convoy: convoy ``b`` gets ``seed + b`` (or ``seed[b]``)."""
@@ -424,7 +437,10 @@ class VectorConvoyEnv:
         if self._fused is not None:
             terminated, truncated = np.empty(B, dtype=bool), np.empty(B, dtype=bool)
             filled = info_arrays(B, N - 1)
-            self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
+            if self._slabs is not None:
+                self._slabs.step(a, obs, rewards, terminated, truncated, filled)
+            else:
+                self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
             info = infos(self, filled)
         else:
             terminated, truncated, info = self._staged_step(a, obs, rewards)

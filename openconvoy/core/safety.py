@@ -55,8 +55,8 @@ def gap_reduction_m(
     The ego's stopping distance is ``v·t_r + v²/(2a) + a·τ²/2`` while the lag saturates
     at the limit (``v > a·τ``), else ``v·t_r + v·τ``; the predecessor's ``v_p²/(2a_p)``.
     When the ego brakes harder the two speeds may meet while both still move: there the
-    gap is smallest, taken with the lag as a further delay (conservative). Written op for
-    op as the batched twin (``envs.vector.member._reduction``): the two agree to the bit.
+    gap is smallest, taken with the lag as a further delay (conservative). The batched
+    kernels call this very function, compiled (``envs.vector.jit.rules``).
     """
     v0 = ego_mps if ego_mps > 0.0 else 0.0
     vp = pred_mps if pred_mps > 0.0 else 0.0

@@ -25,6 +25,48 @@ from openconvoy.core.config import Range
 from openconvoy.core.errors import ConfigError
 
 SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
+CONSTANT_DISTANCE, CONSTANT_TIME_HEADWAY, QUADRATIC = range(3)
+"""The built-in kinds as codes (their index in ``SPACING_KINDS``): what the rule
+functions below take, so the batched kernels can call them compiled."""
+_CODES = {kind: code for code, kind in enumerate(SPACING_KINDS)}
+
+
+def time_headway_gap_m(speed_mps: float, standstill_m: float, headway_s: float) -> float:
+    """Constant-time-headway bumper gap (m): ``standstill_m`` plus ``headway_s`` (s) of
+    the speed (m/s; reversing counts as 0)."""
+    return standstill_m + headway_s * max(speed_mps, 0.0)
+
+
+def speed_gap_m(
+    kind: int, speed_mps: float, standstill_m: float, headway_s: float, quadratic_s2_per_m: float
+) -> float:
+    """Bumper gap (m) of a speed-dependent policy (``kind`` ``CONSTANT_TIME_HEADWAY`` or
+    ``QUADRATIC``) at ``speed_mps``: the time-headway gap, plus ``quadratic_s2_per_m``
+    (s²/m) times the speed squared for ``QUADRATIC``."""
+    gap = time_headway_gap_m(speed_mps, standstill_m, headway_s)
+    if kind == QUADRATIC:
+        v = max(speed_mps, 0.0)
+        gap = gap + quadratic_s2_per_m * v * v
+    return gap
+
+
+def pair_gap_m(
+    kind: int,
+    speed_mps: float,
+    distance_m: float,
+    standstill_m: float,
+    headway_s: float,
+    quadratic_s2_per_m: float,
+    half_lengths_m: float,
+) -> float:
+    """Desired centre-to-centre gap (m) to the immediate predecessor: ``distance_m`` for
+    ``CONSTANT_DISTANCE``, else ``speed_gap_m`` plus ``half_lengths_m`` (half the sum of
+    the two vehicles' lengths, m)."""
+    if kind == CONSTANT_DISTANCE:
+        return distance_m
+    return (
+        speed_gap_m(kind, speed_mps, standstill_m, headway_s, quadratic_s2_per_m) + half_lengths_m
+    )
 
 
 @dataclass(frozen=True)
@@ -48,6 +90,11 @@ class SpacingConfig:
     def is_plugin(self) -> bool:
         return self.kind not in SPACING_KINDS
 
+    @property
+    def code(self) -> int:
+        """The built-in kind's code (``CONSTANT_DISTANCE`` ...; -1 for a plug-in)."""
+        return _CODES.get(self.kind, -1)
+
     def plugin(self) -> Any:
         """A new instance of the plug-in ``kind`` names (``core.plugins.component``)."""
         where = f"spacing {self.kind!r} (built-in: {', '.join(SPACING_KINDS)})"
@@ -69,19 +116,22 @@ class SpacingPolicy:
     def __init__(self, config: SpacingConfig) -> None:
         self.config = config
         self._plugin = config.plugin() if config.is_plugin else None
+        self._code = config.code
 
     def pair_gap(self, speed: float, ego_length: float, pred_length: float) -> float:
         """Desired centre-to-centre gap (m) to the immediate predecessor at ``speed`` (m/s)."""
         if self._plugin is not None:
             return float(self._plugin.pair_gap(speed, ego_length, pred_length))
         c = self.config
-        if c.kind == "constant-distance":
-            return c.distance_m
-        v = max(speed, 0.0)
-        gap = c.standstill_m + c.headway_s * v
-        if c.kind == "quadratic":
-            gap += c.quadratic_s2_per_m * v * v
-        return gap + 0.5 * (ego_length + pred_length)
+        return pair_gap_m(
+            self._code,
+            speed,
+            c.distance_m,
+            c.standstill_m,
+            c.headway_s,
+            c.quadratic_s2_per_m,
+            0.5 * (ego_length + pred_length),
+        )
 
     def gap_to(self, ego: int, target: int, speed: float, lengths: Sequence[float]) -> float:
         """Desired arc-length gap (m) from vehicle ``ego`` to vehicle ``target`` ahead of it
@@ -101,6 +151,7 @@ class GapChain:
             0.5 * (self.lengths[j + 1] + self.lengths[j]) for j in range(len(lengths) - 1)
         ]
         self._constant: dict[tuple[int, int], float] = {}
+        self._code = policy.config.code
 
     def gap_to(self, ego: int, target: int, speed: float) -> float:
         """Desired arc-length gap (m) from ``ego`` to ``target`` ahead of it at ``speed`` (m/s)."""
@@ -113,8 +164,5 @@ class GapChain:
                 d = c.distance_m
                 gap = self._constant[(ego, target)] = sum(d for _ in range(target, ego))
             return gap
-        v = max(speed, 0.0)
-        base = c.standstill_m + c.headway_s * v
-        if c.kind == "quadratic":
-            base += c.quadratic_s2_per_m * v * v
+        base = speed_gap_m(self._code, speed, c.standstill_m, c.headway_s, c.quadratic_s2_per_m)
         return sum(base + h for h in self._halves[target:ego])

@@ -25,6 +25,7 @@ from openconvoy.core.mpc import MPCConfig, PlantModel, Prediction, Target, build
 from openconvoy.core.observation import DERIVED_FEATURES, STATE_FEATURES
 from openconvoy.core.plans import Plan
 from openconvoy.core.policy import make_action
+from openconvoy.core.spacing import speed_gap_m
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
 
 _NF, _ND = len(STATE_FEATURES), len(DERIVED_FEATURES)
@@ -271,10 +272,7 @@ class MPCPolicy:
         s = self.config.member.spacing
         if s.kind == "constant-distance" or first["m"] != 1.0:
             return self.model.length_m
-        v = max(v_now, 0.0)
-        base = s.standstill_m + s.headway_s * v
-        if s.kind == "quadratic":
-            base += s.quadratic_s2_per_m * v * v
+        base = speed_gap_m(s.code, v_now, s.standstill_m, s.headway_s, s.quadratic_s2_per_m)
         halves = first["desired"] - base
         return max(2.0 * halves - self.model.length_m, 0.0)
 

@@ -6,9 +6,16 @@ instead of ~1,000 numpy calls. The compiled code is cached, so only the first pr
 after an install or a change pays the compile. No ``fastmath``: the kernels keep IEEE
 arithmetic, so they agree with ``ConvoyEnv``.
 
+The kernels call the rules of ``core`` (and the plant, loss draws, traffic model) as
+those modules write them: ``rules`` registers a module's plain functions on floats with
+numba (``register_jitable``) when the batched package is imported, so the vehicle
+runtime, which imports ``core`` alone, never needs numba, and a rule changed in its home
+module changes every world.
+
 Numba checks a cached kernel against its own source file only, but kernels call kernels
-of other ``vector_*`` modules: the cache lives in a directory named for a digest of all
-the modules with kernels (and numba's version), so a change to any kernel recompiles every one.
+of other modules of this package and the rules of ``RULE_MODULES``: the cache lives in a
+directory named for a digest of all of those files (and numba's version), so a change to
+any kernel or rule recompiles every one.
 ``NUMBA_CACHE_DIR`` (numba's setting) moves that directory's parent; default
 ``~/.cache/openconvoy`` (``XDG_CACHE_HOME``; the temporary directory when not writable).
 Compiling all kernels takes ~30 CPU-seconds, loading them from the cache ~1.
@@ -17,10 +24,12 @@ Compiling all kernels takes ~30 CPU-seconds, loading them from the cache ~1.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from openconvoy.core.errors import DependencyMissing
@@ -32,18 +41,39 @@ try:
     from numba import types as _types
     from numba.core import cgutils as _cgutils
     from numba.extending import intrinsic as _intrinsic
+    from numba.extending import register_jitable as _register_jitable
 except ImportError as exc:  # pragma: no cover - the extra is installed by `make test`
     raise DependencyMissing(
         "VectorConvoyEnv needs numba: pip install 'openconvoy[batched]'"
     ) from exc
 
 
+RULE_MODULES = (
+    "openconvoy.core.spacing",
+    "openconvoy.core.safety",
+)
+"""The modules whose plain rule functions the kernels call compiled (``rules``): their
+source is part of the kernel cache's digest."""
+
+
+def _rule_files() -> list[Path]:
+    """The source files of ``RULE_MODULES``, found without importing them."""
+    files = []
+    for name in RULE_MODULES:
+        spec = importlib.util.find_spec(name)
+        assert spec is not None and spec.origin is not None, name
+        files.append(Path(spec.origin))
+    return files
+
+
 def _cache_dir() -> Path:
     digest = hashlib.sha256(_numba.__version__.encode())
     for path in sorted(Path(__file__).parent.glob("*.py")):
         text = path.read_bytes()
-        if b"@bare_" in text or b"@kernel" in text or path.name == "jit.py":
+        if b"@bare_" in text or b"@kernel" in text or b"rules(" in text or path.name == "jit.py":
             digest.update(path.name.encode() + text)
+    for path in _rule_files():
+        digest.update(path.name.encode() + path.read_bytes())
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(home, "openconvoy")
     path = Path(base) / f"vector-kernels-{digest.hexdigest()[:16]}"
@@ -96,6 +126,25 @@ def bare_inline(fn: Callable[..., Any]) -> Any:
     helpers called per link or per trail segment, whose arguments (each array several
     words) cost more to pass than the work."""
     return _compile(fn, {**_OPTIONS, "_nrt": False, "forceinline": True})
+
+
+_REGISTERED: dict[int, Callable[..., Any]] = {}  # numba's registry is per process too
+
+
+def rules(module: ModuleType, *names: str) -> None:
+    """Make ``module``'s functions ``names`` (plain Python on floats and ints, one of
+    ``RULE_MODULES``) callable from the kernels: numba compiles each where a kernel calls
+    it, inlined, with the kernels' options (no fastmath, numpy's error model), from the
+    function the module holds now. The kernels call them as ``module.name(...)``."""
+    if module.__name__ not in RULE_MODULES:
+        raise ValueError(
+            f"{module.__name__} is not in RULE_MODULES: the kernel cache would miss its changes"
+        )
+    for name in names:
+        fn = getattr(module, name)
+        if _REGISTERED.get(id(fn)) is not fn:
+            _REGISTERED[id(fn)] = fn
+            _register_jitable(forceinline=True, _nrt=False, error_model="numpy")(fn)
 
 
 def _compile(fn: Callable[..., Any], options: dict[str, Any]) -> Any:

@@ -17,12 +17,15 @@ import math
 
 import numpy as np
 
+from openconvoy.core import safety, spacing
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.member import PATH_CONE
-from openconvoy.core.safety import gap_reduction_m
 from openconvoy.core.spacing import SpacingConfig
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
 from openconvoy.envs.vector.math import cos_sin, norm
+
+rules(spacing, "time_headway_gap_m", "speed_gap_m", "pair_gap_m")
+rules(safety, "gap_reduction_m")
 
 COOP, DEGRADED, STOP, FAILSAFE = range(4)
 EVENT_ROWS = ("error_t_s", "error_speed", "error_change", "estop_t_s", "estop_bumper_m",
@@ -31,12 +34,11 @@ EVENT_ROWS = ("error_t_s", "error_speed", "error_change", "estop_t_s", "estop_bu
 first refused action came and its two values; when the emergency stop latched, with the
 bumper gap, closing speed, own speed, the braking limit of the vehicle ahead and own
 acceleration it read."""
-SPACING_KINDS = ("constant-distance", "constant-time-headway", "quadratic")
 
 
 def pack_spacing(c: SpacingConfig) -> np.ndarray:
     """``SpacingConfig`` as the kernels' array."""
-    kind = float(SPACING_KINDS.index(c.kind))
+    kind = float(c.code)
     return np.array([kind, c.distance_m, c.standstill_m, c.headway_s, c.quadratic_s2_per_m])
 
 
@@ -56,20 +58,16 @@ def pack_ladder(c: LadderConfig) -> np.ndarray:
 
 @bare_inline
 def speed_gap(sp, v):  # pragma: no cover - compiled
-    """The speed-dependent part of a pair gap (m) at ``v`` (not constant-distance)."""
-    vv = max(v, 0.0)
-    g = sp[2] + sp[3] * vv
-    if sp[0] == 2.0:
-        g = g + sp[4] * vv * vv
-    return g
+    """``core.spacing.speed_gap_m`` at ``v`` (m/s) for the packed config ``sp``."""
+    return spacing.speed_gap_m(int(sp[0]), v, sp[2], sp[3], sp[4])
 
 
 @bare_inline
 def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
-    """Desired centre-to-centre gap (m) of a vehicle to the one ahead at speed ``v``."""
-    if sp[0] == 0.0:
-        return sp[1]
-    return speed_gap(sp, v) + 0.5 * (len_behind + len_ahead)
+    """``core.spacing.pair_gap_m``: the desired centre-to-centre gap (m) of a vehicle to
+    the one ahead at speed ``v``, for the packed config ``sp``."""
+    half = 0.5 * (len_behind + len_ahead)
+    return spacing.pair_gap_m(int(sp[0]), v, sp[1], sp[2], sp[3], sp[4], half)
 
 
 @bare_inline
@@ -253,11 +251,8 @@ def _too_close(bumper, closing, ego, pred_decel, accel, rule):  # pragma: no cov
         ego, pred = closing, 0.0
     else:
         pred = ego - closing
-    return bumper - _reduction(ego, pred, rule[1], rule[3], rule[0], pred_decel, accel) < rule[2]
-
-
-_reduction = bare_inline(gap_reduction_m)
-"""``core.safety.gap_reduction_m`` itself, compiled: the rule is written once."""
+    reduction = safety.gap_reduction_m(ego, pred, rule[1], rule[3], rule[0], pred_decel, accel)
+    return bumper - reduction < rule[2]
 
 
 @bare_kernel

@@ -41,6 +41,7 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
+from openconvoy.core.spacing import SpacingPolicy
 from openconvoy.envs.convoy_env import check_episode_args, check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
@@ -67,6 +68,7 @@ from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
 from openconvoy.envs.vector.step import FusedCall, pack
 from openconvoy.envs.vector.threads import make_slabs, thread_count
+from openconvoy.envs.vector.trail import needs_wider, window
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 MODES = ("coop", "degraded", "stop", "failsafe")
@@ -225,7 +227,7 @@ class VectorConvoyEnv:
         self.channel = VectorChannel(
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
         )
-        self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m)
+        self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m, self._trail_window())
         self.ranging = RangingSensors(self.presets, B)
         self.forgers = Forgers(self.faults, B, N, self.dt, bool(auth))
         self._seed_seqs: list[np.random.SeedSequence | None] = [None] * B
@@ -239,6 +241,38 @@ class VectorConvoyEnv:
             if self._fused is not None
             else None
         )
+
+    def _trail_window(self) -> int:
+        """Breadcrumbs a trail's ring holds at first (``vector.trail.window``): the
+        farthest target's desired gap at the fastest preset's top speed, behind the
+        head, is the horizon the observation reads in formation."""
+        lk, P = self.links, self.presets
+        vmax = max(p.max_speed_mps for p in P)
+        policy = SpacingPolicy(self.member_config.spacing)
+        pair = [policy.pair_gap(vmax, P[j + 1].length_m, P[j].length_m) for j in range(len(P) - 1)]
+        ahead = np.concatenate([[0.0], np.cumsum(pair)])  # arc from the leader, vehicle by vehicle
+        horizon = 0.0
+        for f, m in zip(*np.nonzero(lk.target_link >= 0)):
+            link = lk.target_link[f, m]
+            if lk.trail_of[link] >= 0:
+                horizon = max(horizon, ahead[f + 1] - ahead[lk.link_s[link]])
+        return window(horizon, self.member_config.trail_spacing_m, vmax * self.dt)
+
+    def _widen_trails(self) -> None:
+        """Double the trails' rings while a read went back into their last quarter
+        (``vector.trail.needs_wider``): before a tick could read past them. The stages
+        are packed again around the new arrays."""
+        if not needs_wider(self.rx.reach(), self.rx.window):
+            return
+        w = self.rx.window
+        while needs_wider(self.rx.reach(), w):
+            w *= 2
+        self.rx.widen(w)
+        if self._fused is not None:
+            self._fused = pack(self)
+            if self._slabs is not None:
+                self._slabs.close()
+                self._slabs = make_slabs(self, self._fused, self.threads, FusedCall)
 
     def _fusable(self) -> bool:
         """Every stage has a kernel: one compiled call per tick (``vector.step``)."""
@@ -389,6 +423,7 @@ class VectorConvoyEnv:
         obs = np.empty((B, self.n_vehicles - 1, self.layout.size), dtype=np.float32)
         self._tick(which, obs)
         measure(self.own, self._half_sum, self.gap, self.collided)
+        self._widen_trails()
         return obs, infos(self)
 
     def _reset_convoys(self, which: np.ndarray, seeds: Sequence[int | None]) -> None:
@@ -451,6 +486,7 @@ class VectorConvoyEnv:
             self._reset_convoys(done, [None] * B)
             self._tick(done, obs)
             measure(self.own, self._half_sum, self.gap, self.collided)
+        self._widen_trails()
         return obs, rewards, terminated, truncated, info
 
     def _staged_step(

@@ -64,3 +64,26 @@ def test_the_paper_ring_is_sized_to_its_horizon() -> None:
     env = VectorConvoyEnv(2, "paper")
     assert env.rx.window == 256  # follower 2 reads the leader's trail ~31 m back at 0.2 m
     assert env.rx.trail.shape == (2, env.links.T, 256, 3)
+
+
+@pytest.mark.e2e
+def test_small_rings_run_as_convoy_env_through_a_widening_and_a_drop(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Against the reference: ``Trail``'s 1,024 breadcrumbs and its oldest-half drop
+    (``_compare`` asserts every tick's observations, states, counters and modes)."""
+    from tests.envs.vector.test_vector_env import _compare
+
+    monkeypatch.setattr(VectorConvoyEnv, "_trail_window", lambda self: MIN_WINDOW)
+    seen: list[tuple[int, float]] = []
+    step = VectorConvoyEnv.step
+
+    def watched(self: VectorConvoyEnv, actions: np.ndarray) -> tuple:
+        out = step(self, actions)
+        seen.append((self.rx.window, float(self.rx.tail[..., T_BASE].max())))
+        return out
+
+    monkeypatch.setattr(VectorConvoyEnv, "step", watched)
+    _compare(B=1, per=0.1, member={"trail_spacing_m": 0.08}, max_time_s=200.0, steps=3_400)
+    assert seen[0][0] == MIN_WINDOW and max(w for w, _ in seen) > MIN_WINDOW
+    assert max(base for _, base in seen) >= CAPACITY // 2

@@ -48,7 +48,7 @@ class RxBuffers:
         self.newest = np.full((B, L), -np.inf)
         # Each trail's newest ``window`` breadcrumbs in a ring (``vector.trail``).
         self.trail = np.zeros((B, T, window, 3))
-        self.tail = np.zeros((B, T, TAIL))
+        self.tail = aligned_zeros((B, T, TAIL))
         self.trail_n = np.zeros((B, T), dtype=np.int64)
         self.hint = np.full((B, T), np.nan)
         self.hint_k = np.zeros((B, T), dtype=np.int64)

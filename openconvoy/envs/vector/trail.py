@@ -29,13 +29,15 @@ CAPACITY = 1024
 """Breadcrumbs per trail, as ``core.trail.Trail`` (the oldest half dropped when full)."""
 MIN_WINDOW = 64
 """Fewest breadcrumbs a ring holds (``window``)."""
-T_BASE, T_OLD, T_NEXT, T_REACH = 9, 10, 15, 21
+T_BASE, T_REACH, T_OLD, T_NEXT = 9, 10, 11, 16
 """``tail`` fields after the first nine: the ring's base (the oldest breadcrumb's count
-since the reset), the oldest two breadcrumbs (x0, y0, x1, y1, s1: s0 is field 3), the two
-laid at ``CAPACITY // 2`` and after (x, y, s each: the oldest two after the next drop), and
-the reach: the most breadcrumbs back from the newest a projection or path point read."""
-TAIL = 22
-"""Fields of ``tail``."""
+since the reset) and the reach (the most breadcrumbs back from the newest a projection or
+path point read), read or written every tick, next to the other hot fields; then the
+oldest two breadcrumbs (x0, y0, x1, y1, s1: s0 is field 3) and the two laid at
+``CAPACITY // 2`` and after (x, y, s each: the oldest two after the next drop)."""
+TAIL = 24
+"""Fields of ``tail`` (22 used): three cache lines a trail, the hot fields in the first two
+(``RxBuffers`` aligns the rows)."""
 
 
 def window(horizon_m: float, spacing_m: float, step_m: float) -> int:

@@ -9,9 +9,9 @@ than the ring (``crumb``) get the oldest two from ``tail`` and, for a search, an
 coordinate below the ring's. The env widens the ring before a read could need more
 (``TAIL_REACH``). (A fourth field, each segment's heading laid once instead of an atan2 per
 query, measured slower: more cache lines per query.) ``tail[b, ln]`` (``TAIL``,) is its
-newest breadcrumb again and the oldest one's arc coordinate, the smoothed fix x, y, t, the
-unit vector behind the oldest breadcrumb, then the ring's base, the oldest two
-breadcrumbs, the two that become the oldest at the next drop, and the reach. A query's path is the
+newest breadcrumb again, the smoothed fix x, y, t, the ring's base and the reach (one cache
+line: what every add and query reads), then what only reads behind the newest breadcrumb
+need (``T_S0``...). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
 heading ``hh`` (the sender's dead-reckoned position): the same vertices, segments and
 walk as ``Trail``, so the same numbers.
@@ -29,14 +29,18 @@ CAPACITY = 1024
 """Breadcrumbs per trail, as ``core.trail.Trail`` (the oldest half dropped when full)."""
 MIN_WINDOW = 64
 """Fewest breadcrumbs a ring holds (``window``)."""
-T_BASE, T_REACH, T_OLD, T_NEXT = 9, 10, 11, 16
-"""``tail`` fields after the first nine: the ring's base (the oldest breadcrumb's count
-since the reset) and the reach (the most breadcrumbs back from the newest a projection or
-path point read), read or written every tick, next to the other hot fields; then the
-oldest two breadcrumbs (x0, y0, x1, y1, s1: s0 is field 3) and the two laid at
-``CAPACITY // 2`` and after (x, y, s each: the oldest two after the next drop)."""
+T_FIX, T_BASE, T_REACH = 3, 6, 7
+"""``tail`` fields, the first line's (read or written every tick; 0-2 the newest breadcrumb):
+the smoothed fix x, y, t (3-5), the ring's base (the oldest breadcrumb's count since the
+reset) and the reach (the most breadcrumbs back from the newest a projection or path point
+read)."""
+T_S0, T_BACK, T_OLD, T_NEXT = 8, 9, 11, 16
+"""``tail`` fields read only behind the newest breadcrumb: the oldest one's arc coordinate,
+the unit vector behind it (NaN once it was dropped), the oldest two breadcrumbs (x0, y0,
+x1, y1, s1) and the two laid at ``CAPACITY // 2`` and after (x, y, s each: the oldest two
+after the next drop)."""
 TAIL = 24
-"""Fields of ``tail`` (22 used): three cache lines a trail, the hot fields in the first two
+"""Fields of ``tail`` (22 used): three cache lines a trail, the hot fields in the first
 (``RxBuffers`` aligns the rows)."""
 
 
@@ -68,7 +72,7 @@ def crumb(tr, tail, b, ln, n, k, f):  # pragma: no cover - compiled
     if n - k <= w:
         return tr[b, ln, (int(tail[b, ln, T_BASE]) + k) & (w - 1), f]
     if k == 0:
-        return tail[b, ln, 3] if f == 2 else tail[b, ln, T_OLD + f]
+        return tail[b, ln, T_S0] if f == 2 else tail[b, ln, T_OLD + f]
     if k == 1:
         return tail[b, ln, T_OLD + 4] if f == 2 else tail[b, ln, T_OLD + 2 + f]
     return -math.inf if f == 2 else math.nan
@@ -89,15 +93,15 @@ FAR_M = 1e4
 @bare_inline
 def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cover - compiled
     """``Trail.add`` with the sender's time ``t`` (s), speed ``v`` (m/s) and heading's
-    cosine and sine: (x, y) smoothed along the reported motion (``tail`` 4-6: the smoothed
+    cosine and sine: (x, y) smoothed along the reported motion (``tail`` ``T_FIX``: the smoothed
     fix and its time), laid ``spacing`` m of progress along the heading after the last
     breadcrumb."""
     nn = n[b, ln]
     if nn > 0:
-        d = v * (t - tail[b, ln, 6])
-        px, py = tail[b, ln, 4] + d * c, tail[b, ln, 5] + d * sn
+        d = v * (t - tail[b, ln, T_FIX + 2])
+        px, py = tail[b, ln, T_FIX] + d * c, tail[b, ln, T_FIX + 1] + d * sn
         x, y = px + SMOOTHING * (x - px), py + SMOOTHING * (y - py)
-    tail[b, ln, 4], tail[b, ln, 5], tail[b, ln, 6] = x, y, t
+    tail[b, ln, T_FIX], tail[b, ln, T_FIX + 1], tail[b, ln, T_FIX + 2] = x, y, t
     step = 0.0
     ps = 0.0
     if nn > 0:
@@ -111,20 +115,20 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cov
     if nn >= CAPACITY:  # drop the oldest half: the ring's base moves, nothing is copied
         nn -= half
         tail[b, ln, T_BASE] += half
-        tail[b, ln, 3] = tail[b, ln, T_NEXT + 2]
+        tail[b, ln, T_S0] = tail[b, ln, T_NEXT + 2]
         for f in range(2):
             tail[b, ln, T_OLD + f] = tail[b, ln, T_NEXT + f]
             tail[b, ln, T_OLD + 2 + f] = tail[b, ln, T_NEXT + 3 + f]
         tail[b, ln, T_OLD + 4] = tail[b, ln, T_NEXT + 5]
-        tail[b, ln, 7] = math.nan  # the oldest breadcrumb's heading is gone
+        tail[b, ln, T_BACK] = math.nan  # the oldest breadcrumb's heading is gone
     s = ps + step if nn > 0 else 0.0
     w = tr.shape[2]
     slot = (int(tail[b, ln, T_BASE]) + nn) & (w - 1)
     tr[b, ln, slot, 0], tr[b, ln, slot, 1], tr[b, ln, slot, 2] = x, y, s
     tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
     if nn == 0:
-        tail[b, ln, 3] = s
-        tail[b, ln, 7], tail[b, ln, 8] = -c, -sn
+        tail[b, ln, T_S0] = s
+        tail[b, ln, T_BACK], tail[b, ln, T_BACK + 1] = -c, -sn
     if nn <= 1:  # the oldest two, kept past the ring
         tail[b, ln, T_OLD + 2 * nn], tail[b, ln, T_OLD + 2 * nn + 1] = x, y
         if nn == 1:
@@ -169,9 +173,9 @@ def _bisect(tr, tail, b, ln, n, value, guess):  # pragma: no cover - compiled
 @bare_inline
 def _back(tr, tail, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb
-    (against the heading reported there: ``tail`` 7-8, NaN once it was dropped)."""
-    if not math.isnan(tail[b, ln, 7]):
-        return tail[b, ln, 7], tail[b, ln, 8]
+    (against the heading reported there: ``tail`` ``T_BACK``, NaN once it was dropped)."""
+    if not math.isnan(tail[b, ln, T_BACK]):
+        return tail[b, ln, T_BACK], tail[b, ln, T_BACK + 1]
     x0, y0 = tail[b, ln, T_OLD], tail[b, ln, T_OLD + 1]
     if n >= 2:
         dx, dy = tail[b, ln, T_OLD + 2] - x0, tail[b, ln, T_OLD + 3] - y0
@@ -196,7 +200,7 @@ def _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - co
             crumb(tr, tail, b, ln, n, k, 2),
         )
     bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
-    x0, y0, s0 = tail[b, ln, T_OLD], tail[b, ln, T_OLD + 1], tail[b, ln, 3]
+    x0, y0, s0 = tail[b, ln, T_OLD], tail[b, ln, T_OLD + 1], tail[b, ln, T_S0]
     return x0 + FAR_M * bx, y0 + FAR_M * by, s0 - FAR_M
 
 
@@ -313,7 +317,7 @@ def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess, s_head):  # pragma: n
     if s >= ls:
         f = (s - ls) / (s_head - ls)
         return lx + f * (hx - lx), ly + f * (hy - ly)
-    s0 = tail[b, ln, 3]
+    s0 = tail[b, ln, T_S0]
     if s <= s0:
         bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
         return tail[b, ln, T_OLD] - (s - s0) * bx, tail[b, ln, T_OLD + 1] - (s - s0) * by

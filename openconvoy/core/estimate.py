@@ -26,6 +26,22 @@ class TargetEstimate:
     stale: bool
 
 
+def reckoned_travel(
+    speed_mps: float, age_s: float, fresh_age_s: float, decel_mps2: float
+) -> tuple[float, float]:
+    """How far (m) a vehicle heard at ``speed_mps`` has gone since a message ``age_s`` old,
+    and its speed now (m/s): at constant speed up to ``fresh_age_s`` (s), beyond as if
+    braking at ``decel_mps2`` (m/s²; inf: stopped where last heard) since the message.
+    The batched kernels call this function compiled (``envs.vector.jit.rules``)."""
+    if age_s <= fresh_age_s:
+        return speed_mps * age_s, speed_mps
+    a = decel_mps2
+    if speed_mps > 0.0 and not math.isinf(a):
+        tau = min(age_s, speed_mps / a)
+        return speed_mps * tau - 0.5 * a * tau * tau, max(speed_mps - a * age_s, 0.0)
+    return 0.0, 0.0
+
+
 def dead_reckon(
     latest: VehicleState, now: float, fresh_age_s: float, stop_after_s: float, decel_mps2: float
 ) -> TargetEstimate | None:
@@ -34,30 +50,29 @@ def dead_reckon(
     age = max(now - latest.t, 0.0)
     if age > stop_after_s:
         return None
-    v, h = latest.speed, latest.heading
-    if age <= fresh_age_s:
-        d, speed, stale = v * age, v, False
-    else:
-        a = decel_mps2
-        if v <= 0.0 or math.isinf(a):
-            d, speed = 0.0, 0.0
-        else:
-            tau = min(age, v / a)
-            d, speed = v * tau - 0.5 * a * tau * tau, max(v - a * age, 0.0)
-        stale = True
+    h = latest.heading
+    d, speed = reckoned_travel(latest.speed, age, fresh_age_s, decel_mps2)
     return TargetEstimate(
-        latest.x + d * math.cos(h), latest.y + d * math.sin(h), speed, h, age, stale
+        latest.x + d * math.cos(h), latest.y + d * math.sin(h), speed, h, age, age > fresh_age_s
     )
 
 
 def gap_and_closing(own: VehicleState, est: TargetEstimate) -> tuple[float, float]:
     """``(gap_m, closing_mps)`` from ``own`` to the estimated vehicle: centre to centre,
     and how fast it shrinks (positive = closing)."""
-    dx, dy = est.x - own.x, est.y - own.y
-    gap = math.hypot(dx, dy)
-    if gap <= 0.0:
-        return 0.0, max(own.speed - est.speed, 0.0)
     # Velocities projected on the line between the two: the range rate, negated.
     vx = own.speed * math.cos(own.heading) - est.speed * math.cos(est.heading)
     vy = own.speed * math.sin(own.heading) - est.speed * math.sin(est.heading)
-    return gap, (dx * vx + dy * vy) / gap
+    return closing_m(est.x - own.x, est.y - own.y, vx, vy, own.speed, est.speed)
+
+
+def closing_m(
+    dx_m: float, dy_m: float, dvx_mps: float, dvy_mps: float, own_mps: float, est_mps: float
+) -> tuple[float, float]:
+    """``gap_and_closing`` on floats: the offset (m) to the other vehicle, the velocity
+    difference (own minus other, m/s) and both speeds (m/s). The batched kernels call this
+    function compiled (``envs.vector.jit.rules``)."""
+    gap = math.hypot(dx_m, dy_m)
+    if gap <= 0.0:
+        return 0.0, max(own_mps - est_mps, 0.0)
+    return gap, (dx_m * dvx_mps + dy_m * dvy_mps) / gap

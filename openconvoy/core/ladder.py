@@ -44,11 +44,24 @@ class LadderConfig:
 
 def rung(age_s: float, config: LadderConfig) -> str:
     """The mode for messages of age ``age_s`` (inf = never heard)."""
-    if not config.enabled or age_s <= config.degrade_after_s:
+    if not config.enabled:
         return COOP
-    if age_s <= config.stop_after_s:
-        return DEGRADED
-    return STOP
+    return MODES[rung_code(age_s, config.degrade_after_s, config.stop_after_s)]
+
+
+MODES = (COOP, DEGRADED, STOP)
+"""The rungs by code (``rung_code``)."""
+
+
+def rung_code(age_s: float, degrade_after_s: float, stop_after_s: float) -> int:
+    """The rung for messages of age ``age_s`` (s; inf = never heard) as its index in
+    ``MODES``: 0 up to ``degrade_after_s``, 1 up to ``stop_after_s``, else 2. The batched
+    kernels call this function compiled (``envs.vector.jit.rules``)."""
+    if age_s <= degrade_after_s:
+        return 0
+    if age_s <= stop_after_s:
+        return 1
+    return 2
 
 
 def ranging_override(
@@ -59,8 +72,18 @@ def ranging_override(
     something without V2V is in the gap, a cut-in) or than the desired gap (the cooperative
     controller is not keeping its distance): the vehicle then follows by ranging (degraded).
     Never with the ladder off."""
-    limit = max(v2v_gap_m, desired_gap_m) - config.intruder_margin_m
-    return config.enabled and range_m < limit
+    return config.enabled and intruder_closer(
+        range_m, v2v_gap_m, desired_gap_m, config.intruder_margin_m
+    )
+
+
+def intruder_closer(
+    range_m: float, v2v_gap_m: float, desired_gap_m: float, intruder_margin_m: float
+) -> bool:
+    """``ranging_override``'s test on floats (m): the ranging target is closer by more than
+    the margin than both the V2V gap and the desired gap. The batched kernels call this
+    function compiled (``envs.vector.jit.rules``)."""
+    return range_m < max(v2v_gap_m, desired_gap_m) - intruder_margin_m
 
 
 def acc_speed(
@@ -72,6 +95,26 @@ def acc_speed(
 ) -> float:
     """Degraded-mode speed setpoint (m/s): match the vehicle ahead and close the gap error
     to ``desired_gap_m`` widened by ``extra_headway_s``; never negative."""
-    target_gap = desired_gap_m + config.extra_headway_s * max(ego_speed_mps, 0.0)
+    return acc_speed_mps(
+        range_m,
+        range_rate_mps,
+        ego_speed_mps,
+        desired_gap_m,
+        config.extra_headway_s,
+        config.gap_gain,
+    )
+
+
+def acc_speed_mps(
+    range_m: float,
+    range_rate_mps: float,
+    ego_speed_mps: float,
+    desired_gap_m: float,
+    extra_headway_s: float,
+    gap_gain: float,
+) -> float:
+    """``acc_speed`` on floats (``LadderConfig``'s two numbers: s, 1/s). The batched
+    kernels call this function compiled (``envs.vector.jit.rules``)."""
+    target_gap = desired_gap_m + extra_headway_s * max(ego_speed_mps, 0.0)
     v_ahead = ego_speed_mps + range_rate_mps
-    return max(0.0, v_ahead + config.gap_gain * (range_m - target_gap))
+    return max(0.0, v_ahead + gap_gain * (range_m - target_gap))

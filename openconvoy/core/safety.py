@@ -14,6 +14,7 @@ brake at all (issue 10). ``envs.convoy_env`` and ``bridge.failsafes.Envelope`` b
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from openconvoy.core.errors import ConfigError
@@ -82,6 +83,43 @@ def gap_reduction_m(
     return worst if worst > 0.0 else 0.0
 
 
+def stopping_distance_m(
+    closing_mps: float,
+    ego_mps: float,
+    pred_decel_mps2: float,
+    ego_accel_mps2: float,
+    rule: Sequence[float],
+) -> float:
+    """``BrakingGap.stopping_distance`` on floats: ``rule`` is the rule's numbers
+    ``(decel_mps2, reaction_s, margin_m, lag_s)`` (``BrakingGap.numbers``); ``ego_mps``
+    NaN when the ego's speed is unknown."""
+    closing = closing_mps if math.isfinite(closing_mps) else 0.0
+    if not math.isfinite(ego_mps):
+        ego, pred = closing, 0.0
+    else:
+        ego, pred = ego_mps, ego_mps - closing
+    return gap_reduction_m(ego, pred, rule[1], rule[3], rule[0], pred_decel_mps2, ego_accel_mps2)
+
+
+def too_close(
+    bumper_gap_m: float,
+    closing_mps: float,
+    ego_mps: float,
+    pred_decel_mps2: float,
+    ego_accel_mps2: float,
+    rule: Sequence[float],
+) -> bool:
+    """``BrakingGap.too_close`` on floats (``stopping_distance_m``'s arguments): True when
+    the gap is known and the clearance left after braking is below the margin. The
+    batched kernels call this function compiled (``envs.vector.jit.rules``)."""
+    if not math.isfinite(bumper_gap_m):
+        return False
+    left = bumper_gap_m - stopping_distance_m(
+        closing_mps, ego_mps, pred_decel_mps2, ego_accel_mps2, rule
+    )
+    return left < rule[2]
+
+
 @dataclass(frozen=True)
 class BrakingGap:
     """The rule's numbers, SI.
@@ -113,6 +151,12 @@ class BrakingGap:
                 f"{self.lag_s}"
             )
 
+    @property
+    def numbers(self) -> tuple[float, float, float, float]:
+        """``(decel_mps2, reaction_s, margin_m, lag_s)``: what the plain rule functions
+        (``too_close``) take."""
+        return (self.decel_mps2, self.reaction_s, self.margin_m, self.lag_s)
+
     def stopping_distance(
         self,
         closing_mps: float,
@@ -125,15 +169,8 @@ class BrakingGap:
         (m/s, positive = closing) gives the predecessor's speed as ``ego_mps − closing``.
         ``ego_mps`` None (the ego's speed unknown): the closing speed is taken as the
         ego's and the predecessor as at rest (``closing²/(2a) + reaction·closing``)."""
-        closing = closing_mps if math.isfinite(closing_mps) else 0.0
-        if ego_mps is None or not math.isfinite(ego_mps):
-            ego, pred = closing, 0.0
-        else:
-            ego = ego_mps
-            pred = ego_mps - closing
-        return gap_reduction_m(
-            ego, pred, self.reaction_s, self.lag_s, self.decel_mps2, pred_decel_mps2, ego_accel_mps2
-        )
+        ego = math.nan if ego_mps is None else ego_mps
+        return stopping_distance_m(closing_mps, ego, pred_decel_mps2, ego_accel_mps2, self.numbers)
 
     def clearance(
         self,
@@ -157,10 +194,10 @@ class BrakingGap:
         ego_accel_mps2: float = 0.0,
     ) -> bool:
         """True when the gap is known and the clearance left is below the margin."""
-        if not math.isfinite(bumper_gap_m):
-            return False
-        left = self.clearance(bumper_gap_m, closing_mps, ego_mps, pred_decel_mps2, ego_accel_mps2)
-        return left < self.margin_m
+        ego = math.nan if ego_mps is None else ego_mps
+        return too_close(
+            bumper_gap_m, closing_mps, ego, pred_decel_mps2, ego_accel_mps2, self.numbers
+        )
 
     def reason(
         self,

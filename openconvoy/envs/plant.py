@@ -317,13 +317,13 @@ class BicyclePlant:
             v = vs[i]
             if is_pi:
                 v_before = min(max(self._qv[(head - delay - 1) % depth][i], -vmax), vmax)
-                vs_, ramp[i], integ[i] = _pi_scalar(
+                vs_, ramp[i], integ[i] = pi_speed_loop(
                     v_cmd, v, ramp[i], integ[i], self._pi_params[i], acc, dec, brk, v_before,
                     substeps,
                 )  # fmt: skip
                 dv = vs_ - v
             else:
-                dv = _lag_dv_scalar(v_cmd, v, tau_v, acc, dec, brk, dt)
+                dv = lag_speed_change(v_cmd, v, tau_v, acc, dec, brk, dt)
             v_new = v + dv
             err_h = (self._qh[(head - hdelay) % depth][i] - hs[i] + pi) % two_pi - pi
             v_mid = 0.5 * (v + v_new)
@@ -331,7 +331,7 @@ class BicyclePlant:
                 cap = min(rate_max, abs(v_mid) * kappa)
                 rate = min(max(err_h / max(tau_h, dt), -cap), cap)
             else:
-                rate, rate_des[i] = _slewed_rate_scalar(
+                rate, rate_des[i] = slewed_yaw_rate(
                     err_h, v_mid, rate_des[i], tau_h, rate_max, kappa, yaw_acc, alat, dt
                 )
             h_mid = hs[i] + 0.5 * rate * dt
@@ -368,10 +368,13 @@ class BicyclePlant:
         )
 
 
-def _lag_dv_scalar(
+def lag_speed_change(
     v_cmd: float, v: float, tau_v: float, acc: float, dec: float, brk: float, dt: float
 ) -> float:
-    """The ``lag`` speed loop's speed change over one step for one vehicle on floats."""
+    """The ``lag`` speed loop's speed change (m/s) over one step ``dt`` (s) for one vehicle
+    on floats: towards ``v_cmd`` with time constant ``tau_v`` (s), clipped at ``acc`` and
+    ``dec`` (m/s²), static friction ``brk`` (m/s) holding it at rest. The batched plant
+    calls this function compiled (``envs.vector.jit.rules``)."""
     dv = min(max((v_cmd - v) / tau_v, -dec), acc) * dt
     if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
         dv = v_cmd - v
@@ -380,7 +383,7 @@ def _lag_dv_scalar(
     return dv
 
 
-def _pi_scalar(
+def pi_speed_loop(
     v_cmd: float,
     v: float,
     r: float,
@@ -393,9 +396,10 @@ def _pi_scalar(
     substeps: tuple[int, float, int, float],
 ) -> tuple[float, float, float]:
     """One step of the ``pi`` speed loop for one vehicle on floats (``_pi_dv``'s
-    equations): the new speed, ramped setpoint and integrator; ``v_before`` acts for the
-    first ``n1`` substeps of ``h1`` s, ``v_cmd`` for the next ``n2`` of ``h2``
-    (``substeps``, from ``pi_delay_split``)."""
+    equations): the new speed, ramped setpoint and integrator (m/s); ``v_before`` acts for
+    the first ``n1`` substeps of ``h1`` s, ``v_cmd`` for the next ``n2`` of ``h2``
+    (``substeps``, from ``pi_delay_split``); ``pi_params`` (kp, ki, ff, tau_d, stop,
+    drag). The batched plant calls this function compiled (``envs.vector.jit.rules``)."""
     kp, ki, ff, tau_d, stop, drag = pi_params
     vs_ = v
     v_now = v_cmd
@@ -419,7 +423,7 @@ def _pi_scalar(
     return vs_, r, acc_i
 
 
-def _slewed_rate_scalar(
+def slewed_yaw_rate(
     err_h: float,
     v_mid: float,
     rate_des: float,
@@ -430,8 +434,9 @@ def _slewed_rate_scalar(
     alat: float,
     dt: float,
 ) -> tuple[float, float]:
-    """The heading loop's yaw rate for one vehicle on floats, slewed and capped by
-    curvature and lateral acceleration: ``(rate, new desired rate)``."""
+    """The heading loop's yaw rate (rad/s) for one vehicle on floats, slewed and capped by
+    curvature and lateral acceleration: ``(rate, new desired rate)``. The batched plant
+    calls this function compiled (``envs.vector.jit.rules``)."""
     wanted = min(max(err_h / max(tau_h, dt), -rate_max), rate_max)
     slew = yaw_acc * dt
     rd = min(max(wanted, rate_des - slew), rate_des + slew)

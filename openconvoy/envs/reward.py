@@ -35,6 +35,22 @@ class RewardConfig:
     yaw_rate_scale_radps: float = 0.785
     collision_penalty: float = 100.0
 
+    @property
+    def numbers(self) -> tuple[float, ...]:
+        """The scales then the weights, as ``follower_reward`` reads them: spacing, accel,
+        jerk and yaw-rate scales, the four weights in that order, the collision penalty."""
+        return (
+            self.spacing_scale_m,
+            self.accel_scale_mps2,
+            self.jerk_scale_mps3,
+            self.yaw_rate_scale_radps,
+            self.w_spacing,
+            self.w_accel,
+            self.w_jerk,
+            self.w_yaw_rate,
+            self.collision_penalty,
+        )
+
     def __post_init__(self) -> None:
         for name in (
             "spacing_scale_m",
@@ -59,21 +75,25 @@ def reward(
     Plain Python floats: for convoys of a few vehicles this is several times cheaper than
     numpy on tiny arrays, and it runs every tick.
     """
-    c = config
-    out = []
-    for e, a, j, w, hit in zip(platooning_error_m, accel_mps2, jerk_mps3, yaw_rate_radps, collided):
-        e = abs(e) / c.spacing_scale_m
-        e = 0.0 if e != e else min(e, 1.0)  # NaN -> 0
-        a /= c.accel_scale_mps2
-        j /= c.jerk_scale_mps3
-        w /= c.yaw_rate_scale_radps
-        out.append(
-            -(
-                c.w_spacing * e
-                + c.w_accel * a * a
-                + c.w_jerk * j * j
-                + c.w_yaw_rate * w * w
-                + (c.collision_penalty if hit else 0.0)
-            )
+    c = config.numbers
+    return [
+        follower_reward(c, e, a, j, w, hit)
+        for e, a, j, w, hit in zip(
+            platooning_error_m, accel_mps2, jerk_mps3, yaw_rate_radps, collided
         )
-    return out
+    ]
+
+
+def follower_reward(
+    c: Sequence[float], error_m: float, accel: float, jerk: float, yaw_rate: float, hit: bool
+) -> float:
+    """One follower's reward: ``c`` is ``RewardConfig.numbers``; the platooning error (m;
+    NaN counts as 0), acceleration (m/s²), jerk (m/s³), yaw rate (rad/s), and whether it
+    collided. The batched kernels call this function compiled (``envs.vector.jit.rules``)."""
+    e = abs(error_m) / c[0]
+    e = 0.0 if e != e else min(e, 1.0)  # NaN -> 0
+    a = accel / c[1]
+    j = jerk / c[2]
+    w = yaw_rate / c[3]
+    pen = c[8] if hit else 0.0
+    return -(c[4] * e + c[5] * a * a + c[6] * j * j + c[7] * w * w + pen)

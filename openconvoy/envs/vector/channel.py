@@ -36,6 +36,7 @@ from openconvoy.envs.channel import ADVANCE_MIN_S, DRAW_JITTER, DRAW_LOSS
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.math import norm
+from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
 from openconvoy.envs.vector.rx import RxBuffers, push_one
 
 _G, _K1, _K2 = np.uint64(SPLITMIX_GOLDEN), np.uint64(SPLITMIX_M1), np.uint64(SPLITMIX_M2)
@@ -275,7 +276,7 @@ def _tx_gate(
                 nc[b, i] = tt
             while nc[b, i] <= tt + 1e-9:
                 nc[b, i] += period
-            ox, oy, ov = own[0, b, i], own[1, b, i], own[2, b, i]
+            ox, oy, ov = own[X, b, i], own[Y, b, i], own[SPEED, b, i]
             if event:
                 lt = last[0, b, i]
                 if not (math.isnan(lt) or tt - lt >= max_silence - 1e-9):
@@ -286,7 +287,7 @@ def _tx_gate(
                         continue
             send[b, i] = True
             last[0, b, i], last[1, b, i], last[2, b, i] = tt, ox, oy
-            last[3, b, i], last[4, b, i] = ov, own[3, b, i]
+            last[3, b, i], last[4, b, i] = ov, own[HEADING, b, i]
             sent[b, i] += 1
 
 

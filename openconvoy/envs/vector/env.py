@@ -57,13 +57,15 @@ from openconvoy.envs.vector.member import (
     COOP,
     FAILSAFE,
     STOP,
+    Commands,
+    Member,
     decide,
     lead_guard,
     pack_ladder,
     pack_spacing,
 )
 from openconvoy.envs.vector.observation import observe, pack_layout
-from openconvoy.envs.vector.plant import VectorPlant
+from openconvoy.envs.vector.plant import ACCEL, VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
 from openconvoy.envs.vector.step import FusedCall, pack
@@ -341,6 +343,37 @@ class VectorConvoyEnv:
         self.max_heading_change = MAX_HEADING_CHANGE_RAD
         self.gap = np.zeros((B, N - 1))
         self.collided = np.zeros((B, N - 1), dtype=bool)
+        lk, rx = self.links, self.rx
+        self._member = Member(
+            low=self.action_low,
+            high=self.action_high,
+            hist=rx.hist,
+            hist_n=rx.hist_n,
+            newest=rx.newest,
+            needed=lk.needed,
+            pred_link=lk.pred_link,
+            lead_link=lk.lead_link,
+            link_decel=self._link_decel,
+            decel=self._decel,
+            lengths=self.lengths,
+            spacing=self._spacing,
+            ladder=self._ladder,
+            fresh_age=float(self._rule_fresh_s),
+            max_dh=MAX_HEADING_CHANGE_RAD,
+            rule=self._rule,
+            lead_rule=self._lead_rule,
+            emergency=self.emergency_stop,
+        )
+        self._commands = Commands(
+            errors=self.policy_errors,
+            failed=self.policy_failed,
+            estopped=self.estopped,
+            cmd_v=self.cmd_v,
+            cmd_dh=self.cmd_dh,
+            modes=self.modes,
+            events=self.events.record,
+            n_events=self.events.count,
+        )
 
     # --- API ------------------------------------------------------------------------
 
@@ -508,22 +541,13 @@ class VectorConvoyEnv:
     def _command(self, a: np.ndarray) -> np.ndarray:
         """The members decide, the leaders drive, faults act, the plant moves ``dt``;
         returns the accelerations before the move (B, N)."""
-        t, own, lk, rx = self.t, self.own, self.links, self.rx
+        t, own = self.t, self.own
         self.ranging.read(own, self.step_count)  # the true state, before the plant moves
-        decide(  # on what the members measured of themselves at the last tick
-            a, self.action_low, self.action_high, t, self._sensed, rx.hist, rx.hist_n,
-            rx.newest, lk.needed, lk.pred_link, self._link_decel, self.lengths, self._spacing, self._ladder,
-            self._rule_fresh_s, MAX_HEADING_CHANGE_RAD, self.pred_est,
-            self.policy_errors, self.policy_failed, self.estopped, self.emergency_stop,
-            self._rule, self.cmd_v, self.cmd_dh, self.modes, self.ranging.reading,
-            self.events.record, self.events.count, self._decel,
-        )  # fmt: skip
+        # on what the members measured of themselves at the last tick
+        sensed, reading = self._sensed, self.ranging.reading
+        decide(a, t, sensed, reading, self.pred_est, self._member, self._commands)
         self.leader.command(t, own, self.cmd_v, self.cmd_dh)
-        lead_guard(
-            t, self._sensed, rx.hist, rx.hist_n, lk.lead_link, self._link_decel, self._decel,
-            self.lengths, self._rule_fresh_s, self._lead_rule, self.estopped, self.emergency_stop,
-            self.cmd_v, self.cmd_dh, self.modes, self.events.record, self.events.count,
-        )  # fmt: skip
+        lead_guard(t, sensed, self._member, self._commands)
         for vehicle, t_from in self._brakes:
             on = t >= t_from
             self.cmd_v[on, vehicle] = 0.0
@@ -531,7 +555,7 @@ class VectorConvoyEnv:
             self.modes[on, vehicle] = STOP
         self._has_cmd[:] = True
         accel_old = self._accel_old
-        accel_old[:] = own[4]
+        accel_old[:] = own[ACCEL]
         self.plant.step(self._cmd_v_flat, self._cmd_dh_flat)
         return accel_old
 

@@ -23,6 +23,7 @@ from openconvoy.core.faults import Fault
 from openconvoy.envs.forgery import FORGED_AHEAD_M
 from openconvoy.envs.vector.jit import bare_kernel
 from openconvoy.envs.vector.links import LinkTables
+from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
 from openconvoy.envs.vector.rx import RxBuffers, push_one
 
 
@@ -103,10 +104,10 @@ def _forge(
             v = vehicles[q]
             if not tt >= t_s[q] - 1e-9:
                 continue
-            h = own[3, b, v]
-            forged[0, b, v] = own[0, b, v] + FORGED_AHEAD_M * math.cos(h)
-            forged[1, b, v] = own[1, b, v] + FORGED_AHEAD_M * math.sin(h)
-            forged[2, b, v], forged[3, b, v], forged[4, b, v] = own[2, b, v], h, 0.0
+            h = own[HEADING, b, v]
+            forged[0, b, v] = own[X, b, v] + FORGED_AHEAD_M * math.cos(h)
+            forged[1, b, v] = own[Y, b, v] + FORGED_AHEAD_M * math.sin(h)
+            forged[2, b, v], forged[3, b, v], forged[4, b, v] = own[SPEED, b, v], h, 0.0
             for r in range(N):  # the leader too: it keeps everyone's for its braking rule
                 ln = link_of[v, r]
                 if r == v or ln < 0:

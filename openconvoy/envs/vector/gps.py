@@ -7,13 +7,14 @@ numbers, libm's log, cos and sin on both sides).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from openconvoy.comms.loss import SPLITMIX_GOLDEN, UNIT_53
+from openconvoy.envs import gps
 from openconvoy.envs.vector.channel import _mix
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
+
+rules(gps, "box_muller")
 
 _G, _S11 = np.uint64(SPLITMIX_GOLDEN), np.uint64(11)
 
@@ -26,9 +27,7 @@ def counter_normals(key, vehicle, tick):  # pragma: no cover - compiled
     z = _mix(z + _G + np.uint64(tick))
     u1 = np.float64(_mix(z + _G + np.uint64(0)) >> _S11) * UNIT_53
     u2 = np.float64(_mix(z + _G + np.uint64(1)) >> _S11) * UNIT_53
-    r = math.sqrt(-2.0 * math.log(1.0 - u1))
-    angle = 2.0 * math.pi * u2
-    return r * math.cos(angle), r * math.sin(angle)
+    return gps.box_muller(u1, u2)
 
 
 @bare_kernel

@@ -49,8 +49,14 @@ except ImportError as exc:  # pragma: no cover - the extra is installed by `make
 
 
 RULE_MODULES = (
+    "openconvoy.core.estimate",
+    "openconvoy.core.ladder",
     "openconvoy.core.spacing",
     "openconvoy.core.safety",
+    "openconvoy.envs.gps",
+    "openconvoy.envs.plant",
+    "openconvoy.envs.reward",
+    "openconvoy.envs.scenarios",
 )
 """The modules whose plain rule functions the kernels call compiled (``rules``): their
 source is part of the kernel cache's digest."""

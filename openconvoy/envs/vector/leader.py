@@ -9,17 +9,13 @@ import math
 import numpy as np
 
 from openconvoy.core.errors import ConfigError
-from openconvoy.envs.scenarios import (
-    EMERGENCY_BRAKE_AT_S,
-    EMERGENCY_DECEL_MPS2,
-    EMERGENCY_SPEED_MPS,
-    PathScenario,
-    SpeedProfile,
-    emergency_speed,
-    paper_speed,
-)
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs import scenarios
+from openconvoy.envs.scenarios import PathScenario, SpeedProfile, emergency_speed, paper_speed
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
 from openconvoy.envs.vector.math import wrap
+from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
+
+rules(scenarios, "paper_speed", "emergency_speed")
 
 WINDOW_M = 20.0
 """``Path.project``'s search window around the last arc length (m)."""
@@ -80,7 +76,7 @@ def _segment(seg_s, n, s):  # pragma: no cover - compiled
 def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - compiled
     """``Path.project`` of each leader near its last arc length; updates ``s_arr``."""
     n = seg.shape[0]
-    x, y = own[0, :, 0], own[1, :, 0]
+    x, y = own[X, :, 0], own[Y, :, 0]
     for b in range(len(x)):
         if n == 1:
             u = (x[b] - seg[0, 0]) * seg[0, 2] + (y[b] - seg[0, 1]) * seg[0, 3]
@@ -109,13 +105,12 @@ def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - comp
 
 @bare_inline
 def _profile(kind, t, s, target):  # pragma: no cover - compiled
-    """The built-in speed profiles (``scenarios.paper_speed``, ``emergency_speed``)."""
+    """The built-in speed profiles, compiled (``scenarios.paper_speed``,
+    ``emergency_speed``); ``target`` for the others."""
     if kind == 1:
-        return 2.0 if 20.0 <= t < 40.0 else 1.0
+        return scenarios.paper_speed(t, s)
     if kind == 2:
-        if t < EMERGENCY_BRAKE_AT_S:
-            return EMERGENCY_SPEED_MPS
-        return max(0.0, EMERGENCY_SPEED_MPS - EMERGENCY_DECEL_MPS2 * (t - EMERGENCY_BRAKE_AT_S))
+        return scenarios.emergency_speed(t, s)
     return target
 
 
@@ -134,7 +129,7 @@ def _drive(
         t_last[b] = t[b]
         if dt > 0.0:
             cmd[b] = cmd[b] + min(max(tgt - cmd[b], -p[1] * dt), p[0] * dt)
-        look = max(p[2], p[3] * max(own[2, b, 0], 0.0))
+        look = max(p[2], p[3] * max(own[SPEED, b, 0], 0.0))
         ahead = (s + look) % length if closed else s + look
         if closed:
             ahead = ahead % length
@@ -142,4 +137,4 @@ def _drive(
         u = ahead - seg_s[i]
         tx, ty = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
         cmd_v[b, 0] = cmd[b]
-        cmd_dh[b, 0] = wrap(math.atan2(ty - own[1, b, 0], tx - own[0, b, 0]) - own[3, b, 0])
+        cmd_dh[b, 0] = wrap(math.atan2(ty - own[Y, b, 0], tx - own[X, b, 0]) - own[HEADING, b, 0])

@@ -26,12 +26,3 @@ def wrap(a):  # pragma: no cover - compiled
     if -TWO_PI <= x < 0.0:
         return (x + TWO_PI) - math.pi
     return x % TWO_PI - math.pi
-
-
-@bare_inline
-def cos_sin(own, b, i):  # pragma: no cover - compiled
-    """Cosine and sine of vehicle ``i``'s heading in ``own`` (rows x, y, speed, heading,
-    ...; convoy ``b``): the plant's rows 6 and 7 where ``own`` has them, else libm's."""
-    if own.shape[0] > 7:
-        return own[6, b, i], own[7, b, i]
-    return math.cos(own[3, b, i]), math.sin(own[3, b, i])

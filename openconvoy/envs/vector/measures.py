@@ -3,22 +3,22 @@ terms, the same order of operations) and the info arrays."""
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
+from openconvoy.envs import reward as reward_mod
 from openconvoy.envs.reward import RewardConfig
-from openconvoy.envs.vector.jit import bare_kernel
+from openconvoy.envs.vector.jit import bare_kernel, rules
 from openconvoy.envs.vector.math import norm
+from openconvoy.envs.vector.plant import ACCEL, SPEED, YAW_RATE, X, Y
+
+rules(reward_mod, "follower_reward")
 
 
 def pack_reward(c: RewardConfig) -> np.ndarray:
     """``RewardConfig`` as the kernel's array."""
-    return np.array(
-        [c.spacing_scale_m, c.accel_scale_mps2, c.jerk_scale_mps3, c.yaw_rate_scale_radps,
-         c.w_spacing, c.w_accel, c.w_jerk, c.w_yaw_rate, c.collision_penalty],
-    )  # fmt: skip
+    return np.array(c.numbers)
 
 
 @bare_kernel
@@ -26,7 +26,7 @@ def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
     """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions."""
     for b in range(gap.shape[0]):
         for f in range(gap.shape[1]):
-            g = norm(own[0, b, f] - own[0, b, f + 1], own[1, b, f] - own[1, b, f + 1])
+            g = norm(own[X, b, f] - own[X, b, f + 1], own[Y, b, f] - own[Y, b, f + 1])
             gap[b, f] = g
             collided[b, f] = g < half_sum[f]
 
@@ -37,13 +37,11 @@ def reward(out, gap, desired, accel_old, own, collided, inv_dt, c):  # pragma: n
     for b in range(gap.shape[0]):
         for f in range(gap.shape[1]):
             i = f + 1
-            e = abs(gap[b, f] - desired[b, i]) / c[0]
-            e = 0.0 if math.isnan(e) else min(e, 1.0)
-            a = own[4, b, i] / c[1]
-            j = (own[4, b, i] - accel_old[b, i]) * inv_dt / c[2]
-            w = own[5, b, i] / c[3]
-            pen = c[8] if collided[b, f] else 0.0
-            out[b, f] = -(c[4] * e + c[5] * a * a + c[6] * j * j + c[7] * w * w + pen)
+            accel = own[ACCEL, b, i]
+            jerk = (accel - accel_old[b, i]) * inv_dt
+            error = gap[b, f] - desired[b, i]
+            hit = collided[b, f]
+            out[b, f] = reward_mod.follower_reward(c, error, accel, jerk, own[YAW_RATE, b, i], hit)
 
 
 FLOAT_KEYS = (
@@ -84,7 +82,7 @@ def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, A
     out.update(zip(LEADER_FLOAT_KEYS, lf))
     out.update(zip(LEADER_INT_KEYS, li))
     out["t_s"] = env.t.copy()
-    out["leader_speed_mps"] = env.own[2][:, 0].copy()
+    out["leader_speed_mps"] = env.own[SPEED][:, 0].copy()
     out["collision"] = env.collided.copy()
     return out
 
@@ -102,7 +100,7 @@ def fill_infos(
             i = f + 1
             fl[0, b, f], fl[1, b, f] = gap[b, f], desired[b, i]
             fl[2, b, f], fl[3, b, f] = abs(gap[b, f] - desired[b, i]), spacing_error[b, i]
-            fl[4, b, f], fl[5, b, f] = own[2, b, i], own[4, b, i]
+            fl[4, b, f], fl[5, b, f] = own[SPEED, b, i], own[ACCEL, b, i]
             fl[6, b, f] = cmd_v[b, i] if has_cmd[b] else np.nan
             fl[7, b, f] = cmd_dh[b, i] if has_cmd[b] else np.nan
             fl[8, b, f] = pred_age[b, i]

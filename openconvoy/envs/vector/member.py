@@ -14,26 +14,36 @@ before the estimate from messages (``ConvoyMember.supervise``, ``ConvoyWorld._em
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from openconvoy.core import safety, spacing
+from openconvoy.core import estimate as estimate_mod
+from openconvoy.core import ladder, safety, spacing
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.member import PATH_CONE
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
-from openconvoy.envs.vector.math import cos_sin, norm
+from openconvoy.envs.vector.plant import ACCEL, SPEED, X, Y, cos_sin
+from openconvoy.envs.vector.rx import HC, HH, HS, HV, HX, HY, T
 
 rules(spacing, "time_headway_gap_m", "speed_gap_m", "pair_gap_m")
-rules(safety, "gap_reduction_m")
+rules(safety, "gap_reduction_m", "stopping_distance_m", "too_close")
+rules(estimate_mod, "reckoned_travel", "closing_m")
+rules(ladder, "rung_code", "intruder_closer", "acc_speed_mps")
 
-COOP, DEGRADED, STOP, FAILSAFE = range(4)
+COOP, DEGRADED, STOP, FAILSAFE = range(4)  # core.ladder.rung_code's, then the latches'
+ENABLED, DEGRADE_AFTER, STOP_AFTER, EXTRA_HEADWAY, GAP_GAIN, INTRUDER_MARGIN = range(6)
+"""Rows of ``pack_ladder``'s array."""
+RANGE, RATE = range(2)
+"""Rows of a ranging reading and of ``pred_est``: range or gap (m), its rate (m/s)."""
 EVENT_ROWS = ("error_t_s", "error_speed", "error_change", "estop_t_s", "estop_bumper_m",
               "estop_closing_mps", "estop_ego_mps", "estop_pred_decel", "estop_ego_accel")  # fmt: skip
 """``decide``'s event record, per vehicle and episode (NaN until it happens): when the
 first refused action came and its two values; when the emergency stop latched, with the
 bumper gap, closing speed, own speed, the braking limit of the vehicle ahead and own
 acceleration it read."""
+ERROR_T, ERROR_SPEED, ERROR_CHANGE, ESTOP_T = range(4)
 
 
 def pack_spacing(c: SpacingConfig) -> np.ndarray:
@@ -83,225 +93,246 @@ def estimate(hist, hist_n, link_decel, b, ln, t, stop_after, fresh_age):  # prag
     (valid, x m, y m, speed m/s, heading rad, age s). Fresh: dead-reckoned at its speed;
     stale: braking at its limit since the message."""
     li = ln if ln >= 0 else 0
-    lt, lx, ly = hist[b, li, 0, 0], hist[b, li, 0, 1], hist[b, li, 0, 2]
-    lv, lh = hist[b, li, 0, 3], hist[b, li, 0, 4]
+    lt, lx, ly = hist[b, li, 0, T], hist[b, li, 0, HX], hist[b, li, 0, HY]
+    lv, lh = hist[b, li, 0, HV], hist[b, li, 0, HH]
     age = max(t - lt, 0.0)
     if not (ln >= 0 and hist_n[b, li] > 0 and not age > stop_after):
         return False, 0.0, 0.0, 0.0, 0.0, age  # invalid: the rest is never read
-    if age <= fresh_age:
-        d, speed = lv * age, lv
-    else:
-        a = link_decel[li]
-        d, speed = 0.0, 0.0
-        if lv > 0.0 and not math.isinf(a):
-            tau = min(age, lv / a)
-            d = lv * tau - 0.5 * a * tau * tau
-            speed = max(lv - a * age, 0.0)
+    d, speed = estimate_mod.reckoned_travel(lv, age, fresh_age, link_decel[li])
     if d == 0.0:  # not moved since the message: no trigonometry
         return True, lx + d, ly + d, speed, lh, age
     # the heading's cosine and sine as pushed (vector_rx): libm's of the same heading
-    return True, lx + d * hist[b, li, 0, 6], ly + d * hist[b, li, 0, 7], speed, lh, age
+    return True, lx + d * hist[b, li, 0, HC], ly + d * hist[b, li, 0, HS], speed, lh, age
+
+
+class Member(NamedTuple):
+    """What ``decide`` and ``lead_guard`` read besides the tick's arrays, fixed for an
+    env's life (arrays filled in place): the action bounds ``low``, ``high`` (F, 2); the
+    R^i buffers ``hist``, ``hist_n``, ``newest`` (``vector.rx``); the links each follower
+    needs, its predecessor's and the leader's from each vehicle (``vector.links``, -1:
+    none); each link's sender's and each vehicle's braking limit (m/s²); the lengths (m);
+    the packed ``spacing`` and ``ladder``; the rule's fresh age (s); the heading clip
+    (rad); the emergency rules (4, F) and the leader's (4,); emergency stops on or off."""
+
+    low: np.ndarray
+    high: np.ndarray
+    hist: np.ndarray
+    hist_n: np.ndarray
+    newest: np.ndarray
+    needed: np.ndarray
+    pred_link: np.ndarray
+    lead_link: np.ndarray
+    link_decel: np.ndarray
+    decel: np.ndarray
+    lengths: np.ndarray
+    spacing: np.ndarray
+    ladder: np.ndarray
+    fresh_age: float
+    max_dh: float
+    rule: np.ndarray
+    lead_rule: np.ndarray
+    emergency: bool
+
+
+class Commands(NamedTuple):
+    """What ``decide`` and ``lead_guard`` write, (B, N) unless said: the policy-error
+    count and latch, the emergency latch, the commanded speed (m/s), heading change (rad)
+    and mode, the event record (``EVENT_ROWS``, B, N) and its count (B,)."""
+
+    errors: np.ndarray
+    failed: np.ndarray
+    estopped: np.ndarray
+    cmd_v: np.ndarray
+    cmd_dh: np.ndarray
+    modes: np.ndarray
+    events: np.ndarray
+    n_events: np.ndarray
 
 
 @bare_kernel
-def decide(
-    act, low, high, t, own, hist, hist_n, newest, needed, pred_link, link_decel, lengths, sp, lad,
-    fresh_age, max_dh, pred_est, errors, failed, estopped, emergency, rule, cmd_v, cmd_dh, modes,
-    ranging, events, n_events, decel,
-):  # pragma: no cover - compiled  # fmt: skip
-    """One tick of ``core.tick.decide`` for every follower: the action (non-finite: a
-    latched policy error), clipped and float32, through the ladder (with the ranging
-    reading), then the latch and the emergency rule; writes ``cmd_v``, ``cmd_dh`` (B, N)
-    and ``modes``. A latch that ``ConvoyWorld`` records in ``safety_events`` is written
-    to ``events`` (``EVENT_ROWS``, (9, B, N)) and counted in ``n_events`` (B,).
-    ``fresh_age``: the rule's (``MemberConfig.rule_fresh_age_s``); ``decel`` (N,) each
-    vehicle's braking limit."""
+def decide(act, t, own, ranging, pred_est, m, out):  # pragma: no cover - compiled
+    """One tick of ``core.tick.decide`` for every follower: the action ``act`` (B, F, 2;
+    non-finite: a latched policy error), clipped and float32, through the ladder (with the
+    ``ranging`` reading and the predecessor estimate ``pred_est``), then the latch and the
+    emergency rule; ``m`` a ``Member``, writes ``out`` (``Commands``). A latch that
+    ``ConvoyWorld`` records in ``safety_events`` is written to its event record."""
     B, F = act.shape[0], act.shape[1]
     for b in range(B):
         for f in range(F):
             i = f + 1
             a0, a1 = act[b, f, 0], act[b, f, 1]
             if not (np.isfinite(a0) and np.isfinite(a1)):
-                errors[b, i] += 1
-                if not failed[b, i]:  # the first refusal of the episode: an event
-                    events[0, b, i], events[1, b, i], events[2, b, i] = t[b], a0, a1
-                    n_events[b] += 1
-                failed[b, i] = True
+                out.errors[b, i] += 1
+                if not out.failed[b, i]:  # the first refusal of the episode: an event
+                    out.events[ERROR_T, b, i] = t[b]
+                    out.events[ERROR_SPEED, b, i], out.events[ERROR_CHANGE, b, i] = a0, a1
+                    out.n_events[b] += 1
+                out.failed[b, i] = True
                 a0, a1 = np.float32(0.0), np.float32(0.0)
-            v = float(np.float32(min(max(np.float64(a0), low[f, 0]), high[f, 0])))
-            dh = float(np.float32(min(max(np.float64(a1), low[f, 1]), high[f, 1])))
+            v = float(np.float32(min(max(np.float64(a0), m.low[f, 0]), m.high[f, 0])))
+            dh = float(np.float32(min(max(np.float64(a1), m.low[f, 1]), m.high[f, 1])))
             mode = COOP
-            if lad[0] != 0.0:
-                age = 0.0
-                for ln in needed[i]:
-                    if ln >= 0:
-                        age = max(age, link_age(newest, b, ln, t[b]))
-                mode = COOP if age <= lad[1] else (DEGRADED if age <= lad[2] else STOP)
-                if mode == COOP and _overridden(own, b, i, lengths, sp, lad, pred_est, ranging):
-                    mode = DEGRADED
-                v, dh, mode = _ladder(own, b, i, lengths, sp, lad, pred_est, ranging, v, dh,
-                                      mode, max_dh)  # fmt: skip
-            if failed[b, i]:
+            if m.ladder[ENABLED] != 0.0:
+                mode = _rung(own, b, i, m, pred_est, ranging, t[b])
+                v, dh, mode = _ladder(own, b, i, m, pred_est, ranging, (v, dh, mode))
+            if out.failed[b, i]:
                 v, dh, mode = 0.0, 0.0, FAILSAFE
-            if emergency:
-                if _fires(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths, lad,
-                          fresh_age, rule[:, f], t[b], ranging, decel[i - 1]) or estopped[b, i]:  # fmt: skip
-                    if not (estopped[b, i] or failed[b, i]):  # it latches: an event
+            if m.emergency:
+                if out.estopped[b, i] or _fires(own, b, i, m, t[b], ranging):
+                    if not (out.estopped[b, i] or out.failed[b, i]):  # it latches: an event
                         # (a failed follower's rule is not consulted in ConvoyWorld: no event)
-                        _record_stop(own, b, i, hist, hist_n, pred_link[f], link_decel, lengths,
-                                     lad, fresh_age, t[b], ranging, events, n_events,
-                                     decel[i - 1])  # fmt: skip
-                    estopped[b, i] = True
+                        _record_stop(own, b, i, m, t[b], ranging, out)
+                    out.estopped[b, i] = True
                     v, dh, mode = 0.0, 0.0, FAILSAFE
-            cmd_v[b, i], cmd_dh[b, i], modes[b, i] = v, dh, mode
+            out.cmd_v[b, i], out.cmd_dh[b, i], out.modes[b, i] = v, dh, mode
 
 
 @bare_inline
-def _overridden(own, b, i, lengths, sp, lad, pred_est, ranging):  # pragma: no cover
+def _rung(own, b, i, m, pred_est, ranging, t):  # pragma: no cover - compiled
+    """``core.ladder.rung`` on the oldest needed message at ``t``, then the ranging
+    override (``ConvoyMember.supervise``): the mode code."""
+    age = 0.0
+    for ln in m.needed[i]:
+        if ln >= 0:
+            age = max(age, link_age(m.newest, b, ln, t))
+    mode = ladder.rung_code(age, m.ladder[DEGRADE_AFTER], m.ladder[STOP_AFTER])
+    if mode == COOP and _overridden(own, b, i, m, pred_est, ranging):
+        return DEGRADED
+    return mode
+
+
+@bare_inline
+def _overridden(own, b, i, m, pred_est, ranging):  # pragma: no cover - compiled
     """``ConvoyMember._ranging_override``: the ranging target is closer by the intruder
     margin than the predecessor by its messages or the desired gap."""
-    rng_m, v2v_gap = ranging[0, b, i], pred_est[0, b, i]
+    rng_m, v2v_gap = ranging[RANGE, b, i], pred_est[RANGE, b, i]
     if math.isnan(rng_m) or math.isnan(v2v_gap):
         return False
-    desired = pair_gap(sp, own[2, b, i], lengths[i], lengths[i - 1])
-    return rng_m < max(v2v_gap, desired) - lad[5]
+    desired = pair_gap(m.spacing, own[SPEED, b, i], m.lengths[i], m.lengths[i - 1])
+    return ladder.intruder_closer(rng_m, v2v_gap, desired, m.ladder[INTRUDER_MARGIN])
 
 
 @bare_inline
-def _ladder(
-    own, b, i, lengths, sp, lad, pred_est, ranging, v, dh, mode, max_dh
-):  # pragma: no cover
-    """``ConvoyMember.supervise``'s rungs: degraded follows the ACC fallback on the
-    ranging reading, else the predecessor estimate (neither: stop), stop commands zero."""
+def _ladder(own, b, i, m, pred_est, ranging, command):  # pragma: no cover - compiled
+    """``ConvoyMember.supervise``'s rungs on ``command`` (speed, heading change, mode):
+    degraded follows the ACC fallback on the ranging reading, else the predecessor
+    estimate (neither: stop), stop commands zero."""
+    v, dh, mode = command
     if mode == DEGRADED:
-        est_gap, est_closing = pred_est[0, b, i], pred_est[1, b, i]
-        if not math.isnan(ranging[0, b, i]):
-            est_gap, est_closing = ranging[0, b, i], ranging[1, b, i]
+        est_gap, est_closing = pred_est[RANGE, b, i], pred_est[RATE, b, i]
+        if not math.isnan(ranging[RANGE, b, i]):
+            est_gap, est_closing = ranging[RANGE, b, i], ranging[RATE, b, i]
         if math.isnan(est_gap):
             mode = STOP
         else:
-            ego_v = own[2, b, i]
-            target = pair_gap(sp, ego_v, lengths[i], lengths[i - 1]) + lad[3] * max(ego_v, 0.0)
-            acc_v = max(0.0, ego_v + est_closing + lad[4] * (est_gap - target))
+            ego_v = own[SPEED, b, i]
+            desired = pair_gap(m.spacing, ego_v, m.lengths[i], m.lengths[i - 1])
+            lad = m.ladder
+            acc_v = ladder.acc_speed_mps(
+                est_gap, est_closing, ego_v, desired, lad[EXTRA_HEADWAY], lad[GAP_GAIN]
+            )
             v = float(np.float32(min(v, acc_v)))
-            dh = float(np.float32(min(max(dh, -max_dh), max_dh)))
+            dh = float(np.float32(min(max(dh, -m.max_dh), m.max_dh)))
     if mode == STOP:
         v, dh = 0.0, 0.0
     return v, dh, mode
 
 
 @bare_inline
-def _rule_gap(
-    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, t, ranging
-):  # pragma: no cover - compiled
+def _rule_gap(own, b, i, m, t, ranging):  # pragma: no cover - compiled
     """What the braking-aware gap rule reads: (known, bumper gap m, closing speed m/s),
     from the ranging reading, else from the estimate of the predecessor."""
-    if not math.isnan(ranging[0, b, i]):
-        gap, closing = ranging[0, b, i], -ranging[1, b, i]
+    if not math.isnan(ranging[RANGE, b, i]):
+        gap, closing = ranging[RANGE, b, i], -ranging[RATE, b, i]
     else:
         # no stop age: a predecessor silent for longer is still no further than braking at
-        # its limit takes it (``ConvoyMember.gap_estimate``)
-        # ``fresh_age``: the rule's (``MemberConfig.rule_fresh_age_s``, ``gap_estimate``)
-        valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, link, t, np.inf, fresh_age)
+        # its limit takes it (``ConvoyMember.gap_estimate``); the fresh age is the rule's
+        # (``MemberConfig.rule_fresh_age_s``)
+        link = m.pred_link[i - 1]
+        valid, ex, ey, es, _, _ = estimate(
+            m.hist, m.hist_n, m.link_decel, b, link, t, np.inf, m.fresh_age
+        )
         if not valid:
             return False, 0.0, 0.0
         # the estimate's heading is the message's: its cosine and sine as pushed (vector_rx)
-        gap, closing = _gap_and_closing(own, b, i, ex, ey, es, hist[b, link, 0, 6],
-                                        hist[b, link, 0, 7])  # fmt: skip
-    return True, gap - 0.5 * (lengths[i] + lengths[i - 1]), closing
+        ce, se = m.hist[b, link, 0, HC], m.hist[b, link, 0, HS]
+        gap, closing = _gap_and_closing(own, b, i, ex, ey, es, ce, se)
+    return True, gap - 0.5 * (m.lengths[i] + m.lengths[i - 1]), closing
 
 
 @bare_kernel
-def _record_stop(
-    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, t, ranging, events,
-    n_events, pred_decel,
-):  # pragma: no cover - compiled  # fmt: skip
-    """An emergency stop latched at ``t``: its time and what the rule read, into
-    ``events`` (``EVENT_ROWS`` 3-7). Out of line: the rare branch keeps the loop small."""
-    _, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
-                                   fresh_age, t, ranging)  # fmt: skip
-    events[3, b, i], events[4, b, i], events[5, b, i] = t, bumper, closing
-    events[6, b, i], events[7, b, i], events[8, b, i] = own[2, b, i], pred_decel, own[4, b, i]
-    n_events[b] += 1
+def _record_stop(own, b, i, m, t, ranging, out):  # pragma: no cover - compiled
+    """An emergency stop latched at ``t``: its time and what the rule read, into the
+    event record. Out of line: the rare branch keeps the loop small."""
+    _, bumper, closing = _rule_gap(own, b, i, m, t, ranging)
+    _record(out, b, i, (t, bumper, closing, own[SPEED, b, i], m.decel[i - 1], own[ACCEL, b, i]))
 
 
 @bare_inline
-def _fires(
-    own, b, i, hist, hist_n, link, link_decel, lengths, lad, fresh_age, rule, t, ranging,
-    pred_decel,
-):  # pragma: no cover - compiled  # fmt: skip
+def _record(out, b, i, read):  # pragma: no cover - compiled
+    """Vehicle ``i``'s emergency stop into the event record: ``read`` is (time s, bumper
+    gap m, closing m/s, own speed m/s, braking limit ahead m/s², own acceleration m/s²)."""
+    for k in range(6):
+        out.events[ESTOP_T + k, b, i] = read[k]
+    out.n_events[b] += 1
+
+
+@bare_inline
+def _fires(own, b, i, m, t, ranging):  # pragma: no cover - compiled
     """The braking-aware gap rule on ``_rule_gap``'s reading: True to stop."""
-    known, bumper, closing = _rule_gap(own, b, i, hist, hist_n, link, link_decel, lengths, lad,
-                                       fresh_age, t, ranging)  # fmt: skip
+    known, bumper, closing = _rule_gap(own, b, i, m, t, ranging)
     if not known:
         return False
-    return _too_close(bumper, closing, own[2, b, i], pred_decel, own[4, b, i], rule)
-
-
-@bare_inline
-def _too_close(bumper, closing, ego, pred_decel, accel, rule):  # pragma: no cover - compiled
-    """``BrakingGap.too_close`` with the ego's speed: the rule ``(decel, reaction,
-    margin, lag)`` on the bumper gap (m), closing speed (m/s), own speed (m/s) and the braking
-    limit of the vehicle ahead (m/s²), and the own acceleration (m/s²)."""
-    if not np.isfinite(bumper):
-        return False
-    if not np.isfinite(closing):
-        closing = 0.0
-    if not np.isfinite(ego):
-        ego, pred = closing, 0.0
-    else:
-        pred = ego - closing
-    reduction = safety.gap_reduction_m(ego, pred, rule[1], rule[3], rule[0], pred_decel, accel)
-    return bumper - reduction < rule[2]
+    ego, accel = own[SPEED, b, i], own[ACCEL, b, i]
+    return safety.too_close(bumper, closing, ego, m.decel[i - 1], accel, m.rule[:, i - 1])
 
 
 @bare_kernel
-def lead_guard(
-    t, own, hist, hist_n, lead_link, link_decel, decel, lengths, fresh_age, rule, estopped,
-    emergency, cmd_v, cmd_dh, modes, events, n_events,
-):  # pragma: no cover - compiled  # fmt: skip
-    """``ConvoyWorld._lead_emergency`` for every leader: the braking rule ``rule`` (3,) to
-    the nearest member in its path (``ConvoyMember.path_gap``; ``lead_link[j]``: the
-    leader's link from vehicle ``j``, -1: none), latched; after the leader's command."""
-    if not emergency:
+def lead_guard(t, own, m, out):  # pragma: no cover - compiled
+    """``ConvoyWorld._lead_emergency`` for every leader: its braking rule ``m.lead_rule``
+    to the nearest member in its path (``ConvoyMember.path_gap``), latched; after the
+    leader's command. ``m`` a ``Member``, writes ``out`` (``Commands``)."""
+    if not m.emergency:
         return
-    B, N = own.shape[1], own.shape[2]
-    for b in range(B):
-        if not estopped[b, 0]:
-            co, so = cos_sin(own, b, 0)
-            best, best_closing, best_j = np.inf, 0.0, -1
-            for j in range(1, N):
-                ln = lead_link[j]
-                if ln < 0:
-                    continue
-                valid, ex, ey, es, _, _ = estimate(hist, hist_n, link_decel, b, ln, t[b], np.inf,
-                                                   fresh_age)  # fmt: skip
-                if not valid:
-                    continue
-                dx, dy = ex - own[0, b, 0], ey - own[1, b, 0]
-                half = 0.5 * (lengths[0] + lengths[j])
-                along = co * dx + so * dy
-                if not (along > 0.0 and abs(co * dy - so * dx) < half + PATH_CONE * along):
-                    continue
-                gap, closing = _gap_and_closing(own, b, 0, ex, ey, es, hist[b, ln, 0, 6],
-                                                hist[b, ln, 0, 7])  # fmt: skip
-                if best_j < 0 or gap < best:
-                    best, best_closing, best_j = gap, closing, j
-            if best_j < 0:
+    for b in range(own.shape[1]):
+        if not out.estopped[b, 0]:
+            best, closing, j = _nearest_in_path(own, b, m, t[b])
+            if j < 0:
                 continue
-            bumper = best - 0.5 * (lengths[0] + lengths[best_j])
-            if not _too_close(bumper, best_closing, own[2, b, 0], decel[best_j], own[4, b, 0],
-                              rule):  # fmt: skip
+            bumper = best - 0.5 * (m.lengths[0] + m.lengths[j])
+            ego, accel = own[SPEED, b, 0], own[ACCEL, b, 0]
+            if not safety.too_close(bumper, closing, ego, m.decel[j], accel, m.lead_rule):
                 continue
-            estopped[b, 0] = True
-            events[3, b, 0], events[4, b, 0], events[5, b, 0] = t[b], bumper, best_closing
-            events[6, b, 0], events[7, b, 0], events[8, b, 0] = (
-                own[2, b, 0],
-                decel[best_j],
-                own[4, b, 0],
-            )
-            n_events[b] += 1
-        cmd_v[b, 0], cmd_dh[b, 0], modes[b, 0] = 0.0, 0.0, FAILSAFE
+            out.estopped[b, 0] = True
+            _record(out, b, 0, (t[b], bumper, closing, ego, m.decel[j], accel))
+        out.cmd_v[b, 0], out.cmd_dh[b, 0], out.modes[b, 0] = 0.0, 0.0, FAILSAFE
+
+
+@bare_inline
+def _nearest_in_path(own, b, m, t):  # pragma: no cover - compiled
+    """The nearest member in the leader's path by its estimate (``ConvoyMember.path_gap``):
+    (centre gap m, closing speed m/s, vehicle; -1: none)."""
+    co, so = cos_sin(own, b, 0)
+    best, best_closing, best_j = np.inf, 0.0, -1
+    for j in range(1, own.shape[2]):
+        ln = m.lead_link[j]
+        if ln < 0:
+            continue
+        valid, ex, ey, es, _, _ = estimate(
+            m.hist, m.hist_n, m.link_decel, b, ln, t, np.inf, m.fresh_age
+        )
+        if not valid:
+            continue
+        dx, dy = ex - own[X, b, 0], ey - own[Y, b, 0]
+        half = 0.5 * (m.lengths[0] + m.lengths[j])
+        along = co * dx + so * dy
+        if not (along > 0.0 and abs(co * dy - so * dx) < half + PATH_CONE * along):
+            continue
+        ce, se = m.hist[b, ln, 0, HC], m.hist[b, ln, 0, HS]
+        gap, closing = _gap_and_closing(own, b, 0, ex, ey, es, ce, se)
+        if best_j < 0 or gap < best:
+            best, best_closing, best_j = gap, closing, j
+    return best, best_closing, best_j
 
 
 @bare_inline
@@ -309,12 +340,7 @@ def _gap_and_closing(own, b, i, ex, ey, es, ce, se):  # pragma: no cover - compi
     """``core.estimate.gap_and_closing`` of vehicle ``i`` to the estimate (x, y, speed,
     and its heading's cosine and sine): centre-to-centre gap (m) and closing speed (m/s,
     positive = closing)."""
-    ox, oy, ov = own[0, b, i], own[1, b, i], own[2, b, i]
+    ov = own[SPEED, b, i]
     co, so = cos_sin(own, b, i)
-    dx, dy = ex - ox, ey - oy
-    gap = norm(dx, dy)
-    vx = ov * co - es * ce
-    vy = ov * so - es * se
-    if gap <= 0.0:
-        return 0.0, max(ov - es, 0.0)
-    return gap, (dx * vx + dy * vy) / gap
+    dvx, dvy = ov * co - es * ce, ov * so - es * se
+    return estimate_mod.closing_m(ex - own[X, b, i], ey - own[Y, b, i], dvx, dvy, ov, es)

@@ -14,8 +14,9 @@ import numpy as np
 
 from openconvoy.core.observation import LOOKAHEAD_S, MAX_AGE_S, ObservationLayout
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch
-from openconvoy.envs.vector.math import cos_sin, wrap
+from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vector.member import estimate, link_age, pair_gap, speed_gap
+from openconvoy.envs.vector.plant import ACCEL, HEADING, SPEED, YAW_RATE, X, Y, cos_sin
 from openconvoy.envs.vector.trail import T_BASE, finish, head_s, point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
@@ -41,7 +42,7 @@ def _slots(obs, b, f, t, own, c, s, hist, hist_n, slot_link, geom):  # pragma: n
     """The state slots: each kept sender's last k states in the ego frame (``c``, ``s``:
     cosine and sine of the ego heading)."""
     i = f + 1
-    ex, ey, eh = own[0, b, i], own[1, b, i], own[3, b, i]
+    ex, ey, eh = own[X, b, i], own[Y, b, i], own[HEADING, b, i]
     for k in range(slot_link.shape[1]):
         link = slot_link[f, k]
         if link < 0:
@@ -83,7 +84,7 @@ def _path(
 ):  # pragma: no cover
     """The path features: cross track, heading error, lookahead points in the ego frame."""
     i = f + 1
-    ex, ey, ev, eh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
+    ex, ey, ev, eh = own[X, b, i], own[Y, b, i], own[SPEED, b, i], own[HEADING, b, i]
     obs[b, f, o] = -cross
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
@@ -122,9 +123,13 @@ def observe(
             obs[b, f, :] = 0.0
             c, s = cos_sin(own, b, i)
             _slots(obs, b, f, tb, own, c, s, hist, hist_n, slot_link, geom)
-            ev = own[2, b, i]
+            ev = own[SPEED, b, i]
             o = geom[2]
-            obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = ev, own[4, b, i], own[5, b, i]
+            obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = (
+                ev,
+                own[ACCEL, b, i],
+                own[YAW_RATE, b, i],
+            )
             desired_gap[b, i] = pair_gap(sp, ev, lengths[i], lengths[i - 1])
             age = link_age(newest, b, pred_link[f], tb) if pred_link[f] >= 0 else np.inf
             pred_age[b, i] = np.nan if math.isinf(age) else age
@@ -182,7 +187,7 @@ def _targets(
     the derived features; returns the nearest heard target (pred_1..pred_M, then the
     leader) or -1."""
     i = f + 1
-    ex, ey, ev = own[0, b, i], own[1, b, i], own[2, b, i]
+    ex, ey, ev = own[X, b, i], own[Y, b, i], own[SPEED, b, i]
     ntg = tg.shape[1]
     chosen = -1
     for m in range(ntg):

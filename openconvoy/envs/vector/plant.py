@@ -13,17 +13,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
+from openconvoy.envs import plant
 from openconvoy.envs.plant import BicyclePlant
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, rules
 from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vehicles import VehiclePreset
 
 X, Y, SPEED, HEADING, ACCEL, YAW_RATE, COS_H, SIN_H = range(8)
 ROWS = 8
 """Rows of ``VectorPlant.state``."""
+rules(plant, "lag_speed_change", "pi_speed_loop", "slewed_yaw_rate")
 _PARAMS = (
     "_tau_v", "_tau_h", "_acc", "_dec", "_rate", "_vmax", "_kappa", "_kp", "_ki", "_ff",
     "_tau_d", "_drag", "_stop", "_brk", "_yaw_acc", "_alat",
@@ -31,6 +34,41 @@ _PARAMS = (
 TAU_V, TAU_H, ACC, DEC, RATE, VMAX, KAPPA, KP, KI, FF, TAU_D, DRAG, STOP, BRK, YAW_ACC, ALAT = (
     range(len(_PARAMS))
 )
+
+
+@bare_inline
+def cos_sin(own, b, i):  # pragma: no cover - compiled
+    """Cosine and sine of vehicle ``i``'s heading in ``own`` (``ROWS``, convoy ``b``):
+    rows ``COS_H`` and ``SIN_H`` where ``own`` has them (a copy of the first six rows, as
+    the GPS-noised state, has not), else libm's."""
+    if own.shape[0] > SIN_H:
+        return own[COS_H, b, i], own[SIN_H, b, i]
+    return math.cos(own[HEADING, b, i]), math.sin(own[HEADING, b, i])
+
+
+RAMP, INTEG, SLEWED = range(3)
+"""Rows of ``PlantArrays.inner``: the ramped speed setpoint and the PI integrator (m/s),
+the slewed yaw rate (rad/s)."""
+
+
+class PlantArrays(NamedTuple):
+    """The batched plant's state and parameters, for its kernel: ``state`` (``ROWS``, n),
+    ``inner`` (``RAMP``..``SLEWED``, n), the setpoint ``queue`` (speed, heading; depth, n)
+    and its ``head`` (1,), ``params`` (``_PARAMS`` rows, n), which vehicles run the PI
+    speed loop ``pi`` (n,), the speed and heading delays in steps ``delay``, ``hdelay``
+    (n,), and the PI substeps ``sub_n``, ``sub_h`` (2, n: before and after the delay
+    boundary, ``plant.pi_delay_split``)."""
+
+    state: np.ndarray
+    inner: np.ndarray
+    queue: np.ndarray
+    head: np.ndarray
+    params: np.ndarray
+    pi: np.ndarray
+    delay: np.ndarray
+    hdelay: np.ndarray
+    sub_n: np.ndarray
+    sub_h: np.ndarray
 
 
 class VectorPlant:
@@ -53,6 +91,18 @@ class VectorPlant:
         self.inner = np.zeros((3, n))  # ramped setpoint, PI integrator, slewed yaw rate
         self.queue = np.zeros((2, self.depth, n))  # speed, heading setpoints
         self.head = np.zeros(1, dtype=np.int64)
+        self.arrays = PlantArrays(
+            state=self.state,
+            inner=self.inner,
+            queue=self.queue,
+            head=self.head,
+            params=self.params,
+            pi=self.pi,
+            delay=self.delay,
+            hdelay=self.hdelay,
+            sub_n=self.sub_n,
+            sub_h=self.sub_h,
+        )
 
     x = property(lambda self: self.state[X])
     y = property(lambda self: self.state[Y])
@@ -72,9 +122,11 @@ class VectorPlant:
         st[YAW_RATE, rows] = 0.0
         v = st[SPEED, rows]
         p = self.params[:, rows]
-        self.inner[0, rows] = v
-        self.inner[1, rows] = np.where(self.pi[rows], v + p[DRAG] * v * np.abs(v) - p[FF] * v, 0.0)
-        self.inner[2, rows] = 0.0
+        self.inner[RAMP, rows] = v
+        self.inner[INTEG, rows] = np.where(
+            self.pi[rows], v + p[DRAG] * v * np.abs(v) - p[FF] * v, 0.0
+        )
+        self.inner[SLEWED, rows] = 0.0
         self.queue[0][:, rows] = v
         self.queue[1][:, rows] = st[HEADING, rows]
         idx = np.asarray(rows)
@@ -83,10 +135,7 @@ class VectorPlant:
     def step(self, cmd_speed: np.ndarray, cmd_turn: np.ndarray) -> None:
         """Advance ``dt`` with setpoints, shape (n,): speed (m/s) and heading as a change
         from the present heading (rad; the setpoint is heading + change)."""
-        _plant_step(
-            self.state, self.inner, self.queue, self.head, self.params, self.pi, self.pi_sub,
-            self.delay, self.sub_n, self.sub_h, self.hdelay, cmd_speed, cmd_turn, self.dt,
-        )  # fmt: skip
+        _plant_step(self.arrays, cmd_speed, cmd_turn, self.dt)
 
 
 @bare_kernel
@@ -97,42 +146,37 @@ def _trig_rows(st, rows):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _pi_dv(p, i, inner, v_now, v_before, sub_n, sub_h, v0):  # pragma: no cover - compiled
-    """``BicyclePlant._pi_dv`` for vehicle ``i``: the speed change; updates its state
-    (``v_before`` acts for ``sub_n[0, i]`` substeps of ``sub_h[0, i]`` s, then ``v_now``
-    for ``sub_n[1, i]`` of ``sub_h[1, i]``: ``plant.pi_delay_split``)."""
-    r, integ, v = inner[0, i], inner[1, i], v0
-    n1 = sub_n[0, i]
-    for j in range(n1 + sub_n[1, i]):
-        if j < n1:
-            v_cmd, h = v_before, sub_h[0, i]
-        else:
-            v_cmd, h = v_now, sub_h[1, i]
-        lim = (p[ACC, i] if abs(v_cmd) > abs(r) else p[DEC, i]) * h
-        r = r + min(max(v_cmd - r, -lim), lim)
-        err = r - v
-        stopped = r == 0.0 and abs(v) <= p[STOP, i]
-        if stopped:
-            integ = 0.0
-            drive = 0.0
-        else:
-            integ = integ + p[KI, i] * err * h
-            drive = p[FF, i] * r + p[KP, i] * err + integ
-        dv = (drive - v - p[DRAG, i] * v * abs(v)) / p[TAU_D, i] * h
-        if abs(drive) < p[BRK, i] and (v == 0.0 or (v + dv) * v < 0.0 or stopped):
-            v = 0.0
-        else:
-            v = v + dv
-    inner[0, i], inner[1, i] = r, integ
+def _pi_dv(pa, i, v_now, v_before, v0):  # pragma: no cover - compiled
+    """``envs.plant.pi_speed_loop`` for vehicle ``i`` of ``pa`` (``PlantArrays``): the speed
+    change; updates its inner loop (``v_before`` acts for ``sub_n[0, i]`` substeps of
+    ``sub_h[0, i]`` s, then ``v_now`` for ``sub_n[1, i]`` of ``sub_h[1, i]``)."""
+    p, inner, sub_n, sub_h = pa.params, pa.inner, pa.sub_n, pa.sub_h
+    gains = (p[KP, i], p[KI, i], p[FF, i], p[TAU_D, i], p[STOP, i], p[DRAG, i])
+    substeps = (sub_n[0, i], sub_h[0, i], sub_n[1, i], sub_h[1, i])
+    v, inner[RAMP, i], inner[INTEG, i] = plant.pi_speed_loop(
+        v_now,
+        v0,
+        inner[RAMP, i],
+        inner[INTEG, i],
+        gains,
+        p[ACC, i],
+        p[DEC, i],
+        p[BRK, i],
+        v_before,
+        substeps,
+    )
     return v - v0
 
 
 @bare_kernel
-def _plant_step(
-    st, inner, queue, head_arr, p, pi, n_sub, delay, sub_n, sub_h, hdelay, cmd_v, cmd_h, dt
-):  # pragma: no cover - compiled
+def _plant_step(pa, cmd_v, cmd_h, dt):  # pragma: no cover - compiled
+    """``BicyclePlant.step`` for every vehicle of ``pa`` (``PlantArrays``): setpoints
+    ``cmd_v`` (m/s) and ``cmd_h`` (heading change, rad), (n,), through the delays and the
+    speed and heading loops; moves ``dt`` (s)."""
+    st, inner, queue, p = pa.state, pa.inner, pa.queue, pa.params
+    delay, hdelay = pa.delay, pa.hdelay
     depth = queue.shape[1]
-    head = head_arr[0]
+    head = pa.head[0]
     for i in range(st.shape[1]):
         queue[0, head, i] = cmd_v[i]
         queue[1, head, i] = st[HEADING, i] + cmd_h[i]
@@ -140,28 +184,26 @@ def _plant_step(
         v_cmd = min(max(queue[0, (head - delay[i]) % depth, i], -vmax), vmax)
         h_cmd = queue[1, (head - hdelay[i]) % depth, i]
         v = st[SPEED, i]
-        if pi[i]:
+        if pa.pi[i]:
             v_before = min(max(queue[0, (head - delay[i] - 1) % depth, i], -vmax), vmax)
-            dv = _pi_dv(p, i, inner, v_cmd, v_before, sub_n, sub_h, v)
+            dv = _pi_dv(pa, i, v_cmd, v_before, v)
         else:
-            dv = min(max((v_cmd - v) / p[TAU_V, i], -p[DEC, i]), p[ACC, i]) * dt
-            if abs(dv) > abs(v_cmd - v):  # never overshoot the setpoint within one step
-                dv = v_cmd - v
-            if v == 0.0 and abs(v_cmd) < p[BRK, i]:  # static friction holds it at rest
-                dv = 0.0
+            dv = plant.lag_speed_change(v_cmd, v, p[TAU_V, i], p[ACC, i], p[DEC, i], p[BRK, i], dt)
         v_new = v + dv
         hd = st[HEADING, i]
         err = wrap(h_cmd - hd)
         v_mid = 0.5 * (v + v_new)
-        rmax = p[RATE, i]
-        wanted = min(max(err / max(p[TAU_H, i], dt), -rmax), rmax)
-        slew = p[YAW_ACC, i] * dt
-        rd = inner[2, i]
-        rd = min(max(wanted, rd - slew), rd + slew)
-        inner[2, i] = rd
-        speed_mid = abs(v_mid)
-        cap = min(speed_mid * p[KAPPA, i], p[ALAT, i] / max(speed_mid, 1e-9))
-        rate = min(max(rd, -cap), cap)
+        rate, inner[SLEWED, i] = plant.slewed_yaw_rate(
+            err,
+            v_mid,
+            inner[SLEWED, i],
+            p[TAU_H, i],
+            p[RATE, i],
+            p[KAPPA, i],
+            p[YAW_ACC, i],
+            p[ALAT, i],
+            dt,
+        )
         h_mid = hd + 0.5 * rate * dt
         st[X, i] = st[X, i] + v_mid * math.cos(h_mid) * dt
         st[Y, i] = st[Y, i] + v_mid * math.sin(h_mid) * dt
@@ -171,4 +213,4 @@ def _plant_step(
         st[ACCEL, i] = dv / dt
         st[YAW_RATE, i] = rate
         st[SPEED, i] = v_new
-    head_arr[0] = (head + 1) % depth
+    pa.head[0] = (head + 1) % depth

@@ -20,6 +20,7 @@ from openconvoy.envs.ranging_noise import ranging_key
 from openconvoy.envs.vector.gps import counter_normals
 from openconvoy.envs.vector.jit import bare_kernel
 from openconvoy.envs.vector.math import norm
+from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
 from openconvoy.envs.vehicles import VehiclePreset
 
 
@@ -64,8 +65,13 @@ def _read(own, step, keys, params, out):  # pragma: no cover - compiled
             max_range = params[0, i]
             if max_range <= 0.0:
                 continue
-            ex, ey, ev, eh = own[0, b, i], own[1, b, i], own[2, b, i], own[3, b, i]
-            ax, ay, av, ah = own[0, b, i - 1], own[1, b, i - 1], own[2, b, i - 1], own[3, b, i - 1]
+            ex, ey, ev, eh = own[X, b, i], own[Y, b, i], own[SPEED, b, i], own[HEADING, b, i]
+            ax, ay, av, ah = (
+                own[X, b, i - 1],
+                own[Y, b, i - 1],
+                own[SPEED, b, i - 1],
+                own[HEADING, b, i - 1],
+            )
             dx, dy = ax - ex, ay - ey
             rng_m = norm(dx, dy)
             if rng_m > max_range or rng_m <= 0.0:

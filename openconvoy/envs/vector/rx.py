@@ -18,7 +18,7 @@ import numpy as np
 
 from openconvoy.envs.vector.jit import bare_inline
 from openconvoy.envs.vector.links import LinkTables
-from openconvoy.envs.vector.math import cos_sin
+from openconvoy.envs.vector.plant import cos_sin
 from openconvoy.envs.vector.trail import T_BASE, T_REACH, TAIL, trail_add
 
 T, HX, HY, HV, HH, HA, HC, HS = range(8)

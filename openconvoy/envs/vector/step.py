@@ -20,7 +20,7 @@ from openconvoy.envs.vector.leader import _drive, _project
 from openconvoy.envs.vector.measures import fill_infos, measure, reward
 from openconvoy.envs.vector.member import decide, lead_guard
 from openconvoy.envs.vector.observation import observe
-from openconvoy.envs.vector.plant import _plant_step
+from openconvoy.envs.vector.plant import ACCEL, _plant_step
 
 
 def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
@@ -38,19 +38,12 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     )
     c, mc = ch.trigger, env.member_config
     return (
-        (env.action_low, env.action_high, t, own, rx.hist, rx.hist_n, rx.newest, lk.needed,
-         lk.pred_link, env._link_decel, env.lengths, env._spacing, env._ladder, env._rule_fresh_s,
-         env.max_heading_change, env.pred_est, env.policy_errors, env.policy_failed,
-         env.estopped, env.emergency_stop, env._rule, env.cmd_v, env.cmd_dh, env.modes,
-         env.ranging.reading, env.events.record, env.events.count, env._decel),
+        (t, own, env.ranging.reading, env.pred_est, env._member, env._commands),
         (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
         (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
          ld.closed, ld.length, env.cmd_v, env.cmd_dh),
-        (t, own, rx.hist, rx.hist_n, lk.lead_link, env._link_decel, env._decel, env.lengths,
-         env._rule_fresh_s, env._lead_rule, env.estopped, env.emergency_stop, env.cmd_v,
-         env.cmd_dh, env.modes, env.events.record, env.events.count),
-        (pl.state, pl.inner, pl.queue, pl.head, pl.params, pl.pi, pl.pi_sub, pl.delay, pl.sub_n, pl.sub_h,
-         pl.hdelay, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
+        (t, own, env._member, env._commands),
+        (pl.arrays, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
         (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),
         (t, env._everyone, own, ch.next_check, ch.last_sent, ch.msgs_sent, ch.mute_from,
          c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps, c.max_silence_s,
@@ -110,7 +103,7 @@ def fused_step(
     for b in range(B):
         has_cmd[b] = True
         for i in range(own.shape[2]):
-            accel_old[b, i] = own[4, b, i]
+            accel_old[b, i] = own[ACCEL, b, i]
     _plant_step(*plant)
     for b in range(B):
         step_count[b] += 1

@@ -74,11 +74,13 @@ def cut_args(
     private: Sequence[np.ndarray],
     copies: dict[int, np.ndarray],
 ) -> Any:
-    """``args`` (nested tuples of arrays and scalars) for convoys ``b0..b1``: arrays cut
+    """``args`` (nested tuples and NamedTuples of arrays and scalars) for convoys ``b0..b1``: arrays cut
     (``_cut``), the ``private`` ones copied (once each; ``copies`` maps the original's
     ``id`` to its copy), scalars as they are."""
     if isinstance(args, tuple):
-        return tuple(cut_args(a, B, N, b0, b1, private, copies) for a in args)
+        items = [cut_args(a, B, N, b0, b1, private, copies) for a in args]
+        # a NamedTuple of named state stays one (the kernels read it by name)
+        return type(args)(*items) if hasattr(args, "_fields") else tuple(items)
     if isinstance(args, np.ndarray):
         if any(args is p for p in private):
             return copies.setdefault(id(args), args.copy())

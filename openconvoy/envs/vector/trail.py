@@ -7,7 +7,7 @@ A trail is ``n[b, ln]`` breadcrumbs, x, y (m) and arc coordinate s (m), at most
 the capacity, so a trail's memory and the pages a tick touches stay small; reads older
 than the ring (``crumb``) get the oldest two from ``tail`` and, for a search, an arc
 coordinate below the ring's. The env widens the ring before a read could need more
-(``TAIL_REACH``). (A fourth field, each segment's heading laid once instead of an atan2 per
+(``T_REACH``). (A fourth field, each segment's heading laid once instead of an atan2 per
 query, measured slower: more cache lines per query.) ``tail[b, ln]`` (``TAIL``,) is its
 newest breadcrumb again, the smoothed fix x, y, t, the ring's base and the reach (one cache
 line: what every add and query reads), then what only reads behind the newest breadcrumb
@@ -32,8 +32,8 @@ MIN_WINDOW = 64
 T_FIX, T_BASE, T_REACH = 3, 6, 7
 """``tail`` fields, the first line's (read or written every tick; 0-2 the newest breadcrumb):
 the smoothed fix x, y, t (3-5), the ring's base (the oldest breadcrumb's count since the
-reset) and the reach (the most breadcrumbs back from the newest a projection or path point
-read)."""
+reset) and the reach (the most breadcrumbs back from the newest a projection read; the
+path points lie ahead of it)."""
 T_S0, T_BACK, T_OLD, T_NEXT = 8, 9, 11, 16
 """``tail`` fields read only behind the newest breadcrumb: the oldest one's arc coordinate,
 the unit vector behind it (NaN once it was dropped), the oldest two breadcrumbs (x0, y0,
@@ -321,8 +321,8 @@ def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess, s_head):  # pragma: n
     if s <= s0:
         bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
         return tail[b, ln, T_OLD] - (s - s0) * bx, tail[b, ln, T_OLD + 1] - (s - s0) * by
+    # (no _reach: the path points lie ahead of the projection, whose read is recorded)
     i = min(max(_bisect(tr, tail, b, ln, n, s, guess) - 1, 0), max(n - 2, 0))
-    _reach(tail, b, ln, n, i)
     xi, yi, si = (
         crumb(tr, tail, b, ln, n, i, 0),
         crumb(tr, tail, b, ln, n, i, 1),

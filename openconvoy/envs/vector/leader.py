@@ -5,6 +5,7 @@ array function of time s and arc length m)."""
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -23,6 +24,33 @@ WINDOW_M = 20.0
 
 _KERNEL_PROFILES: dict[SpeedProfile, int] = {paper_speed: 1, emergency_speed: 2}
 """Speed profiles the kernel computes itself (``_profile``); others are called per tick."""
+
+
+SEG_X, SEG_Y, DIR_X, DIR_Y, SEG_LEN = range(5)
+"""Columns of ``LeaderRoad.seg``: a segment's start (m), unit direction and length (m)."""
+RAMP_ACCEL, RAMP_DECEL, LOOK_MIN, LOOK_TIME = range(4)
+"""Entries of ``LeaderRoad.params``: the speed ramp's limits (m/s²), the pure-pursuit
+look-ahead's minimum (m) and time (s)."""
+
+
+class LeaderRoad(NamedTuple):
+    """The leaders' path and driving state, for the kernels: the path's segments ``seg``
+    (``SEG_X``..``SEG_LEN``) and the arc length at each start ``seg_s`` (m), ``closed``
+    (a loop) and its ``length`` (m); per convoy the arc length ``s`` (m), the ramped
+    speed command ``cmd`` (m/s), the time of the last command ``t_last`` (s; NaN: none)
+    and the profile's ``target`` (m/s) where ``kind`` is 0 (1: the paper's profile, 2:
+    the emergency stop's, computed in the kernel); ``params`` (``RAMP_ACCEL``..)."""
+
+    seg: np.ndarray
+    seg_s: np.ndarray
+    closed: bool
+    length: float
+    s: np.ndarray
+    cmd: np.ndarray
+    t_last: np.ndarray
+    target: np.ndarray
+    kind: int
+    params: np.ndarray
 
 
 class LeaderDriver:
@@ -47,6 +75,18 @@ class LeaderDriver:
         self.s = np.zeros(num_envs)
         self.cmd = np.zeros(num_envs)
         self.t_last = np.full(num_envs, np.nan)
+        self.road = LeaderRoad(
+            seg=self.seg,
+            seg_s=self.seg_s,
+            closed=self.closed,
+            length=self.length,
+            s=self.s,
+            cmd=self.cmd,
+            t_last=self.t_last,
+            target=self.target,
+            kind=self.kind,
+            params=self.params,
+        )
 
     def reset(self, which: np.ndarray) -> None:
         sc = self.sc
@@ -59,11 +99,10 @@ class LeaderDriver:
     ) -> None:
         """The leaders' setpoints at ``t`` (B,) from their states ``own[:, :, 0]``: speed
         (m/s) into ``cmd_v[:, 0]``, heading change (rad) into ``cmd_dh[:, 0]``."""
-        _project(own, self.s, self.seg, self.seg_s, self.closed, self.length)
+        _project(own, self.road)
         if self.kind == 0:
             self.target[:] = self.profile(t, self.s)
-        _drive(t, own, self.s, self.kind, self.target, self.cmd, self.t_last, self.params,
-               self.seg, self.seg_s, self.closed, self.length, cmd_v, cmd_dh)  # fmt: skip
+        _drive(t, own, self.road, cmd_v, cmd_dh)
 
 
 @bare_inline
@@ -73,13 +112,14 @@ def _segment(seg_s, n, s):  # pragma: no cover - compiled
 
 
 @bare_kernel
-def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - compiled
-    """``Path.project`` of each leader near its last arc length; updates ``s_arr``."""
+def _project(own, road):  # pragma: no cover - compiled
+    """``Path.project`` of each leader near its last arc length; updates ``road.s``."""
+    seg, seg_s, closed, length, s_arr = road.seg, road.seg_s, road.closed, road.length, road.s
     n = seg.shape[0]
     x, y = own[X, :, 0], own[Y, :, 0]
     for b in range(len(x)):
         if n == 1:
-            u = (x[b] - seg[0, 0]) * seg[0, 2] + (y[b] - seg[0, 1]) * seg[0, 3]
+            u = (x[b] - seg[0, SEG_X]) * seg[0, DIR_X] + (y[b] - seg[0, SEG_Y]) * seg[0, DIR_Y]
             s_arr[b] = min(max(u, 0.0), length)
             continue
         i0, span = 0, n
@@ -94,9 +134,9 @@ def _project(own, s_arr, seg, seg_s, closed, length):  # pragma: no cover - comp
         best, s_best = np.inf, 0.0
         for off in range(span):
             i = (i0 + off) % n if closed else min(i0 + off, n - 1)
-            u = (x[b] - seg[i, 0]) * seg[i, 2] + (y[b] - seg[i, 1]) * seg[i, 3]
-            u = min(max(u, 0.0), seg[i, 4])
-            px, py = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
+            u = (x[b] - seg[i, SEG_X]) * seg[i, DIR_X] + (y[b] - seg[i, SEG_Y]) * seg[i, DIR_Y]
+            u = min(max(u, 0.0), seg[i, SEG_LEN])
+            px, py = seg[i, SEG_X] + seg[i, DIR_X] * u, seg[i, SEG_Y] + seg[i, DIR_Y] * u
             d = (px - x[b]) ** 2 + (py - y[b]) ** 2
             if d < best:
                 best, s_best = d, seg_s[i] + u
@@ -115,26 +155,28 @@ def _profile(kind, t, s, target):  # pragma: no cover - compiled
 
 
 @bare_kernel
-def _drive(
-    t, own, s_arr, kind, target, cmd, t_last, p, seg, seg_s, closed, length, cmd_v, cmd_dh
-):  # pragma: no cover - compiled
-    """The speed ramp towards the profile and pure pursuit one look-ahead ahead."""
+def _drive(t, own, road, cmd_v, cmd_dh):  # pragma: no cover - compiled
+    """The speed ramp towards the profile and pure pursuit one look-ahead ahead, for every
+    leader on ``road`` (``LeaderRoad``) at ``t`` (B,): setpoints into ``cmd_v[:, 0]`` (m/s)
+    and ``cmd_dh[:, 0]`` (rad)."""
+    seg, seg_s, closed, length, s_arr = road.seg, road.seg_s, road.closed, road.length, road.s
+    kind, target, cmd, t_last, p = road.kind, road.target, road.cmd, road.t_last, road.params
     n = seg.shape[0]
     for b in range(len(t)):
         s = s_arr[b]
         tgt = _profile(kind, t[b], s, target[b])
         if not closed:  # stop at the end of an open road, braking at the leader's limit
-            tgt = min(tgt, math.sqrt(2.0 * p[1] * max(length - s, 0.0)))
+            tgt = min(tgt, math.sqrt(2.0 * p[RAMP_DECEL] * max(length - s, 0.0)))
         dt = 0.0 if math.isnan(t_last[b]) else max(t[b] - t_last[b], 0.0)
         t_last[b] = t[b]
         if dt > 0.0:
-            cmd[b] = cmd[b] + min(max(tgt - cmd[b], -p[1] * dt), p[0] * dt)
-        look = max(p[2], p[3] * max(own[SPEED, b, 0], 0.0))
+            cmd[b] = cmd[b] + min(max(tgt - cmd[b], -p[RAMP_DECEL] * dt), p[RAMP_ACCEL] * dt)
+        look = max(p[LOOK_MIN], p[LOOK_TIME] * max(own[SPEED, b, 0], 0.0))
         ahead = (s + look) % length if closed else s + look
         if closed:
             ahead = ahead % length
         i = _segment(seg_s, n, ahead)
         u = ahead - seg_s[i]
-        tx, ty = seg[i, 0] + seg[i, 2] * u, seg[i, 1] + seg[i, 3] * u
+        tx, ty = seg[i, SEG_X] + seg[i, DIR_X] * u, seg[i, SEG_Y] + seg[i, DIR_Y] * u
         cmd_v[b, 0] = cmd[b]
         cmd_dh[b, 0] = wrap(math.atan2(ty - own[Y, b, 0], tx - own[X, b, 0]) - own[HEADING, b, 0])

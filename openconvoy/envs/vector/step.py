@@ -39,9 +39,8 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     c, mc = ch.trigger, env.member_config
     return (
         (t, own, env.ranging.reading, env.pred_est, env._member, env._commands),
-        (own, ld.s, ld.seg, ld.seg_s, ld.closed, ld.length),
-        (t, own, ld.s, ld.kind, ld.target, ld.cmd, ld.t_last, ld.params, ld.seg, ld.seg_s,
-         ld.closed, ld.length, env.cmd_v, env.cmd_dh),
+        (own, ld.road),
+        (t, own, ld.road, env.cmd_v, env.cmd_dh),
         (t, own, env._member, env._commands),
         (pl.arrays, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
         (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),

@@ -89,12 +89,13 @@ def cut_args(
 
 
 def structural_sizes(env: Any) -> set[int]:
-    """Lengths of the env's arrays without convoys (link tables, scratch): one equal to
-    ``B`` (or ``B * N``) would be taken for a convoy axis."""
+    """Lengths of the env's arrays without convoys (link tables, scratch, the leaders'
+    path segments): one equal to ``B`` (or ``B * N``) would be taken for a convoy axis."""
     lk = env.links
     N = env.n_vehicles
     sizes = {N, N - 1, N + 1, N * N, lk.L, lk.T, len(env.channel.pair_s)}
-    for arr in (lk.needed, lk.slot_link, lk.target_link, env._targets_scratch):
+    tables = (lk.needed, lk.slot_link, lk.target_link, env._targets_scratch, env.leader.road.seg)
+    for arr in tables:
         sizes.update(arr.shape)
     return sizes
 

@@ -1,17 +1,24 @@
 """OpenConvoy beside the simulators users compare it with, measured in one run: ratios.
 
-Each case runs in a fresh process on one core (``taskset`` is the caller's choice; torch and
-numba are held to one thread), alternating ours and the anchor's, and reports steps per
-second and the process's peak memory. Ratios are ours ÷ anchor's, so the docs quote ratios
-measured side by side rather than absolute figures from another machine.
+Each case runs in a fresh process pinned to one core (the first this script was given;
+torch and numba held to one thread), alternating ours and the anchor's, and reports steps
+per second and the process's peak memory. Ratios are ours ÷ anchor's, so the docs quote
+ratios measured side by side rather than absolute figures from another machine. The rows
+are issue 28's table:
 
 - ``ConvoyEnv`` (the ``paper`` scenario, 3 vehicles, fixed actions) against SUMO through
   libsumo (a leader and two CACC followers on a straight road, ``--step-length 0.05``, each
-  vehicle's speed and position read every step: what a controller needs).
-- ``VectorConvoyEnv`` at B convoys against VMAS ``simple_spread`` (3 agents, CPU, one
-  thread) at B environments; and against libsumo running B convoys in one simulation.
-- A 1,000-follower convoy: ``ConvoyEnv`` construction + reset time and peak memory;
-  ``VectorConvoyEnv(1)`` vehicle-steps/s against libsumo with 1 + 1,000 vehicles.
+  vehicle's speed and position read every step: what a controller needs), and
+  ``VectorConvoyEnv`` at B = 1 against it.
+- ``VectorConvoyEnv`` (PER 0.2, fixed actions) at B convoys against VMAS
+  ``simple_spread`` (3 agents, CPU, one thread) at B environments, with both peak
+  memories; and against libsumo running B convoys in one simulation.
+- Long platoons, vehicle-steps/s against libsumo with 1 + n vehicles: all-predecessors
+  with loss drawn on every pair and on the kept links only, and ``lookahead:1``
+  (``--convoy-env-long``: ``ConvoyEnv`` too, minutes); ``ConvoyEnv`` 1 + ``--long``
+  construction + reset time and peak memory.
+- The largest B on ``--cores`` cores (threads) against one core, and whether the two
+  runs' observations after 10 random ticks are identical.
 
 The anchors are optional installs (``pip install eclipse-sumo libsumo vmas``); a missing one
 is reported and its ratios left out. The machine's cache sizes are printed with the table.
@@ -49,46 +56,80 @@ def _peak_mb() -> float:
 
 
 def _timed(step: Any, seconds: float) -> tuple[int, float]:
-    """Call ``step()`` for about ``seconds``; (calls, seconds taken)."""
-    n, start = 0, time.perf_counter()
+    """Call ``step()`` for about ``seconds`` (at least once); (calls, seconds taken)."""
+    n, group, start = 0, 1, time.perf_counter()
     while True:
-        for _ in range(20):
+        for _ in range(group):
             step()
-        n += 20
+        n += group
         elapsed = time.perf_counter() - start
         if elapsed >= seconds:
             return n, elapsed
+        group = min(group * 2, 20)  # a slow step is timed call by call
 
 
-def case_convoy_env(seconds: float) -> dict[str, float]:
+def case_convoy_env(seconds: float, followers: int | None = None) -> dict[str, float]:
     import numpy as np
 
     from openconvoy.envs import ConvoyEnv
 
-    env = ConvoyEnv("paper", max_time_s=1e6)
+    _pin(1)
+    env = ConvoyEnv("paper", n_followers=followers, max_time_s=1e5)
     env.reset(seed=0)
     action = {a: np.array([2.0, 0.0], dtype=np.float32) for a in env.possible_agents}
     n, s = _timed(lambda: env.step(action), seconds)
-    return {"steps_per_s": n / s, "peak_mb": _peak_mb()}
+    return {"steps_per_s": n / s, "vehicle_steps_per_s": n * len(action) / s,
+            "peak_mb": _peak_mb()}  # fmt: skip
 
 
-def case_vector_env(seconds: float, batch: int, followers: int = 2) -> dict[str, float]:
+def _pin(cores: int) -> None:
+    """Run this process on the first ``cores`` of the cores it was given (one-thread
+    cases on one core, the multi-core case on several)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, allowed[: max(1, cores)])
+
+
+def case_vector_env(
+    seconds: float,
+    batch: int,
+    followers: int = 2,
+    threads: int = 1,
+    preset: str | None = None,
+    link_counters: str = "all",
+) -> dict[str, Any]:
+    """``VectorConvoyEnv`` with fixed actions (PER 0.2), on ``threads`` cores; ``preset``:
+    a policy preset's member config (its topology), else the default (all-predecessors).
+    ``digest``: of the observations after 10 ticks of random actions (the same whatever
+    the thread count)."""
+    import hashlib
+
     import numpy as np
 
     from openconvoy.envs import VectorConvoyEnv
+    from openconvoy.policies.spec import load_policy
 
-    env = VectorConvoyEnv(batch, "paper", n_followers=followers, max_time_s=1e6)
-    env.reset(seed=0)
+    _pin(threads)
+    mc = load_policy(preset).member_config if preset else None
+    env = VectorConvoyEnv(batch, "paper", n_followers=followers, max_time_s=1e5,
+                          member_config=mc, loss=0.2, link_counters=link_counters,
+                          threads=threads)  # fmt: skip
+    obs, _ = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(10):  # also compiles / loads the kernels outside the timing
+        act = (rng.random((batch, followers, 2)) * [3.0, 0.1]).astype(np.float32)
+        obs = env.step(act)[0]
+    digest = hashlib.sha256(obs.tobytes()).hexdigest()[:16]
     action = np.tile(np.array([2.0, 0.0], dtype=np.float32), (batch, followers, 1))
-    env.step(action)  # compile / load the kernels outside the timing
     n, s = _timed(lambda: env.step(action), seconds)
+    env.close()
     return {"steps_per_s": n * batch / s, "vehicle_steps_per_s": n * batch * followers / s,
-            "peak_mb": _peak_mb()}  # fmt: skip
+            "peak_mb": _peak_mb(), "digest": digest, "threads": env.threads}  # fmt: skip
 
 
 def case_convoy_env_construct(followers: int) -> dict[str, float]:
     from openconvoy.envs import ConvoyEnv
 
+    _pin(1)
     start = time.perf_counter()
     env = ConvoyEnv("paper", n_followers=followers)
     built = time.perf_counter()
@@ -104,6 +145,7 @@ def case_vmas(seconds: float, batch: int) -> dict[str, float]:
     import torch
     import vmas
 
+    _pin(1)
     torch.set_num_threads(1)
     env = vmas.make_env("simple_spread", num_envs=batch, device="cpu", continuous_actions=True,
                         seed=0, n_agents=3)  # fmt: skip
@@ -118,6 +160,7 @@ def case_sumo(seconds: float, convoys: int, followers: int = 2) -> dict[str, flo
     straight road, one SUMO simulation; every vehicle's speed and position read per step."""
     import libsumo
 
+    _pin(1)
     with tempfile.TemporaryDirectory(prefix="oc-sumo-") as tmp:
         net, routes = _sumo_files(Path(tmp), convoys, followers)
         libsumo.start(["sumo", "-n", str(net), "-r", str(routes), "--step-length", str(DT),
@@ -221,37 +264,67 @@ def _ratio(ours: dict[str, Any], anchor: dict[str, Any], key: str = "steps_per_s
     return None
 
 
+def _cases(args: argparse.Namespace) -> list[tuple[str, Any, Any, str]]:
+    """The issue-28 table: (case, ours, anchor, key), each side a zero-argument call run
+    in a fresh process."""
+    sec, big = args.seconds, max(args.batches)
+
+    def fresh(fn: Any, *a: Any) -> Any:
+        return lambda: _in_fresh_process(fn, sec, *a)
+
+    out = [
+        ("ConvoyEnv paper vs libsumo CACC 1+2 with reads", fresh(case_convoy_env),
+         fresh(case_sumo, 1), "steps_per_s"),
+        ("VectorConvoyEnv B=1 vs ConvoyEnv paper", fresh(case_vector_env, 1),
+         fresh(case_convoy_env), "steps_per_s"),
+    ]  # fmt: skip
+    for b in args.batches:
+        out.append((f"VectorConvoyEnv B={b} vs VMAS simple_spread (one thread)",
+                    fresh(case_vector_env, b), fresh(case_vmas, b), "steps_per_s"))  # fmt: skip
+    out.append((f"VectorConvoyEnv B={args.sumo_batch} vs libsumo {args.sumo_batch} convoys "
+                "in one simulation", fresh(case_vector_env, args.sumo_batch),
+                fresh(case_sumo, args.sumo_batch), "steps_per_s"))  # fmt: skip
+    for n in args.platoons:
+        sumo = fresh(case_sumo, 1, n)
+        out.append((f"VectorConvoyEnv 1+{n} all-predecessors, loss on all pairs vs libsumo",
+                    fresh(case_vector_env, 1, n), sumo, "vehicle_steps_per_s"))  # fmt: skip
+        out.append((f"VectorConvoyEnv 1+{n} all-predecessors, loss on kept links vs libsumo",
+                    fresh(case_vector_env, 1, n, 1, None, "kept"), sumo,
+                    "vehicle_steps_per_s"))  # fmt: skip
+        out.append((f"VectorConvoyEnv 1+{n} lookahead:1, loss on kept links vs libsumo",
+                    fresh(case_vector_env, 1, n, 1, "cacc-lookahead1", "kept"), sumo,
+                    "vehicle_steps_per_s"))  # fmt: skip
+    if args.convoy_env_long:
+        out.append((f"ConvoyEnv 1+{args.long} all-predecessors vs libsumo 1+{args.long}",
+                    fresh(case_convoy_env, args.long), fresh(case_sumo, 1, args.long),
+                    "vehicle_steps_per_s"))  # fmt: skip
+    out.append((f"VectorConvoyEnv B={big}: {args.cores} cores vs 1 core",
+                fresh(case_vector_env, big, 2, args.cores), fresh(case_vector_env, big),
+                "steps_per_s"))  # fmt: skip
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=2.0, help="timing per case (s)")
     ap.add_argument(
         "--batches", default="1,64,1024,4096,16384", help="B values for the batched cases"
     )
-    ap.add_argument("--long", type=int, default=1000, help="followers of the long platoon")
+    ap.add_argument("--sumo-batch", type=int, default=1024, help="B against libsumo")
+    ap.add_argument("--platoons", default="10,100,300,1000", help="long-platoon followers")
+    ap.add_argument("--long", type=int, default=1000, help="followers of ConvoyEnv's long case")
+    ap.add_argument("--convoy-env-long", action="store_true",
+                    help="also step ConvoyEnv with --long followers (minutes)")  # fmt: skip
+    ap.add_argument("--cores", type=int, default=2, help="cores of the multi-core case")
     args = ap.parse_args()
-    batches = [int(b) for b in args.batches.split(",")]
+    args.batches = [int(b) for b in args.batches.split(",")]
+    args.platoons = [int(n) for n in args.platoons.split(",") if n]
     rows: list[dict[str, Any]] = []
-
-    def row(
-        case: str, ours: dict[str, Any], anchor: dict[str, Any], key: str = "steps_per_s"
-    ) -> None:
-        rows.append(
-            {"case": case, "ours": ours, "anchor": anchor, "ratio": _ratio(ours, anchor, key)}
-        )
+    for case, ours_fn, anchor_fn, key in _cases(args):
+        ours, anchor = ours_fn(), anchor_fn()  # alternating, each in a fresh process
+        rows.append({"case": case, "ours": ours, "anchor": anchor, "key": key,
+                     "ratio": _ratio(ours, anchor, key)})  # fmt: skip
         print(json.dumps(rows[-1]), flush=True)
-
-    row("ConvoyEnv paper vs libsumo CACC 1+2 with reads",
-        _in_fresh_process(case_convoy_env, args.seconds), _in_fresh_process(case_sumo, args.seconds, 1))  # fmt: skip
-    for b in batches:
-        ours = _in_fresh_process(case_vector_env, args.seconds, b)
-        row(f"VectorConvoyEnv B={b} vs VMAS simple_spread (one thread)", ours,
-            _in_fresh_process(case_vmas, args.seconds, b))  # fmt: skip
-    for b in [b for b in batches if b in (1024,)]:
-        row(f"VectorConvoyEnv B={b} vs libsumo {b} convoys in one simulation",
-            _in_fresh_process(case_vector_env, args.seconds, b), _in_fresh_process(case_sumo, args.seconds, b))  # fmt: skip
-    row(f"VectorConvoyEnv 1+{args.long} vs libsumo 1+{args.long} (vehicle-steps/s)",
-        _in_fresh_process(case_vector_env, args.seconds, 1, args.long),
-        _in_fresh_process(case_sumo, args.seconds, 1, args.long), key="vehicle_steps_per_s")  # fmt: skip
     long_build = _in_fresh_process(case_convoy_env_construct, args.long)
     rows.append(
         {"case": f"ConvoyEnv 1+{args.long}: construct, reset, peak memory", "ours": long_build}
@@ -260,25 +333,32 @@ def main() -> None:
     print()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"caches {cache_sizes()}, load {os.getloadavg()[0]:.2f}")  # fmt: skip
-    print(f"{'case':<72}{'ours':>14}{'anchor':>14}{'ratio':>8}")
+    print(f"{'case':<78}{'ours':>13}{'anchor':>13}{'ratio':>8}{'MB ours':>9}{'anchor':>8}")
     for r in rows:
         ours, anchor = r["ours"], r.get("anchor", {})
         if "construct_s" in ours:
             print(
-                f"{r['case']:<72}{ours['construct_s']:>11.2f} s + {ours['reset_s']:.2f} s, "
+                f"{r['case']:<78}{ours['construct_s']:>10.2f} s + {ours['reset_s']:.2f} s, "
                 f"{ours['peak_mb']:.0f} MB"
             )
             continue
-        key = "vehicle_steps_per_s" if "vehicle" in r["case"] else "steps_per_s"
         ratio = r["ratio"] if r["ratio"] is not None else "-"
-        print(f"{r['case']:<72}{_cell(ours, key)}{_cell(anchor, key)}{ratio:>8}")
+        same = ""
+        if "digest" in ours and "digest" in anchor:
+            same = "  identical" if ours["digest"] == anchor["digest"] else "  DIFFERENT"
+        print(f"{r['case']:<78}{_cell(ours, r['key'])}{_cell(anchor, r['key'])}{ratio:>8}"
+              f"{_mb(ours)}{_mb(anchor)}{same}")  # fmt: skip
+
+
+def _mb(result: dict[str, Any]) -> str:
+    return f"{result['peak_mb']:>8.0f}" if "peak_mb" in result else f"{'-':>8}"
 
 
 def _cell(result: dict[str, Any], key: str) -> str:
     """A case's figure for the table, or the start of its error."""
     if key in result:
-        return f"{result[key]:>14,.0f}"
-    return f"{result.get('error', '-')[:13]:>14}"
+        return f"{result[key]:>13,.0f}"
+    return f"{result.get('error', '-')[:12]:>13}"
 
 
 if __name__ == "__main__":

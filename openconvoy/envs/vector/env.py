@@ -41,6 +41,7 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
+from openconvoy.core.spacing import SpacingPolicy
 from openconvoy.envs.convoy_env import check_episode_args, check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
@@ -68,6 +69,8 @@ from openconvoy.envs.vector.plant import ACCEL, VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
 from openconvoy.envs.vector.step import FusedCall, pack
+from openconvoy.envs.vector.threads import make_slabs, thread_count
+from openconvoy.envs.vector.trail import needs_wider, window
 from openconvoy.envs.vehicles import VehiclePreset, vehicle_preset
 
 MODES = ("coop", "degraded", "stop", "failsafe")
@@ -162,6 +165,9 @@ class VectorConvoyEnv:
     ``ConvoyEnv``, so the message counters match it; ``"kept"`` only on the links the
     topology keeps (the same deliveries into R^i, hence the same run; counters then
     count those links): O(N·K) per step for ``lookahead:K``.
+    ``threads``: how many threads a step may use (default: the cores this process may
+    run on, capped by ``NUMBA_NUM_THREADS``); the batch is cut into slabs of at least
+    ``vector.threads.MIN_SLAB`` convoys, with the same results whatever the count.
     """
 
     def __init__(
@@ -184,6 +190,7 @@ class VectorConvoyEnv:
         autoreset: bool = True,
         link_counters: str = "all",
         per: float | Sequence[float] | None = None,
+        threads: int | None = None,
     ) -> None:
         _check_args(num_envs, control_rate_hz, gps_noise_m, render_mode)
         check_episode_args(n_followers, max_time_s)
@@ -227,7 +234,7 @@ class VectorConvoyEnv:
         self.channel = VectorChannel(
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
         )
-        self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m)
+        self.rx = RxBuffers(B, self.links, mc.k, mc.trail_spacing_m, self._trail_window())
         self.ranging = RangingSensors(self.presets, B)
         self.forgers = Forgers(self.faults, B, N, self.dt, bool(auth))
         self._seed_seqs: list[np.random.SeedSequence | None] = [None] * B
@@ -235,6 +242,44 @@ class VectorConvoyEnv:
         self.step_count = np.zeros(B, dtype=np.int64)
         self._alloc()
         self._fused = pack(self) if self._fusable() else None
+        self.threads = thread_count(threads)
+        self._slabs = (
+            make_slabs(self, self._fused, self.threads, FusedCall)
+            if self._fused is not None
+            else None
+        )
+
+    def _trail_window(self) -> int:
+        """Breadcrumbs a trail's ring holds at first (``vector.trail.window``): the
+        farthest target's desired gap at the fastest preset's top speed, behind the
+        head, is the horizon the observation reads in formation."""
+        lk, P = self.links, self.presets
+        vmax = max(p.max_speed_mps for p in P)
+        policy = SpacingPolicy(self.member_config.spacing)
+        pair = [policy.pair_gap(vmax, P[j + 1].length_m, P[j].length_m) for j in range(len(P) - 1)]
+        ahead = np.concatenate([[0.0], np.cumsum(pair)])  # arc from the leader, vehicle by vehicle
+        horizon = 0.0
+        for f, m in zip(*np.nonzero(lk.target_link >= 0)):
+            link = lk.target_link[f, m]
+            if lk.trail_of[link] >= 0:
+                horizon = max(horizon, ahead[f + 1] - ahead[lk.link_s[link]])
+        return window(horizon, self.member_config.trail_spacing_m, vmax * self.dt)
+
+    def _widen_trails(self) -> None:
+        """Double the trails' rings while a read went back into their last quarter
+        (``vector.trail.needs_wider``): before a tick could read past them. The stages
+        are packed again around the new arrays."""
+        if not needs_wider(self.rx.reach(), self.rx.window):
+            return
+        w = self.rx.window
+        while needs_wider(self.rx.reach(), w):
+            w *= 2
+        self.rx.widen(w)
+        if self._fused is not None:
+            self._fused = pack(self)
+            if self._slabs is not None:
+                self._slabs.close()
+                self._slabs = make_slabs(self, self._fused, self.threads, FusedCall)
 
     def _fusable(self) -> bool:
         """Every stage has a kernel: one compiled call per tick (``vector.step``)."""
@@ -396,7 +441,9 @@ class VectorConvoyEnv:
         return self.events.of(int(b), int(self.step_count[b]))
 
     def close(self) -> None:
-        """Nothing to release (the Gymnasium vector API's ``close``)."""
+        """Stop the step's threads, if any (the Gymnasium vector API's ``close``)."""
+        if self._slabs is not None:
+            self._slabs.close()
 
     def reset(self, seed: int | Sequence[int] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every convoy: convoy ``b`` gets ``seed + b`` (or ``seed[b]``)."""
@@ -414,6 +461,7 @@ class VectorConvoyEnv:
         obs = np.empty((B, self.n_vehicles - 1, self.layout.size), dtype=np.float32)
         self._tick(which, obs)
         measure(self.own, self._half_sum, self.gap, self.collided)
+        self._widen_trails()
         return obs, infos(self)
 
     def _reset_convoys(self, which: np.ndarray, seeds: Sequence[int | None]) -> None:
@@ -462,7 +510,10 @@ class VectorConvoyEnv:
         if self._fused is not None:
             terminated, truncated = np.empty(B, dtype=bool), np.empty(B, dtype=bool)
             filled = info_arrays(B, N - 1)
-            self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
+            if self._slabs is not None:
+                self._slabs.step(a, obs, rewards, terminated, truncated, filled)
+            else:
+                self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
             info = infos(self, filled)
         else:
             terminated, truncated, info = self._staged_step(a, obs, rewards)
@@ -473,6 +524,7 @@ class VectorConvoyEnv:
             self._reset_convoys(done, [None] * B)
             self._tick(done, obs)
             measure(self.own, self._half_sum, self.gap, self.collided)
+        self._widen_trails()
         return obs, rewards, terminated, truncated, info
 
     def _staged_step(

@@ -17,7 +17,7 @@ from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch
 from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vector.member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector.plant import ACCEL, HEADING, SPEED, YAW_RATE, X, Y, cos_sin
-from openconvoy.envs.vector.trail import finish, head_s, point_at, project
+from openconvoy.envs.vector.trail import T_BASE, finish, head_s, point_at, project
 
 LOOKAHEAD = np.array(LOOKAHEAD_S)
 AHEAD = 4
@@ -112,7 +112,7 @@ def observe(
     B, F = obs.shape[0], obs.shape[1]
     for b in range(B):
         if b + AHEAD < B and rows[b + AHEAD]:
-            _warm(b + AHEAD, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link)
+            _warm(b + AHEAD, hist, trail, tail, trail_n, trail_of, hint_k, slot_link, target_link)
         if not rows[b]:
             continue
         tb = t[b]
@@ -152,7 +152,9 @@ def observe(
 
 
 @bare_inline
-def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  # pragma: no cover
+def _warm(
+    b, hist, trail, tail, trail_n, trail_of, hint_k, slot_link, target_link
+):  # pragma: no cover
     """Prefetch what ``observe`` will read of convoy ``b``: its followers' slot states and
     the target trails around the last projections. Only a hint to the cache: without
     it, each convoy's first reads wait on memory in turn."""
@@ -170,8 +172,10 @@ def _warm(b, hist, trail, trail_n, trail_of, hint_k, slot_link, target_link):  #
             tl = trail_of[link]
             lo = hint_k[b, tl]
             hi = min(lo + WARM_CRUMBS, trail_n[b, tl])
-            for q in range(3 * lo, 3 * hi, 8):  # a cache line (8 doubles) at a time
-                prefetch(trail, b, tl, q // 3, q % 3)
+            w = trail.shape[2]
+            base = int(tail[b, tl, T_BASE])
+            for j in range(lo, hi, 2):  # two breadcrumbs (48 bytes): every cache line
+                prefetch(trail, b, tl, (base + j) & (w - 1), 0)
 
 
 @bare_inline

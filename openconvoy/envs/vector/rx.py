@@ -19,7 +19,7 @@ import numpy as np
 from openconvoy.envs.vector.jit import bare_inline
 from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.plant import cos_sin
-from openconvoy.envs.vector.trail import CAPACITY, trail_add
+from openconvoy.envs.vector.trail import T_BASE, T_REACH, TAIL, trail_add
 
 T, HX, HY, HV, HH, HA, HC, HS = range(8)
 """Fields of ``hist``'s last axis."""
@@ -39,17 +39,16 @@ class RxBuffers:
     """R^i buffers of ``links.L`` kept links, trails and projection hints of ``links.T``
     target links, in ``B`` convoys."""
 
-    def __init__(self, B: int, links: LinkTables, k: int, spacing_m: float) -> None:
+    def __init__(self, B: int, links: LinkTables, k: int, spacing_m: float, window: int) -> None:
         self.k, self.spacing_m = k, spacing_m
         self.keeps_states, self.trail_of = links.keeps_states, links.trail_of
         L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
         self.hist = aligned_zeros((B, L, k, FIELDS))
         self.hist_n = np.zeros((B, L), dtype=np.int64)
         self.newest = np.full((B, L), -np.inf)
-        # Untouched pages of a trail are never committed (calloc): memory grows with
-        # the breadcrumbs actually laid.
-        self.trail = np.zeros((B, T, CAPACITY, 3))
-        self.tail = np.zeros((B, T, 9))
+        # Each trail's newest ``window`` breadcrumbs in a ring (``vector.trail``).
+        self.trail = np.zeros((B, T, window, 3))
+        self.tail = aligned_zeros((B, T, TAIL))
         self.trail_n = np.zeros((B, T), dtype=np.int64)
         self.hint = np.full((B, T), np.nan)
         self.hint_k = np.zeros((B, T), dtype=np.int64)
@@ -62,6 +61,31 @@ class RxBuffers:
         self.tail[rows] = 0.0
         self.hint[rows] = np.nan
         self.hint_k[rows] = 0
+
+    @property
+    def window(self) -> int:
+        """Breadcrumbs each trail's ring holds."""
+        return int(self.trail.shape[2])
+
+    def reach(self) -> float:
+        """The most breadcrumbs back from a trail's newest that a read went (``trail``)."""
+        return float(self.tail[..., T_REACH].max())
+
+    def widen(self, window: int) -> None:
+        """Rings of ``window`` breadcrumbs (a wider power of two), the same contents: a
+        breadcrumb's place is its count since the reset modulo the ring size."""
+        old, w = self.trail, self.window
+        B, T = old.shape[:2]
+        last = self.tail[..., T_BASE].astype(np.int64) + self.trail_n - 1  # (B, T)
+        slots = np.arange(w)
+        count = last[..., None] - ((last[..., None] - slots) % w)  # in slot p of the ring
+        new = np.zeros((B, T, window, 3))
+        bi, ti = np.indices((B, T))
+        laid = count >= 0
+        new[np.broadcast_to(bi[..., None], count.shape)[laid],
+            np.broadcast_to(ti[..., None], count.shape)[laid],
+            count[laid] % window] = old[laid]  # fmt: skip
+        self.trail = new
 
 
 @bare_inline

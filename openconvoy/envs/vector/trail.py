@@ -1,12 +1,17 @@
 """Trails as ring arrays: ``core.trail.Trail``'s add, project and point_at, compiled.
 
-A trail is row ``(b, ln)`` of ``tr`` (B, T, C, 3): breadcrumb x, y (m) and arc coordinate
-s (m), ``n[b, ln]`` of them, the oldest half dropped when full (a fourth field, each
-segment's heading laid once instead of an atan2 per query, measured slower: more cache
-lines per query); ``tail[b, ln]`` (9,) is its newest breadcrumb again and the oldest one's arc coordinate
-(then the smoothed fix x, y, t and the unit vector behind the oldest breadcrumb), packed with the
-other trails' (every add and query reads them: one cache line for many trails instead of
-two each). A query's path is the
+A trail is ``n[b, ln]`` breadcrumbs, x, y (m) and arc coordinate s (m), at most
+``CAPACITY``, the oldest half dropped when full, as ``Trail``. Row ``(b, ln)`` of ``tr``
+(B, T, W, 3) holds the newest ``W`` of them in a ring (breadcrumb ``k``, 0 the oldest, at
+``(base + k) % W``): W is sized to the horizon the observation reads (``window``), not to
+the capacity, so a trail's memory and the pages a tick touches stay small; reads older
+than the ring (``crumb``) get the oldest two from ``tail`` and, for a search, an arc
+coordinate below the ring's. The env widens the ring before a read could need more
+(``T_REACH``). (A fourth field, each segment's heading laid once instead of an atan2 per
+query, measured slower: more cache lines per query.) ``tail[b, ln]`` (``TAIL``,) is its
+newest breadcrumb again, the smoothed fix x, y, t, the ring's base and the reach (one cache
+line: what every add and query reads), then what only reads behind the newest breadcrumb
+need (``T_S0``...). A query's path is the
 extension behind the oldest breadcrumb, the breadcrumbs, and the head ``(hx, hy)`` with
 heading ``hh`` (the sender's dead-reckoned position): the same vertices, segments and
 walk as ``Trail``, so the same numbers.
@@ -22,6 +27,65 @@ from openconvoy.envs.vector.math import norm
 
 CAPACITY = 1024
 """Breadcrumbs per trail, as ``core.trail.Trail`` (the oldest half dropped when full)."""
+MIN_WINDOW = 64
+"""Fewest breadcrumbs a ring holds (``window``)."""
+T_FIX, T_BASE, T_REACH = 3, 6, 7
+"""``tail`` fields, the first line's (read or written every tick; 0-2 the newest breadcrumb):
+the smoothed fix x, y, t (3-5), the ring's base (the oldest breadcrumb's count since the
+reset) and the reach (the most breadcrumbs back from the newest a projection read; the
+path points lie ahead of it)."""
+T_S0, T_BACK, T_OLD, T_NEXT = 8, 9, 11, 16
+"""``tail`` fields read only behind the newest breadcrumb: the oldest one's arc coordinate,
+the unit vector behind it (NaN once it was dropped), the oldest two breadcrumbs (x0, y0,
+x1, y1, s1) and the two laid at ``CAPACITY // 2`` and after (x, y, s each: the oldest two
+after the next drop)."""
+TAIL = 24
+"""Fields of ``tail`` (22 used): three cache lines a trail, the hot fields in the first
+(``RxBuffers`` aligns the rows)."""
+
+
+def window(horizon_m: float, spacing_m: float, step_m: float) -> int:
+    """Ring size (breadcrumbs, a power of two in ``MIN_WINDOW..CAPACITY``) for reads up to
+    ``horizon_m`` behind the head, breadcrumbs ``spacing_m`` apart and senders moving at
+    most ``step_m`` a tick: the horizon within 3/4 of the ring (``needs_wider``), and a
+    tick's progress within the rest."""
+    need = max(horizon_m / spacing_m * 4.0 / 3.0, 4.0 * step_m / spacing_m, MIN_WINDOW)
+    w = MIN_WINDOW
+    while w < need and w < CAPACITY:
+        w *= 2
+    return w
+
+
+def needs_wider(reach: float, w: int) -> bool:
+    """Whether a ring of ``w`` with reads ``reach`` breadcrumbs back must widen before the
+    next tick: a tick moves a read back by less than a quarter ring (``window``), so reads
+    within 3/4 of it stay inside it."""
+    return w < CAPACITY and reach > 0.75 * w
+
+
+@bare_inline
+def crumb(tr, tail, b, ln, n, k, f):  # pragma: no cover - compiled
+    """Field ``f`` (0 x, 1 y, 2 s) of breadcrumb ``k`` (0 the oldest of ``n``) of trail
+    ``(b, ln)``: from the ring while it holds it, the oldest two from ``tail``; older
+    ones s = -inf (below every s in the ring, where a search's answer is), x, y NaN."""
+    w = tr.shape[2]
+    if n - k <= w:
+        return tr[b, ln, (int(tail[b, ln, T_BASE]) + k) & (w - 1), f]
+    if k == 0:
+        return tail[b, ln, T_S0] if f == 2 else tail[b, ln, T_OLD + f]
+    if k == 1:
+        return tail[b, ln, T_OLD + 4] if f == 2 else tail[b, ln, T_OLD + 2 + f]
+    return -math.inf if f == 2 else math.nan
+
+
+@bare_inline
+def _reach(tail, b, ln, n, k):  # pragma: no cover - compiled
+    """Record a read of breadcrumb ``k`` (and its neighbours) of ``n``."""
+    r = n - k + 2
+    if r > tail[b, ln, T_REACH]:
+        tail[b, ln, T_REACH] = r
+
+
 FAR_M = 1e4
 """Length of the straight extension behind the oldest breadcrumb (``Trail._vertex``)."""
 
@@ -29,15 +93,15 @@ FAR_M = 1e4
 @bare_inline
 def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cover - compiled
     """``Trail.add`` with the sender's time ``t`` (s), speed ``v`` (m/s) and heading's
-    cosine and sine: (x, y) smoothed along the reported motion (``tail`` 4-6: the smoothed
+    cosine and sine: (x, y) smoothed along the reported motion (``tail`` ``T_FIX``: the smoothed
     fix and its time), laid ``spacing`` m of progress along the heading after the last
     breadcrumb."""
     nn = n[b, ln]
     if nn > 0:
-        d = v * (t - tail[b, ln, 6])
-        px, py = tail[b, ln, 4] + d * c, tail[b, ln, 5] + d * sn
+        d = v * (t - tail[b, ln, T_FIX + 2])
+        px, py = tail[b, ln, T_FIX] + d * c, tail[b, ln, T_FIX + 1] + d * sn
         x, y = px + SMOOTHING * (x - px), py + SMOOTHING * (y - py)
-    tail[b, ln, 4], tail[b, ln, 5], tail[b, ln, 6] = x, y, t
+    tail[b, ln, T_FIX], tail[b, ln, T_FIX + 1], tail[b, ln, T_FIX + 2] = x, y, t
     step = 0.0
     ps = 0.0
     if nn > 0:
@@ -47,41 +111,51 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cov
         step = norm(x - tail[b, ln, 0], y - tail[b, ln, 1])
         if step < spacing:
             return
-    cap = tr.shape[2]
-    if nn >= cap:
-        half = cap // 2
-        for j in range(cap - half):
-            for f in range(3):
-                tr[b, ln, j, f] = tr[b, ln, j + half, f]
+    half = CAPACITY // 2
+    if nn >= CAPACITY:  # drop the oldest half: the ring's base moves, nothing is copied
         nn -= half
-        tail[b, ln, 3] = tr[b, ln, 0, 2]
-        tail[b, ln, 7] = math.nan  # the oldest breadcrumb's heading is gone
+        tail[b, ln, T_BASE] += half
+        tail[b, ln, T_S0] = tail[b, ln, T_NEXT + 2]
+        for f in range(2):
+            tail[b, ln, T_OLD + f] = tail[b, ln, T_NEXT + f]
+            tail[b, ln, T_OLD + 2 + f] = tail[b, ln, T_NEXT + 3 + f]
+        tail[b, ln, T_OLD + 4] = tail[b, ln, T_NEXT + 5]
+        tail[b, ln, T_BACK] = math.nan  # the oldest breadcrumb's heading is gone
     s = ps + step if nn > 0 else 0.0
-    tr[b, ln, nn, 0], tr[b, ln, nn, 1], tr[b, ln, nn, 2] = x, y, s
+    w = tr.shape[2]
+    slot = (int(tail[b, ln, T_BASE]) + nn) & (w - 1)
+    tr[b, ln, slot, 0], tr[b, ln, slot, 1], tr[b, ln, slot, 2] = x, y, s
     tail[b, ln, 0], tail[b, ln, 1], tail[b, ln, 2] = x, y, s
     if nn == 0:
-        tail[b, ln, 3] = s
-        tail[b, ln, 7], tail[b, ln, 8] = -c, -sn
+        tail[b, ln, T_S0] = s
+        tail[b, ln, T_BACK], tail[b, ln, T_BACK + 1] = -c, -sn
+    if nn <= 1:  # the oldest two, kept past the ring
+        tail[b, ln, T_OLD + 2 * nn], tail[b, ln, T_OLD + 2 * nn + 1] = x, y
+        if nn == 1:
+            tail[b, ln, T_OLD + 4] = s
+    elif nn == half or nn == half + 1:  # the oldest two after the next drop
+        o = T_NEXT + 3 * (nn - half)
+        tail[b, ln, o], tail[b, ln, o + 1], tail[b, ln, o + 2] = x, y, s
     n[b, ln] = nn + 1
 
 
 @bare_inline
-def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
+def _bisect(tr, tail, b, ln, n, value, guess):  # pragma: no cover - compiled
     """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
     from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
     moves a little along a trail per tick)."""
     g = min(max(guess, 0), n)
-    if g < n and tr[b, ln, g, 2] <= value:  # the answer is above g
+    if g < n and crumb(tr, tail, b, ln, n, g, 2) <= value:  # the answer is above g
         lo, step = g + 1, 1
         hi = lo + step
-        while hi < n and tr[b, ln, hi, 2] <= value:
+        while hi < n and crumb(tr, tail, b, ln, n, hi, 2) <= value:
             lo, step = hi + 1, step * 2
             hi = lo + step
         hi = min(hi, n)
-    elif g > 0 and value < tr[b, ln, g - 1, 2]:  # the answer is below g
+    elif g > 0 and value < crumb(tr, tail, b, ln, n, g - 1, 2):  # the answer is below g
         hi, step = g - 1, 1
         lo = hi - step
-        while lo > 0 and value < tr[b, ln, lo - 1, 2]:
+        while lo > 0 and value < crumb(tr, tail, b, ln, n, lo - 1, 2):
             hi, step = lo - 1, step * 2
             lo = hi - step
         lo = max(lo, 0)
@@ -89,7 +163,7 @@ def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
         return g
     while lo < hi:
         mid = (lo + hi) >> 1
-        if value < tr[b, ln, mid, 2]:
+        if value < crumb(tr, tail, b, ln, n, mid, 2):
             hi = mid
         else:
             lo = mid + 1
@@ -99,13 +173,14 @@ def _bisect(tr, b, ln, n, value, guess):  # pragma: no cover - compiled
 @bare_inline
 def _back(tr, tail, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb
-    (against the heading reported there: ``tail`` 7-8, NaN once it was dropped)."""
-    if not math.isnan(tail[b, ln, 7]):
-        return tail[b, ln, 7], tail[b, ln, 8]
+    (against the heading reported there: ``tail`` ``T_BACK``, NaN once it was dropped)."""
+    if not math.isnan(tail[b, ln, T_BACK]):
+        return tail[b, ln, T_BACK], tail[b, ln, T_BACK + 1]
+    x0, y0 = tail[b, ln, T_OLD], tail[b, ln, T_OLD + 1]
     if n >= 2:
-        dx, dy = tr[b, ln, 1, 0] - tr[b, ln, 0, 0], tr[b, ln, 1, 1] - tr[b, ln, 0, 1]
+        dx, dy = tail[b, ln, T_OLD + 2] - x0, tail[b, ln, T_OLD + 3] - y0
     else:
-        dx, dy = hx - tr[b, ln, 0, 0], hy - tr[b, ln, 0, 1]
+        dx, dy = hx - x0, hy - y0
     d = norm(dx, dy)
     if d < 1e-9:
         return -math.cos(hh), -math.sin(hh)
@@ -119,9 +194,14 @@ def _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - co
     if k >= n:
         return hx, hy, s_head
     if k >= 0:
-        return tr[b, ln, k, 0], tr[b, ln, k, 1], tr[b, ln, k, 2]
+        return (
+            crumb(tr, tail, b, ln, n, k, 0),
+            crumb(tr, tail, b, ln, n, k, 1),
+            crumb(tr, tail, b, ln, n, k, 2),
+        )
     bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
-    return tr[b, ln, 0, 0] + FAR_M * bx, tr[b, ln, 0, 1] + FAR_M * by, tr[b, ln, 0, 2] - FAR_M
+    x0, y0, s0 = tail[b, ln, T_OLD], tail[b, ln, T_OLD + 1], tail[b, ln, T_S0]
+    return x0 + FAR_M * bx, y0 + FAR_M * by, s0 - FAR_M
 
 
 @bare_inline
@@ -176,7 +256,7 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     last = n - 1 if to_head > 1e-9 else n - 2
     s_head = tail[b, ln, 2] + to_head
     start = s_head - expected if math.isnan(hint) else hint
-    k = min(max(_bisect(tr, b, ln, n, start, hint_k + 1) - 1, -1), last)
+    k = min(max(_bisect(tr, tail, b, ln, n, start, hint_k + 1) - 1, -1), last)
     near = _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y)
     best, k0 = near[0], k
     # Trail.project's walk: forwards while closer, then backwards while closer. Both
@@ -207,6 +287,7 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     if k != k0:
         near = _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y)
     _, s, dx, dy, seg, rx, ry = near
+    _reach(tail, b, ln, n, k)
     return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg
 
 
@@ -236,11 +317,21 @@ def point_at(tr, tail, n_arr, b, ln, hx, hy, hh, s, guess, s_head):  # pragma: n
     if s >= ls:
         f = (s - ls) / (s_head - ls)
         return lx + f * (hx - lx), ly + f * (hy - ly)
-    s0 = tail[b, ln, 3]
+    s0 = tail[b, ln, T_S0]
     if s <= s0:
         bx, by = _back(tr, tail, b, ln, n, hx, hy, hh)
-        return tr[b, ln, 0, 0] - (s - s0) * bx, tr[b, ln, 0, 1] - (s - s0) * by
-    i = min(max(_bisect(tr, b, ln, n, s, guess) - 1, 0), max(n - 2, 0))
-    xi, yi, si = tr[b, ln, i, 0], tr[b, ln, i, 1], tr[b, ln, i, 2]
-    f = (s - si) / (tr[b, ln, i + 1, 2] - si)
-    return xi + f * (tr[b, ln, i + 1, 0] - xi), yi + f * (tr[b, ln, i + 1, 1] - yi)
+        return tail[b, ln, T_OLD] - (s - s0) * bx, tail[b, ln, T_OLD + 1] - (s - s0) * by
+    # (no _reach: the path points lie ahead of the projection, whose read is recorded)
+    i = min(max(_bisect(tr, tail, b, ln, n, s, guess) - 1, 0), max(n - 2, 0))
+    xi, yi, si = (
+        crumb(tr, tail, b, ln, n, i, 0),
+        crumb(tr, tail, b, ln, n, i, 1),
+        crumb(tr, tail, b, ln, n, i, 2),
+    )
+    xj, yj, sj = (
+        crumb(tr, tail, b, ln, n, i + 1, 0),
+        crumb(tr, tail, b, ln, n, i + 1, 1),
+        crumb(tr, tail, b, ln, n, i + 1, 2),
+    )
+    f = (s - si) / (sj - si)
+    return xi + f * (xj - xi), yi + f * (yj - yi)

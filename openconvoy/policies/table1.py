@@ -113,7 +113,8 @@ def razzaghpour2023() -> ClassicalConfig:
     when the error exceeds a threshold. That is the kind of ``core.gates``' event rule
     used here (send when the own state leaves the others' extrapolation of the last
     message), with a constant-velocity model in place of the paper's communicated model.
-    Not checked, assumed from the PD stand-in it replaces (``platoon-allpred-event``):
+    Approximated (not checked, assumed from the PD stand-in it replaces,
+    ``platoon-allpred-event``):
     constant distance (the title's CACC suggests a time headway; set ``member.spacing``),
     all predecessors, and an MPC with shared plans as the controller."""
     return _row(
@@ -191,7 +192,7 @@ def wu2021() -> ClassicalConfig:
 
     Not verified: neither this paper's text nor the OpenConvoy paper's Table I was
     reachable here (searched 2026-12-05; the paper could not be identified from "Wu et al.
-    2021" alone). What the preset assumes, from the PD stand-in it replaces
+    2021" alone). Approximated, from the PD stand-in it replaces
     (``platoon-leader-event``): constant distance; leader following (here leader +
     predecessor: the braking-safe gap needs the vehicle ahead); event-triggered with
     ``core.gates``' rule; MPC with shared plans. Check them against Table I when citing."""
@@ -210,8 +211,8 @@ def wei2017() -> ClassicalConfig:
     time-headway car-following model).
 
     Not verified: neither this paper's text nor the OpenConvoy paper's Table I was
-    reachable here (searched 2026-12-05). What the preset assumes, from the PD stand-in
-    it replaces (``cacc-lookaheadN``): constant time headway, every predecessor
+    reachable here (searched 2026-12-05). Approximated, from the PD stand-in it replaces
+    (``cacc-lookaheadN``): constant time headway, every predecessor
     (lookahead:N), periodic, and a receding-horizon QP in place of the paper's
     horizon optimisation (believed dynamic programming). Check them against Table I when
     citing."""
@@ -230,8 +231,8 @@ def wen2019() -> ClassicalConfig:
     mechanism).
 
     Not verified: neither this paper's text nor the OpenConvoy paper's Table I was
-    reachable here (searched 2026-12-05). What the preset assumes, from the PD stand-in
-    it replaces (``cacc-lookahead1-event``): constant time headway, predecessor
+    reachable here (searched 2026-12-05). Approximated, from the PD stand-in it replaces
+    (``cacc-lookahead1-event``): constant time headway, predecessor
     following, event-triggered with ``core.gates``' rule, MPC with shared plans. Check
     them against Table I when citing."""
     return _row(

@@ -204,3 +204,20 @@ def test_another_leaderboard_in_the_directory_is_refused(small, tmp_path: Path, 
     other.write_text(SMALL.replace("seeds = 3", "seeds = 2"))
     code = main(["experiment", "leaderboard", "--config", str(other), "--out", str(board)])
     assert code == 2 and "holds another leaderboard" in capsys.readouterr().err
+
+
+def test_the_shipped_leaderboard_is_the_issues_grid():
+    """``examples/leaderboard.toml`` (docs/leaderboard.md): the four scenarios, PER 0-0.8,
+    bursts, 100 ms latency, 10 seeds; MPC with plans and state-only beside the PD."""
+    path = Path(__file__).resolve().parents[2] / "openconvoy/experiments/examples/leaderboard.toml"
+    config = LeaderboardConfig.from_toml(path)
+    assert config.scenarios == ("paper", "track", "emergency-braking", "highway-cut-in")
+    assert config.policies == ("paper", "paper-mpc", "paper-mpc-state")
+    assert config.seed_values == tuple(range(10))
+    loss = {c.name: c for c in config.loss}
+    assert loss["per"].pers == (0.0, 0.2, 0.4, 0.6, 0.8) and loss["per"].model == "bernoulli"
+    assert loss["bursts"].model == "gilbert-elliott" and loss["bursts"].mean_burst_s == 1.0
+    assert loss["latency-100ms"].latency_s == 0.1
+    experiment, labels = config.cell("highway-cut-in", loss["per"])
+    assert experiment.policy["paper-mpc-highway-cut-in"]["speed_limit_mps"] == 40.0
+    assert sorted(labels.values()) == sorted(config.policies)

@@ -389,7 +389,9 @@ def leaderboard_figure(rows: Sequence[dict[str, Any]], path: Path) -> Path:
             if key.startswith("p95"):  # errors span orders of magnitude across scenarios
                 ax.set_yscale("log")
             ax.set_xticks(np.arange(len(ticks)))
-            ax.set_xticklabels([f"{loss}\n{per:g}" for loss, per in ticks], fontsize=7)
+            ax.set_xticklabels(
+                [f"{loss}\n{per:g}" for loss, per in ticks], fontsize=7, rotation=30, ha="right"
+            )
             ax.set_ylabel(ylabel)
             ax.set_title(f"{scenario}: {ylabel} (mean, 95 % interval)", fontsize=9)
             ax.grid(alpha=0.3)

@@ -282,6 +282,17 @@ class LeaderboardInterrupted(SweepInterrupted):
         )
 
 
+def same_cells(stored: LeaderboardConfig, config: LeaderboardConfig) -> bool:
+    """Whether ``config`` may run in the directory of ``stored``: the same leaderboard,
+    perhaps on other scenarios (``--scenarios``), so the cells they share are the same."""
+    if dataclasses.replace(stored, scenarios=config.scenarios, scenario={}) != (
+        dataclasses.replace(config, scenario={})
+    ):
+        return False
+    shared = set(stored.scenarios) & set(config.scenarios)
+    return all(stored.scenario.get(s) == config.scenario.get(s) for s in shared)
+
+
 def run_leaderboard(
     config: LeaderboardConfig,
     out_dir: str | Path,
@@ -297,12 +308,8 @@ def run_leaderboard(
     out.mkdir(parents=True, exist_ok=True)
     copy = out / "leaderboard.toml"
     text = config.to_toml()
-    if copy.is_file():  # the same leaderboard, perhaps on other scenarios: its cells agree
-        stored = LeaderboardConfig.from_toml(copy)
-        if dataclasses.replace(stored, scenarios=config.scenarios, scenario={}) != (
-            dataclasses.replace(config, scenario={})
-        ) or any(stored.scenario.get(s) != config.scenario.get(s) for s in config.scenarios):
-            raise ConfigError(f"{out} holds another leaderboard (its leaderboard.toml differs)")
+    if copy.is_file() and not same_cells(LeaderboardConfig.from_toml(copy), config):
+        raise ConfigError(f"{out} holds another leaderboard (its leaderboard.toml differs)")
     copy.write_text(text, encoding="utf-8")
     rows: list[dict[str, Any]] = []
     for scenario in config.scenarios:

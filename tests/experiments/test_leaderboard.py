@@ -19,7 +19,9 @@ from openconvoy.experiments.leaderboard import (
     LeaderboardConfig,
     interval,
     run_leaderboard,
+    same_cells,
     table_markdown,
+    with_overrides,
 )
 
 T_975_2 = 4.302652729696143
@@ -221,3 +223,18 @@ def test_the_shipped_leaderboard_is_the_issues_grid():
     experiment, labels = config.cell("highway-cut-in", loss["per"])
     assert experiment.policy["paper-mpc-highway-cut-in"]["speed_limit_mps"] == 40.0
     assert sorted(labels.values()) == sorted(config.policies)
+
+
+def test_part_of_a_leaderboard_then_more_shares_its_directory(tmp_path: Path):
+    """``--scenarios paper`` first, then ``paper,emergency-braking`` in the same directory
+    (the first part's cells read, not rerun); other seeds or settings are another board."""
+    path = Path(__file__).resolve().parents[2] / "openconvoy/experiments/examples/leaderboard.toml"
+    full = LeaderboardConfig.from_toml(path)
+    first = with_overrides(full, scenarios=("paper",))
+    more = with_overrides(full, scenarios=("paper", "emergency-braking"))
+    assert first.scenario == {} and "emergency-braking" in more.scenario
+    assert same_cells(first, more) and same_cells(more, first) and same_cells(more, full)
+    assert not same_cells(first, with_overrides(more, seeds=(0, 1)))
+    faster = dict(more.scenario, **{"emergency-braking": {"policy": {"speed_limit_mps": 30.0}}})
+    assert not same_cells(full, with_overrides(more, scenario=faster))
+    assert same_cells(first, with_overrides(more, scenario=faster))  # it shares only paper

@@ -238,3 +238,19 @@ def test_part_of_a_leaderboard_then_more_shares_its_directory(tmp_path: Path):
     faster = dict(more.scenario, **{"emergency-braking": {"policy": {"speed_limit_mps": 30.0}}})
     assert not same_cells(full, with_overrides(more, scenario=faster))
     assert same_cells(first, with_overrides(more, scenario=faster))  # it shares only paper
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--config", "x.toml"], "needs --config FILE and --out DIR"),
+        (["--resume", "nowhere"], "holds no leaderboard"),
+        (["--resume", "nowhere", "--seeds", "2"], "as it was started"),
+    ],
+)
+def test_leaderboard_flags_that_cannot_work_are_one_line_and_exit_2(
+    capsys: pytest.CaptureFixture[str], args: list[str], message: str
+):
+    assert main(["experiment", "leaderboard", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err

@@ -8,12 +8,14 @@ stop and stop behind it), then the run ends; every other vehicle ends at once.
 
 from __future__ import annotations
 
-from typing import Protocol
+import dataclasses
+from typing import Any, Protocol
 
 import numpy as np
 
 from openconvoy.bridge.link import Telemetry
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.core.plans import Plan, leader_plan
 from openconvoy.core.state import VehicleState, wrap_angle
 
 FINISH_TIMEOUT_S = 10.0
@@ -43,6 +45,8 @@ class LeaderDriving:
         rate_hz: control rate (Hz): half a period of slack on the duration.
         origin: the geodetic origin of the driver's frame when it differs from the
             convoy's (track files carry their own); None = the convoy's.
+        preset: the leader's vehicle preset (``envs.vehicles.VehiclePreset``), the model
+            its shared plan predicts with; None = it shares no plan.
     """
 
     def __init__(
@@ -55,6 +59,7 @@ class LeaderDriving:
         duration_s: float | None,
         rate_hz: float,
         origin: Origin | None = None,
+        preset: Any = None,
     ) -> None:
         self.driver = driver
         self.is_leader = is_leader
@@ -63,6 +68,7 @@ class LeaderDriving:
         self.duration_option_s = duration_s
         self.rate_hz = rate_hz
         self.origin = origin
+        self.preset = preset
         self.t_finish: float | None = None
         """Monotonic time (s) a leader's scenario ended and it began braking; None before."""
 
@@ -97,6 +103,30 @@ class LeaderDriving:
             now - t_start, float(x), float(y), own.heading, own.speed
         )
         return float(speed), wrap_angle(float(heading) - own.heading), "coop", ""
+
+    def plan(
+        self, own: VehicleState, now: float, t_start: float | None, wall: float, mpc: Any
+    ) -> Plan | None:
+        """The plan a driven leader shares at monotonic ``now`` (s), stamped with ``wall``
+        (s, the shared clock): its driver's speed profile ahead through its speed lag
+        (``core.plans.leader_plan``, as the simulated leader's), over ``mpc``'s horizon and
+        step (the followers' MPC config); None while it waits to start, after its scenario
+        (it brakes: ``core.plans.braking_plan``), passive, or for a driver without a speed
+        profile."""
+        if (
+            self.passive
+            or self.driver is None
+            or t_start is None
+            or self.t_finish is not None
+            or self.preset is None
+            or mpc is None
+        ):
+            return None
+        plan = leader_plan(
+            self.driver, self.preset, now - t_start, own.speed, mpc.horizon, mpc.step_s
+        )
+        # The driver's clock is the run's (monotonic, from the start); receivers read wall.
+        return None if plan is None else dataclasses.replace(plan, t0=wall)
 
     def over(self, now: float, t_start: float, speed: float) -> bool:
         """Whether the run's duration is over at ``now`` (a scenario-driven leader first

@@ -217,6 +217,13 @@ def bind_planning(
     return policy if isinstance(policy, PlanningPolicy) else None
 
 
+def leader_preset(convoy: ConvoyConfig) -> Any:
+    """The leader's vehicle preset: the model of the plan a driven leader shares."""
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    return vehicle_preset(convoy.vehicles[0])
+
+
 def top_speed(convoy: ConvoyConfig, vehicle_id: int) -> float:
     """The vehicle's preset top speed (m/s): the top of its action space, as in ``sim``."""
     from openconvoy.envs.vehicles import vehicle_preset
@@ -440,6 +447,7 @@ class DeployRunner:
             duration_s=o.duration_s,
             rate_hz=o.rate_hz,
             origin=self.leader_origin,
+            preset=leader_preset(self.convoy) if self.is_leader and self._planning else None,
         )
         self.exchange = Exchange(
             self.member, self.v2v, self.start_gate, rate_hz=o.rate_hz, on_status=status
@@ -616,11 +624,16 @@ class DeployRunner:
 
     # ------------------------------------------------------------------ one tick
 
-    def _own_plan(self, mode: str, own: VehicleState, wall: float) -> Plan | None:
-        """The plan to share: the policy's while its commands go out (``coop``), else
-        braking to rest at the vehicle's limit, which is what it does instead."""
+    def _own_plan(self, mode: str, own: VehicleState, now: float, wall: float) -> Plan | None:
+        """The plan to share: a driven leader's driver's (``LeaderDriving.plan``, as the
+        simulated leader shares), else the policy's, while its commands go out (``coop``);
+        else braking to rest at the vehicle's limit, which is what it does instead."""
         assert self._planning is not None
-        plan = self._planning.plan()
+        if self.is_leader:
+            mpc = getattr(self._planning, "mpc", None)
+            plan = self.leading.plan(own, now, self.start_gate.t_start, wall, mpc)
+        else:
+            plan = self._planning.plan()
         if mode == "coop" or plan is None:
             return plan
         decel = self.member.decels[self.options.vehicle_id]
@@ -657,7 +670,7 @@ class DeployRunner:
         )
         speed, heading_cmd, mode = self.gate.let_through(verdict, want, own, heading_cmd)
         if self._planning is not None:
-            self.exchange.offer_plan(self._own_plan(mode, own, wall))
+            self.exchange.offer_plan(self._own_plan(mode, own, now, wall))
         t_sent = self.vehicle.actuate(now, tel, own, verdict, speed, heading_cmd)
         self._sent_last = not math.isnan(t_sent)
         if self.options.record_timing:

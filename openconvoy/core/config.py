@@ -299,23 +299,44 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 
 
 def dumps_toml(data: dict[str, Any]) -> str:
-    """Write nested dicts of scalars and lists as TOML (tables after scalars)."""
+    """Write nested dicts of scalars and lists as TOML (tables after scalars; a list of
+    dicts as an array of tables, ``[[name]]``)."""
     lines: list[str] = []
     _dump_table(data, [], lines)
     return "\n".join(lines).strip() + "\n"
 
 
-def _dump_table(data: dict[str, Any], path: list[str], lines: list[str]) -> None:
-    scalars = {k: v for k, v in data.items() if not isinstance(v, dict)}
+def _is_table_array(value: Any) -> bool:
+    return (
+        isinstance(value, (list, tuple)) and bool(value) and all(isinstance(v, dict) for v in value)
+    )
+
+
+def _key(key: str) -> str:
+    """A bare TOML key where it may be one, else a quoted one (``"track-file:a.json"``)."""
+    bare = key and all(c.isalnum() and c.isascii() or c in "-_" for c in key)
+    return key if bare else _toml_value(key)
+
+
+def _dump_table(
+    data: dict[str, Any], path: list[str], lines: list[str], array: bool = False
+) -> None:
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict) and not _is_table_array(v)}
     tables = {k: v for k, v in data.items() if isinstance(v, dict)}
-    if path and scalars:
+    arrays = {k: v for k, v in data.items() if _is_table_array(v)}
+    if array:
+        lines.append(f"[[{'.'.join(path)}]]")
+    elif path and scalars:
         lines.append(f"[{'.'.join(path)}]")
     for key, value in scalars.items():
-        lines.append(f"{key} = {_toml_value(value)}")
-    if scalars:
+        lines.append(f"{_key(key)} = {_toml_value(value)}")
+    if scalars or array:
         lines.append("")
     for key, value in tables.items():
-        _dump_table(value, [*path, key], lines)
+        _dump_table(value, [*path, _key(key)], lines)
+    for key, items in arrays.items():
+        for item in items:
+            _dump_table(item, [*path, _key(key)], lines, array=True)
 
 
 def _toml_value(value: Any) -> str:

@@ -10,7 +10,6 @@ they act it takes their new plans to send.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -19,6 +18,7 @@ import numpy as np
 from openconvoy.comms.loss import LossConfig
 from openconvoy.core.member import ConvoyMember
 from openconvoy.core.plans import Plan, PlanningPolicy, PlanStore, braking_plan
+from openconvoy.core.plans import leader_plan as leader_plan  # re-export: its home is core
 from openconvoy.envs.channel import Channel
 
 
@@ -70,44 +70,6 @@ class PlanExchange:
     def held(self, vehicle: int) -> Mapping[int, Plan]:
         """The plans ``vehicle`` holds (vehicle id -> newest plan)."""
         return self.stores[vehicle].plans
-
-
-def leader_plan(
-    scenario: Any, preset: Any, t: float, speed: float, horizon: int, step_s: float
-) -> Plan | None:
-    """The leader's plan at ``t`` (s): the scenario driver's speed profile ahead (ramped at
-    its limits, as ``PathScenario.leader_command`` ramps it) through the leader's speed lag
-    and acceleration limits, from its ``speed`` now (m/s); None for a scenario without a
-    speed profile. What a leader that knows its route's speed profile shares."""
-    profile = getattr(scenario, "speed_profile", None)
-    if profile is None:
-        return None
-    cmd = float(getattr(scenario, "_cmd_speed", speed))
-    s_now = float(getattr(scenario, "_s", 0.0))
-    up = float(getattr(scenario, "ramp_accel_mps2", preset.accel_max_mps2))
-    down = float(getattr(scenario, "ramp_decel_mps2", preset.decel_max_mps2))
-    tau = max(preset.speed_lag_s if preset.speed_loop == "lag" else preset.drive_lag_s, 1e-3)
-    delay = preset.actuation_delay_s
-    h = 0.05
-    sub = max(1, int(round(step_s / h)))
-    h = step_s / sub
-    v, s = float(speed), s_now
-    out = [v]
-    queue = [cmd] * max(1, int(round(delay / h)))
-    for k in range(horizon):
-        for j in range(sub):
-            tk = t + (k * sub + j) * h
-            target = float(profile(tk, s))
-            cmd += min(max(target - cmd, -down * h), up * h)
-            queue.append(cmd)
-            u = queue.pop(0)
-            dv = min(max((u - v) / tau, -preset.decel_max_mps2), preset.accel_max_mps2) * h
-            v = max(v + dv, 0.0)
-            s += v * h
-        out.append(v)
-    if not all(math.isfinite(x) for x in out):
-        return None
-    return Plan(0, t, step_s, tuple(out), tau)
 
 
 class PlanRelay:

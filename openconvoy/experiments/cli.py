@@ -222,6 +222,7 @@ def _add_experiments(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="run experiments (per-sweep)")
     esub = p.add_subparsers(dest="experiment_command", metavar="EXPERIMENT", required=True)
     _add_per_sweep(esub)
+    _add_leaderboard(esub)
     _add_compare(sub)
 
 
@@ -278,6 +279,48 @@ def _add_per_sweep(esub: argparse._SubParsersAction) -> None:
     )
 
     p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "per_sweep"))
+
+
+def _add_leaderboard(esub: argparse._SubParsersAction) -> None:
+    p = esub.add_parser(
+        "leaderboard",
+        help="policies x scenarios x link conditions x seeds, as one table with 95 % intervals",
+        description="Run every policy on every scenario under every link condition of "
+        "--config LEADERBOARD.toml (one per-sweep per scenario and condition) and write "
+        "leaderboard.csv, leaderboard.md and leaderboard.png: p95 platooning error, speed "
+        "difference, min gap, collisions and string stability, each with its 95 %% interval "
+        "over seeds. Rerun on the same --out (or --resume DIR) to finish an interrupted one.",
+    )
+    p.add_argument("--config", metavar="LEADERBOARD.toml", help="leaderboard file")
+    p.add_argument("--out", default=None, metavar="DIR", help="the leaderboard's directory")
+    p.add_argument(
+        "--resume",
+        default=None,
+        metavar="DIR",
+        help="finish the leaderboard in DIR (its own leaderboard.toml): finished cells are read",
+    )
+    p.add_argument(
+        "--scenarios", metavar="LIST", help="comma-separated scenarios, replacing the file's"
+    )
+    p.add_argument(
+        "--seeds",
+        type=_int(1, 100_000),
+        default=None,
+        metavar="N",
+        help="seeds 0..N-1 (replacing the file's)",
+    )
+    p.add_argument(
+        "--jobs",
+        type=_int(1, 4096),
+        default=None,
+        metavar="N",
+        help="runs at once (default: the cores available, or the Ray cluster's CPUs)",
+    )
+    executor_args(p, batched=True, run_logs=True)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true", help="skip the plot")
+
+    p.set_defaults(handler=lazy_handler("openconvoy.experiments.commands", "leaderboard"))
 
 
 def _add_compare(sub: argparse._SubParsersAction) -> None:

@@ -421,6 +421,61 @@ def _resumed(args: argparse.Namespace) -> tuple[Any, Path]:
     return ExperimentConfig.from_toml(out / "experiment.toml"), out
 
 
+# --- experiment leaderboard -------------------------------------------------------------
+
+
+def leaderboard(args: argparse.Namespace) -> int:
+    """``openconvoy experiment leaderboard``; exit status 1 when runs failed, 130 when
+    interrupted (the finished runs are kept for ``--resume``)."""
+    from openconvoy.experiments import leaderboard as lb
+    from openconvoy.experiments.executor import TasksFailed, with_flags
+    from openconvoy.experiments.sweep import SweepInterrupted
+    from openconvoy.outputs import check_output_dir
+
+    if args.resume is not None:
+        if args.config or args.out or args.scenarios or args.seeds is not None:
+            raise ConfigError(
+                "--resume runs the leaderboard as it was started: no --config, "
+                "--out, --scenarios or --seeds"
+            )
+        copy = Path(args.resume) / "leaderboard.toml"
+        if not copy.is_file():
+            raise ConfigError(f"--resume: {args.resume} holds no leaderboard (no leaderboard.toml)")
+        config, out = lb.LeaderboardConfig.from_toml(copy), Path(args.resume)
+    else:
+        if not args.config or not args.out:
+            raise ConfigError(
+                "experiment leaderboard needs --config FILE and --out DIR (or --resume DIR)"
+            )
+        config = lb.LeaderboardConfig.from_toml(args.config)
+        changes: dict[str, Any] = {}
+        if args.scenarios:
+            changes["scenarios"] = tuple(s.strip() for s in args.scenarios.split(",") if s.strip())
+        if args.seeds is not None:
+            changes["seeds"] = tuple(range(args.seeds))
+        config = lb.with_overrides(config, **changes) if changes else config
+        out = check_output_dir(args.out, "--out")
+    executor = with_flags(config.executor, args.executor, args.address, args.jobs, args.batched)
+    try:
+        rows = lb.run_leaderboard(
+            config,
+            out,
+            progress=not args.quiet,
+            figures=plots_wanted(args.no_plots),
+            executor=executor,
+            run_logs=not args.no_run_logs,
+        )
+    except TasksFailed as exc:
+        print(f"openconvoy: error: {exc}", file=sys.stderr)
+        return 1
+    except SweepInterrupted as exc:
+        print(f"openconvoy: {exc}", file=sys.stderr)
+        return 130
+    print(lb.table_markdown(rows), end="")
+    print(f"wrote leaderboard.csv, leaderboard.md, leaderboard.json to {out}")
+    return 0
+
+
 # --- compare -----------------------------------------------------------------------------
 
 

@@ -354,3 +354,47 @@ def _min_gap(result: SweepResult, policies, pers, seed, path: Path) -> None:
     a2.set_ylabel("closest follower–predecessor gap (m)")
     a2.set_title(f"Closest gap over time, PER {worst:.1f}, seed {seed}")
     _save(fig, path)
+
+
+def leaderboard_figure(rows: Sequence[dict[str, Any]], path: Path) -> Path:
+    """The leaderboard's plot: per scenario (one row of axes), the p95 platooning error
+    and the minimum gap of each policy under each link condition (x: condition and PER),
+    the mean over seeds with its 95 % interval as error bars."""
+    plt = _plt()
+    scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
+    policies = list(dict.fromkeys(r["policy"] for r in rows))
+    fig, axes = plt.subplots(len(scenarios), 2, figsize=(12, 3.2 * len(scenarios)), squeeze=False)
+    for axrow, scenario in zip(axes, scenarios):
+        sel = [r for r in rows if r["scenario"] == scenario]
+        ticks = list(dict.fromkeys((r["loss"], r["per"]) for r in sel))
+        for ax, key, ylabel in zip(
+            axrow, ("p95_platooning_error_m", "min_gap_m"), ("p95 error (m)", "min gap (m)")
+        ):
+            for i, label in enumerate(policies):
+                mine = {(r["loss"], r["per"]): r[key] for r in sel if r["policy"] == label}
+                x = np.arange(len(ticks)) + (i - (len(policies) - 1) / 2) * 0.08
+                mean = np.array([mine[t]["mean"] if t in mine else np.nan for t in ticks])
+                lo = np.array([mine[t]["lo"] if t in mine else np.nan for t in ticks])
+                hi = np.array([mine[t]["hi"] if t in mine else np.nan for t in ticks])
+                err = np.nan_to_num(np.vstack([mean - lo, hi - mean]))
+                ax.errorbar(
+                    x,
+                    mean,
+                    yerr=err,
+                    marker=_MARKERS[i % len(_MARKERS)],
+                    ls="none",
+                    capsize=3,
+                    label=label,
+                )
+            if key.startswith("p95"):  # errors span orders of magnitude across scenarios
+                ax.set_yscale("log")
+            ax.set_xticks(np.arange(len(ticks)))
+            ax.set_xticklabels(
+                [f"{loss}\n{per:g}" for loss, per in ticks], fontsize=7, rotation=30, ha="right"
+            )
+            ax.set_ylabel(ylabel)
+            ax.set_title(f"{scenario}: {ylabel} (mean, 95 % interval)", fontsize=9)
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    _save(fig, path)
+    return path

@@ -101,15 +101,22 @@ def turri2017() -> ClassicalConfig:
 
 
 def razzaghpour2023() -> ClassicalConfig:
-    """M. Razzaghpour et al., 2023 (the OpenConvoy authors' group; MPC platooning over
-    C-V2X with event-triggered sharing of predicted trajectories).
+    """M. Razzaghpour et al., 2023: most likely "Predictive Model-Based and
+    Control-Aware Communication Strategies for Cooperative Adaptive Cruise Control", IEEE
+    Open Journal of Intelligent Transportation Systems, 2023 (arXiv 2303.08076, M.
+    Razzaghpour, S. Shahram, R. Valiente, M. Zaman, Y. P. Fallah).
 
-    Row: constant distance (platooning), all predecessors, event-triggered, MPC with
-    shared plans. Approximated: the trigger fires on the deviation of the own state from
-    the others' constant-velocity extrapolation (``core.gates``), not of the predicted
-    trajectory; the C-V2X erasure-link model is our loss models (Bernoulli,
-    Gilbert-Elliott). The row's attributes follow the PD stand-in it replaces
-    (``platoon-allpred-event``); check them against Table I when citing."""
+    Checked against that paper's abstract (2026-12-05; the body and the OpenConvoy
+    paper's Table I were not reachable as text here): its trigger is a fully distributed
+    event-triggered communication combined with model-based communication — each vehicle
+    runs an estimator of the others from the model last communicated, and a vehicle sends
+    when the error exceeds a threshold. That is the kind of ``core.gates``' event rule
+    used here (send when the own state leaves the others' extrapolation of the last
+    message), with a constant-velocity model in place of the paper's communicated model.
+    Approximated (not checked, assumed from the PD stand-in it replaces,
+    ``platoon-allpred-event``):
+    constant distance (the title's CACC suggests a time headway; set ``member.spacing``),
+    all predecessors, and an MPC with shared plans as the controller."""
     return _row(
         "razzaghpour2023",
         "Razzaghpour et al. 2023: constant distance, all predecessors, event-triggered, MPC with plans",
@@ -183,10 +190,12 @@ def wu2021() -> ClassicalConfig:
     """Wu et al., 2021 (distributed MPC platooning with event-triggered communication,
     leader information).
 
-    Row: constant distance, leader following (here leader + predecessor: the braking-safe
-    gap needs the vehicle ahead), event-triggered, MPC. Approximated: the
-    row's attributes follow the PD stand-in it replaces (``platoon-leader-event``); the
-    event rule is ``core.gates``'; check them against Table I when citing."""
+    Not verified: neither this paper's text nor the OpenConvoy paper's Table I was
+    reachable here (searched 2026-12-05; the paper could not be identified from "Wu et al.
+    2021" alone). Approximated, from the PD stand-in it replaces
+    (``platoon-leader-event``): constant distance; leader following (here leader +
+    predecessor: the braking-safe gap needs the vehicle ahead); event-triggered with
+    ``core.gates``' rule; MPC with shared plans. Check them against Table I when citing."""
     return _row(
         "wu2021",
         "Wu et al. 2021: constant distance, leader + predecessor, event-triggered, MPC with plans",
@@ -201,10 +210,12 @@ def wei2017() -> ClassicalConfig:
     """Wei et al., 2017 (multi-vehicle longitudinal trajectory optimisation with a
     time-headway car-following model).
 
-    Row: constant time headway, every predecessor (lookahead:N), periodic, optimisation
-    over a horizon (MPC). Approximated: the paper's dynamic-programming trajectory
-    optimisation is our receding-horizon QP; the row's attributes follow the PD stand-in
-    it replaces (``cacc-lookaheadN``); check them against Table I when citing."""
+    Not verified: neither this paper's text nor the OpenConvoy paper's Table I was
+    reachable here (searched 2026-12-05). Approximated, from the PD stand-in it replaces
+    (``cacc-lookaheadN``): constant time headway, every predecessor
+    (lookahead:N), periodic, and a receding-horizon QP in place of the paper's
+    horizon optimisation (believed dynamic programming). Check them against Table I when
+    citing."""
     return _row(
         "wei2017",
         "Wei et al. 2017: CTH, lookahead:N, periodic, MPC with plans",
@@ -219,10 +230,11 @@ def wen2019() -> ClassicalConfig:
     """Wen et al., 2019 (CACC with a resource-efficient, event-triggered communication
     mechanism).
 
-    Row: constant time headway, predecessor following, event-triggered, MPC.
-    Approximated: the event rule is ``core.gates``'; the row's attributes follow the PD
-    stand-in it replaces (``cacc-lookahead1-event``); check them against Table I when
-    citing."""
+    Not verified: neither this paper's text nor the OpenConvoy paper's Table I was
+    reachable here (searched 2026-12-05). Approximated, from the PD stand-in it replaces
+    (``cacc-lookahead1-event``): constant time headway, predecessor
+    following, event-triggered with ``core.gates``' rule, MPC with shared plans. Check
+    them against Table I when citing."""
     return _row(
         "wen2019",
         "Wen et al. 2019: CTH, predecessor following, event-triggered, MPC with plans",

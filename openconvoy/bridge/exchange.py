@@ -13,8 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from openconvoy.bridge.convoystart import ConvoyStart
-from openconvoy.core import tick as member_tick
-from openconvoy.core.member import ConvoyMember, Frame
+from openconvoy.core.member import ConvoyMember
 from openconvoy.core.plans import Plan, PlanStore
 from openconvoy.core.state import VehicleState
 
@@ -63,16 +62,18 @@ class Exchange:
         """The own plan to send with the next broadcast state (None: none)."""
         self.plan = plan
 
-    def step(self, own: VehicleState, wall: float, known: bool) -> Frame:
-        """Broadcast ``own`` if ``known`` (and the Tx gate says so), receive, and sense at
-        shared-clock time ``wall`` (s): the member's frame."""
-        self._track_broadcast(known, wall)
-        sent = member_tick.begin(self.member, own, wall, may_send=known)
-        if sent is not None:
-            self.v2v.send(sent, wall)
-            send_plan = getattr(self.v2v, "send_plan", None)
-            if self.plan is not None and send_plan is not None and self.plan.valid():
-                send_plan(self.plan, wall)
+    def send(self, state: VehicleState, wall: float) -> None:
+        """Broadcast the own ``state`` (τ said so) at shared-clock time ``wall`` (s), with
+        the own plan when there is a valid one (``core.tick.Radio``)."""
+        self.v2v.send(state, wall)
+        send_plan = getattr(self.v2v, "send_plan", None)
+        if self.plan is not None and send_plan is not None and self.plan.valid():
+            send_plan(self.plan, wall)
+
+    def receive(self, wall: float) -> list[VehicleState]:
+        """The vehicle states heard since the last tick, read for at most the receive
+        budget, at shared-clock time ``wall`` (s) (``core.tick.Radio``); plans, an abort and
+        the leader's completion are kept aside, and the start gate told who was heard."""
         inbox = []
         for msg in self.v2v.poll(wall, budget_s=RECEIVE_BUDGET / self.rate_hz):
             plan = getattr(msg, "plan", None)
@@ -89,7 +90,7 @@ class Exchange:
         if take_alerts is not None:
             for line in take_alerts(wall):
                 self.on_status(line)
-        return member_tick.sense(self.member, inbox, wall)
+        return inbox
 
     def announce_complete(self, wall: float) -> None:
         """The leader completed its scenario: say so to the convoy, once (the followers
@@ -104,8 +105,9 @@ class Exchange:
         c = self.v2v.counters
         return int(c.received - c.aborts - getattr(c, "plans", 0))
 
-    def _track_broadcast(self, known: bool, wall: float) -> None:
-        """Announce and record when broadcasting stops (autopilot link lost) and resumes."""
+    def track_broadcast(self, known: bool, wall: float) -> None:
+        """Whether the own state is ``known`` at shared-clock time ``wall`` (s): announce and
+        record when broadcasting stops (autopilot link lost) and resumes."""
         if known == self.broadcasting:
             return
         self.broadcasting = known

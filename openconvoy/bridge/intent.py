@@ -1,9 +1,11 @@
 """What a vehicle's controller wants on one deploy tick, before the failsafes have a say.
 
-A follower: ``policy.act`` on the member's observation, then the member's decision
-(``core.tick.decide``: the finite check, the clip to the action space, the staleness
-ladder fed with the rangefinder as in ``sim``). The leader: its scenario or track driver
-(``bridge.leaderdrive``). Either, while the convoy has not started: stand still.
+The member's whole tick is ``core.tick.tick``, the simulator's rules: τ and the broadcast,
+ρ on what was received, then a follower's ``policy.act`` (through an ``ActGuard``, its
+first error logged) and the member's decision (``core.tick.decide``: the finite check, the
+clip to the action space, the staleness ladder fed with the rangefinder as in ``sim``).
+The leader: its scenario or track driver (``bridge.leaderdrive``). Either, while the
+convoy has not started: stand still.
 """
 
 from __future__ import annotations
@@ -11,15 +13,17 @@ from __future__ import annotations
 import logging
 import math
 import time
-import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
 
 from openconvoy.bridge.convoystart import ConvoyStart
 from openconvoy.bridge.failsafes import Failsafes
 from openconvoy.bridge.leaderdrive import LeaderDriving
 from openconvoy.bridge.link import Telemetry
 from openconvoy.core import tick as member_tick
-from openconvoy.core.member import ConvoyMember, Frame
+from openconvoy.core.member import ConvoyMember
 from openconvoy.core.policy import ActGuard, ConvoyPolicy, PolicyFailure
 from openconvoy.core.state import VehicleState
 
@@ -47,37 +51,18 @@ def ranging_ahead(
     return r + 0.5 * (lengths[vehicle_id] + lengths[vehicle_id - 1]), rate
 
 
-def follower_decision(
-    policy: ConvoyPolicy | ActGuard,
-    member: ConvoyMember,
-    frame: Frame,
-    bounds: member_tick.ActionBounds,
-    ranging: tuple[float, float] | None,
-    wall: float,
-    first_error: bool,
-) -> member_tick.Decision:
-    """``policy.act`` on the frame's observation, then the member's decision
-    (``core.tick.decide``); a policy that raises gets a stop decision naming the error (the
-    traceback is logged for the ``first_error`` only). Through an ``ActGuard`` (what the
-    runner passes), an ``act`` slower than the control period ``LATE_ACTS`` times in a
-    row is a policy error too, as in ``sim``."""
-    try:
-        action = (
-            policy(frame.observation)
-            if isinstance(policy, ActGuard)
-            else policy.act(frame.observation)
-        )
-    except Exception as exc:  # the policy is foreign code: stop, log, keep looping
-        if first_error:
-            log.error("policy raised at t=%.2f:\n%s", wall, traceback.format_exc())
-        return member_tick.stop(f"{type(exc).__name__}: {exc}")
-    if isinstance(action, PolicyFailure) and first_error:
-        tb = policy.traceback if isinstance(policy, ActGuard) else ""
-        if tb:
-            log.error("policy raised at t=%.2f:\n%s", wall, tb)
-        else:
-            log.error("policy error at t=%.2f: %s", wall, action.reason)
-    return member_tick.decide(member, frame, action, bounds, ranging)
+@dataclass(frozen=True, slots=True)
+class FollowerAct:
+    """A follower's policy as one tick calls it (``core.tick.Actor``): ``intent``'s guarded
+    ``act`` of ``policy`` at shared-clock time ``wall`` (s), for the log."""
+
+    intent: ControllerIntent
+    policy: ConvoyPolicy
+    wall: float
+
+    def act(self, observation: np.ndarray) -> np.ndarray | PolicyFailure:
+        """The action for ``observation``, or the ``PolicyFailure`` that stops the vehicle."""
+        return self.intent.guarded_act(self.policy, observation, self.wall)
 
 
 class ControllerIntent:
@@ -118,44 +103,71 @@ class ControllerIntent:
         self.failsafes = failsafes
         self.decision: member_tick.Decision | None = None
 
-    def want(
+    def tick(
         self,
         policy: ConvoyPolicy,
         tel: Telemetry,
         own: VehicleState,
-        frame: Frame,
-        waiting: bool,
+        known: bool,
+        radio: member_tick.Radio,
         clocks: tuple[float, float],
-    ) -> Want:
-        """What ``policy`` (a follower's) or the leader's driver wants at (monotonic,
-        wall) ``clocks`` (s), given the telemetry, own state and the member's frame."""
+        started: Callable[[], bool],
+    ) -> tuple[member_tick.TickResult, Want]:
+        """The member's tick (``core.tick.tick``, as in ``sim``) at (monotonic, wall)
+        ``clocks`` (s), with the own state from telemetry ``tel`` (broadcast on ``radio``
+        only while it is ``known``) and ``started`` asked after sensing; then what
+        ``policy`` (a follower's) or the leader's driver wants."""
         now, wall = clocks
-        if waiting:  # armed and still, yaw at the current heading
-            return 0.0, 0.0, "stop", ""
         vehicle_id = self.member.vehicle_id
+        result = member_tick.tick(
+            self.member,
+            None if vehicle_id == 0 else FollowerAct(self, policy, wall),
+            own,
+            radio,
+            wall,
+            self.bounds,
+            ranging_ahead(tel, self.member.lengths, vehicle_id, now),
+            may_send=known,
+            started=started,
+        )
+        if not result.started:  # armed and still, yaw at the current heading
+            return result, (0.0, 0.0, "stop", "")
         if vehicle_id == 0:
             t_start = self.start_gate.t_start
-            assert t_start is not None  # not waiting: started
-            return self.leading.command(tel, own, now, t_start)
+            assert t_start is not None  # started
+            return result, self.leading.command(tel, own, now, t_start)
+        assert result.decision is not None  # a started follower decides
+        self.decision = d = result.decision
+        self._warn_if_slow()
+        return result, (d.speed_mps, d.heading_change_rad, d.mode, d.policy_error)
+
+    def guarded_act(
+        self, policy: ConvoyPolicy, observation: np.ndarray, wall: float
+    ) -> np.ndarray | PolicyFailure:
+        """``policy.act`` through an ``ActGuard`` (a new one when the policy changed): the
+        action, or the ``PolicyFailure`` of an ``act`` that raised or overran the period
+        too often; the first policy error of a run is logged (with its traceback) at
+        shared-clock time ``wall`` (s)."""
         if self.guard is None or self.guard.policy is not policy:
             self.guard = ActGuard(policy, self.period_s, self.clock)
             self._warned_slow = False
-        self.decision = d = follower_decision(
-            self.guard,
-            self.member,
-            frame,
-            self.bounds,
-            ranging_ahead(tel, self.member.lengths, vehicle_id, now),
-            wall,
-            first_error=not self.failsafes.policy_errors,
-        )
-        times = self.guard.times
+        action = self.guard(observation)
+        if isinstance(action, PolicyFailure) and not self.failsafes.policy_errors:
+            if self.guard.traceback:
+                log.error("policy raised at t=%.2f:\n%s", wall, self.guard.traceback)
+            else:
+                log.error("policy error at t=%.2f: %s", wall, action.reason)
+        return action
+
+    def _warn_if_slow(self) -> None:
+        """The first ``act`` slower than half the period is a warning, once a run (the
+        end-of-run report has the figures)."""
+        times = self.guard.times if self.guard is not None else []
         if times and times[-1] > 0.5 * self.period_s and not self._warned_slow:
-            self._warned_slow = True  # once a run: the end-of-run report has the figures
+            self._warned_slow = True
             log.warning(
                 "vehicle %d: policy act took %.1f ms, over half the %.0f ms control period",
-                vehicle_id,
+                self.member.vehicle_id,
                 times[-1] * 1e3,
                 self.period_s * 1e3,
             )
-        return d.speed_mps, d.heading_change_rad, d.mode, d.policy_error

@@ -1,6 +1,7 @@
 """The real-time runner behind ``openconvoy deploy``: the simulator's tick, on a vehicle.
 
-Each tick, at a fixed rate (20 Hz by default; clock and sleep injected):
+Each tick, at a fixed rate (20 Hz by default; clock and sleep injected), steps 1 to 4 being
+``core.tick.tick``, the simulator's rules, with the V2V (``bridge.exchange``) as its radio:
 
 1. read telemetry (``VehicleLink.poll``) and give it to the convoy member (``observe_own``);
 2. τ: broadcast the own state when the Tx gate says so (``v2v.send``);
@@ -36,6 +37,7 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -639,6 +641,15 @@ class DeployRunner:
         decel = self.member.decels[self.options.vehicle_id]
         return braking_plan(self.options.vehicle_id, wall, own.speed, decel, plan)
 
+    def _started(self, now: float, wall: float) -> bool:
+        """Whether the convoy started, at monotonic ``now`` and shared-clock ``wall`` (s),
+        asked once a tick after receiving (who was heard) and before the policy acts, which
+        then sees the plans heard (``core.plans``)."""
+        waiting = self.start_gate.update(now, wall, self.timer.start if self.timer else None)
+        if self._planning is not None:
+            self._planning.observe_plans(self.exchange.plans.plans, self.options.vehicle_id, wall)
+        return not waiting
+
     def tick(self, now: float) -> str:
         """One control tick at monotonic time ``now``. Returns "" to go on, else why the run ends."""
         tel, t_polled = self.vehicle.read(now)
@@ -647,12 +658,20 @@ class DeployRunner:
         known = self.failsafes.watchdog.fresh(
             now, tel.t_telemetry, tel.t_heartbeat, not self.link.lost
         )
-        self.frame = frame = self.exchange.step(own, wall, known)  # τ, receive, ρ
-        waiting = self.start_gate.update(now, wall, self.timer.start if self.timer else None)
-        if self._planning is not None:  # the plans heard, before the policy acts
-            self._planning.observe_plans(self.exchange.plans.plans, self.options.vehicle_id, wall)
-        # What the controller wants (the member's decision, or the leader's driver) ...
-        want = self.intent.want(self.policy, tel, own, frame, waiting, (now, wall))
+        self.exchange.track_broadcast(known, wall)
+        # The member's tick, the simulator's (τ, send, receive, ρ, act, decide), and what
+        # the controller wants (the member's decision, or the leader's driver) ...
+        ticked, want = self.intent.tick(
+            self.policy,
+            tel,
+            own,
+            known,
+            self.exchange,
+            (now, wall),
+            partial(self._started, now, wall),
+        )
+        self.frame = ticked.frame
+        waiting = not ticked.started
         gap, closing = gap_ahead(self.member, wall)
         heading_cmd = wrap_angle(own.heading + want[1])
         # ... and what the failsafes and the envelope let through.

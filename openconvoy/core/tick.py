@@ -13,24 +13,45 @@ and takes actions back between sensing and deciding:
    (``member.supervise``, with the ranging sensor's reading when there is one).
 
 ``tick`` runs all three with ``policy.act`` in between (a policy that raises is a policy
-error too): a world with one member per process (a vehicle) calls it as is.
+error too): a world with one member per process (a vehicle) calls it as is, its V2V passed
+in as a ``Radio`` (sent to right after τ, received from right before ρ, as the simulator's
+members all send before any receives) and ``started`` asked after sensing, before acting
+(a vehicle senses, but does not act, while it waits for its convoy to start).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from openconvoy.core import ladder
 from openconvoy.core.member import ConvoyMember, Frame
-from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD, Policy, PolicyFailure
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD, PolicyFailure
 from openconvoy.core.state import VehicleState
 
 Ranging = tuple[float, float]
 """``(range_m, range_rate_mps)`` to the vehicle ahead, centre to centre."""
+
+
+class Actor(Protocol):
+    """What the tick asks of a follower's policy: ``act`` on an observation (a
+    ``core.policy.Policy``, or a wrapper returning a ``PolicyFailure`` instead of raising)."""
+
+    def act(self, observation: np.ndarray) -> np.ndarray | PolicyFailure: ...
+
+
+class Radio(Protocol):
+    """One member's V2V, for a world that ticks one member at a time (a vehicle)."""
+
+    def send(self, state: VehicleState, now: float) -> None:
+        """Broadcast the own ``state`` at time ``now`` (s): τ said so."""
+
+    def receive(self, now: float) -> list[VehicleState]:
+        """The vehicle states heard since the last tick, at time ``now`` (s), in order."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,13 +97,15 @@ class Decision:
 
 @dataclass(frozen=True, slots=True)
 class TickResult:
-    """One tick of one member: ``broadcast`` (the own state to send, or None), the
-    ``frame`` sensed and the ``decision`` taken (None for a member without a policy, a
-    leader)."""
+    """One tick of one member: ``broadcast`` (the own state sent, or None), the ``frame``
+    sensed, whether the member had ``started`` (False: it sensed only, waiting for its
+    convoy) and the ``decision`` taken (None for a member without a policy, a leader, or
+    one not started)."""
 
     broadcast: VehicleState | None
     frame: Frame
     decision: Decision | None
+    started: bool = True
 
 
 def non_finite_reason(speed: float, change: float) -> str:
@@ -136,17 +159,24 @@ def decide(
 
 def tick(
     member: ConvoyMember,
-    policy: Policy | None,
+    policy: Actor | None,
     own: VehicleState,
-    inbox: Iterable[VehicleState],
+    radio: Radio,
     now: float,
     bounds: ActionBounds,
     ranging: Ranging | None = None,
     may_send: bool = True,
+    started: Callable[[], bool] | None = None,
 ) -> TickResult:
-    """The whole tick for one member; ``policy`` None senses only (a leader)."""
+    """The whole tick for one member at time ``now`` (s): τ and the broadcast on ``radio``,
+    its messages through ρ, then, once ``started()`` (asked once, after sensing; None:
+    always), ``policy.act`` and the decision; ``policy`` None senses only (a leader)."""
     broadcast = begin(member, own, now, may_send)
-    frame = sense(member, inbox, now)
+    if broadcast is not None:
+        radio.send(broadcast, now)
+    frame = sense(member, radio.receive(now), now)
+    if started is not None and not started():
+        return TickResult(broadcast, frame, None, started=False)
     if policy is None:
         return TickResult(broadcast, frame, None)
     try:

@@ -249,3 +249,65 @@ def test_a_policy_missing_a_declared_attribute_is_refused_when_handed_over():
 
     with pytest.raises(ConfigError, match="lacks member_config, control_rate_hz, name"):
         runner_for(1, Bare())
+
+
+def test_a_rule_changed_in_core_tick_changes_the_vehicle_and_the_simulator_alike(monkeypatch):
+    # The vehicle's tick is ``core.tick.tick`` itself, and both worlds decide through the
+    # one ``core.tick.decide``: a changed rule there (here: every decision at half speed)
+    # reaches the simulator and the vehicle alike.
+    decide, tick = member_tick.decide, member_tick.tick
+    ticked: list[Any] = []
+
+    def half_speed_decide(*args: Any, **kw: Any) -> member_tick.Decision:
+        d = decide(*args, **kw)
+        return member_tick.Decision(d.action * np.float32(0.5), d.mode, d.policy_error)
+
+    def spy_tick(member: Any, *args: Any, **kw: Any) -> member_tick.TickResult:
+        ticked.append(member)
+        return tick(member, *args, **kw)
+
+    monkeypatch.setattr(member_tick, "decide", half_speed_decide)
+    monkeypatch.setattr(member_tick, "tick", spy_tick)
+    wanted = np.array([2.0, 0.1], dtype=np.float32)
+    env = ConvoyEnv("paper")
+    obs, _ = env.reset(seed=0)
+    policy = load_policy("paper")
+    actions = {a: policy.act(o) for a, o in obs.items()}
+    actions["follower_1"] = wanted
+    runner, link, v2v, clock, wall = runner_for(1, _Fixed(policy, wanted))
+    link.state = env.members[1].own
+    v2v.inbox = [env.members[0].own]
+    _, _, _, _, infos = env.step(actions)
+    runner.start()
+    assert runner.tick(clock[0]) == ""
+    assert ticked == [runner.member]
+    d = runner.decision
+    assert d is not None and d.mode == "coop"
+    assert d.action.tolist() == pytest.approx([1.0, 0.05])
+    info = infos["follower_1"]
+    assert [info["cmd_speed_mps"], info["cmd_heading_change_rad"]] == d.action.tolist()
+    assert link.sent[-1][0] == pytest.approx(1.0)
+
+
+def test_a_follower_waiting_for_its_convoy_senses_and_broadcasts_but_does_not_act():
+    acts: list[np.ndarray] = []
+
+    class Counting(_Fixed):
+        def act(self, observation: np.ndarray) -> np.ndarray:
+            acts.append(observation)
+            return self.action
+
+    policy = Counting(load_policy("paper"), np.array([1.0, 0.0], dtype=np.float32))
+    runner, link, v2v, clock, wall = runner_for(2, policy)
+    link.state = VehicleState(2, 0.0, -30.0, 0.0, 0.0, 0.0)
+    v2v.inbox = [VehicleState(0, 0.0, 0.0, 0.0, 0.0, 0.0)]  # follower 1 unheard: waits
+    runner.start()
+    assert runner.tick(clock[0]) == ""
+    assert acts == [] and runner.decision is None
+    assert v2v.counters.sent == 1
+    assert runner.frame.t == 0.0 and runner.start_gate.t_start is None
+    v2v.inbox = [VehicleState(1, 0.05, -15.0, 0.0, 0.0, 0.0)]
+    clock[0] += 0.05
+    wall[0] = 0.05
+    runner.tick(clock[0])
+    assert len(acts) == 1 and runner.decision is not None and runner.start_gate.t_start == clock[0]

@@ -27,6 +27,7 @@ from openconvoy.envs.traffic.world import (  # noqa: E402
     highway_to_enu,
 )
 from openconvoy.experiments.runs import RunConfig, run_sim  # noqa: E402
+from openconvoy.testing import same
 
 CUT_IN = "highway-cut-in:cut_in_at_s=1,cut_out_at_s=3,duration_s=40,traffic=0"
 
@@ -136,11 +137,9 @@ def _rollout(spec: str, seed: int) -> list:
 
 @pytest.mark.parametrize("spec", HIGHWAY_SCENARIOS)
 def test_whole_episode_determinism(spec: str) -> None:
-    from tests.envs.test_api import _same
-
     a = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=5)
     b = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=5)
-    assert len(a) == len(b) > 10 and _same(a, b)
+    assert len(a) == len(b) > 10 and same(a, b)
     # Traffic is randomized by the seed.
     c = _rollout(f"{spec}:duration_s=1.5,traffic=4", seed=6)
     assert not np.array_equal(a[0][2], c[0][2])

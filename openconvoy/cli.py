@@ -38,6 +38,7 @@ EXTRAS: dict[str, str] = {
     "highway_env": "traffic",
     "numba": "batched",
     "ray": "cluster",
+    "cyclonedds": "px4dds",
 }
 """The optional packages, by import name, and the extra (pyproject.toml) that brings each."""
 

@@ -18,12 +18,22 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
+from openconvoy.bridge.px4dds.msgs import topic_base
+
 OUT_QOS = Qos(
     Policy.Reliability.BestEffort,
     Policy.Durability.TransientLocal,
     Policy.History.KeepLast(1),
 )
-"""PX4's data writers (``create_data_writer``); a reader of ``/fmu/out`` uses the same."""
+"""PX4's data writers (``create_data_writer``)."""
+
+OUT_READER_QOS = Qos(
+    Policy.Reliability.BestEffort,
+    Policy.Durability.TransientLocal,
+    Policy.History.KeepLast(32),
+)
+"""Our readers of ``/fmu/out``: PX4's writer QoS with a deeper history, so that every sample
+between two polls (50 Hz topics, a 20 Hz runner) is seen and a bad one can be counted."""
 
 IN_QOS = Qos(
     Policy.Reliability.BestEffort,
@@ -56,9 +66,10 @@ def _localhost_domain(domain_id: int) -> None:
         _DOMAINS[domain_id] = Domain(domain_id, LOCALHOST_CONFIG)
 
 
-def topic_name(ns: str, direction: str, name: str) -> str:
-    """PX4's ``generate_topic_name``: ``rt/<ns>/fmu/<direction>/<name>`` (no ns: ``rt/fmu/..``)."""
-    ns = ns.strip("/")
+def topic_name(ns: str, direction: str, data_type: type) -> str:
+    """PX4's ``generate_topic_name`` for a px4_msgs type: ``rt/<ns>/fmu/<direction>/<name>``
+    (no ns: ``rt/fmu/...``), the name with its version suffix (``msgs.topic_base``)."""
+    ns, name = ns.strip("/"), topic_base(data_type)
     return f"rt/{ns}/fmu/{direction}/{name}" if ns else f"rt/fmu/{direction}/{name}"
 
 

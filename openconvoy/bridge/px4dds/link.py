@@ -34,7 +34,7 @@ from openconvoy.bridge.link import (
 )
 from openconvoy.bridge.mavlink.setpoint import PX4_STOP_MPS
 from openconvoy.bridge.px4dds import msgs
-from openconvoy.bridge.px4dds.dds import IN_QOS, OUT_QOS, Participant, take_all, topic_name
+from openconvoy.bridge.px4dds.dds import IN_QOS, OUT_READER_QOS, Participant, take_all, topic_name
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.core.state import VehicleState
 
@@ -132,20 +132,24 @@ class Px4DdsLink:
     def _open(self) -> None:
         p = self._part = Participant(self.domain_id, self.localhost)
         n = self.ns
-        self._w_ocm = p.writer(topic_name(n, "in", "offboard_control_mode"), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
-        self._w_sp = p.writer(topic_name(n, "in", "trajectory_setpoint"), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip
-        self._w_cmd = p.writer(topic_name(n, "in", "vehicle_command"), msgs.VehicleCommand, IN_QOS)
-        self._r_status = p.reader(topic_name(n, "out", "vehicle_status"), msgs.VehicleStatus, OUT_QOS)  # fmt: skip
-        self._r_gpos = p.reader(topic_name(n, "out", "vehicle_global_position"), msgs.VehicleGlobalPosition, OUT_QOS)  # fmt: skip
-        self._r_lpos = p.reader(topic_name(n, "out", "vehicle_local_position"), msgs.VehicleLocalPosition, OUT_QOS)  # fmt: skip
-        self._r_ack = p.reader(topic_name(n, "out", "vehicle_command_ack"), msgs.VehicleCommandAck, OUT_QOS)  # fmt: skip
+        self._w_ocm = p.writer(topic_name(n, "in", msgs.OffboardControlMode), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
+        self._w_sp = p.writer(topic_name(n, "in", msgs.TrajectorySetpoint), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip
+        self._w_cmd = p.writer(
+            topic_name(n, "in", msgs.VehicleCommand), msgs.VehicleCommand, IN_QOS
+        )
+        self._r_status = p.reader(topic_name(n, "out", msgs.VehicleStatus), msgs.VehicleStatus, OUT_READER_QOS)  # fmt: skip
+        self._r_gpos = p.reader(topic_name(n, "out", msgs.VehicleGlobalPosition), msgs.VehicleGlobalPosition, OUT_READER_QOS)  # fmt: skip
+        self._r_lpos = p.reader(topic_name(n, "out", msgs.VehicleLocalPosition), msgs.VehicleLocalPosition, OUT_READER_QOS)  # fmt: skip
+        self._r_ack = p.reader(topic_name(n, "out", msgs.VehicleCommandAck), msgs.VehicleCommandAck, OUT_READER_QOS)  # fmt: skip
 
     def connect(self, timeout_s: float) -> None:
         """Join the DDS domain and wait for a vehicle_status (``LinkTimeout`` if none)."""
         if self._part is None:
             self._open()
         if not self._wait(lambda: self._status is not None, timeout_s):
-            raise LinkTimeout(f"no {topic_name(self.ns, 'out', 'vehicle_status')} in {timeout_s:.1f} s")
+            raise LinkTimeout(
+                f"no {topic_name(self.ns, 'out', msgs.VehicleStatus)} in {timeout_s:.1f} s"
+            )
         # dds_topics.yaml's rate limits (Hz) of the topics read
         self.telemetry_rates = {
             "vehicle_status": 5.0,
@@ -287,11 +291,16 @@ class Px4DdsLink:
             mode = self._command_ack(msgs.VEHICLE_CMD_DO_SET_MODE, 0.5, 1.0, PX4_MAIN_OFFBOARD, 0.0)
             self._stream(0.0, self._heading_now())
             result = self._command_ack(msgs.VEHICLE_CMD_COMPONENT_ARM_DISARM, 0.5, 1.0)
-            if mode == msgs.VEHICLE_CMD_RESULT_ACCEPTED and result == msgs.VEHICLE_CMD_RESULT_ACCEPTED:
+            if (
+                mode == msgs.VEHICLE_CMD_RESULT_ACCEPTED
+                and result == msgs.VEHICLE_CMD_RESULT_ACCEPTED
+            ):
                 if self._wait_streaming(lambda: self._armed_offboard(), 2.0):
                     self._commanding = True
                     return
-            say(f"vehicle {self.vehicle_id}: PX4 refused arming/offboard (result {result}), retrying")
+            say(
+                f"vehicle {self.vehicle_id}: PX4 refused arming/offboard (result {result}), retrying"
+            )
             self._stream_for(0.5)
         raise CommandRefused("VEHICLE_CMD_COMPONENT_ARM_DISARM", f"VEHICLE_CMD_RESULT {result}")
 

@@ -3,11 +3,12 @@
 Written from px4_msgs **main at a4a9864b** (github.com/PX4/px4_msgs, "Update to PX4
 03bf4a5e95"; the .msg files are PX4-Autopilot's ``msg/`` and ``msg/versioned/``), field for
 field and in order, so that the XCDR1 bytes are those of the ``px4_msgs`` a ROS 2 node or
-PX4's micro-XRCE-DDS agent uses: ``tests/bridge/px4dds/test_px4dds_msgs.py`` checks each
+PX4's micro-XRCE-DDS agent uses: ``tests/bridge/test_px4dds_msgs.py`` checks each
 against the original ``.msg`` text (``tests/data/px4_msgs/``). Type names are ROS 2's
 DDS mangling (``px4_msgs::msg::dds_::VehicleStatus_``), so a real px4_msgs subscriber
-matches. Every message here has ``MESSAGE_VERSION = 0``: PX4 adds no ``_vN`` suffix to
-its topic name. Units and frames as in the .msg: NED local frame, radians, microseconds.
+matches. ``VERSIONS`` holds each .msg's ``MESSAGE_VERSION``: PX4 (since 1.16) names the
+topic of a message with a version N > 0 ``<name>_vN`` (``/fmu/out/vehicle_status_v4``).
+Units and frames as in the .msg: NED local frame, radians, microseconds.
 
 Constants are the .msg's, only those we use.
 """
@@ -15,9 +16,17 @@ Constants are the .msg's, only those we use.
 # No ``from __future__ import annotations``: cyclonedds reads these annotations as objects.
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
+
+if TYPE_CHECKING:  # cyclonedds' array types are not generic to mypy; lists at runtime
+    F3 = list[float]
+    F2 = list[float]
+else:
+    F3 = t.array[t.float32, 3]
+    F2 = t.array[t.float32, 2]
 
 # VehicleCommand.msg
 VEHICLE_CMD_DO_SET_MODE = 176
@@ -46,7 +55,7 @@ def _nan3() -> list[float]:
 
 @dataclass
 class OffboardControlMode(IdlStruct, typename="px4_msgs::msg::dds_::OffboardControlMode_"):
-    """msg/versioned/OffboardControlMode.msg: which setpoint fields the offboard stream
+    """msg/OffboardControlMode.msg (unversioned): which setpoint fields the offboard stream
     controls; its arrival rate is PX4's offboard signal (COM_OF_LOSS_T)."""
 
     timestamp: t.uint64 = 0
@@ -64,10 +73,10 @@ class TrajectorySetpoint(IdlStruct, typename="px4_msgs::msg::dds_::TrajectorySet
     """msg/versioned/TrajectorySetpoint.msg: NED setpoint; NaN = not controlled."""
 
     timestamp: t.uint64 = 0
-    position: t.array[t.float32, 3] = field(default_factory=_nan3)
-    velocity: t.array[t.float32, 3] = field(default_factory=_nan3)
-    acceleration: t.array[t.float32, 3] = field(default_factory=_nan3)
-    jerk: t.array[t.float32, 3] = field(default_factory=_nan3)
+    position: F3 = field(default_factory=_nan3)
+    velocity: F3 = field(default_factory=_nan3)
+    acceleration: F3 = field(default_factory=_nan3)
+    jerk: F3 = field(default_factory=_nan3)
     yaw: t.float32 = float("nan")
     yawspeed: t.float32 = float("nan")
 
@@ -120,6 +129,7 @@ class VehicleStatus(IdlStruct, typename="px4_msgs::msg::dds_::VehicleStatus_"):
     nav_state_timestamp: t.uint64 = 0
     nav_state_user_intention: t.uint8 = 0
     nav_state: t.uint8 = 0
+    executor_in_charge: t.uint8 = 0
     nav_state_display: t.uint8 = 0
     accepts_offboard_setpoints: bool = False
     valid_nav_states_mask: t.uint32 = 0
@@ -191,7 +201,7 @@ class VehicleLocalPosition(IdlStruct, typename="px4_msgs::msg::dds_::VehicleLoca
     x: t.float32 = 0.0
     y: t.float32 = 0.0
     z: t.float32 = 0.0
-    delta_xy: t.array[t.float32, 2] = field(default_factory=lambda: [0.0, 0.0])
+    delta_xy: F2 = field(default_factory=lambda: [0.0, 0.0])
     xy_reset_counter: t.uint8 = 0
     delta_z: t.float32 = 0.0
     z_reset_counter: t.uint8 = 0
@@ -199,7 +209,7 @@ class VehicleLocalPosition(IdlStruct, typename="px4_msgs::msg::dds_::VehicleLoca
     vy: t.float32 = 0.0
     vz: t.float32 = 0.0
     z_deriv: t.float32 = 0.0
-    delta_vxy: t.array[t.float32, 2] = field(default_factory=lambda: [0.0, 0.0])
+    delta_vxy: F2 = field(default_factory=lambda: [0.0, 0.0])
     vxy_reset_counter: t.uint8 = 0
     delta_vz: t.float32 = 0.0
     vz_reset_counter: t.uint8 = 0
@@ -247,3 +257,22 @@ ALL = (
     VehicleLocalPosition,
 )
 """Every type here, for the field-by-field check against the .msg files."""
+
+VERSIONS: dict[str, int] = {
+    "OffboardControlMode": 0,
+    "TrajectorySetpoint": 0,
+    "VehicleCommand": 0,
+    "VehicleCommandAck": 1,
+    "VehicleStatus": 4,
+    "VehicleGlobalPosition": 0,
+    "VehicleLocalPosition": 1,
+}
+"""Each type's ``MESSAGE_VERSION`` in px4_msgs a4a9864b (checked against the .msg files)."""
+
+
+def topic_base(data_type: type) -> str:
+    """The topic's last name part for a px4_msgs type: its snake_case name, ``_vN`` for a
+    versioned message (``VehicleStatus`` -> ``vehicle_status_v4``)."""
+    name = "".join("_" + c.lower() if c.isupper() else c for c in data_type.__name__).lstrip("_")
+    version = VERSIONS[data_type.__name__]
+    return f"{name}_v{version}" if version else name

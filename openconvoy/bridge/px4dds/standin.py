@@ -75,13 +75,13 @@ class Px4DdsStandIn:
         )  # 191: MAV_COMP_ID_ONBOARD_COMPUTER, as an XRCE agent host would be
         self.part = Participant(domain_id, localhost)
         p, n = self.part, ns
-        self.r_ocm = p.reader(topic_name(n, "in", "offboard_control_mode"), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
-        self.r_sp = p.reader(topic_name(n, "in", "trajectory_setpoint"), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip
-        self.r_cmd = p.reader(topic_name(n, "in", "vehicle_command"), msgs.VehicleCommand, IN_QOS)
-        self.w_status = p.writer(topic_name(n, "out", "vehicle_status"), msgs.VehicleStatus, OUT_QOS)  # fmt: skip
-        self.w_gpos = p.writer(topic_name(n, "out", "vehicle_global_position"), msgs.VehicleGlobalPosition, OUT_QOS)  # fmt: skip
-        self.w_lpos = p.writer(topic_name(n, "out", "vehicle_local_position"), msgs.VehicleLocalPosition, OUT_QOS)  # fmt: skip
-        self.w_ack = p.writer(topic_name(n, "out", "vehicle_command_ack"), msgs.VehicleCommandAck, OUT_QOS)  # fmt: skip
+        self.r_ocm = p.reader(topic_name(n, "in", msgs.OffboardControlMode), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
+        self.r_sp = p.reader(topic_name(n, "in", msgs.TrajectorySetpoint), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip
+        self.r_cmd = p.reader(topic_name(n, "in", msgs.VehicleCommand), msgs.VehicleCommand, IN_QOS)
+        self.w_status = p.writer(topic_name(n, "out", msgs.VehicleStatus), msgs.VehicleStatus, OUT_QOS)  # fmt: skip
+        self.w_gpos = p.writer(topic_name(n, "out", msgs.VehicleGlobalPosition), msgs.VehicleGlobalPosition, OUT_QOS)  # fmt: skip
+        self.w_lpos = p.writer(topic_name(n, "out", msgs.VehicleLocalPosition), msgs.VehicleLocalPosition, OUT_QOS)  # fmt: skip
+        self.w_ack = p.writer(topic_name(n, "out", msgs.VehicleCommandAck), msgs.VehicleCommandAck, OUT_QOS)  # fmt: skip
         self.dropped: dict[str, int] = {}
         self.setpoints_forwarded = 0
         self.tgt_system = 0
@@ -168,9 +168,7 @@ class Px4DdsStandIn:
         )  # fmt: skip
 
     def _ack(self, command: int, result: int) -> None:
-        self.w_ack.write(
-            msgs.VehicleCommandAck(timestamp=now_us(), command=command, result=result)
-        )
+        self.w_ack.write(msgs.VehicleCommandAck(timestamp=now_us(), command=command, result=result))
 
     # ------------------------------------------------------------------ MAVLink
 
@@ -248,7 +246,9 @@ class Px4DdsStandIn:
         if self.ref is None:
             self.ref = (lat, lon)
         east, north, _ = geodetic_to_enu(Origin(self.ref[0], self.ref[1], 0.0), lat, lon, 0.0)
-        heading = math.nan if g.hdg == 65535 else math.remainder(math.radians(g.hdg / 100), math.tau)
+        heading = (
+            math.nan if g.hdg == 65535 else math.remainder(math.radians(g.hdg / 100), math.tau)
+        )
         self.w_lpos.write(
             msgs.VehicleLocalPosition(
                 timestamp=ts, timestamp_sample=ts, xy_valid=True, z_valid=True,

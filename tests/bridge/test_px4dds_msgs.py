@@ -81,7 +81,9 @@ def test_constants_equal_px4_msgs() -> None:
     status = msg_constants((DATA / "VehicleStatus.msg").read_text())
     cmd = msg_constants((DATA / "VehicleCommand.msg").read_text())
     ack = msg_constants((DATA / "VehicleCommandAck.msg").read_text())
-    ours = {n: v for n, v in vars(msgs).items() if n.isupper() and isinstance(v, int)}
+    ours = {
+        n: v for n, v in vars(msgs).items() if n.isupper() and type(v) is int and n != "VERSIONS"
+    }
     assert ours, "no constants"
     for name, value in ours.items():
         assert {**status, **cmd, **ack}[name] == value, name

@@ -89,10 +89,10 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
     p.add_argument(
         "--link",
-        choices=("mavlink", "mavros"),
+        choices=("mavlink", "mavros", "px4-dds"),
         default="mavlink",
-        help="how the deploys reach the vehicles: MAVLink (default) or MAVROS stand-ins on a "
-        "private roscore (docs/ros.md)",
+        help="how the deploys reach the vehicles: MAVLink (default), MAVROS stand-ins on a "
+        "private roscore, or PX4 DDS stand-ins (px4-dds, needs --autopilot px4; docs/ros.md)",
     )
     p.add_argument("--ros", type=int, choices=(1,), default=1, help="ROS version of --link mavros")
     p.add_argument("--bag", action="store_true", help="the deploys also record ROS 2 bags")

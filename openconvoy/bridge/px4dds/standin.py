@@ -87,6 +87,8 @@ class Px4DdsStandIn:
         self.tgt_system = 0
         self.failsafe = False
         self.ref: tuple[float, float] | None = None
+        self._t_gpos = -math.inf
+        self._gpos_gap = math.inf  # s between the last two GLOBAL_POSITION_INT
         self._sp: msgs.TrajectorySetpoint | None = None
         self._t_signal = -math.inf
         self._send_lock = threading.Lock()
@@ -201,9 +203,9 @@ class Px4DdsStandIn:
     def _on_heartbeat(self, hb: Any) -> None:
         if hb.type == mp.MAV_TYPE_GCS or hb.autopilot == 8:
             return  # a ground station or companion, not the vehicle
-        first = self.tgt_system == 0
         self.tgt_system = hb.get_srcSystem()
-        if first:  # GLOBAL_POSITION_INT at 50 Hz (dds_topics.yaml's rate_limit)
+        if self._gpos_gap > 0.05:  # GLOBAL_POSITION_INT at 50 Hz (dds_topics.yaml's rate_limit),
+            # asked again at each heartbeat until it comes so: a booting PX4 drops the request
             self._mav(
                 "command_long_send",
                 self.tgt_system, 1, mp.CMD_SET_MESSAGE_INTERVAL, 0,
@@ -236,6 +238,8 @@ class Px4DdsStandIn:
         from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 
         lat, lon, alt = g.lat / 1e7, g.lon / 1e7, g.alt / 1e3
+        t = time.monotonic()
+        self._gpos_gap, self._t_gpos = t - self._t_gpos, t
         ts = now_us()
         self.w_gpos.write(
             msgs.VehicleGlobalPosition(

@@ -116,6 +116,9 @@ def test_drives_the_way_it_is_told_then_failsafe_on_signal_loss(rig: Rig) -> Non
     link.connect(5.0)
     link.prepare_and_arm(10.0)
     assert rig.vehicle.mode == "OFFBOARD" and rig.vehicle.armed
+    # what arming's waits read still reaches the runner: its first tick is not stale
+    first = link.poll()
+    assert first is not None and first.armed and time.monotonic() - first.t_telemetry < 0.2
     rig.drive(1.5, math.radians(180.0), 2.5)  # west: a U-turn from facing east first
     x0, y0 = rig.vehicle.state().x, rig.vehicle.state().y
     rig.drive(1.5, math.radians(180.0), 1.5)

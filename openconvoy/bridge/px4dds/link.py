@@ -94,6 +94,7 @@ class Px4DdsLink:
         self._t_heartbeat = -math.inf
         self._t_telemetry = -math.inf
         self._last: Telemetry | None = None
+        self._returned: Telemetry | None = None  # the last one ``poll`` handed out
         self._commanding = False
         self._took_over = False
         self._reason = ""
@@ -174,9 +175,19 @@ class Px4DdsLink:
     # ------------------------------------------------------------------ reading
 
     def poll(self) -> Telemetry | None:
-        """Take every pending sample; the new telemetry (on a new global position) or None."""
-        if self._part is None:
+        """Take every pending sample; the telemetry not yet returned by ``poll`` (a new
+        global position, also one taken while ``prepare_and_arm`` waited) or None."""
+        self._pump()
+        if self._last is None or self._last is self._returned:
             return None
+        self._returned = self._last
+        return self._last
+
+    def _pump(self) -> None:
+        """Take every pending sample (the internal waits read through this, so that what
+        they take still reaches the caller's next ``poll``)."""
+        if self._part is None:
+            return
         now = self.clock()
         for st in take_all(self._r_status, self.dropped, "vehicle_status"):
             self._on_status(st, now)
@@ -186,13 +197,11 @@ class Px4DdsLink:
             else:
                 self.dropped["vehicle_local_position"] = self.dropped.get("vehicle_local_position", 0) + 1  # fmt: skip
         self._acks.extend(take_all(self._r_ack, self.dropped, "vehicle_command_ack"))
-        new: Telemetry | None = None
         for gp in take_all(self._r_gpos, self.dropped, "vehicle_global_position"):
             if not (gp.lat_lon_valid and _finite(gp.lat, gp.lon) and abs(gp.lat) <= 90):
                 self.dropped["vehicle_global_position"] = self.dropped.get("vehicle_global_position", 0) + 1  # fmt: skip
                 continue
-            new = self._telemetry(gp, now)
-        return new
+            self._telemetry(gp, now)
 
     def _on_status(self, st: msgs.VehicleStatus, now: float) -> None:
         self._status, self._t_heartbeat = st, now
@@ -319,7 +328,7 @@ class Px4DdsLink:
         end = self.clock() + timeout_s
         while True:
             self._stream(0.0, self._heading_now())
-            self.poll()
+            self._pump()
             if cond():
                 return True
             if self.clock() >= end:
@@ -363,7 +372,7 @@ class Px4DdsLink:
     def _wait(self, cond: Callable[[], bool], timeout_s: float) -> bool:
         end = self.clock() + timeout_s
         while True:
-            self.poll()
+            self._pump()
             if cond():
                 return True
             if self.clock() >= end:

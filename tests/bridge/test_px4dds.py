@@ -158,3 +158,21 @@ def test_bad_input_counted_and_dropped(rig: Rig) -> None:
     sw.write(msgs.TrajectorySetpoint())
     assert wait_for(lambda: rig.px4.dropped.get("trajectory_setpoint", 0) >= 1, 3.0)
     bogus.close()
+
+
+def test_deploy_cli_makes_a_px4dds_link() -> None:
+    from openconvoy.bridge.deploy import DeployArgs, _link_name, _make_link
+    from openconvoy.cli import build_parser
+
+    ns = build_parser().parse_args(
+        ["deploy", "--policy", "paper", "--vehicle-id", "2", "--convoy", "c.toml"]
+        + ["--iface", "lo", "--link", "px4-dds", "--px4-ns", "vehicle_2", "--dds-domain", "7"]
+        + ["--dds-localhost"]
+    )
+    fields = DeployArgs.__dataclass_fields__
+    a = DeployArgs(**{k: v for k, v in vars(ns).items() if k in fields})
+    link = _make_link(a, DEFAULT_HOME, None, 20.0, lambda line: None)
+    assert isinstance(link, Px4DdsLink)
+    assert (link.ns, link.domain_id, link.localhost, link.vehicle_id) == ("vehicle_2", 7, True, 2)
+    assert link.autopilot == "px4" and link.lost  # nothing opened before connect
+    assert _link_name(a) == "px4-dds (domain 7, ns vehicle_2)"

@@ -157,7 +157,12 @@ def test_bad_input_counted_and_dropped(rig: Rig) -> None:
     sw = bogus.writer(topic_name(rig.ns, "in", msgs.TrajectorySetpoint), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip
     sw.write(msgs.TrajectorySetpoint())
     assert wait_for(lambda: rig.px4.dropped.get("trajectory_setpoint", 0) >= 1, 3.0)
+    # the bogus writers go away: their readers get Cyclone's InvalidSample (no data), which
+    # once killed the stand-in's DDS thread
     bogus.close()
+    time.sleep(0.3)
+    assert all(th.is_alive() for th in rig.px4._threads)
+    assert wait_for(lambda: link.poll() is not None, 2.0)
 
 
 def test_deploy_cli_makes_a_px4dds_link() -> None:

@@ -80,33 +80,43 @@ class Participant:
     def __init__(self, domain_id: int = 0, localhost: bool = False) -> None:
         if localhost:
             _localhost_domain(domain_id)
-        self.dp = DomainParticipant(domain_id)
+        self.dp: DomainParticipant | None = DomainParticipant(domain_id)
         self._topics: dict[str, Topic] = {}
+
+    def _open_dp(self) -> DomainParticipant:
+        if self.dp is None:
+            raise RuntimeError("DDS participant closed")
+        return self.dp
 
     def _topic(self, name: str, data_type: Any) -> Topic:
         if name not in self._topics:
-            self._topics[name] = Topic(self.dp, name, data_type)
+            self._topics[name] = Topic(self._open_dp(), name, data_type)
         return self._topics[name]
 
     def writer(self, name: str, data_type: Any, qos: Qos) -> DataWriter:
         """A data writer of ``data_type`` on topic ``name``."""
-        return DataWriter(self.dp, self._topic(name, data_type), qos=qos)
+        return DataWriter(self._open_dp(), self._topic(name, data_type), qos=qos)
 
     def reader(self, name: str, data_type: Any, qos: Qos) -> DataReader:
         """A data reader of ``data_type`` on topic ``name``."""
-        return DataReader(self.dp, self._topic(name, data_type), qos=qos)
+        return DataReader(self._open_dp(), self._topic(name, data_type), qos=qos)
 
     def close(self) -> None:
-        """Drop the participant (its readers, writers and topics with it)."""
+        """Delete the participant and with it its readers, writers and topics now (the
+        Python objects may live on in their owners; Cyclone no longer matches them)."""
+        if self.dp is not None:
+            self.dp.__del__()  # cyclonedds has no public delete; this one is idempotent
         self._topics.clear()
-        self.dp = None  # type: ignore[assignment]
+        self.dp = None
 
 
-def take_all(reader: DataReader, counter: dict[str, int], key: str) -> list[Any]:
-    """Every sample pending on ``reader`` (non-blocking). A sample Cyclone cannot
+def take_all(reader: DataReader, counter: dict[str, int], key: str, data_type: type) -> list[Any]:
+    """Every sample of ``data_type`` pending on ``reader`` (non-blocking). Cyclone's
+    ``InvalidSample`` (a writer went away: no data) is skipped; a sample Cyclone cannot
     deserialize is bad network input: counted in ``counter[key]`` and dropped."""
     try:
-        return [s for s in reader.take(N=64) if s is not None]
+        samples = reader.take(N=64)
     except Exception:  # noqa: BLE001 (cyclonedds raises plain Exceptions on bad CDR)
         counter[key] = counter.get(key, 0) + 1
         return []
+    return [s for s in samples if isinstance(s, data_type)]

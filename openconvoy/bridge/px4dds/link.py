@@ -189,15 +189,21 @@ class Px4DdsLink:
         if self._part is None:
             return
         now = self.clock()
-        for st in take_all(self._r_status, self.dropped, "vehicle_status"):
+        for st in take_all(self._r_status, self.dropped, "vehicle_status", msgs.VehicleStatus):
             self._on_status(st, now)
-        for lp in take_all(self._r_lpos, self.dropped, "vehicle_local_position"):
+        for lp in take_all(
+            self._r_lpos, self.dropped, "vehicle_local_position", msgs.VehicleLocalPosition
+        ):
             if _finite(lp.vx, lp.vy, lp.heading):
                 self._lpos = lp
             else:
                 self.dropped["vehicle_local_position"] = self.dropped.get("vehicle_local_position", 0) + 1  # fmt: skip
-        self._acks.extend(take_all(self._r_ack, self.dropped, "vehicle_command_ack"))
-        for gp in take_all(self._r_gpos, self.dropped, "vehicle_global_position"):
+        self._acks.extend(
+            take_all(self._r_ack, self.dropped, "vehicle_command_ack", msgs.VehicleCommandAck)
+        )
+        for gp in take_all(
+            self._r_gpos, self.dropped, "vehicle_global_position", msgs.VehicleGlobalPosition
+        ):
             if not (gp.lat_lon_valid and _finite(gp.lat, gp.lon) and abs(gp.lat) <= 90):
                 self.dropped["vehicle_global_position"] = self.dropped.get("vehicle_global_position", 0) + 1  # fmt: skip
                 continue

@@ -118,11 +118,15 @@ class Px4DdsStandIn:
         """Poll the /fmu/in readers at 200 Hz (a few ms added latency at most)."""
         hb = 0.0
         while not self._stop.wait(0.005):
-            for sp in take_all(self.r_sp, self.dropped, "trajectory_setpoint"):
+            for sp in take_all(
+                self.r_sp, self.dropped, "trajectory_setpoint", msgs.TrajectorySetpoint
+            ):
                 self._on_setpoint(sp)
-            for ocm in take_all(self.r_ocm, self.dropped, "offboard_control_mode"):
+            for ocm in take_all(
+                self.r_ocm, self.dropped, "offboard_control_mode", msgs.OffboardControlMode
+            ):
                 self._on_offboard_control_mode(ocm)
-            for cmd in take_all(self.r_cmd, self.dropped, "vehicle_command"):
+            for cmd in take_all(self.r_cmd, self.dropped, "vehicle_command", msgs.VehicleCommand):
                 self._on_command(cmd)
             if time.monotonic() - hb > 1.0:  # the GCS heartbeat the simulated PX4 expects
                 hb = time.monotonic()

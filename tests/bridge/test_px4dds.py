@@ -157,6 +157,10 @@ def test_bad_input_counted_and_dropped(rig: Rig) -> None:
     sw = bogus.writer(topic_name(rig.ns, "in", msgs.TrajectorySetpoint), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip
     sw.write(msgs.TrajectorySetpoint())
     assert wait_for(lambda: rig.px4.dropped.get("trajectory_setpoint", 0) >= 1, 3.0)
+    # a float64 param5 that MAVLink's float32 cannot carry (a disarm, so nothing else happens)
+    cw = bogus.writer(topic_name(rig.ns, "in", msgs.VehicleCommand), msgs.VehicleCommand, IN_QOS)
+    cw.write(msgs.VehicleCommand(command=msgs.VEHICLE_CMD_COMPONENT_ARM_DISARM, param5=1e300))
+    assert wait_for(lambda: rig.px4.dropped.get("vehicle_command", 0) >= 1, 3.0)
     # the bogus writers go away: their readers get Cyclone's InvalidSample (no data), which
     # once killed the stand-in's DDS thread
     bogus.close()

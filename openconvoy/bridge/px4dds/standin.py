@@ -30,6 +30,7 @@ Not modelled: the other topics, timesync (timestamps are this machine's monotoni
 from __future__ import annotations
 
 import math
+import struct
 import threading
 import time
 from typing import Any
@@ -118,19 +119,26 @@ class Px4DdsStandIn:
         """Poll the /fmu/in readers at 200 Hz (a few ms added latency at most)."""
         hb = 0.0
         while not self._stop.wait(0.005):
-            for sp in take_all(
-                self.r_sp, self.dropped, "trajectory_setpoint", msgs.TrajectorySetpoint
-            ):
-                self._on_setpoint(sp)
-            for ocm in take_all(
-                self.r_ocm, self.dropped, "offboard_control_mode", msgs.OffboardControlMode
-            ):
-                self._on_offboard_control_mode(ocm)
-            for cmd in take_all(self.r_cmd, self.dropped, "vehicle_command", msgs.VehicleCommand):
-                self._on_command(cmd)
+            self._handle("trajectory_setpoint", msgs.TrajectorySetpoint, self._on_setpoint)
+            self._handle(
+                "offboard_control_mode", msgs.OffboardControlMode, self._on_offboard_control_mode
+            )
+            self._handle("vehicle_command", msgs.VehicleCommand, self._on_command)
             if time.monotonic() - hb > 1.0:  # the GCS heartbeat the simulated PX4 expects
                 hb = time.monotonic()
                 self._mav("heartbeat_send", 18, 8, 0, 0, 4)
+
+    def _handle(self, key: str, data_type: type, handler: Any) -> None:
+        """Every pending sample of topic ``key`` to ``handler``; one it cannot take (a
+        command number MAVLink cannot carry, ...) is bad input: counted, dropped."""
+        reader = {"trajectory_setpoint": self.r_sp, "offboard_control_mode": self.r_ocm}.get(
+            key, self.r_cmd
+        )
+        for sample in take_all(reader, self.dropped, key, data_type):
+            try:
+                handler(sample)
+            except (ValueError, OverflowError, TypeError, struct.error):
+                self.dropped[key] = self.dropped.get(key, 0) + 1
 
     def _on_setpoint(self, sp: msgs.TrajectorySetpoint) -> None:
         """Keep the newest setpoint; forward it at once while the offboard signal lives."""

@@ -147,9 +147,10 @@ def test_bad_input_counted_and_dropped(rig: Rig) -> None:
     for _ in range(5):
         w.write(msgs.VehicleGlobalPosition(lat=math.nan, lon=4.0, lat_lon_valid=True))
         w.write(msgs.VehicleGlobalPosition(lat=95.0, lon=4.0, lat_lon_valid=True))
+        w.write(msgs.VehicleGlobalPosition(lat=52.0, lon=1e300, lat_lon_valid=True))
         time.sleep(0.02)
     assert wait_for(
-        lambda: (link.poll(), link.dropped.get("vehicle_global_position", 0) >= 2)[1], 3.0
+        lambda: (link.poll(), link.dropped.get("vehicle_global_position", 0) >= 3)[1], 3.0
     )
     # the link still reads the real vehicle
     assert wait_for(lambda: (t := link.poll()) is not None and abs(t.state.x) < 0.1, 3.0)

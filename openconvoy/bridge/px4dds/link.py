@@ -204,7 +204,12 @@ class Px4DdsLink:
         for gp in take_all(
             self._r_gpos, self.dropped, "vehicle_global_position", msgs.VehicleGlobalPosition
         ):
-            if not (gp.lat_lon_valid and _finite(gp.lat, gp.lon) and abs(gp.lat) <= 90):
+            if not (
+                gp.lat_lon_valid
+                and _finite(gp.lat, gp.lon)
+                and abs(gp.lat) <= 90
+                and abs(gp.lon) <= 180
+            ):
                 self.dropped["vehicle_global_position"] = self.dropped.get("vehicle_global_position", 0) + 1  # fmt: skip
                 continue
             self._telemetry(gp, now)

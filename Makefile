@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	# The CPU build of torch first, so the train extra pulls no CUDA packages.
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched,docs,ros]'
+	$(PY) -m pip install -q -e '.[dev,plots,vehicle,train,traffic,cluster,batched,docs,ros,px4dds]'
 	touch $(STAMP)
 
 $(RLLIB_STAMP): pyproject.toml

@@ -38,6 +38,7 @@ EXTRAS: dict[str, str] = {
     "highway_env": "traffic",
     "numba": "batched",
     "ray": "cluster",
+    "cyclonedds": "px4dds",
 }
 """The optional packages, by import name, and the extra (pyproject.toml) that brings each."""
 
@@ -88,10 +89,11 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
     p.add_argument(
         "--link",
-        choices=("mavlink", "mavros"),
+        choices=("mavlink", "mavros", "px4-dds"),
         default="mavlink",
-        help="how the deploys reach the vehicles: MAVLink (default) or MAVROS stand-ins on a "
-        "private roscore or ROS 2 (docs/ros.md)",
+        help="how the deploys reach the vehicles: MAVLink (default), MAVROS stand-ins on a "
+        "private roscore or ROS 2, or PX4 DDS stand-ins (px4-dds, needs --autopilot px4; "
+        "docs/ros.md, docs/px4dds.md)",
     )
     p.add_argument(
         "--ros",

@@ -77,6 +77,9 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "ros", 1),
         getattr(args, "bag", False),
     )
+    if opts.link == "px4-dds" and opts.autopilot != "px4":
+        _say("openconvoy demo: --link px4-dds drives PX4 vehicles: add --autopilot px4")
+        return 2
     if os.environ.get(ENV_INSIDE) == "1":
         return run_inside(opts)
     return run_outside(opts)
@@ -285,11 +288,17 @@ def _prepare(opts: DemoOptions) -> _DemoRun:
     )
 
 
+_LINK_LABELS = {"mavlink": "MAVLink", "px4-dds": "PX4 DDS"}
+
+
 def run_inside(opts: DemoOptions) -> int:
     run = _prepare(opts)
     convoy, out = run.convoy, run.out
     deploy_dir, sim_dir = out / "deploy", out / "sim"
-    via = "" if opts.link == "mavlink" else f" through MAVROS stand-ins on ROS {opts.ros}"
+    via = {
+        "mavlink": "",
+        "px4-dds": " through PX4 DDS stand-ins (Cyclone DDS)",
+    }.get(opts.link, f" through MAVROS stand-ins on ROS {opts.ros}")
     _say(
         f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles{via}, policy "
         f"{opts.policy}, PER {opts.per:g}, {run.duration_s:g} s, V2V over IPv6 multicast on "
@@ -310,7 +319,7 @@ def run_inside(opts: DemoOptions) -> int:
     _say(
         format_comparison(report["comparison"])
         .replace("A: ", "A (simulation): ", 1)
-        .replace("B: ", f"B ({'MAVLink' if opts.link == 'mavlink' else 'MAVROS'} + multicast): ", 1)
+        .replace("B: ", f"B ({_LINK_LABELS.get(opts.link, 'MAVROS')} + multicast): ", 1)
     )
     for vid, phases in report["speed_phases"].items():
         cells = ", ".join(f"{m:.2f}" for m in phases["mean_speed_mps"])
@@ -359,6 +368,8 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
         env = None
         if opts.link == "mavros":
             env = _start_mavros(ros, urls, opts.autopilot, opts.ros)
+        if opts.link == "px4-dds":
+            _start_px4dds(ros, urls)
         for i, url in enumerate(urls):
             cmd = deploy_argv(
                 i, run.convoy_path, url, run.iface, deploy_dir,
@@ -369,6 +380,9 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
                 cmd = [c for c in cmd if c not in ("--mavlink", url)]
                 cmd += ["--link", "mavros", "--ros", str(opts.ros)]
                 cmd += ["--mavros-ns", f"/vehicle_{i}/mavros", "--autopilot", opts.autopilot]
+            if opts.link == "px4-dds":
+                cmd = [c for c in cmd if c not in ("--mavlink", url)]
+                cmd += ["--link", "px4-dds", "--px4-ns", f"vehicle_{i}", "--dds-localhost"]
             if opts.bag:
                 cmd.append("--bag")
             if opts.duration_s is not None and i == 0:
@@ -421,6 +435,16 @@ def _start_mavros(
         ros.append(_Stopper(MavrosStandIn(node, url, f"/vehicle_{i}/mavros").start()))
     _say(f"roscore at {core.uri}; MAVROS stand-ins under /vehicle_N/mavros ({autopilot})")
     return {**os.environ, "ROS_MASTER_URI": core.uri}
+
+
+def _start_px4dds(ros: list[Any], urls: Sequence[str]) -> None:
+    """``--link px4-dds``: a PX4 DDS stand-in per vehicle (namespace ``vehicle_N``, Cyclone
+    on loopback only), forwarding to its simulated PX4 over MAVLink; appended to ``ros``."""
+    from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
+
+    for i, url in enumerate(urls):
+        ros.append(_Stopper(Px4DdsStandIn(url, ns=f"vehicle_{i}", localhost=True).start()))
+    _say("PX4 DDS stand-ins on rt/vehicle_N/fmu/... (Cyclone DDS, loopback only)")
 
 
 class _Stopper:

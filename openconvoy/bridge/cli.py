@@ -152,10 +152,24 @@ DEPLOY_FLAGS: Flags = (
     (
         "--link",
         dict(
-            choices=("mavlink", "mavros"),
+            choices=("mavlink", "mavros", "px4-dds"),
             default="mavlink",
-            help="how to reach the autopilot: MAVLink (default) or MAVROS (docs/ros.md)",
+            help="how to reach the autopilot: MAVLink (default), MAVROS, or PX4's DDS topics "
+            "(px4-dds; docs/ros.md)",
         ),
+    ),
+    (
+        "--px4-ns",
+        dict(
+            default="",
+            metavar="NS",
+            help="--link px4-dds: PX4's UXRCE_DDS_NS (topics rt/NS/fmu/...; default none)",
+        ),
+    ),
+    ("--dds-domain", dict(type=_int(0, 232), default=0, help="--link px4-dds: DDS domain id")),
+    (
+        "--dds-localhost",
+        dict(action="store_true", help="--link px4-dds: DDS on loopback only, no multicast"),
     ),
     (
         "--ros",

@@ -56,12 +56,15 @@ class DeployArgs:
     connect_timeout: float = 30.0
     telemetry_hz: float | None = None
     quiet: bool = False
-    link: Literal["mavlink", "mavros"] = "mavlink"
+    link: Literal["mavlink", "mavros", "px4-dds"] = "mavlink"
     ros: int = 1
     mavros_ns: str = "/mavros"
     autopilot: Literal["ardupilot", "px4"] | None = None
     bag: bool = False
     stay_armed: bool = False
+    px4_ns: str = ""
+    dds_domain: int = 0
+    dds_localhost: bool = False
 
 
 def _status(quiet: bool):
@@ -146,7 +149,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             "policy_spec": a.policy,
             "scenario_spec": spec,
             "mavlink": a.mavlink,
-            "link": a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})",
+            "link": _link_name(a),
             "iface": a.iface,
         },
     )
@@ -169,12 +172,26 @@ def _make_bag(a: DeployArgs, rate: float) -> Any:
     return BagWriter(path, tick_s=1.0 / rate)
 
 
+def _link_name(a: DeployArgs) -> str:
+    """The link as the run's metadata names it."""
+    if a.link == "px4-dds":
+        return f"px4-dds (domain {a.dds_domain}, ns {a.px4_ns or '-'})"
+    return a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})"
+
+
 def _make_link(
     a: DeployArgs, origin: Origin, preset: Any, rate: float, status: Callable[[str], None]
 ) -> Any:
     """The autopilot link (not yet connected); telemetry at the control rate within
     10..50 Hz unless ``telemetry_hz`` says otherwise. ``--link mavros``: through MAVROS
-    (``bridge.ros.mavros_link``), its ROS 1 or ROS 2 node named after the vehicle."""
+    (``bridge.ros.mavros_link``), its ROS 1 or ROS 2 node named after the vehicle. ``--link px4-dds``:
+    PX4's DDS topics (``bridge.px4dds.link``)."""
+    if a.link == "px4-dds":
+        from openconvoy.bridge.px4dds.link import Px4DdsLink
+
+        return Px4DdsLink(
+            a.px4_ns, origin, a.vehicle_id, a.dds_domain, a.dds_localhost, on_status=status
+        )
     if a.link == "mavros":
         from openconvoy.bridge.ros.mavros_link import MavrosLink, RosNode
 

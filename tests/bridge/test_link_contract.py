@@ -1,8 +1,10 @@
 """The ``VehicleLink`` contract: what the runner relies on, held for every link — the
 MAVLink one against a simulated vehicle (real MAVLink bytes over localhost UDP), the ideal
-one, and the MAVROS one over ROS 1 (a real roscore, Debian's rospy in node processes, the
+one, the MAVROS one over ROS 1 (a real roscore, Debian's rospy in node processes, the
 MAVROS stand-in forwarding to the simulated vehicle over real MAVLink) and over ROS 2 (real
-rclpy and Fast DDS in node processes inside a private network namespace)."""
+rclpy and Fast DDS in node processes inside a private network namespace), and the px4-dds
+one (real Cyclone DDS on the loopback interface, PX4's DDS stand-in forwarding to the
+simulated PX4 over real MAVLink)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,8 @@ import pytest
 from openconvoy.bridge.ideallink import IdealLink
 from openconvoy.bridge.link import Telemetry, VehicleLink
 from openconvoy.bridge.mavlink.link import MavlinkLink
+from openconvoy.bridge.px4dds.link import Px4DdsLink
+from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
 from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
@@ -55,7 +59,7 @@ def ros2_netns() -> Iterator[LoopbackNetns]:
         yield ns
 
 
-@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1", "mavros-ros2"])
+@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1", "mavros-ros2", "px4-dds"])
 def link(request) -> Iterator[VehicleLink]:
     if request.param == "ideal":
         yield IdealLink(time.monotonic, time.time, DEFAULT_HOME, vehicle_id=1, x=3.0, y=-4.0)
@@ -63,8 +67,24 @@ def link(request) -> Iterator[VehicleLink]:
     port = free_port()
     vehicle = SimVehicle(
         f"udpin:127.0.0.1:{port}",
-        SimVehicleConfig(ready_after_s=0.0, start_x_m=3.0, start_y_m=-4.0),
+        SimVehicleConfig(
+            autopilot="px4" if request.param == "px4-dds" else "ardupilot",
+            ready_after_s=0.0,
+            start_x_m=3.0,
+            start_y_m=-4.0,
+        ),
     ).start()
+    if request.param == "px4-dds":
+        ns = f"contract_{port}"  # a namespace per test: no samples from an earlier one
+        px4 = Px4DdsStandIn(f"udpout:127.0.0.1:{port}", ns=ns, localhost=True).start()
+        dds_link = Px4DdsLink(ns, DEFAULT_HOME, 1, localhost=True)
+        try:
+            yield dds_link
+        finally:
+            dds_link.close()
+            px4.stop()
+            vehicle.stop()
+        return
     if request.param.startswith("mavros-"):
         if request.param == "mavros-ros1":
             core = request.getfixturevalue("roscore")

@@ -4,7 +4,8 @@ one, the MAVROS one over ROS 1 (a real roscore, Debian's rospy in node processes
 MAVROS stand-in forwarding to the simulated vehicle over real MAVLink) and over ROS 2 (real
 rclpy and Fast DDS in node processes inside a private network namespace), and the px4-dds
 one (real Cyclone DDS on the loopback interface, PX4's DDS stand-in forwarding to the
-simulated PX4 over real MAVLink)."""
+simulated PX4 over real MAVLink), and the ap-dds one (real rclpy in a private network
+namespace, the AP_DDS stand-in forwarding to the simulated ArduPilot over real MAVLink)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from openconvoy.bridge.link import Telemetry, VehicleLink
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.px4dds.link import Px4DdsLink
 from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
+from openconvoy.bridge.ros.apdds_link import ApDdsLink
+from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
 from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
@@ -59,7 +62,7 @@ def ros2_netns() -> Iterator[LoopbackNetns]:
         yield ns
 
 
-@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1", "mavros-ros2", "px4-dds"])
+@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1", "mavros-ros2", "px4-dds", "ap-dds"])
 def link(request) -> Iterator[VehicleLink]:
     if request.param == "ideal":
         yield IdealLink(time.monotonic, time.time, DEFAULT_HOME, vehicle_id=1, x=3.0, y=-4.0)
@@ -83,6 +86,25 @@ def link(request) -> Iterator[VehicleLink]:
         finally:
             dds_link.close()
             px4.stop()
+            vehicle.stop()
+        return
+    if request.param == "ap-dds":
+        pid = request.getfixturevalue("ros2_netns").pid
+        ap = ApDdsStandIn(
+            Ros2Node("/contract_ap_dds", netns_pid=pid), f"udpout:127.0.0.1:{port}", "/v1/ap"
+        ).start()
+        first = [Ros2Node("/contract_ap_link", netns_pid=pid)]  # started early, as above
+
+        def ap_node() -> Ros2Node:
+            return first.pop() if first else Ros2Node("/contract_ap_link", netns_pid=pid)
+
+        ap_link = ApDdsLink(ap_node, "/v1/ap", DEFAULT_HOME, 1)
+        try:
+            yield ap_link
+        finally:
+            ap_link.close()
+            ap.stop()
+            ap.node.close()
             vehicle.stop()
         return
     if request.param.startswith("mavros-"):

@@ -38,6 +38,10 @@ INSTALL_HINT = (
 )
 MAVROS_MSGS = ("State", "PositionTarget", "GlobalPositionTarget")
 MAVROS_SRVS = ("SetMode", "CommandBool")
+AP_MSG_DIR = Path(__file__).resolve().parent / "ardupilot_msgs"
+"""Our subset of ArduPilot's ``ardupilot_msgs`` (the ``ap-dds`` link's services and status)."""
+AP_MSGS = ("Status",)
+AP_SRVS = ("ArmMotors", "ModeSwitch")
 NETNS_ENV = "OPENCONVOY_ROS2_NETNS"
 """The pid of a process whose network namespace ROS 2 nodes join (``LoopbackNetns``)."""
 
@@ -66,14 +70,17 @@ def qos_for(topic: str) -> str:
     """The QoS MAVROS 2 gives a topic (mavros 2.12.0): ``state`` is published reliable,
     transient local, depth 10 (``sys_status.cpp``: ``rclcpp::QoS(10).transient_local()``);
     the sensor topics and setpoint subscriptions use ``rclcpp::SensorDataQoS()``
-    (``global_position.cpp``, ``imu.cpp``, ``setpoint_raw.cpp``, ``setpoint_velocity.cpp``)."""
-    return "state" if topic.rstrip("/").endswith("/state") else "sensor"
+    (``global_position.cpp``, ``imu.cpp``, ``setpoint_raw.cpp``, ``setpoint_velocity.cpp``).
+    The ``ap-dds`` topics follow ArduPilot's ``AP_DDS_Topic_Table.h``: ``/ap/status``
+    reliable, transient local (depth 1 there); the others (navsat, pose/filtered,
+    twist/filtered, cmd_vel) best effort, volatile, depth 5."""
+    return "state" if topic.rstrip("/").endswith(("/state", "/ap/status")) else "sensor"
 
 
 # ---------------------------------------------------------------------- mavros_msgs build
 
 CMAKE = """cmake_minimum_required(VERSION 3.8)
-project(mavros_msgs)
+project({pkg})
 find_package(ament_cmake REQUIRED)
 find_package(rosidl_default_generators REQUIRED)
 # The PyPI wheels' exported targets name the include directory of the Python they were
@@ -93,9 +100,9 @@ ament_package()
 
 PACKAGE_XML = """<?xml version="1.0"?>
 <package format="3">
-  <name>mavros_msgs</name>
-  <version>2.12.0</version>
-  <description>OpenConvoy's subset of MAVROS's mavros_msgs (MAVROS's own text)</description>
+  <name>{pkg}</name>
+  <version>{version}</version>
+  <description>OpenConvoy's subset of {pkg}</description>
   <maintainer email="openconvoy@example.invalid">OpenConvoy</maintainer>
   <license>BSD</license>
   <buildtool_depend>ament_cmake</buildtool_depend>
@@ -108,28 +115,43 @@ PACKAGE_XML = """<?xml version="1.0"?>
 """
 
 
-def _interface_files() -> list[str]:
-    return [f"msg/{m}.msg" for m in MAVROS_MSGS] + [f"srv/{s}.srv" for s in MAVROS_SRVS]
+PACKAGES: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    "mavros_msgs": (MAVROS_MSGS, MAVROS_SRVS, "2.12.0"),
+    "ardupilot_msgs": (AP_MSGS, AP_SRVS, "0.0.0"),
+}
+"""The interface packages we build: messages, services, version."""
 
 
-def mavros_msgs_prefix(msg_dir: Path = MSG_DIR) -> Path:
-    """Where our ``mavros_msgs`` are installed for ROS 2 (per user, per definition set)."""
+def _interface_files(pkg: str = "mavros_msgs") -> list[str]:
+    msgs, srvs, _ = PACKAGES[pkg]
+    return [f"msg/{m}.msg" for m in msgs] + [f"srv/{s}.srv" for s in srvs]
+
+
+def mavros_msgs_prefix(msg_dir: Path = MSG_DIR, pkg: str = "mavros_msgs") -> Path:
+    """Where our ``pkg`` (default ``mavros_msgs``) is installed for ROS 2 (per user, per
+    definition set)."""
     digest = hashlib.sha256(str(ros2_venv().resolve()).encode())
-    for f in _interface_files():
+    for f in _interface_files(pkg):
         digest.update(f.encode() + (msg_dir / f).read_bytes())
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "openconvoy"
-    return base / f"ros2-mavros_msgs-{digest.hexdigest()[:12]}"
+    return base / f"ros2-{pkg}-{digest.hexdigest()[:12]}"
 
 
 def _site_packages(prefix: Path) -> Path:
     return prefix / "lib" / "python3.11" / "site-packages"
 
 
-def build_mavros_msgs(msg_dir: Path = MSG_DIR) -> Path:
-    """Build our ``mavros_msgs`` with rosidl once (~30 s) and return the install prefix;
-    built beside it and renamed into place, so nodes starting together never see half of
-    it. Raises ``LinkError`` (with CMake's last lines) when the build fails."""
-    prefix = mavros_msgs_prefix(msg_dir)
+def build_interfaces(pkg: str) -> Path:
+    """``build_mavros_msgs`` for one of ``PACKAGES`` from the package's own text."""
+    return build_mavros_msgs(AP_MSG_DIR if pkg == "ardupilot_msgs" else MSG_DIR, pkg)
+
+
+def build_mavros_msgs(msg_dir: Path = MSG_DIR, pkg: str = "mavros_msgs") -> Path:
+    """Build our ``mavros_msgs`` (or ``pkg``) with rosidl once (~30 s) and return the
+    install prefix; built beside it and renamed into place, so nodes starting together
+    never see half of it. Raises ``LinkError`` (with CMake's last lines) when the build
+    fails."""
+    prefix = mavros_msgs_prefix(msg_dir, pkg)
     if (prefix / ".built").exists():
         return prefix
     why = ros2_available()
@@ -139,11 +161,12 @@ def build_mavros_msgs(msg_dir: Path = MSG_DIR) -> Path:
     work = Path(tempfile.mkdtemp(prefix=".build-", dir=prefix.parent))
     try:
         src, build, inst = work / "src", work / "build", work / "install"
-        for f in _interface_files():
+        files = _interface_files(pkg)
+        for f in files:
             (src / f).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(msg_dir / f, src / f)
-        (src / "CMakeLists.txt").write_text(CMAKE.format(files=" ".join(_interface_files())))
-        (src / "package.xml").write_text(PACKAGE_XML)
+        (src / "CMakeLists.txt").write_text(CMAKE.format(pkg=pkg, files=" ".join(files)))
+        (src / "package.xml").write_text(PACKAGE_XML.format(pkg=pkg, version=PACKAGES[pkg][2]))
         build.mkdir()
         venv = ros2_venv()
         env = {
@@ -164,7 +187,7 @@ def build_mavros_msgs(msg_dir: Path = MSG_DIR) -> Path:
             r = subprocess.run(cmd, cwd=build, env=env, capture_output=True, text=True)
             if r.returncode != 0:
                 tail = (r.stdout + r.stderr).strip().splitlines()[-8:]
-                raise LinkError(f"building mavros_msgs for ROS 2 failed: {' | '.join(tail)}")
+                raise LinkError(f"building {pkg} for ROS 2 failed: {' | '.join(tail)}")
         (inst / ".built").write_text("ok\n")
         try:
             os.rename(inst, prefix)
@@ -175,9 +198,10 @@ def build_mavros_msgs(msg_dir: Path = MSG_DIR) -> Path:
     return prefix
 
 
-def ros2_env(prefix: Path | None) -> dict[str, str]:
-    """The environment of a ROS 2 process: our ``mavros_msgs`` on its paths, discovery on
-    this machine only unless the caller's environment chose otherwise."""
+def ros2_env(prefix: Path | list[Path] | None) -> dict[str, str]:
+    """The environment of a ROS 2 process: our interface packages (``prefix``: one install
+    prefix or several) on its paths, discovery on this machine only unless the caller's
+    environment chose otherwise."""
     env = dict(os.environ)
     for var in ("PYTHONPATH", "PYTHONHOME", "_ROS_WHEELS_BOOTSTRAP_COMPLETE", "VIRTUAL_ENV"):
         env.pop(var, None)
@@ -185,12 +209,14 @@ def ros2_env(prefix: Path | None) -> dict[str, str]:
     env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
     env.setdefault("ROS_LOG_DIR", str(Path(tempfile.gettempdir()) / "openconvoy-ros2-log"))
     env["RCUTILS_LOGGING_USE_STDOUT"] = "0"  # stdout carries our JSON lines
-    if prefix is not None:
-        env["PYTHONPATH"] = str(_site_packages(prefix))
+    prefixes = [prefix] if isinstance(prefix, Path) else list(prefix or [])
+    if prefixes:
+        env["PYTHONPATH"] = ":".join(str(_site_packages(p)) for p in prefixes)
         env["LD_LIBRARY_PATH"] = ":".join(
-            p for p in (str(prefix / "lib"), os.environ.get("LD_LIBRARY_PATH", "")) if p
+            [str(p / "lib") for p in prefixes]
+            + ([os.environ["LD_LIBRARY_PATH"]] if os.environ.get("LD_LIBRARY_PATH") else [])
         )
-        env["AMENT_PREFIX_PATH"] = f"{prefix}:{ros2_venv()}"
+        env["AMENT_PREFIX_PATH"] = ":".join([str(p) for p in prefixes] + [str(ros2_venv())])
     return env
 
 
@@ -217,12 +243,12 @@ class Ros2Node(Ros1Node):
     def _agent(
         self, name: str, master_uri: str | None, msg_dir: Path
     ) -> tuple[list[str], dict[str, str]]:
-        prefix = build_mavros_msgs(msg_dir)
+        prefixes = [build_mavros_msgs(msg_dir), build_interfaces("ardupilot_msgs")]
         argv = [str(ros2_python()), str(AGENT), "/" + name.lstrip("/")]
         if self.netns_pid is not None:
             enter = ["nsenter", "--preserve-credentials", "-U", "-n", "-t", str(self.netns_pid)]
             argv = enter + argv
-        return argv, ros2_env(prefix)
+        return argv, ros2_env(prefixes)
 
     def subscribe(
         self,
@@ -286,16 +312,26 @@ class LoopbackNetns:
         self.close()
 
 
-def type_hashes(msg_dir: Path, timeout_s: float = 120.0) -> dict[str, str]:
+def type_hashes(
+    msg_dir: Path, timeout_s: float = 120.0, pkg: str = "mavros_msgs"
+) -> dict[str, str]:
     """The RIHS01 type hashes rosidl gives the interfaces in ``msg_dir`` (``msg/*.msg``,
-    ``srv/*.srv``) as package ``mavros_msgs``: ``{"mavros_msgs/msg/State": "RIHS01_..."}``,
+    ``srv/*.srv``) as package ``pkg`` (default ``mavros_msgs``): ``{"mavros_msgs/msg/State": "RIHS01_..."}``,
     computed by the ROS 2 environment's ``rosidl_adapter`` and
     ``rosidl_generator_type_description`` (what ``rosidl_generate_interfaces`` runs)."""
     why = ros2_available()
     if why:
         raise DependencyMissing(why)
+    msg_dir = msg_dir.resolve()
     r = subprocess.run(
-        [str(ros2_python()), "-c", _HASH_SCRIPT, str(msg_dir), str(ros2_venv() / "share")],
+        [
+            str(ros2_python()),
+            "-c",
+            _HASH_SCRIPT,
+            str(msg_dir),
+            str(ros2_venv() / "share"),
+            pkg,
+        ],  # fmt: skip
         capture_output=True,
         text=True,
         timeout=timeout_s,
@@ -311,14 +347,14 @@ import json, sys, tempfile
 from pathlib import Path
 from rosidl_adapter import convert_to_idl
 from rosidl_generator_type_description import generate_type_hash
-msg_dir, share = Path(sys.argv[1]), Path(sys.argv[2])
+msg_dir, share, pkg = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
 tmp = Path(tempfile.mkdtemp())
 tuples = []
 for f in sorted(msg_dir.glob("msg/*.msg")) + sorted(msg_dir.glob("srv/*.srv")):
-    idl = convert_to_idl(msg_dir, "mavros_msgs", f.relative_to(msg_dir), tmp / "idl")
+    idl = convert_to_idl(msg_dir, pkg, f.relative_to(msg_dir), tmp / "idl")
     tuples.append(f"{tmp / 'idl'}:{idl.relative_to(tmp / 'idl')}")
 args = {
-    "package_name": "mavros_msgs", "output_dir": str(tmp / "out"), "idl_tuples": tuples,
+    "package_name": pkg, "output_dir": str(tmp / "out"), "idl_tuples": tuples,
     "include_paths": [f"{p}:{share / p}" for p in
                       ("std_msgs", "geometry_msgs", "builtin_interfaces", "service_msgs")],
 }
@@ -339,6 +375,7 @@ def main() -> int:
         return 2
     try:
         print(build_mavros_msgs())
+        print(build_interfaces("ardupilot_msgs"))
     except (LinkError, DependencyMissing) as exc:
         print(exc, file=sys.stderr)
         return 1

@@ -89,11 +89,11 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
     p.add_argument(
         "--link",
-        choices=("mavlink", "mavros", "px4-dds"),
+        choices=("mavlink", "mavros", "px4-dds", "ap-dds"),
         default="mavlink",
         help="how the deploys reach the vehicles: MAVLink (default), MAVROS stand-ins on a "
-        "private roscore or ROS 2, or PX4 DDS stand-ins (px4-dds, needs --autopilot px4; "
-        "docs/ros.md, docs/px4dds.md)",
+        "private roscore or ROS 2, PX4 DDS stand-ins (px4-dds, needs --autopilot px4), or "
+        "ArduPilot AP_DDS stand-ins on ROS 2 (ap-dds; docs/ros.md, docs/px4dds.md)",
     )
     p.add_argument(
         "--ros",

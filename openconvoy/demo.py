@@ -77,6 +77,9 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "ros", 1),
         getattr(args, "bag", False),
     )
+    if opts.link == "ap-dds" and opts.autopilot != "ardupilot":
+        _say("openconvoy demo: --link ap-dds drives ArduPilot vehicles: not with --autopilot px4")
+        return 2
     if opts.link == "px4-dds" and opts.autopilot != "px4":
         _say("openconvoy demo: --link px4-dds drives PX4 vehicles: add --autopilot px4")
         return 2
@@ -288,7 +291,7 @@ def _prepare(opts: DemoOptions) -> _DemoRun:
     )
 
 
-_LINK_LABELS = {"mavlink": "MAVLink", "px4-dds": "PX4 DDS"}
+_LINK_LABELS = {"mavlink": "MAVLink", "px4-dds": "PX4 DDS", "ap-dds": "AP_DDS"}
 
 
 def run_inside(opts: DemoOptions) -> int:
@@ -298,6 +301,7 @@ def run_inside(opts: DemoOptions) -> int:
     via = {
         "mavlink": "",
         "px4-dds": " through PX4 DDS stand-ins (Cyclone DDS)",
+        "ap-dds": " through AP_DDS stand-ins on ROS 2",
     }.get(opts.link, f" through MAVROS stand-ins on ROS {opts.ros}")
     _say(
         f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles{via}, policy "
@@ -370,6 +374,8 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             env = _start_mavros(ros, urls, opts.autopilot, opts.ros)
         if opts.link == "px4-dds":
             _start_px4dds(ros, urls)
+        if opts.link == "ap-dds":
+            _start_apdds(ros, urls)
         for i, url in enumerate(urls):
             cmd = deploy_argv(
                 i, run.convoy_path, url, run.iface, deploy_dir,
@@ -383,6 +389,9 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             if opts.link == "px4-dds":
                 cmd = [c for c in cmd if c not in ("--mavlink", url)]
                 cmd += ["--link", "px4-dds", "--px4-ns", f"vehicle_{i}", "--dds-localhost"]
+            if opts.link == "ap-dds":
+                cmd = [c for c in cmd if c not in ("--mavlink", url)]
+                cmd += ["--link", "ap-dds", "--ap-ns", f"/vehicle_{i}/ap"]
             if opts.bag:
                 cmd.append("--bag")
             if opts.duration_s is not None and i == 0:
@@ -445,6 +454,22 @@ def _start_px4dds(ros: list[Any], urls: Sequence[str]) -> None:
     for i, url in enumerate(urls):
         ros.append(_Stopper(Px4DdsStandIn(url, ns=f"vehicle_{i}", localhost=True).start()))
     _say("PX4 DDS stand-ins on rt/vehicle_N/fmu/... (Cyclone DDS, loopback only)")
+
+
+def _start_apdds(ros: list[Any], urls: Sequence[str]) -> None:
+    """``--link ap-dds``: an AP_DDS stand-in per vehicle (namespace ``/vehicle_N/ap``, a ROS 2
+    node, discovery on loopback inside the demo's namespace), forwarding to its simulated
+    ArduPilot over MAVLink; appended to ``ros``."""
+    from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
+    from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
+
+    build_mavros_msgs()
+    build_interfaces("ardupilot_msgs")
+    for i, url in enumerate(urls):
+        node = Ros2Node(f"/ap_dds_vehicle_{i}")
+        ros.append(node)
+        ros.append(_Stopper(ApDdsStandIn(node, url, f"/vehicle_{i}/ap").start()))
+    _say("ROS 2 (rclpy); AP_DDS stand-ins under /vehicle_N/ap (ardupilot)")
 
 
 class _Stopper:

@@ -152,10 +152,19 @@ DEPLOY_FLAGS: Flags = (
     (
         "--link",
         dict(
-            choices=("mavlink", "mavros", "px4-dds"),
+            choices=("mavlink", "mavros", "px4-dds", "ap-dds"),
             default="mavlink",
-            help="how to reach the autopilot: MAVLink (default), MAVROS, or PX4's DDS topics "
-            "(px4-dds; docs/ros.md)",
+            help="how to reach the autopilot: MAVLink (default), MAVROS, PX4's DDS topics "
+            "(px4-dds), or ArduPilot's AP_DDS ROS 2 topics (ap-dds; rclpy from make ros2; "
+            "docs/ros.md)",
+        ),
+    ),
+    (
+        "--ap-ns",
+        dict(
+            default="/ap",
+            metavar="NS",
+            help="--link ap-dds: AP_DDS's namespace (topics NS/navsat, NS/cmd_vel...; default /ap)",
         ),
     ),
     (

@@ -56,13 +56,14 @@ class DeployArgs:
     connect_timeout: float = 30.0
     telemetry_hz: float | None = None
     quiet: bool = False
-    link: Literal["mavlink", "mavros", "px4-dds"] = "mavlink"
+    link: Literal["mavlink", "mavros", "px4-dds", "ap-dds"] = "mavlink"
     ros: int = 1
     mavros_ns: str = "/mavros"
     autopilot: Literal["ardupilot", "px4"] | None = None
     bag: bool = False
     stay_armed: bool = False
     px4_ns: str = ""
+    ap_ns: str = "/ap"
     dds_domain: int = 0
     dds_localhost: bool = False
 
@@ -176,6 +177,8 @@ def _link_name(a: DeployArgs) -> str:
     """The link as the run's metadata names it."""
     if a.link == "px4-dds":
         return f"px4-dds (domain {a.dds_domain}, ns {a.px4_ns or '-'})"
+    if a.link == "ap-dds":
+        return f"ap-dds (ROS 2, {a.ap_ns})"
     return a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})"
 
 
@@ -185,7 +188,24 @@ def _make_link(
     """The autopilot link (not yet connected); telemetry at the control rate within
     10..50 Hz unless ``telemetry_hz`` says otherwise. ``--link mavros``: through MAVROS
     (``bridge.ros.mavros_link``), its ROS 1 or ROS 2 node named after the vehicle. ``--link px4-dds``:
-    PX4's DDS topics (``bridge.px4dds.link``)."""
+    PX4's DDS topics (``bridge.px4dds.link``). ``--link ap-dds``: ArduPilot's AP_DDS
+    topics and services under ``ap_ns`` through a ROS 2 node (``bridge.ros.apdds_link``)."""
+    if a.link == "ap-dds":
+        from openconvoy.bridge.ros.apdds_link import ApDdsLink
+        from openconvoy.bridge.ros.ros2 import Ros2Node
+
+        if a.autopilot == "px4":
+            raise ConfigError("--link ap-dds is ArduPilot's interface: not with --autopilot px4")
+        name = f"/openconvoy_vehicle_{a.vehicle_id}"
+        return ApDdsLink(
+            lambda: Ros2Node(name),
+            a.ap_ns,
+            origin,
+            a.vehicle_id,
+            on_status=status,
+            length_m=preset.length_m,
+            width_m=preset.width_m,
+        )
     if a.link == "px4-dds":
         from openconvoy.bridge.px4dds.link import Px4DdsLink
 

@@ -425,9 +425,10 @@ def _start_mavros(
     from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 
     if version == 2:
-        from openconvoy.bridge.ros.ros2 import Ros2Node, build_mavros_msgs
+        from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
 
         build_mavros_msgs()
+        build_interfaces("ardupilot_msgs")  # every ROS 2 node loads both packages
         for i, url in enumerate(urls):
             node2 = Ros2Node(f"/mavros_vehicle_{i}")
             ros.append(node2)

@@ -46,7 +46,8 @@ ros1:
 # ROS 2 for the MAVROS and AP_DDS links' tests (docs/ros.md): PyPI's rclpy wheels (Jazzy,
 # Fast DDS; built for CPython 3.11) in their own venv, because their bootstrap re-executes
 # every Python of the venv with its own LD_LIBRARY_PATH; then our mavros_msgs and
-# ardupilot_msgs built with rosidl (CMake and the C compiler). ~50 s for the wheels, ~30-100 s for the build.
+# ardupilot_msgs built with rosidl (CMake and the C compiler). ~50 s for the wheels,
+# ~30-100 s for the build.
 ROS2_VENV ?= .venv-ros2
 ROS2_STAMP := $(ROS2_VENV)/.installed
 ROS2_PIP := 'ros-jazzy-rclpy[fastrtps]==7.1.6' ros-jazzy-std-msgs==5.3.6 \

@@ -550,6 +550,11 @@ _PI_SPEED_KEYS = (
     "breakaway_mps",
     "drive_drag_per_mps",
 )
+_KINETIC_KEY = "kinetic_friction_mps"
+"""Fitted after the others, and only where static friction is kept (``_fit_pi_speed``):
+the search over ``_PI_SPEED_KEYS`` draws as before, so fits without friction are unchanged."""
+_KINETIC_STEPS = 24
+"""Kinetic friction is searched on this many fractions of the fitted static friction."""
 # (low, high, log scale) per parameter; the search starts at the base preset when it has a
 # pi loop, else at a generic loop (unit gains and feed-forward, 1 s drive lag).
 _PI_SPEED_BOUNDS = (
@@ -614,11 +619,14 @@ def _held(series: _Series, *values: np.ndarray) -> tuple[np.ndarray, list[np.nda
 
 def _pi_speed_sse(series: _Series, c: np.ndarray) -> np.ndarray:
     """Sum of squared speed errors at the measurements for candidates ``c`` (k, 9) in
-    ``_PI_SPEED_KEYS`` order, replaying ``envs.plant``'s pi loop at ``_PI_DT_S``."""
+    ``_PI_SPEED_KEYS`` order, or (k, 10) with the kinetic friction last, replaying
+    ``envs.plant``'s pi loop at ``_PI_DT_S`` (``friction_speed``'s rules on arrays)."""
     _, (cmd,), rows = _held(series, series.cmd_v)
     h = _PI_DT_S
     delay = np.round(c[:, 0] / h).astype(int)
     acc, dec, kp, ki, ff, tau, brk, drag = (c[:, i] for i in range(1, 9))
+    kin = c[:, 9] if c.shape[1] > 9 else np.zeros(len(c))
+    held_below = np.maximum(brk, kin)
     v0 = float(series.speed[0])
     v = np.full(len(c), v0)
     r = v.copy()
@@ -634,8 +642,9 @@ def _pi_speed_sse(series: _Series, c: np.ndarray) -> np.ndarray:
         stopped = (r == 0.0) & (np.abs(v) <= stop)
         integ = np.where(stopped, 0.0, integ + ki * err * h)
         drive = np.where(stopped, 0.0, ff * r + kp * err + integ)
-        dv = (drive - v - drag * v * np.abs(v)) / tau * h
-        stuck = (np.abs(drive) < brk) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
+        kf = kin * np.where(v == 0.0, np.sign(drive), np.sign(v))
+        dv = (drive - v - drag * v * np.abs(v) - kf) / tau * h
+        stuck = (np.abs(drive) < held_below) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
         v = np.where(stuck, 0.0, v + dv)
         out[i] = v
     # The measurement at grid row k is the state after k steps.
@@ -802,7 +811,8 @@ def fit_pi_plant(
 
 def pi_speed_rms(series: Sequence[_Series], presets: Sequence[VehiclePreset]) -> np.ndarray:
     """Each preset's speed RMS (m/s) replaying ``series`` (its pi loop's parameters)."""
-    c = np.array([[getattr(p, k) for k in _PI_SPEED_KEYS] for p in presets], dtype=float)
+    keys = (*_PI_SPEED_KEYS, _KINETIC_KEY)
+    c = np.array([[getattr(p, k) for k in keys] for p in presets], dtype=float)
     n = sum(len(s.t) for s in series)
     with np.errstate(all="ignore"):
         sse = sum(_pi_speed_sse(s, c) for s in series)
@@ -833,6 +843,17 @@ def _fit_pi_speed(
     if cost_free <= FRICTION_MATTERS * cost:
         best, cost = frictionless, cost_free
     values = dict(zip(_PI_SPEED_KEYS, (float(x) for x in best)))
+    values[_KINETIC_KEY] = 0.0
+    if best[7] > 0.0:
+        # Kinetic friction (stick-slip) on a grid of fractions of the static friction, the
+        # other parameters held: kept where it lowers the speed cost.
+        grid = np.repeat(np.append(best, 0.0)[None, :], _KINETIC_STEPS + 1, axis=0)
+        grid[:, 9] = best[7] * np.linspace(0.0, 1.0, _KINETIC_STEPS + 1)
+        with np.errstate(all="ignore"):
+            costs = speed_cost(grid)
+        k = int(np.nanargmin(costs))
+        if costs[k] < cost:
+            values[_KINETIC_KEY], cost = float(grid[k, 9]), float(costs[k])
     values["actuation_delay_s"] = round(values["actuation_delay_s"] / _PI_DT_S) * _PI_DT_S
     return values, math.sqrt(cost)
 
@@ -866,7 +887,7 @@ def format_pi_fit(fit: PiFit) -> str:
         f"fitted preset {p.name!r} (autopilot PI speed loop) from {fit.samples} samples "
         f"({fit.source})"
     ]
-    for key in _PI_SPEED_KEYS + _PI_HEADING_KEYS:
+    for key in (*_PI_SPEED_KEYS, _KINETIC_KEY, *_PI_HEADING_KEYS):
         value = p.heading_delay if key == "heading_delay_s" else getattr(p, key)
         extra = f" ({math.degrees(value):.1f} deg/s)" if key == "turn_rate_max_radps" else ""
         lines.append(f"  {key:<24}{value:.4g}{extra}")

@@ -437,7 +437,10 @@ def friction_speed(
     """The ``pi`` loop's vehicle speed (m/s) after a substep ``h`` (s) for one vehicle on
     floats: it follows the ``drive`` (m/s) with lag ``tau_d`` (s) against quadratic
     ``drag``, static friction ``brk`` and kinetic friction ``kin`` (m/s of drive): PX4 SIH's
-    rover (``sih.cpp``: 400 N of throttle against μ 0.5 static, 0.3 kinetic of its 20 kg,
+    Ackermann rover (PX4-Autopilot ``src/modules/simulation/simulator_sih/sih.cpp``,
+    ``generate_rover_ackermann_dynamics``: 400 N · throttle against μ 0.5 static below
+    0.01 m/s, 0.4 up to 0.05 m/s and 0.3 rolling above, on 20 kg; with PX4's feed-forward
+    throttle, setpoint / 3.2, that is 0.78 and 0.47 m/s of drive;
     ``bridge.simvehicle.motion.SihRover``). A vehicle at rest stays there while the drive
     is below both; moving, kinetic friction opposes the motion; slowing down with the
     drive below them it stops at zero (stick-slip when ``kin < brk``). With ``kin`` 0

@@ -85,8 +85,9 @@ class VehiclePreset:
         breakaway_mps: static friction: a vehicle at rest stays at rest while its drive
             command (``pi``) or speed setpoint (``lag``) is below this (m/s); 0 = none.
         kinetic_friction_mps: ``pi``: kinetic friction, the drive (m/s) it takes just to
-            keep moving once broken away (PX4 SIH: μ 0.3 of ``breakaway_mps``'s μ 0.5,
-            so a vehicle that breaks away lurches on, then sticks again: stick-slip);
+            keep moving once broken away (PX4 SIH: rolling μ 0.3 against static μ 0.5,
+            0.47 against 0.78 m/s of setpoint: a vehicle that breaks away lurches on, and
+            a drive below this stops it again: stick-slip);
             0 = none (fitted by ``fit-plant`` only where static friction is).
         heading_delay_s: delay from a heading setpoint to its first effect (s); None =
             ``actuation_delay_s``.

@@ -551,10 +551,9 @@ _PI_SPEED_KEYS = (
     "drive_drag_per_mps",
 )
 _KINETIC_KEY = "kinetic_friction_mps"
-"""Fitted after the others, and only where static friction is kept (``_fit_pi_speed``):
-the search over ``_PI_SPEED_KEYS`` draws as before, so fits without friction are unchanged."""
-_KINETIC_STEPS = 24
-"""Kinetic friction is searched on this many fractions of the fitted static friction."""
+"""Fitted by a second search after the others (``_fit_pi_speed``): the first search over
+``_PI_SPEED_KEYS`` draws as before, and the second is kept only where kinetic friction
+clearly lowers the speed cost, so fits without it are unchanged."""
 # (low, high, log scale) per parameter; the search starts at the base preset when it has a
 # pi loop, else at a generic loop (unit gains and feed-forward, 1 s drive lag).
 _PI_SPEED_BOUNDS = (
@@ -844,16 +843,17 @@ def _fit_pi_speed(
         best, cost = frictionless, cost_free
     values = dict(zip(_PI_SPEED_KEYS, (float(x) for x in best)))
     values[_KINETIC_KEY] = 0.0
-    if best[7] > 0.0:
-        # Kinetic friction (stick-slip) on a grid of fractions of the static friction, the
-        # other parameters held: kept where it lowers the speed cost.
-        grid = np.repeat(np.append(best, 0.0)[None, :], _KINETIC_STEPS + 1, axis=0)
-        grid[:, 9] = best[7] * np.linspace(0.0, 1.0, _KINETIC_STEPS + 1)
-        with np.errstate(all="ignore"):
-            costs = speed_cost(grid)
-        k = int(np.nanargmin(costs))
-        if costs[k] < cost:
-            values[_KINETIC_KEY], cost = float(grid[k, 9]), float(costs[k])
+    # Kinetic friction (stick-slip, PX4 SIH's rolling friction): a second search over the
+    # loop with it, from the first's best (kinetic friction at half the static). Kept where
+    # it clearly lowers the speed cost (``FRICTION_MATTERS``), so a loop without friction
+    # (ArduPilot's) stays as the first search gave it.
+    start = [*best[:7], max(best[7], 0.5), best[8], 0.5 * max(best[7], 0.5)]
+    bounds = (*_PI_SPEED_BOUNDS, (0.0, 1.5, False))
+    best_k, cost_k = _cem(speed_cost, start, bounds, rounds=rounds, population=population)
+    if FRICTION_MATTERS * cost_k < cost and best_k[9] > 0.0:
+        cost = cost_k
+        values = dict(zip(_PI_SPEED_KEYS, (float(x) for x in best_k[:9])))
+        values[_KINETIC_KEY] = float(best_k[9])
     values["actuation_delay_s"] = round(values["actuation_delay_s"] / _PI_DT_S) * _PI_DT_S
     return values, math.sqrt(cost)
 

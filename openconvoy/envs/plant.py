@@ -107,6 +107,7 @@ class BicyclePlant:
         self._drag = col("drive_drag_per_mps")
         self._stop = col("stop_speed_mps")
         self._brk = col("breakaway_mps")
+        self._kin = col("kinetic_friction_mps")
         self._yaw_acc = col("yaw_accel_max_radps2")
         self._alat = col("lateral_accel_max_mps2")
         steps = lambda delays: np.array([int(round(d / dt)) for d in delays], dtype=int)  # noqa: E731
@@ -166,6 +167,7 @@ class BicyclePlant:
                 self._tau_d.tolist(),
                 self._stop.tolist(),
                 self._drag.tolist(),
+                self._kin.tolist(),
             )
         )
         self._qv: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
@@ -274,10 +276,12 @@ class BicyclePlant:
             stopped = (r == 0.0) & (np.abs(v) <= self._stop)
             integ = np.where(stopped, 0.0, integ + self._ki * err * h)
             drive = np.where(stopped, 0.0, self._ff * r + self._kp * err + integ)
-            dv = (drive - v - self._drag * v * np.abs(v)) / self._tau_d * h
+            kf = self._kin * np.where(v == 0.0, np.sign(drive), np.sign(v))
+            dv = (drive - v - self._drag * v * np.abs(v) - kf) / self._tau_d * h
             # Friction: at rest below breakaway nothing moves; slowing down stops at zero,
             # and a stopped vehicle (drive cut) comes to rest rather than coasting on.
-            stuck = (np.abs(drive) < self._brk) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
+            held = np.abs(drive) < np.maximum(self._brk, self._kin)
+            stuck = held & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
             v = np.where(stuck, 0.0, v + dv)
             r, integ, v = (
                 np.where(active, a, b) for a, b in ((r, r_old), (integ, integ_old), (v, v_old))
@@ -388,7 +392,7 @@ def pi_speed_loop(
     v: float,
     r: float,
     acc_i: float,
-    pi_params: tuple[float, float, float, float, float, float],
+    pi_params: tuple[float, float, float, float, float, float, float],
     acc: float,
     dec: float,
     brk: float,
@@ -399,8 +403,9 @@ def pi_speed_loop(
     equations): the new speed, ramped setpoint and integrator (m/s); ``v_before`` acts for
     the first ``n1`` substeps of ``h1`` s, ``v_cmd`` for the next ``n2`` of ``h2``
     (``substeps``, from ``pi_delay_split``); ``pi_params`` (kp, ki, ff, tau_d, stop,
-    drag). The batched plant calls this function compiled (``envs.vector.jit.rules``)."""
-    kp, ki, ff, tau_d, stop, drag = pi_params
+    drag, kinetic friction). The batched plant calls this function compiled
+    (``envs.vector.jit.rules``)."""
+    kp, ki, ff, tau_d, stop, drag, kin = pi_params
     vs_ = v
     v_now = v_cmd
     n1, h1, n2, h2 = substeps
@@ -415,12 +420,40 @@ def pi_speed_loop(
         else:
             acc_i += ki * err * h_sub
             drive = ff * r + kp * err + acc_i
-        d = (drive - vs_ - drag * vs_ * abs(vs_)) / tau_d * h_sub
-        if abs(drive) < brk and (vs_ == 0.0 or (vs_ + d) * vs_ < 0.0 or stopped):
-            vs_ = 0.0  # at rest it stays; slowing down it stops at zero
-        else:
-            vs_ += d
+        vs_ = friction_speed(vs_, drive, drag, tau_d, brk, kin, stopped, h_sub)
     return vs_, r, acc_i
+
+
+def friction_speed(
+    v: float,
+    drive: float,
+    drag: float,
+    tau_d: float,
+    brk: float,
+    kin: float,
+    stopped: bool,
+    h: float,
+) -> float:
+    """The ``pi`` loop's vehicle speed (m/s) after a substep ``h`` (s) for one vehicle on
+    floats: it follows the ``drive`` (m/s) with lag ``tau_d`` (s) against quadratic
+    ``drag``, static friction ``brk`` and kinetic friction ``kin`` (m/s of drive): PX4 SIH's
+    Ackermann rover (PX4-Autopilot ``src/modules/simulation/simulator_sih/sih.cpp``,
+    ``generate_rover_ackermann_dynamics``: 400 N · throttle against μ 0.5 static below
+    0.01 m/s, 0.4 up to 0.05 m/s and 0.3 rolling above, on 20 kg; with PX4's feed-forward
+    throttle, setpoint / 3.2, that is 0.78 and 0.47 m/s of drive;
+    ``bridge.simvehicle.motion.SihRover``). A vehicle at rest stays there while the drive
+    is below both; moving, kinetic friction opposes the motion; slowing down with the
+    drive below them it stops at zero (stick-slip when ``kin < brk``). With ``kin`` 0
+    the numbers are those of static friction alone, bit for bit. The batched plant calls
+    this function compiled (``envs.vector.jit.rules``)."""
+    if v != 0.0:
+        kf = kin if v > 0.0 else -kin
+    else:
+        kf = kin if drive > 0.0 else (-kin if drive < 0.0 else 0.0)
+    d = (drive - v - drag * v * abs(v) - kf) / tau_d * h
+    if abs(drive) < max(brk, kin) and (v == 0.0 or (v + d) * v < 0.0 or stopped):
+        return 0.0  # at rest it stays; slowing down it stops at zero
+    return v + d
 
 
 def slewed_yaw_rate(

@@ -84,6 +84,11 @@ class VehiclePreset:
             is cut and the integrator reset (ArduPilot ATC_STOP_SPEED): no undershoot.
         breakaway_mps: static friction: a vehicle at rest stays at rest while its drive
             command (``pi``) or speed setpoint (``lag``) is below this (m/s); 0 = none.
+        kinetic_friction_mps: ``pi``: kinetic friction, the drive (m/s) it takes just to
+            keep moving once broken away (PX4 SIH: rolling μ 0.3 against static μ 0.5,
+            0.47 against 0.78 m/s of setpoint: a vehicle that breaks away lurches on, and
+            a drive below this stops it again: stick-slip);
+            0 = none (fitted by ``fit-plant`` only where static friction is).
         heading_delay_s: delay from a heading setpoint to its first effect (s); None =
             ``actuation_delay_s``.
         yaw_accel_max_radps2: slew limit of the heading loop's desired yaw rate (ArduPilot
@@ -116,6 +121,7 @@ class VehiclePreset:
     drive_drag_per_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
     stop_speed_mps: Annotated[float, Range(0.0, 10.0)] = 0.1
     breakaway_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
+    kinetic_friction_mps: Annotated[float, Range(0.0, 10.0)] = 0.0
     heading_delay_s: Annotated[float, Range(0.0, 2.0)] | None = None
     yaw_accel_max_radps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
     lateral_accel_max_mps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf

@@ -550,6 +550,10 @@ _PI_SPEED_KEYS = (
     "breakaway_mps",
     "drive_drag_per_mps",
 )
+_KINETIC_KEY = "kinetic_friction_mps"
+"""Fitted by a second search after the others (``_fit_pi_speed``): the first search over
+``_PI_SPEED_KEYS`` draws as before, and the second is kept only where kinetic friction
+clearly lowers the speed cost, so fits without it are unchanged."""
 # (low, high, log scale) per parameter; the search starts at the base preset when it has a
 # pi loop, else at a generic loop (unit gains and feed-forward, 1 s drive lag).
 _PI_SPEED_BOUNDS = (
@@ -614,11 +618,14 @@ def _held(series: _Series, *values: np.ndarray) -> tuple[np.ndarray, list[np.nda
 
 def _pi_speed_sse(series: _Series, c: np.ndarray) -> np.ndarray:
     """Sum of squared speed errors at the measurements for candidates ``c`` (k, 9) in
-    ``_PI_SPEED_KEYS`` order, replaying ``envs.plant``'s pi loop at ``_PI_DT_S``."""
+    ``_PI_SPEED_KEYS`` order, or (k, 10) with the kinetic friction last, replaying
+    ``envs.plant``'s pi loop at ``_PI_DT_S`` (``friction_speed``'s rules on arrays)."""
     _, (cmd,), rows = _held(series, series.cmd_v)
     h = _PI_DT_S
     delay = np.round(c[:, 0] / h).astype(int)
     acc, dec, kp, ki, ff, tau, brk, drag = (c[:, i] for i in range(1, 9))
+    kin = c[:, 9] if c.shape[1] > 9 else np.zeros(len(c))
+    held_below = np.maximum(brk, kin)
     v0 = float(series.speed[0])
     v = np.full(len(c), v0)
     r = v.copy()
@@ -634,8 +641,9 @@ def _pi_speed_sse(series: _Series, c: np.ndarray) -> np.ndarray:
         stopped = (r == 0.0) & (np.abs(v) <= stop)
         integ = np.where(stopped, 0.0, integ + ki * err * h)
         drive = np.where(stopped, 0.0, ff * r + kp * err + integ)
-        dv = (drive - v - drag * v * np.abs(v)) / tau * h
-        stuck = (np.abs(drive) < brk) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
+        kf = kin * np.where(v == 0.0, np.sign(drive), np.sign(v))
+        dv = (drive - v - drag * v * np.abs(v) - kf) / tau * h
+        stuck = (np.abs(drive) < held_below) & ((v == 0.0) | ((v + dv) * v < 0.0) | stopped)
         v = np.where(stuck, 0.0, v + dv)
         out[i] = v
     # The measurement at grid row k is the state after k steps.
@@ -802,7 +810,8 @@ def fit_pi_plant(
 
 def pi_speed_rms(series: Sequence[_Series], presets: Sequence[VehiclePreset]) -> np.ndarray:
     """Each preset's speed RMS (m/s) replaying ``series`` (its pi loop's parameters)."""
-    c = np.array([[getattr(p, k) for k in _PI_SPEED_KEYS] for p in presets], dtype=float)
+    keys = (*_PI_SPEED_KEYS, _KINETIC_KEY)
+    c = np.array([[getattr(p, k) for k in keys] for p in presets], dtype=float)
     n = sum(len(s.t) for s in series)
     with np.errstate(all="ignore"):
         sse = sum(_pi_speed_sse(s, c) for s in series)
@@ -833,6 +842,18 @@ def _fit_pi_speed(
     if cost_free <= FRICTION_MATTERS * cost:
         best, cost = frictionless, cost_free
     values = dict(zip(_PI_SPEED_KEYS, (float(x) for x in best)))
+    values[_KINETIC_KEY] = 0.0
+    # Kinetic friction (stick-slip, PX4 SIH's rolling friction): a second search over the
+    # loop with it, from the first's best (kinetic friction at half the static). Kept where
+    # it clearly lowers the speed cost (``FRICTION_MATTERS``), so a loop without friction
+    # (ArduPilot's) stays as the first search gave it.
+    start = [*best[:7], max(best[7], 0.5), best[8], 0.5 * max(best[7], 0.5)]
+    bounds = (*_PI_SPEED_BOUNDS, (0.0, 1.5, False))
+    best_k, cost_k = _cem(speed_cost, start, bounds, rounds=rounds, population=population)
+    if FRICTION_MATTERS * cost_k < cost and best_k[9] > 0.0:
+        cost = cost_k
+        values = dict(zip(_PI_SPEED_KEYS, (float(x) for x in best_k[:9])))
+        values[_KINETIC_KEY] = float(best_k[9])
     values["actuation_delay_s"] = round(values["actuation_delay_s"] / _PI_DT_S) * _PI_DT_S
     return values, math.sqrt(cost)
 
@@ -866,7 +887,7 @@ def format_pi_fit(fit: PiFit) -> str:
         f"fitted preset {p.name!r} (autopilot PI speed loop) from {fit.samples} samples "
         f"({fit.source})"
     ]
-    for key in _PI_SPEED_KEYS + _PI_HEADING_KEYS:
+    for key in (*_PI_SPEED_KEYS, _KINETIC_KEY, *_PI_HEADING_KEYS):
         value = p.heading_delay if key == "heading_delay_s" else getattr(p, key)
         extra = f" ({math.degrees(value):.1f} deg/s)" if key == "turn_rate_max_radps" else ""
         lines.append(f"  {key:<24}{value:.4g}{extra}")

@@ -427,3 +427,42 @@ def test_cli_lag_fit_of_a_recording_is_a_one_line_error(tmp_path: Path) -> None:
         "openconvoy: error: the lag model fits one run's log; "
         "use --model pi for recordings or several inputs"
     )
+
+
+def test_pi_fit_finds_kinetic_friction_where_the_vehicle_has_it() -> None:
+    """A vehicle with PX4 SIH's friction in drive units (static 0.78, rolling 0.47 m/s)
+    driven through slow commands: the fit keeps a kinetic friction that explains its
+    stops; the same fit on the vehicle without it keeps none (the fit is unchanged)."""
+    import dataclasses
+
+    from openconvoy.experiments import fitplant as fp
+
+    dt = 0.02
+    cmds = [1.0] * 500 + [0.6] * 500 + [0.4] * 500 + [0.7] * 250 + [1.2] * 500 + [0.55] * 500
+    truth = dataclasses.replace(
+        VEHICLE_PRESETS["px4-sih-rover"],
+        speed_loop="pi",
+        actuation_delay_s=0.1,
+        speed_kp=0.0,
+        speed_ki=0.0,
+        speed_ff=1.0,
+        drive_lag_s=0.3,
+        drive_drag_per_mps=0.2,
+        breakaway_mps=0.78,
+        kinetic_friction_mps=0.47,
+    )
+    fitted = {}
+    for kin in (0.47, 0.0):
+        plant = BicyclePlant([dataclasses.replace(truth, kinetic_friction_mps=kin)], dt)
+        plant.reset(np.zeros(1), np.zeros(1), np.zeros(1))
+        speeds = [0.0]
+        for v in cmds:
+            plant.step([v], [0.0])
+            speeds.append(float(plant.speed[0]))
+        t = dt * np.arange(len(speeds))
+        series = fp._Series(
+            t, np.array(speeds), np.zeros(len(t)), t[:-1], np.array(cmds), np.zeros(len(cmds))
+        )
+        fitted[kin], _ = fp._fit_pi_speed([series], truth, rounds=6, population=64)
+    assert fitted[0.47]["kinetic_friction_mps"] > 0.2, fitted[0.47]
+    assert fitted[0.0]["kinetic_friction_mps"] == 0.0, fitted[0.0]

@@ -231,6 +231,54 @@ def test_integrator_breaks_a_vehicle_loose_after_a_while() -> None:
     assert moved_at is not None and moved_at > 1.0
 
 
+def _stick_slip_preset(kin: float, kp: float = 0.5, ki: float = 0.3):
+    import dataclasses
+
+    # PX4 SIH's rover in drive units (m/s of setpoint at RO_MAX_THR_SPEED 3.2, 400 N on
+    # 20 kg): static friction 0.5 g breaks away at 0.78 m/s, kinetic 0.3 g is 0.47 m/s.
+    return dataclasses.replace(
+        ROVER,
+        speed_kp=kp,
+        speed_ki=ki,
+        speed_ff=1.0,
+        drive_lag_s=0.3,
+        breakaway_mps=0.78,
+        kinetic_friction_mps=kin,
+    )
+
+
+def test_kinetic_friction_makes_the_dead_zone_a_hysteresis() -> None:
+    # PX4's feed-forward speed loop on SIH's friction: from rest 0.7 m/s does not start it,
+    # 1 m/s does; once moving, 0.6 m/s keeps it going against kinetic friction (slower than
+    # without it), and below kinetic friction (0.4) it stops and stays: stick-slip.
+    def run(kin: float, profile: list[tuple[float, int]]) -> list[float]:
+        p = _plant(_stick_slip_preset(kin, kp=0.0, ki=0.0))
+        return [float(_run(p, cmd, 0.0, n)[-1][0]) for cmd, n in profile]
+
+    start = run(0.47, [(0.7, 200)])
+    assert start == [0.0]
+    kinetic = run(0.47, [(1.0, 200), (0.6, 200), (0.4, 200), (0.7, 200)])
+    static = run(0.0, [(1.0, 200), (0.6, 200), (0.4, 200), (0.7, 200)])
+    assert 0.0 < kinetic[0] < static[0] == pytest.approx(1.0, abs=0.02)
+    assert 0.05 < kinetic[1] < static[1] == pytest.approx(0.6, abs=0.02)
+    assert kinetic[2] == 0.0 and static[2] == pytest.approx(0.4, abs=0.02)
+    assert kinetic[3] == 0.0  # at rest again, 0.7 m/s stays below breakaway
+
+
+def test_kinetic_friction_scalar_and_numpy_steps_agree() -> None:
+    presets = [_stick_slip_preset(0.47), _stick_slip_preset(0.0), ROVER]
+    a = BicyclePlant(presets, DT, vectorized=False)
+    b = BicyclePlant(presets, DT, vectorized=True)
+    for p in (a, b):
+        p.reset(np.zeros(3), np.zeros(3), np.zeros(3))
+    for k in range(400):
+        cmd = [0.3 + 0.5 * math.sin(k / 40.0)] * 3
+        a.step(cmd, [0.0] * 3)
+        b.step(cmd, [0.0] * 3)
+        assert np.allclose(a.speed, b.speed, rtol=0.0, atol=1e-12)
+        assert np.allclose(a.x, b.x, rtol=0.0, atol=1e-12)
+
+
 def test_heading_loop_is_rate_limited_by_the_turn_radius_and_slewed() -> None:
     # At 1 m/s a 90 deg step turns at ~65 deg/s (TURN_RADIUS 0.9 m; firmware 64.9-65.6).
     p = _plant(ROVER, speed=1.0)

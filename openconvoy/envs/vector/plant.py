@@ -26,14 +26,13 @@ from openconvoy.envs.vehicles import VehiclePreset
 X, Y, SPEED, HEADING, ACCEL, YAW_RATE, COS_H, SIN_H = range(8)
 ROWS = 8
 """Rows of ``VectorPlant.state``."""
-rules(plant, "lag_speed_change", "pi_speed_loop", "slewed_yaw_rate")
+rules(plant, "lag_speed_change", "pi_speed_loop", "friction_speed", "slewed_yaw_rate")
 _PARAMS = (
     "_tau_v", "_tau_h", "_acc", "_dec", "_rate", "_vmax", "_kappa", "_kp", "_ki", "_ff",
-    "_tau_d", "_drag", "_stop", "_brk", "_yaw_acc", "_alat",
+    "_tau_d", "_drag", "_stop", "_brk", "_yaw_acc", "_alat", "_kin",
 )  # fmt: skip
-TAU_V, TAU_H, ACC, DEC, RATE, VMAX, KAPPA, KP, KI, FF, TAU_D, DRAG, STOP, BRK, YAW_ACC, ALAT = (
-    range(len(_PARAMS))
-)
+(TAU_V, TAU_H, ACC, DEC, RATE, VMAX, KAPPA, KP, KI, FF, TAU_D, DRAG, STOP, BRK, YAW_ACC, ALAT,
+ KIN) = range(len(_PARAMS))  # fmt: skip
 
 
 @bare_inline
@@ -151,7 +150,7 @@ def _pi_dv(pa, i, v_now, v_before, v0):  # pragma: no cover - compiled
     change; updates its inner loop (``v_before`` acts for ``sub_n[0, i]`` substeps of
     ``sub_h[0, i]`` s, then ``v_now`` for ``sub_n[1, i]`` of ``sub_h[1, i]``)."""
     p, inner, sub_n, sub_h = pa.params, pa.inner, pa.sub_n, pa.sub_h
-    gains = (p[KP, i], p[KI, i], p[FF, i], p[TAU_D, i], p[STOP, i], p[DRAG, i])
+    gains = (p[KP, i], p[KI, i], p[FF, i], p[TAU_D, i], p[STOP, i], p[DRAG, i], p[KIN, i])
     substeps = (sub_n[0, i], sub_h[0, i], sub_n[1, i], sub_h[1, i])
     v, inner[RAMP, i], inner[INTEG, i] = plant.pi_speed_loop(
         v_now,

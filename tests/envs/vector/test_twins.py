@@ -84,6 +84,7 @@ _ACC = _compiled(ladder.acc_speed_mps)
 _LAG = _compiled(plant.lag_speed_change)
 _SLEW = _compiled(plant.slewed_yaw_rate)
 _PI = _compiled(plant.pi_speed_loop)
+_FRICTION = _compiled(plant.friction_speed)
 
 
 @FAST
@@ -171,10 +172,35 @@ def test_heading_loop_compiled_is_the_rule(
 
 
 @FAST
-@given(speed, speed, speed, st.floats(-2, 2), st.integers(0, 3), st.integers(0, 3))
+@given(
+    speed,
+    speed,
+    speed,
+    st.floats(-2, 2),
+    st.integers(0, 3),
+    st.integers(0, 3),
+    st.sampled_from([0.0, 0.47]),
+)
 def test_pi_speed_loop_compiled_is_the_rule(
-    v_cmd: float, v: float, ramp: float, integ: float, n1: int, n2: int
+    v_cmd: float, v: float, ramp: float, integ: float, n1: int, n2: int, kin: float
 ) -> None:
-    gains = (0.2, 0.3, 1.0, 0.25, 0.1, 0.004)  # kp, ki, ff, tau_d, stop, drag
+    gains = (0.2, 0.3, 1.0, 0.25, 0.1, 0.004, kin)  # kp, ki, ff, tau_d, stop, drag, kin
     args = (v_cmd, v, ramp, integ, gains, 2.0, 4.0, 0.1, 0.5 * v_cmd, (n1, 0.02, n2, 0.02))
     assert _PI(*args) == plant.pi_speed_loop(*args)
+
+
+@FAST
+@given(
+    speed | st.just(0.0),
+    st.floats(-3, 3),
+    st.floats(0, 0.5),
+    positive,
+    st.floats(0, 1),
+    st.floats(0, 1),
+    st.booleans(),
+)
+def test_friction_compiled_is_the_rule(
+    v: float, drive: float, drag: float, tau: float, brk: float, kin: float, stopped: bool
+) -> None:
+    args = (v, drive, drag, tau, brk, kin, stopped, 0.02)
+    assert _FRICTION(*args) == plant.friction_speed(*args)

@@ -27,6 +27,7 @@ from openconvoy.comms.loss import (
     SPLITMIX_M2,
     UNIT_53,
     GilbertElliott,
+    Latency,
     LossConfig,
     counter_uniform_array,
 )
@@ -97,15 +98,33 @@ class VectorChannel:
         self.stamp_sender = np.array([self.loss.sender_staleness(i) for i in range(N)])
         # Each pair's delay distribution (``LossConfig.link_latency``): (P, Q) quantiles,
         # the first ``n_samples[p]`` used (0: the uniform jitter).
-        lats = [self.loss.link_latency(int(a), int(b)) for a, b in zip(self.pair_s, self.pair_r)]
-        q = max([len(x.samples_s) for x in lats] + [1])
-        self.samples_s = np.zeros((len(lats), q))
-        self.n_samples = np.zeros(len(lats), dtype=np.int64)
-        for p, x in enumerate(lats):
+        # Built per sender (a link's model is its sender's unless ``link_latency_s``
+        # names the link: those pairs looked up one by one), then spread over the pairs.
+        senders = np.unique(self.pair_s)
+        own = {int(i): self.loss.link_latency(int(i), -1) for i in senders}
+        special: dict[int, Latency] = {}
+        for e in self.loss.link_latency_s:
+            hit = np.flatnonzero((self.pair_s == int(e[0])) & (self.pair_r == int(e[1])))
+            for p in hit.tolist():
+                special.setdefault(p, self.loss.link_latency(int(e[0]), int(e[1])))
+        plain = np.bincount(self.pair_s, minlength=N)  # each sender's pairs left its own
+        for p in special:
+            plain[self.pair_s[p]] -= 1
+        used = [x for i, x in own.items() if plain[i] > 0] + list(special.values())
+        q = max([len(x.samples_s) for x in used] + [1])
+        row_s = np.zeros((N, q))
+        row_n = np.zeros(N, dtype=np.int64)
+        for i, x in own.items():
+            row_s[i, : len(x.samples_s)] = x.samples_s
+            row_n[i] = len(x.samples_s)
+        self.samples_s = row_s[self.pair_s]
+        self.n_samples = row_n[self.pair_s]
+        for p, x in special.items():
+            self.samples_s[p] = 0.0
             self.samples_s[p, : len(x.samples_s)] = x.samples_s
             self.n_samples[p] = len(x.samples_s)
-        delay = max([x.max_s for x in lats] + [0.0])  # the longest a message is in flight
-        instant = all(x.instant for x in lats)
+        delay = max([x.max_s for x in used] + [0.0])  # the longest a message is in flight
+        instant = all(x.instant for x in used)
         self.slots = 0 if instant else int(math.ceil(delay / dt)) + 3
         self._alloc()
 

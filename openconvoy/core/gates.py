@@ -141,7 +141,10 @@ class RxGate:
         nearest first (a follower of the leader alone needs the leader). Followers behind
         are never needed: losing them cannot make the ego drive into anything. Empty for
         the leader."""
-        return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
+        if not 0 <= self.ego < self.n_vehicles:  # no row to read: ρ per sender
+            return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
+        row = self.kept_row()
+        return [j for j in range(self.ego - 1, -1, -1) if row[j]]
 
 
 def is_plugin_topology(name: str) -> bool:

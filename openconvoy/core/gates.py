@@ -106,13 +106,45 @@ class RxGate:
         k = self.lookahead
         return k is not None and i - k <= j < i
 
+    def kept_row(self) -> np.ndarray:
+        """ρ(ego, j) for every sender ``j`` of the convoy, as a bool array of
+        ``n_vehicles``: in bulk for a built-in topology (O(N) numpy, no per-sender
+        call), else each sender asked through ``keeps`` (a plug-in's ``keeps``)."""
+        n, i = self.n_vehicles, self.ego
+        if self._plugin is not None:  # type: ignore[attr-defined]
+            return np.array([self.keeps(j) for j in range(n)], dtype=bool)
+        j = np.arange(n)
+        t = self.topology
+        if t == "all":
+            row = np.ones(n, dtype=bool)
+        elif t == "predecessor":
+            row = j == i - 1
+        elif t == "all-predecessors":
+            row = j < i
+        elif t == "leader":
+            row = j == 0
+        elif t == "leader-predecessor":
+            row = (j == 0) | (j == i - 1)
+        elif t == "bidirectional":
+            row = (j == i - 1) | (j == i + 1)
+        else:
+            k = self.lookahead
+            row = (i - k <= j) & (j < i) if k is not None else np.zeros(n, dtype=bool)
+        row = np.asarray(row, dtype=bool)
+        if 0 <= i < n:
+            row[i] = False
+        return row
+
     def needed(self) -> list[int]:
         """Vehicles whose messages the ego needs to cooperate (the staleness ladder and the
         bridge's message-age rule watch them): every predecessor the topology keeps,
         nearest first (a follower of the leader alone needs the leader). Followers behind
         are never needed: losing them cannot make the ego drive into anything. Empty for
         the leader."""
-        return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
+        if not 0 <= self.ego < self.n_vehicles:  # no row to read: ρ per sender
+            return [j for j in range(self.ego - 1, -1, -1) if self.keeps(j)]
+        row = self.kept_row()
+        return [j for j in range(self.ego - 1, -1, -1) if row[j]]
 
 
 def is_plugin_topology(name: str) -> bool:

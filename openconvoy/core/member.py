@@ -157,7 +157,7 @@ class ConvoyMember:
         # ρ decides what the policy sees; the braking rule sees more: every member keeps
         # its immediate predecessor's messages, the leader everyone's (a convoy vehicle
         # in its path on a closed track), whatever ρ says (issue 22, D47, D49).
-        self._control = [self.rx.keeps(j) for j in range(n_vehicles)]
+        self._control = self.rx.kept_row().tolist()  # ρ(i, j) for every j, in bulk
         self._keeps = [
             self._control[j] or j == vehicle_id - 1 or (vehicle_id == 0 and j != 0)
             for j in range(n_vehicles)

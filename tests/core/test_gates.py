@@ -73,3 +73,17 @@ def test_event_trigger_on_speed_change():
     assert gate.should_send(_state(0.0, 0.0, v=1.0), 0.0)
     assert not gate.should_send(_state(0.1, 0.1, v=1.1), 0.1)
     assert gate.should_send(_state(0.2, 0.2, v=1.3), 0.2)
+
+
+@pytest.mark.parametrize("topology", [*sorted(KEPT), "lookahead:7"])
+@pytest.mark.parametrize("n", [1, 2, 6])
+def test_kept_row_is_keeps_for_every_sender(topology, n):
+    # The bulk answer the batched simulator builds its links from, against ρ per pair.
+    for ego in range(n):
+        gate = RxGate(topology, ego, n)
+        assert gate.kept_row().tolist() == [gate.keeps(j) for j in range(n)]
+
+
+def test_kept_row_of_a_plugin_asks_its_keeps():
+    gate = RxGate("tests/data/plugins/equal.py:AllPredecessors", 3, 6)
+    assert gate.kept_row().tolist() == [True, True, True, False, False, False]

@@ -27,6 +27,7 @@ from openconvoy.comms.loss import (
     SPLITMIX_M2,
     UNIT_53,
     GilbertElliott,
+    Latency,
     LossConfig,
     counter_uniform_array,
 )
@@ -78,16 +79,25 @@ class VectorChannel:
             r, s = np.nonzero(~np.eye(N, dtype=bool))
             self.pair_s, self.pair_r = s.astype(np.int64), r.astype(np.int64)
             self.pair_link = links.link_of[s, r]
+            # The same pairs by sender (sender-major), receivers ascending.
+            s, r = np.nonzero(~np.eye(N, dtype=bool))
+            sorted_s = s.astype(np.int64)
+            self.sender_r = r.astype(np.int64)
+            self.sender_link = links.link_of[s, r]
+            del r, s
         else:
             self.pair_s, self.pair_r = links.link_s, links.link_r
             self.pair_link = np.arange(links.L, dtype=np.int64)
-        # The pairs by sender (the draws do not depend on the order): a tick's work
-        # follows its broadcasts.
-        self.by_sender = np.argsort(self.pair_s, kind="stable").astype(np.int64)
-        self.sender_start = np.searchsorted(self.pair_s[self.by_sender], np.arange(N + 1))
-        # ... and their receivers and links in that order: read in sequence.
-        self.sender_r = self.pair_r[self.by_sender]
-        self.sender_link = self.pair_link[self.by_sender]
+            # The pairs by sender (the draws do not depend on the order): a tick's work
+            # follows its broadcasts; their receivers and links in that order: read in
+            # sequence.
+            by_sender = np.argsort(self.pair_s, kind="stable")
+            sorted_s = self.pair_s[by_sender]
+            self.sender_r = self.pair_r[by_sender]
+            self.sender_link = self.pair_link[by_sender]
+            del by_sender
+        self.sender_start = np.searchsorted(sorted_s, np.arange(N + 1))
+        del sorted_s
         mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
@@ -97,15 +107,34 @@ class VectorChannel:
         self.stamp_sender = np.array([self.loss.sender_staleness(i) for i in range(N)])
         # Each pair's delay distribution (``LossConfig.link_latency``): (P, Q) quantiles,
         # the first ``n_samples[p]`` used (0: the uniform jitter).
-        lats = [self.loss.link_latency(int(a), int(b)) for a, b in zip(self.pair_s, self.pair_r)]
-        q = max([len(x.samples_s) for x in lats] + [1])
-        self.samples_s = np.zeros((len(lats), q))
-        self.n_samples = np.zeros(len(lats), dtype=np.int64)
-        for p, x in enumerate(lats):
+        # Built per sender (a link's model is its sender's unless ``link_latency_s``
+        # names the link: those pairs looked up one by one), then spread over the pairs.
+        plain = np.bincount(self.pair_s, minlength=N)  # each sender's pairs left its own
+        own = {i: self.loss.link_latency(i, -1) for i in np.flatnonzero(plain).tolist()}
+        special: dict[int, Latency] = {}
+        for e in self.loss.link_latency_s:
+            hit = np.flatnonzero((self.pair_s == int(e[0])) & (self.pair_r == int(e[1])))
+            for p in hit.tolist():
+                special.setdefault(p, self.loss.link_latency(int(e[0]), int(e[1])))
+        for p in special:
+            plain[self.pair_s[p]] -= 1
+        used = [x for i, x in own.items() if plain[i] > 0] + list(special.values())
+        q = max([len(x.samples_s) for x in used] + [1])
+        delay = max([x.max_s for x in used] + [0.0])  # the longest a message is in flight
+        instant = all(x.instant for x in used)
+        row_s = np.zeros((N, q))
+        row_n = np.zeros(N, dtype=np.int64)
+        for i, x in own.items():
+            row_s[i, : len(x.samples_s)] = x.samples_s
+            row_n[i] = len(x.samples_s)
+        # Read only by the delay queue: none (no rows) when every message is instant.
+        spread = np.arange(0 if instant else len(self.pair_s))
+        self.samples_s = row_s[self.pair_s[spread]]
+        self.n_samples = row_n[self.pair_s[spread]]
+        for p, x in special.items() if not instant else ():
+            self.samples_s[p] = 0.0
             self.samples_s[p, : len(x.samples_s)] = x.samples_s
             self.n_samples[p] = len(x.samples_s)
-        delay = max([x.max_s for x in lats] + [0.0])  # the longest a message is in flight
-        instant = all(x.instant for x in lats)
         self.slots = 0 if instant else int(math.ceil(delay / dt)) + 3
         self._alloc()
 

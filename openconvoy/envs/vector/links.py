@@ -43,52 +43,61 @@ class LinkTables:
 
 
 def build_links(mc: MemberConfig, N: int) -> LinkTables:
-    """The tables for ``N`` vehicles under ``mc``'s topology and observation layout."""
+    """The tables for ``N`` vehicles under ``mc``'s topology and observation layout.
+
+    Each receiver's kept senders come from ``RxGate.kept_row`` (in bulk for a built-in
+    topology, a plug-in's ``keeps`` per sender otherwise); the tables are numpy work,
+    no Python loop over vehicle pairs."""
     lay = mc.layout
-    links: list[tuple[int, int]] = []
+    kept = np.zeros((N, N), dtype=bool)  # kept[r, s]: ρ(r, s), the leader keeps none
+    for r in range(1, N):
+        kept[r] = RxGate(mc.topology, r, N, mc.topology_params).kept_row()
+    ids = np.arange(N)
+    # Links (receiver-major, senders ascending): ρ's, each follower's predecessor and
+    # the leader's from everyone.
+    mask = kept.copy()
+    mask[ids[1:], ids[1:] - 1] = True
+    mask[0, 1:] = True
+    mask[ids, ids] = False
+    link_r, link_s = np.nonzero(mask)
+    L = len(link_r)
     link_of = np.full((N, N), -1, dtype=np.int64)
-    needed: list[list[int]] = [[] for _ in range(N)]
-    control = np.full((N, N), -1, dtype=np.int64)  # the links ρ keeps
-    for r in range(N):
-        gate = RxGate(mc.topology, r, N, mc.topology_params)
-        for s in range(N):
-            kept = gate.keeps(s) if r > 0 else False
-            if s != r and (kept or s == r - 1 or r == 0):
-                link_of[s, r] = len(links)
-                if kept:
-                    control[s, r] = len(links)
-                links.append((r, s))
-        if r > 0:
-            needed[r] = [int(link_of[j, r]) for j in gate.needed()]
+    link_of[link_s, link_r] = np.arange(L, dtype=np.int64)
+    control = np.where(kept.T, link_of, -1)  # the links ρ keeps, [s, r]
+    # Each receiver's needed links: the kept predecessors, nearest first.
+    needed = [link_of[np.flatnonzero(kept[r, :r])[::-1], r] for r in range(N)]
     width = max(1, max(len(v) for v in needed))
     need = np.full((N, width), -1, dtype=np.int64)
     for r, v in enumerate(needed):
         need[r, : len(v)] = v
+    del needed
     F = N - 1
+    i = ids[1:]
     slot_link = np.full((F, len(lay.slots)), -1, dtype=np.int64)
     target_link = np.full((F, len(lay.targets)), -1, dtype=np.int64)
-    for i in range(1, N):
-        preds = [i - m if i - m >= 0 else -1 for m in range(1, lay.M + 1)]
-        for k, vid in enumerate([0, *preds, i + 1 if i + 1 < N else -1]):
-            if vid >= 0:
-                slot_link[i - 1, k] = control[vid, i]
-        for k in range(len(lay.targets)):
-            vid = 0 if k == 0 else i - k
-            if vid >= 0 and not (k == 0 and i <= lay.M):
-                target_link[i - 1, k] = control[vid, i]
-    pred_link = np.array([link_of[i - 1, i] for i in range(1, N)], dtype=np.int64)
+    # Slots: the leader, predecessors 1..M, the follower behind.
+    slot_vid = [np.zeros(F, dtype=np.int64), *(i - m for m in range(1, lay.M + 1))]
+    slot_vid.append(np.where(i + 1 < N, i + 1, -1))
+    for k, vid in enumerate(slot_vid):
+        ok = vid >= 0
+        slot_link[ok, k] = control[vid[ok], i[ok]]
+    for k in range(len(lay.targets)):
+        vid = np.zeros(F, dtype=np.int64) if k == 0 else i - k
+        ok = (vid >= 0) & ~((k == 0) & (i <= lay.M))
+        target_link[ok, k] = control[vid[ok], i[ok]]
+    pred_link = link_of[i - 1, i].copy()
     lead_link = link_of[:, 0].copy()
-    keeps_states = np.zeros(max(len(links), 1), dtype=bool)
+    keeps_states = np.zeros(max(L, 1), dtype=bool)
     for table in (slot_link, target_link, pred_link, lead_link):
         keeps_states[table[table >= 0]] = True
-    trail_of = np.full(max(len(links), 1), -1, dtype=np.int64)
+    trail_of = np.full(max(L, 1), -1, dtype=np.int64)
     targets = np.unique(target_link[target_link >= 0])
     trail_of[targets] = np.arange(len(targets))
     return LinkTables(
         N=N,
-        L=len(links),
-        link_s=np.array([s for _, s in links], dtype=np.int64),
-        link_r=np.array([r for r, _ in links], dtype=np.int64),
+        L=L,
+        link_s=link_s.astype(np.int64),
+        link_r=link_r.astype(np.int64),
         link_of=link_of,
         needed=need,
         slot_link=slot_link,

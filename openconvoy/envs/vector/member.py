@@ -179,7 +179,11 @@ def decide(act, t, own, ranging, pred_est, m, out):  # pragma: no cover - compil
                 v, dh, mode = 0.0, 0.0, FAILSAFE
             if m.emergency and not out.failed[b, i]:
                 # (a failed follower's rule is not consulted in ConvoyWorld)
-                rule = safety.TOO_CLOSE if out.estopped[b, i] else _verdict(own, b, i, m, t[b], ranging)
+                rule = (
+                    safety.TOO_CLOSE
+                    if out.estopped[b, i]
+                    else _verdict(own, b, i, m, t[b], ranging)
+                )
                 if rule == safety.TOO_CLOSE:
                     if not out.estopped[b, i]:  # it latches: an event
                         _record_stop(own, b, i, m, t[b], ranging, out)

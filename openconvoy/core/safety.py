@@ -120,6 +120,41 @@ def too_close(
     return left < rule[2]
 
 
+CLEAR, BLIND, TOO_CLOSE = 0, 1, 2
+"""``verdict``'s answers: drive on; brake to rest while the predecessor is unheard (not
+latched); the emergency stop (latched by the world)."""
+
+
+def verdict(
+    known: bool,
+    bumper_gap_m: float,
+    closing_mps: float,
+    ego_mps: float,
+    pred_decel_mps2: float,
+    ego_accel_mps2: float,
+    rule: Sequence[float],
+) -> int:
+    """The braking rule's answer for a follower: ``TOO_CLOSE`` when ``too_close`` on the
+    gap (m, between bumpers) read from the predecessor's messages or a ranging sensor;
+    ``BLIND`` when there is no reading at all (``known`` False: the predecessor never
+    heard, no ranging); else ``CLEAR``. The batched kernels call this function compiled
+    (``envs.vector.jit.rules``).
+
+    ``BLIND`` closes the hole of issue 22's leaderboard collisions: an unheard predecessor
+    used to switch the rule off, so a follower that heard only the leader drove at or
+    above cruise speed into a predecessor braking at its limit (its policy's stop for want
+    of messages, or its own emergency stop), and found the gap, once its first message
+    came 0.6-1.8 s later, 2.6-3.8 m short of what braking needs (``emergency-braking``,
+    PER 0.8 and Gilbert-Elliott 0.6). Nothing bounds where an unheard vehicle is, so the
+    follower brakes until it hears it, as its predecessor may have since the start.
+    """
+    if not known:
+        return BLIND
+    if too_close(bumper_gap_m, closing_mps, ego_mps, pred_decel_mps2, ego_accel_mps2, rule):
+        return TOO_CLOSE
+    return CLEAR
+
+
 @dataclass(frozen=True)
 class BrakingGap:
     """The rule's numbers, SI.

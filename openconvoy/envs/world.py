@@ -35,7 +35,15 @@ from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault, check_faults
 from openconvoy.core.member import ConvoyMember, Frame, MemberConfig
 from openconvoy.core.ranging import range_and_rate
-from openconvoy.core.safety import BrakingGap, bumper_gap, for_vehicle
+from openconvoy.core.safety import (
+    BLIND,
+    CLEAR,
+    TOO_CLOSE,
+    BrakingGap,
+    bumper_gap,
+    for_vehicle,
+    verdict,
+)
 from openconvoy.core.state import VehicleState
 from openconvoy.envs.channel import Channel, advance_state
 from openconvoy.envs.forgery import Authentication
@@ -228,9 +236,13 @@ class ConvoyWorld:
             cmd_v[i], cmd_dh[i], modes[i] = d.speed_mps, d.heading_change_rad, d.mode
             if d.policy_error:
                 self._policy_error(i, t, d.policy_error)
-            if self._failed[i] or (self.emergency_stop and self._emergency(i, t, reading)):
+            rule = self._emergency(i, t, reading) if self.emergency_stop else CLEAR
+            if self._failed[i] or rule == TOO_CLOSE:
                 cmd_v[i] = cmd_dh[i] = 0.0
                 modes[i] = "failsafe"
+            elif rule == BLIND:  # the predecessor unheard: brake until it is (not latched)
+                cmd_v[i] = cmd_dh[i] = 0.0
+                modes[i] = "stop"
         tr = self.truth
         h_lead = tr.heading[0] + self.heading_bias[0]
         v0, h0 = self.scenario.leader_command(t, tr.x[0], tr.y[0], h_lead, tr.speed[0])
@@ -422,19 +434,22 @@ class ConvoyWorld:
             self._failed[i] = True
             self.safety_events.append((t, i, f"policy error: {why}"))
 
-    def _emergency(self, i: int, t: float, reading: Ranging | None) -> bool:
-        """The braking-aware gap rule for follower ``i`` (latched once it fires)."""
+    def _emergency(self, i: int, t: float, reading: Ranging | None) -> int:
+        """The braking-aware gap rule for follower ``i`` (``core.safety.verdict``; the
+        emergency stop latched once it fires). Not consulted for a failed follower."""
+        if self._failed[i]:
+            return CLEAR
         if self._estopped[i]:
-            return True
+            return TOO_CLOSE
         member = self.members[i]
         if reading is not None:
             gap, closing = reading[0], -reading[1]
         else:
             est = member.gap_estimate(t)
-            if est is None:
-                return False
+            if est is None:  # never heard: nothing bounds where it is
+                return verdict(False, math.nan, 0.0, 0.0, 0.0, 0.0, self._braking[i].numbers)
             gap, closing = est
-        return self._rule_fires(i, i - 1, t, gap, closing)
+        return TOO_CLOSE if self._rule_fires(i, i - 1, t, gap, closing) else CLEAR
 
     def _lead_emergency(self, t: float) -> bool:
         """The leader's braking-aware gap rule to a member in its path (a closed track:

@@ -28,7 +28,7 @@ from openconvoy.envs.vector.plant import ACCEL, SPEED, X, Y, cos_sin
 from openconvoy.envs.vector.rx import HC, HH, HS, HV, HX, HY, T
 
 rules(spacing, "time_headway_gap_m", "speed_gap_m", "pair_gap_m")
-rules(safety, "gap_reduction_m", "stopping_distance_m", "too_close")
+rules(safety, "gap_reduction_m", "stopping_distance_m", "too_close", "verdict")
 rules(estimate_mod, "reckoned_travel", "closing_m")
 rules(ladder, "rung_code", "intruder_closer", "acc_speed_mps")
 
@@ -177,13 +177,20 @@ def decide(act, t, own, ranging, pred_est, m, out):  # pragma: no cover - compil
                 v, dh, mode = _ladder(own, b, i, m, pred_est, ranging, (v, dh, mode))
             if out.failed[b, i]:
                 v, dh, mode = 0.0, 0.0, FAILSAFE
-            if m.emergency:
-                if out.estopped[b, i] or _fires(own, b, i, m, t[b], ranging):
-                    if not (out.estopped[b, i] or out.failed[b, i]):  # it latches: an event
-                        # (a failed follower's rule is not consulted in ConvoyWorld: no event)
+            if m.emergency and not out.failed[b, i]:
+                # (a failed follower's rule is not consulted in ConvoyWorld)
+                rule = (
+                    safety.TOO_CLOSE
+                    if out.estopped[b, i]
+                    else _verdict(own, b, i, m, t[b], ranging)
+                )
+                if rule == safety.TOO_CLOSE:
+                    if not out.estopped[b, i]:  # it latches: an event
                         _record_stop(own, b, i, m, t[b], ranging, out)
                     out.estopped[b, i] = True
                     v, dh, mode = 0.0, 0.0, FAILSAFE
+                elif rule == safety.BLIND:  # the predecessor unheard: brake (not latched)
+                    v, dh, mode = 0.0, 0.0, STOP
             out.cmd_v[b, i], out.cmd_dh[b, i], out.modes[b, i] = v, dh, mode
 
 
@@ -278,13 +285,11 @@ def _record(out, b, i, read):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _fires(own, b, i, m, t, ranging):  # pragma: no cover - compiled
-    """The braking-aware gap rule on ``_rule_gap``'s reading: True to stop."""
+def _verdict(own, b, i, m, t, ranging):  # pragma: no cover - compiled
+    """The braking-aware gap rule on ``_rule_gap``'s reading (``core.safety.verdict``)."""
     known, bumper, closing = _rule_gap(own, b, i, m, t, ranging)
-    if not known:
-        return False
     ego, accel = own[SPEED, b, i], own[ACCEL, b, i]
-    return safety.too_close(bumper, closing, ego, m.decel[i - 1], accel, m.rule[:, i - 1])
+    return safety.verdict(known, bumper, closing, ego, m.decel[i - 1], accel, m.rule[:, i - 1])
 
 
 @bare_kernel

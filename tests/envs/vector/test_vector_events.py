@@ -49,8 +49,9 @@ def test_emergency_stops_and_a_refused_action_on_the_fused_tick() -> None:
     assert _kinds(seen[0]) == _kinds(seen[2]) == stops
     assert _kinds(seen[1]) == [(2, "policy error"), (1, "emergency stop")]
     assert seen[1][0] == (60 * DT, 2, "policy error: non-finite action nan, 0.0")
-    # 2.3 - (1 - 0.05): the leader taken as braking at 1 m/s² since its message 0.05 s ago
-    assert "between bumpers closing at 1.35 m/s at 2.30 m/s" in seen[2][0][2]
+    # 2.3 - (1 - 0.15): the leader taken as braking at 1 m/s² since its message 0.15 s ago
+    # (0.05 s before followers braked while their predecessor was unheard: another run)
+    assert "between bumpers closing at 1.45 m/s at 2.30 m/s" in seen[2][0][2]
     assert len({e[0][0] for e in (seen[0], seen[2])}) == 2  # pushed harder: stopped sooner
 
 

@@ -1,7 +1,8 @@
 """The deploy runner's convoy start: waiting for the vehicles the topology needs.
 
-A follower waits, armed and still, until it has heard the leader and the predecessors its
-Rx gate keeps; a scenario-driven leader waits until it has heard every member (at most
+A follower waits, armed and still, until it has heard the leader, the vehicle directly
+ahead (the braking rule reads its gap: ``core.safety.verdict`` stops a follower that never
+heard it, in simulation as here) and the predecessors its Rx gate keeps; a scenario-driven leader waits until it has heard every member (at most
 ``RunnerOptions.convoy_wait_s``), so the convoy starts moving together as in simulation.
 "Heard" counts every vehicle message the V2V link delivered, before the Rx gate.
 
@@ -82,7 +83,7 @@ class ConvoyStart:
                 return []
             return [j for j in range(1, n) if j not in self.heard]
         need = {j for j in range(i) if self.keeps(j)}
-        need.add(0)
+        need.update((0, i - 1))
         return sorted(j for j in need if j not in self.heard)
 
     def update(self, now: float, wall: float, t_loop_start: float | None) -> bool:

@@ -153,3 +153,17 @@ def test_a_long_wait_to_start_says_who_is_missing_every_10_s():
     t[0] = 4.0
     assert follower.update(4.0, 1.8e9, 0.0)
     assert lines == ["vehicle 2: waiting 4 s for vehicle 1 to be heard before starting"]
+
+
+def test_a_follower_of_a_leader_only_topology_waits_for_the_vehicle_ahead_too():
+    """Its Rx gate keeps only the leader, but the braking rule reads the gap to the vehicle
+    directly ahead: a follower that never heard it is stopped in simulation
+    (``core.safety.verdict``'s BLIND), so on a vehicle it does not start before hearing it."""
+    t = [0.0]
+    follower = ConvoyStart(2, 3, lambda j: j == 0, leader_waits=True, wait_s=120.0,
+                           clock=lambda: t[0])  # fmt: skip
+    follower.heard_from(0)
+    assert follower.waiting_for(0.0) == [1]
+    assert follower.update(0.1, 1.8e9, 0.0)
+    follower.heard_from(1)
+    assert not follower.update(0.2, 1.8e9, 0.0) and follower.t_start == 0.2

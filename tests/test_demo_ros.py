@@ -1,7 +1,8 @@
-"""``openconvoy demo --link mavros --ros 1|2``: the three-vehicle demo through MAVROS
-stand-ins on a real roscore (Debian's rospy in node processes) and on real rclpy (Fast DDS,
-inside the demo's private network namespace), against the MAVLink demo of the same scenario
-and seed; the deploys' ``--bag`` bags hold what their CSV logs hold, and the V2V bytes."""
+"""``openconvoy demo --link mavros --ros 1|2 | ap-dds | px4-dds``: the three-vehicle demo
+through MAVROS stand-ins on a real roscore (Debian's rospy in node processes) and on real
+rclpy (Fast DDS, inside the demo's private network namespace), through AP_DDS stand-ins
+(rclpy), and through PX4 DDS stand-ins (real Cyclone DDS on the namespace's loopback),
+against the MAVLink demo of the same vehicles, scenario and seed; the deploys' ``--bag`` bags hold what their CSV logs hold, and the V2V bytes."""
 
 from __future__ import annotations
 
@@ -118,3 +119,21 @@ def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
     assert len(bsms) == meta0["v2v_counters"]["sent"] > 0
     assert all(s.payload[:2] == b"\x00\x14" for s in bsms)
     assert {s.psid for s in spdus} <= {PSID_BSM, PSID_COMPLETE}
+
+
+@pytest.mark.e2e
+@pytest.mark.netns
+def test_px4dds_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
+    reason = netns_unavailable_reason()
+    assert reason is None, f"the demo needs a private network namespace: {reason}"
+    dds = _demo(tmp_path / "dds", "--autopilot", "px4", "--link", "px4-dds")
+    mav = _demo(tmp_path / "mavlink", "--autopilot", "px4")
+    p95_dds = dds["deploy"]["p95_platooning_error_m"]
+    p95_mav = mav["deploy"]["p95_platooning_error_m"]
+    assert abs(p95_dds - p95_mav) <= 0.10 * p95_mav, (p95_dds, p95_mav)
+    assert dds["deploy"]["collisions"] == 0 and dds["deploy"]["min_gap_m"] > 13.0
+    for vid in range(3):
+        meta = json.loads((tmp_path / "dds" / "deploy" / f"vehicle_{vid}.json").read_text())
+        assert meta["link"] == f"px4-dds (domain 0, ns vehicle_{vid})"
+        assert meta["autopilot"] == "px4"
+        assert meta["overruns"] <= meta["ticks"] * 0.05

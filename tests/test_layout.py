@@ -131,3 +131,19 @@ def test_no_module_takes_another_packages_private_name(path: Path) -> None:
         if source.rpartition(".")[0] != package and source != package
     ]
     assert not wrong, f"{_module(path)} imports private {wrong}"
+
+
+def test_test_modules_have_unique_names() -> None:
+    """The tests mirror the package tree, but their folders are not packages: pytest
+    imports each test module by its file name, so two ``test_links.py`` in different
+    folders stop the collection ("import file mismatch")."""
+    tests = Path(__file__).resolve().parent
+    seen: dict[str, Path] = {}
+    clashes = []
+    for path in sorted(tests.rglob("test_*.py")):
+        if "data" in path.relative_to(tests).parts:
+            continue
+        if path.name in seen:
+            clashes.append((seen[path.name], path))
+        seen.setdefault(path.name, path)
+    assert not clashes, clashes

@@ -64,24 +64,69 @@ def python_only_reason(
     return None
 
 
-INFO_FLOATS = ("gap_m", "speed_mps", "accel_mps2")
-"""Info keys that always have a value."""
-INFO_OPTIONAL = (
+INFO_FLOAT_ROWS = (
+    "gap_m",
     "desired_gap_m",
     "platooning_error_m",
     "spacing_error_m",
+    "speed_mps",
+    "accel_mps2",
     "cmd_speed_mps",
     "cmd_heading_change_rad",
     "pred_msg_age_s",
 )
-"""Info keys that are None (NaN in the batched arrays) until they exist."""
-INFO_INTS = ("msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+"""The float rows of the batched info arrays (``vector.measures.FLOAT_KEYS``), in the
+order ``agent_infos`` unpacks them; NaN where ``ConvoyEnv`` has None."""
+INFO_INT_ROWS = ("mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+"""The integer rows (``vector.measures.INT_KEYS``), likewise; ``mode`` a code of
+``vector.env.MODES``."""
+
+F32_SQUARE_BOUND = 1e76
+"""Actions whose squares sum below this are finite and within float32's range (about
+3.4e38, squared 1.2e77): the kernels take them as they are."""
+
+Infos = dict[str, dict[str, Any]]
+Step = tuple[dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], Infos, bool]
 
 
-def _column(values: np.ndarray) -> list[Any]:
-    """The first convoy's values of an info key ``(1, F)`` as Python numbers, NaN as
-    None."""
-    return [None if v != v else v for v in values.tolist()[0]]
+def agent_infos(
+    agents: Sequence[str],
+    t: float,
+    leader_speed: float,
+    floats: Sequence[Sequence[float]],
+    ints: Sequence[Sequence[int]],
+    collided: Sequence[bool],
+    modes: Sequence[str],
+) -> Infos:
+    """``ConvoyEnv``'s per-agent infos (``INFO_KEYS``, in order) of one tick: ``t`` (s),
+    the leader's speed (m/s), and per follower its ``INFO_FLOAT_ROWS`` values (SI, NaN
+    for None), ``INFO_INT_ROWS`` values and collision flag; ``modes``: names by code.
+    Fresh dicts of Python numbers every call (a caller may keep them)."""
+    return {
+        a: {
+            "t_s": t,
+            "gap_m": g,
+            "desired_gap_m": None if dg != dg else dg,
+            "platooning_error_m": None if pe != pe else pe,
+            "spacing_error_m": None if se != se else se,
+            "speed_mps": v,
+            "accel_mps2": acc,
+            "leader_speed_mps": leader_speed,
+            "cmd_speed_mps": None if cv != cv else cv,
+            "cmd_heading_change_rad": None if ch != ch else ch,
+            "mode": modes[m],
+            "collision": c,
+            "msgs_sent": s,
+            "msgs_received": r,
+            "msgs_kept": k,
+            "msgs_lost": lo,
+            "pred_msg_age_s": None if age != age else age,
+            "policy_errors": e,
+        }
+        for a, (g, dg, pe, se, v, acc, cv, ch, age), (m, s, r, k, lo, e), c in zip(
+            agents, floats, ints, collided
+        )
+    }
 
 
 class CompiledConvoy:
@@ -105,8 +150,12 @@ class CompiledConvoy:
         auth: bool,
     ) -> None:
         from openconvoy.envs.vector.env import MODES, VectorConvoyEnv  # needs numba
+        from openconvoy.envs.vector.measures import FLOAT_KEYS, INT_KEYS, info_arrays
+        from openconvoy.envs.vector.plant import SPEED
 
-        self.vec = VectorConvoyEnv(
+        if (FLOAT_KEYS, INT_KEYS) != (INFO_FLOAT_ROWS, INFO_INT_ROWS):  # pragma: no cover
+            raise ConfigError("envs.compiled: the batched info rows changed order; update it")
+        self.vec = vec = VectorConvoyEnv(
             1,
             scenario,
             member_config=member_config,
@@ -120,34 +169,85 @@ class CompiledConvoy:
             emergency_stop=emergency_stop,
             auth=auth,
             autoreset=False,
+            threads=1,
         )
         self.modes = MODES
-        self.n_followers = self.vec.n_vehicles - 1
-        self._low = self.vec.action_low
-        self._high = self.vec.action_high
+        self._speed_row = SPEED
+        self.n_followers = F = vec.n_vehicles - 1
+        self._low = vec.action_low
+        self._high = vec.action_high
         # The reason of each follower's first refused action this episode, as the Python
         # path words it (the kernels record a NaN action only).
         self._refusals: dict[int, str] = {}
+        # The tick's arrays, reused: what the API returns of them is copied out (Python
+        # numbers); only the observations are new every tick (the dicts hold views).
+        self._act = np.zeros((1, F, 2), dtype=np.float32)
+        self._obs_shape = (1, F, vec.layout.size)
+        self._rewards = np.empty((1, F))
+        self._terminated = np.empty(1, dtype=bool)
+        self._truncated = np.empty(1, dtype=bool)
+        self._filled = filled = info_arrays(1, F)
+        self._floats, self._ints = filled[0][:, 0, :].T, filled[1][:, 0, :].T  # (F, rows)
 
-    def reset(self, seed: int | None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start an episode (``ConvoyEnv.reset``'s seeding); the batched obs and infos."""
+    def reset(self, seed: int | None, agents: Sequence[str]) -> tuple[dict[str, np.ndarray], Infos]:
+        """Start an episode (``ConvoyEnv.reset``'s seeding): ``agents``' observations and
+        infos."""
         self._refusals = {}
         obs, info = self.vec.reset(seed=seed)
-        return obs, info
+        return dict(zip(agents, obs[0])), self._infos_of(info, agents)
 
-    def step(
-        self, ordered: Sequence[Any]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    def step(self, ordered: Sequence[Any], agents: Sequence[str]) -> Step:
         """One tick with follower i's action at ``ordered[i - 1]`` (checked already):
-        the batched (obs, rewards, terminated, truncated, infos)."""
+        ``ConvoyEnv.step``'s dicts for ``agents`` (every follower), and whether the
+        episode ended."""
         try:
-            with np.errstate(over="ignore"):  # beyond float32: inf, then clipped below
-                a = np.array(ordered, dtype=np.float32)
+            x = np.array(ordered, dtype=np.float64)
         except (TypeError, ValueError):  # a PolicyFailure among them
-            a = None
-        if a is None or not np.isfinite(a).all():  # (a float32 cast overflows to inf)
-            a = self._refused(ordered)
-        return self.vec.step(a.reshape(1, self.n_followers, 2))
+            x = None
+        act = self._act
+        if x is not None and np.vdot(x, x) < F32_SQUARE_BOUND:  # (NaN compares False)
+            act[0] = x
+        else:
+            act[0] = self._refused(ordered)
+        vec, rewards, term, trunc = self.vec, self._rewards, self._terminated, self._truncated
+        obs = np.empty(self._obs_shape, dtype=np.float32)
+        if vec.step_fused(act, obs, rewards, term, trunc, self._filled):
+            infos = agent_infos(
+                agents,
+                vec.t.item(),
+                vec.own[self._speed_row, 0, 0].item(),
+                self._floats.tolist(),
+                self._ints.tolist(),
+                vec.collided[0].tolist(),
+                self.modes,
+            )
+        else:  # a configuration the kernels step stage by stage
+            obs, rewards, term, trunc, info = vec.step(act)
+            infos = self._infos_of(info, agents)
+        done, cut = term.item(), trunc.item()
+        return (
+            dict(zip(agents, obs[0])),
+            dict(zip(agents, rewards[0].tolist())),
+            dict.fromkeys(agents, done),
+            dict.fromkeys(agents, cut),
+            infos,
+            done or cut,
+        )
+
+    def _infos_of(self, info: dict[str, Any], agents: Sequence[str]) -> Infos:
+        """``agent_infos`` of the batched env's ``info`` arrays (``reset``, staged steps)."""
+        if not agents:
+            return {}
+        rows = lambda keys: np.stack([info[k][0] for k in keys]).T.tolist()  # noqa: E731
+        return agent_infos(
+            agents,
+            info["t_s"].item(),
+            info["leader_speed_mps"].item(),
+            rows(INFO_FLOAT_ROWS),
+            rows(INFO_INT_ROWS),
+            info["collision"][0].tolist(),
+            self.modes,
+        )
 
     def _refused(self, ordered: Sequence[Any]) -> np.ndarray:
         """The actions as the kernels take them when some are refused (NaN: a stop and a
@@ -182,62 +282,6 @@ class CompiledConvoy:
             else (t, i, why)
             for t, i, why in out
         ]
-
-    def infos(self, info: dict[str, Any], agents: Sequence[str]) -> dict[str, dict[str, Any]]:
-        """``ConvoyEnv``'s per-agent infos (``INFO_KEYS``, in order) of the batched
-        ``info`` arrays."""
-        if not agents:
-            return {}
-        n = len(agents)
-        # (``.tolist()[0]``: a list of the one convoy's row, without a view of it.)
-        t = info["t_s"].tolist()[0]
-        lead = info["leader_speed_mps"].tolist()[0]
-        col = {k: info[k].tolist()[0] for k in (*INFO_FLOATS, *INFO_INTS)}
-        opt = {k: _column(info[k]) for k in INFO_OPTIONAL}
-        modes = self.modes
-        mode = [modes[c] for c in info["mode"].tolist()[0]]
-        collision = info["collision"].tolist()[0]
-        return {
-            a: {
-                "t_s": t,
-                "gap_m": g,
-                "desired_gap_m": dg,
-                "platooning_error_m": pe,
-                "spacing_error_m": se,
-                "speed_mps": v,
-                "accel_mps2": acc,
-                "leader_speed_mps": lead,
-                "cmd_speed_mps": cv,
-                "cmd_heading_change_rad": ch,
-                "mode": m,
-                "collision": c,
-                "msgs_sent": s,
-                "msgs_received": r,
-                "msgs_kept": k,
-                "msgs_lost": lo,
-                "pred_msg_age_s": age,
-                "policy_errors": e,
-            }
-            for a, g, dg, pe, se, v, acc, cv, ch, m, c, s, r, k, lo, age, e in zip(
-                agents,
-                col["gap_m"],
-                opt["desired_gap_m"],
-                opt["platooning_error_m"],
-                opt["spacing_error_m"],
-                col["speed_mps"],
-                col["accel_mps2"],
-                opt["cmd_speed_mps"],
-                opt["cmd_heading_change_rad"],
-                mode[:n],
-                collision,
-                col["msgs_sent"],
-                col["msgs_received"],
-                col["msgs_kept"],
-                col["msgs_lost"],
-                opt["pred_msg_age_s"],
-                col["policy_errors"],
-            )
-        }
 
     def delivery_ratio(self) -> float:
         """Delivered / (delivered + lost) over all links so far (NaN before any)."""

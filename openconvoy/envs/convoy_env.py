@@ -362,8 +362,7 @@ class ConvoyEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         fast = self._compiled
         if fast is not None:
-            obs, info = fast.reset(seed)
-            return dict(zip(self.agents, obs[0])), fast.infos(info, self.agents)
+            return fast.reset(seed, self.agents)
         if seed is not None:
             self._seed_seq = np.random.SeedSequence(seed)
         elif self._seed_seq is None:
@@ -438,21 +437,13 @@ class ConvoyEnv(ParallelEnv):
         dict[str, dict[str, Any]],
     ]:
         """``step`` through the compiled tick (``envs.compiled``)."""
-        fast = self._compiled
-        assert fast is not None
-        obs, rew, term, trunc, info = fast.step(ordered)
-        agents = self.agents
-        done, cut = bool(term[0]), bool(trunc[0])
-        out = (
-            dict(zip(agents, obs[0])),
-            dict(zip(agents, rew[0].tolist())),
-            dict.fromkeys(agents, done),
-            dict.fromkeys(agents, cut),
-            fast.infos(info, agents),
+        assert self._compiled is not None
+        obs, rewards, terminations, truncations, infos, ended = self._compiled.step(
+            ordered, self.agents
         )
-        if done or cut:
+        if ended:
             self.agents = []
-        return out
+        return obs, rewards, terminations, truncations, infos
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: an H x W x 3 uint8 picture of the convoy (None without a mode)."""

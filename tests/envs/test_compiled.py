@@ -6,6 +6,8 @@ rounding, rewards and the plant within 1e-9, infos, terminations and safety even
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -99,6 +101,40 @@ def test_out_of_float32_range_actions_are_clipped_as_the_python_path() -> None:
         return actions
 
     assert _episode(40, corrupt=corrupt) == []
+
+
+def test_list_and_integer_actions_as_the_python_path() -> None:
+    def corrupt(k: int, actions: dict) -> dict:
+        actions["follower_1"] = [4, 0] if k % 2 else [2.5, 0.01]
+        actions["follower_2"] = np.array([3, 0], dtype=np.int64)
+        return actions
+
+    assert _episode(60, corrupt=corrupt) == []
+
+
+def test_what_a_caller_keeps_stays_as_it_was_returned() -> None:
+    # The compiled tick reuses its arrays; observations, rewards and infos handed out
+    # must not change under a caller who keeps them.
+    env = ConvoyEnv(loss=LossConfig(per=0.3), backend="compiled")
+    kept = [(*env.reset(seed=2), None)]
+    action = {a: np.array([4.0, 0.02], dtype=np.float32) for a in env.possible_agents}
+    for _ in range(60):
+        obs, rewards, _, _, infos = env.step(action)
+        kept.append((obs, infos, rewards))
+    copies = [
+        ({a: o.copy() for a, o in obs.items()}, copy.deepcopy(infos), dict(r or {}))
+        for obs, infos, r in kept
+    ]
+    for _ in range(20):
+        env.step(action)
+    env.reset(seed=3)
+    for (obs, infos, rewards), (obs0, infos0, rewards0) in zip(kept, copies):
+        for a in env.possible_agents:
+            np.testing.assert_array_equal(obs[a], obs0[a])
+        assert infos == infos0 and dict(rewards or {}) == rewards0
+    # and they moved: the copies are not all one tick's
+    assert kept[1][1]["follower_1"]["t_s"] == 0.05 and kept[-1][1]["follower_1"]["t_s"] == 3.0
+    assert not np.array_equal(kept[1][0]["follower_2"], kept[-1][0]["follower_2"])
 
 
 def test_emergency_braking_collides_or_stops_alike() -> None:

@@ -527,6 +527,25 @@ class VectorConvoyEnv:
         self._widen_trails()
         return obs, rewards, terminated, truncated, info
 
+    def step_fused(
+        self,
+        a: np.ndarray,
+        obs: np.ndarray,
+        rewards: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        filled: tuple[np.ndarray, ...],
+    ) -> bool:
+        """``step``'s tick into the caller's arrays (actions ``a`` float32 ``(B, N-1, 2)``,
+        C-contiguous, within float32; ``filled``: ``measures.info_arrays``), without the
+        info dict or autoreset: ``ConvoyEnv``'s compiled tick (``envs.compiled``). False,
+        with nothing done, where this env steps stage by stage or on threads."""
+        if self._fused is None or self._slabs is not None:
+            return False
+        self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
+        self._widen_trails()
+        return True
+
     def _staged_step(
         self, a: np.ndarray, obs: np.ndarray, rewards: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:

@@ -24,6 +24,7 @@ The anchors are optional installs (``pip install eclipse-sumo libsumo vmas``); a
 is reported and its ratios left out. The machine's cache sizes are printed with the table.
 
     python benchmarks/bench_anchors.py [--seconds 2] [--batches 1,64,1024,4096,16384]
+        [--match "ConvoyEnv paper"] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -264,6 +265,12 @@ def _ratio(ours: dict[str, Any], anchor: dict[str, Any], key: str = "steps_per_s
     return None
 
 
+def _median_run(runs: list[dict[str, Any]], key: str) -> dict[str, Any]:
+    """The run of median ``key`` among ``runs`` (the lower one of an even count)."""
+    ranked = sorted(runs, key=lambda r: r.get(key, 0.0))
+    return ranked[(len(ranked) - 1) // 2]
+
+
 def _cases(args: argparse.Namespace) -> list[tuple[str, Any, Any, str]]:
     """The issue-28 table: (case, ours, anchor, key), each side a zero-argument call run
     in a fresh process."""
@@ -316,20 +323,30 @@ def main() -> None:
     ap.add_argument("--convoy-env-long", action="store_true",
                     help="also step ConvoyEnv with --long followers (minutes)")  # fmt: skip
     ap.add_argument("--cores", type=int, default=2, help="cores of the multi-core case")
+    ap.add_argument("--match", default="", help="only the cases whose name contains this")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="times each case runs, ours and the anchor alternating; the median "
+                    "of each side")  # fmt: skip
     args = ap.parse_args()
     args.batches = [int(b) for b in args.batches.split(",")]
     args.platoons = [int(n) for n in args.platoons.split(",") if n]
     rows: list[dict[str, Any]] = []
     for case, ours_fn, anchor_fn, key in _cases(args):
-        ours, anchor = ours_fn(), anchor_fn()  # alternating, each in a fresh process
+        if args.match not in case:
+            continue
+        runs = [(ours_fn(), anchor_fn()) for _ in range(max(1, args.repeats))]  # alternating
+        ours, anchor = (
+            _median_run([o for o, _ in runs], key),
+            _median_run([a for _, a in runs], key),
+        )
         rows.append({"case": case, "ours": ours, "anchor": anchor, "key": key,
                      "ratio": _ratio(ours, anchor, key)})  # fmt: skip
         print(json.dumps(rows[-1]), flush=True)
-    long_build = _in_fresh_process(case_convoy_env_construct, args.long)
-    rows.append(
-        {"case": f"ConvoyEnv 1+{args.long}: construct, reset, peak memory", "ours": long_build}
-    )
-    print(json.dumps(rows[-1]), flush=True)
+    long_case = f"ConvoyEnv 1+{args.long}: construct, reset, peak memory"
+    if args.match in long_case:
+        long_build = _in_fresh_process(case_convoy_env_construct, args.long)
+        rows.append({"case": long_case, "ours": long_build})
+        print(json.dumps(rows[-1]), flush=True)
     print()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"caches {cache_sizes()}, load {os.getloadavg()[0]:.2f}")  # fmt: skip

@@ -172,7 +172,6 @@ class CompiledConvoy:
             threads=1,
         )
         self.modes = MODES
-        self._speed_row = SPEED
         self.n_followers = F = vec.n_vehicles - 1
         self._low = vec.action_low
         self._high = vec.action_high
@@ -188,6 +187,8 @@ class CompiledConvoy:
         self._truncated = np.empty(1, dtype=bool)
         self._filled = filled = info_arrays(1, F)
         self._floats, self._ints = filled[0][:, 0, :].T, filled[1][:, 0, :].T  # (F, rows)
+        # Views of the env's arrays, which it updates in place: read, never handed out.
+        self._t, self._speeds, self._collided = vec.t, vec.own[SPEED], vec.collided[0]
 
     def reset(self, seed: int | None, agents: Sequence[str]) -> tuple[dict[str, np.ndarray], Infos]:
         """Start an episode (``ConvoyEnv.reset``'s seeding): ``agents``' observations and
@@ -214,11 +215,11 @@ class CompiledConvoy:
         if vec.step_fused(act, obs, rewards, term, trunc, self._filled):
             infos = agent_infos(
                 agents,
-                vec.t.item(),
-                vec.own[self._speed_row, 0, 0].item(),
+                self._t.item(0),
+                self._speeds.item(0),  # the leader's
                 self._floats.tolist(),
                 self._ints.tolist(),
-                vec.collided[0].tolist(),
+                self._collided.tolist(),
                 self.modes,
             )
         else:  # a configuration the kernels step stage by stage

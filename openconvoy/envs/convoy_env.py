@@ -399,8 +399,12 @@ class ConvoyEnv(ParallelEnv):
             )
         for a, action in zip(names, ordered):
             check_action(a, action)
-        if self._compiled is not None:
-            return self._compiled_step(ordered)
+        fast = self._compiled
+        if fast is not None:  # the compiled tick (envs.compiled)
+            obs, rewards, terminations, truncations, infos, ended = fast.step(ordered, self.agents)
+            if ended:
+                self.agents = []
+            return obs, rewards, terminations, truncations, infos
         sim = self.sim
         accel_before = sim.truth.accel
         sim.decide(ordered)
@@ -424,24 +428,6 @@ class ConvoyEnv(ParallelEnv):
         truncations = dict.fromkeys(agents, trunc)
         obs, infos = self._observations(), self._infos()
         if done or trunc:
-            self.agents = []
-        return obs, rewards, terminations, truncations, infos
-
-    def _compiled_step(
-        self, ordered: list[Any]
-    ) -> tuple[
-        dict[str, np.ndarray],
-        dict[str, float],
-        dict[str, bool],
-        dict[str, bool],
-        dict[str, dict[str, Any]],
-    ]:
-        """``step`` through the compiled tick (``envs.compiled``)."""
-        assert self._compiled is not None
-        obs, rewards, terminations, truncations, infos, ended = self._compiled.step(
-            ordered, self.agents
-        )
-        if ended:
             self.agents = []
         return obs, rewards, terminations, truncations, infos
 

@@ -9,8 +9,12 @@ path stays the reference; ``backend="python"`` or ``OPENCONVOY_ENV_BACKEND=pytho
 selects it, and it is what a caller gets who needs the world's objects (``sim``,
 ``members``, ``channel``, log rows).
 
-Only what the API returns is built per tick: the batched step's arrays become the
-per-agent dicts; nothing is computed for the leader's observation.
+Only what the API returns is built per tick: one compiled call of the fused tick
+(``VectorConvoyEnv.step_fused``) writes into arrays made once (actions, rewards,
+terminations, info rows), which become the per-agent dicts as Python numbers (two
+``tolist()``s); nothing is computed for the leader's observation or infos. Observations
+get a new array every tick and the dicts hold views of its rows: what a caller keeps from
+one tick no later tick writes.
 """
 
 from __future__ import annotations

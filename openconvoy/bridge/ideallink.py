@@ -20,7 +20,8 @@ class IdealLink:
     """Vehicle ``vehicle_id`` at ENU ``(x, y)`` (m) heading ``heading`` (rad), at rest.
 
     ``clock`` is the link clock (s, monotonic), ``wall`` the shared clock stamped on the
-    telemetry (s); ``move`` False keeps it where it is whatever it is told.
+    telemetry (s); ``move`` False keeps it where it is whatever it is told. One state
+    behind everything, so the link is its own ``setpoints`` and ``modes``.
     """
 
     telemetry_timeout_s = 0.5
@@ -50,6 +51,8 @@ class IdealLink:
         self.takeover_reason = ""
         self.failsafe_took_over = False
         self.lost = True  # until connected
+        self.setpoints = self
+        self.modes = self
         self._autopilot = autopilot
         self._t = clock()
 
@@ -83,15 +86,15 @@ class IdealLink:
             raise LinkLost("not connected")
         self.mode, self.armed = GUIDED, True
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
         if self.pilot_took_over or self.lost:
             return False
         self.sent.append((self.clock(), speed_mps, heading_rad))
         self.speed, self.heading = speed_mps, heading_rad
         return True
 
-    def stop_motion(self) -> bool:
-        return self.send_setpoint(0.0, self.heading)
+    def stop(self) -> bool:
+        return self.send(0.0, self.heading)
 
     def hold(self, timeout_s: float = 2.0) -> None:
         self.holds += 1

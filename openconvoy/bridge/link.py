@@ -1,14 +1,14 @@
 """The vehicle link: what the real-time runner needs from an autopilot connection.
 
 A small protocol so that the runner (``deploy``) does not care whether it talks MAVLink
-through pymavlink (``bridge.mavlink.link.MavlinkLink``) or, later, ROS/MAVROS. Everything here is
+through pymavlink (``bridge.mavlink.link.MavlinkLink``), MAVROS (ROS 1 or 2), PX4 or ArduPilot DDS. Everything here is
 in the internal conventions (DESIGN.md): SI units, ENU around the convoy origin, heading
 0 = east counter-clockwise in radians. MAVLink's NED and its integer encodings never leave
 the implementation.
 
-The runner calls ``poll`` and ``send_setpoint`` every control tick (20-50 Hz): both must be
-non-blocking and fast. ``connect``, ``prepare_and_arm``, ``hold`` and ``reconnect`` may
-block for up to their timeout and are meant for start-up, stops and link recovery.
+The runner calls ``poll`` and ``setpoints.send`` every control tick (20-50 Hz): both must be
+non-blocking and fast. ``connect``, ``modes.prepare_and_arm``, ``modes.hold`` and ``reconnect``
+may block for up to their timeout and are meant for start-up, stops and link recovery.
 """
 
 from __future__ import annotations
@@ -97,27 +97,25 @@ class Telemetry:
 
 
 @runtime_checkable
-class VehicleLink(Protocol):
-    """What the runner uses to read and drive one vehicle: exactly that, no more (the
-    runner reads nothing else of a link; ``tests/bridge/test_link_contract.py`` holds
-    ``MavlinkLink`` and ``bridge.scriptedlink.ScriptedLink`` to it). The seam further
-    links (ROS, DDS) are written against.
+class Setpoints(Protocol):
+    """Driving the vehicle: what the runner sends every control tick (non-blocking, fast)."""
 
-    Attributes:
-        telemetry_timeout_s: the runner's watchdog declares the link lost after this long
-            without position telemetry (s).
-        heartbeat_timeout_s: likewise without a vehicle heartbeat (s).
-        telemetry_rates: message name -> rate (Hz) the vehicle agreed to (run metadata).
-    """
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
+        """Command a forward speed (m/s) and an absolute ENU heading (rad); non-blocking.
 
-    telemetry_timeout_s: float
-    heartbeat_timeout_s: float
-    telemetry_rates: dict[str, float]
-
-    @property
-    def autopilot(self) -> Autopilot:
-        """``"ardupilot"`` or ``"px4"``; valid after ``connect``."""
+        Returns False (and sends nothing) once a pilot took over, or when the link may
+        not command the vehicle any more (PX4's offboard stream ended)."""
         ...
+
+    def stop(self) -> bool:
+        """Command speed 0 while keeping the current heading (never a zero velocity vector)."""
+        ...
+
+
+@runtime_checkable
+class Modes(Protocol):
+    """Arming, the hold mode, and who has the vehicle: the autopilot's modes as the runner
+    uses them. The calls may block for up to their timeout (start-up, stops)."""
 
     @property
     def pilot_took_over(self) -> bool:
@@ -136,6 +134,56 @@ class VehicleLink(Protocol):
         """The takeover was the autopilot's own failsafe (not a person): a failed run."""
         ...
 
+    def prepare_and_arm(self, timeout_s: float, on_status: StatusCallback | None = None) -> None:
+        """Bring the vehicle into the externally guided mode and arm it, standing still.
+
+        Waits (with status lines) while the autopilot refuses arming, up to ``timeout_s``;
+        then raises ``CommandRefused`` naming the command and the autopilot's reason."""
+        ...
+
+    def hold(self, timeout_s: float = 2.0) -> None:
+        """Switch the autopilot to its hold mode; 0 = do not wait. Stop first (PX4's Hold
+        loops back to where it engaged, ArduPilot's coasts without braking)."""
+        ...
+
+    def disarm(self, timeout_s: float = 2.0) -> None:
+        """Disarm (standing still); 0 = send and do not wait."""
+        ...
+
+
+@runtime_checkable
+class VehicleLink(Protocol):
+    """What the runner uses to read and drive one vehicle: exactly that, no more (the
+    runner reads nothing else of a link; ``tests/bridge/test_link_contract.py`` holds every
+    link to it). The seam further links are written against.
+
+    A link is the connection and its telemetry, plus two capability objects: ``setpoints``
+    (driving, every tick) and ``modes`` (arming, hold, takeover). ``MavlinkLink`` hands out
+    the parts that do the work (``mavlink.setpoint.SetpointStream``,
+    ``mavlink.modes.ModeControl``); a link whose parts share one state (the ROS and DDS
+    links, ``IdealLink``) implements a capability itself and names itself
+    (``self.modes = self``).
+
+    Attributes:
+        telemetry_timeout_s: the runner's watchdog declares the link lost after this long
+            without position telemetry (s).
+        heartbeat_timeout_s: likewise without a vehicle heartbeat (s).
+        telemetry_rates: message name -> rate (Hz) the vehicle agreed to (run metadata).
+        setpoints: driving the vehicle (``Setpoints``).
+        modes: arming, the hold mode and the latched takeover (``Modes``).
+    """
+
+    telemetry_timeout_s: float
+    heartbeat_timeout_s: float
+    telemetry_rates: dict[str, float]
+    setpoints: Setpoints
+    modes: Modes
+
+    @property
+    def autopilot(self) -> Autopilot:
+        """``"ardupilot"`` or ``"px4"``; valid after ``connect``."""
+        ...
+
     @property
     def lost(self) -> bool:
         """No usable connection (closed by the peer, device gone): ``reconnect`` it."""
@@ -149,32 +197,6 @@ class VehicleLink(Protocol):
 
     def poll(self) -> Telemetry | None:
         """Handle every message pending (non-blocking); the new telemetry, or None if none."""
-        ...
-
-    def prepare_and_arm(self, timeout_s: float, on_status: StatusCallback | None = None) -> None:
-        """Bring the vehicle into the externally guided mode and arm it, standing still.
-
-        Waits (with status lines) while the autopilot refuses arming, up to ``timeout_s``;
-        then raises ``CommandRefused`` naming the command and the autopilot's reason."""
-        ...
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        """Command a forward speed (m/s) and an absolute ENU heading (rad); non-blocking.
-
-        Returns False (and sends nothing) once a pilot took over."""
-        ...
-
-    def stop_motion(self) -> bool:
-        """Command speed 0 while keeping the current heading (never a zero velocity vector)."""
-        ...
-
-    def hold(self, timeout_s: float = 2.0) -> None:
-        """Switch the autopilot to its hold mode; 0 = do not wait. Stop first (PX4's Hold
-        loops back to where it engaged, ArduPilot's coasts without braking)."""
-        ...
-
-    def disarm(self, timeout_s: float = 2.0) -> None:
-        """Disarm (standing still); 0 = send and do not wait."""
         ...
 
     def reconnect(self, timeout_s: float) -> None:

@@ -170,7 +170,7 @@ def metadata(r: DeployRunner, reason: str, code: int = 0) -> dict[str, Any]:
         "t_end_s": r.wall(),
         "exit_reason": reason,
         "exit_code": code,
-        "takeover_reason": link.takeover_reason or None,
+        "takeover_reason": link.modes.takeover_reason or None,
         "broadcast_paused": [
             {"from_s": a, "to_s": b, "why": "autopilot link lost"}
             for a, b in r.exchange.broadcast_pauses

@@ -556,7 +556,7 @@ class DeployRunner:
                 or failure_code(
                     self.failsafes,
                     self.start_gate.t_start is not None,
-                    self.link.failsafe_took_over,
+                    self.link.modes.failsafe_took_over,
                     self.vehicle.uncommanded,
                 )
                 or (1 if self.runlog.recorder.failed else 0)
@@ -718,7 +718,7 @@ class DeployRunner:
         drove, or the duration (a scenario-driven leader first brakes to rest)."""
         t_start = self.start_gate.t_start
         if self.failsafes.took_over and t_start is None and self.commanding:
-            why = self.link.takeover_reason or "a mode change we did not ask for"
+            why = self.link.modes.takeover_reason or "a mode change we did not ask for"
             return f"pilot took over before the convoy drove: {why}"
         if self.start_gate.refused:
             return f"convoy start refused: {self.start_gate.refused}"
@@ -736,12 +736,12 @@ class DeployRunner:
 
     def _finish(self, reason: str, code: int = 0) -> None:
         """Stop, HOLD and disarm the vehicle (``VehicleHandler.secure``). Never raises."""
-        took_over = self.failsafes.took_over or self.link.pilot_took_over
+        took_over = self.failsafes.took_over or self.link.modes.pilot_took_over
         try:
             self.vehicle.secure(
                 took_over,
                 drove=self.start_gate.t_start is not None,
-                autopilot_failsafe=self.link.failsafe_took_over,
+                autopilot_failsafe=self.link.modes.failsafe_took_over,
             )
         except Exception:  # noqa: BLE001 - the log and the sockets must still be closed
             log.error(

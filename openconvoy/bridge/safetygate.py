@@ -78,7 +78,7 @@ class SafetyGate:
                 t_telemetry=tel.t_telemetry,
                 t_heartbeat=tel.t_heartbeat,
                 link_open=not self.link.lost,
-                pilot_took_over=self._commanding() and self.link.pilot_took_over,
+                pilot_took_over=self._commanding() and self.link.modes.pilot_took_over,
                 stop_requested=stop_requested,
                 abort=self.exchange.abort,
                 x=own.x,
@@ -96,7 +96,7 @@ class SafetyGate:
             )
         )
         if verdict.reason and verdict.reason not in (self.last_reason, ending):
-            why = self.link.takeover_reason if verdict.reason == "pilot took over" else ""
+            why = self.link.modes.takeover_reason if verdict.reason == "pilot took over" else ""
             self._on_status(
                 f"vehicle {self.member.vehicle_id}: {verdict.reason}" + (f" ({why})" if why else "")
             )

@@ -138,9 +138,9 @@ class VehicleHandler:
         # Arming may wait ~40 s for the estimator: status lines come every retry, and a
         # signal meanwhile ends the run through ``check_stop``.
         self.arming = True
-        self.link.prepare_and_arm(timeout_s, self._status_or_stop)
+        self.link.modes.prepare_and_arm(timeout_s, self._status_or_stop)
         self.armed_by_us, self.arming = True, False
-        self.link.stop_motion()
+        self.link.setpoints.stop()
 
     def _status_or_stop(self, line: str) -> None:
         self.on_status(line)
@@ -184,7 +184,7 @@ class VehicleHandler:
         t_sent = math.nan
         if not self.commanding:
             return t_sent
-        if verdict.command in (DRIVE, STOP) and self.link.send_setpoint(speed, heading_cmd):
+        if verdict.command in (DRIVE, STOP) and self.link.setpoints.send(speed, heading_cmd):
             t_sent = self.clock()
         self._watch_rest(tel, own)
         if not verdict.hold:
@@ -201,7 +201,7 @@ class VehicleHandler:
         ):
             self._t_hold_sent = now
             try:
-                self.link.hold(0.0)
+                self.link.modes.hold(0.0)
             except Exception as exc:  # noqa: BLE001 - a hold that cannot be sent is retried
                 log.warning("HOLD not sent: %s", exc)
         return t_sent
@@ -229,7 +229,7 @@ class VehicleHandler:
         self.on_status(f"vehicle {self.vehicle_id}: WARNING: {self.uncommanded}; {action}")
         if not self.stay_armed:
             try:
-                self.link.disarm(0.0)
+                self.link.modes.disarm(0.0)
             except Exception as exc:  # noqa: BLE001 - retried at the finish
                 log.warning("vehicle %d: disarm not sent: %s", self.vehicle_id, exc)
 
@@ -253,14 +253,14 @@ class VehicleHandler:
                 return
             try:
                 self._brake_to_rest()
-                self.link.hold(2.0)
+                self.link.modes.hold(2.0)
             except Exception as exc:  # noqa: BLE001 - the log must still be saved
                 log.warning("vehicle %d: HOLD at exit failed: %s", vid, exc)
             self._disarm_at_end("in HOLD")
         elif self.arming:
             # Interrupted while arming (a signal, a refusal, a lost mode): it may have armed
             # meanwhile. Standing still, so HOLD and disarm; never armed without HOLD.
-            for step in (self.link.hold, self.link.disarm):
+            for step in (self.link.modes.hold, self.link.modes.disarm):
                 try:
                     step(0.0)
                 except Exception as exc:  # noqa: BLE001
@@ -314,7 +314,7 @@ class VehicleHandler:
                 f"{REST_WAIT_S:g} s after HOLD; disarming anyway"
             )
         try:
-            self.link.disarm(2.0)
+            self.link.modes.disarm(2.0)
             self.on_status(f"vehicle {vid}: at rest {where}, disarmed")
         except Exception as exc:  # noqa: BLE001
             self.on_status(f"vehicle {vid}: WARNING: disarm at exit failed ({exc}): left ARMED")
@@ -327,7 +327,7 @@ class VehicleHandler:
         end = self.clock() + brake_time_s(v0)
         period = 1.0 / self.rate_hz
         while True:
-            if not self.link.stop_motion():
+            if not self.link.setpoints.stop():
                 return  # taken over, or a PX4 stream that must not resume
             got = self.link.poll()
             tel = got or tel
@@ -354,7 +354,7 @@ class VehicleHandler:
             return
         if tel is not None and abs(tel.state.speed) < REST_MPS and not self.link.lost:
             try:
-                self.link.disarm(2.0)
+                self.link.modes.disarm(2.0)
                 self.on_status(f"vehicle {vid}: disarmed ({why}, in {mode})")
                 return
             except Exception as exc:  # noqa: BLE001

@@ -12,17 +12,21 @@ and takes actions back between sensing and deciding:
    clipped to the action space (``ActionBounds``), then the staleness ladder
    (``member.supervise``, with the ranging sensor's reading when there is one).
 
+``exchange`` runs steps 1 and 2 for members that tick together: every member begins and
+broadcasts on a ``Network``, then every member senses what it delivers. The simulator
+(``envs.world.ConvoyWorld``) runs its convoy through ``exchange`` and later ``decide``.
 ``tick`` runs all three with ``policy.act`` in between (a policy that raises is a policy
 error too): a world with one member per process (a vehicle) calls it as is, its V2V passed
-in as a ``Radio`` (sent to right after τ, received from right before ρ, as the simulator's
-members all send before any receives) and ``started`` asked after sensing, before acting
-(a vehicle senses, but does not act, while it waits for its convoy to start).
+in as a ``Radio`` and run through ``exchange`` as a network of one (sent to right after τ,
+received from right before ρ) and ``started`` asked after sensing, before acting (a
+vehicle senses, but does not act, while it waits for its convoy to start). So a change to
+a step, or to the order of steps 1 and 2, reaches every world.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -52,6 +56,35 @@ class Radio(Protocol):
 
     def receive(self, now: float) -> list[VehicleState]:
         """The vehicle states heard since the last tick, at time ``now`` (s), in order."""
+
+
+class Network(Protocol):
+    """The V2V of a world that ticks its members together (the simulator): every member
+    sends before any receives."""
+
+    def send(self, sender: int, state: VehicleState, now: float) -> None:
+        """Member ``sender`` (its index in the world) broadcasts ``state`` at ``now`` (s)."""
+
+    def deliver(self, now: float) -> list[list[VehicleState]]:
+        """What each member receives at ``now`` (s), one inbox per member, in order."""
+
+
+class _Heard:
+    """A vehicle's ``Radio`` as the ``Network`` of a world of one member; ``sent`` keeps
+    the state it broadcast (None when τ said no)."""
+
+    __slots__ = ("radio", "sent")
+
+    def __init__(self, radio: Radio) -> None:
+        self.radio = radio
+        self.sent: VehicleState | None = None
+
+    def send(self, sender: int, state: VehicleState, now: float) -> None:
+        self.sent = state
+        self.radio.send(state, now)
+
+    def deliver(self, now: float) -> list[list[VehicleState]]:
+        return [self.radio.receive(now)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,6 +165,25 @@ def sense(member: ConvoyMember, inbox: Iterable[VehicleState], now: float) -> Fr
     return member.sense(now)
 
 
+def exchange(
+    members: Sequence[ConvoyMember],
+    owns: Sequence[VehicleState],
+    now: float,
+    network: Network,
+    may_send: Sequence[bool],
+) -> list[Frame]:
+    """Steps 1 and 2 for members ticking together at ``now`` (s): each ``begin``s with its
+    own state and its broadcast goes on the ``network`` (members in order), then every
+    member ``sense``s what the network delivers to it. The simulator runs its whole convoy
+    through this; ``tick`` runs a vehicle through it as a world of one."""
+    for i, (member, own, ok) in enumerate(zip(members, owns, may_send)):
+        sent = begin(member, own, now, ok)
+        if sent is not None:
+            network.send(i, sent, now)
+    inboxes = network.deliver(now)
+    return [sense(member, inbox, now) for member, inbox in zip(members, inboxes)]
+
+
 def decide(
     member: ConvoyMember,
     frame: Frame,
@@ -171,10 +223,9 @@ def tick(
     """The whole tick for one member at time ``now`` (s): τ and the broadcast on ``radio``,
     its messages through ρ, then, once ``started()`` (asked once, after sensing; None:
     always), ``policy.act`` and the decision; ``policy`` None senses only (a leader)."""
-    broadcast = begin(member, own, now, may_send)
-    if broadcast is not None:
-        radio.send(broadcast, now)
-    frame = sense(member, radio.receive(now), now)
+    heard = _Heard(radio)
+    (frame,) = exchange((member,), (own,), now, heard, (may_send,))
+    broadcast = heard.sent
     if started is not None and not started():
         return TickResult(broadcast, frame, None, started=False)
     if policy is None:

@@ -117,6 +117,41 @@ class TickRecord:
     extra: dict[str, list[Any]] = field(default_factory=dict)
 
 
+class _Air:
+    """The simulator's V2V as ``core.tick.Network``: the channel, the MPC plans carried
+    beside the states, and the forgers' broadcasts offered to every receiver."""
+
+    __slots__ = ("world",)
+
+    def __init__(self, world: ConvoyWorld) -> None:
+        self.world = world
+
+    def send(self, sender: int, state: VehicleState, now: float) -> None:
+        """``sender``'s broadcast on the channel (and its plan beside it)."""
+        w = self.world
+        w.channel.send(sender, state, now)
+        if w.plans is not None:
+            w.plans.send(
+                sender,
+                now,
+                w.modes[sender],
+                w.truth.speed[sender],
+                w.presets[sender].decel_max_mps2,
+            )
+
+    def deliver(self, now: float) -> list[list[VehicleState]]:
+        """Each member's inbox at ``now`` (s): the channel's deliveries, then forgeries."""
+        w = self.world
+        inboxes: list[list[VehicleState]] = [[] for _ in w.members]
+        for r, _, msg in w.channel.deliver(now):
+            inboxes[r].append(msg)
+        if w.plans is not None:
+            w.plans.deliver(now)
+        if w._forged:
+            w._forge(now, inboxes)
+        return inboxes
+
+
 class ConvoyWorld:
     """The simulated convoy of ``scenario``'s vehicles with ``member_config`` members.
 
@@ -274,8 +309,8 @@ class ConvoyWorld:
             dx, dy = gps_noise(self._gps_states, self.gps_noise_m, self.step_count)
             xs = [float(x) + d for x, d in zip(p.x, dx)]
             ys = [float(y) + d for y, d in zip(p.y, dy)]
-        for i, m in enumerate(self.members):
-            st = VehicleState(
+        owns = [
+            VehicleState(
                 i,
                 t,
                 xs[i],
@@ -287,22 +322,14 @@ class ConvoyWorld:
                 self.lengths[i],
                 self.widths[i],
             )
-            muted = bool(self._muted) and i in self._muted and self._fault_active(i, t, mutes=True)
-            sent = member_tick.begin(m, st, t, may_send=not muted)
-            if sent is not None:
-                self.channel.send(i, sent, t)
-                if self.plans is not None:
-                    self.plans.send(
-                        i, t, self.modes[i], tr.speed[i], self.presets[i].decel_max_mps2
-                    )
-        inboxes: list[list[VehicleState]] = [[] for _ in self.members]
-        for r, _, msg in self.channel.deliver(t):
-            inboxes[r].append(msg)
-        if self.plans is not None:
-            self.plans.deliver(t)
-        if self._forged:
-            self._forge(t, inboxes)
-        self.frames = [member_tick.sense(m, box, t) for m, box in zip(self.members, inboxes)]
+            for i in range(self.n_vehicles)
+        ]
+        muted = self._muted
+        may_send = [
+            not (muted and i in muted and self._fault_active(i, t, mutes=True))
+            for i in range(self.n_vehicles)
+        ]
+        self.frames = member_tick.exchange(self.members, owns, t, _Air(self), may_send)
 
     def measure(self) -> None:
         """Ground-truth gaps, desired gaps, collisions and message counters at ``self.t``."""

@@ -26,7 +26,9 @@ from openconvoy.testing.clock import FakeClock
 
 class _QuietLink:
     """What every fake shares: an ArduPilot that is connected, never lost, never taken
-    over, and whose connect, reconnect and close do nothing."""
+    over, and whose connect, reconnect and close do nothing. A fake is its own
+    ``setpoints`` (``send``, ``stop``) and ``modes`` (``prepare_and_arm``, ``hold``,
+    ``disarm``, the takeover)."""
 
     autopilot = "ardupilot"
     telemetry_timeout_s = 0.5
@@ -38,6 +40,8 @@ class _QuietLink:
 
     def __init__(self) -> None:
         self.telemetry_rates: dict[str, float] = {}
+        self.setpoints = self
+        self.modes = self
 
     def connect(self, timeout_s: float) -> None:
         """Connected already."""
@@ -96,15 +100,15 @@ class FakeLink(_QuietLink):
         """Armed at once."""
         self.armed = True
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
         """Recorded and driven at once (an ideal autopilot)."""
         self.sent.append((self.clock(), speed_mps, heading_rad))
         self.speed, self.heading = speed_mps, heading_rad
         return True
 
-    def stop_motion(self) -> bool:
+    def stop(self) -> bool:
         """A zero-speed setpoint on the current heading."""
-        return self.send_setpoint(0.0, self.heading)
+        return self.send(0.0, self.heading)
 
     def hold(self, timeout_s: float = 2.0) -> None:
         """Counted in ``holds``."""
@@ -182,7 +186,7 @@ class ScriptedLink(FakeLink):
             return self._frozen
         return replace(tel, range_m=self.range_m, range_rate_mps=self.range_rate, t_range=now)
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
         """Refused after a takeover or from ``refuse_at``; else recorded, the speed then
         approaching it at ``decel``."""
         if self.pilot_took_over or self.clock() >= self.refuse_at:
@@ -233,12 +237,12 @@ class ReplayLink(_QuietLink):
     def prepare_and_arm(self, timeout_s: float, on_status: Any = None) -> None:
         """Armed (nothing to wait for)."""
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
         """Recorded."""
         self.sent.append((speed_mps, heading_rad))
         return True
 
-    def stop_motion(self) -> bool:
+    def stop(self) -> bool:
         """Accepted."""
         return True
 
@@ -250,36 +254,20 @@ class ReplayLink(_QuietLink):
 
 
 class RecordingLink:
-    """Delegates to a ``MavlinkLink`` (any link with ``last_setpoint``); records
+    """Delegates to a real link (a ``MavlinkLink``: its ``setpoints.last``); records
     ``(monotonic s, speed, heading)`` of every setpoint that actually went out
-    (``send_setpoint``/``stop_motion`` returned True), and the times of HOLDs and
-    reconnects."""
+    (``setpoints.send``/``stop`` returned True), and the times of HOLDs and reconnects."""
 
     def __init__(self, link: Any) -> None:
         self._link = link
         self.sent: list[tuple[float, float, float]] = []
         self.holds: list[float] = []
         self.reconnects: list[float] = []
+        self.setpoints = _RecordedSetpoints(link.setpoints, self.sent)
+        self.modes = _RecordedModes(link.modes, self.holds)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._link, name)
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        ok = bool(self._link.send_setpoint(speed_mps, heading_rad))
-        if ok:
-            self.sent.append((time.monotonic(), float(speed_mps), float(heading_rad)))
-        return ok
-
-    def stop_motion(self) -> bool:
-        ok = bool(self._link.stop_motion())
-        if ok and self._link.last_setpoint is not None:
-            sp = self._link.last_setpoint
-            self.sent.append((time.monotonic(), sp[0], sp[1]))
-        return ok
-
-    def hold(self, timeout_s: float = 2.0) -> None:
-        self.holds.append(time.monotonic())
-        self._link.hold(timeout_s)
 
     def reconnect(self, timeout_s: float) -> None:
         self.reconnects.append(time.monotonic())
@@ -288,6 +276,43 @@ class RecordingLink:
     def after(self, t: float) -> list[tuple[float, float, float]]:
         """The setpoints sent after monotonic time ``t``."""
         return [s for s in self.sent if s[0] > t]
+
+
+class _RecordedSetpoints:
+    """A link's ``setpoints``, each one that went out appended to ``sent``."""
+
+    def __init__(self, setpoints: Any, sent: list[tuple[float, float, float]]) -> None:
+        self._setpoints, self._sent = setpoints, sent
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._setpoints, name)
+
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
+        ok = bool(self._setpoints.send(speed_mps, heading_rad))
+        if ok:
+            self._sent.append((time.monotonic(), float(speed_mps), float(heading_rad)))
+        return ok
+
+    def stop(self) -> bool:
+        ok = bool(self._setpoints.stop())
+        if ok and self._setpoints.last is not None:
+            sp = self._setpoints.last
+            self._sent.append((time.monotonic(), sp[0], sp[1]))
+        return ok
+
+
+class _RecordedModes:
+    """A link's ``modes``, the time of each HOLD appended to ``holds``."""
+
+    def __init__(self, modes: Any, holds: list[float]) -> None:
+        self._modes, self._holds = modes, holds
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._modes, name)
+
+    def hold(self, timeout_s: float = 2.0) -> None:
+        self._holds.append(time.monotonic())
+        self._modes.hold(timeout_s)
 
 
 __all__ = ["FakeLink", "RecordingLink", "ReplayLink", "ScriptedLink"]

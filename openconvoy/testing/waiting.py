@@ -61,7 +61,7 @@ def run_for(
     while time.monotonic() < end:
         link.poll()
         if speed is not None and heading is not None:
-            link.send_setpoint(speed, heading)
+            link.setpoints.send(speed, heading)
         time.sleep(period)
 
 

@@ -84,13 +84,13 @@ def test_spy_sees_cmd_vel_and_vehicle_drives_west(netns: LoopbackNetns) -> None:
             "RELIABLE",
             "TRANSIENT_LOCAL",
         )
-        link.prepare_and_arm(20.0)
+        link.modes.prepare_and_arm(20.0)
         heading = math.pi  # west
         xs: list[float] = []
 
         def driving_west() -> bool:
             tel = link.poll()
-            link.send_setpoint(1.5, heading)
+            link.setpoints.send(1.5, heading)
             if tel is None:
                 return False
             xs.append(tel.state.x)

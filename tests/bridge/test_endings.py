@@ -143,8 +143,8 @@ def test_px4_offboard_loss_after_a_loop_pause_is_a_failsafe(tmp_path):
         wait_until(lambda: moving(follower), 20, "follower moving")
         stall.set()
         wait_until(lambda: follower.runner.failsafes.took_over, 8, "runner sees POSCTL")
-        reason = follower.link.takeover_reason
-        texts = follower.link.status_texts
+        reason = follower.link.modes.takeover_reason
+        texts = follower.link.watch.status_texts
     finally:
         c.stop()
     res = follower.join(1.0)

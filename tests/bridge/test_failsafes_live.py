@@ -408,7 +408,7 @@ def test_px4_streams_before_offboard_and_loses_offboard_when_the_stream_stops(tm
         det = follower.first_event("pilot took over")
         time.sleep(1.0)
         assert follower.link.after(det) == []
-        assert follower.vehicle.mode == "POSCTL" and follower.link.stream_ended  # never resumed
+        assert follower.vehicle.mode == "POSCTL" and follower.link.setpoints.ended  # never resumed
         assert follower.runner.timer.overruns >= 1  # the stall was counted
     finally:
         c.stop()

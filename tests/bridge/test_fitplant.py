@@ -205,15 +205,15 @@ def test_fit_recovers_the_vehicle_through_mavlink(tmp_path: Path) -> None:
     )
     try:
         link.connect(timeout_s=5.0)
-        link.prepare_and_arm(timeout_s=10.0)
+        link.modes.prepare_and_arm(timeout_s=10.0)
         with LogWriter(tmp_path / "run" / "v3.csv", extra_columns=("telemetry_age_s",)) as log:
             t0 = time.monotonic()
             k = 0
             while (t := time.monotonic() - t0) < DURATION_S:
                 link.poll()
-                s = link.telemetry.state
+                s = link.inbox.telemetry.state
                 cmd = excitation(t)
-                link.send_setpoint(*cmd)
+                link.setpoints.send(*cmd)
                 log.write(
                     row(t, 3, s.x, s.y, s.speed, s.heading, cmd, telemetry_age_s=time.time() - s.t)
                 )

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import pytest
 
 from openconvoy.bridge.ideallink import IdealLink
-from openconvoy.bridge.link import Telemetry, VehicleLink
+from openconvoy.bridge.link import Modes, Setpoints, Telemetry, VehicleLink
 from openconvoy.bridge.mavlink.link import MavlinkLink
 from openconvoy.bridge.px4dds.link import Px4DdsLink
 from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
@@ -33,21 +33,30 @@ DECLARED = (
     "telemetry_timeout_s",
     "heartbeat_timeout_s",
     "telemetry_rates",
+    "setpoints",
+    "modes",
     "autopilot",
-    "pilot_took_over",
-    "takeover_reason",
-    "failsafe_took_over",
     "lost",
     "connect",
     "poll",
-    "prepare_and_arm",
-    "send_setpoint",
-    "stop_motion",
-    "hold",
-    "disarm",
     "reconnect",
     "close",
 )
+"""What the runner reads of a link: the connection and its telemetry, and two capabilities."""
+CAPABILITIES = {
+    "setpoints": (Setpoints, ("send", "stop")),
+    "modes": (
+        Modes,
+        (
+            "pilot_took_over",
+            "takeover_reason",
+            "failsafe_took_over",
+            "prepare_and_arm",
+            "hold",
+            "disarm",
+        ),
+    ),
+}
 
 
 @pytest.fixture(scope="module")
@@ -162,11 +171,20 @@ def test_every_declared_member_is_there_and_nothing_else_is_read(link: VehicleLi
     assert isinstance(link, VehicleLink)
     for name in DECLARED:
         assert hasattr(link, name), name
-    # The protocol declares exactly what the runner uses: the list above.
-    declared = {n for n in dir(VehicleLink) if not n.startswith("_")} | set(
-        VehicleLink.__annotations__
-    )
-    assert declared == set(DECLARED)
+    # The protocols declare exactly what the runner uses: the lists above.
+    assert _declared(VehicleLink) == set(DECLARED)
+    for name, (protocol, members) in CAPABILITIES.items():
+        capability = getattr(link, name)
+        assert isinstance(capability, protocol), name
+        assert _declared(protocol) == set(members), name
+        for member in members:
+            assert hasattr(capability, member), f"{name}.{member}"
+
+
+def _declared(protocol: type) -> set[str]:
+    """The public names a protocol declares (methods, properties and annotations)."""
+    names = {n for n in dir(protocol) if not n.startswith("_")}
+    return names | set(getattr(protocol, "__annotations__", {}))
 
 
 def test_connect_telemetry_arm_drive_stop_hold_close(link: VehicleLink) -> None:
@@ -180,16 +198,20 @@ def test_connect_telemetry_arm_drive_stop_hold_close(link: VehicleLink) -> None:
         -4.0, abs=0.05
     )
     assert abs(tel.state.t - time.time()) < 1.0  # stamped on the wall clock
-    assert not link.pilot_took_over and link.takeover_reason == "" and not link.failsafe_took_over
-    link.prepare_and_arm(10.0)
+    assert (
+        not link.modes.pilot_took_over
+        and link.modes.takeover_reason == ""
+        and not link.modes.failsafe_took_over
+    )
+    link.modes.prepare_and_arm(10.0)
     assert _telemetry(link).armed
-    assert link.send_setpoint(1.0, math.radians(10.0))
+    assert link.setpoints.send(1.0, math.radians(10.0))
     assert wait_for(lambda: (t := link.poll()) is not None and t.state.speed > 0.3, 5.0)
-    assert link.stop_motion()
+    assert link.setpoints.stop()
     assert wait_for(lambda: (t := link.poll()) is not None and abs(t.state.speed) < 0.05, 8.0)
-    link.hold(3.0)
+    link.modes.hold(3.0)
     assert wait_for(lambda: (t := link.poll()) is not None and t.mode in ("HOLD", "LOITER"), 3.0)
-    link.disarm(3.0)
+    link.modes.disarm(3.0)
     assert wait_for(lambda: (t := link.poll()) is not None and not t.armed, 3.0)
     link.close()
     link.close()  # idempotent

@@ -45,7 +45,7 @@ def edge():
         made.append((ap, link))
         if connect:
             link.connect(timeout_s=5.0)
-            assert wait_for(lambda: link.telemetry is not None, 2.0, link)
+            assert wait_for(lambda: link.inbox.telemetry is not None, 2.0, link)
         return ap, link, lines
 
     yield make
@@ -64,7 +64,7 @@ def sent_setpoint(ap: EdgeAutopilot, kind: str, link: MavlinkLink):
 def test_ardupilot_setpoints_are_body_forward_in_every_quadrant(edge):
     ap, link, _ = edge(autopilot="ardupilot")
     for compass in COMPASS:
-        assert link.send_setpoint(1.5, enu(compass))
+        assert link.setpoints.send(1.5, enu(compass))
         m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
         assert (m.type_mask, m.coordinate_frame) == (
             2503,
@@ -74,20 +74,20 @@ def test_ardupilot_setpoints_are_body_forward_in_every_quadrant(edge):
         assert m.vx > -FLT_EPSILON  # Rover reverses on is_negative(vx) alone: never here
         assert same_angle(m.yaw, math.radians(compass)), compass  # absolute yaw, NED
     # Reverse only when a negative speed is asked for.
-    link.send_setpoint(-0.5, enu(135.0))
+    link.setpoints.send(-0.5, enu(135.0))
     m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
     assert m.vx == -0.5 and m.vy == 0.0 and same_angle(m.yaw, math.radians(135.0))
 
 
 def test_ardupilot_stop_is_speed_zero_with_yaw_at_the_current_heading(edge):
     ap, link, _ = edge(autopilot="ardupilot", heading_deg=135.0)
-    assert link.stop_motion()
+    assert link.setpoints.stop()
     m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
     assert m.type_mask == 2503  # never the zero velocity-only setpoint ("heading north")
     assert m.vx == 0.0 and math.copysign(1.0, m.vx) == 1.0 and m.vy == 0.0  # +0.0, not -0.0
     assert same_angle(m.yaw, math.radians(135.0), 1e-4)
     # A -0.0 commanded speed is a stop too, not a reverse.
-    link.send_setpoint(-0.0, enu(200.0))
+    link.setpoints.send(-0.0, enu(200.0))
     m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
     assert math.copysign(1.0, m.vx) == 1.0
 
@@ -134,7 +134,7 @@ def test_our_ardupilot_setpoint_is_what_the_real_firmware_drove_forward_with(edg
             if r["dir"] == "tx" and r["type"] == "SET_POSITION_TARGET_GLOBAL_INT"
         )
         if f["encoding"] == "body":
-            link.send_setpoint(f["speed"], enu(f["yaw_deg"]))
+            link.setpoints.send(f["speed"], enu(f["yaw_deg"]))
             m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
             assert (m.type_mask, m.coordinate_frame, m.vx, m.vy) == (
                 tx["type_mask"],
@@ -154,7 +154,7 @@ def test_our_ardupilot_setpoint_is_what_the_real_firmware_drove_forward_with(edg
 def test_px4_setpoints_keep_the_ned_vector_and_stop_along_the_bearing(edge):
     ap, link, _ = edge(autopilot="px4", heading_deg=90.5)
     for compass in COMPASS:
-        link.send_setpoint(1.5, enu(compass))
+        link.setpoints.send(1.5, enu(compass))
         m = sent_setpoint(ap, "SET_POSITION_TARGET_LOCAL_NED", link)
         assert m.coordinate_frame == 1 and m.type_mask == 2503
         # PX4's rover offboard mode: speed |(vx, vy)|, bearing atan2(vy, vx).
@@ -165,12 +165,14 @@ def test_px4_setpoints_keep_the_ned_vector_and_stop_along_the_bearing(edge):
     for compass in (0.0, 89.5, 90.0, 90.5, 180.0, 270.0):
         ap.heading_deg = compass
         want = enu(compass)
-        assert wait_for(lambda w=want: same_angle(link.telemetry.state.heading, w, 2e-4), 1.0, link)
-        link.stop_motion()
+        assert wait_for(
+            lambda w=want: same_angle(link.inbox.telemetry.state.heading, w, 2e-4), 1.0, link
+        )
+        link.setpoints.stop()
         m = sent_setpoint(ap, "SET_POSITION_TARGET_LOCAL_NED", link)
         assert math.hypot(m.vx, m.vy) == pytest.approx(0.001, rel=1e-5)
         assert same_angle(math.atan2(m.vy, m.vx), math.radians(compass), 1e-4), compass
-    link.send_setpoint(-1.0, enu(30.0))  # a PX4 rover cannot reverse: a stop along 30°
+    link.setpoints.send(-1.0, enu(30.0))  # a PX4 rover cannot reverse: a stop along 30°
     m = sent_setpoint(ap, "SET_POSITION_TARGET_LOCAL_NED", link)
     assert math.hypot(m.vx, m.vy) == pytest.approx(0.001, rel=1e-5)
     assert same_angle(math.atan2(m.vy, m.vx), math.radians(30.0), 1e-4)
@@ -180,15 +182,15 @@ def test_px4_setpoints_never_resume_after_the_stream_paused(edge):
     """PX4 takes OFFBOARD back by itself when setpoints resume after its offboard-loss
     failsafe (shared/sitl-px4 row 17): after a pause > COM_OF_LOSS_T nothing more goes out."""
     ap, link, _ = edge(autopilot="px4")
-    link.prepare_and_arm(timeout_s=5.0)
+    link.modes.prepare_and_arm(timeout_s=5.0)
     assert ap.mode == "OFFBOARD" and ap.armed
-    assert link.send_setpoint(1.0, 0.0)
+    assert link.setpoints.send(1.0, 0.0)
     time.sleep(1.1)
     link.poll()
     ap.clear()
-    assert link.send_setpoint(1.0, 0.0) is False
-    assert link.stop_motion() is False
-    assert "paused" in link.stream_ended
+    assert link.setpoints.send(1.0, 0.0) is False
+    assert link.setpoints.stop() is False
+    assert "paused" in link.setpoints.ended
     time.sleep(0.2)
     link.poll()
     assert ap.messages("SET_POSITION_TARGET_LOCAL_NED") == []
@@ -196,25 +198,25 @@ def test_px4_setpoints_never_resume_after_the_stream_paused(edge):
 
 def test_px4_failsafe_mode_change_is_a_failsafe_and_ends_the_stream(edge):
     ap, link, _ = edge(autopilot="px4")
-    link.prepare_and_arm(timeout_s=5.0)
+    link.modes.prepare_and_arm(timeout_s=5.0)
     for _ in range(5):
-        assert link.send_setpoint(1.0, 0.0)
+        assert link.setpoints.send(1.0, 0.0)
         link.poll()
         time.sleep(0.05)
     ap.mav.statustext_send(4, b"Failsafe activated\t")  # the recorded PX4 text
     ap.mode = "POSCTL"
-    assert wait_for(lambda: link.pilot_took_over, 1.0, link)
-    assert link.failsafe_took_over and "POSCTL" in link.takeover_reason
-    assert "Failsafe activated" in link.takeover_reason
-    assert link.stream_ended and link.send_setpoint(1.0, 0.0) is False
+    assert wait_for(lambda: link.modes.pilot_took_over, 1.0, link)
+    assert link.modes.failsafe_took_over and "POSCTL" in link.modes.takeover_reason
+    assert "Failsafe activated" in link.modes.takeover_reason
+    assert link.setpoints.ended and link.setpoints.send(1.0, 0.0) is False
 
 
 def test_ardupilot_mode_lost_after_arming_is_requested_again(edge):
     """The RC mode switch sets MANUAL just after arming, once (shared/sitl row 4)."""
     ap, link, _ = edge(autopilot="ardupilot", mode_after_arm="MANUAL")
     status: list[str] = []
-    link.prepare_and_arm(timeout_s=5.0, on_status=status.append)
-    assert ap.mode == "GUIDED" and ap.armed and link.mode == "GUIDED"
+    link.modes.prepare_and_arm(timeout_s=5.0, on_status=status.append)
+    assert ap.mode == "GUIDED" and ap.armed and link.watch.mode == "GUIDED"
     assert any(
         "mode changed to MANUAL after arming" in s and "RC mode switch" in s for s in status
     ), status
@@ -223,7 +225,7 @@ def test_ardupilot_mode_lost_after_arming_is_requested_again(edge):
 def test_ardupilot_mode_that_will_not_stay_refuses_to_start_and_disarms(edge):
     ap, link, _ = edge(autopilot="ardupilot", mode_after_arm="MANUAL", mode_switch_repeats=10)
     with pytest.raises(ModeLost) as err:
-        link.prepare_and_arm(timeout_s=5.0, on_status=lambda line: None)
+        link.modes.prepare_and_arm(timeout_s=5.0, on_status=lambda line: None)
     text = str(err.value)
     assert "armed in MANUAL, not GUIDED" in text and "RC mode switch" in text and "disarmed" in text
     assert "\n" not in text
@@ -234,11 +236,11 @@ def test_attitude_alone_does_not_keep_the_telemetry_fresh(edge):
     ap, link, _ = edge(autopilot="ardupilot")
     assert wait_for(lambda: link.link_ok(time.monotonic()), 1.0, link)
     ap.send_position = False  # ATTITUDE still at 20 Hz: the position is frozen
-    t_last = link.telemetry.t_telemetry
+    t_last = link.inbox.telemetry.t_telemetry
     time.sleep(0.8)
     link.poll()
     assert not link.link_ok(time.monotonic())
-    assert link.telemetry.t_telemetry <= t_last + 0.1
+    assert link.inbox.telemetry.t_telemetry <= t_last + 0.1
     ap.send_position = True
     assert wait_for(lambda: link.link_ok(time.monotonic()), 1.0, link)
 
@@ -264,15 +266,15 @@ def test_forward_rangefinder_gives_range_and_range_rate(edge):
         mav.distance_sensor_send(**f)
 
     ap, link, _ = edge(autopilot="ardupilot")
-    assert math.isnan(link.telemetry.range_m)
+    assert math.isnan(link.inbox.telemetry.range_m)
     ap.extra.append(recorded)
     time.sleep(0.3)
     link.poll()
-    assert math.isnan(link.telemetry.range_m)  # not forward: no ranging
+    assert math.isnan(link.inbox.telemetry.range_m)  # not forward: no ranging
     ap.extra.append(_distance(lambda t: closing["cm"](t)))
     time.sleep(1.0)
     link.poll()
-    tel = link.telemetry
+    tel = link.inbox.telemetry
     expected = (1200 - 50 * (time.monotonic() - ap.t0)) / 100
     assert tel.range_m == pytest.approx(expected, abs=0.15)
     assert tel.range_rate_mps == pytest.approx(-0.5, abs=0.05)
@@ -280,7 +282,9 @@ def test_forward_rangefinder_gives_range_and_range_rate(edge):
     closing["cm"] = lambda t: 2000  # at max_distance: nothing in range
     time.sleep(0.3)
     link.poll()
-    assert math.isnan(link.telemetry.range_m) and math.isnan(link.telemetry.range_rate_mps)
+    assert math.isnan(link.inbox.telemetry.range_m) and math.isnan(
+        link.inbox.telemetry.range_rate_mps
+    )
 
 
 def test_reconnect_never_blocks_even_when_commands_go_unanswered(edge):
@@ -311,9 +315,9 @@ def test_serial_link_over_a_pseudo_terminal(edge):
     ap, link, _ = edge(transport="pty", autopilot="ardupilot", link_kwargs={"baud": 115200})
     assert link.url.startswith("/dev/") and link.autopilot == "ardupilot"
     assert link.telemetry_rates == {"GLOBAL_POSITION_INT": 20.0, "ATTITUDE": 20.0}
-    link.prepare_and_arm(timeout_s=5.0)
+    link.modes.prepare_and_arm(timeout_s=5.0)
     assert ap.armed and ap.mode == "GUIDED"
-    link.send_setpoint(1.0, enu(200.0))
+    link.setpoints.send(1.0, enu(200.0))
     m = sent_setpoint(ap, "SET_POSITION_TARGET_GLOBAL_INT", link)
     assert m.vx == 1.0 and m.vy == 0.0 and same_angle(m.yaw, math.radians(200.0), 1e-5)
 
@@ -323,8 +327,8 @@ def test_ardupilot_mode_lost_while_waiting_to_arm_is_set_again_before_arming(edg
     switch) while arming is still refused; ArduPilot would then arm in MANUAL."""
     ap, link, _ = edge(autopilot="ardupilot", arm_refusals=2, mode_at=(0.9, "MANUAL"))
     status: list[str] = []
-    link.prepare_and_arm(timeout_s=8.0, on_status=status.append)
-    assert ap.armed and ap.mode == "GUIDED" and link.mode == "GUIDED"
+    link.modes.prepare_and_arm(timeout_s=8.0, on_status=status.append)
+    assert ap.armed and ap.mode == "GUIDED" and link.watch.mode == "GUIDED"
     assert ap.arm_modes[-1] == "GUIDED" and "MANUAL" not in ap.arm_modes[-1:]
     assert any(
         "mode is MANUAL" in s and "requesting GUIDED again before arming" in s for s in status

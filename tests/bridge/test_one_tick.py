@@ -289,6 +289,52 @@ def test_a_rule_changed_in_core_tick_changes_the_vehicle_and_the_simulator_alike
     assert link.sent[-1][0] == pytest.approx(1.0)
 
 
+def _tick_both(actions_for_1: np.ndarray) -> tuple[ConvoyEnv, ReplayV2V, DeployRunner]:
+    """One step of the paper convoy's simulator and one tick of follower 1 on a vehicle,
+    from the same state."""
+    env = ConvoyEnv("paper")
+    obs, _ = env.reset(seed=0)
+    policy = load_policy("paper")
+    actions = {a: policy.act(o) for a, o in obs.items()}
+    runner, link, v2v, clock, _ = runner_for(1, _Fixed(policy, actions_for_1))
+    link.state = env.members[1].own
+    v2v.inbox = [env.members[0].own]
+    env.step(actions)
+    runner.start()
+    assert runner.tick(clock[0]) == ""
+    return env, v2v, runner
+
+
+def test_a_changed_step_or_order_of_steps_in_core_tick_reaches_the_simulator_and_the_vehicle(
+    monkeypatch,
+):
+    # Steps 1 and 2 (τ and the broadcast, then ρ and sensing) run through the one
+    # ``core.tick.exchange`` in both worlds: the simulator its whole convoy, the vehicle
+    # itself as a world of one (``tick``). A step changed there (here: τ never broadcasts),
+    # or the exchange itself replaced, reaches both.
+    exchange = member_tick.exchange
+    sizes: list[int] = []
+
+    def spy_exchange(members: Any, *args: Any, **kw: Any) -> list[Any]:
+        sizes.append(len(members))
+        return exchange(members, *args, **kw)
+
+    monkeypatch.setattr(member_tick, "exchange", spy_exchange)
+    wanted = np.array([1.0, 0.0], dtype=np.float32)
+    env, v2v, _ = _tick_both(wanted)
+    assert sizes == [3, 3, 1]  # the simulator's reset and step, then the vehicle's tick
+    assert env.members[1].msgs_received > 0 and v2v.counters.sent == 1  # as written
+
+    def mute(member: Any, own: VehicleState, now: float, may_send: bool = True) -> None:
+        member.observe_own(own)  # step 1 without τ: nothing is ever broadcast
+
+    monkeypatch.setattr(member_tick, "begin", mute)
+    env, v2v, runner = _tick_both(wanted)
+    assert sum(env.sim.channel.delivered_to) == 0 and env.members[1].msgs_received == 0
+    assert v2v.counters.sent == 0
+    assert runner.decision is not None  # the vehicle still sensed and decided
+
+
 def test_a_follower_waiting_for_its_convoy_senses_and_broadcasts_but_does_not_act():
     acts: list[np.ndarray] = []
 

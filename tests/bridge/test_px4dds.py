@@ -54,7 +54,7 @@ class Rig:
         """Send setpoints at 20 Hz for ``seconds``, polling as the runner does."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            self.link.send_setpoint(speed, heading)
+            self.link.setpoints.send(speed, heading)
             self.link.poll()
             time.sleep(0.05)
 
@@ -114,7 +114,7 @@ def test_plain_cyclonedds_subscriber_sees_our_setpoints(rig: Rig) -> None:
 def test_drives_the_way_it_is_told_then_failsafe_on_signal_loss(rig: Rig) -> None:
     link = rig.link
     link.connect(5.0)
-    link.prepare_and_arm(10.0)
+    link.modes.prepare_and_arm(10.0)
     assert rig.vehicle.mode == "OFFBOARD" and rig.vehicle.armed
     # what arming's waits read still reaches the runner: its first tick is not stale
     first = link.poll()
@@ -132,11 +132,11 @@ def test_drives_the_way_it_is_told_then_failsafe_on_signal_loss(rig: Rig) -> Non
     assert tel.state.x < -1.0  # the link's ENU agrees with the vehicle's
     # the runner stops (no more offboard_control_mode): PX4's own failsafe after ~1 s
     t_stop = time.monotonic()
-    assert wait_for(lambda: link.poll() is not None and link.pilot_took_over, 4.0)
+    assert wait_for(lambda: link.poll() is not None and link.modes.pilot_took_over, 4.0)
     assert 0.9 < time.monotonic() - t_stop < 3.0
-    assert link.failsafe_took_over and "failsafe" in link.takeover_reason
+    assert link.modes.failsafe_took_over and "failsafe" in link.modes.takeover_reason
     assert rig.vehicle.mode == "POSCTL" and rig.vehicle.armed
-    assert not link.send_setpoint(1.0, 0.0)  # never drives again by itself
+    assert not link.setpoints.send(1.0, 0.0)  # never drives again by itself
 
 
 def test_bad_input_counted_and_dropped(rig: Rig) -> None:

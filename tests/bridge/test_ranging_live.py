@@ -62,7 +62,7 @@ def test_car_without_v2v_cutting_in_is_followed_by_ranging(tmp_path) -> None:
             lambda: abs(follower.vehicle.state().speed) < 0.05, 10, "follower at rest"
         )
         gaps += _watch(c, 1.0, car)
-        tel = follower.link.telemetry
+        tel = follower.link.inbox.telemetry
         lengths = follower.runner.member.lengths
         assert (
             abs(tel.range_m - (gaps[-1] - 0.5 * (lengths[1] + p.length_m))) < 0.25
@@ -91,7 +91,7 @@ def test_silent_leader_degrades_then_stops_as_in_sim(tmp_path) -> None:
         leader.v2v.send = lambda state, now: False
         gaps = _watch(c, 1.5)
         assert follower.runner.member.mode == "degraded"
-        assert math.isfinite(follower.link.telemetry.range_m)
+        assert math.isfinite(follower.link.inbox.telemetry.range_m)
         wait_until(lambda: abs(follower.vehicle.state().speed) < 0.05, 10, "follower at rest")
         wait_until(lambda: follower.vehicle.mode == "HOLD", 5, "follower in HOLD")
         events = [r for _, r in follower.runner.failsafes.events]

@@ -141,7 +141,7 @@ def test_cmd_vel_unstamped_vector_south_reverses_ardupilot(roscore: Roscore) -> 
     paper = Ros1Node("/rev_paper", roscore.uri)
     try:
         link.connect(10.0)
-        link.prepare_and_arm(15.0)
+        link.modes.prepare_and_arm(15.0)
         paper.advertise("/rev/mavros/setpoint_velocity/cmd_vel_unstamped", "geometry_msgs/Twist")
         time.sleep(0.5)
         y0 = vehicle.state().y
@@ -160,7 +160,7 @@ def test_cmd_vel_unstamped_vector_south_reverses_ardupilot(roscore: Roscore) -> 
 
         def drive_ours() -> bool:
             link.poll()
-            link.send_setpoint(1.0, -math.pi / 2)
+            link.setpoints.send(1.0, -math.pi / 2)
             return vehicle.state().y < y1 - 1.0  # moved south: forwards
 
         assert wait_for(drive_ours, 15.0)
@@ -191,13 +191,13 @@ def test_px4_through_mavros_takeover_and_lost_vehicle(roscore: Roscore) -> None:
     try:
         link.connect(10.0)
         assert link.autopilot == "px4"  # AUTO.LOITER at boot
-        link.prepare_and_arm(15.0)
+        link.modes.prepare_and_arm(15.0)
         heading = math.radians(30.0)
         seen = []
 
         def moving() -> bool:
             tel = link.poll()
-            link.send_setpoint(1.5, heading)
+            link.setpoints.send(1.5, heading)
             if tel is not None:
                 seen.append(tel)
             return tel is not None and tel.mode == "OFFBOARD" and tel.state.speed > 0.8
@@ -208,12 +208,14 @@ def test_px4_through_mavros_takeover_and_lost_vehicle(roscore: Roscore) -> None:
 
         def took_over() -> bool:
             link.poll()
-            link.send_setpoint(1.5, heading)
-            return link.pilot_took_over
+            link.setpoints.send(1.5, heading)
+            return link.modes.pilot_took_over
 
         assert wait_for(took_over, 5.0)
-        assert not link.failsafe_took_over and "OFFBOARD -> MANUAL" in link.takeover_reason
-        assert not link.send_setpoint(1.5, heading)
+        assert (
+            not link.modes.failsafe_took_over and "OFFBOARD -> MANUAL" in link.modes.takeover_reason
+        )
+        assert not link.setpoints.send(1.5, heading)
         assert not link.lost
         vehicle.freeze()
         assert wait_for(lambda: link.lost, 5.0)

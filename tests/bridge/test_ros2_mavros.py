@@ -100,12 +100,12 @@ def test_link_drives_the_vehicle_over_dds(
         )
         (fix_pub,) = spy.publishers("/v9/mavros/global_position/global")
         assert fix_pub["reliability"] == "BEST_EFFORT"
-        link.prepare_and_arm(20.0)
+        link.modes.prepare_and_arm(20.0)
         heading = math.radians(60.0)
 
         def moving() -> bool:
             tel = link.poll()
-            link.send_setpoint(1.5, heading)
+            link.setpoints.send(1.5, heading)
             return tel is not None and tel.state.speed > 1.0
 
         assert wait_for(moving, 15.0)
@@ -141,13 +141,13 @@ def test_px4_over_dds(netns: LoopbackNetns) -> None:
     try:
         link.connect(20.0)
         assert link.autopilot == "px4"
-        link.prepare_and_arm(20.0)
+        link.modes.prepare_and_arm(20.0)
         heading = math.radians(30.0)
         seen = []
 
         def moving() -> bool:
             tel = link.poll()
-            link.send_setpoint(1.5, heading)
+            link.setpoints.send(1.5, heading)
             if tel is not None:
                 seen.append(tel)
             return tel is not None and tel.mode == "OFFBOARD" and tel.state.speed > 0.8

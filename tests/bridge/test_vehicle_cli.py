@@ -45,18 +45,18 @@ def test_vehicle_process_answers_and_obeys_signals() -> None:
         ready = proc.stdout.readline()
         assert "vehicle 9" in ready and "ardupilot" in ready
         link.connect(timeout_s=10.0)
-        assert link.system_id == 9 and link.autopilot == "ardupilot"
-        assert wait_for(lambda: link.telemetry is not None, 3.0, link)
-        state = link.telemetry.state
+        assert link.watch.system_id == 9 and link.autopilot == "ardupilot"
+        assert wait_for(lambda: link.inbox.telemetry is not None, 3.0, link)
+        state = link.inbox.telemetry.state
         assert abs(state.x - 10.0) < 0.05 and abs(state.y - 20.0) < 0.05
         assert abs(state.heading - 1.5708) < 1e-3
-        link.prepare_and_arm(timeout_s=10.0)
+        link.modes.prepare_and_arm(timeout_s=10.0)
         run_for(link, 0.5, speed=0.5, heading=1.5708)
-        assert not link.pilot_took_over
+        assert not link.modes.pilot_took_over
 
         proc.send_signal(signal.SIGUSR1)  # a person flips the mode switch to MANUAL
-        assert wait_for(lambda: link.pilot_took_over, 3.0, link)
-        assert link.mode == "MANUAL"
+        assert wait_for(lambda: link.modes.pilot_took_over, 3.0, link)
+        assert link.watch.mode == "MANUAL"
 
         proc.send_signal(signal.SIGUSR2)  # freeze telemetry
         run_for(link, 0.8)

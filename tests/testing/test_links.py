@@ -68,7 +68,7 @@ def test_a_scripted_link_takes_over_freezes_refuses_and_brakes() -> None:
         clock, Origin(28.6, -81.2), 1, 0.0, 0.0, takeover_at=102.0, freeze_at=101.0,
         range_m=4.0, range_rate=-0.5, decel=2.0, speed=3.0,
     )  # fmt: skip
-    assert link.send_setpoint(0.0, 0.0)
+    assert link.setpoints.send(0.0, 0.0)
     clock.sleep(0.5)
     tel = link.poll()
     assert tel.state.speed == pytest.approx(2.0)  # 3 m/s braking at 2 m/s² for 0.5 s
@@ -76,12 +76,12 @@ def test_a_scripted_link_takes_over_freezes_refuses_and_brakes() -> None:
     clock.sleep(0.6)
     frozen = link.poll()
     clock.sleep(0.5)
-    assert link.poll() is frozen and not link.pilot_took_over
+    assert link.poll() is frozen and not link.modes.pilot_took_over
     clock.sleep(0.5)
-    assert link.pilot_took_over and not link.failsafe_took_over
-    assert "MANUAL" in link.takeover_reason and not link.send_setpoint(1.0, 0.0)
-    link.hold()
-    link.disarm()
+    assert link.modes.pilot_took_over and not link.modes.failsafe_took_over
+    assert "MANUAL" in link.modes.takeover_reason and not link.setpoints.send(1.0, 0.0)
+    link.modes.hold()
+    link.modes.disarm()
     assert link.hold_log == [(102.1, 0.0)] and link.disarms == 1
 
 
@@ -93,7 +93,7 @@ def test_a_replay_link_gives_the_state_set_and_replay_v2v_the_inbox() -> None:
     link.ranging = (6.0, 0.2)
     tel = link.poll()
     assert tel.state is link.state and tel.t_telemetry == 5.0 and tel.range_m == 6.0
-    assert link.send_setpoint(1.0, 0.5) and link.sent == [(1.0, 0.5)]
+    assert link.setpoints.send(1.0, 0.5) and link.sent == [(1.0, 0.5)]
     v2v = ReplayV2V()
     v2v.inbox.append(link.state)
     heard = v2v.poll(5.0)
@@ -103,21 +103,26 @@ def test_a_replay_link_gives_the_state_set_and_replay_v2v_the_inbox() -> None:
 
 def test_a_recording_link_records_what_went_out_only() -> None:
     class Refusing:
-        last_setpoint = (0.0, 0.25)
+        last = (0.0, 0.25)
         sent_ok = False
 
-        def send_setpoint(self, speed: float, heading: float) -> bool:
+        def send(self, speed: float, heading: float) -> bool:
             return self.sent_ok
 
-        def stop_motion(self) -> bool:
+        def stop(self) -> bool:
             return True
 
-    inner = Refusing()
+    class Inner:
+        setpoints = Refusing()
+        modes = None
+        sent_ok = True
+
+    inner = Inner()
     link = RecordingLink(inner)
-    assert not link.send_setpoint(1.0, 0.0) and link.sent == []
-    inner.sent_ok = True
-    assert link.send_setpoint(2.0, 0.1)
-    assert link.stop_motion()
+    assert not link.setpoints.send(1.0, 0.0) and link.sent == []
+    inner.setpoints.sent_ok = True
+    assert link.setpoints.send(2.0, 0.1)
+    assert link.setpoints.stop()
     assert [s[1:] for s in link.sent] == [(2.0, 0.1), (0.0, 0.25)]
     assert link.sent_ok is True  # anything else is the inner link's
     assert link.after(math.inf) == [] and len(link.after(-math.inf)) == 2

@@ -22,11 +22,12 @@ class Counting:
     def __init__(self) -> None:
         self.polls = 0
         self.sent: list[tuple[float, float]] = []
+        self.setpoints = self
 
     def poll(self) -> None:
         self.polls += 1
 
-    def send_setpoint(self, speed: float, heading: float) -> None:
+    def send(self, speed: float, heading: float) -> None:
         self.sent.append((speed, heading))
 
 

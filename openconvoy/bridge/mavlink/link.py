@@ -24,7 +24,7 @@ Follows shared/AUTOPILOTS.md and the firmware recordings in shared/sitl/ (ArduPi
   TCP EOF — pymavlink reports that in a busy loop instead of raising); ``reconnect(0)``
   reopens in a helper thread and never blocks the caller;
 - a mode change away from GUIDED/OFFBOARD that this link did not ask for latches
-  ``pilot_took_over`` (``takeover_reason`` says by whom, as far as the link can tell).
+  ``modes.pilot_took_over`` (``takeover_reason`` says by whom, as far as the link can tell).
 
 Setpoints: what each firmware does with them (checked in its source and its recordings)
 ---------------------------------------------------------------------------------------
@@ -56,7 +56,7 @@ vector along the current bearing (``mavlink.setpoint.PX4_STOP_MPS`` = 0.001 m/s;
 ``COM_OF_LOSS_T`` (1 s) after the last setpoint and **returns to OFFBOARD by itself when
 setpoints resume** (recorded, rows 16-18), so once the stream has paused that long, or the
 autopilot link was lost, or a mode change we did not ask for was seen, this link sends no
-setpoint again (``stream_ended``) until a new run.
+setpoint again (``setpoints.ended``) until a new run.
 
 Not thread-safe: one thread (the runner's loop) owns a link.
 """
@@ -68,13 +68,7 @@ import time
 from collections.abc import Callable
 from typing import Literal
 
-from openconvoy.bridge.link import (
-    Autopilot,
-    CommandRefused,
-    LinkTimeout,
-    StatusCallback,
-    Telemetry,
-)
+from openconvoy.bridge.link import Autopilot, LinkTimeout, StatusCallback, Telemetry
 from openconvoy.bridge.mavlink.command import Commander
 from openconvoy.bridge.mavlink.connection import MavConnection
 from openconvoy.bridge.mavlink.inbox import Inbox
@@ -109,6 +103,19 @@ def check_url(url: str) -> str:
 
 class MavlinkLink:
     """A ``VehicleLink`` to one ArduPilot Rover or PX4 vehicle over pymavlink.
+
+    The link owns the connection (open, reopen, the GCS heartbeat, draining messages) and
+    hands out the parts that do the rest, so that a caller talks to the part it means:
+
+    - ``setpoints`` (``mavlink.setpoint.SetpointStream``): ``send``, ``stop``; and what
+      went out (``last``, ``ended``, ``frame``);
+    - ``modes`` (``mavlink.modes.ModeControl``): ``prepare_and_arm``, ``hold``,
+      ``disarm``, ``set_mode``; the latched takeover (``pilot_took_over``,
+      ``takeover_reason``, ``failsafe_took_over``);
+    - ``watch`` (``mavlink.watch.VehicleWatch``): what the heartbeats and status texts
+      say (``mode``, ``armed``, ``system_id``, ``status_texts``);
+    - ``inbox`` (``mavlink.inbox.Inbox``): what arrived (``telemetry``, ``last_refusal``,
+      ``counts`` per message type).
 
     Args:
         url: connection URL (see module docstring); serial devices use ``baud``.
@@ -161,36 +168,44 @@ class MavlinkLink:
         self.source_system = source_system
         self.source_component = source_component
         self._clock = clock
-        self._on_status = on_status or (lambda line: log.warning("%s", line))
-        self._link = MavConnection(url, baud, source_system, source_component, self._status)
-        self._watch = VehicleWatch(clock)
-        self._cmd = Commander(clock, self._link, self._watch, self._service)
-        self._modes = ModeControl(clock, self._link, self._watch, self._cmd, self._status)
-        self._stream = SetpointStream(
-            clock, self._link, self._watch, self._modes, self.link_ok, self._status, setpoint_frame
+        status = on_status or (lambda line: log.warning("%s", line))
+        self._status = status
+        self._link = MavConnection(url, baud, source_system, source_component, status)
+        self.watch = VehicleWatch(clock)
+        self._cmd = Commander(clock, self._link, self.watch, self._service)
+        self.modes = ModeControl(clock, self._link, self.watch, self._cmd, status)
+        self.setpoints = SetpointStream(
+            clock,
+            self._link,
+            self.watch,
+            self.modes,
+            self.link_ok,
+            status,
+            setpoint_frame,
+            heading=lambda: self.inbox.intake.heading,
         )
         self.telemetry_rates: dict[str, float] = {}
         """Accepted telemetry rate per message name, Hz (after ``connect``)."""
-        parts = (self._watch, self._modes, self._stream, self._cmd)
+        parts = (self.watch, self.modes, self.setpoints, self._cmd)
         vehicle = (vehicle_id, length_m, width_m)
-        self._inbox = Inbox(
+        self.inbox = Inbox(
             (clock, wall_clock),
             origin,
             vehicle,
             heartbeat_timeout_s,
             parts,
             lambda: self.telemetry_rates,
-            self._status,
+            status,
         )
         self._reset_link_state()
 
     def _reset_link_state(self) -> None:
         """A new connection: forget the vehicle, its telemetry and ranges."""
         self._link.reset()
-        self._watch.reset()
-        self._modes.reset_keepalive()
-        self._inbox.reset()
-        self._stream.t0 = self._clock()
+        self.watch.reset()
+        self.modes.reset_keepalive()
+        self.inbox.reset()
+        self.setpoints.t0 = self._clock()
 
     def connect(self, timeout_s: float = 10.0) -> None:
         """Open the link, wait for a vehicle heartbeat, identify it and request telemetry.
@@ -201,7 +216,7 @@ class MavlinkLink:
         if link.conn is None:
             self._reset_link_state()
             link.open()
-        found = lambda: self._watch.target is not None  # noqa: E731
+        found = lambda: self.watch.target is not None  # noqa: E731
         quiet = min(3.0, timeout_s)  # a vehicle that answers at once needs no word
         if not self._cmd.wait_until(found, quiet) and timeout_s > quiet:
             self._status(
@@ -221,7 +236,7 @@ class MavlinkLink:
         """Reopen a lost connection (``lost``: TCP EOF/reset, device error, or a failed
         reopen), wait for a heartbeat and re-request telemetry. A connection that is open
         but still waiting for its first heartbeat is kept, so repeated short calls add up.
-        Raises like ``connect``. ``pilot_took_over`` stays latched.
+        Raises like ``connect``. ``modes.pilot_took_over`` stays latched.
 
         ``timeout_s`` <= 0 never blocks (what the runner's loop calls): the connection is
         opened in a helper thread (a TCP connect can take seconds) and installed by a later
@@ -246,71 +261,7 @@ class MavlinkLink:
     @property
     def autopilot(self) -> Autopilot:
         """``"ardupilot"`` or ``"px4"``; raises if no heartbeat identified the vehicle yet."""
-        return self._watch.autopilot()
-
-    @property
-    def system_id(self) -> int | None:
-        """The vehicle's MAVLink system id (None before its first heartbeat)."""
-        target = self._watch.target
-        return None if target is None else target[0]
-
-    @property
-    def mode(self) -> str:
-        """The vehicle's mode name from its latest heartbeat (``"UNKNOWN"`` before one)."""
-        return self._watch.mode
-
-    @property
-    def armed(self) -> bool:
-        """Armed bit of the latest heartbeat."""
-        return self._watch.armed
-
-    @property
-    def telemetry(self) -> Telemetry | None:
-        """The newest telemetry (also when ``poll`` returned None this tick)."""
-        return self._inbox.telemetry
-
-    @property
-    def last_refusal(self) -> CommandRefused | None:
-        """The newest refused command (also those sent without waiting, like ``hold(0)``)."""
-        return self._inbox.last_refusal
-
-    @property
-    def message_counts(self) -> dict[str, int]:
-        """Messages received from the vehicle per type (for measuring achieved rates)."""
-        return self._inbox.counts
-
-    @property
-    def pilot_took_over(self) -> bool:
-        """Latched: the mode left GUIDED/OFFBOARD without this link asking (a person on
-        the RC, a GCS, or PX4's offboard-loss failsafe)."""
-        return self._modes.pilot_took_over
-
-    @property
-    def takeover_reason(self) -> str:
-        """One line: which mode the vehicle went to and who set it ("" before a takeover)."""
-        return self._modes.takeover_reason
-
-    @property
-    def failsafe_took_over(self) -> bool:
-        """The takeover came with the autopilot's own failsafe text (not a person)."""
-        return self._modes.failsafe_took_over
-
-    @property
-    def stream_ended(self) -> str:
-        """Why this link sends no more setpoints (PX4: a paused stream, a lost link or a
-        takeover; "" while it may). Latched for the link's life: PX4 would re-enter
-        OFFBOARD by itself if setpoints resumed after its failsafe."""
-        return self._stream.ended
-
-    @property
-    def last_setpoint(self) -> tuple[float, float, float] | None:
-        """(speed m/s, heading rad, link-clock time) of the newest setpoint sent."""
-        return self._stream.last
-
-    @property
-    def setpoint_frame(self) -> Literal["auto", "global", "local"]:
-        """``"auto"`` (ArduPilot GLOBAL_INT, PX4 LOCAL_NED), ``"global"`` or ``"local"``."""
-        return self._stream.frame
+        return self.watch.autopilot()
 
     @property
     def lost(self) -> bool:
@@ -318,18 +269,13 @@ class MavlinkLink:
         failed): call ``reconnect``. A silent UDP link is not ``lost``: see ``link_ok``."""
         return self._link.lost
 
-    @property
-    def status_texts(self) -> list[str]:
-        """Recent STATUSTEXT lines from the autopilot, oldest first."""
-        return [text for _, _, text in self._watch.texts]
-
     def link_ok(self, now: float) -> bool:
         """True while open, telemetry younger than ``telemetry_timeout_s`` and the heartbeat
         younger than ``heartbeat_timeout_s`` at link-clock time ``now`` (s)."""
         return (
             not self._link.lost
-            and now - self._inbox.intake.t_telemetry <= self.telemetry_timeout_s
-            and now - self._watch.t_heartbeat <= self.heartbeat_timeout_s
+            and now - self.inbox.intake.t_telemetry <= self.telemetry_timeout_s
+            and now - self.watch.t_heartbeat <= self.heartbeat_timeout_s
         )
 
     def poll(self) -> Telemetry | None:
@@ -338,7 +284,7 @@ class MavlinkLink:
         Returns the new telemetry when a position or attitude message arrived since the
         last call (and a position is known), else None."""
         self._service()
-        return self._inbox.take_telemetry()
+        return self.inbox.take_telemetry()
 
     def _service(self) -> None:
         """Periodic sends (GCS heartbeat, PX4 keep-alive stream) and draining."""
@@ -348,60 +294,6 @@ class MavlinkLink:
             return
         now = self._clock()
         link.send_gcs_heartbeat(now)
-        if self._modes.keepalive_due(now):
-            self.stop_motion()
-        link.drain(self._inbox.handle)
-
-    def _status(self, line: str) -> None:
-        self._on_status(line)
-
-    def prepare_and_arm(
-        self, timeout_s: float = 60.0, on_status: StatusCallback | None = None
-    ) -> None:
-        """Switch to GUIDED (ArduPilot) or OFFBOARD (PX4) and arm, standing still; then
-        check the mode again on a heartbeat received after arming.
-
-        PX4: streams stop setpoints (10 Hz) for 1.2 s first and during the whole call; from
-        its return on, the caller must keep sending setpoints above 2 Hz. Refusals are
-        retried with status lines (``on_status``) until ``timeout_s`` s have passed; then
-        ``CommandRefused`` names the command and the autopilot's reason. A mode lost after
-        arming (ArduPilot's RC mode switch at boot) is requested again up to
-        ``mavlink.modes.MODE_REREQUESTS`` times; if it still does not hold, the vehicle is
-        disarmed and ``ModeLost`` says which mode it is in and who set it. Not allowed once
-        a pilot took over."""
-        self._modes.prepare_and_arm(timeout_s, on_status)
-
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
-        """Send speed (m/s, forward) and ENU heading (rad); one MAVLink message, no waiting.
-
-        Encoded per autopilot by ``mavlink.setpoint.encode_setpoint`` (see the module
-        docstring). Returns False without sending when there is no link, a pilot took
-        over, or the PX4 stream ended (``stream_ended``)."""
-        return self._stream.send(speed_mps, heading_rad)
-
-    def stop_motion(self) -> bool:
-        """Speed 0 along the current heading (the last commanded one before telemetry):
-        ArduPilot vx = 0 with yaw = heading; PX4 a 0.001 m/s vector along it.
-
-        Never the zero velocity vector, which both firmwares read as "bearing north"."""
-        return self._stream.stop(self._inbox.intake.heading)
-
-    def hold(self, timeout_s: float = 2.0) -> None:
-        """Switch to HOLD (ArduPilot) or AUTO.LOITER (PX4). A requested hold is not a
-        takeover. ``timeout_s`` > 0 waits for the heartbeat to confirm (raising
-        ``CommandRefused``); 0 sends and returns (a refusal lands in ``last_refusal``).
-        Stop first: PX4's Hold loops back to where it engaged (recorded: 150 °/s turns
-        from 2 m/s), ArduPilot's coasts without braking."""
-        self._modes.hold(timeout_s)
-
-    def set_mode(self, mode: str, timeout_s: float = 3.0) -> None:
-        """Request a mode by name (``"GUIDED"``, ``"HOLD"``, ``"MANUAL"``; PX4 ``"OFFBOARD"``,
-        ``"LOITER"``, ...) until the heartbeat confirms it; refusals are retried until
-        ``timeout_s`` s, then ``CommandRefused``. Entering the guided mode this way does not
-        arm, and does not clear ``pilot_took_over``."""
-        self._modes.set_named_mode(mode, timeout_s)
-
-    def disarm(self, timeout_s: float = 2.0) -> None:
-        """Disarm (standing still); raises ``CommandRefused`` if refused. ``timeout_s`` 0
-        sends and returns."""
-        self._modes.disarm(timeout_s)
+        if self.modes.keepalive_due(now):
+            self.setpoints.stop()
+        link.drain(self.inbox.handle)

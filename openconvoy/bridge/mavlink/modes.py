@@ -34,7 +34,8 @@ KEEPALIVE_PERIOD_S = 0.1  # setpoint stream while blocking in PX4 preparation (1
 
 
 class ModeControl:
-    """Requests modes and arming, and tells a takeover from a mode this link asked for.
+    """Requests modes and arming, and tells a takeover from a mode this link asked for:
+    ``MavlinkLink.modes``, the link's ``bridge.link.Modes``.
 
     Attributes:
         engaged_mode: the guided mode once armed in it (None otherwise).
@@ -127,7 +128,7 @@ class ModeControl:
         on_status(f"{said}; retrying for {left:.0f} s more")
         self._cmd.wait_until(lambda: False, min(RETRY_PAUSE_S, left))
 
-    def set_mode(self, mode: str, deadline: float, on_status: StatusCallback) -> None:
+    def request(self, mode: str, deadline: float, on_status: StatusCallback) -> None:
         """Request ``mode`` until the heartbeat shows it; retry refusals until ``deadline``."""
         self.requested_mode = mode
         watch = self._watch
@@ -159,7 +160,7 @@ class ModeControl:
                     f"mode is {watch.mode} (set by {watch.who_set_mode()}), not {mode}: "
                     f"requesting {mode} again before arming"
                 )
-                self.set_mode(mode, deadline, on_status)
+                self.request(mode, deadline, on_status)
             result, reason = self._cmd.command(mp.CMD_COMPONENT_ARM_DISARM, (1.0,))
             if result == mp.RESULT_ACCEPTED:
                 wait = max(0.0, min(MODE_CONFIRM_S, deadline - self._clock()))
@@ -174,8 +175,20 @@ class ModeControl:
                 on_status,
             )
 
-    def prepare_and_arm(self, timeout_s: float, on_status: StatusCallback | None) -> None:
-        """``MavlinkLink.prepare_and_arm``."""
+    def prepare_and_arm(
+        self, timeout_s: float = 60.0, on_status: StatusCallback | None = None
+    ) -> None:
+        """Switch to GUIDED (ArduPilot) or OFFBOARD (PX4) and arm, standing still; then
+        check the mode again on a heartbeat received after arming.
+
+        PX4: streams stop setpoints (10 Hz) for 1.2 s first and during the whole call; from
+        its return on, the caller must keep sending setpoints above 2 Hz. Refusals are
+        retried with status lines (``on_status``) until ``timeout_s`` s have passed; then
+        ``CommandRefused`` names the command and the autopilot's reason. A mode lost after
+        arming (ArduPilot's RC mode switch at boot) is requested again up to
+        ``MODE_REREQUESTS`` times; if it still does not hold, the vehicle is disarmed and
+        ``ModeLost`` says which mode it is in and who set it. Not allowed once a pilot took
+        over."""
         if self.pilot_took_over:
             raise CommandRefused(
                 "prepare_and_arm", "PILOT_TOOK_OVER", "a pilot took over this vehicle"
@@ -188,13 +201,13 @@ class ModeControl:
             self.keepalive = True
             try:
                 self._cmd.wait_until(lambda: False, PX4_PRESTREAM_S)
-                self.set_mode(target, deadline, status)
+                self.request(target, deadline, status)
                 self.arm(deadline, status, target)
                 self._keep_mode_after_arming(target, status)
             finally:
                 self.keepalive = False
         else:
-            self.set_mode(target, deadline, status)
+            self.request(target, deadline, status)
             self.arm(deadline, status, target)
             self._keep_mode_after_arming(target, status)
         self.engaged_mode = target
@@ -228,7 +241,7 @@ class ModeControl:
                 f"requesting {target} again ({attempt + 1} of {MODE_REREQUESTS})"
             )
             try:
-                self.set_mode(target, self._clock() + MODE_CONFIRM_S, status)
+                self.request(target, self._clock() + MODE_CONFIRM_S, status)
             except CommandRefused as exc:
                 status(f"{target} refused again: {exc}")
         mode = watch.mode
@@ -247,8 +260,12 @@ class ModeControl:
     def _can_send(self) -> bool:
         return self._link.conn is not None and self._watch.target is not None
 
-    def hold(self, timeout_s: float) -> None:
-        """``MavlinkLink.hold``."""
+    def hold(self, timeout_s: float = 2.0) -> None:
+        """Switch to HOLD (ArduPilot) or AUTO.LOITER (PX4). A requested hold is not a
+        takeover. ``timeout_s`` > 0 waits for the heartbeat to confirm (raising
+        ``CommandRefused``); 0 sends and returns (a refusal lands in the link's
+        ``inbox.last_refusal``). Stop first: PX4's Hold loops back to where it engaged
+        (recorded: 150 °/s turns from 2 m/s), ArduPilot's coasts without braking."""
         mode = self.hold_mode()
         self.engaged_mode = None
         self.requested_mode = mode
@@ -256,19 +273,23 @@ class ModeControl:
             if self._can_send():
                 self._cmd.send(mp.CMD_DO_SET_MODE, self.mode_params(mode))
             return
-        self.set_mode(mode, self._clock() + timeout_s, self._status)
+        self.request(mode, self._clock() + timeout_s, self._status)
 
-    def set_named_mode(self, mode: str, timeout_s: float) -> None:
-        """``MavlinkLink.set_mode``."""
+    def set_mode(self, mode: str, timeout_s: float = 3.0) -> None:
+        """Request a mode by name (``"GUIDED"``, ``"HOLD"``, ``"MANUAL"``; PX4 ``"OFFBOARD"``,
+        ``"LOITER"``, ...) until the heartbeat confirms it; refusals are retried until
+        ``timeout_s`` s, then ``CommandRefused``. Entering the guided mode this way does not
+        arm, and does not clear ``pilot_took_over``."""
         autopilot = self._watch.autopilot()
         known = mp.PX4_MODE_NUMBERS if autopilot == "px4" else mp.ROVER_MODE_NUMBERS
         if mode not in known:
             raise ValueError(f"unknown {autopilot} mode {mode!r}; one of {', '.join(known)}")
         self.engaged_mode = None
-        self.set_mode(mode, self._clock() + timeout_s, self._status)
+        self.request(mode, self._clock() + timeout_s, self._status)
 
-    def disarm(self, timeout_s: float) -> None:
-        """``MavlinkLink.disarm``."""
+    def disarm(self, timeout_s: float = 2.0) -> None:
+        """Disarm (standing still); raises ``CommandRefused`` if refused. ``timeout_s`` 0
+        sends and returns."""
         if timeout_s <= 0:
             if self._can_send():
                 self._cmd.send(mp.CMD_COMPONENT_ARM_DISARM, (0.0,))

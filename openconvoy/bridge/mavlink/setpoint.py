@@ -88,7 +88,9 @@ class SetpointStream:
     PX4's commander leaves OFFBOARD ``COM_OF_LOSS_T`` (1 s) after the last setpoint and
     returns to OFFBOARD by itself when setpoints resume: once the stream paused that long,
     the autopilot link was lost, or a mode change this link did not ask for was seen, no
-    setpoint goes out again (``ended``).
+    setpoint goes out again (``ended``). ``MavlinkLink.setpoints``, the link's
+    ``bridge.link.Setpoints``; ``heading`` gives the vehicle's current heading (rad, ENU;
+    None before telemetry) that ``stop`` holds.
 
     Attributes:
         ended: why no more setpoints go out ("" while they may).
@@ -106,6 +108,7 @@ class SetpointStream:
         link_ok: Callable[[float], bool],
         status: StatusCallback,
         frame: Literal["auto", "global", "local"] = "auto",
+        heading: Callable[[], float | None] = lambda: None,
     ) -> None:
         self._clock = clock
         self._link = link
@@ -113,6 +116,7 @@ class SetpointStream:
         self._modes = modes
         self._link_ok = link_ok
         self._status = status
+        self._heading = heading
         self.frame = frame
         self.ended = ""
         self.last: tuple[float, float, float] | None = None
@@ -152,7 +156,11 @@ class SetpointStream:
         return True
 
     def send(self, speed_mps: float, heading_rad: float) -> bool:
-        """``MavlinkLink.send_setpoint``."""
+        """Send speed (m/s, forward) and ENU heading (rad); one MAVLink message, no waiting.
+
+        Encoded per autopilot by ``encode_setpoint`` (see ``mavlink.link``'s docstring).
+        Returns False without sending when there is no link, a pilot took over, or the
+        PX4 stream ended (``ended``)."""
         now = self._clock()
         if not self._may_send(now):
             return False
@@ -164,8 +172,12 @@ class SetpointStream:
         self.last = (sp.speed, float(heading_rad), now)
         return True
 
-    def stop(self, heading_rad: float | None) -> bool:
-        """Speed 0 along ``heading_rad`` (None: the last commanded heading, else east)."""
+    def stop(self) -> bool:
+        """Speed 0 along the current heading (before telemetry: the last commanded one,
+        else east): ArduPilot vx = 0 with yaw = heading; PX4 a 0.001 m/s vector along it.
+
+        Never the zero velocity vector, which both firmwares read as "bearing north"."""
+        heading_rad = self._heading()
         if heading_rad is None:
             heading_rad = self.last[1] if self.last else 0.0
         return self.send(0.0, heading_rad)

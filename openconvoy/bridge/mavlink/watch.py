@@ -57,6 +57,16 @@ class VehicleWatch:
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=32)
         self._chunks: dict[int, tuple[float, int, str]] = {}  # id -> (clock s, severity, so far)
 
+    @property
+    def system_id(self) -> int | None:
+        """The vehicle's MAVLink system id (None before its heartbeat)."""
+        return None if self.target is None else self.target[0]
+
+    @property
+    def status_texts(self) -> list[str]:
+        """Recent STATUSTEXT lines from the autopilot, oldest first."""
+        return [text for _, _, text in self.texts]
+
     def autopilot(self) -> Autopilot:
         """``"ardupilot"`` or ``"px4"``; raises ``LinkTimeout`` before identification."""
         if self.autopilot_id == mp.AUTOPILOT_PX4:

@@ -85,6 +85,8 @@ class Px4DdsLink:
         self.telemetry_rates: dict[str, float] = {}
         self.dropped: dict[str, int] = {}
         self._part: Participant | None = None
+        self.setpoints = self  # one state behind all: its own ``Setpoints`` and ``Modes``
+        self.modes = self
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -346,21 +348,21 @@ class Px4DdsLink:
                 return False
             time.sleep(0.05)
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
         """Offboard signal + NED velocity setpoint; False once a pilot took over."""
         if self._took_over or self._part is None:
             return False
         self._stream(speed_mps, heading_rad)
         return True
 
-    def stop_motion(self) -> bool:
+    def stop(self) -> bool:
         """Speed 0 along the current heading (never a zero velocity in a stale direction)."""
-        return self.send_setpoint(0.0, self._heading_now())
+        return self.send(0.0, self._heading_now())
 
     def hold(self, timeout_s: float = 2.0) -> None:
         """Stop, then AUTO.LOITER (PX4's rover Hold); 0 = do not wait."""
         self._require()
-        self.stop_motion()
+        self.stop()
         self._asked_mode = msgs.NAVIGATION_STATE_AUTO_LOITER
         self._command(msgs.VEHICLE_CMD_DO_SET_MODE, 1.0, PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER)
         if timeout_s > 0:

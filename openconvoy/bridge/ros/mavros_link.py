@@ -156,6 +156,8 @@ class MavrosLink:
         self._last_sp: tuple[float, float, float] | None = None  # speed, heading, clock
         self.stream_ended = ""
         self._reconnecting: threading.Thread | None = None
+        self.setpoints = self  # one state behind all: its own ``Setpoints`` and ``Modes``
+        self.modes = self
 
     def _reset_state(self) -> None:
         self._fix: tuple[float, float, float, float] | None = None  # lat, lon, stamp, clock
@@ -437,7 +439,7 @@ class MavrosLink:
             node.publish(self._t("setpoint_raw/global"), msg)
         self._last_sp = (sp.speed, float(heading_rad), self.clock())
 
-    def send_setpoint(self, speed_mps: float, heading_rad: float) -> bool:
+    def send(self, speed_mps: float, heading_rad: float) -> bool:
         if self.pilot_took_over or self.lost or self.stream_ended:
             return False
         now = self.clock()
@@ -452,8 +454,8 @@ class MavrosLink:
         self._publish_setpoint(speed_mps, heading_rad)
         return True
 
-    def stop_motion(self) -> bool:
-        return self.send_setpoint(0.0, self._heading_now())
+    def stop(self) -> bool:
+        return self.send(0.0, self._heading_now())
 
     def hold(self, timeout_s: float = 2.0) -> None:
         if self._node is None or self._closed:

@@ -69,8 +69,8 @@ def test_identify_and_telemetry_in_enu(vehicle_and_link, autopilot) -> None:
     assert isinstance(link, VehicleLink)
     assert link.autopilot == autopilot
     assert link.telemetry_rates == {"GLOBAL_POSITION_INT": 20.0, "ATTITUDE": 20.0}
-    assert wait_for(lambda: link.telemetry is not None, 2.0, link)
-    tel = link.telemetry
+    assert wait_for(lambda: link.inbox.telemetry is not None, 2.0, link)
+    tel = link.inbox.telemetry
     assert tel.state.vehicle_id == 2 and tel.state.length == 0.8
     assert tel.state.x == pytest.approx(103.0, abs=0.05)
     assert tel.state.y == pytest.approx(46.0, abs=0.05)
@@ -93,18 +93,18 @@ def test_refused_rate_is_reported_and_lowered(vehicle_and_link) -> None:
     assert vehicle.message_rates_hz["GLOBAL_POSITION_INT"] == pytest.approx(25.0)
     # The achieved rate at the link.
     run_for(link, 0.3)
-    before = link.message_counts.get("GLOBAL_POSITION_INT", 0)
+    before = link.inbox.counts.get("GLOBAL_POSITION_INT", 0)
     t0 = time.monotonic()
     run_for(link, 2.0, period=0.01)
-    rate = (link.message_counts["GLOBAL_POSITION_INT"] - before) / (time.monotonic() - t0)
+    rate = (link.inbox.counts["GLOBAL_POSITION_INT"] - before) / (time.monotonic() - t0)
     assert 20.0 <= rate <= 27.0
 
 
 def test_arming_waits_for_the_estimator(vehicle_and_link) -> None:
     vehicle, link, _ = vehicle_and_link(ready_after_s=3.0)
     status: list[str] = []
-    link.prepare_and_arm(timeout_s=10.0, on_status=status.append)
-    assert link.armed and link.mode == "GUIDED"
+    link.modes.prepare_and_arm(timeout_s=10.0, on_status=status.append)
+    assert link.watch.armed and link.watch.mode == "GUIDED"
     assert vehicle.armed and vehicle.mode == "GUIDED"
     assert vehicle.state().t >= 3.0
     waiting = [s for s in status if s.startswith("waiting to arm")]
@@ -116,7 +116,7 @@ def test_arming_waits_for_the_estimator(vehicle_and_link) -> None:
 def test_arming_timeout_names_command_and_reason(vehicle_and_link) -> None:
     _, link, _ = vehicle_and_link(ready_after_s=100.0)
     with pytest.raises(CommandRefused) as err:
-        link.prepare_and_arm(timeout_s=2.0, on_status=lambda line: None)
+        link.modes.prepare_and_arm(timeout_s=2.0, on_status=lambda line: None)
     assert err.value.command == "MAV_CMD_COMPONENT_ARM_DISARM"
     assert err.value.result == "MAV_RESULT_FAILED"
     assert "AHRS" in err.value.reason
@@ -125,13 +125,13 @@ def test_arming_timeout_names_command_and_reason(vehicle_and_link) -> None:
 
 def test_guided_setpoints_drive_speed_and_heading(vehicle_and_link) -> None:
     vehicle, link, _ = vehicle_and_link(start_heading_rad=0.0)
-    link.prepare_and_arm(timeout_s=10.0)
+    link.modes.prepare_and_arm(timeout_s=10.0)
     north = math.pi / 2
     run_for(link, 4.0, speed=1.5, heading=north)
     truth = vehicle.state()
     assert truth.speed == pytest.approx(1.5, abs=0.03)
     assert truth.heading == pytest.approx(north, abs=0.02)
-    tel = link.telemetry
+    tel = link.inbox.telemetry
     assert tel.state.speed == pytest.approx(1.5, abs=0.05)
     assert tel.state.heading == pytest.approx(north, abs=0.03)
     assert tel.state.y > 2.0  # it went north
@@ -139,20 +139,20 @@ def test_guided_setpoints_drive_speed_and_heading(vehicle_and_link) -> None:
     end = time.monotonic() + 2.5
     while time.monotonic() < end:
         link.poll()
-        link.stop_motion()
+        link.setpoints.stop()
         time.sleep(0.05)
     truth = vehicle.state()
     assert abs(truth.speed) < 0.02
     assert truth.heading == pytest.approx(north, abs=0.03)
     # A requested HOLD is not a pilot takeover.
-    link.hold(timeout_s=3.0)
-    assert vehicle.mode == "HOLD" and not link.pilot_took_over
+    link.modes.hold(timeout_s=3.0)
+    assert vehicle.mode == "HOLD" and not link.modes.pilot_took_over
 
 
 def test_setpoint_timeout_stops_the_rover_after_3_s(vehicle_and_link) -> None:
     vehicle, link, _ = vehicle_and_link()
     assert vehicle.config.setpoint_timeout_s == 3.0  # the default, as ArduPilot
-    link.prepare_and_arm(timeout_s=10.0)
+    link.modes.prepare_and_arm(timeout_s=10.0)
     run_for(link, 2.0, speed=1.0, heading=0.0)
     assert vehicle.state().speed == pytest.approx(1.0, abs=0.05)
     t_last = time.monotonic()
@@ -161,32 +161,32 @@ def test_setpoint_timeout_stops_the_rover_after_3_s(vehicle_and_link) -> None:
     assert wait_for(lambda: abs(vehicle.state().speed) < 0.01, 4.0, link)
     stopped_after = time.monotonic() - t_last
     assert 3.0 <= stopped_after <= 5.5  # 3 s timeout + ~1 s braking at 1 m/s²
-    assert vehicle.mode == "GUIDED" and link.mode == "GUIDED"  # ArduPilot stays in GUIDED
-    assert not link.pilot_took_over
+    assert vehicle.mode == "GUIDED" and link.watch.mode == "GUIDED"  # ArduPilot stays in GUIDED
+    assert not link.modes.pilot_took_over
 
 
 def test_pilot_takeover_is_latched(vehicle_and_link) -> None:
     vehicle, link, lines = vehicle_and_link()
-    link.prepare_and_arm(timeout_s=10.0)
+    link.modes.prepare_and_arm(timeout_s=10.0)
     run_for(link, 1.0, speed=1.0, heading=0.0)
-    assert not link.pilot_took_over
+    assert not link.modes.pilot_took_over
     vehicle.pilot_set_mode("MANUAL")
-    assert wait_for(lambda: link.pilot_took_over, 2.5, link)
-    assert link.mode == "MANUAL"
-    assert link.send_setpoint(1.0, 0.0) is False
-    assert link.stop_motion() is False
+    assert wait_for(lambda: link.modes.pilot_took_over, 2.5, link)
+    assert link.watch.mode == "MANUAL"
+    assert link.setpoints.send(1.0, 0.0) is False
+    assert link.setpoints.stop() is False
     assert any("took over" in line for line in lines)
     with pytest.raises(CommandRefused):
-        link.prepare_and_arm(timeout_s=1.0)
+        link.modes.prepare_and_arm(timeout_s=1.0)
 
 
 def test_px4_offboard_needs_the_stream_and_leaves_without_it(vehicle_and_link) -> None:
     vehicle, link, _ = vehicle_and_link(autopilot="px4")
-    link.set_mode("OFFBOARD", timeout_s=2.0)  # real PX4 accepts it disarmed without a stream
+    link.modes.set_mode("OFFBOARD", timeout_s=2.0)  # real PX4 accepts it disarmed without a stream
     assert vehicle.mode == "OFFBOARD"  # (shared/sitl-px4 row 3); arming there needs the stream
 
     t0 = time.monotonic()
-    link.prepare_and_arm(timeout_s=10.0)  # streams 1.2 s first, then OFFBOARD, then arms
+    link.modes.prepare_and_arm(timeout_s=10.0)  # streams 1.2 s first, then OFFBOARD, then arms
     assert time.monotonic() - t0 >= 1.2
     assert vehicle.mode == "OFFBOARD" and vehicle.armed
     run_for(link, 3.5, speed=1.0, heading=-math.pi / 2)
@@ -199,7 +199,7 @@ def test_px4_offboard_needs_the_stream_and_leaves_without_it(vehicle_and_link) -
     assert wait_for(lambda: vehicle.mode == "POSCTL", 3.0, link)
     left_after = time.monotonic() - t_last
     assert 0.9 <= left_after <= 1.6
-    assert wait_for(lambda: link.pilot_took_over, 2.0, link)  # not our request
+    assert wait_for(lambda: link.modes.pilot_took_over, 2.0, link)  # not our request
     assert wait_for(lambda: abs(vehicle.state().speed) < 0.01, 3.0, link)
 
 
@@ -278,7 +278,7 @@ def test_link_listens_for_a_vehicle_that_sends_first() -> None:
         vehicle.start()
         link.connect(timeout_s=5.0)
         assert link.autopilot == "ardupilot" and link.telemetry_rates["ATTITUDE"] == 20.0
-        link.prepare_and_arm(timeout_s=10.0)
+        link.modes.prepare_and_arm(timeout_s=10.0)
         assert vehicle.armed and vehicle.mode == "GUIDED"
     finally:
         link.close()
@@ -295,8 +295,8 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
     at headings in all four quadrants; the old encoding (NED (vx, vy) with yaw, e9a5f3e)
     reverses exactly where real Rover 4.7 did (shared/sitl row 7: vx <= -FLT_EPSILON)."""
     vehicle, link, _ = vehicle_and_link(start_heading_rad=0.0)
-    link.prepare_and_arm(timeout_s=10.0)
-    ts, tc = link._watch.target
+    link.modes.prepare_and_arm(timeout_s=10.0)
+    ts, tc = link.watch.target
 
     def drive(send, seconds: float = 1.5) -> float:
         end = time.monotonic() + seconds
@@ -308,8 +308,8 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
 
     for compass in (45.0, 135.0, 225.0, 315.0):
         heading = math.radians(90.0 - compass)
-        assert drive(lambda h=heading: link.send_setpoint(1.0, h)) > 0.3, compass
-        drive(link.stop_motion, 1.2)
+        assert drive(lambda h=heading: link.setpoints.send(1.0, h)) > 0.3, compass
+        drive(link.setpoints.stop, 1.2)
     for compass in (45.0, 135.0, 225.0, 315.0):
         yaw = math.radians(compass)
         vn, ve = math.cos(yaw), math.sin(yaw)
@@ -321,7 +321,7 @@ def test_every_quadrant_drives_forward_and_the_old_encoding_reverses_where_the_f
 
         speed = drive(old)
         assert (speed < -0.3) if vn <= -FLT_EPSILON else (speed > 0.3), (compass, speed)
-        drive(link.stop_motion, 1.2)
+        drive(link.setpoints.stop, 1.2)
 
 
 @pytest.mark.parametrize(
@@ -338,5 +338,5 @@ def test_an_arming_refusal_names_the_autopilots_whole_reasons(
 ) -> None:
     _, link, _ = vehicle_and_link(autopilot=autopilot, ready_after_s=100.0)
     with pytest.raises(CommandRefused) as err:
-        link.prepare_and_arm(timeout_s=2.5, on_status=lambda line: None)
+        link.modes.prepare_and_arm(timeout_s=2.5, on_status=lambda line: None)
     assert err.value.reason == "; ".join(reasons)

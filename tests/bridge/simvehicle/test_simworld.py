@@ -121,7 +121,7 @@ def test_mavlink_link_reads_the_range_and_loses_it_when_nothing_is_ahead() -> No
         link.connect(timeout_s=5.0)
 
         def tel():
-            return link.telemetry
+            return link.inbox.telemetry
 
         assert wait_for(
             lambda: tel() is not None and math.isfinite(tel().range_rate_mps), 3.0, link

@@ -4,7 +4,8 @@ Three simulated MAVLink vehicles (``bridge.simvehicle.vehicle``, ArduPilot Rover
 the recorded firmware's loops, vehicle model and boot sequence) start at the ``paper``
 scenario's initial positions, and three ``openconvoy deploy`` processes
 (leader + two followers, the ``paper`` policy) drive them over MAVLink (UDP on loopback)
-while exchanging J2735 BSMs over real IPv6 multicast — inside a private network namespace
+while exchanging J2735 BSMs over real IPv6 multicast (or, ``--v2v ros2``, on a ROS 2
+topic through Cyclone DDS on the same interface) — inside a private network namespace
 (``unshare -rn``, see ``comms.netns``), so nothing leaves the machine. Live status lines
 show the convoy; at the end every process is stopped cleanly (SIGTERM: stop, HOLD, log
 flushed) and the run's metrics are printed side by side with the pure simulation of the
@@ -63,6 +64,7 @@ class DemoOptions:
     link: str = "mavlink"
     ros: int = 1
     bag: bool = False
+    v2v: str = "multicast"
 
 
 def demo_from_namespace(args: argparse.Namespace) -> int:
@@ -76,6 +78,7 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "link", "mavlink"),
         getattr(args, "ros", 1),
         getattr(args, "bag", False),
+        getattr(args, "v2v", "multicast"),
     )
     if opts.link == "ap-dds" and opts.autopilot != "ardupilot":
         _say("openconvoy demo: --link ap-dds drives ArduPilot vehicles: not with --autopilot px4")
@@ -114,6 +117,8 @@ def _argv(opts: DemoOptions) -> list[str]:
         argv += ["--link", opts.link, "--ros", str(opts.ros)]
     if opts.bag:
         argv.append("--bag")
+    if opts.v2v != "multicast":
+        argv += ["--v2v", opts.v2v]
     return argv
 
 
@@ -394,6 +399,8 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
                 cmd += ["--link", "ap-dds", "--ap-ns", f"/vehicle_{i}/ap"]
             if opts.bag:
                 cmd.append("--bag")
+            if opts.v2v != "multicast":
+                cmd += ["--v2v", opts.v2v]  # the same signed bytes on a ROS 2 topic (DDS)
             if opts.duration_s is not None and i == 0:
                 cmd += ["--duration", repr(run.duration_s)]
             err = open(run.out / f"deploy_{i}.txt", "w")

@@ -202,7 +202,16 @@ DEPLOY_FLAGS: Flags = (
             help="the firmware behind MAVROS (default: told by its mode name)",
         ),
     ),
-    ("--iface", dict(required=True, help="network interface for V2V multicast")),
+    ("--iface", dict(required=True, help="network interface for V2V (multicast, or DDS)")),
+    (
+        "--v2v",
+        dict(
+            choices=("multicast", "ros2"),
+            default=None,
+            help="what carries V2V: IPv6 multicast, or a ROS 2 topic over DDS (Cyclone, "
+            "no ROS install; docs/ros.md); default the convoy file's [v2v] transport",
+        ),
+    ),
     ("--per", dict(type=FRACTION, default=0.0, help="emulated packet error rate 0..1")),
     (
         "--drop-at",

@@ -300,7 +300,8 @@ def _make_v2v(
     if bag is not None:
         from openconvoy.bridge.ros.bagtap import BagTap
 
-        transport = BagTap(open_transport(config, a.vehicle_id), bag, a.vehicle_id, time.time)
+        socket_ = open_transport(config, a.vehicle_id, convoy.n_vehicles)
+        transport = BagTap(socket_, bag, a.vehicle_id, time.time)
     return V2V(
         config,
         temp_ids,

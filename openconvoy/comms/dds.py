@@ -21,8 +21,8 @@ through the same decoding, verification, counting and dropping as a multicast da
 and dropped.
 
 QoS for V2V: best effort (a BSM is worth nothing once the next one is out, as on the air),
-volatile, keep last ``DEPTH`` (a bounded queue between polls, as the multicast socket's
-buffer: under a flood the oldest are lost, never the control loop's time).
+volatile, keep last ``depth_for(convoy size)`` (a bounded queue between polls, as the
+multicast socket's buffer; under a flood the oldest are lost, never the control loop's time).
 
 DDS stays on the V2V interface: Cyclone is configured to use ``iface`` only (the one
 ``--iface`` names for multicast), so its discovery and data go where multicast V2V would,
@@ -41,8 +41,23 @@ from openconvoy.core.errors import ConfigError, DependencyMissing, LinkError
 
 DEFAULT_TOPIC = "/openconvoy/v2v"
 DEFAULT_DOMAIN = 0
-DEPTH = 256
-"""Samples kept between two polls: a second of a 25-vehicle convoy's BSMs at 10 Hz."""
+PER_MEMBER = 8
+"""Samples kept per convoy member (``depth_for``): with 10 Hz BSMs and plans beside them,
+about 0.4 s of the convoy's messages — several polls of a 20 Hz loop."""
+
+
+def depth_for(members: int) -> int:
+    """The reader's keep-last depth for a convoy of ``members`` vehicles (at least 16).
+
+    Bounded on purpose: DDS's keep-last drops the *oldest* sample when full, so a vehicle
+    that polls late (its loop starting, a loaded machine) reads what was sent last, not a
+    backlog of seconds — such a backlog, read oldest first, is all stale, and its clock
+    offsets stop the convoy start (measured: a deploy that began polling 12 s after its
+    peers read only samples 1.7 s old and refused to start with a depth of 256)."""
+    return max(16, PER_MEMBER * members)
+
+
+DEPTH = depth_for(3)
 INSTALL_HINT = "V2V over ROS 2 needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
 
 
@@ -142,7 +157,8 @@ _DOMAINS: dict[int, Any] = {}
 class DdsTransport:
     """A ``comms.multicast.Transport`` over a ROS 2 topic of DDS domain ``domain_id``, Cyclone
     kept on network interface ``iface`` (``interface_config``); ``vehicle_id`` and ``wall``
-    (s) stamp what is sent. ``recv_all`` never blocks; a datagram's source is
+    (s) stamp what is sent; ``depth`` samples are kept between polls (``depth_for``).
+    ``recv_all`` never blocks; a datagram's source is
     ``dds:<writer handle>`` (one per sending vehicle)."""
 
     def __init__(

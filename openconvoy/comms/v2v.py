@@ -1011,15 +1011,19 @@ class Receiver:
         return state
 
 
-def open_transport(config: LinkConfig, vehicle_index: int = 0) -> Transport:
+def open_transport(config: LinkConfig, vehicle_index: int = 0, members: int = 3) -> Transport:
     """The J2735 transport ``config`` names: the IPv6 multicast socket, or with
     ``transport = "ros2"`` the ROS 2 topic (``comms.dds.DdsTransport``, which stamps what
-    it sends with ``vehicle_index``)."""
+    it sends with ``vehicle_index`` and keeps a queue sized for ``members`` vehicles)."""
     if config.transport == "ros2":
-        from openconvoy.comms.dds import DdsTransport
+        from openconvoy.comms.dds import DdsTransport, depth_for
 
         return DdsTransport(
-            config.iface, config.ros2_topic, config.ros2_domain, vehicle_id=vehicle_index
+            config.iface,
+            config.ros2_topic,
+            config.ros2_domain,
+            vehicle_id=vehicle_index,
+            depth=depth_for(members),
         )
     return Ipv6Multicast(
         config.iface, config.group, config.port, config.hop_limit, rcvbuf_bytes=V2V_RCVBUF_BYTES
@@ -1031,10 +1035,11 @@ def _open_transports(
     transport: Transport | None,
     compat_transport: Transport | None,
     vehicle_index: int = 0,
+    members: int = 3,
 ) -> tuple[Transport, Transport | None]:
     """The J2735 transport (``open_transport``) and, with ``config.compat``, the IPv4
     socket (each unless injected); nothing stays open when the second cannot be opened."""
-    tx = transport if transport is not None else open_transport(config, vehicle_index)
+    tx = transport if transport is not None else open_transport(config, vehicle_index, members)
     if compat_transport is not None or not config.compat:
         return tx, compat_transport
     try:
@@ -1121,7 +1126,9 @@ class V2V:
             counters=self.counters,
             auth=auth,
         )
-        self._tx, self._tx4 = _open_transports(config, transport, compat_transport, vehicle_index)
+        self._tx, self._tx4 = _open_transports(
+            config, transport, compat_transport, vehicle_index, len(temp_ids)
+        )
         self._warned_send = False
         # Compile the ASN.1 spec now, not on the first message (it takes ~0.2 s).
         j.warm_up()

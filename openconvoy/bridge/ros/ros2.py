@@ -285,19 +285,61 @@ class Ros2Node(Ros1Node):
         return list(self._request({"op": "publishers", "topic": topic}, timeout_s)["publishers"])
 
 
+class CycloneNode(Ros2Node):
+    """A ``Ros2Node`` without ROS: the same methods (``sub``/``adv``/``pub``/``call`` of the
+    ``ap-dds`` link's types) through Cyclone DDS directly (``cyclone_agent.py``, run by this
+    Python: no ROS 2 environment needed). ``iface``: keep Cyclone on that interface
+    (``OPENCONVOY_DDS_IFACE``; default: Cyclone's own configuration)."""
+
+    ROS = "DDS (Cyclone)"
+
+    def __init__(
+        self,
+        name: str,
+        timeout_s: float = 30.0,
+        netns_pid: int | None = None,
+        iface: str | None = None,
+    ) -> None:
+        self.iface = iface
+        super().__init__(name, timeout_s, MSG_DIR, netns_pid)
+
+    def _agent(
+        self, name: str, master_uri: str | None, msg_dir: Path
+    ) -> tuple[list[str], dict[str, str]]:
+        try:
+            import cyclonedds  # noqa: F401
+        except ModuleNotFoundError:
+            raise DependencyMissing(
+                "--link ap-dds needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
+            ) from None
+        argv = [sys.executable, "-m", "openconvoy.bridge.ros.cyclone_agent", "/" + name.lstrip("/")]
+        if self.netns_pid is not None:
+            enter = ["nsenter", "--preserve-credentials", "-U", "-n", "-t", str(self.netns_pid)]
+            argv = enter + argv
+        env = dict(os.environ)
+        if self.iface:
+            env["OPENCONVOY_DDS_IFACE"] = self.iface
+        return argv, env
+
+
 class LoopbackNetns:
     """A private network namespace with only loopback up (``unshare -rn``), held open by a
     process whose pid ROS 2 nodes join (``Ros2Node(netns_pid=...)``): DDS discovery
-    then reaches nothing beyond it. ``close`` ends it."""
+    then reaches nothing beyond it. ``veth``: also the veth pair of ``comms.netns``
+    (``oc0``, multicast-capable: where Fast DDS and Cyclone DDS find each other).
+    ``close`` ends it."""
 
-    def __init__(self) -> None:
+    def __init__(self, veth: bool = False) -> None:
         from openconvoy.comms.netns import netns_unavailable_reason
 
         why = netns_unavailable_reason()
         if why:
             raise DependencyMissing(why)
+        wire = "ip link set lo up"
+        if veth:
+            wire = f"{sys.executable} -c 'from openconvoy.comms import netns; netns.setup_network()'"
         self._proc = subprocess.Popen(
-            ["unshare", "-rn", "sh", "-c", "ip link set lo up && echo up && exec cat"],
+            ["unshare", "-rn", "sh", "-c", f"{wire} && echo up && exec cat"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,

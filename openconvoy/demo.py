@@ -397,6 +397,7 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             if opts.link == "ap-dds":
                 cmd = [c for c in cmd if c not in ("--mavlink", url)]
                 cmd += ["--link", "ap-dds", "--ap-ns", f"/vehicle_{i}/ap"]
+                cmd += ["--dds-iface", run.iface]  # Cyclone meets the rclpy stand-ins there
             if opts.bag:
                 cmd.append("--bag")
             if opts.v2v != "multicast":
@@ -466,18 +467,21 @@ def _start_px4dds(ros: list[Any], urls: Sequence[str]) -> None:
 
 def _start_apdds(ros: list[Any], urls: Sequence[str]) -> None:
     """``--link ap-dds``: an AP_DDS stand-in per vehicle (namespace ``/vehicle_N/ap``, a ROS 2
-    node, discovery on loopback inside the demo's namespace), forwarding to its simulated
+    node, discovery on the demo namespace's veth, where the deploys' Cyclone nodes are), forwarding to its simulated
     ArduPilot over MAVLink; appended to ``ros``."""
     from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
     from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
 
     build_mavros_msgs()
     build_interfaces("ardupilot_msgs")
+    # The deploys' nodes are Cyclone DDS on the namespace's veth (``--dds-iface``): the
+    # stand-ins' Fast DDS must look for peers there, not on loopback only.
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
     for i, url in enumerate(urls):
         node = Ros2Node(f"/ap_dds_vehicle_{i}")
         ros.append(node)
         ros.append(_Stopper(ApDdsStandIn(node, url, f"/vehicle_{i}/ap").start()))
-    _say("ROS 2 (rclpy); AP_DDS stand-ins under /vehicle_N/ap (ardupilot)")
+    _say("ROS 2 (rclpy) AP_DDS stand-ins under /vehicle_N/ap (ardupilot); deploys via Cyclone DDS")
 
 
 class _Stopper:

@@ -67,6 +67,8 @@ class DeployArgs:
     dds_domain: int = 0
     dds_localhost: bool = False
     v2v: Literal["multicast", "ros2"] | None = None
+    ap_dds_via: Literal["cyclone", "rclpy"] = "cyclone"
+    dds_iface: str | None = None
 
 
 def _status(quiet: bool):
@@ -180,7 +182,8 @@ def _link_name(a: DeployArgs) -> str:
     if a.link == "px4-dds":
         return f"px4-dds (domain {a.dds_domain}, ns {a.px4_ns or '-'})"
     if a.link == "ap-dds":
-        return f"ap-dds (ROS 2, {a.ap_ns})"
+        via = "ROS 2" if a.ap_dds_via == "rclpy" else f"DDS domain {a.dds_domain}"
+        return f"ap-dds ({via}, {a.ap_ns})"
     return a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})"
 
 
@@ -199,8 +202,16 @@ def _make_link(
         if a.autopilot == "px4":
             raise ConfigError("--link ap-dds is ArduPilot's interface: not with --autopilot px4")
         name = f"/openconvoy_vehicle_{a.vehicle_id}"
+
+        def ap_node() -> Any:
+            if a.ap_dds_via == "rclpy":
+                return Ros2Node(name)
+            from openconvoy.bridge.ros.ros2 import CycloneNode
+
+            return CycloneNode(name, iface=a.dds_iface, domain_id=a.dds_domain)
+
         return ApDdsLink(
-            lambda: Ros2Node(name),
+            ap_node,
             a.ap_ns,
             origin,
             a.vehicle_id,

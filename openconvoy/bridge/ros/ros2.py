@@ -289,7 +289,8 @@ class CycloneNode(Ros2Node):
     """A ``Ros2Node`` without ROS: the same methods (``sub``/``adv``/``pub``/``call`` of the
     ``ap-dds`` link's types) through Cyclone DDS directly (``cyclone_agent.py``, run by this
     Python: no ROS 2 environment needed). ``iface``: keep Cyclone on that interface
-    (``OPENCONVOY_DDS_IFACE``; default: Cyclone's own configuration)."""
+    (``OPENCONVOY_DDS_IFACE``; default: Cyclone's own configuration); ``domain_id``: the
+    DDS domain (default ``ROS_DOMAIN_ID``, else 0)."""
 
     ROS = "DDS (Cyclone)"
 
@@ -299,8 +300,9 @@ class CycloneNode(Ros2Node):
         timeout_s: float = 30.0,
         netns_pid: int | None = None,
         iface: str | None = None,
+        domain_id: int | None = None,
     ) -> None:
-        self.iface = iface
+        self.iface, self.domain_id = iface, domain_id
         super().__init__(name, timeout_s, MSG_DIR, netns_pid)
 
     def _agent(
@@ -319,6 +321,8 @@ class CycloneNode(Ros2Node):
         env = dict(os.environ)
         if self.iface:
             env["OPENCONVOY_DDS_IFACE"] = self.iface
+        if self.domain_id is not None:
+            env["ROS_DOMAIN_ID"] = str(self.domain_id)
         return argv, env
 
 
@@ -337,7 +341,9 @@ class LoopbackNetns:
             raise DependencyMissing(why)
         wire = "ip link set lo up"
         if veth:
-            wire = f"{sys.executable} -c 'from openconvoy.comms import netns; netns.setup_network()'"
+            wire = (
+                f"{sys.executable} -c 'from openconvoy.comms import netns; netns.setup_network()'"
+            )
         self._proc = subprocess.Popen(
             ["unshare", "-rn", "sh", "-c", f"{wire} && echo up && exec cat"],
             stdin=subprocess.PIPE,

@@ -34,10 +34,27 @@ and in tests and the demo that is a veth inside a private network namespace.
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from openconvoy.comms.multicast import MAX_BATCH, Datagram
 from openconvoy.core.errors import ConfigError, DependencyMissing, LinkError
+
+INSTALL_HINT = "V2V over ROS 2 needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
+try:
+    from cyclonedds.core import Policy, Qos
+    from cyclonedds.domain import Domain, DomainParticipant
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.idl import types as t
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+except ModuleNotFoundError:  # an optional dependency: say how to get it
+    raise DependencyMissing(INSTALL_HINT) from None
+
+if TYPE_CHECKING:  # cyclonedds' sequence type is not generic to mypy; a list at runtime
+    U8Seq = list[int]
+else:
+    U8Seq = t.sequence[t.uint8]
 
 DEFAULT_TOPIC = "/openconvoy/v2v"
 DEFAULT_DOMAIN = 0
@@ -58,7 +75,6 @@ def depth_for(members: int) -> int:
 
 
 DEPTH = depth_for(3)
-INSTALL_HINT = "V2V over ROS 2 needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
 
 
 def dds_topic(ros_topic: str) -> str:
@@ -89,66 +105,37 @@ def interface_config(iface: str) -> str:
     )
 
 
-def _types() -> Any:
-    """The DDS types (built on first use: cyclonedds is an optional dependency)."""
-    global _TYPES
-    if _TYPES is None:
-        _TYPES = _define_types()
-    return _TYPES
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    """builtin_interfaces/msg/Time."""
+
+    sec: t.int32 = 0
+    nanosec: t.uint32 = 0
 
 
-_TYPES: Any = None
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    """std_msgs/msg/Header."""
+
+    stamp: Time = field(default_factory=Time)
+    frame_id: str = ""
 
 
-def _define_types() -> Any:
-    try:
-        from cyclonedds.idl import IdlStruct
-        from cyclonedds.idl import types as t
-    except ModuleNotFoundError:
-        raise DependencyMissing(INSTALL_HINT) from None
+@dataclass
+class V2VBytes(IdlStruct, typename="openconvoy_msgs::msg::dds_::V2VBytes_"):
+    """openconvoy/msg/V2VBytes.msg, field for field."""
 
-    @dataclass
-    class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-        """builtin_interfaces/msg/Time."""
-
-        sec: t.int32 = 0
-        nanosec: t.uint32 = 0
-
-    @dataclass
-    class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-        """std_msgs/msg/Header."""
-
-        stamp: Time = field(default_factory=Time)
-        frame_id: str = ""
-
-    @dataclass
-    class V2VBytes(IdlStruct, typename="openconvoy_msgs::msg::dds_::V2VBytes_"):
-        """openconvoy/msg/V2VBytes.msg, field for field."""
-
-        header: Header = field(default_factory=Header)
-        vehicle_id: t.int32 = 0
-        direction: str = ""
-        data: t.sequence[t.uint8] = field(default_factory=list)  # type: ignore[type-arg,assignment]
-
-    class Types:
-        pass
-
-    Types.Time, Types.Header, Types.V2VBytes = Time, Header, V2VBytes  # type: ignore[attr-defined]
-    return Types
-
-
-def v2v_bytes_type() -> type:
-    """The DDS type of ``openconvoy_msgs/msg/V2VBytes``."""
-    kind: type = _types().V2VBytes
-    return kind
+    header: Header = field(default_factory=Header)
+    vehicle_id: t.int32 = 0
+    direction: str = ""
+    data: U8Seq = field(default_factory=list)
 
 
 def to_sample(data: bytes, vehicle_id: int, t_s: float) -> Any:
     """A ``V2VBytes`` sample carrying ``data`` sent by ``vehicle_id`` at wall time ``t_s`` (s)."""
-    ty = _types()
     sec = int(t_s // 1)
-    stamp = ty.Time(sec=sec, nanosec=min(int((t_s - sec) * 1e9), 999_999_999))
-    return ty.V2VBytes(ty.Header(stamp, ""), int(vehicle_id), "tx", list(data))
+    stamp = Time(sec=sec, nanosec=min(int((t_s - sec) * 1e9), 999_999_999))
+    return V2VBytes(Header(stamp, ""), int(vehicle_id), "tx", list(data))
 
 
 _DOMAINS: dict[int, Any] = {}
@@ -174,14 +161,6 @@ class DdsTransport:
             raise ConfigError(f"DDS domain id must be in 0..232, got {domain_id}")
         name = dds_topic(topic)
         config = interface_config(iface)
-        try:
-            from cyclonedds.core import Policy, Qos
-            from cyclonedds.domain import Domain, DomainParticipant
-            from cyclonedds.pub import DataWriter
-            from cyclonedds.sub import DataReader
-            from cyclonedds.topic import Topic
-        except ModuleNotFoundError:
-            raise DependencyMissing(INSTALL_HINT) from None
         self.topic, self.domain_id, self.iface = topic, domain_id, iface
         self.vehicle_id, self.wall = vehicle_id, wall
         self.bad_samples = 0
@@ -196,9 +175,9 @@ class DdsTransport:
             if domain_id not in _DOMAINS:
                 _DOMAINS[domain_id] = Domain(domain_id, config)
             self._dp: Any = DomainParticipant(domain_id)
-            t: Any = Topic(self._dp, name, v2v_bytes_type())
-            self._writer = DataWriter(self._dp, t, qos=qos)
-            self._reader = DataReader(self._dp, t, qos=qos)
+            topic_: Any = Topic(self._dp, name, V2VBytes)
+            self._writer = DataWriter(self._dp, topic_, qos=qos)
+            self._reader = DataReader(self._dp, topic_, qos=qos)
         except Exception as exc:  # noqa: BLE001 (cyclonedds raises plain DDSException)
             raise LinkError(
                 f"cannot use DDS domain {domain_id} on {iface} for V2V topic {topic}: {exc}"
@@ -226,7 +205,6 @@ class DdsTransport:
         if self._dp is None:
             raise OSError("V2V DDS participant closed")
         out: list[Datagram] = []
-        kind = v2v_bytes_type()
         while len(out) < max_batch:
             try:
                 samples = self._reader.take(N=min(64, max_batch - len(out)))
@@ -236,7 +214,7 @@ class DdsTransport:
             if not samples:
                 break
             for sample in samples:
-                if isinstance(sample, kind):  # an InvalidSample (a writer left) has no data
+                if isinstance(sample, V2VBytes):  # an InvalidSample (a writer left) has no data
                     s: Any = sample
                     handle = getattr(s.sample_info, "publication_handle", 0)
                     out.append(Datagram(bytes(s.data), f"dds:{handle:x}"))

@@ -28,6 +28,7 @@ from openconvoy.bridge.ros.ros2 import (
     ros2_python,
 )
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.comms.dds import V2VBytes
 from openconvoy.comms.netns import IFACE
 from openconvoy.testing import free_port, wait_for
 
@@ -70,6 +71,7 @@ CLASSES = {
     "ardupilot_msgs/srv/ArmMotors_Response": am.ArmMotors_Response,
     "ardupilot_msgs/srv/ModeSwitch_Request": am.ModeSwitch_Request,
     "ardupilot_msgs/srv/ModeSwitch_Response": am.ModeSwitch_Response,
+    "openconvoy_msgs/V2VBytes": V2VBytes,  # V2V over ROS 2 (comms.dds)
 }  # fmt: skip
 
 _RCLPY_FIELDS = """
@@ -90,14 +92,14 @@ print(json.dumps(out))
 def test_our_dds_types_are_rclpys_field_for_field_and_ardupilots() -> None:
     """Each DDS type we wrote has the fields, in order and of the types, that rclpy's
     generated class of the same interface has (ROS 2 Jazzy; ``ardupilot_msgs`` built by
-    rosidl from ArduPilot's text), and our ardupilot_msgs fields are those of ArduPilot's
+    rosidl from ArduPilot's text, ``openconvoy_msgs`` from ours), and our ardupilot_msgs fields are those of ArduPilot's
     .msg/.srv files."""
     r = subprocess.run(
         [str(ros2_python()), "-c", _RCLPY_FIELDS, json.dumps(sorted(CLASSES))],
         capture_output=True,
         text=True,
         timeout=120,
-        env=ros2_env([build_interfaces("ardupilot_msgs")]),
+        env=ros2_env([build_interfaces(p) for p in ("ardupilot_msgs", "openconvoy_msgs")]),
     )
     assert r.returncode == 0, r.stderr[-2000:]
     theirs = json.loads(r.stdout.strip().splitlines()[-1])

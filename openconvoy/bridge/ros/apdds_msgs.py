@@ -2,7 +2,8 @@
 needs no ROS install (``cyclone_agent.py``).
 
 Written field for field, in order, from the interface text of ROS 2 Jazzy
-(``builtin_interfaces/msg/Time``, ``std_msgs/msg/Header``, ``sensor_msgs/msg/NavSatStatus``,
+(``builtin_interfaces/msg/Time`` and ``std_msgs/msg/Header`` from ``comms.dds``,
+``sensor_msgs/msg/NavSatStatus``,
 ``NavSatFix``, ``geometry_msgs/msg/Point``, ``Quaternion``, ``Pose``, ``PoseStamped``,
 ``Vector3``, ``Twist``, ``TwistStamped``) and ArduPilot's ``ardupilot_msgs``
 (``msg/Status.msg``, ``srv/ArmMotors.srv``, ``srv/ModeSwitch.srv``; our copies in
@@ -23,24 +24,14 @@ from typing import TYPE_CHECKING, Any
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
 
+from openconvoy.comms.dds import Header, Time
+
 if TYPE_CHECKING:  # cyclonedds' container types are not generic to mypy; lists at runtime
     F9 = list[float]
     U8Seq = list[int]
 else:
     F9 = t.array[t.float64, 9]
     U8Seq = t.sequence[t.uint8]
-
-
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: t.int32 = 0
-    nanosec: t.uint32 = 0
-
-
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time = field(default_factory=Time)
-    frame_id: str = ""
 
 
 @dataclass

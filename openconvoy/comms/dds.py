@@ -180,7 +180,9 @@ class DdsTransport:
             self._reader = DataReader(self._dp, topic_, qos=qos)
         except Exception as exc:  # noqa: BLE001 (cyclonedds raises plain DDSException)
             raise LinkError(
-                f"cannot use DDS domain {domain_id} on {iface} for V2V topic {topic}: {exc}"
+                f"cannot use DDS domain {domain_id} on {iface} for V2V topic {topic}: {exc} "
+                "(with --link px4-dds --dds-localhost the domain is configured for loopback "
+                "already: give [v2v] ros2_domain another id)"
             ) from None
 
     def send(self, data: bytes) -> None:

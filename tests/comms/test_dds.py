@@ -81,3 +81,27 @@ def test_link_config_checks_the_transport_and_the_topic():
         LinkConfig("oc0", transport="ros2", ros2_topic="v2v")
     with pytest.raises(ConfigError, match="not one of multicast, ros2"):
         LinkConfig("oc0", transport="udp")
+
+
+_CLASH = """
+import os
+from openconvoy.bridge.px4dds.dds import Participant
+from openconvoy.comms.dds import DdsTransport
+from openconvoy.core.errors import LinkError
+Participant(0, localhost=True)
+try:
+    DdsTransport(os.environ["OPENCONVOY_NETNS_IFACE"])
+except LinkError as exc:
+    print(exc)
+print(DdsTransport(os.environ["OPENCONVOY_NETNS_IFACE"], domain_id=1).topic)
+"""
+
+
+@pytest.mark.netns
+def test_a_domain_clash_with_px4_dds_on_loopback_is_one_line_naming_the_way_out():
+    (r,) = run_in_netns([[sys.executable, "-c", _CLASH]], timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    first, second = r.stdout.strip().splitlines()
+    assert first.startswith("cannot use DDS domain 0 on oc0 for V2V topic /openconvoy/v2v")
+    assert "ros2_domain another id" in first
+    assert second == "/openconvoy/v2v"  # another domain id works

@@ -8,6 +8,7 @@ Needs the private network namespace the demo needs, ROS 1 (``make ros1``) and th
 environment (``make ros2``).
 
     python benchmarks/bench_demo_ros.py [--duration 30] [--rounds 1] [--links mavlink,ros1,ros2]
+    (also ``ap-dds``, and ``v2v-ros2``: the MAVLink demo with its V2V over DDS)
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ LINKS: dict[str, list[str]] = {
     "mavlink": [],
     "ros1": ["--link", "mavros", "--ros", "1"],
     "ros2": ["--link", "mavros", "--ros", "2"],
+    "ap-dds": ["--link", "ap-dds"],  # the deploys' nodes Cyclone DDS, the stand-ins rclpy
+    "v2v-ros2": ["--v2v", "ros2"],  # MAVLink to the vehicles, V2V on a ROS 2 topic (DDS)
 }
 
 

@@ -103,6 +103,12 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         help="ROS version of --link mavros: 1 (a private roscore) or 2 (rclpy, make ros2)",
     )
     p.add_argument("--bag", action="store_true", help="the deploys also record ROS 2 bags")
+    p.add_argument(
+        "--v2v",
+        choices=("multicast", "ros2"),
+        default="multicast",
+        help="what carries V2V: IPv6 multicast (default) or a ROS 2 topic over DDS (docs/ros.md)",
+    )
 
     p.set_defaults(handler=lazy_handler("openconvoy.demo", "demo_from_namespace"))
 

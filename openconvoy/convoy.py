@@ -17,6 +17,9 @@ temp_ids = ["4f430000", ...]      # optional explicit 4-byte BSM ids, leader fir
 auth = "required"                 # the default; "off" only when written here (see docs/security.md)
 keys = "lab.keys"                 # the keys directory (default NAME.keys beside this file)
 replay_window_s = 1.0             # clock tolerance (s): replay window, secMark rebuild, start skew
+transport = "multicast"           # or "ros2": the same bytes on a ROS 2 topic (DDS; docs/ros.md)
+ros2_topic = "/openconvoy/v2v"    # transport = "ros2": the topic ...
+ros2_domain = 0                   # ... and the DDS domain id (0..232)
 
 [safety]                          # optional; vehicles only
 speed_cap_mps = 5.0
@@ -54,6 +57,8 @@ UCF_ORIGIN = (28.6024, -81.2001, 0.0)
 
 
 AUTH_MODES = ("required", "off")
+V2V_TRANSPORTS = ("multicast", "ros2")
+"""``[v2v] transport``: IPv6 multicast (the default) or a ROS 2 topic over DDS."""
 
 
 @dataclass(frozen=True)
@@ -67,7 +72,9 @@ class V2VConfig:
     one relative to the convoy file, and defaults it to ``NAME.keys`` beside it).
     ``replay_window_s``: the one clock tolerance (s) of the link: the replay window of
     signed messages, the slack of the secMark rebuild, and the largest clock offset
-    between vehicles the convoy start accepts.
+    between vehicles the convoy start accepts. ``transport``: ``"multicast"`` (IPv6, the
+    default) or ``"ros2"`` (the same signed bytes on ROS 2 topic ``ros2_topic`` of DDS
+    domain ``ros2_domain``: ``comms.dds``, which checks the topic name when a vehicle opens it).
     """
 
     group: str = "ff15::4f43"
@@ -79,9 +86,17 @@ class V2VConfig:
     keys: str = ""
     # At least two control periods at 20 Hz: a shorter window rejects every message.
     replay_window_s: Annotated[float, Range(0.1, 60.0)] = 1.0
+    transport: str = "multicast"
+    ros2_topic: str = "/openconvoy/v2v"
+    ros2_domain: Annotated[int, Range(0, 232)] = 0
 
     def __post_init__(self) -> None:
         check_fields(self, "v2v")
+        if self.transport not in V2V_TRANSPORTS:
+            raise ConfigError(
+                f"v2v.transport: {self.transport!r} is not one of {', '.join(V2V_TRANSPORTS)}"
+            )
+
         try:
             addr = ipaddress.ip_address(self.group)
         except ValueError:

@@ -4,7 +4,8 @@ Three simulated MAVLink vehicles (``bridge.simvehicle.vehicle``, ArduPilot Rover
 the recorded firmware's loops, vehicle model and boot sequence) start at the ``paper``
 scenario's initial positions, and three ``openconvoy deploy`` processes
 (leader + two followers, the ``paper`` policy) drive them over MAVLink (UDP on loopback)
-while exchanging J2735 BSMs over real IPv6 multicast — inside a private network namespace
+while exchanging J2735 BSMs over real IPv6 multicast (or, ``--v2v ros2``, on a ROS 2
+topic through Cyclone DDS on the same interface) — inside a private network namespace
 (``unshare -rn``, see ``comms.netns``), so nothing leaves the machine. Live status lines
 show the convoy; at the end every process is stopped cleanly (SIGTERM: stop, HOLD, log
 flushed) and the run's metrics are printed side by side with the pure simulation of the
@@ -63,6 +64,7 @@ class DemoOptions:
     link: str = "mavlink"
     ros: int = 1
     bag: bool = False
+    v2v: str = "multicast"
 
 
 def demo_from_namespace(args: argparse.Namespace) -> int:
@@ -76,6 +78,7 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "link", "mavlink"),
         getattr(args, "ros", 1),
         getattr(args, "bag", False),
+        getattr(args, "v2v", "multicast"),
     )
     if opts.link == "ap-dds" and opts.autopilot != "ardupilot":
         _say("openconvoy demo: --link ap-dds drives ArduPilot vehicles: not with --autopilot px4")
@@ -114,6 +117,8 @@ def _argv(opts: DemoOptions) -> list[str]:
         argv += ["--link", opts.link, "--ros", str(opts.ros)]
     if opts.bag:
         argv.append("--bag")
+    if opts.v2v != "multicast":
+        argv += ["--v2v", opts.v2v]
     return argv
 
 
@@ -392,8 +397,11 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             if opts.link == "ap-dds":
                 cmd = [c for c in cmd if c not in ("--mavlink", url)]
                 cmd += ["--link", "ap-dds", "--ap-ns", f"/vehicle_{i}/ap"]
+                cmd += ["--dds-iface", run.iface]  # Cyclone meets the rclpy stand-ins there
             if opts.bag:
                 cmd.append("--bag")
+            if opts.v2v != "multicast":
+                cmd += ["--v2v", opts.v2v]  # the same signed bytes on a ROS 2 topic (DDS)
             if opts.duration_s is not None and i == 0:
                 cmd += ["--duration", repr(run.duration_s)]
             err = open(run.out / f"deploy_{i}.txt", "w")
@@ -459,18 +467,21 @@ def _start_px4dds(ros: list[Any], urls: Sequence[str]) -> None:
 
 def _start_apdds(ros: list[Any], urls: Sequence[str]) -> None:
     """``--link ap-dds``: an AP_DDS stand-in per vehicle (namespace ``/vehicle_N/ap``, a ROS 2
-    node, discovery on loopback inside the demo's namespace), forwarding to its simulated
+    node, discovery on the demo namespace's veth, where the deploys' Cyclone nodes are), forwarding to its simulated
     ArduPilot over MAVLink; appended to ``ros``."""
     from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
     from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
 
     build_mavros_msgs()
     build_interfaces("ardupilot_msgs")
+    # The deploys' nodes are Cyclone DDS on the namespace's veth (``--dds-iface``): the
+    # stand-ins' Fast DDS must look for peers there, not on loopback only.
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
     for i, url in enumerate(urls):
         node = Ros2Node(f"/ap_dds_vehicle_{i}")
         ros.append(node)
         ros.append(_Stopper(ApDdsStandIn(node, url, f"/vehicle_{i}/ap").start()))
-    _say("ROS 2 (rclpy); AP_DDS stand-ins under /vehicle_N/ap (ardupilot)")
+    _say("ROS 2 (rclpy) AP_DDS stand-ins under /vehicle_N/ap (ardupilot); deploys via Cyclone DDS")
 
 
 class _Stopper:

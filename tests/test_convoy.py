@@ -67,3 +67,22 @@ def test_gap_margin_is_checked_and_reaches_the_envelope(tmp_path, value, ok):
         lead.braking is not None
         and lead.pred_length_m == vehicle_preset(ConvoyConfig().vehicles[-1]).length_m
     )
+
+
+def test_v2v_transport_is_multicast_unless_ros2_is_written(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text('[convoy]\nvehicles = ["1/10", "1/10"]\n')
+    assert load_convoy(p).v2v.transport == "multicast"
+    p.write_text(
+        '[convoy]\nvehicles = ["1/10", "1/10"]\n'
+        '[v2v]\ntransport = "ros2"\nros2_topic = "/lab/v2v"\nros2_domain = 7\n'
+    )
+    v = load_convoy(p).v2v
+    assert (v.transport, v.ros2_topic, v.ros2_domain) == ("ros2", "/lab/v2v", 7)
+    for bad, named in (
+        ('transport = "dds"', "v2v.transport: 'dds' is not one of multicast, ros2"),
+        ("ros2_domain = 233", "ros2_domain"),
+    ):
+        p.write_text(f'[convoy]\nvehicles = ["1/10", "1/10"]\n[v2v]\n{bad}\n')
+        with pytest.raises(ValueError, match=named):
+            load_convoy(p)

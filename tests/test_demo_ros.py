@@ -58,8 +58,8 @@ def test_mavros_ros2_demo_completes(tmp_path: Path) -> None:
 @pytest.mark.e2e
 @pytest.mark.netns
 def test_ap_dds_demo_completes(tmp_path: Path) -> None:
-    """``--link ap-dds``: the deploys drive through AP_DDS's topics and services (rclpy
-    nodes, the AP_DDS stand-ins) and complete with the convoy kept together; p95 against
+    """``--link ap-dds``: the deploys drive through AP_DDS's topics and services (their
+    nodes Cyclone DDS directly, the AP_DDS stand-ins rclpy) and complete with the convoy kept together; p95 against
     the MAVLink demo is reported in docs/ros.md, not asserted."""
     reason = netns_unavailable_reason()
     assert reason is None, f"the demo needs a private network namespace: {reason}"
@@ -68,7 +68,7 @@ def test_ap_dds_demo_completes(tmp_path: Path) -> None:
     assert ap["deploy"]["collisions"] == 0 and ap["deploy"]["min_gap_m"] > 13.0
     for vid in range(3):
         meta = json.loads((tmp_path / "ap" / "deploy" / f"vehicle_{vid}.json").read_text())
-        assert meta["link"] == f"ap-dds (ROS 2, /vehicle_{vid}/ap)"
+        assert meta["link"] == f"ap-dds (DDS domain 0, /vehicle_{vid}/ap)"  # Cyclone, no ROS
 
 
 @pytest.mark.e2e

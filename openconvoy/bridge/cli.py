@@ -155,8 +155,8 @@ DEPLOY_FLAGS: Flags = (
             choices=("mavlink", "mavros", "px4-dds", "ap-dds"),
             default="mavlink",
             help="how to reach the autopilot: MAVLink (default), MAVROS, PX4's DDS topics "
-            "(px4-dds), or ArduPilot's AP_DDS ROS 2 topics (ap-dds; rclpy from make ros2; "
-            "docs/ros.md)",
+            "(px4-dds), or ArduPilot's AP_DDS ROS 2 topics (ap-dds; Cyclone DDS, or rclpy "
+            "with --ap-dds-via rclpy; docs/ros.md)",
         ),
     ),
     (
@@ -175,7 +175,29 @@ DEPLOY_FLAGS: Flags = (
             help="--link px4-dds: PX4's UXRCE_DDS_NS (topics rt/NS/fmu/...; default none)",
         ),
     ),
-    ("--dds-domain", dict(type=_int(0, 232), default=0, help="--link px4-dds: DDS domain id")),
+    (
+        "--ap-dds-via",
+        dict(
+            choices=("cyclone", "rclpy"),
+            default="cyclone",
+            help="--link ap-dds: Cyclone DDS directly (default; no ROS install) or rclpy "
+            "(make ros2's environment)",
+        ),
+    ),
+    (
+        "--dds-iface",
+        dict(
+            metavar="IFACE",
+            help="--link ap-dds via Cyclone: keep DDS on this interface (default: Cyclone's "
+            "configuration, CYCLONEDDS_URI)",
+        ),
+    ),
+    (
+        "--dds-domain",
+        dict(
+            type=_int(0, 232), default=0, help="--link px4-dds, ap-dds via Cyclone: DDS domain id"
+        ),
+    ),
     (
         "--dds-localhost",
         dict(action="store_true", help="--link px4-dds: DDS on loopback only, no multicast"),
@@ -202,7 +224,16 @@ DEPLOY_FLAGS: Flags = (
             help="the firmware behind MAVROS (default: told by its mode name)",
         ),
     ),
-    ("--iface", dict(required=True, help="network interface for V2V multicast")),
+    ("--iface", dict(required=True, help="network interface for V2V (multicast, or DDS)")),
+    (
+        "--v2v",
+        dict(
+            choices=("multicast", "ros2"),
+            default=None,
+            help="what carries V2V: IPv6 multicast, or a ROS 2 topic over DDS (Cyclone, "
+            "no ROS install; docs/ros.md); default the convoy file's [v2v] transport",
+        ),
+    ),
     ("--per", dict(type=FRACTION, default=0.0, help="emulated packet error rate 0..1")),
     (
         "--drop-at",

@@ -66,6 +66,9 @@ class DeployArgs:
     ap_ns: str = "/ap"
     dds_domain: int = 0
     dds_localhost: bool = False
+    v2v: Literal["multicast", "ros2"] | None = None
+    ap_dds_via: Literal["cyclone", "rclpy"] = "cyclone"
+    dds_iface: str | None = None
 
 
 def _status(quiet: bool):
@@ -113,6 +116,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     if a.bag and a.log is None:
         raise ConfigError("--bag records beside the log: give --log DIR")
     auth = vehicle_authenticator(convoy, a.vehicle_id, a.convoy)  # before any file or socket
+    v2v_config = _v2v_config(a, convoy)
     if a.log is not None:
         check_output_dir(a.log, "--log")  # before connecting, never after arming
         RunRecorder(a.log, a.vehicle_id).check_free()  # a second deploy of this vehicle
@@ -129,7 +133,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
             )
     link = _make_link(a, origin, presets[a.vehicle_id], rate, status)
     bag = _make_bag(a, rate)
-    v2v = _make_v2v(a, convoy, origin, auth, bag)  # opens the sockets
+    v2v = _make_v2v(a, convoy, v2v_config, origin, auth, bag)  # opens the sockets
     if auth is None:  # only with auth = "off" written in the convoy file: say so at every start
         print(unauthenticated_warning(a.vehicle_id, a.convoy), file=sys.stderr, flush=True)
     runner = DeployRunner(
@@ -178,7 +182,8 @@ def _link_name(a: DeployArgs) -> str:
     if a.link == "px4-dds":
         return f"px4-dds (domain {a.dds_domain}, ns {a.px4_ns or '-'})"
     if a.link == "ap-dds":
-        return f"ap-dds (ROS 2, {a.ap_ns})"
+        via = "ROS 2" if a.ap_dds_via == "rclpy" else f"DDS domain {a.dds_domain}"
+        return f"ap-dds ({via}, {a.ap_ns})"
     return a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})"
 
 
@@ -197,8 +202,16 @@ def _make_link(
         if a.autopilot == "px4":
             raise ConfigError("--link ap-dds is ArduPilot's interface: not with --autopilot px4")
         name = f"/openconvoy_vehicle_{a.vehicle_id}"
+
+        def ap_node() -> Any:
+            if a.ap_dds_via == "rclpy":
+                return Ros2Node(name)
+            from openconvoy.bridge.ros.ros2 import CycloneNode
+
+            return CycloneNode(name, iface=a.dds_iface, domain_id=a.dds_domain)
+
         return ApDdsLink(
-            lambda: Ros2Node(name),
+            ap_node,
             a.ap_ns,
             origin,
             a.vehicle_id,
@@ -264,28 +277,41 @@ def _leader_driver(a: DeployArgs, spec: str, presets: list[Any]) -> tuple[Any, O
     return leader, (leader.origin if spec.startswith("track-file:") else None)
 
 
+def _v2v_config(a: DeployArgs, convoy: ConvoyConfig) -> Any:
+    """The V2V link's ``LinkConfig``: the convoy file's ``[v2v]`` on ``--iface``, its
+    transport overridden by ``--v2v`` (``ConfigError`` for a bad ROS 2 topic name)."""
+    from dataclasses import replace
+
+    from openconvoy.comms.v2v import LinkConfig
+
+    config = LinkConfig.from_v2v(convoy.v2v, a.iface)
+    return replace(config, transport=a.v2v) if a.v2v else config
+
+
 def _make_v2v(
-    a: DeployArgs, convoy: ConvoyConfig, origin: Origin, auth: Any, bag: Any = None
+    a: DeployArgs,
+    convoy: ConvoyConfig,
+    config: Any,
+    origin: Origin,
+    auth: Any,
+    bag: Any = None,
 ) -> Any:
-    """The vehicle's V2V endpoint (its sockets open), with the emulated loss of ``--per``;
-    with a ``bag``, every IPv6 datagram sent and received is recorded in it too."""
+    """The vehicle's V2V endpoint on ``config`` (its socket or DDS topic open), with the
+    emulated loss of ``--per``; with a ``bag``, every datagram sent and received is
+    recorded in it too."""
     import numpy as np
 
     from openconvoy.comms.loss import LossConfig
     from openconvoy.comms.tempids import TempIds
-    from openconvoy.comms.v2v import V2V, LinkConfig
+    from openconvoy.comms.v2v import V2V, open_transport
 
     temp_ids = TempIds(convoy.name, convoy.n_vehicles, dict(enumerate(convoy.v2v.temp_ids)) or None)
     loss = LossConfig(per=a.per) if a.per > 0 else None
-    config = LinkConfig.from_v2v(convoy.v2v, a.iface)
     transport = None
     if bag is not None:
         from openconvoy.bridge.ros.bagtap import BagTap
-        from openconvoy.comms.multicast import V2V_RCVBUF_BYTES, Ipv6Multicast
 
-        socket_ = Ipv6Multicast(
-            config.iface, config.group, config.port, config.hop_limit, rcvbuf_bytes=V2V_RCVBUF_BYTES
-        )
+        socket_ = open_transport(config, a.vehicle_id, convoy.n_vehicles)
         transport = BagTap(socket_, bag, a.vehicle_id, time.time)
     return V2V(
         config,
@@ -412,7 +438,8 @@ def deploy_from_namespace(args: argparse.Namespace) -> int:
 
 def abort_from_namespace(args: argparse.Namespace) -> int:
     """``openconvoy abort``: the convoy-wide stop on ``--iface`` (IPv6 group, and the IPv4
-    compatibility group when the convoy speaks it or ``--compat`` is given)."""
+    compatibility group when the convoy speaks it or ``--compat`` is given; the convoy's
+    ROS 2 topic too when its V2V goes over ROS 2)."""
     from openconvoy.comms.v2v import send_abort
 
     kwargs: dict[str, Any] = {}
@@ -424,6 +451,8 @@ def abort_from_namespace(args: argparse.Namespace) -> int:
 
         v = load_convoy(args.convoy).v2v
         kwargs.update(group=v.group, port=v.port, hop_limit=v.hop_limit)
+        if v.transport == "ros2":
+            kwargs.update(ros2=(v.ros2_topic, v.ros2_domain))
         compat = compat or v.compat
         required, keys_dir = v.auth_required, Path(v.keys)
     key = getattr(args, "key", None)

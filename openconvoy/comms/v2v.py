@@ -12,7 +12,9 @@
     link.metadata                             # for the run's metadata (drop_at, loss, ...)
 
 The pure parts, ``Sender`` (state -> datagrams) and ``Receiver`` (datagram -> ``Received``),
-do no I/O and take time as an argument; ``V2V`` adds the sockets (``multicast``).
+do no I/O and take time as an argument; ``V2V`` adds the sockets (``multicast``), or with
+``LinkConfig(transport="ros2")`` a ROS 2 topic over DDS (``dds``): the same bytes, and the
+same decoding, verification, counting and dropping.
 
 Receiving dispatches on content: a UPER MessageFrame starts ``00 14``, a compatibility
 message (``legacy_json``) starts ``{``. Both give the same ``Received``. Every datagram handled
@@ -178,6 +180,10 @@ def schedule(
     return order, shed
 
 
+TRANSPORTS = ("multicast", "ros2")
+"""What carries the V2V bytes (``LinkConfig.transport``)."""
+
+
 @dataclass(frozen=True)
 class LinkConfig:
     """Where the V2V link talks.
@@ -188,6 +194,9 @@ class LinkConfig:
         compat: also send and receive the original implementation's JSON on IPv4.
         compat_group, compat_port, compat_ttl: its IPv4 group (224.0.0.1:5004, TTL 1).
         time_tolerance_s: slack for sender clocks ahead of ours when rebuilding BSM times.
+        transport: ``"multicast"`` (the default: IPv6 multicast on ``iface``) or ``"ros2"``
+            (the same bytes on ROS 2 topic ``ros2_topic`` of DDS domain ``ros2_domain``,
+            Cyclone DDS kept on ``iface``: ``comms.dds``).
     """
 
     iface: str
@@ -199,11 +208,25 @@ class LinkConfig:
     compat_port: int = cj.COMPAT_PORT
     compat_ttl: int = cj.COMPAT_TTL
     time_tolerance_s: float = DEFAULT_TIME_TOLERANCE_S
+    transport: str = "multicast"
+    ros2_topic: str = "/openconvoy/v2v"
+    ros2_domain: int = 0
+
+    def __post_init__(self) -> None:
+        if self.transport not in TRANSPORTS:
+            raise ConfigError(
+                f"V2V transport {self.transport!r} is not one of {', '.join(TRANSPORTS)}"
+            )
+        if self.transport == "ros2":
+            from openconvoy.comms.dds import dds_topic
+
+            dds_topic(self.ros2_topic)  # ConfigError naming the rule
 
     @classmethod
     def from_v2v(cls, v2v: Any, iface: str) -> LinkConfig:
         """From a convoy config's ``[v2v]`` table object (``group``, ``port``,
-        ``hop_limit``, ``legacy_json`` attributes, e.g. ``openconvoy.convoy.V2VConfig``)."""
+        ``hop_limit``, ``legacy_json`` attributes, e.g. ``openconvoy.convoy.V2VConfig``;
+        ``transport``, ``ros2_topic``, ``ros2_domain`` when it has them)."""
         return cls(
             iface=iface,
             group=v2v.group,
@@ -211,6 +234,9 @@ class LinkConfig:
             hop_limit=v2v.hop_limit,
             compat=v2v.compat,
             time_tolerance_s=getattr(v2v, "replay_window_s", DEFAULT_TIME_TOLERANCE_S),
+            transport=getattr(v2v, "transport", "multicast"),
+            ros2_topic=getattr(v2v, "ros2_topic", "/openconvoy/v2v"),
+            ros2_domain=getattr(v2v, "ros2_domain", 0),
         )
 
 
@@ -985,22 +1011,35 @@ class Receiver:
         return state
 
 
-def _open_transports(
-    config: LinkConfig, transport: Transport | None, compat_transport: Transport | None
-) -> tuple[Transport, Transport | None]:
-    """The IPv6 multicast socket and, with ``config.compat``, the IPv4 one (each unless
-    injected); nothing stays open when the second cannot be opened."""
-    tx = (
-        transport
-        if transport is not None
-        else Ipv6Multicast(
+def open_transport(config: LinkConfig, vehicle_index: int = 0, members: int = 3) -> Transport:
+    """The J2735 transport ``config`` names: the IPv6 multicast socket, or with
+    ``transport = "ros2"`` the ROS 2 topic (``comms.dds.DdsTransport``, which stamps what
+    it sends with ``vehicle_index`` and keeps a queue sized for ``members`` vehicles)."""
+    if config.transport == "ros2":
+        from openconvoy.comms.dds import DdsTransport, depth_for
+
+        return DdsTransport(
             config.iface,
-            config.group,
-            config.port,
-            config.hop_limit,
-            rcvbuf_bytes=V2V_RCVBUF_BYTES,
+            config.ros2_topic,
+            config.ros2_domain,
+            vehicle_id=vehicle_index,
+            depth=depth_for(members),
         )
+    return Ipv6Multicast(
+        config.iface, config.group, config.port, config.hop_limit, rcvbuf_bytes=V2V_RCVBUF_BYTES
     )
+
+
+def _open_transports(
+    config: LinkConfig,
+    transport: Transport | None,
+    compat_transport: Transport | None,
+    vehicle_index: int = 0,
+    members: int = 3,
+) -> tuple[Transport, Transport | None]:
+    """The J2735 transport (``open_transport``) and, with ``config.compat``, the IPv4
+    socket (each unless injected); nothing stays open when the second cannot be opened."""
+    tx = transport if transport is not None else open_transport(config, vehicle_index, members)
     if compat_transport is not None or not config.compat:
         return tx, compat_transport
     try:
@@ -1087,7 +1126,9 @@ class V2V:
             counters=self.counters,
             auth=auth,
         )
-        self._tx, self._tx4 = _open_transports(config, transport, compat_transport)
+        self._tx, self._tx4 = _open_transports(
+            config, transport, compat_transport, vehicle_index, len(temp_ids)
+        )
         self._warned_send = False
         # Compile the ASN.1 spec now, not on the first message (it takes ~0.2 s).
         j.warm_up()
@@ -1101,6 +1142,12 @@ class V2V:
             "port": self.config.port,
             "hop_limit": self.config.hop_limit,
             "compat": self.config.compat,
+            "transport": self.config.transport,
+            **(
+                {"ros2_topic": self.config.ros2_topic, "ros2_domain": self.config.ros2_domain}
+                if self.config.transport == "ros2"
+                else {}
+            ),
             "vehicle_index": self.vehicle_index,
             "temp_id": self.sender.temp_id.hex(),
             "drop_at": self.drop_at,
@@ -1300,6 +1347,8 @@ def send_abort(
     repeat: int = 3,
     interval_s: float = 0.05,
     auth: Authenticator | None = None,
+    ros2: tuple[str, int] | None = None,
+    ros2_wait_s: float = 3.0,
 ) -> int:
     """Send a convoy-wide abort as an operator (``event_flags.car = -1``).
 
@@ -1308,7 +1357,10 @@ def send_abort(
     original implementation). Sent ``repeat`` times ``interval_s`` apart, since multicast
     has no acknowledgement. ``now`` (seconds, default the system clock) stamps the message.
     With ``security.auth`` the abort is a signed SPDU (PSID ``PSID_ABORT``; each repeat has its own
-    generation time), and only on the IPv6 group. Returns the number of datagrams sent.
+    generation time), and only on the IPv6 group. With ``ros2`` = (topic, DDS domain) — a
+    convoy whose V2V goes over ROS 2 — it also goes on that topic (``comms.dds``), once DDS
+    discovery has matched a reader or ``ros2_wait_s`` has passed. Returns the number of
+    datagrams sent.
     """
     if repeat < 1:
         raise ConfigError(f"repeat must be at least 1, got {repeat}")
@@ -1319,6 +1371,12 @@ def send_abort(
     try:
         if compat_enabled:
             socks.append(Ipv4Multicast(iface, compat_group, compat_port))
+        if ros2 is not None:
+            from openconvoy.comms.dds import DdsTransport
+
+            dds = DdsTransport(iface, ros2[0], ros2[1], vehicle_id=-1)
+            socks.append(dds)
+            dds.wait_for_readers(ros2_wait_s)
         n = 0
         for i in range(repeat):
             if i:

@@ -123,6 +123,7 @@ def test_spy_sees_cmd_vel_and_vehicle_drives_west(netns: LoopbackNetns) -> None:
 def test_deploy_makes_the_ap_dds_link_and_refuses_px4() -> None:
     """``deploy --link ap-dds`` builds an ``ApDdsLink`` under ``--ap-ns`` (no node started
     until it connects); with ``--autopilot px4`` it refuses: AP_DDS is ArduPilot's."""
+    from dataclasses import replace
     from types import SimpleNamespace
 
     from openconvoy.bridge.deploy import DeployArgs, _link_name, _make_link
@@ -133,7 +134,8 @@ def test_deploy_makes_the_ap_dds_link_and_refuses_px4() -> None:
     link = _make_link(a, DEFAULT_HOME, preset, 20.0, lambda line: None)
     assert isinstance(link, ApDdsLink) and link.ns == "/vehicle_2/ap" and link.lost
     assert link.autopilot == "ardupilot" and link.length_m == 4.5
-    assert _link_name(a) == "ap-dds (ROS 2, /vehicle_2/ap)"
+    assert _link_name(a) == "ap-dds (DDS domain 0, /vehicle_2/ap)"  # Cyclone, the default
+    assert _link_name(replace(a, ap_dds_via="rclpy")) == "ap-dds (ROS 2, /vehicle_2/ap)"
     px4 = DeployArgs("paper", 2, "c.toml", None, "lo", link="ap-dds", autopilot="px4")
     with pytest.raises(ConfigError, match="ArduPilot"):
         _make_link(px4, DEFAULT_HOME, preset, 20.0, lambda line: None)

@@ -171,3 +171,19 @@ def test_sigterm_while_starting_exits_0_with_a_line_and_claims_no_log(tmp_path):
         assert last.startswith("vehicle 1: ") and "SIGTERM" in last, run
         assert "log in" not in last, run  # no claim of a log that was never created
     assert not (log / "vehicle_1.csv").exists()
+
+
+def test_deploy_v2v_flag_overrides_the_convoy_files_transport():
+    from openconvoy.bridge.deploy import DeployArgs, _v2v_config
+    from openconvoy.convoy import ConvoyConfig, V2VConfig
+
+    convoy = ConvoyConfig(vehicles=("1/10", "1/10"), v2v=V2VConfig(ros2_domain=3))
+    assert (
+        _v2v_config(DeployArgs("paper", 0, "c.toml", None, "oc0"), convoy).transport == "multicast"
+    )
+    config = _v2v_config(DeployArgs("paper", 0, "c.toml", None, "oc0", v2v="ros2"), convoy)
+    assert (config.transport, config.ros2_topic, config.ros2_domain) == (
+        "ros2",
+        "/openconvoy/v2v",
+        3,
+    )

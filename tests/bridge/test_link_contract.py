@@ -5,7 +5,9 @@ MAVROS stand-in forwarding to the simulated vehicle over real MAVLink) and over 
 rclpy and Fast DDS in node processes inside a private network namespace), and the px4-dds
 one (real Cyclone DDS on the loopback interface, PX4's DDS stand-in forwarding to the
 simulated PX4 over real MAVLink), and the ap-dds one (real rclpy in a private network
-namespace, the AP_DDS stand-in forwarding to the simulated ArduPilot over real MAVLink)."""
+namespace, the AP_DDS stand-in forwarding to the simulated ArduPilot over real MAVLink),
+both with an rclpy node and with a Cyclone DDS one (no ROS, ``ap-dds-cyclone``: on the
+namespace's veth, where Cyclone and the stand-in's Fast DDS find each other)."""
 
 from __future__ import annotations
 
@@ -25,8 +27,9 @@ from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
 from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
-from openconvoy.bridge.ros.ros2 import LoopbackNetns, Ros2Node
+from openconvoy.bridge.ros.ros2 import CycloneNode, LoopbackNetns, Ros2Node
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.comms.netns import IFACE
 from openconvoy.testing import free_port, wait_for
 
 DECLARED = (
@@ -71,7 +74,18 @@ def ros2_netns() -> Iterator[LoopbackNetns]:
         yield ns
 
 
-@pytest.fixture(params=["mavlink", "ideal", "mavros-ros1", "mavros-ros2", "px4-dds", "ap-dds"])
+@pytest.fixture(scope="module")
+def veth_netns() -> Iterator[LoopbackNetns]:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")  # Fast DDS looks on the veth
+        with LoopbackNetns(veth=True) as ns:
+            yield ns
+
+
+LINKS = ["mavlink", "ideal", "mavros-ros1", "mavros-ros2", "px4-dds", "ap-dds", "ap-dds-cyclone"]
+
+
+@pytest.fixture(params=LINKS)
 def link(request) -> Iterator[VehicleLink]:
     if request.param == "ideal":
         yield IdealLink(time.monotonic, time.time, DEFAULT_HOME, vehicle_id=1, x=3.0, y=-4.0)
@@ -97,15 +111,22 @@ def link(request) -> Iterator[VehicleLink]:
             px4.stop()
             vehicle.stop()
         return
-    if request.param == "ap-dds":
-        pid = request.getfixturevalue("ros2_netns").pid
+    if request.param.startswith("ap-dds"):
+        cyclone = request.param == "ap-dds-cyclone"
+        pid = request.getfixturevalue("veth_netns" if cyclone else "ros2_netns").pid
+
+        def make() -> Ros2Node:
+            if cyclone:
+                return CycloneNode("/contract_ap_link", netns_pid=pid, iface=IFACE)
+            return Ros2Node("/contract_ap_link", netns_pid=pid)
+
         ap = ApDdsStandIn(
             Ros2Node("/contract_ap_dds", netns_pid=pid), f"udpout:127.0.0.1:{port}", "/v1/ap"
         ).start()
-        first = [Ros2Node("/contract_ap_link", netns_pid=pid)]  # started early, as above
+        first = [make()]  # started early, as above
 
         def ap_node() -> Ros2Node:
-            return first.pop() if first else Ros2Node("/contract_ap_link", netns_pid=pid)
+            return first.pop() if first else make()
 
         ap_link = ApDdsLink(ap_node, "/v1/ap", DEFAULT_HOME, 1)
         try:

@@ -37,15 +37,11 @@ ask for latches ``pilot_took_over`` (as ``MavrosLink``).
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable
 from typing import Any
 
-from openconvoy.bridge.link import LinkTimeout, StatusCallback
 from openconvoy.bridge.mavlink import protocol as mp
-from openconvoy.bridge.ros.mavros_link import MavrosLink, RosNode
+from openconvoy.bridge.ros.mavros_link import MavrosLink
 from openconvoy.bridge.ros.mavros_standin import ROVER_CMODES, custom_mode_of
-from openconvoy.comms.geodesy import Origin
 
 HEADING_P = 2.0
 """Turn rate per radian of heading error (1/s): ArduPilot Rover's ``ATC_STR_ANG_P`` default."""
@@ -70,33 +66,11 @@ def yaw_rate_for(heading_rad: float, current_rad: float) -> float:
 
 
 class ApDdsLink(MavrosLink):
-    """ArduPilot Rover ``vehicle_id`` through AP_DDS's topics under ``ns`` (``/ap``).
+    """ArduPilot Rover ``vehicle_id`` through AP_DDS's topics under ``ns`` (``/ap``; one per
+    vehicle, e.g. ``/vehicle_1/ap``); ``MavrosLink``'s arguments, the firmware fixed
+    (``node_factory`` makes this link's ROS 2 node)."""
 
-    Args:
-        node_factory: makes (and starts) this link's ROS 2 node; called by ``connect``.
-        ns: AP_DDS's namespace (``/ap``; one per vehicle, e.g. ``/vehicle_1/ap``).
-        origin: the convoy's ENU origin.
-    """
-
-    def __init__(
-        self,
-        node_factory: Callable[[], RosNode],
-        ns: str,
-        origin: Origin,
-        vehicle_id: int,
-        on_status: StatusCallback | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        wall: Callable[[], float] = time.time,
-        telemetry_timeout_s: float = 0.5,
-        heartbeat_timeout_s: float = 3.0,
-        length_m: float = 0.0,
-        width_m: float = 0.0,
-    ) -> None:
-        super().__init__(
-            node_factory, ns, origin, vehicle_id, "ardupilot", on_status, clock, wall,
-            telemetry_timeout_s, heartbeat_timeout_s, length_m, width_m,
-        )  # fmt: skip
-        self.commands_sent = 0
+    FIRMWARE = "ardupilot"
 
     # ------------------------------------------------------------------ callbacks
 
@@ -145,21 +119,11 @@ class ApDdsLink(MavrosLink):
         number = custom_mode_of(mp.AUTOPILOT_ARDUPILOT, name)
         if number is None:
             return False
-        try:
-            r = self._node_or_lost().call(
-                self._t("mode_switch"), "ardupilot_msgs/ModeSwitch", {"mode": number}
-            )
-        except (TimeoutError, OSError) as exc:
-            raise LinkTimeout(f"{self._t('mode_switch')}: {exc}") from None
+        r = self._call("mode_switch", "ardupilot_msgs/ModeSwitch", {"mode": number})
         return bool(r.get("status"))
 
     def _arm_call(self, value: bool, timeout_s: float = 5.0) -> dict[str, Any]:
-        try:
-            r = self._node_or_lost().call(
-                self._t("arm_motors"), "ardupilot_msgs/ArmMotors", {"arm": value}, timeout_s
-            )
-        except (TimeoutError, OSError) as exc:
-            raise LinkTimeout(f"{self._t('arm_motors')}: {exc}") from None
+        r = self._call("arm_motors", "ardupilot_msgs/ArmMotors", {"arm": value}, timeout_s)
         ok = bool(r.get("result"))
         # ArmMotors answers a bool only: a refusal has no MAV_RESULT to report.
         return {"success": ok, "result": mp.RESULT_ACCEPTED if ok else mp.RESULT_FAILED}

@@ -121,6 +121,9 @@ class MavrosLink:
         clock: link clock (s, monotonic); wall: the shared clock (s).
     """
 
+    FIRMWARE: Autopilot | None = None
+    """The firmware when the interface itself says it (``ApDdsLink``: ArduPilot)."""
+
     def __init__(
         self,
         node_factory: Callable[[], RosNode],
@@ -143,7 +146,8 @@ class MavrosLink:
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.length_m, self.width_m = length_m, width_m
         self.telemetry_rates: dict[str, float] = {}
-        self._autopilot: Autopilot | None = autopilot
+        self._autopilot: Autopilot | None = autopilot or self.FIRMWARE
+        self.commands_sent = 0  # setpoints published
         self._node: RosNode | None = None
         self._lock = threading.Lock()
         self._reset_state()
@@ -343,14 +347,18 @@ class MavrosLink:
             raise LinkLost("not connected")
         return self._node
 
+    def _call(
+        self, service: str, type_name: str, req: dict[str, Any], timeout_s: float = 5.0
+    ) -> dict[str, Any]:
+        """Call service ``ns/service``; no answer (or the node gone) is ``LinkTimeout``."""
+        try:
+            return self._node_or_lost().call(self._t(service), type_name, req, timeout_s)
+        except (TimeoutError, OSError) as exc:
+            raise LinkTimeout(f"{self._t(service)}: {exc}") from None
+
     def _set_mode(self, name: str) -> bool:
         self._requested = name
-        try:
-            r = self._node_or_lost().call(
-                self._t("set_mode"), "mavros_msgs/SetMode", {"custom_mode": name}
-            )
-        except (TimeoutError, OSError) as exc:
-            raise LinkTimeout(f"{self._t('set_mode')}: {exc}") from None
+        r = self._call("set_mode", "mavros_msgs/SetMode", {"custom_mode": name})
         return bool(r.get("mode_sent"))
 
     def _wait(self, cond: Callable[[], bool], timeout_s: float, feed: bool = False) -> bool:
@@ -374,12 +382,7 @@ class MavrosLink:
         return self._last_sp[1] if self._last_sp else 0.0
 
     def _arm_call(self, value: bool, timeout_s: float = 5.0) -> dict[str, Any]:
-        try:
-            return self._node_or_lost().call(
-                self._t("cmd/arming"), "mavros_msgs/CommandBool", {"value": value}, timeout_s
-            )
-        except (TimeoutError, OSError) as exc:
-            raise LinkTimeout(f"{self._t('cmd/arming')}: {exc}") from None
+        return self._call("cmd/arming", "mavros_msgs/CommandBool", {"value": value}, timeout_s)
 
     def prepare_and_arm(self, timeout_s: float, on_status: StatusCallback | None = None) -> None:
         say = on_status or self.on_status
@@ -438,6 +441,7 @@ class MavrosLink:
             msg["coordinate_frame"] = 6  # FRAME_GLOBAL_REL_ALT
             node.publish(self._t("setpoint_raw/global"), msg)
         self._last_sp = (sp.speed, float(heading_rad), self.clock())
+        self.commands_sent += 1
 
     def send(self, speed_mps: float, heading_rad: float) -> bool:
         if self.pilot_took_over or self.lost or self.stream_ended:

@@ -42,6 +42,10 @@ AP_MSG_DIR = Path(__file__).resolve().parent / "ardupilot_msgs"
 """Our subset of ArduPilot's ``ardupilot_msgs`` (the ``ap-dds`` link's services and status)."""
 AP_MSGS = ("Status",)
 AP_SRVS = ("ArmMotors", "ModeSwitch")
+OC_MSG_DIR = Path(__file__).resolve().parents[2] / "msg"
+"""Our own ``openconvoy_msgs`` (.msg files directly in ``openconvoy/msg``): the run bags' and
+V2V over ROS 2's types."""
+OC_MSGS = ("ConvoyStatus", "V2VBytes")
 NETNS_ENV = "OPENCONVOY_ROS2_NETNS"
 """The pid of a process whose network namespace ROS 2 nodes join (``LoopbackNetns``)."""
 
@@ -118,6 +122,7 @@ PACKAGE_XML = """<?xml version="1.0"?>
 PACKAGES: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "mavros_msgs": (MAVROS_MSGS, MAVROS_SRVS, "2.12.0"),
     "ardupilot_msgs": (AP_MSGS, AP_SRVS, "0.0.0"),
+    "openconvoy_msgs": (OC_MSGS, (), "0.0.0"),
 }
 """The interface packages we build: messages, services, version."""
 
@@ -127,12 +132,18 @@ def _interface_files(pkg: str = "mavros_msgs") -> list[str]:
     return [f"msg/{m}.msg" for m in msgs] + [f"srv/{s}.srv" for s in srvs]
 
 
+def _source(msg_dir: Path, f: str) -> Path:
+    """Where interface file ``f`` (``msg/X.msg``) lies under ``msg_dir``: there, or for
+    ``openconvoy/msg`` (no ``msg/`` level) directly in it."""
+    return msg_dir / f if (msg_dir / f).exists() else msg_dir / Path(f).name
+
+
 def mavros_msgs_prefix(msg_dir: Path = MSG_DIR, pkg: str = "mavros_msgs") -> Path:
     """Where our ``pkg`` (default ``mavros_msgs``) is installed for ROS 2 (per user, per
     definition set)."""
     digest = hashlib.sha256(str(ros2_venv().resolve()).encode())
     for f in _interface_files(pkg):
-        digest.update(f.encode() + (msg_dir / f).read_bytes())
+        digest.update(f.encode() + _source(msg_dir, f).read_bytes())
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "openconvoy"
     return base / f"ros2-{pkg}-{digest.hexdigest()[:12]}"
 
@@ -143,7 +154,8 @@ def _site_packages(prefix: Path) -> Path:
 
 def build_interfaces(pkg: str) -> Path:
     """``build_mavros_msgs`` for one of ``PACKAGES`` from the package's own text."""
-    return build_mavros_msgs(AP_MSG_DIR if pkg == "ardupilot_msgs" else MSG_DIR, pkg)
+    dirs = {"ardupilot_msgs": AP_MSG_DIR, "openconvoy_msgs": OC_MSG_DIR}
+    return build_mavros_msgs(dirs.get(pkg, MSG_DIR), pkg)
 
 
 def build_mavros_msgs(msg_dir: Path = MSG_DIR, pkg: str = "mavros_msgs") -> Path:
@@ -164,7 +176,7 @@ def build_mavros_msgs(msg_dir: Path = MSG_DIR, pkg: str = "mavros_msgs") -> Path
         files = _interface_files(pkg)
         for f in files:
             (src / f).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(msg_dir / f, src / f)
+            shutil.copyfile(_source(msg_dir, f), src / f)
         (src / "CMakeLists.txt").write_text(CMAKE.format(pkg=pkg, files=" ".join(files)))
         (src / "package.xml").write_text(PACKAGE_XML.format(pkg=pkg, version=PACKAGES[pkg][2]))
         build.mkdir()
@@ -243,7 +255,8 @@ class Ros2Node(Ros1Node):
     def _agent(
         self, name: str, master_uri: str | None, msg_dir: Path
     ) -> tuple[list[str], dict[str, str]]:
-        prefixes = [build_mavros_msgs(msg_dir), build_interfaces("ardupilot_msgs")]
+        prefixes = [build_mavros_msgs(msg_dir)]
+        prefixes += [build_interfaces(p) for p in ("ardupilot_msgs", "openconvoy_msgs")]
         argv = [str(ros2_python()), str(AGENT), "/" + name.lstrip("/")]
         if self.netns_pid is not None:
             enter = ["nsenter", "--preserve-credentials", "-U", "-n", "-t", str(self.netns_pid)]
@@ -272,19 +285,67 @@ class Ros2Node(Ros1Node):
         return list(self._request({"op": "publishers", "topic": topic}, timeout_s)["publishers"])
 
 
+class CycloneNode(Ros2Node):
+    """A ``Ros2Node`` without ROS: the same methods (``sub``/``adv``/``pub``/``call`` of the
+    ``ap-dds`` link's types) through Cyclone DDS directly (``cyclone_agent.py``, run by this
+    Python: no ROS 2 environment needed). ``iface``: keep Cyclone on that interface
+    (``OPENCONVOY_DDS_IFACE``; default: Cyclone's own configuration); ``domain_id``: the
+    DDS domain (default ``ROS_DOMAIN_ID``, else 0)."""
+
+    ROS = "DDS (Cyclone)"
+
+    def __init__(
+        self,
+        name: str,
+        timeout_s: float = 30.0,
+        netns_pid: int | None = None,
+        iface: str | None = None,
+        domain_id: int | None = None,
+    ) -> None:
+        self.iface, self.domain_id = iface, domain_id
+        super().__init__(name, timeout_s, MSG_DIR, netns_pid)
+
+    def _agent(
+        self, name: str, master_uri: str | None, msg_dir: Path
+    ) -> tuple[list[str], dict[str, str]]:
+        try:
+            import cyclonedds  # noqa: F401
+        except ModuleNotFoundError:
+            raise DependencyMissing(
+                "--link ap-dds needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
+            ) from None
+        argv = [sys.executable, "-m", "openconvoy.bridge.ros.cyclone_agent", "/" + name.lstrip("/")]
+        if self.netns_pid is not None:
+            enter = ["nsenter", "--preserve-credentials", "-U", "-n", "-t", str(self.netns_pid)]
+            argv = enter + argv
+        env = dict(os.environ)
+        if self.iface:
+            env["OPENCONVOY_DDS_IFACE"] = self.iface
+        if self.domain_id is not None:
+            env["ROS_DOMAIN_ID"] = str(self.domain_id)
+        return argv, env
+
+
 class LoopbackNetns:
     """A private network namespace with only loopback up (``unshare -rn``), held open by a
     process whose pid ROS 2 nodes join (``Ros2Node(netns_pid=...)``): DDS discovery
-    then reaches nothing beyond it. ``close`` ends it."""
+    then reaches nothing beyond it. ``veth``: also the veth pair of ``comms.netns``
+    (``oc0``, multicast-capable: where Fast DDS and Cyclone DDS find each other).
+    ``close`` ends it."""
 
-    def __init__(self) -> None:
+    def __init__(self, veth: bool = False) -> None:
         from openconvoy.comms.netns import netns_unavailable_reason
 
         why = netns_unavailable_reason()
         if why:
             raise DependencyMissing(why)
+        wire = "ip link set lo up"
+        if veth:
+            wire = (
+                f"{sys.executable} -c 'from openconvoy.comms import netns; netns.setup_network()'"
+            )
         self._proc = subprocess.Popen(
-            ["unshare", "-rn", "sh", "-c", "ip link set lo up && echo up && exec cat"],
+            ["unshare", "-rn", "sh", "-c", f"{wire} && echo up && exec cat"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -376,6 +437,7 @@ def main() -> int:
     try:
         print(build_mavros_msgs())
         print(build_interfaces("ardupilot_msgs"))
+        print(build_interfaces("openconvoy_msgs"))
     except (LinkError, DependencyMissing) as exc:
         print(exc, file=sys.stderr)
         return 1

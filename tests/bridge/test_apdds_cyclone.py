@@ -166,13 +166,13 @@ def test_cyclone_link_drives_the_vehicle_through_the_rclpy_stand_in(veth_netns) 
     )  # fmt: skip
     try:
         link.connect(30.0)
-        link.prepare_and_arm(30.0)
+        link.modes.prepare_and_arm(30.0)
         heading = math.pi
         xs: list[float] = []
 
         def driving_west() -> bool:
             tel = link.poll()
-            link.send_setpoint(1.5, heading)
+            link.setpoints.send(1.5, heading)
             if tel is None:
                 return False
             xs.append(tel.state.x)
@@ -186,7 +186,7 @@ def test_cyclone_link_drives_the_vehicle_through_the_rclpy_stand_in(veth_netns) 
         assert wait_for(lambda: driving_west() and xs[-1] < x0 - 1.0, 5.0)
         assert vehicle.state().speed > 1.0
         assert standin.setpoints_forwarded > 10 and standin.commands_dropped == 0
-        link.hold(3.0)  # mode_switch again: HOLD, confirmed on /ap/status
+        link.modes.hold(3.0)  # mode_switch again: HOLD, confirmed on /ap/status
         modes: list[str] = []
         assert wait_for(
             lambda: bool(t := link.poll()) and modes.append(t.mode) is None and modes[-1] == "HOLD",

@@ -3,7 +3,7 @@
 **Definition.** A *twin line* is a line of batched code that restates a rule the scalar
 code also states: a line of a compiled function (decorated ``bare_inline``,
 ``bare_kernel`` or ``kernel``) of the batched modules, or of any function of the numpy
-restatements (``NUMPY_TWINS``), that computes — holds an arithmetic operator, a
+restatements and row code (``NUMPY_TWINS``), that computes — holds an arithmetic operator, a
 comparison, a boolean operator, a conditional expression or a call of ``min``, ``max``,
 ``abs`` or a ``math``/``numpy`` function — outside an index (``a[i + 1]``) and outside a
 loop's ``range(...)``. A kernel that only loops over the batch, loads and stores array
@@ -20,8 +20,9 @@ Prints, for the batched modules (``TWIN_MODULES``: the numba kernels of ``envs.v
   comments and blank lines (the previous round's measure);
 - ``twin lines``: the definition above, with how many functions hold any, how many of
   those name their scalar reference in their docstring (``Twin of ``X````-style, a
-  double-backquoted dotted name) and how many are property-tested (named in a test
-  module that uses hypothesis);
+  double-backquoted dotted name) and how many are property-tested (imported by name
+  into a test module that uses hypothesis, or citing ``tests/PATH.py::test_NAME``, a
+  test decorated ``@given``, in their docstring);
 - the rules compiled from their home modules (``rules(...)`` calls) that no scalar code
   calls (each should have one: otherwise it is a twin moved, not a rule shared).
 
@@ -41,13 +42,18 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 ROOT = REPO / "openconvoy"
-NUMPY_TWINS = ("envs/traffic/idm.py", "envs/traffic/road.py", "policies/batched.py")
-"""Modules whose every function restates a rule in numpy (the fallbacks without numba,
-and the traffic model's array form)."""
+NUMPY_TWINS = (
+    "envs/traffic/idm.py",
+    "envs/traffic/road.py",
+    "policies/classical_rows.py",
+)
+"""Modules whose every function is batched code: the traffic model's numpy form, and the
+classical policy's rows (plain Python that ``policies.batched_jit`` compiles)."""
 TWIN_MODULES = (
     *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "envs" / "vector").glob("*.py")),
     "envs/traffic/jit.py",
     *NUMPY_TWINS,
+    "policies/batched.py",
     "policies/batched_jit.py",
 )
 COMPILED = {"bare_inline", "bare_kernel", "kernel"}
@@ -113,9 +119,9 @@ def twin_lines(fn: ast.FunctionDef) -> set[int]:
     return lines
 
 
-def functions(path: Path, every: bool) -> list[tuple[str, int, int, int, str]]:
-    """``(name, compiled lines, code lines, twin lines, reference)`` of each compiled
-    function in ``path`` (each function where ``every``)."""
+def functions(path: Path, every: bool) -> list[tuple[str, int, int, int, str, bool]]:
+    """``(name, compiled lines, code lines, twin lines, reference, cites a property
+    test)`` of each compiled function in ``path`` (each function where ``every``)."""
     out = []
     source = path.read_text()
     code = _code_lines(source)
@@ -132,7 +138,8 @@ def functions(path: Path, every: bool) -> list[tuple[str, int, int, int, str]]:
         n_code = sum(1 for k in span if k in code) if compiled else 0
         n_twin = len(twin_lines(node))
         ref = found[1] if found else "-"
-        out.append((node.name, len(span) if compiled else 0, n_code, n_twin, ref))
+        cited = cites_a_property_test(ast.get_docstring(node) or "")
+        out.append((node.name, len(span) if compiled else 0, n_code, n_twin, ref, cited))
     return out
 
 
@@ -142,14 +149,29 @@ def hypothesis_tests() -> str:
     return "\n".join(t for t in texts if "from hypothesis" in t)
 
 
+_CITED = re.compile(r"(tests/[\w/]+\.py)::(test_\w+)")
+
+
+def cites_a_property_test(doc: str) -> bool:
+    """``doc`` names a test as ``tests/PATH.py::test_NAME`` that exists and is a
+    hypothesis test (decorated ``@given``)."""
+    for path, test in _CITED.findall(doc):
+        file = REPO / path
+        if file.exists() and re.search(rf"@given\([^\n]*\)\s*\ndef {test}\(", file.read_text()):
+            return True
+    return False
+
+
 def property_tested(rel: str, name: str, tests: str) -> bool:
     """A hypothesis test module imports ``name`` from ``rel``'s module, or the module
     itself and reads ``alias.name``."""
     module = "openconvoy." + rel.removesuffix(".py").replace("/", ".")
     package, _, last = module.rpartition(".")
-    if re.search(rf"from {re.escape(module)} import [^)]*?\b{name}\b", tests):
+    if re.search(rf"from {re.escape(module)} import (?:\([^)]*?|[^\n]*?)\b{name}\b", tests):
         return True
-    aliases = re.findall(rf"from {re.escape(package)} import [^)]*?\b{last}(?: as (\w+))?", tests)
+    aliases = re.findall(
+        rf"from {re.escape(package)} import (?:\([^)]*?|[^\n]*?)\b{last}(?: as (\w+))?", tests
+    )
     return any(re.search(rf"\b{alias or last}\.{name}\b", tests) for alias in aliases)
 
 
@@ -174,7 +196,7 @@ def main(argv: list[str]) -> None:
     for rel in TWIN_MODULES:
         path = ROOT / rel
         modules += len(path.read_text().splitlines())
-        for name, lines, n_code, n_twin, ref in functions(path, rel in NUMPY_TWINS):
+        for name, lines, n_code, n_twin, ref, cited in functions(path, rel in NUMPY_TWINS):
             compiled += lines
             code += n_code
             count += lines > 0
@@ -183,7 +205,7 @@ def main(argv: list[str]) -> None:
             twins += n_twin
             holders += 1
             named += ref != "-"
-            hyp = property_tested(rel, name, tests)
+            hyp = cited or property_tested(rel, name, tests)
             tested += hyp
             if "--list" in argv:
                 mark = "hyp" if hyp else "-"

@@ -51,8 +51,10 @@ except ImportError as exc:  # pragma: no cover - the extra is installed by `make
 RULE_MODULES = (
     "openconvoy.core.estimate",
     "openconvoy.core.ladder",
+    "openconvoy.core.observation",
     "openconvoy.core.spacing",
     "openconvoy.core.safety",
+    "openconvoy.core.state",
     "openconvoy.envs.gps",
     "openconvoy.envs.plant",
     "openconvoy.envs.reward",

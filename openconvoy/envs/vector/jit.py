@@ -59,6 +59,7 @@ RULE_MODULES = (
     "openconvoy.envs.plant",
     "openconvoy.envs.reward",
     "openconvoy.envs.scenarios",
+    "openconvoy.envs.traffic.state",
 )
 """The modules whose plain rule functions the kernels call compiled (``rules``): their
 source is part of the kernel cache's digest."""

@@ -157,8 +157,14 @@ def cites_a_property_test(doc: str) -> bool:
     hypothesis test (decorated ``@given``)."""
     for path, test in _CITED.findall(doc):
         file = REPO / path
-        if file.exists() and re.search(rf"@given\([^\n]*\)\s*\ndef {test}\(", file.read_text()):
-            return True
+        if not file.exists():
+            continue
+        tree = ast.parse(file.read_text())
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef) and node.name == test:
+                calls = [d.func for d in node.decorator_list if isinstance(d, ast.Call)]
+                if any(getattr(f, "id", "") == "given" for f in calls):
+                    return True
     return False
 
 
@@ -175,18 +181,27 @@ def property_tested(rel: str, name: str, tests: str) -> bool:
     return any(re.search(rf"\b{alias or last}\.{name}\b", tests) for alias in aliases)
 
 
-def unshared_rules() -> list[str]:
+EXTERNAL = {"envs/traffic/jit.py": "highway-env"}
+"""Batched modules whose scalar reference is another project's code: the rules they share
+with their numpy form have no scalar caller of ours (highway-env's is the reference)."""
+
+
+def unshared_rules() -> tuple[list[str], list[str]]:
     """The rules the kernels compile from a home module (``rules(module, "name", ...)``)
     that no code outside the batched modules names besides its ``def`` (a twin moved, not a
-    rule shared)."""
+    rule shared); and those of them registered by an ``EXTERNAL`` module (shared by its
+    batched forms; the scalar reference is the other project's)."""
     twin_files = {ROOT / rel for rel in TWIN_MODULES}
-    registered: list[str] = []
+    registered: list[tuple[str, str]] = []
     for rel in TWIN_MODULES:
         for node in ast.walk(ast.parse((ROOT / rel).read_text())):
             if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "rules":
-                registered += [a.value for a in node.args[1:] if isinstance(a, ast.Constant)]
+                registered += [(rel, a.value) for a in node.args[1:] if isinstance(a, ast.Constant)]
     scalar = "\n".join(p.read_text() for p in ROOT.rglob("*.py") if p not in twin_files)
-    return [name for name in registered if len(re.findall(rf"\b{name}\b", scalar)) < 2]
+    lonely = [(rel, n) for rel, n in registered if len(re.findall(rf"\b{n}\b", scalar)) < 2]
+    return [n for rel, n in lonely if rel not in EXTERNAL], [
+        f"{n} ({EXTERNAL[rel]})" for rel, n in lonely if rel in EXTERNAL
+    ]
 
 
 def main(argv: list[str]) -> None:
@@ -216,8 +231,11 @@ def main(argv: list[str]) -> None:
         f"twin lines: {twins} in {holders} functions, {named} naming a reference, "
         f"{tested} property-tested"
     )
-    lonely = unshared_rules()
+    lonely, external = unshared_rules()
     print(f"rules compiled from a home module with no scalar caller: {', '.join(lonely) or 0}")
+    print(
+        f"rules shared by the batched forms of another project's model: {', '.join(external) or 0}"
+    )
 
 
 if __name__ == "__main__":

@@ -275,11 +275,37 @@ class VectorConvoyEnv:
         while needs_wider(self.rx.reach(), w):
             w *= 2
         self.rx.widen(w)
+        self._sources = self._observed()  # around the new rings
         if self._fused is not None:
             self._fused = pack(self)
             if self._slabs is not None:
                 self._slabs.close()
                 self._slabs = make_slabs(self, self._fused, self.threads, FusedCall)
+
+    def _observed(self) -> Sources:
+        """What ``observe`` reads (``vector.observation.Sources``) of the arrays now held:
+        built again when the trails' rings widen."""
+        lk, rx = self.links, self.rx
+        return Sources(
+            hist=rx.hist,
+            hist_n=rx.hist_n,
+            newest=rx.newest,
+            trail=rx.trail,
+            tail=rx.tail,
+            trail_n=rx.trail_n,
+            hint=rx.hint,
+            hint_k=rx.hint_k,
+            trail_of=lk.trail_of,
+            slot_link=lk.slot_link,
+            target_link=lk.target_link,
+            pred_link=lk.pred_link,
+            link_decel=self._link_decel,
+            lengths=self.lengths,
+            spacing=self._spacing,
+            stop_after=float(self.member_config.ladder.stop_after_s),
+            fresh_age=float(self._fresh_age_s),
+            geom=self._geom,
+        )
 
     def _fusable(self) -> bool:
         """Every stage has a kernel: one compiled call per tick (``vector.step``)."""
@@ -369,26 +395,7 @@ class VectorConvoyEnv:
             lead_rule=self._lead_rule,
             emergency=self.emergency_stop,
         )
-        self._sources = Sources(
-            hist=rx.hist,
-            hist_n=rx.hist_n,
-            newest=rx.newest,
-            trail=rx.trail,
-            tail=rx.tail,
-            trail_n=rx.trail_n,
-            hint=rx.hint,
-            hint_k=rx.hint_k,
-            trail_of=lk.trail_of,
-            slot_link=lk.slot_link,
-            target_link=lk.target_link,
-            pred_link=lk.pred_link,
-            link_decel=self._link_decel,
-            lengths=self.lengths,
-            spacing=self._spacing,
-            stop_after=float(self.member_config.ladder.stop_after_s),
-            fresh_age=float(self._fresh_age_s),
-            geom=self._geom,
-        )
+        self._sources = self._observed()
         self._measures = Measures(
             self.desired_gap,
             self.spacing_error,

@@ -53,18 +53,18 @@ def to_ego(c: float, s: float, dx: float, dy: float) -> tuple[float, float]:
     return c * dx + s * dy, -s * dx + c * dy
 
 
-def clipped_age(age: float) -> float:
-    """A message age (s) as the observation holds it: within [0, ``MAX_AGE_S``]."""
-    return MAX_AGE_S if age > MAX_AGE_S else (age if age > 0.0 else 0.0)
-
-
 def ego_state(
     c: float, s: float, dx: float, dy: float, dheading: float, age: float
 ) -> tuple[float, float, float, float]:
-    """A sender's state slot's geometry: its offset (m) in the ego frame (``to_ego``),
-    its heading less the ego's wrapped to [-π, π) (rad), its age clipped (s)."""
-    x, y = to_ego(c, s, dx, dy)
-    return x, y, wrap_angle(dheading), clipped_age(age)
+    """A sender's state slot's geometry: its offset (m) in the ego frame (as ``to_ego``,
+    written out: the simulator's Python path calls this per state), its heading less the
+    ego's wrapped to [-π, π) (rad), its message age held within [0, ``MAX_AGE_S``] (s)."""
+    return (
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        wrap_angle(dheading),
+        MAX_AGE_S if age > MAX_AGE_S else (age if age > 0.0 else 0.0),
+    )
 
 
 @dataclass(frozen=True)

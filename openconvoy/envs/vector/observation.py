@@ -22,7 +22,7 @@ from openconvoy.envs.vector.member import estimate, link_age, pair_gap, speed_ga
 from openconvoy.envs.vector.plant import ACCEL, HEADING, SPEED, YAW_RATE, X, Y, cos_sin
 from openconvoy.envs.vector.trail import T_BASE, finish, head_s, point_at, project
 
-rules(layout, "to_ego", "clipped_age", "ego_state")
+rules(layout, "to_ego", "ego_state")
 LOOKAHEAD = np.array(LOOKAHEAD_S)
 AHEAD = 4
 """Convoys ahead whose trails and states ``observe`` asks the cache for (``_warm``)."""
@@ -42,8 +42,8 @@ def pack_layout(lay: ObservationLayout) -> np.ndarray:
 
 
 class Sources(NamedTuple):
-    """What ``observe`` reads besides the tick's arrays, fixed for an env's life (arrays
-    filled in place): the R^i buffers ``hist``, ``hist_n``, ``newest`` and the trails
+    """What ``observe`` reads besides the tick's arrays (arrays filled in place; built
+    again when the trails' rings widen, ``VectorConvoyEnv._observed``): the R^i buffers ``hist``, ``hist_n``, ``newest`` and the trails
     ``trail``, ``tail``, ``trail_n`` (``vector.rx``), the projection hints ``hint``,
     ``hint_k`` (read and written); the link tables ``trail_of``, ``slot_link``,
     ``target_link``, ``pred_link`` (``vector.links``); each link's sender's braking limit

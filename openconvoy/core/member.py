@@ -257,14 +257,14 @@ class ConvoyMember:
         ego = self.own
         c, s = math.cos(ego.heading), math.sin(ego.heading)
         ex, ey, eh = ego.x, ego.y, ego.heading
-        states = self.buffer.states
+        states, seen = self.buffer.states, ego_state  # (a local: called per state)
         for base, vid in self._slots:
             history = states(vid)
             if not history:
                 continue
             vals: list[float] = []
             for st in history:
-                x, y, dh, age = ego_state(c, s, st.x - ex, st.y - ey, st.heading - eh, now - st.t)
+                x, y, dh, age = seen(c, s, st.x - ex, st.y - ey, st.heading - eh, now - st.t)
                 vals += (x, y, dh, st.speed, st.accel, age, 1.0)
             obs[base : base + len(vals)] = vals
         o = self.layout.own_offset

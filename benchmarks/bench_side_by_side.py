@@ -3,8 +3,8 @@ worktree add /tmp/base COMMIT``), alternating the two in one run so both see the
 
 Cases: ``bench_vector_env``'s paper scenario at B = 1,024 with fixed actions and with the
 paper policy acting batched, and ``bench_env``'s ``ConvoyEnv`` (2 followers) with fixed
-actions and closed loop on its compiled tick, and with fixed actions on its Python path
-(``python-fixed``). Each round runs every case once per tree, each in a fresh process
+actions and closed loop, on its compiled backend (``single-``, what ``ConvoyEnv`` runs
+where numba is installed) and on its Python backend (``python-``, what vehicles run). Each round runs every case once per tree, each in a fresh process
 (``PYTHONPATH`` the tree; pinned to one core with ``--cpu``), after one untimed run per
 case and tree that compiles or loads its kernels; the table gives per case the
 median over rounds of each tree's rate per CPU-second of the process and the ratio
@@ -36,13 +36,20 @@ else:
     import bench_env
     backend = "python" if case.startswith("python") else "compiled"
     env, policies = bench_env._make(2, None, backend)
-    pol = policies if case.endswith("policy") else None
+    pol = policies if case.endswith("-policy") else None
     bench_env._run(env, pol, 0.2, 10**9)
     t0 = time.process_time()
     steps, _ = bench_env._run(env, pol, seconds, 10**9)
     print(json.dumps(steps / (time.process_time() - t0)))
 """
-CASES = ("vector-fixed", "vector-policy", "single-fixed", "single-policy", "python-fixed")
+CASES = (
+    "vector-fixed",
+    "vector-policy",
+    "single-fixed",
+    "single-policy",
+    "python-fixed",
+    "python-policy",
+)
 
 
 def _rate(tree: Path, case: str, seconds: float, cpu: int | None) -> float:
@@ -51,7 +58,9 @@ def _rate(tree: Path, case: str, seconds: float, cpu: int | None) -> float:
     if cpu is not None:
         cmd = ["taskset", "-c", str(cpu), *cmd]
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    out = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True, check=True)
+    out = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
+    if out.returncode:
+        raise SystemExit(f"{case} on {tree} failed:\n{out.stderr[-2000:]}")
     return float(out.stdout.strip().splitlines()[-1])
 
 

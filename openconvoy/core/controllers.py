@@ -79,9 +79,32 @@ class PIDSpeed:
             de = 0.0 if self._prev is None else (error - self._prev) / self.dt
         self._prev = error
         if c.kind == "pid":
-            lim = c.integral_limit
-            self._integral = min(max(self._integral + error * self.dt, -lim), lim)
-        return v_ref + c.kp * error + c.ki * self._integral + c.kd * de
+            self._integral = integrated(self._integral, error, self.dt, c.integral_limit)
+        return speed_law(error, v_ref, de, self._integral, c.kp, c.ki, c.kd)
+
+
+def speed_law(
+    error: float, v_ref: float, error_rate: float, integral: float, kp: float, ki: float, kd: float
+) -> float:
+    """χ_v's setpoint (m/s): ``v_ref + kp·e + ki·∫e + kd·ė`` for spacing error ``error``
+    (m), its rate (m/s) and integral (m·s), summed in that order."""
+    return v_ref + kp * error + ki * integral + kd * error_rate
+
+
+def pd_speed(error: float, v_ref: float, error_rate: float, kp: float, kd: float) -> float:
+    """The PD law on one target alone (m/s), a cap: ``v_ref + kp·e + kd·ė``."""
+    return v_ref + kp * error + kd * error_rate
+
+
+def integrated(integral: float, error: float, dt: float, limit: float) -> float:
+    """The PID integrator after one step of ``dt`` (s) on ``error`` (m), held within
+    ±``limit`` (m·s)."""
+    return clamp(integral + error * dt, -limit, limit)
+
+
+def clamp(x: float, lo: float, hi: float) -> float:
+    """``x`` held within [``lo``, ``hi``] (Python's ``min(max(x, lo), hi)``: NaN stays)."""
+    return min(max(x, lo), hi)
 
 
 @dataclass(frozen=True)

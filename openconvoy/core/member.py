@@ -29,9 +29,10 @@ from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.observation import (
     DERIVED_FEATURES,
     LOOKAHEAD_S,
-    MAX_AGE_S,
     STATE_FEATURES,
     ObservationLayout,
+    ego_state,
+    to_ego,
 )
 from openconvoy.core.policy import make_action
 from openconvoy.core.spacing import GapChain, SpacingConfig, SpacingPolicy
@@ -40,7 +41,6 @@ from openconvoy.core.trail import Projection, Trail
 
 _NF = len(STATE_FEATURES)
 _ND = len(DERIVED_FEATURES)
-_TWO_PI = 2.0 * math.pi  # as ``wrap_angle`` computes it
 PATH_CONE = 0.5
 """Half-width growth (m per m ahead) of the corridor in which the leader looks for a
 member in its path (``ConvoyMember.path_gap``)."""
@@ -257,25 +257,15 @@ class ConvoyMember:
         ego = self.own
         c, s = math.cos(ego.heading), math.sin(ego.heading)
         ex, ey, eh = ego.x, ego.y, ego.heading
-        states = self.buffer.states
-        pi = math.pi
+        states, seen = self.buffer.states, ego_state  # (a local: called per state)
         for base, vid in self._slots:
             history = states(vid)
             if not history:
                 continue
             vals: list[float] = []
             for st in history:
-                dx, dy = st.x - ex, st.y - ey
-                age = now - st.t
-                vals += (
-                    c * dx + s * dy,
-                    -s * dx + c * dy,
-                    (st.heading - eh + pi) % _TWO_PI - pi,  # wrap_angle, inlined
-                    st.speed,
-                    st.accel,
-                    MAX_AGE_S if age > MAX_AGE_S else (age if age > 0.0 else 0.0),
-                    1.0,
-                )
+                x, y, dh, age = seen(c, s, st.x - ex, st.y - ey, st.heading - eh, now - st.t)
+                vals += (x, y, dh, st.speed, st.accel, age, 1.0)
             obs[base : base + len(vals)] = vals
         o = self.layout.own_offset
         obs[o : o + 3] = (ego.speed, ego.accel, ego.yaw_rate)
@@ -488,7 +478,5 @@ def fill_path(
     s_head = trail.head_s(head)
     for j, t in enumerate(LOOKAHEAD_S):
         px, py = trail.point_at(head, heading, projection.s + t * scale, s_head)
-        dx, dy = px - ego.x, py - ego.y
-        obs[o + 2 + 2 * j] = c * dx + s * dy
-        obs[o + 3 + 2 * j] = -s * dx + c * dy
+        obs[o + 2 + 2 * j], obs[o + 3 + 2 * j] = to_ego(c, s, px - ego.x, py - ego.y)
     obs[o + 8] = 1.0

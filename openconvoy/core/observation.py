@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from openconvoy.core.errors import ConfigError
+from openconvoy.core.state import wrap_angle
 
 LAYOUT_VERSION = 1
 
@@ -44,6 +45,26 @@ PATH_FEATURES = (
 )
 MAX_AGE_S = 10.0
 """Ages are clipped here so the array stays finite."""
+
+
+def to_ego(c: float, s: float, dx: float, dy: float) -> tuple[float, float]:
+    """A world offset ``dx``, ``dy`` (m) in the ego frame (m: ahead, to the left), for
+    the ego heading's cosine ``c`` and sine ``s``."""
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def ego_state(
+    c: float, s: float, dx: float, dy: float, dheading: float, age: float
+) -> tuple[float, float, float, float]:
+    """A sender's state slot's geometry: its offset (m) in the ego frame (as ``to_ego``,
+    written out: the simulator's Python path calls this per state), its heading less the
+    ego's wrapped to [-π, π) (rad), its message age held within [0, ``MAX_AGE_S``] (s)."""
+    return (
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        wrap_angle(dheading),
+        MAX_AGE_S if age > MAX_AGE_S else (age if age > 0.0 else 0.0),
+    )
 
 
 @dataclass(frozen=True)

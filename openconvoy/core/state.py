@@ -51,6 +51,17 @@ class VehicleState:
         return math.hypot(self.x - other.x, self.y - other.y)
 
 
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+
 def wrap_angle(a: float) -> float:
-    """Wrap an angle to [-π, π)."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    """Wrap an angle (rad) to [-π, π): ``(a + π) % 2π - π``, the modulo skipped where it
+    changes nothing (within one turn) or adds one turn (one below): the same rounding at
+    a tenth of the cost, which the batched kernels, calling this compiled, need."""
+    x = a + _PI
+    if 0.0 <= x < _TWO_PI:
+        return x - _PI
+    if -_TWO_PI <= x < 0.0:
+        return (x + _TWO_PI) - _PI
+    return x % _TWO_PI - _PI

@@ -31,6 +31,8 @@ from openconvoy.core.controllers import (
     HeadingControlConfig,
     PIDSpeed,
     SpeedControlConfig,
+    clamp,
+    pd_speed,
     pure_pursuit,
     stanley,
 )
@@ -78,6 +80,12 @@ class ClassicalConfig:
             raise ConfigError("control_rate_hz and speed_limit_mps must be positive")
 
 
+def lookahead_index(heading: HeadingControlConfig) -> int:
+    """Pure pursuit's lookahead point: the index into ``LOOKAHEAD_S`` of the time nearest
+    the configured lookahead time (the first of two as near)."""
+    return int(np.argmin([abs(t - heading.lookahead_s) for t in LOOKAHEAD_S]))
+
+
 class ClassicalPolicy:
     """Implements ``openconvoy.core.policy.Policy`` from a ClassicalConfig."""
 
@@ -99,8 +107,7 @@ class ClassicalPolicy:
         """Nearest first: (name, offset of its newest state, offset of its derived features)."""
         self._pred_states = [lay.slot_offset(p) for p in lay.targets[1:]]
         self._stale_limits: dict[np.dtype, float] = {}
-        # Pure pursuit's lookahead point: the one nearest the configured lookahead time.
-        self._lookahead = int(np.argmin([abs(t - config.heading.lookahead_s) for t in LOOKAHEAD_S]))
+        self._lookahead = lookahead_index(config.heading)
 
     @property
     def member_config(self) -> MemberConfig:
@@ -186,12 +193,12 @@ class ClassicalPolicy:
                 law(e, v_ref, v_ref - own),
                 law(e, t[_SPEED], t[_SPEED] - own),
             )
-        speed = min(max(speed, 0.0), self.config.speed_limit_mps)
+        speed = clamp(speed, 0.0, self.config.speed_limit_mps)
         return make_action(speed, self._heading_change(obs, own))
 
     def _pd_law(self, error: float, v_ref: float, error_rate: float) -> float:
         """The built-in χ_v's law on one target (a cap): PD."""
-        return v_ref + self._kp * error + self._kd * error_rate
+        return pd_speed(error, v_ref, error_rate, self._kp, self._kd)
 
     def _plugin_law(self, error: float, v_ref: float, error_rate: float) -> float:
         """A plug-in χ_v's law on one target (a cap): its call."""

@@ -12,6 +12,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("numba", reason="the batched extra (openconvoy[batched]) is not installed")
 
@@ -163,3 +165,28 @@ def test_without_numba_the_numpy_code_runs(monkeypatch: pytest.MonkeyPatch) -> N
     assert not BatchedClassical(PRESETS["paper"]).compiled
     with pytest.raises(DependencyMissing, match=r"openconvoy\[batched\]"):
         BatchedClassical(PRESETS["paper"], compiled=True)
+
+
+_FEATURE = st.sampled_from([0.0, 0.5, 1.0]) | st.floats(-40.0, 40.0, width=32)
+_CONFIGS = [CASES[name][0] for name in sorted(CASES)]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, len(_CONFIGS) - 1), st.data())
+def test_the_rows_are_act_on_random_observations(which: int, data: st.DataObject) -> None:
+    """The twin alone (``classical_rows``' walk over the targets, compiled and as Python)
+    against ``ClassicalPolicy.act`` on random observations, three ticks in a row so the
+    PID integrator carries: any flag, age, error and path feature, not only what an
+    episode reaches."""
+    cfg = _CONFIGS[which]
+    size = cfg.member.layout.size
+    ticks = [
+        np.array(data.draw(st.lists(_FEATURE, min_size=size, max_size=size)), dtype=np.float32)
+        for _ in range(3)
+    ]
+    single = ClassicalPolicy(cfg)
+    compiled, python = BatchedClassical(cfg, compiled=True), BatchedClassical(cfg, compiled=False)
+    for obs in ticks:
+        want = _bits(single.act(obs))
+        np.testing.assert_array_equal(_bits(compiled.act_batch(obs)), want)
+        np.testing.assert_array_equal(_bits(python.act_batch(obs)), want)

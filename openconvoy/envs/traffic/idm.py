@@ -20,6 +20,7 @@ try:  # np.clip's ufunc, called directly (np.clip's Python wrapper costs more th
 except ImportError:  # numpy 1.x, which pyproject allows
     from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
 
+from openconvoy.envs.traffic import state
 from openconvoy.envs.traffic.state import (
     AMAX,
     BRAKE,
@@ -81,12 +82,12 @@ def idm(
     ``kinematics``)."""
     amax, delta, d0, tau, root = st.idm_p[:, me]
     ke, kf = kin[:, ego], kin[:, fr]
-    sp = ke[0]
-    acc = amax * (1 - np.power(ke[1], delta))
-    dv = (ke[2] - kf[2]) * ke[4] + (ke[3] - kf[3]) * ke[5]
-    d_star = d0 + sp * tau + sp * dv / root
+    acc = state.idm_free(amax, ke[1], delta)
+    d_star = state.desired_gap(
+        d0, tau, root, ke[0], state.closing_speed(*ke[2:4], *kf[2:4], *ke[4:6])
+    )
     # A front vehicle is never behind: the gap is >= 0 and not_zero is max(gap, eps).
-    acc = acc - amax * np.power(d_star / np.maximum(kf[6] - ke[6], _EPS), 2)
+    acc = acc - state.idm_interaction(amax, d_star, np.maximum(kf[6] - ke[6], _EPS))
     return np.where(ego >= 0, acc, 0.0)
 
 
@@ -169,8 +170,8 @@ def _aborts(
             if j == i or lane_l[j] == ti or tgt_l[j] != ti:
                 continue
             d = x[j] - x[i]
-            dv = (vx[i] - vx[j]) * c[i] + (vy[i] - vy[j]) * s[i]
-            if 0 < d < d0 + sp[i] * tau + sp[i] * dv / root:
+            dv = state.closing_speed(vx[i], vy[i], vx[j], vy[j], c[i], s[i])
+            if 0 < d < state.desired_gap(d0, tau, root, sp[i], dv):
                 tgt_l[i] = lane_l[i]
                 break
     tgt[:] = tgt_l

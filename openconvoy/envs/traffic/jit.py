@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from openconvoy.envs.traffic import state
 from openconvoy.envs.traffic.state import (
     AMAX,
     BRAKE,
@@ -33,7 +34,9 @@ from openconvoy.envs.traffic.state import (
     MAX_STEER,
     POLITE,
 )
-from openconvoy.envs.vector.jit import kernel
+from openconvoy.envs.vector.jit import kernel, rules
+
+rules(state, "closing_speed", "desired_gap", "idm_free", "idm_interaction")
 
 _EPS = 1e-2  # highway_env.utils.not_zero
 _PI = math.pi
@@ -187,13 +190,20 @@ def _idm(me, e, f, idm_p, kin) -> float:
     if e < 0:
         return 0.0
     amax = idm_p[0, me]
-    acc = amax * (1 - kin[_RATIO, e] ** idm_p[1, me])
+    acc = state.idm_free(amax, kin[_RATIO, e], idm_p[1, me])
     if f >= 0:
-        sp = kin[_SP, e]
-        dv = (kin[_VX, e] - kin[_VX, f]) * kin[_C, e] + (kin[_VY, e] - kin[_VY, f]) * kin[_S, e]
-        d_star = idm_p[2, me] + sp * idm_p[3, me] + sp * dv / idm_p[4, me]
-        acc -= amax * (d_star / _not_zero(kin[_X, f] - kin[_X, e])) ** 2
+        d_star = _gap_wanted(me, e, f, idm_p, kin)
+        acc -= state.idm_interaction(amax, d_star, _not_zero(kin[_X, f] - kin[_X, e]))
     return acc
+
+
+@kernel
+def _gap_wanted(me, e, f, idm_p, kin) -> float:
+    """``IDMVehicle.desired_gap`` (m) with car ``me``'s parameters for ``e`` behind ``f``."""
+    dv = state.closing_speed(
+        kin[_VX, e], kin[_VY, e], kin[_VX, f], kin[_VY, f], kin[_C, e], kin[_S, e]
+    )
+    return state.desired_gap(idm_p[2, me], idm_p[3, me], idm_p[4, me], kin[_SP, e], dv)
 
 
 @kernel
@@ -219,14 +229,11 @@ def _abort(k, lane, tgt, idm_p, kin) -> None:
     """``change_lane_policy`` during a change: give it up when a car changing into the
     same lane (its target as of now in road order) is ahead within the desired gap."""
     t = tgt[k]
-    sp = kin[_SP, k]
     for j in range(lane.shape[0]):
         if j == k or lane[j] == t or tgt[j] != t:
             continue
         d = kin[_X, j] - kin[_X, k]
-        dv = (kin[_VX, k] - kin[_VX, j]) * kin[_C, k] + (kin[_VY, k] - kin[_VY, j]) * kin[_S, k]
-        d_star = idm_p[2, k] + sp * idm_p[3, k] + sp * dv / idm_p[4, k]
-        if 0 < d < d_star:
+        if 0 < d < _gap_wanted(k, k, j, idm_p, kin):
             tgt[k] = lane[k]
             return
 

@@ -60,6 +60,34 @@ PARAM_NAMES = (
 ) = range(len(PARAM_NAMES))
 
 
+# highway-env's IDM as plain functions on floats (and elementwise on arrays): the
+# compiled kernels (``traffic.jit``) and the numpy form (``traffic.idm``) both call them.
+
+
+def closing_speed(
+    vx: float, vy: float, front_vx: float, front_vy: float, c: float, s: float
+) -> float:
+    """How fast a car closes on the one ahead (m/s): their velocity difference (m/s)
+    along the car's heading (cosine ``c``, sine ``s``), ``IDMVehicle.desired_gap``'s
+    projected ``dv``."""
+    return (vx - front_vx) * c + (vy - front_vy) * s
+
+
+def desired_gap(d0: float, tau: float, root: float, speed: float, closing: float) -> float:
+    """IDM's desired gap (m): ``d0 + v·T + v·dv / root``, ``root`` = 2·sqrt(a·b)."""
+    return d0 + speed * tau + speed * closing / root
+
+
+def idm_free(amax: float, ratio: float, delta: float) -> float:
+    """IDM's free-road acceleration (m/s²) at ``ratio`` = speed / target speed."""
+    return amax * (1 - ratio**delta)
+
+
+def idm_interaction(amax: float, d_star: float, gap: float) -> float:
+    """IDM's braking term (m/s²) for desired gap ``d_star`` and gap ``gap`` (m, not zero)."""
+    return amax * (d_star / gap) ** 2
+
+
 @dataclass(frozen=True)
 class StraightEdge:
     """The one road edge ``(start, end)``; per-lane arrays indexed by lane id."""

@@ -64,7 +64,7 @@ from openconvoy.envs.vector.member import (
     pack_ladder,
     pack_spacing,
 )
-from openconvoy.envs.vector.observation import observe, pack_layout
+from openconvoy.envs.vector.observation import Measures, Sources, observe, pack_layout
 from openconvoy.envs.vector.plant import ACCEL, VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
@@ -275,11 +275,37 @@ class VectorConvoyEnv:
         while needs_wider(self.rx.reach(), w):
             w *= 2
         self.rx.widen(w)
+        self._sources = self._observed()  # around the new rings
         if self._fused is not None:
             self._fused = pack(self)
             if self._slabs is not None:
                 self._slabs.close()
                 self._slabs = make_slabs(self, self._fused, self.threads, FusedCall)
+
+    def _observed(self) -> Sources:
+        """What ``observe`` reads (``vector.observation.Sources``) of the arrays now held:
+        built again when the trails' rings widen."""
+        lk, rx = self.links, self.rx
+        return Sources(
+            hist=rx.hist,
+            hist_n=rx.hist_n,
+            newest=rx.newest,
+            trail=rx.trail,
+            tail=rx.tail,
+            trail_n=rx.trail_n,
+            hint=rx.hint,
+            hint_k=rx.hint_k,
+            trail_of=lk.trail_of,
+            slot_link=lk.slot_link,
+            target_link=lk.target_link,
+            pred_link=lk.pred_link,
+            link_decel=self._link_decel,
+            lengths=self.lengths,
+            spacing=self._spacing,
+            stop_after=float(self.member_config.ladder.stop_after_s),
+            fresh_age=float(self._fresh_age_s),
+            geom=self._geom,
+        )
 
     def _fusable(self) -> bool:
         """Every stage has a kernel: one compiled call per tick (``vector.step``)."""
@@ -368,6 +394,14 @@ class VectorConvoyEnv:
             rule=self._rule,
             lead_rule=self._lead_rule,
             emergency=self.emergency_stop,
+        )
+        self._sources = self._observed()
+        self._measures = Measures(
+            self.desired_gap,
+            self.spacing_error,
+            self.pred_age,
+            self.pred_est,
+            self._targets_scratch,
         )
         self._commands = Commands(
             errors=self.policy_errors,
@@ -591,10 +625,4 @@ class VectorConvoyEnv:
             sense(self._own, self.step_count, self._gps_keys, self.gps_noise_m, which, own)
         self.channel.transmit(self.t, self.step_count, own, which, rx)
         self.forgers.deliver(self.t, which, self._own, lk, self.channel.msgs_kept, rx)
-        observe(
-            obs, which, self.t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n, lk.trail_of,
-            rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link, self._link_decel, self.lengths,
-            self._spacing, self.member_config.ladder.stop_after_s,
-            self._fresh_age_s, self._geom, self.desired_gap, self.spacing_error,
-            self.pred_age, self.pred_est, self._targets_scratch,
-        )  # fmt: skip
+        observe(obs, which, self.t, own, self._sources, self._measures)

@@ -51,12 +51,15 @@ except ImportError as exc:  # pragma: no cover - the extra is installed by `make
 RULE_MODULES = (
     "openconvoy.core.estimate",
     "openconvoy.core.ladder",
+    "openconvoy.core.observation",
     "openconvoy.core.spacing",
     "openconvoy.core.safety",
+    "openconvoy.core.state",
     "openconvoy.envs.gps",
     "openconvoy.envs.plant",
     "openconvoy.envs.reward",
     "openconvoy.envs.scenarios",
+    "openconvoy.envs.traffic.state",
 )
 """The modules whose plain rule functions the kernels call compiled (``rules``): their
 source is part of the kernel cache's digest."""

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import math
 
-from openconvoy.envs.vector.jit import bare_inline
-
-TWO_PI = 2.0 * math.pi
+from openconvoy.core import state
+from openconvoy.envs.vector.jit import bare_inline, rules
 
 
 @bare_inline
@@ -16,13 +15,6 @@ def norm(dx, dy):  # pragma: no cover - compiled
     return math.sqrt(dx * dx + dy * dy)
 
 
-@bare_inline
-def wrap(a):  # pragma: no cover - compiled
-    """An angle (rad) into [-π, π): ``np.remainder(a + π, 2π) - π``, the same rounding
-    (fmod is exact; without a wrap, or one turn below, there is nothing to divide)."""
-    x = a + math.pi
-    if 0.0 <= x < TWO_PI:
-        return x - math.pi
-    if -TWO_PI <= x < 0.0:
-        return (x + TWO_PI) - math.pi
-    return x % TWO_PI - math.pi
+rules(state, "wrap_angle")
+wrap = state.wrap_angle
+"""An angle (rad) into [-π, π): ``core.state.wrap_angle``, compiled where a kernel calls it."""

@@ -27,16 +27,15 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
     """The stages' argument tuples of ``env`` (a ``VectorConvoyEnv``), after the per-step
     arrays: member, leader projection, leader drive, leader guard, plant, clock, Tx gate, delivery,
     observation, measures, reward, infos."""
-    t, own, lk, rx, ch, ld, pl = (
+    t, own, rx, ch, ld, pl = (
         env.t,
         env._own,  # with the heading's cosine and sine
-        env.links,
         env.rx,
         env.channel,
         env.leader,
         env.plant,
     )
-    c, mc = ch.trigger, env.member_config
+    c = ch.trigger
     return (
         (t, own, env.ranging.reading, env.pred_est, env._member, env._commands),
         (own, ld.road),
@@ -51,11 +50,7 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
          ch.sender_link, env._everyone, t, own, ch.lost_to, ch.delivered_to, ch.msgs_kept,
          rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
          rx.trail_of, rx.spacing_m, ch._lost_scratch),
-        (env._everyone, t, own, rx.hist, rx.hist_n, rx.newest, rx.trail, rx.tail, rx.trail_n,
-         lk.trail_of, rx.hint, rx.hint_k, lk.slot_link, lk.target_link, lk.pred_link,
-         env._link_decel, env.lengths, env._spacing, mc.ladder.stop_after_s, env._fresh_age_s,
-         env._geom, env.desired_gap, env.spacing_error, env.pred_age, env.pred_est,
-         env._targets_scratch),
+        (env._everyone, t, own, env._sources, env._measures),
         (own, env._half_sum, env.gap, env.collided),
         (env.gap, env.desired_gap, env._accel_old, own, env.collided, 1.0 / env.dt,
          env._reward_c),

@@ -67,7 +67,8 @@ def needs_wider(reach: float, w: int) -> bool:
 def crumb(tr, tail, b, ln, n, k, f):  # pragma: no cover - compiled
     """Field ``f`` (0 x, 1 y, 2 s) of breadcrumb ``k`` (0 the oldest of ``n``) of trail
     ``(b, ln)``: from the ring while it holds it, the oldest two from ``tail``; older
-    ones s = -inf (below every s in the ring, where a search's answer is), x, y NaN."""
+    ones s = -inf (below every s in the ring, where a search's answer is), x, y NaN
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     w = tr.shape[2]
     if n - k <= w:
         return tr[b, ln, (int(tail[b, ln, T_BASE]) + k) & (w - 1), f]
@@ -80,7 +81,8 @@ def crumb(tr, tail, b, ln, n, k, f):  # pragma: no cover - compiled
 
 @bare_inline
 def _reach(tail, b, ln, n, k):  # pragma: no cover - compiled
-    """Record a read of breadcrumb ``k`` (and its neighbours) of ``n``."""
+    """Record a read of breadcrumb ``k`` (and its neighbours) of ``n``
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     r = n - k + 2
     if r > tail[b, ln, T_REACH]:
         tail[b, ln, T_REACH] = r
@@ -143,7 +145,8 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cov
 def _bisect(tr, tail, b, ln, n, value, guess):  # pragma: no cover - compiled
     """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
     from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
-    moves a little along a trail per tick)."""
+    moves a little along a trail per tick)
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     g = min(max(guess, 0), n)
     if g < n and crumb(tr, tail, b, ln, n, g, 2) <= value:  # the answer is above g
         lo, step = g + 1, 1
@@ -173,7 +176,8 @@ def _bisect(tr, tail, b, ln, n, value, guess):  # pragma: no cover - compiled
 @bare_inline
 def _back(tr, tail, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
     """``Trail._back_direction``: unit vector backwards from the oldest breadcrumb
-    (against the heading reported there: ``tail`` ``T_BACK``, NaN once it was dropped)."""
+    (against the heading reported there: ``tail`` ``T_BACK``, NaN once it was dropped)
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     if not math.isnan(tail[b, ln, T_BACK]):
         return tail[b, ln, T_BACK], tail[b, ln, T_BACK + 1]
     x0, y0 = tail[b, ln, T_OLD], tail[b, ln, T_OLD + 1]
@@ -190,7 +194,8 @@ def _back(tr, tail, b, ln, n, hx, hy, hh):  # pragma: no cover - compiled
 @bare_inline
 def _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - compiled
     """``Trail._vertex``: -1 the far end of the extension, 0..n-1 breadcrumbs, n the head
-    (at arc coordinate ``s_head``)."""
+    (at arc coordinate ``s_head``)
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     if k >= n:
         return hx, hy, s_head
     if k >= 0:
@@ -207,7 +212,8 @@ def _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head):  # pragma: no cover - co
 @bare_inline
 def _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``Trail._segment`` of (x, y) on segment k -> k+1: (dist², s, dx, dy, seg, rx, ry),
-    the cross track and heading left to ``_finish`` (only the nearest needs them)."""
+    the cross track and heading left to ``_finish`` (only the nearest needs them)
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     ax, ay, sa = _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head)
     bx, by, sb = _vertex(tr, tail, b, ln, n, k + 1, hx, hy, hh, s_head)
     dx, dy = bx - ax, by - ay
@@ -224,7 +230,8 @@ def _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cov
 def _dist2(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
     """``_segment``'s squared distance alone, the same bits: where the clamp of ``u`` to
     0 or 1 is certain (the point before the segment's start, or well past its end, as
-    the walk's neighbours mostly are) without the sqrt and the division."""
+    the walk's neighbours mostly are) without the sqrt and the division
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     ax, ay, _ = _vertex(tr, tail, b, ln, n, k, hx, hy, hh, s_head)
     bx, by, _ = _vertex(tr, tail, b, ln, n, k + 1, hx, hy, hh, s_head)
     dx, dy = bx - ax, by - ay

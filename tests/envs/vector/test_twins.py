@@ -20,13 +20,24 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from openconvoy.comms.loss import counter_uniform
-from openconvoy.core import estimate, ladder, safety, spacing
+from openconvoy.core import estimate, ladder, observation, safety, spacing, state
+from openconvoy.core.trail import Trail
 from openconvoy.envs import gps, plant
 from openconvoy.envs.vector import math as vmath
+from openconvoy.envs.vector import observation as _kernels  # noqa: F401 - registers ego_state
 from openconvoy.envs.vector.channel import counter_uniform4
 from openconvoy.envs.vector.gps import counter_normals
 from openconvoy.envs.vector.member import speed_gap  # registers the rules with numba
 from openconvoy.envs.vector.plant import ROWS  # noqa: F401 - registers the plant's rules
+from openconvoy.envs.vector.trail import (
+    CAPACITY,
+    TAIL,
+    finish,
+    head_s,
+    point_at,
+    project,
+    trail_add,
+)
 
 FAST = settings(max_examples=200, deadline=None)
 u64 = st.integers(0, 2**64 - 1)
@@ -204,3 +215,85 @@ def test_friction_compiled_is_the_rule(
 ) -> None:
     args = (v, drive, drag, tau, brk, kin, stopped, 0.02)
     assert _FRICTION(*args) == plant.friction_speed(*args)
+
+
+_WRAP = _compiled(state.wrap_angle)
+_EGO = _compiled(observation.ego_state)
+angle = st.floats(-1e6, 1e6)
+
+
+@FAST
+@given(angle)
+def test_wrap_angle_compiled_is_the_modulo(a: float) -> None:
+    # one rule for vehicles, ConvoyEnv and the kernels: its fast paths round as the modulo
+    want = (a + math.pi) % (2.0 * math.pi) - math.pi
+    assert state.wrap_angle(a) == want
+    assert _WRAP(a) == want
+
+
+@FAST
+@given(angle, metres, metres, angle, st.floats(-20.0, 20.0))
+def test_ego_state_compiled_is_the_rule(
+    heading: float, dx: float, dy: float, dh: float, age: float
+) -> None:
+    c, s = math.cos(heading), math.sin(heading)
+    got = _EGO(c, s, dx, dy, dh, age)
+    assert got == observation.ego_state(c, s, dx, dy, dh, age)
+    assert 0.0 <= got[3] <= observation.MAX_AGE_S and -math.pi <= got[2] < math.pi
+
+
+# A sender's run: per tick a heading change (rad), speed (m/s) and position noise (m).
+_moves = st.lists(
+    st.tuples(st.floats(-0.3, 0.3), st.floats(0.0, 6.0), st.floats(-0.05, 0.05)),
+    min_size=2,
+    max_size=160,
+)
+
+
+def _laid(
+    moves: list[tuple[float, float, float]],
+) -> tuple[Trail, tuple, tuple[float, float, float]]:
+    """The same sends to a ``Trail`` and to a ring (B = T = 1, a ring of the whole
+    capacity): the scalar trail, the ring's arrays and the sender's last state (x, y,
+    heading)."""
+    ring = np.zeros((1, 1, CAPACITY, 3)), np.zeros((1, 1, TAIL)), np.zeros((1, 1), np.int64)
+    ref = Trail(0.2, CAPACITY)
+    x = y = h = t = 0.0
+    for dh, v, noise in moves:
+        h += dh
+        x, y, t = x + 0.1 * v * math.cos(h), y + 0.1 * v * math.sin(h), t + 0.1
+        ref.add(x + noise, y - noise, h, v, t)
+        trail_add(*ring, 0, 0, x + noise, y - noise, 0.2, t, v, math.cos(h), math.sin(h))
+    return ref, ring, (x, y, h)
+
+
+@settings(max_examples=120, deadline=None)
+@given(
+    _moves, st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(0.0, 30.0), st.floats(-5.0, 40.0)
+)
+def test_the_ring_trail_projects_and_reads_as_trail(
+    moves: list[tuple[float, float, float]], qx: float, qy: float, gap: float, back: float
+) -> None:
+    """``vector.trail`` (rings, a hinted bisection, a walk that skips the sqrt where it
+    can) against ``core.trail.Trail`` alone: the same breadcrumbs; a point ``gap`` m
+    behind the head (off by ``qx``, ``qy``) projects to the same arc, cross track and
+    heading; the path point ``back`` m behind the head is the same (within a few ulps of
+    the trail's size: the kernels' ``norm`` is ``hypot`` within an ulp)."""
+    ref, (tr, tail, n), (hx, hy, hh) = _laid(moves)
+    assert n[0, 0] == len(ref)
+    if len(ref) < 2:
+        return
+    x, y = hx - gap * math.cos(hh) + qx, hy - gap * math.sin(hh) + qy
+    want = ref.project((hx, hy), hh, x, y, gap)
+    arc, s, k, cross_seg, dx, dy, seg = project(
+        tr, tail, n, 0, 0, hx, hy, hh, x, y, gap, math.nan, 0
+    )
+    cross, heading = finish(cross_seg, dx, dy, seg, hh)
+    tol = 1e-9 * (1.0 + ref.head_s((hx, hy)))
+    assert abs(arc - want.arc_to_head) <= tol and abs(s - want.s) <= tol
+    assert abs(cross - want.cross_track) <= 1e-9 and abs(heading - want.heading) <= 1e-9
+    s_head = head_s(tail, 0, 0, hx, hy)
+    assert abs(s_head - ref.head_s((hx, hy))) <= tol
+    px, py = point_at(tr, tail, n, 0, 0, hx, hy, hh, s_head - back, k + 1, s_head)
+    wx, wy = ref.point_at((hx, hy), hh, s_head - back)
+    assert abs(px - wx) <= tol and abs(py - wy) <= tol

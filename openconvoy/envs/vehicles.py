@@ -98,6 +98,13 @@ class VehiclePreset:
             the vehicle reports and steers by (an EKF heading bias; PX4 SIH rovers logged
             -1 to -10 degrees, ArduPilot SITL about 0.5; ``fit-plant`` fits it from a run's
             logged headings against its track). Scalar simulator only.
+        speed_scale: the speed the autopilot reports over the vehicle's speed along its
+            track: what its controller and its messages use (``fit-plant`` fits it from a
+            run's logged speeds against its positions). A deploy takes the forward speed as
+            the velocity projected on the estimated heading, so a heading bias b gives
+            cos(b) (the PX4 demo: 0.986 at -9.6 degrees); the firmware logged 0.99-1.06
+            (sitl-px4/convoy), ArduPilot SITL 0.975-0.983 (sitl/convoy vx-fixed-1). Scalar
+            simulator only.
     """
 
     name: str
@@ -126,6 +133,7 @@ class VehiclePreset:
     yaw_accel_max_radps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
     lateral_accel_max_mps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
     heading_bias_rad: Annotated[float, Range(-0.5, 0.5)] = 0.0
+    speed_scale: Annotated[float, Range(0.5, 1.5)] = 1.0
 
     def __post_init__(self) -> None:
         check_fields(self, f"vehicle preset {self.name!r}")

@@ -322,3 +322,30 @@ def test_a_heading_bias_is_what_members_see_and_the_vehicle_steers_by() -> None:
 
     with pytest.raises(ValueError, match="heading bias"):
         VectorConvoyEnv(1, vehicle_presets=[biased, "1/10"], n_followers=1)
+
+
+def test_a_speed_scale_is_what_members_see_and_broadcast() -> None:
+    """A follower whose autopilot reports 0.986 of its speed (the PX4 demo's follower 1: a
+    -9.6 degree heading bias projects the true velocity on the believed heading): its own
+    state and the state it broadcasts carry the reported speed, the plant moves it at the
+    true one; the batched simulator refuses it."""
+    import dataclasses
+
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    scaled = dataclasses.replace(vehicle_preset("1/10"), speed_scale=0.986)
+    env = ConvoyEnv("paper", n_followers=2, plant_presets=["1/10", scaled, "1/10"])
+    env.reset(seed=0)
+    drive = {a: np.array([1.0, 0.0], dtype=np.float32) for a in env.agents}
+    for _ in range(100):  # 5 s: the convoy is moving
+        env.step(drive)
+    true = env.sim.truth.speed[1]
+    assert true > 0.5
+    assert env.sim.members[1].own.speed == pytest.approx(0.986 * true)
+    heard = env.sim.members[2].buffer.latest(1)
+    assert heard is not None and heard.speed < true
+    assert env.sim.members[0].own.speed == pytest.approx(env.sim.truth.speed[0])
+    from openconvoy.envs import VectorConvoyEnv
+
+    with pytest.raises(ValueError, match="speed scale"):
+        VectorConvoyEnv(1, vehicle_presets=["1/10", scaled], n_followers=1)

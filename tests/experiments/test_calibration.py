@@ -295,6 +295,24 @@ def test_heading_bias_is_the_logged_heading_less_the_track() -> None:
     assert cal.heading_bias(log, 0) == 0.0
 
 
+def test_speed_scale_is_the_logged_speed_over_the_track() -> None:
+    """A vehicle moving 1.2 m/s along its track that logs 0.986 of it (the PX4 demo's
+    follower 1, cos(-9.6 degrees)): its scale is 0.986; a step in the logged speed (a span
+    where the two part by 0.3 m/s) and rows at rest are left out; too little motion: 1."""
+    t = np.arange(400) * 0.05
+    log = {
+        "t_s": t,
+        "vehicle_id": np.zeros(400, dtype=int),
+        "x_m": 1.2 * t,
+        "y_m": np.zeros(400),
+        "speed_mps": np.full(400, 0.986 * 1.2),
+    }
+    log["speed_mps"][200:205] = 3.0  # an outlier stretch
+    assert cal.speed_scale(log, 0) == pytest.approx(0.986, abs=1e-3)
+    log["x_m"] = np.zeros(400)
+    assert cal.speed_scale(log, 0) == 1.0
+
+
 def test_a_clock_error_is_taken_out_of_the_ages_and_stamps_the_messages() -> None:
     """Clocks falling behind 4 ms/s from 0.157 s (vx-fixed-per0.3's telemetry ages, states
     fresh: staleness 0.01 s): the delays are the ages less the sender's error, and the

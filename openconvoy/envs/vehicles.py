@@ -102,8 +102,8 @@ class VehiclePreset:
             track: what its controller and its messages use (``fit-plant`` fits it from a
             run's logged speeds against its positions). A deploy takes the forward speed as
             the velocity projected on the estimated heading, so a heading bias b gives
-            cos(b) (the PX4 demo: 0.986 at -9.6 degrees); the firmware logged 0.99-1.06
-            (sitl-px4/convoy), ArduPilot SITL 0.975-0.983 (sitl/convoy vx-fixed-1). Scalar
+            cos(b) (the PX4 demo: 0.986 at -9.6 degrees); PX4 SIH logged 0.99-1.10
+            (sitl-px4/convoy r1-r3), ArduPilot SITL 0.978-0.986 (sitl/convoy). Scalar
             simulator only.
     """
 

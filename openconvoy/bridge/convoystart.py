@@ -22,7 +22,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-
 REFUSE_AFTER_S = 1.0
 """How long (s, monotonic) the V2V link's reason not to start must hold to refuse it."""
 

@@ -18,7 +18,6 @@ from openconvoy.bridge.mavlink.ranging import RangeIntake
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.core.state import VehicleState, wrap_angle
 
-
 REBOOT_JUMP_S = 1.0
 """A (receive time - boot time) this much above the envelope: the vehicle's clock went back."""
 

@@ -38,8 +38,10 @@ def test_a_slow_vehicle_clock_is_followed() -> None:
 def test_a_fast_and_a_true_clock_are_followed_too() -> None:
     for ratio in (1.0, 1.01):
         clock = BootClockOffset()
-        for wall, boot, measured in _stamps(ratio, 30.0, seed=1):
+        stamps = list(_stamps(ratio, 30.0, seed=1))
+        for wall, boot, _ in stamps:
             clock.observe(wall, boot)
+        wall, boot, measured = stamps[-1]
         assert abs(boot + clock.offset(wall) - measured) < 0.005, ratio
 
 
@@ -61,12 +63,14 @@ def test_the_intakes_state_time_on_a_slow_clock() -> None:
         Origin(28.6024, -81.2001, 0.0), lambda: now[0], lambda: now[0], lambda: reboots.append(1)
     )
     intake.on_attitude(SimpleNamespace(yaw=0.0, yawspeed=0.0))
-    for wall, boot, measured in _stamps(0.990, 60.0, seed=2):
+    stamps = list(_stamps(0.990, 60.0, seed=2))
+    for wall, boot, _ in stamps:
         now[0] = wall
         msg = SimpleNamespace(
             lat=286024000, lon=-812001000, vx=100, vy=0, hdg=0, time_boot_ms=int(boot * 1e3)
         )
         intake.on_position(msg)
+    measured = stamps[-1][2]
     t = intake.build((1, 0.8, 0.3), "OFFBOARD", True, now[0], RangeIntake()).state.t
     assert not reboots
     assert math.isfinite(t) and abs(t - measured) < 0.005, t - measured

@@ -98,13 +98,14 @@ class VehiclePreset:
             the vehicle reports and steers by (an EKF heading bias; PX4 SIH rovers logged
             -1 to -10 degrees, ArduPilot SITL about 0.5; ``fit-plant`` fits it from a run's
             logged headings against its track). Scalar simulator only.
-        speed_scale: the speed the autopilot reports over the vehicle's speed along its
-            track: what its controller and its messages use (``fit-plant`` fits it from a
-            run's logged speeds against its positions). A deploy takes the forward speed as
-            the velocity projected on the estimated heading, so a heading bias b gives
-            cos(b) (the PX4 demo: 0.986 at -9.6 degrees); PX4 SIH logged 0.99-1.10
-            (sitl-px4/convoy r1-r3), ArduPilot SITL 0.978-0.986 (sitl/convoy). Scalar
-            simulator only.
+        speed_scale: the speed the autopilot holds and reports over the vehicle's speed
+            along its track: the plant's speed loop gives the autopilot's speed (what its
+            controller and messages use), the vehicle moves at that / ``speed_scale``
+            (``fit-plant`` fits it from a run's logged speeds against its positions). A
+            deploy takes the forward speed as the velocity projected on the estimated
+            heading, so a heading bias b gives cos(b) (the PX4 demo: 0.986 at -9.6
+            degrees); PX4 SIH logged 0.99-1.10 (sitl-px4/convoy r1-r3), ArduPilot SITL
+            0.978-0.986 (sitl/convoy). Scalar simulator only.
     """
 
     name: str

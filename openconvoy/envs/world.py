@@ -181,9 +181,6 @@ class ConvoyWorld:
         # What each vehicle's autopilot believes its heading is, less the truth (rad): the
         # members see and steer by the believed heading, the vehicles move by the true one.
         self.heading_bias = [p.heading_bias_rad for p in (plant_presets or self.presets)]
-        # and its speed as reported (``VehiclePreset.speed_scale``): members and messages
-        # use it, the vehicles move by the true one.
-        self.speed_scale = [p.speed_scale for p in (plant_presets or self.presets)]
         self.channel: Channel[VehicleState] = Channel(n, loss, advance_state)
         self.ranging_sensors = [
             (i, p.ranging) for i, p in enumerate(self.presets) if i > 0 and p.ranging
@@ -248,9 +245,7 @@ class ConvoyWorld:
                 modes[i] = "stop"
         tr = self.truth
         h_lead = tr.heading[0] + self.heading_bias[0]
-        v0, h0 = self.scenario.leader_command(
-            t, tr.x[0], tr.y[0], h_lead, tr.speed[0] * self.speed_scale[0]
-        )
+        v0, h0 = self.scenario.leader_command(t, tr.x[0], tr.y[0], h_lead, tr.speed[0])
         cmd_v[0] = v0
         cmd_dh[0] = (h0 - h_lead + math.pi) % (2 * math.pi) - math.pi
         if self.emergency_stop and self._lead_emergency(t):
@@ -285,7 +280,7 @@ class ConvoyWorld:
                 t,
                 xs[i],
                 ys[i],
-                tr.speed[i] * self.speed_scale[i],
+                tr.speed[i],
                 tr.heading[i] + self.heading_bias[i],
                 tr.accel[i],
                 tr.yaw_rate[i],

@@ -680,18 +680,16 @@ def fit_vehicle(
     name: str,
     rounds: int,
     population: int,
-    scale: float = 1.0,
 ) -> tuple[VehiclePreset, float, bool]:
     """One vehicle's preset from its log, replayed as its controller saw it: the base's loop
     at its best delay, or a free pi fit when that explains the log clearly better (see the
-    module doc); its logged speeds divided by ``scale`` (``speed_scale``). Returns (preset,
-    speed RMS m/s, base kept)."""
+    module doc). Returns (preset, speed RMS m/s, base kept)."""
     from openconvoy.experiments.fitplant import _series_from, fit_pi_plant, pi_speed_rms
 
-    series, _ = _series_from(run, vid, "telemetry", telemetry_age=False, speed_scale=scale)
+    series, _ = _series_from(run, vid, "telemetry", telemetry_age=False)
     free = fit_pi_plant(
         [run], base=start, name=name, vehicle_id=vid, rounds=rounds, population=population,
-        telemetry_age=False, speed_scale=scale,
+        telemetry_age=False,
     )  # fmt: skip
     if start.speed_loop != "pi":
         return free.preset, free.speed_rms_mps, False
@@ -747,9 +745,7 @@ def calibrate(
         start = _base_for(vid, vehicle_preset(convoy.vehicles[vid]), meta.get(vid, {}), base)
         name = f"{convoy.name}-vehicle-{vid}"
         scale = round(speed_scale(log, vid), 4)
-        presets[vid], rms[vid], kept[vid] = fit_vehicle(
-            run, vid, start, name, rounds, population, scale
-        )
+        presets[vid], rms[vid], kept[vid] = fit_vehicle(run, vid, start, name, rounds, population)
         presets[vid] = dataclasses.replace(
             presets[vid], heading_bias_rad=round(heading_bias(log, vid), 4), speed_scale=scale
         )

@@ -746,7 +746,6 @@ def _series_from(
     source: str,
     cmd_timing: str = "after-state",
     telemetry_age: bool = True,
-    speed_scale: float = 1.0,
 ) -> tuple[list[_Series], str]:
     from openconvoy.experiments.recording import is_recording, read_recording
 
@@ -760,9 +759,7 @@ def _series_from(
     # A row's state is as old as its telemetry; or, for the loop delay a controller sees,
     # as the row says (telemetry_age False).
     t_meas = d.t - d.age if telemetry_age else d.t
-    # The plant moves the vehicle: its true speed, the logged one less the report's scale.
-    speed = d.speed / speed_scale
-    return [_Series(t_meas, speed, d.heading, d.t_cmd, d.cmd_v, d.cmd_h)], "log"
+    return [_Series(t_meas, d.speed, d.heading, d.t_cmd, d.cmd_v, d.cmd_h)], "log"
 
 
 def fit_pi_plant(
@@ -775,7 +772,6 @@ def fit_pi_plant(
     population: int = 160,
     cmd_timing: CmdTiming = "after-state",
     telemetry_age: bool = True,
-    speed_scale: float = 1.0,
 ) -> PiFit:
     """Fit the autopilot's PI speed loop (delay, ramp limits, gains, feed-forward, drive
     lag, static friction) and its heading loop (delay, lag, rate and yaw-accel limits,
@@ -784,14 +780,12 @@ def fit_pi_plant(
     Speed is fitted on every stretch whose commanded speed changes, heading on every
     stretch whose commanded heading changes; the other loop keeps the base preset's values
     when no stretch excites it. Size and speed cap come from the base preset. The search
-    (cross-entropy, seeded) runs ``rounds`` rounds of ``population`` candidates. A log's
-    speeds are divided by ``speed_scale`` (``VehiclePreset.speed_scale``: the plant is fitted
-    to the true speed)."""
+    (cross-entropy, seeded) runs ``rounds`` rounds of ``population`` candidates."""
     base_preset = vehicle_preset(base) if isinstance(base, str) else base
     series: list[_Series] = []
     kinds = []
     for p in paths:
-        got, kind = _series_from(p, vehicle_id, source, cmd_timing, telemetry_age, speed_scale)
+        got, kind = _series_from(p, vehicle_id, source, cmd_timing, telemetry_age)
         series += got
         kinds.append(kind)
     speed_series = [s for s in series if np.ptp(s.cmd_v) >= 0.2]

@@ -97,9 +97,9 @@ class BicyclePlant:
         self._rate = col("turn_rate_max_radps")
         self._vmax = col("max_speed_mps")
         self._kappa = np.tan(col("max_steer_rad")) / col("wheelbase_m")
-        # The speed is the autopilot's (what its loop holds and it reports); the vehicle
-        # moves at that over its speed_scale (``VehiclePreset.speed_scale``).
-        self._move = 1.0 / col("speed_scale")
+        # The speed is the one reported: the velocity projected on the believed heading,
+        # which is off by the heading bias; the vehicle moves 1 / cos(bias) as fast.
+        self._move = 1.0 / np.cos(col("heading_bias_rad"))
         self._pi = np.array([p.speed_loop == "pi" for p in self.presets], dtype=bool)
         self._any_pi = bool(self._pi.any())
         self._pi_sub = max(1, math.ceil(dt / PI_MAX_DT_S - 1e-9))

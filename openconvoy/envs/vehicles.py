@@ -97,15 +97,11 @@ class VehiclePreset:
         heading_bias_rad: the autopilot's heading estimate less the true heading (rad): what
             the vehicle reports and steers by (an EKF heading bias; PX4 SIH rovers logged
             -1 to -10 degrees, ArduPilot SITL about 0.5; ``fit-plant`` fits it from a run's
-            logged headings against its track). Scalar simulator only.
-        speed_scale: the speed the autopilot holds and reports over the vehicle's speed
-            along its track: the plant's speed loop gives the autopilot's speed (what its
-            controller and messages use), the vehicle moves at that / ``speed_scale``
-            (``fit-plant`` fits it from a run's logged speeds against its positions). A
-            deploy takes the forward speed as the velocity projected on the estimated
-            heading, so a heading bias b gives cos(b) (the PX4 demo: 0.986 at -9.6
-            degrees); PX4 SIH logged 0.99-1.10 (sitl-px4/convoy r1-r3), ArduPilot SITL
-            0.978-0.986 (sitl/convoy). Scalar simulator only.
+            logged headings against its track). The plant's speed is the one the vehicle
+            reports, its velocity projected on the believed heading (as a deploy takes its
+            forward speed), so the vehicle moves 1 / cos(b) as fast (the PX4 demo's follower
+            1: -9.6 degrees, it logged 0.9855 of its track speed, cos(b) 0.9860). Scalar
+            simulator only.
     """
 
     name: str
@@ -134,7 +130,6 @@ class VehiclePreset:
     yaw_accel_max_radps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
     lateral_accel_max_mps2: Annotated[float, Range(0.0, lo_open=True, allow_inf=True)] = math.inf
     heading_bias_rad: Annotated[float, Range(-0.5, 0.5)] = 0.0
-    speed_scale: Annotated[float, Range(0.5, 1.5)] = 1.0
 
     def __post_init__(self) -> None:
         check_fields(self, f"vehicle preset {self.name!r}")

@@ -146,8 +146,9 @@ def test_the_calibration_loop_closes_on_the_simulated_px4_vehicles(tmp_path: Pat
     real MAVLink over UDP, signed BSMs over multicast in a private namespace), calibrated
     from that run's logs (``fit-plant``, vehicles and channel), simulated (``sim``) and
     compared (``compare``): the p95 platooning error within 10 % and string stability on
-    the same side of 1. Each vehicle's reported speed is its true speed projected on its
-    biased heading (``bridge/simvehicle``'s PX4), which the fit finds: cos(bias)."""
+    the same side of 1. Each vehicle's logged speed is its track speed times the cosine of
+    its fitted heading bias (``bridge/simvehicle``'s PX4 drives its true velocity, the
+    deploy projects it on the believed heading), as the fitted plant models it."""
     import subprocess
     import sys
 
@@ -163,9 +164,10 @@ def test_the_calibration_loop_closes_on_the_simulated_px4_vehicles(tmp_path: Pat
     run, convoy = demo_dir / "deploy", demo_dir / "convoy.toml"
     fitted = tmp_path / "fitted" / "convoy.toml"
     assert main(["fit-plant", str(run), "--convoy", str(convoy), "--out-convoy", str(fitted)]) == 0
+    log = read_log(run)
     for vid in range(3):
-        preset = vehicle_preset(load_convoy(fitted).plants[vid])
-        assert abs(preset.speed_scale - math.cos(preset.heading_bias_rad)) < 0.004, preset
+        bias = vehicle_preset(load_convoy(fitted).plants[vid]).heading_bias_rad
+        assert abs(cal.speed_scale(log, vid) - math.cos(bias)) < 0.003, (vid, bias)
     sim = tmp_path / "sim"
     args = ["sim", "--convoy", str(fitted), "--policy", "paper", "--out", str(sim), "--seed", "0"]
     assert main([*args, "--duration", repr(PX4_DEMO_S), "--quiet", "--no-plots"]) == 0

@@ -203,10 +203,10 @@ class VectorConvoyEnv:
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         check_faults(self.faults, N)
         self.presets = tuple(sc.presets)
-        if any(p.heading_bias_rad or p.speed_scale != 1.0 for p in self.presets):
+        if any(p.heading_bias_rad for p in self.presets):
             raise ConfigError(
-                "a heading bias or speed scale (heading_bias_rad, speed_scale) is the scalar "
-                "simulator's (ConvoyEnv), not the batched one's"
+                "a heading bias (heading_bias_rad) is the scalar simulator's (ConvoyEnv), "
+                "not the batched one's"
             )
         self.autoreset, self.link_counters, self.render_mode = autoreset, link_counters, None
         self.control_rate_hz = float(control_rate_hz)

@@ -7,8 +7,13 @@ heard it, in simulation as here) and the predecessors its Rx gate keeps; a scena
 "Heard" counts every vehicle message the V2V link delivered, before the Rx gate.
 
 Before starting, the V2V link may refuse (``refusal``: a member that uses V2V
-authentication differently, or a clock further off than the link's tolerance): the start
-is then refused for good (``refused``, one line) and the runner ends the run. A leader
+authentication differently, or a clock further off than the link's tolerance): a reason
+given for ``REFUSE_AFTER_S`` on end refuses the start for good (``refused``, one line) and
+the runner ends the run; while it has not lasted that long the vehicle waits. A deploy that
+starts slowly on a loaded host reads, at its first tick, a backlog of its members' messages
+that waited in its socket 1-2 s, and those alone read as clocks that far behind (the PX4
+demo at load 8-17 on 2 cores: 5 of 8 runs refused at their first tick, vehicle 2's
+"vehicle 0's clock is 1.35 s behind"); the fresh messages after it say otherwise. A leader
 that starts without having heard every member says who and since when (D61).
 """
 
@@ -16,6 +21,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+
+REFUSE_AFTER_S = 1.0
+"""How long (s, monotonic) the V2V link's reason not to start must hold to refuse it."""
 
 
 class ConvoyStart:
@@ -57,6 +65,7 @@ class ConvoyStart:
         self.on_status = on_status
         self.refused = ""
         """Why the start was refused ("" = not refused)."""
+        self._refusing_since: float | None = None  # when the reason now given was first
         self.heard: set[int] = set()
         self._said_wait: float | None = None  # when the last "waiting for" line went out
         self.t_start: float | None = None
@@ -92,8 +101,14 @@ class ConvoyStart:
         if self.refused:
             return True
         if self.t_start is None and self.refusal is not None:
-            self.refused = self.refusal()
-            if self.refused:
+            reason = self.refusal()
+            if not reason:
+                self._refusing_since = None
+            else:
+                if self._refusing_since is None:
+                    self._refusing_since = now
+                if now - self._refusing_since >= REFUSE_AFTER_S:
+                    self.refused = reason
                 return True
         missing = self.waiting_for(t_loop_start)
         waiting = bool(missing)

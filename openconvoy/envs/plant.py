@@ -97,6 +97,9 @@ class BicyclePlant:
         self._rate = col("turn_rate_max_radps")
         self._vmax = col("max_speed_mps")
         self._kappa = np.tan(col("max_steer_rad")) / col("wheelbase_m")
+        # The speed is the one reported: the velocity projected on the believed heading,
+        # which is off by the heading bias; the vehicle moves 1 / cos(bias) as fast.
+        self._move = 1.0 / np.cos(col("heading_bias_rad"))
         self._pi = np.array([p.speed_loop == "pi" for p in self.presets], dtype=bool)
         self._any_pi = bool(self._pi.any())
         self._pi_sub = max(1, math.ceil(dt / PI_MAX_DT_S - 1e-9))
@@ -174,6 +177,7 @@ class BicyclePlant:
         self._qh: list[list[float]] = [[0.0] * n for _ in range(self._depth)]
         # The scalar step keeps the inner-loop state as lists (no conversions per step).
         self._ramp_l, self._integ_l, self._rate_des_l = [0.0] * n, [0.0] * n, [0.0] * n
+        self._move_l = self._move.tolist()
 
     def __len__(self) -> int:
         return len(self.presets)
@@ -248,8 +252,8 @@ class BicyclePlant:
         rate = np.clip(self._rate_des, -cap, cap)
         h_mid = self.heading + 0.5 * rate * dt
 
-        self.x = self.x + v_mid * np.cos(h_mid) * dt
-        self.y = self.y + v_mid * np.sin(h_mid) * dt
+        self.x = self.x + self._move * v_mid * np.cos(h_mid) * dt
+        self.y = self.y + self._move * v_mid * np.sin(h_mid) * dt
         self.heading = (self.heading + rate * dt + math.pi) % (2.0 * math.pi) - math.pi
         self.accel = dv / dt
         self.yaw_rate = rate
@@ -300,6 +304,7 @@ class BicyclePlant:
         xs, ys, hs, vs = (a.tolist() for a in (self.x, self.y, self.heading, self.speed))
         ramp, integ, rate_des = self._ramp_l, self._integ_l, self._rate_des_l
         acc_out, rate_out = [0.0] * len(vs), [0.0] * len(vs)
+        move = self._move_l
         for i, (
             tau_v,
             tau_h,
@@ -339,8 +344,8 @@ class BicyclePlant:
                     err_h, v_mid, rate_des[i], tau_h, rate_max, kappa, yaw_acc, alat, dt
                 )
             h_mid = hs[i] + 0.5 * rate * dt
-            xs[i] += v_mid * math.cos(h_mid) * dt
-            ys[i] += v_mid * math.sin(h_mid) * dt
+            xs[i] += move[i] * v_mid * math.cos(h_mid) * dt
+            ys[i] += move[i] * v_mid * math.sin(h_mid) * dt
             hs[i] = (hs[i] + rate * dt + pi) % two_pi - pi
             vs[i] = v_new
             acc_out[i] = dv / dt

@@ -97,7 +97,11 @@ class VehiclePreset:
         heading_bias_rad: the autopilot's heading estimate less the true heading (rad): what
             the vehicle reports and steers by (an EKF heading bias; PX4 SIH rovers logged
             -1 to -10 degrees, ArduPilot SITL about 0.5; ``fit-plant`` fits it from a run's
-            logged headings against its track). Scalar simulator only.
+            logged headings against its track). The plant's speed is the one the vehicle
+            reports, its velocity projected on the believed heading (as a deploy takes its
+            forward speed), so the vehicle moves 1 / cos(b) as fast (the PX4 demo's follower
+            1: -9.6 degrees, it logged 0.9855 of its track speed, cos(b) 0.9860). Scalar
+            simulator only.
     """
 
     name: str

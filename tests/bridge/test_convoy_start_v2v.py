@@ -167,3 +167,24 @@ def test_a_follower_of_a_leader_only_topology_waits_for_the_vehicle_ahead_too():
     assert follower.update(0.1, 1.8e9, 0.0)
     follower.heard_from(1)
     assert not follower.update(0.2, 1.8e9, 0.0) and follower.t_start == 0.2
+
+
+def test_a_refusal_must_last_a_second_a_backlog_read_at_the_first_tick_does_not_refuse():
+    """A deploy that started slowly reads its members' queued messages at its first tick,
+    1.35 s old, and the V2V link names a clock that far behind; the fresh messages of the
+    next ticks clear it: the vehicle waited, then starts (the PX4 demo at load 8-17). A
+    reason that holds for 1 s refuses the start for good."""
+    reasons = iter(["vehicle 2: vehicle 0's clock is 1.35 s behind"] * 3 + [""] * 100)
+    gate = ConvoyStart(2, 3, lambda j: True, leader_waits=True, wait_s=120.0,
+                       clock=lambda: 0.0, refusal=lambda: next(reasons))  # fmt: skip
+    gate.heard.update({0, 1})
+    assert gate.update(0.0, 1.8e9, 0.0) and gate.update(0.05, 1.8e9, 0.0)
+    assert gate.update(0.10, 1.8e9, 0.0) and not gate.refused  # waiting, not refused
+    assert not gate.update(0.15, 1.8e9, 0.0) and gate.t_start == 0.15  # started
+    stuck = ConvoyStart(2, 3, lambda j: True, leader_waits=True, wait_s=120.0,
+                        clock=lambda: 0.0, refusal=lambda: "clock 2 s ahead")  # fmt: skip
+    stuck.heard.update({0, 1})
+    for k in range(20):
+        assert stuck.update(0.05 * k, 1.8e9, 0.0) and not stuck.refused
+    assert stuck.update(1.0, 1.8e9, 0.0) and stuck.refused == "clock 2 s ahead"
+    assert stuck.t_start is None

@@ -322,3 +322,29 @@ def test_a_heading_bias_is_what_members_see_and_the_vehicle_steers_by() -> None:
 
     with pytest.raises(ValueError, match="heading bias"):
         VectorConvoyEnv(1, vehicle_presets=[biased, "1/10"], n_followers=1)
+
+
+def test_a_heading_bias_moves_the_vehicle_faster_than_it_reports() -> None:
+    """A follower whose autopilot believes its heading 9.6 degrees off (the PX4 demo's
+    follower 1): its speed is reported as its velocity projected on that heading, so at a
+    reported 1 m/s it moves 1 / cos(9.6 degrees) = 1.0142 m/s along its track; its own
+    state and its messages carry the reported speed."""
+    import dataclasses
+
+    from openconvoy.envs.vehicles import vehicle_preset
+
+    bias = math.radians(-9.6)
+    biased = dataclasses.replace(vehicle_preset("1/10"), heading_bias_rad=bias)
+    env = ConvoyEnv("paper", n_followers=2, plant_presets=["1/10", biased, "1/10"])
+    env.reset(seed=0)
+    drive = {a: np.array([1.0, 0.0], dtype=np.float32) for a in env.agents}
+    for _ in range(300):  # 15 s: at 1 m/s, back on the road
+        env.step(drive)
+    x0, y0, t0 = env.sim.truth.x[1], env.sim.truth.y[1], env.sim.t
+    for _ in range(40):
+        env.step(drive)
+    reported = env.sim.truth.speed[1]
+    assert reported == pytest.approx(1.0, abs=0.01)
+    moved = math.hypot(env.sim.truth.x[1] - x0, env.sim.truth.y[1] - y0) / (env.sim.t - t0)
+    assert moved == pytest.approx(reported / math.cos(bias), abs=0.002)
+    assert env.sim.members[1].own.speed == pytest.approx(reported)

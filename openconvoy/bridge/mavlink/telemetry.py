@@ -18,6 +18,75 @@ from openconvoy.bridge.mavlink.ranging import RangeIntake
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
 from openconvoy.core.state import VehicleState, wrap_angle
 
+REBOOT_JUMP_S = 1.0
+"""A (receive time - boot time) this much above the envelope: the vehicle's clock went back."""
+
+BUCKET_S = 1.0
+"""The envelope keeps the least offset of each bucket this long (s, wall clock)."""
+
+BUCKETS = 10
+"""How many buckets (the newest included) the envelope and its drift are taken from."""
+
+MAX_DRIFT = 0.05
+"""The largest clock drift followed (s/s): a vehicle clock 5 % off is a broken one."""
+
+
+class BootClockOffset:
+    """Wall clock - vehicle boot clock (s), followed through the vehicle clock's drift.
+
+    Each received stamp gives ``wall - t_boot`` = the offset + its transport and polling
+    latency (>= 0), so the offset is the lower envelope of those: the least of each
+    ``BUCKET_S`` bucket, the last ``BUCKETS`` of them, with the drift their line shows,
+    projected to now. A clock that runs slow (PX4 SIH at 0.990 of real time,
+    shared/sitl-px4 README row 24) moves the offset 10 ms/s; followed at a fixed creep of
+    1 ms/s instead, the mapped state fell 9 ms/s behind and read 0.59 s old after a minute.
+    """
+
+    def __init__(self) -> None:
+        self._mins: list[tuple[float, float]] = []  # (wall time s, least offset s) per bucket
+        self._bucket = -math.inf
+
+    def observe(self, wall: float, t_boot: float) -> bool:
+        """Take one stamp (wall clock s, vehicle boot clock s); True when the vehicle's clock
+        went back (a reboot: the envelope starts again)."""
+        offset = wall - t_boot
+        if self._mins and offset - self.offset(wall) > REBOOT_JUMP_S:
+            self._mins.clear()
+            self._bucket = -math.inf
+            rebooted = True
+        else:
+            rebooted = False
+        bucket = math.floor(wall / BUCKET_S)
+        if bucket != self._bucket:
+            self._bucket = bucket
+            self._mins.append((wall, offset))
+            del self._mins[:-BUCKETS]
+        elif offset < self._mins[-1][1]:
+            self._mins[-1] = (wall, offset)
+        return rebooted
+
+    def drift(self) -> float:
+        """The offset's growth (s/s): the least-squares line through the buckets' least
+        offsets (0 with fewer than 3 buckets), within +-``MAX_DRIFT``."""
+        n = len(self._mins)
+        if n < 3:
+            return 0.0
+        tm = sum(t for t, _ in self._mins) / n
+        om = sum(o for _, o in self._mins) / n
+        var = sum((t - tm) ** 2 for t, _ in self._mins)
+        if var <= 0.0:
+            return 0.0
+        slope = sum((t - tm) * (o - om) for t, o in self._mins) / var
+        return max(-MAX_DRIFT, min(MAX_DRIFT, slope))
+
+    def offset(self, wall: float) -> float:
+        """The offset (s) at wall-clock time ``wall``: the envelope's lowest bucket least
+        brought to ``wall`` at the drift; NaN before any stamp."""
+        if not self._mins:
+            return math.nan
+        d = self.drift()
+        return min(o + d * (wall - t) for t, o in self._mins)
+
 
 class TelemetryIntake:
     """The vehicle's newest position, velocity, heading and their timing.
@@ -46,8 +115,7 @@ class TelemetryIntake:
         self._yaw_rate = 0.0
         self._speed_prev: tuple[float, float] | None = None  # (vehicle time s, speed)
         self._accel = 0.0
-        self._boot_offset: float | None = None  # wall clock - vehicle boot clock, s
-        self._t_boot_offset = 0.0
+        self._offset = BootClockOffset()
         self._t_measured = math.nan  # wall-clock time of the newest measurement
         self.t_telemetry = -math.inf
         self.updated = False
@@ -89,24 +157,12 @@ class TelemetryIntake:
         self.t_telemetry = self._clock()
         self.updated = True
         # When was this measured, on the wall clock? A message can wait in the socket buffer
-        # until the next poll, so the receive time overstates freshness. The smallest
-        # (receive time - vehicle boot time) seen is the best estimate of the clock offset
-        # (transport latency only); it may creep up 1 ms/s so vehicle clock drift and
-        # reboots are followed.
+        # until the next poll, so the receive time overstates freshness: the vehicle's clock
+        # is mapped by the lower envelope of (receive time - boot time), drift included.
         wall = self._wall()
-        offset = wall - t_boot
-        if self._boot_offset is not None and offset - self._boot_offset > 1.0:
+        if self._offset.observe(wall, t_boot):
             self._on_reboot()  # the vehicle clock went back: a reboot
-        if self._boot_offset is not None:
-            self._boot_offset += 1e-3 * max(0.0, wall - self._t_boot_offset)
-        if (
-            self._boot_offset is None
-            or offset < self._boot_offset
-            or offset - self._boot_offset > 1.0
-        ):
-            self._boot_offset = offset
-        self._t_boot_offset = wall
-        measured = t_boot + self._boot_offset
+        measured = t_boot + self._offset.offset(wall)
         # Position and attitude carry their own stamps; keep the state's time monotonic.
         self._t_measured = (
             measured if math.isnan(self._t_measured) else max(self._t_measured, measured)

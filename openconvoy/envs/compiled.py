@@ -120,6 +120,7 @@ class CompiledConvoy:
             emergency_stop=emergency_stop,
             auth=auth,
             autoreset=False,
+            link_counters="all",  # ConvoyEnv's counters: every ordered pair
         )
         self.modes = MODES
         self.n_followers = self.vec.n_vehicles - 1

@@ -8,7 +8,8 @@ ring of send slots until due, each pair's arrival ``t + latency + jitter * count
 sender, receiver, broadcast number, DRAW_JITTER)`` (``Channel.send``; with latency samples
 their quantile at that draw instead of the jitter), delivered in arrival order, advanced
 by how long it waited for its tick (``envs.channel.advance_kinematics``). Loss is drawn on
-``pairs``: every ordered pair (``link_counters="all"``, the counters ``ConvoyEnv`` reports) or the kept links only.
+``pairs``: the kept links (``link_counters="kept"``, the default: the draws that change a
+delivery), or every ordered pair (``"all"``: the counters ``ConvoyEnv`` reports).
 """
 
 from __future__ import annotations

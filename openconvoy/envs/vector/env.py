@@ -227,7 +227,7 @@ class VectorConvoyEnv:
         self._constants(gap_margin_m)
         self.links = build_links(mc, N)
         self.L = self.links.L
-        self.plant = VectorPlant(list(self.presets) * B, self.dt)
+        self.plant = VectorPlant(self.presets, self.dt, B)
         self.leader = LeaderDriver(sc, B)
         self.channel = VectorChannel(
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
@@ -313,7 +313,7 @@ class VectorConvoyEnv:
     def _alloc(self) -> None:
         B, N = self.num_envs, self.n_vehicles
         self._link_decel = self._decel[self.links.link_s] if self.L else np.ones(1)
-        self.modes = np.zeros((B, N), dtype=np.int64)
+        self.modes = np.zeros((B, N), dtype=np.int8)  # codes of MODES
         self.cmd_v = np.zeros((B, N))
         self.cmd_dh = np.zeros((B, N))
         self.estopped = np.zeros((B, N), dtype=bool)

@@ -44,14 +44,15 @@ class RxBuffers:
         self.keeps_states, self.trail_of = links.keeps_states, links.trail_of
         L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
         self.hist = aligned_zeros((B, L, k, FIELDS))
-        self.hist_n = np.zeros((B, L), dtype=np.int64)
+        # Counts in small exact integers (at most k <= 100 states, CAPACITY breadcrumbs).
+        self.hist_n = np.zeros((B, L), dtype=np.int16)
         self.newest = np.full((B, L), -np.inf)
         # Each trail's newest ``window`` breadcrumbs in a ring (``vector.trail``).
         self.trail = np.zeros((B, T, window, 3))
         self.tail = aligned_zeros((B, T, TAIL))
-        self.trail_n = np.zeros((B, T), dtype=np.int64)
+        self.trail_n = np.zeros((B, T), dtype=np.int16)
         self.hint = np.full((B, T), np.nan)
-        self.hint_k = np.zeros((B, T), dtype=np.int64)
+        self.hint_k = np.zeros((B, T), dtype=np.int16)
 
     def reset(self, rows: np.ndarray) -> None:
         """Empty the buffers of convoys ``rows`` (bool (B,))."""

@@ -174,6 +174,7 @@ class CompiledConvoy:
             auth=auth,
             autoreset=False,
             threads=1,
+            link_counters="all",  # ConvoyEnv's counters: every ordered pair
         )
         self.modes = MODES
         self.n_followers = F = vec.n_vehicles - 1

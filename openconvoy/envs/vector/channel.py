@@ -8,7 +8,8 @@ ring of send slots until due, each pair's arrival ``t + latency + jitter * count
 sender, receiver, broadcast number, DRAW_JITTER)`` (``Channel.send``; with latency samples
 their quantile at that draw instead of the jitter), delivered in arrival order, advanced
 by how long it waited for its tick (``envs.channel.advance_kinematics``). Loss is drawn on
-``pairs``: every ordered pair (``link_counters="all"``, the counters ``ConvoyEnv`` reports) or the kept links only.
+``pairs``: the kept links (``link_counters="kept"``, the default: the draws that change a
+delivery), or every ordered pair (``"all"``: the counters ``ConvoyEnv`` reports).
 """
 
 from __future__ import annotations
@@ -73,31 +74,17 @@ class VectorChannel:
         self.ge_good = np.array(
             [c.mean_burst_s * (1.0 - c.per) / c.per if c.per > 0 else np.inf for c in losses]
         )
+        # Receiver-major, as the links are numbered: a tick's deliveries write each
+        # receiver's counters, R^i buffers and trails in memory order (the draws do not
+        # depend on the order). int32: a convoy has fewer than 2**31 pairs.
         if all_pairs:
-            # Receiver-major, as the links are numbered: deliveries walk the R^i buffers
-            # in memory order (the draws do not depend on the order).
             r, s = np.nonzero(~np.eye(N, dtype=bool))
-            self.pair_s, self.pair_r = s.astype(np.int64), r.astype(np.int64)
-            self.pair_link = links.link_of[s, r]
-            # The same pairs by sender (sender-major), receivers ascending.
-            s, r = np.nonzero(~np.eye(N, dtype=bool))
-            sorted_s = s.astype(np.int64)
-            self.sender_r = r.astype(np.int64)
-            self.sender_link = links.link_of[s, r]
+            self.pair_s, self.pair_r = s.astype(np.int32), r.astype(np.int32)
+            self.pair_link = links.link_of[s, r].astype(np.int32)
             del r, s
         else:
-            self.pair_s, self.pair_r = links.link_s, links.link_r
-            self.pair_link = np.arange(links.L, dtype=np.int64)
-            # The pairs by sender (the draws do not depend on the order): a tick's work
-            # follows its broadcasts; their receivers and links in that order: read in
-            # sequence.
-            by_sender = np.argsort(self.pair_s, kind="stable")
-            sorted_s = self.pair_s[by_sender]
-            self.sender_r = self.pair_r[by_sender]
-            self.sender_link = self.pair_link[by_sender]
-            del by_sender
-        self.sender_start = np.searchsorted(sorted_s, np.arange(N + 1))
-        del sorted_s
+            self.pair_s, self.pair_r = links.link_s.astype(np.int32), links.link_r.astype(np.int32)
+            self.pair_link = np.arange(links.L, dtype=np.int32)
         mute = [min([f.t_s - 1e-9 for f in faults if f.mutes and f.vehicle == i] or [np.inf])
                 for i in range(N)]  # fmt: skip
         self.mute_from = np.array(mute, dtype=float)
@@ -147,7 +134,7 @@ class VectorChannel:
             np.zeros((B, N), dtype=np.int64) for _ in range(5)
         )
         self.send = np.zeros((B, N), dtype=bool)
-        self._lost_scratch = np.zeros(max(N - 1, 1), dtype=np.uint8)  # one broadcast's
+        self._zs = np.zeros(N, dtype=np.uint64)  # each sender's first draw round (scratch)
         self.lost = np.zeros((B, P), dtype=bool)
         if self.ge is not None:  # per ordered link: key, state, packets offered, last time
             self.ge_key = np.zeros((B, N, N), dtype=np.uint64)
@@ -204,11 +191,10 @@ class VectorChannel:
         )  # fmt: skip
         if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
             _bernoulli_deliver(
-                self.keys, self.broadcasts, self.send, self.per, self.sender_start,
-                self.sender_r, self.sender_link, rows, t, own, self.lost_to,
-                self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n, rx.newest,
-                rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of, rx.spacing_m,
-                self._lost_scratch,
+                self.keys, self.broadcasts, self.send, self.per, self.pair_s, self.pair_r,
+                self.pair_link, rows, t, own, self.lost_to, self.delivered_to, self.msgs_kept,
+                rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
+                rx.trail_of, rx.spacing_m, self._zs,
             )  # fmt: skip
             return
         if self.ge is not None:
@@ -344,68 +330,48 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
 
 @bare_kernel
 def _bernoulli_deliver(
-    keys, number, send, per, start, recv, links, rows, t, own, lost_to, delivered_to, kept,
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, lost,
+    keys, number, send, per, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to,
+    kept, hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, zs,
 ):  # pragma: no cover - compiled  # fmt: skip
-    """``_bernoulli`` and ``_deliver`` of instant links in one walk over each
-    broadcast's pairs (``start``: each sender's first in ``recv``, ``links``); counts the
-    broadcasts. A broadcast's draws come first, without branches (``lost``: scratch),
-    then its deliveries."""
+    """``_bernoulli`` and ``_deliver`` of instant links in one walk over the pairs,
+    receiver-major (``pair_link``: each pair's link or -1): each receiver's counters,
+    R^i buffers and trails are written in memory order, the senders' rows (``zs``:
+    scratch (N,), each broadcasting sender's first round of ``counter_uniform4``) stay in
+    the first cache level. Counts the broadcasts."""
+    N = send.shape[1]
     for b in range(send.shape[0]):
         if not rows[b]:
             continue
         drawn = per[b] > 0.0
         thr = loss_threshold(per[b]) if drawn else np.uint64(0)
         tb = t[b]
-        for s in range(send.shape[1]):
+        sending = False
+        for s in range(N):
+            if send[b, s]:  # counter_uniform4(key, s, r, nb, DRAW_LOSS): s's round once
+                zs[s] = _mix(keys[b] + _G + np.uint64(s))
+                sending = True
+        if not sending:
+            continue
+        for p in range(len(pair_s)):
+            s = pair_s[p]
             if not send[b, s]:
                 continue
-            nb = number[b, s]
-            q0, q1 = start[s], start[s + 1]
-            # counter_uniform4(key, s, r, nb, DRAW_LOSS), its sender's round once
-            zs = _mix(keys[b] + _G + np.uint64(s))
-            N = send.shape[1]
-            if not drawn:
-                lost[: q1 - q0] = 0
-            elif q1 - q0 == N - 1:  # every other vehicle, in order: r = j or j + 1
-                for j in range(N - 1):
-                    lost[j] = _draw_bits(zs, j + (j >= s), nb) < thr
-            else:
-                for q in range(q0, q1):
-                    lost[q - q0] = _draw_bits(zs, recv[q], nb) < thr
-            if q1 - q0 == N - 1:  # every other vehicle, in order: counted in two runs
-                _count(lost_to, delivered_to, kept, b, 0, s, 0, lost, links, q0)
-                _count(lost_to, delivered_to, kept, b, s + 1, N, s, lost, links, q0)
-            else:
-                for q in range(q0, q1):
-                    r, miss = recv[q], lost[q - q0]
-                    lost_to[b, r] += miss
-                    delivered_to[b, r] += 1 - miss
-                    kept[b, r] += (1 - miss) * (links[q] >= 0)
-            for q in range(q0, q1):
-                link = links[q]
-                if link < 0:
-                    continue
-                if not keeps[link]:  # push_one of a time-only link (its count is never
-                    # read), inline and without a branch on the draw
-                    was = newest[b, link]
-                    newest[b, link] = was if lost[q - q0] else max(was, tb)
-                elif not lost[q - q0]:
-                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                             link, tb, own, s, spacing)  # fmt: skip
-            number[b, s] = nb + 1
-
-
-@bare_inline
-def _count(lost_to, delivered_to, kept, b, r0, r1, j0, lost, links, q0):  # pragma: no cover
-    """The counters of receivers ``r0..r1-1``, pairs ``j0..`` of a broadcast (``lost``,
-    ``links`` from ``q0``): contiguous, so the compiler vectorizes it."""
-    for r in range(r0, r1):
-        j = r - r0 + j0
-        miss = np.int64(lost[j])
-        lost_to[b, r] += miss
-        delivered_to[b, r] += 1 - miss
-        kept[b, r] += (1 - miss) * (links[q0 + j] >= 0)
+            r, link = pair_r[p], pair_link[p]
+            miss = drawn and _draw_bits(zs[s], r, number[b, s]) < thr
+            lost_to[b, r] += miss
+            delivered_to[b, r] += 1 - miss
+            if link < 0:
+                continue
+            kept[b, r] += 1 - miss
+            if not keeps[link]:  # push_one of a time-only link (its count is never
+                # read), inline and without a branch on the draw
+                was = newest[b, link]
+                newest[b, link] = was if miss else max(was, tb)
+            elif not miss:
+                push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
+                         link, tb, own, s, spacing)  # fmt: skip
+        for s in range(N):
+            number[b, s] += send[b, s]
 
 
 @bare_kernel

@@ -13,9 +13,9 @@ The parts: ``vector.links`` (which links a topology keeps, index tables),
 ``vector.rx`` (R^i buffers) and ``vector.trail``, ``vector.member`` (estimate, ladder,
 emergency stop), ``vector.observation``, ``vector.measures`` (gaps, reward, infos),
 ``vector.events`` (``safety_events(b)``: ``ConvoyEnv``'s list, built when asked).
-Per-vehicle work follows the kept links, so a ``lookahead:K`` convoy costs O(N·K); loss
-is drawn on every ordered pair (``link_counters="all"``, ``ConvoyEnv``'s counters) or
-on the kept links only.
+Per-vehicle work follows the kept links, so a ``lookahead:K`` convoy costs O(N·K): loss
+is drawn on the links the members keep (``link_counters="kept"``, the default), or on
+every ordered pair (``"all"``: ``ConvoyEnv``'s counters, for logs that must match it).
 
 Arrays: observations ``(B, N-1, D)`` float32 (followers in order), actions
 ``(B, N-1, 2)``; rewards ``(B, N-1)``; ``terminated``/``truncated`` ``(B,)``. GPS noise
@@ -41,7 +41,6 @@ from openconvoy.core.member import MemberConfig
 from openconvoy.core.observation import ObservationLayout
 from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.safety import for_vehicle
-from openconvoy.core.spacing import SpacingPolicy
 from openconvoy.envs.convoy_env import check_episode_args, check_rate_and_noise
 from openconvoy.envs.gps import gps_key
 from openconvoy.envs.reward import RewardConfig
@@ -120,15 +119,10 @@ def _check_args(
         raise ConfigError("VectorConvoyEnv does not render (use ConvoyEnv)")
 
 
-def _check_loss(loss: LossConfig, link_counters: str) -> None:
-    """``link_counters`` is ``all``, or ``kept`` with instant Bernoulli links (``loss``:
-    the batch's widest)."""
+def _check_counters(link_counters: str) -> None:
+    """``link_counters`` is ``kept`` or ``all``."""
     if link_counters not in ("all", "kept"):
-        raise ConfigError(f"link_counters must be 'all' or 'kept', got {link_counters!r}")
-    if link_counters == "kept" and (
-        not loss.latency.instant or (loss.per > 0.0 and loss.model != "bernoulli")
-    ):
-        raise ConfigError("link_counters='kept' supports instant Bernoulli links only")
+        raise ConfigError(f"link_counters must be 'kept' or 'all', got {link_counters!r}")
 
 
 def _scenario(
@@ -161,10 +155,14 @@ class VectorConvoyEnv:
     observation returned is the new episode's first; the final one is in
     ``infos["final_observation"]``, and ``infos["final_safety_events"][b]`` is each ended
     convoy's ``safety_events(b)``.
-    ``link_counters``: ``"all"`` (default) draws loss on every ordered pair, as
-    ``ConvoyEnv``, so the message counters match it; ``"kept"`` only on the links the
-    topology keeps (the same deliveries into R^i, hence the same run; counters then
-    count those links): O(N·K) per step for ``lookahead:K``.
+    ``link_counters``: ``"kept"`` (default) draws loss only on the links a member keeps
+    (ρ's, its predecessor's and, for the leader, everyone's: the only draws that change
+    a delivery into R^i), O(N·K) per step for ``lookahead:K``; ``msgs_received`` and
+    ``msgs_lost`` then count those links. ``"all"`` draws on every ordered pair, as
+    ``ConvoyEnv``, so the counters match its (the same deliveries into R^i either way,
+    hence the same run). ``msgs_offered``, what the other vehicles broadcast, is the
+    same in both (closed form; ``msgs_received + msgs_lost`` under ``"all"`` with
+    instant links).
     ``threads``: how many threads a step may use (default: the cores this process may
     run on, capped by ``NUMBA_NUM_THREADS``); the batch is cut into slabs of at least
     ``vector.threads.MIN_SLAB`` convoys, with the same results whatever the count.
@@ -188,7 +186,7 @@ class VectorConvoyEnv:
         emergency_stop: bool = True,
         auth: bool = True,
         autoreset: bool = True,
-        link_counters: str = "all",
+        link_counters: str = "kept",
         per: float | Sequence[float] | None = None,
         threads: int | None = None,
     ) -> None:
@@ -199,7 +197,7 @@ class VectorConvoyEnv:
         self.n_vehicles = N = sc.n_vehicles
         self.losses = _per_convoy_loss(loss, B, per)
         self.loss = max(self.losses, key=lambda c: c.per)
-        _check_loss(self.loss, link_counters)
+        _check_counters(link_counters)
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         check_faults(self.faults, N)
         self.presets = tuple(sc.presets)
@@ -229,7 +227,7 @@ class VectorConvoyEnv:
         self._constants(gap_margin_m)
         self.links = build_links(mc, N)
         self.L = self.links.L
-        self.plant = VectorPlant(list(self.presets) * B, self.dt)
+        self.plant = VectorPlant(self.presets, self.dt, B)
         self.leader = LeaderDriver(sc, B)
         self.channel = VectorChannel(
             B, self.links, self.losses, mc.trigger, self.faults, self.dt, link_counters == "all"
@@ -250,20 +248,14 @@ class VectorConvoyEnv:
         )
 
     def _trail_window(self) -> int:
-        """Breadcrumbs a trail's ring holds at first (``vector.trail.window``): the
-        farthest target's desired gap at the fastest preset's top speed, behind the
-        head, is the horizon the observation reads in formation."""
-        lk, P = self.links, self.presets
+        """Breadcrumbs a trail's ring holds at first (``vector.trail.window``): the fewest
+        that hold a tick's progress at the fastest preset's top speed. The reads widen it
+        to the horizon they reach (``_widen_trails``): a ring sized up front to the
+        farthest target's gap at top speed (256 for ``paper``) was most of a convoy's
+        memory at large batches, read only in its newest part at lower speeds."""
+        P = self.presets
         vmax = max(p.max_speed_mps for p in P)
-        policy = SpacingPolicy(self.member_config.spacing)
-        pair = [policy.pair_gap(vmax, P[j + 1].length_m, P[j].length_m) for j in range(len(P) - 1)]
-        ahead = np.concatenate([[0.0], np.cumsum(pair)])  # arc from the leader, vehicle by vehicle
-        horizon = 0.0
-        for f, m in zip(*np.nonzero(lk.target_link >= 0)):
-            link = lk.target_link[f, m]
-            if lk.trail_of[link] >= 0:
-                horizon = max(horizon, ahead[f + 1] - ahead[lk.link_s[link]])
-        return window(horizon, self.member_config.trail_spacing_m, vmax * self.dt)
+        return window(0.0, self.member_config.trail_spacing_m, vmax * self.dt)
 
     def _widen_trails(self) -> None:
         """Double the trails' rings while a read went back into their last quarter
@@ -347,7 +339,7 @@ class VectorConvoyEnv:
     def _alloc(self) -> None:
         B, N = self.num_envs, self.n_vehicles
         self._link_decel = self._decel[self.links.link_s] if self.L else np.ones(1)
-        self.modes = np.zeros((B, N), dtype=np.int64)
+        self.modes = np.zeros((B, N), dtype=np.int8)  # codes of MODES
         self.cmd_v = np.zeros((B, N))
         self.cmd_dh = np.zeros((B, N))
         self.estopped = np.zeros((B, N), dtype=bool)

@@ -48,9 +48,20 @@ FLOAT_KEYS = (
     "gap_m", "desired_gap_m", "platooning_error_m", "spacing_error_m", "speed_mps",
     "accel_mps2", "cmd_speed_mps", "cmd_heading_change_rad", "pred_msg_age_s",
 )  # fmt: skip
-INT_KEYS = ("mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+INT_KEYS = (
+    "mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors",
+    "msgs_offered",
+)  # fmt: skip
+"""(B, N-1) each. ``msgs_received``/``msgs_lost``: what the channel delivered to / dropped
+for the vehicle on the links counted (``VectorConvoyEnv``'s ``link_counters``: the links it
+keeps, or every other vehicle's); ``msgs_kept``: those deliveries its Rx gate kept;
+``msgs_offered``: the messages every other vehicle broadcast so far (what an all-pairs
+channel offered it: ``msgs_received + msgs_lost`` plus those in flight, under ``"all"``)."""
 LEADER_FLOAT_KEYS = ("leader_cmd_speed_mps", "leader_cmd_heading_change_rad")
-LEADER_INT_KEYS = ("leader_mode", "leader_msgs_sent", "leader_msgs_received", "leader_msgs_lost")
+LEADER_INT_KEYS = (
+    "leader_mode", "leader_msgs_sent", "leader_msgs_received", "leader_msgs_lost",
+    "leader_msgs_offered",
+)  # fmt: skip
 
 
 def info_arrays(B: int, F: int) -> tuple[np.ndarray, ...]:
@@ -93,9 +104,13 @@ def fill_infos(
     sent, received, kept, lost, errors,
 ):  # pragma: no cover - compiled  # fmt: skip
     for b in range(gap.shape[0]):
+        total = 0  # every vehicle's broadcasts: msgs_offered in closed form
+        for i in range(sent.shape[1]):
+            total += sent[b, i]
         lf[0, b] = cmd_v[b, 0] if has_cmd[b] else np.nan
         lf[1, b] = cmd_dh[b, 0] if has_cmd[b] else np.nan
         li[0, b], li[1, b], li[2, b], li[3, b] = modes[b, 0], sent[b, 0], received[b, 0], lost[b, 0]
+        li[4, b] = total - sent[b, 0]
         for f in range(gap.shape[1]):
             i = f + 1
             fl[0, b, f], fl[1, b, f] = gap[b, f], desired[b, i]
@@ -106,3 +121,4 @@ def fill_infos(
             fl[8, b, f] = pred_age[b, i]
             it[0, b, f], it[1, b, f], it[2, b, f] = modes[b, i], sent[b, i], received[b, i]
             it[3, b, f], it[4, b, f], it[5, b, f] = kept[b, i], lost[b, i], errors[b, i]
+            it[6, b, f] = total - sent[b, i]

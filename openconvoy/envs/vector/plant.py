@@ -53,10 +53,12 @@ the slewed yaw rate (rad/s)."""
 class PlantArrays(NamedTuple):
     """The batched plant's state and parameters, for its kernel: ``state`` (``ROWS``, n),
     ``inner`` (``RAMP``..``SLEWED``, n), the setpoint ``queue`` (speed, heading; depth, n)
-    and its ``head`` (1,), ``params`` (``_PARAMS`` rows, n), which vehicles run the PI
-    speed loop ``pi`` (n,), the speed and heading delays in steps ``delay``, ``hdelay``
-    (n,), and the PI substeps ``sub_n``, ``sub_h`` (2, n: before and after the delay
-    boundary, ``plant.pi_delay_split``)."""
+    and its ``head`` (1,); per vehicle slot ``c`` of a convoy (vehicle ``i`` is slot
+    ``i % N``: every convoy's presets are the same, so the constants are stored once, not
+    per convoy): ``params`` (``_PARAMS`` rows, N), which slots run the PI speed loop ``pi``
+    (N,), the speed and heading delays in steps ``delay``, ``hdelay`` (N,), and the PI
+    substeps ``sub_n``, ``sub_h`` (2, N: before and after the delay boundary,
+    ``plant.pi_delay_split``)."""
 
     state: np.ndarray
     inner: np.ndarray
@@ -71,12 +73,14 @@ class PlantArrays(NamedTuple):
 
 
 class VectorPlant:
-    """``n`` vehicles (convoy-major: vehicle ``i`` of convoy ``b`` is row ``b * N + i``)."""
+    """``B`` convoys of the vehicles ``presets`` (convoy-major: vehicle ``i`` of convoy
+    ``b`` is row ``b * N + i``); the presets' constants once (``PlantArrays``)."""
 
-    def __init__(self, presets: Sequence[VehiclePreset], dt: float) -> None:
+    def __init__(self, presets: Sequence[VehiclePreset], dt: float, B: int = 1) -> None:
         ref = BicyclePlant(presets, dt, vectorized=True)
         self.dt = dt
-        self.n = n = len(ref)
+        self.N = len(ref)
+        self.n = n = self.N * B
         self.params = np.stack([np.asarray(getattr(ref, p), dtype=float) for p in _PARAMS])
         self.pi = ref._pi.copy()
         self.pi_sub = ref._pi_sub
@@ -120,16 +124,18 @@ class VectorPlant:
         st[ACCEL, rows] = 0.0
         st[YAW_RATE, rows] = 0.0
         v = st[SPEED, rows]
-        p = self.params[:, rows]
+        idx = np.asarray(rows)
+        idx = (np.flatnonzero(idx) if idx.dtype == bool else idx).astype(np.int64)
+        slot = idx % self.N
+        p = self.params[:, slot]
         self.inner[RAMP, rows] = v
         self.inner[INTEG, rows] = np.where(
-            self.pi[rows], v + p[DRAG] * v * np.abs(v) - p[FF] * v, 0.0
+            self.pi[slot], v + p[DRAG] * v * np.abs(v) - p[FF] * v, 0.0
         )
         self.inner[SLEWED, rows] = 0.0
         self.queue[0][:, rows] = v
         self.queue[1][:, rows] = st[HEADING, rows]
-        idx = np.asarray(rows)
-        _trig_rows(st, (np.flatnonzero(idx) if idx.dtype == bool else idx).astype(np.int64))
+        _trig_rows(st, idx)
 
     def step(self, cmd_speed: np.ndarray, cmd_turn: np.ndarray) -> None:
         """Advance ``dt`` with setpoints, shape (n,): speed (m/s) and heading as a change
@@ -145,22 +151,23 @@ def _trig_rows(st, rows):  # pragma: no cover - compiled
 
 
 @bare_inline
-def _pi_dv(pa, i, v_now, v_before, v0):  # pragma: no cover - compiled
-    """``envs.plant.pi_speed_loop`` for vehicle ``i`` of ``pa`` (``PlantArrays``): the speed
-    change; updates its inner loop (``v_before`` acts for ``sub_n[0, i]`` substeps of
-    ``sub_h[0, i]`` s, then ``v_now`` for ``sub_n[1, i]`` of ``sub_h[1, i]``)."""
+def _pi_dv(pa, i, c, v_now, v_before, v0):  # pragma: no cover - compiled
+    """``envs.plant.pi_speed_loop`` for vehicle ``i`` (slot ``c``) of ``pa``
+    (``PlantArrays``): the speed change; updates its inner loop (``v_before`` acts for
+    ``sub_n[0, c]`` substeps of ``sub_h[0, c]`` s, then ``v_now`` for ``sub_n[1, c]`` of
+    ``sub_h[1, c]``)."""
     p, inner, sub_n, sub_h = pa.params, pa.inner, pa.sub_n, pa.sub_h
-    gains = (p[KP, i], p[KI, i], p[FF, i], p[TAU_D, i], p[STOP, i], p[DRAG, i], p[KIN, i])
-    substeps = (sub_n[0, i], sub_h[0, i], sub_n[1, i], sub_h[1, i])
+    gains = (p[KP, c], p[KI, c], p[FF, c], p[TAU_D, c], p[STOP, c], p[DRAG, c], p[KIN, c])
+    substeps = (sub_n[0, c], sub_h[0, c], sub_n[1, c], sub_h[1, c])
     v, inner[RAMP, i], inner[INTEG, i] = plant.pi_speed_loop(
         v_now,
         v0,
         inner[RAMP, i],
         inner[INTEG, i],
         gains,
-        p[ACC, i],
-        p[DEC, i],
-        p[BRK, i],
+        p[ACC, c],
+        p[DEC, c],
+        p[BRK, c],
         v_before,
         substeps,
     )
@@ -176,18 +183,20 @@ def _plant_step(pa, cmd_v, cmd_h, dt):  # pragma: no cover - compiled
     delay, hdelay = pa.delay, pa.hdelay
     depth = queue.shape[1]
     head = pa.head[0]
+    N = p.shape[1]
     for i in range(st.shape[1]):
+        c = i % N  # the vehicle's slot in its convoy: its constants
         queue[0, head, i] = cmd_v[i]
         queue[1, head, i] = st[HEADING, i] + cmd_h[i]
-        vmax = p[VMAX, i]
-        v_cmd = min(max(queue[0, (head - delay[i]) % depth, i], -vmax), vmax)
-        h_cmd = queue[1, (head - hdelay[i]) % depth, i]
+        vmax = p[VMAX, c]
+        v_cmd = min(max(queue[0, (head - delay[c]) % depth, i], -vmax), vmax)
+        h_cmd = queue[1, (head - hdelay[c]) % depth, i]
         v = st[SPEED, i]
-        if pa.pi[i]:
-            v_before = min(max(queue[0, (head - delay[i] - 1) % depth, i], -vmax), vmax)
-            dv = _pi_dv(pa, i, v_cmd, v_before, v)
+        if pa.pi[c]:
+            v_before = min(max(queue[0, (head - delay[c] - 1) % depth, i], -vmax), vmax)
+            dv = _pi_dv(pa, i, c, v_cmd, v_before, v)
         else:
-            dv = plant.lag_speed_change(v_cmd, v, p[TAU_V, i], p[ACC, i], p[DEC, i], p[BRK, i], dt)
+            dv = plant.lag_speed_change(v_cmd, v, p[TAU_V, c], p[ACC, c], p[DEC, c], p[BRK, c], dt)
         v_new = v + dv
         hd = st[HEADING, i]
         err = wrap(h_cmd - hd)
@@ -196,11 +205,11 @@ def _plant_step(pa, cmd_v, cmd_h, dt):  # pragma: no cover - compiled
             err,
             v_mid,
             inner[SLEWED, i],
-            p[TAU_H, i],
-            p[RATE, i],
-            p[KAPPA, i],
-            p[YAW_ACC, i],
-            p[ALAT, i],
+            p[TAU_H, c],
+            p[RATE, c],
+            p[KAPPA, c],
+            p[YAW_ACC, c],
+            p[ALAT, c],
             dt,
         )
         h_mid = hd + 0.5 * rate * dt

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from openconvoy.envs.vector.jit import bare_inline
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel
 from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.plant import cos_sin
 from openconvoy.envs.vector.trail import T_BASE, T_REACH, TAIL, trail_add
@@ -44,14 +44,15 @@ class RxBuffers:
         self.keeps_states, self.trail_of = links.keeps_states, links.trail_of
         L, T = max(links.L, 1), max(links.T, 1)  # placeholders keep "no link" reads in bounds
         self.hist = aligned_zeros((B, L, k, FIELDS))
-        self.hist_n = np.zeros((B, L), dtype=np.int64)
+        # Counts in small exact integers (at most k <= 100 states, CAPACITY breadcrumbs).
+        self.hist_n = np.zeros((B, L), dtype=np.int16)
         self.newest = np.full((B, L), -np.inf)
         # Each trail's newest ``window`` breadcrumbs in a ring (``vector.trail``).
         self.trail = np.zeros((B, T, window, 3))
         self.tail = aligned_zeros((B, T, TAIL))
-        self.trail_n = np.zeros((B, T), dtype=np.int64)
+        self.trail_n = np.zeros((B, T), dtype=np.int16)
         self.hint = np.full((B, T), np.nan)
-        self.hint_k = np.zeros((B, T), dtype=np.int64)
+        self.hint_k = np.zeros((B, T), dtype=np.int16)
 
     def reset(self, rows: np.ndarray) -> None:
         """Empty the buffers of convoys ``rows`` (bool (B,))."""
@@ -74,18 +75,23 @@ class RxBuffers:
     def widen(self, window: int) -> None:
         """Rings of ``window`` breadcrumbs (a wider power of two), the same contents: a
         breadcrumb's place is its count since the reset modulo the ring size."""
-        old, w = self.trail, self.window
-        B, T = old.shape[:2]
-        last = self.tail[..., T_BASE].astype(np.int64) + self.trail_n - 1  # (B, T)
-        slots = np.arange(w)
-        count = last[..., None] - ((last[..., None] - slots) % w)  # in slot p of the ring
-        new = np.zeros((B, T, window, 3))
-        bi, ti = np.indices((B, T))
-        laid = count >= 0
-        new[np.broadcast_to(bi[..., None], count.shape)[laid],
-            np.broadcast_to(ti[..., None], count.shape)[laid],
-            count[laid] % window] = old[laid]  # fmt: skip
+        new = np.zeros((self.trail.shape[0], self.trail.shape[1], window, 3))
+        _rering(self.trail, self.tail, self.trail_n, new)
         self.trail = new
+
+
+@bare_kernel
+def _rering(old, tail, n, new):  # pragma: no cover - compiled
+    """Each trail's breadcrumbs of ring ``old`` into ring ``new`` (both powers of two):
+    breadcrumb count ``c`` since the reset sits in slot ``c mod`` the ring's size. A loop,
+    not fancy indexing: no temporaries the size of the rings at a large batch."""
+    w, wn = old.shape[2], new.shape[2]
+    for b in range(old.shape[0]):
+        for t in range(old.shape[1]):
+            last = int(tail[b, t, T_BASE]) + n[b, t] - 1
+            for c in range(max(last - w + 1, 0), last + 1):
+                for f in range(3):
+                    new[b, t, c & (wn - 1), f] = old[b, t, c & (w - 1), f]
 
 
 @bare_inline

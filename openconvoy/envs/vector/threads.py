@@ -164,7 +164,7 @@ def make_slabs(env: Any, fused: Any, threads: int, call_factory: Any) -> Slabs |
     # Copied per slab: the kernels' scratch, and the plant's ring head (each slab's
     # plant step advances its own).
     head = env.plant.head
-    private = [env._targets_scratch, env.channel._lost_scratch, head]
+    private = [env._targets_scratch, env.channel._zs, head]
     copies: list[dict[int, np.ndarray]] = [{} for _ in bounds]
     packs = [cut_args(fused, B, N, b0, b1, private, c) for (b0, b1), c in zip(bounds, copies)]
     mirrors = [(head, copies[0][id(head)])]

@@ -27,7 +27,7 @@ from openconvoy.envs.vector.math import norm
 
 CAPACITY = 1024
 """Breadcrumbs per trail, as ``core.trail.Trail`` (the oldest half dropped when full)."""
-MIN_WINDOW = 64
+MIN_WINDOW = 16
 """Fewest breadcrumbs a ring holds (``window``)."""
 T_FIX, T_BASE, T_REACH = 3, 6, 7
 """``tail`` fields, the first line's (read or written every tick; 0-2 the newest breadcrumb):

@@ -150,6 +150,7 @@ def _vector_env(configs: Sequence[RunConfig], env: Any) -> Any:
         faults=env.faults,
         auth=c.auth == "required",
         autoreset=False,
+        link_counters="all",  # the counters `openconvoy sim` logs: every ordered pair
     )
 
 

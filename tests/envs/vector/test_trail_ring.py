@@ -60,10 +60,27 @@ def test_a_small_ring_widens_and_runs_as_rings_of_the_whole_capacity(
         np.testing.assert_array_equal(s1, s2)
 
 
-def test_the_paper_ring_is_sized_to_its_horizon() -> None:
-    env = VectorConvoyEnv(2, "paper")
-    assert env.rx.window == 256  # follower 2 reads the leader's trail ~31 m back at 0.2 m
-    assert env.rx.trail.shape == (2, env.links.T, 256, 3)
+def test_the_paper_ring_starts_small_and_widens_to_the_reads() -> None:
+    """A ring holds a tick's progress at first, then what the reads reach: slow convoys
+    (2 m/s, fixed actions) keep small rings, the paper policy's
+    formation widens them to the horizon it reads."""
+    env = VectorConvoyEnv(2, "paper", loss=0.2)
+    assert env.rx.window == MIN_WINDOW == 16  # a tick at 5 m/s: 1.25 breadcrumbs of 0.2 m
+    assert env.rx.trail.shape == (2, env.links.T, MIN_WINDOW, 3)
+    env.reset(seed=0)
+    slow = np.tile(np.array([2.0, 0.0], np.float32), (2, 2, 1))
+    for _ in range(200):
+        env.step(slow)
+    w = env.rx.window  # the smallest ring holding the reads (~40 breadcrumbs back)
+    assert 0.75 * w / 2 < env.rx.reach() <= 0.75 * w and w <= 64
+    policy = load_policy("paper")
+    obs, _ = env.reset(seed=0)
+    reach = []
+    for _ in range(600):
+        obs, *_ = env.step(policy.act_batch(obs))
+        reach.append(env.rx.reach())
+        assert not needs_wider(env.rx.reach(), env.rx.window)
+    assert env.rx.window == 256 and max(reach) > 0.75 * 128  # ~31 m back at 0.2 m
 
 
 @pytest.mark.e2e

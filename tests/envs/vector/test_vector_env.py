@@ -76,6 +76,7 @@ def _compare(
         member_config=mc,
         loss=losses,
         autoreset=False,
+        link_counters="all",  # ConvoyEnv's counters
         **kwargs,
     )
     envs = [
@@ -319,8 +320,8 @@ def test_unsupported_options_are_config_errors() -> None:
         VectorConvoyEnv(2, "highway-cut-in")
     with pytest.raises(ConfigError, match="render"):
         VectorConvoyEnv(2, render_mode="rgb_array")
-    with pytest.raises(ConfigError, match="instant Bernoulli"):
-        VectorConvoyEnv(2, loss=LossConfig(per=0.2, jitter_s=0.05), link_counters="kept")
+    with pytest.raises(ConfigError, match="link_counters must be 'kept' or 'all'"):
+        VectorConvoyEnv(2, link_counters="some")
     with pytest.raises(ConfigError, match="num_envs"):
         VectorConvoyEnv(0)
 
@@ -379,14 +380,25 @@ def test_classical_reset_rows_forgets_only_those_rows() -> None:
         obs, *_ = vec.step(got)
 
 
-def test_kept_link_counters_give_the_same_run() -> None:
+@pytest.mark.parametrize(
+    "loss",
+    [
+        LossConfig(per=0.4),
+        LossConfig(per=0.4, latency_s=0.02, jitter_s=0.08),
+        LossConfig(per=0.4, model="gilbert-elliott", mean_burst_s=0.3),
+    ],
+    ids=["bernoulli", "jitter", "gilbert-elliott"],
+)
+def test_kept_link_counters_give_the_same_run(loss: LossConfig) -> None:
+    """Loss drawn on the kept links only (the default) or on every pair: the same
+    deliveries into R^i, so the same run; only the counters of never-kept links differ."""
     mc = dataclasses.replace(load_policy("paper").member_config, topology="lookahead:1")
     envs = [
-        VectorConvoyEnv(
-            2, "paper", n_followers=5, member_config=mc, loss=LossConfig(per=0.4), link_counters=c
-        )
+        VectorConvoyEnv(2, "paper", n_followers=5, member_config=mc, loss=loss, link_counters=c)
         for c in ("all", "kept")
     ]
+    assert envs[1].link_counters == "kept"
+    assert VectorConvoyEnv(1, "paper", loss=loss).link_counters == "kept"  # the default
     obs = [e.reset(seed=1)[0] for e in envs]
     policy = load_policy("paper")
     for _ in range(150):
@@ -395,10 +407,25 @@ def test_kept_link_counters_give_the_same_run() -> None:
         out = [e.step(actions) for e in envs]
         obs = [o[0] for o in out]
         np.testing.assert_array_equal(envs[0].plant.x, envs[1].plant.x)
-        np.testing.assert_array_equal(out[0][4]["msgs_kept"], out[1][4]["msgs_kept"])
-    # Counters now count the kept links: one sender each (lookahead:1), so fewer.
-    all_rx, kept_rx = out[0][4]["msgs_received"], out[1][4]["msgs_received"]
-    assert (kept_rx < all_rx).all() and (kept_rx == out[1][4]["msgs_kept"]).all()
+        for key in ("msgs_kept", "msgs_sent", "msgs_offered", "mode"):
+            np.testing.assert_array_equal(out[0][4][key], out[1][4][key])
+    info_all, info_kept = out[0][4], out[1][4]
+    sent = np.concatenate([info_all["leader_msgs_sent"][:, None], info_all["msgs_sent"]], axis=1)
+    # msgs_offered in closed form: every other vehicle's broadcasts.
+    np.testing.assert_array_equal(info_all["msgs_offered"], sent.sum(1)[:, None] - sent[:, 1:])
+    settled = info_all["msgs_received"] + info_all["msgs_lost"]
+    if loss.latency.instant:  # every pair's draw is made at the send
+        np.testing.assert_array_equal(settled, info_all["msgs_offered"])
+    else:  # some still in flight
+        assert (settled <= info_all["msgs_offered"]).all() and (settled > 0).all()
+    # Kept links counted: lookahead:1 keeps the predecessor's only, so each follower's
+    # received + lost is its predecessor's broadcasts (less those in flight).
+    kept_settled = info_kept["msgs_received"] + info_kept["msgs_lost"]
+    if loss.latency.instant:
+        np.testing.assert_array_equal(kept_settled, sent[:, :-1])
+    assert (kept_settled <= sent[:, :-1]).all() and (info_kept["msgs_lost"] > 0).all()
+    assert (info_kept["msgs_received"] < info_all["msgs_received"]).all()
+    np.testing.assert_array_equal(info_kept["msgs_received"], info_kept["msgs_kept"])
 
 
 def test_gymnasium_vector_api() -> None:
@@ -425,7 +452,9 @@ def test_autoreset_continues_each_convoys_seed_like_convoy_env_reset() -> None:
     """Episode 2 after an autoreset is ConvoyEnv's ``reset()`` (no seed) after episode 1."""
     B, loss = 2, LossConfig(per=0.5)
     mc = load_policy("paper").member_config
-    vec = VectorConvoyEnv(B, "paper", member_config=mc, loss=loss, max_time_s=1.0)
+    vec = VectorConvoyEnv(
+        B, "paper", member_config=mc, loss=loss, max_time_s=1.0, link_counters="all"
+    )
     envs = [ConvoyEnv("paper", member_config=mc, loss=loss, max_time_s=1.0) for _ in range(B)]
     vobs, _ = vec.reset(seed=7)
     obs = [e.reset(seed=7 + b)[0] for b, e in enumerate(envs)]

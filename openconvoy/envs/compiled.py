@@ -81,9 +81,13 @@ INFO_FLOAT_ROWS = (
 )
 """The float rows of the batched info arrays (``vector.measures.FLOAT_KEYS``), in the
 order ``agent_infos`` unpacks them; NaN where ``ConvoyEnv`` has None."""
-INFO_INT_ROWS = ("mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors")
+INFO_INT_ROWS = (
+    "mode", "msgs_sent", "msgs_received", "msgs_kept", "msgs_lost", "policy_errors",
+    "msgs_offered",
+)  # fmt: skip
 """The integer rows (``vector.measures.INT_KEYS``), likewise; ``mode`` a code of
-``vector.env.MODES``."""
+``vector.env.MODES``. ``msgs_offered`` is the batched env's own (``ConvoyEnv``'s infos do
+not have it: ``agent_infos`` reads past it)."""
 
 F32_SQUARE_BOUND = 1e76
 """Actions whose squares sum below this are finite and within float32's range (about
@@ -127,7 +131,7 @@ def agent_infos(
             "pred_msg_age_s": None if age != age else age,
             "policy_errors": e,
         }
-        for a, (g, dg, pe, se, v, acc, cv, ch, age), (m, s, r, k, lo, e), c in zip(
+        for a, (g, dg, pe, se, v, acc, cv, ch, age), (m, s, r, k, lo, e, _offered), c in zip(
             agents, floats, ints, collided
         )
     }

@@ -153,10 +153,10 @@ DEPLOY_FLAGS: Flags = (
         "--link",
         dict(
             choices=("mavlink", "mavros", "px4-dds", "ap-dds"),
-            default="mavlink",
-            help="how to reach the autopilot: MAVLink (default), MAVROS, PX4's DDS topics "
+            default=None,
+            help="how to reach the autopilot: MAVLink, MAVROS, PX4's DDS topics "
             "(px4-dds), or ArduPilot's AP_DDS ROS 2 topics (ap-dds; rclpy from make ros2; "
-            "docs/ros.md)",
+            "docs/ros.md); default: the convoy file's [[vehicle]] link, else mavlink",
         ),
     ),
     (

@@ -137,3 +137,34 @@ def test_px4dds_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
         assert meta["link"] == f"px4-dds (domain 0, ns vehicle_{vid})"
         assert meta["autopilot"] == "px4"
         assert meta["overruns"] <= meta["ticks"] * 0.05
+
+
+@pytest.mark.e2e
+@pytest.mark.netns
+def test_mixed_links_demo_takes_each_link_from_the_convoy_file(tmp_path: Path) -> None:
+    """``--link mavlink,mavros-ros1,ap-dds``: the demo writes a ``[[vehicle]]`` table per
+    vehicle, starts the stand-ins those links need (a roscore and a MAVROS stand-in for
+    vehicle 1, an AP_DDS stand-in on ROS 2 for vehicle 2), and each deploy, given no
+    ``--link``, drives its vehicle through its table's link; the convoy stays together."""
+    from openconvoy.convoy import load_convoy
+
+    reason = netns_unavailable_reason()
+    assert reason is None, f"the demo needs a private network namespace: {reason}"
+    run = _demo(tmp_path / "mixed", "--link", "mavlink,mavros-ros1,ap-dds")
+    convoy = load_convoy(tmp_path / "mixed" / "convoy.toml")
+    assert [(v.link, v.ros, v.ns) for v in convoy.vehicle] == [
+        ("mavlink", 1, ""),
+        ("mavros", 1, "/vehicle_1/mavros"),
+        ("ap-dds", 1, "/vehicle_2/ap"),
+    ]
+    links = [
+        json.loads((tmp_path / "mixed" / "deploy" / f"vehicle_{vid}.json").read_text())["link"]
+        for vid in range(3)
+    ]
+    assert links == [
+        "mavlink",
+        "mavros (ROS 1, /vehicle_1/mavros)",
+        "ap-dds (ROS 2, /vehicle_2/ap)",
+    ]
+    assert run["deploy"]["duration_s"] > DURATION_S - 1.0
+    assert run["deploy"]["collisions"] == 0 and run["deploy"]["min_gap_m"] > 13.0

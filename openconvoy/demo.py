@@ -475,13 +475,22 @@ def _start_standins(
 ) -> dict[str, str]:
     """The stand-in each vehicle's link needs in front of its simulated autopilot (none for
     MAVLink), appended to ``ros`` (closed last first); the deploys' environment
-    (``ROS_MASTER_URI`` when a vehicle uses ROS 1)."""
+    (``ROS_MASTER_URI`` when a vehicle uses ROS 1).
+
+    The ROS 2 stand-ins (MAVROS's and AP_DDS's) of all vehicles share one rclpy node
+    process, ``/openconvoy_standins``: their topics and services are absolute
+    (``/vehicle_N/...``), so what the deploys' links see is the same as with one node per
+    vehicle, and the demo runs two rclpy processes fewer on a machine whose cores the
+    deploys need (each rclpy process: Fast DDS's threads and its own discovery)."""
     env = dict(os.environ)
+    ros2: Any = None
     if any((v.link == "mavros" and v.ros == 2) or v.link == "ap-dds" for v in links):
-        from openconvoy.bridge.ros.ros2 import build_interfaces, build_mavros_msgs
+        from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
 
         build_mavros_msgs()
         build_interfaces("ardupilot_msgs")  # every ROS 2 node loads both packages
+        ros2 = Ros2Node("/openconvoy_standins")
+        ros.append(ros2)
     if any(v.link == "mavros" and v.ros == 1 for v in links):
         from openconvoy.bridge.ros.ros1 import Roscore
 
@@ -490,44 +499,32 @@ def _start_standins(
         env["ROS_MASTER_URI"] = core.uri
         _say(f"roscore at {core.uri}")
     for i, (url, v) in enumerate(zip(urls, links, strict=True)):
+        standin: Any = None
         if v.link == "mavros":
-            _start_mavros(ros, i, url, v, env.get("ROS_MASTER_URI"))
+            from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
+
+            node = ros2
+            if v.ros == 1:
+                from openconvoy.bridge.ros.ros1 import Ros1Node
+
+                node = Ros1Node(f"/mavros_vehicle_{i}", env["ROS_MASTER_URI"])
+                ros.append(node)
+            standin = MavrosStandIn(node, url, v.ns)
+            what = f"MAVROS stand-in under {v.ns} (ROS {v.ros})"
         elif v.link == "px4-dds":
             from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
 
-            ros.append(_Stopper(Px4DdsStandIn(url, ns=v.ns, localhost=True).start()))
-            _say(f"vehicle {i}: PX4 DDS stand-in on rt/{v.ns}/fmu/... (Cyclone DDS, loopback)")
+            standin = Px4DdsStandIn(url, ns=v.ns, localhost=True)
+            what = f"PX4 DDS stand-in on rt/{v.ns}/fmu/... (Cyclone DDS, loopback)"
         elif v.link == "ap-dds":
             from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
-            from openconvoy.bridge.ros.ros2 import Ros2Node
 
-            node = Ros2Node(f"/ap_dds_vehicle_{i}")
-            ros.append(node)
-            ros.append(_Stopper(ApDdsStandIn(node, url, v.ns).start()))
-            _say(f"vehicle {i}: AP_DDS stand-in under {v.ns} (ROS 2, rclpy)")
+            standin = ApDdsStandIn(ros2, url, v.ns)
+            what = f"AP_DDS stand-in under {v.ns} (ROS 2, rclpy)"
+        if standin is not None:
+            ros.append(_Stopper(standin.start()))
+            _say(f"vehicle {i}: {what} ({autopilot})")
     return env
-
-
-def _start_mavros(
-    ros: list[Any], i: int, url: str, v: VehicleLinkConfig, master_uri: str | None
-) -> None:
-    """A MAVROS stand-in for vehicle ``i`` under ``v.ns``, forwarding to its simulated
-    autopilot at ``url`` over MAVLink: a node on the private roscore (ROS 1) or an rclpy
-    node (ROS 2, discovery on loopback inside the demo's namespace)."""
-    from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
-
-    node: Any
-    if v.ros == 2:
-        from openconvoy.bridge.ros.ros2 import Ros2Node
-
-        node = Ros2Node(f"/mavros_vehicle_{i}")
-    else:
-        from openconvoy.bridge.ros.ros1 import Ros1Node
-
-        node = Ros1Node(f"/mavros_vehicle_{i}", master_uri)
-    ros.append(node)
-    ros.append(_Stopper(MavrosStandIn(node, url, v.ns).start()))
-    _say(f"vehicle {i}: MAVROS stand-in under {v.ns} (ROS {v.ros})")
 
 
 class _Stopper:

@@ -107,15 +107,18 @@ class Px4DdsStandIn:
     # ------------------------------------------------------------------ DDS in
 
     def _dds_loop(self) -> None:
-        """Poll the /fmu/in readers at 200 Hz (a few ms added latency at most)."""
+        """Take the /fmu/in samples as they arrive (a Cyclone wait set, no polling); the
+        GCS heartbeat the simulated PX4 expects, once a second."""
+        waiter = self.part.waiter([self.r_sp, self.r_ocm, self.r_cmd])
         hb = 0.0
-        while not self._stop.wait(0.005):
+        while not self._stop.is_set():
+            waiter.wait(0.1)
             self._handle("trajectory_setpoint", msgs.TrajectorySetpoint, self._on_setpoint)
             self._handle(
                 "offboard_control_mode", msgs.OffboardControlMode, self._on_offboard_control_mode
             )
             self._handle("vehicle_command", msgs.VehicleCommand, self._on_command)
-            if time.monotonic() - hb > 1.0:  # the GCS heartbeat the simulated PX4 expects
+            if time.monotonic() - hb > 1.0:
                 hb = time.monotonic()
                 self.mavlink.heartbeat()
 

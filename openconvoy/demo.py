@@ -47,8 +47,6 @@ INIT_S = 2.34
 (as SITL waiting for serial0), so the GUIDED it sets first is lost and must be noticed."""
 FOLLOWER_GRACE_S = 10.0
 """How long the followers may take to end by themselves once the leader's run ended."""
-DEMO_VEHICLES = 3
-"""The demo's convoy: ``ConvoyConfig``'s default vehicles, leader first."""
 PHASE_SETTLE_S = 10.0
 """Speed tracking is judged from this long after each leader speed change."""
 
@@ -112,13 +110,10 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "ros", 1),
         getattr(args, "bag", False),
     )
-    from openconvoy.core.errors import ConfigError
+    from openconvoy.convoy import ConvoyConfig
 
-    try:
-        kinds = {v.link for v in vehicle_links(opts.link, opts.ros, DEMO_VEHICLES)}
-    except ConfigError as exc:
-        _say(f"openconvoy demo: {exc}")
-        return 2
+    n = len(ConvoyConfig().vehicles)  # the demo's convoy: the default vehicles
+    kinds = {v.link for v in vehicle_links(opts.link, opts.ros, n)}  # ConfigError: exit 2
     if "ap-dds" in kinds and opts.autopilot != "ardupilot":
         _say("openconvoy demo: --link ap-dds drives ArduPilot vehicles: not with --autopilot px4")
         return 2

@@ -89,11 +89,13 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the comparison as JSON at the end")
     p.add_argument(
         "--link",
-        choices=("mavlink", "mavros", "px4-dds", "ap-dds"),
         default="mavlink",
+        metavar="LINK[,LINK,LINK]",
         help="how the deploys reach the vehicles: MAVLink (default), MAVROS stand-ins on a "
-        "private roscore or ROS 2, PX4 DDS stand-ins (px4-dds, needs --autopilot px4), or "
-        "ArduPilot AP_DDS stand-ins on ROS 2 (ap-dds; docs/ros.md, docs/px4dds.md)",
+        "private roscore or ROS 2 (mavros, with --ros; or mavros-ros1, mavros-ros2), PX4 DDS "
+        "stand-ins (px4-dds, needs --autopilot px4), or ArduPilot AP_DDS stand-ins on ROS 2 "
+        "(ap-dds); one for all, or one per vehicle, leader first (e.g. mavlink,mavros-ros2,"
+        "ap-dds: written as the convoy file's [[vehicle]] tables; docs/ros.md)",
     )
     p.add_argument(
         "--ros",

@@ -21,6 +21,15 @@ transport = "multicast"           # or "ros2": the same bytes on a ROS 2 topic (
 ros2_topic = "/openconvoy/v2v"    # transport = "ros2": the topic ...
 ros2_domain = 0                   # ... and the DDS domain id (0..232)
 
+[[vehicle]]                       # optional; vehicles only: one per vehicle, leader first,
+link = "mavlink"                  # how its deploy reaches its autopilot when deploy is given
+                                  # no --link: "mavlink", "mavros", "ap-dds" or "px4-dds"
+[[vehicle]]
+link = "mavros"
+ros = 2                           # mavros: ROS 1 (rospy) or 2 (rclpy)
+namespace = "/vehicle_1/mavros"   # the link's namespace (default /mavros, /ap, none for px4-dds)
+dds_domain = 0                    # px4-dds: the DDS domain id (0..232)
+
 [safety]                          # optional; vehicles only
 speed_cap_mps = 5.0
 geofence_radius_m = 200.0         # around the origin
@@ -48,7 +57,7 @@ from __future__ import annotations
 import ipaddress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from openconvoy.core.config import Range, check_fields, from_dict, load_toml
 from openconvoy.core.errors import ConfigError
@@ -121,6 +130,40 @@ class V2VConfig:
                 'cannot be signed): set compat = false, or auth = "off"'
             )
         return required
+
+
+LinkKind = Literal["mavlink", "mavros", "px4-dds", "ap-dds"]
+LINK_KINDS: tuple[str, ...] = ("mavlink", "mavros", "px4-dds", "ap-dds")
+DEFAULT_NAMESPACES: dict[str, str] = {
+    "mavlink": "",
+    "mavros": "/mavros",
+    "ap-dds": "/ap",
+    "px4-dds": "",
+}
+"""Each link's namespace when none is written (``deploy``'s --mavros-ns, --ap-ns, --px4-ns)."""
+
+
+@dataclass(frozen=True)
+class VehicleLinkConfig:
+    """How one vehicle's deploy reaches its autopilot (a ``[[vehicle]]`` table), used when
+    ``deploy`` is given no ``--link``: ``link``, for ``mavros`` the ROS version ``ros``,
+    ``namespace`` (MAVROS's, AP_DDS's or PX4's ``UXRCE_DDS_NS``; empty: the link's
+    default, ``DEFAULT_NAMESPACES``), for ``px4-dds`` the DDS domain ``dds_domain``."""
+
+    link: LinkKind = "mavlink"
+    ros: Literal[1, 2] = 1
+    namespace: str = ""
+    dds_domain: Annotated[int, Range(0, 232)] = 0
+
+    def __post_init__(self) -> None:
+        check_fields(self, "vehicle")
+        if self.link == "mavlink" and self.namespace:
+            raise ConfigError("vehicle.namespace: MAVLink has no namespace (a ROS/DDS link has)")
+
+    @property
+    def ns(self) -> str:
+        """The namespace, the link's default when none is written."""
+        return self.namespace or DEFAULT_NAMESPACES[self.link]
 
 
 @dataclass(frozen=True)
@@ -200,9 +243,13 @@ class ConvoyConfig:
     v2v: V2VConfig = field(default_factory=V2VConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     channel: ChannelConfig = field(default_factory=ChannelConfig)
+    vehicle: tuple[VehicleLinkConfig, ...] = ()
+    """Per vehicle (``[[vehicle]]`` tables, leader first): its link; empty = MAVLink for
+    all (or what ``deploy --link`` says)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        object.__setattr__(self, "vehicle", tuple(self.vehicle))
         object.__setattr__(self, "origin", tuple(self.origin))
         check_fields(self, "convoy")
         object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
@@ -213,6 +260,15 @@ class ConvoyConfig:
             raise ConfigError(
                 f"convoy.plants: {len(self.plants)} given for {len(self.vehicles)} vehicles"
             )
+        if self.vehicle and len(self.vehicle) != len(self.vehicles):
+            raise ConfigError(
+                f"vehicle: {len(self.vehicle)} [[vehicle]] tables for {len(self.vehicles)} "
+                "vehicles: give one per vehicle, leader first"
+            )
+
+    def vehicle_link(self, vehicle_id: int) -> VehicleLinkConfig:
+        """Vehicle ``vehicle_id``'s link (MAVLink when the file names none)."""
+        return self.vehicle[vehicle_id] if self.vehicle else VehicleLinkConfig()
 
     @property
     def n_vehicles(self) -> int:
@@ -220,14 +276,18 @@ class ConvoyConfig:
 
 
 def load_convoy(path: str | Path) -> ConvoyConfig:
-    """Read a convoy TOML file (tables ``[convoy]``, ``[v2v]``, ``[safety]``, ``[channel]``)."""
+    """Read a convoy TOML file (tables ``[convoy]``, ``[v2v]``, ``[safety]``, ``[channel]``,
+    ``[[vehicle]]``)."""
     data = load_toml(path)
-    unknown = set(data) - {"convoy", "v2v", "safety", "channel"}
+    unknown = set(data) - {"convoy", "v2v", "safety", "channel", "vehicle"}
     if unknown:
         raise ConfigError(
             f"{path}: unknown table(s) {', '.join(sorted(unknown))}; "
-            "expected convoy, v2v, safety, channel"
+            "expected convoy, v2v, safety, channel, vehicle"
         )
+    vehicle_tables = data.pop("vehicle", [])
+    if not isinstance(vehicle_tables, list) or not all(isinstance(v, dict) for v in vehicle_tables):
+        raise ConfigError(f"{path}: vehicle must be tables, one per vehicle ([[vehicle]])")
     for key, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: {key} must be a table ([{key}]), got {value!r}")
@@ -243,6 +303,10 @@ def load_convoy(path: str | Path) -> ConvoyConfig:
     keys = Path(str(v2v.get("keys") or Path(path).with_suffix(".keys").name))
     v2v["keys"] = str(keys if keys.is_absolute() else Path(path).parent / keys)
     table["v2v"] = v2v
+    if vehicle_tables:
+        if "vehicle" in table:
+            raise ConfigError(f"{path}: vehicle given twice ([[vehicle]] and convoy.vehicle)")
+        table["vehicle"] = vehicle_tables
     # A preset file named relative to the convoy file (as fit-plant --out-convoy writes).
     here = Path(path).parent
     for key in ("vehicles", "plants"):

@@ -37,6 +37,7 @@ import numpy as np
 if TYPE_CHECKING:
     from openconvoy.bridge.link import Autopilot
     from openconvoy.bridge.simvehicle.vehicle import SimVehicle, SimVehicleConfig
+    from openconvoy.convoy import VehicleLinkConfig
 
 ENV_INSIDE = "OPENCONVOY_DEMO_INSIDE"
 READY_AFTER_S = 3.0
@@ -67,6 +68,38 @@ class DemoOptions:
     v2v: str = "multicast"
 
 
+DEMO_LINKS = ("mavlink", "mavros", "mavros-ros1", "mavros-ros2", "px4-dds", "ap-dds")
+"""What ``demo --link`` takes: one for every vehicle, or a comma list, one per vehicle."""
+
+
+def vehicle_links(link: str, ros: int, n_vehicles: int) -> list[VehicleLinkConfig]:
+    """Each vehicle's link from ``demo --link`` (one kind for all, or ``A,B,C`` leader
+    first; ``mavros`` takes ``ros``, ``mavros-ros1``/``mavros-ros2`` say theirs), with the
+    demo's namespaces (``/vehicle_N/mavros``, ``/vehicle_N/ap``, ``vehicle_N``). Raises
+    ``ConfigError`` naming a kind it does not know or a count that is not the convoy's."""
+    from openconvoy.convoy import VehicleLinkConfig
+    from openconvoy.core.errors import ConfigError
+
+    kinds = link.split(",")
+    if len(kinds) == 1:
+        kinds *= n_vehicles
+    bad = [k for k in kinds if k not in DEMO_LINKS]
+    if bad:
+        raise ConfigError(f"--link: {bad[0]!r} is not one of {', '.join(DEMO_LINKS)}")
+    if len(kinds) != n_vehicles:
+        raise ConfigError(f"--link: {len(kinds)} links for {n_vehicles} vehicles")
+    out = []
+    for i, k in enumerate(kinds):
+        version = {"mavros-ros1": 1, "mavros-ros2": 2}.get(k, ros)
+        kind = "mavros" if k.startswith("mavros") else k
+        ns = {
+            "mavros": f"/vehicle_{i}/mavros", "ap-dds": f"/vehicle_{i}/ap",
+            "px4-dds": f"vehicle_{i}",
+        }.get(kind, "")  # fmt: skip
+        out.append(VehicleLinkConfig(kind, version, ns))  # type: ignore[arg-type]
+    return out
+
+
 def demo_from_namespace(args: argparse.Namespace) -> int:
     opts = DemoOptions(
         args.policy,
@@ -80,10 +113,14 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "bag", False),
         getattr(args, "v2v", "multicast"),
     )
-    if opts.link == "ap-dds" and opts.autopilot != "ardupilot":
+    from openconvoy.convoy import ConvoyConfig
+
+    n = len(ConvoyConfig().vehicles)  # the demo's convoy: the default vehicles
+    kinds = {v.link for v in vehicle_links(opts.link, opts.ros, n)}  # ConfigError: exit 2
+    if "ap-dds" in kinds and opts.autopilot != "ardupilot":
         _say("openconvoy demo: --link ap-dds drives ArduPilot vehicles: not with --autopilot px4")
         return 2
-    if opts.link == "px4-dds" and opts.autopilot != "px4":
+    if "px4-dds" in kinds and opts.autopilot != "px4":
         _say("openconvoy demo: --link px4-dds drives PX4 vehicles: add --autopilot px4")
         return 2
     if os.environ.get(ENV_INSIDE) == "1":
@@ -174,20 +211,28 @@ def write_convoy_toml(
     origin: tuple[float, float, float],
     *,
     keys: bool = True,
+    links: Sequence[VehicleLinkConfig] = (),
 ) -> None:
     """The demo's convoy config (paper scenario, its vehicles, the default V2V group).
 
     With ``keys`` (the default) the convoy's authority and one key per vehicle are made in
     ``NAME.keys/`` beside it (``openconvoy keys init`` / ``issue``), so that every deploy
     signs and verifies its V2V messages; without, the caller makes its own keys (a deploy
-    without keys refuses to start unless ``[v2v] auth = "off"`` is written)."""
+    without keys refuses to start unless ``[v2v] auth = "off"`` is written). ``links``: a
+    ``[[vehicle]]`` table per vehicle (its link, ROS version, namespace)."""
     vs = ", ".join(f'"{v}"' for v in vehicles)
+    tables = "".join(
+        f'\n[[vehicle]]\nlink = "{v.link}"\n'
+        + (f"ros = {v.ros}\n" if v.link == "mavros" else "")
+        + (f'namespace = "{v.namespace}"\n' if v.namespace else "")
+        for v in links
+    )
     path.write_text(
         "[convoy]\n"
         'name = "demo"\n'
         'scenario = "paper"\n'
         f"vehicles = [{vs}]\n"
-        f"origin = [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\n",
+        f"origin = [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\n" + tables,
         encoding="utf-8",
     )
     if keys:
@@ -280,7 +325,8 @@ def _prepare(opts: DemoOptions) -> _DemoRun:
     out.mkdir(parents=True, exist_ok=True)
     convoy_path = out / "convoy.toml"
     defaults = ConvoyConfig()
-    write_convoy_toml(convoy_path, defaults.vehicles, defaults.origin)
+    links = vehicle_links(opts.link, opts.ros, len(defaults.vehicles))
+    write_convoy_toml(convoy_path, defaults.vehicles, defaults.origin, links=links)
     convoy = load_convoy(convoy_path)
     policy = load_policy(opts.policy)
     presets = [vehicle_preset(v) for v in convoy.vehicles]
@@ -296,18 +342,30 @@ def _prepare(opts: DemoOptions) -> _DemoRun:
     )
 
 
-_LINK_LABELS = {"mavlink": "MAVLink", "px4-dds": "PX4 DDS", "ap-dds": "AP_DDS"}
+_LINK_LABELS = {
+    "mavlink": "MAVLink", "px4-dds": "PX4 DDS", "ap-dds": "AP_DDS", "mavros": "MAVROS",
+    "mavros-ros1": "MAVROS", "mavros-ros2": "MAVROS",
+}  # fmt: skip
+
+
+def _via(opts: DemoOptions) -> str:
+    """How the deploys reach their vehicles, for the demo's first line."""
+    if "," in opts.link:
+        return f" through {opts.link} (one link per vehicle, leader first; --ros {opts.ros})"
+    return {
+        "mavlink": "",
+        "px4-dds": " through PX4 DDS stand-ins (Cyclone DDS)",
+        "ap-dds": " through AP_DDS stand-ins on ROS 2",
+        "mavros-ros1": " through MAVROS stand-ins on ROS 1",
+        "mavros-ros2": " through MAVROS stand-ins on ROS 2",
+    }.get(opts.link, f" through MAVROS stand-ins on ROS {opts.ros}")
 
 
 def run_inside(opts: DemoOptions) -> int:
     run = _prepare(opts)
     convoy, out = run.convoy, run.out
     deploy_dir, sim_dir = out / "deploy", out / "sim"
-    via = {
-        "mavlink": "",
-        "px4-dds": " through PX4 DDS stand-ins (Cyclone DDS)",
-        "ap-dds": " through AP_DDS stand-ins on ROS 2",
-    }.get(opts.link, f" through MAVROS stand-ins on ROS {opts.ros}")
+    via = _via(opts)
     _say(
         f"openconvoy demo: {convoy.n_vehicles} simulated {opts.autopilot} vehicles{via}, policy "
         f"{opts.policy}, PER {opts.per:g}, {run.duration_s:g} s, V2V over IPv6 multicast on "
@@ -328,7 +386,7 @@ def run_inside(opts: DemoOptions) -> int:
     _say(
         format_comparison(report["comparison"])
         .replace("A: ", "A (simulation): ", 1)
-        .replace("B: ", f"B ({_LINK_LABELS.get(opts.link, 'MAVROS')} + multicast): ", 1)
+        .replace("B: ", f"B ({_LINK_LABELS.get(opts.link, opts.link)} + multicast): ", 1)
     )
     for vid, phases in report["speed_phases"].items():
         cells = ", ".join(f"{m:.2f}" for m in phases["mean_speed_mps"])
@@ -374,29 +432,22 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
             vehicles.append(vehicle)
             urls.append(url)
         deploy_dir.mkdir(parents=True, exist_ok=True)
-        env = None
-        if opts.link == "mavros":
-            env = _start_mavros(ros, urls, opts.autopilot, opts.ros)
-        if opts.link == "px4-dds":
-            _start_px4dds(ros, urls)
-        if opts.link == "ap-dds":
-            _start_apdds(ros, urls)
+        links = run.convoy.vehicle
+        env = _start_standins(ros, urls, links, opts.autopilot)
         for i, url in enumerate(urls):
             cmd = deploy_argv(
                 i, run.convoy_path, url, run.iface, deploy_dir,
                 "--per", repr(opts.per), "--seed", "0",
                 policy=opts.policy,
             )  # fmt: skip
-            if opts.link == "mavros":
+            # No --link: each deploy takes its link from the convoy file's [[vehicle]].
+            if links[i].link != "mavlink":
                 cmd = [c for c in cmd if c not in ("--mavlink", url)]
-                cmd += ["--link", "mavros", "--ros", str(opts.ros)]
-                cmd += ["--mavros-ns", f"/vehicle_{i}/mavros", "--autopilot", opts.autopilot]
-            if opts.link == "px4-dds":
-                cmd = [c for c in cmd if c not in ("--mavlink", url)]
-                cmd += ["--link", "px4-dds", "--px4-ns", f"vehicle_{i}", "--dds-localhost"]
-            if opts.link == "ap-dds":
-                cmd = [c for c in cmd if c not in ("--mavlink", url)]
-                cmd += ["--link", "ap-dds", "--ap-ns", f"/vehicle_{i}/ap"]
+            if links[i].link == "mavros":
+                cmd += ["--autopilot", opts.autopilot]
+            if links[i].link == "px4-dds":
+                cmd.append("--dds-localhost")
+            if links[i].link == "ap-dds":
                 cmd += ["--dds-iface", run.iface]  # Cyclone meets the rclpy stand-ins there
             if opts.bag:
                 cmd.append("--bag")
@@ -423,65 +474,65 @@ def _drive(opts: DemoOptions, run: _DemoRun, deploy_dir: Path) -> int:
     return code
 
 
-def _start_mavros(
-    ros: list[Any], urls: Sequence[str], autopilot: str, version: int = 1
+def _start_standins(
+    ros: list[Any], urls: Sequence[str], links: Sequence[VehicleLinkConfig], autopilot: str
 ) -> dict[str, str]:
-    """``--link mavros``: a MAVROS stand-in per vehicle (namespace ``/vehicle_N/mavros``,
-    forwarding to its simulated autopilot over MAVLink) on a private roscore (ROS 1) or
-    as ROS 2 nodes (rclpy, discovery on loopback inside the demo's namespace), appended to
-    ``ros`` (closed last first); the deploys' environment (``ROS_MASTER_URI``)."""
-    from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
+    """The stand-in each vehicle's link needs in front of its simulated autopilot (none for
+    MAVLink), appended to ``ros`` (closed last first); the deploys' environment
+    (``ROS_MASTER_URI`` when a vehicle uses ROS 1).
 
-    if version == 2:
+    The ROS 2 stand-ins (MAVROS's and AP_DDS's) of all vehicles share one rclpy node
+    process, ``/openconvoy_standins``: their topics and services are absolute
+    (``/vehicle_N/...``), so what the deploys' links see is the same as with one node per
+    vehicle, and the demo runs two rclpy processes fewer on a machine whose cores the
+    deploys need (each rclpy process: Fast DDS's threads and its own discovery)."""
+    env = dict(os.environ)
+    ros2: Any = None
+    if any((v.link == "mavros" and v.ros == 2) or v.link == "ap-dds" for v in links):
         from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
 
         build_mavros_msgs()
         build_interfaces("ardupilot_msgs")  # every ROS 2 node loads both packages
-        for i, url in enumerate(urls):
-            node2 = Ros2Node(f"/mavros_vehicle_{i}")
-            ros.append(node2)
-            ros.append(_Stopper(MavrosStandIn(node2, url, f"/vehicle_{i}/mavros").start()))
-        _say(f"ROS 2 (rclpy); MAVROS stand-ins under /vehicle_N/mavros ({autopilot})")
-        return dict(os.environ)
-    from openconvoy.bridge.ros.ros1 import Ros1Node, Roscore
+        if any(v.link == "ap-dds" for v in links):
+            # The ap-dds deploys' nodes are Cyclone DDS on the namespace's veth
+            # (``--dds-iface``): the stand-ins' Fast DDS must look for peers there too.
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
+        ros2 = Ros2Node("/openconvoy_standins")
+        ros.append(ros2)
+    if any(v.link == "mavros" and v.ros == 1 for v in links):
+        from openconvoy.bridge.ros.ros1 import Roscore
 
-    core = Roscore()
-    ros.append(core)
-    for i, url in enumerate(urls):
-        node = Ros1Node(f"/mavros_vehicle_{i}", core.uri)
-        ros.append(node)
-        ros.append(_Stopper(MavrosStandIn(node, url, f"/vehicle_{i}/mavros").start()))
-    _say(f"roscore at {core.uri}; MAVROS stand-ins under /vehicle_N/mavros ({autopilot})")
-    return {**os.environ, "ROS_MASTER_URI": core.uri}
+        core = Roscore()
+        ros.append(core)
+        env["ROS_MASTER_URI"] = core.uri
+        _say(f"roscore at {core.uri}")
+    for i, (url, v) in enumerate(zip(urls, links, strict=True)):
+        standin: Any = None
+        if v.link == "mavros":
+            from openconvoy.bridge.ros.mavros_standin import MavrosStandIn
 
+            node = ros2
+            if v.ros == 1:
+                from openconvoy.bridge.ros.ros1 import Ros1Node
 
-def _start_px4dds(ros: list[Any], urls: Sequence[str]) -> None:
-    """``--link px4-dds``: a PX4 DDS stand-in per vehicle (namespace ``vehicle_N``, Cyclone
-    on loopback only), forwarding to its simulated PX4 over MAVLink; appended to ``ros``."""
-    from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
+                node = Ros1Node(f"/mavros_vehicle_{i}", env["ROS_MASTER_URI"])
+                ros.append(node)
+            standin = MavrosStandIn(node, url, v.ns)
+            what = f"MAVROS stand-in under {v.ns} (ROS {v.ros})"
+        elif v.link == "px4-dds":
+            from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
 
-    for i, url in enumerate(urls):
-        ros.append(_Stopper(Px4DdsStandIn(url, ns=f"vehicle_{i}", localhost=True).start()))
-    _say("PX4 DDS stand-ins on rt/vehicle_N/fmu/... (Cyclone DDS, loopback only)")
+            standin = Px4DdsStandIn(url, ns=v.ns, localhost=True)
+            what = f"PX4 DDS stand-in on rt/{v.ns}/fmu/... (Cyclone DDS, loopback)"
+        elif v.link == "ap-dds":
+            from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
 
-
-def _start_apdds(ros: list[Any], urls: Sequence[str]) -> None:
-    """``--link ap-dds``: an AP_DDS stand-in per vehicle (namespace ``/vehicle_N/ap``, a ROS 2
-    node, discovery on the demo namespace's veth, where the deploys' Cyclone nodes are), forwarding to its simulated
-    ArduPilot over MAVLink; appended to ``ros``."""
-    from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn
-    from openconvoy.bridge.ros.ros2 import Ros2Node, build_interfaces, build_mavros_msgs
-
-    build_mavros_msgs()
-    build_interfaces("ardupilot_msgs")
-    # The deploys' nodes are Cyclone DDS on the namespace's veth (``--dds-iface``): the
-    # stand-ins' Fast DDS must look for peers there, not on loopback only.
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
-    for i, url in enumerate(urls):
-        node = Ros2Node(f"/ap_dds_vehicle_{i}")
-        ros.append(node)
-        ros.append(_Stopper(ApDdsStandIn(node, url, f"/vehicle_{i}/ap").start()))
-    _say("ROS 2 (rclpy) AP_DDS stand-ins under /vehicle_N/ap (ardupilot); deploys via Cyclone DDS")
+            standin = ApDdsStandIn(ros2, url, v.ns)
+            what = f"AP_DDS stand-in under {v.ns} (ROS 2, rclpy)"
+        if standin is not None:
+            ros.append(_Stopper(standin.start()))
+            _say(f"vehicle {i}: {what} ({autopilot})")
+    return env
 
 
 class _Stopper:

@@ -540,6 +540,13 @@ PROBES: list[tuple[str, dict, list[str], str]] = [
     ("D45-train-M-0", {}, ["train", "--M", "0", "--out", "{d}/out"], "--M: 0 is out of range"),
     ("D25-train-rate-nan", {}, ["train", "--rate", "nan", "--out", "{d}/out"], "--rate"),
     ("D45-demo-per-2", {}, ["demo", "--per", "2"], "--per: 2 is out of range"),
+    (
+        "demo-link-unknown",
+        {},
+        ["demo", "--link", "mavlink,zenoh,ap-dds"],
+        "--link: 'zenoh' is not one of mavlink, mavros",
+    ),
+    ("demo-link-count", {}, ["demo", "--link", "mavlink,ap-dds"], "--link: 2 links for 3 vehicles"),
     # D22, D28, D32: learned policy files
     (
         "D22-empty-npz",

@@ -86,3 +86,58 @@ def test_v2v_transport_is_multicast_unless_ros2_is_written(tmp_path):
         p.write_text(f'[convoy]\nvehicles = ["1/10", "1/10"]\n[v2v]\n{bad}\n')
         with pytest.raises(ValueError, match=named):
             load_convoy(p)
+
+
+VEHICLE_TABLES = (
+    '[convoy]\nvehicles = ["1/10", "1/6", "1/10"]\n'
+    '[[vehicle]]\nlink = "mavlink"\n'
+    '[[vehicle]]\nlink = "mavros"\nros = 2\nnamespace = "/v1/mavros"\n'
+    '[[vehicle]]\nlink = "px4-dds"\ndds_domain = 7\n'
+)
+
+
+def test_vehicle_tables_give_each_vehicle_its_link(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text(VEHICLE_TABLES)
+    c = load_convoy(p)
+    links = [c.vehicle_link(i) for i in range(3)]
+    assert [v.link for v in links] == ["mavlink", "mavros", "px4-dds"]
+    assert (links[1].ros, links[1].ns) == (2, "/v1/mavros")
+    assert (links[2].ns, links[2].dds_domain) == ("", 7)  # px4-dds: no namespace by default
+    p.write_text('[convoy]\nvehicles = ["1/10", "1/6"]\n[[vehicle]]\nlink = "ap-dds"\n'
+                 '[[vehicle]]\nlink = "mavros"\n')  # fmt: skip
+    c = load_convoy(p)
+    assert (c.vehicle_link(0).ns, c.vehicle_link(1).ns, c.vehicle_link(1).ros) == (
+        "/ap",
+        "/mavros",
+        1,
+    )
+    # No tables: MAVLink for every vehicle.
+    p.write_text('[convoy]\nvehicles = ["1/10", "1/6"]\n')
+    assert load_convoy(p).vehicle_link(1).link == "mavlink"
+
+
+@pytest.mark.parametrize(
+    "change, named",
+    [
+        (('"px4-dds"', '"zenoh"'), r"vehicle\[2\]\.link.*'zenoh'"),
+        (("ros = 2", "ros = 3"), r"vehicle\[1\]\.ros.*3"),
+        (("dds_domain = 7", "dds_domain = 300"), r"vehicle\[2\]\.dds_domain"),
+        (
+            ('link = "mavlink"\n', 'link = "mavlink"\nnamespace = "/x"\n'),
+            r"vehicle\[0\]\.namespace",
+        ),
+        (
+            ('[[vehicle]]\nlink = "px4-dds"\ndds_domain = 7\n', ""),
+            r"2 \[\[vehicle\]\] tables for 3",
+        ),
+        (('link = "mavlink"', 'linc = "mavlink"'), "linc"),
+    ],
+)
+def test_a_bad_vehicle_table_is_named(tmp_path, change, named):
+    p = tmp_path / "c.toml"
+    text = VEHICLE_TABLES.replace(*change)
+    assert text != VEHICLE_TABLES
+    p.write_text(text)
+    with pytest.raises(ValueError, match=named):
+        load_convoy(p)

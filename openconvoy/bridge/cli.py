@@ -153,10 +153,11 @@ DEPLOY_FLAGS: Flags = (
         "--link",
         dict(
             choices=("mavlink", "mavros", "px4-dds", "ap-dds"),
-            default="mavlink",
-            help="how to reach the autopilot: MAVLink (default), MAVROS, PX4's DDS topics "
+            default=None,
+            help="how to reach the autopilot: MAVLink, MAVROS, PX4's DDS topics "
             "(px4-dds), or ArduPilot's AP_DDS ROS 2 topics (ap-dds; Cyclone DDS, or rclpy "
-            "with --ap-dds-via rclpy; docs/ros.md)",
+            "with --ap-dds-via rclpy; docs/ros.md); default: the convoy file's [[vehicle]] "
+            "link, else mavlink",
         ),
     ),
     (

@@ -21,7 +21,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -56,7 +56,9 @@ class DeployArgs:
     connect_timeout: float = 30.0
     telemetry_hz: float | None = None
     quiet: bool = False
-    link: Literal["mavlink", "mavros", "px4-dds", "ap-dds"] = "mavlink"
+    link: Literal["mavlink", "mavros", "px4-dds", "ap-dds"] | None = None
+    """None: the convoy file's ``[[vehicle]]`` entry for this vehicle (``with_vehicle_link``),
+    MAVLink when it has none."""
     ros: int = 1
     mavros_ns: str = "/mavros"
     autopilot: Literal["ardupilot", "px4"] | None = None
@@ -93,6 +95,7 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     n = convoy.n_vehicles
     if not 0 <= a.vehicle_id < n:
         raise ConfigError(f"--vehicle-id {a.vehicle_id}: the convoy has vehicles 0..{n - 1}")
+    a = with_vehicle_link(a, convoy)
     policy = load_policy(a.policy)
     presets = [vehicle_preset(v) for v in convoy.vehicles]
     origin = Origin(*convoy.origin)
@@ -162,6 +165,18 @@ def build_runner(a: DeployArgs, convoy: ConvoyConfig | None = None) -> DeployRun
     return runner
 
 
+def with_vehicle_link(a: DeployArgs, convoy: ConvoyConfig) -> DeployArgs:
+    """``a`` with its link settled: ``--link`` given, the command line's; otherwise the
+    convoy file's ``[[vehicle]]`` entry for ``a.vehicle_id`` (link, ROS version, namespace,
+    DDS domain), MAVLink when the file has none."""
+    if a.link is not None:
+        return a
+    v = convoy.vehicle_link(a.vehicle_id)
+    ns_field = {"mavros": "mavros_ns", "ap-dds": "ap_ns", "px4-dds": "px4_ns"}.get(v.link)
+    extra: dict[str, Any] = {ns_field: v.ns} if ns_field else {}
+    return replace(a, link=v.link, ros=v.ros, dds_domain=v.dds_domain, **extra)
+
+
 def _make_bag(a: DeployArgs, rate: float) -> Any:
     """``--bag``: the ROS 2 bag directory ``LOG/vehicle_N_bag`` (replaced, like the CSV),
     or None."""
@@ -184,7 +199,7 @@ def _link_name(a: DeployArgs) -> str:
     if a.link == "ap-dds":
         via = "ROS 2" if a.ap_dds_via == "rclpy" else f"DDS domain {a.dds_domain}"
         return f"ap-dds ({via}, {a.ap_ns})"
-    return a.link if a.link == "mavlink" else f"mavros (ROS {a.ros}, {a.mavros_ns})"
+    return f"mavros (ROS {a.ros}, {a.mavros_ns})" if a.link == "mavros" else "mavlink"
 
 
 def _make_link(

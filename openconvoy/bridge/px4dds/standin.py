@@ -36,6 +36,7 @@ import time
 from typing import Any
 
 from openconvoy.bridge.mavlink import protocol as mp
+from openconvoy.bridge.mavlink.companion import CompanionMavlink, run_threads, stop_threads
 from openconvoy.bridge.px4dds import msgs
 from openconvoy.bridge.px4dds.dds import IN_QOS, OUT_QOS, Participant, take_all, topic_name
 
@@ -68,12 +69,9 @@ class Px4DdsStandIn:
     def __init__(
         self, mavlink_url: str, ns: str = "", domain_id: int = 0, localhost: bool = True
     ) -> None:
-        from pymavlink import mavutil
-
         self.ns = ns
-        self.conn = mavutil.mavlink_connection(
-            mavlink_url, source_system=1, source_component=191, dialect="ardupilotmega"
-        )  # 191: MAV_COMP_ID_ONBOARD_COMPUTER, as an XRCE agent host would be
+        # 191: MAV_COMP_ID_ONBOARD_COMPUTER, as an XRCE agent host would be
+        self.mavlink = CompanionMavlink(mavlink_url, 191)
         self.part = Participant(domain_id, localhost)
         p, n = self.part, ns
         self.r_ocm = p.reader(topic_name(n, "in", msgs.OffboardControlMode), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
@@ -92,41 +90,37 @@ class Px4DdsStandIn:
         self._gpos_gap = math.inf  # s between the last two GLOBAL_POSITION_INT
         self._sp: msgs.TrajectorySetpoint | None = None
         self._t_signal = -math.inf
-        self._send_lock = threading.Lock()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 
     def start(self) -> Px4DdsStandIn:
         """Start the MAVLink and DDS threads."""
-        for fn in (self._mavlink_loop, self._dds_loop):
-            th = threading.Thread(target=fn, daemon=True, name=f"px4-dds stand-in {fn.__name__}")
-            th.start()
-            self._threads.append(th)
+        self._threads = run_threads("px4-dds stand-in", self._mavlink_loop, self._dds_loop)
         return self
 
     def stop(self) -> None:
         """Stop the threads, close MAVLink and the DDS participant (idempotent)."""
-        self._stop.set()
-        for th in self._threads:
-            th.join(2.0)
-        self._threads = []
-        self.conn.close()
+        stop_threads(self._stop, self._threads)
+        self.mavlink.close()
         self.part.close()
 
     # ------------------------------------------------------------------ DDS in
 
     def _dds_loop(self) -> None:
-        """Poll the /fmu/in readers at 200 Hz (a few ms added latency at most)."""
+        """Take the /fmu/in samples as they arrive (a Cyclone wait set, no polling); the
+        GCS heartbeat the simulated PX4 expects, once a second."""
+        waiter = self.part.waiter([self.r_sp, self.r_ocm, self.r_cmd])
         hb = 0.0
-        while not self._stop.wait(0.005):
+        while not self._stop.is_set():
+            waiter.wait(0.1)
             self._handle("trajectory_setpoint", msgs.TrajectorySetpoint, self._on_setpoint)
             self._handle(
                 "offboard_control_mode", msgs.OffboardControlMode, self._on_offboard_control_mode
             )
             self._handle("vehicle_command", msgs.VehicleCommand, self._on_command)
-            if time.monotonic() - hb > 1.0:  # the GCS heartbeat the simulated PX4 expects
+            if time.monotonic() - hb > 1.0:
                 hb = time.monotonic()
-                self._mav("heartbeat_send", 18, 8, 0, 0, 4)
+                self.mavlink.heartbeat()
 
     def _handle(self, key: str, data_type: type, handler: Any) -> None:
         """Every pending sample of topic ``key`` to ``handler``; one it cannot take (a
@@ -162,7 +156,7 @@ class Px4DdsStandIn:
         vn, ve = float(sp.velocity[0]), float(sp.velocity[1])
         vd = float(sp.velocity[2]) if math.isfinite(sp.velocity[2]) else 0.0
         yaw = float(sp.yaw) if math.isfinite(sp.yaw) else 0.0
-        self._mav(
+        self.mavlink.send(
             "set_position_target_local_ned_send",
             int(time.monotonic() * 1000) & 0xFFFFFFFF, self.tgt_system, 1, mp.MAV_FRAME_LOCAL_NED,
             TYPE_MASK_VEL_YAW, 0.0, 0.0, 0.0, vn, ve, vd, 0.0, 0.0, 0.0, yaw, 0.0,
@@ -175,7 +169,7 @@ class Px4DdsStandIn:
             return
         if cmd.command == msgs.VEHICLE_CMD_DO_SET_MODE:
             self.failsafe = False  # a mode asked for ends the failsafe (user took over)
-        self._mav(
+        self.mavlink.send(
             "command_long_send",
             self.tgt_system, 1, cmd.command, 0, cmd.param1, cmd.param2, cmd.param3,
             cmd.param4, float(cmd.param5), float(cmd.param6), cmd.param7,
@@ -186,31 +180,20 @@ class Px4DdsStandIn:
 
     # ------------------------------------------------------------------ MAVLink
 
-    def _mav(self, fn: str, *args: Any) -> None:
-        with self._send_lock:
-            try:
-                getattr(self.conn.mav, fn)(*args)
-            except OSError:
-                pass
-
     def _mavlink_loop(self) -> None:
-        while not self._stop.is_set():
-            try:
-                msg = self.conn.recv_match(blocking=True, timeout=0.1)
-            except OSError:
-                time.sleep(0.05)
-                continue
-            if msg is None:
-                continue
-            kind = msg.get_type()
-            if kind == "HEARTBEAT":
-                self._on_heartbeat(msg)
-            elif kind == "GLOBAL_POSITION_INT":
-                self._on_global_position(msg)
-            elif kind == "COMMAND_ACK":
-                self._ack(int(msg.command), int(msg.result))
-            elif kind == "STATUSTEXT" and "Failsafe activated" in str(msg.text):
-                self.failsafe = True
+        self.mavlink.receive_loop(
+            self._stop,
+            {
+                "HEARTBEAT": self._on_heartbeat,
+                "GLOBAL_POSITION_INT": self._on_global_position,
+                "COMMAND_ACK": lambda m: self._ack(int(m.command), int(m.result)),
+                "STATUSTEXT": self._on_statustext,
+            },
+        )
+
+    def _on_statustext(self, msg: Any) -> None:
+        if "Failsafe activated" in str(msg.text):
+            self.failsafe = True
 
     def _on_heartbeat(self, hb: Any) -> None:
         if hb.type == mp.MAV_TYPE_GCS or hb.autopilot == 8:
@@ -218,7 +201,7 @@ class Px4DdsStandIn:
         self.tgt_system = hb.get_srcSystem()
         if self._gpos_gap > 0.05:  # GLOBAL_POSITION_INT at 50 Hz (dds_topics.yaml's rate_limit),
             # asked again at each heartbeat until it comes so: a booting PX4 drops the request
-            self._mav(
+            self.mavlink.send(
                 "command_long_send",
                 self.tgt_system, 1, mp.CMD_SET_MESSAGE_INTERVAL, 0,
                 mp.MSG_GLOBAL_POSITION_INT, 20000, 0, 0, 0, 0, 0,

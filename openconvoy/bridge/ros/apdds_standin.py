@@ -36,6 +36,7 @@ import time
 from typing import Any
 
 from openconvoy.bridge.mavlink import protocol as mp
+from openconvoy.bridge.mavlink.companion import run_threads
 from openconvoy.bridge.ros import ftf
 from openconvoy.bridge.ros.mavros_standin import TYPE_MASK_CMD_VEL, MavrosStandIn
 
@@ -85,17 +86,14 @@ class ApDdsStandIn(MavrosStandIn):
         n.subscribe(t("cmd_vel"), "geometry_msgs/TwistStamped", self._on_ap_cmd_vel)
         n.serve(t("mode_switch"), "ardupilot_msgs/ModeSwitch", self._mode_switch)
         n.serve(t("arm_motors"), "ardupilot_msgs/ArmMotors", self._arm_motors)
-        for fn in (self._receive, self._heartbeats):
-            th = threading.Thread(target=fn, daemon=True, name=f"ap_dds stand-in {fn.__name__}")
-            th.start()
-            self._threads.append(th)
+        self._threads = run_threads("ap_dds stand-in", self._receive, self._heartbeats)
         return self
 
     # ------------------------------------------------------------------ MAVLink in
 
     def _heartbeats(self) -> None:
         while not self._stop.wait(1.0):
-            self._mav("heartbeat_send", 18, 8, 0, 0, 4)  # the XRCE side is not MAVLink: ours
+            self.mavlink.heartbeat()  # the XRCE side is not MAVLink: ours
 
     def _on_heartbeat(self, hb: Any) -> None:
         if hb.type == mp.MAV_TYPE_GCS or hb.autopilot == 8:
@@ -173,7 +171,7 @@ class ApDdsStandIn(MavrosStandIn):
 
     def _mode_switch(self, req: dict[str, Any]) -> dict[str, Any]:
         mode = int(req.get("mode", 0))
-        self._mav("set_mode_send", self.tgt_system, (self.base_mode & 128) | 1, mode)
+        self.mavlink.send("set_mode_send", self.tgt_system, (self.base_mode & 128) | 1, mode)
         deadline = time.monotonic() + 1.0
         with self._mode_seen:
             while self.custom_mode != mode and time.monotonic() < deadline:
@@ -190,7 +188,7 @@ class ApDdsStandIn(MavrosStandIn):
             self.commands_dropped += 1
             return
         rate_ned = ftf.yaw_rate_enu_to_ned(float(m["twist"].get("angular", {}).get("z", 0.0)))
-        self._mav(
+        self.mavlink.send(
             "set_position_target_local_ned_send",
             int(time.monotonic() * 1000) & 0xFFFFFFFF, self.tgt_system, 1, MAV_FRAME_BODY_NED,
             TYPE_MASK_CMD_VEL, 0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, rate_ned,

@@ -50,6 +50,7 @@ import time
 from typing import Any
 
 from openconvoy.bridge.mavlink import protocol as mp
+from openconvoy.bridge.mavlink.companion import CompanionMavlink, run_threads, stop_threads
 from openconvoy.bridge.ros import ftf
 
 ROVER_CMODES: dict[int, str] = {
@@ -133,15 +134,10 @@ class MavrosStandIn:
         rate_hz: float = 20.0,
         conn_timeout_s: float = CONN_TIMEOUT_S,
     ):
-        from pymavlink import mavutil
-
         self.node, self.ns, self.rate_hz = node, ns.rstrip("/"), rate_hz
         self.conn_timeout_s = conn_timeout_s  # MAVROS's ``conn/timeout`` parameter
         # MAVROS's defaults: system_id 1, component_id 240 (MAV_COMP_ID_UDP_BRIDGE).
-        self.conn = mavutil.mavlink_connection(
-            mavlink_url, source_system=1, source_component=240, dialect="ardupilotmega"
-        )
-        self._send_lock = threading.Lock()
+        self.mavlink = CompanionMavlink(mavlink_url, 240)
         self._stop = threading.Event()
         self._acks: dict[int, tuple[threading.Event, list[int]]] = {}
         self.tgt_system = 0
@@ -176,27 +172,14 @@ class MavrosStandIn:
         )
         n.serve(t("set_mode"), "mavros_msgs/SetMode", self._set_mode)
         n.serve(t("cmd/arming"), "mavros_msgs/CommandBool", self._arming)
-        for fn in (self._receive, self._heartbeats):
-            th = threading.Thread(target=fn, daemon=True, name=f"mavros stand-in {fn.__name__}")
-            th.start()
-            self._threads.append(th)
+        self._threads = run_threads("mavros stand-in", self._receive, self._heartbeats)
         return self
 
     def stop(self) -> None:
-        self._stop.set()
-        for th in self._threads:
-            th.join(2.0)
-        self._threads = []
-        self.conn.close()
+        stop_threads(self._stop, self._threads)
+        self.mavlink.close()
 
     # ------------------------------------------------------------------ MAVLink out
-
-    def _mav(self, fn: str, *args: Any) -> None:
-        with self._send_lock:
-            try:
-                getattr(self.conn.mav, fn)(*args)
-            except OSError:
-                pass
 
     def _heartbeats(self) -> None:
         """The GCS heartbeat (1 Hz); the connection timeout (``conn/timeout``)."""
@@ -204,7 +187,7 @@ class MavrosStandIn:
         while not self._stop.wait(0.25):
             n += 1
             if n % 4 == 0:
-                self._mav("heartbeat_send", 18, 8, 0, 0, 4)  # ONBOARD_CONTROLLER, INVALID, ACTIVE
+                self.mavlink.heartbeat()
             if self.connected and time.monotonic() - self.t_heartbeat > self.conn_timeout_s:
                 self.connected = False
                 self.node.publish(
@@ -215,7 +198,7 @@ class MavrosStandIn:
     def _request_streams(self) -> None:
         us = 1e6 / self.rate_hz
         for msg_id in (mp.MSG_GLOBAL_POSITION_INT, mp.MSG_ATTITUDE):
-            self._mav(
+            self.mavlink.send(
                 "command_long_send",
                 self.tgt_system, 1, mp.CMD_SET_MESSAGE_INTERVAL, 0, msg_id, us, 0, 0, 0, 0, 0,
             )  # fmt: skip
@@ -223,26 +206,22 @@ class MavrosStandIn:
     # ------------------------------------------------------------------ MAVLink in
 
     def _receive(self) -> None:
-        while not self._stop.is_set():
-            try:
-                msg = self.conn.recv_match(blocking=True, timeout=0.2)
-            except OSError:
-                time.sleep(0.05)
-                continue
-            if msg is None:
-                continue
-            kind = msg.get_type()
-            if kind == "HEARTBEAT":
-                self._on_heartbeat(msg)
-            elif kind == "GLOBAL_POSITION_INT":
-                self._on_global_position(msg)
-            elif kind == "ATTITUDE":
-                self._on_attitude(msg)
-            elif kind == "COMMAND_ACK":
-                slot = self._acks.get(int(msg.command))
-                if slot is not None:
-                    slot[1].append(int(msg.result))
-                    slot[0].set()
+        self.mavlink.receive_loop(
+            self._stop,
+            {
+                "HEARTBEAT": self._on_heartbeat,
+                "GLOBAL_POSITION_INT": self._on_global_position,
+                "ATTITUDE": self._on_attitude,
+                "COMMAND_ACK": self._on_ack,
+            },
+            timeout_s=0.2,
+        )
+
+    def _on_ack(self, msg: Any) -> None:
+        slot = self._acks.get(int(msg.command))
+        if slot is not None:
+            slot[1].append(int(msg.result))
+            slot[0].set()
 
     def _on_heartbeat(self, hb: Any) -> None:
         if hb.type == mp.MAV_TYPE_GCS or hb.autopilot == 8:
@@ -325,14 +304,14 @@ class MavrosStandIn:
                 return {"mode_sent": False}
             custom = cm
             base_mode |= (self.base_mode & 128) | 1  # SAFETY_ARMED as now, CUSTOM_MODE_ENABLED
-        self._mav("set_mode_send", self.tgt_system, base_mode, custom)
+        self.mavlink.send("set_mode_send", self.tgt_system, base_mode, custom)
         return {"mode_sent": True}
 
     def _arming(self, req: dict[str, Any]) -> dict[str, Any] | None:
         slot: tuple[threading.Event, list[int]] = (threading.Event(), [])
         self._acks[mp.CMD_COMPONENT_ARM_DISARM] = slot
         arm = 1.0 if req.get("value") else 0.0
-        self._mav(
+        self.mavlink.send(
             "command_long_send",
             self.tgt_system, 1, mp.CMD_COMPONENT_ARM_DISARM, 1, arm, 0, 0, 0, 0, 0, 0,
         )  # fmt: skip
@@ -346,7 +325,7 @@ class MavrosStandIn:
         vn = ftf.transform_frame_enu_ned((v.get("x", 0.0), v.get("y", 0.0), v.get("z", 0.0)))
         p = m.get("position", {})
         pn = ftf.transform_frame_enu_ned((p.get("x", 0.0), p.get("y", 0.0), p.get("z", 0.0)))
-        self._mav(
+        self.mavlink.send(
             "set_position_target_local_ned_send",
             _ms(m), self.tgt_system, 1, int(m.get("coordinate_frame", 1)), int(m.get("type_mask", 0)),
             *pn, *vn, 0.0, 0.0, 0.0,
@@ -358,7 +337,7 @@ class MavrosStandIn:
     def _on_raw_global(self, m: dict[str, Any]) -> None:
         v = m.get("velocity", {})
         vn = ftf.transform_frame_enu_ned((v.get("x", 0.0), v.get("y", 0.0), v.get("z", 0.0)))
-        self._mav(
+        self.mavlink.send(
             "set_position_target_global_int_send",
             _ms(m), self.tgt_system, 1, int(m.get("coordinate_frame", 6)), int(m.get("type_mask", 0)),
             int(float(m.get("latitude", 0.0)) * 1e7), int(float(m.get("longitude", 0.0)) * 1e7),
@@ -371,7 +350,7 @@ class MavrosStandIn:
     def _on_cmd_vel(self, m: dict[str, Any]) -> None:
         v, a = m.get("linear", {}), m.get("angular", {})
         vn = ftf.transform_frame_enu_ned((v.get("x", 0.0), v.get("y", 0.0), v.get("z", 0.0)))
-        self._mav(
+        self.mavlink.send(
             "set_position_target_local_ned_send",
             int(time.monotonic() * 1000) & 0xFFFFFFFF, self.tgt_system, 1, mp.MAV_FRAME_LOCAL_NED,
             TYPE_MASK_CMD_VEL, 0.0, 0.0, 0.0, *vn, 0.0, 0.0, 0.0,

@@ -176,7 +176,7 @@ def test_mixed_links_demo_takes_each_link_from_the_convoy_file(tmp_path: Path) -
     assert links == [
         "mavlink",
         "mavros (ROS 1, /vehicle_1/mavros)",
-        "ap-dds (ROS 2, /vehicle_2/ap)",
+        "ap-dds (DDS domain 0, /vehicle_2/ap)",  # Cyclone DDS, the default
     ]
     assert run["deploy"]["duration_s"] > DURATION_S - 1.0
     assert run["deploy"]["collisions"] == 0 and run["deploy"]["min_gap_m"] > 13.0

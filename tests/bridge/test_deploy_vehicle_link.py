@@ -36,7 +36,7 @@ def test_each_vehicle_gets_its_tables_link_unless_link_is_given(tmp_path):
         "px4-dds (domain 7, ns vehicle_2)",
     ]
     given = with_vehicle_link(_args(str(path), 1, link="ap-dds", ap_ns="/x/ap"), convoy)
-    assert _link_name(given) == "ap-dds (ROS 2, /x/ap)"  # the command line wins
+    assert _link_name(given) == "ap-dds (DDS domain 0, /x/ap)"  # the command line wins
     path.write_text(TABLES.split("[[vehicle]]")[0])  # no tables: MAVLink
     assert with_vehicle_link(_args(str(path), 1), load_convoy(path)).link == "mavlink"
 

@@ -24,7 +24,7 @@ from openconvoy.testing.links import FakeLink, RecordingLink, ReplayLink, Script
 from openconvoy.testing.parity import same, tree_files
 from openconvoy.testing.policies import FixedPolicy
 from openconvoy.testing.v2v import Heard, ReplayV2V
-from openconvoy.testing.waiting import free_port, run_for, wait_for, wait_until
+from openconvoy.testing.waiting import drive_on_heading, free_port, run_for, wait_for, wait_until
 
 __all__ = [
     "WALL0",
@@ -40,6 +40,7 @@ __all__ = [
     "run_for",
     "same",
     "tree_files",
+    "drive_on_heading",
     "wait_for",
     "wait_until",
 ]

@@ -3,6 +3,7 @@ something holds, driving a link for a while."""
 
 from __future__ import annotations
 
+import math
 import socket
 import time
 from collections.abc import Callable
@@ -66,3 +67,27 @@ def run_for(
 
 
 __all__ = ["POLL_S", "free_port", "run_for", "wait_for", "wait_until"]
+
+
+def drive_on_heading(
+    link: Any, heading_rad: float, speed_mps: float = 1.5, timeout_s: float = 25.0
+) -> tuple[Callable[[], bool], list[float]]:
+    """Drive ``link`` (a ``VehicleLink``, armed) at ``speed_mps`` on ``heading_rad`` until
+    its telemetry shows it faster than 1 m/s within 0.1 rad of the heading (``AssertionError``
+    after ``timeout_s``); returns the one-tick step (poll, send the setpoint, record the
+    telemetry's x, m; True while on the heading) and the recorded x, for further checks."""
+    xs: list[float] = []
+
+    def step() -> bool:
+        tel = link.poll()
+        link.setpoints.send(speed_mps, heading_rad)
+        if tel is None:
+            return False
+        xs.append(tel.state.x)
+        return (
+            tel.state.speed > 1.0
+            and abs(math.remainder(tel.state.heading - heading_rad, 2 * math.pi)) < 0.1
+        )
+
+    assert wait_for(step, timeout_s), f"the vehicle did not settle on {heading_rad:.2f} rad"
+    return step, xs

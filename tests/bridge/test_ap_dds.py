@@ -16,7 +16,7 @@ from openconvoy.bridge.ros.apdds_link import ApDdsLink, yaw_rate_for
 from openconvoy.bridge.ros.apdds_standin import ApDdsStandIn, body_forward_speed
 from openconvoy.bridge.ros.ros2 import AP_MSG_DIR, LoopbackNetns, Ros2Node, qos_for, type_hashes
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
-from openconvoy.testing import free_port, wait_for
+from openconvoy.testing import drive_on_heading, free_port, wait_for
 
 ARDUPILOT_MSGS = Path(__file__).resolve().parents[1] / "data" / "ros" / "ardupilot-msgs"
 
@@ -85,21 +85,7 @@ def test_spy_sees_cmd_vel_and_vehicle_drives_west(netns: LoopbackNetns) -> None:
             "TRANSIENT_LOCAL",
         )
         link.modes.prepare_and_arm(20.0)
-        heading = math.pi  # west
-        xs: list[float] = []
-
-        def driving_west() -> bool:
-            tel = link.poll()
-            link.setpoints.send(1.5, heading)
-            if tel is None:
-                return False
-            xs.append(tel.state.x)
-            return (
-                tel.state.speed > 1.0
-                and abs(math.remainder(tel.state.heading - heading, 2 * math.pi)) < 0.1
-            )
-
-        assert wait_for(driving_west, 25.0)
+        driving_west, xs = drive_on_heading(link, math.pi)  # west
         x0 = xs[-1]
         assert wait_for(lambda: driving_west() and xs[-1] < x0 - 1.0, 5.0)
         assert vehicle.state().speed > 1.0  # forwards, not reversing

@@ -30,7 +30,7 @@ from openconvoy.bridge.ros.ros2 import (
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
 from openconvoy.comms.dds import V2VBytes
 from openconvoy.comms.netns import IFACE
-from openconvoy.testing import free_port, wait_for
+from openconvoy.testing import drive_on_heading, free_port, wait_for
 
 ARDUPILOT_MSGS = Path(__file__).resolve().parents[1] / "data" / "ros" / "ardupilot-msgs"
 IDL = {
@@ -167,21 +167,7 @@ def test_cyclone_link_drives_the_vehicle_through_the_rclpy_stand_in(veth_netns) 
     try:
         link.connect(30.0)
         link.modes.prepare_and_arm(30.0)
-        heading = math.pi
-        xs: list[float] = []
-
-        def driving_west() -> bool:
-            tel = link.poll()
-            link.setpoints.send(1.5, heading)
-            if tel is None:
-                return False
-            xs.append(tel.state.x)
-            return (
-                tel.state.speed > 1.0
-                and abs(math.remainder(tel.state.heading - heading, 2 * math.pi)) < 0.1
-            )
-
-        assert wait_for(driving_west, 25.0)
+        driving_west, xs = drive_on_heading(link, math.pi)  # west
         x0 = xs[-1]
         assert wait_for(lambda: driving_west() and xs[-1] < x0 - 1.0, 5.0)
         assert vehicle.state().speed > 1.0

@@ -23,7 +23,7 @@ import numpy as np
 
 from openconvoy.core.mpc import MPCConfig, PlantModel, Prediction, Target, build_qp, solve
 from openconvoy.core.observation import DERIVED_FEATURES, STATE_FEATURES
-from openconvoy.core.plans import Plan
+from openconvoy.core.plans import Plan, PlanHistory, stitched_distance, stitched_speeds_at
 from openconvoy.core.policy import make_action
 from openconvoy.core.spacing import speed_gap_m
 from openconvoy.policies.classical import ClassicalConfig, ClassicalPolicy
@@ -38,6 +38,9 @@ _ARC, _DESIRED, _TSPEED, _VALID = (
 PLAN_MISMATCH_MPS = 1.0
 """A plan whose speed at the newest state's time exceeds that state's by more (m/s) only
 lowers the forecast (the slower of it and constant velocity): its sender was overridden."""
+
+PLAN_KEEP_EXTRA_S = 1.0
+"""How long (s) past the member's stop age a replaced plan is kept (``PlanHistory``)."""
 
 
 class MPCPolicy:
@@ -55,6 +58,9 @@ class MPCPolicy:
         self._prediction = Prediction(self.model, self.mpc.horizon, self.mpc.step_s)
         self.fallbacks = 0
         self.solves = 0
+        # Plans are read back to the newest state of their sender, which the member keeps
+        # up to its stop age.
+        self._history = PlanHistory(config.member.ladder.stop_after_s + PLAN_KEEP_EXTRA_S)
         self.reset()
 
     # --- ConvoyPolicy ----------------------------------------------------------------
@@ -75,6 +81,7 @@ class MPCPolicy:
         self._classical.reset(seed)
         self._u_prev: float | None = None
         self._plans: Mapping[int, Plan] = {}
+        self._history.clear()
         self._vehicle_id: int | None = None
         self._now: float | None = None
         self._own_plan: Plan | None = None
@@ -95,6 +102,7 @@ class MPCPolicy:
 
     def observe_plans(self, plans: Mapping[int, Plan], vehicle_id: int, now: float) -> None:
         self._plans = plans
+        self._history.add(plans, now)
         self._vehicle_id = vehicle_id
         self._now = now
 
@@ -216,12 +224,12 @@ class MPCPolicy:
             )
         return float(u[0])
 
-    def _plan_of(self, t: dict[str, float]) -> Plan | None:
-        """The plan to read for target ``t`` (None: the member's estimate at constant
-        velocity). A plan is fresh while its age is within ``plan_fresh_s`` (plus the
-        sender's delay, by which its ``t0`` leads); an older one is read shifted in time
-        (``shift``) or dropped (``constant-velocity``). A stale target whose member
-        estimate has it stopped keeps that (safe) estimate."""
+    def _plans_of(self, t: dict[str, float]) -> list[Plan] | None:
+        """The plans to read for target ``t``, oldest first (None: the member's estimate
+        at constant velocity). The newest is fresh while its age is within
+        ``plan_fresh_s`` (plus the sender's delay, by which its ``t0`` leads); older, the
+        plans are read shifted in time (``shift``) or dropped (``constant-velocity``). A
+        stale target whose member estimate has it stopped keeps that (safe) estimate."""
         if not self.mpc.use_plans or self._now is None or self._vehicle_id is None:
             return None
         m = int(t["m"])
@@ -234,37 +242,45 @@ class MPCPolicy:
         fresh = self._now - plan.t0 <= self.mpc.plan_fresh_s
         if not fresh and self.mpc.plan_fallback == "constant-velocity":
             return None
-        return plan
+        return self._history.plans(vid) or [plan]
 
     def _forecast_now(self, t: dict[str, float]) -> float:
-        plan = self._plan_of(t)
-        if plan is None:
+        plans = self._plans_of(t)
+        if plans is None:
             return t["speed"]
         assert self._now is not None
-        return float(plan.speeds_at(np.array([self._now]))[0])
+        return float(stitched_speeds_at(plans, np.array([self._now]))[0])
 
     def _forecast(self, t: dict[str, float], times: np.ndarray) -> tuple[np.ndarray, float]:
         """Target ``t``'s speeds at ``times`` (s from now) and the correction (m) to its
         gap. The member dead-reckons from the newest message (constant speed while fresh,
         braking once stale: ``core.estimate``), covering ``(v_msg + v_est)/2 · age``; with
-        a plan, the distance the plan covers since that message replaces it."""
-        plan = self._plan_of(t)
-        if plan is None:
+        plans, the distance they cover since that message (each instant read from the
+        plan newest by then: ``core.plans.stitched_distance``) replaces it."""
+        plans = self._plans_of(t)
+        if plans is None:
             return np.full(len(times), t["speed"]), 0.0
         assert self._now is not None
         now = self._now
         age = max(t["age"], 0.0)
+        ahead = stitched_speeds_at(plans, now + times)
         # A plan well above the newest state (its sender overridden: a stop, a fault, and
         # the braking plan it then shares lost) only lowers the forecast: the slower of
         # the two, from the member's estimate of that state.
-        if float(plan.speeds_at(np.array([now - age]))[0]) - t["msg_speed"] > PLAN_MISMATCH_MPS:
-            return np.minimum(plan.speeds_at(now + times), t["speed"]), 0.0
+        then = float(stitched_speeds_at(plans, np.array([now - age]))[0])
+        if then - t["msg_speed"] > PLAN_MISMATCH_MPS:
+            return np.minimum(ahead, t["speed"]), 0.0
+        # A state newer than every plan (the plans lost, the state heard) is the better
+        # word on the speed: the plan is read anchored to it, its shape kept.
+        offset = t["msg_speed"] - then if now - age > plans[-1].t0 else 0.0
+        ahead = np.maximum(ahead + offset, 0.0)
         if t["speed"] > 0.0 or t["msg_speed"] <= 0.0:
             member_d = 0.5 * (t["msg_speed"] + t["speed"]) * age
         else:  # stopped by the braking estimate: how far it went is the gap's excess
             member_d = min(max(t["arc"] - t["msg_dist"], 0.0), t["msg_speed"] * age)
-        corr = plan.distance(now - age, now) - member_d if age > 0.0 else 0.0
-        return plan.speeds_at(now + times), corr
+        covered = stitched_distance(plans, now - age, now) + offset * age
+        corr = covered - member_d if age > 0.0 else 0.0
+        return ahead, corr
 
     def _pred_length(self, first: dict[str, float], v_now: float) -> float:
         """The predecessor's length (m): from the desired gap's half lengths where the

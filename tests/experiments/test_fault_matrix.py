@@ -2,8 +2,8 @@
 ``emergency-braking``, ``highway-cut-in`` × faults halt/silent/dead on each vehicle ×
 PER 0 / 0.3 / 0.6 × 3 seeds: 0 collisions.
 
-The 13 classical (PD) presets — ``<name>-pd`` aliases are the same configurations — × 4
-scenarios × 9 faults × 3 PERs × 3 seeds = 4,212 runs. The first three scenarios run batched (``experiments.batched.run.simulate``: one ``VectorConvoyEnv`` of
+The 14 classical (PD) presets (``paper-tuned`` among them) — ``<name>-pd`` aliases are
+the same configurations — × 4 scenarios × 9 faults × 3 PERs × 3 seeds = 4,536 runs. The first three scenarios run batched (``experiments.batched.run.simulate``: one ``VectorConvoyEnv`` of
 the 9 PER × seed runs per preset, scenario and fault), ``highway-cut-in`` one
 ``ConvoyEnv`` per run (``run_sim``; the batched env has no traffic).
 
@@ -128,7 +128,7 @@ def test_fault_matrix_never_collides() -> None:
     print(f"fault matrix: {runs} runs, {len(collided)} collided")
     for row in collided:
         print("collided:", *row)
-    assert len(PD_PRESETS) == 13 and runs == 13 * 4 * 9 * 3 * 3 == 4212
+    assert len(PD_PRESETS) == 14 and runs == 14 * 4 * 9 * 3 * 3 == 4536
     assert collided == []
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from openconvoy.cli import main
+from openconvoy.core.spacing import HIGHWAY_SPACING, SpacingConfig
 from openconvoy.experiments.executor import ExecutorConfig
 from openconvoy.experiments.leaderboard import (
     KEYS,
@@ -23,6 +24,7 @@ from openconvoy.experiments.leaderboard import (
     table_markdown,
     with_overrides,
 )
+from openconvoy.experiments.runs import RunConfig, run_sim
 
 T_975_2 = 4.302652729696143
 """Student's t, 97.5th percentile, 2 degrees of freedom (4.303 in any t table)."""
@@ -214,7 +216,7 @@ def test_the_shipped_leaderboard_is_the_issues_grid():
     path = Path(__file__).resolve().parents[2] / "openconvoy/experiments/examples/leaderboard.toml"
     config = LeaderboardConfig.from_toml(path)
     assert config.scenarios == ("paper", "track", "emergency-braking", "highway-cut-in")
-    assert config.policies == ("paper", "paper-mpc", "paper-mpc-state")
+    assert config.policies == ("paper", "paper-tuned", "paper-mpc", "paper-mpc-state")
     assert config.seed_values == tuple(range(10))
     loss = {c.name: c for c in config.loss}
     assert loss["per"].pers == (0.0, 0.2, 0.4, 0.6, 0.8) and loss["per"].model == "bernoulli"
@@ -223,6 +225,41 @@ def test_the_shipped_leaderboard_is_the_issues_grid():
     experiment, labels = config.cell("highway-cut-in", loss["per"])
     assert experiment.policy["paper-mpc-highway-cut-in"]["speed_limit_mps"] == 40.0
     assert sorted(labels.values()) == sorted(config.policies)
+    # the highway scenarios run every policy with the highway spacing, the small-car
+    # scenarios with the presets' own
+    for scenario in ("emergency-braking", "highway-cut-in"):
+        experiment, _ = config.cell(scenario, loss["per"])
+        for table in experiment.policy.values():
+            spacing = table["member"]["spacing"]
+            assert SpacingConfig(**spacing) == HIGHWAY_SPACING
+    assert config.cell("paper", loss["per"])[0].policy == {}
+
+
+def _eb(tmp_path: Path, base: str, highway: bool) -> dict:
+    """``base`` on ``emergency-braking`` at PER 0.4, seed 0, as the shipped leaderboard
+    runs it (``highway``) or with the preset's 15 m."""
+    extra = ""
+    if highway:
+        h = HIGHWAY_SPACING
+        extra = (
+            f'[policy.member.spacing]\nkind = "{h.kind}"\nstandstill_m = {h.standstill_m}\n'
+            f"headway_s = {h.headway_s}\n"
+        )
+    path = tmp_path / f"{base}-{highway}.toml"
+    path.write_text(f'[policy]\nbase = "{base}"\nspeed_limit_mps = 40.0\n{extra}')
+    r = run_sim(RunConfig(scenario="emergency-braking", policy=str(path), per=0.4, seed=0))
+    return {"metrics": r.metrics, "modes": set(np.asarray(r.log["mode"]).tolist())}
+
+
+def test_the_highway_spacing_measures_control_not_an_emergency_stop(tmp_path: Path):
+    """With the presets' 15 m at 25 m/s the braking rule stops the followers in the first
+    second under loss and the leader drives away (p95 ~130 m); with the highway spacing
+    they follow the leader's stop (docs/leaderboard.md)."""
+    narrow = _eb(tmp_path, "paper-mpc", highway=False)
+    wide = _eb(tmp_path, "paper-mpc", highway=True)
+    assert "failsafe" in narrow["modes"] and narrow["metrics"]["p95_platooning_error_m"] > 50.0
+    assert "failsafe" not in wide["modes"] and wide["metrics"]["p95_platooning_error_m"] < 5.0
+    assert wide["metrics"]["collisions"] == 0
 
 
 def test_part_of_a_leaderboard_then_more_shares_its_directory(tmp_path: Path):

@@ -13,7 +13,13 @@ import pytest
 
 from openconvoy.cli import main
 from openconvoy.core.mpc import MPCConfig, PlantModel
-from openconvoy.core.plans import Plan, PlanStore
+from openconvoy.core.plans import (
+    Plan,
+    PlanHistory,
+    PlanStore,
+    stitched_distance,
+    stitched_speeds_at,
+)
 from openconvoy.envs.vehicles import VEHICLE_PRESETS
 from openconvoy.experiments.batched.run import refusal
 from openconvoy.experiments.runs import RunConfig, build_env, run_sim
@@ -95,6 +101,41 @@ def test_plan_store_keeps_the_newest_plan_of_kept_senders() -> None:
     # read shifted in time: interpolated inside, the last speed held after the end
     assert a.speeds_at(np.array([10.05, 10.2, 12.0])).tolist() == pytest.approx([1.5, 3.0, 3.0])
     assert a.distance(10.0, 10.2) == pytest.approx(0.4)
+
+
+def test_plans_are_stitched_over_the_time_each_was_the_newest() -> None:
+    """PER 0.8 on ``paper``, seed 7 (the leaderboard's worst seed): follower 1 held the
+    leader's state from 40.1 s (2.0 m/s, braking to 1) and a plan from 41.4 s; read alone,
+    that plan took the leader at its first speed, 1.08 m/s, over the 1.3 s between."""
+    braking = Plan(0, 40.0, 0.5, (2.0, 1.5, 1.0), 0.3)  # 2 -> 1 m/s over 1 s
+    newer = Plan(0, 41.4, 0.5, (1.08, 1.0, 1.0), 0.3)
+    history = PlanHistory(keep_s=4.0)
+    history.add({0: braking}, 40.1)
+    history.add({0: newer}, 41.4)
+    history.add({0: newer}, 41.5)  # the same plan again: held once
+    plans = history.plans(0)
+    assert plans == [braking, newer]
+    # 40.1 -> 41.4 from the braking plan (1.9 -> 1 m/s: 1.465 m), not 1.3 s at 1.08 m/s
+    alone = newer.distance(40.1, 41.4)
+    stitched = stitched_distance(plans, 40.1, 41.4)
+    assert alone == pytest.approx(1.08 * 1.3)
+    assert stitched == pytest.approx(0.5 * (1.9 + 1.0) * 0.9 + 1.0 * 0.4, abs=0.01)
+    times = np.array([39.0, 40.5, 41.4, 42.0])
+    assert stitched_speeds_at(plans, times).tolist() == pytest.approx([2.0, 1.5, 1.08, 1.0])
+    # replaced more than keep_s ago: dropped; the newest always stays
+    history.add({0: Plan(0, 46.0, 0.5, (1.0,), 0.3)}, 46.0)
+    assert [p.t0 for p in history.plans(0)] == [41.4, 46.0]
+
+
+def test_the_formerly_worst_seed_at_per_08_stays_within_the_bullet() -> None:
+    """The leaderboard's worst ``paper-mpc`` run at PER 0.8 (seed 7: 0.518 m before the
+    safety fix, 0.438 m on it): with the plans stitched and a newer state anchoring an
+    older plan, 0.246 m. Its errors came from the leader's 2 -> 1 m/s step at 40 s read
+    from a plan newer than the state (0.35 m short), and a plan 2.7 s old read at its
+    last speed beside fresh states 0.8 m/s faster (seed 9, follower 2, 21-24 s)."""
+    m = run_sim(RunConfig(scenario="paper", policy="paper-mpc", per=0.8, seed=7)).metrics
+    assert m["collisions"] == 0
+    assert m["p95_platooning_error_m"] <= 0.3  # 0.438 m before
 
 
 def _short(policy: str, per: float, seed: int = 0) -> dict:

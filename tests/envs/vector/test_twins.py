@@ -21,14 +21,19 @@ from hypothesis import strategies as st
 
 from openconvoy.comms.loss import counter_uniform
 from openconvoy.core import estimate, ladder, observation, safety, spacing, state
+from openconvoy.core.ladder import LadderConfig
+from openconvoy.core.spacing import SpacingConfig
+from openconvoy.core.state import VehicleState
 from openconvoy.core.trail import Trail
 from openconvoy.envs import gps, plant
 from openconvoy.envs.vector import math as vmath
+from openconvoy.envs.vector import member as vmember
 from openconvoy.envs.vector import observation as _kernels  # noqa: F401 - registers ego_state
 from openconvoy.envs.vector.channel import counter_uniform4
 from openconvoy.envs.vector.gps import counter_normals
 from openconvoy.envs.vector.member import speed_gap  # registers the rules with numba
-from openconvoy.envs.vector.plant import ROWS  # noqa: F401 - registers the plant's rules
+from openconvoy.envs.vector.plant import COS_H, HEADING, ROWS, SIN_H, SPEED, X, Y
+from openconvoy.envs.vector.rx import FIELDS, HC, HH, HS, HV, HX, HY, T
 from openconvoy.envs.vector.trail import (
     CAPACITY,
     TAIL,
@@ -297,3 +302,116 @@ def test_the_ring_trail_projects_and_reads_as_trail(
     px, py = point_at(tr, tail, n, 0, 0, hx, hy, hh, s_head - back, k + 1, s_head)
     wx, wy = ref.point_at((hx, hy), hh, s_head - back)
     assert abs(px - wx) <= tol and abs(py - wy) <= tol
+
+
+# The member's twins (envs.vector.member) against core's rules and ConvoyMember's.
+def _history(x: float, y: float, v: float, h: float, t_msg: float) -> np.ndarray:
+    """One link's R^i buffer (B = L = 1, depth 1) holding one message, its heading's
+    cosine and sine as ``vector.rx`` pushes them."""
+    hist = np.zeros((1, 1, 1, FIELDS))
+    hist[0, 0, 0, [T, HX, HY, HV, HH]] = t_msg, x, y, v, h
+    hist[0, 0, 0, HC], hist[0, 0, 0, HS] = math.cos(h), math.sin(h)
+    return hist
+
+
+coord = st.floats(-1e3, 1e3)
+heading = st.floats(-math.pi, math.pi)
+ages = st.floats(0.0, 5.0)
+
+
+@FAST
+@given(coord, coord, speed, heading, ages, st.floats(0, 1), st.floats(0.5, 3), positive)
+def test_member_estimate_is_dead_reckon(
+    x: float, y: float, v: float, h: float, age: float, fresh: float, stop: float, decel: float
+) -> None:
+    now = 100.0
+    msg = VehicleState(1, now - age, x, y, v, h)
+    want = estimate.dead_reckon(msg, now, fresh, stop, decel)
+    got = vmember.estimate(
+        _history(x, y, v, h, now - age), np.ones((1, 1), np.int64), np.array([decel]),
+        0, 0, now, stop, fresh,
+    )  # fmt: skip
+    assert got[0] == (want is not None)
+    if want is not None:
+        assert got[1:] == (want.x, want.y, want.speed, want.heading, want.age)
+    # no link, or a link never heard: invalid
+    none = np.zeros((1, 1), np.int64)
+    assert not vmember.estimate(_history(x, y, v, h, 0.0), none, np.ones(1), 0, 0, now, stop, 0)[0]
+    assert not vmember.estimate(_history(x, y, v, h, 0.0), none + 1, np.ones(1), 0, -1, 1, 9, 0)[0]
+
+
+@FAST
+@given(st.sampled_from([0, 1, 2]), speed, st.floats(0, 40), st.floats(0, 10), st.floats(0, 3),
+       st.floats(0, 0.1), st.floats(0, 10), st.floats(0, 10))  # fmt: skip
+def test_member_pair_gap_is_the_spacing_rule(
+    kind: int, v: float, dist: float, s0: float, h: float, q: float, lb: float, la: float
+) -> None:
+    sp = np.array([kind, dist, s0, h, q], float)
+    want = spacing.pair_gap_m(kind, v, dist, s0, h, q, 0.5 * (lb + la))
+    assert vmember.pair_gap(sp, v, lb, la) == want
+
+
+@FAST
+@given(st.floats(-1e3, 1e3) | st.just(-math.inf), st.floats(0, 1e3))
+def test_member_link_age_is_the_message_age(newest: float, t: float) -> None:
+    # ConvoyMember's age of a link's newest message: never negative, inf when unheard
+    want = math.inf if newest == -math.inf else max(0.0, t - newest)
+    assert vmember.link_age(np.array([[newest]]), 0, 0, t) == want
+
+
+def _own(x: float, y: float, v: float, h: float) -> np.ndarray:
+    """``own`` (``plant.ROWS``, B = 1, N = 1) of one vehicle, its heading's cosine and sine
+    as the plant writes them."""
+    own = np.zeros((ROWS, 1, 1))
+    own[[X, Y, SPEED, HEADING, COS_H, SIN_H], 0, 0] = x, y, v, h, math.cos(h), math.sin(h)
+    return own
+
+
+@FAST
+@given(coord, coord, speed, heading, coord, coord, speed, heading)
+def test_member_gap_and_closing_is_the_estimate_rule(
+    ox: float, oy: float, ov: float, oh: float, ex: float, ey: float, ev: float, eh: float
+) -> None:
+    own = VehicleState(1, 0.0, ox, oy, ov, oh)
+    est = estimate.TargetEstimate(ex, ey, ev, eh, 0.0, False)
+    got = vmember._gap_and_closing(
+        _own(ox, oy, ov, oh), 0, 0, ex, ey, ev, math.cos(eh), math.sin(eh)
+    )
+    assert got == estimate.gap_and_closing(own, est)
+
+
+def _member(needed: list[int], newest: list[float], lad: LadderConfig, **arrays) -> tuple:
+    """A ``vector.member.Member`` for one convoy of a leader and one follower, whose
+    ``needed`` links last heard at ``newest`` (s; -inf: never), with ``lad``; the rest
+    zero unless given."""
+    z = np.zeros((1, 1, 1, FIELDS))
+    fields = {
+        "low": np.zeros((1, 2)), "high": np.zeros((1, 2)), "hist": z,
+        "hist_n": np.zeros((1, 1), np.int64), "newest": np.array([newest]),
+        "needed": np.array([[-1] * len(needed), needed], np.int64),
+        "pred_link": np.zeros(1, np.int64), "lead_link": np.full(2, -1, np.int64),
+        "link_decel": np.ones(1), "decel": np.ones(2), "lengths": np.full(2, 4.0),
+        "spacing": vmember.pack_spacing(SpacingConfig()), "ladder": vmember.pack_ladder(lad),
+        "fresh_age": 0.5, "max_dh": 0.1, "rule": np.zeros((4, 1)), "lead_rule": np.zeros(4),
+        "emergency": False,
+    }  # fmt: skip
+    fields.update(arrays)
+    return vmember.Member(**fields)
+
+
+@FAST
+@given(
+    st.lists(st.floats(0.0, 10.0) | st.just(-math.inf), min_size=1, max_size=3),
+    st.floats(0.01, 3.0),
+    st.floats(0.01, 3.0),
+    st.floats(0.0, 10.0),
+)
+def test_member_rung_is_the_ladders_rung_of_the_oldest_needed(
+    heard: list[float], degrade: float, extra: float, now: float
+) -> None:
+    lad = LadderConfig(enabled=True, degrade_after_s=degrade, stop_after_s=degrade + extra)
+    m = _member(list(range(len(heard))), heard, lad)
+    nan = np.full((2, 1, 2), math.nan)  # no ranging reading, no predecessor estimate
+    got = vmember._rung(_own(0, 0, 0, 0).repeat(2, axis=2), 0, 1, m, nan, nan, now)
+    oldest = max(max(0.0, now - t) for t in heard)
+    assert ladder.MODES[got] == ladder.rung(oldest, lad)

@@ -19,13 +19,20 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from openconvoy.comms import loss
 from openconvoy.comms.loss import counter_uniform
 from openconvoy.core import estimate, ladder, observation, safety, spacing, state
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState
 from openconvoy.core.trail import Trail
-from openconvoy.envs import gps, plant
+from openconvoy.envs import gps, plant, scenarios
+from openconvoy.envs.channel import advance_kinematics
+from openconvoy.envs.path import Path
+from openconvoy.envs.vector import channel as vchannel
+from openconvoy.envs.vector import gps as vgps
+from openconvoy.envs.vector import leader as vleader
 from openconvoy.envs.vector import math as vmath
 from openconvoy.envs.vector import member as vmember
 from openconvoy.envs.vector import observation as _kernels  # noqa: F401 - registers ego_state
@@ -415,3 +422,109 @@ def test_member_rung_is_the_ladders_rung_of_the_oldest_needed(
     got = vmember._rung(_own(0, 0, 0, 0).repeat(2, axis=2), 0, 1, m, nan, nan, now)
     oldest = max(max(0.0, now - t) for t in heard)
     assert ladder.MODES[got] == ladder.rung(oldest, lad)
+
+
+# The channel's pure helpers (envs.vector.channel) against comms.loss and envs.channel.
+@FAST
+@given(
+    st.lists(st.floats(0.0, 0.5), min_size=1, max_size=8).map(sorted),
+    st.floats(0.0, 1.0, exclude_max=True),
+)
+def test_channel_quantile_delay_is_the_loss_models(samples: list[float], u: float) -> None:
+    table = np.zeros((2, 9))
+    table[1, : len(samples)] = samples
+    got = vchannel._quantile_delay(table, 1, len(samples), u)
+    assert got == loss.quantile_delay(samples, u)
+
+
+@FAST
+@given(coord, coord, speed, heading, st.floats(-8, 4), st.floats(-1, 1), st.floats(0, 0.5))
+def test_channel_advance_is_advance_kinematics(
+    x: float, y: float, v: float, h: float, a: float, w: float, d: float
+) -> None:
+    st_ = np.zeros((6, 1, 2))
+    st_[:, 0, 1] = x, y, v, h, a, w
+    out = np.full((6, 1, 2), math.nan)
+    vchannel._advance(st_, 0, 1, d, out)
+    assert tuple(out[:4, 0, 1]) == advance_kinematics(x, y, v, h, a, w, d)
+    assert tuple(out[4:, 0, 1]) == (a, w) and np.isnan(out[:, 0, 0]).all()
+
+
+@FAST
+@given(st.floats(0.0, 1.0), st.integers(0, 2**53 - 1))
+def test_channel_loss_threshold_is_the_float_comparison(per: float, m: int) -> None:
+    # a counter draw m * 2**-53 (comms.loss.counter_uniform) is lost when below per
+    assert (np.uint64(m) < vchannel.loss_threshold(per)) == (m * loss.UNIT_53 < per)
+
+
+@FAST
+@given(u64, st.integers(0, 1000), st.floats(0.0, 1.0), st.booleans(), st.booleans())
+def test_channel_bernoulli_loses_by_the_counter_draw(
+    key: int, number: int, per: float, sends: bool, row: bool
+) -> None:
+    # pairs (sender, receiver): (0, 1), (1, 0), (1, 2); vehicle 1 broadcasts ``number``
+    pair_s, pair_r = np.array([0, 1, 1]), np.array([1, 0, 2])
+    send = np.array([[False, sends, False]])
+    lost = np.ones((1, 3), bool)
+    vchannel._bernoulli(
+        np.array([key], np.uint64), np.full((1, 3), number), send, np.array([per]),
+        pair_s, pair_r, np.array([row]), lost,
+    )  # fmt: skip
+    for p in range(3):
+        s, r = pair_s[p], pair_r[p]
+        draw = counter_uniform(key, s, r, number, vchannel.DRAW_LOSS)
+        assert lost[0, p] == (row and per > 0.0 and send[0, s] and draw < per)
+
+
+# The leader's twins (envs.vector.leader) against envs.path.Path and the profiles.
+_polyline = st.lists(st.tuples(coord, coord), min_size=2, max_size=12, unique=True)
+
+
+def _road(path: Path, s: float) -> vleader.LeaderRoad:
+    """``path`` as ``LeaderDriver`` packs it, one leader at arc length ``s`` (m)."""
+    seg = np.concatenate([path._a, path._seg_dir, path._seg_len[:, None]], axis=1)
+    one = np.zeros(1)
+    return vleader.LeaderRoad(
+        seg, np.asarray(path._s, float), path.closed, path.length, np.array([s]),
+        one, one, one, 0, np.zeros(4),
+    )  # fmt: skip
+
+
+@settings(max_examples=100, deadline=None)
+@given(_polyline, st.booleans(), st.floats(0, 1), coord, coord, st.floats(-50, 5e3))
+def test_leader_project_and_segment_are_the_paths(
+    points: list[tuple[float, float]], closed: bool, frac: float, qx: float, qy: float, s: float
+) -> None:
+    try:
+        path = Path(np.array(points), closed)
+    except ConfigError:  # fewer than two distinct points
+        return
+    road = _road(path, frac * path.length)
+    hint = road.s[0]
+    own = np.zeros((ROWS, 1, 1))
+    own[X, 0, 0], own[Y, 0, 0] = qx, qy
+    vleader._project(own, road)
+    assert road.s[0] == path.project(qx, qy, hint, vleader.WINDOW_M)
+    assert vleader._segment(road.seg_s, len(path._seg_len), s) == path._segment(s)
+
+
+@FAST
+@given(st.sampled_from([0, 1, 2]), st.floats(0, 200), st.floats(0, 1e3), speed)
+def test_leader_profile_is_the_scenarios(kind: int, t: float, s: float, target: float) -> None:
+    want = (target, scenarios.paper_speed(t, s), scenarios.emergency_speed(t, s))[kind]
+    assert vleader._profile(kind, t, s, target) == want
+
+
+@FAST
+@given(u64, st.integers(0, 10**6), st.floats(0, 5), st.booleans())
+def test_gps_sense_is_gps_noise(key: int, tick: int, sigma: float, row: bool) -> None:
+    own = np.arange(ROWS * 3, dtype=float).reshape(ROWS, 1, 3)
+    sensed = np.full((6, 1, 3), math.nan)
+    vgps.sense(own, np.array([tick]), np.array([key], np.uint64), sigma, np.array([row]), sensed)
+    if not row:
+        assert np.isnan(sensed).all()
+        return
+    dx, dy = gps.gps_noise(gps.vehicle_states(key, 3), sigma, tick)
+    assert list(sensed[0, 0]) == [x + e for x, e in zip(own[0, 0], dx, strict=True)]
+    assert list(sensed[1, 0]) == [y + e for y, e in zip(own[1, 0], dy, strict=True)]
+    assert (sensed[2:, 0] == own[2:6, 0]).all()

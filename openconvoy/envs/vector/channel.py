@@ -280,7 +280,8 @@ def _draw_bits(zs, w1, w2):  # pragma: no cover - compiled
 @bare_inline
 def loss_threshold(per):  # pragma: no cover - compiled
     """The integer ``c`` with ``m * 2**-53 < per`` exactly when ``m < c`` (``m`` an integer
-    below 2**53; ``per * 2**53`` is exact): a loss draw compared without floats."""
+    below 2**53; ``per * 2**53`` is exact): a loss draw compared without floats, as
+    ``Channel._draw_block`` compares ``comms.loss.counter_uniform``'s float with ``per``."""
     return np.uint64(math.ceil(per * 9007199254740992.0))
 
 
@@ -316,7 +317,8 @@ def _tx_gate(
 
 @bare_kernel
 def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: no cover
-    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``)."""
+    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``): the
+    draws of ``Channel._draw_block``, one pair at a time."""
     for b in range(lost.shape[0]):
         for p in range(lost.shape[1]):
             s = pair_s[p]

@@ -24,6 +24,8 @@ from openconvoy.comms.loss import counter_uniform
 from openconvoy.core import estimate, ladder, observation, safety, spacing, state
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.ladder import LadderConfig
+from openconvoy.core.member import ConvoyMember, Frame, MemberConfig
+from openconvoy.core.policy import MAX_HEADING_CHANGE_RAD
 from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState
 from openconvoy.core.trail import Trail
@@ -528,3 +530,54 @@ def test_gps_sense_is_gps_noise(key: int, tick: int, sigma: float, row: bool) ->
     assert list(sensed[0, 0]) == [x + e for x, e in zip(own[0, 0], dx, strict=True)]
     assert list(sensed[1, 0]) == [y + e for y, e in zip(own[1, 0], dy, strict=True)]
     assert (sensed[2:, 0] == own[2:6, 0]).all()
+
+
+reading = st.none() | st.tuples(st.floats(0.5, 80.0), st.floats(-10.0, 10.0))
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.floats(0.0, 4.0),
+    reading,
+    reading,
+    speed,
+    st.floats(-2.0, 2.0),
+    st.floats(0.0, 20.0),
+    st.floats(-3.0, 3.0),
+)
+def test_member_rung_and_ladder_are_supervise(
+    age: float,
+    ranged: tuple[float, float] | None,
+    heard: tuple[float, float] | None,
+    v_cmd: float,
+    dh_cmd: float,
+    own_v: float,
+    intruder: float,
+) -> None:
+    """``_rung`` (with ``_overridden``) then ``_ladder`` against ``ConvoyMember.supervise``
+    for follower 1, its predecessor's message ``age`` s old, a ranging reading or none and
+    the predecessor's estimate or none."""
+    lad = LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0,
+                       intruder_margin_m=abs(intruder))  # fmt: skip
+    member = ConvoyMember(1, 2, MemberConfig(ladder=lad), lengths=[4.0, 4.5])
+    now = 10.0
+    member.observe_own(VehicleState(1, now, 0.0, 0.0, own_v, 0.0))
+    member.receive(VehicleState(0, now - age, 20.0, 0.0, 5.0, 0.0), now - age)
+    desired = member.spacing.pair_gap(own_v, 4.5, 4.0)
+    frame = Frame(now, np.zeros(1, np.float32), desired_gap_m=desired, pred_gap=heard)
+    action = np.array([v_cmd, dh_cmd], np.float32)
+    want, want_mode = member.supervise(action, frame, ranged)
+
+    m = _member([0], [now - age], lad, lengths=np.array([4.0, 4.5]),
+                max_dh=MAX_HEADING_CHANGE_RAD)  # fmt: skip
+    nan2 = (math.nan, math.nan)
+    rng = np.array([[[math.nan, ranged[0] if ranged else math.nan]],
+                    [[math.nan, ranged[1] if ranged else math.nan]]])  # fmt: skip
+    est = np.array([[[math.nan, (heard or nan2)[0]]], [[math.nan, (heard or nan2)[1]]]])
+    own = np.concatenate([_own(0.0, 0.0, 0.0, 0.0), _own(0.0, 0.0, own_v, 0.0)], axis=2)
+    mode = vmember._rung(own, 0, 1, m, est, rng, now)
+    v, dh, mode = vmember._ladder(
+        own, 0, 1, m, est, rng, (float(action[0]), float(action[1]), mode)
+    )
+    assert ladder.MODES[mode] == want_mode
+    assert (v, dh) == (float(want[0]), float(want[1]))

@@ -532,33 +532,39 @@ def test_gps_sense_is_gps_noise(key: int, tick: int, sigma: float, row: bool) ->
     assert (sensed[2:, 0] == own[2:6, 0]).all()
 
 
-reading = st.none() | st.tuples(st.floats(0.5, 80.0), st.floats(-10.0, 10.0))
+reading = st.tuples(st.floats(0.5, 80.0), st.floats(-10.0, 10.0))
+# each rung about as often: coop, degraded, stop
+rung_age = st.floats(0.0, 0.5) | st.floats(0.5, 2.0) | st.floats(2.0, 4.0)
 
 
 @settings(max_examples=150, deadline=None)
 @given(
-    st.floats(0.0, 4.0),
-    reading,
-    reading,
+    rung_age,
+    reading | st.none(),
+    st.floats(-1.0, 10.0) | st.none(),
+    st.floats(-10.0, 10.0),
     speed,
     st.floats(-2.0, 2.0),
     st.floats(0.0, 20.0),
-    st.floats(-3.0, 3.0),
+    st.floats(0.0, 5.0),
 )
 def test_member_rung_and_ladder_are_supervise(
     age: float,
-    ranged: tuple[float, float] | None,
     heard: tuple[float, float] | None,
+    nearer: float | None,
+    rate: float,
     v_cmd: float,
     dh_cmd: float,
     own_v: float,
-    intruder: float,
+    margin: float,
 ) -> None:
     """``_rung`` (with ``_overridden``) then ``_ladder`` against ``ConvoyMember.supervise``
     for follower 1, its predecessor's message ``age`` s old, a ranging reading or none and
-    the predecessor's estimate or none."""
+    the predecessor's estimate or none (a ranged target ``nearer`` m closer than the
+    estimate, at its own rate, where both exist)."""
+    ranged = None if nearer is None else ((heard or (30.0, 0.0))[0] - nearer, rate)
     lad = LadderConfig(enabled=True, degrade_after_s=0.5, stop_after_s=2.0,
-                       intruder_margin_m=abs(intruder))  # fmt: skip
+                       intruder_margin_m=margin)  # fmt: skip
     member = ConvoyMember(1, 2, MemberConfig(ladder=lad), lengths=[4.0, 4.5])
     now = 10.0
     member.observe_own(VehicleState(1, now, 0.0, 0.0, own_v, 0.0))

@@ -587,3 +587,83 @@ def test_member_rung_and_ladder_are_supervise(
     )
     assert ladder.MODES[mode] == want_mode
     assert (v, dh) == (float(want[0]), float(want[1]))
+
+
+# A heard vehicle's newest message: (x m, y m, speed m/s, heading rad, age s), or unheard.
+message = st.none() | st.tuples(
+    st.floats(-60.0, 60.0), st.floats(-60.0, 60.0), speed, heading, st.floats(0.0, 4.0)
+)
+
+
+def _heard(member: ConvoyMember, msgs: list[tuple | None], now: float, first: int = 1) -> tuple:
+    """Vehicle ``first + j``'s message ``msgs[j]`` (None: unheard) given to ``member`` and
+    laid out as the kernels' R^i buffer, link ``j`` carrying that vehicle: (hist, hist_n)."""
+    hist = np.zeros((1, len(msgs), 1, FIELDS))
+    hist_n = np.zeros((1, len(msgs)), np.int64)
+    for j, msg in enumerate(msgs):
+        if msg is None:
+            continue
+        x, y, v, h, age = msg
+        member.receive(VehicleState(first + j, now - age, x, y, v, h), now)
+        hist[:, j] = _history(x, y, v, h, now - age)[:, 0]
+        hist_n[0, j] = 1
+    return hist, hist_n
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(message, min_size=1, max_size=4), coord, coord, speed, heading, positive)
+def test_member_nearest_in_path_is_path_gap(
+    msgs: list[tuple | None], x: float, y: float, v: float, h: float, decel: float
+) -> None:
+    """``lead_guard``'s ``_nearest_in_path`` against the leader's ``ConvoyMember.path_gap``:
+    followers heard or not, anywhere around the leader."""
+    n = len(msgs) + 1
+    lengths = [4.0 + 0.5 * j for j in range(n)]
+    decels = [decel * (1 + j) for j in range(n)]
+    leader = ConvoyMember(0, n, MemberConfig(), lengths=lengths, decels=decels)
+    now = 10.0
+    leader.observe_own(VehicleState(0, now, x, y, v, h))
+    hist, hist_n = _heard(leader, msgs, now)
+    m = _member([-1], [-math.inf], LadderConfig(), hist=hist, hist_n=hist_n,
+                link_decel=np.array(decels[1:]), lengths=np.array(lengths),
+                lead_link=np.arange(-1, n - 1, dtype=np.int64),
+                fresh_age=MemberConfig().rule_fresh_age_s)  # fmt: skip
+    own = _own(x, y, v, h).repeat(n, axis=2)  # the followers' own rows are not read
+    gap, closing, j = vmember._nearest_in_path(own, 0, m, now)
+    want = leader.path_gap(now)
+    assert (gap, closing, j) == (want if want is not None else (math.inf, 0.0, -1))
+
+
+@settings(max_examples=150, deadline=None)
+@given(message, reading | st.none(), coord, coord, speed, heading, positive)
+def test_member_rule_gap_is_gap_estimate(
+    msg: tuple | None,
+    ranged: tuple[float, float] | None,
+    x: float,
+    y: float,
+    v: float,
+    h: float,
+    decel: float,
+) -> None:
+    """``decide``'s ``_rule_gap`` against ``ConvoyMember.gap_estimate`` (bumper to bumper
+    by the two lengths), or the ranging reading where there is one (closing: the range
+    rate negated), as ``ConvoyWorld._emergency`` reads them."""
+    lengths, decels = [4.0, 4.5], [decel, 2.0 * decel]
+    member = ConvoyMember(1, 2, MemberConfig(), lengths=lengths, decels=decels)
+    now = 10.0
+    member.observe_own(VehicleState(1, now, x, y, v, h))
+    hist, hist_n = _heard(member, [msg], now, first=0)
+    m = _member([0], [-math.inf], LadderConfig(), hist=hist, hist_n=hist_n,
+                link_decel=np.array([decel]), lengths=np.array(lengths),
+                fresh_age=MemberConfig().rule_fresh_age_s)  # fmt: skip
+    rng = np.full((2, 1, 2), math.nan)
+    if ranged is not None:
+        rng[:, 0, 1] = ranged
+    own = np.concatenate([_own(0.0, 0.0, 0.0, 0.0), _own(x, y, v, h)], axis=2)
+    got = vmember._rule_gap(own, 0, 1, m, now, rng)
+    if ranged is not None:
+        want = (True, ranged[0] - 4.25, -ranged[1])
+    else:
+        est = member.gap_estimate(now)
+        want = (False, 0.0, 0.0) if est is None else (True, est[0] - 4.25, est[1])
+    assert got == want

@@ -32,12 +32,14 @@ from openconvoy.core.trail import Trail
 from openconvoy.envs import gps, plant, scenarios
 from openconvoy.envs.channel import advance_kinematics
 from openconvoy.envs.path import Path
+from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.vector import channel as vchannel
 from openconvoy.envs.vector import gps as vgps
 from openconvoy.envs.vector import leader as vleader
 from openconvoy.envs.vector import math as vmath
 from openconvoy.envs.vector import member as vmember
 from openconvoy.envs.vector import observation as _kernels  # noqa: F401 - registers ego_state
+from openconvoy.envs.vector import plant as vplant
 from openconvoy.envs.vector.channel import counter_uniform4
 from openconvoy.envs.vector.gps import counter_normals
 from openconvoy.envs.vector.member import speed_gap  # registers the rules with numba
@@ -52,6 +54,7 @@ from openconvoy.envs.vector.trail import (
     project,
     trail_add,
 )
+from openconvoy.envs.vehicles import VEHICLE_PRESETS
 
 FAST = settings(max_examples=200, deadline=None)
 u64 = st.integers(0, 2**64 - 1)
@@ -667,3 +670,40 @@ def test_member_rule_gap_is_gap_estimate(
         est = member.gap_estimate(now)
         want = (False, 0.0, 0.0) if est is None else (True, est[0] - 4.25, est[1])
     assert got == want
+
+
+# The plant's twin (envs.vector.plant) against BicyclePlant, vehicle by vehicle.
+_PRESETS = sorted(VEHICLE_PRESETS)  # lag and PI speed loops, delays of 0 to 3 steps
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from(_PRESETS), st.floats(-1.0, 8.0), heading), min_size=1,
+             max_size=3),
+    st.lists(st.tuples(st.floats(-2.0, 12.0), st.floats(-0.6, 0.6)), min_size=1, max_size=40),
+)  # fmt: skip
+def test_plant_step_is_bicycle_plant_step(
+    vehicles: list[tuple[str, float, float]], commands: list[tuple[float, float]]
+) -> None:
+    """``_plant_step`` (with ``_pi_dv``) against ``BicyclePlant.step``: the same presets
+    placed at the same speeds and headings, then the same setpoints (every vehicle the
+    same speed, a heading change of its own heading) tick by tick; every state row equal
+    after every tick."""
+    presets = [VEHICLE_PRESETS[name] for name, _, _ in vehicles]
+    n = len(presets)
+    x, y = np.arange(n) * 10.0, np.zeros(n)
+    v0 = np.array([v for _, v, _ in vehicles])
+    h0 = np.array([h for _, _, h in vehicles])
+    ref = BicyclePlant(presets, 0.1)
+    ref.reset(x, y, h0, v0)
+    batched = vplant.VectorPlant(presets, 0.1)
+    batched.reset_rows(np.arange(n), x, y, h0, v0)
+    for k, (v_cmd, dh) in enumerate(commands):
+        change = np.full(n, dh)
+        absolute = [float(h) + dh for h in ref.heading]
+        ref.step([v_cmd] * n, absolute)
+        vplant._plant_step(batched.arrays, np.full(n, v_cmd), change, 0.1)
+        for row, want in ((vplant.X, ref.x), (vplant.Y, ref.y), (SPEED, ref.speed),
+                          (HEADING, ref.heading), (vplant.ACCEL, ref.accel),
+                          (vplant.YAW_RATE, ref.yaw_rate)):  # fmt: skip
+            assert list(batched.state[row]) == list(want), (k, row)

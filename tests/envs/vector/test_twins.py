@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from openconvoy.comms import loss
 from openconvoy.comms.loss import counter_uniform
 from openconvoy.core import estimate, ladder, observation, safety, spacing, state
+from openconvoy.core import ranging as core_ranging
 from openconvoy.core.errors import ConfigError
 from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.member import ConvoyMember, Frame, MemberConfig
@@ -33,6 +34,7 @@ from openconvoy.envs import gps, plant, scenarios
 from openconvoy.envs.channel import advance_kinematics
 from openconvoy.envs.path import Path
 from openconvoy.envs.plant import BicyclePlant
+from openconvoy.envs.ranging_noise import ranging_normals
 from openconvoy.envs.vector import channel as vchannel
 from openconvoy.envs.vector import gps as vgps
 from openconvoy.envs.vector import leader as vleader
@@ -40,6 +42,7 @@ from openconvoy.envs.vector import math as vmath
 from openconvoy.envs.vector import member as vmember
 from openconvoy.envs.vector import observation as _kernels  # noqa: F401 - registers ego_state
 from openconvoy.envs.vector import plant as vplant
+from openconvoy.envs.vector import ranging as vranging
 from openconvoy.envs.vector.channel import counter_uniform4
 from openconvoy.envs.vector.gps import counter_normals
 from openconvoy.envs.vector.member import speed_gap  # registers the rules with numba
@@ -707,3 +710,38 @@ def test_plant_step_is_bicycle_plant_step(
                           (HEADING, ref.heading), (vplant.ACCEL, ref.accel),
                           (vplant.YAW_RATE, ref.yaw_rate)):  # fmt: skip
             assert list(batched.state[row]) == list(want), (k, row)
+
+
+# The ranging twin (envs.vector.ranging) against ConvoyWorld's reading.
+_vehicle = st.tuples(st.floats(-40.0, 40.0), st.floats(-40.0, 40.0), speed, heading)
+_sensor = st.just((0.0, 0.0, 0.0)) | st.tuples(
+    st.floats(1.0, 60.0), st.floats(0, 1), st.floats(0, 1)
+)
+
+
+@FAST
+@given(st.lists(st.tuples(_vehicle, _sensor), min_size=2, max_size=4), u64, st.integers(0, 10**6))
+def test_ranging_read_is_the_worlds_reading(
+    vehicles: list[tuple[tuple, tuple]], key: int, tick: int
+) -> None:
+    """``_read`` against ``ConvoyWorld.ranging_readings``' arithmetic: ``core.ranging
+    .range_and_rate`` to the vehicle ahead, none beyond the sensor's range (or without a
+    sensor: max range 0), plus ``envs.ranging_noise.ranging_normals``' noise. The range is
+    ``hypot``'s within an ulp (the kernels' ``norm``), so both within 1e-12 relative."""
+    n = len(vehicles)
+    own = np.zeros((ROWS, 1, n))
+    for i, ((x, y, v, h), _) in enumerate(vehicles):
+        own[[X, Y, SPEED, HEADING], 0, i] = x, y, v, h
+    params = np.array([s for _, s in vehicles]).T.copy()
+    out = np.zeros((2, 1, n))
+    vranging._read(own, np.array([tick]), np.array([key], np.uint64), params, out)
+    states = gps.vehicle_states(key, n)
+    for i in range(1, n):
+        max_range, sd_range, sd_rate = params[:, i]
+        rng_m, rate = core_ranging.range_and_rate(*own[:4, 0, i], *own[:4, 0, i - 1])
+        if max_range <= 0.0 or rng_m > max_range or rng_m <= 0.0:
+            assert np.isnan(out[:, 0, i]).all()
+            continue
+        n1, n2 = ranging_normals(states[i], tick)
+        want = (rng_m + sd_range * n1, rate + sd_rate * n2)
+        assert out[:, 0, i] == pytest.approx(want, rel=1e-12, abs=1e-12)

@@ -16,7 +16,7 @@ pytest.importorskip("numba", reason="the batched extra (openconvoy[batched]) is 
 
 import numba
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from openconvoy.comms import loss
@@ -31,14 +31,17 @@ from openconvoy.core.spacing import SpacingConfig
 from openconvoy.core.state import VehicleState
 from openconvoy.core.trail import Trail
 from openconvoy.envs import gps, plant, scenarios
+from openconvoy.envs import reward as reward_mod
 from openconvoy.envs.channel import advance_kinematics
 from openconvoy.envs.path import Path
 from openconvoy.envs.plant import BicyclePlant
 from openconvoy.envs.ranging_noise import ranging_normals
+from openconvoy.envs.reward import RewardConfig
 from openconvoy.envs.vector import channel as vchannel
 from openconvoy.envs.vector import gps as vgps
 from openconvoy.envs.vector import leader as vleader
 from openconvoy.envs.vector import math as vmath
+from openconvoy.envs.vector import measures as vmeasures
 from openconvoy.envs.vector import member as vmember
 from openconvoy.envs.vector import observation as _kernels  # noqa: F401 - registers ego_state
 from openconvoy.envs.vector import plant as vplant
@@ -745,3 +748,73 @@ def test_ranging_read_is_the_worlds_reading(
         n1, n2 = ranging_normals(states[i], tick)
         want = (rng_m + sd_range * n1, rate + sd_rate * n2)
         assert out[:, 0, i] == pytest.approx(want, rel=1e-12, abs=1e-12)
+
+
+# The measures' twins (envs.vector.measures) against ConvoyWorld.measure and envs.reward.
+# positions on a centimetre grid: no distance so small its square underflows (``norm``'s range)
+centimetres = st.integers(-3000, 3000).map(lambda k: k / 100.0)
+
+
+@FAST
+@given(
+    st.lists(
+        st.tuples(
+            centimetres, st.just(0.0) | centimetres, st.integers(50, 600).map(lambda k: k / 100)
+        ),
+        min_size=2,
+        max_size=5,
+    ),
+)
+@example([(0.0, 0.0, 4.0), (4.0, 0.0, 4.0)])  # touching: a gap of half the lengths
+def test_measures_measure_is_the_worlds(vehicles: list[tuple[float, float, float]]) -> None:
+    """Gaps (``hypot`` within an ulp: the kernels' ``norm``) and collisions (a gap under
+    half the two lengths) as ``ConvoyWorld.measure`` takes them from the true state; on a
+    centimetre grid and often in line, so that some gaps are exactly half the lengths."""
+    n = len(vehicles)
+    own = np.zeros((ROWS, 1, n))
+    own[X, 0], own[Y, 0] = [v[0] for v in vehicles], [v[1] for v in vehicles]
+    half_sum = np.array([0.5 * (vehicles[i - 1][2] + vehicles[i][2]) for i in range(1, n)])
+    gap, collided = np.zeros((1, n - 1)), np.zeros((1, n - 1), bool)
+    vmeasures.measure(own, half_sum, gap, collided)
+    x, y = own[X, 0], own[Y, 0]
+    for f in range(n - 1):
+        want = math.hypot(x[f] - x[f + 1], y[f] - y[f + 1])
+        assert abs(gap[0, f] - want) <= math.ulp(want)
+        assert collided[0, f] == (want < half_sum[f])
+
+
+_term = st.floats(-20.0, 20.0)
+
+
+@FAST
+@given(
+    st.lists(st.tuples(gap, gap | st.just(math.nan), _term, _term, _term, st.booleans()),
+             min_size=1, max_size=4),
+    st.sampled_from([0.1, 0.05]),
+)  # fmt: skip
+def test_measures_reward_is_envs_reward(
+    followers: list[tuple[float, float, float, float, float, bool]], dt: float
+) -> None:
+    """``reward`` against ``envs.reward.reward`` as ``ConvoyEnv.step`` calls it: the
+    platooning error gap minus desired (NaN desired: no error), the jerk from the
+    acceleration before and after the tick."""
+    n = len(followers) + 1
+    gaps = np.array([[f[0] for f in followers]])
+    desired = np.array([[0.0] + [f[1] for f in followers]])
+    accel_old = np.array([[0.0] + [f[2] for f in followers]])
+    own = np.zeros((ROWS, 1, n))
+    own[vplant.ACCEL, 0, 1:] = [f[3] for f in followers]
+    own[vplant.YAW_RATE, 0, 1:] = [f[4] for f in followers]
+    hit = np.array([[f[5] for f in followers]])
+    config = RewardConfig(w_spacing=1.5, collision_penalty=50.0)
+    out = np.zeros((1, n - 1))
+    vmeasures.reward(out, gaps, desired, accel_old, own, hit, 1.0 / dt,
+                     vmeasures.pack_reward(config))  # fmt: skip
+    inv_dt = 1.0 / dt
+    accel = own[vplant.ACCEL, 0, 1:].tolist()
+    jerk = [(a1 - a0) * inv_dt for a0, a1 in zip(accel_old[0, 1:], accel, strict=True)]
+    errors = [g - d for g, d in zip(gaps[0], desired[0, 1:], strict=True)]
+    want = reward_mod.reward(
+        config, errors, accel, jerk, own[vplant.YAW_RATE, 0, 1:].tolist(), hit[0].tolist()
+    )
+    assert out[0].tolist() == want

@@ -78,6 +78,27 @@ def test_counter_uniform4_is_counter_uniform(key: int, w0: int, w1: int, w2: int
 
 
 @FAST
+@given(u64)
+def test_channel_mix_is_splitmix(z: int) -> None:
+    assert vchannel._mix(np.uint64(z)) == _splitmix(z)
+
+
+def _splitmix(z: int) -> int:
+    """SplitMix64's finalizer as ``comms.loss`` writes it: one round of ``counter_state``
+    from ``z - SPLITMIX_GOLDEN`` with the word 0."""
+    return loss.counter_state((z - loss.SPLITMIX_GOLDEN) % 2**64, 0)
+
+
+@FAST
+@given(u64, u32, u32, u32)
+def test_channel_draw_bits_are_the_loss_draws(key: int, s: int, r: int, number: int) -> None:
+    # the 53 bits of counter_uniform(key, s, r, number, DRAW_LOSS), from the link's state
+    bits = vchannel._draw_bits(np.uint64(loss.counter_state(key, s)), r, number)
+    uniform = counter_uniform(key, s, r, number, vchannel.DRAW_LOSS)
+    assert int(bits) * loss.UNIT_53 == uniform and int(bits) < 2**53
+
+
+@FAST
 @given(u64, st.integers(0, 64), st.integers(0, 10**6))
 def test_counter_normals_are_gps_noise_draws(key: int, vehicle: int, tick: int) -> None:
     u1 = counter_uniform(key, vehicle, tick, 0)

@@ -116,6 +116,8 @@ def test_wrap_is_the_scalar_modulo(a: float) -> None:
 
 # vehicle distances (m): none so small its square underflows (norm's stated range)
 metres = st.just(0.0) | st.floats(1e-9, 1e4) | st.floats(-1e4, -1e-9)
+# positions on a centimetre grid: no distance so small its square underflows (as above)
+centimetres = st.integers(-3000, 3000).map(lambda k: k / 100.0)
 
 
 @FAST
@@ -509,7 +511,8 @@ def test_channel_bernoulli_loses_by_the_counter_draw(
 
 
 # The leader's twins (envs.vector.leader) against envs.path.Path and the profiles.
-_polyline = st.lists(st.tuples(coord, coord), min_size=2, max_size=12, unique=True)
+# distinct vertices on a centimetre grid (``Path`` merges vertices under 1e-9 m apart)
+_polyline = st.lists(st.tuples(centimetres, centimetres), min_size=2, max_size=12, unique=True)
 
 
 def _road(path: Path, s: float) -> vleader.LeaderRoad:
@@ -737,7 +740,8 @@ def test_plant_step_is_bicycle_plant_step(
 
 
 # The ranging twin (envs.vector.ranging) against ConvoyWorld's reading.
-_vehicle = st.tuples(st.floats(-40.0, 40.0), st.floats(-40.0, 40.0), speed, heading)
+# on a centimetre grid: no distance so small its square underflows (``norm``'s range)
+_vehicle = st.tuples(centimetres, centimetres, speed, heading)
 _sensor = st.just((0.0, 0.0, 0.0)) | st.tuples(
     st.floats(1.0, 60.0), st.floats(0, 1), st.floats(0, 1)
 )
@@ -772,10 +776,6 @@ def test_ranging_read_is_the_worlds_reading(
 
 
 # The measures' twins (envs.vector.measures) against ConvoyWorld.measure and envs.reward.
-# positions on a centimetre grid: no distance so small its square underflows (``norm``'s range)
-centimetres = st.integers(-3000, 3000).map(lambda k: k / 100.0)
-
-
 @FAST
 @given(
     st.lists(

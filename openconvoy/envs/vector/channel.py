@@ -252,6 +252,8 @@ class VectorChannel:
 
 @bare_inline
 def _mix(z):  # pragma: no cover - compiled
+    """SplitMix64's finalizer on a uint64: one round of ``comms.loss.counter_state``
+    (its ``_mix``), wrapping as uint64 arithmetic does."""
     z = (z ^ (z >> _S30)) * _K1
     z = (z ^ (z >> _S27)) * _K2
     return z ^ (z >> _S31)
@@ -270,7 +272,8 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
 @bare_inline
 def _draw_bits(zs, w1, w2):  # pragma: no cover - compiled
     """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``:
-    the uniform's 53 bits ``m`` (the uniform is ``m * 2**-53``)."""
+    the uniform's 53 bits ``m`` (the uniform is ``m * 2**-53``): the bits of
+    ``comms.loss.counter_uniform``."""
     z = _mix(zs + _G + np.uint64(w1))
     z = _mix(z + _G + np.uint64(w2))
     z = _mix(z + _G + np.uint64(DRAW_LOSS))

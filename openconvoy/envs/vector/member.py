@@ -211,7 +211,8 @@ def _rung(own, b, i, m, pred_est, ranging, t):  # pragma: no cover - compiled
 @bare_inline
 def _overridden(own, b, i, m, pred_est, ranging):  # pragma: no cover - compiled
     """``ConvoyMember._ranging_override``: the ranging target is closer by the intruder
-    margin than the predecessor by its messages or the desired gap."""
+    margin than the predecessor by its messages or the desired gap. Property-tested with
+    ``_rung``: tests/envs/vector/test_twins.py::test_member_rung_and_ladder_are_supervise."""
     rng_m, v2v_gap = ranging[RANGE, b, i], pred_est[RANGE, b, i]
     if math.isnan(rng_m) or math.isnan(v2v_gap):
         return False

@@ -850,3 +850,61 @@ def test_measures_reward_is_envs_reward(
         config, errors, accel, jerk, own[vplant.YAW_RATE, 0, 1:].tolist(), hit[0].tolist()
     )
     assert out[0].tolist() == want
+
+
+# followers mostly ahead of the leader (at the origin, heading east), near enough to fire
+ahead_msg = st.none() | st.tuples(
+    st.floats(-5.0, 40.0), st.floats(-4.0, 4.0), st.floats(0.0, 15.0), heading, st.floats(0, 0.5)
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(ahead_msg, min_size=1, max_size=3),
+    st.floats(0.0, 20.0),
+    st.floats(-3.0, 3.0),
+    st.floats(0.5, 8.0),
+    st.tuples(st.floats(1.0, 8.0), st.floats(0.0, 1.0), st.floats(0.0, 5.0), st.floats(0, 0.5)),
+)
+def test_member_lead_guard_is_the_worlds_lead_emergency(
+    msgs: list[tuple | None],
+    v: float,
+    accel: float,
+    decel: float,
+    rule: tuple[float, float, float, float],
+) -> None:
+    """``lead_guard`` against ``ConvoyWorld._lead_emergency``: the leader's
+    ``ConvoyMember.path_gap``, bumper to bumper (``core.safety.bumper_gap``), through its
+    ``BrakingGap`` against the braking limit of the member ahead; latched, the leader's
+    command zeroed and the stop recorded."""
+    n = len(msgs) + 1
+    lengths = [4.0 + 3.0 * j for j in range(n)]  # unlike enough to tell apart
+    decels = [decel * 4.0**-j for j in range(n)]
+    leader = ConvoyMember(0, n, MemberConfig(), lengths=lengths, decels=decels)
+    now = 10.0
+    leader.observe_own(VehicleState(0, now, 0.0, 0.0, v, 0.0, accel))
+    hist, hist_n = _heard(leader, msgs, now)
+    m = _member([-1], [-math.inf], LadderConfig(), hist=hist, hist_n=hist_n,
+                link_decel=np.array(decels[1:]), lengths=np.array(lengths),
+                lead_link=np.arange(-1, n - 1, dtype=np.int64), decel=np.array(decels),
+                fresh_age=MemberConfig().rule_fresh_age_s, lead_rule=np.array(rule),
+                emergency=True)  # fmt: skip
+    own = _own(0.0, 0.0, v, 0.0).repeat(n, axis=2)
+    own[vplant.ACCEL, 0, 0] = accel
+    out = vmember.Commands(
+        np.zeros((1, n), np.int64), np.zeros((1, n), bool), np.zeros((1, n), bool),
+        np.full((1, n), 7.0), np.full((1, n), 0.1), np.zeros((1, n), np.int64),
+        np.full((len(vmember.EVENT_ROWS), 1, n), math.nan), np.zeros(1, np.int64),
+    )  # fmt: skip
+    vmember.lead_guard(np.array([now]), own, m, out)
+    ahead = leader.path_gap(now)
+    fires = ahead is not None and safety.BrakingGap(*rule).too_close(
+        safety.bumper_gap(ahead[0], lengths[0], lengths[ahead[2]]), ahead[1], v,
+        decels[ahead[2]], accel,
+    )  # fmt: skip
+    assert out.estopped[0, 0] == fires and out.n_events[0] == int(fires)
+    if fires:
+        assert (out.cmd_v[0, 0], out.cmd_dh[0, 0], out.modes[0, 0]) == (0.0, 0.0, vmember.FAILSAFE)
+        assert out.events[vmember.ESTOP_T, 0, 0] == now
+    else:
+        assert (out.cmd_v[0, 0], out.cmd_dh[0, 0]) == (7.0, 0.1)

@@ -252,6 +252,8 @@ class VectorChannel:
 
 @bare_inline
 def _mix(z):  # pragma: no cover - compiled
+    """SplitMix64's finalizer on a uint64: one round of ``comms.loss.counter_state``
+    (its ``_mix``), wrapping as uint64 arithmetic does."""
     z = (z ^ (z >> _S30)) * _K1
     z = (z ^ (z >> _S27)) * _K2
     return z ^ (z >> _S31)
@@ -270,7 +272,8 @@ def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
 @bare_inline
 def _draw_bits(zs, w1, w2):  # pragma: no cover - compiled
     """``counter_uniform4``'s last three rounds (``zs``: its first), ``w3 = DRAW_LOSS``:
-    the uniform's 53 bits ``m`` (the uniform is ``m * 2**-53``)."""
+    the uniform's 53 bits ``m`` (the uniform is ``m * 2**-53``): the bits of
+    ``comms.loss.counter_uniform``."""
     z = _mix(zs + _G + np.uint64(w1))
     z = _mix(z + _G + np.uint64(w2))
     z = _mix(z + _G + np.uint64(DRAW_LOSS))
@@ -280,7 +283,8 @@ def _draw_bits(zs, w1, w2):  # pragma: no cover - compiled
 @bare_inline
 def loss_threshold(per):  # pragma: no cover - compiled
     """The integer ``c`` with ``m * 2**-53 < per`` exactly when ``m < c`` (``m`` an integer
-    below 2**53; ``per * 2**53`` is exact): a loss draw compared without floats."""
+    below 2**53; ``per * 2**53`` is exact): a loss draw compared without floats, as
+    ``Channel._draw_block`` compares ``comms.loss.counter_uniform``'s float with ``per``."""
     return np.uint64(math.ceil(per * 9007199254740992.0))
 
 
@@ -316,7 +320,8 @@ def _tx_gate(
 
 @bare_kernel
 def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: no cover
-    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``)."""
+    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``): the
+    draws of ``Channel._draw_block``, one pair at a time."""
     for b in range(lost.shape[0]):
         for p in range(lost.shape[1]):
             s = pair_s[p]

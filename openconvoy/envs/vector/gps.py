@@ -33,7 +33,8 @@ def counter_normals(key, vehicle, tick):  # pragma: no cover - compiled
 @bare_kernel
 def sense(own, step, keys, sigma, rows, sensed):  # pragma: no cover - compiled
     """``sensed`` (6, B, N): ``own`` with GPS noise of std ``sigma`` (m) on x and y, at
-    tick ``step[b]`` of convoy ``b`` keyed ``keys[b]``, for the convoys ``rows``."""
+    tick ``step[b]`` of convoy ``b`` keyed ``keys[b]``, for the convoys ``rows``: the
+    errors of ``envs.gps.gps_noise``."""
     _, B, N = own.shape
     for b in range(B):
         if not rows[b]:

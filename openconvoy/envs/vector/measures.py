@@ -23,7 +23,8 @@ def pack_reward(c: RewardConfig) -> np.ndarray:
 
 @bare_kernel
 def measure(own, half_sum, gap, collided):  # pragma: no cover - compiled
-    """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions."""
+    """Centre-to-centre gap of each follower to the vehicle ahead (m), and collisions
+    (``ConvoyWorld.measure``)."""
     for b in range(gap.shape[0]):
         for f in range(gap.shape[1]):
             g = norm(own[X, b, f] - own[X, b, f + 1], own[Y, b, f] - own[Y, b, f + 1])

@@ -83,7 +83,7 @@ def pair_gap(sp, v, len_behind, len_ahead):  # pragma: no cover - compiled
 @bare_inline
 def link_age(newest, b, ln, t):  # pragma: no cover - compiled
     """Age (s) of link ``ln``'s newest message at ``t`` (``newest``: its time, -inf when
-    none); inf when none."""
+    none); inf when none: one link's term of ``ConvoyMember.needed_age``."""
     return max(0.0, t - newest[b, ln])
 
 
@@ -211,7 +211,8 @@ def _rung(own, b, i, m, pred_est, ranging, t):  # pragma: no cover - compiled
 @bare_inline
 def _overridden(own, b, i, m, pred_est, ranging):  # pragma: no cover - compiled
     """``ConvoyMember._ranging_override``: the ranging target is closer by the intruder
-    margin than the predecessor by its messages or the desired gap."""
+    margin than the predecessor by its messages or the desired gap. Property-tested with
+    ``_rung``: tests/envs/vector/test_twins.py::test_member_rung_and_ladder_are_supervise."""
     rng_m, v2v_gap = ranging[RANGE, b, i], pred_est[RANGE, b, i]
     if math.isnan(rng_m) or math.isnan(v2v_gap):
         return False
@@ -247,8 +248,9 @@ def _ladder(own, b, i, m, pred_est, ranging, command):  # pragma: no cover - com
 
 @bare_inline
 def _rule_gap(own, b, i, m, t, ranging):  # pragma: no cover - compiled
-    """What the braking-aware gap rule reads: (known, bumper gap m, closing speed m/s),
-    from the ranging reading, else from the estimate of the predecessor."""
+    """What the braking-aware gap rule reads (``ConvoyWorld._emergency``): (known, bumper
+    gap m, closing speed m/s), from the ranging reading, else from the estimate of the
+    predecessor (``ConvoyMember.gap_estimate``)."""
     if not math.isnan(ranging[RANGE, b, i]):
         gap, closing = ranging[RANGE, b, i], -ranging[RATE, b, i]
     else:

@@ -155,7 +155,8 @@ def _pi_dv(pa, i, c, v_now, v_before, v0):  # pragma: no cover - compiled
     """``envs.plant.pi_speed_loop`` for vehicle ``i`` (slot ``c``) of ``pa``
     (``PlantArrays``): the speed change; updates its inner loop (``v_before`` acts for
     ``sub_n[0, c]`` substeps of ``sub_h[0, c]`` s, then ``v_now`` for ``sub_n[1, c]`` of
-    ``sub_h[1, c]``)."""
+    ``sub_h[1, c]``). Property-tested through ``_plant_step``:
+    tests/envs/vector/test_twins.py::test_plant_step_is_bicycle_plant_step."""
     p, inner, sub_n, sub_h = pa.params, pa.inner, pa.sub_n, pa.sub_h
     gains = (p[KP, c], p[KI, c], p[FF, c], p[TAU_D, c], p[STOP, c], p[DRAG, c], p[KIN, c])
     substeps = (sub_n[0, c], sub_h[0, c], sub_n[1, c], sub_h[1, c])

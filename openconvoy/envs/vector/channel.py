@@ -37,7 +37,7 @@ from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import ADVANCE_MIN_S, DRAW_JITTER, DRAW_LOSS
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.jit import Bound, bare_inline, bare_kernel
 from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.math import norm
 from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
@@ -241,6 +241,17 @@ class VectorChannel:
         self.pairs = Pairs(self.pair_s, self.pair_r, self.pair_link)
         self.counts = Counts(self.lost_to, self.delivered_to, self.msgs_kept)
         self.sent = Sent(self.send, self.lost)
+        # One caller each, the arguments' types fixed by the env: typed once (``Bound``).
+        self._gate, self._drop, self._drop_deliver = (
+            Bound(_tx_gate),
+            Bound(_bernoulli),
+            Bound(_bernoulli_deliver),
+        )
+        self._enqueue, self._deliver, self._arrive = (
+            Bound(_enqueue),
+            Bound(_deliver),
+            Bound(_arrive),
+        )
 
     def reset(self, rows: np.ndarray) -> None:
         """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
@@ -276,22 +287,22 @@ class VectorChannel:
     ) -> None:
         """Tx gates, loss and delivery at ``t`` (B,), tick ``step`` (B,), of the own states
         ``own`` (6, B, N) for convoys ``rows``: what arrives now is pushed into ``rx``."""
-        _tx_gate(t, rows, own, self.gate)
+        self._gate(t, rows, own, self.gate)
         pairs, counts, pushed = self.pairs, self.counts, rx.pushed
         if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
-            _bernoulli_deliver(self.draws, self.send, pairs, rows, t, own, counts, pushed)
+            self._drop_deliver(self.draws, self.send, pairs, rows, t, own, counts, pushed)
             return
         if self.ge is not None:
             self.lost[:] = self._ge_lost(self.send, t)[:, self.pair_s, self.pair_r]
         else:
-            _bernoulli(self.draws, self.send, pairs, rows, self.lost)
+            self._drop(self.draws, self.send, pairs, rows, self.lost)
         instant = self.slots == 0
         if not instant:  # before the broadcasts are counted: the jitter draws' numbers
-            _enqueue(self.draws, self.sent, pairs, rows, t, step, own, self.flight)
+            self._enqueue(self.draws, self.sent, pairs, rows, t, step, own, self.flight)
         self.broadcasts += self.send
-        _deliver(self.sent, pairs, rows, t, own, counts, pushed, instant)
+        self._deliver(self.sent, pairs, rows, t, own, counts, pushed, instant)
         if not instant:
-            _arrive(step, t, self.flight, pairs, counts, pushed)
+            self._arrive(step, t, self.flight, pairs, counts, pushed)
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``GilbertElliott.lost`` on every link whose sender broadcasts now, (B, N, N)."""

@@ -123,7 +123,7 @@ def profile(name: str, ticks: int) -> dict:
     for _ in range(3):  # compile or load every signature first
         _staged(env, act, bufs, stages)
         _empty(*env._fused[6])
-        fused_step(act, obs, rewards, term, trunc, bufs[2:], *env._fused)
+        fused_step(act, obs, rewards, term, trunc, bufs[2:], env._fused)
         env.step(act)
     env = _env(case)
     stages.clear()
@@ -143,7 +143,7 @@ def profile(name: str, ticks: int) -> dict:
     c0 = time.process_time()
     for _ in range(ticks):
         t0 = pc()
-        fused_step(act, obs, rewards, term, trunc, bufs[2:], *env._fused)
+        fused_step(act, obs, rewards, term, trunc, bufs[2:], env._fused)
         fused_ns += pc() - t0
     fused_cpu = time.process_time() - c0
     env = _env(case)

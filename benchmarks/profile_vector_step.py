@@ -53,13 +53,24 @@ def _staged(env, act, bufs, clock_stages: dict) -> None:
     from openconvoy.envs.vector.channel import _bernoulli_deliver, _tx_gate
     from openconvoy.envs.vector.leader import _drive, _project
     from openconvoy.envs.vector.measures import fill_infos, measure, reward
-    from openconvoy.envs.vector.member import decide
+    from openconvoy.envs.vector.member import decide, lead_guard
     from openconvoy.envs.vector.observation import observe
     from openconvoy.envs.vector.plant import _plant_step
 
-    (member, lead_project, lead_drive, plant, clock, tx, deliver, view, meas, score, fill) = (
-        env._fused
-    )
+    (
+        member,
+        lead_project,
+        lead_drive,
+        guard,
+        plant,
+        clock,
+        tx,
+        deliver,
+        view,
+        meas,
+        score,
+        fill,
+    ) = env._fused
     obs, rewards, fl, it, lf, li = bufs
     t, step_count, dt, max_steps, has_cmd, accel_old, own = clock
     pc = time.perf_counter_ns
@@ -72,6 +83,7 @@ def _staged(env, act, bufs, clock_stages: dict) -> None:
     timed("decide", decide, act, *member)
     timed("leader", _project, *lead_project)
     timed("leader", _drive, *lead_drive)
+    timed("leader", lead_guard, *guard)
     t0 = pc()
     has_cmd[:] = True
     accel_old[:] = own[4]
@@ -86,7 +98,7 @@ def _staged(env, act, bufs, clock_stages: dict) -> None:
     timed("observe", observe, obs, *view)
     timed("measure", measure, *meas)
     timed("reward", reward, rewards, *score)
-    timed("fill infos", fill_infos, fl, it, lf, li, *fill)
+    timed("fill infos", fill_infos, (fl, it, lf, li), *fill)
 
 
 def profile(name: str, ticks: int) -> dict:
@@ -111,7 +123,7 @@ def profile(name: str, ticks: int) -> dict:
     for _ in range(3):  # compile or load every signature first
         _staged(env, act, bufs, stages)
         _empty(*env._fused[6])
-        fused_step(act, obs, rewards, term, trunc, bufs[2:], *env._fused)
+        fused_step(act, obs, rewards, term, trunc, bufs[2:], env._fused)
         env.step(act)
     env = _env(case)
     stages.clear()
@@ -131,7 +143,7 @@ def profile(name: str, ticks: int) -> dict:
     c0 = time.process_time()
     for _ in range(ticks):
         t0 = pc()
-        fused_step(act, obs, rewards, term, trunc, bufs[2:], *env._fused)
+        fused_step(act, obs, rewards, term, trunc, bufs[2:], env._fused)
         fused_ns += pc() - t0
     fused_cpu = time.process_time() - c0
     env = _env(case)

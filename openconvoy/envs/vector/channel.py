@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,7 +37,7 @@ from openconvoy.core.errors import ConfigError
 from openconvoy.core.faults import Fault
 from openconvoy.core.gates import TriggerConfig
 from openconvoy.envs.channel import ADVANCE_MIN_S, DRAW_JITTER, DRAW_LOSS
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel
+from openconvoy.envs.vector.jit import Bound, bare_inline, bare_kernel
 from openconvoy.envs.vector.links import LinkTables
 from openconvoy.envs.vector.math import norm
 from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
@@ -44,6 +45,82 @@ from openconvoy.envs.vector.rx import RxBuffers, push_one
 
 _G, _K1, _K2 = np.uint64(SPLITMIX_GOLDEN), np.uint64(SPLITMIX_M1), np.uint64(SPLITMIX_M2)
 _S11, _S27, _S30, _S31 = np.uint64(11), np.uint64(27), np.uint64(30), np.uint64(31)
+
+
+class Gate(NamedTuple):
+    """The Tx gates' state and rule (``_tx_gate``): each vehicle's next check time
+    ``next_check`` (s), its last broadcast ``last`` (t, x, y, speed, heading), messages
+    ``sent``, the time its fault mutes it ``mute_from`` (s); the trigger's ``period`` (s),
+    whether it is ``event``-triggered, its position and speed thresholds ``thr`` (m),
+    ``sthr`` (m/s) and ``max_silence`` (s); out: who broadcasts now, ``send``."""
+
+    next_check: np.ndarray
+    last: np.ndarray
+    sent: np.ndarray
+    mute_from: np.ndarray
+    period: float
+    event: bool
+    thr: float
+    sthr: float
+    max_silence: float
+    send: np.ndarray
+
+
+class Loss(NamedTuple):
+    """The Bernoulli draws' words: each convoy's channel ``keys``, each sender's broadcast
+    ``number``, each convoy's ``per``; ``zs`` (N,): scratch."""
+
+    keys: np.ndarray
+    number: np.ndarray
+    per: np.ndarray
+    zs: np.ndarray
+
+
+class Pairs(NamedTuple):
+    """The pairs the loss is drawn on: sender ``s``, receiver ``r``, kept ``link`` (-1:
+    none), receiver-major."""
+
+    s: np.ndarray
+    r: np.ndarray
+    link: np.ndarray
+
+
+class Counts(NamedTuple):
+    """Per receiver (B, N): messages ``lost_to`` it, ``delivered_to`` it, ``kept``."""
+
+    lost_to: np.ndarray
+    delivered_to: np.ndarray
+    kept: np.ndarray
+
+
+class Sent(NamedTuple):
+    """This tick: who broadcasts, ``send`` (B, N), and which pair lost it, ``lost`` (B, P)."""
+
+    send: np.ndarray
+    lost: np.ndarray
+
+
+class Flight(NamedTuple):
+    """The messages in flight and their delays: the sender's ``latency`` and ``jitter``
+    (s), each pair's delay quantiles ``samples`` (s) and how many, ``n_samples`` (0: the
+    jitter); the stamps' clock error ``stamp_error`` (s) + ``stamp_drift`` * send time
+    and each sender's staleness ``stamp_sender`` (s); per send slot each pair's
+    ``arrival`` (s, inf: none), the slot's earliest ``first``, the senders' ``state`` and
+    send time ``sent_t``; scratch ``due`` (S,) and ``advanced`` (6, B, N)."""
+
+    latency: float
+    jitter: float
+    samples: np.ndarray
+    n_samples: np.ndarray
+    stamp_error: float
+    stamp_drift: float
+    stamp_sender: np.ndarray
+    arrival: np.ndarray
+    first: np.ndarray
+    state: np.ndarray
+    sent_t: np.ndarray
+    due: np.ndarray
+    advanced: np.ndarray
 
 
 class VectorChannel:
@@ -148,6 +225,33 @@ class VectorChannel:
             self.q_state = np.zeros((S, 6, B, N))
             self.q_t = np.zeros((S, B, N))
             self._advanced = np.zeros((6, B, N))  # a delivered state, advanced
+            self.flight = Flight(
+                float(self.latency_s), float(self.jitter_s), self.samples_s, self.n_samples,
+                float(self.stamp_error_s), float(self.stamp_drift), self.stamp_sender,
+                self.q_arrival, self.q_first, self.q_state, self.q_t, self._due_slots,
+                self._advanced,
+            )  # fmt: skip
+        c = self.trigger
+        self.gate = Gate(
+            self.next_check, self.last_sent, self.msgs_sent, self.mute_from, float(c.period_s),
+            c.kind == "event", float(c.threshold_m), float(c.speed_threshold_mps),
+            float(c.max_silence_s), self.send,
+        )  # fmt: skip
+        self.draws = Loss(self.keys, self.broadcasts, self.per, self._zs)
+        self.pairs = Pairs(self.pair_s, self.pair_r, self.pair_link)
+        self.counts = Counts(self.lost_to, self.delivered_to, self.msgs_kept)
+        self.sent = Sent(self.send, self.lost)
+        # One caller each, the arguments' types fixed by the env: typed once (``Bound``).
+        self._gate, self._drop, self._drop_deliver = (
+            Bound(_tx_gate),
+            Bound(_bernoulli),
+            Bound(_bernoulli_deliver),
+        )
+        self._enqueue, self._deliver, self._arrive = (
+            Bound(_enqueue),
+            Bound(_deliver),
+            Bound(_arrive),
+        )
 
     def reset(self, rows: np.ndarray) -> None:
         """Counters, gates and queues of convoys ``rows`` (bool (B,)) as new."""
@@ -183,47 +287,22 @@ class VectorChannel:
     ) -> None:
         """Tx gates, loss and delivery at ``t`` (B,), tick ``step`` (B,), of the own states
         ``own`` (6, B, N) for convoys ``rows``: what arrives now is pushed into ``rx``."""
-        c = self.trigger
-        _tx_gate(
-            t, rows, own, self.next_check, self.last_sent, self.msgs_sent, self.mute_from,
-            c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps,
-            c.max_silence_s, self.send,
-        )  # fmt: skip
+        self._gate(t, rows, own, self.gate)
+        pairs, counts, pushed = self.pairs, self.counts, rx.pushed
         if self.ge is None and self.slots == 0:  # instant Bernoulli: draw and deliver at once
-            _bernoulli_deliver(
-                self.keys, self.broadcasts, self.send, self.per, self.pair_s, self.pair_r,
-                self.pair_link, rows, t, own, self.lost_to, self.delivered_to, self.msgs_kept,
-                rx.hist, rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
-                rx.trail_of, rx.spacing_m, self._zs,
-            )  # fmt: skip
+            self._drop_deliver(self.draws, self.send, pairs, rows, t, own, counts, pushed)
             return
         if self.ge is not None:
             self.lost[:] = self._ge_lost(self.send, t)[:, self.pair_s, self.pair_r]
         else:
-            _bernoulli(self.keys, self.broadcasts, self.send, self.per, self.pair_s, self.pair_r,
-                       rows, self.lost)  # fmt: skip
+            self._drop(self.draws, self.send, pairs, rows, self.lost)
         instant = self.slots == 0
         if not instant:  # before the broadcasts are counted: the jitter draws' numbers
-            _enqueue(
-                self.keys, self.broadcasts, self.send, self.lost, self.pair_s, self.pair_r,
-                rows, t, step, own, self.latency_s, self.jitter_s, self.samples_s,
-                self.n_samples, self.q_arrival, self.q_first, self.q_state, self.q_t,
-            )  # fmt: skip
+            self._enqueue(self.draws, self.sent, pairs, rows, t, step, own, self.flight)
         self.broadcasts += self.send
-        _deliver(
-            self.send, self.lost, self.pair_s, self.pair_r, self.pair_link, rows, t, own,
-            self.lost_to, self.delivered_to, self.msgs_kept, rx.hist, rx.hist_n,
-            rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
-            rx.spacing_m, instant,
-        )  # fmt: skip
+        self._deliver(self.sent, pairs, rows, t, own, counts, pushed, instant)
         if not instant:
-            _arrive(
-                step, t, self.q_arrival, self.q_first, self.q_state, self.q_t, self.pair_s,
-                self.pair_r, self.pair_link, self.delivered_to, self.msgs_kept, rx.hist,
-                rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n,
-                rx.trail_of, rx.spacing_m, self._due_slots, self._advanced,
-                self.stamp_error_s, self.stamp_drift, self.stamp_sender,
-            )  # fmt: skip
+            self._arrive(step, t, self.flight, pairs, counts, pushed)
 
     def _ge_lost(self, send: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``GilbertElliott.lost`` on every link whose sender broadcasts now, (B, N, N)."""
@@ -289,10 +368,22 @@ def loss_threshold(per):  # pragma: no cover - compiled
 
 
 @bare_kernel
-def _tx_gate(
-    t, rows, own, nc, last, sent, mute_from, period, event, thr, sthr, max_silence, send
-):  # pragma: no cover - compiled
-    """``TxGate.should_send`` for every vehicle: who broadcasts now (``send``)."""
+def _tx_gate(t, rows, own, gate):  # pragma: no cover - compiled
+    """``TxGate.should_send`` for every vehicle: who broadcasts now (``gate.send``)."""
+    nc, last, sent, mute_from, send = (
+        gate.next_check,
+        gate.last,
+        gate.sent,
+        gate.mute_from,
+        gate.send,
+    )
+    period, event, thr, sthr, max_silence = (
+        gate.period,
+        gate.event,
+        gate.thr,
+        gate.sthr,
+        gate.max_silence,
+    )
     for b in range(nc.shape[0]):
         tt = t[b]
         for i in range(nc.shape[1]):
@@ -319,9 +410,10 @@ def _tx_gate(
 
 
 @bare_kernel
-def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: no cover
-    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``number``): the
-    draws of ``Channel._draw_block``, one pair at a time."""
+def _bernoulli(draws, send, pairs, rows, lost):  # pragma: no cover - compiled
+    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``draws.number``):
+    the draws of ``Channel._draw_block``, one pair at a time."""
+    keys, number, per, pair_s, pair_r = draws.keys, draws.number, draws.per, pairs.s, pairs.r
     for b in range(lost.shape[0]):
         for p in range(lost.shape[1]):
             s = pair_s[p]
@@ -334,15 +426,16 @@ def _bernoulli(keys, number, send, per, pair_s, pair_r, rows, lost):  # pragma: 
 
 
 @bare_kernel
-def _bernoulli_deliver(
-    keys, number, send, per, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to,
-    kept, hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, zs,
-):  # pragma: no cover - compiled  # fmt: skip
+def _bernoulli_deliver(draws, send, pairs, rows, t, own, counts, rx):  # pragma: no cover
     """``_bernoulli`` and ``_deliver`` of instant links in one walk over the pairs,
-    receiver-major (``pair_link``: each pair's link or -1): each receiver's counters,
-    R^i buffers and trails are written in memory order, the senders' rows (``zs``:
+    receiver-major (``pairs.link``: each pair's link or -1): each receiver's counters,
+    R^i buffers and trails are written in memory order, the senders' rows (``draws.zs``:
     scratch (N,), each broadcasting sender's first round of ``counter_uniform4``) stay in
     the first cache level. Counts the broadcasts."""
+    keys, number, per, zs = draws.keys, draws.number, draws.per, draws.zs
+    pair_s, pair_r, pair_link = pairs.s, pairs.r, pairs.link
+    lost_to, delivered_to, kept = counts.lost_to, counts.delivered_to, counts.kept
+    keeps, newest = rx.keeps, rx.newest
     N = send.shape[1]
     for b in range(send.shape[0]):
         if not rows[b]:
@@ -373,18 +466,16 @@ def _bernoulli_deliver(
                 was = newest[b, link]
                 newest[b, link] = was if miss else max(was, tb)
             elif not miss:
-                push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                         link, tb, own, s, spacing)  # fmt: skip
+                push_one(rx, b, link, tb, own, s)
         for s in range(N):
             number[b, s] += send[b, s]
 
 
 @bare_kernel
-def _deliver(
-    send, lost, pair_s, pair_r, pair_link, rows, t, own, lost_to, delivered_to, kept,
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, instant,
-):  # pragma: no cover - compiled  # fmt: skip
+def _deliver(sent, pairs, rows, t, own, counts, rx, instant):  # pragma: no cover - compiled
     """Count the losses of this tick's broadcasts; instant links also deliver now."""
+    send, lost, pair_s, pair_r, pair_link = sent.send, sent.lost, pairs.s, pairs.r, pairs.link
+    lost_to, delivered_to, kept = counts.lost_to, counts.delivered_to, counts.kept
     for b in range(send.shape[0]):
         if not rows[b]:
             continue
@@ -400,8 +491,7 @@ def _deliver(
                 link = pair_link[p]
                 if link >= 0:
                     kept[b, r] += 1
-                    push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, link, t[b],
-                             own, s, spacing)  # fmt: skip
+                    push_one(rx, b, link, t[b], own, s)
 
 
 @bare_inline
@@ -434,13 +524,16 @@ def _advance(st, b, s, d, out):  # pragma: no cover - compiled
 
 
 @bare_kernel
-def _enqueue(
-    keys, number, send, lost, pair_s, pair_r, rows, t, step, own, latency, jitter, samples,
-    n_samples, q_arrival, q_first, q_state, q_t,
-):  # pragma: no cover - compiled  # fmt: skip
-    """This tick's broadcasts into send slot ``step % S``: the senders' states, and each
-    pair's arrival time (``Channel.send``'s, jitter or sample drawn on broadcast
-    ``number``; inf where not sent or lost), and the slot's earliest arrival ``q_first``."""
+def _enqueue(draws, sent, pairs, rows, t, step, own, fl):  # pragma: no cover - compiled
+    """This tick's broadcasts into send slot ``step % S`` of ``fl`` (``Flight``): the
+    senders' states, and each pair's arrival time (``Channel.send``'s, jitter or sample
+    drawn on broadcast ``draws.number``; inf where not sent or lost), and the slot's
+    earliest arrival ``fl.first``."""
+    keys, number, send, lost, pair_s, pair_r = (
+        draws.keys, draws.number, sent.send, sent.lost, pairs.s, pairs.r
+    )  # fmt: skip
+    latency, jitter, samples, n_samples = fl.latency, fl.jitter, fl.samples, fl.n_samples
+    q_arrival, q_first, q_state, q_t = fl.arrival, fl.first, fl.state, fl.sent_t
     S, B, P = q_arrival.shape
     N = q_t.shape[2]
     for b in range(B):
@@ -470,18 +563,19 @@ def _enqueue(
 
 
 @bare_kernel
-def _arrive(
-    step, t, q_arrival, q_first, q_state, q_t, pair_s, pair_r, pair_link, delivered_to, kept,
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, spacing, slots, advanced,
-    stamp_error, stamp_drift, stamp_sender,
-):  # pragma: no cover - compiled  # fmt: skip
-    """Deliver the messages due by ``t``, each pair's in arrival order (ties: the older
-    send first), as ``Channel.deliver``: with jitter a later broadcast may overtake; one
-    that waited for this tick is advanced by the wait (into ``advanced``: scratch), and
-    stamped with the senders' clock error ``stamp_error + stamp_drift * send time`` and
-    the sender's staleness ``stamp_sender[s]`` (s).
-    Only the send slots with something due (``q_first``) are visited (``slots`` (S,):
+def _arrive(step, t, fl, pairs, counts, rx):  # pragma: no cover - compiled
+    """Deliver the messages of ``fl`` (``Flight``) due by ``t``, each pair's in arrival
+    order (ties: the older send first), as ``Channel.deliver``: with jitter a later
+    broadcast may overtake; one that waited for this tick is advanced by the wait (into
+    ``fl.advanced``: scratch), and stamped with the senders' clock error ``stamp_error +
+    stamp_drift * send time`` and the sender's staleness ``stamp_sender[s]`` (s).
+    Only the send slots with something due (``fl.first``) are visited (``fl.due`` (S,):
     scratch)."""
+    q_arrival, q_first, q_state, q_t = fl.arrival, fl.first, fl.state, fl.sent_t
+    slots, advanced, stamp_sender = fl.due, fl.advanced, fl.stamp_sender
+    stamp_error, stamp_drift = fl.stamp_error, fl.stamp_drift
+    pair_s, pair_r, pair_link = pairs.s, pairs.r, pairs.link
+    delivered_to, kept = counts.delivered_to, counts.kept
     S, B, P = q_arrival.shape
     for b in range(B):
         due = t[b] + 1e-9
@@ -512,11 +606,9 @@ def _arrive(
                     err = stamp_error + stamp_drift * ts + stamp_sender[s]
                     if waited > ADVANCE_MIN_S:
                         _advance(q_state[first], b, s, waited, advanced)
-                        push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                                 link, ts + waited - err, advanced, s, spacing)  # fmt: skip
+                        push_one(rx, b, link, ts + waited - err, advanced, s)
                     else:
-                        push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b,
-                                 link, ts - err, q_state[first], s, spacing)  # fmt: skip
+                        push_one(rx, b, link, ts - err, q_state[first], s)
         for k in range(n_due):
             sl, pending = slots[k], np.inf
             for p in range(P):

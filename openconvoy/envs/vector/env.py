@@ -539,7 +539,7 @@ class VectorConvoyEnv:
             if self._slabs is not None:
                 self._slabs.step(a, obs, rewards, terminated, truncated, filled)
             else:
-                self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
+                self._fused_call(a, obs, rewards, terminated, truncated, filled, self._fused)
             info = infos(self, filled)
         else:
             terminated, truncated, info = self._staged_step(a, obs, rewards)
@@ -568,7 +568,7 @@ class VectorConvoyEnv:
         with nothing done, where this env steps stage by stage or on threads."""
         if self._fused is None or self._slabs is not None:
             return False
-        self._fused_call(a, obs, rewards, terminated, truncated, filled, *self._fused)
+        self._fused_call(a, obs, rewards, terminated, truncated, filled, self._fused)
         self._widen_trails()
         return True
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -38,6 +39,15 @@ def first_tick(t_s: float, dt: float) -> int:
     return k
 
 
+class Forgeries(NamedTuple):
+    """What ``_forge`` reads and fills: each forger's claimed ``vehicle`` and start time
+    ``t_s`` (s), and this tick's forged ``state`` (6, B, N) (scratch)."""
+
+    vehicle: np.ndarray
+    t_s: np.ndarray
+    state: np.ndarray
+
+
 class Forgers:
     """The ``forge`` faults among ``faults`` of ``B`` convoys of ``N`` vehicles, ticks of
     ``dt`` s; ``security.auth``: the members verify (reject) forged messages.
@@ -55,6 +65,7 @@ class Forgers:
         for q, f in enumerate(forged):
             self._claimed[q] = np.arange(N) != f.vehicle
         self._state = np.zeros((6, B, N))  # the forged states of this tick (scratch)
+        self._forgeries = Forgeries(self.vehicles, self.t_s, self._state)
 
     def rejected(self, step_count: np.ndarray) -> np.ndarray:
         """Forged messages each member rejected since its convoy's reset, (B, N): one per
@@ -80,21 +91,15 @@ class Forgers:
         the true states ``own`` (6, B, N); ``kept`` (B, N): messages kept, counted."""
         if not self.delivers:
             return
-        _forge(
-            t, rows, own, self.vehicles, self.t_s, links.link_of, kept, rx.hist, rx.hist_n,
-            rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
-            rx.spacing_m, self._state,
-        )  # fmt: skip
+        _forge(t, rows, own, self._forgeries, links.link_of, kept, rx.pushed)
 
 
 @bare_kernel
-def _forge(
-    t, rows, own, vehicles, t_s, link_of, kept, hist, hist_n, newest, keeps, trail, tail,
-    trail_n, trail_of, spacing, forged,
-):  # pragma: no cover - compiled  # fmt: skip
+def _forge(t, rows, own, fg, link_of, kept, rx):  # pragma: no cover - compiled
     """``Authentication.deliver_forgeries`` with authentication off: each active forger's
     state (``forgery.forged_state`` of the claimed vehicle's truth) pushed onto every
     receiver's link from the claimed vehicle, in fault order, then receiver order."""
+    vehicles, t_s, forged = fg.vehicle, fg.t_s, fg.state
     _, B, N = own.shape
     for b in range(B):
         if not rows[b]:
@@ -113,5 +118,4 @@ def _forge(
                 if r == v or ln < 0:
                     continue
                 kept[b, r] += 1
-                push_one(hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, ln, tt,
-                         forged, v, spacing)  # fmt: skip
+                push_one(rx, b, ln, tt, forged, v)

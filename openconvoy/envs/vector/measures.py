@@ -3,7 +3,7 @@ terms, the same order of operations) and the info arrays."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -65,6 +65,39 @@ LEADER_INT_KEYS = (
 )  # fmt: skip
 
 
+class Reported(NamedTuple):
+    """What ``fill_infos`` reads, (B, N) unless said: the gaps (m, (B, N-1)), desired gaps
+    and spacing errors (m), the own states ``own`` (the plant's rows), the commands
+    ``cmd_v`` (m/s) and ``cmd_dh`` (rad), whether a command was given ``has_cmd`` (B,), the
+    predecessor's age ``pred_age`` (s), the ladder's ``modes``, the messages ``sent``,
+    ``received``, ``kept`` and ``lost``, and the policy's ``errors``."""
+
+    gap: np.ndarray
+    desired: np.ndarray
+    spacing_error: np.ndarray
+    own: np.ndarray
+    cmd_v: np.ndarray
+    cmd_dh: np.ndarray
+    has_cmd: np.ndarray
+    pred_age: np.ndarray
+    modes: np.ndarray
+    sent: np.ndarray
+    received: np.ndarray
+    kept: np.ndarray
+    lost: np.ndarray
+    errors: np.ndarray
+
+
+def reported(env: Any, own: np.ndarray) -> Reported:
+    """``fill_infos``'s inputs of ``env`` (a ``VectorConvoyEnv``) with own states ``own``."""
+    ch = env.channel
+    return Reported(
+        env.gap, env.desired_gap, env.spacing_error, own, env.cmd_v, env.cmd_dh, env._has_cmd,
+        env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to, ch.msgs_kept, ch.lost_to,
+        env.policy_errors,
+    )  # fmt: skip
+
+
 def info_arrays(B: int, F: int) -> tuple[np.ndarray, ...]:
     """``fill_infos``'s outputs for ``B`` convoys of ``F`` followers, uninitialized."""
     return (
@@ -82,12 +115,7 @@ def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, A
     ``filled``: ``info_arrays`` that ``fill_infos`` has filled this tick already."""
     if filled is None:
         filled = info_arrays(*env.gap.shape)
-        ch = env.channel
-        fill_infos(
-            *filled, env.gap, env.desired_gap, env.spacing_error, env.own, env.cmd_v,
-            env.cmd_dh, env._has_cmd, env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to,
-            ch.msgs_kept, ch.lost_to, env.policy_errors,
-        )  # fmt: skip
+        fill_infos(filled, reported(env, env.own))
     fl, it, lf, li = filled
     out = dict(zip(FLOAT_KEYS, fl))
     out.update(zip(INT_KEYS, it))
@@ -100,10 +128,19 @@ def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, A
 
 
 @bare_kernel
-def fill_infos(
-    fl, it, lf, li, gap, desired, spacing_error, own, cmd_v, cmd_dh, has_cmd, pred_age, modes,
-    sent, received, kept, lost, errors,
-):  # pragma: no cover - compiled  # fmt: skip
+def fill_infos(out, rep):  # pragma: no cover - compiled
+    """``info_arrays`` ``out`` (floats, ints, the leader's floats and ints) of ``rep``
+    (``Reported``): ``infos``'s keys in their order."""
+    fl, it, lf, li = out
+    gap, desired, spacing_error, own = rep.gap, rep.desired, rep.spacing_error, rep.own
+    cmd_v, cmd_dh, has_cmd, pred_age, modes = (
+        rep.cmd_v,
+        rep.cmd_dh,
+        rep.has_cmd,
+        rep.pred_age,
+        rep.modes,
+    )
+    sent, received, kept, lost, errors = rep.sent, rep.received, rep.kept, rep.lost, rep.errors
     for b in range(gap.shape[0]):
         total = 0  # every vehicle's broadcasts: msgs_offered in closed form
         for i in range(sent.shape[1]):

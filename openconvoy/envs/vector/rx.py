@@ -14,6 +14,8 @@ A link's data is contiguous: a push touches a few cache lines. ``StateBuffer.pus
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from openconvoy.envs.vector.jit import bare_inline, bare_kernel
@@ -35,6 +37,23 @@ def aligned_zeros(shape: tuple[int, ...]) -> np.ndarray:
     return raw[start : start + n].reshape(shape)
 
 
+class Pushed(NamedTuple):
+    """What ``push_one`` writes and reads (``RxBuffers.pushed``, built again when the
+    trails' rings widen): the R^i buffers ``hist``, ``hist_n``, ``newest``, the trails
+    ``trail``, ``tail``, ``trail_n``; per link whether it ``keeps`` states and its trail
+    row ``trail_of`` (-1: none); the breadcrumbs' ``spacing`` (m)."""
+
+    hist: np.ndarray
+    hist_n: np.ndarray
+    newest: np.ndarray
+    keeps: np.ndarray
+    trail: np.ndarray
+    tail: np.ndarray
+    trail_n: np.ndarray
+    trail_of: np.ndarray
+    spacing: float
+
+
 class RxBuffers:
     """R^i buffers of ``links.L`` kept links, trails and projection hints of ``links.T``
     target links, in ``B`` convoys."""
@@ -53,6 +72,12 @@ class RxBuffers:
         self.trail_n = np.zeros((B, T), dtype=np.int16)
         self.hint = np.full((B, T), np.nan)
         self.hint_k = np.zeros((B, T), dtype=np.int16)
+        self.pushed = self._pushed()
+
+    def _pushed(self) -> Pushed:
+        """``push_one``'s arrays of those held now."""
+        return Pushed(self.hist, self.hist_n, self.newest, self.keeps_states, self.trail,
+                      self.tail, self.trail_n, self.trail_of, float(self.spacing_m))  # fmt: skip
 
     def reset(self, rows: np.ndarray) -> None:
         """Empty the buffers of convoys ``rows`` (bool (B,))."""
@@ -78,6 +103,7 @@ class RxBuffers:
         new = np.zeros((self.trail.shape[0], self.trail.shape[1], window, 3))
         _rering(self.trail, self.tail, self.trail_n, new)
         self.trail = new
+        self.pushed = self._pushed()
 
 
 @bare_kernel
@@ -95,19 +121,19 @@ def _rering(old, tail, n, new):  # pragma: no cover - compiled
 
 
 @bare_inline
-def push_one(
-    hist, hist_n, newest, keeps, trail, tail, trail_n, trail_of, b, ln, ts, st, s, spacing
-):  # pragma: no cover - compiled
+def push_one(rx, b, ln, ts, st, s):  # pragma: no cover - compiled
     """``StateBuffer.push`` of sender ``s``'s state ``st[:, b, s]`` sent at ``ts`` onto
-    link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``;
-    only the time where the link ``keeps`` no states. ``st``'s rows: the plant's (with
-    the heading's cosine and sine, ``vector.plant``) or its first six (computed here)."""
+    link ``ln`` of convoy ``b`` (older than the newest: ignored), then ``Trail.add``, into
+    ``rx`` (``Pushed``); only the time where the link keeps no states. ``st``'s rows: the
+    plant's (with the heading's cosine and sine, ``vector.plant``) or its first six
+    (computed here)."""
+    hist, hist_n, newest = rx.hist, rx.hist_n, rx.newest
     if not ts > newest[b, ln]:
         return
     newest[b, ln] = ts
     k = hist.shape[2]
     hist_n[b, ln] = min(hist_n[b, ln] + 1, k)
-    if not keeps[ln]:
+    if not rx.keeps[ln]:
         return
     for j in range(k - 1, 0, -1):
         for f in range(FIELDS):
@@ -116,7 +142,7 @@ def push_one(
     for f in range(5):  # x, y, speed, heading, accel: the plant's rows 0..4
         hist[b, ln, 0, f + 1] = st[f, b, s]
     hist[b, ln, 0, HC], hist[b, ln, 0, HS] = cos_sin(st, b, s)
-    tl = trail_of[ln]
+    tl = rx.trail_of[ln]
     if tl >= 0:
-        trail_add(trail, tail, trail_n, b, tl, st[0, b, s], st[1, b, s], spacing, ts,
-                  st[2, b, s], hist[b, ln, 0, HC], hist[b, ln, 0, HS])  # fmt: skip
+        trail_add(rx.trail, rx.tail, rx.trail_n, b, tl, st[0, b, s], st[1, b, s], rx.spacing,
+                  ts, st[2, b, s], hist[b, ln, 0, HC], hist[b, ln, 0, HS])  # fmt: skip

@@ -12,18 +12,36 @@ Each stage's arrays come packed once in a tuple in its kernel's argument order
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 from openconvoy.envs.vector.channel import _bernoulli_deliver, _tx_gate
 from openconvoy.envs.vector.jit import bare_kernel, typeof
 from openconvoy.envs.vector.leader import _drive, _project
-from openconvoy.envs.vector.measures import fill_infos, measure, reward
+from openconvoy.envs.vector.measures import fill_infos, measure, reported, reward
 from openconvoy.envs.vector.member import decide, lead_guard
 from openconvoy.envs.vector.observation import observe
 from openconvoy.envs.vector.plant import ACCEL, _plant_step
 
 
-def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
+class Stages(NamedTuple):
+    """Each stage's arguments of ``fused_step``, after the per-step arrays, in its
+    kernel's order (``pack``)."""
+
+    member: tuple[Any, ...]
+    lead_project: tuple[Any, ...]
+    lead_drive: tuple[Any, ...]
+    guard: tuple[Any, ...]
+    plant: tuple[Any, ...]
+    clock: tuple[Any, ...]
+    tx: tuple[Any, ...]
+    deliver: tuple[Any, ...]
+    observation: tuple[Any, ...]
+    meas: tuple[Any, ...]
+    score: tuple[Any, ...]
+    fill: tuple[Any, ...]
+
+
+def pack(env: Any) -> Stages:
     """The stages' argument tuples of ``env`` (a ``VectorConvoyEnv``), after the per-step
     arrays: member, leader projection, leader drive, leader guard, plant, clock, Tx gate, delivery,
     observation, measures, reward, infos."""
@@ -35,28 +53,20 @@ def pack(env: Any) -> tuple[tuple[Any, ...], ...]:
         env.leader,
         env.plant,
     )
-    c = ch.trigger
-    return (
+    return Stages(
         (t, own, env.ranging.reading, env.pred_est, env._member, env._commands),
         (own, ld.road),
         (t, own, ld.road, env.cmd_v, env.cmd_dh),
         (t, own, env._member, env._commands),
         (pl.arrays, env._cmd_v_flat, env._cmd_dh_flat, pl.dt),
         (t, env.step_count, env.dt, env.max_steps, env._has_cmd, env._accel_old, own),
-        (t, env._everyone, own, ch.next_check, ch.last_sent, ch.msgs_sent, ch.mute_from,
-         c.period_s, c.kind == "event", c.threshold_m, c.speed_threshold_mps, c.max_silence_s,
-         ch.send),
-        (ch.keys, ch.broadcasts, ch.send, ch.per, ch.pair_s, ch.pair_r, ch.pair_link,
-         env._everyone, t, own, ch.lost_to, ch.delivered_to, ch.msgs_kept, rx.hist,
-         rx.hist_n, rx.newest, rx.keeps_states, rx.trail, rx.tail, rx.trail_n, rx.trail_of,
-         rx.spacing_m, ch._zs),
+        (t, env._everyone, own, ch.gate),
+        (ch.draws, ch.send, ch.pairs, env._everyone, t, own, ch.counts, rx.pushed),
         (env._everyone, t, own, env._sources, env._measures),
         (own, env._half_sum, env.gap, env.collided),
         (env.gap, env.desired_gap, env._accel_old, own, env.collided, 1.0 / env.dt,
          env._reward_c),
-        (env.gap, env.desired_gap, env.spacing_error, own, env.cmd_v, env.cmd_dh, env._has_cmd,
-         env.pred_age, env.modes, ch.msgs_sent, ch.delivered_to, ch.msgs_kept, ch.lost_to,
-         env.policy_errors),
+        (reported(env, own),),
     )  # fmt: skip
 
 
@@ -81,38 +91,35 @@ class FusedCall:
 
 
 @bare_kernel
-def fused_step(
-    act, obs, rewards, terminated, truncated, info, member, lead_project, lead_drive, guard,
-    plant, clock, tx, deliver, view, meas, score, fill,
-):  # pragma: no cover - compiled  # fmt: skip
+def fused_step(act, obs, rewards, terminated, truncated, info, st):  # pragma: no cover - compiled
     """One tick of every convoy: decide, drive the leaders, move the plant, advance the
     clock, Tx gates, loss and delivery, observations, gaps, rewards, terminations and the
-    info arrays (``info``: ``fill_infos``'s four outputs)."""
-    decide(act, *member)
-    _project(*lead_project)
-    _drive(*lead_drive)
-    lead_guard(*guard)
-    t, step_count, dt, max_steps, has_cmd, accel_old, own = clock
+    info arrays (``info``: ``fill_infos``'s four outputs), each stage's arguments in
+    ``st`` (``Stages``)."""
+    decide(act, *st.member)
+    _project(*st.lead_project)
+    _drive(*st.lead_drive)
+    lead_guard(*st.guard)
+    t, step_count, dt, max_steps, has_cmd, accel_old, own = st.clock
     B = t.shape[0]
     for b in range(B):
         has_cmd[b] = True
         for i in range(own.shape[2]):
             accel_old[b, i] = own[ACCEL, b, i]
-    _plant_step(*plant)
+    _plant_step(*st.plant)
     for b in range(B):
         step_count[b] += 1
         t[b] = step_count[b] * dt
-    _tx_gate(*tx)
-    _bernoulli_deliver(*deliver)
-    observe(obs, *view)
-    measure(*meas)
-    reward(rewards, *score)
-    gap, collided = meas[2], meas[3]
+    _tx_gate(*st.tx)
+    _bernoulli_deliver(*st.deliver)
+    observe(obs, *st.observation)
+    measure(*st.meas)
+    reward(rewards, *st.score)
+    gap, collided = st.meas[2], st.meas[3]
     for b in range(B):
         hit = False
         for f in range(gap.shape[1]):
             hit = hit or collided[b, f]
         terminated[b] = hit
         truncated[b] = step_count[b] >= max_steps and not hit
-    fl, it, lf, li = info
-    fill_infos(fl, it, lf, li, *fill)
+    fill_infos(info, *st.fill)

@@ -126,7 +126,7 @@ class Slabs:
         for (b0, b1), pack, call in zip(self.bounds, self.packs, self.calls):
             cut = tuple(f[:, b0:b1] for f in filled)
             jobs.append((call, (a[b0:b1], obs[b0:b1], rewards[b0:b1], terminated[b0:b1],
-                                truncated[b0:b1], cut, *pack)))  # fmt: skip
+                                truncated[b0:b1], cut, pack)))  # fmt: skip
         if not self._warm:  # the first call types (or compiles) the kernels: one at a time
             for call, args in jobs:
                 call(*args)

@@ -510,10 +510,11 @@ def test_channel_bernoulli_loses_by_the_counter_draw(
     pair_s, pair_r = np.array([0, 1, 1]), np.array([1, 0, 2])
     send = np.array([[False, sends, False]])
     lost = np.ones((1, 3), bool)
-    vchannel._bernoulli(
-        np.array([key], np.uint64), np.full((1, 3), number), send, np.array([per]),
-        pair_s, pair_r, np.array([row]), lost,
-    )  # fmt: skip
+    draws = vchannel.Loss(
+        np.array([key], np.uint64), np.full((1, 3), number), np.array([per]), np.zeros(3)
+    )
+    pairs = vchannel.Pairs(pair_s, pair_r, np.full(3, -1))
+    vchannel._bernoulli(draws, send, pairs, np.array([row]), lost)
     for p in range(3):
         s, r = pair_s[p], pair_r[p]
         draw = counter_uniform(key, s, r, number, vchannel.DRAW_LOSS)

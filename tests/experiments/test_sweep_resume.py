@@ -33,8 +33,16 @@ def _sweep_cmd(*args: str) -> list[str]:
 
 
 def _interrupt_after(cmd: list[str], out: Path, records: int, sig: int) -> tuple[int, str]:
-    """Start ``cmd``, send ``sig`` once ``records`` runs have finished; its status and stderr."""
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    """Start ``cmd``, send ``sig`` once ``records`` runs have finished; its status and stderr.
+    The child gets Ctrl-C's default action back: a shell without job control starts its
+    background commands with SIGINT ignored, and CPython then installs no handler for it
+    (seen when the suite itself ran in the background: the sweep finished, exit 0)."""
+    proc = subprocess.Popen(
+        cmd,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline and proc.poll() is None:
         if len(list((out / RESUME_DIR).glob("run-*.pkl"))) >= records:

@@ -493,11 +493,10 @@ def _start_standins(
 
         build_mavros_msgs()
         build_interfaces("ardupilot_msgs")  # every ROS 2 node loads both packages
-        if any(v.link == "ap-dds" for v in links):
-            # The ap-dds deploys' nodes are Cyclone DDS on the namespace's veth
-            # (``--dds-iface``): the stand-ins' Fast DDS must look for peers there too.
-            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
-        ros2 = Ros2Node("/openconvoy_standins")
+        # The ap-dds deploys' nodes are Cyclone DDS on the namespace's veth
+        # (``--dds-iface``): the stand-ins' Fast DDS must look for peers there too.
+        subnet = any(v.link == "ap-dds" for v in links)
+        ros2 = Ros2Node("/openconvoy_standins", discovery="SUBNET" if subnet else None)
         ros.append(ros2)
     if any(v.link == "mavros" and v.ros == 1 for v in links):
         from openconvoy.bridge.ros.ros1 import Roscore

@@ -237,7 +237,9 @@ class Ros2Node(Ros1Node):
     ``openconvoy_link`` in namespace ``/vehicle_1``) in a subprocess of the ROS 2
     environment; the methods of ``Ros1Node`` (``subscribe``'s ``nodelay``/``any_md5`` mean
     nothing here: each topic gets MAVROS 2's QoS, ``qos_for``). ``netns_pid``: join that
-    process's network namespace (default ``OPENCONVOY_ROS2_NETNS``; none: this one's)."""
+    process's network namespace (default ``OPENCONVOY_ROS2_NETNS``; none: this one's).
+    ``discovery``: the node's ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (default: the environment's,
+    else ``LOCALHOST``)."""
 
     ROS = "ROS 2"
 
@@ -247,9 +249,11 @@ class Ros2Node(Ros1Node):
         timeout_s: float = 60.0,
         msg_dir: Path = MSG_DIR,
         netns_pid: int | None = None,
+        discovery: str | None = None,
     ) -> None:
         env_pid = os.environ.get(NETNS_ENV)
         self.netns_pid = netns_pid if netns_pid is not None else (int(env_pid) if env_pid else None)
+        self.discovery = discovery
         super().__init__(name, None, timeout_s, msg_dir)
 
     def _agent(
@@ -261,7 +265,10 @@ class Ros2Node(Ros1Node):
         if self.netns_pid is not None:
             enter = ["nsenter", "--preserve-credentials", "-U", "-n", "-t", str(self.netns_pid)]
             argv = enter + argv
-        return argv, ros2_env(prefixes)
+        env = ros2_env(prefixes)
+        if self.discovery is not None:
+            env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = self.discovery
+        return argv, env
 
     def subscribe(
         self,

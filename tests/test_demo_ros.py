@@ -38,21 +38,25 @@ def _demo(out: Path, *extra: str) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def _p95_within_10_percent(
+def _p95_not_10_percent_worse(
     out: Path, link: tuple[str, ...], base: tuple[str, ...]
 ) -> tuple[dict, dict]:
-    """The demo over ``link`` and the MAVLink demo ``base`` (same seed): their p95 within
-    10 %. A run's p95 is set by its start-up and speed-change transients, whose timing the
-    machine's load moves: two MAVLink runs at load 18-23 differed by 7-13 % (docs/ros.md).
-    So one pair outside the band is followed by a second, and the two pairs' summed p95s
-    must then be within 10 % (more samples, the same band). The first pair's runs."""
+    """The demo over ``link`` and the MAVLink demo ``base`` (same seed): the link's p95 no
+    more than 10 % above MAVLink's. What is judged is what the link costs the convoy, so the
+    band is one-sided: a run's p95 is set by its start-up and speed-change transients, whose
+    timing the machine moves (two MAVLink runs at load 18-23 differed by 7-13 %,
+    docs/ros.md), and on CI's 2-core machine both ROS links came out 11-17 % *better* than
+    their MAVLink pairs (ROS 1 0.295 / 0.280 m against 0.331 / 0.336 m; px4-dds 0.515 /
+    0.575 m against 0.634 / 0.658 m), which a two-sided band refused. One pair above the
+    band is followed by a second, and the two pairs' summed p95s must then hold it (more
+    samples, the same band). The first pair's runs."""
     first = (_demo(out / "link-0", *link), _demo(out / "base-0", *base))
     p95 = [[r["deploy"]["p95_platooning_error_m"] for r in first]]
-    if abs(p95[0][0] - p95[0][1]) > 0.10 * p95[0][1]:
+    if p95[0][0] > 1.10 * p95[0][1]:
         again = (_demo(out / "link-1", *link), _demo(out / "base-1", *base))
         p95.append([r["deploy"]["p95_platooning_error_m"] for r in again])
     linked, based = sum(p[0] for p in p95), sum(p[1] for p in p95)
-    assert abs(linked - based) <= 0.10 * based, p95
+    assert linked <= 1.10 * based, p95
     return first
 
 
@@ -94,7 +98,7 @@ def test_ap_dds_demo_completes(tmp_path: Path) -> None:
 def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
     reason = netns_unavailable_reason()
     assert reason is None, f"the demo needs a private network namespace: {reason}"
-    ros, _ = _p95_within_10_percent(tmp_path, ("--link", "mavros", "--ros", "1", "--bag"), ())
+    ros, _ = _p95_not_10_percent_worse(tmp_path, ("--link", "mavros", "--ros", "1", "--bag"), ())
     assert ros["deploy"]["collisions"] == 0 and ros["deploy"]["min_gap_m"] > 13.0
     deploy = tmp_path / "link-0" / "deploy"
     for vid in range(3):
@@ -140,7 +144,7 @@ def test_mavros_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
 def test_px4dds_demo_matches_the_mavlink_demo(tmp_path: Path) -> None:
     reason = netns_unavailable_reason()
     assert reason is None, f"the demo needs a private network namespace: {reason}"
-    dds, _ = _p95_within_10_percent(
+    dds, _ = _p95_not_10_percent_worse(
         tmp_path, ("--autopilot", "px4", "--link", "px4-dds"), ("--autopilot", "px4")
     )
     assert dds["deploy"]["collisions"] == 0 and dds["deploy"]["min_gap_m"] > 13.0

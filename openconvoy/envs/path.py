@@ -34,6 +34,8 @@ class Path:
         keep = np.ones(len(pts), dtype=bool)
         keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-9
         pts = pts[keep]
+        if len(pts) < 2:
+            raise ConfigError("a path needs at least two distinct (x, y) points")
         self.points = pts
         self.closed = closed
         verts = np.vstack([pts, pts[:1]]) if closed else pts

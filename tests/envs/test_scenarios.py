@@ -258,6 +258,12 @@ def test_track_file_with_quarter_turns_closes() -> None:
         (lambda d: d["turns"][0].update(direction="sideways"), "direction"),
         (lambda d: d["straights"][0].pop("speed"), "missing key.*speed"),
         (lambda d: d["center"].update(alt=3), "unknown key.*alt"),
+        (
+            lambda d: d.update(
+                straights=[{**d["straights"][0], "end": d["straights"][0]["start"]}], turns=[]
+            ),
+            "start and end coincide",
+        ),
     ],
 )
 def test_track_file_is_strict(mutate, message: str) -> None:
@@ -314,3 +320,17 @@ def test_a_built_scenario_is_changed_only_by_building_a_new_one_validated_again(
     # Gaps that do not fit on the closed track are refused, as at construction.
     with pytest.raises(ConfigError, match="do not fit"):
         track.with_changes(spacing=SpacingConfig("constant-distance", distance_m=500.0))
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_a_path_of_one_repeated_point_is_refused(closed: bool) -> None:
+    """Repeated vertices are dropped (a zero-length segment has no heading); a path left
+    with fewer than two points is a config error, not numpy's empty ``argmin``."""
+    from openconvoy.core.errors import ConfigError
+    from openconvoy.envs.path import Path as RoadPath
+
+    with pytest.raises(ConfigError, match="two distinct"):
+        RoadPath(np.array([[3.0, 4.0], [3.0, 4.0], [3.0, 4.0 + 1e-12]]), closed=closed)
+    kept = RoadPath(np.array([[0.0, 0.0], [0.0, 0.0], [5.0, 0.0], [5.0, 0.0]]), closed=closed)
+    assert kept.points.tolist() == [[0.0, 0.0], [5.0, 0.0]]
+    assert kept.project(2.0, 1.0) == 2.0

@@ -114,15 +114,14 @@ def demo_from_namespace(args: argparse.Namespace) -> int:
         getattr(args, "v2v", "multicast"),
     )
     from openconvoy.convoy import ConvoyConfig
+    from openconvoy.core.errors import ConfigError
 
     n = len(ConvoyConfig().vehicles)  # the demo's convoy: the default vehicles
     kinds = {v.link for v in vehicle_links(opts.link, opts.ros, n)}  # ConfigError: exit 2
     if "ap-dds" in kinds and opts.autopilot != "ardupilot":
-        _say("openconvoy demo: --link ap-dds drives ArduPilot vehicles: not with --autopilot px4")
-        return 2
+        raise ConfigError("--link: ap-dds drives ArduPilot vehicles, not --autopilot px4")
     if "px4-dds" in kinds and opts.autopilot != "px4":
-        _say("openconvoy demo: --link px4-dds drives PX4 vehicles: add --autopilot px4")
-        return 2
+        raise ConfigError("--link: px4-dds drives PX4 vehicles: add --autopilot px4")
     if os.environ.get(ENV_INSIDE) == "1":
         return run_inside(opts)
     return run_outside(opts)

@@ -547,6 +547,13 @@ PROBES: list[tuple[str, dict, list[str], str]] = [
         "--link: 'zenoh' is not one of mavlink, mavros",
     ),
     ("demo-link-count", {}, ["demo", "--link", "mavlink,ap-dds"], "--link: 2 links for 3 vehicles"),
+    (
+        "demo-apdds-px4",
+        {},
+        ["demo", "--link", "ap-dds", "--autopilot", "px4"],
+        "--link: ap-dds drives ArduPilot vehicles",
+    ),
+    ("demo-px4dds-ardupilot", {}, ["demo", "--link", "px4-dds"], "--link: px4-dds drives PX4"),
     # D22, D28, D32: learned policy files
     (
         "D22-empty-npz",

@@ -189,8 +189,8 @@ DEPLOY_FLAGS: Flags = (
         "--dds-iface",
         dict(
             metavar="IFACE",
-            help="--link ap-dds via Cyclone: keep DDS on this interface (default: Cyclone's "
-            "configuration, CYCLONEDDS_URI)",
+            help="--link px4-dds, ap-dds via Cyclone: keep DDS on this interface (default: "
+            "Cyclone's configuration, CYCLONEDDS_URI)",
         ),
     ),
     (

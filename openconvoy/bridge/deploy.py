@@ -238,7 +238,13 @@ def _make_link(
         from openconvoy.bridge.px4dds.link import Px4DdsLink
 
         return Px4DdsLink(
-            a.px4_ns, origin, a.vehicle_id, a.dds_domain, a.dds_localhost, on_status=status
+            a.px4_ns,
+            origin,
+            a.vehicle_id,
+            a.dds_domain,
+            a.dds_localhost,
+            on_status=status,
+            iface=a.dds_iface,
         )
     if a.link == "mavros":
         from openconvoy.bridge.ros.mavros_link import MavrosLink, RosNode

@@ -27,6 +27,7 @@ from openconvoy.bridge.px4dds.dds import (
 from openconvoy.bridge.px4dds.link import Px4DdsLink, ned_velocity, ned_yaw
 from openconvoy.bridge.px4dds.standin import Px4DdsStandIn
 from openconvoy.bridge.simvehicle.vehicle import DEFAULT_HOME, SimVehicle, SimVehicleConfig
+from openconvoy.core.errors import ConfigError
 from openconvoy.testing import free_port, wait_for
 
 HERE = Path(__file__).resolve().parent
@@ -186,3 +187,31 @@ def test_deploy_cli_makes_a_px4dds_link() -> None:
     assert (link.ns, link.domain_id, link.localhost, link.vehicle_id) == ("vehicle_2", 7, True, 2)
     assert link.autopilot == "px4" and link.lost  # nothing opened before connect
     assert _link_name(a) == "px4-dds (domain 7, ns vehicle_2)"
+
+
+@pytest.mark.netns
+def test_dds_iface_keeps_link_and_px4_on_that_interface() -> None:
+    """``--dds-iface``: the link's DDS and the stand-in's (separate processes in a private
+    namespace) meet on the namespace's veth only, configured as the V2V over DDS is
+    (``comms.dds.interface_config``), and the link drives the vehicle."""
+    from openconvoy.comms.netns import IFACE, run_in_netns
+
+    peer = str(HERE / "px4dds_iface_peer.py")
+    veh, lo, lk = run_in_netns(
+        [[sys.executable, peer, "vehicle", "12"], [sys.executable, peer, "link", "lo"]]
+        + [[sys.executable, peer, "link", IFACE]],
+        timeout=60,
+        stagger_s=0.5,
+    )
+    for r in (veh, lo, lk):
+        assert r.returncode == 0, r.stderr[-1500:]
+    # A link kept on loopback does not find the vehicle kept on the veth.
+    assert not json.loads(lo.stdout)["connected"]
+    seen, moved = json.loads(lk.stdout.strip().splitlines()[-1]), json.loads(veh.stdout)
+    assert seen["armed"] and seen["x"] > 1.0  # east, as the link reads it
+    assert moved["x"] > 1.0  # and as the vehicle moved
+
+
+def test_dds_localhost_and_iface_together_are_refused() -> None:
+    with pytest.raises(ConfigError, match="--dds-localhost and --dds-iface: choose one"):
+        Px4DdsLink("v", DEFAULT_HOME, 1, localhost=True, iface="oc0")

@@ -27,6 +27,8 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from openconvoy.bridge.px4dds.msgs import topic_base
+from openconvoy.comms.dds import interface_config
+from openconvoy.core.errors import ConfigError
 
 OUT_QOS = Qos(
     Policy.Reliability.BestEffort,
@@ -66,12 +68,12 @@ the machine (tests and demos)."""
 _DOMAINS: dict[int, Domain] = {}
 
 
-def _localhost_domain(domain_id: int) -> None:
-    """Create domain ``domain_id`` with ``LOCALHOST_CONFIG`` once per process (Cyclone
+def _configured_domain(domain_id: int, config: str) -> None:
+    """Create domain ``domain_id`` with Cyclone XML ``config`` once per process (Cyclone
     refuses a second Domain object for an id in use; a stand-in and a link may share a
     process). Kept for the process's life: the Domain object carries the configuration."""
     if domain_id not in _DOMAINS:
-        _DOMAINS[domain_id] = Domain(domain_id, LOCALHOST_CONFIG)
+        _DOMAINS[domain_id] = Domain(domain_id, config)
 
 
 def topic_name(ns: str, direction: str, data_type: type) -> str:
@@ -83,11 +85,19 @@ def topic_name(ns: str, direction: str, data_type: type) -> str:
 
 class Participant:
     """One DDS participant on ``domain_id``; ``localhost`` keeps it on ``lo`` without
-    multicast (``LOCALHOST_CONFIG``), else Cyclone's own configuration (CYCLONEDDS_URI)."""
+    multicast (``LOCALHOST_CONFIG``), ``iface`` on that network interface
+    (``comms.dds.interface_config``, as the V2V over DDS and the ap-dds link's Cyclone node),
+    else Cyclone's own configuration (CYCLONEDDS_URI)."""
 
-    def __init__(self, domain_id: int = 0, localhost: bool = False) -> None:
+    def __init__(
+        self, domain_id: int = 0, localhost: bool = False, iface: str | None = None
+    ) -> None:
+        if localhost and iface:
+            raise ConfigError("--dds-localhost and --dds-iface: choose one")
         if localhost:
-            _localhost_domain(domain_id)
+            _configured_domain(domain_id, LOCALHOST_CONFIG)
+        elif iface:
+            _configured_domain(domain_id, interface_config(iface))
         self.dp: DomainParticipant | None = DomainParticipant(domain_id)
         self._topics: dict[str, Topic] = {}
 

@@ -36,6 +36,7 @@ from openconvoy.bridge.mavlink.setpoint import PX4_STOP_MPS
 from openconvoy.bridge.px4dds import msgs
 from openconvoy.bridge.px4dds.dds import IN_QOS, OUT_READER_QOS, Participant, take_all, topic_name
 from openconvoy.comms.geodesy import Origin, geodetic_to_enu
+from openconvoy.core.errors import ConfigError
 from openconvoy.core.state import VehicleState
 
 MODE_NAMES = {
@@ -63,7 +64,8 @@ def ned_yaw(heading_enu_rad: float) -> float:
 class Px4DdsLink:
     """Vehicle ``vehicle_id`` behind PX4 namespace ``ns`` (``UXRCE_DDS_NS``, e.g.
     ``"vehicle_1"``; "" = none) on DDS ``domain_id``; positions in ENU around ``origin``.
-    ``localhost`` keeps DDS on the loopback interface (tests, demos)."""
+    ``localhost`` keeps DDS on the loopback interface (tests, demos); ``iface`` on that
+    network interface (``--dds-iface``)."""
 
     telemetry_timeout_s = 0.5
     heartbeat_timeout_s = 3.0  # vehicle_status comes at 1 Hz (each HEARTBEAT) to 5 Hz
@@ -77,9 +79,12 @@ class Px4DdsLink:
         localhost: bool = False,
         on_status: StatusCallback | None = None,
         clock: Callable[[], float] = time.monotonic,
+        iface: str | None = None,
     ) -> None:
         self.ns, self.origin, self.vehicle_id = ns, origin, vehicle_id
-        self.domain_id, self.localhost = domain_id, localhost
+        if localhost and iface:
+            raise ConfigError("--dds-localhost and --dds-iface: choose one")
+        self.domain_id, self.localhost, self.iface = domain_id, localhost, iface
         self.on_status = on_status or (lambda line: None)
         self.clock = clock
         self.telemetry_rates: dict[str, float] = {}
@@ -133,7 +138,7 @@ class Px4DdsLink:
     # ------------------------------------------------------------------ connection
 
     def _open(self) -> None:
-        p = self._part = Participant(self.domain_id, self.localhost)
+        p = self._part = Participant(self.domain_id, self.localhost, self.iface)
         n = self.ns
         self._w_ocm = p.writer(topic_name(n, "in", msgs.OffboardControlMode), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
         self._w_sp = p.writer(topic_name(n, "in", msgs.TrajectorySetpoint), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip

@@ -67,12 +67,17 @@ class Px4DdsStandIn:
     ``start`` begins; ``stop`` ends (idempotent). ``dropped`` counts bad DDS input."""
 
     def __init__(
-        self, mavlink_url: str, ns: str = "", domain_id: int = 0, localhost: bool = True
+        self,
+        mavlink_url: str,
+        ns: str = "",
+        domain_id: int = 0,
+        localhost: bool = True,
+        iface: str | None = None,
     ) -> None:
         self.ns = ns
         # 191: MAV_COMP_ID_ONBOARD_COMPUTER, as an XRCE agent host would be
         self.mavlink = CompanionMavlink(mavlink_url, 191)
-        self.part = Participant(domain_id, localhost)
+        self.part = Participant(domain_id, localhost and not iface, iface)
         p, n = self.part, ns
         self.r_ocm = p.reader(topic_name(n, "in", msgs.OffboardControlMode), msgs.OffboardControlMode, IN_QOS)  # fmt: skip
         self.r_sp = p.reader(topic_name(n, "in", msgs.TrajectorySetpoint), msgs.TrajectorySetpoint, IN_QOS)  # fmt: skip

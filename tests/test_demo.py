@@ -13,6 +13,7 @@ from openconvoy import demo
 from openconvoy.bag import read_bag
 from openconvoy.comms.netns import netns_unavailable_reason
 from openconvoy.logs import read_log
+from openconvoy.testing import same
 
 
 def test_without_a_namespace_it_says_what_it_needs(monkeypatch, capsys):
@@ -136,13 +137,7 @@ def test_demo_with_v2v_over_ros2_keeps_the_multicast_demos_checks(tmp_path):
         bag_dir = tmp_path / "deploy" / f"vehicle_{vid}_bag"
         bag_log = read_bag(bag_dir)
         assert list(bag_log) == list(csv_log) and len(csv_log["t_s"]) > 10 * 29
-        for col, v in csv_log.items():
-            same = (
-                list(v) == list(bag_log[col])
-                if v.dtype == object
-                else np.array_equal(v, bag_log[col], equal_nan=True)
-            )
-            assert same, (vid, col)
+        assert not [col for col in csv_log if not same(csv_log[col], bag_log[col])], vid
         assert _bag_count(bag_dir, f"/vehicle_{vid}/v2v/tx") >= c["sent"] > 0
 
 

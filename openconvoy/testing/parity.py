@@ -15,12 +15,15 @@ import numpy as np
 
 def same(a: Any, b: Any) -> bool:
     """``a`` and ``b`` equal to the bit, through dicts (same keys), tuples and lists (same
-    length), numpy arrays (same dtype, NaN equal to NaN) and floats (NaN equal to NaN)."""
+    length), numpy arrays (same dtype, NaN equal to NaN; object arrays element by element)
+    and floats (NaN equal to NaN)."""
     if isinstance(a, dict):
         return isinstance(b, dict) and a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
     if isinstance(a, (tuple, list)):
         return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
     if isinstance(a, np.ndarray):
+        if a.dtype == object:  # strings and mixed values: NaN is not theirs to hold
+            return isinstance(b, np.ndarray) and b.dtype == object and a.tolist() == b.tolist()
         return a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
     if isinstance(a, float) and math.isnan(a):
         return isinstance(b, float) and math.isnan(b)

@@ -20,6 +20,14 @@ def test_same_is_equality_to_the_bit_with_nan_equal_to_nan() -> None:
     assert same(0.1 + 0.2, 0.1 + 0.2) and not same(0.1 + 0.2, 0.3)
 
 
+
+def test_same_compares_object_arrays_element_by_element() -> None:
+    modes = np.array(["coop", "hold"], dtype=object)
+    assert same(modes, np.array(["coop", "hold"], dtype=object))
+    assert not same(modes, np.array(["coop", "stop"], dtype=object))
+    assert not same(modes, np.array(["coop", "hold"]))  # a fixed-width string array
+
+
 def test_tree_files_holds_every_file_but_the_skipped(tmp_path: Path) -> None:
     (tmp_path / "run" / "a").mkdir(parents=True)
     (tmp_path / "run" / "a" / "log.csv").write_bytes(b"t\n1\n")

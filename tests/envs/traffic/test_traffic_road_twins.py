@@ -45,7 +45,11 @@ from openconvoy.envs.traffic.jit import (  # noqa: E402
 )
 from openconvoy.envs.traffic.road import VectorRoad  # noqa: E402
 from openconvoy.envs.traffic.state import StraightEdge, TrafficState  # noqa: E402
-from openconvoy.envs.traffic.world import HighwayFrame, TrafficWorld  # noqa: E402
+from openconvoy.envs.traffic.world import (  # noqa: E402
+    HighwayFrame,
+    ScriptedLaneChanger,
+    TrafficWorld,
+)
 
 SOME = settings(max_examples=100, deadline=None)
 FAST = settings(max_examples=150, deadline=None)
@@ -68,6 +72,7 @@ _car = st.fixed_dictionaries(
         "timer": st.floats(0.0, 2.0),  # s; LANE_CHANGE_DELAY is 1 s
         "lc": st.sampled_from([True, True, False]),  # enable_lane_change
         "crashed": st.sampled_from([False, False, False, True]),
+        "scripted": st.sampled_from([False, False, False, True]),  # a ScriptedLaneChanger
         "steer": st.floats(-1.0, 1.0),
         "acc": st.floats(-8.0, 8.0),
     }
@@ -76,22 +81,21 @@ _cars = st.lists(_car, min_size=1, max_size=9)
 
 
 def _road(cls: type, cars: list[dict], compiled: bool = True) -> tuple[Road, list[IDMVehicle]]:
-    """A ``cls`` road holding ``cars`` as highway-env ``IDMVehicle`` s."""
+    """A ``cls`` road holding ``cars`` as highway-env ``IDMVehicle`` s (or our
+    ``ScriptedLaneChanger`` s, an ``IDMVehicle`` holding its speed and lane)."""
     road = cls(network=NET, np_random=np.random.RandomState(0))
     if isinstance(road, VectorRoad):
         road.compiled = compiled
     out = []
     for c in cars:
         lane = NET.get_lane(("0", "1", c["lane"]))
-        car = IDMVehicle(
-            road,
-            lane.position(c["x"], c["dy"]),
-            c["h"],
-            c["v"],
-            target_speed=c["target"],
-            enable_lane_change=c["lc"],
-            timer=c["timer"],
-        )
+        where = lane.position(c["x"], c["dy"])
+        if c["scripted"]:
+            car = ScriptedLaneChanger(road, where, c["h"], c["v"], target_speed=c["target"])
+        else:
+            car = IDMVehicle(
+                road, where, c["h"], c["v"], target_speed=c["target"], enable_lane_change=c["lc"]
+            )
         car.timer = c["timer"]  # (0.0 would be replaced by highway-env's default)
         car.lane_index = ("0", "1", c["lane"])
         car.lane = NET.get_lane(car.lane_index)
@@ -141,7 +145,8 @@ def _seen(cars: list[IDMVehicle]) -> list[tuple]:
 def test_a_tick_is_highway_envs_act_then_step(cars: list[dict], compiled: bool) -> None:
     """``VectorRoad.act`` then ``step`` (``traffic.jit.decide`` / ``step`` compiled, or
     ``traffic.idm.decide`` / ``traffic.road.move`` as numpy) against highway-env's
-    ``Road.act`` then ``Road.step`` on the same random cars: every car's decision, state
+    ``Road.act`` then ``Road.step`` on the same random cars (IDM with and without MOBIL,
+    ``ScriptedLaneChanger``, crashed, mid lane change): every car's decision, state
     after the step, lane, timer and crash; and ``known_idm_accel`` is highway-env's IDM
     on the car's lane, clipped."""
     ref_road, ref = _road(Road, cars)

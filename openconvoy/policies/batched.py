@@ -33,6 +33,8 @@ class BatchedClassical:
     act through ``batched_jit``'s kernel (None: when numba is importable)."""
 
     def __init__(self, config: ClassicalConfig, compiled: bool | None = None) -> None:
+        """The rows ``ClassicalPolicy.act`` runs for ``config``, compiled or as Python
+        (tests/policies/test_batched_jit.py::test_the_rows_are_act_on_random_observations)."""
         if config.speed.is_plugin or config.heading.is_plugin:
             raise ConfigError(
                 "act_batch computes the built-in controllers only; a plug-in speed or heading "
@@ -51,7 +53,7 @@ class BatchedClassical:
 
     @property
     def compiled(self) -> bool:
-        """Whether ``act_batch`` runs the compiled kernel."""
+        """Whether ``act_batch`` runs the compiled kernel of ``ClassicalPolicy.act``'s rows (tests/policies/test_batched_jit.py::test_the_rows_are_act_on_random_observations)."""
         return self._rows is not classical_rows.act_rows
 
     def reset(self, seed: int | None = None) -> None:
@@ -65,7 +67,8 @@ class BatchedClassical:
             self._integral[rows] = 0.0
 
     def act_batch(self, observations: np.ndarray) -> np.ndarray:
-        """Actions ``(..., 2)`` float32 (SI: speed m/s, heading change rad)."""
+        """Actions ``(..., 2)`` float32 (SI: speed m/s, heading change rad): each row's
+        ``ClassicalPolicy.act``, bit for bit (tests/policies/test_batched_jit.py::test_the_rows_are_act_on_random_observations)."""
         obs = np.asarray(observations, dtype=np.float32)
         if obs.shape[-1] != self.layout.size:
             raise ValueError(

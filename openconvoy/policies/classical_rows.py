@@ -49,7 +49,8 @@ def pack(config: ClassicalConfig) -> tuple[np.ndarray, np.ndarray]:
     """``config`` as ``act_rows``'s ``(ints, floats)``: offsets into a row and kinds
     (int64), gains and limits (float64, SI). Targets nearest first (``pred_1`` ..
     ``pred_M``, then ``leader``), each as (offset of its newest state, offset of its
-    derived features)."""
+    derived features). What ``ClassicalPolicy.act`` reads of ``config``
+    (tests/policies/test_batched_jit.py::test_the_rows_are_act_on_random_observations)."""
     lay = config.member.layout
     names = (*lay.targets[1:], "leader")
     ints = [

@@ -186,6 +186,7 @@ def test_the_rows_are_act_on_random_observations(which: int, data: st.DataObject
     ]
     single = ClassicalPolicy(cfg)
     compiled, python = BatchedClassical(cfg, compiled=True), BatchedClassical(cfg, compiled=False)
+    assert compiled.compiled and not python.compiled
     for obs in ticks:
         want = _bits(single.act(obs))
         np.testing.assert_array_equal(_bits(compiled.act_batch(obs)), want)

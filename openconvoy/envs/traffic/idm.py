@@ -39,6 +39,7 @@ _SIDES = np.array([[-1], [1]])
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
+    """``highway_env.utils.not_zero`` of each element: kept at least 0.01 away from 0."""
     return np.where(np.abs(x) > _EPS, x, np.where(x >= 0, _EPS, -_EPS))
 
 
@@ -64,7 +65,7 @@ def neighbours(
 def kinematics(st: TrafficState) -> np.ndarray:
     """(7, n + 1): speed, speed over the target speed clipped to the lane's limit (IDM's
     free-road ratio), vx, vy, cos h, sin h, x; the last column a ghost far ahead that
-    index -1 (no vehicle) picks."""
+    index -1 (no vehicle) picks: the inputs of ``IDMVehicle.acceleration``."""
     sp, c, s = st.sp, st.c, st.s
     tlimit = _clip(st.tspeed, 0, st.edge.limit[st.lane])
     ratio = np.maximum(sp, 0) / np.maximum(tlimit, _EPS)  # abs(not_zero(.)) of a speed >= 0
@@ -97,7 +98,8 @@ def _queries(
     """The (lane, vehicle) neighbour queries of a tick: every vehicle on its lane, the cars
     changing lane (``mv``) on their target lane, the cars whose timer fired (``fi``) on the
     lane to their left and right. Also those side lanes (2, nf) and which MOBIL may try
-    (None without ``fi``)."""
+    (None without ``fi``): the queries and the side-lane checks of
+    ``IDMVehicle.change_lane_policy`` (property-tested in the whole tick, tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     lane = st.lane
     if not len(fi):
         if not len(mv):
@@ -121,7 +123,8 @@ def _mobil_rows(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The IDM queries (me, ego, front) MOBIL needs beyond the neighbour queries' own, per
     side (left, right): the new follower before/after, the old follower after/before. The
-    side-lane queries start at row ``base``."""
+    side-lane queries start at row ``base``. Those of ``IDMVehicle.mobil`` (property-tested
+    in the whole tick, tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     nf = len(fi)
     np0, np1 = front[base : base + nf], front[base + nf :]
     nf0, nf1 = rear[base : base + nf], rear[base + nf :]
@@ -137,7 +140,8 @@ def _mobil(
 ) -> np.ndarray:
     """(2, nf): does MOBIL recommend the left / right lane? ``a_lane``: every vehicle's IDM
     on its lane, ``self_pred`` (2, nf): the cars' own on each side, ``extra``: the answers
-    to ``_mobil_rows``."""
+    to ``_mobil_rows``. ``IDMVehicle.mobil``'s decision (property-tested in the whole tick,
+    tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     p = st.params[:, fi]
     q = extra.reshape(2, 4, len(fi))
     nf_a, nf_pred_a, of_a, of_pred_a = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
@@ -150,7 +154,9 @@ def _aborts(
 ) -> None:
     """``change_lane_policy`` in road order: a car changing lane gives up when another car
     changing into the same lane is ahead of it within its IDM desired gap; ``starts``: the
-    cars that begin a change this tick (their new targets count from their turn on)."""
+    cars that begin a change this tick (their new targets count from their turn on).
+    ``IDMVehicle.change_lane_policy``'s abort (property-tested in the whole tick,
+    tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     moving = st.lane != tgt
     changers = (acting & moving).nonzero()[0].tolist()
     if not changers:
@@ -178,7 +184,8 @@ def _aborts(
 
 
 def _steering(st: TrafficState, nz_speed: np.ndarray) -> np.ndarray:
-    """``steering_control`` onto each vehicle's target lane, clipped (rad)."""
+    """``ControlledVehicle.steering_control`` onto each vehicle's target lane, clipped
+    (rad)."""
     p = st.params
     lat = st.y - st.edge.lane_y[st.tgt]
     heading_cmd = np.arcsin(_clip(st.neg_kp_lat * lat / nz_speed, -1, 1))
@@ -191,7 +198,9 @@ def _steering(st: TrafficState, nz_speed: np.ndarray) -> np.ndarray:
 
 def decide(st: TrafficState) -> np.ndarray:
     """Every acting traffic car's decision, into ``st`` (``tgt``, ``timer``, ``steer``,
-    ``acc``). Returns every vehicle's IDM acceleration on its lane, clipped (m/s²)."""
+    ``acc``). Returns every vehicle's IDM acceleration on its lane, clipped (m/s²).
+    highway-env's ``Road.act``, property-tested against it on random roads
+    (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     n, p, lane = st.n, st.params, st.lane
     st.read_scripts()
     st.trig()

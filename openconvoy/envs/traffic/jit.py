@@ -6,10 +6,13 @@ car, then the collision pre-filter of ``traffic.touching_pairs``), ``decide``
 (``Road.act``: ``IDMVehicle.act`` / ``ScriptedLaneChanger.act`` car by car, in road order)
 and ``nearest_in_path`` (``TrafficWorld.in_path``'s search). Each is highway-env's scalar
 code written again as a loop: the same operations in the same order on the same IEEE
-doubles (no fastmath; ``math`` calls the same libm as numpy here), so trajectories agree
-with highway-env's own ``Road`` (the parity tests allow 1e-9 m over whole scenarios; they
-agree bit for bit on this machine). ``decide`` goes car by car as ``Road.act`` does, so a
-car's abort of a lane change sees the targets the cars before it chose this tick.
+doubles (no fastmath), so trajectories agree with highway-env's own ``Road`` (the parity
+tests allow 1e-9 m over whole scenarios; they agree bit for bit on this machine). Not
+always to the bit: ``math.asin``, ``atan`` and ``tan`` are libm's, which numpy's own
+routines miss by one ulp on some inputs (here ~9 %, 0.3 %, 0.5 % of uniform draws in
+(-1, 1)); the property tests on random roads (``tests/envs/traffic``) allow 1e-12.
+``decide`` goes car by car as ``Road.act`` does, so a car's abort of a lane change sees the
+targets the cars before it chose this tick.
 
 The kernels are compiled by ``vector.jit.kernel`` (numba, cached on disk); importing this
 module without numba raises ``DependencyMissing`` and ``VectorRoad`` uses its numpy code.
@@ -46,6 +49,7 @@ _SP, _RATIO, _VX, _VY, _C, _S, _X = range(7)
 
 @kernel
 def _not_zero(v: float) -> float:
+    """``highway_env.utils.not_zero``: ``v`` kept at least 0.01 away from 0."""
     if abs(v) > _EPS:
         return v
     if v >= 0:
@@ -55,11 +59,13 @@ def _not_zero(v: float) -> float:
 
 @kernel
 def _wrap_to_pi(v: float) -> float:
+    """``highway_env.utils.wrap_to_pi``: the angle ``v`` (rad) in [-pi, pi)."""
     return ((v + _PI) % (2 * _PI)) - _PI
 
 
 @kernel
 def _clip(v: float, lo: float, hi: float) -> float:
+    """``numpy.clip`` of one float, as highway-env clips (``lo <= hi``)."""
     return min(max(v, lo), hi)
 
 
@@ -110,7 +116,9 @@ def _move(k, dt, x, y, h, sp, steer, acc, crashed, hit, impact, speed_range, hal
 
 @kernel
 def _apart(i, j, x, y, c, s, sp, half, dt) -> bool:
-    """``touching_pairs``'s separating-axis test for one pair: apart now and after dt."""
+    """``touching_pairs``'s separating-axis test for one pair: apart now and after dt, so
+    highway-env's ``utils.are_polygons_intersecting`` finds neither (the property test
+    holds both)."""
     ci, si, cj, sj = c[i], s[i], c[j], s[j]
     li, wi, lj, wj = half[i, 0], half[i, 1], half[j, 0], half[j, 1]
     ac, as_ = abs(ci * cj + si * sj), abs(si * cj - ci * sj)
@@ -168,7 +176,7 @@ def step(
 
 @kernel
 def _front_rear(lane_id, e, x, on):
-    """``Road.neighbour_vehicles(vehicle e, lane)``: the last of the nearest at or ahead,
+    """``Road.neighbour_vehicles`` (vehicle e, lane): the last of the nearest at or ahead,
     the first of the nearest behind (-1: none)."""
     s = x[e]
     front, rear, s_front, s_rear = -1, -1, 0.0, 0.0
@@ -208,7 +216,7 @@ def _gap_wanted(me, e, f, idm_p, kin) -> float:
 
 @kernel
 def _mobil(k, side, old_f, old_r, x, on, params, idm_p, kin) -> bool:
-    """``IDMVehicle.mobil(side lane)`` for car ``k`` (no route) with its old neighbours."""
+    """``IDMVehicle.mobil`` (side lane) for car ``k`` (no route) with its old neighbours."""
     new_p, new_f = _front_rear(side, k, x, on)
     new_f_a = _idm(k, new_f, new_p, idm_p, kin)
     new_f_pred_a = _idm(k, new_f, k, idm_p, kin)
@@ -226,8 +234,9 @@ def _mobil(k, side, old_f, old_r, x, on, params, idm_p, kin) -> bool:
 
 @kernel
 def _abort(k, lane, tgt, idm_p, kin) -> None:
-    """``change_lane_policy`` during a change: give it up when a car changing into the
-    same lane (its target as of now in road order) is ahead within the desired gap."""
+    """``IDMVehicle.change_lane_policy`` during a change: give it up when a car changing
+    into the same lane (its target as of now in road order) is ahead within the desired
+    gap (property-tested in the whole tick, tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     t = tgt[k]
     for j in range(lane.shape[0]):
         if j == k or lane[j] == t or tgt[j] != t:
@@ -241,7 +250,8 @@ def _abort(k, lane, tgt, idm_p, kin) -> None:
 @kernel
 def _change_lane(k, f, r, x, y, lane, tgt, timer, on, params, idm_p, kin, geo, end) -> None:
     """``IDMVehicle.change_lane_policy`` for car ``k`` (own-lane neighbours ``f``, ``r``;
-    ``geo`` as ``decide``'s, ``end``: lane length + VEHICLE_LENGTH, m)."""
+    ``geo`` as ``decide``'s, ``end``: lane length + VEHICLE_LENGTH, m); property-tested in
+    the whole tick (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     if lane[k] != tgt[k]:
         _abort(k, lane, tgt, idm_p, kin)
         return
@@ -290,7 +300,8 @@ def _kinematics(x, h, sp, c, s, lane, tspeed, limit) -> np.ndarray:
 
 @kernel
 def _on_lanes(x, y, geo, length, vlen) -> np.ndarray:
-    """(lanes, n): ``lane.on_lane(position, margin=1)`` of every car on every lane."""
+    """(lanes, n): ``AbstractLane.on_lane`` (position, margin=1) of every car on every
+    lane."""
     nl, n = geo.shape[1], x.shape[0]
     on = np.empty((nl, n), dtype=np.bool_)
     for k in range(n):
@@ -310,7 +321,8 @@ def decide(
     ``acc``; ``idm_out`` gets every car's IDM acceleration on its lane, clipped (m/s²).
     ``geo``: per lane (rows) its centre's y, ``is_reachable_from``'s and ``on_lane``'s
     lateral reach (m); ``length``: the lanes' length, ``vlen``: VEHICLE_LENGTH (m). False, with nothing changed, when a traffic car is past ``follow_road``'s lane end
-    (the caller runs highway-env's code then)."""
+    (the caller runs highway-env's code then). Property-tested against highway-env's
+    ``Road.act`` on random roads (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
     n = x.shape[0]
     for k in range(n):
         if kind[k] != 0 and x[k] > length - vlen / 2:
@@ -342,7 +354,9 @@ def decide(
 def nearest_in_path(n, x, y, sp, c, s, width, max_look, target, rng, rate):
     """``TrafficWorld.in_path`` for convoy cars 0..n-1: into ``target`` the nearest car
     ahead whose body overlaps the corridor of the car's width (-1: none within
-    ``max_look`` m), its centre-to-centre range (m) and range rate (m/s)."""
+    ``max_look`` m), its centre-to-centre range (m) and range rate (m/s). Property-tested
+    against the world's own search on highway-env's ``Road``
+    (tests/envs/traffic/test_traffic_road_twins.py::test_in_path_on_a_vector_road_is_the_worlds)."""
     for i in range(n):
         best, best_lon = -1, np.inf
         ci, si, hw = c[i], s[i], 0.5 * width[i]

@@ -85,6 +85,9 @@ class VectorRoad(FastRoad):
     compiled: bool = _jit is not None
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
+        """highway-env's ``Road.__init__``, and the straight edge the arrays run on (None:
+        a road this class cannot vectorize; property-tested with the whole tick,
+        tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         global _told
         if _jit is None and not _told:
             logging.getLogger(__name__).warning("%s", _NO_JIT)
@@ -100,7 +103,8 @@ class VectorRoad(FastRoad):
 
     @property
     def vehicles(self) -> list:
-        """highway-env's vehicle objects, brought up to date (and read again next tick)."""
+        """highway-env's vehicle objects (``Road.vehicles``), brought up to date (and read
+        again next tick; tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         if self._st is not None and not self._objects_ok:
             self._st.sync()
         self._objects_ok, self._arrays_ok = True, False
@@ -112,10 +116,13 @@ class VectorRoad(FastRoad):
         self._objects_ok, self._arrays_ok = True, False
 
     def vector_state(self, vehicles: list) -> TrafficState | None:
-        """The arrays, when this road runs vectorized and ``vehicles`` is its list."""
+        """The arrays, when this road runs vectorized and ``vehicles`` is its list
+        (``FastRoad.vector_state``; tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         return self._state() if vehicles is self._veh else None
 
     def _state(self) -> TrafficState | None:
+        """The arrays of ``Road.vehicles``, read again from the objects when they may have
+        changed; None when not vectorizable (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         if self._arrays_ok:
             return self._st
         veh = self._veh
@@ -138,7 +145,8 @@ class VectorRoad(FastRoad):
         self, hx: float, hy: float, heading: float
     ) -> tuple[tuple, StraightLane] | None:
         """``(lane_index, lane)`` that ``RoadNetwork.get_closest_lane_index`` picks for a
-        vehicle at ``(hx, hy)`` (m) with ``heading`` (rad); None off a straight edge."""
+        vehicle at ``(hx, hy)`` (m) with ``heading`` (rad); None off a straight edge
+        (tests/envs/traffic/test_traffic_twins.py::test_closest_lane_is_highway_envs)."""
         e = self._edge
         if e is None:
             return None
@@ -155,7 +163,8 @@ class VectorRoad(FastRoad):
         self, vehicles: list, hx: np.ndarray, hy: np.ndarray, heading: np.ndarray, speed: np.ndarray
     ) -> bool:
         """``ConvoyVehicle.set_state`` for ``vehicles`` at once (highway-env frame: m, rad,
-        m/s), on the arrays; False (nothing done) when the road is not vectorized."""
+        m/s), on the arrays; False (nothing done) when the road is not vectorized
+        (tests/envs/traffic/test_traffic_road_twins.py::test_in_path_on_a_vector_road_is_the_worlds)."""
         st = self._state()
         if st is None:
             return False
@@ -179,6 +188,8 @@ class VectorRoad(FastRoad):
         return True
 
     def known_idm_accel(self, vehicle: Any) -> float | None:
+        """``IDMVehicle.acceleration`` of ``vehicle`` on its lane, clipped (m/s²), as the
+        last ``act`` computed it; None: not known (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         st = self._st
         if self._idm is None or st is None:
             return None
@@ -188,6 +199,8 @@ class VectorRoad(FastRoad):
     def nearest_in_path(
         self, vehicles: list, n: int, max_look_m: float
     ) -> tuple[list[int], list[float], list[float], np.ndarray] | None:
+        """``FastRoad.nearest_in_path`` (``TrafficWorld.in_path``'s search) on the arrays,
+        compiled; None: not done here (tests/envs/traffic/test_traffic_road_twins.py::test_in_path_on_a_vector_road_is_the_worlds)."""
         st = self._state() if vehicles is self._veh else None
         if st is None or not self.compiled or _jit is None:
             return None
@@ -199,6 +212,8 @@ class VectorRoad(FastRoad):
         return target.tolist(), rng.tolist(), rate.tolist(), st.length
 
     def act(self) -> None:
+        """highway-env's ``Road.act`` on the arrays (``traffic.jit.decide`` or
+        ``traffic.idm.decide``), or its own code where they do not apply (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         self._idm = None
         st = self._state()
         if st is not None and self.compiled and _jit is not None:
@@ -220,6 +235,9 @@ class VectorRoad(FastRoad):
         self._objects_ok = False
 
     def step(self, dt: float) -> None:
+        """highway-env's ``Road.step`` over ``dt`` s: the traffic moves on the arrays and
+        highway-env's ``handle_collisions`` acts on the pairs they cannot rule out
+        (tests/envs/traffic/test_traffic_road_twins.py::test_a_tick_is_highway_envs_act_then_step)."""
         st = self._state()
         if st is None:
             super().step(dt)

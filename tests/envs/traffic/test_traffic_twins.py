@@ -20,11 +20,13 @@ from hypothesis import strategies as st  # noqa: E402
 
 from openconvoy.envs.traffic import idm as numpy_form  # noqa: E402
 from openconvoy.envs.traffic.jit import _idm, _kinematics, _steering, closest_lane  # noqa: E402
+from openconvoy.envs.traffic.road import VectorRoad  # noqa: E402
 from openconvoy.envs.traffic.state import StraightEdge, TrafficState  # noqa: E402
 
 FAST = settings(max_examples=150, deadline=None)
 NET = RoadNetwork.straight_road_network(3, start=0.0, length=1000.0, speed_limit=30.0)
 EDGE = StraightEdge.of(NET.graph)
+ROAD = VectorRoad(network=NET)
 _car = st.tuples(
     st.floats(0.0, 900.0),  # x (m)
     st.integers(0, 2),  # lane
@@ -81,3 +83,5 @@ def test_closest_lane_is_highway_envs(x: float, y: float, h: float) -> None:
     want = NET.get_closest_lane_index(np.array([x, y]), h)[2]
     assert closest_lane(x, y, h, EDGE.lane_y, EDGE.length) == want
     assert EDGE.closest(np.array([x]), np.array([y]), np.array([h]))[0] == want
+    found = ROAD.closest_lane(x, y, h)
+    assert found is not None and found[0] == ("0", "1", want) and found[1] is NET.get_lane(found[0])

@@ -10,7 +10,9 @@ on its Python world (what vehicles run), both fed the same actions.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections import Counter
 
 import pytest
 
@@ -21,6 +23,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from openconvoy.comms.loss import LossConfig
+from openconvoy.core.ladder import LadderConfig
 from openconvoy.core.spacing import GapChain, SpacingConfig, SpacingPolicy
 from openconvoy.envs import ConvoyEnv, VectorConvoyEnv
 from openconvoy.envs.scenarios import make_scenario
@@ -118,13 +121,16 @@ def _lockstep(
     nan_tick: int,
     spec: str,
     max_time_s: float | None = None,
-) -> list:
+    ladder: bool = False,
+) -> tuple[list, Counter]:
     """``fused_step`` on a one-convoy ``VectorConvoyEnv`` and ``ConvoyEnv.step`` on the
     Python world, the same seed and actions (the ``paper`` policy on the batched
     observation, plus noise; follower ``rush`` at full speed; a NaN action of the
-    last follower at ``nan_tick``) for ``steps`` ticks, in episodes of ``max_time_s``;
-    asserts they agree at every tick and returns the safety events."""
+    last follower at ``nan_tick``) for ``steps`` ticks, in episodes of ``max_time_s``,
+    the staleness ladder on where ``ladder``; asserts they agree at every tick and
+    returns the safety events and the modes seen."""
     mc = load_policy("paper").member_config
+    mc = dataclasses.replace(mc, ladder=LadderConfig(enabled=ladder))
     loss = LossConfig(per=per)
     vec = VectorConvoyEnv(
         1, spec, n_followers=n_followers, member_config=mc, loss=[loss], autoreset=False,
@@ -148,6 +154,7 @@ def _lockstep(
     }
     noise = np.random.default_rng(seed)
     F = n_followers
+    modes: Counter = Counter()
     for k in range(steps):
         a = np.zeros((1, F, 2), np.float32)
         for j, ag in enumerate(agents):
@@ -162,10 +169,18 @@ def _lockstep(
             a[0, -1, 0] = np.nan
         vobs = np.empty((1, F, lay.size), np.float32)
         rewards, term, trunc = np.empty((1, F)), np.empty(1, bool), np.empty(1, bool)
+        rows, t, own, src, meas = vec._fused.observation
+        hints = src.hint.copy(), src.hint_k.copy()  # the projections' starts this tick
         vstep.fused_step(a, vobs, rewards, term, trunc, info_arrays(1, F), vec._fused)
+        # observe by name on the state the tick left, from the same hints, into copies
+        again = np.empty_like(vobs)
+        src2 = src._replace(hint=hints[0], hint_k=hints[1], tail=src.tail.copy())
+        meas2 = type(meas)(*(m.copy() for m in meas))
+        vobservation.observe(again, rows, t, own, src2, meas2)
+        assert np.array_equal(again, vobs)
+        assert np.array_equal(src2.hint, src.hint, equal_nan=True)
+        assert np.array_equal(meas2.spacing_error, meas.spacing_error, equal_nan=True)
         vec._widen_trails()
-        again = np.empty_like(vobs)  # observe by name on the state the tick left
-        vobservation.observe(again, *vec._fused.observation)
         obs, rew, env_term, env_trunc, info = env.step({ag: a[0, j] for j, ag in enumerate(agents)})
         assert np.abs(env.plant.x - vec.plant.x).max() <= 1e-9, k
         assert np.abs(env.plant.y - vec.plant.y).max() <= 1e-9, k
@@ -177,25 +192,27 @@ def _lockstep(
                 )
             i = info[ag]
             assert i["mode"] == MODES[vec.modes[0, j + 1]], (k, ag)
+            modes[i["mode"]] += 1
             assert i["policy_errors"] == vec.policy_errors[0, j + 1], (k, ag)
             assert rew[ag] == pytest.approx(rewards[0, j], abs=1e-9), (k, ag)
             assert i["desired_gap_m"] == pytest.approx(vec.desired_gap[0, j + 1], abs=1e-9)
         assert env_term[agents[0]] == bool(term[0]) and env_trunc[agents[0]] == bool(trunc[0])
         if not env.agents:
             break
-    return env.safety_events
+    return env.safety_events, modes
 
 
 @settings(max_examples=30, deadline=None)
 @given(
     st.integers(1, 3),
-    st.floats(0.0, 0.6),
+    st.floats(0.0, 0.95),
     st.integers(2, 100),
     st.integers(0, 2**16),
     st.integers(0, 3),
     st.integers(-1, 100),
     st.sampled_from(["paper", "emergency-braking"]),
     st.none() | st.sampled_from([0.5, 1.0, 2.5]),
+    st.booleans(),
 )
 def test_fused_step_and_its_stages_are_convoy_env_step(
     n_followers: int,
@@ -206,23 +223,34 @@ def test_fused_step_and_its_stages_are_convoy_env_step(
     nan_tick: int,
     spec: str,
     max_time_s: float | None,
+    ladder: bool,
 ) -> None:
     """``fused_step`` (``decide``, ``_drive``, the plant, the clock, the channel,
     ``observe`` with ``_slots``, ``_targets``, ``_desired``, ``_path`` and the prefetch
     ``_warm``, the measures, terminations) against ``ConvoyEnv.step`` on random runs:
     observations within float32 rounding part by part, the plant within 1e-9 m, modes,
     policy errors and safety events identical, rewards and desired gaps within 1e-9 (the
-    kernels' ``norm`` is ``hypot`` within an ulp); episodes truncated alike."""
-    _lockstep(n_followers, per, steps, seed, min(rush, n_followers), nan_tick, spec, max_time_s)
+    kernels' ``norm`` is ``hypot`` within an ulp); episodes truncated alike; the staleness
+    ladder on or off."""
+    _lockstep(
+        n_followers, per, steps, seed, min(rush, n_followers), nan_tick, spec, max_time_s, ladder
+    )
 
 
 def test_fused_step_records_the_emergency_stop_and_policy_error_as_convoy_env() -> None:
     """The rare branches (``decide``'s latches, ``_record``): a follower rushing into its
     predecessor latches the emergency stop (ConvoyEnv's event at 4.15 s), a NaN action
     is a policy error; both worlds record the same events."""
-    events = _lockstep(2, 0.1, 90, 3, 1, 10, "paper")
+    events, _ = _lockstep(2, 0.1, 90, 3, 1, 10, "paper")
     kinds = [text.split(":")[0] for _, _, text in events]
     assert "emergency stop" in kinds and len(events) >= 2, events
+
+
+def test_fused_step_takes_the_ladders_rungs_as_convoy_env() -> None:
+    """``decide``'s ladder (``_rung``, ``_ladder``) under heavy loss: both worlds degrade
+    and stop alike."""
+    _, modes = _lockstep(2, 0.9, 100, 5, 0, -1, "paper", ladder=True)
+    assert modes["degraded"] > 0 and modes["stop"] > 0, modes
 
 
 @settings(max_examples=150, deadline=None)

@@ -52,6 +52,7 @@ RULE_MODULES = (
     "openconvoy.core.estimate",
     "openconvoy.core.ladder",
     "openconvoy.core.observation",
+    "openconvoy.core.ranging",
     "openconvoy.core.spacing",
     "openconvoy.core.safety",
     "openconvoy.core.state",

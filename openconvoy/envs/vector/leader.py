@@ -156,8 +156,8 @@ def _profile(kind, t, s, target):  # pragma: no cover - compiled
 
 @bare_kernel
 def _drive(t, own, road, cmd_v, cmd_dh):  # pragma: no cover - compiled
-    """The speed ramp towards the profile and pure pursuit one look-ahead ahead, for every
-    leader on ``road`` (``LeaderRoad``) at ``t`` (B,): setpoints into ``cmd_v[:, 0]`` (m/s)
+    """Twin of ``PathScenario.leader_command`` (after ``_project``): the speed ramp towards
+    the profile and pure pursuit one look-ahead ahead, for every leader on ``road`` (``LeaderRoad``) at ``t`` (B,): setpoints into ``cmd_v[:, 0]`` (m/s)
     and ``cmd_dh[:, 0]`` (rad)."""
     seg, seg_s, closed, length, s_arr = road.seg, road.seg_s, road.closed, road.length, road.s
     kind, target, cmd, t_last, p = road.kind, road.target, road.cmd, road.t_last, road.params

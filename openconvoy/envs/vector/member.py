@@ -155,7 +155,9 @@ def decide(act, t, own, ranging, pred_est, m, out):  # pragma: no cover - compil
     non-finite: a latched policy error), clipped and float32, through the ladder (with the
     ``ranging`` reading and the predecessor estimate ``pred_est``), then the latch and the
     emergency rule; ``m`` a ``Member``, writes ``out`` (``Commands``). A latch that
-    ``ConvoyWorld`` records in ``safety_events`` is written to its event record."""
+    ``ConvoyWorld`` records in ``safety_events`` is written to its event record.
+    Property-tested through ``fused_step``:
+    tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step."""
     B, F = act.shape[0], act.shape[1]
     for b in range(B):
         for f in range(F):
@@ -279,8 +281,10 @@ def _record_stop(own, b, i, m, t, ranging, out):  # pragma: no cover - compiled
 
 @bare_inline
 def _record(out, b, i, read):  # pragma: no cover - compiled
-    """Vehicle ``i``'s emergency stop into the event record: ``read`` is (time s, bumper
-    gap m, closing m/s, own speed m/s, braking limit ahead m/s², own acceleration m/s²)."""
+    """Twin of ``ConvoyWorld._rule_fires``' record of an emergency stop: vehicle ``i``'s
+    into the event record, ``read`` being (time s, bumper gap m, closing m/s, own speed
+    m/s, braking limit ahead m/s², own acceleration m/s²), what the world's event text
+    (``BrakingRule.reason``) is made of."""
     for k in range(6):
         out.events[ESTOP_T + k, b, i] = read[k]
     out.n_events[b] += 1

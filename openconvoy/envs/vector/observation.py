@@ -87,7 +87,9 @@ class Measures(NamedTuple):
 
 @bare_inline
 def _slots(obs, b, f, t, own, src):  # pragma: no cover
-    """The state slots: each kept sender's last k states in the ego frame."""
+    """Twin of ``ConvoyMember.observation``'s state slots: each kept sender's last k
+    states in the ego frame (``core.observation.ego_state``, compiled). Property-tested
+    through ``observe``: tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step."""
     i = f + 1
     c, s = cos_sin(own, b, i)
     ex, ey, eh = own[X, b, i], own[Y, b, i], own[HEADING, b, i]
@@ -109,8 +111,8 @@ def _slots(obs, b, f, t, own, src):  # pragma: no cover
 
 @bare_inline
 def _desired(f, m, ev, sp, lengths, F, lead):  # pragma: no cover - compiled
-    """Desired arc gap (m) of follower ``f + 1`` to target ``m`` (0 leader, m pred_m),
-    summed pair by pair in ``ConvoyMember``'s order (``lead``: the leader's under
+    """Twin of ``GapChain.gap_to``: desired arc gap (m) of follower ``f + 1`` to target
+    ``m`` (0 leader, m pred_m), summed pair by pair in ``ConvoyMember``'s order (``lead``: the leader's under
     constant distance, the same sum carried from follower to follower)."""
     acc = 0.0
     if m == 0:
@@ -128,9 +130,10 @@ def _desired(f, m, ev, sp, lengths, F, lead):  # pragma: no cover - compiled
 
 @bare_inline
 def _path(obs, b, f, own, src, tg, m):  # pragma: no cover
-    """The path features of follower ``f + 1`` along target ``m``'s trail (its estimate
-    and projection in ``tg``): cross track, heading error, lookahead points in the ego
-    frame."""
+    """Twin of ``core.member.fill_path``: the path features of follower ``f + 1`` along
+    target ``m``'s trail (its estimate and projection in ``tg``): cross track, heading
+    error, lookahead points in the ego frame. Property-tested through ``observe``:
+    tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step."""
     i = f + 1
     c, s = cos_sin(own, b, i)
     cross, pheading = finish(tg[6, m], tg[7, m], tg[11, m], tg[12, m], tg[4, m])
@@ -153,8 +156,9 @@ def _path(obs, b, f, own, src, tg, m):  # pragma: no cover
 
 @bare_kernel
 def observe(obs, rows, t, own, src, out):  # pragma: no cover - compiled
-    """Fill ``obs`` (B, F, D) float32 for convoys ``rows`` and the spacing measures
-    ``out`` (``Measures``) from ``src`` (``Sources``)."""
+    """Twin of ``ConvoyMember.observation`` (with ``ConvoyMember.sense``'s logged
+    measures) for every follower: fill ``obs`` (B, F, D) float32 for convoys ``rows`` and
+    the spacing measures ``out`` (``Measures``) from ``src`` (``Sources``)."""
     B, F = obs.shape[0], obs.shape[1]
     tg = out.tg
     for b in range(B):
@@ -194,9 +198,11 @@ def observe(obs, rows, t, own, src, out):  # pragma: no cover - compiled
 
 @bare_inline
 def _warm(b, src):  # pragma: no cover
-    """Prefetch what ``observe`` will read of convoy ``b``: its followers' slot states and
-    the target trails around the last projections. Only a hint to the cache: without
-    it, each convoy's first reads wait on memory in turn."""
+    """Prefetch what ``observe`` will read of convoy ``b`` (``ConvoyMember.observation``'s
+    reads, no value of its own): its followers' slot states and the target trails around
+    the last projections. Only a hint to the cache: without it, each convoy's first reads
+    wait on memory in turn. That it changes nothing is held with ``observe``:
+    tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step."""
     hist, trail, slot_link, target_link = src.hist, src.trail, src.slot_link, src.target_link
     F = slot_link.shape[0]
     for f in range(F):
@@ -220,8 +226,9 @@ def _warm(b, src):  # pragma: no cover
 
 @bare_inline
 def _targets(obs, tg, b, f, t, own, src, lead):  # pragma: no cover - compiled
-    """Estimate and project every target of follower ``f + 1`` (results in ``tg``), write
-    the derived features; returns the nearest heard target (pred_1..pred_M, then the
+    """Twin of ``ConvoyMember._fill_targets``: estimate and project every target of
+    follower ``f + 1`` (results in ``tg``), write the derived features
+    (tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step); returns the nearest heard target (pred_1..pred_M, then the
     leader) or -1."""
     i = f + 1
     ex, ey, ev = own[X, b, i], own[Y, b, i], own[SPEED, b, i]

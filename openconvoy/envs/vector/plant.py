@@ -37,7 +37,8 @@ _PARAMS = (
 
 @bare_inline
 def cos_sin(own, b, i):  # pragma: no cover - compiled
-    """Cosine and sine of vehicle ``i``'s heading in ``own`` (``ROWS``, convoy ``b``):
+    """Twin of ``ConvoyMember.observation``'s ``math.cos``, ``math.sin`` of the ego's
+    heading: cosine and sine of vehicle ``i``'s heading in ``own`` (``ROWS``, convoy ``b``):
     rows ``COS_H`` and ``SIN_H`` where ``own`` has them (a copy of the first six rows, as
     the GPS-noised state, has not), else libm's."""
     if own.shape[0] > SIN_H:
@@ -145,7 +146,9 @@ class VectorPlant:
 
 @bare_kernel
 def _trig_rows(st, rows):  # pragma: no cover - compiled
-    """The heading's cosine and sine of vehicles ``rows`` (indices)."""
+    """Twin of ``ConvoyMember.observation``'s ``math.cos``, ``math.sin`` of the heading:
+    the heading's cosine and sine of vehicles ``rows`` (indices), laid in rows ``COS_H``,
+    ``SIN_H``."""
     for i in rows:
         st[COS_H, i], st[SIN_H, i] = math.cos(st[HEADING, i]), math.sin(st[HEADING, i])
 

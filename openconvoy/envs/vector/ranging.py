@@ -11,17 +11,23 @@ emergency rule.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
+from openconvoy.core import ranging as core_ranging
 from openconvoy.envs.ranging_noise import ranging_key
 from openconvoy.envs.vector.gps import counter_normals
-from openconvoy.envs.vector.jit import bare_kernel
-from openconvoy.envs.vector.math import norm
+from openconvoy.envs.vector.jit import bare_kernel, rules
 from openconvoy.envs.vector.plant import HEADING, SPEED, X, Y
 from openconvoy.envs.vehicles import VehiclePreset
+
+rules(core_ranging, "range_and_rate")
+RANGE, RATE = range(2)
+"""Rows of ``RangingSensors.reading``: range (m), range rate (m/s)."""
+MAX_RANGE, RANGE_NOISE, RATE_NOISE = range(3)
+"""Rows of ``RangingSensors.params``: max range (m; 0 = no sensor), range noise (m), rate
+noise (m/s)."""
 
 
 class RangingSensors:
@@ -57,28 +63,21 @@ class RangingSensors:
 @bare_kernel
 def _read(own, step, keys, params, out):  # pragma: no cover - compiled
     """``out`` (2, B, N): every follower's reading (NaN range: no sensor, or nothing in
-    range), as ``ConvoyWorld.ranging_readings`` with ``ranging_noise.ranging_normals``."""
+    range), as ``ConvoyWorld.ranging_readings``: ``core.ranging.range_and_rate`` compiled,
+    with ``ranging_noise.ranging_normals``' draws (``counter_normals``)."""
     _, B, N = own.shape
     for b in range(B):
         for i in range(1, N):
-            out[0, b, i], out[1, b, i] = np.nan, np.nan
-            max_range = params[0, i]
-            if max_range <= 0.0:
+            out[RANGE, b, i], out[RATE, b, i] = np.nan, np.nan
+            max_range = params[MAX_RANGE, i]
+            if max_range <= 0.0:  # no sensor
                 continue
-            ex, ey, ev, eh = own[X, b, i], own[Y, b, i], own[SPEED, b, i], own[HEADING, b, i]
-            ax, ay, av, ah = (
-                own[X, b, i - 1],
-                own[Y, b, i - 1],
-                own[SPEED, b, i - 1],
-                own[HEADING, b, i - 1],
-            )
-            dx, dy = ax - ex, ay - ey
-            rng_m = norm(dx, dy)
-            if rng_m > max_range or rng_m <= 0.0:
+            rng_m, rate = core_ranging.range_and_rate(
+                own[X, b, i], own[Y, b, i], own[SPEED, b, i], own[HEADING, b, i],
+                own[X, b, i - 1], own[Y, b, i - 1], own[SPEED, b, i - 1], own[HEADING, b, i - 1],
+            )  # fmt: skip
+            if rng_m > max_range or rng_m <= 0.0:  # ConvoyWorld.ranging_readings' guard
                 continue
-            dvx = av * math.cos(ah) - ev * math.cos(eh)
-            dvy = av * math.sin(ah) - ev * math.sin(eh)
-            rate = (dx * dvx + dy * dvy) / rng_m
             n_range, n_rate = counter_normals(keys[b], i, step[b])
-            out[0, b, i] = rng_m + params[1, i] * n_range
-            out[1, b, i] = rate + params[2, i] * n_rate
+            out[RANGE, b, i] = rng_m + params[RANGE_NOISE, i] * n_range
+            out[RATE, b, i] = rate + params[RATE_NOISE, i] * n_rate

@@ -92,7 +92,8 @@ class FusedCall:
 
 @bare_kernel
 def fused_step(act, obs, rewards, terminated, truncated, info, st):  # pragma: no cover - compiled
-    """One tick of every convoy: decide, drive the leaders, move the plant, advance the
+    """Twin of ``ConvoyEnv.step`` (the clock, terminations and truncations of
+    ``VectorConvoyEnv._staged_step``) for every convoy: decide, drive the leaders, move the plant, advance the
     clock, Tx gates, loss and delivery, observations, gaps, rewards, terminations and the
     info arrays (``info``: ``fill_infos``'s four outputs), each stage's arguments in
     ``st`` (``Stages``)."""

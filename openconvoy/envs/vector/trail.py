@@ -65,8 +65,8 @@ def needs_wider(reach: float, w: int) -> bool:
 
 @bare_inline
 def crumb(tr, tail, b, ln, n, k, f):  # pragma: no cover - compiled
-    """Field ``f`` (0 x, 1 y, 2 s) of breadcrumb ``k`` (0 the oldest of ``n``) of trail
-    ``(b, ln)``: from the ring while it holds it, the oldest two from ``tail``; older
+    """Twin of ``Trail._vertex`` for breadcrumbs (``0 <= k < n``): field ``f`` (0 x, 1 y,
+    2 s) of breadcrumb ``k`` (0 the oldest of ``n``) of trail ``(b, ln)``: from the ring while it holds it, the oldest two from ``tail``; older
     ones s = -inf (below every s in the ring, where a search's answer is), x, y NaN
     (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     w = tr.shape[2]
@@ -81,7 +81,9 @@ def crumb(tr, tail, b, ln, n, k, f):  # pragma: no cover - compiled
 
 @bare_inline
 def _reach(tail, b, ln, n, k):  # pragma: no cover - compiled
-    """Record a read of breadcrumb ``k`` (and its neighbours) of ``n``
+    """Record a read of breadcrumb ``k`` (and its neighbours) of ``n``: the ring's
+    bookkeeping for ``Trail.project``'s walk (no value of its own; the ring is widened
+    before a read could miss it)
     (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     r = n - k + 2
     if r > tail[b, ln, T_REACH]:
@@ -143,7 +145,8 @@ def trail_add(tr, tail, n, b, ln, x, y, spacing, t, v, c, sn):  # pragma: no cov
 
 @bare_inline
 def _bisect(tr, tail, b, ln, n, value, guess):  # pragma: no cover - compiled
-    """``bisect_right`` of ``value`` in the trail's arc coordinates, searched outwards
+    """Twin of ``bisect.bisect_right`` (as ``Trail.project`` and ``Trail.point_at`` call
+    it) of ``value`` in the trail's arc coordinates, searched outwards
     from index ``guess`` (exact for any guess; a few reads for a good one: a vehicle
     moves a little along a trail per tick)
     (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
@@ -228,7 +231,8 @@ def _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cov
 
 @bare_inline
 def _dist2(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y):  # pragma: no cover - compiled
-    """``_segment``'s squared distance alone, the same bits: where the clamp of ``u`` to
+    """Twin of ``core.trail._segment_dist2`` (``Trail.project``'s walk): ``_segment``'s
+    squared distance alone, the same bits: where the clamp of ``u`` to
     0 or 1 is certain (the point before the segment's start, or well past its end, as
     the walk's neighbours mostly are) without the sqrt and the division
     (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
@@ -309,7 +313,9 @@ def finish(cross_seg, dx, dy, seg, hh):  # pragma: no cover - compiled
 
 @bare_inline
 def head_s(tail, b, ln, hx, hy):  # pragma: no cover - compiled
-    """The head's arc coordinate (m) on trail ``(b, ln)`` with the head at (hx, hy)."""
+    """Twin of ``Trail.head_s``: the head's arc coordinate (m) on trail ``(b, ln)`` with
+    the head at (hx, hy)
+    (tests/envs/vector/test_twins.py::test_the_ring_trail_projects_and_reads_as_trail)."""
     return tail[b, ln, 2] + norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
 
 

@@ -62,7 +62,8 @@ class BatchedClassical:
 
     def reset_rows(self, rows: np.ndarray) -> None:
         """Forget the state of the rows where ``rows`` (bool, the batch shape) is True
-        (convoys that started a new episode)."""
+        (convoys that started a new episode), as ``ClassicalPolicy.reset`` forgets one
+        vehicle's (tests/policies/test_batched_jit.py::test_the_rows_are_act_on_random_observations)."""
         if self._integral is not None:
             self._integral[rows] = 0.0
 

@@ -176,8 +176,9 @@ _CONFIGS = [CASES[name][0] for name in sorted(CASES)]
 def test_the_rows_are_act_on_random_observations(which: int, data: st.DataObject) -> None:
     """The twin alone (``classical_rows``' walk over the targets, compiled and as Python)
     against ``ClassicalPolicy.act`` on random observations, three ticks in a row so the
-    PID integrator carries: any flag, age, error and path feature, not only what an
-    episode reaches."""
+    PID integrator carries, and ``reset_rows`` forgetting it before one of them as
+    ``ClassicalPolicy.reset`` does: any flag, age, error and path feature, not only what
+    an episode reaches."""
     cfg = _CONFIGS[which]
     size = cfg.member.layout.size
     ticks = [
@@ -187,7 +188,12 @@ def test_the_rows_are_act_on_random_observations(which: int, data: st.DataObject
     single = ClassicalPolicy(cfg)
     compiled, python = BatchedClassical(cfg, compiled=True), BatchedClassical(cfg, compiled=False)
     assert compiled.compiled and not python.compiled
-    for obs in ticks:
+    forget = data.draw(st.integers(0, 2))  # ``reset_rows`` before that tick: ``reset``
+    for k, obs in enumerate(ticks):
+        if k == forget:
+            single.reset()
+            for batched in (compiled, python):
+                batched.reset_rows(np.ones((), dtype=bool))
         want = _bits(single.act(obs))
         np.testing.assert_array_equal(_bits(compiled.act_batch(obs)), want)
         np.testing.assert_array_equal(_bits(python.act_batch(obs)), want)

@@ -272,7 +272,7 @@ def _change_lane(k, f, r, x, y, lane, tgt, timer, on, params, idm_p, kin, geo, e
 
 @kernel
 def _steering(k, t, y, h, sp, params, half_len, lane_y) -> float:
-    """``ControlledVehicle.steering_control(lane t)``, clipped (rad)."""
+    """``ControlledVehicle.steering_control`` onto lane ``t``, clipped (rad)."""
     nz = _not_zero(sp[k])
     lateral_cmd = -params[KP_LAT, k] * (y[k] - lane_y[t])
     heading_cmd = math.asin(_clip(lateral_cmd / nz, -1.0, 1.0))
@@ -286,7 +286,8 @@ def _steering(k, t, y, h, sp, params, half_len, lane_y) -> float:
 @kernel
 def _kinematics(x, h, sp, c, s, lane, tspeed, limit) -> np.ndarray:
     """(7, n): speed, IDM's free-road ratio (speed over the target speed clipped to the
-    lane's limit), vx, vy, cos h, sin h, x; refreshes ``c``, ``s``."""
+    lane's limit, as ``IDMVehicle.acceleration`` takes it), vx, vy, cos h, sin h, x;
+    refreshes ``c``, ``s``."""
     n = x.shape[0]
     kin = np.empty((7, n))
     for k in range(n):

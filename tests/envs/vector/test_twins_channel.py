@@ -40,7 +40,7 @@ from openconvoy.envs.vector import rx as vrx
 from openconvoy.envs.vector.env import MODES
 from openconvoy.envs.vector.links import LinkTables, build_links
 from openconvoy.envs.vector.plant import COS_H, ROWS, SIN_H
-from openconvoy.envs.vector.rx import FIELDS, HA, HC, HH, HS, HV, HX, HY, T, RxBuffers
+from openconvoy.envs.vector.rx import HA, HC, HH, HS, HV, HX, HY, RxBuffers, T
 from openconvoy.envs.vector.trail import CAPACITY, MIN_WINDOW, T_BASE, head_s
 from openconvoy.envs.world import forged_states
 
@@ -147,7 +147,8 @@ def assert_buffers_equal(rx: RxBuffers, ref: Receivers) -> None:
         assert rx.hist_n[0, ln] == len(history)
         for j, m in enumerate(history):
             row = rx.hist[0, ln, j]
-            assert tuple(row[[T, HX, HY, HV, HH, HA]]) == (m.t, m.x, m.y, m.speed, m.heading, m.accel)
+            want = (m.t, m.x, m.y, m.speed, m.heading, m.accel)
+            assert tuple(row[[T, HX, HY, HV, HH, HA]]) == want
             assert (row[HC], row[HS]) == (math.cos(m.heading), math.sin(m.heading))
         tl = links.trail_of[ln]
         if tl >= 0 and history:
@@ -297,7 +298,7 @@ def test_delayed_delivery_is_channel_send_and_deliver(
     ch.broadcasts[0] = numbers[:n]
     sc = _scalar_channel(n, config, seed, numbers[:n])
     rows = np.array([True])
-    drain = [([False] * 6, ticks[-1][1])] * 6  # the messages still in flight arrive
+    drain = [([False] * 6, ticks[-1][1])] * 9  # what is in flight (0.75 s at most) arrives
     for tick, (sends, states) in enumerate(ticks + drain):
         t, step = 0.1 * tick, np.array([tick])
         own, tt = _own(states[:n]), np.array([t])

@@ -71,6 +71,10 @@ def _state(i: int, t: float, s: tuple[float, ...]) -> VehicleState:
 # --- the Tx gate ---------------------------------------------------------------------------
 
 
+wander = st.tuples(*[st.floats(-1.5, 1.5)] * 3, st.floats(-0.3, 0.3))
+"""A tick's departure from dead reckoning: x, y (m), speed (m/s), heading (rad)."""
+
+
 @FEW
 @given(
     st.sampled_from(["periodic", "event"]),
@@ -78,7 +82,8 @@ def _state(i: int, t: float, s: tuple[float, ...]) -> VehicleState:
     st.floats(0.1, 2.0),
     st.floats(0.1, 2.0),
     st.floats(0.2, 3.0),
-    st.lists(st.tuples(st.floats(0.0, 0.3), st.booleans(), st.lists(vehicle, min_size=3, max_size=3)),
+    st.lists(vehicle, min_size=3, max_size=3),
+    st.lists(st.tuples(st.floats(0.0, 0.3), st.booleans(), st.lists(wander, min_size=3, max_size=3)),
              min_size=1, max_size=25),
     st.none() | st.floats(0.0, 3.0),
 )  # fmt: skip
@@ -88,25 +93,31 @@ def test_tx_gate_is_tx_gate_should_send(
     thr: float,
     sthr: float,
     silence: float,
+    start: list[tuple[float, ...]],
     ticks: list[tuple[float, bool, list[tuple[float, ...]]]],
     mute_s: float | None,
 ) -> None:
     """``_tx_gate`` decides, counts and records each broadcast as ``TxGate.should_send``
     of each vehicle on the same states and times (the convoy stepped or not), vehicle 1
-    muted from ``mute_s`` as ``ConvoyWorld`` mutes (``Fault.active``)."""
+    muted from ``mute_s`` as ``ConvoyWorld`` mutes (``Fault.active``). The vehicles leave
+    dead reckoning by about the thresholds, so the event trigger goes both ways."""
     config = TriggerConfig(kind, period, thr, sthr, silence)
     faults = [] if mute_s is None else [Fault("silent", 1, mute_s)]
     ch = vchannel.VectorChannel(1, build_links(MemberConfig(), 3), [LossConfig()], config,
                                 faults, 0.1, False)  # fmt: skip
     gates = [TxGate(config) for _ in range(3)]
     sent = [0, 0, 0]
-    t = 0.0
-    for dt, stepped, states in ticks:
+    t, states = 0.0, [list(s) for s in start]
+    for dt, stepped, moves in ticks:
         t += dt
+        for s, (ex, ey, ev, eh) in zip(states, moves):
+            s[0] += s[2] * math.cos(s[3]) * dt + ex
+            s[1] += s[2] * math.sin(s[3]) * dt + ey
+            s[2], s[3] = s[2] + ev, s[3] + eh
         vchannel._tx_gate(np.array([t]), np.array([stepped]), _own(states), ch.gate)
         for i, g in enumerate(gates):
             muted = any(f.vehicle == i and f.active(t) for f in faults)
-            want = stepped and not muted and g.should_send(_state(i, t, states[i]), t)
+            want = stepped and not muted and g.should_send(_state(i, t, tuple(states[i])), t)
             sent[i] += want
             assert ch.gate.send[0, i] == want
         assert ch.msgs_sent[0].tolist() == sent

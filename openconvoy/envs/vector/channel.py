@@ -428,11 +428,12 @@ def _bernoulli(draws, send, pairs, rows, lost):  # pragma: no cover - compiled
 @bare_kernel
 def _bernoulli_deliver(draws, send, pairs, rows, t, own, counts, rx):  # pragma: no cover
     """``Channel.send`` and ``Channel.deliver`` of instant Bernoulli links (``_bernoulli``
-    and ``_deliver``) in one walk over the pairs, receiver-major (``pairs.link``: each pair's link or -1): each receiver's counters,
-    R^i buffers and trails are written in memory order, the senders' rows (``draws.zs``:
-    scratch (N,), each broadcasting sender's first round of ``counter_uniform4``) stay in
-    the first cache level. Counts the broadcasts. Property-tested against ``Channel`` and
-    ``StateBuffer.push`` in ``tests/envs/vector/test_twins_channel.py``."""
+    and ``_deliver``) in one walk over the pairs, receiver-major (``pairs.link``: each
+    pair's link or -1): each receiver's counters, R^i buffers and trails are written in
+    memory order, the senders' rows (``draws.zs``: scratch (N,), each broadcasting
+    sender's first round of ``counter_uniform4``) stay in the first cache level. Counts
+    the broadcasts. Property-tested against ``Channel`` and ``StateBuffer.push`` in
+    ``tests/envs/vector/test_twins_channel.py``."""
     keys, number, per, zs = draws.keys, draws.number, draws.per, draws.zs
     pair_s, pair_r, pair_link = pairs.s, pairs.r, pairs.link
     lost_to, delivered_to, kept = counts.lost_to, counts.delivered_to, counts.kept

@@ -83,7 +83,8 @@ wander = st.tuples(*[st.floats(-1.5, 1.5)] * 3, st.floats(-0.3, 0.3))
     st.floats(0.1, 2.0),
     st.floats(0.2, 3.0),
     st.lists(vehicle, min_size=3, max_size=3),
-    st.lists(st.tuples(st.floats(0.0, 0.3), st.booleans(), st.lists(wander, min_size=3, max_size=3)),
+    st.lists(st.tuples(st.floats(0.0, 0.3), st.booleans(),
+                       st.lists(wander, min_size=3, max_size=3)),
              min_size=1, max_size=25),
     st.none() | st.floats(0.0, 3.0),
 )  # fmt: skip
@@ -426,7 +427,8 @@ def test_forge_is_authentication_deliver_forgeries(
             active = [f.vehicle for f in faults if f.active(t)]
             truth = SimpleNamespace(**{name: [s[j] for s in states[:n]] for j, name in
                                        enumerate(("x", "y", "speed", "heading"))})  # fmt: skip
-            claimed = forged_states(active, t, truth, [LENGTH] * n, [WIDTH] * n)  # type: ignore[arg-type]
+            sizes = [LENGTH] * n, [WIDTH] * n
+            claimed = forged_states(active, t, truth, *sizes)  # type: ignore[arg-type]
             inboxes: list[list[VehicleState]] = [[] for _ in range(n)]
             auth.deliver_forgeries(claimed, inboxes)
             ref.take([(r, m.vehicle_id, m) for r, inbox in enumerate(inboxes) for m in inbox])

@@ -340,7 +340,7 @@ def _mix(z):  # pragma: no cover - compiled
 
 @bare_inline
 def counter_uniform4(key, w0, w1, w2, w3):  # pragma: no cover - compiled
-    """``comms.loss.counter_uniform(key, w0, w1, w2, w3)``, bit for bit."""
+    """``comms.loss.counter_uniform`` of ``(key, w0, w1, w2, w3)``, bit for bit."""
     z = _mix(key + _G + np.uint64(w0))
     z = _mix(z + _G + np.uint64(w1))
     z = _mix(z + _G + np.uint64(w2))
@@ -411,8 +411,8 @@ def _tx_gate(t, rows, own, gate):  # pragma: no cover - compiled
 
 @bare_kernel
 def _bernoulli(draws, send, pairs, rows, lost):  # pragma: no cover - compiled
-    """Bernoulli loss of every pair whose sender broadcasts (broadcast ``draws.number``):
-    the draws of ``Channel._draw_block``, one pair at a time."""
+    """``Channel._draw_block``'s Bernoulli loss draws, one pair at a time: of every pair
+    whose sender broadcasts (its broadcast number in ``draws.number``)."""
     keys, number, per, pair_s, pair_r = draws.keys, draws.number, draws.per, pairs.s, pairs.r
     for b in range(lost.shape[0]):
         for p in range(lost.shape[1]):
@@ -427,11 +427,13 @@ def _bernoulli(draws, send, pairs, rows, lost):  # pragma: no cover - compiled
 
 @bare_kernel
 def _bernoulli_deliver(draws, send, pairs, rows, t, own, counts, rx):  # pragma: no cover
-    """``_bernoulli`` and ``_deliver`` of instant links in one walk over the pairs,
-    receiver-major (``pairs.link``: each pair's link or -1): each receiver's counters,
-    R^i buffers and trails are written in memory order, the senders' rows (``draws.zs``:
-    scratch (N,), each broadcasting sender's first round of ``counter_uniform4``) stay in
-    the first cache level. Counts the broadcasts."""
+    """``Channel.send`` and ``Channel.deliver`` of instant Bernoulli links (``_bernoulli``
+    and ``_deliver``) in one walk over the pairs, receiver-major (``pairs.link``: each
+    pair's link or -1): each receiver's counters, R^i buffers and trails are written in
+    memory order, the senders' rows (``draws.zs``: scratch (N,), each broadcasting
+    sender's first round of ``counter_uniform4``) stay in the first cache level. Counts
+    the broadcasts. Property-tested against ``Channel`` and ``StateBuffer.push`` in
+    ``tests/envs/vector/test_twins_channel.py``."""
     keys, number, per, zs = draws.keys, draws.number, draws.per, draws.zs
     pair_s, pair_r, pair_link = pairs.s, pairs.r, pairs.link
     lost_to, delivered_to, kept = counts.lost_to, counts.delivered_to, counts.kept
@@ -473,7 +475,8 @@ def _bernoulli_deliver(draws, send, pairs, rows, t, own, counts, rx):  # pragma:
 
 @bare_kernel
 def _deliver(sent, pairs, rows, t, own, counts, rx, instant):  # pragma: no cover - compiled
-    """Count the losses of this tick's broadcasts; instant links also deliver now."""
+    """``Channel.deliver``'s counters of this tick's broadcasts (``sent.lost``: the
+    pairs' draws): losses counted; instant links also deliver now (``push_one``)."""
     send, lost, pair_s, pair_r, pair_link = sent.send, sent.lost, pairs.s, pairs.r, pairs.link
     lost_to, delivered_to, kept = counts.lost_to, counts.delivered_to, counts.kept
     for b in range(send.shape[0]):

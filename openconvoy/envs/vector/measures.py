@@ -129,8 +129,10 @@ def infos(env: Any, filled: tuple[np.ndarray, ...] | None = None) -> dict[str, A
 
 @bare_kernel
 def fill_infos(out, rep):  # pragma: no cover - compiled
-    """``info_arrays`` ``out`` (floats, ints, the leader's floats and ints) of ``rep``
-    (``Reported``): ``infos``'s keys in their order."""
+    """``envs.convoy_env.agent_infos``'s values of ``rep`` (``Reported``) into
+    ``info_arrays`` ``out`` (floats, ints, the leader's floats and ints): ``infos``'s keys
+    in their order, NaN where ``agent_infos`` has None; ``msgs_offered``: the column sums
+    of ``Channel.sent``."""
     fl, it, lf, li = out
     gap, desired, spacing_error, own = rep.gap, rep.desired, rep.spacing_error, rep.own
     cmd_v, cmd_dh, has_cmd, pred_age, modes = (

@@ -114,8 +114,10 @@ def _rering(old, tail, n, new):  # pragma: no cover - compiled
     w, wn = old.shape[2], new.shape[2]
     for b in range(old.shape[0]):
         for t in range(old.shape[1]):
-            last = int(tail[b, t, T_BASE]) + n[b, t] - 1
-            for c in range(max(last - w + 1, 0), last + 1):
+            # the counts of the breadcrumbs held: the last w up to the newest's
+            for c in range(
+                max(int(tail[b, t, T_BASE]) + n[b, t] - w, 0), int(tail[b, t, T_BASE]) + n[b, t]
+            ):
                 for f in range(3):
                     new[b, t, c & (wn - 1), f] = old[b, t, c & (w - 1), f]
 

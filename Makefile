@@ -75,7 +75,7 @@ test: $(STAMP) ros1 ros2 $(RLLIB_STAMP)
 	$(VENV)/bin/ruff format --check openconvoy tests benchmarks examples docs/hooks
 	$(VENV)/bin/mypy
 	$(MAKE) docs
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q --durations=30
 
 # The documentation site, strict: a broken link, reference or generated table fails.
 docs: $(STAMP)

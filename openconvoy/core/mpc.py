@@ -6,7 +6,7 @@ horizons). No modelling layer in the control loop. The formulation with units is
 ``docs/mpc.md``; in short, at every control tick the ego solves, over ``horizon`` steps of
 ``step_s`` seconds,
 
-    minimise   Σ_k  w_k [ Σ_j w_gap e_jk² + w_speed (v^p_k − v_k)² + w_accel a_k² ]
+    minimise   Σ_k  w_k [ Σ_j w_gap ω_j e_jk² + w_speed (v^p_k − v_k)² + w_accel a_k² ]
              + Σ_k  w_du (u_k − u_{k−1})² + w_slack Σ (s² + s)
     subject to 0 ≤ u_k ≤ v_max                     (speed setpoints, m/s: hard)
                0 − s ≤ v_k ≤ v_max + s             (predicted speed, m/s)
@@ -18,8 +18,9 @@ horizons). No modelling layer in the control loop. The formulation with units is
 where ``u`` is the speed setpoint the autopilot receives (the action), ``v``, ``a`` the
 ego's predicted speed and acceleration from the vehicle's own speed-loop model (``lag``:
 first-order lag; ``pi``: the autopilot's PI speed loop with its drive lag), ``e_jk`` the
-spacing error to predecessor ``j`` (predicted gap − desired gap at the predicted speed),
-``v^p`` the immediate predecessor's predicted speed (its shared plan, or constant
+spacing error to predecessor ``j`` (predicted gap − desired gap at the predicted speed)
+weighed by its ``Target.weight`` ``ω_j`` (the policy gives the immediate predecessor 1,
+farther ones 0.5), ``v^p`` the immediate predecessor's predicted speed (its shared plan, or constant
 velocity), ``c_k = v_k − v^p_k`` the closing speed (linearised about the last plan's
 ``c̄_k``), ``w_k`` 1 except ``w_terminal`` at the last step (the soft terminal cost), and
 ``s, s_k ≥ 0`` slacks that keep every state constraint feasible (one for the speed and

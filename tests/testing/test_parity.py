@@ -20,7 +20,6 @@ def test_same_is_equality_to_the_bit_with_nan_equal_to_nan() -> None:
     assert same(0.1 + 0.2, 0.1 + 0.2) and not same(0.1 + 0.2, 0.3)
 
 
-
 def test_same_compares_object_arrays_element_by_element() -> None:
     modes = np.array(["coop", "hold"], dtype=object)
     assert same(modes, np.array(["coop", "hold"], dtype=object))

@@ -99,25 +99,38 @@ class RxBuffers:
 
     def widen(self, window: int) -> None:
         """Rings of ``window`` breadcrumbs (a wider power of two), the same contents: a
-        breadcrumb's place is its count since the reset modulo the ring size."""
-        new = np.zeros((self.trail.shape[0], self.trail.shape[1], window, 3))
-        _rering(self.trail, self.tail, self.trail_n, new)
-        self.trail = new
+        breadcrumb's place is its count since the reset modulo the ring size. The array
+        grows in place (``realloc``: a large one is remapped, not copied), so the old and
+        the new rings are never held at once (at B = 16,384 they were the run's peak
+        memory); every other holder of the array (the env's packed stages) is built again
+        by the caller before the next tick."""
+        B, T, w, _ = self.trail.shape
+        self.trail.resize((B, T, window, 3), refcheck=False)
+        _rering(self.trail.reshape(-1), B, T, w, window, self.tail, self.trail_n,
+                np.empty((w, 3)))  # fmt: skip
         self.pushed = self._pushed()
 
 
 @bare_kernel
-def _rering(old, tail, n, new):  # pragma: no cover - compiled
-    """Each trail's breadcrumbs of ring ``old`` into ring ``new`` (both powers of two):
-    breadcrumb count ``c`` since the reset sits in slot ``c mod`` the ring's size. A loop,
-    not fancy indexing: no temporaries the size of the rings at a large batch."""
-    w, wn = old.shape[2], new.shape[2]
-    for b in range(old.shape[0]):
-        for t in range(old.shape[1]):
-            last = int(tail[b, t, T_BASE]) + n[b, t] - 1
-            for c in range(max(last - w + 1, 0), last + 1):
-                for f in range(3):
-                    new[b, t, c & (wn - 1), f] = old[b, t, c & (w - 1), f]
+def _rering(flat, B, T, w, wn, tail, n, scratch):  # pragma: no cover - compiled
+    """Each trail's breadcrumbs, ``B * T`` rings of ``w`` laid out first in ``flat`` (3
+    fields each), spread in place to rings of ``wn`` (both powers of two): breadcrumb
+    count ``c`` since the reset sits in slot ``c mod`` the ring's size; slots holding no
+    breadcrumb are zero. From the last trail back: a trail's new place starts at or after
+    its old one and overlaps only its own old ring and those of trails already moved, so
+    each old ring is read (into ``scratch``, (w, 3)) before anything is written over it.
+    A loop, not fancy indexing: no temporaries the size of the rings at a large batch."""
+    for i in range(B * T - 1, -1, -1):
+        b, t = i // T, i % T
+        for j in range(w):
+            for f in range(3):
+                scratch[j, f] = flat[(i * w + j) * 3 + f]
+        for j in range(wn * 3):
+            flat[i * wn * 3 + j] = 0.0
+        last = int(tail[b, t, T_BASE]) + n[b, t] - 1
+        for c in range(max(last - w + 1, 0), last + 1):
+            for f in range(3):
+                flat[(i * wn + (c & (wn - 1))) * 3 + f] = scratch[c & (w - 1), f]
 
 
 @bare_inline

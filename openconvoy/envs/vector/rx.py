@@ -37,6 +37,11 @@ def aligned_zeros(shape: tuple[int, ...]) -> np.ndarray:
     return raw[start : start + n].reshape(shape)
 
 
+WIDEN_SLICES = 16
+"""Slices of convoys ``RxBuffers.widen`` moves one after another: the old rings' memory
+shrinks by one slice as the new ones' grows by one."""
+
+
 class Pushed(NamedTuple):
     """What ``push_one`` writes and reads (``RxBuffers.pushed``, built again when the
     trails' rings widen): the R^i buffers ``hist``, ``hist_n``, ``newest``, the trails
@@ -99,38 +104,38 @@ class RxBuffers:
 
     def widen(self, window: int) -> None:
         """Rings of ``window`` breadcrumbs (a wider power of two), the same contents: a
-        breadcrumb's place is its count since the reset modulo the ring size. The array
-        grows in place (``realloc``: a large one is remapped, not copied), so the old and
-        the new rings are never held at once (at B = 16,384 they were the run's peak
-        memory); every other holder of the array (the env's packed stages) is built again
-        by the caller before the next tick."""
-        B, T, w, _ = self.trail.shape
-        self.trail.resize((B, T, window, 3), refcheck=False)
-        _rering(self.trail.reshape(-1), B, T, w, window, self.tail, self.trail_n,
-                np.empty((w, 3)))  # fmt: skip
+        breadcrumb's place is its count since the reset modulo the ring size. The old
+        rings are moved a slice of convoys at a time from the end, the array shrunk
+        behind each (``realloc`` hands a large one's pages back), so the two are not
+        held whole at once: at B = 16,384 they were a run's peak memory. The new array
+        is numpy's own (zero pages until written, huge pages where numpy asks for them);
+        every other holder of the old one (the env's packed stages) is built again by the
+        caller before the next tick."""
+        old = self.trail
+        B, T, w, _ = old.shape
+        new = np.zeros((B, T, window, 3))
+        step = max(1, -(-B // WIDEN_SLICES))
+        for b1 in range(B, 0, -step):
+            b0 = max(b1 - step, 0)
+            _rering(old[b0:b1], self.tail[b0:b1], self.trail_n[b0:b1], new[b0:b1])
+            if b0 > 0:
+                old.resize((b0, T, w, 3), refcheck=False)
+        self.trail = new
         self.pushed = self._pushed()
 
 
 @bare_kernel
-def _rering(flat, B, T, w, wn, tail, n, scratch):  # pragma: no cover - compiled
-    """Each trail's breadcrumbs, ``B * T`` rings of ``w`` laid out first in ``flat`` (3
-    fields each), spread in place to rings of ``wn`` (both powers of two): breadcrumb
-    count ``c`` since the reset sits in slot ``c mod`` the ring's size; slots holding no
-    breadcrumb are zero. From the last trail back: a trail's new place starts at or after
-    its old one and overlaps only its own old ring and those of trails already moved, so
-    each old ring is read (into ``scratch``, (w, 3)) before anything is written over it.
-    A loop, not fancy indexing: no temporaries the size of the rings at a large batch."""
-    for i in range(B * T - 1, -1, -1):
-        b, t = i // T, i % T
-        for j in range(w):
-            for f in range(3):
-                scratch[j, f] = flat[(i * w + j) * 3 + f]
-        for j in range(wn * 3):
-            flat[i * wn * 3 + j] = 0.0
-        last = int(tail[b, t, T_BASE]) + n[b, t] - 1
-        for c in range(max(last - w + 1, 0), last + 1):
-            for f in range(3):
-                flat[(i * wn + (c & (wn - 1))) * 3 + f] = scratch[c & (w - 1), f]
+def _rering(old, tail, n, new):  # pragma: no cover - compiled
+    """Each trail's breadcrumbs of ring ``old`` into ring ``new`` (both powers of two):
+    breadcrumb count ``c`` since the reset sits in slot ``c mod`` the ring's size. A loop,
+    not fancy indexing: no temporaries the size of the rings at a large batch."""
+    w, wn = old.shape[2], new.shape[2]
+    for b in range(old.shape[0]):
+        for t in range(old.shape[1]):
+            last = int(tail[b, t, T_BASE]) + n[b, t] - 1
+            for c in range(max(last - w + 1, 0), last + 1):
+                for f in range(3):
+                    new[b, t, c & (wn - 1), f] = old[b, t, c & (w - 1), f]
 
 
 @bare_inline

@@ -27,6 +27,10 @@ case it is the work two threads do per CPU-second against one's (times the cores
 speed-up idle cores would give, as far as the threads do not contend for memory bandwidth
 or a shared cache).
 
+A batched case's peak memory depends on how far its trails' rings widened (``rings`` in
+the table: breadcrumbs a ring holds at the end), hence on how many ticks the timed run
+managed; ``bench_vector_memory.py`` compares memory after a fixed number of ticks.
+
 The anchors are optional installs (``pip install eclipse-sumo libsumo vmas``); a missing one
 is reported and its ratios left out. The machine's cache sizes are printed with the table.
 
@@ -383,6 +387,8 @@ def main() -> None:
         same = ""
         if "digest" in ours and "digest" in anchor:
             same = "  identical" if ours["digest"] == anchor["digest"] else "  DIFFERENT"
+        if "window" in ours:  # the trails' rings at the end: the peak memory depends on it
+            same += f"  rings {ours['window']}"
         print(f"{r['case']:<78}{_cell(ours, r['key'])}{_cell(anchor, r['key'])}{ratio:>8}"
               f"{ratio_cpu:>10}{_mb(ours)}{_mb(anchor)}{same}")  # fmt: skip
 

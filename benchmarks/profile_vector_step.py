@@ -28,6 +28,8 @@ from openconvoy.policies.spec import load_policy  # noqa: E402
 
 CASES = {
     "paper": {"B": 1024, "vehicles": 3, "preset": "paper", "link_counters": "all"},
+    "paper-4k": {"B": 4096, "vehicles": 3, "preset": "paper", "link_counters": "all"},
+    "paper-16k": {"B": 16384, "vehicles": 3, "preset": "paper", "link_counters": "all"},
     "long": {"B": 1, "vehicles": 101, "preset": "paper", "link_counters": "all"},
     "long-la1": {"B": 1, "vehicles": 101, "preset": "cacc-lookahead1", "link_counters": "all"},
     "long-la1-kept": {

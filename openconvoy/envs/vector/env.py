@@ -266,12 +266,13 @@ class VectorConvoyEnv:
         w = self.rx.window
         while needs_wider(self.rx.reach(), w):
             w *= 2
+        if self._slabs is not None:  # its views of the rings go with the old buffer
+            self._slabs.close()
         self.rx.widen(w)
         self._sources = self._observed()  # around the new rings
         if self._fused is not None:
             self._fused = pack(self)
             if self._slabs is not None:
-                self._slabs.close()
                 self._slabs = make_slabs(self, self._fused, self.threads, FusedCall)
 
     def _observed(self) -> Sources:

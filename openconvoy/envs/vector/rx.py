@@ -37,6 +37,11 @@ def aligned_zeros(shape: tuple[int, ...]) -> np.ndarray:
     return raw[start : start + n].reshape(shape)
 
 
+WIDEN_SLICES = 16
+"""Slices of convoys ``RxBuffers.widen`` moves one after another: the old rings' memory
+shrinks by one slice as the new ones' grows by one."""
+
+
 class Pushed(NamedTuple):
     """What ``push_one`` writes and reads (``RxBuffers.pushed``, built again when the
     trails' rings widen): the R^i buffers ``hist``, ``hist_n``, ``newest``, the trails
@@ -99,9 +104,22 @@ class RxBuffers:
 
     def widen(self, window: int) -> None:
         """Rings of ``window`` breadcrumbs (a wider power of two), the same contents: a
-        breadcrumb's place is its count since the reset modulo the ring size."""
-        new = np.zeros((self.trail.shape[0], self.trail.shape[1], window, 3))
-        _rering(self.trail, self.tail, self.trail_n, new)
+        breadcrumb's place is its count since the reset modulo the ring size. The old
+        rings are moved a slice of convoys at a time from the end, the array shrunk
+        behind each (``realloc`` hands a large one's pages back), so the two are not
+        held whole at once: at B = 16,384 they were a run's peak memory. The new array
+        is numpy's own (zero pages until written, huge pages where numpy asks for them);
+        every other holder of the old one (the env's packed stages) is built again by the
+        caller before the next tick."""
+        old = self.trail
+        B, T, w, _ = old.shape
+        new = np.zeros((B, T, window, 3))
+        step = max(1, -(-B // WIDEN_SLICES))
+        for b1 in range(B, 0, -step):
+            b0 = max(b1 - step, 0)
+            _rering(old[b0:b1], self.tail[b0:b1], self.trail_n[b0:b1], new[b0:b1])
+            if b0 > 0:
+                old.resize((b0, T, w, 3), refcheck=False)
         self.trail = new
         self.pushed = self._pushed()
 

@@ -104,3 +104,26 @@ def test_small_rings_run_as_convoy_env_through_a_widening_and_a_drop(
     _compare(B=1, per=0.1, member={"trail_spacing_m": 0.08}, max_time_s=200.0, steps=3_400)
     assert seen[0][0] == MIN_WINDOW and max(w for w, _ in seen) > MIN_WINDOW
     assert max(base for _, base in seen) >= CAPACITY // 2
+
+
+def test_widening_in_place_moves_every_held_breadcrumb_to_its_slot_and_zeroes_the_rest() -> None:
+    """``RxBuffers.widen`` grows the rings within their own buffer: each breadcrumb the
+    old ring held (count ``c`` since the reset) lands in slot ``c mod`` the new size of its
+    own trail's ring, whatever the trails' counts and bases; every other slot is zero."""
+    env = VectorConvoyEnv(3, "paper", loss=0.2)
+    rx = env.rx
+    B, T, w, _ = rx.trail.shape
+    rng = np.random.default_rng(4)
+    rx.trail[...] = rng.random(rx.trail.shape) + 1.0  # nothing zero: a stale slot would show
+    rx.trail_n[...] = rng.integers(0, 3 * w, size=(B, T))
+    rx.tail[..., T_BASE] = rng.integers(0, 2, size=(B, T)) * (CAPACITY // 2)
+    old = rx.trail.copy()
+    rx.widen(4 * w)
+    assert rx.trail.shape == (B, T, 4 * w, 3) and rx.pushed.trail is rx.trail
+    expected = np.zeros((B, T, 4 * w, 3))
+    for b in range(B):
+        for t in range(T):
+            last = int(rx.tail[b, t, T_BASE]) + int(rx.trail_n[b, t]) - 1
+            for c in range(max(last - w + 1, 0), last + 1):
+                expected[b, t, c % (4 * w)] = old[b, t, c % w]
+    np.testing.assert_array_equal(rx.trail, expected)

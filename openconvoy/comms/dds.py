@@ -41,7 +41,15 @@ from openconvoy.core.errors import ConfigError, DependencyMissing, LinkError
 
 INSTALL_HINT = "V2V over ROS 2 needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
 try:
-    from cyclonedds.core import Policy, Qos
+    from cyclonedds.core import (
+        InstanceState,
+        Policy,
+        Qos,
+        ReadCondition,
+        SampleState,
+        ViewState,
+        WaitSet,
+    )
     from cyclonedds.domain import Domain, DomainParticipant
     from cyclonedds.idl import IdlStruct
     from cyclonedds.idl import types as t
@@ -164,6 +172,7 @@ class DdsTransport:
         self.topic, self.domain_id, self.iface = topic, domain_id, iface
         self.vehicle_id, self.wall = vehicle_id, wall
         self.bad_samples = 0
+        self._waitset: Any = None  # made by the first ``wait``
         qos = Qos(
             Policy.Reliability.BestEffort,
             Policy.Durability.Volatile,
@@ -202,6 +211,19 @@ class DdsTransport:
                 return n
             time.sleep(0.02)
 
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a sample is waiting or ``timeout_s`` (s) has passed; True if one is
+        (a Cyclone ``WaitSet`` on a ``ReadCondition`` of our reader, as ``bridge.px4dds``'s
+        ``Waiter``: a listener wakes once per arrival instead of polling — the transport has
+        no file descriptor for ``select``). An ``OSError`` when the participant is closed."""
+        if self._dp is None:
+            raise OSError("V2V DDS participant closed")
+        if self._waitset is None:
+            mask = SampleState.Any | ViewState.Any | InstanceState.Any
+            self._waitset = WaitSet(self._dp)
+            self._waitset.attach(ReadCondition(self._reader, mask))
+        return bool(self._waitset.wait(max(0, int(timeout_s * 1e9))))
+
     def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
         """Samples waiting (at most ``max_batch``), oldest first; bad ones counted, dropped."""
         if self._dp is None:
@@ -224,6 +246,7 @@ class DdsTransport:
 
     def close(self) -> None:
         """Delete the participant (its reader and writer with it); idempotent."""
+        self._waitset = None  # before its participant: its own delete detaches from a live one
         if self._dp is not None:
             self._dp.__del__()  # cyclonedds has no public delete; this one is idempotent
         self._dp = None

@@ -6,7 +6,9 @@ per sender, the frames accepted and rejected by reason, and a summary at exit. `
 sends test BSMs from a made-up vehicle moving at constant speed and heading, signed with
 ``--key`` or not, or replays a captured datagram, at any rate (a forger's or a flood's
 tool, for resilience experiments). ``decode`` prints one frame's core fields in physical
-units. The argparse declarations live in ``openconvoy.comms.cli`` (``_add_bsm``); these
+units. ``listen`` and ``send`` speak IPv6 multicast, or with ``ros2`` = (topic, DDS domain)
+the ROS 2 topic a convoy with ``[v2v] transport = "ros2"`` carries the same bytes on
+(``comms.dds``). The argparse declarations live in ``openconvoy.comms.cli`` (``_add_bsm``); these
 functions do the work.
 """
 
@@ -37,6 +39,14 @@ log = logging.getLogger(__name__)
 
 #: Temporary ID of ``bsm send`` unless ``--id`` is given.
 DEFAULT_SEND_ID = derive_temp_id("bsm-send", 0)
+#: The DDS samples ``listen`` keeps between reads: larger than a vehicle's (``dds.depth_for``),
+#: since a field tool prints every message rather than acting on the newest.
+LISTEN_DEPTH = 1024
+#: How long ``send`` over DDS waits for discovery to match a reader before the first BSM
+#: (s): best-effort samples written before are lost to it (as ``v2v.send_abort`` waits).
+ROS2_WAIT_S = 3.0
+#: ``vehicle_id`` stamped on ``send``'s DDS samples: not a convoy member (0..254).
+SEND_VEHICLE_ID = -2
 
 
 def require_codec() -> None:
@@ -184,16 +194,20 @@ def listen(
     out: TextIO = sys.stdout,
     clock: Callable[[], float] = time.time,
     auth: Authenticator | None = None,
+    ros2: tuple[str, int] | None = None,
 ) -> int:
     """Print messages heard on ``iface`` until ``count`` messages or ``timeout_s`` seconds.
 
     With ``security.auth`` (a verifier holding the convoy's authority certificate) every datagram
     is verified and its line says so, and a per-sender summary is printed at the end,
-    Ctrl-C included. Returns the number of messages printed.
+    Ctrl-C included. With ``ros2`` = (ROS 2 topic, DDS domain id) the messages are read from
+    that topic instead of the multicast group (Cyclone kept on ``iface``; no compatibility
+    format there). Returns the number of messages printed.
     """
+    _check_ros2(ros2, compat_enabled, None)
     require_codec()
     tally = Tally()
-    socks: list[Any] = [Ipv6Multicast(iface, group, port)]
+    socks: list[Any] = [_open(iface, group, port, 1, ros2, 0, LISTEN_DEPTH)]
     if compat_enabled:
         socks.append(Ipv4Multicast(iface))
     printed = 0
@@ -203,7 +217,7 @@ def listen(
             wait = 0.5 if deadline is None else deadline - time.monotonic()
             if wait <= 0:
                 break
-            ready, _, _ = select.select(socks, [], [], min(wait, 0.5))
+            ready = _ready(socks, min(wait, 0.5), ros2 is not None)
             now = clock()
             for s in ready:
                 dgram: Datagram
@@ -245,15 +259,20 @@ def send(
     sleep: Callable[[float], None] = time.sleep,
     auth: Authenticator | None = None,
     frame: bytes | None = None,
+    ros2: tuple[str, int] | None = None,
+    ros2_wait_s: float = ROS2_WAIT_S,
 ) -> int:
     """Send ``count`` test BSMs at ``rate_hz`` from a vehicle starting at ``lat_deg``,
     ``lon_deg`` and moving at ``speed_mps`` along compass ``heading_deg``.
 
     With ``compat_car`` set, each state also goes out as a compatibility message from that
     convoy position on the IPv4 group. With ``security.auth`` each BSM is a signed SPDU. With
-    ``frame`` that datagram is sent as it is, ``count`` times (a replay). Returns the
-    number of BSMs sent.
+    ``frame`` that datagram is sent as it is, ``count`` times (a replay). With ``ros2`` =
+    (ROS 2 topic, DDS domain id) the datagrams go on that topic instead of the group, once
+    DDS discovery has matched a reader or ``ros2_wait_s`` (s) has passed (Cyclone kept on
+    ``iface``; no compatibility format there). Returns the number of BSMs sent.
     """
+    _check_ros2(ros2, False, compat_car)
     if count < 0:
         raise ConfigError(f"--count must be >= 0, got {count}")
     if not rate_hz > 0:
@@ -261,8 +280,10 @@ def send(
     require_codec()
     start = Origin(lat_deg, lon_deg, elev_m)
     heading_enu = math.radians(90.0 - heading_deg)
-    sock = Ipv6Multicast(iface, group, port, hop_limit)
+    sock = _open(iface, group, port, hop_limit, ros2, SEND_VEHICLE_ID)
     sock4 = Ipv4Multicast(iface) if compat_car is not None else None
+    if ros2 is not None and sock.wait_for_readers(ros2_wait_s) == 0:
+        log.warning("no reader of %s on DDS domain %d yet: sending anyway", *ros2)
     t0 = clock()
     try:
         for k in range(count):
@@ -285,6 +306,44 @@ def send(
         if sock4 is not None:
             sock4.close()
     return count
+
+
+def _check_ros2(ros2: tuple[str, int] | None, compat: bool, compat_car: int | None) -> None:
+    """``ConfigError`` if the compatibility format is asked for over ROS 2 (it is IPv4
+    multicast only, as the original implementation)."""
+    if ros2 is not None and (compat or compat_car is not None):
+        flag = "--compat" if compat else "--compat-car"
+        raise ConfigError(f"{flag}: the original JSON format is IPv4 multicast only, not ros2")
+
+
+def _open(
+    iface: str,
+    group: str,
+    port: int,
+    hop_limit: int,
+    ros2: tuple[str, int] | None,
+    vehicle_id: int,
+    depth: int | None = None,
+) -> Any:
+    """The J2735 link: the IPv6 multicast socket, or with ``ros2`` = (topic, domain) a
+    ``comms.dds.DdsTransport`` stamping ``vehicle_id`` and keeping ``depth`` samples
+    (default: a vehicle's)."""
+    if ros2 is None:
+        return Ipv6Multicast(iface, group, port, hop_limit)
+    from openconvoy.comms.dds import DEPTH, DdsTransport
+
+    topic, domain = ros2
+    return DdsTransport(iface, topic, domain, vehicle_id=vehicle_id, depth=depth or DEPTH)
+
+
+def _ready(links: list[Any], timeout_s: float, dds: bool) -> list[Any]:
+    """The links with datagrams waiting, after at most ``timeout_s`` (s): ``select`` on
+    sockets, the DDS transport's own wait set (``DdsTransport.wait``, the only link then)."""
+    if dds:
+        (link,) = links
+        return [link] if link.wait(timeout_s) else []
+    ready, _, _ = select.select(links, [], [], timeout_s)
+    return ready
 
 
 def _straight_line(

@@ -1,6 +1,7 @@
 """``bsm listen | send --transport ros2``: the field tools on a convoy's ROS 2 V2V topic
 (``comms.dds``, Cyclone DDS on the namespace's veth), unsigned and signed, the flags of the
-other transport refused, and ``DdsTransport.wait`` blocking rather than spinning.
+other transport refused, ``--convoy``'s ``[v2v]`` as the defaults (of multicast too), and
+``DdsTransport.wait`` blocking rather than spinning.
 
 (That an rclpy node reads the topic's samples is test_dds.py's; here both ends are ours.)"""
 
@@ -232,3 +233,38 @@ def test_dds_transport_wait_blocks_until_a_sample_without_spinning():
     assert cpu < 0.2, cpu  # ... asleep: a polling loop would burn about `wall` of CPU
     assert woke is True and got == ["one"] and drained is False
     assert closed == "V2V DDS participant closed"
+
+
+@pytest.mark.netns
+def test_a_multicast_convoy_file_gives_the_group_and_port(tmp_path):
+    convoy = tmp_path / "lab.toml"
+    convoy.write_text(
+        '[convoy]\nname = "lab"\n[v2v]\nauth = "off"\ngroup = "ff15::4f44"\nport = 4201\n'
+    )
+    send = [*BSM, "send", "--iface", "oc0", "--convoy", str(convoy), "--count", "3", "--rate", "20"]
+    heard, default_group, sender = run_in_netns(
+        [
+            [
+                *BSM,
+                "listen",
+                "--iface",
+                "oc0",
+                "--group",
+                "ff15::4f44",
+                "--port",
+                "4201",
+                "--count",
+                "3",
+                "--timeout",
+                "20",
+            ],  # fmt: skip
+            [*BSM, "listen", "--iface", "oc0", "--timeout", "8"],
+            after(2.0, send),
+        ],
+        timeout=30,
+    )
+    assert sender.returncode == 0, sender.stderr
+    assert "sent 3 BSMs on oc0 to [ff15::4f44]:4201" in sender.stderr
+    assert heard.returncode == 0 and default_group.returncode == 0, heard.stderr
+    assert [_fields(ln)["cnt"] for ln in heard.stdout.splitlines()] == ["0", "1", "2"]
+    assert default_group.stdout == ""

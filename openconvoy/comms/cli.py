@@ -288,7 +288,7 @@ def _add_send(cmds: argparse._SubParsersAction) -> None:
         description="Sends COUNT BSMs at RATE Hz from a test vehicle starting at LAT, LON "
         "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise), to the "
         "multicast group or, with --transport ros2, on the ROS 2 topic (after up to 3 s of "
-        "DDS discovery).",
+        "DDS discovery, and 0.5 s more).",
     )
 
 

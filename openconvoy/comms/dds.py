@@ -154,7 +154,8 @@ class DdsTransport:
     kept on network interface ``iface`` (``interface_config``); ``vehicle_id`` and ``wall``
     (s) stamp what is sent; ``depth`` samples are kept between polls (``depth_for``).
     ``recv_all`` never blocks; a datagram's source is
-    ``dds:<writer handle>`` (one per sending vehicle)."""
+    ``dds:<writer handle>`` (one per sending vehicle). With ``read=False`` it only sends (no
+    reader: one that other senders' ``wait_for_readers`` would count, as ``bsm send``)."""
 
     def __init__(
         self,
@@ -164,6 +165,7 @@ class DdsTransport:
         vehicle_id: int = 0,
         wall: Callable[[], float] = time.time,
         depth: int = DEPTH,
+        read: bool = True,
     ) -> None:
         if not 0 <= domain_id <= 232:
             raise ConfigError(f"DDS domain id must be in 0..232, got {domain_id}")
@@ -186,7 +188,7 @@ class DdsTransport:
             self._dp: Any = DomainParticipant(domain_id)
             topic_: Any = Topic(self._dp, name, V2VBytes)
             self._writer = DataWriter(self._dp, topic_, qos=qos)
-            self._reader = DataReader(self._dp, topic_, qos=qos)
+            self._reader: Any = DataReader(self._dp, topic_, qos=qos) if read else None
         except Exception as exc:  # noqa: BLE001 (cyclonedds raises plain DDSException)
             raise LinkError(
                 f"cannot use DDS domain {domain_id} on {iface} for V2V topic {topic}: {exc} "
@@ -206,7 +208,8 @@ class DdsTransport:
         them); returns how many have. For one-shot senders such as ``openconvoy abort``."""
         deadline = time.monotonic() + timeout_s
         while True:
-            n = max(0, len(self._writer.get_matched_subscriptions()) - 1)  # less our reader
+            ours = 1 if self._reader is not None else 0
+            n = max(0, len(self._writer.get_matched_subscriptions()) - ours)
             if n >= at_least or time.monotonic() >= deadline:
                 return n
             time.sleep(0.02)
@@ -218,6 +221,8 @@ class DdsTransport:
         no file descriptor for ``select``). An ``OSError`` when the participant is closed."""
         if self._dp is None:
             raise OSError("V2V DDS participant closed")
+        if self._reader is None:
+            raise OSError("V2V DDS transport opened with read=False")
         if self._waitset is None:
             mask = SampleState.Any | ViewState.Any | InstanceState.Any
             self._waitset = WaitSet(self._dp)
@@ -229,7 +234,7 @@ class DdsTransport:
         if self._dp is None:
             raise OSError("V2V DDS participant closed")
         out: list[Datagram] = []
-        while len(out) < max_batch:
+        while self._reader is not None and len(out) < max_batch:
             try:
                 samples = self._reader.take(N=min(64, max_batch - len(out)))
             except Exception:  # noqa: BLE001 (cyclonedds raises plain Exceptions on bad CDR)

@@ -27,7 +27,7 @@ from openconvoy.comms import bsm as j
 from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.mapping import reconstruct_send_time, state_to_core
-from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast
+from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast, interface_index
 from openconvoy.comms.security import certs as c
 from openconvoy.comms.security import spdu as sp
 from openconvoy.comms.security.auth import Authenticator
@@ -45,8 +45,13 @@ LISTEN_DEPTH = 1024
 #: How long ``send`` over DDS waits for discovery to match a reader before the first BSM
 #: (s): best-effort samples written before are lost to it (as ``v2v.send_abort`` waits).
 ROS2_WAIT_S = 3.0
-#: ``vehicle_id`` stamped on ``send``'s DDS samples: not a convoy member (0..254).
-SEND_VEHICLE_ID = -2
+#: Then how long it lets the reader's side of discovery catch up (s): our writer knowing a
+#: reader is half of it, and Cyclone's readers "only accept data from discovered writers"
+#: (its manual, "Proxy participants and endpoints").
+ROS2_SETTLE_S = 0.5
+#: ``vehicle_id`` stamped on the tools' DDS samples: not a convoy member (0..254) nor the
+#: operator's abort (-1).
+TOOL_VEHICLE_ID = -2
 
 
 def require_codec() -> None:
@@ -207,7 +212,7 @@ def listen(
     _check_ros2(ros2, compat_enabled, None)
     require_codec()
     tally = Tally()
-    socks: list[Any] = [_open(iface, group, port, 1, ros2, 0, LISTEN_DEPTH)]
+    socks: list[Any] = [_open(iface, group, port, 1, ros2, LISTEN_DEPTH)]
     if compat_enabled:
         socks.append(Ipv4Multicast(iface))
     printed = 0
@@ -280,10 +285,13 @@ def send(
     require_codec()
     start = Origin(lat_deg, lon_deg, elev_m)
     heading_enu = math.radians(90.0 - heading_deg)
-    sock = _open(iface, group, port, hop_limit, ros2, SEND_VEHICLE_ID)
+    sock = _open(iface, group, port, hop_limit, ros2, read=False)
     sock4 = Ipv4Multicast(iface) if compat_car is not None else None
-    if ros2 is not None and sock.wait_for_readers(ros2_wait_s) == 0:
-        log.warning("no reader of %s on DDS domain %d yet: sending anyway", *ros2)
+    if ros2 is not None:
+        if sock.wait_for_readers(ros2_wait_s) == 0:
+            log.warning("no reader of %s on DDS domain %d yet: sending anyway", *ros2)
+        else:
+            sleep(ROS2_SETTLE_S)
     t0 = clock()
     try:
         for k in range(count):
@@ -322,18 +330,23 @@ def _open(
     port: int,
     hop_limit: int,
     ros2: tuple[str, int] | None,
-    vehicle_id: int,
     depth: int | None = None,
+    read: bool = True,
 ) -> Any:
     """The J2735 link: the IPv6 multicast socket, or with ``ros2`` = (topic, domain) a
-    ``comms.dds.DdsTransport`` stamping ``vehicle_id`` and keeping ``depth`` samples
-    (default: a vehicle's)."""
+    ``comms.dds.DdsTransport`` stamping ``TOOL_VEHICLE_ID`` and keeping ``depth`` samples
+    (default: a vehicle's; none without ``read``). An unknown ``iface`` is the same one
+    line either way."""
     if ros2 is None:
         return Ipv6Multicast(iface, group, port, hop_limit)
-    from openconvoy.comms.dds import DEPTH, DdsTransport
+    from openconvoy.comms.dds import DEPTH, DdsTransport, dds_topic
 
     topic, domain = ros2
-    return DdsTransport(iface, topic, domain, vehicle_id=vehicle_id, depth=depth or DEPTH)
+    dds_topic(topic)  # a bad name first, as a flag's error
+    interface_index(iface)  # Cyclone's own refusal would blame the domain id
+    return DdsTransport(
+        iface, topic, domain, vehicle_id=TOOL_VEHICLE_ID, depth=depth or DEPTH, read=read
+    )
 
 
 def _ready(links: list[Any], timeout_s: float, dds: bool) -> list[Any]:

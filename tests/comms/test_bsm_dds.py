@@ -78,6 +78,15 @@ def test_a_flag_of_the_other_transport_is_one_line_and_exit_2(capsys, argv, mess
     assert line.startswith("openconvoy") and message in line, line
 
 
+@pytest.mark.parametrize("command", ["listen", "send"])
+def test_an_unknown_interface_is_the_same_line_over_ros2(capsys, command):
+    rc = cli.main(["bsm", command, "--iface", "no-such-if0", "--transport", "ros2"])
+    assert rc == 2
+    assert (
+        capsys.readouterr().err == "openconvoy: error: no network interface named 'no-such-if0'\n"
+    )
+
+
 def test_a_ros2_convoy_file_gives_the_transport_and_its_topic(tmp_path, capsys):
     convoy = tmp_path / "lab.toml"
     convoy.write_text('[convoy]\nname = "lab"\n[v2v]\ntransport = "ros2"\nros2_topic = "v2v"\n')
@@ -165,7 +174,7 @@ def test_signed_bsms_over_ros2_are_verified_as_over_multicast(tmp_path):
                 "--timeout",
                 "30",
             ],  # fmt: skip
-            after(2.0, [*send, "--convoy", str(convoy), "--key", str(keys / "vehicle-1.key")]),
+            after(3.0, [*send, "--convoy", str(convoy), "--key", str(keys / "vehicle-1.key")]),
             after(
                 4.0,
                 [
@@ -214,24 +223,34 @@ link.send(b"one")  # our own reader hears our writer (Cyclone delivers locally)
 woke = link.wait(10.0)
 got = [d.data.decode() for d in link.recv_all()]
 drained = link.wait(0.05)
+# a send-only transport (bsm send's) has no reader for other senders to count
+sender = DdsTransport(os.environ["OPENCONVOY_NETNS_IFACE"], domain_id=9, read=False)
+matched = [sender.wait_for_readers(10.0), link.wait_for_readers(0.5)]
+sender.send(b"two")
+link.wait(10.0)
+got += [d.data.decode() for d in link.recv_all()] + [len(sender.recv_all())]
+sender.close()
 link.close()
 try:
     link.wait(0.1)
     closed = "no error"
 except OSError as exc:
     closed = str(exc)
-print(json.dumps([idle, cpu, wall, woke, got, drained, closed]))
+print(json.dumps([idle, cpu, wall, woke, got, drained, matched, closed]))
 """
 
 
 @pytest.mark.netns
-def test_dds_transport_wait_blocks_until_a_sample_without_spinning():
+def test_dds_transport_wait_blocks_until_a_sample_without_spinning_and_send_only_has_no_reader():
     (r,) = run_in_netns([[sys.executable, "-c", _WAIT]], timeout=40)
     assert r.returncode == 0, r.stderr[-2000:]
-    idle, cpu, wall, woke, got, drained, closed = json.loads(r.stdout.strip().splitlines()[-1])
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    idle, cpu, wall, woke, got, drained, matched, closed = out
     assert idle is False and wall >= 0.99  # it waited the timeout out ...
     assert cpu < 0.2, cpu  # ... asleep: a polling loop would burn about `wall` of CPU
-    assert woke is True and got == ["one"] and drained is False
+    assert woke is True and drained is False
+    assert got == ["one", "two", 0]  # its own sample, the send-only one's; that one reads none
+    assert matched == [1, 0]
     assert closed == "V2V DDS participant closed"
 
 

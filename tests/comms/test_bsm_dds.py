@@ -159,43 +159,19 @@ def test_signed_bsms_over_ros2_are_verified_as_over_multicast(tmp_path):
     ks.issue_vehicle(keys, "lab", 1, now)
     send = [*BSM, "send", "--iface", "oc0", "--count", "5", "--rate", "10", "--lat", "28.6",
             "--lon", "-81.2", "--speed", "3", "--heading", "0"]  # fmt: skip
-    listen, member, forger = run_in_netns(
-        [
-            # the transport, topic and domain: the convoy file's
-            [
-                *BSM,
-                "listen",
-                "--iface",
-                "oc0",
-                "--convoy",
-                str(convoy),
-                "--count",
-                "8",
-                "--timeout",
-                "30",
-            ],  # fmt: skip
-            after(3.0, [*send, "--convoy", str(convoy), "--key", str(keys / "vehicle-1.key")]),
-            after(
-                4.0,
-                [
-                    *send,
-                    "--transport",
-                    "ros2",
-                    "--ros2-topic",
-                    "/lab/v2v",
-                    "--ros2-domain",
-                    "5",
-                    "--count",
-                    "3",
-                ],
-            ),  # fmt: skip
-        ],
-        timeout=50,
+    # the listener's transport, topic and domain: the convoy file's; the forger's: flags
+    listen = [*BSM, "listen", "--iface", "oc0", "--convoy", str(convoy), "--count", "8",
+              "--timeout", "30"]  # fmt: skip
+    signed = [*send, "--convoy", str(convoy), "--key", str(keys / "vehicle-1.key")]
+    unsigned = [*send, "--transport", "ros2", "--ros2-topic", "/lab/v2v", "--ros2-domain", "5",
+                "--count", "3"]  # fmt: skip
+    heard, member, forger = run_in_netns(
+        [listen, after(3.0, signed), after(5.0, unsigned)], timeout=50
     )
-    for p in (listen, member, forger):
+    for p in (heard, member, forger):
         assert p.returncode == 0, p.stderr
     assert "to ROS 2 topic /lab/v2v (DDS domain 5)" in member.stderr
-    lines = listen.stdout.strip().splitlines()
+    lines = heard.stdout.strip().splitlines()
     accepted = [ln for ln in lines if ln.startswith("[lab.vehicle-1] id=")]
     assert len(accepted) == 5, lines
     for k, line in enumerate(accepted):
@@ -203,10 +179,10 @@ def test_signed_bsms_over_ros2_are_verified_as_over_multicast(tmp_path):
         assert (f["id"], f["cnt"], f["speed"]) == (DEFAULT_SEND_ID.hex().upper(), str(k), "3.00")
         east, north = _enu(line)  # 3 m/s north
         assert abs(east) < 0.02 and 0.3 * k - 0.02 <= north <= 0.3 * k + 1.5, (k, east, north)
-    unsigned = f"id {DEFAULT_SEND_ID.hex().upper()} (unsigned)"
-    assert lines.count(f"REJECTED unsigned: {unsigned}") == 3
+    anon = f"id {DEFAULT_SEND_ID.hex().upper()} (unsigned)"
+    assert lines.count(f"REJECTED unsigned: {anon}") == 3
     assert lines[-3:] == [  # the summary, senders sorted by name
-        f"{unsigned}: accepted 0, rejected 3 (unsigned=3)",
+        f"{anon}: accepted 0, rejected 3 (unsigned=3)",
         "lab.vehicle-1: accepted 5, rejected 0",
         "summary: 5 accepted, 3 rejected from 2 senders",
     ]

@@ -13,9 +13,21 @@ from openconvoy.core.args import integer as _int
 from openconvoy.core.args import number as _num
 from openconvoy.core.errors import ConfigError
 
-# comms.multicast.DEFAULT_GROUP / DEFAULT_PORT, spelled out to keep imports lazy
-# (tests/comms/test_cli.py checks they agree).
+# comms.multicast.DEFAULT_GROUP / DEFAULT_PORT and comms.dds.DEFAULT_TOPIC / DEFAULT_DOMAIN,
+# spelled out to keep imports lazy (tests/comms/test_cli.py and test_bsm_dds.py check they agree).
 DEFAULT_GROUP, DEFAULT_PORT = "ff15::4f43", 4200
+DEFAULT_ROS2_TOPIC, DEFAULT_ROS2_DOMAIN = "/openconvoy/v2v", 0
+TRANSPORTS = ("multicast", "ros2")
+"""``--transport``: as the convoy file's ``[v2v] transport`` (and ``deploy --v2v``)."""
+
+
+class _Given(argparse.Action):
+    """Stores a flag's value and notes the flag as given (``args.given``), so that a flag
+    of the other transport is refused rather than silently ignored."""
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None):
+        setattr(namespace, self.dest, values)
+        namespace.given = getattr(namespace, "given", frozenset()) | {option_string}
 
 
 def _add_bsm(sub: argparse._SubParsersAction) -> None:
@@ -24,7 +36,8 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
         "bsm",
         help="J2735 BSM field tools: listen, send, decode",
         description="Field tools for the V2V layer: J2735 Basic Safety Messages (UPER "
-        "MessageFrames) over IPv6 multicast, and the original implementation's JSON.",
+        "MessageFrames) over IPv6 multicast or a ROS 2 topic (DDS), and the original "
+        "implementation's JSON.",
     )
     cmds = bsm.add_subparsers(dest="bsm_command", metavar="SUBCOMMAND", required=True)
     for add in (_add_listen, _add_send, _add_decode):
@@ -32,17 +45,53 @@ def _add_bsm(sub: argparse._SubParsersAction) -> None:
 
 
 NET_FLAGS: Flags = (
-    ("--iface", dict(required=True, help="network interface, e.g. wlan0")),
+    ("--iface", dict(required=True, help="network interface, e.g. wlan0 (multicast, or DDS)")),
+    (
+        "--transport",
+        dict(
+            choices=TRANSPORTS,
+            default=None,
+            help="IPv6 multicast, or the ROS 2 topic over DDS (Cyclone, no ROS install) of a "
+            'convoy with [v2v] transport = "ros2"; default the --convoy file\'s [v2v] '
+            "transport, else multicast",
+        ),
+    ),
     (
         "--group",
-        dict(default=DEFAULT_GROUP, help=f"IPv6 multicast group (default {DEFAULT_GROUP})"),
+        dict(
+            action=_Given,
+            default=DEFAULT_GROUP,
+            help=f"IPv6 multicast group (default the --convoy file's, else {DEFAULT_GROUP})",
+        ),
     ),
     (
         "--port",
-        dict(type=_int(1, 65535), default=DEFAULT_PORT, help=f"UDP port (default {DEFAULT_PORT})"),
+        dict(
+            action=_Given,
+            type=_int(1, 65535),
+            default=DEFAULT_PORT,
+            help=f"UDP port (default the --convoy file's, else {DEFAULT_PORT})",
+        ),
+    ),
+    (
+        "--ros2-topic",
+        dict(
+            metavar="TOPIC",
+            help="--transport ros2: the ROS 2 topic (default the --convoy file's [v2v] "
+            f"ros2_topic, else {DEFAULT_ROS2_TOPIC})",
+        ),
+    ),
+    (
+        "--ros2-domain",
+        dict(
+            type=_int(0, 232),
+            metavar="N",
+            help="--transport ros2: the DDS domain id (default the --convoy file's [v2v] "
+            f"ros2_domain, else {DEFAULT_ROS2_DOMAIN})",
+        ),
     ),
 )
-"""``--iface``, ``--group``, ``--port`` of the BSM tools."""
+"""``--iface``, ``--transport`` and the transports' addresses, of the BSM tools."""
 
 LISTEN_FLAGS: Flags = NET_FLAGS + (
     (
@@ -58,14 +107,23 @@ LISTEN_FLAGS: Flags = NET_FLAGS + (
         dict(
             metavar="CONVOY.toml",
             help="verify signed BSMs with this convoy's certificates (its keys directory); "
-            "prints accepted/rejected per sender and a summary at exit",
+            "prints accepted/rejected per sender and a summary at exit; its [v2v] section "
+            "gives the transport's defaults",
         ),
     ),
 )
 """``bsm listen``'s flags."""
 
 SEND_FLAGS: Flags = NET_FLAGS + (
-    ("--hop-limit", dict(type=_int(1, 255), default=1, help="IPv6 hop limit (default 1)")),
+    (
+        "--hop-limit",
+        dict(
+            action=_Given,
+            type=_int(1, 255),
+            default=1,
+            help="IPv6 hop limit (default the --convoy file's, else 1)",
+        ),
+    ),
     ("--count", dict(type=_int(0, 10**12), default=10, help="messages to send (default 10)")),
     (
         "--rate",
@@ -107,7 +165,11 @@ SEND_FLAGS: Flags = NET_FLAGS + (
     ),
     (
         "--convoy",
-        dict(metavar="CONVOY.toml", help="the authority for --key (default: the key's directory)"),
+        dict(
+            metavar="CONVOY.toml",
+            help="the authority for --key (default: the key's directory); its [v2v] section "
+            "gives the transport's defaults",
+        ),
     ),
     ("--frame", dict(metavar="HEX", help="replay this captured datagram COUNT times")),
 )
@@ -120,9 +182,70 @@ DECODE_FLAGS: Flags = (
 """``bsm decode``'s flags."""
 
 
-def _group_port(args: argparse.Namespace) -> dict[str, Any]:
-    """``--group`` and ``--port`` as the BSM tools' keywords."""
-    return {"group": args.group, "port": args.port}
+MULTICAST_ONLY = ("--group", "--port", "--hop-limit", "--compat", "--compat-car")
+"""Flags that mean nothing over ROS 2 (``_link`` refuses them there)."""
+
+
+def _convoy_v2v(path: str | None) -> Any:
+    """The ``[v2v]`` section of convoy file ``path`` (None without one)."""
+    if not path:
+        return None
+    from openconvoy.convoy import load_convoy
+
+    return load_convoy(path).v2v
+
+
+def _given(args: argparse.Namespace) -> list[str]:
+    """The multicast-only flags given on the command line, in ``MULTICAST_ONLY``'s order."""
+    given = set(getattr(args, "given", ()))
+    if getattr(args, "compat", False):
+        given.add("--compat")
+    if getattr(args, "compat_car", None) is not None:
+        given.add("--compat-car")
+    return [f for f in MULTICAST_ONLY if f in given]
+
+
+def _link(args: argparse.Namespace, v2v: Any) -> dict[str, Any]:
+    """The BSM tools' transport keywords: ``ros2`` = (topic, domain) or None, and for
+    multicast ``group``, ``port`` (and ``send``'s ``hop_limit``). Each is the flag given,
+    else the ``--convoy`` file's ``[v2v]`` (``v2v``), else the default; the transport is
+    ``--transport``, else the file's. ``ConfigError`` for a flag of the other transport."""
+    transport = args.transport or (v2v.transport if v2v is not None else "multicast")
+    return _ros2_link(args, v2v) if transport == "ros2" else _multicast_link(args, v2v)
+
+
+def _ros2_link(args: argparse.Namespace, v2v: Any) -> dict[str, Any]:
+    """``_link`` over ROS 2: refuses every multicast-only flag given."""
+    given = _given(args)
+    if given:
+        whence = "--transport ros2" if args.transport else 'the --convoy file\'s transport = "ros2"'
+        raise ConfigError(f"{given[0]}: multicast only, not with {whence}")
+    topic = args.ros2_topic or (v2v.ros2_topic if v2v is not None else DEFAULT_ROS2_TOPIC)
+    domain = args.ros2_domain
+    if domain is None:
+        domain = v2v.ros2_domain if v2v is not None else DEFAULT_ROS2_DOMAIN
+    return {"ros2": (topic, domain), "group": DEFAULT_GROUP, "port": DEFAULT_PORT}
+
+
+def _multicast_link(args: argparse.Namespace, v2v: Any) -> dict[str, Any]:
+    """``_link`` over IPv6 multicast: refuses ``--ros2-topic`` and ``--ros2-domain``."""
+    for flag, value in (("--ros2-topic", args.ros2_topic), ("--ros2-domain", args.ros2_domain)):
+        if value is not None:
+            raise ConfigError(f"{flag}: only with --transport ros2, not over multicast")
+    given = _given(args)
+    link: dict[str, Any] = {"ros2": None}
+    for key in ("group", "port", "hop_limit"):
+        if hasattr(args, key):  # listen has no --hop-limit
+            mine = v2v is None or "--" + key.replace("_", "-") in given
+            link[key] = getattr(args, key) if mine else getattr(v2v, key)
+    return link
+
+
+def _where(link: dict[str, Any]) -> str:
+    """Where ``send`` sent: ``[group]:port``, or the ROS 2 topic and DDS domain."""
+    if link["ros2"] is not None:
+        return "ROS 2 topic {} (DDS domain {})".format(*link["ros2"])
+    return f"[{link['group']}]:{link['port']}"
 
 
 def _add_listen(cmds: argparse._SubParsersAction) -> None:
@@ -132,7 +255,8 @@ def _add_listen(cmds: argparse._SubParsersAction) -> None:
         LISTEN_FLAGS,
         _listen,
         help="print BSMs heard on an interface, one line each",
-        description="Prints every BSM heard (anyone's, not only a convoy's): temporary id, "
+        description="Prints every BSM heard (anyone's, not only a convoy's) on the multicast "
+        "group or, with --transport ros2, the ROS 2 topic: temporary id, "
         "msgCnt, latitude and longitude (degrees), speed (m/s), heading (compass degrees), "
         "age (s, from secMark and this host's clock). Ctrl-C stops.",
     )
@@ -141,13 +265,15 @@ def _add_listen(cmds: argparse._SubParsersAction) -> None:
 def _listen(args: argparse.Namespace) -> int:
     from openconvoy.comms import tools
 
+    v2v = _convoy_v2v(args.convoy)
+    link = _link(args, v2v)
     tools.listen(
         args.iface,
-        **_group_port(args),
+        **link,
         compat_enabled=args.compat,
         count=args.count,
         timeout_s=args.timeout,
-        auth=_verifier(args.convoy),
+        auth=_verifier(v2v),
     )
     return 0
 
@@ -160,12 +286,15 @@ def _add_send(cmds: argparse._SubParsersAction) -> None:
         _send,
         help="send test BSMs",
         description="Sends COUNT BSMs at RATE Hz from a test vehicle starting at LAT, LON "
-        "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise).",
+        "and moving at SPEED along HEADING (compass degrees: 0 = north, clockwise), to the "
+        "multicast group or, with --transport ros2, on the ROS 2 topic (after up to 3 s of "
+        "DDS discovery, and 0.5 s more).",
     )
 
 
-def _signer(key: str | None, convoy: str | None):
-    """``bsm send --key``'s signer (None without a key)."""
+def _signer(key: str | None, v2v: Any):
+    """``bsm send --key``'s signer (None without a key); ``v2v``: the ``--convoy`` file's
+    ``[v2v]`` (its keys directory the authority), or None."""
     if not key:
         return None
     import time
@@ -173,22 +302,19 @@ def _signer(key: str | None, convoy: str | None):
     from openconvoy.comms.security.auth import Authenticator
     from openconvoy.comms.security.keystore import signer_of_key
 
-    keys = None
-    if convoy:
-        from openconvoy.convoy import load_convoy
-
-        keys = load_convoy(convoy).v2v.keys
+    keys = v2v.keys if v2v is not None else None
     return Authenticator(signer_of_key(key, keys, time.time()))
 
 
 def _send(args: argparse.Namespace) -> int:
     from openconvoy.comms import tools
 
-    auth = _signer(args.key, args.convoy)
+    v2v = _convoy_v2v(args.convoy)
+    link = _link(args, v2v)
+    auth = _signer(args.key, v2v)
     n = tools.send(
         args.iface,
-        **_group_port(args),
-        hop_limit=args.hop_limit,
+        **link,
         count=args.count,
         rate_hz=args.rate,
         lat_deg=args.lat,
@@ -201,7 +327,7 @@ def _send(args: argparse.Namespace) -> int:
         auth=auth,
         frame=tools.parse_hex(args.frame) if args.frame else None,
     )
-    print(f"sent {n} BSMs on {args.iface} to [{args.group}]:{args.port}", file=sys.stderr)
+    print(f"sent {n} BSMs on {args.iface} to {_where(link)}", file=sys.stderr)
     return 0
 
 
@@ -230,15 +356,14 @@ def _decode(args: argparse.Namespace) -> int:
     return 0
 
 
-def _verifier(convoy_path: str | None):
-    """``bsm listen --convoy``'s verifier: the convoy authority's certificate only."""
-    if not convoy_path:
+def _verifier(v2v: Any):
+    """``bsm listen --convoy``'s verifier: the convoy authority's certificate only (None
+    without ``v2v``, the convoy file's ``[v2v]``)."""
+    if v2v is None:
         return None
     from openconvoy.comms.security.auth import Authenticator, Credentials
     from openconvoy.comms.security.keystore import load_authority
-    from openconvoy.convoy import load_convoy
 
-    v2v = load_convoy(convoy_path).v2v
     authority, _ = load_authority(v2v.keys)
     return Authenticator(Credentials(authority), window_s=v2v.replay_window_s)
 

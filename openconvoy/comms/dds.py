@@ -41,7 +41,15 @@ from openconvoy.core.errors import ConfigError, DependencyMissing, LinkError
 
 INSTALL_HINT = "V2V over ROS 2 needs Cyclone DDS: pip install 'openconvoy[px4dds]'"
 try:
-    from cyclonedds.core import Policy, Qos
+    from cyclonedds.core import (
+        InstanceState,
+        Policy,
+        Qos,
+        ReadCondition,
+        SampleState,
+        ViewState,
+        WaitSet,
+    )
     from cyclonedds.domain import Domain, DomainParticipant
     from cyclonedds.idl import IdlStruct
     from cyclonedds.idl import types as t
@@ -146,7 +154,8 @@ class DdsTransport:
     kept on network interface ``iface`` (``interface_config``); ``vehicle_id`` and ``wall``
     (s) stamp what is sent; ``depth`` samples are kept between polls (``depth_for``).
     ``recv_all`` never blocks; a datagram's source is
-    ``dds:<writer handle>`` (one per sending vehicle)."""
+    ``dds:<writer handle>`` (one per sending vehicle). With ``read=False`` it only sends (no
+    reader: one that other senders' ``wait_for_readers`` would count, as ``bsm send``)."""
 
     def __init__(
         self,
@@ -156,6 +165,7 @@ class DdsTransport:
         vehicle_id: int = 0,
         wall: Callable[[], float] = time.time,
         depth: int = DEPTH,
+        read: bool = True,
     ) -> None:
         if not 0 <= domain_id <= 232:
             raise ConfigError(f"DDS domain id must be in 0..232, got {domain_id}")
@@ -164,6 +174,7 @@ class DdsTransport:
         self.topic, self.domain_id, self.iface = topic, domain_id, iface
         self.vehicle_id, self.wall = vehicle_id, wall
         self.bad_samples = 0
+        self._waitset: Any = None  # made by the first ``wait``
         qos = Qos(
             Policy.Reliability.BestEffort,
             Policy.Durability.Volatile,
@@ -177,7 +188,7 @@ class DdsTransport:
             self._dp: Any = DomainParticipant(domain_id)
             topic_: Any = Topic(self._dp, name, V2VBytes)
             self._writer = DataWriter(self._dp, topic_, qos=qos)
-            self._reader = DataReader(self._dp, topic_, qos=qos)
+            self._reader: Any = DataReader(self._dp, topic_, qos=qos) if read else None
         except Exception as exc:  # noqa: BLE001 (cyclonedds raises plain DDSException)
             raise LinkError(
                 f"cannot use DDS domain {domain_id} on {iface} for V2V topic {topic}: {exc} "
@@ -197,17 +208,33 @@ class DdsTransport:
         them); returns how many have. For one-shot senders such as ``openconvoy abort``."""
         deadline = time.monotonic() + timeout_s
         while True:
-            n = max(0, len(self._writer.get_matched_subscriptions()) - 1)  # less our reader
+            ours = 1 if self._reader is not None else 0
+            n = max(0, len(self._writer.get_matched_subscriptions()) - ours)
             if n >= at_least or time.monotonic() >= deadline:
                 return n
             time.sleep(0.02)
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a sample is waiting or ``timeout_s`` (s) has passed; True if one is
+        (a Cyclone ``WaitSet`` on a ``ReadCondition`` of our reader, as ``bridge.px4dds``'s
+        ``Waiter``: a listener wakes once per arrival instead of polling — the transport has
+        no file descriptor for ``select``). An ``OSError`` when the participant is closed."""
+        if self._dp is None:
+            raise OSError("V2V DDS participant closed")
+        if self._reader is None:
+            raise OSError("V2V DDS transport opened with read=False")
+        if self._waitset is None:
+            mask = SampleState.Any | ViewState.Any | InstanceState.Any
+            self._waitset = WaitSet(self._dp)
+            self._waitset.attach(ReadCondition(self._reader, mask))
+        return bool(self._waitset.wait(max(0, int(timeout_s * 1e9))))
 
     def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
         """Samples waiting (at most ``max_batch``), oldest first; bad ones counted, dropped."""
         if self._dp is None:
             raise OSError("V2V DDS participant closed")
         out: list[Datagram] = []
-        while len(out) < max_batch:
+        while self._reader is not None and len(out) < max_batch:
             try:
                 samples = self._reader.take(N=min(64, max_batch - len(out)))
             except Exception:  # noqa: BLE001 (cyclonedds raises plain Exceptions on bad CDR)
@@ -224,6 +251,7 @@ class DdsTransport:
 
     def close(self) -> None:
         """Delete the participant (its reader and writer with it); idempotent."""
+        self._waitset = None  # before its participant: its own delete detaches from a live one
         if self._dp is not None:
             self._dp.__del__()  # cyclonedds has no public delete; this one is idempotent
         self._dp = None

@@ -6,7 +6,9 @@ per sender, the frames accepted and rejected by reason, and a summary at exit. `
 sends test BSMs from a made-up vehicle moving at constant speed and heading, signed with
 ``--key`` or not, or replays a captured datagram, at any rate (a forger's or a flood's
 tool, for resilience experiments). ``decode`` prints one frame's core fields in physical
-units. The argparse declarations live in ``openconvoy.comms.cli`` (``_add_bsm``); these
+units. ``listen`` and ``send`` speak IPv6 multicast, or with ``ros2`` = (topic, DDS domain)
+the ROS 2 topic a convoy with ``[v2v] transport = "ros2"`` carries the same bytes on
+(``comms.dds``). The argparse declarations live in ``openconvoy.comms.cli`` (``_add_bsm``); these
 functions do the work.
 """
 
@@ -25,7 +27,7 @@ from openconvoy.comms import bsm as j
 from openconvoy.comms import legacy_json as cj
 from openconvoy.comms.geodesy import Origin
 from openconvoy.comms.mapping import reconstruct_send_time, state_to_core
-from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast
+from openconvoy.comms.multicast import Datagram, Ipv4Multicast, Ipv6Multicast, interface_index
 from openconvoy.comms.security import certs as c
 from openconvoy.comms.security import spdu as sp
 from openconvoy.comms.security.auth import Authenticator
@@ -37,6 +39,19 @@ log = logging.getLogger(__name__)
 
 #: Temporary ID of ``bsm send`` unless ``--id`` is given.
 DEFAULT_SEND_ID = derive_temp_id("bsm-send", 0)
+#: The DDS samples ``listen`` keeps between reads: larger than a vehicle's (``dds.depth_for``),
+#: since a field tool prints every message rather than acting on the newest.
+LISTEN_DEPTH = 1024
+#: How long ``send`` over DDS waits for discovery to match a reader before the first BSM
+#: (s): best-effort samples written before are lost to it (as ``v2v.send_abort`` waits).
+ROS2_WAIT_S = 3.0
+#: Then how long it lets the reader's side of discovery catch up (s): our writer knowing a
+#: reader is half of it, and Cyclone's readers "only accept data from discovered writers"
+#: (its manual, "Proxy participants and endpoints").
+ROS2_SETTLE_S = 0.5
+#: ``vehicle_id`` stamped on the tools' DDS samples: not a convoy member (0..254) nor the
+#: operator's abort (-1).
+TOOL_VEHICLE_ID = -2
 
 
 def require_codec() -> None:
@@ -184,16 +199,20 @@ def listen(
     out: TextIO = sys.stdout,
     clock: Callable[[], float] = time.time,
     auth: Authenticator | None = None,
+    ros2: tuple[str, int] | None = None,
 ) -> int:
     """Print messages heard on ``iface`` until ``count`` messages or ``timeout_s`` seconds.
 
     With ``security.auth`` (a verifier holding the convoy's authority certificate) every datagram
     is verified and its line says so, and a per-sender summary is printed at the end,
-    Ctrl-C included. Returns the number of messages printed.
+    Ctrl-C included. With ``ros2`` = (ROS 2 topic, DDS domain id) the messages are read from
+    that topic instead of the multicast group (Cyclone kept on ``iface``; no compatibility
+    format there). Returns the number of messages printed.
     """
+    _check_ros2(ros2, compat_enabled, None)
     require_codec()
     tally = Tally()
-    socks: list[Any] = [Ipv6Multicast(iface, group, port)]
+    socks: list[Any] = [_open(iface, group, port, 1, ros2, LISTEN_DEPTH)]
     if compat_enabled:
         socks.append(Ipv4Multicast(iface))
     printed = 0
@@ -203,7 +222,7 @@ def listen(
             wait = 0.5 if deadline is None else deadline - time.monotonic()
             if wait <= 0:
                 break
-            ready, _, _ = select.select(socks, [], [], min(wait, 0.5))
+            ready = _ready(socks, min(wait, 0.5), ros2 is not None)
             now = clock()
             for s in ready:
                 dgram: Datagram
@@ -245,15 +264,20 @@ def send(
     sleep: Callable[[float], None] = time.sleep,
     auth: Authenticator | None = None,
     frame: bytes | None = None,
+    ros2: tuple[str, int] | None = None,
+    ros2_wait_s: float = ROS2_WAIT_S,
 ) -> int:
     """Send ``count`` test BSMs at ``rate_hz`` from a vehicle starting at ``lat_deg``,
     ``lon_deg`` and moving at ``speed_mps`` along compass ``heading_deg``.
 
     With ``compat_car`` set, each state also goes out as a compatibility message from that
     convoy position on the IPv4 group. With ``security.auth`` each BSM is a signed SPDU. With
-    ``frame`` that datagram is sent as it is, ``count`` times (a replay). Returns the
-    number of BSMs sent.
+    ``frame`` that datagram is sent as it is, ``count`` times (a replay). With ``ros2`` =
+    (ROS 2 topic, DDS domain id) the datagrams go on that topic instead of the group, once
+    DDS discovery has matched a reader or ``ros2_wait_s`` (s) has passed (Cyclone kept on
+    ``iface``; no compatibility format there). Returns the number of BSMs sent.
     """
+    _check_ros2(ros2, False, compat_car)
     if count < 0:
         raise ConfigError(f"--count must be >= 0, got {count}")
     if not rate_hz > 0:
@@ -261,8 +285,13 @@ def send(
     require_codec()
     start = Origin(lat_deg, lon_deg, elev_m)
     heading_enu = math.radians(90.0 - heading_deg)
-    sock = Ipv6Multicast(iface, group, port, hop_limit)
+    sock = _open(iface, group, port, hop_limit, ros2, read=False)
     sock4 = Ipv4Multicast(iface) if compat_car is not None else None
+    if ros2 is not None:
+        if sock.wait_for_readers(ros2_wait_s) == 0:
+            log.warning("no reader of %s on DDS domain %d yet: sending anyway", *ros2)
+        else:
+            sleep(ROS2_SETTLE_S)
     t0 = clock()
     try:
         for k in range(count):
@@ -285,6 +314,49 @@ def send(
         if sock4 is not None:
             sock4.close()
     return count
+
+
+def _check_ros2(ros2: tuple[str, int] | None, compat: bool, compat_car: int | None) -> None:
+    """``ConfigError`` if the compatibility format is asked for over ROS 2 (it is IPv4
+    multicast only, as the original implementation)."""
+    if ros2 is not None and (compat or compat_car is not None):
+        flag = "--compat" if compat else "--compat-car"
+        raise ConfigError(f"{flag}: the original JSON format is IPv4 multicast only, not ros2")
+
+
+def _open(
+    iface: str,
+    group: str,
+    port: int,
+    hop_limit: int,
+    ros2: tuple[str, int] | None,
+    depth: int | None = None,
+    read: bool = True,
+) -> Any:
+    """The J2735 link: the IPv6 multicast socket, or with ``ros2`` = (topic, domain) a
+    ``comms.dds.DdsTransport`` stamping ``TOOL_VEHICLE_ID`` and keeping ``depth`` samples
+    (default: a vehicle's; none without ``read``). An unknown ``iface`` is the same one
+    line either way."""
+    if ros2 is None:
+        return Ipv6Multicast(iface, group, port, hop_limit)
+    from openconvoy.comms.dds import DEPTH, DdsTransport, dds_topic
+
+    topic, domain = ros2
+    dds_topic(topic)  # a bad name first, as a flag's error
+    interface_index(iface)  # Cyclone's own refusal would blame the domain id
+    return DdsTransport(
+        iface, topic, domain, vehicle_id=TOOL_VEHICLE_ID, depth=depth or DEPTH, read=read
+    )
+
+
+def _ready(links: list[Any], timeout_s: float, dds: bool) -> list[Any]:
+    """The links with datagrams waiting, after at most ``timeout_s`` (s): ``select`` on
+    sockets, the DDS transport's own wait set (``DdsTransport.wait``, the only link then)."""
+    if dds:
+        (link,) = links
+        return [link] if link.wait(timeout_s) else []
+    ready, _, _ = select.select(links, [], [], timeout_s)
+    return ready
 
 
 def _straight_line(

@@ -22,17 +22,23 @@ The MPC presets (issue 24) have no ``act_batch``, so each run is a ``ConvoyEnv``
 (~1–3 s): their whole matrix (2,916 runs) takes most of an hour on two cores and is run
 outside the suite (docs/safety.md gives its count); the suite runs a slice of it, every MPC
 preset × scenario with vehicle 1 halting at PER 0.6.
+
+The runs are independent: both tests hand them to the project's local executor, on
+``min(2, os.cpu_count())`` worker processes (``fault_matrix_tasks``: the tasks, a batch
+or nine ``ConvoyEnv`` runs each), and count what comes back.
 """
 
 from __future__ import annotations
 
-import math
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
 
-import numpy as np
 import pytest
+from fault_matrix_tasks import batch_worst, runs_worst
 
-from openconvoy.experiments.batched.run import simulate
-from openconvoy.experiments.runs import RunConfig, build_env
+from openconvoy.experiments.executor import LocalExecutor, Task, TaskFailure
+from openconvoy.experiments.runs import RunConfig
 from openconvoy.policies.presets import PRESETS
 
 PERS = (0.0, 0.3, 0.6)
@@ -51,80 +57,64 @@ PD_PRESETS = [
     if config.mpc is None and not (name.endswith("-pd") and name[: -len("-pd")] in PRESETS)
 ]
 MPC_PRESETS = [name for name, config in PRESETS.items() if config.mpc is not None]
+JOBS = min(2, os.cpu_count() or 1)
+"""Worker processes: the suite runs serially, so this test takes both of CI's cores."""
 
 
 def _faults(t_s: float) -> list[str]:
     return [f"{k}:{v}@{t_s:g}" for k in KINDS for v in range(N)]
 
 
-def _worst_pairs(x: np.ndarray, y: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Per run (B,): the smallest bumper gap (m) of any pair over ``x``, ``y`` (T, B, N)."""
-    worst = np.full(x.shape[1], np.inf)
-    for i in range(N):
-        for j in range(i + 1, N):
-            d = np.hypot(x[:, :, i] - x[:, :, j], y[:, :, i] - y[:, :, j])
-            d = d - 0.5 * (lengths[i] + lengths[j])
-            worst = np.minimum(worst, np.nanmin(d, axis=0))
-    return worst
+def _worst_of_each(
+    tasks: Sequence[tuple[Callable[[list[RunConfig]], list[float]], list[RunConfig]]],
+) -> list[tuple[RunConfig, float]]:
+    """Every run of ``tasks`` (``(fn, runs)``: ``fn(runs)`` gives each run's smallest
+    bumper gap, m) with its gap, in order: a task each on ``JOBS`` workers, in the order
+    given; a task that failed fails the test, naming its runs."""
+    labelled = [Task(f"{g[0].scenario} {g[0].policy} {g[0].faults}", fn, g) for fn, g in tasks]
+    with LocalExecutor(jobs=JOBS) as ex:
+        results: list[Any] = ex.map(labelled, progress=False)
+    failed = [r.line() for r in results if isinstance(r, TaskFailure)]
+    assert not failed, "\n".join(failed)
+    return [(c, w) for (_, g), r in zip(tasks, results) for c, w in zip(g, r, strict=True)]
 
 
-def _run_one(config: RunConfig) -> float:
-    """One ``ConvoyEnv`` run of ``config`` (as ``run_sim`` steps it, without its log):
-    the smallest bumper gap (m) of any pair of convoy vehicles, every tick."""
-    env, policies = build_env(config)
-    obs, _ = env.reset(seed=config.seed)
-    for p in policies.values():
-        p.reset(config.seed)
-    lengths = [p.length_m for p in env.presets]
-    worst = math.inf
-    while env.agents:
-        obs, *_ = env.step({a: policies[a].act(obs[a]) for a in env.agents})
-        x, y = env.plant.x, env.plant.y
-        for i in range(N):
-            for j in range(i + 1, N):
-                d = math.hypot(x[i] - x[j], y[i] - y[j]) - 0.5 * (lengths[i] + lengths[j])
-                worst = min(worst, d)
-    return worst
+def _per_and_seed(scenario: str, policy: str, fault: str, duration: float) -> list[RunConfig]:
+    """The 9 runs (PER × seed) of one scenario, policy and fault."""
+    return [
+        RunConfig(
+            scenario=scenario, policy=policy, per=p, seed=s, duration_s=duration, faults=(fault,)
+        )
+        for p in PERS
+        for s in SEEDS
+    ]
 
 
 @pytest.mark.e2e
 def test_fault_matrix_never_collides() -> None:
-    runs, collided = 0, []
-    for scenario, (t_s, duration) in SCENARIOS.items():
-        for policy in PD_PRESETS:
-            for fault in _faults(t_s):
-                configs = [
-                    RunConfig(
-                        scenario=scenario,
-                        policy=policy,
-                        per=p,
-                        seed=s,
-                        duration_s=duration,
-                        faults=(fault,),
-                    )  # fmt: skip
-                    for p in PERS
-                    for s in SEEDS
-                ]
-                rec, end, env = simulate(configs)
-                lengths = np.array([v.length_m for v in env.presets])
-                worst = _worst_pairs(rec.f["x_m"], rec.f["y_m"], lengths)
-                runs += len(configs)
-                collided += [
-                    (scenario, policy, fault, c.per, c.seed, round(float(w), 3))
-                    for c, w in zip(configs, worst)
-                    if w <= 0.0
-                ]
+    batched = [
+        _per_and_seed(scenario, policy, fault, duration)
+        for scenario, (t_s, duration) in SCENARIOS.items()
+        for policy in PD_PRESETS
+        for fault in _faults(t_s)
+    ]
     scenario, t_s, duration = CUT_IN
-    for policy in PD_PRESETS:
-        for fault in _faults(t_s):
-            for p in PERS:
-                for s in SEEDS:
-                    c = RunConfig(scenario=scenario, policy=policy, per=p, seed=s,
-                                  duration_s=duration, faults=(fault,))  # fmt: skip
-                    worst = _run_one(c)
-                    runs += 1
-                    if worst <= 0.0:
-                        collided.append((scenario, policy, fault, p, s, round(worst, 3)))
+    one_by_one = [
+        _per_and_seed(scenario, policy, fault, duration)
+        for policy in PD_PRESETS
+        for fault in _faults(t_s)
+    ]
+    # The cut-in tasks (nine ConvoyEnv runs, ~0.8 s) first: the batches (~0.1 s each)
+    # then keep both workers busy to the end.
+    worst = _worst_of_each(
+        [(runs_worst, g) for g in one_by_one] + [(batch_worst, g) for g in batched]
+    )
+    runs = len(worst)
+    collided = [
+        (c.scenario, c.policy, c.faults[0], c.per, c.seed, round(w, 3))
+        for c, w in worst
+        if w <= 0.0
+    ]
     print(f"fault matrix: {runs} runs, {len(collided)} collided")
     for row in collided:
         print("collided:", *row)
@@ -134,14 +124,22 @@ def test_fault_matrix_never_collides() -> None:
 
 @pytest.mark.e2e
 def test_every_mpc_preset_stops_for_a_halted_predecessor_in_every_scenario() -> None:
-    collided = []
     scenarios = [(s, t, d) for s, (t, d) in SCENARIOS.items()] + [CUT_IN]
-    for policy in MPC_PRESETS:
-        for scenario, t_s, duration in scenarios:
-            c = RunConfig(scenario=scenario, policy=policy, per=0.6, seed=0,
-                          duration_s=duration, faults=(f"halt:1@{t_s:g}",))  # fmt: skip
-            worst = _run_one(c)
-            if worst <= 0.0:
-                collided.append((scenario, policy, round(worst, 3)))
-    assert len(MPC_PRESETS) == 9
+    runs = [
+        [
+            RunConfig(
+                scenario=scenario,
+                policy=policy,
+                per=0.6,
+                seed=0,
+                duration_s=duration,
+                faults=(f"halt:1@{t_s:g}",),
+            )
+        ]
+        for policy in MPC_PRESETS
+        for scenario, t_s, duration in scenarios
+    ]
+    worst = _worst_of_each([(runs_worst, g) for g in runs])
+    collided = [(c.scenario, c.policy, round(w, 3)) for c, w in worst if w <= 0.0]
+    assert len(MPC_PRESETS) == 9 and len(worst) == 9 * 4
     assert collided == []

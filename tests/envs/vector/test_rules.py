@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -18,12 +19,20 @@ RUN = Path(__file__).with_name("rule_run.py")
 STANDSTILL_M, HEADWAY_S = 2.0, 0.6  # SpacingConfig's defaults, what rule_run uses
 
 
-def _run(tmp_path: Path, *args: str, cache: Path | None = None) -> dict[str, list[float]]:
+def _start(tmp_path: Path, *args: str, cache: Path | None = None) -> tuple[Any, Path]:
+    """``rule_run.py`` with ``args`` started in a process of its own: the process and the
+    JSON file it writes."""
     out = tmp_path / f"run{'-'.join(args)}.json"
     env = dict(os.environ)
     if cache is not None:  # kernels compiled afresh: the replaced rule is not in the digest
         env["NUMBA_CACHE_DIR"] = str(cache)
-    subprocess.run([sys.executable, str(RUN), str(out), *args], check=True, env=env, timeout=900)
+    return subprocess.Popen([sys.executable, str(RUN), str(out), *args], env=env), out
+
+
+def _result(started: tuple[Any, Path]) -> dict[str, list[float]]:
+    """What a started ``rule_run.py`` wrote, once it exits 0."""
+    proc, out = started
+    assert proc.wait(timeout=900) == 0, f"rule_run.py exited {proc.returncode}"
     return json.loads(out.read_text())
 
 
@@ -37,8 +46,14 @@ def _headways(run: dict[str, list[float]]) -> list[float]:
 
 @pytest.mark.e2e
 def test_replacing_the_time_headway_gap_moves_both_worlds_alike(tmp_path: Path) -> None:
-    plain = _run(tmp_path)
-    doubled = _run(tmp_path, "doubled", cache=tmp_path / "kernels")
+    # Both at once: the doubled run compiles its kernels (~20 CPU-s, nearly all of this
+    # test's time) while the plain one runs on the cached kernels on the other core.
+    started = _start(tmp_path, "doubled", cache=tmp_path / "kernels"), _start(tmp_path)
+    try:
+        doubled, plain = _result(started[0]), _result(started[1])
+    finally:
+        for proc, _ in started:
+            proc.kill()  # (a no-op once it has exited)
     # rule_run asserts ConvoyEnv and VectorConvoyEnv agree at every tick in each run; the
     # desired gaps are the rule's own: 0.6 s of headway, then 1.2 s in both worlds
     assert len(_headways(plain)) > 50 and len(_headways(doubled)) > 50

@@ -20,10 +20,12 @@ from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch, rules
 from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vector.member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector.plant import ACCEL, HEADING, SPEED, YAW_RATE, X, Y, cos_sin
-from openconvoy.envs.vector.trail import T_BASE, finish, head_s, point_at, project
+from openconvoy.envs.vector.trail import T_BASE, finish, point_at, project_head
 
 rules(layout, "to_ego", "ego_state")
 LOOKAHEAD = np.array(LOOKAHEAD_S)
+TG_ROWS = 14
+"""Rows of ``Measures.tg``, the per-target scratch."""
 AHEAD = 4
 """Convoys ahead whose trails and states ``observe`` asks the cache for (``_warm``)."""
 WARM_CRUMBS = 8
@@ -73,10 +75,10 @@ class Sources(NamedTuple):
 class Measures(NamedTuple):
     """What ``observe`` writes besides the observations, (B, N): the desired gap and
     spacing error (m), the predecessor's message age (s), its estimate (2, B, N: arc to
-    its head, m; closing, m/s); and the per-target scratch ``tg`` (13, targets): valid,
-    x, y, speed, heading, arc, cross track × segment length, segment dx, s, desired,
-    segment, segment dy, segment length (``project``'s; ``finish`` turns them into cross
-    track and path heading)."""
+    its head, m; closing, m/s); and the per-target scratch ``tg`` (``TG_ROWS``, targets):
+    valid, x, y, speed, heading, arc, cross track × segment length, segment dx, s,
+    desired, segment, segment dy, segment length (``project``'s; ``finish`` turns them
+    into cross track and path heading), the head's arc coordinate (``head_s``)."""
 
     desired_gap: np.ndarray
     spacing_error: np.ndarray
@@ -145,7 +147,7 @@ def _path(obs, b, f, own, src, tg, m):  # pragma: no cover
     obs[b, f, o] = -cross
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
-    s_head = head_s(tail, b, tl, hx, hy)
+    s_head = tg[13, m]  # head_s, as the projection computed it
     for j in range(len(LOOKAHEAD)):
         px, py = point_at(
             trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess, s_head
@@ -247,7 +249,7 @@ def _targets(obs, tg, b, f, t, own, src, lead):  # pragma: no cover - compiled
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
         desired = _desired(f, m, ev, src.spacing, src.lengths, F, lead)
         tl = src.trail_of[link]
-        arc, s, k, cross_seg, dx, dy, seg = project(
+        arc, s, k, cross_seg, dx, dy, seg, s_head = project_head(
             src.trail, src.tail, src.trail_n, b, tl, hx, hy, hh, ex, ey, desired,
             hint[b, tl], hint_k[b, tl],
         )  # fmt: skip
@@ -257,7 +259,7 @@ def _targets(obs, tg, b, f, t, own, src, lead):  # pragma: no cover - compiled
         o = src.geom[3] + m * 5
         obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = arc, desired, arc - desired
         obs[b, f, o + 3], obs[b, f, o + 4] = hv, 1.0
-        tg[9, m], tg[10, m] = desired, max(k, 0)
+        tg[9, m], tg[10, m], tg[13, m] = desired, max(k, 0), s_head
         if m >= 1 and chosen < 0:
             chosen = m
     if chosen < 0 and tg[0, 0] != 0.0:

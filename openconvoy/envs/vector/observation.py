@@ -16,7 +16,7 @@ import numpy as np
 
 from openconvoy.core import observation as layout
 from openconvoy.core.observation import LOOKAHEAD_S, ObservationLayout
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch, rules
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch, prefetch_row, rules
 from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vector.member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector.plant import ACCEL, HEADING, SPEED, YAW_RATE, X, Y, cos_sin
@@ -164,6 +164,8 @@ def observe(obs, rows, t, own, src, out):  # pragma: no cover - compiled
     B, F = obs.shape[0], obs.shape[1]
     tg = out.tg
     for b in range(B):
+        if b + 2 * AHEAD < B:
+            _warm_tails(b + 2 * AHEAD, src)
         if b + AHEAD < B and rows[b + AHEAD]:
             _warm(b + AHEAD, src)
         if not rows[b]:
@@ -196,6 +198,19 @@ def observe(obs, rows, t, own, src, out):  # pragma: no cover - compiled
             if chosen == 1:
                 out.pred_est[0, b, i], out.pred_est[1, b, i] = tg[5, 1], tg[3, 1] - ev
             _path(obs, b, f, own, src, tg, chosen)
+
+
+@bare_inline
+def _warm_tails(b, src):  # pragma: no cover
+    """Prefetch convoy ``b``'s trail tails (their first line: the ring's base) and
+    projection hints: what ``_warm`` reads, ``AHEAD`` convoys later, to find the
+    breadcrumbs to fetch (its reads would otherwise wait on memory). No value of its own
+    (held with ``observe``:
+    tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step)."""
+    for tl in range(src.tail.shape[1]):
+        prefetch_row(src.tail, b, tl)
+    prefetch_row(src.hint_k, b, 0)
+    prefetch_row(src.trail_n, b, 0)
 
 
 @bare_inline

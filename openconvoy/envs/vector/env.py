@@ -63,7 +63,7 @@ from openconvoy.envs.vector.member import (
     pack_ladder,
     pack_spacing,
 )
-from openconvoy.envs.vector.observation import Measures, Sources, observe, pack_layout
+from openconvoy.envs.vector.observation import TG_ROWS, Measures, Sources, observe, pack_layout
 from openconvoy.envs.vector.plant import ACCEL, VectorPlant
 from openconvoy.envs.vector.ranging import RangingSensors
 from openconvoy.envs.vector.rx import RxBuffers
@@ -362,7 +362,7 @@ class VectorConvoyEnv:
         self._fused_call = FusedCall()
         self._fresh_age_s = self.member_config.fresh_age_s
         self._rule_fresh_s = self.member_config.rule_fresh_age_s  # decide's and lead_guard's
-        self._targets_scratch = np.zeros((13, len(self.layout.targets)))
+        self._targets_scratch = np.zeros((TG_ROWS, len(self.layout.targets)))
         self._accel_old = np.zeros((B, N))
         self.max_heading_change = MAX_HEADING_CHANGE_RAD
         self.gap = np.zeros((B, N - 1))

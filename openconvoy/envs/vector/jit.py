@@ -196,7 +196,17 @@ def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any, m: Any) -> Any:
     """Hint the cache to fetch ``arr[b, ln, j, m]`` (a 4-D array; no effect on values):
     the batched kernels touch each convoy's trails once per tick, too far apart for the
     hardware to guess, so a kernel asks for the next convoys' rows while it works."""
-    sig = _types.void(arr, b, ln, j, m)
+    return _prefetch_at(_types.void(arr, b, ln, j, m))
+
+
+def _prefetch_row(typingctx: Any, arr: Any, b: Any, ln: Any) -> Any:  # pragma: no cover
+    """``prefetch`` of ``arr[b, ln, 0, ...]``'s line (an array of two or more dimensions)."""
+    return _prefetch_at(_types.void(arr, b, ln))
+
+
+def _prefetch_at(sig: Any) -> Any:  # pragma: no cover
+    """``sig``'s prefetch intrinsic: the line of the element its indices name, the
+    dimensions after them at 0."""
 
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         aryty = signature.args[0]
@@ -217,3 +227,4 @@ def _prefetch(typingctx: Any, arr: Any, b: Any, ln: Any, j: Any, m: Any) -> Any:
 
 
 prefetch: Any = _intrinsic(_prefetch)
+prefetch_row: Any = _intrinsic(_prefetch_row)

@@ -16,14 +16,16 @@ import numpy as np
 
 from openconvoy.core import observation as layout
 from openconvoy.core.observation import LOOKAHEAD_S, ObservationLayout
-from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch, rules
+from openconvoy.envs.vector.jit import bare_inline, bare_kernel, prefetch, prefetch_row, rules
 from openconvoy.envs.vector.math import wrap
 from openconvoy.envs.vector.member import estimate, link_age, pair_gap, speed_gap
 from openconvoy.envs.vector.plant import ACCEL, HEADING, SPEED, YAW_RATE, X, Y, cos_sin
-from openconvoy.envs.vector.trail import T_BASE, finish, head_s, point_at, project
+from openconvoy.envs.vector.trail import T_BASE, finish, point_at, project_head
 
 rules(layout, "to_ego", "ego_state")
 LOOKAHEAD = np.array(LOOKAHEAD_S)
+TG_ROWS = 14
+"""Rows of ``Measures.tg``, the per-target scratch."""
 AHEAD = 4
 """Convoys ahead whose trails and states ``observe`` asks the cache for (``_warm``)."""
 WARM_CRUMBS = 8
@@ -73,10 +75,10 @@ class Sources(NamedTuple):
 class Measures(NamedTuple):
     """What ``observe`` writes besides the observations, (B, N): the desired gap and
     spacing error (m), the predecessor's message age (s), its estimate (2, B, N: arc to
-    its head, m; closing, m/s); and the per-target scratch ``tg`` (13, targets): valid,
-    x, y, speed, heading, arc, cross track × segment length, segment dx, s, desired,
-    segment, segment dy, segment length (``project``'s; ``finish`` turns them into cross
-    track and path heading)."""
+    its head, m; closing, m/s); and the per-target scratch ``tg`` (``TG_ROWS``, targets):
+    valid, x, y, speed, heading, arc, cross track × segment length, segment dx, s,
+    desired, segment, segment dy, segment length (``project``'s; ``finish`` turns them
+    into cross track and path heading), the head's arc coordinate (``head_s``)."""
 
     desired_gap: np.ndarray
     spacing_error: np.ndarray
@@ -145,7 +147,7 @@ def _path(obs, b, f, own, src, tg, m):  # pragma: no cover
     obs[b, f, o] = -cross
     obs[b, f, o + 1] = wrap(pheading - eh)
     scale = max(1.0, abs(ev))
-    s_head = head_s(tail, b, tl, hx, hy)
+    s_head = tg[13, m]  # head_s, as the projection computed it
     for j in range(len(LOOKAHEAD)):
         px, py = point_at(
             trail, tail, trail_n, b, tl, hx, hy, hh, ps + LOOKAHEAD[j] * scale, guess, s_head
@@ -162,6 +164,8 @@ def observe(obs, rows, t, own, src, out):  # pragma: no cover - compiled
     B, F = obs.shape[0], obs.shape[1]
     tg = out.tg
     for b in range(B):
+        if b + 2 * AHEAD < B:
+            _warm_tails(b + 2 * AHEAD, src)
         if b + AHEAD < B and rows[b + AHEAD]:
             _warm(b + AHEAD, src)
         if not rows[b]:
@@ -194,6 +198,19 @@ def observe(obs, rows, t, own, src, out):  # pragma: no cover - compiled
             if chosen == 1:
                 out.pred_est[0, b, i], out.pred_est[1, b, i] = tg[5, 1], tg[3, 1] - ev
             _path(obs, b, f, own, src, tg, chosen)
+
+
+@bare_inline
+def _warm_tails(b, src):  # pragma: no cover
+    """Prefetch convoy ``b``'s trail tails (their first line: the ring's base) and
+    projection hints: what ``_warm`` reads, ``AHEAD`` convoys later, to find the
+    breadcrumbs to fetch (its reads would otherwise wait on memory). No value of its own
+    (held with ``observe``:
+    tests/envs/vector/test_twins_step.py::test_fused_step_and_its_stages_are_convoy_env_step)."""
+    for tl in range(src.tail.shape[1]):
+        prefetch_row(src.tail, b, tl)
+    prefetch_row(src.hint_k, b, 0)
+    prefetch_row(src.trail_n, b, 0)
 
 
 @bare_inline
@@ -247,7 +264,7 @@ def _targets(obs, tg, b, f, t, own, src, lead):  # pragma: no cover - compiled
         tg[1, m], tg[2, m], tg[3, m], tg[4, m] = hx, hy, hv, hh
         desired = _desired(f, m, ev, src.spacing, src.lengths, F, lead)
         tl = src.trail_of[link]
-        arc, s, k, cross_seg, dx, dy, seg = project(
+        arc, s, k, cross_seg, dx, dy, seg, s_head = project_head(
             src.trail, src.tail, src.trail_n, b, tl, hx, hy, hh, ex, ey, desired,
             hint[b, tl], hint_k[b, tl],
         )  # fmt: skip
@@ -257,7 +274,7 @@ def _targets(obs, tg, b, f, t, own, src, lead):  # pragma: no cover - compiled
         o = src.geom[3] + m * 5
         obs[b, f, o], obs[b, f, o + 1], obs[b, f, o + 2] = arc, desired, arc - desired
         obs[b, f, o + 3], obs[b, f, o + 4] = hv, 1.0
-        tg[9, m], tg[10, m] = desired, max(k, 0)
+        tg[9, m], tg[10, m], tg[13, m] = desired, max(k, 0), s_head
         if m >= 1 and chosen < 0:
             chosen = m
     if chosen < 0 and tg[0, 0] != 0.0:

@@ -184,45 +184,61 @@ def _plant_step(pa, cmd_v, cmd_h, dt):  # pragma: no cover - compiled
     ``cmd_v`` (m/s) and ``cmd_h`` (heading change, rad), (n,), through the delays and the
     speed and heading loops; moves ``dt`` (s)."""
     st, inner, queue, p = pa.state, pa.inner, pa.queue, pa.params
-    delay, hdelay = pa.delay, pa.hdelay
     depth = queue.shape[1]
     head = pa.head[0]
     N = p.shape[1]
-    for i in range(st.shape[1]):
-        c = i % N  # the vehicle's slot in its convoy: its constants
-        queue[0, head, i] = cmd_v[i]
-        queue[1, head, i] = st[HEADING, i] + cmd_h[i]
-        vmax = p[VMAX, c]
-        v_cmd = min(max(queue[0, (head - delay[c]) % depth, i], -vmax), vmax)
-        h_cmd = queue[1, (head - hdelay[c]) % depth, i]
-        v = st[SPEED, i]
-        if pa.pi[c]:
-            v_before = min(max(queue[0, (head - delay[c] - 1) % depth, i], -vmax), vmax)
-            dv = _pi_dv(pa, i, c, v_cmd, v_before, v)
-        else:
-            dv = plant.lag_speed_change(v_cmd, v, p[TAU_V, c], p[ACC, c], p[DEC, c], p[BRK, c], dt)
-        v_new = v + dv
-        hd = st[HEADING, i]
-        err = wrap(h_cmd - hd)
-        v_mid = 0.5 * (v + v_new)
-        rate, inner[SLEWED, i] = plant.slewed_yaw_rate(
-            err,
-            v_mid,
-            inner[SLEWED, i],
-            p[TAU_H, c],
-            p[RATE, c],
-            p[KAPPA, c],
-            p[YAW_ACC, c],
-            p[ALAT, c],
-            dt,
-        )
-        h_mid = hd + 0.5 * rate * dt
-        st[X, i] = st[X, i] + v_mid * math.cos(h_mid) * dt
-        st[Y, i] = st[Y, i] + v_mid * math.sin(h_mid) * dt
-        h_new = wrap(hd + rate * dt)
-        st[HEADING, i] = h_new
-        st[COS_H, i], st[SIN_H, i] = math.cos(h_new), math.sin(h_new)
-        st[ACCEL, i] = dv / dt
-        st[YAW_RATE, i] = rate
-        st[SPEED, i] = v_new
-    pa.head[0] = (head + 1) % depth
+    # Vehicle i = b * N + c: convoy b, slot c (its constants). The loops run over b and c
+    # and the queue's slots wrap by a compare (head < depth, delays + 1 < depth), not a
+    # modulo: an integer division per vehicle cost more than the bicycle's arithmetic.
+    for i0 in range(0, st.shape[1], N):
+        for c in range(N):
+            i = i0 + c
+            _vehicle_step(pa, st, inner, queue, p, i, c, head, depth, cmd_v, cmd_h, dt)
+    pa.head[0] = head + 1 if head + 1 < depth else 0
+
+
+@bare_inline
+def _slot(k, depth):  # pragma: no cover - compiled
+    """``k % depth`` for ``-depth <= k < depth`` (a queue slot behind the head)."""
+    return k + depth if k < 0 else k
+
+
+@bare_inline
+def _vehicle_step(pa, st, inner, queue, p, i, c, head, depth, cmd_v, cmd_h, dt):  # pragma: no cover
+    """``_plant_step`` of vehicle ``i`` (slot ``c`` of its convoy; the queue's ``head``)."""
+    delay, hdelay = pa.delay, pa.hdelay
+    queue[0, head, i] = cmd_v[i]
+    queue[1, head, i] = st[HEADING, i] + cmd_h[i]
+    vmax = p[VMAX, c]
+    v_cmd = min(max(queue[0, _slot(head - delay[c], depth), i], -vmax), vmax)
+    h_cmd = queue[1, _slot(head - hdelay[c], depth), i]
+    v = st[SPEED, i]
+    if pa.pi[c]:
+        v_before = min(max(queue[0, _slot(head - delay[c] - 1, depth), i], -vmax), vmax)
+        dv = _pi_dv(pa, i, c, v_cmd, v_before, v)
+    else:
+        dv = plant.lag_speed_change(v_cmd, v, p[TAU_V, c], p[ACC, c], p[DEC, c], p[BRK, c], dt)
+    v_new = v + dv
+    hd = st[HEADING, i]
+    err = wrap(h_cmd - hd)
+    v_mid = 0.5 * (v + v_new)
+    rate, inner[SLEWED, i] = plant.slewed_yaw_rate(
+        err,
+        v_mid,
+        inner[SLEWED, i],
+        p[TAU_H, c],
+        p[RATE, c],
+        p[KAPPA, c],
+        p[YAW_ACC, c],
+        p[ALAT, c],
+        dt,
+    )
+    h_mid = hd + 0.5 * rate * dt
+    st[X, i] = st[X, i] + v_mid * math.cos(h_mid) * dt
+    st[Y, i] = st[Y, i] + v_mid * math.sin(h_mid) * dt
+    h_new = wrap(hd + rate * dt)
+    st[HEADING, i] = h_new
+    st[COS_H, i], st[SIN_H, i] = math.cos(h_new), math.sin(h_new)
+    st[ACCEL, i] = dv / dt
+    st[YAW_RATE, i] = rate
+    st[SPEED, i] = v_new

@@ -262,6 +262,19 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
     where to look for it): (arc to head, s, segment, cross track × seg, dx, dy, seg); the
     cross track and path heading from the last four by ``finish`` (only the target the
     observation uses needs them: an atan2 and a division saved for the others)."""
+    arc, s, k, cross_seg, dx, dy, seg, _ = project_head(
+        tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k
+    )
+    return arc, s, k, cross_seg, dx, dy, seg
+
+
+@bare_inline
+def project_head(
+    tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k
+):  # pragma: no cover
+    """``project``, and the head's arc coordinate (m), ``head_s``'s value, as the last
+    item: the path points after a projection need it, and its square root is a tenth of
+    the observation's latency chain (the same expression: the same bits)."""
     n = n_arr[b, ln]
     to_head = norm(hx - tail[b, ln, 0], hy - tail[b, ln, 1])
     last = n - 1 if to_head > 1e-9 else n - 2
@@ -299,7 +312,7 @@ def project(tr, tail, n_arr, b, ln, hx, hy, hh, x, y, expected, hint, hint_k):  
         near = _segment(tr, tail, b, ln, n, k, hx, hy, hh, s_head, x, y)
     _, s, dx, dy, seg, rx, ry = near
     _reach(tail, b, ln, n, k)
-    return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg
+    return s_head - s, s, k, dx * ry - dy * rx, dx, dy, seg, s_head
 
 
 @bare_inline

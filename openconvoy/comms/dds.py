@@ -149,6 +149,23 @@ def to_sample(data: bytes, vehicle_id: int, t_s: float) -> Any:
 _DOMAINS: dict[int, Any] = {}
 
 
+class Waiter:
+    """Blocks until one of its readers has a sample (a Cyclone ``WaitSet`` on a
+    ``ReadCondition`` per reader): a loop that takes what arrives wakes once per arrival
+    instead of polling."""
+
+    def __init__(self, dp: DomainParticipant, readers: list[DataReader]) -> None:
+        self._ws = WaitSet(dp)
+        mask = SampleState.Any | ViewState.Any | InstanceState.Any
+        self._conditions = [ReadCondition(r, mask) for r in readers]
+        for c in self._conditions:
+            self._ws.attach(c)
+
+    def wait(self, timeout_s: float) -> bool:
+        """Return when a reader has data (True) or after ``timeout_s`` (s; False)."""
+        return bool(self._ws.wait(max(0, int(timeout_s * 1e9))))
+
+
 class DdsTransport:
     """A ``comms.multicast.Transport`` over a ROS 2 topic of DDS domain ``domain_id``, Cyclone
     kept on network interface ``iface`` (``interface_config``); ``vehicle_id`` and ``wall``
@@ -216,18 +233,16 @@ class DdsTransport:
 
     def wait(self, timeout_s: float) -> bool:
         """Block until a sample is waiting or ``timeout_s`` (s) has passed; True if one is
-        (a Cyclone ``WaitSet`` on a ``ReadCondition`` of our reader, as ``bridge.px4dds``'s
-        ``Waiter``: a listener wakes once per arrival instead of polling — the transport has
-        no file descriptor for ``select``). An ``OSError`` when the participant is closed."""
+        (``Waiter`` on our reader: a listener wakes once per arrival instead of polling —
+        the transport has no file descriptor for ``select``). An ``OSError`` when the
+        participant is closed."""
         if self._dp is None:
             raise OSError("V2V DDS participant closed")
         if self._reader is None:
             raise OSError("V2V DDS transport opened with read=False")
         if self._waitset is None:
-            mask = SampleState.Any | ViewState.Any | InstanceState.Any
-            self._waitset = WaitSet(self._dp)
-            self._waitset.attach(ReadCondition(self._reader, mask))
-        return bool(self._waitset.wait(max(0, int(timeout_s * 1e9))))
+            self._waitset = Waiter(self._dp, [self._reader])
+        return self._waitset.wait(timeout_s)
 
     def recv_all(self, max_batch: int = MAX_BATCH) -> list[Datagram]:
         """Samples waiting (at most ``max_batch``), oldest first; bad ones counted, dropped."""

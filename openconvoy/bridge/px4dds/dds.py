@@ -12,22 +12,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from cyclonedds.core import (
-    InstanceState,
-    Policy,
-    Qos,
-    ReadCondition,
-    SampleState,
-    ViewState,
-    WaitSet,
-)
+from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from openconvoy.bridge.px4dds.msgs import topic_base
-from openconvoy.comms.dds import interface_config
+from openconvoy.comms.dds import Waiter, interface_config
 from openconvoy.core.errors import ConfigError
 
 OUT_QOS = Qos(
@@ -130,23 +122,6 @@ class Participant:
             self.dp.__del__()  # cyclonedds has no public delete; this one is idempotent
         self._topics.clear()
         self.dp = None
-
-
-class Waiter:
-    """Blocks until one of its readers has a sample (a Cyclone ``WaitSet`` on a
-    ``ReadCondition`` per reader): a loop that takes what arrives wakes once per arrival
-    instead of polling."""
-
-    def __init__(self, dp: DomainParticipant, readers: list[DataReader]) -> None:
-        self._ws = WaitSet(dp)
-        mask = SampleState.Any | ViewState.Any | InstanceState.Any
-        self._conditions = [ReadCondition(r, mask) for r in readers]
-        for c in self._conditions:
-            self._ws.attach(c)
-
-    def wait(self, timeout_s: float) -> None:
-        """Return when a reader has data or after ``timeout_s`` (s)."""
-        self._ws.wait(int(timeout_s * 1e9))
 
 
 def take_all(reader: DataReader, counter: dict[str, int], key: str, data_type: type) -> list[Any]:

@@ -106,8 +106,7 @@ def stitched_speeds_at(plans: Sequence[Plan], times: np.ndarray) -> np.ndarray:
     """Speeds (m/s) at ``times`` (s), each from the newest of ``plans`` (oldest first,
     at least one) whose ``t0`` is not after it, or from the oldest before them all."""
     times = np.asarray(times, dtype=float)
-    starts = np.array([p.t0 for p in plans])
-    which = np.maximum(np.searchsorted(starts, times, side="right") - 1, 0)
+    which = _newest_index(plans, times)
     out = np.empty(times.shape)
     for k in np.unique(which):
         sel = which == k
@@ -125,17 +124,15 @@ def stitched_distance(plans: Sequence[Plan], t_from: float, t_to: float) -> floa
     total = 0.0
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         # Each piece read from one plan: the one newest at its start.
-        total += _newest_at(plans, a).distance(a, b)
+        total += plans[int(_newest_index(plans, np.array([a]))[0])].distance(a, b)
     return total
 
 
-def _newest_at(plans: Sequence[Plan], t: float) -> Plan:
-    """The newest of ``plans`` (oldest first) with ``t0 <= t``, else the oldest."""
-    best = plans[0]
-    for p in plans:
-        if p.t0 <= t:
-            best = p
-    return best
+def _newest_index(plans: Sequence[Plan], times: np.ndarray) -> np.ndarray:
+    """For each of ``times`` (s), the index of the newest of ``plans`` (oldest first) with
+    ``t0 <= t``, else 0 (the oldest)."""
+    starts = np.array([p.t0 for p in plans])
+    return np.maximum(np.searchsorted(starts, times, side="right") - 1, 0)
 
 
 class PlanStore:

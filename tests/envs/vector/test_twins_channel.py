@@ -212,6 +212,22 @@ tick_sends = st.lists(st.tuples(st.lists(st.booleans(), min_size=6, max_size=6),
 """Per tick: who broadcasts and every vehicle's state (the first ``n`` of each used)."""
 
 
+def _scalar_tick(sc, ref, sends: list[bool], states: list[tuple[float, ...]], t: float) -> None:
+    """The scalar side of a tick at ``t`` (s): ``Channel.send`` of each broadcast, then
+    ``Channel.deliver`` into the reference buffers."""
+    for s, (sending, state) in enumerate(zip(sends, states, strict=True)):
+        if sending:
+            sc.send(s, _state(s, t, state), t)
+    ref.take(sc.deliver(t))
+
+
+def _assert_same(ch, sc, ref, rx, links, all_pairs: bool) -> None:
+    """The batched channel's counters, kept counts and R^i buffers are the scalar ones."""
+    assert_counted(ch, sc, links, all_pairs)
+    assert ch.msgs_kept[0].tolist() == ref.kept
+    assert_buffers_equal(rx, ref)
+
+
 @FEW
 @given(
     st.integers(2, 6),
@@ -258,15 +274,10 @@ def test_instant_delivery_is_channel_send_and_deliver(
             vchannel._bernoulli(ch.draws, ch.send, ch.pairs, rows, ch.lost)
             vchannel._deliver(ch.sent, ch.pairs, rows, tt, own, ch.counts, rx.pushed, True)
             ch.broadcasts += ch.send
-        for s in range(n):
-            if sends[s]:
-                sc.send(s, _state(s, t, states[s]), t)
-        ref.take(sc.deliver(t))
-        assert_counted(ch, sc, links, all_pairs)
-        assert ch.msgs_kept[0].tolist() == ref.kept
+        _scalar_tick(sc, ref, sends[:n], states[:n], t)
+        _assert_same(ch, sc, ref, rx, links, all_pairs)
         others = 1 - np.eye(n, dtype=np.int64)
         np.testing.assert_array_equal(sc.sent, ch.broadcasts[0][:, None] * others)
-        assert_buffers_equal(rx, ref)
 
 
 @FEW
@@ -324,13 +335,8 @@ def test_delayed_delivery_is_channel_send_and_deliver(
         vchannel._deliver(ch.sent, ch.pairs, rows, tt, own, ch.counts, rx.pushed, instant)
         if not instant:
             vchannel._arrive(step, tt, ch.flight, ch.pairs, ch.counts, rx.pushed)
-        for s in range(n):
-            if sends[s]:
-                sc.send(s, _state(s, t, states[s]), t)
-        ref.take(sc.deliver(t))
-        assert_counted(ch, sc, links, all_pairs)
-        assert ch.msgs_kept[0].tolist() == ref.kept
-        assert_buffers_equal(rx, ref)
+        _scalar_tick(sc, ref, sends[:n], states[:n], t)
+        _assert_same(ch, sc, ref, rx, links, all_pairs)
     assert sc.in_flight == 0
 
 
